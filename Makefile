@@ -1,0 +1,30 @@
+# Set-up is real: a fresh machine with Python 3.11 and pip runs `make demo` and `make test`.
+PY ?= python3.11
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test test-full bench clean
+
+$(BIN)/python:
+	$(PY) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[test]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/workbench demo --out out/demo --json out/demo/summary.json
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-full: $(STAMP)
+	WORKBENCH_FULL=1 $(BIN)/python -m pytest -q
+
+bench: $(STAMP)
+	$(BIN)/workbench bench --json out/bench.json
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

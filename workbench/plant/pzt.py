@@ -1,0 +1,122 @@
+"""The electromechanical PZT of seed 000 Fig. 3 (eqs. 1-5, 9).
+
+Circuit: V_pea drives the series resistor R (with the amplifier's current limit),
+then the hysteretic capacitance C_h (q = C_h(V_h), a PI operator), then the working
+capacitance C_p, whose voltage V_p makes the piezo force F_p = T_em V_p. The
+environmental force F_e and F_p act on the mechanical impedance M, here the stack
+spring 1/k_p with optional modes.
+
+Elimination used by the simulator (quasi-static spring, M = 1/k_p):
+x = (F_e + T_em V_p)/k_p and V_p = (q - T_em x)/C_p (eq. 9) give
+V_p = (q - T_em F_e/k_p) / C_pp with C_pp = C_p + T_em^2/k_p, so the charge sees
+C_h in series with C_pp. The terminal voltage V_t = V_h + V_p is then a PI operator
+of the hysteretic charge q_h:
+
+    V_t = G[q_h] + (Q_c - T_em F_e/k_p)/C_pp,   G = C_h^{-1} + (1/C_pp) I,
+
+with Q_c the charge in the creep branches. G is a PI operator too (the exact
+inverse of C_h plus a linear term), so the dynamic form integrates
+R dq_h/dt = V_pea - V_t exactly over each step on the local slope of G, and the
+quasi-static form (R = 0) applies G^{-1} to V_pea directly.
+
+Modes filter the quasi-static displacement (unit DC gain); the charge the modal
+motion would induce through T_em is not fed back. At the 70 kHz stack mode and any
+servo rate below it that is far below the resolution that matters; a structural
+mode near the loop's crossover should be modelled with care (see README).
+"""
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .creep import CreepParams
+from .hysteresis import PrandtlIshlinskii
+
+__all__ = ["Mode", "PZTParams"]
+
+
+@dataclass(frozen=True)
+class Mode:
+    """A mechanical mode of M(s): a unit-DC-gain second-order section."""
+
+    freq_hz: float
+    damping_ratio: float
+
+    def __post_init__(self):
+        if not (self.freq_hz > 0 and 0 < self.damping_ratio <= 1):
+            raise ValueError(f"mode needs freq_hz > 0 and 0 < damping_ratio <= 1; got {self}")
+
+
+@dataclass(frozen=True)
+class PZTParams:
+    """Parameters of the Fig. 3 model, all SI.
+
+    Parameters
+    ----------
+    series_resistance_ohm : float
+        R; 0 selects the quasi-static form (no RC dynamics, no current limit).
+    current_limit_source_a, current_limit_sink_a : float
+        Amplifier current limits, A, both given as positive magnitudes.
+    voltage_min_v, voltage_max_v : float
+        Amplifier output range, V; commands outside are clipped.
+    working_capacitance_f : float
+        C_p, F.
+    transducer_constant_n_per_v : float
+        T_em, N/V (= C/m).
+    stiffness_n_per_m : float
+        k_p, N/m.
+    hysteresis : PrandtlIshlinskii
+        C_h: charge (C) as a PI operator of V_h (V).
+    modes : tuple of Mode
+        Optional mechanical modes.
+    creep : CreepParams or None
+        Optional creep branches across C_h.
+    """
+
+    series_resistance_ohm: float
+    current_limit_source_a: float
+    current_limit_sink_a: float
+    voltage_min_v: float
+    voltage_max_v: float
+    working_capacitance_f: float
+    transducer_constant_n_per_v: float
+    stiffness_n_per_m: float
+    hysteresis: PrandtlIshlinskii
+    modes: tuple = field(default=())
+    creep: CreepParams | None = None
+
+    def __post_init__(self):
+        if self.series_resistance_ohm < 0:
+            raise ValueError("series_resistance_ohm must be >= 0")
+        for name in ("current_limit_source_a", "current_limit_sink_a", "working_capacitance_f",
+                     "transducer_constant_n_per_v", "stiffness_n_per_m"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive; got {getattr(self, name)}")
+        if not self.voltage_min_v < self.voltage_max_v:
+            raise ValueError("voltage_min_v must be below voltage_max_v")
+
+    @property
+    def c_pp_f(self):
+        """C_p + T_em^2 / k_p, F: the working branch with the spring eliminated."""
+        t = self.transducer_constant_n_per_v
+        return self.working_capacitance_f + t * t / self.stiffness_n_per_m
+
+    @property
+    def k_q2x_m_per_c(self):
+        """Seed eq. 10: x / q = T_em / (k_p C_p + T_em^2), m/C."""
+        t = self.transducer_constant_n_per_v
+        return t / (self.stiffness_n_per_m * self.working_capacitance_f + t * t)
+
+    @property
+    def open_circuit_stiffness_n_per_m(self):
+        """k_p + T_em^2 / C_p: the stack's stiffness with its terminals open."""
+        t = self.transducer_constant_n_per_v
+        return self.stiffness_n_per_m + t * t / self.working_capacitance_f
+
+    def terminal_operator(self):
+        """G = C_h^{-1} + (1/C_pp) I: terminal voltage as a PI operator of q_h."""
+        return self.hysteresis.inverse().plus_linear(1.0 / self.c_pp_f)
+
+    def with_resistance(self, resistance_ohm):
+        from dataclasses import replace
+        return replace(self, series_resistance_ohm=float(resistance_ohm))

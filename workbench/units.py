@@ -1,0 +1,67 @@
+"""SI conventions and conversions at the edges (CLI flags, tables, reports).
+
+Inside the package every quantity is SI: m, V, A, C, F, N, s, ohm. Strings such as
+``"7.5um"`` or ``"2 mA"`` are parsed only here.
+"""
+
+import re
+
+from .errors import UnitError
+
+__all__ = ["PREFIXES", "parse_quantity", "scale_of"]
+
+PREFIXES = {"": 1.0, "p": 1e-12, "n": 1e-9, "u": 1e-6, "µ": 1e-6, "μ": 1e-6,
+            "m": 1e-3, "k": 1e3, "M": 1e6, "G": 1e9}
+
+_BASE_UNITS = ("m", "V", "A", "C", "F", "N", "s", "ohm", "Hz")
+_QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\s\d].*)?$")
+
+
+def scale_of(unit, expected):
+    """Return the factor that converts ``unit`` (e.g. ``"um"``) to the SI unit ``expected``.
+
+    Parameters
+    ----------
+    unit : str
+        Unit with an optional SI prefix: ``"um"``, ``"mA"``, ``"kHz"``.
+    expected : str
+        SI base unit the value must have: one of m, V, A, C, F, N, s, ohm, Hz.
+
+    Raises
+    ------
+    UnitError
+        If ``unit`` is not ``expected`` with a known prefix.
+    """
+    if expected not in _BASE_UNITS:
+        raise UnitError(f"unknown base unit {expected!r}; known: {', '.join(_BASE_UNITS)}")
+    unit = unit.strip()
+    if unit.endswith(expected):
+        prefix = unit[: len(unit) - len(expected)]
+        if prefix in PREFIXES:
+            return PREFIXES[prefix]
+    raise UnitError(f"unit {unit!r} is not {expected!r} with an SI prefix "
+                    f"({', '.join(p or '(none)' for p in PREFIXES)}); "
+                    f"write for example '7.5u{expected}'")
+
+
+def parse_quantity(text, expected):
+    """Parse ``"7.5um"`` into 7.5e-6 (SI), checking the unit is ``expected``.
+
+    A bare number is taken as already SI.
+
+    Examples
+    --------
+    >>> parse_quantity("7.5um", "m")
+    7.5e-06
+    >>> parse_quantity("2 mA", "A")
+    0.002
+    """
+    match = _QUANTITY.match(str(text))
+    if not match:
+        raise UnitError(f"cannot read {text!r} as a quantity in {expected}; "
+                        f"write a number with a unit, for example '7.5u{expected}'")
+    value = float(match.group(1))
+    unit = match.group(2)
+    if unit is None:
+        return value
+    return value * scale_of(unit, expected)
