@@ -32,6 +32,13 @@ def scale_of(unit, expected):
     UnitError
         If ``unit`` is not ``expected`` with a known prefix.
     """
+    if "/" in expected:
+        num, den = expected.split("/", 1)
+        if "/" not in unit:
+            raise UnitError(f"unit {unit!r} is not {expected!r} with SI prefixes; write for example "
+                            f"'200{num}/u{den}'")
+        unum, uden = unit.split("/", 1)
+        return scale_of(unum, num) / scale_of(uden, den)
     if expected not in _BASE_UNITS:
         raise UnitError(f"unknown base unit {expected!r}; known: {', '.join(_BASE_UNITS)}")
     unit = unit.strip()

@@ -225,6 +225,10 @@ def load_plant(path):
         ch = PrandtlIshlinskii(hy["thresholds_v"], hy["weights_f"], hy["initial_states_v"])
     except ValueError as err:
         raise PlantDefinitionError(path, "hysteresis", f"{err}") from err
+    if not ch.states_admissible():
+        raise PlantDefinitionError(path, "hysteresis.initial_states_v",
+                                   f"got {hy['initial_states_v'].tolist()}; no input history leaves the plays "
+                                   f"there (need |z_i - z_j| <= |r_i - r_j|); use zeros for a stack at rest")
 
     creep = None
     if "creep" in sections:

@@ -35,7 +35,7 @@ from scipy.optimize import brentq
 
 __all__ = ["GaugeParams", "arm_resistances", "bridge_output", "bridge_output_eq27", "bridge_gain",
            "bridge_gain_eq28_printed", "four_probe_measure", "four_probe_solve", "chain_gain",
-           "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim"]
+           "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim", "gauge_summary"]
 
 ARMS = ("W-Y", "G-B", "Y-G", "W-B")
 
@@ -293,3 +293,35 @@ def design_trim(g, x_center_m=7.5e-6):
     scale = 1.0 / (g.calibration_m_per_v * per_m)
     demod_center = g.demodulation_gain * g.amplifier_gain * float(bridge_output(x_center_m, g))
     return scale, -scale * demod_center
+
+
+def gauge_summary(plant, x0_m=7.5e-6):
+    """The numbers ``workbench gauge`` reports, as a JSON-ready dict (SI, keys name units).
+
+    ``bias_v`` is the bridge output at zero displacement caused by the arm imbalance
+    (eq. 26 at x = 0); ``chain_bias_v`` is the same after the amplifier and the
+    demodulation, ``firmware_v_at_zero`` after the trim as well.
+    """
+    g = plant.gauge
+    h = 1e-9
+    numeric = float((bridge_output(x0_m + h, g) - bridge_output(x0_m - h, g)) / (2 * h))
+    bias = float(bridge_output(0.0, g))
+    chain_bias = bias * g.amplifier_gain * g.demodulation_gain
+    chain = chain_gain(x0_m, g)
+    return {
+        "plant": plant.source,
+        "x0_m": x0_m,
+        "bridge_v_per_m": bridge_gain(x0_m, g),
+        "bridge_v_per_m_eq26_with_imbalance": numeric,
+        "bridge_v_per_m_eq28_as_printed": bridge_gain_eq28_printed(x0_m, g),
+        "chain_v_per_m": chain,
+        "chain_v_per_m_before_trim": chain / g.trim_scale,
+        "trim": {"scale": g.trim_scale, "bias_v": g.trim_bias_v},
+        "bias_v": bias,
+        "chain_bias_v": chain_bias,
+        "firmware_v_at_zero": g.trim_scale * chain_bias + g.trim_bias_v,
+        "calibration_um_per_v": g.calibration_m_per_v * 1e6,
+        "calibration_implied_um_per_v": 1e6 / chain,
+        "delay_s": 0.5 / g.modulation_hz,
+        "adc_lsb_v": 2 * g.adc_range_v / 2 ** g.adc_bits,
+    }

@@ -186,6 +186,17 @@ class PrandtlIshlinskii:
         z = self.initial_states if states is None else np.asarray(states, float)
         return pi_slope(z, self.thresholds, self.weights, float(v), int(np.sign(direction)))
 
+    def states_admissible(self, states=None, tol=1e-12):
+        """True when the states could result from some input history.
+
+        Reachable play states form a 1-Lipschitz memory curve over the thresholds:
+        |z_i - z_j| <= r_j - r_i. Only such states map onto the inverse operator.
+        """
+        z = self.initial_states if states is None else np.asarray(states, float)
+        r = self.thresholds
+        gap = np.abs(z[:, None] - z[None, :]) - np.abs(r[:, None] - r[None, :])
+        return bool(np.all(gap <= tol * (1 + np.abs(z).max() + r.max())))
+
     def inverse(self):
         """The exact inverse operator (Kuhnen 2003), itself a PI operator.
 
@@ -204,6 +215,9 @@ class PrandtlIshlinskii:
         r, w, z = self.thresholds, self.weights, self.initial_states
         if not self.check_invertible:
             raise ValueError("operator was built without the invertibility checks")
+        if not self.states_admissible():
+            raise ValueError(f"initial states {z.tolist()} cannot result from any input history "
+                             f"(need |z_i - z_j| <= |r_i - r_j|); the inverse is defined only for such states")
         W = np.cumsum(w)
         r_inv = np.array([np.sum(w[: i + 1] * (r[i] - r[: i + 1])) for i in range(r.size)])
         w_inv = np.empty_like(w)

@@ -1,0 +1,184 @@
+"""Command line: parses arguments, calls library functions, writes results. Nothing more.
+
+Every command that computes something takes ``--json PATH``; errors caused by the
+user's input print one clear message and exit with status 2, without a traceback.
+"""
+
+import argparse
+import sys
+from pathlib import Path
+
+from .errors import WorkbenchError
+from .units import parse_quantity
+
+__all__ = ["main"]
+
+
+def _quantity(expected):
+    def parse(text):
+        try:
+            return parse_quantity(text, expected)
+        except WorkbenchError as err:
+            raise argparse.ArgumentTypeError(str(err)) from err
+    parse.__name__ = f"quantity in {expected}"
+    return parse
+
+
+def _positive_int(text):
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
+    return value
+
+
+def _emit(args, data, lines):
+    from .report import write_json
+    for line in lines:
+        print(line)
+    if getattr(args, "json", None):
+        write_json(args.json, data)
+        print(f"wrote {args.json}")
+
+
+def cmd_gauge(args):
+    from .plant import load_plant
+    from .plant.gauge import gauge_summary
+    plant = load_plant(args.plant)
+    data = gauge_summary(plant, args.x0)
+    _emit(args, data, [
+        f"{plant.name}: gauge chain at x0 = {args.x0 * 1e6:g} um",
+        f"  bridge gain      {data['bridge_v_per_m']:.2f} V/m (seed eq. 28 corrected: 354.18 V/m at 7.5 um)",
+        f"  chain gain       {data['chain_v_per_m']:.1f} V/m after x{plant.gauge.amplifier_gain:g}, "
+        f"x{plant.gauge.demodulation_gain:g} and trim {plant.gauge.trim_scale:g}",
+        f"  implied calibration {data['calibration_implied_um_per_v']:.4f} um/V "
+        f"(plant file: {data['calibration_um_per_v']:.3f} um/V)",
+        f"  bias at x = 0    {data['bias_v'] * 1e3:.4f} mV at the bridge, {data['chain_bias_v']:.4f} V after "
+        f"amplifier and demodulation, {data['firmware_v_at_zero']:.4f} V after trim",
+    ])
+
+
+def cmd_identify_transducer(args):
+    from .identify.transducer import identify_transducer
+    res = identify_transducer(args.table, stiffness_n_per_m=args.stiffness)
+    data = res.to_json()
+    lines = [f"T_em = {data['t_em_n_per_v']:.2f} N/V over {len(data['runs_used'])} runs "
+             f"(seed: {data.get('seed_t_em_n_per_v', 46.71)} N/V)",
+             f"stiffness from R-in runs: {data['stiffness_from_r_in_n_per_um']:.1f} N/um "
+             f"(k_p used: {args.stiffness / 1e6:g} N/um)"]
+    for flag in data["runs_flagged"]:
+        lines.append(f"  flagged {flag['serial']} run {flag['run']} {flag['config']}: {flag['reason']}")
+    _emit(args, data, lines)
+
+
+def cmd_freefree(args):
+    from .identify.freefree import plot_freefree, run_freefree
+    from .plant import load_plant
+    from .report import save_figure
+    plant = load_plant(args.plant)
+    res = run_freefree(plant, v_peak_v=args.v_peak, freq_hz=args.freq, cycles=args.cycles)
+    data = {"plant": str(args.plant), **res.summary()}
+    if args.out:
+        fig_path = Path(args.out) / "freefree.png"
+        save_figure(plot_freefree(res, f"{plant.name}: free-free test (seed 000 sec. 3.3)"), fig_path)
+        data["figure"] = str(fig_path)
+    _emit(args, data, [
+        f"{plant.name}: free-free 0-{args.v_peak:g} V at {args.freq:g} Hz",
+        f"  stroke at peak   {res.stroke_m * 1e6:.2f} um",
+        f"  V_h / V_pea      {res.v_h_over_v_pea:.3f}",
+        f"  hysteresis of x  {100 * res.hysteresis_x_fraction:.1f} % of stroke",
+        f"  C_h secant       {res.ch_secant_f * 1e6:.1f} uF (rest to peak)",
+        f"  C_p by eqs. 10-12 {res.cp_recovered_f * 1e6:.4f} uF (plant {res.cp_true_f * 1e6:.4f} uF, "
+        f"{100 * (res.cp_recovered_f / res.cp_true_f - 1):+.3f} %)",
+    ] + ([f"  figure           {data['figure']}"] if args.out else []))
+
+
+def cmd_bench(args):
+    from .bench import run_bench
+    data = run_bench(args.plant, steps=args.steps, reference_steps=args.reference_steps, progress=print)
+    _emit(args, data, [
+        f"{data['steps']} steps of {data['model']}: {data['seconds']:.3f} s, "
+        f"{data['steps_per_second']:.3e} steps/s (compile excluded)",
+        f"python-control input_output_response: {data['python_control_steps_per_second']:.3e} steps/s "
+        f"over {data['python_control_steps']} steps; ratio {data['ratio_vs_python_control']:.0f}x",
+    ])
+
+
+def cmd_demo(args):
+    from .demo import run_demo
+    data = run_demo(Path(args.out), progress=print)
+    _emit(args, data, [])
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="workbench", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("gauge", help="strain-gauge chain gains and bias at an operating point",
+                       description="Bridge gain (eq. 28, corrected), chain gain after amplifier, "
+                                   "demodulation and trim, and the bias from the arm imbalance.")
+    p.add_argument("plant", type=Path, help="plant file, e.g. plants/p888_51_sn637.toml")
+    p.add_argument("--x0", type=_quantity("m"), default=7.5e-6, help="operating displacement, e.g. 7.5um")
+    p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.set_defaults(func=cmd_gauge)
+
+    p = sub.add_parser("identify", help="identify model parameters from test data")
+    isub = p.add_subparsers(dest="what", required=True, metavar="WHAT")
+    q = isub.add_parser("transducer", help="T_em by eq. 6 from the Instron runs (Table 1)",
+                        description="T_em by eq. 6 over the runs that pass the consistency checks; "
+                                    "every run that disagrees is listed with the reason.")
+    q.add_argument("table", type=Path, help="e.g. plants/data/p888_51_instron_table1.csv")
+    q.add_argument("--stiffness", type=_quantity("N/m"), default=2.0e8,
+                   help="k_p in N/m (default 2e8 = 200 N/um, the spec sheet)")
+    q.add_argument("--json", type=Path, help="write the results as JSON here")
+    q.set_defaults(func=cmd_identify_transducer)
+
+    p = sub.add_parser("freefree", help="simulated free-free test and eqs. 7-12",
+                       description="Simulate seed 000's free-free test (0-V sine from rest, R out) and "
+                                   "recover C_p by eqs. 10-12 from the gauge-read displacement.")
+    p.add_argument("plant", type=Path)
+    p.add_argument("--v-peak", type=_quantity("V"), default=100.0, help="sine peak, default 100V")
+    p.add_argument("--freq", type=_quantity("Hz"), default=0.1, help="sine frequency, default 0.1Hz")
+    p.add_argument("--cycles", type=_positive_int, default=2, help="periods from rest, default 2")
+    p.add_argument("--out", type=Path, help="folder for the figure")
+    p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.set_defaults(func=cmd_freefree)
+
+    p = sub.add_parser("bench", help="steps per second of the compiled PZT against python-control",
+                       description="Time the compiled SN637 model (dynamic form, creep) and the same "
+                                   "step function under python-control's input_output_response.")
+    p.add_argument("--plant", type=Path, default=Path("plants/p888_51_sn637_creep.toml"))
+    p.add_argument("--steps", type=_positive_int, default=10_000_000, help="compiled steps (default 1e7)")
+    p.add_argument("--reference-steps", type=_positive_int, default=2000,
+                   help="steps for the python-control reference (default 2000)")
+    p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("demo", help="the default job: seed reproductions with figures",
+                       description="Gauge gains, T_em from Table 1, the free-free test on the three "
+                                   "serials, creep, and the gauge chain's sampled behaviour, with figures.")
+    p.add_argument("--out", type=Path, default=Path("out/demo"))
+    p.add_argument("--json", type=Path, help="write the summary as JSON here")
+    p.set_defaults(func=cmd_demo)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        args.func(args)
+    except WorkbenchError as err:
+        print(f"workbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    except ValueError as err:
+        # library argument checks (plain ValueError) are user errors at this level too
+        print(f"workbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
