@@ -58,7 +58,7 @@ def parse_quantity(text, expected):
 
     Examples
     --------
-    >>> parse_quantity("7.5um", "m")
+    >>> round(parse_quantity("7.5um", "m"), 12)
     7.5e-06
     >>> parse_quantity("2 mA", "A")
     0.002

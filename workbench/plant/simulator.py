@@ -59,10 +59,12 @@ class PZTSimulator:
 
     Examples
     --------
+    >>> from pathlib import Path
     >>> from workbench.plant import load_plant
-    >>> sim = PZTSimulator(load_plant("plants/p888_51_sn637.toml").pzt, 1e-4)
-    >>> traj = sim.run(np.full(2000, 100.0))
-    >>> 14e-6 < traj.x_m[-1] < 18e-6
+    >>> plants = Path(__file__).resolve().parents[2] / "plants"
+    >>> sim = PZTSimulator(load_plant(plants / "p888_51_sn637.toml").pzt, 1e-4)
+    >>> traj = sim.run(np.full(10000, 100.0))   # 1 s: the 2 mA limit slews for ~0.5 s
+    >>> bool(14e-6 < traj.x_m[-1] < 18e-6)
     True
     """
 

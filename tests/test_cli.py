@@ -1,0 +1,79 @@
+"""The command line: every command answers --help, writes --json, and refuses bad input with status 2."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from workbench.cli import main
+
+COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"]]
+
+
+@pytest.mark.parametrize("cmd", COMMANDS)
+def test_help(cmd, capsys):
+    with pytest.raises(SystemExit) as err:
+        main(cmd + ["--help"])
+    assert err.value.code == 0
+    assert "usage: workbench" in capsys.readouterr().out
+
+
+def test_gauge_json(tmp_path, root):
+    out = tmp_path / "g.json"
+    assert main(["gauge", str(root / "plants/p888_51_sn637.toml"), "--x0", "7.5um", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["bridge_v_per_m"] == pytest.approx(354.18, abs=0.01)
+    assert {"chain_v_per_m", "bias_v"} <= data.keys()
+
+
+def test_identify_transducer_json(tmp_path, root):
+    out = tmp_path / "t.json"
+    assert main(["identify", "transducer", str(root / "plants/data/p888_51_instron_table1.csv"),
+                 "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert {"t_em_n_per_v", "runs_used", "runs_flagged", "stiffness_from_r_in_n_per_um"} <= data.keys()
+    assert data["t_em_n_per_v"] == pytest.approx(46.71, rel=0.015)
+    assert [(f["serial"], f["run"], f["config"]) for f in data["runs_flagged"]] == [("SN618", 3, "R_out")]
+
+
+def test_freefree_json_and_figure(tmp_path, root):
+    out = tmp_path / "ff"
+    assert main(["freefree", str(root / "plants/p888_51_sn629.toml"), "--cycles", "1", "--out", str(out),
+                 "--json", str(out / "ff.json")]) == 0
+    data = json.loads((out / "ff.json").read_text())
+    assert (out / "freefree.png").stat().st_size > 10_000
+    assert 0.08 < data["hysteresis_x_percent_of_stroke"] / 100 < 0.15
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["gauge", "plants/missing.toml"], "cannot be read"),
+    (["gauge", "plants/p888_51_sn637.toml", "--x0", "7.5parsec"], "is not 'm' with an SI prefix"),
+    (["freefree", "plants/p888_51_sn637.toml", "--v-peak", "500V"], "v_peak_v must be in"),
+    (["identify", "transducer", "plants/p888_51_sn637.toml"], "p888_51_sn637.toml"),
+    (["bench", "--steps", "0"], "must be >= 1"),
+])
+def test_bad_input_exits_2_without_traceback(argv, fragment, root, monkeypatch, capsys):
+    monkeypatch.chdir(root)
+    try:
+        code = main(argv)
+    except SystemExit as err:   # argparse's own errors
+        code = err.code
+    err = capsys.readouterr().err
+    assert code == 2
+    assert fragment in err and "Traceback" not in err
+
+
+def test_module_entry_point(root):
+    done = subprocess.run([sys.executable, "-m", "workbench", "gauge", "plants/p888_51_sn618.toml"],
+                          cwd=root, capture_output=True, text=True, check=False)
+    assert done.returncode == 0 and "bridge gain" in done.stdout
+
+
+def test_bench_smoke(tmp_path, root, monkeypatch):
+    # a short run of the benchmark's machinery (the figures themselves come from `workbench bench`)
+    monkeypatch.chdir(root)
+    out = tmp_path / "b.json"
+    assert main(["bench", "--steps", "20000", "--reference-steps", "50", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["steps_per_second"] > 0 and data["ratio_vs_python_control"] > 0
