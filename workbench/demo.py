@@ -53,11 +53,14 @@ def _plot_creep(tr, fit, title):
     ax[0].set_ylabel("x [um]")
     ax[0].legend(fontsize=8)
     ax[0].set_title("Creep after a 0-100 V step (log time)")
-    resid = tr.x_m[keep] - log_creep(tr.t_s[keep], fit.l0, fit.gamma)
-    ax[1].semilogx(tr.t_s[keep], resid * 1e9)
+    ax[0].axvspan(tr.t_s[keep][0], 1.0, color="0.9", label="slew at the 2 mA limit (not fitted)")
+    ax[0].legend(fontsize=8)
+    late = tr.t_s >= 1.0
+    resid = tr.x_m[late] - log_creep(tr.t_s[late], fit.l0, fit.gamma)
+    ax[1].semilogx(tr.t_s[late], resid * 1e9)
     ax[1].set_xlabel("time since the step [s]")
     ax[1].set_ylabel("residual [nm]")
-    ax[1].set_title("Departure from the logarithmic law")
+    ax[1].set_title("Departure from the logarithmic law (fit window)")
     for a in ax:
         a.grid(alpha=0.3, which="both")
     fig.suptitle(title)
