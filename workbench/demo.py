@@ -99,16 +99,16 @@ def _plot_gauge(plant, title):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .plant import bridge_output, gauge_run, gauge_run_equivalent
+    from .plant import bridge_gain, bridge_output, gauge_run, gauge_run_equivalent
     from .plant.gauge import bridge_output_eq27
     g = plant.gauge
     fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
     x = np.linspace(-3e-6, 18e-6, 200)
-    lin = bridge_output_eq27(x, g)
-    ax[0].plot(x * 1e6, (bridge_output(x, g) - x * 354.32) * 1e6, label="eq. 26 with imbalance - linear")
-    ax[0].plot(x * 1e6, (lin - x * 354.32) * 1e6, label="eq. 27 (no imbalance) - linear")
+    k0 = bridge_gain(0.0, g)
+    ax[0].plot(x * 1e6, (bridge_output(x, g) - x * k0) * 1e6, label="eq. 26 with imbalance - linear")
+    ax[0].plot(x * 1e6, (bridge_output_eq27(x, g) - x * k0) * 1e6, label="eq. 27 (no imbalance) - linear")
     ax[0].set_xlabel("x [um]")
-    ax[0].set_ylabel("bridge output minus 354.32 V/m x [uV]")
+    ax[0].set_ylabel(f"bridge output minus {k0:.2f} V/m x [uV]")
     ax[0].set_title("Bridge nonlinearity and imbalance")
     ax[0].legend(fontsize=8)
     n = 40

@@ -37,9 +37,6 @@ __all__ = ["GaugeParams", "arm_resistances", "bridge_output", "bridge_output_eq2
            "bridge_gain_eq28_printed", "four_probe_measure", "four_probe_solve", "chain_gain",
            "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim", "gauge_summary"]
 
-ARMS = ("W-Y", "G-B", "Y-G", "W-B")
-
-
 @dataclass(frozen=True)
 class GaugeParams:
     """The gauge chain, SI. ``imbalance_ohm`` is (W-Y, G-B, Y-G, W-B)."""

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-__all__ = ["PrandtlIshlinskii", "play", "play_step", "pi_step", "pi_slope", "pi_output"]
+__all__ = ["PrandtlIshlinskii", "play", "play_step", "pi_step", "pi_slope"]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -46,15 +46,6 @@ def pi_step(z, r, w, v):
         zi = play_step(z[i], r[i], v)
         z[i] = zi
         y += w[i] * zi
-    return y
-
-
-@njit(cache=True, error_model="numpy")
-def pi_output(z, w):
-    """Output of a PI operator at its current state, without moving it."""
-    y = 0.0
-    for i in range(z.shape[0]):
-        y += w[i] * z[i]
     return y
 
 
