@@ -7,7 +7,8 @@ from hypothesis import strategies as st
 
 from workbench.plant import (bridge_gain, bridge_output, four_probe_measure, four_probe_solve, gauge_run,
                              gauge_run_equivalent)
-from workbench.plant.gauge import bridge_gain_eq28_printed, bridge_output_eq27, gauge_summary
+from workbench.plant.gauge import (bridge_gain_eq28_printed, bridge_output_eq27, displacement_from_reading,
+                                   gauge_summary)
 
 
 def test_bridge_gain_at_7_5_um_is_the_seeds(sn637):
@@ -74,7 +75,7 @@ def test_sampled_chain_delays_by_half_a_period(sn637):
     slope = 1e-6 / 1e-4                                  # 1 um per period
     x = 7.5e-6 + slope * 1e-4 * np.arange(1, 21)
     r = gauge_run(x, g, x_prev_m=7.5e-6, noise=False)
-    reading = (g.trim_scale * r.demod_v + g.trim_bias_v) * g.calibration_m_per_v + 7.5e-6
+    reading = displacement_from_reading(r.demod_v, g)
     lag = (x - reading) / slope
     assert np.median(lag[5:]) == pytest.approx(0.5 / g.modulation_hz, rel=0.02)
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..plant.gauge import gauge_run_equivalent
+from ..plant.gauge import displacement_from_reading, gauge_run_equivalent
 from ..plant.simulator import PZTSimulator
 
 __all__ = ["FreeFreeResult", "estimate_k_q2x", "estimate_cp", "hysteresis_fraction", "run_freefree",
@@ -142,7 +142,7 @@ def run_freefree(plant, *, v_peak_v=100.0, freq_hz=0.1, cycles=2, sample_hz=None
     # read the displacement through the gauge chain and the serial's calibration
     g = plant.gauge
     reading = gauge_run_equivalent(tr.x_m, g, seed=seed)
-    x_meas = (g.trim_scale * reading.demod_v + g.trim_bias_v) * g.calibration_m_per_v + 7.5e-6
+    x_meas = displacement_from_reading(reading.demod_v, g)
     t_em, k_p = params.transducer_constant_n_per_v, params.stiffness_n_per_m
     kq = estimate_k_q2x(tr.q_c, x_meas)
     cp = estimate_cp(kq, t_em, k_p)

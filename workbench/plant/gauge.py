@@ -35,7 +35,8 @@ from scipy.optimize import brentq
 
 __all__ = ["GaugeParams", "arm_resistances", "bridge_output", "bridge_output_eq27", "bridge_gain",
            "bridge_gain_eq28_printed", "four_probe_measure", "four_probe_solve", "chain_gain",
-           "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim", "gauge_summary"]
+           "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim", "gauge_summary",
+           "displacement_from_reading", "TRIM_CENTER_M"]
 
 @dataclass(frozen=True)
 class GaugeParams:
@@ -279,7 +280,19 @@ def gauge_run_equivalent(x_m, g, x_prev_m=0.0, seed=0, noise=True):
     return GaugeReading(dem, dac)
 
 
-def design_trim(g, x_center_m=7.5e-6):
+TRIM_CENTER_M = 7.5e-6  # the seed's x0: mid-stroke, where design_trim puts 0 firmware volts
+
+
+def displacement_from_reading(demod_v, g, x_center_m=TRIM_CENTER_M):
+    """Displacement, m, that firmware infers from demodulated volts: trim, then calibration.
+
+    The inverse of the trim :func:`design_trim` makes: firmware volts times the serial's
+    calibration, plus the displacement the trim maps to 0 V.
+    """
+    return (g.trim_scale * np.asarray(demod_v) + g.trim_bias_v) * g.calibration_m_per_v + x_center_m
+
+
+def design_trim(g, x_center_m=TRIM_CENTER_M):
     """Firmware trim (scale, bias_v) that makes the chain read (x - x_center) / calibration.
 
     The scale matches the serial's calibration slope at x_center (the seed's x0 of
