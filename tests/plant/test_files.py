@@ -65,9 +65,9 @@ BASE = (PLANTS / "p888_51_sn637.toml").read_text()
     ("damping_ratio = 0.02", "damping_ratio = 2.0", "mechanics.modes.damping_ratio", "(0, 1]"),
     ("samples_per_half_period = 40", "samples_per_half_period = 41", "gauge", "adc_rate_hz"),
     ("voltage_min_v = -20.0", "voltage_min_v = 5.0", "electrical.voltage_min_v", "<= 0"),
-    ("initial_states_v = [0.0, 0.0,", "initial_states_v = [0.0, 9.0,", "hysteresis.initial_states_v",
+    ("initial_states_v = [0, 0,", "initial_states_v = [0, 9,", "hysteresis.initial_states_v",
      "no input history"),
-    ("weights_f = [5.625e-6,", "weights_f = [-5.625e-6,", "hysteresis", "partial sums"),
+    ("weights_f = [9.361e-6,", "weights_f = [-9.361e-6,", "hysteresis", "partial sums"),
     ('schema = "workbench.plant/1"', 'schema = "workbench.plant/9"', "schema", "expected"),
     ("[mechanics]", "[mechanic]", "mechanic", "unknown section"),
 ])

@@ -1,0 +1,1 @@
+"""Linear models of the nonlinear plant: describing functions, small-signal models, sampled-data models, uncertainty."""
