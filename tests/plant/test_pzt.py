@@ -110,6 +110,17 @@ def test_mode_filters_a_fast_step(sn637):
     assert np.median(np.diff(peaks)) * 1e-6 == pytest.approx(1 / 70e3, rel=0.1)
 
 
+def test_mode_adds_no_sample_delay(sn637):
+    # a 100 Hz sine at 10 kHz: the 70 kHz mode should pass it unchanged (phase 0.003 degree);
+    # a zero-order hold of each step's end value would lag it by a whole step (3.6 degrees)
+    t = np.arange(2000) * 1e-4
+    v = 50 + 5 * np.sin(2 * np.pi * 100 * t)
+    with_mode = PZTSimulator(sn637.pzt, 1e-4).run(v).x_m
+    without = PZTSimulator(dataclasses.replace(sn637.pzt, modes=()), 1e-4).run(v).x_m
+    swing = np.ptp(without[1000:])
+    assert np.max(np.abs(with_mode[1000:] - without[1000:])) < 1e-3 * swing
+
+
 def test_bad_inputs(sn637):
     sim = PZTSimulator(sn637.pzt, 1e-4)
     with pytest.raises(ValueError, match="finite"):

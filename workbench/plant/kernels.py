@@ -37,7 +37,7 @@ N_OUT = len(OUT_NAMES)
 
 def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
     """Build the model vector from the scalar parameters and the tables."""
-    nm = Bd.size
+    nm = Cd.size
     tables = [G.thresholds, G.weights, Q.thresholds, Q.weights, creep_c, creep_decay,
               Ad.ravel(), Bd, Cd, Dd]
     offs = np.cumsum([M_HEAD] + [t.size for t in tables])
@@ -45,7 +45,7 @@ def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
     m[:16] = scalars
     for t, o in zip(tables, offs[:-1]):
         m[o:o + t.size] = t
-    s_offs = np.cumsum([S_HEAD, G.size, Q.size, creep_c.size, 2 * nm])
+    s_offs = np.cumsum([S_HEAD, G.size, Q.size, creep_c.size, 2 * nm + 1])
     m[N_G:OS_XM + 1] = [G.size, offs[0], offs[1], Q.size, offs[2], offs[3], creep_c.size, offs[4],
                          offs[5], nm, offs[6], offs[7], offs[8], offs[9],
                          s_offs[0], s_offs[1], s_offs[2], s_offs[3]]
@@ -53,7 +53,7 @@ def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
 
 
 def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
-    """Build the state vector (xm: modal state; the scratch half is zeroed)."""
+    """Build the state vector (xm: modal state, scratch copy, previous x_qs)."""
     st = np.zeros(size)
     st[S_QH], st[S_U], st[S_GUP], st[S_GDN] = qh, u, cap_up, cap_dn
     st[S_QC] = np.sum(qc)
@@ -181,24 +181,26 @@ def pzt_step(m, st, v_cmd, f_e, out):
     st[S_QC] = qc_tot
     v_p = (q - f_term) * inv_cpp
     x_qs = (f_e + t_em * v_p) * m[INV_K_P]
-    # modes: discrete state space driven by the quasi-static displacement
-    # (st holds the modal state and a scratch copy, so the step allocates nothing)
+    # modes: the quasi-static displacement drives them, taken as linear over the step
+    # (first-order hold: no delay, unlike a zero-order hold of the end value). st holds
+    # the modal state, a scratch copy and the previous x_qs, so the step allocates nothing.
     n = int(m[N_M])
     if n > 0:
         o_x = int(m[OS_XM])
         o_a = int(m[O_AD])
         o_b = int(m[O_BD])
         o_cd = int(m[O_CD])
-        x = m[int(m[O_DD])] * x_qs
+        x_before = st[o_x + 2 * n]
         for a in range(n):
-            x += m[o_cd + a] * st[o_x + a]
-        for a in range(n):
-            acc = m[o_b + a] * x_qs
+            acc = m[o_b + a] * x_before + m[o_b + n + a] * x_qs
             for b in range(n):
                 acc += m[o_a + a * n + b] * st[o_x + b]
             st[o_x + n + a] = acc
+        x = m[int(m[O_DD])] * x_qs
         for a in range(n):
             st[o_x + a] = st[o_x + n + a]
+            x += m[o_cd + a] * st[o_x + a]
+        st[o_x + 2 * n] = x_qs
     else:
         x = x_qs
     out[0] = x

@@ -8,6 +8,7 @@ between calls, and returns :class:`Trajectory` records.
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 import scipy.signal
 
 from . import kernels as K
@@ -31,7 +32,12 @@ class Trajectory:
 
 
 def _modes_ss(modes, dt_s):
-    """ZOH-discretized cascade of unit-DC-gain second-order modes (x_qs -> x)."""
+    """Cascade of unit-DC-gain second-order modes (x_qs -> x), discretized with a first-order hold.
+
+    Returns (Ad, [B0, B1], Cd, Dd): x_{k+1} = Ad x_k + B0 u_k + B1 u_{k+1} for an input
+    linear over the step (Franklin-Powell-Workman; blocks of one matrix exponential).
+    A zero-order hold of the step's end value would delay the displacement by a step.
+    """
     if not modes:
         return np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.ones(1)
     num, den = np.array([1.0]), np.array([1.0])
@@ -40,9 +46,15 @@ def _modes_ss(modes, dt_s):
         num = np.polymul(num, [w * w])
         den = np.polymul(den, [1.0, 2 * m.damping_ratio * w, w * w])
     a, b, c, d = scipy.signal.tf2ss(num, den)
-    ad, bd, cd, dd, _ = scipy.signal.cont2discrete((a, b, c, d), dt_s, method="zoh")
-    return (np.ascontiguousarray(ad), np.ascontiguousarray(bd[:, 0]), np.ascontiguousarray(cd[0]),
-            np.array([dd[0, 0]]))
+    n = a.shape[0]
+    blk = np.zeros((n + 2, n + 2))
+    blk[:n, :n] = a * dt_s
+    blk[:n, n] = b[:, 0] * dt_s
+    blk[n, n + 1] = 1.0
+    e = scipy.linalg.expm(blk)
+    ad, g1, g2 = e[:n, :n], e[:n, n], e[:n, n + 1]
+    return (np.ascontiguousarray(ad), np.concatenate([g1 - g2, g2]), np.ascontiguousarray(c[0]),
+            np.array([d[0, 0]]))
 
 
 class PZTSimulator:
@@ -102,6 +114,7 @@ class PZTSimulator:
         else:
             cc, cdec = np.zeros(0), np.zeros(0)
         self._modes = _modes_ss(pz.modes, h)
+        self._n_creep = 0 if pz.creep is None else pz.creep.size
         self.m, self._state_size = K.pack_model(scalars, self._G, self._Q, cc, cdec, *self._modes)
         self.reset()
 
@@ -110,14 +123,31 @@ class PZTSimulator:
         G = self._G
         qh = self.params.hysteresis.output_at_rest()
         ad, bd, _, _ = self._modes
-        xm = np.zeros(2 * bd.size)
-        if bd.size:
+        nm = ad.shape[0]
+        xm = np.zeros(2 * nm + 1)
+        if nm:
             # start the modes at the static displacement of the initial charge
-            xm[:bd.size] = np.linalg.solve(np.eye(bd.size) - ad, bd * self.params.k_q2x_m_per_c * qh)
-        ncreep = 0 if self.params.creep is None else self.params.creep.size
+            x0 = self.params.k_q2x_m_per_c * qh
+            xm[:nm] = np.linalg.solve(np.eye(nm) - ad, (bd[:nm] + bd[nm:]) * x0)
+            xm[-1] = x0
         self.st = K.pack_state(self.m, self._state_size, qh, G.output_at_rest(),
                                1.0 / G.slope(qh, +1), 1.0 / G.slope(qh, -1), G.initial_states,
-                               self._Q.initial_states, np.zeros(ncreep), xm)
+                               self._Q.initial_states, np.zeros(self._n_creep), xm)
+
+    @property
+    def creep_charges_c(self):
+        """Charge in each creep branch, C (a copy)."""
+        o = int(self.m[K.OS_QC])
+        return self.st[o:o + self._n_creep].copy()
+
+    def set_creep_charges(self, charges_c):
+        """Overwrite the creep branches' charges (steady-state solvers shoot on them)."""
+        q = np.asarray(charges_c, dtype=float)
+        if q.shape != (self._n_creep,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"need {self._n_creep} finite creep charges; got {q!r}")
+        o = int(self.m[K.OS_QC])
+        self.st[o:o + q.size] = q
+        self.st[K.S_QC] = q.sum()
 
     def step_function(self):
         """(pzt_step, m, st): the compiled step and this simulator's live model and state."""
