@@ -106,6 +106,61 @@ def cmd_bench(args):
     ])
 
 
+_last_bar = {}
+
+
+def _progress_bar(stage, done, total):
+    """A status line on stderr: redrawn in place on a terminal, every 10 % otherwise."""
+    width = 30
+    fill = int(width * done / max(total, 1))
+    tty = sys.stderr.isatty()
+    step = fill if tty else int(10 * done / max(total, 1))
+    if _last_bar.get(stage) == step and done < total:
+        return
+    _last_bar[stage] = step
+    bar = f"  {stage:<22} [{'#' * fill}{'.' * (width - fill)}] {done}/{total}"
+    if tty:
+        print("\r" + bar, end="\n" if done >= total else "", file=sys.stderr, flush=True)
+    else:
+        print(bar, file=sys.stderr, flush=True)
+
+
+def cmd_linearize(args):
+    import numpy as np
+    from .linearize.run import run_linearize
+    from .linearize.uncertainty import FamilySpec
+    if not args.freq_min < args.freq_max:
+        raise ValueError(f"--freq-min ({args.freq_min:g} Hz) must be below --freq-max ({args.freq_max:g} Hz)")
+    amps = tuple(sorted(args.amplitudes))
+    if amps[0] <= 0:
+        raise ValueError(f"--amplitudes must be positive; got {amps}")
+    spec = FamilySpec(amplitudes_v=amps, freq_hz=tuple(np.geomspace(args.freq_min, args.freq_max, args.freq_points)),
+                      bias_v=args.bias, cp_tolerance=args.cp_tolerance,
+                      imbalance_tolerance_ohm=args.imbalance_tolerance)
+    data = run_linearize(args.plant, args.serials, args.controller, spec, args.out, progress=_progress_bar)
+    u, c = data["uncertainty"], data["capacitances"]
+    lines = [
+        f"{data['serial']}: linearized over {len(amps)} amplitudes x {args.freq_points} frequencies at bias "
+        f"{args.bias:g} V; family of {len(data['family'])} plant file(s)",
+        f"  capacitances: reversal {c['reversal_f'] * 1e6:.2f} uF, on-branch (ascending at {args.bias:g} V) "
+        f"{c['ascending_f'] * 1e6:.2f} uF, secant from rest {c['secant_from_rest_f'] * 1e6:.2f} uF",
+        f"  describing functions: {data['df_summary']['current_saturated']} of {data['df_summary']['points']} "
+        f"points current-limited (slewing), {data['df_summary']['not_periodic']} not periodic",
+        f"  gauge: {data['gauge']['volts_per_meter']:.0f} firmware V/m at x0 = {data['gauge']['x0_m'] * 1e6:g} um",
+        f"  W_m: order {u['weight']['order']}, gain {u['weight']['gain']:.3f}, zeros {np.round(u['weight']['zeros_hz'], 1)}"
+        f" Hz, poles {np.round(u['weight']['poles_hz'], 1)} Hz; coverage margin {u['coverage_margin_db']:.2f} dB "
+        f"set by '{u['worst_member']}' at {u['worst_freq_hz']:.3g} Hz",
+    ]
+    if "controller" in data:
+        lc = data["controller"]["limit_cycles"]
+        lines.append("  loop: " + ("no limit cycle predicted" if not lc else "; ".join(
+            f"limit cycle {c['amplitude_v']:.3g} V at {c['freq_hz']:.0f} Hz ({'stable' if c['stable'] else 'unstable'})"
+            for c in lc)))
+    if args.out:
+        lines.append(f"  figures in {args.out}")
+    _emit(args, data, lines)
+
+
 def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
@@ -155,6 +210,29 @@ def build_parser():
                    help="steps for the python-control reference (default 2000)")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("linearize", help="describing functions, small-signal models, sampled gauge chain, W_m",
+                       description="Linear models of the plant: the PZT's describing functions over amplitude "
+                                   "and frequency, small-signal models on each branch, the gauge chain as the "
+                                   "firmware samples it, and a multiplicative uncertainty bound over the family "
+                                   "(the serials given, C_p and arm-imbalance tolerances). With --controller, "
+                                   "the describing-function Nyquist analysis and predicted limit cycles.")
+    p.add_argument("plant", type=Path, help="plant file, e.g. plants/p888_51_sn637_creep.toml (the nominal)")
+    p.add_argument("--serials", type=Path, nargs="*", default=[],
+                   help="other plant files of the family, e.g. plants/p888_51_sn629.toml plants/p888_51_sn618.toml")
+    p.add_argument("--controller", type=Path, help="controller JSON (sample_rate_hz, sos rows, gain)")
+    p.add_argument("--amplitudes", type=_quantity("V"), nargs="+",
+                   default=[0.1, 0.3, 1.0, 3.0, 10.0, 20.0, 35.0, 50.0], help="sine amplitudes, default 0.1V..50V")
+    p.add_argument("--bias", type=_quantity("V"), default=50.0, help="sine bias, default 50V")
+    p.add_argument("--freq-min", type=_quantity("Hz"), default=0.1, help="default 0.1Hz")
+    p.add_argument("--freq-max", type=_quantity("Hz"), default=5000.0, help="default 5kHz")
+    p.add_argument("--freq-points", type=_positive_int, default=26, help="log-spaced frequencies, default 26")
+    p.add_argument("--cp-tolerance", type=float, default=0.2, help="relative C_p tolerance, default 0.2")
+    p.add_argument("--imbalance-tolerance", type=_quantity("ohm"), default=0.4,
+                   help="per-arm bridge imbalance tolerance, default 0.4ohm")
+    p.add_argument("--out", type=Path, help="folder for the figures")
+    p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.set_defaults(func=cmd_linearize)
 
     p = sub.add_parser("demo", help="the default job: seed reproductions with figures",
                        description="Gauge gains, T_em from Table 1, the free-free test on the three "

@@ -38,7 +38,11 @@ class DFFamily:
     """P(jw; A, b) on a grid. Arrays are indexed [bias, amplitude, frequency].
 
     ``x_m_per_v`` and ``i_a_per_v`` are complex first-harmonic ratios; ``thd_x`` is
-    sqrt(sum_{h>=2} |X_h|^2) / |X_1|; ``saturated``: the current limit was reached in
+    sqrt(sum_{h>=2} |X_h|^2) / |X_1|; ``x_mean_shift_m`` the mean of x over the period
+    minus x at rest at the bias reached from below: hysteresis centres the loop between
+    its branches (positive), the asymmetric current limits rectify while slewing (rising
+    is slower: negative). With integral action the loop's bias moves to cancel it,
+    which a single-input describing function does not follow; ``saturated``: the current limit was reached in
     the final period; ``clipped``: b +/- A leaves the amplifier range; ``periodic``:
     the harmonic converged; ``subharmonic``: it did not, but the response repeats
     every second period.
@@ -50,6 +54,7 @@ class DFFamily:
     x_m_per_v: np.ndarray
     i_a_per_v: np.ndarray
     thd_x: np.ndarray
+    x_mean_shift_m: np.ndarray
     saturated: np.ndarray
     clipped: np.ndarray
     periodic: np.ndarray
@@ -83,6 +88,7 @@ class DFFamily:
                                  "mag_m_per_v": float(abs(h)), "phase_deg": float(np.degrees(np.angle(h))),
                                  "current_mag_a_per_v": float(abs(self.i_a_per_v[b, a, k])),
                                  "thd_x": float(self.thd_x[b, a, k]),
+                                 "x_mean_shift_m": float(self.x_mean_shift_m[b, a, k]),
                                  "current_saturated": bool(self.saturated[b, a, k]),
                                  "voltage_clipped": bool(self.clipped[b, a, k]),
                                  "periodic": bool(self.periodic[b, a, k]),
@@ -91,7 +97,7 @@ class DFFamily:
 
 
 def _settle_at_bias(pzt, bias_v):
-    """Plant state after a slow approach to ``bias_v`` with the creep branches in equilibrium."""
+    """Plant state (and x) after a slow approach to ``bias_v``, creep branches in equilibrium."""
     sim = PZTSimulator(pzt, 1e-4)
     # the current limit slews at >= ~50 V/s into <= ~40 uF; hold long enough for that and RC
     n_hold = int(np.ceil((abs(bias_v) / 40.0 + 0.05) / sim.dt_s))
@@ -104,7 +110,7 @@ def _settle_at_bias(pzt, bias_v):
             tr = sim.run(hold[: int(0.05 / sim.dt_s)])
             if abs(tr.v_h_v[-1] - v_h) < 1e-9 * (1 + abs(v_h)):
                 break
-    return sim.st.copy()
+    return sim.st.copy(), float(tr.x_m[-1])
 
 
 def _periodic_creep(pzt, v_h, dt_s):
@@ -139,13 +145,13 @@ def _samples_per_period(pzt, freq_hz, n_min):
     if r == 0.0:
         return n_min       # quasi-static: x is a staircase on the input's steps, handled exactly
     c_min = 1.0 / (1.0 / pzt.hysteresis.weights[0] + 1.0 / pzt.c_pp_f)
-    dt_max = r * c_min / 4.0
+    dt_max = r * c_min / 2.0
     # a power of two keeps the final FFT fast
     return max(n_min, 1 << int(np.ceil(np.log2(1.0 / (freq_hz * dt_max)))))
 
 
 def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), samples_per_period=1024,
-                            tol=1e-7, max_cycles=400, progress=None):
+                            tol=1e-7, max_cycles=400, skip_above_saturation=False, progress=None):
     """Describing-function family of the PZT ``pzt`` (a PZTParams), V_pea -> x and V_pea -> i.
 
     Parameters
@@ -154,11 +160,15 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
         The grid, V, Hz, V.
     samples_per_period : int
         Steps per period at least (a multiple of 4, so the peaks are sampled); more at
-        low frequencies so each step stays a quarter of the fastest RC time constant.
+        low frequencies so each step stays half the fastest RC time constant.
     tol : float
         Relative change of the first harmonic between periods that counts as periodic.
     max_cycles : int
         Periods simulated at most per point.
+    skip_above_saturation : bool
+        Once an amplitude saturates the current at a frequency, mark the larger ones
+        saturated without simulating them (their response is NaN): the slew limit
+        only tightens with amplitude. For families that keep only linear members.
     progress : callable(done, total) or None
     """
     amps = np.atleast_1d(np.asarray(amplitudes_v, dtype=float))
@@ -171,14 +181,14 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
         raise ValueError("amplitudes and frequencies must be positive and finite, biases finite")
     shape = (biases.size, amps.size, freqs.size)
     x1, i1 = np.zeros(shape, complex), np.zeros(shape, complex)
-    thd = np.zeros(shape)
+    thd, shift = np.zeros(shape), np.zeros(shape)
     sat, clip, per, sub = (np.zeros(shape, bool) for _ in range(4))
     cycles = np.zeros(shape, int)
     i_limits = (pzt.current_limit_source_a, pzt.current_limit_sink_a)
     quasi_static = pzt.series_resistance_ohm == 0.0
     total, done = int(np.prod(shape)), 0
     for b, bias in enumerate(biases):
-        st0 = _settle_at_bias(pzt, bias)
+        st0, x_static = _settle_at_bias(pzt, bias)
         for k, f in enumerate(freqs):
             n_f = _samples_per_period(pzt, f, n)
             sim = PZTSimulator(pzt, 1.0 / (f * n_f))
@@ -186,6 +196,15 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
             v1_unit = -1j * np.sinc(1.0 / n_f) * np.exp(-1j * np.pi / n_f)
             fundamental = np.exp(-1j * theta)
             for a, amp in enumerate(amps):
+                if skip_above_saturation and a > 0 and sat[b, a - 1, k] and amp > amps[a - 1]:
+                    sat[b, a, k] = True
+                    x1[b, a, k] = i1[b, a, k] = np.nan
+                    thd[b, a, k] = shift[b, a, k] = np.nan
+                    clip[b, a, k] = bias - amp < pzt.voltage_min_v or bias + amp > pzt.voltage_max_v
+                    done += 1
+                    if progress is not None:
+                        progress(done, total)
+                    continue
                 sim.st[:] = st0
                 v = bias + amp * np.sin(theta)
                 prev = None
@@ -217,6 +236,7 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                     vx = amp * v1_unit
                 x1[b, a, k] = hx[1] / vx
                 i1[b, a, k] = 1j * 2 * np.pi * f * hq[1] / vx
+                shift[b, a, k] = hx[0].real - x_static
                 thd[b, a, k] = np.sqrt(np.sum(np.abs(hx[2:n_f // 2]) ** 2)) / abs(hx[1])
                 i_max, i_min = tr.peak_current_a
                 sat[b, a, k] = (not quasi_static) and (i_max >= i_limits[0] * (1 - 1e-9)
@@ -226,4 +246,4 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                 done += 1
                 if progress is not None:
                     progress(done, total)
-    return DFFamily(amps, biases, freqs, x1, i1, thd, sat, clip, per, sub, cycles)
+    return DFFamily(amps, biases, freqs, x1, i1, thd, shift, sat, clip, per, sub, cycles)
