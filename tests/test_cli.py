@@ -8,7 +8,7 @@ import pytest
 
 from workbench.cli import main
 
-COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"]]
+COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"], ["linearize"]]
 
 
 @pytest.mark.parametrize("cmd", COMMANDS)
@@ -52,6 +52,12 @@ def test_freefree_json_and_figure(tmp_path, root):
     (["freefree", "plants/p888_51_sn637.toml", "--v-peak", "500V"], "v_peak_v must be in"),
     (["identify", "transducer", "plants/p888_51_sn637.toml"], "p888_51_sn637.toml"),
     (["bench", "--steps", "0"], "must be >= 1"),
+    (["linearize", "plants/p888_51_sn637.toml", "--freq-min", "1kHz", "--freq-max", "10Hz"], "must be below"),
+    (["linearize", "plants/p888_51_sn637.toml", "--amplitudes", "0V"], "must be positive"),
+    (["linearize", "plants/p888_51_sn637.toml", "--cp-tolerance", "1.5"], "cp-tolerance"),
+    (["linearize", "plants/p888_51_sn637.toml", "--bias", "5A"], "is not 'V'"),
+    (["linearize", "plants/p888_51_sn637.toml", "--freq-points", "4", "--amplitudes", "1V",
+      "--controller", "plants/missing.json"], "missing.json"),
 ])
 def test_bad_input_exits_2_without_traceback(argv, fragment, root, monkeypatch, capsys):
     monkeypatch.chdir(root)
@@ -77,3 +83,23 @@ def test_bench_smoke(tmp_path, root, monkeypatch):
     assert main(["bench", "--steps", "20000", "--reference-steps", "50", "--json", str(out)]) == 0
     data = json.loads(out.read_text())
     assert data["steps_per_second"] > 0 and data["ratio_vs_python_control"] > 0
+
+
+def test_linearize_json_and_figures(tmp_path, root, monkeypatch):
+    # a reduced grid of the full command, with the example controller: every JSON key and figure
+    monkeypatch.chdir(root)
+    out = tmp_path / "lin"
+    assert main(["linearize", "plants/p888_51_sn637.toml", "--serials", "plants/p888_51_sn629.toml",
+                 "--amplitudes", "0.1V", "1V", "10V", "--freq-min", "1Hz", "--freq-max", "2kHz",
+                 "--freq-points", "6", "--controller", "controllers/example_p250_limit_cycle.json",
+                 "--out", str(out), "--json", str(out / "lin.json")]) == 0
+    data = json.loads((out / "lin.json").read_text())
+    assert {"df", "small_signal", "gauge", "uncertainty", "capacitances", "controller"} <= data.keys()
+    assert len(data["df"]) == 3 * 6
+    assert {"amplitude_v", "bias_v", "freq_hz", "mag_m_per_v", "phase_deg"} <= data["df"][0].keys()
+    assert {"dc_gain_m_per_v", "capacitance_f", "poles_hz"} <= data["small_signal"][0].keys()
+    assert data["gauge"]["volts_per_meter"] == pytest.approx(325_000, rel=0.01)
+    u = data["uncertainty"]
+    assert {"zeros_hz", "poles_hz", "gain"} <= u["weight"].keys() and u["coverage_margin_db"] >= 0
+    for name in ("df_bode", "capacitances", "uncertainty", "sampled", "nyquist"):
+        assert (out / f"{name}.png").stat().st_size > 10_000

@@ -134,6 +134,8 @@ def cmd_linearize(args):
     amps = tuple(sorted(args.amplitudes))
     if amps[0] <= 0:
         raise ValueError(f"--amplitudes must be positive; got {amps}")
+    if not 0 <= args.cp_tolerance < 1:
+        raise ValueError(f"--cp-tolerance is a fraction of C_p in [0, 1), e.g. 0.2; got {args.cp_tolerance}")
     spec = FamilySpec(amplitudes_v=amps, freq_hz=tuple(np.geomspace(args.freq_min, args.freq_max, args.freq_points)),
                       bias_v=args.bias, cp_tolerance=args.cp_tolerance,
                       imbalance_tolerance_ohm=args.imbalance_tolerance)

@@ -185,4 +185,13 @@ def run_demo(out_dir, progress=None):
                         "sigma_gamma": fit.sigma_gamma, "chi2_reduced": fit.chi2_reduced}
     say(f"  L0 = {fit.l0 * 1e6:.3f} um, gamma = {fit.gamma:.4f} +/- {fit.sigma_gamma:.4f}")
     fig(_plot_creep(tr_c, fit, f"{creep_plant.name}: creep (seed 001)"), "creep_hold.png")
+    say("linearization: describing functions, small-signal models, W_m over the three serials...")
+    from .linearize.run import run_linearize
+    lin = run_linearize(CREEP_PLANT, PLANTS[1:], out_dir=Path(out_dir) / "linearize")
+    u = lin["uncertainty"]
+    say(f"  W_m order {u['weight']['order']}, {u['weight']['gain']:.3f} at DC; coverage margin "
+        f"{u['coverage_margin_db']:.2f} dB set by {u['worst_member']}")
+    summary["linearize"] = {"capacitances": lin["capacitances"], "uncertainty": {k: u[k] for k in (
+        "weight", "coverage_margin_db", "worst_member", "nominal")}, "figures": lin["figures"]}
+    summary["figures"] += list(lin["figures"].values())
     return summary

@@ -105,7 +105,7 @@ def plant_family(plants, spec=FamilySpec(), progress=None):
                     continue
                 op = operating_point(pzt, bias, branch, spec.v_range)
                 ss = small_signal_model(pzt, op.capacitance_f)
-                p = np.array([complex(ss(si)[0, 0]) for si in s])
+                p = np.array([complex(np.atleast_2d(ss(si))[0, 0]) for si in s])
                 for kname, k in (("K_g min", k_lo), ("K_g max", k_hi)):
                     members[f"{label}, {branch} at {bias:g} V, {kname}"] = k * p
     return Family(freq, members, excluded, dfs, gauges)
@@ -134,7 +134,7 @@ def uncertainty_bound(family, nominal_plant, max_order=3, guard_db=0.5):
 
     def deltas_for(c_f):
         p = small_signal_model(pzt, c_f)
-        g = k_nom * np.array([complex(p(si)[0, 0]) for si in s])
+        g = k_nom * np.array([complex(np.atleast_2d(p(si))[0, 0]) for si in s])
         d = resp / g[None, :] - 1.0
         return np.where(np.isnan(d), 0.0, d)
 

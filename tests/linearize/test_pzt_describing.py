@@ -1,0 +1,112 @@
+"""The full-PZT describing-function family against closed forms and the small-signal models."""
+
+import dataclasses
+
+import control
+import numpy as np
+import pytest
+
+from workbench.linearize.describing import pi_df
+from workbench.linearize.pzt_describing import pzt_describing_function
+from workbench.linearize.small_signal import capacitances, operating_point, small_signal_model
+
+
+def _resp(sys, f):
+    return complex(np.squeeze(sys(2j * np.pi * f))[()] if sys.noutputs == 1 else sys(2j * np.pi * f)[0, 0])
+
+
+@pytest.fixture(scope="module")
+def family(sn637):
+    return pzt_describing_function(sn637.pzt, [0.1, 1.0, 3.0, 10.0, 20.0, 30.0, 50.0], [0.1, 1.0, 10.0, 100.0, 1000.0])
+
+
+def test_quasi_static_family_is_the_closed_form(sn637):
+    # R = 0, no creep: x = k_q2x Q[V] with Q the PI operator V -> q; the simulated first harmonic
+    # of the whole plant equals k_q2x times the closed-form describing function of Q
+    pzt = sn637.pzt.with_resistance(0.0)
+    amps = np.array([0.1, 1.0, 5.0, 20.0, 50.0])
+    fam = pzt_describing_function(pzt, amps, [1.0])
+    closed = pzt.k_q2x_m_per_c * pi_df(pzt.terminal_operator().inverse(), amps)
+    assert np.max(np.abs(fam.x_m_per_v[0, :, 0] / closed - 1)) < 2e-5
+
+
+def test_small_amplitude_tends_to_the_reversal_model(sn637, family):
+    # 0.1 V moves only the r = 0 play: the plant is linear with the reversal slope
+    c_rev = operating_point(sn637.pzt, 50.0, "reversal").capacitance_f
+    rev = small_signal_model(sn637.pzt, c_rev)
+    for k, f in enumerate(family.freq_hz[:4]):
+        assert family.x_m_per_v[0, 0, k] == pytest.approx(_resp(rev, f), rel=2e-3)
+    assert family.thd_x[0, 0, 0] < 1e-6
+
+
+def test_full_range_tends_to_the_large_signal_secant(sn637, family):
+    pzt = sn637.pzt
+    caps = capacitances(pzt, 50.0, (0.0, 100.0))
+    secant_gain = pzt.k_q2x_m_per_c / (1 / caps["loop_secant_f"] + 1 / pzt.c_pp_f)
+    reversal_gain = pzt.k_q2x_m_per_c / (1 / caps["reversal_f"] + 1 / pzt.c_pp_f)
+    mags = np.abs(family.x_m_per_v[0, :, 0])                   # 0.1 Hz: quasi-static, no slewing
+    assert abs(mags[-1] / secant_gain - 1) < 0.05              # 0-100 V: within 5 % of the loop secant
+    assert mags[0] == pytest.approx(reversal_gain, rel=1e-3)
+    assert np.all(np.diff(mags) > 0)                           # the gain grows with amplitude in between
+
+
+def test_phase_lag_at_1_hz(family):
+    k = list(family.freq_hz).index(1.0)
+    ok = family.linear_ok[0, :, k]
+    lag = -np.degrees(np.angle(family.x_m_per_v[0, ok, k]))
+    assert ok[:5].all()                                        # up to 20 V the current stays inside its limits
+    assert np.all((lag > 0) & (lag < 20))
+    assert np.all(np.diff(lag) > 0)                            # grows with amplitude
+    # 50 V at 1 Hz needs 314 V/s: more than the 2 mA source limit allows, flagged and not linear
+    assert family.saturated[0, -1, k] and not family.linear_ok[0, -1, k]
+
+
+def test_slewing_is_flagged_where_the_current_limit_says(sn637, family):
+    # the current amplitude a linear response would need: 2 pi f A |i/V| against 2 mA
+    c_rev = operating_point(sn637.pzt, 50.0, "reversal").capacitance_f
+    rev = small_signal_model(sn637.pzt, c_rev)
+    for a, amp in enumerate(family.amplitudes_v):
+        for k, f in enumerate(family.freq_hz):
+            need = amp * abs(complex(rev(2j * np.pi * f)[1, 0]))
+            if need < 0.5 * sn637.pzt.current_limit_source_a:
+                assert not family.saturated[0, a, k]
+            if need > 2.0 * sn637.pzt.current_limit_source_a:
+                assert family.saturated[0, a, k]
+                assert family.thd_x[0, a, k] > 0.05           # a slewing response is no sine
+
+
+def test_bias_does_not_matter_for_the_periodic_loop(sn637):
+    fam = pzt_describing_function(sn637.pzt, [10.0], [2.0], biases_v=[30.0, 70.0])
+    assert fam.x_m_per_v[0, 0, 0] == pytest.approx(fam.x_m_per_v[1, 0, 0], rel=1e-5)
+
+
+def test_creep_branches_reach_their_periodic_state(sn637_creep):
+    # 0.1 V is linear: the family must match the small-signal model with its creep branches,
+    # which needs every branch (tau up to 1000 s) at its periodic state after a few periods
+    pzt = sn637_creep.pzt
+    fam = pzt_describing_function(pzt, [0.1], [0.1, 3.0])
+    rev = small_signal_model(pzt, pzt.hysteresis.weights[0])
+    for k, f in enumerate(fam.freq_hz):
+        assert fam.x_m_per_v[0, 0, k] == pytest.approx(_resp(rev, f), rel=2e-3)
+    assert fam.periodic.all() and fam.cycles.max() < 20
+
+
+def test_current_first_harmonic_and_frd(sn637, family):
+    # i = dq/dt and x = k_q2x q: the two harmonics are tied by j w / k_q2x (mode aside, at 10 Hz)
+    k = list(family.freq_hz).index(10.0)
+    ratio = family.i_a_per_v[0, 0, k] / family.x_m_per_v[0, 0, k]
+    assert ratio == pytest.approx(2j * np.pi * 10.0 / sn637.pzt.k_q2x_m_per_c, rel=1e-4)
+    frd = family.frd(0, 0)
+    assert isinstance(frd, control.FRD) and frd.omega.size == int(family.linear_ok[0, 0].sum())
+    rows = family.records()
+    assert len(rows) == family.x_m_per_v.size and {"amplitude_v", "bias_v", "freq_hz", "mag_m_per_v",
+                                                   "phase_deg"} <= set(rows[0])
+
+
+def test_bad_grid(sn637):
+    with pytest.raises(ValueError, match="multiple of 4"):
+        pzt_describing_function(sn637.pzt, [1.0], [1.0], samples_per_period=30)
+    with pytest.raises(ValueError, match="positive"):
+        pzt_describing_function(sn637.pzt, [0.0], [1.0])
+    with pytest.raises(ValueError, match="positive"):
+        pzt_describing_function(dataclasses.replace(sn637.pzt), [1.0], [np.nan])
