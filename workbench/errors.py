@@ -6,7 +6,7 @@ status 2. Each class also subclasses the matching built-in so library callers ca
 catch ``ValueError`` as usual.
 """
 
-__all__ = ["WorkbenchError", "PlantDefinitionError", "UnitError", "DataFileError",
+__all__ = ["WorkbenchError", "PlantDefinitionError", "UnitError", "DataFileError", "DesignError",
            "UnsupportedError"]
 
 
@@ -33,3 +33,7 @@ class DataFileError(WorkbenchError, ValueError):
 
 class UnsupportedError(WorkbenchError, NotImplementedError):
     """A requested combination of options is not supported."""
+
+
+class DesignError(WorkbenchError):
+    """A design that cannot be met: infeasible weights, a failed or timed-out synthesis."""

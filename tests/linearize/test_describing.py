@@ -38,6 +38,17 @@ def test_pi_df_is_the_weighted_sum_and_ignores_the_bias(sn_amp, bias):
     assert abs(num - closed) < 1e-6 * abs(closed)
 
 
+def test_python_control_on_a_single_play():
+    op = _one_play(1.0)
+    amps = np.array([1.5, 2.0, 4.0, 8.0])
+    closed = play_df(amps, 1.0)
+    assert np.max(np.abs(control_df(op, amps, num_points=400) / closed - 1)) < 1e-4
+    # the analytic method is what python-control uses when asked normally
+    from control import describing_function
+    from workbench.linearize.describing import PINonlinearity
+    assert describing_function(PINonlinearity(op), 2.0) == pytest.approx(complex(closed[1]), rel=1e-12)
+
+
 def test_python_control_agrees_when_each_amplitude_is_warmed_up(sn637):
     op = sn637.pzt.hysteresis
     amps = np.array([0.5, 2.0, 5.0, 10.0, 17.0])
