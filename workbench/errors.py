@@ -7,6 +7,7 @@ catch ``ValueError`` as usual.
 """
 
 __all__ = ["WorkbenchError", "PlantDefinitionError", "UnitError", "DataFileError", "DesignError",
+           "StudyDefinitionError",
            "UnsupportedError"]
 
 
@@ -16,6 +17,15 @@ class WorkbenchError(Exception):
 
 class PlantDefinitionError(WorkbenchError, ValueError):
     """A plant TOML file is malformed: names the file, the key, the value and the fix."""
+
+    def __init__(self, path, key, message):
+        self.path = str(path)
+        self.key = key
+        super().__init__(f"{self.path}: [{key}] {message}")
+
+
+class StudyDefinitionError(WorkbenchError, ValueError):
+    """A study TOML file is malformed: names the file, the key, the value and the fix."""
 
     def __init__(self, path, key, message):
         self.path = str(path)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import PlantDefinitionError
+from ..fields import Field as _Field, check_value
 from .creep import CreepParams
 from .gauge import GaugeParams
 from .hysteresis import PrandtlIshlinskii
@@ -23,16 +24,6 @@ from .pzt import Mode, PZTParams
 __all__ = ["Plant", "load_plant", "SCHEMA_VERSION"]
 
 SCHEMA_VERSION = "workbench.plant/1"
-
-
-@dataclass(frozen=True)
-class _Field:
-    kind: str            # "float", "int", "bool", "str", "floats"
-    lo: float = -math.inf
-    hi: float = math.inf
-    lo_open: bool = False
-    expect: str = ""
-    required: bool = True
 
 
 def _pos(expect, hi=math.inf):
@@ -115,32 +106,8 @@ class Plant:
         return self.pzt.creep
 
 
-def _check_value(path, key, field, value):
-    if field.kind == "str":
-        if not isinstance(value, str) or not value.strip():
-            raise PlantDefinitionError(path, key, f"got {value!r}; expected {field.expect}")
-        return value
-    if field.kind == "bool":
-        if not isinstance(value, bool):
-            raise PlantDefinitionError(path, key, f"got {value!r}; expected {field.expect}")
-        return value
-    if field.kind == "floats":
-        if not isinstance(value, list) or not value:
-            raise PlantDefinitionError(path, key, f"got {value!r}; expected a non-empty list: {field.expect}")
-        return np.array([_check_value(path, f"{key}[{i}]", _Field("float", field.lo, field.hi, field.lo_open,
-                                                                    field.expect), v)
-                         for i, v in enumerate(value)])
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise PlantDefinitionError(path, key, f"got {value!r}; expected a number: {field.expect}")
-    if field.kind == "int" and not isinstance(value, int):
-        raise PlantDefinitionError(path, key, f"got {value!r}; expected an integer: {field.expect}")
-    if not math.isfinite(value):
-        raise PlantDefinitionError(path, key, f"got {value!r}; expected a finite number: {field.expect}")
-    too_low = value <= field.lo if field.lo_open else value < field.lo
-    if too_low or value > field.hi:
-        bound = f"{'>' if field.lo_open else '>='} {field.lo:g} and <= {field.hi:g}"
-        raise PlantDefinitionError(path, key, f"got {value!r}; expected {field.expect} ({bound})")
-    return float(value) if field.kind == "float" else int(value)
+def _check(path, key, field, value):
+    return check_value(path, key, field, value, PlantDefinitionError)
 
 
 def _read_table(path, section, table):
@@ -156,7 +123,7 @@ def _read_table(path, section, table):
         if key not in schema:
             known = ", ".join(sorted(schema))
             raise PlantDefinitionError(path, where, f"unknown key (value {value!r}); known keys here: {known}")
-        out[key] = _check_value(path, where, schema[key], value)
+        out[key] = _check(path, where, schema[key], value)
     for key, field in schema.items():
         if field.required and key not in out:
             where = f"{section}.{key}" if section else key

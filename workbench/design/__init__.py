@@ -1,0 +1,1 @@
+"""Controller design against the linearized plant family: loop shaping, H-infinity, margins."""

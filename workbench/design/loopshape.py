@@ -1,0 +1,157 @@
+"""Structured loop shaping: PI, lead, roll-off (and an optional notch) tuned against the whole family.
+
+The controller, in continuous time and then Tustin-discretized at the servo rate
+with prewarp at the crossover f_c:
+
+    C(s) = k (1 + w_i / s) (1 + s / w_z) / (1 + s / w_p) w_r^2 / (s^2 + 2 zeta w_r s + w_r^2) [notch]
+
+with w_i = 2 pi f_c / r_i, a lead centred on f_c (w_z = 2 pi f_c / sqrt(alpha),
+w_p = 2 pi f_c sqrt(alpha)) and the roll-off at r_r f_c. k puts the nominal loop's
+crossover at f_c. For every shape on a small grid the highest f_c whose loops keep
+the margin targets on EVERY member of the family (the describing functions and
+small-signal models of issue 3, seen through the sampled gauge chain) is found; the
+shape with the highest such crossover wins, ties broken by the worst disk margin.
+
+Margins are checked first on the members that bound the family at each frequency
+(largest and smallest gain and phase), then on all members for the chosen design.
+"""
+
+from dataclasses import dataclass, field
+
+import control
+import numpy as np
+
+from ..errors import DesignError
+from ..linearize.limit_cycle import sampled_factor
+from .antiwindup import discretize
+from .margins import family_margins
+
+__all__ = ["LoopShapeSpec", "LoopShapeResult", "structured_controller", "family_loops", "tune_loop_shape"]
+
+
+@dataclass(frozen=True)
+class LoopShapeSpec:
+    """Targets and the grid of shapes searched."""
+
+    phase_margin_deg: float = 45.0
+    gain_margin_db: float = 6.0
+    fc_range_hz: tuple = (50.0, 1500.0)
+    fc_points: int = 24
+    integral_ratios: tuple = (4.0, 8.0)
+    lead_ratios: tuple = (1.0, 3.0, 6.0)
+    rolloff_ratios: tuple = (4.0, 8.0)
+    rolloff_damping: float = 0.6
+    notch: tuple | None = None        # (freq_hz, depth_db, width_ratio) for a structural mode
+    dt_s: float = 1e-4
+    delay_samples: int = 1
+
+
+@dataclass(frozen=True)
+class LoopShapeResult:
+    controller_c: control.TransferFunction
+    controller_d: control.StateSpace
+    params: dict
+    crossover_hz: float               # the lowest crossover over the family (the nominal sits at f_c)
+    worst: dict                       # metric -> {value, member, freq_hz}
+    rows: list = field(repr=False)    # margins per member
+    searched: int = 0
+
+
+def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
+    """C(s) of the module docstring (continuous TransferFunction)."""
+    s = control.tf("s")
+    wc = 2 * np.pi * fc_hz
+    c = k * (1 + (wc / integral_ratio) / s)
+    if lead_ratio > 1:
+        c = c * (1 + s / (wc / np.sqrt(lead_ratio))) / (1 + s / (wc * np.sqrt(lead_ratio)))
+    wr = wc * rolloff_ratio
+    c = c * wr ** 2 / (s ** 2 + 2 * rolloff_damping * wr * s + wr ** 2)
+    if notch is not None:
+        fn, depth_db, width = notch
+        wn = 2 * np.pi * fn
+        zd = width / 2
+        c = c * (s ** 2 + 2 * zd * 10 ** (-depth_db / 20) * wn * s + wn ** 2) / (s ** 2 + 2 * zd * wn * s + wn ** 2)
+    return control.minreal(c, verbose=False)
+
+
+def _discrete_response(ctrl_d, freq_hz):
+    return np.asarray(control.frequency_response(ctrl_d, 2 * np.pi * np.asarray(freq_hz)).complex).ravel()
+
+
+def family_loops(ctrl_d, freq_hz, members, delay_samples=1):
+    """L_i(jw) = C(e^{jwT}) x hold/average/delay x G_i(jw) for every member (NaN where it is left out)."""
+    common = _discrete_response(ctrl_d, freq_hz) * sampled_factor(freq_hz, ctrl_d.dt, delay_samples)
+    return {name: common * g for name, g in members.items()}
+
+
+def _bounding_members(names, resp):
+    """Members that bound the family's value set at some frequency (gain and phase extremes)."""
+    mag = np.where(np.isnan(resp), np.nan, np.abs(resp))
+    ph = np.where(np.isnan(resp), np.nan, np.unwrap(np.angle(np.nan_to_num(resp)), axis=1))
+    keep = set()
+    for arr in (mag, ph):
+        with np.errstate(all="ignore"):
+            valid = ~np.all(np.isnan(arr), axis=0)
+            keep |= set(np.nanargmax(arr[:, valid], axis=0)) | set(np.nanargmin(arr[:, valid], axis=0))
+    return [names[i] for i in sorted(keep)]
+
+
+def _meets(worst, spec):
+    return (worst["phase_margin_deg"]["value"] >= spec.phase_margin_deg
+            and worst["gain_margin_db"]["value"] >= spec.gain_margin_db)
+
+
+def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None):
+    """Highest-crossover structured controller meeting the margins on every member.
+
+    Parameters
+    ----------
+    freq_hz : ndarray
+        Grid of the members (dense enough around the crossover, up to Nyquist).
+    members : dict name -> complex ndarray
+        Loop plants K_g P_i(jw), firmware volts per PZT volt (NaN: left out there).
+    nominal : continuous SISO LTI
+        K_g P_nom(s), used to place the crossover.
+    """
+    f = np.asarray(freq_hz, dtype=float)
+    # a member left out at every frequency (it slews everywhere on the grid) has no loop to measure
+    members = {n: g for n, g in members.items() if np.any(np.isfinite(g))}
+    names = list(members)
+    resp = np.array([members[n] for n in names])
+    bounding = {n: members[n] for n in _bounding_members(names, resp)}
+    fcs = np.geomspace(*spec.fc_range_hz, spec.fc_points)
+    shapes = [(ri, al, rr) for ri in spec.integral_ratios for al in spec.lead_ratios for rr in spec.rolloff_ratios]
+    best, searched = None, 0
+    for n_shape, (ri, al, rr) in enumerate(shapes):
+        for fc in fcs[::-1]:
+            searched += 1
+            shape = structured_controller(1.0, fc, ri, al, rr, spec.rolloff_damping, spec.notch)
+            shape_d = discretize(shape, spec.dt_s, fc)
+            l1 = (_discrete_response(shape_d, [fc]) * sampled_factor([fc], spec.dt_s, spec.delay_samples)
+                  * np.asarray(control.frequency_response(nominal, [2 * np.pi * fc]).complex).ravel())[0]
+            k = 1.0 / abs(l1)
+            ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
+                                spec.dt_s, fc)
+            _, worst = family_margins(f, family_loops(ctrl_d, f, bounding, spec.delay_samples))
+            if _meets(worst, spec):
+                cand = (fc, worst["disk_margin"]["value"], dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al,
+                                                                rolloff_ratio=rr, rolloff_damping=spec.rolloff_damping,
+                                                                notch=spec.notch))
+                if best is None or (cand[0], cand[1]) > (best[0], best[1]):
+                    best = cand
+                break          # lower f_c on this shape can only be slower
+        if progress is not None:
+            progress(n_shape + 1, len(shapes))
+    if best is None:
+        raise DesignError(f"no structured controller meets PM >= {spec.phase_margin_deg:g} deg and GM >= "
+                          f"{spec.gain_margin_db:g} dB on every member with a crossover in "
+                          f"{spec.fc_range_hz[0]:g}-{spec.fc_range_hz[1]:g} Hz; lower the range or the targets")
+    p = best[2]
+    ctrl_c = structured_controller(p["k"], p["fc_hz"], p["integral_ratio"], p["lead_ratio"], p["rolloff_ratio"],
+                                   p["rolloff_damping"], p["notch"])
+    ctrl_d = discretize(ctrl_c, spec.dt_s, p["fc_hz"])
+    rows, worst = family_margins(f, family_loops(ctrl_d, f, members, spec.delay_samples))
+    if not _meets(worst, spec):
+        raise DesignError(f"the chosen design misses the targets on a member outside the bounding set "
+                          f"({worst['phase_margin_deg']['member']}); refine the frequency grid")
+    return LoopShapeResult(ctrl_c, ctrl_d, p, float(worst["crossover_hz_min"]["value"]), worst, rows, searched)

@@ -1,0 +1,186 @@
+"""Run a design study: linearize, design (loop shaping, Glover-McFarlane, H-infinity, convex), margins, export, report.
+
+Every stage reports progress through ``progress(stage, done, total)``; the result is
+the ``summary.json`` dict, and the report, figures and exported controllers are
+written into the output folder (whole or not at all, file by file).
+"""
+
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import control
+import numpy as np
+
+from ..errors import DesignError
+from ..linearize.limit_cycle import loop_responses, predict_limit_cycles, sampled_factor
+from ..linearize.uncertainty import FamilySpec, plant_family, uncertainty_bound
+from ..plant import load_plant
+from .spec import load_study
+
+__all__ = ["run_study"]
+
+
+def _members_table(rows):
+    """Margins grouped per serial and per amplitude/branch (worst over C_p corners and gauge extremes)."""
+    groups = {}
+    for r in rows:
+        serial, _, rest = r["member"].partition(" C_p ")
+        what = rest.split(", ")[1] if ", " in rest else rest
+        g = groups.setdefault((serial, what), {"serial": serial, "member": what, "phase_margin_deg": np.inf,
+                                                "gain_margin_db": np.inf, "crossover_min_hz": np.inf,
+                                                "crossover_max_hz": 0.0, "disk_margin": np.inf})
+        g["phase_margin_deg"] = min(g["phase_margin_deg"], abs(r["phase_margin_deg"]))
+        g["gain_margin_db"] = min(g["gain_margin_db"], abs(r["gain_margin_db"]))
+        g["disk_margin"] = min(g["disk_margin"], r["disk_margin"])
+        if np.isfinite(r["crossover_hz"]):
+            g["crossover_min_hz"] = min(g["crossover_min_hz"], r["crossover_hz"])
+            g["crossover_max_hz"] = max(g["crossover_max_hz"], r["crossover_hz"])
+    return list(groups.values())
+
+
+def _loops_continuous(ctrl_c, freq_hz, members, delay_s):
+    c = np.asarray(control.frequency_response(ctrl_c, 2 * np.pi * freq_hz).complex).ravel()
+    d = np.exp(-2j * np.pi * freq_hz * delay_s)
+    return {n: c * d * g for n, g in members.items() if np.any(np.isfinite(g))}
+
+
+def _loops_discrete(ctrl_d, freq_hz, members, delay_samples):
+    from ..design.loopshape import family_loops
+    return family_loops(ctrl_d, freq_hz, {n: g for n, g in members.items() if np.any(np.isfinite(g))},
+                        delay_samples)
+
+
+def _worst_summary(worst):
+    keys = ("phase_margin_deg", "gain_margin_db", "delay_margin_s", "disk_margin", "s_peak_db", "t_peak_db",
+            "crossover_hz_min", "crossover_hz_max")
+    return {k: worst[k] for k in keys}
+
+
+def run_study(study_path, out_dir, progress=None):
+    """Run the study file ``study_path``; write the report into ``out_dir``; return the summary."""
+    from ..design.antiwindup import discretize, hanus, rate_limits_v_per_s
+    from ..design.coprime import ncf_synthesis
+    from ..design.loopshape import LoopShapeSpec, tune_loop_shape
+    from ..design.margins import family_margins
+    from ..design.reduce import reduce_controller
+    from ..report import design_figures as figs
+    from ..report.markdown import write_report
+
+    spec = load_study(study_path)
+    out = Path(out_dir)
+    say = (lambda stage, d, t: progress(stage, d, t)) if progress else (lambda *a: None)
+    t0 = time.perf_counter()
+    plant = load_plant(spec.plant)
+    serials = [load_plant(p) for p in spec.serials]
+    g = plant.gauge
+    dt = g.period_s
+    delay_samples = 1
+    fam_spec = spec.family
+    freq = np.geomspace(fam_spec["freq_min_hz"], fam_spec["freq_max_hz"], fam_spec["freq_points"])
+    if freq[-1] >= 0.5 / dt:
+        raise DesignError(f"{spec.path}: family.freq_max_hz = {freq[-1]:g} Hz must stay below the servo's "
+                          f"Nyquist frequency {0.5 / dt:g} Hz")
+    fspec = FamilySpec(amplitudes_v=tuple(sorted(fam_spec["amplitudes_v"])), freq_hz=tuple(freq),
+                       bias_v=fam_spec["bias_v"], cp_tolerance=fam_spec["cp_tolerance"],
+                       imbalance_tolerance_ohm=fam_spec["imbalance_tolerance_ohm"])
+    family = plant_family([plant] + serials, fspec, progress=lambda d, t: say("linearize: family", d, t))
+    ub = uncertainty_bound(family, plant)
+    members = family.members
+    summary = {"study": str(spec.path), "name": spec.name, "plant": str(spec.plant),
+               "serials": [str(p) for p in spec.serials], "members": len(members),
+               "excluded_points": family.excluded_points,
+               "uncertainty": {"weight": {"zeros_hz": list(ub.fit.zeros_hz), "poles_hz": list(ub.fit.poles_hz),
+                                          "gain": ub.fit.gain, "order": ub.fit.order},
+                               "coverage_margin_db": ub.coverage.margin_db, "worst_member": ub.coverage.member,
+                               "nominal_capacitance_f": ub.nominal_capacitance_f},
+               "designs": {}, "figures": {}}
+
+    # 1. structured loop shaping: the exported design
+    ls_spec = LoopShapeSpec(phase_margin_deg=spec.targets["phase_margin_deg"],
+                            gain_margin_db=spec.targets["gain_margin_db"],
+                            fc_range_hz=(spec.loop_shape["fc_min_hz"], spec.loop_shape["fc_max_hz"]),
+                            dt_s=dt, delay_samples=delay_samples)
+    ls = tune_loop_shape(freq, members, ub.nominal, ls_spec, progress=lambda d, t: say("design: loop shape", d, t))
+    fc = ls.params["fc_hz"]
+    if ls.crossover_hz < spec.targets["min_crossover_hz"]:
+        raise DesignError(f"{spec.path}: the best loop shape crosses over at {ls.crossover_hz:.0f} Hz, below "
+                          f"targets.min_crossover_hz = {spec.targets['min_crossover_hz']:g} Hz")
+    summary["designs"]["loop_shape"] = {"params": ls.params, "crossover_hz": ls.crossover_hz,
+                                        "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched}
+
+    # 2. Glover-McFarlane on the same shape, reduced and discretized
+    say("design: coprime factors", 0, 1)
+    delayed = ub.nominal * control.ss(control.pade(dt * (1 + delay_samples), 2))
+    ncf = ncf_synthesis(delayed, ls.controller_c, beta=0.9)
+    red = reduce_controller(ncf.controller, min(ncf.controller.nstates, control.ss(ls.controller_c).nstates + 2))
+    ncf_d = discretize(red.controller, dt, fc)
+    ncf_rows, ncf_worst = family_margins(freq, _loops_discrete(ncf_d, freq, members, delay_samples))
+    summary["designs"]["coprime"] = {"eps_max": ncf.eps_max, "eps": ncf.eps, "order_full": red.order_before,
+                                     "order_reduced": red.order_after, "reduction_error_bound": red.error_bound,
+                                     "reduction_error_measured": red.error_measured,
+                                     "worst_discrete": _worst_summary(ncf_worst)}
+    say("design: coprime factors", 1, 1)
+
+    # 3. margins of the continuous, discrete and quantized exported controller
+    cont_rows, cont_worst = family_margins(freq, _loops_continuous(ls.controller_c, freq, members, 0.0))
+    summary["designs"]["loop_shape"]["worst_continuous_no_sampling"] = _worst_summary(cont_worst)
+    from ..export import quantize, to_sos, write_controller, from_fixed
+    gain, sos = to_sos(ls.controller_d)
+    lim = tuple(float(v) for v in spec.export["output_limits_v"])
+    f_max = min(10 * fc, 0.499 / dt)
+    fxp = quantize(gain, sos, dt, spec.export["input_range_v"], lim, f_max)
+    ctrl_q = from_fixed(fxp)
+    q_rows, q_worst = family_margins(freq, _loops_discrete(ctrl_q, freq, members, delay_samples))
+    summary["designs"]["loop_shape"]["worst_quantized"] = _worst_summary(q_worst)
+    meets = all(w["phase_margin_deg"]["value"] >= spec.targets["phase_margin_deg"]
+                and w["gain_margin_db"]["value"] >= spec.targets["gain_margin_db"] for w in (ls.worst, q_worst))
+    summary["designs"]["loop_shape"]["meets_targets"] = bool(meets)
+
+    # 4. export with anti-windup
+    rates = rate_limits_v_per_s(plant.pzt)
+    aw = hanus(ls.controller_d, lim, rates)
+    record = {"name": spec.export["name"], "method": "structured loop shaping (PI, lead, roll-off) against the "
+                                                     "describing-function family", "sample_rate_hz": 1 / dt,
+              "input": {"signal": "gauge_error", "units": "V"}, "output": {"signal": "pzt_voltage", "units": "V"},
+              "output_limits_v": list(lim),
+              "gauge_chain": {"volts_per_meter": ub.nominal_gauge_v_per_m,
+                              "trim": {"scale": g.trim_scale, "bias_v": g.trim_bias_v}},
+              "margins": {"discrete": _worst_summary(ls.worst), "quantized": _worst_summary(q_worst),
+                          "continuous_no_sampling": _worst_summary(cont_worst)},
+              "anti_windup": aw.as_dict(),
+              "provenance": _provenance(spec, plant)}
+    ctrl_dir = out / spec.export["directory"]
+    paths = write_controller(ctrl_dir, spec.export["name"], record, fxp)
+    summary["exported"] = {k: str(v) for k, v in paths.items()}
+
+    # 5. figures and report
+    say("report", 0, 1)
+    nominal_df = family.dfs[f"{plant.serial} C_p x1.00"]
+    loops_d = _loops_discrete(ls.controller_d, freq, members, delay_samples)
+    fw_sf = sampled_factor(freq, dt, delay_samples)
+    lc_loops = loop_responses(ls.controller_d, ub.nominal_gauge_v_per_m, nominal_df, delay_samples=delay_samples)
+    cycles, _ = predict_limit_cycles(nominal_df.amplitudes_v, freq, lc_loops)
+    summary["designs"]["loop_shape"]["limit_cycles"] = [c.__dict__ for c in cycles]
+    fig = summary["figures"]
+    fig["loop_bode"] = str(figs.plot_loop_family(freq, loops_d, out / "loop_bode.png", ls.params))
+    fig["sensitivity"] = str(figs.plot_sensitivities(freq, loops_d, ub, out / "sensitivity.png"))
+    fig["nyquist"] = str(figs.plot_nyquist_family(freq, loops_d, nominal_df, ub, ls.controller_d, fw_sf,
+                                                  cycles, out / "nyquist.png"))
+    fig["steps"] = str(figs.plot_steps(plant, serials, ls.controller_d, ncf_d, dt, delay_samples, out / "steps.png"))
+    table = _members_table([r for r in q_rows])
+    summary["margins_table"] = table
+    summary["seconds"] = time.perf_counter() - t0
+    summary["report"] = str(write_report(out / "report.md", spec, summary, table))
+    say("report", 1, 1)
+    return summary
+
+
+def _provenance(spec, plant):
+    import datetime
+    import hashlib
+    from importlib.metadata import version
+    text = Path(plant.source).read_bytes()
+    return {"plant_file": plant.source, "plant_sha256": hashlib.sha256(text).hexdigest(),
+            "study": str(spec.path), "workbench_version": version("workbench"),
+            "date": datetime.date.today().isoformat()}

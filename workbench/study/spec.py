@@ -1,0 +1,132 @@
+"""Study files (``studies/*.toml``): what a design study runs, validated before anything runs.
+
+Paths inside a study are relative to the study file. Every key is checked: an
+unknown or missing key, a wrong type or an out-of-range value is a
+:class:`~workbench.errors.StudyDefinitionError` naming the file, the key, the value
+and what is expected.
+"""
+
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..errors import StudyDefinitionError
+from ..fields import Field, check_value
+
+__all__ = ["SCHEMA_VERSION", "StudySpec", "load_study"]
+
+SCHEMA_VERSION = "workbench.study/1"
+
+_SCHEMA = {
+    "": {
+        "schema": Field("str", expect=f'the string "{SCHEMA_VERSION}"'),
+        "name": Field("str", expect="a short name for the study, used in file names"),
+        "plant": Field("str", expect="the nominal plant file, relative to the study file"),
+        "serials": Field("strs", expect="other plant files of the family (a list, may be empty)", required=False),
+    },
+    "family": {
+        "amplitudes_v": Field("floats", 0.0, 200.0, lo_open=True, expect="sine amplitudes in V, e.g. [0.1, 1, 10, 50]"),
+        "bias_v": Field("float", -20.0, 120.0, expect="the sine bias in V, inside the amplifier range"),
+        "freq_min_hz": Field("float", 0.0, 1e4, lo_open=True, expect="lowest frequency in Hz"),
+        "freq_max_hz": Field("float", 0.0, 1e5, lo_open=True, expect="highest frequency in Hz, below Nyquist"),
+        "freq_points": Field("int", 8, 400, expect="number of log-spaced frequencies"),
+        "cp_tolerance": Field("float", 0.0, 0.9, expect="relative C_p tolerance, e.g. 0.2"),
+        "imbalance_tolerance_ohm": Field("float", 0.0, 10.0, expect="per-arm bridge imbalance in ohm, e.g. 0.4"),
+    },
+    "targets": {
+        "phase_margin_deg": Field("float", 0.0, 90.0, lo_open=True, expect="phase margin in degrees, e.g. 45"),
+        "gain_margin_db": Field("float", 0.0, 40.0, lo_open=True, expect="gain margin in dB, e.g. 6"),
+        "min_crossover_hz": Field("float", 0.0, 5e3, lo_open=True, expect="the lowest acceptable crossover in Hz"),
+    },
+    "loop_shape": {
+        "fc_min_hz": Field("float", 0.0, 5e3, lo_open=True, expect="lowest crossover searched, Hz"),
+        "fc_max_hz": Field("float", 0.0, 5e3, lo_open=True, expect="highest crossover searched, Hz"),
+    },
+    "hinf": {
+        "time_limit_s": Field("float", 0.0, 3600.0, lo_open=True, expect="time limit of the slycot synthesis, s"),
+    },
+    "export": {
+        "name": Field("str", expect="controller name (file stem), e.g. \"sn637_loopshape\""),
+        "directory": Field("str", expect="folder for the exported controllers, relative to the output folder"),
+        "output_limits_v": Field("floats", -1000.0, 1000.0, expect="[low, high] PZT command limits in V"),
+        "input_range_v": Field("float", 0.0, 100.0, lo_open=True, expect="error input range in firmware V, e.g. 2.6"),
+    },
+}
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    path: Path
+    name: str
+    plant: Path
+    serials: tuple
+    family: dict
+    targets: dict
+    loop_shape: dict
+    hinf: dict
+    export: dict
+
+
+def _check(path, key, field, value):
+    if field.kind == "strs":
+        if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
+            raise StudyDefinitionError(path, key, f"got {value!r}; expected {field.expect}")
+        return tuple(value)
+    return check_value(path, key, field, value, StudyDefinitionError)
+
+
+def load_study(path):
+    """Read and validate a study file; paths come back resolved against its folder."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise StudyDefinitionError(path, "file", f"cannot be read ({exc.strerror}); give an existing study file, "
+                                                 f"e.g. studies/sn637_servo.toml") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
+    out = {}
+    for section, schema in _SCHEMA.items():
+        table = data if section == "" else data.get(section)
+        if table is None:
+            raise StudyDefinitionError(path, section, f"missing section [{section}]; expected keys {', '.join(schema)}")
+        vals = {}
+        for key, value in table.items():
+            where = f"{section}.{key}" if section else key
+            if section == "" and key in _SCHEMA:
+                continue
+            if key not in schema:
+                raise StudyDefinitionError(path, where, f"unknown key (value {value!r}); known keys here: "
+                                                        f"{', '.join(sorted(schema))}")
+            vals[key] = _check(path, where, schema[key], value)
+        for key, field in schema.items():
+            if field.required and key not in vals:
+                where = f"{section}.{key}" if section else key
+                raise StudyDefinitionError(path, where, f"missing; expected {field.expect}")
+        out[section] = vals
+    unknown = set(data) - set(_SCHEMA) - set(_SCHEMA[""])
+    if unknown:
+        raise StudyDefinitionError(path, sorted(unknown)[0], f"unknown section; known: {', '.join(s for s in _SCHEMA if s)}")
+    top = out[""]
+    if top["schema"] != SCHEMA_VERSION:
+        raise StudyDefinitionError(path, "schema", f"got {top['schema']!r}; expected {SCHEMA_VERSION!r}")
+    fam, ls, ex = out["family"], out["loop_shape"], out["export"]
+    if not fam["freq_min_hz"] < fam["freq_max_hz"]:
+        raise StudyDefinitionError(path, "family.freq_max_hz", f"got {fam['freq_max_hz']:g}; must exceed "
+                                                              f"freq_min_hz = {fam['freq_min_hz']:g}")
+    if not ls["fc_min_hz"] < ls["fc_max_hz"]:
+        raise StudyDefinitionError(path, "loop_shape.fc_max_hz", "must exceed fc_min_hz")
+    lim = ex["output_limits_v"]
+    if lim.size != 2 or not lim[0] < lim[1]:
+        raise StudyDefinitionError(path, "export.output_limits_v", f"got {lim.tolist()}; expected [low, high], low < high")
+    base = path.parent
+    files = [base / top["plant"]] + [base / s for s in top.get("serials", ())]
+    for i, f in enumerate(files):
+        if not f.is_file():
+            key = "plant" if i == 0 else f"serials[{i - 1}]"
+            raise StudyDefinitionError(path, key, f"{f} does not exist; paths are relative to the study file")
+    if not all(math.isfinite(a) for a in fam["amplitudes_v"]):
+        raise StudyDefinitionError(path, "family.amplitudes_v", "must be finite")
+    return StudySpec(path=path, name=top["name"], plant=files[0], serials=tuple(files[1:]), family=fam,
+                     targets=out["targets"], loop_shape=ls, hinf=out["hinf"], export=ex)
