@@ -4,8 +4,6 @@ from pathlib import Path
 
 import numpy as np
 
-from .output import write_text
-
 __all__ = ["write_report"]
 
 
@@ -28,6 +26,7 @@ def _worst_rows(worst):
 
 def write_report(path, spec, summary, table):
     """Write ``report.md`` for the study summary; returns its path."""
+    from .output import write_text
     d = summary["designs"]
     ls = d["loop_shape"]
     p = ls["params"]
