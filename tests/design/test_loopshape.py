@@ -1,0 +1,64 @@
+"""Structured loop shaping against a (reduced) family: targets met on every member, trade-offs, errors."""
+
+import numpy as np
+import pytest
+
+from workbench.design.loopshape import LoopShapeSpec, family_loops, structured_controller, tune_loop_shape
+from workbench.design.margins import family_margins
+from workbench.errors import DesignError
+from workbench.linearize.uncertainty import FamilySpec, plant_family, uncertainty_bound
+
+SPEC = FamilySpec(amplitudes_v=(0.1, 3.0), freq_hz=tuple(np.geomspace(1.0, 4990.0, 40)),
+                  small_signal_biases_v=(50.0,))
+SHAPES = dict(integral_ratios=(8.0,), lead_ratios=(1.0, 3.0), rolloff_ratios=(8.0,), fc_points=12)
+
+
+@pytest.fixture(scope="module")
+def family(sn637):
+    fam = plant_family([sn637], SPEC)
+    return fam, uncertainty_bound(fam, sn637)
+
+
+def test_design_meets_the_targets_on_every_member(family):
+    fam, ub = family
+    r = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(**SHAPES))
+    rows, worst = family_margins(fam.freq_hz, family_loops(r.controller_d, fam.freq_hz,
+                                                           {n: g for n, g in fam.members.items()
+                                                            if np.any(np.isfinite(g))}))
+    assert all(abs(row["phase_margin_deg"]) >= 45 and abs(row["gain_margin_db"]) >= 6 for row in rows)
+    assert worst["crossover_hz_min"]["value"] >= 100                   # the issue's floor
+    assert r.crossover_hz == pytest.approx(worst["crossover_hz_min"]["value"])
+    # the integrator: infinite gain at DC (a pole at z = 1)
+    assert np.min(np.abs(r.controller_d.poles() - 1)) < 1e-9
+
+
+def test_stricter_margins_cost_crossover(family):
+    fam, ub = family
+    loose = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(**SHAPES))
+    strict = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal,
+                             LoopShapeSpec(phase_margin_deg=75.0, **SHAPES))
+    assert strict.params["fc_hz"] < loose.params["fc_hz"]
+    assert strict.worst["phase_margin_deg"]["value"] >= 75 and strict.worst["gain_margin_db"]["value"] >= 6
+
+
+def test_impossible_crossover_range_is_an_error(family):
+    fam, ub = family
+    with pytest.raises(DesignError, match="lower the range"):
+        tune_loop_shape(fam.freq_hz, fam.members, ub.nominal,
+                        LoopShapeSpec(fc_range_hz=(2500.0, 4000.0), **{**SHAPES, "fc_points": 3}))
+
+
+def test_structured_controller_shape():
+    c = structured_controller(2.0, 300.0, 5.0, 4.0, 6.0, 0.6)
+    w = 2 * np.pi * 300.0
+    # the lead is centred on f_c: the phase there is the lead's maximum, atan((a - 1) / (2 sqrt a)) = 36.9 deg,
+    # less the PI's atan(1/5) and the roll-off's small lag
+    ph = np.degrees(np.angle(complex(np.squeeze(c(1j * w)))))
+    lead = np.degrees(np.arctan(3 / 4))
+    pi = np.degrees(np.arctan(1 / 5))
+    roll = np.degrees(np.arctan2(2 * 0.6 / 6, 1 - 1 / 36))
+    assert ph == pytest.approx(lead - pi - roll, abs=1e-6)
+    notch = structured_controller(2.0, 300.0, 5.0, 1.0, 6.0, 0.6, notch=(1000.0, 20.0, 0.5))
+    n_at = abs(complex(np.squeeze(notch(2j * np.pi * 1000.0))))
+    plain = abs(complex(np.squeeze(structured_controller(2.0, 300.0, 5.0, 1.0, 6.0, 0.6)(2j * np.pi * 1000.0))))
+    assert 20 * np.log10(plain / n_at) == pytest.approx(20.0, abs=1e-6)
