@@ -16,6 +16,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 
 demo: $(STAMP)
 	$(BIN)/workbench demo --out out/demo --json out/demo/summary.json
+	$(BIN)/workbench study studies/sn637_servo.toml --out out/study
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

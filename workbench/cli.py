@@ -163,6 +163,22 @@ def cmd_linearize(args):
     _emit(args, data, lines)
 
 
+def cmd_study(args):
+    from .study.run import run_study
+    data = run_study(args.study, args.out, progress=_progress_bar)
+    ls = data["designs"]["loop_shape"]
+    q = ls["worst_quantized"]
+    lines = [
+        f"study {data['name']}: {data['members']} family members",
+        f"  exported {data['exported']['json']}: crossover {ls['crossover_hz']:.0f}-"
+        f"{q['crossover_hz_max']['value']:.0f} Hz over the family; quantized worst PM "
+        f"{q['phase_margin_deg']['value']:.1f} deg, GM {q['gain_margin_db']['value']:.1f} dB "
+        f"({'meets' if ls['meets_targets'] else 'MISSES'} the targets)",
+        f"  report {data['report']}",
+    ]
+    _emit(args, data, lines)
+
+
 def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
@@ -235,6 +251,16 @@ def build_parser():
     p.add_argument("--out", type=Path, help="folder for the figures")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
     p.set_defaults(func=cmd_linearize)
+
+    p = sub.add_parser("study", help="a design study: linearize, design, margins, export, report",
+                       description="Run a study file (studies/*.toml): the plant family, the structured "
+                                   "loop-shaping design (exported for firmware), Glover-McFarlane, H-infinity "
+                                   "and convex designs for comparison, margins on every member, a Markdown "
+                                   "report with figures and summary.json.")
+    p.add_argument("study", type=Path, help="e.g. studies/sn637_servo.toml")
+    p.add_argument("--out", type=Path, default=Path("out/study"), help="output folder (default out/study)")
+    p.add_argument("--json", type=Path, help="write the summary as JSON here (summary.json in --out is always written)")
+    p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("demo", help="the default job: seed reproductions with figures",
                        description="Gauge gains, T_em from Table 1, the free-free test on the three "

@@ -20,8 +20,10 @@ TB01ID, a diagonal state scaling): the piezo model's raw realization spans 1e-1 
 in its entries, which SB10AD otherwise takes for a rank-deficient problem (info = 1).
 """
 
+import contextlib
 import math
 import multiprocessing
+import os
 import time
 import warnings
 from dataclasses import dataclass
@@ -33,9 +35,12 @@ import numpy as np
 from ..errors import DesignError
 
 __all__ = ["HinfResult", "MixedSensitivityWeights", "default_weights", "mixed_sensitivity",
-           "weighted_responses", "weighted_norms", "crossover_hz"]
+           "weighted_responses", "weighted_norms", "gain_crossover_hz"]
 
 _START_METHODS = ("spawn", "fork")
+# SB10AD works on matrices of order ~10-30, where a multithreaded OpenBLAS only adds contention:
+# single-threaded, a synthesis on the piezo plant takes ~0.5 s instead of 2-4 s on two busy cores.
+_CHILD_ENV = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 _WEIGHT_NAMES = ("w_s", "w_ks", "w_t")
 _NORM_KEYS = ("S", "KS", "T")
 
@@ -190,7 +195,7 @@ def weighted_norms(plant, controller, w_s, w_ks, w_t, freq_hz):
     return norms
 
 
-def crossover_hz(freq_hz, loop):
+def gain_crossover_hz(freq_hz, loop):
     """Lowest frequency where |loop| falls through 1, interpolated in log-log, Hz; nan if none."""
     f = np.asarray(freq_hz, dtype=float)
     mag = np.log(np.abs(np.asarray(loop)))
@@ -265,8 +270,8 @@ def default_weights(G, crossover_hz, w_m, output_range_v, *, error_range_v=2.6, 
     >>> G = control.tf([0.04 * 1460.0], [1.0, 1460.0])
     >>> w_m = control.tf([0.407 / 1004, 0.407], [1 / 300, 1.0])
     >>> w_s, w_ks, w_t = default_weights(G, 200.0, w_m, (-20.0, 120.0))
-    >>> round(abs(w_s(0)), 1), round(abs(w_ks(0)) * 140 / 2.6, 6)
-    (10000.0, 1.0)
+    >>> print(f"|W_s(0)| = {abs(w_s(0)):.0f}, 1/|W_ks(0)| = {1 / abs(w_ks(0)):.1f} V/V")
+    |W_s(0)| = 10000, 1/|W_ks(0)| = 53.8 V/V
     """
     g = _as_siso(G, "G")
     wm = _as_siso(w_m, "w_m")
@@ -335,6 +340,21 @@ def _mixsyn_worker(conn, plant_abcd, weights_abcd):
         conn.send(("error", type(err).__name__, getattr(err, "info", None), str(err).strip()))
     finally:
         conn.close()
+
+
+def _check_d12(g, weights):
+    """D12 = [-W_s(inf) G(inf); W_ks(inf); W_t(inf) G(inf)] must be nonzero (full column rank, SISO).
+
+    SB10AD should report this as info = 3, but with python-control's initial gamma of 1e100 it
+    was seen to run for over a minute instead; checking first answers at once.
+    """
+    dg = float(np.squeeze(control.ss(g).D))
+    d = [0.0 if w is None else float(np.squeeze(control.ss(w).D)) for w in weights]
+    d12 = np.array([-d[0] * dg, d[1], d[2] * dg])
+    if not np.any(np.abs(d12) > 1e-12 * max(1.0, abs(dg))):
+        raise DesignError("D12 = [-W_s G; W_ks; W_t G] at infinite frequency is zero, so the H-infinity problem is "
+                          "singular (SB10AD info 3): w_ks needs a nonzero high-frequency gain; make it biproper "
+                          "(as many zeros as poles), as default_weights does")
 
 
 def _check_weight_poles(weights):
@@ -430,6 +450,7 @@ def mixed_sensitivity(G, w_s, w_ks, w_t, time_limit_s=60.0, *, gamma_max=None, f
     if gamma_max is not None and not (np.isfinite(gamma_max) and gamma_max > 0):
         raise ValueError(f"gamma_max must be a positive number or None; got {gamma_max!r}")
     _check_weight_poles(weights)
+    _check_d12(g, weights)
 
     message = _run_with_limit(_balanced_matrices(g), [None if w is None else _balanced_matrices(w)
                                                       for w in weights], limit, start_method, t0)
@@ -463,7 +484,22 @@ def mixed_sensitivity(G, w_s, w_ks, w_t, time_limit_s=60.0, *, gamma_max=None, f
                           f"crossover, or raise gamma_max")
     return HinfResult(controller=k, gamma=float(gamma), closed_loop_norms=norms,
                       meets_specs=bool(max(norms[key] for key in _NORM_KEYS) < 1.0),
-                      crossover_hz=crossover_hz(f, resp["L"]), rcond=tuple(rcond), seconds=seconds)
+                      crossover_hz=gain_crossover_hz(f, resp["L"]), rcond=tuple(rcond), seconds=seconds)
+
+
+@contextlib.contextmanager
+def _environment(overrides):
+    """Set environment variables while a spawned child starts (it copies os.environ), then restore them."""
+    saved = {key: os.environ.get(key) for key in overrides}
+    os.environ.update(overrides)
+    try:
+        yield
+    finally:
+        for key, value in saved.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
 
 
 def _run_with_limit(plant_abcd, weights_abcd, limit, start_method, t0):
@@ -472,7 +508,9 @@ def _run_with_limit(plant_abcd, weights_abcd, limit, start_method, t0):
     receiver, sender = ctx.Pipe(duplex=False)
     proc = ctx.Process(target=_mixsyn_worker, args=(sender, plant_abcd, weights_abcd), daemon=True,
                        name="workbench-mixsyn")
-    proc.start()
+    # A spawned child loads its BLAS afresh and reads these; a forked one inherits the parent's threads.
+    with _environment(_CHILD_ENV if start_method == "spawn" else {}):
+        proc.start()
     sender.close()                                 # the child holds the only writer: EOF if it dies
     try:
         ready = receiver.poll(max(0.0, limit - (time.perf_counter() - t0)))
@@ -486,8 +524,9 @@ def _run_with_limit(plant_abcd, weights_abcd, limit, start_method, t0):
         except EOFError:
             proc.join(timeout=5.0)
             raise DesignError(f"the H-infinity synthesis process died (exit code {proc.exitcode}) without an "
-                              f"answer; check the plant and weights for non-finite or extreme values, or use "
-                              f"the convex route") from None
+                              f"answer; with start_method='spawn' the calling script needs an "
+                              f"`if __name__ == '__main__':` guard; otherwise check the plant and weights for "
+                              f"non-finite or extreme values, or use the convex route") from None
     finally:
         receiver.close()
         if proc.is_alive():

@@ -6,7 +6,6 @@ written into the output folder (whole or not at all, file by file).
 """
 
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import control
@@ -172,6 +171,8 @@ def run_study(study_path, out_dir, progress=None):
     summary["margins_table"] = table
     summary["seconds"] = time.perf_counter() - t0
     summary["report"] = str(write_report(out / "report.md", spec, summary, table))
+    from ..report import write_json
+    write_json(out / "summary.json", summary)
     say("report", 1, 1)
     return summary
 
