@@ -7,6 +7,7 @@ module separates the stable part itself (ordered Schur form and a Sylvester
 equation) to compute those values, and also measures the error on a grid.
 """
 
+import warnings
 from dataclasses import dataclass
 
 import control
@@ -48,11 +49,16 @@ def reduce_controller(ctrl, order, freq_hz=None):
     stable, n_unstable = stable_part(ctrl)
     if order < n_unstable:
         raise ValueError(f"cannot reduce below the {n_unstable} marginal/unstable modes (integrators) it keeps")
-    hsv = np.sort(control.hsvd(stable))[::-1] if stable.nstates else np.zeros(0)
+    with np.errstate(invalid="ignore"):      # Gramian eigenvalues a rounding below 0 -> sqrt NaN -> 0
+        hsv = np.sort(np.nan_to_num(control.hsvd(stable)))[::-1] if stable.nstates else np.zeros(0)
     k_stable = order - n_unstable
     bound = float(2 * np.sum(hsv[k_stable:]))
-    red = control.balred(ctrl, order, method="truncate")
+    with warnings.catch_warnings():
+        # slycot warns when the minimal realization is already smaller than ``order``: it then
+        # returns that minimal realization, which is what we want
+        warnings.simplefilter("ignore")
+        red = control.balred(ctrl, order, method="truncate")
     f = np.geomspace(1e-2, 1e5, 800) if freq_hz is None else np.asarray(freq_hz, dtype=float)
     w = 2j * np.pi * f
     err = max(abs(complex(np.squeeze(ctrl(s))) - complex(np.squeeze(red(s)))) for s in w)
-    return Reduction(red, n, order, bound, float(err), tuple(float(h) for h in hsv))
+    return Reduction(red, n, int(red.nstates), bound, float(err), tuple(float(h) for h in hsv))

@@ -47,8 +47,9 @@ def plot_sensitivities(freq_hz, loops, ub, path):
     """|S| and |T| of every member with 1/|W_m| (robust stability needs |T| below it)."""
     fig, ax = plt.subplots(figsize=(9, 5.5))
     for l in loops.values():
-        ax.loglog(freq_hz, np.abs(1 / (1 + l)), color="C0", lw=0.5, alpha=0.5)
-        ax.loglog(freq_hz, np.abs(l / (1 + l)), color="C1", lw=0.5, alpha=0.5)
+        with np.errstate(invalid="ignore"):        # NaN where a member is left out
+            ax.loglog(freq_hz, np.abs(1 / (1 + l)), color="C0", lw=0.5, alpha=0.5)
+            ax.loglog(freq_hz, np.abs(l / (1 + l)), color="C1", lw=0.5, alpha=0.5)
     w = np.abs(np.asarray(control.frequency_response(ub.fit.weight, 2 * np.pi * freq_hz).complex).ravel())
     ax.loglog(freq_hz, 1 / w, "k--", lw=1.5, label="1 / |W_m|: |T| must stay below")
     ax.plot([], [], "C0", label="|S| of each member")

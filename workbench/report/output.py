@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_json", "save_figure", "to_jsonable"]
+__all__ = ["write_json", "write_text", "write_bytes", "save_figure", "to_jsonable"]
 
 
 def to_jsonable(obj):
@@ -44,6 +44,16 @@ def write_json(path, data):
     """Write ``data`` as indented JSON to ``path`` atomically."""
     text = json.dumps(to_jsonable(data), indent=2, allow_nan=False)
     return _atomic(path, lambda tmp: Path(tmp).write_text(text + "\n", encoding="utf-8"))
+
+
+def write_text(path, text):
+    """Write ``text`` (UTF-8) to ``path`` atomically."""
+    return _atomic(path, lambda tmp: Path(tmp).write_text(text, encoding="utf-8"))
+
+
+def write_bytes(path, data):
+    """Write ``data`` to ``path`` atomically."""
+    return _atomic(path, lambda tmp: Path(tmp).write_bytes(data))
 
 
 def save_figure(fig, path, dpi=120):

@@ -20,15 +20,23 @@ from .spec import load_study
 __all__ = ["run_study"]
 
 
-def _members_table(rows):
-    """Margins grouped per serial and per amplitude/branch (worst over C_p corners and gauge extremes)."""
+def _members_table(rows, freq_hz, members):
+    """Margins grouped per serial and per amplitude/branch (worst over C_p corners and gauge extremes).
+
+    ``linear_up_to_hz``: the highest frequency at which the member is in the family (describing
+    functions of larger amplitudes slew above a few hertz and have no crossover of their own).
+    """
     groups = {}
     for r in rows:
+        ok = np.isfinite(members[r["member"]])
+        top = float(freq_hz[ok][-1]) if ok.any() else float("nan")
         serial, _, rest = r["member"].partition(" C_p ")
         what = rest.split(", ")[1] if ", " in rest else rest
         g = groups.setdefault((serial, what), {"serial": serial, "member": what, "phase_margin_deg": np.inf,
                                                 "gain_margin_db": np.inf, "crossover_min_hz": np.inf,
-                                                "crossover_max_hz": 0.0, "disk_margin": np.inf})
+                                                "crossover_max_hz": 0.0, "disk_margin": np.inf,
+                                                "linear_up_to_hz": 0.0})
+        g["linear_up_to_hz"] = max(g["linear_up_to_hz"], top)
         g["phase_margin_deg"] = min(g["phase_margin_deg"], abs(r["phase_margin_deg"]))
         g["gain_margin_db"] = min(g["gain_margin_db"], abs(r["gain_margin_db"]))
         g["disk_margin"] = min(g["disk_margin"], r["disk_margin"])
@@ -110,7 +118,7 @@ def run_study(study_path, out_dir, progress=None):
 
     # 2. Glover-McFarlane on the same shape, reduced and discretized
     say("design: coprime factors", 0, 1)
-    delayed = ub.nominal * control.ss(control.pade(dt * (1 + delay_samples), 2))
+    delayed = ub.nominal * control.ss(control.tf(*control.pade(dt * (1 + delay_samples), 2)))
     ncf = ncf_synthesis(delayed, ls.controller_c, beta=0.9)
     red = reduce_controller(ncf.controller, min(ncf.controller.nstates, control.ss(ls.controller_c).nstates + 2))
     ncf_d = discretize(red.controller, dt, fc)
@@ -121,22 +129,26 @@ def run_study(study_path, out_dir, progress=None):
                                      "worst_discrete": _worst_summary(ncf_worst)}
     say("design: coprime factors", 1, 1)
 
-    # 3. margins of the continuous, discrete and quantized exported controller
+    # 3. H-infinity (slycot, time-limited) and the convex route on the same weights, cross-checked
+    summary["designs"].update(_hinf_and_convex(spec, ub, g, plant.pzt, dt, delay_samples, delayed, freq, members,
+                                               say))
+
+    # 4. margins of the continuous, discrete and quantized exported controller
     cont_rows, cont_worst = family_margins(freq, _loops_continuous(ls.controller_c, freq, members, 0.0))
     summary["designs"]["loop_shape"]["worst_continuous_no_sampling"] = _worst_summary(cont_worst)
-    from ..export import quantize, to_sos, write_controller, from_fixed
+    from ..export import from_sos, quantize, to_sos, write_controller
     gain, sos = to_sos(ls.controller_d)
     lim = tuple(float(v) for v in spec.export["output_limits_v"])
     f_max = min(10 * fc, 0.499 / dt)
-    fxp = quantize(gain, sos, dt, spec.export["input_range_v"], lim, f_max)
-    ctrl_q = from_fixed(fxp)
+    fxp = quantize(gain, sos, dt, input_range_v=spec.export["input_range_v"], output_limits_v=lim, f_max_hz=f_max)
+    ctrl_q = control.ss(from_sos(*fxp.quantized_sos(), dt))
     q_rows, q_worst = family_margins(freq, _loops_discrete(ctrl_q, freq, members, delay_samples))
     summary["designs"]["loop_shape"]["worst_quantized"] = _worst_summary(q_worst)
     meets = all(w["phase_margin_deg"]["value"] >= spec.targets["phase_margin_deg"]
                 and w["gain_margin_db"]["value"] >= spec.targets["gain_margin_db"] for w in (ls.worst, q_worst))
     summary["designs"]["loop_shape"]["meets_targets"] = bool(meets)
 
-    # 4. export with anti-windup
+    # 5. export with anti-windup
     rates = rate_limits_v_per_s(plant.pzt)
     aw = hanus(ls.controller_d, lim, rates)
     record = {"name": spec.export["name"], "method": "structured loop shaping (PI, lead, roll-off) against the "
@@ -153,7 +165,7 @@ def run_study(study_path, out_dir, progress=None):
     paths = write_controller(ctrl_dir, spec.export["name"], record, fxp)
     summary["exported"] = {k: str(v) for k, v in paths.items()}
 
-    # 5. figures and report
+    # 6. figures and report
     say("report", 0, 1)
     nominal_df = family.dfs[f"{plant.serial} C_p x1.00"]
     loops_d = _loops_discrete(ls.controller_d, freq, members, delay_samples)
@@ -167,7 +179,7 @@ def run_study(study_path, out_dir, progress=None):
     fig["nyquist"] = str(figs.plot_nyquist_family(freq, loops_d, nominal_df, ub, ls.controller_d, fw_sf,
                                                   cycles, out / "nyquist.png"))
     fig["steps"] = str(figs.plot_steps(plant, serials, ls.controller_d, ncf_d, dt, delay_samples, out / "steps.png"))
-    table = _members_table([r for r in q_rows])
+    table = _members_table(q_rows, freq, members)
     summary["margins_table"] = table
     summary["seconds"] = time.perf_counter() - t0
     summary["report"] = str(write_report(out / "report.md", spec, summary, table))
@@ -175,6 +187,51 @@ def run_study(study_path, out_dir, progress=None):
     write_json(out / "summary.json", summary)
     say("report", 1, 1)
     return summary
+
+
+def _hinf_and_convex(spec, ub, g, plant_pzt, dt, delay_samples, delayed, freq, members, say):
+    """Both optimal designs at a 200 Hz bandwidth target with W_m on T; errors are reported, not fatal."""
+    from ..design.antiwindup import discretize
+    from ..design.convex import youla_mixed_sensitivity
+    from ..design.hinf import default_weights, mixed_sensitivity
+    from ..design.margins import family_margins
+    from ..linearize.sampled import firmware_plant
+    out = {}
+    target_hz = 200.0
+    lim = spec.export["output_limits_v"]
+    weights = default_weights(delayed, target_hz, ub.fit.weight, (float(lim[0]), float(lim[1])),
+                              error_range_v=spec.export["input_range_v"])
+    say("design: H-infinity", 0, 2)
+    try:
+        h = mixed_sensitivity(delayed, *weights, time_limit_s=spec.hinf["time_limit_s"])
+        kd = discretize(h.controller, dt, min(max(h.crossover_hz, 1.0), 0.4 / dt))
+        _, worst = family_margins(freq, _loops_discrete(kd, freq, members, delay_samples))
+        out["hinf"] = {"gamma": h.gamma, "norms": h.closed_loop_norms, "meets_specs": h.meets_specs,
+                       "crossover_hz": h.crossover_hz, "order": int(control.ss(h.controller).nstates),
+                       "seconds": h.seconds, "worst_discrete": _worst_summary(worst)}
+    except DesignError as err:
+        out["hinf"] = {"error": str(err)}
+    say("design: convex", 1, 2)
+    try:
+        # the creep branches put poles within 1e-7 of z = 1, which the FIR Youla parameter and the
+        # reduction's bilinear map cannot resolve: the convex route designs on the plant without
+        # them (integral action covers their slow drift) and is checked on the full family below
+        from dataclasses import replace as _replace
+        from ..linearize.small_signal import small_signal_model
+        p_nc = small_signal_model(_replace(plant_pzt, creep=None), ub.nominal_capacitance_f)[0, 0]
+        gz = firmware_plant(p_nc, g, 7.5e-6, delay_samples)
+        c = youla_mixed_sensitivity(gz, *weights, taps=60)
+        _, worst = family_margins(freq, _loops_discrete(c.controller, freq, members, delay_samples))
+        out["convex"] = {"gamma": c.gamma, "norms": c.closed_loop_norms, "meets_specs": c.meets_specs,
+                         "crossover_hz": c.crossover_hz, "order": c.order, "solver": c.solver,
+                         "seconds": c.seconds, "worst_discrete": _worst_summary(worst)}
+    except DesignError as err:
+        out["convex"] = {"error": str(err)}
+    say("design: convex", 2, 2)
+    if "gamma" in out.get("hinf", {}) and "gamma" in out.get("convex", {}):
+        out["cross_check"] = {"hinf_over_convex_stacked_norm": out["hinf"]["norms"].get("stacked", float("nan"))
+                              / max(out["convex"]["norms"].get("stacked", float("nan")), 1e-300)}
+    return out
 
 
 def _provenance(spec, plant):

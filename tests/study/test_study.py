@@ -1,0 +1,86 @@
+"""Design studies: the study file is validated; a reduced study runs end to end (the full one: make demo)."""
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from ..conftest import FULL
+from workbench.cli import main
+from workbench.errors import StudyDefinitionError
+from workbench.study.spec import load_study
+
+
+def _study_text(root, reduced=True):
+    text = (root / "studies" / "sn637_servo.toml").read_text()
+    text = text.replace('"../plants/', f'"{root}/plants/')
+    if reduced:
+        text = re.sub(r"amplitudes_v = \[.*?\]", "amplitudes_v = [0.1, 3.0]", text)
+        text = re.sub(r"freq_points = \d+", "freq_points = 36", text)
+        text = re.sub(r'serials = \[.*?\]', f'serials = ["{root}/plants/p888_51_sn618.toml"]', text)
+        text = text.replace("fc_min_hz = 50.0", "fc_min_hz = 150.0")
+    return text
+
+
+def test_the_shipped_study_loads(root):
+    s = load_study(root / "studies" / "sn637_servo.toml")
+    assert s.plant.name == "p888_51_sn637_creep.toml" and len(s.serials) == 2
+    assert s.targets["phase_margin_deg"] == 45.0 and s.export["output_limits_v"].tolist() == [-20.0, 120.0]
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("freq_points = 60", "freq_points = 3", "family.freq_points"),
+    ("phase_margin_deg = 45.0", "phase_margin_deg = \"45\"", "targets.phase_margin_deg"),
+    ("bias_v = 50.0", "bias_v = 50.0\nbias_mv = 1", "family.bias_mv"),
+    ("time_limit_s = 60.0", "time_limit_s = nan", "hinf.time_limit_s"),
+    ("output_limits_v = [-20.0, 120.0]", "output_limits_v = [120.0, -20.0]", "export.output_limits_v"),
+    ("plant = \"../plants/p888_51_sn637_creep.toml\"", "plant = \"../plants/nothing.toml\"", "plant"),
+    ("[targets]", "[target]", "target"),
+])
+def test_bad_study_files_name_file_and_key(tmp_path, root, old, new, key):
+    text = (root / "studies" / "sn637_servo.toml").read_text()
+    assert old in text
+    (tmp_path / "studies").mkdir()
+    (tmp_path / "plants").symlink_to(root / "plants")
+    bad = tmp_path / "studies" / "bad.toml"
+    bad.write_text(text.replace(old, new, 1))
+    with pytest.raises(StudyDefinitionError, match=re.escape(f"[{key}]")) as err:
+        load_study(bad)
+    assert str(bad) in str(err.value)
+    assert main(["study", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.slow
+def test_study_end_to_end(tmp_path, root):
+    study = tmp_path / "study.toml"
+    study.write_text(_study_text(root, reduced=not FULL))
+    out = tmp_path / "out"
+    assert main(["study", str(study), "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    ls = summary["designs"]["loop_shape"]
+    assert ls["meets_targets"]
+    q = ls["worst_quantized"]
+    assert q["phase_margin_deg"]["value"] >= 45 and q["gain_margin_db"]["value"] >= 6
+    assert q["crossover_hz_min"]["value"] >= 100
+    # the exported controller carries what the verification issue needs
+    ctrl = json.loads((out / "controllers" / "sn637_loopshape.json").read_text())
+    for key in ("name", "method", "sample_rate_hz", "input", "output", "gain", "sos", "output_limits_v",
+                "gauge_chain", "margins", "fixed_point", "provenance", "anti_windup"):
+        assert key in ctrl, key
+    assert ctrl["input"] == {"signal": "gauge_error", "units": "V"}
+    assert ctrl["anti_windup"]["method"] == "hanus" and ctrl["anti_windup"]["d"] != 0
+    up, down = ctrl["anti_windup"]["output_rate_limit_v_per_s"]
+    assert down / up == pytest.approx(7.0)
+    for ext in ("h", "csv", "mat"):
+        assert (out / "controllers" / f"sn637_loopshape.{ext}").stat().st_size > 100
+    report = (out / "report.md").read_text()
+    for png in re.findall(r"\(([a-z_]+\.png)\)", report):
+        assert (out / png).stat().st_size > 10_000, png
+    # the other designs ran (or said clearly why not)
+    d = summary["designs"]
+    assert d["coprime"]["eps"] > 0.2
+    for key in ("hinf", "convex"):
+        assert "gamma" in d[key] or "error" in d[key]
+    assert np.isfinite(d["hinf"].get("gamma", 1.0))

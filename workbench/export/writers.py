@@ -1,0 +1,272 @@
+"""Firmware files of a quantized controller: NAME.json, NAME.h, NAME.csv and NAME.mat.
+
+Every file is rendered in memory first and then written atomically, so a
+failure leaves either the previous files or none, never a half-written one.
+The C header holds both cascades: ``NAME_float_step`` (double, equal to
+:func:`.run_float` with the output limits) and ``NAME_fixed_step`` (int32/int64,
+bit for bit :func:`.run_fixed`).
+"""
+
+import io
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+from scipy import io as sio
+
+from ..report.output import to_jsonable, write_bytes, write_text
+from .sos import ExportError
+
+__all__ = ["write_controller"]
+
+_ASSUMPTIONS = (
+    "The output is clamped to output_limits_v and the clamped value drives the last section's recursion "
+    "(anti-windup). That clamp, not an L1 norm, bounds the last section's states, which hold the integrator.",
+    "The input word is clamped to +/- input_range_v; no other state can overflow for any input (L1 scaling).",
+    "Right shifts of negative integers are arithmetic (gcc, clang, arm-none-eabi-gcc, IAR and Keil do this).",
+)
+_RESERVED = ("gain", "sos", "fixed_point")
+
+
+def _fixed_point_block(fxp):
+    q = fxp.q_formats
+    return {
+        "form": "cascade of second-order sections, transposed direct form II",
+        "word_bits": fxp.word_bits, "accumulator_bits": fxp.acc_bits, "coeff_bits": fxp.coeff_bits,
+        "rounding": "round half up: (acc + 2^(F-1)) >> F, F = a_frac_bits",
+        "overflow": "saturate to int32; the last section's output is clamped to the output limits",
+        "input": {"q": q["input"], "frac_bits": fxp.input_frac_bits, "range_v": fxp.input_range_v,
+                  "limit_q": fxp.input_limit},
+        "output": {"q": q["output"], "frac_bits": fxp.output_frac_bits, "limits_v": list(fxp.output_limits_v),
+                   "limits_q": list(fxp.output_limits)},
+        "a_q": q["a"], "a_frac_bits": fxp.a_frac_bits,
+        "sections": [{"b": fxp.b[k], "a": fxp.a[k], "b_q": q["b"][k], "b_frac_bits": fxp.b_frac_bits[k],
+                      "b_shift": fxp.b_shift[k], "signal_q": q["signals"][k],
+                      "signal_frac_bits": fxp.signal_frac_bits[k], "integrator": fxp.integrator[k]}
+                     for k in range(len(fxp.b))],
+        "max_pole_radius": fxp.max_pole_radius, "f_max_hz": fxp.f_max_hz,
+        "error_db": fxp.error_db, "error_deg": fxp.error_deg,
+        "assumptions": list(_ASSUMPTIONS),
+    }
+
+
+def _json(record, fxp):
+    fs_hz = 1.0 / fxp.dt_s
+    if "sample_rate_hz" in record and not np.isclose(record["sample_rate_hz"], fs_hz, rtol=1e-12, atol=0.0):
+        raise ExportError(f"record['sample_rate_hz'] = {record['sample_rate_hz']} but the controller was quantized "
+                          f"for {fs_hz:g} Hz; drop the key or quantize at that rate")
+    data = {**record, "sample_rate_hz": record.get("sample_rate_hz", fs_hz), "gain": fxp.gain, "sos": fxp.sos,
+            "fixed_point": _fixed_point_block(fxp)}
+    return json.dumps(to_jsonable(data), indent=2, allow_nan=False) + "\n"
+
+
+def _csv(fxp):
+    rows = "".join(",".join(_double(v) for v in row) + "\n" for row in fxp.sos)
+    return f"# gain = {_double(fxp.gain)}\nb0,b1,b2,a0,a1,a2\n{rows}"
+
+
+def _mat(fxp):
+    buf = io.BytesIO()
+    sio.savemat(buf, {
+        "sos": fxp.sos, "gain": fxp.gain, "fs": 1.0 / fxp.dt_s,
+        "b_q": fxp.b.astype(np.int32), "a_q": fxp.a.astype(np.int32),
+        "b_frac_bits": fxp.b_frac_bits.astype(np.int32), "b_shift": fxp.b_shift.astype(np.int32),
+        "signal_frac_bits": fxp.signal_frac_bits.astype(np.int32), "a_frac_bits": np.int32(fxp.a_frac_bits),
+        "input_frac_bits": np.int32(fxp.input_frac_bits), "output_frac_bits": np.int32(fxp.output_frac_bits),
+        "input_limit_q": np.int32(fxp.input_limit), "output_limits_q": np.array(fxp.output_limits, dtype=np.int32),
+        "input_range_v": fxp.input_range_v, "output_limits_v": np.array(fxp.output_limits_v),
+        "integrator": fxp.integrator.astype(np.uint8), "coeff_bits": np.int32(fxp.coeff_bits),
+        "error_db": fxp.error_db, "error_deg": fxp.error_deg, "max_pole_radius": fxp.max_pole_radius,
+    }, appendmat=False, oned_as="row")
+    return buf.getvalue()
+
+
+def _double(v):
+    """The shortest text that reads back as the same double (C and Python alike)."""
+    return repr(float(v))
+
+
+def _int32(v):
+    return f"INT32_C({int(v)})"
+
+
+def _c_array(rows, fmt):
+    return ",\n".join("    {" + ", ".join(fmt(v) for v in row) + "}" for row in rows)
+
+
+def _header(name, fxp):
+    up = name.upper()
+    q = fxp.q_formats
+    lo_v, hi_v = fxp.output_limits_v
+    lo_q, hi_q = fxp.output_limits
+    n = len(fxp.b)
+    sections = "\n".join(f" *   section {k}: signals {q['signals'][k]}, b {q['b'][k]}, b shift {fxp.b_shift[k]}"
+                         f"{' (integrator, exact at z = 1)' if fxp.integrator[k] else ''}" for k in range(n))
+    return f"""\
+/* {name}.h: controller "{name}", exported by workbench.export. Re-export rather than edit.
+ *
+ * Form: cascade of {n} second-order sections, transposed direct form II (TDF-II). Each section,
+ * input x, output y, states s1, s2:  y = b0 x + s1;  s1 = b1 x - a1 y + s2;  s2 = b2 x - a2 y.
+ * Sample rate {1.0 / fxp.dt_s:g} Hz: call one step per sample, states zeroed by the reset.
+ * Input:  gauge error (reference minus demodulated gauge reading), firmware volts, +/-{fxp.input_range_v:g} V.
+ * Output: commanded PZT voltage, volts, clamped to [{lo_v:g}, {hi_v:g}] V. The clamped value drives the
+ *         last section (anti-windup): the integrator state cannot wind past the limits.
+ *
+ * {name}_float_step: double precision, {up}_GAIN times the input, then the rows of {up}_SOS.
+ * {name}_fixed_step: int32 words, int64 accumulators, F = {up}_A_FRAC_BITS = {fxp.a_frac_bits}:
+ *   input word  {q['input']} (volts * 2^{fxp.input_frac_bits}), clamped to +/-{up}_INPUT_LIMIT_Q
+ *   output word {q['output']} (volts * 2^{fxp.output_frac_bits}), clamped to [{up}_OUTPUT_MIN_Q, {up}_OUTPUT_MAX_Q]
+ *   a1, a2 in {q['a']}; per section (y, s1 and s2 share the signal format):
+{sections}
+ *   acc = align(b x) + s * 2^F - a y  (64 bit);  word = (acc + 2^(F-1)) >> F, round half up,
+ *   saturated to int32;  align(p) = p >> shift, or p * 2^-shift for a negative shift.
+ *   Scaling: L1 norms from the input bound every state but the last section's; the output clamp
+ *   bounds those. No state can overflow for any input word. Right shifts of negative integers
+ *   must be arithmetic (gcc, clang, arm-none-eabi-gcc, IAR and Keil are).
+ * Quantized response against the design up to {fxp.f_max_hz:g} Hz: {fxp.error_db:.2g} dB, {fxp.error_deg:.2g} deg;
+ * largest pole radius {fxp.max_pole_radius:.9f} (integrators excluded: they stay exactly at z = 1).
+ */
+#ifndef {up}_H
+#define {up}_H
+
+#include <stdint.h>
+
+#define {up}_N_SECTIONS {n}
+#define {up}_SAMPLE_RATE_HZ {_double(1.0 / fxp.dt_s)}
+#define {up}_INPUT_RANGE_V {_double(fxp.input_range_v)}
+#define {up}_OUTPUT_MIN_V ({_double(lo_v)})
+#define {up}_OUTPUT_MAX_V ({_double(hi_v)})
+#define {up}_INPUT_FRAC_BITS {fxp.input_frac_bits}
+#define {up}_OUTPUT_FRAC_BITS {fxp.output_frac_bits}
+#define {up}_A_FRAC_BITS {fxp.a_frac_bits}
+#define {up}_INPUT_LIMIT_Q INT32_C({fxp.input_limit})
+#define {up}_OUTPUT_MIN_Q INT32_C({lo_q})
+#define {up}_OUTPUT_MAX_Q INT32_C({hi_q})
+
+static const double {up}_GAIN = {_double(fxp.gain)};
+/* rows b0, b1, b2, a0 = 1, a1, a2 */
+static const double {up}_SOS[{up}_N_SECTIONS][6] = {{
+{_c_array(fxp.sos, _double)}
+}};
+static const int32_t {up}_B_Q[{up}_N_SECTIONS][3] = {{
+{_c_array(fxp.b, _int32)}
+}};
+static const int32_t {up}_A_Q[{up}_N_SECTIONS][2] = {{
+{_c_array(fxp.a, _int32)}
+}};
+static const int {up}_B_SHIFT[{up}_N_SECTIONS] = {{{", ".join(str(int(v)) for v in fxp.b_shift)}}};
+
+typedef struct {{ double s[{up}_N_SECTIONS][2]; }} {name}_float_state;
+typedef struct {{ int32_t s[{up}_N_SECTIONS][2]; }} {name}_fixed_state;
+
+static inline void {name}_float_reset({name}_float_state *st)
+{{
+    for (int k = 0; k < {up}_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0.0;
+}}
+
+static inline void {name}_fixed_reset({name}_fixed_state *st)
+{{
+    for (int k = 0; k < {up}_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0;
+}}
+
+/* One sample: gauge error e_v (V) in, PZT command (V) out. */
+static inline double {name}_float_step({name}_float_state *st, double e_v)
+{{
+    double v = {up}_GAIN * e_v;
+    for (int k = 0; k < {up}_N_SECTIONS; k++) {{
+        const double *c = {up}_SOS[k];
+        double y = c[0] * v + st->s[k][0];
+        if (k == {up}_N_SECTIONS - 1) {{
+            if (y < {up}_OUTPUT_MIN_V) y = {up}_OUTPUT_MIN_V;
+            else if (y > {up}_OUTPUT_MAX_V) y = {up}_OUTPUT_MAX_V;
+        }}
+        st->s[k][0] = c[1] * v - c[4] * y + st->s[k][1];
+        st->s[k][1] = c[2] * v - c[5] * y;
+        v = y;
+    }}
+    return v;
+}}
+
+static inline int64_t {name}_align_(int64_t p, int shift)
+{{
+    return shift >= 0 ? p >> shift : p * ((int64_t)1 << -shift);
+}}
+
+static inline int32_t {name}_sat32_(int64_t v)
+{{
+    return v > INT32_MAX ? INT32_MAX : v < INT32_MIN ? INT32_MIN : (int32_t)v;
+}}
+
+/* One sample: input word e_q ({q['input']}) in, output word ({q['output']}) out. */
+static inline int32_t {name}_fixed_step({name}_fixed_state *st, int32_t e_q)
+{{
+    const int64_t one = (int64_t)1 << {up}_A_FRAC_BITS, half = one >> 1;
+    int64_t v = e_q > {up}_INPUT_LIMIT_Q ? {up}_INPUT_LIMIT_Q : e_q < -{up}_INPUT_LIMIT_Q ? -{up}_INPUT_LIMIT_Q : e_q;
+    for (int k = 0; k < {up}_N_SECTIONS; k++) {{
+        const int32_t *b = {up}_B_Q[k], *a = {up}_A_Q[k];
+        const int shift = {up}_B_SHIFT[k];
+        const int last = k == {up}_N_SECTIONS - 1;
+        const int64_t lo = last ? {up}_OUTPUT_MIN_Q : INT32_MIN, hi = last ? {up}_OUTPUT_MAX_Q : INT32_MAX;
+        int64_t y = ({name}_align_(b[0] * v, shift) + st->s[k][0] * one + half) >> {up}_A_FRAC_BITS;
+        y = y > hi ? hi : y < lo ? lo : y;
+        const int64_t s1 = ({name}_align_(b[1] * v, shift) - a[0] * y + st->s[k][1] * one + half) >> {up}_A_FRAC_BITS;
+        const int64_t s2 = ({name}_align_(b[2] * v, shift) - a[1] * y + half) >> {up}_A_FRAC_BITS;
+        st->s[k][0] = {name}_sat32_(s1);
+        st->s[k][1] = {name}_sat32_(s2);
+        v = y;
+    }}
+    return (int32_t)v;
+}}
+
+#endif /* {up}_H */
+"""
+
+
+def write_controller(out_dir, name, record, fxp):
+    """Write a quantized controller as NAME.json, NAME.h, NAME.csv and NAME.mat.
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        Folder, created if missing.
+    name : str
+        File stem and C prefix: a C identifier (letters, digits, underscores).
+    record : dict
+        Design record (method, notes, input/output signals...), written as
+        given into NAME.json; it must not hold ``gain``, ``sos`` or
+        ``fixed_point``. ``sample_rate_hz`` is added if missing.
+    fxp : FixedPointController
+        From :func:`.quantize`.
+
+    Returns
+    -------
+    dict of Path
+        Keys ``"json"``, ``"h"``, ``"csv"``, ``"mat"``.
+
+    Raises
+    ------
+    ExportError
+        If ``name`` is not a C identifier, ``record`` holds a reserved key or
+        a ``sample_rate_hz`` other than the controller's.
+
+    Notes
+    -----
+    NAME.json: ``record`` plus ``gain``, ``sos`` (rows [b0, b1, b2, 1, a1, a2])
+    and a ``fixed_point`` block (Q formats, integer coefficients, shifts,
+    error figures, assumptions). NAME.csv: ``# gain = ...``, then the header
+    ``b0,b1,b2,a0,a1,a2`` and one row per section. NAME.mat: ``sos``, ``gain``,
+    ``fs`` and the fixed-point arrays. Floats are written with 17 significant
+    digits where text is involved, so they read back exactly.
+    """
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise ExportError(f"name {name!r} must be a C identifier (letters, digits and underscores, not starting "
+                          f"with a digit): it prefixes the C functions and names the files")
+    clash = [key for key in _RESERVED if key in record]
+    if clash:
+        raise ExportError(f"record holds {clash}, which write_controller fills from the quantized controller; "
+                          f"drop them from the record")
+    out_dir = Path(out_dir)
+    payloads = {"json": _json(record, fxp), "h": _header(name, fxp), "csv": _csv(fxp), "mat": _mat(fxp)}
+    return {ext: (write_bytes if isinstance(data, bytes) else write_text)(out_dir / f"{name}.{ext}", data)
+            for ext, data in payloads.items()}
