@@ -36,7 +36,7 @@ from scipy.optimize import brentq
 __all__ = ["GaugeParams", "arm_resistances", "bridge_output", "bridge_output_eq27", "bridge_gain",
            "bridge_gain_eq28_printed", "four_probe_measure", "four_probe_solve", "chain_gain",
            "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim", "gauge_summary",
-           "displacement_from_reading", "TRIM_CENTER_M"]
+           "displacement_from_reading", "TRIM_CENTER_M", "demod_noise_sigma_v"]
 
 @dataclass(frozen=True)
 class GaugeParams:
@@ -261,6 +261,15 @@ def gauge_run(x_m, g, x_prev_m=0.0, seed=0, noise=True):
     return GaugeReading(dem, dac)
 
 
+def demod_noise_sigma_v(g):
+    """RMS noise of one demodulated reading, V: the gauge noise and the ADC quantization
+    (LSB^2/12 per conversion) of the 2 x n averaged conversions, as one Gaussian term."""
+    n = g.samples_per_half_period
+    lsb = 2 * g.adc_range_v / 2 ** g.adc_bits
+    sig_adc = _noise_per_adc_sample(g)
+    return 0.5 * g.demodulation_gain * math.sqrt(2.0 / n) * math.sqrt(sig_adc ** 2 + lsb ** 2 / 12)
+
+
 def gauge_run_equivalent(x_m, g, x_prev_m=0.0, seed=0, noise=True):
     """Per-period equivalent of :func:`gauge_run` (one bridge evaluation per half period).
 
@@ -268,10 +277,7 @@ def gauge_run_equivalent(x_m, g, x_prev_m=0.0, seed=0, noise=True):
     added to the Gaussian noise rather than applied sample by sample.
     """
     x = np.ascontiguousarray(x_m, dtype=float)
-    n = g.samples_per_half_period
-    lsb = 2 * g.adc_range_v / 2 ** g.adc_bits
-    sig_adc = _noise_per_adc_sample(g) if noise else 0.0
-    sig = 0.5 * g.demodulation_gain * math.sqrt(2.0 / n) * math.sqrt(sig_adc ** 2 + (lsb ** 2 / 12 if noise else 0))
+    sig = demod_noise_sigma_v(g) if noise else 0.0
     r0 = np.array([g.arm_nominal_ohm + d for d in g.imbalance_ohm])
     dem, dac = np.empty_like(x), np.empty_like(x)
     _gauge_kernel_eq(x, float(x_prev_m), g.rest_length_m, g.rest_width_m, g.gauge_factor, r0, g.modulation_v,
