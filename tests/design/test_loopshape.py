@@ -62,3 +62,24 @@ def test_structured_controller_shape():
     n_at = abs(complex(np.squeeze(notch(2j * np.pi * 1000.0))))
     plain = abs(complex(np.squeeze(structured_controller(2.0, 300.0, 5.0, 1.0, 6.0, 0.6)(2j * np.pi * 1000.0))))
     assert 20 * np.log10(plain / n_at) == pytest.approx(20.0, abs=1e-6)
+
+
+def test_noise_on_the_command_closed_form():
+    # a static controller d on a zero plant: the command steps are d times the difference of
+    # white noise, RMS sqrt(2) d sigma
+    import control
+    from workbench.design.loopshape import noise_command_rms_v
+    k = control.ss([], [], [], [[3.0]], 1e-4)
+    zero = control.ss([], [], [], [[0.0]])
+    assert noise_command_rms_v(k, zero, 0.01) == pytest.approx(np.sqrt(2) * 3.0 * 0.01, rel=1e-3)
+
+
+def test_noise_budget_lowers_the_crossover(family):
+    fam, ub = family
+    free = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(**SHAPES))
+    from workbench.design.loopshape import noise_command_rms_v
+    budget = 0.5 * noise_command_rms_v(free.controller_d, ub.nominal, 7e-3)
+    tight = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal,
+                            LoopShapeSpec(max_noise_command_v=budget, noise_reading_v=7e-3, **SHAPES))
+    assert noise_command_rms_v(tight.controller_d, ub.nominal, 7e-3) <= budget
+    assert tight.params["fc_hz"] < free.params["fc_hz"]

@@ -10,7 +10,10 @@ w_p = 2 pi f_c sqrt(alpha)) and the roll-off at r_r f_c. k puts the nominal loop
 crossover at f_c. For every shape on a small grid the highest f_c whose loops keep
 the margin targets on EVERY member of the family (the describing functions and
 small-signal models of issue 3, seen through the sampled gauge chain) is found; the
-shape with the highest such crossover wins, ties broken by the worst disk margin.
+shape with the highest such crossover wins, ties broken by the worst disk margin. With a
+noise budget, shapes whose gain turns the gauge noise into larger command steps than the
+output rate limit allows are skipped (verification showed that such a controller keeps
+the output rate limit busy on noise alone and biases the loop).
 
 Margins are checked first on the members that bound the family at each frequency
 (largest and smallest gain and phase), then on all members for the chosen design.
@@ -26,7 +29,8 @@ from ..linearize.limit_cycle import sampled_factor
 from .antiwindup import discretize
 from .margins import family_margins
 
-__all__ = ["LoopShapeSpec", "LoopShapeResult", "structured_controller", "family_loops", "tune_loop_shape"]
+__all__ = ["LoopShapeSpec", "LoopShapeResult", "structured_controller", "family_loops", "tune_loop_shape",
+           "noise_command_rms_v"]
 
 
 @dataclass(frozen=True)
@@ -37,11 +41,19 @@ class LoopShapeSpec:
     gain_margin_db: float = 6.0
     fc_range_hz: tuple = (50.0, 1500.0)
     fc_points: int = 24
+    # r_i < 1 (the PI zero above the crossover, integral action dominating) is the low-noise
+    # choice for this flat plant; with a noise budget try e.g. (0.1, 0.25, 1, 8)
     integral_ratios: tuple = (4.0, 8.0)
     lead_ratios: tuple = (1.0, 3.0, 6.0)
     rolloff_ratios: tuple = (4.0, 8.0)
     rolloff_damping: float = 0.6
     notch: tuple | None = None        # (freq_hz, depth_db, width_ratio) for a structural mode
+    # gauge noise through K S must not change the command by more than this RMS per sample, V:
+    # the exported output rate limit allows I_source / C x T (~17 mV) per sample, and a
+    # controller whose noise steps exceed it keeps the limit busy on noise and biases the loop
+    # (verification found this); None: no limit
+    max_noise_command_v: float | None = None
+    noise_reading_v: float = 0.0      # RMS noise of one gauge reading, firmware V
     dt_s: float = 1e-4
     delay_samples: int = 1
 
@@ -101,6 +113,21 @@ def _meets(worst, spec):
             and worst["gain_margin_db"]["value"] >= spec.gain_margin_db)
 
 
+def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, n=4096):
+    """RMS sample-to-sample change of the command the gauge noise causes through K S, V.
+
+    White noise of ``noise_reading_v`` RMS per reading; the nominal sampled loop;
+    sigma^2 = sigma_n^2 (1/pi) int_0^pi |(1 - e^{-j theta}) K S|^2 d theta (the change per
+    sample is what the output rate limit sees).
+    """
+    f = (np.arange(n) + 0.5) / n * 0.5 / ctrl_d.dt
+    k = _discrete_response(ctrl_d, f)
+    g = np.asarray(control.frequency_response(nominal, 2 * np.pi * f).complex).ravel()
+    ks = k / (1 + k * sampled_factor(f, ctrl_d.dt, delay_samples) * g)
+    diff = 1 - np.exp(-2j * np.pi * f * ctrl_d.dt)
+    return float(noise_reading_v * np.sqrt(np.mean(np.abs(diff * ks) ** 2)))
+
+
 def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None):
     """Highest-crossover structured controller meeting the margins on every member.
 
@@ -132,6 +159,9 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
             k = 1.0 / abs(l1)
             ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
                                 spec.dt_s, fc)
+            if spec.max_noise_command_v is not None and noise_command_rms_v(
+                    ctrl_d, nominal, spec.noise_reading_v, spec.delay_samples) > spec.max_noise_command_v:
+                continue       # too much noise on the command here; a lower f_c may do
             _, worst = family_margins(f, family_loops(ctrl_d, f, bounding, spec.delay_samples))
             if _meets(worst, spec):
                 cand = (fc, worst["disk_margin"]["value"], dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al,
@@ -144,8 +174,11 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
             progress(n_shape + 1, len(shapes))
     if best is None:
         raise DesignError(f"no structured controller meets PM >= {spec.phase_margin_deg:g} deg and GM >= "
-                          f"{spec.gain_margin_db:g} dB on every member with a crossover in "
-                          f"{spec.fc_range_hz[0]:g}-{spec.fc_range_hz[1]:g} Hz; lower the range or the targets")
+                          f"{spec.gain_margin_db:g} dB on every member"
+                          + (f" and keeps the gauge noise on the command below {spec.max_noise_command_v:.3g} V RMS"
+                             if spec.max_noise_command_v is not None else "")
+                          + f" with a crossover in {spec.fc_range_hz[0]:g}-{spec.fc_range_hz[1]:g} Hz; "
+                            f"lower the range or the targets")
     p = best[2]
     ctrl_c = structured_controller(p["k"], p["fc_hz"], p["integral_ratio"], p["lead_ratio"], p["rolloff_ratio"],
                                    p["rolloff_damping"], p["notch"])

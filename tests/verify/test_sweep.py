@@ -1,0 +1,257 @@
+"""Sweep runner: the same rows inline, in local processes and on a dask cluster; failures, tables."""
+
+import importlib.util
+import math
+import os
+import re
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pytest
+
+from workbench.errors import WorkbenchError
+from workbench.verify.sweep import Case, SweepError, grid, run_cases, worst, write_table
+
+from .sweep_cases import meet, square
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _cases(n=6, fail_at=None, sleep_s=0.0):
+    """Cases x = 0..n-1; case x sleeps (n - x) * sleep_s, so later cases tend to finish first."""
+    return [Case(key={"x": k["x"], "label": f"c{k['x']}"},
+                 payload={"x": k["x"], "fail_at": fail_at, "sleep_s": (n - k["x"]) * sleep_s})
+            for k in grid(x=list(range(n)))]
+
+
+class _Unprintable:
+    """A cell neither table format can hold: CSV needs str(), Parquet a known type."""
+
+    def __str__(self):
+        raise RuntimeError("no text for this cell")
+
+
+def _without_pid(rows):
+    return [{name: value for name, value in row.items() if name != "pid"} for row in rows]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def workers_import_tests():
+    """Put the repository on sys.path, which spawned processes inherit, so they can import
+    tests.verify.sweep_cases however pytest was started (`python -m pytest` adds it, the
+    `pytest` script does not; pytest's importlib mode registers the module only in this process)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.syspath_prepend(str(ROOT))
+        yield
+
+
+def _local_cluster(n_workers):
+    from distributed import LocalCluster
+
+    # dashboard_address=":0", not None: with None the scheduler's HTTP server still binds 8787 and
+    # warns (an error here) when that port is busy: another cluster in this run, or a developer's
+    # `dask scheduler`. Port 0 takes a free port and never warns.
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=":0")
+
+
+@pytest.fixture(scope="module")
+def dask_address(request, workers_import_tests):
+    cluster = _local_cluster(2)
+    request.addfinalizer(cluster.close)
+    return cluster.scheduler_address
+
+
+def test_grid_is_the_cartesian_product_first_axis_slowest():
+    points = grid(serial=["sn637", "sn629"], amplitude_v=np.array([1.0, 2.0, 3.0]))
+    assert points == [{"serial": s, "amplitude_v": a} for s in ("sn637", "sn629") for a in (1.0, 2.0, 3.0)]
+    assert all(type(p["amplitude_v"]) is float for p in points)    # numpy scalars became Python floats
+
+
+@pytest.mark.parametrize("axes, error, match", [
+    ({}, ValueError, r"at least one axis"),
+    ({"amplitude_v": []}, ValueError, r"axis 'amplitude_v' is empty"),
+    ({"serial": "sn637"}, TypeError, r"axis 'serial' must be a sequence.*wrap a single value"),
+])
+def test_grid_rejects_bad_axes(axes, error, match):
+    with pytest.raises(error, match=match):
+        grid(**axes)
+
+
+@pytest.mark.parametrize("key, error, match", [
+    ([("x", 1)], TypeError, r"Case.key must be a dict.*got list"),
+    ({"ok": 1}, ValueError, r"names must be strings other than \('ok', 'error'\), got 'ok'"),
+    ({"x": [1, 2]}, TypeError, r"Case.key\['x'\] must be a str, int or float, got list"),
+])
+def test_case_rejects_keys_that_cannot_be_columns(key, error, match):
+    with pytest.raises(error, match=match):
+        Case(key=key, payload=None)
+
+
+def test_local_processes_give_the_inline_rows_in_case_order():
+    cases = _cases(8, sleep_s=0.02)       # two workers finish case 1 before case 0
+    inline = run_cases(square, cases, scheduler="inline")
+    local = run_cases(square, cases, workers=2)
+    assert [row["x"] for row in inline] == list(range(8))
+    assert [row["y"] for row in inline] == [x**2 for x in range(8)]
+    assert _without_pid(local) == _without_pid(inline)
+    assert {row["pid"] for row in inline} == {os.getpid()}
+    assert os.getpid() not in {row["pid"] for row in local}
+
+
+def test_two_workers_run_cases_in_two_processes(tmp_path):
+    # each case waits (up to 20 s) until two distinct processes have checked in: one process alone
+    # would run the cases one after the other and never meet the second
+    payload = {"dir": str(tmp_path), "n": 2, "wait_s": 20.0}
+    rows = run_cases(meet, [Case(key={"i": i}, payload=payload) for i in range(2)], workers=2)
+    assert [row["met"] for row in rows] == [True, True]
+    assert len({row["pid"] for row in rows}) == 2
+
+
+@pytest.mark.parametrize("scheduler", ["inline", None])
+def test_a_failing_case_is_a_row_and_the_others_succeed(scheduler):
+    rows = run_cases(square, _cases(5, fail_at=3), scheduler=scheduler)
+    assert [row["ok"] for row in rows] == [True, True, True, False, True]
+    assert rows[3]["error"].startswith("ValueError: planned failure at x = 3 [sweep_cases.py:")
+    assert "y" not in rows[3]
+    assert [row["y"] for row in rows if row["ok"]] == [0, 1, 4, 16]
+    assert all(row["error"] == "" for row in rows if row["ok"])
+
+
+def test_dask_cluster_gives_the_inline_rows(dask_address):
+    cases = _cases(6, fail_at=2)
+    calls = []
+    rows = run_cases(square, cases, scheduler=dask_address, progress=lambda *a: calls.append(a))
+    assert _without_pid(rows) == _without_pid(run_cases(square, cases, scheduler="inline"))
+    assert rows[2]["error"].startswith("ValueError: planned failure at x = 2")
+    assert os.getpid() not in {row["pid"] for row in rows if row["ok"]}
+    assert calls[-1] == (6, 6) and len(calls) == 6
+
+
+@pytest.mark.parametrize("where", ["local", "dask"])
+def test_a_function_workers_cannot_import_fails_its_rows_not_the_sweep(tmp_path, where, request):
+    # registered in this process only: pickling by reference works here, importing it there cannot
+    (tmp_path / "sweep_elsewhere.py").write_text("def f(payload):\n    return {'y': payload}\n")
+    spec = importlib.util.spec_from_file_location("sweep_elsewhere", tmp_path / "sweep_elsewhere.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    sys.modules["sweep_elsewhere"] = module
+    request.addfinalizer(lambda: sys.modules.pop("sweep_elsewhere"))
+    scheduler = request.getfixturevalue("dask_address") if where == "dask" else None
+    cases = [Case(key={"x": x}, payload=x) for x in range(3)]
+    assert [row["y"] for row in run_cases(module.f, cases, scheduler="inline")] == [0, 1, 2]
+    rows = run_cases(module.f, cases, scheduler=scheduler, timeout_s=60.0)
+    assert [row["ok"] for row in rows] == [False] * 3
+    assert all(row["error"].startswith("ModuleNotFoundError: No module named 'sweep_elsewhere'; the worker "
+                                       "cannot unpickle") for row in rows)
+
+
+def test_an_unpicklable_payload_fails_its_row_only():
+    cases = _cases(3)
+    cases[1] = Case(key={"x": 1}, payload={"x": 1, "fail_at": None, "lock": threading.Lock()})
+    rows = run_cases(square, cases, workers=1)
+    assert [row["ok"] for row in rows] == [True, False, True]
+    assert re.match(r"TypeError: cannot pickle '_thread.lock' object.*payload cannot be pickled", rows[1]["error"])
+
+
+def test_an_unreachable_scheduler_raises_sweep_error_quickly():
+    with socket.socket() as sock:          # a port that was free a moment ago: nothing listens there
+        sock.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
+    t0 = time.monotonic()
+    with pytest.raises(SweepError, match=rf"{address} within 2 s.*`dask scheduler`.*omit --scheduler") as info:
+        run_cases(square, _cases(2), scheduler=address, connect_timeout_s=2.0)
+    assert time.monotonic() - t0 < 8.0
+    assert isinstance(info.value, WorkbenchError)
+
+
+def test_a_scheduler_without_workers_raises_sweep_error():
+    with _local_cluster(0) as cluster:
+        with pytest.raises(SweepError, match=r"has no worker after 1 s.*`dask worker tcp://"):
+            run_cases(square, _cases(2), scheduler=cluster.scheduler_address, connect_timeout_s=1.0)
+
+
+@pytest.mark.parametrize("kwargs, error, match", [
+    ({"cases": []}, ValueError, r"no cases"),
+    ({"fn": "square"}, ValueError, r"fn must be a function.*got str"),
+    ({"scheduler": "localhost:8786"}, ValueError, r"'inline' or a dask scheduler address.*got 'localhost:8786'"),
+    ({"scheduler": "tcp://127.0.0.1"}, ValueError, r"dask scheduler address"),
+    ({"scheduler": "tcp://127.0.0.1:99999"}, ValueError, r"dask scheduler address"),
+    ({"scheduler": "tcp://127.0.0.1:8786", "workers": 2}, ValueError, r"local processes only"),
+    ({"workers": 0}, ValueError, r"workers must be a positive integer, got 0"),
+    ({"timeout_s": 0}, ValueError, r"timeout_s must be a positive number"),
+    ({"cases": [{"x": 1}]}, TypeError, r"cases must be Case instances, got dict"),
+    ({"fn": lambda p: {}}, ValueError, r"cannot be sent to worker processes.*scheduler='inline'"),
+])
+def test_run_cases_rejects_bad_arguments(kwargs, error, match):
+    arguments = {"fn": square, "cases": _cases(2), **kwargs}
+    with pytest.raises(error, match=match):
+        run_cases(arguments.pop("fn"), arguments.pop("cases"), **arguments)
+
+
+@pytest.mark.parametrize("fn, match", [
+    (lambda p: [p], r"TypeError: fn must return a dict of metrics, got list"),
+    (lambda p: {"y": [p]}, r"TypeError: metric 'y' must .* got list"),
+    (lambda p: {"x": p}, r"ValueError: fn returned metrics named \['x'\]"),
+])
+def test_malformed_metrics_fail_the_case(fn, match):
+    (row,) = run_cases(fn, [Case(key={"x": 1}, payload=1)], scheduler="inline")
+    assert row["ok"] is False
+    assert re.match(match, row["error"])
+
+
+def test_a_sweep_past_its_time_limit_marks_the_rest_and_stops_its_processes(tmp_path):
+    # the lone case waits for a partner that never comes: only the time limit ends it
+    payload = {"dir": str(tmp_path), "n": 2, "wait_s": 60.0}
+    t0 = time.monotonic()
+    (row,) = run_cases(meet, [Case(key={"i": 0}, payload=payload)], workers=1, timeout_s=1.5)
+    assert 1.5 <= time.monotonic() - t0 < 10.0
+    assert row == {"i": 0, "ok": False, "error": "TimeoutError: not finished within timeout_s = 1.5 s"}
+    (checked_in,) = tmp_path.iterdir()
+    with pytest.raises(ProcessLookupError):        # the worker that ran the case was killed and reaped
+        os.kill(int(checked_in.name), 0)
+
+
+def test_worst_picks_among_ok_rows_and_ignores_nan():
+    rows = [{"k": 0, "e": 2.0, "ok": True}, {"k": 1, "e": math.nan, "ok": True},
+            {"k": 2, "e": 99.0, "ok": False}, {"k": 3, "ok": True}, {"k": 4, "e": 5.0, "ok": True},
+            {"k": 5, "e": -1.0, "ok": True}]
+    assert worst(rows, "e")["k"] == 4
+    assert worst(rows, "e", larger_is_worse=False)["k"] == 5
+    assert worst([*rows, {"k": 6, "e": math.inf, "ok": True}], "e")["k"] == 6     # an unstable case is worst
+    with pytest.raises(ValueError, match=r"no ok row has a numeric, non-NaN value of 'f' \(6 rows, 5 ok\)"):
+        worst(rows, "f")
+
+
+@pytest.mark.parametrize("suffix, read", [(".csv", pd.read_csv), (".parquet", pd.read_parquet)])
+def test_tables_round_trip_and_are_written_whole(tmp_path, suffix, read):
+    rows = run_cases(square, _cases(4, fail_at=0), scheduler="inline")   # first row lacks y and pid
+    path = write_table(rows, tmp_path / f"sweep{suffix}")
+    frame = read(path)
+    assert list(frame.columns) == ["x", "label", "ok", "error", "y", "pid"]
+    assert frame["x"].tolist() == [0, 1, 2, 3]
+    assert frame["ok"].tolist() == [False, True, True, True]
+    assert math.isnan(frame["y"][0]) and frame["y"][1:].tolist() == [1, 4, 9]
+    assert frame["error"][0].startswith("ValueError: planned failure")
+    before = path.read_bytes()
+    with pytest.raises((RuntimeError, pa.ArrowException), match=r"no text for this cell|did not recognize"):
+        write_table([{"x": _Unprintable()}], path)
+    assert path.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir()] == [path.name]
+
+
+def test_write_table_rejects_an_unknown_suffix(tmp_path):
+    with pytest.raises(ValueError, match=r"suffix must be one of \('.csv', '.parquet'\), got '.xlsx'"):
+        write_table([{"x": 1}], tmp_path / "sweep.xlsx")
+    assert not list(tmp_path.iterdir())
+
+
+def test_progress_is_called_once_per_case_up_to_total():
+    calls = []
+    run_cases(square, _cases(5), workers=2, progress=lambda done, total: calls.append((done, total)))
+    assert calls == [(i, 5) for i in range(1, 6)]
