@@ -8,7 +8,8 @@ import pytest
 
 from workbench.cli import main
 
-COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"], ["linearize"]]
+COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"], ["linearize"],
+            ["study"], ["verify"]]
 
 
 @pytest.mark.parametrize("cmd", COMMANDS)
@@ -54,6 +55,10 @@ def test_freefree_json_and_figure(tmp_path, root):
     (["bench", "--steps", "0"], "must be >= 1"),
     (["linearize", "plants/p888_51_sn637.toml", "--freq-min", "1kHz", "--freq-max", "10Hz"], "must be below"),
     (["linearize", "plants/p888_51_sn637.toml", "--amplitudes", "0V"], "must be positive"),
+    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/example_p250_limit_cycle.json"],
+     "anti_windup"),
+    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/sn637_loopshape.json", "--hold", "5m"],
+     "is not 's'"),
     (["linearize", "plants/p888_51_sn637.toml", "--cp-tolerance", "1.5"], "cp-tolerance"),
     (["linearize", "plants/p888_51_sn637.toml", "--bias", "5A"], "is not 'V'"),
     (["linearize", "plants/p888_51_sn637.toml", "--freq-points", "4", "--amplitudes", "1V",
@@ -103,3 +108,12 @@ def test_linearize_json_and_figures(tmp_path, root, monkeypatch):
     assert {"zeros_hz", "poles_hz", "gain"} <= u["weight"].keys() and u["coverage_margin_db"] >= 0
     for name in ("df_bode", "capacitances", "uncertainty", "sampled", "nyquist"):
         assert (out / f"{name}.png").stat().st_size > 10_000
+
+
+def test_verify_json(tmp_path, root, monkeypatch):
+    monkeypatch.chdir(root)
+    out = tmp_path / "v.json"
+    assert main(["verify", "plants/p888_51_sn637_creep.toml", "--controller", "controllers/sn637_loopshape.json",
+                 "--scenario", "hold", "--hold", "5s", "--json", str(out)]) == 0
+    m = json.loads(out.read_text())["scenarios"][0]
+    assert m["scenario"] == "hold" and abs(m["drift_m"]) < 5e-9 and m["open_loop_creep_m"] > 1e-8

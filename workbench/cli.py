@@ -179,6 +179,33 @@ def cmd_study(args):
     _emit(args, data, lines)
 
 
+def cmd_verify(args):
+    import json as _json
+    from .plant import load_plant
+    from .verify.closed_loop import controller_from_json
+    from .verify.scenarios import SCENARIOS, run_scenario
+    from .errors import DataFileError
+    plant = load_plant(args.plant)
+    try:
+        ctrl = controller_from_json(_json.loads(Path(args.controller).read_text()))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise DataFileError(f"{args.controller}: not an exported controller JSON with an 'anti_windup' block "
+                            f"({exc!r}); export one with `workbench study`") from None
+    names = SCENARIOS if args.scenario == "all" else (args.scenario,)
+    results = []
+    for i, name in enumerate(names):
+        _progress_bar("verify", i, len(names))
+        m, _ = run_scenario(plant, ctrl, name, hold_s=args.hold, noise=not args.no_noise,
+                            anti_windup=not args.no_anti_windup)
+        results.append(m)
+    _progress_bar("verify", len(names), len(names))
+    lines = [f"{plant.serial} with {ctrl.name}:"]
+    for m in results:
+        keys = [k for k in m if k.endswith(("_percent", "_m", "_s", "_hz", "_fraction", "_points", "_stroke"))]
+        lines.append(f"  {m['scenario']}: " + ", ".join(f"{k} {m[k]:.4g}" for k in keys))
+    _emit(args, {"plant": str(args.plant), "controller": str(args.controller), "scenarios": results}, lines)
+
+
 def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
@@ -261,6 +288,22 @@ def build_parser():
     p.add_argument("--out", type=Path, default=Path("out/study"), help="output folder (default out/study)")
     p.add_argument("--json", type=Path, help="write the summary as JSON here (summary.json in --out is always written)")
     p.set_defaults(func=cmd_study)
+
+    p = sub.add_parser("verify", help="the exported controller in closed loop with the nonlinear plant",
+                       description="Closed-loop runs of an exported controller (its Hanus anti-windup and "
+                                   "rate limit) with the hysteretic, creeping PZT, the current and voltage "
+                                   "limits and the gauge chain with its noise: small and large steps, "
+                                   "triangles at 0.1 and 1 Hz, a hold, a force step; metrics beside the "
+                                   "linear prediction.")
+    p.add_argument("plant", type=Path)
+    p.add_argument("--controller", type=Path, required=True, help="e.g. controllers/sn637_loopshape.json")
+    p.add_argument("--scenario", default="all", choices=["all", "small_step", "large_step", "triangle_0p1hz",
+                                                          "triangle_1hz", "hold", "force_step"])
+    p.add_argument("--hold", type=_quantity("s"), default=1000.0, help="hold duration, default 1000s")
+    p.add_argument("--no-noise", action="store_true", help="gauge noise off")
+    p.add_argument("--no-anti-windup", action="store_true", help="plain controller (shows the windup)")
+    p.add_argument("--json", type=Path, help="write the metrics as JSON here")
+    p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("demo", help="the default job: seed reproductions with figures",
                        description="Gauge gains, T_em from Table 1, the free-free test on the three "
