@@ -187,7 +187,8 @@ def cmd_verify(args):
     from .errors import DataFileError
     plant = load_plant(args.plant)
     try:
-        ctrl = controller_from_json(_json.loads(Path(args.controller).read_text()))
+        ctrl_json = _json.loads(Path(args.controller).read_text())
+        ctrl = controller_from_json(ctrl_json)
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise DataFileError(f"{args.controller}: not an exported controller JSON with an 'anti_windup' block "
                             f"({exc!r}); export one with `workbench study`") from None
@@ -199,7 +200,7 @@ def cmd_verify(args):
                             anti_windup=not args.no_anti_windup)
         results.append(m)
     _progress_bar("verify", len(names), len(names))
-    lines = [f"{plant.serial} with {ctrl.name}:"]
+    lines = [f"{plant.serial} with {ctrl_json.get('name', args.controller)}:"]
     for m in results:
         keys = [k for k in m if k.endswith(("_percent", "_m", "_s", "_hz", "_fraction", "_points", "_stroke"))]
         lines.append(f"  {m['scenario']}: " + ", ".join(f"{k} {m[k]:.4g}" for k in keys))

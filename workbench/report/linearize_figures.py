@@ -39,7 +39,9 @@ def plot_df_bode(df, models, bias_v, path):
         h = _freq_response(ss[0, 0], fd)
         am.loglog(fd, np.abs(h) * 1e9, "--", color="k", lw=0.9, alpha=0.7)
         ap.semilogx(fd, np.degrees(np.unwrap(np.angle(h))), "--", color="k", lw=0.9, alpha=0.7)
-        am.annotate(f"small-signal, {branch}", (fd[-1], abs(h[-1]) * 1e9), fontsize=7, ha="right",
+        # label where the branches are apart (below the electrical pole), not where R merges them
+        i = int(np.searchsorted(fd, 20.0 if branch != "ascending" else 2.0))
+        am.annotate(f"small-signal, {branch}", (fd[i], abs(h[i]) * 1e9), fontsize=7,
                     va="bottom" if branch != "reversal" else "top")
     am.set_ylabel("|x / V_pea|  (nm/V)")
     ap.set_ylabel("phase (deg)")

@@ -13,10 +13,10 @@ Per servo period T (the gauge modulation period, 10 kHz), in this order:
    quantization of the 80 conversions, then the firmware trim. The 80 conversions are not
    simulated one by one here (``gauge_run`` does that, and the tests tie the two together);
 3. the controller computes its output from the reading **sample by sample** as firmware
-   does: the Hanus form of the exported JSON (the rate limit on the modelled terminal
-   voltage with the R I_max headroom, the output range, the state conditioned on the
-   limited output; see :mod:`workbench.design.antiwindup`), or, with
-   ``anti_windup=False``, the plain linear realization with only the range clip;
+   does: the Hanus form of the exported JSON (rate limit from the last output, the output
+   range, the state conditioned on the limited output; see
+   :mod:`workbench.design.antiwindup`), or, with ``anti_windup=False``, the plain linear
+   realization with only the range clip;
 4. that output is applied at the next period (the one-sample compute delay).
 
 Nothing in the loop allocates or calls Python: a 10^7-period run is a single call.
@@ -30,40 +30,26 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..design.antiwindup import HanusController
 from ..plant import kernels as K
 from ..plant.gauge import _bridge, demod_noise_sigma_v
 from ..plant.simulator import PZTSimulator
 
-__all__ = ["ControllerForm", "controller_from_json", "ClosedLoopRun", "ClosedLoop"]
+__all__ = ["controller_from_json", "ClosedLoopRun", "ClosedLoop"]
 
 TRACE_NAMES = ("x_m", "reading_v", "u_v", "error_v", "force_n", "i_a")
 
 
-@dataclass(frozen=True)
-class ControllerForm:
-    """Discrete controller in the Hanus form: u_raw = c x + d e; x <- a x + b e (linear)."""
-
-    a: np.ndarray
-    b: np.ndarray
-    c: np.ndarray
-    d: float
-    dt_s: float
-    output_limits_v: tuple
-    rate_limits_v_per_s: tuple
-    headroom_v: tuple = (0.0, 0.0)
-    name: str = "controller"
-
-
-def controller_from_json(data, name="controller"):
-    """The ``anti_windup`` block of an exported controller JSON as a :class:`ControllerForm`."""
+def controller_from_json(data):
+    """The ``anti_windup`` block of an exported controller JSON as a HanusController."""
     aw = data["anti_windup"]
-    a = np.atleast_2d(np.asarray(aw["a"], dtype=float))
-    return ControllerForm(a=a, b=np.asarray(aw["b"], dtype=float).ravel(), c=np.asarray(aw["c"], dtype=float).ravel(),
-                          d=float(aw["d"]), dt_s=1.0 / float(data["sample_rate_hz"]),
-                          output_limits_v=tuple(float(v) for v in aw.get("output_limits_v", data["output_limits_v"])),
-                          rate_limits_v_per_s=tuple(float(v) for v in aw["output_rate_limit_v_per_s"]),
-                          headroom_v=tuple(float(v) for v in aw.get("rate_limit_headroom_v", (0.0, 0.0))),
-                          name=data.get("name", name))
+    n = len(aw["b"])
+    return HanusController(a=np.asarray(aw["a"], dtype=float).reshape(n, n),
+                           b=np.asarray(aw["b"], dtype=float).reshape(n, 1),
+                           c=np.asarray(aw["c"], dtype=float).reshape(1, n), d=float(aw["d"]),
+                           dt_s=1.0 / float(data["sample_rate_hz"]),
+                           output_limits_v=tuple(float(v) for v in aw.get("output_limits_v", data["output_limits_v"])),
+                           rate_limits_v_per_s=tuple(float(v) for v in aw["output_rate_limit_v_per_s"]))
 
 
 @njit(cache=True, error_model="numpy")
@@ -79,8 +65,7 @@ def _loop(m, st, n_sub, ref, force, gp, r0, a, b, c, d, lim, xk, u0, x0, anti_wi
     xn = np.empty(n)
     L, W, kgf, vm, amp, adc_fs, demod, trim_s, trim_b, sigma = (gp[0], gp[1], gp[2], gp[3], gp[4], gp[5],
                                                                 gp[6], gp[7], gp[8], gp[9])
-    lo, hi, up, down, h_up, h_dn = lim[0], lim[1], lim[2], lim[3], lim[4], lim[5]
-    v_term = u0
+    lo, hi, up, down = lim[0], lim[1], lim[2], lim[3]
     i_src, i_snk = m[K.I_SRC], m[K.I_SNK]
     u = u0
     pending = u0
@@ -132,10 +117,7 @@ def _loop(m, st, n_sub, ref, force, gp, r0, a, b, c, d, lim, xk, u0, x0, anti_wi
         for i in range(n):
             u_raw += c[i] * xk[i]
         if anti_windup:
-            if h_up > 0.0 or h_dn > 0.0:
-                un = min(max(u_raw, v_term - h_dn), v_term + h_up)
-            else:
-                un = min(max(u_raw, u - down), u + up)
+            un = min(max(u_raw, u - down), u + up)
             if un != u_raw:
                 stats[3] += 1
             u_lim = min(max(un, lo), hi)
@@ -156,7 +138,6 @@ def _loop(m, st, n_sub, ref, force, gp, r0, a, b, c, d, lim, xk, u0, x0, anti_wi
         for i in range(n):
             xk[i] = xn[i]
         pending = u_lim
-        v_term += min(max(u_lim - v_term, -down), up)
         count += 1
         if count == decimate:
             count = 0
@@ -195,7 +176,7 @@ class ClosedLoop:
     Parameters
     ----------
     plant : Plant
-    controller : ControllerForm
+    controller : HanusController (see :func:`controller_from_json`)
     n_sub : int
         Plant steps per servo period (1: the plant's exact RC step over the whole period).
     noise : bool
@@ -219,15 +200,16 @@ class ClosedLoop:
         self._r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
         c = controller
         self._lim = np.array([c.output_limits_v[0], c.output_limits_v[1], c.rate_limits_v_per_s[0] * c.dt_s,
-                              c.rate_limits_v_per_s[1] * c.dt_s, c.headroom_v[0], c.headroom_v[1]])
+                              c.rate_limits_v_per_s[1] * c.dt_s])
+        self._b, self._c = np.ascontiguousarray(c.b[:, 0]), np.ascontiguousarray(c.c[0])
         self.reset()
 
     def reset(self, u0=0.0):
         """Plant at rest; controller state at rest with output ``u0`` and zero error."""
         self.sim.reset()
         c = self.controller
-        a_aw = c.a - np.outer(c.b, c.c) / c.d
-        self.xk = np.linalg.solve(np.eye(c.a.shape[0]) - a_aw, c.b / c.d * u0)
+        from ..design.antiwindup import hanus_initial_state
+        self.xk = hanus_initial_state(c, u0)
         self.u = float(u0)
         self.x = self.plant.pzt.k_q2x_m_per_c * self.plant.pzt.hysteresis.output_at_rest()
         self._k = 0
@@ -242,7 +224,7 @@ class ClosedLoop:
         rec = np.zeros((ref.size // decimate, len(TRACE_NAMES)))
         stats = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
         c = self.controller
-        self.u, self.x = _loop(self.sim.m, self.sim.st, self.n_sub, ref, f, self._gp, self._r0, c.a, c.b, c.c, c.d,
+        self.u, self.x = _loop(self.sim.m, self.sim.st, self.n_sub, ref, f, self._gp, self._r0, c.a, self._b, self._c, c.d,
                                self._lim, self.xk, self.u, self.x, self.anti_windup, self.seed + self._k, decimate,
                                rec, stats)
         dt = c.dt_s

@@ -56,7 +56,7 @@ def linear_step_prediction(plant, controller, n=2000):
     from ..linearize.small_signal import operating_point, small_signal_model
     c_h = operating_point(plant.pzt, 50.0, "ascending").capacitance_f
     g = firmware_plant(small_signal_model(plant.pzt, c_h)[0, 0], plant.gauge, X_START_M, 1)
-    k = control.ss(controller.a, controller.b[:, None], controller.c[None, :], [[controller.d]], controller.dt_s)
+    k = control.ss(controller.a, controller.b, controller.c, [[controller.d]], controller.dt_s)
     t = np.arange(n) * controller.dt_s
     # the loop as firmware closes it: the output computed from reading k is applied at k + 1
     y = np.squeeze(control.step_response(control.feedback(k * g, 1), T=t).outputs)
