@@ -213,16 +213,16 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                     tr = sim.run(v)
                     if pzt.creep is not None:
                         sim.set_creep_charges(_periodic_creep(pzt, tr.v_h_v, sim.dt_s))
-                    hx = _harmonics(tr.x_m, n_f)
-                    history.append(tr.x_m)
+                    h1 = 2.0 / n_f * (tr.x_m @ fundamental)    # convergence needs the fundamental only
+                    history = (history + [tr.x_m])[-3:]        # enough to tell a period-2 response
                     # a slewing response is excluded from the linear family anyway: its
                     # mean level settles slowly (asymmetric limits), 1e-4 is plenty for it
                     slewing = max(tr.peak_current_a[0] / i_limits[0], -tr.peak_current_a[1] / i_limits[1]) >= 1 - 1e-9
                     tol_c = max(tol, 1e-4) if slewing and not quasi_static else tol
-                    if prev is not None and abs(hx[1] - prev) <= tol_c * abs(hx[1]) and c >= 3:
+                    if prev is not None and abs(h1 - prev) <= tol_c * abs(h1) and c >= 3:
                         per[b, a, k] = True
                         break
-                    prev = hx[1]
+                    prev = h1
                 if not per[b, a, k] and len(history) >= 3:
                     scale = np.ptp(history[-1]) + 1e-30
                     sub[b, a, k] = (np.max(np.abs(history[-1] - history[-3])) < 1e-6 * scale

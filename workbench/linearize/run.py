@@ -5,7 +5,6 @@ functions, small-signal models, the sampled gauge chain, the uncertainty bound a
 with a controller, the describing-function loop analysis; figures go to ``out_dir``.
 """
 
-from dataclasses import replace
 from pathlib import Path
 
 import control

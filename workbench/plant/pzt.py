@@ -27,7 +27,6 @@ mode near the loop's crossover should be modelled with care (see README).
 
 from dataclasses import dataclass, field
 
-import numpy as np
 
 from .creep import CreepParams
 from .hysteresis import PrandtlIshlinskii

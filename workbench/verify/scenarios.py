@@ -6,8 +6,6 @@ held for 1 s (the approach is not scored). References are displacements, convert
 firmware volts with the serial's calibration and trim centre as firmware does.
 """
 
-from dataclasses import dataclass
-
 import control
 import numpy as np
 
