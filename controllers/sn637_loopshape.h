@@ -2,29 +2,33 @@
  *
  * Form: cascade of 2 second-order sections, transposed direct form II (TDF-II). Each section,
  * input x, output y, states s1, s2:  y = b0 x + s1;  s1 = b1 x - a1 y + s2;  s2 = b2 x - a2 y.
- * Sample rate 10000 Hz: call one step per sample, states zeroed by the reset.
+ * Sample rate 10000 Hz: call one step per sample. The reset puts the controller at rest at
+ * an output u0 with zero error (bumpless start at a bias; u0 = 0 zeroes every state).
  * Input:  gauge error (reference minus demodulated gauge reading), firmware volts, +/-2.6 V.
- * Output: commanded PZT voltage, volts, clamped to [-20, 120] V. The clamped value drives the
- *         last section (anti-windup): the integrator state cannot wind past the limits.
+ * Output: commanded PZT voltage, volts, clamped to [-20, 120] V
+ *         and to [v - 1.12, v + 0.16] V, v the model of the stack voltage (v += alpha (u - v), alpha = 0.0996443):
+ *         the current (u - v) / R stays within the amplifier's limits, the command slews at most +159.4 / -1116 V/s. The clamped value
+ *         drives the last section (anti-windup): the integrator is conditioned on what was applied.
  *
  * sn637_loopshape_float_step: double precision, SN637_LOOPSHAPE_GAIN times the input, then the rows of SN637_LOOPSHAPE_SOS.
  * sn637_loopshape_fixed_step: int32 words, int64 accumulators, F = SN637_LOOPSHAPE_A_FRAC_BITS = 29:
  *   input word  Q2.29 (volts * 2^29), clamped to +/-SN637_LOOPSHAPE_INPUT_LIMIT_Q
  *   output word Q9.22 (volts * 2^22), clamped to [SN637_LOOPSHAPE_OUTPUT_MIN_Q, SN637_LOOPSHAPE_OUTPUT_MAX_Q]
  *   a1, a2 in Q2.29; per section (y, s1 and s2 share the signal format):
- *   section 0: signals Q8.23, b Q0.31, b shift 2
- *   section 1: signals Q9.22, b Q0.31, b shift 2 (integrator, exact at z = 1)
+ *   section 0: signals Q5.26, b Q-2.33, b shift 4
+ *   section 1: signals Q9.22, b Q-3.34, b shift 5 (integrator, exact at z = 1)
  *   acc = align(b x) + s * 2^F - a y  (64 bit);  word = (acc + 2^(F-1)) >> F, round half up,
  *   saturated to int32;  align(p) = p >> shift, or p * 2^-shift for a negative shift.
  *   Scaling: L1 norms from the input bound every state but the last section's; the output clamp
  *   bounds those. No state can overflow for any input word. Right shifts of negative integers
  *   must be arithmetic (gcc, clang, arm-none-eabi-gcc, IAR and Keil are).
- * Quantized response against the design up to 3963.58 Hz: 2e-08 dB, 9.8e-08 deg;
- * largest pole radius 0.500000417 (integrators excluded: they stay exactly at z = 1).
+ * Quantized response against the design up to 1214.24 Hz: 1.2e-07 dB, 3.4e-07 deg;
+ * largest pole radius 0.875989726 (integrators excluded: they stay exactly at z = 1).
  */
 #ifndef SN637_LOOPSHAPE_H
 #define SN637_LOOPSHAPE_H
 
+#include <math.h>   /* INFINITY */
 #include <stdint.h>
 
 #define SN637_LOOPSHAPE_N_SECTIONS 2
@@ -38,34 +42,42 @@
 #define SN637_LOOPSHAPE_INPUT_LIMIT_Q INT32_C(1395864371)
 #define SN637_LOOPSHAPE_OUTPUT_MIN_Q INT32_C(-83886080)
 #define SN637_LOOPSHAPE_OUTPUT_MAX_Q INT32_C(503316480)
+/* current-limit window: model v of the stack voltage, v += alpha (u - v); u within [v - h_down, v + h_up] */
+#define SN637_LOOPSHAPE_ALPHA (0.0996443105766158)
+#define SN637_LOOPSHAPE_ALPHA_Q INT64_C(106992264)
+#define SN637_LOOPSHAPE_ALPHA_FRAC_BITS 30
+#define SN637_LOOPSHAPE_HEADROOM_UP_V (0.16)
+#define SN637_LOOPSHAPE_HEADROOM_DOWN_V (1.12)
+#define SN637_LOOPSHAPE_HEADROOM_UP_Q INT64_C(671088)
+#define SN637_LOOPSHAPE_HEADROOM_DOWN_Q INT64_C(4697620)
 
-static const double SN637_LOOPSHAPE_GAIN = 32.05524668494441;
+static const double SN637_LOOPSHAPE_GAIN = -1.1789040808584343;
 /* rows b0, b1, b2, a0 = 1, a1, a2 */
 static const double SN637_LOOPSHAPE_SOS[SN637_LOOPSHAPE_N_SECTIONS][6] = {
-    {0.5000000000000001, 1.0, 0.5000000000000002, 1.0, 0.0016690788352692887, 0.2500004178736697},
-    {1.0, -0.9691902900923616, 0.0, 1.0, -1.0, 0.0}
+    {0.49999999999999967, 1.0, 0.5000000000000007, 1.0, -1.2424985158526693, 0.49796709961554964},
+    {-0.7120355676320179, 1.0, -0.30492616449123133, 1.0, -1.875989725886551, 0.875989725886551}
 };
 static const int32_t SN637_LOOPSHAPE_B_Q[SN637_LOOPSHAPE_N_SECTIONS][3] = {
-    {INT32_C(537797798), INT32_C(1075595596), INT32_C(537797798)},
-    {INT32_C(1073741824), INT32_C(-1040660150), INT32_C(0)}
+    {INT32_C(-632919309), INT32_C(-1265838618), INT32_C(-632919309)},
+    {INT32_C(-764542369), INT32_C(1073741824), INT32_C(-327411976)}
 };
 static const int32_t SN637_LOOPSHAPE_A_Q[SN637_LOOPSHAPE_N_SECTIONS][2] = {
-    {INT32_C(896080), INT32_C(134217952)},
-    {INT32_C(-536870912), INT32_C(0)}
+    {INT32_C(-667061311), INT32_C(267344051)},
+    {INT32_C(-1007164315), INT32_C(470293403)}
 };
-static const int SN637_LOOPSHAPE_B_SHIFT[SN637_LOOPSHAPE_N_SECTIONS] = {2, 2};
+static const int SN637_LOOPSHAPE_B_SHIFT[SN637_LOOPSHAPE_N_SECTIONS] = {4, 5};
 
-typedef struct { double s[SN637_LOOPSHAPE_N_SECTIONS][2]; } sn637_loopshape_float_state;
-typedef struct { int32_t s[SN637_LOOPSHAPE_N_SECTIONS][2]; } sn637_loopshape_fixed_state;
+/* s: section states; v: the model of the stack voltage (the current-limit window's centre) */
+typedef struct { double s[SN637_LOOPSHAPE_N_SECTIONS][2]; double v; } sn637_loopshape_float_state;
+typedef struct { int32_t s[SN637_LOOPSHAPE_N_SECTIONS][2]; int32_t v; } sn637_loopshape_fixed_state;
 
-static inline void sn637_loopshape_float_reset(sn637_loopshape_float_state *st)
+/* At rest at output u0_v (V) with zero error: the last (integrator) section holds it. */
+static inline void sn637_loopshape_float_reset(sn637_loopshape_float_state *st, double u0_v)
 {
     for (int k = 0; k < SN637_LOOPSHAPE_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0.0;
-}
-
-static inline void sn637_loopshape_fixed_reset(sn637_loopshape_fixed_state *st)
-{
-    for (int k = 0; k < SN637_LOOPSHAPE_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0;
+    st->s[SN637_LOOPSHAPE_N_SECTIONS - 1][0] = u0_v;
+    st->s[SN637_LOOPSHAPE_N_SECTIONS - 1][1] = -SN637_LOOPSHAPE_SOS[SN637_LOOPSHAPE_N_SECTIONS - 1][5] * u0_v;
+    st->v = u0_v;
 }
 
 /* One sample: gauge error e_v (V) in, PZT command (V) out. */
@@ -76,13 +88,16 @@ static inline double sn637_loopshape_float_step(sn637_loopshape_float_state *st,
         const double *c = SN637_LOOPSHAPE_SOS[k];
         double y = c[0] * v + st->s[k][0];
         if (k == SN637_LOOPSHAPE_N_SECTIONS - 1) {
-            if (y < SN637_LOOPSHAPE_OUTPUT_MIN_V) y = SN637_LOOPSHAPE_OUTPUT_MIN_V;
-            else if (y > SN637_LOOPSHAPE_OUTPUT_MAX_V) y = SN637_LOOPSHAPE_OUTPUT_MAX_V;
+            double lo = st->v - SN637_LOOPSHAPE_HEADROOM_DOWN_V, hi = st->v + SN637_LOOPSHAPE_HEADROOM_UP_V;
+            if (lo < SN637_LOOPSHAPE_OUTPUT_MIN_V) lo = SN637_LOOPSHAPE_OUTPUT_MIN_V;
+            if (hi > SN637_LOOPSHAPE_OUTPUT_MAX_V) hi = SN637_LOOPSHAPE_OUTPUT_MAX_V;
+            y = y < lo ? lo : y > hi ? hi : y;
         }
         st->s[k][0] = c[1] * v - c[4] * y + st->s[k][1];
         st->s[k][1] = c[2] * v - c[5] * y;
         v = y;
     }
+    st->v += SN637_LOOPSHAPE_ALPHA * (v - st->v);
     return v;
 }
 
@@ -96,6 +111,17 @@ static inline int32_t sn637_loopshape_sat32_(int64_t v)
     return v > INT32_MAX ? INT32_MAX : v < INT32_MIN ? INT32_MIN : (int32_t)v;
 }
 
+/* At rest at output word u0_q with zero error: y = s1 = u0, s2 = round(-a2 u0) in the last section. */
+static inline void sn637_loopshape_fixed_reset(sn637_loopshape_fixed_state *st, int32_t u0_q)
+{
+    const int64_t half = (int64_t)1 << (SN637_LOOPSHAPE_A_FRAC_BITS - 1);
+    int64_t u0 = u0_q > SN637_LOOPSHAPE_OUTPUT_MAX_Q ? SN637_LOOPSHAPE_OUTPUT_MAX_Q : u0_q < SN637_LOOPSHAPE_OUTPUT_MIN_Q ? SN637_LOOPSHAPE_OUTPUT_MIN_Q : u0_q;
+    for (int k = 0; k < SN637_LOOPSHAPE_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0;
+    st->s[SN637_LOOPSHAPE_N_SECTIONS - 1][0] = (int32_t)u0;
+    st->s[SN637_LOOPSHAPE_N_SECTIONS - 1][1] = (int32_t)((-(int64_t)SN637_LOOPSHAPE_A_Q[SN637_LOOPSHAPE_N_SECTIONS - 1][1] * u0 + half) >> SN637_LOOPSHAPE_A_FRAC_BITS);
+    st->v = (int32_t)u0;
+}
+
 /* One sample: input word e_q (Q2.29) in, output word (Q9.22) out. */
 static inline int32_t sn637_loopshape_fixed_step(sn637_loopshape_fixed_state *st, int32_t e_q)
 {
@@ -105,7 +131,13 @@ static inline int32_t sn637_loopshape_fixed_step(sn637_loopshape_fixed_state *st
         const int32_t *b = SN637_LOOPSHAPE_B_Q[k], *a = SN637_LOOPSHAPE_A_Q[k];
         const int shift = SN637_LOOPSHAPE_B_SHIFT[k];
         const int last = k == SN637_LOOPSHAPE_N_SECTIONS - 1;
-        const int64_t lo = last ? SN637_LOOPSHAPE_OUTPUT_MIN_Q : INT32_MIN, hi = last ? SN637_LOOPSHAPE_OUTPUT_MAX_Q : INT32_MAX;
+        int64_t lo = INT32_MIN, hi = INT32_MAX;
+        if (last) {
+            lo = (int64_t)st->v - SN637_LOOPSHAPE_HEADROOM_DOWN_Q;
+            hi = (int64_t)st->v + SN637_LOOPSHAPE_HEADROOM_UP_Q;
+            if (lo < SN637_LOOPSHAPE_OUTPUT_MIN_Q) lo = SN637_LOOPSHAPE_OUTPUT_MIN_Q;
+            if (hi > SN637_LOOPSHAPE_OUTPUT_MAX_Q) hi = SN637_LOOPSHAPE_OUTPUT_MAX_Q;
+        }
         int64_t y = (sn637_loopshape_align_(b[0] * v, shift) + st->s[k][0] * one + half) >> SN637_LOOPSHAPE_A_FRAC_BITS;
         y = y > hi ? hi : y < lo ? lo : y;
         const int64_t s1 = (sn637_loopshape_align_(b[1] * v, shift) - a[0] * y + st->s[k][1] * one + half) >> SN637_LOOPSHAPE_A_FRAC_BITS;
@@ -114,6 +146,8 @@ static inline int32_t sn637_loopshape_fixed_step(sn637_loopshape_fixed_state *st
         st->s[k][1] = sn637_loopshape_sat32_(s2);
         v = y;
     }
+    st->v = (int32_t)((int64_t)st->v + (((v - (int64_t)st->v) * SN637_LOOPSHAPE_ALPHA_Q
+                                         + ((int64_t)1 << (SN637_LOOPSHAPE_ALPHA_FRAC_BITS - 1))) >> SN637_LOOPSHAPE_ALPHA_FRAC_BITS));
     return (int32_t)v;
 }
 

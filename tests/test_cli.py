@@ -55,8 +55,9 @@ def test_freefree_json_and_figure(tmp_path, root):
     (["bench", "--steps", "0"], "must be >= 1"),
     (["linearize", "plants/p888_51_sn637.toml", "--freq-min", "1kHz", "--freq-max", "10Hz"], "must be below"),
     (["linearize", "plants/p888_51_sn637.toml", "--amplitudes", "0V"], "must be positive"),
-    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/example_p250_limit_cycle.json"],
-     "anti_windup"),
+    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/sn637_loopshape.json", "--form", "hanus"],
+     "drop --form hanus"),
+    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/missing.json"], "missing.json: cannot be read"),
     (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/sn637_loopshape.json", "--hold", "5m"],
      "is not 's'"),
     (["linearize", "plants/p888_51_sn637.toml", "--cp-tolerance", "1.5"], "cp-tolerance"),
@@ -85,7 +86,7 @@ def test_bench_smoke(tmp_path, root, monkeypatch):
     # a short run of the benchmark's machinery (the figures themselves come from `workbench bench`)
     monkeypatch.chdir(root)
     out = tmp_path / "b.json"
-    assert main(["bench", "--steps", "20000", "--reference-steps", "50", "--json", str(out)]) == 0
+    assert main(["bench", "--steps", "20000", "--reference-steps", "50", "--memory-periods", "0", "--json", str(out)]) == 0
     data = json.loads(out.read_text())
     assert data["steps_per_second"] > 0 and data["ratio_vs_python_control"] > 0
 

@@ -1,6 +1,6 @@
-"""Benchmark of the compiled PZT against python-control's ``input_output_response``.
+"""Benchmarks of the compiled PZT and closed loop against python-control's ``input_output_response``.
 
-The compiled run steps the SN637 model (dynamic form, 10 plays, creep branches,
+The compiled run steps the SN637 model (dynamic form, its plays, creep branches,
 the 70 kHz mode) at 10 kHz for ``steps`` samples, compile time excluded (one warm
 call first) and best of ``repeats`` timed calls, keeping every 1000th sample.
 
@@ -8,6 +8,18 @@ The reference wraps the very same step function, run by the interpreter (numba's
 JIT disabled in a child process), as a discrete-time
 ``control.NonlinearIOSystem`` and times ``control.input_output_response`` over a
 shorter span; the ratio is per step, both measured in this one run.
+
+The closed-loop benchmark is the 1000 s hold at the 10 kHz servo rate: 10^7 periods of
+:class:`workbench.verify.closed_loop.ClosedLoop` (the full creep plant, gauge noise on,
+the exported controller as firmware runs it), mid-stroke reference, decimate 1000. Its
+reference is the same loop's own ``_loop`` run by the interpreter (JIT disabled in a
+child process) for ONE period per ``update`` of a discrete ``control.NonlinearIOSystem``
+whose state is the plant state plus the controller state (cascade, voltage model,
+pending output); inputs are the reference, the force and the gauge-noise term, drawn
+as ``ClosedLoop.run`` draws them, so the reference's final state is checked against the
+compiled run of the same length. Targets from the issue: >= 100x python-control and
+< 2 s per 10^7 periods on one core; peak RSS of a 10^8-period hold < 500 MB
+(``benchmarks/closed_loop_memory.py``, in a child process).
 """
 
 import json
@@ -15,12 +27,20 @@ import os
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run_bench"]
+__all__ = ["run_bench", "closed_loop_bench"]
 
 SAMPLE_S = 1e-4
+CONTROLLER = "controllers/sn637_loopshape.json"
+X_HOLD_M = 7.5e-6                     # mid-stroke
+HOLD_DECIMATE = 1000
+TARGET_RATIO = 100.0
+TARGET_SECONDS_PER_1E7 = 2.0
+MEMORY_DECIMATE = 10_000
+MEMORY_SCRIPT = Path(__file__).resolve().parents[1] / "benchmarks" / "closed_loop_memory.py"
 
 
 def _drive(n):
@@ -58,9 +78,148 @@ def _reference(plant_path, steps):
     return time.perf_counter() - t0
 
 
+def _hold(plant_path, controller_path, **kw):
+    """A fresh ClosedLoop on the plant file and controller JSON, and the mid-stroke reference (V)."""
+    from .plant import load_plant
+    from .verify.closed_loop import ClosedLoop, controller_from_json
+    from .verify.scenarios import _to_volts
+
+    plant = load_plant(plant_path)
+    ctrl = controller_from_json(json.loads(Path(controller_path).read_text()))
+    return ClosedLoop(plant, ctrl, **kw), float(_to_volts(X_HOLD_M, plant.gauge))
+
+
+def _closed_loop_reference(plant_path, controller_path, periods):
+    """Run in a child process with NUMBA_DISABLE_JIT=1: python-control on the closed loop's own period.
+
+    Returns the seconds of ``input_output_response`` over ``periods`` updates and the state
+    after ``periods - 1`` of them (python-control drops the last update's result). The
+    arguments mirror ``ClosedLoop.run``'s call of ``_loop`` (private attributes): if that
+    call changes, this breaks or the state check in :func:`closed_loop_bench` shows it.
+    """
+    import control
+
+    from .verify.closed_loop import _loop
+
+    loop = getattr(_loop, "py_func", _loop)        # JIT disabled: _loop is already the Python function
+    cl, ref = _hold(plant_path, controller_path)
+    # the arrays _loop updates in place (plant, cascade, Hanus and voltage-model states, io), in the state vector
+    parts = [cl.sim.st, cl._hx, cl._csf, cl._csi, cl._vmf, cl._vmi, cl._io]
+    ends = np.cumsum([a.size for a in parts])
+    i_x, i_u = ends[-2] + 1, ends[-2]               # io = [pending output, last x, ...]
+    c = cl.controller
+    fixed_args = (cl._gp, cl._r0, cl._form, cl._ha, cl._hb, cl._hc, cl._hd, cl._hx, float(c.gain), cl._sos,
+                  cl._fb, cl._fa, cl._fshift, cl._ffrac, cl._fin, cl._in_scale, cl._out_scale, cl._csf, cl._csi,
+                  cl._vmf, cl._vmi, cl._lim, cl._limw, cl.anti_windup, 1, cl._io)
+    rec, stats = np.zeros((1, 6)), np.zeros(5)
+
+    def update(t, x, u, params):
+        for a, seg in zip(parts, np.split(x, ends[:-1])):
+            a.flat[:] = seg                          # int64 words are exact in float64 (int32 range)
+        cl._io[3:] = 0.0                             # a fresh one-row trace each period
+        loop(cl.sim.m, cl.sim.st, cl.n_sub, u[0:1], u[1:2], u[2:3], *fixed_args, rec, stats)
+        return np.concatenate([a.ravel() for a in parts]).astype(float)
+
+    def output(t, x, u, params):
+        return x[i_x:i_x + 1]
+
+    sys_ = control.NonlinearIOSystem(update, output, inputs=3, outputs=1, states=int(ends[-1]),
+                                     dt=c.dt_s, name="closed_loop")
+    # inputs: reference, force, the gauge-noise term (the draw ClosedLoop.run makes for its first chunk)
+    noise = cl._rng.standard_normal(periods) * cl.sigma_v
+    u = np.vstack([np.full(periods, ref), np.zeros(periods), noise])
+    t = np.arange(periods) * c.dt_s
+    x0 = np.concatenate([a.ravel() for a in parts]).astype(float)
+    t0 = time.perf_counter()
+    resp = control.input_output_response(sys_, t, u, X0=x0, return_states=True)
+    sec = time.perf_counter() - t0
+    return {"seconds": sec, "x_m": float(resp.states[i_x, -1]), "u_v": float(resp.states[i_u, -1])}
+
+
+def _child(call):
+    """Evaluate ``call`` (an expression in workbench.bench) in a child process with numba's JIT disabled."""
+    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
+    code = f"import json,sys; from workbench import bench; print(json.dumps(bench.{call}))"
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"python-control reference failed:\n{done.stderr}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def _memory_module():
+    """benchmarks/closed_loop_memory.py (a script beside the package, not part of it)."""
+    import importlib.util
+
+    if not MEMORY_SCRIPT.is_file():
+        raise FileNotFoundError(f"{MEMORY_SCRIPT} is missing (the memory check runs from a source checkout)")
+    spec = importlib.util.spec_from_file_location("closed_loop_memory", MEMORY_SCRIPT)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def closed_loop_bench(plant_path="plants/p888_51_sn637_creep.toml", controller_path=CONTROLLER, *,
+                      periods=10_000_000, reference_periods=2000, repeats=3, memory_periods=10**8, progress=None):
+    """The closed-loop hold benchmark (see the module docstring); a JSON-ready dict."""
+    say = progress or (lambda line: None)
+    reference_periods = max(2, int(reference_periods))   # its state check needs one compiled period
+    say("compiling the closed loop (cached after the first run)...")
+    cl, ref = _hold(plant_path, controller_path)
+    cl.run(ref, periods=1000)                         # warm-up on its own object: compile/load excluded
+    times = []
+    for k in range(repeats):
+        cl, ref = _hold(plant_path, controller_path)  # same seed, same noise each repeat
+        t0 = time.perf_counter()
+        cl.run(ref, decimate=HOLD_DECIMATE, periods=periods)
+        times.append(time.perf_counter() - t0)
+        say(f"closed-loop hold {k + 1}/{repeats}: {times[-1]:.3f} s")
+    best = min(times)
+    say(f"python-control closed-loop reference over {reference_periods} periods (interpreted, child process)...")
+    r = _child(f"_closed_loop_reference({str(plant_path)!r}, {str(controller_path)!r}, {int(reference_periods)})")
+    # the compiled loop over the periods the reference's last state has seen: the same computation?
+    chk, _ = _hold(plant_path, controller_path)
+    tr = chk.run(ref, periods=reference_periods - 1)
+    pps, ref_pps = periods / best, reference_periods / r["seconds"]
+    per_1e7 = best * 1e7 / periods
+    out = {
+        "controller": str(controller_path),
+        "controller_form": cl.controller.describe(),
+        "plant": str(plant_path),
+        "scenario": f"hold at {X_HOLD_M * 1e6:g} um (reference {ref:+.4g} V), gauge noise on, n_sub {cl.n_sub}, "
+                    f"anti-windup on, decimate {HOLD_DECIMATE}",
+        "sample_time_s": cl.controller.dt_s,
+        "periods": periods,
+        "seconds": best,
+        "seconds_all_repeats": times,
+        "seconds_per_1e7_periods": per_1e7,
+        "periods_per_second": pps,
+        "python_control_periods": reference_periods,
+        "python_control_seconds": r["seconds"],
+        "python_control_periods_per_second": ref_pps,
+        "ratio_vs_python_control": pps / ref_pps,
+        "python_control_state_difference": {"x_m": abs(r["x_m"] - float(tr.x_m[-1])),
+                                            "u_v": abs(r["u_v"] - chk.u)},
+        "targets": {"ratio_min": TARGET_RATIO, "seconds_per_1e7_max": TARGET_SECONDS_PER_1E7},
+        "meets_target": {"ratio": pps / ref_pps >= TARGET_RATIO, "seconds": per_1e7 < TARGET_SECONDS_PER_1E7},
+    }
+    if memory_periods:
+        mem = _memory_module()
+        say(f"peak memory of a {memory_periods:.0e}-period hold (child process)...")
+        peak, sec = mem.peak_rss_mb(memory_periods, MEMORY_DECIMATE, plant_path=plant_path,
+                                    controller_path=controller_path)
+        out["memory"] = {"periods": memory_periods, "decimate": MEMORY_DECIMATE, "peak_rss_mb": peak,
+                         "seconds": sec, "limit_mb": mem.LIMIT_MB}
+        out["targets"]["peak_rss_mb_max"] = mem.LIMIT_MB
+        out["meets_target"]["memory"] = peak < mem.LIMIT_MB
+    return out
+
+
 def run_bench(plant_path="plants/p888_51_sn637_creep.toml", *, steps=10_000_000, reference_steps=2000,
-              repeats=3, progress=None):
-    """Time the compiled model and the python-control reference; return a JSON-ready dict.
+              repeats=3, progress=None, controller_path=CONTROLLER, periods=None, reference_periods=None,
+              memory_periods=10**8):
+    """Time the compiled model, the closed loop and their python-control references; a JSON-ready dict.
+
+    The open-loop figures are top-level keys; the closed-loop ones are under ``"closed_loop"``.
 
     Parameters
     ----------
@@ -73,6 +232,13 @@ def run_bench(plant_path="plants/p888_51_sn637_creep.toml", *, steps=10_000_000,
         Timed calls of the compiled run; the best is kept.
     progress : callable, optional
         Receives one line per stage.
+    controller_path : str or Path
+        Exported controller JSON of the closed loop.
+    periods, reference_periods : int, optional
+        Servo periods of the closed-loop hold and of its python-control reference
+        (default: ``steps`` and ``reference_steps``, one span for both benchmarks).
+    memory_periods : int
+        Periods of the peak-memory hold in a child process (10^8 = ~30 s); 0 skips it.
     """
     from .plant import load_plant
     from .plant.simulator import PZTSimulator
@@ -92,13 +258,7 @@ def run_bench(plant_path="plants/p888_51_sn637_creep.toml", *, steps=10_000_000,
         say(f"compiled run {k + 1}/{repeats}: {times[-1]:.3f} s")
     best = min(times)
     say(f"python-control reference over {reference_steps} steps (interpreted, child process)...")
-    env = dict(os.environ, NUMBA_DISABLE_JIT="1")
-    code = ("import json,sys; from workbench.bench import _reference; "
-            f"print(json.dumps(_reference({str(plant_path)!r}, {int(reference_steps)})))")
-    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False)
-    if done.returncode != 0:
-        raise RuntimeError(f"python-control reference failed:\n{done.stderr}")
-    ref_s = float(json.loads(done.stdout.strip().splitlines()[-1]))
+    ref_s = float(_child(f"_reference({str(plant_path)!r}, {int(reference_steps)})"))
     sps = steps / best
     ref_sps = reference_steps / ref_s
     pz = plant.pzt
@@ -117,4 +277,8 @@ def run_bench(plant_path="plants/p888_51_sn637_creep.toml", *, steps=10_000_000,
         "ratio_vs_python_control": sps / ref_sps,
         "control_version": __import__("control").__version__,
         "numba_version": __import__("numba").__version__,
+        "closed_loop": closed_loop_bench(
+            plant_path, controller_path, periods=steps if periods is None else periods,
+            reference_periods=reference_steps if reference_periods is None else reference_periods,
+            repeats=repeats, memory_periods=memory_periods, progress=progress),
     }

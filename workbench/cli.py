@@ -97,13 +97,35 @@ def cmd_freefree(args):
 
 def cmd_bench(args):
     from .bench import run_bench
-    data = run_bench(args.plant, steps=args.steps, reference_steps=args.reference_steps, progress=print)
-    _emit(args, data, [
+    if args.memory_periods < 0:
+        raise ValueError(f"--memory-periods must be >= 0 (0 skips the memory check); got {args.memory_periods}")
+    data = run_bench(args.plant, steps=args.steps, reference_steps=args.reference_steps, progress=print,
+                     controller_path=args.controller, periods=args.periods,
+                     reference_periods=args.reference_periods, memory_periods=args.memory_periods)
+    cl = data["closed_loop"]
+    ok = cl["meets_target"]
+    t = cl["targets"]
+    lines = [
         f"{data['steps']} steps of {data['model']}: {data['seconds']:.3f} s, "
         f"{data['steps_per_second']:.3e} steps/s (compile excluded)",
         f"python-control input_output_response: {data['python_control_steps_per_second']:.3e} steps/s "
         f"over {data['python_control_steps']} steps; ratio {data['ratio_vs_python_control']:.0f}x",
-    ])
+        f"closed loop ({cl['controller_form']}), {cl['scenario']}:",
+        f"  {cl['periods']} periods: {cl['seconds']:.3f} s, {cl['periods_per_second']:.3e} periods/s "
+        f"(compile excluded); {cl['seconds_per_1e7_periods']:.2f} s per 1e7 "
+        f"(target < {t['seconds_per_1e7_max']:g} s: {'met' if ok['seconds'] else 'NOT met'})",
+        f"  python-control input_output_response: {cl['python_control_periods_per_second']:.3e} periods/s over "
+        f"{cl['python_control_periods']} periods; ratio {cl['ratio_vs_python_control']:.0f}x "
+        f"(target >= {t['ratio_min']:g}x: {'met' if ok['ratio'] else 'NOT met'}); final state vs compiled: "
+        f"|dx| {cl['python_control_state_difference']['x_m']:.1e} m, "
+        f"|du| {cl['python_control_state_difference']['u_v']:.1e} V",
+    ]
+    if "memory" in cl:
+        m = cl["memory"]
+        lines.append(f"  peak RSS of a {m['periods']:.0e}-period hold (decimate {m['decimate']}): "
+                     f"{m['peak_rss_mb']:.1f} MB in {m['seconds']:.1f} s "
+                     f"(target < {m['limit_mb']:g} MB: {'met' if ok['memory'] else 'NOT met'})")
+    _emit(args, data, lines)
 
 
 _last_bar = {}
@@ -180,31 +202,27 @@ def cmd_study(args):
 
 
 def cmd_verify(args):
-    import json as _json
-    from .plant import load_plant
-    from .verify.closed_loop import controller_from_json
-    from .verify.scenarios import SCENARIOS, run_scenario
-    from .errors import DataFileError
-    plant = load_plant(args.plant)
-    try:
-        ctrl_json = _json.loads(Path(args.controller).read_text())
-        ctrl = controller_from_json(ctrl_json)
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise DataFileError(f"{args.controller}: not an exported controller JSON with an 'anti_windup' block "
-                            f"({exc!r}); export one with `workbench study`") from None
+    from .verify.run import run_verify
+    from .verify.scenarios import SCENARIOS
     names = SCENARIOS if args.scenario == "all" else (args.scenario,)
-    results = []
-    for i, name in enumerate(names):
-        _progress_bar("verify", i, len(names))
-        m, _ = run_scenario(plant, ctrl, name, hold_s=args.hold, noise=not args.no_noise,
-                            anti_windup=not args.no_anti_windup)
-        results.append(m)
-    _progress_bar("verify", len(names), len(names))
-    lines = [f"{plant.serial} with {ctrl_json.get('name', args.controller)}:"]
-    for m in results:
-        keys = [k for k in m if k.endswith(("_percent", "_m", "_s", "_hz", "_fraction", "_points", "_stroke"))]
+    data = run_verify(args.plant, args.controller, names, hold_s=args.hold, noise=not args.no_noise,
+                      anti_windup=not args.no_anti_windup, form=args.form, out_dir=args.out,
+                      progress=lambda stage, d, t: _progress_bar(stage, d, t))
+    lines = [f"{args.plant} with {data['controller_name'] or args.controller} ({data['controller_form']}):"]
+    for m in data["scenarios"]:
+        keys = [k for k in m if k.endswith(("_percent", "_m", "_s", "_fraction", "_points", "_db", "_deg"))
+                and not isinstance(m[k], (list, tuple)) and k != "stroke_m"]
         lines.append(f"  {m['scenario']}: " + ", ".join(f"{k} {m[k]:.4g}" for k in keys))
-    _emit(args, {"plant": str(args.plant), "controller": str(args.controller), "scenarios": results}, lines)
+    cyc = data["predicted_limit_cycles"]
+    lines.append("  describing-function limit cycles predicted: " + (", ".join(
+        f"{c['amplitude_v']:.3g} V at {c['freq_hz']:.0f} Hz ({'stable' if c['stable'] else 'unstable'})"
+        for c in cyc) if cyc else "none"))
+    for name, t in data["targets"].items():
+        lines.append(f"  target {name}: {t['metric']} {t['value']:.4g} (limit {t['limit']:g} {t['unit']}): "
+                     f"{'met' if t['met'] else 'MISSED'}")
+    if "report" in data:
+        lines.append(f"  report {data['report']}")
+    _emit(args, data, lines)
 
 
 def cmd_demo(args):
@@ -247,13 +265,22 @@ def build_parser():
     p.add_argument("--json", type=Path, help="write the results as JSON here")
     p.set_defaults(func=cmd_freefree)
 
-    p = sub.add_parser("bench", help="steps per second of the compiled PZT against python-control",
+    p = sub.add_parser("bench", help="steps per second of the compiled PZT and closed loop against python-control",
                        description="Time the compiled SN637 model (dynamic form, creep) and the same "
-                                   "step function under python-control's input_output_response.")
+                                   "step function under python-control's input_output_response; then the "
+                                   "closed-loop 1000 s hold (exported controller, gauge noise) against the "
+                                   "same loop period under input_output_response, and its peak memory.")
     p.add_argument("--plant", type=Path, default=Path("plants/p888_51_sn637_creep.toml"))
     p.add_argument("--steps", type=_positive_int, default=10_000_000, help="compiled steps (default 1e7)")
     p.add_argument("--reference-steps", type=_positive_int, default=2000,
                    help="steps for the python-control reference (default 2000)")
+    p.add_argument("--controller", type=Path, default=Path("controllers/sn637_loopshape.json"),
+                   help="controller JSON of the closed-loop hold")
+    p.add_argument("--periods", type=_positive_int, help="closed-loop servo periods (default: --steps)")
+    p.add_argument("--reference-periods", type=_positive_int,
+                   help="periods for the closed loop's python-control reference (default: --reference-steps)")
+    p.add_argument("--memory-periods", type=int, default=10**8,
+                   help="periods of the peak-memory hold in a child process (default 1e8, ~30 s; 0 skips it)")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
     p.set_defaults(func=cmd_bench)
 
@@ -291,15 +318,19 @@ def build_parser():
     p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("verify", help="the exported controller in closed loop with the nonlinear plant",
-                       description="Closed-loop runs of an exported controller (its Hanus anti-windup and "
-                                   "rate limit) with the hysteretic, creeping PZT, the current and voltage "
-                                   "limits and the gauge chain with its noise: small and large steps, "
-                                   "triangles at 0.1 and 1 Hz, a hold, a force step; metrics beside the "
-                                   "linear prediction.")
+                       description="Closed-loop runs of an exported controller as firmware runs it (the "
+                                   "fixed-point step when the JSON has one, with its current-limit window "
+                                   "and anti-windup) with the hysteretic, creeping PZT, the current and "
+                                   "voltage limits and the gauge chain with its noise: small and large "
+                                   "steps, triangles at 0.1 and 1 Hz, a hold, a force step, a sine sweep; "
+                                   "metrics beside the linear prediction, figures and a report.")
     p.add_argument("plant", type=Path)
     p.add_argument("--controller", type=Path, required=True, help="e.g. controllers/sn637_loopshape.json")
     p.add_argument("--scenario", default="all", choices=["all", "small_step", "large_step", "triangle_0p1hz",
-                                                          "triangle_1hz", "hold", "force_step"])
+                                                          "triangle_1hz", "hold", "force_step", "sine_sweep"])
+    p.add_argument("--form", choices=["fixed", "float", "hanus"],
+                   help="controller form to run (default: what the JSON declares, fixed point first)")
+    p.add_argument("--out", type=Path, help="folder for the figures, report.md and verify.json")
     p.add_argument("--hold", type=_quantity("s"), default=1000.0, help="hold duration, default 1000s")
     p.add_argument("--no-noise", action="store_true", help="gauge noise off")
     p.add_argument("--no-anti-windup", action="store_true", help="plain controller (shows the windup)")

@@ -27,10 +27,11 @@ int main(void)
 {
     ctrl_fixed_state fixed;
     ctrl_float_state flt;
-    long long e_q;
-    double e_v;
-    ctrl_fixed_reset(&fixed);
-    ctrl_float_reset(&flt);
+    long long e_q, u0_q;
+    double e_v, u0_v;
+    if (scanf("%lld %lf", &u0_q, &u0_v) != 2) return 1;
+    ctrl_fixed_reset(&fixed, (int32_t)u0_q);
+    ctrl_float_reset(&flt, u0_v);
     while (scanf("%lld %lf", &e_q, &e_v) == 2) {
         const int32_t u_q = ctrl_fixed_step(&fixed, (int32_t)e_q);
         printf("%ld %.17g\\n", (long)u_q, ctrl_float_step(&flt, e_v));
@@ -40,7 +41,7 @@ int main(void)
 """
 
 
-def _controller(notch=False):
+def _controller(notch=False, voltage_model=None):
     """PI (30 Hz), lead 200-800 Hz, 2 kHz roll-off; optionally a 5-50 Hz lag and a 1.5 kHz notch."""
     s = control.tf("s")
     w_i, w_z, w_p, w_r, w_n = 2 * np.pi * np.array([30.0, 200.0, 800.0, 2000.0, 1500.0])
@@ -50,7 +51,8 @@ def _controller(notch=False):
         extra = (s**2 + 0.1 * w_n * s + w_n**2) / (s**2 + w_n * s + w_n**2) * (1 + s / 314.0) / (1 + s / 31.4)
         ctrl = ctrl * control.sample_system(extra, DT, method="tustin")
     gain, sos = to_sos(ctrl)
-    return quantize(gain, sos, DT, input_range_v=RANGE_V, output_limits_v=LIMITS_V, f_max_hz=3000.0)
+    return quantize(gain, sos, DT, input_range_v=RANGE_V, output_limits_v=LIMITS_V, f_max_hz=3000.0,
+                    voltage_model=voltage_model)
 
 
 @pytest.fixture(scope="module")
@@ -143,10 +145,13 @@ def _build(cc, folder):
     pytest.fail(f"the header does not compile:\n{done.stderr}")
 
 
-@pytest.mark.parametrize("variant", ["pi_lead_rolloff", "notched", "left_shift"])
+@pytest.mark.parametrize("variant", ["pi_lead_rolloff", "notched", "left_shift", "current_window"])
 def test_header_steps_equal_run_fixed_bit_for_bit_and_run_float(variant, tmp_path, rng):
     cc = _compiler()
-    fxp = _controller(notch=variant == "notched")
+    # R = 80 ohm, C = 11.9 uF, +2 / -14 mA: the SN637 amplifier and stack
+    model = (1 - np.exp(-DT / (80 * 11.9e-6)), 0.16, 1.12) if variant == "current_window" else None
+    u0_v = 50.0 if model else 0.0     # a bumpless start at the bias
+    fxp = _controller(notch=variant == "notched", voltage_model=model)
     if variant == "left_shift":
         # the same controller with 4 fewer b fraction bits: negative shifts, the other branch of align
         fxp = dataclasses.replace(fxp, b=fxp.b // 16, b_frac_bits=fxp.b_frac_bits - 4)
@@ -154,13 +159,29 @@ def test_header_steps_equal_run_fixed_bit_for_bit_and_run_float(variant, tmp_pat
     write_controller(tmp_path, "ctrl", RECORD, fxp)
     main = _build(cc, tmp_path)
     # beyond the input range (clamped), then pushes into both output limits
-    e = np.concatenate([rng.uniform(-1.2 * RANGE_V, 1.2 * RANGE_V, 3000), np.full(3000, RANGE_V),
-                        np.full(3000, -RANGE_V), 0.1 * rng.standard_normal(1000)])
+    e = np.concatenate([rng.uniform(-1.2 * RANGE_V, 1.2 * RANGE_V, 3000), np.full(9000, RANGE_V),
+                        np.full(9000, -RANGE_V), 0.1 * rng.standard_normal(1000)])
     words = np.round(e * 2.0 ** fxp.input_frac_bits).astype(np.int64)    # not clamped: the C step clamps
-    stdin = "".join(f"{q} {v!r}\n" for q, v in zip(words.tolist(), e.tolist()))
+    u0_q = int(np.rint(u0_v * 2.0 ** fxp.output_frac_bits))
+    stdin = f"{u0_q} {u0_v!r}\n" + "".join(f"{q} {v!r}\n" for q, v in zip(words.tolist(), e.tolist()))
     out = subprocess.run([str(main)], input=stdin, capture_output=True, text=True, check=True).stdout.split()
     u_q = np.array(out[0::2], dtype=np.int64)
     u_v = np.array(out[1::2], dtype=float)
-    np.testing.assert_array_equal(u_q * 2.0 ** -fxp.output_frac_bits, run_fixed(fxp, e))   # exact: 2^-n scale
+    np.testing.assert_array_equal(u_q * 2.0 ** -fxp.output_frac_bits, run_fixed(fxp, e, u0_v))   # exact: 2^-n scale
     assert u_v.min() == LIMITS_V[0] and u_v.max() == LIMITS_V[1]
-    np.testing.assert_allclose(u_v, run_float(fxp.gain, fxp.sos, e, output_limits_v=LIMITS_V), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(u_v, run_float(fxp.gain, fxp.sos, e, output_limits_v=LIMITS_V, voltage_model=model,
+                                              u0_v=u0_v), rtol=1e-12, atol=1e-9)
+    if model is not None:
+        # the command never asks for more current than the limits: u - v within [-R I_sink, R I_source]
+        alpha, h_up, h_down = model
+        v = u0_v
+        lead = np.empty(u_v.size)
+        for i, u in enumerate(u_v):
+            lead[i] = u - v
+            v += alpha * (u - v)
+        assert -h_down - 1e-9 <= lead.min() and lead.max() <= h_up + 1e-9
+        assert lead.max() > 0.99 * h_up and lead.min() < -0.99 * h_down     # and the window is used
+        # so over the push up the command climbs no faster than the source current charges the stack
+        k = np.arange(9000)
+        rise = u_v[3000:12000] - u_v[3000]
+        assert np.all(rise <= k * alpha * h_up + h_up + h_down + 1e-9)

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from workbench.plant.hysteresis import PrandtlIshlinskii, play
@@ -83,6 +83,10 @@ def test_slope_is_the_sum_of_engaged_weights(op, v):
     for d in (+1, -1):
         s = op.slope(v[-1], d, z)
         h = 1e-7
+        # a play whose corner lies within h of the input switches inside the step: the slope
+        # there is one-sided and no finite step measures it (hypothesis found v = -1.7e-9 at r = 0)
+        gap = op.thresholds - np.abs(v[-1] - z)         # <= 0: engaged; small > 0: about to engage
+        assume(np.all((gap <= 1e-15) | (gap > 2 * h)))
         y0 = op.with_states(z)(np.array([v[-1]]))[0]
         y1 = op.with_states(z)(np.array([v[-1], v[-1] + d * h]))[1]
         assert s == pytest.approx((y1 - y0) / (d * h), rel=1e-5, abs=1e-6)

@@ -1,43 +1,82 @@
-"""The exported controller in closed loop with the nonlinear plant (issue 5, first part)."""
+"""The exported controller in closed loop with the nonlinear plant: the issue-5 targets and the firmware form."""
 
 import json
 
+import numpy as np
 import pytest
 
-from workbench.verify.closed_loop import controller_from_json
+from workbench.export import run_fixed
+from workbench.verify.closed_loop import ClosedLoop, controller_from_json
 from workbench.verify.scenarios import run_scenario
 
 
 @pytest.fixture(scope="module")
-def ctrl(root):
-    return controller_from_json(json.loads((root / "controllers" / "sn637_loopshape.json").read_text()))
+def data(root):
+    return json.loads((root / "controllers" / "sn637_loopshape.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def ctrl(data):
+    return controller_from_json(data)
+
+
+def test_the_default_export_runs_as_the_fixed_point_step(ctrl):
+    assert ctrl.form == "fixed" and ctrl.voltage_model is not None
+
+
+def test_the_loop_runs_the_exported_step_bit_for_bit(sn637_creep, ctrl):
+    # replay the errors the closed loop saw through run_fixed (the C header's step, bit for bit):
+    # the commands must be the same words
+    cl = ClosedLoop(sn637_creep, ctrl, noise=True, seed=3)
+    cl.reset(u0=50.0)
+    r = cl.run(np.linspace(-0.1, 0.1, 3000))
+    u = run_fixed(ctrl.fixed, r.error_v, u0_v=50.0)
+    # the loop applies output k at period k + 1; r.u_v[k] is what period k applied
+    np.testing.assert_array_equal(u[:-1], r.u_v[1:])
 
 
 def test_small_step_matches_the_linear_prediction(sn637_creep, ctrl):
-    # noise off: the step's shape against the nominal sampled loop; the issue allows 3 points
-    m, _ = run_scenario(sn637_creep, ctrl, "small_step", noise=False)
+    # the issue allows 3 points between the nonlinear overshoot and the linear prediction; with
+    # noise the comparison is made on the same step without gauge noise
+    m, _ = run_scenario(sn637_creep, ctrl, "small_step", noise=True)
     assert abs(m["overshoot_difference_points"]) <= 3.0
-    assert abs(m["final_error_m"]) < 1e-9 and m["settling_s"] < 0.05
+    assert abs(m["final_error_m"]) < 2e-8 and m["settling_noise_free_s"] < 0.05
 
 
 def test_large_step_anti_windup_prevents_the_limit_cycle(sn637_creep, ctrl):
     with_aw, _ = run_scenario(sn637_creep, ctrl, "large_step", noise=False)
     without, _ = run_scenario(sn637_creep, ctrl, "large_step", noise=False, anti_windup=False)
-    # the current limit slews the stack at ~200 V/s; the plain controller winds up and oscillates
-    assert without["time_at_current_limit_s"] > 0.1 and without["oscillation_m"] > 1e-6
+    # the current limit slews the stack at ~170 V/s; the plain controller winds up and oscillates
+    assert without["time_at_current_limit_s"] > 0.1 and without["oscillation_m"] > 1e-7
     assert with_aw["oscillation_m"] < 1e-8 and with_aw["overshoot_percent"] < 1.0
-    assert abs(with_aw["final_error_m"]) < 1e-9
+    assert abs(with_aw["final_error_m"]) < 1e-9 and with_aw["settling_s"] < 0.3
 
 
-def test_slow_triangle_tracks_through_the_hysteresis(sn637_creep, ctrl):
-    m, _ = run_scenario(sn637_creep, ctrl, "triangle_0p1hz", noise=False)
+def test_slow_triangle_tracks_through_the_hysteresis_with_gauge_noise(sn637_creep, ctrl):
+    m, _ = run_scenario(sn637_creep, ctrl, "triangle_0p1hz", noise=True)
     assert m["error_rms_percent_of_stroke"] < 0.1                    # the seed: 0.1 % with gauge feedback
     assert m["hysteresis_open_loop_percent"] > 5 > 0.2 > m["hysteresis_closed_loop_percent"]
+
+
+def test_hold_drift(sn637_creep, ctrl):
+    # 100 s here (make test-full: the issue's 1000 s); the issue allows 1 nm
+    m, _ = run_scenario(sn637_creep, ctrl, "hold", hold_s=100.0)
+    assert abs(m["drift_m"]) < 1e-9 < abs(m["open_loop_creep_m"])
 
 
 def test_force_step_is_rejected(sn637_creep, ctrl):
     m, _ = run_scenario(sn637_creep, ctrl, "force_step", noise=False)
     assert abs(m["final_deviation_m"]) < 1e-9 < abs(m["open_loop_deflection_m"])
+
+
+def test_sine_sweep_agrees_with_the_linear_loop_below_the_slew_limit(sn637_creep, ctrl):
+    m, _ = run_scenario(sn637_creep, ctrl, "sine_sweep", noise=True)
+    f = np.asarray(m["freq_hz"])
+    diff_db = np.abs(np.asarray(m["measured_db"]) - np.asarray(m["linear_db"]))
+    diff_deg = np.abs(np.asarray(m["measured_phase_deg"]) - np.asarray(m["linear_phase_deg"]))
+    low = f <= 200
+    assert diff_db[low].max() < 1.0 and diff_deg[low].max() < 10.0
+    assert abs(m["bandwidth_hz"] / m["linear_bandwidth_hz"] - 1) < 0.2
 
 
 def test_unknown_scenario(sn637_creep, ctrl):

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import DesignError
 
-__all__ = ["discretize", "rate_limits_v_per_s", "HanusController", "hanus", "run_hanus", "hanus_initial_state"]
+__all__ = ["discretize", "rate_limits_v_per_s", "current_limit_model", "HanusController", "hanus", "run_hanus", "hanus_initial_state"]
 
 
 def discretize(ctrl, dt_s, prewarp_hz):
@@ -32,16 +32,34 @@ def discretize(ctrl, dt_s, prewarp_hz):
     return control.sample_system(control.ss(ctrl), dt_s, method="tustin", prewarp_frequency=2 * np.pi * prewarp_hz)
 
 
+def _largest_capacitance_f(pzt):
+    c_h = float(np.sum(pzt.hysteresis.weights))
+    if pzt.creep is not None:
+        c_h += float(np.sum(pzt.creep.capacitances_f))
+    return 1.0 / (1.0 / c_h + 1.0 / pzt.c_pp_f)
+
+
+def current_limit_model(pzt, dt_s):
+    """(alpha, h_up, h_down) of the current-limit window the exported controller runs.
+
+    Firmware models the stack voltage as the RC response to its output at the largest
+    terminal capacitance C (slowest, so never optimistic): v <- v + alpha (u - v),
+    alpha = 1 - exp(-T / (R C)); it keeps u within [v - R I_sink, v + R I_source], so the
+    current it asks for stays within the amplifier's limits (see
+    :mod:`workbench.export.fixed_point`).
+    """
+    r = pzt.series_resistance_ohm
+    alpha = -np.expm1(-dt_s / (r * _largest_capacitance_f(pzt))) if r > 0 else 1.0
+    return float(alpha), r * pzt.current_limit_source_a, r * pzt.current_limit_sink_a
+
+
 def rate_limits_v_per_s(pzt):
     """(up, down) slew of the PZT voltage the current limits allow, V/s, at the largest capacitance.
 
     The largest terminal capacitance is every play engaged plus the settled creep
     branches, in series with C_pp: the slowest slew, so a safe output rate limit.
     """
-    c_h = float(np.sum(pzt.hysteresis.weights))
-    if pzt.creep is not None:
-        c_h += float(np.sum(pzt.creep.capacitances_f))
-    c = 1.0 / (1.0 / c_h + 1.0 / pzt.c_pp_f)
+    c = _largest_capacitance_f(pzt)
     return pzt.current_limit_source_a / c, pzt.current_limit_sink_a / c
 
 

@@ -10,7 +10,8 @@ w_p = 2 pi f_c sqrt(alpha)) and the roll-off at r_r f_c. k puts the nominal loop
 crossover at f_c. For every shape on a small grid the highest f_c whose loops keep
 the margin targets on EVERY member of the family (the describing functions and
 small-signal models of issue 3, seen through the sampled gauge chain) is found; the
-shape with the highest such crossover wins, ties broken by the worst disk margin. With a
+shape whose lowest crossover over the family is highest wins, ties broken by the worst
+disk margin. With a
 noise budget, shapes whose gain turns the gauge noise into larger command steps than the
 output rate limit allows are skipped (verification showed that such a controller keeps
 the output rate limit busy on noise alone and biases the loop).
@@ -30,7 +31,7 @@ from .antiwindup import discretize
 from .margins import family_margins
 
 __all__ = ["LoopShapeSpec", "LoopShapeResult", "structured_controller", "family_loops", "tune_loop_shape",
-           "noise_command_rms_v"]
+           "noise_command_rms_v", "nominal_step"]
 
 
 @dataclass(frozen=True)
@@ -48,12 +49,19 @@ class LoopShapeSpec:
     rolloff_ratios: tuple = (4.0, 8.0)
     rolloff_damping: float = 0.6
     notch: tuple | None = None        # (freq_hz, depth_db, width_ratio) for a structural mode
-    # gauge noise through K S must not change the command by more than this RMS per sample, V:
-    # the exported output rate limit allows I_source / C x T (~17 mV) per sample, and a
-    # controller whose noise steps exceed it keeps the limit busy on noise and biases the loop
-    # (verification found this); None: no limit
+    # gauge noise through K S must not make the command lead the stack voltage by more than this
+    # RMS, V: the lead over R is the current asked of the amplifier, and noise that reaches the
+    # +2 mA source limit (R I = 0.16 V) is rectified by the asymmetric limits into a position
+    # bias (the verification found this); R I_source / 3 keeps it below the limit at 3 sigma.
+    # The stack voltage follows the command as v <- v + alpha (u - v) (``voltage_alpha``;
+    # None: the per-sample change of the command). None: no limit
     max_noise_command_v: float | None = None
     noise_reading_v: float = 0.0      # RMS noise of one gauge reading, firmware V
+    voltage_alpha: float | None = None
+    # overshoot of the nominal sampled loop's step response, %: a small step the current limit
+    # slews (as a 0.1 um step does on the ascending branch at > 100 Hz) loses its overshoot, so a
+    # design that promises little is one the hardware can keep; None: no limit
+    max_overshoot_percent: float | None = None
     dt_s: float = 1e-4
     delay_samples: int = 1
 
@@ -113,22 +121,42 @@ def _meets(worst, spec):
             and worst["gain_margin_db"]["value"] >= spec.gain_margin_db)
 
 
-def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, n=4096):
-    """RMS sample-to-sample change of the command the gauge noise causes through K S, V.
+def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, alpha=None, n=4096):
+    """RMS lead of the command over the stack voltage that the gauge noise causes through K S, V.
 
-    White noise of ``noise_reading_v`` RMS per reading; the nominal sampled loop;
-    sigma^2 = sigma_n^2 (1/pi) int_0^pi |(1 - e^{-j theta}) K S|^2 d theta (the change per
-    sample is what the output rate limit sees).
+    White noise of ``noise_reading_v`` RMS per reading; the nominal sampled loop; the stack
+    voltage follows the command as v <- v + alpha (u - v), so u - v = H u with
+    H = (1 - z^-1) / (1 - (1 - alpha) z^-1) and sigma^2 = sigma_n^2 (1/pi) int_0^pi
+    |H K S|^2 d theta. ``alpha`` None (or 1): H = 1 - z^-1, the change per sample.
     """
     f = (np.arange(n) + 0.5) / n * 0.5 / ctrl_d.dt
     k = _discrete_response(ctrl_d, f)
     g = np.asarray(control.frequency_response(nominal, 2 * np.pi * f).complex).ravel()
     ks = k / (1 + k * sampled_factor(f, ctrl_d.dt, delay_samples) * g)
-    diff = 1 - np.exp(-2j * np.pi * f * ctrl_d.dt)
-    return float(noise_reading_v * np.sqrt(np.mean(np.abs(diff * ks) ** 2)))
+    zi = np.exp(-2j * np.pi * f * ctrl_d.dt)
+    a = 1.0 if alpha is None else float(alpha)
+    h = (1 - zi) / (1 - (1 - a) * zi)
+    return float(noise_reading_v * np.sqrt(np.mean(np.abs(h * ks) ** 2)))
 
 
-def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None):
+def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000):
+    """(overshoot %, 2 % settling time s) of the nominal loop as firmware closes it.
+
+    The continuous ``nominal`` (K_g P, firmware V per V) is held, period-averaged and
+    delayed exactly (:mod:`workbench.linearize.sampled`), the loop closed with ``ctrl_d``.
+    """
+    from ..linearize.sampled import compute_delay, period_average
+    dt = ctrl_d.dt
+    g = period_average(control.ss(nominal), dt) * compute_delay(dt, delay_samples)
+    t = np.arange(n) * dt
+    y = np.squeeze(control.step_response(control.feedback(control.ss(ctrl_d) * g, 1), T=t).outputs)
+    overshoot = max(0.0, float(np.max(y)) - 1.0) * 100
+    outside = np.flatnonzero(np.abs(y - 1.0) > 0.02)
+    settle = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < n else (float("nan") if outside.size else 0.0)
+    return overshoot, settle
+
+
+def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None, step_plant=None):
     """Highest-crossover structured controller meeting the margins on every member.
 
     Parameters
@@ -139,7 +167,11 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
         Loop plants K_g P_i(jw), firmware volts per PZT volt (NaN: left out there).
     nominal : continuous SISO LTI
         K_g P_nom(s), used to place the crossover.
+    step_plant : continuous SISO LTI, optional
+        K_g P(s) the overshoot limit is judged on (default ``nominal``); e.g. the
+        ascending-branch model, where a small step up runs.
     """
+    step_plant = nominal if step_plant is None else step_plant
     f = np.asarray(freq_hz, dtype=float)
     # a member left out at every frequency (it slews everywhere on the grid) has no loop to measure
     members = {n: g for n, g in members.items() if np.any(np.isfinite(g))}
@@ -160,11 +192,16 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
             ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
                                 spec.dt_s, fc)
             if spec.max_noise_command_v is not None and noise_command_rms_v(
-                    ctrl_d, nominal, spec.noise_reading_v, spec.delay_samples) > spec.max_noise_command_v:
+                    ctrl_d, nominal, spec.noise_reading_v, spec.delay_samples,
+                    spec.voltage_alpha) > spec.max_noise_command_v:
                 continue       # too much noise on the command here; a lower f_c may do
             _, worst = family_margins(f, family_loops(ctrl_d, f, bounding, spec.delay_samples))
+            if _meets(worst, spec) and spec.max_overshoot_percent is not None and nominal_step(
+                    ctrl_d, step_plant, spec.delay_samples)[0] > spec.max_overshoot_percent:
+                continue       # (checked last: a step response costs more than the margins)
             if _meets(worst, spec):
-                cand = (fc, worst["disk_margin"]["value"], dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al,
+                # the lowest crossover over the family is what the bandwidth target is about
+                cand = (worst["crossover_hz_min"]["value"], worst["disk_margin"]["value"], dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al,
                                                                 rolloff_ratio=rr, rolloff_damping=spec.rolloff_damping,
                                                                 notch=spec.notch))
                 if best is None or (cand[0], cand[1]) > (best[0], best[1]):
@@ -177,6 +214,8 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
                           f"{spec.gain_margin_db:g} dB on every member"
                           + (f" and keeps the gauge noise on the command below {spec.max_noise_command_v:.3g} V RMS"
                              if spec.max_noise_command_v is not None else "")
+                          + (f" and overshoots at most {spec.max_overshoot_percent:g} %"
+                             if spec.max_overshoot_percent is not None else "")
                           + f" with a crossover in {spec.fc_range_hz[0]:g}-{spec.fc_range_hz[1]:g} Hz; "
                             f"lower the range or the targets")
     p = best[2]

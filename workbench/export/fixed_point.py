@@ -42,6 +42,19 @@ Scaling: m_k (the section's power-of-two scale) is the smallest integer with
   runs this step as generated, clamp included. Were the output limited
   elsewhere instead, the integrator state would be unbounded and could
   overflow. A controller whose integrator is not in the last section is refused.
+- Current-limit window (optional, ``voltage_model`` = (alpha, h_up, h_down)): firmware
+  keeps a model v of the stack's terminal voltage, the RC response of the series
+  resistor and the largest stack capacitance to the held output, v <- v + alpha (u - v)
+  with alpha = 1 - exp(-T / (R C)); the last section's clamp is narrowed to
+  [v - h_down, v + h_up] with h = R I_max, so the command never asks the amplifier
+  for more current than its limits give (I = (u - v) / R). A large step therefore
+  slews at I_max / C in the controller as in the plant, and the clamped value drives
+  the recursion as above (the integrator is conditioned on what the stack can follow),
+  while small and noisy moves pass untouched. In words: alpha in Q1.30,
+  v <- v + ((u - v) alpha_q + 2^29) >> 30. The range bound on the states is unchanged.
+- Start: :func:`initial_state` puts the cascade at rest at an output u0 with zero
+  error (the last section's s1 = u0, s2 = round(-a2 u0)), so the loop can be
+  closed at a bias without a bump.
 
 The |b_i| X terms keep every accumulator term below 2^(32 + F) even with
 saturated words, so no int64 accumulator can overflow.
@@ -57,7 +70,7 @@ from scipy import signal
 from .sos import ExportError
 
 __all__ = ["FixedPointController", "quantize", "run_float", "run_fixed", "fixed_point_peaks",
-           "node_impulse_responses"]
+           "node_impulse_responses", "initial_state", "fixed_step", "float_step", "ALPHA_FRAC_BITS"]
 
 _WORD_BITS = 32
 _ACC_BITS = 64
@@ -65,6 +78,8 @@ _HEADROOM = 1.01
 _INTEGRATOR_TOL = 1e-12      # |1 + a1 + a2| (relative |b0 - b1 + b2|): rounding of a row built from z = 1 (z = -1)
 _L1_TAIL = 1e-10             # truncate impulse responses once r^n / (1 - r) falls below this
 _L1_MAX_SAMPLES = 1 << 22    # 7 min at 10 kHz: slower poles belong in the last section
+_NO_WINDOW = 1 << 40          # words: wider than any output range
+ALPHA_FRAC_BITS = 30          # the voltage model's alpha in Q1.30
 
 
 def _q(frac_bits, bits=_WORD_BITS):
@@ -99,6 +114,8 @@ class FixedPointController:
         Largest |z| of the quantized poles other than the exact integrators.
     error_db, error_deg : float
         Largest |quantized / design| response error up to ``f_max_hz``: dB and degrees.
+    voltage_model : (float, float, float) or None
+        (alpha, h_up, h_down): the current-limit window of the module docstring; None: none.
     """
 
     gain: float
@@ -117,6 +134,7 @@ class FixedPointController:
     max_pole_radius: float
     error_db: float
     error_deg: float
+    voltage_model: tuple | None = None
     word_bits: ClassVar[int] = _WORD_BITS
     acc_bits: ClassVar[int] = _ACC_BITS
 
@@ -154,6 +172,27 @@ class FixedPointController:
         """Output clamp (lo, hi) as words."""
         scale = 2.0 ** self.output_frac_bits
         return int(np.ceil(self.output_limits_v[0] * scale)), int(np.floor(self.output_limits_v[1] * scale))
+
+    @property
+    def limit_words(self):
+        """int64 [lo, hi, alpha_q, h_up, h_down]: the step's ``lim`` (output words; alpha in Q1.30).
+
+        Without a voltage model: alpha = 1 (v follows u) and an unreachable window.
+        """
+        if self.voltage_model is None:
+            return np.array([*self.output_limits, 1 << ALPHA_FRAC_BITS, _NO_WINDOW, _NO_WINDOW], dtype=np.int64)
+        alpha, h_up, h_down = self.voltage_model
+        scale = 2.0 ** self.output_frac_bits
+        return np.array([*self.output_limits, int(np.rint(alpha * 2.0 ** ALPHA_FRAC_BITS)),
+                         int(np.floor(h_up * scale)), int(np.floor(h_down * scale))], dtype=np.int64)
+
+    @property
+    def slew_limits_v_per_s(self):
+        """Fastest (up, down) slew of the output the window allows (alpha h / T), V/s; None without one."""
+        if self.voltage_model is None:
+            return None
+        alpha, h_up, h_down = self.voltage_model
+        return alpha * h_up / self.dt_s, alpha * h_down / self.dt_s
 
     @property
     def q_formats(self):
@@ -322,7 +361,7 @@ def _worst_error(sos, sos_q, dt, f_max_hz, max_error_db, max_error_deg):
 
 
 def quantize(gain, sos, dt, *, input_range_v, output_limits_v, f_max_hz, coeff_bits=32,
-             max_error_db=0.1, max_error_deg=1.0):
+             max_error_db=0.1, max_error_deg=1.0, voltage_model=None):
     """Quantize second-order sections for the fixed-point TDF-II cascade.
 
     Parameters
@@ -345,6 +384,9 @@ def quantize(gain, sos, dt, *, input_range_v, output_limits_v, f_max_hz, coeff_b
         Coefficient word length, 8 to 32 bits (signals stay 32-bit).
     max_error_db, max_error_deg : float, default 0.1 and 1.0
         Largest allowed response error up to ``f_max_hz``: dB and degrees.
+    voltage_model : (float, float, float), optional
+        (alpha, h_up, h_down): the current-limit window (module docstring), 0 < alpha <= 1,
+        h >= 0 V.
 
     Returns
     -------
@@ -377,6 +419,12 @@ def quantize(gain, sos, dt, *, input_range_v, output_limits_v, f_max_hz, coeff_b
     if not (isinstance(coeff_bits, (int, np.integer)) and 8 <= coeff_bits <= 32):
         raise ExportError(f"coeff_bits must be an integer from 8 to 32 (coefficients are stored in int32); "
                           f"got {coeff_bits!r}")
+    if voltage_model is not None:
+        voltage_model = tuple(float(v) for v in voltage_model)
+        if (len(voltage_model) != 3 or not 0 < voltage_model[0] <= 1
+                or not all(np.isfinite(h) and h >= 0 for h in voltage_model[1:])):
+            raise ExportError(f"voltage_model must be (alpha, h_up, h_down) with 0 < alpha <= 1 and h >= 0 V; "
+                              f"got {voltage_model}")
     if np.any(np.all(sos[:, :3] == 0, axis=1)):
         raise ExportError("a section has an all-zero numerator: the controller is zero")
     _check_poles(sos)
@@ -414,7 +462,7 @@ def quantize(gain, sos, dt, *, input_range_v, output_limits_v, f_max_hz, coeff_b
         gain=float(gain), sos=sos, dt_s=float(dt), input_range_v=float(input_range_v), output_limits_v=(lo, hi),
         f_max_hz=float(f_max_hz), coeff_bits=int(coeff_bits), b=np.array(b_q), a=a_q, b_frac_bits=b_frac,
         signal_frac_bits=f_sig, input_frac_bits=int(f_in), integrator=integrator,
-        max_pole_radius=max(radius), error_db=0.0, error_deg=0.0)
+        max_pole_radius=max(radius), error_db=0.0, error_deg=0.0, voltage_model=voltage_model)
     design = np.column_stack([b_real, sos[:, 3:]])
     err_db, err_deg, f_worst, k_worst = _worst_error(design, fxp.quantized_sos()[1], dt, f_max_hz,
                                                      max_error_db, max_error_deg)
@@ -427,25 +475,40 @@ def quantize(gain, sos, dt, *, input_range_v, output_limits_v, f_max_hz, coeff_b
     return replace(fxp, error_db=err_db, error_deg=err_deg)
 
 
-@njit(cache=True)
-def _float_kernel(e, gain, sos, lo, hi):
+@njit(cache=True, inline="always")
+def float_step(s, v, sos, lim, vm, condition):
+    """One sample of the float cascade (states ``s`` and voltage model ``vm[0]`` updated in place).
+
+    ``v`` is gain x input; ``lim`` = [lo, hi, alpha, h_up, h_down] (V). The last section's
+    output is clamped to [lo, hi] and to [vm - h_down, vm + h_up]; with ``condition`` the
+    clamped value drives its recursion (anti-windup), else the raw one. Then
+    vm <- vm + alpha (u - vm) (module docstring).
+    """
     n_sec = sos.shape[0]
-    s = np.zeros((n_sec, 2))
+    for k in range(n_sec):
+        y = sos[k, 0] * v + s[k, 0]
+        out = y
+        if k == n_sec - 1:
+            out = min(max(y, max(lim[0], vm[0] - lim[4])), min(lim[1], vm[0] + lim[3]))
+            if condition:
+                y = out
+        s[k, 0] = sos[k, 1] * v - sos[k, 4] * y + s[k, 1]
+        s[k, 1] = sos[k, 2] * v - sos[k, 5] * y
+        v = out
+    vm[0] += lim[2] * (v - vm[0])
+    return v
+
+
+@njit(cache=True)
+def _float_kernel(e, gain, sos, lim, s, u0):
     u = np.empty(e.size)
+    vm = np.array([u0])
     for i in range(e.size):
-        v = gain * e[i]
-        for k in range(n_sec):
-            y = sos[k, 0] * v + s[k, 0]
-            if k == n_sec - 1:
-                y = min(max(y, lo), hi)
-            s[k, 0] = sos[k, 1] * v - sos[k, 4] * y + s[k, 1]
-            s[k, 1] = sos[k, 2] * v - sos[k, 5] * y
-            v = y
-        u[i] = v
+        u[i] = float_step(s, gain * e[i], sos, lim, vm, True)
     return u
 
 
-def run_float(gain, sos, e, *, output_limits_v=None):
+def run_float(gain, sos, e, *, output_limits_v=None, voltage_model=None, u0_v=0.0):
     """The float64 TDF-II cascade, as the exported C float step computes it.
 
     Parameters
@@ -459,6 +522,11 @@ def run_float(gain, sos, e, *, output_limits_v=None):
     output_limits_v : (float, float), optional
         If given, the last section's output is clamped to (lo, hi) V and the
         clamped value drives its recursion (the anti-windup of :func:`run_fixed`).
+    voltage_model : (float, float, float), optional
+        (alpha, h_up, h_down): the current-limit window (module docstring).
+    u0_v : float, default 0
+        Output at rest before the first sample (the voltage model starts there; the last
+        section's states are set to hold it with zero input).
 
     Returns
     -------
@@ -466,60 +534,106 @@ def run_float(gain, sos, e, *, output_limits_v=None):
         Output samples, V.
     """
     lo, hi = (-np.inf, np.inf) if output_limits_v is None else output_limits_v
-    return _float_kernel(np.ascontiguousarray(e, dtype=float), float(gain), _check_sos(sos), float(lo), float(hi))
+    sos = _check_sos(sos)
+    s = np.zeros((len(sos), 2))
+    s[-1] = u0_v, -sos[-1, 5] * u0_v            # at rest at u0 with zero input (see initial_state)
+    lim = np.array([lo, hi, *((1.0, np.inf, np.inf) if voltage_model is None else voltage_model)], dtype=float)
+    return _float_kernel(np.ascontiguousarray(e, dtype=float), float(gain), sos, lim, s, float(u0_v))
 
 
-@njit(cache=True)
-def _fixed_kernel(x, b, a, b_shift, frac, in_lim, out_lo, out_hi):
-    # Line for line NAME_fixed_step of writers.py; int64 never overflows here (module docstring).
+@njit(cache=True, inline="always")
+def fixed_step(s, v, b, a, b_shift, frac, lim, vm, condition, peak):
+    """One sample of the fixed-point cascade, line for line NAME_fixed_step of writers.py.
+
+    ``v``: the input word (already clamped to the input range); ``s``: int64 states and
+    ``vm[0]``: the voltage model word, updated in place. ``lim``: int64 [lo, hi, alpha_q,
+    h_up, h_down] (:attr:`FixedPointController.limit_words`). The last section's output is
+    clamped to the range and to the current-limit window around the model; with ``condition`` (anti-windup) the clamped word drives its recursion,
+    else the raw one (saturated to int32). ``peak`` (n_sections, 3) collects the largest
+    |y|, |s1|, |s2| before saturation. int64 never overflows here (module docstring).
+    Returns the output word.
+    """
     n_sec = b.shape[0]
     top, bottom = np.int64(2**31 - 1), np.int64(-2**31)
     one, half = np.int64(1) << frac, np.int64(1) << (frac - 1)
-    s = np.zeros((n_sec, 2), np.int64)
-    peak = np.zeros((n_sec, 3), np.int64)
-    p = np.empty(3, np.int64)
+    for k in range(n_sec):
+        sh = b_shift[k]
+        p0, p1, p2 = b[k, 0] * v, b[k, 1] * v, b[k, 2] * v
+        if sh >= 0:
+            p0, p1, p2 = p0 >> sh, p1 >> sh, p2 >> sh
+        else:
+            m = np.int64(1) << -sh
+            p0, p1, p2 = p0 * m, p1 * m, p2 * m
+        y = (p0 + s[k, 0] * one + half) >> frac
+        peak[k, 0] = max(peak[k, 0], abs(y))
+        if k == n_sec - 1:
+            lo = max(lim[0], vm[0] - lim[4])
+            hi = min(lim[1], vm[0] + lim[3])
+            out = min(max(y, lo), hi)
+            y = out if condition else min(max(y, bottom), top)
+        else:
+            y = min(max(y, bottom), top)
+            out = y
+        s1 = (p1 - a[k, 0] * y + s[k, 1] * one + half) >> frac
+        s2 = (p2 - a[k, 1] * y + half) >> frac
+        peak[k, 1] = max(peak[k, 1], abs(s1))
+        peak[k, 2] = max(peak[k, 2], abs(s2))
+        s[k, 0] = min(max(s1, bottom), top)
+        s[k, 1] = min(max(s2, bottom), top)
+        v = out
+    vm[0] += ((v - vm[0]) * lim[2] + (np.int64(1) << (ALPHA_FRAC_BITS - 1))) >> ALPHA_FRAC_BITS
+    return v
+
+
+@njit(cache=True)
+def _fixed_kernel(x, b, a, b_shift, frac, in_lim, lim, s, u0_w):
+    peak = np.zeros((b.shape[0], 3), np.int64)
     out = np.empty(x.size, np.int64)
+    vm = np.array([u0_w])
     for i in range(x.size):
         v = min(max(x[i], -in_lim), in_lim)
-        for k in range(n_sec):
-            for j in range(3):
-                p[j] = b[k, j] * v
-                p[j] = p[j] >> b_shift[k] if b_shift[k] >= 0 else p[j] * (np.int64(1) << -b_shift[k])
-            y = (p[0] + s[k, 0] * one + half) >> frac
-            peak[k, 0] = max(peak[k, 0], abs(y))
-            lo, hi = (out_lo, out_hi) if k == n_sec - 1 else (bottom, top)
-            y = min(max(y, lo), hi)
-            s1 = (p[1] - a[k, 0] * y + s[k, 1] * one + half) >> frac
-            s2 = (p[2] - a[k, 1] * y + half) >> frac
-            peak[k, 1] = max(peak[k, 1], abs(s1))
-            peak[k, 2] = max(peak[k, 2], abs(s2))
-            s[k, 0] = min(max(s1, bottom), top)
-            s[k, 1] = min(max(s2, bottom), top)
-            v = y
-        out[i] = v
+        out[i] = fixed_step(s, v, b, a, b_shift, frac, lim, vm, True, peak)
     return out, peak
 
 
-def _run(fxp, e):
+def initial_state(fxp, u0_v=0.0):
+    """(states, output word) of the cascade at rest at output ``u0_v`` with zero input.
+
+    The earlier sections rest at zero; the last (integrator) section holds u0: y = s1 = u0
+    and s2 = round(-a2 u0), which the step maps to themselves (a1 = -(1 + a2) exactly).
+    """
+    lo, hi = fxp.output_limits
+    u0 = int(min(max(np.rint(u0_v * 2.0 ** fxp.output_frac_bits), lo), hi))
+    s = np.zeros((len(fxp.b), 2), np.int64)
+    f = fxp.a_frac_bits
+    s[-1, 0] = u0
+    s[-1, 1] = (-int(fxp.a[-1, 1]) * u0 + (1 << (f - 1))) >> f
+    return s, np.int64(u0)
+
+
+def _run(fxp, e, u0_v=0.0):
+    s, u0 = initial_state(fxp, u0_v)
     return _fixed_kernel(fxp.input_words(np.atleast_1d(e)), fxp.b, fxp.a, fxp.b_shift.astype(np.int64),
-                         fxp.a_frac_bits, fxp.input_limit, *fxp.output_limits)
+                         fxp.a_frac_bits, fxp.input_limit, fxp.limit_words, s, u0)
 
 
-def run_fixed(fxp, e):
+def run_fixed(fxp, e, u0_v=0.0):
     """Bit-exact simulation of the exported C fixed-point step over a record.
 
     Parameters
     ----------
     fxp : FixedPointController
     e : array_like of float
-        Input samples (gauge error, V), converted by ``fxp.input_words``; zero initial state.
+        Input samples (gauge error, V), converted by ``fxp.input_words``.
+    u0_v : float, default 0
+        Output at rest before the first sample (:func:`initial_state`; 0: zero states).
 
     Returns
     -------
     ndarray of float
         Output samples, V: the output words times 2^-output_frac_bits (exact).
     """
-    return _run(fxp, e)[0] * 2.0 ** -fxp.output_frac_bits
+    return _run(fxp, e, u0_v)[0] * 2.0 ** -fxp.output_frac_bits
 
 
 def fixed_point_peaks(fxp, e):

@@ -16,13 +16,15 @@ import numpy as np
 from scipy import io as sio
 
 from ..report.output import to_jsonable, write_bytes, write_text
+from .fixed_point import ALPHA_FRAC_BITS
 from .sos import ExportError
 
 __all__ = ["write_controller"]
 
 _ASSUMPTIONS = (
-    "The output is clamped to output_limits_v and the clamped value drives the last section's recursion "
-    "(anti-windup). That clamp, not an L1 norm, bounds the last section's states, which hold the integrator.",
+    "The output is clamped to output_limits_v (and, if given, to the current-limit window around the model of "
+    "the stack voltage) and the clamped value drives the last section's recursion (anti-windup). That clamp, "
+    "not an L1 norm, bounds the last section's states, which hold the integrator.",
     "The input word is clamped to +/- input_range_v; no other state can overflow for any input (L1 scaling).",
     "Right shifts of negative integers are arithmetic (gcc, clang, arm-none-eabi-gcc, IAR and Keil do this).",
 )
@@ -39,7 +41,11 @@ def _fixed_point_block(fxp):
         "input": {"q": q["input"], "frac_bits": fxp.input_frac_bits, "range_v": fxp.input_range_v,
                   "limit_q": fxp.input_limit},
         "output": {"q": q["output"], "frac_bits": fxp.output_frac_bits, "limits_v": list(fxp.output_limits_v),
-                   "limits_q": list(fxp.output_limits)},
+                   "limits_q": list(fxp.output_limits),
+                   "voltage_model": None if fxp.voltage_model is None else {
+                       "alpha": fxp.voltage_model[0], "alpha_q": int(fxp.limit_words[2]),
+                       "alpha_frac_bits": ALPHA_FRAC_BITS, "headroom_v": list(fxp.voltage_model[1:]),
+                       "headroom_q": fxp.limit_words[3:].tolist(), "slew_v_per_s": list(fxp.slew_limits_v_per_s)}},
         "a_q": q["a"], "a_frac_bits": fxp.a_frac_bits,
         "sections": [{"b": fxp.b[k], "a": fxp.a[k], "b_q": q["b"][k], "b_frac_bits": fxp.b_frac_bits[k],
                       "b_shift": fxp.b_shift[k], "signal_q": q["signals"][k],
@@ -101,6 +107,17 @@ def _header(name, fxp):
     lo_v, hi_v = fxp.output_limits_v
     lo_q, hi_q = fxp.output_limits
     n = len(fxp.b)
+    _, _, alpha_q, hup_q, hdown_q = fxp.limit_words.tolist()
+    if fxp.voltage_model is None:
+        window_text = ""
+        alpha_v, hup_v, hdown_v = "1.0", "INFINITY", "INFINITY"
+    else:
+        alpha, h_up, h_down = fxp.voltage_model
+        s_up, s_down = fxp.slew_limits_v_per_s
+        window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the model of the stack voltage "
+                       f"(v += alpha (u - v), alpha = {alpha:.6g}):\n *         the current (u - v) / R stays "
+                       f"within the amplifier's limits, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
+        alpha_v, hup_v, hdown_v = _double(alpha), _double(h_up), _double(h_down)
     sections = "\n".join(f" *   section {k}: signals {q['signals'][k]}, b {q['b'][k]}, b shift {fxp.b_shift[k]}"
                          f"{' (integrator, exact at z = 1)' if fxp.integrator[k] else ''}" for k in range(n))
     return f"""\
@@ -108,10 +125,11 @@ def _header(name, fxp):
  *
  * Form: cascade of {n} second-order sections, transposed direct form II (TDF-II). Each section,
  * input x, output y, states s1, s2:  y = b0 x + s1;  s1 = b1 x - a1 y + s2;  s2 = b2 x - a2 y.
- * Sample rate {1.0 / fxp.dt_s:g} Hz: call one step per sample, states zeroed by the reset.
+ * Sample rate {1.0 / fxp.dt_s:g} Hz: call one step per sample. The reset puts the controller at rest at
+ * an output u0 with zero error (bumpless start at a bias; u0 = 0 zeroes every state).
  * Input:  gauge error (reference minus demodulated gauge reading), firmware volts, +/-{fxp.input_range_v:g} V.
- * Output: commanded PZT voltage, volts, clamped to [{lo_v:g}, {hi_v:g}] V. The clamped value drives the
- *         last section (anti-windup): the integrator state cannot wind past the limits.
+ * Output: commanded PZT voltage, volts, clamped to [{lo_v:g}, {hi_v:g}] V{window_text}. The clamped value
+ *         drives the last section (anti-windup): the integrator is conditioned on what was applied.
  *
  * {name}_float_step: double precision, {up}_GAIN times the input, then the rows of {up}_SOS.
  * {name}_fixed_step: int32 words, int64 accumulators, F = {up}_A_FRAC_BITS = {fxp.a_frac_bits}:
@@ -130,6 +148,7 @@ def _header(name, fxp):
 #ifndef {up}_H
 #define {up}_H
 
+#include <math.h>   /* INFINITY */
 #include <stdint.h>
 
 #define {up}_N_SECTIONS {n}
@@ -143,6 +162,14 @@ def _header(name, fxp):
 #define {up}_INPUT_LIMIT_Q INT32_C({fxp.input_limit})
 #define {up}_OUTPUT_MIN_Q INT32_C({lo_q})
 #define {up}_OUTPUT_MAX_Q INT32_C({hi_q})
+/* current-limit window: model v of the stack voltage, v += alpha (u - v); u within [v - h_down, v + h_up] */
+#define {up}_ALPHA ({alpha_v})
+#define {up}_ALPHA_Q INT64_C({alpha_q})
+#define {up}_ALPHA_FRAC_BITS {ALPHA_FRAC_BITS}
+#define {up}_HEADROOM_UP_V ({hup_v})
+#define {up}_HEADROOM_DOWN_V ({hdown_v})
+#define {up}_HEADROOM_UP_Q INT64_C({hup_q})
+#define {up}_HEADROOM_DOWN_Q INT64_C({hdown_q})
 
 static const double {up}_GAIN = {_double(fxp.gain)};
 /* rows b0, b1, b2, a0 = 1, a1, a2 */
@@ -157,17 +184,17 @@ static const int32_t {up}_A_Q[{up}_N_SECTIONS][2] = {{
 }};
 static const int {up}_B_SHIFT[{up}_N_SECTIONS] = {{{", ".join(str(int(v)) for v in fxp.b_shift)}}};
 
-typedef struct {{ double s[{up}_N_SECTIONS][2]; }} {name}_float_state;
-typedef struct {{ int32_t s[{up}_N_SECTIONS][2]; }} {name}_fixed_state;
+/* s: section states; v: the model of the stack voltage (the current-limit window's centre) */
+typedef struct {{ double s[{up}_N_SECTIONS][2]; double v; }} {name}_float_state;
+typedef struct {{ int32_t s[{up}_N_SECTIONS][2]; int32_t v; }} {name}_fixed_state;
 
-static inline void {name}_float_reset({name}_float_state *st)
+/* At rest at output u0_v (V) with zero error: the last (integrator) section holds it. */
+static inline void {name}_float_reset({name}_float_state *st, double u0_v)
 {{
     for (int k = 0; k < {up}_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0.0;
-}}
-
-static inline void {name}_fixed_reset({name}_fixed_state *st)
-{{
-    for (int k = 0; k < {up}_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0;
+    st->s[{up}_N_SECTIONS - 1][0] = u0_v;
+    st->s[{up}_N_SECTIONS - 1][1] = -{up}_SOS[{up}_N_SECTIONS - 1][5] * u0_v;
+    st->v = u0_v;
 }}
 
 /* One sample: gauge error e_v (V) in, PZT command (V) out. */
@@ -178,13 +205,16 @@ static inline double {name}_float_step({name}_float_state *st, double e_v)
         const double *c = {up}_SOS[k];
         double y = c[0] * v + st->s[k][0];
         if (k == {up}_N_SECTIONS - 1) {{
-            if (y < {up}_OUTPUT_MIN_V) y = {up}_OUTPUT_MIN_V;
-            else if (y > {up}_OUTPUT_MAX_V) y = {up}_OUTPUT_MAX_V;
+            double lo = st->v - {up}_HEADROOM_DOWN_V, hi = st->v + {up}_HEADROOM_UP_V;
+            if (lo < {up}_OUTPUT_MIN_V) lo = {up}_OUTPUT_MIN_V;
+            if (hi > {up}_OUTPUT_MAX_V) hi = {up}_OUTPUT_MAX_V;
+            y = y < lo ? lo : y > hi ? hi : y;
         }}
         st->s[k][0] = c[1] * v - c[4] * y + st->s[k][1];
         st->s[k][1] = c[2] * v - c[5] * y;
         v = y;
     }}
+    st->v += {up}_ALPHA * (v - st->v);
     return v;
 }}
 
@@ -198,6 +228,17 @@ static inline int32_t {name}_sat32_(int64_t v)
     return v > INT32_MAX ? INT32_MAX : v < INT32_MIN ? INT32_MIN : (int32_t)v;
 }}
 
+/* At rest at output word u0_q with zero error: y = s1 = u0, s2 = round(-a2 u0) in the last section. */
+static inline void {name}_fixed_reset({name}_fixed_state *st, int32_t u0_q)
+{{
+    const int64_t half = (int64_t)1 << ({up}_A_FRAC_BITS - 1);
+    int64_t u0 = u0_q > {up}_OUTPUT_MAX_Q ? {up}_OUTPUT_MAX_Q : u0_q < {up}_OUTPUT_MIN_Q ? {up}_OUTPUT_MIN_Q : u0_q;
+    for (int k = 0; k < {up}_N_SECTIONS; k++) st->s[k][0] = st->s[k][1] = 0;
+    st->s[{up}_N_SECTIONS - 1][0] = (int32_t)u0;
+    st->s[{up}_N_SECTIONS - 1][1] = (int32_t)((-(int64_t){up}_A_Q[{up}_N_SECTIONS - 1][1] * u0 + half) >> {up}_A_FRAC_BITS);
+    st->v = (int32_t)u0;
+}}
+
 /* One sample: input word e_q ({q['input']}) in, output word ({q['output']}) out. */
 static inline int32_t {name}_fixed_step({name}_fixed_state *st, int32_t e_q)
 {{
@@ -207,7 +248,13 @@ static inline int32_t {name}_fixed_step({name}_fixed_state *st, int32_t e_q)
         const int32_t *b = {up}_B_Q[k], *a = {up}_A_Q[k];
         const int shift = {up}_B_SHIFT[k];
         const int last = k == {up}_N_SECTIONS - 1;
-        const int64_t lo = last ? {up}_OUTPUT_MIN_Q : INT32_MIN, hi = last ? {up}_OUTPUT_MAX_Q : INT32_MAX;
+        int64_t lo = INT32_MIN, hi = INT32_MAX;
+        if (last) {{
+            lo = (int64_t)st->v - {up}_HEADROOM_DOWN_Q;
+            hi = (int64_t)st->v + {up}_HEADROOM_UP_Q;
+            if (lo < {up}_OUTPUT_MIN_Q) lo = {up}_OUTPUT_MIN_Q;
+            if (hi > {up}_OUTPUT_MAX_Q) hi = {up}_OUTPUT_MAX_Q;
+        }}
         int64_t y = ({name}_align_(b[0] * v, shift) + st->s[k][0] * one + half) >> {up}_A_FRAC_BITS;
         y = y > hi ? hi : y < lo ? lo : y;
         const int64_t s1 = ({name}_align_(b[1] * v, shift) - a[0] * y + st->s[k][1] * one + half) >> {up}_A_FRAC_BITS;
@@ -216,6 +263,8 @@ static inline int32_t {name}_fixed_step({name}_fixed_state *st, int32_t e_q)
         st->s[k][1] = {name}_sat32_(s2);
         v = y;
     }}
+    st->v = (int32_t)((int64_t)st->v + (((v - (int64_t)st->v) * {up}_ALPHA_Q
+                                         + ((int64_t)1 << ({up}_ALPHA_FRAC_BITS - 1))) >> {up}_ALPHA_FRAC_BITS));
     return (int32_t)v;
 }}
 

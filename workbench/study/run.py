@@ -66,9 +66,12 @@ def _worst_summary(worst):
 
 def run_study(study_path, out_dir, progress=None):
     """Run the study file ``study_path``; write the report into ``out_dir``; return the summary."""
-    from ..design.antiwindup import discretize, hanus, rate_limits_v_per_s
+    from ..design.antiwindup import current_limit_model, discretize, rate_limits_v_per_s
     from ..design.coprime import ncf_synthesis
-    from ..design.loopshape import LoopShapeSpec, tune_loop_shape
+    from ..design.loopshape import LoopShapeSpec, noise_command_rms_v, nominal_step, tune_loop_shape
+    from ..linearize.sampled import gauge_gain_v_per_m
+    from ..linearize.small_signal import operating_point, small_signal_model
+    from ..plant.gauge import demod_noise_sigma_v
     from ..design.margins import family_margins
     from ..design.reduce import reduce_controller
     from ..report import design_figures as figs
@@ -104,17 +107,33 @@ def run_study(study_path, out_dir, progress=None):
                "designs": {}, "figures": {}}
 
     # 1. structured loop shaping: the exported design
+    lsk = spec.loop_shape
+    grid = {key: tuple(float(v) for v in lsk[key]) for key in ("integral_ratios", "lead_ratios", "rolloff_ratios")
+            if key in lsk}
+    noise_v = demod_noise_sigma_v(g) * g.trim_scale          # one reading's noise, firmware V
     ls_spec = LoopShapeSpec(phase_margin_deg=spec.targets["phase_margin_deg"],
                             gain_margin_db=spec.targets["gain_margin_db"],
-                            fc_range_hz=(spec.loop_shape["fc_min_hz"], spec.loop_shape["fc_max_hz"]),
-                            dt_s=dt, delay_samples=delay_samples)
-    ls = tune_loop_shape(freq, members, ub.nominal, ls_spec, progress=lambda d, t: say("design: loop shape", d, t))
+                            fc_range_hz=(lsk["fc_min_hz"], lsk["fc_max_hz"]), dt_s=dt, delay_samples=delay_samples,
+                            max_noise_command_v=lsk.get("max_noise_command_v"), noise_reading_v=noise_v,
+                            voltage_alpha=current_limit_model(plant.pzt, dt)[0],
+                            max_overshoot_percent=lsk.get("max_overshoot_percent"), **grid)
+    # the overshoot limit is judged where a small step up runs: the ascending branch at mid-stroke
+    c_asc = operating_point(plant.pzt, fam_spec["bias_v"], "ascending").capacitance_f
+    step_plant = gauge_gain_v_per_m(7.5e-6, g) * small_signal_model(plant.pzt, c_asc)[0, 0]
+    ls = tune_loop_shape(freq, members, ub.nominal, ls_spec, progress=lambda d, t: say("design: loop shape", d, t),
+                         step_plant=step_plant)
     fc = ls.params["fc_hz"]
     if ls.crossover_hz < spec.targets["min_crossover_hz"]:
         raise DesignError(f"{spec.path}: the best loop shape crosses over at {ls.crossover_hz:.0f} Hz, below "
                           f"targets.min_crossover_hz = {spec.targets['min_crossover_hz']:g} Hz")
+    overshoot, settling = nominal_step(ls.controller_d, step_plant, delay_samples)
     summary["designs"]["loop_shape"] = {"params": ls.params, "crossover_hz": ls.crossover_hz,
-                                        "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched}
+                                        "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched,
+                                        "noise_command_rms_v": noise_command_rms_v(
+                                            ls.controller_d, ub.nominal, noise_v, delay_samples,
+                                            current_limit_model(plant.pzt, dt)[0]),
+                                        "noise_reading_v": noise_v, "step_overshoot_percent": overshoot,
+                                        "step_settling_s": settling}
 
     # 2. Glover-McFarlane on the same shape, reduced and discretized
     say("design: coprime factors", 0, 1)
@@ -140,7 +159,12 @@ def run_study(study_path, out_dir, progress=None):
     gain, sos = to_sos(ls.controller_d)
     lim = tuple(float(v) for v in spec.export["output_limits_v"])
     f_max = min(10 * fc, 0.499 / dt)
-    fxp = quantize(gain, sos, dt, input_range_v=spec.export["input_range_v"], output_limits_v=lim, f_max_hz=f_max)
+    # the current-limit window (anti-windup): firmware models the stack voltage (RC at the largest
+    # capacitance) and never commands more than R I_max beyond it, so a large step slews in the
+    # controller as in the stack while small and noisy moves pass
+    model = current_limit_model(plant.pzt, dt)
+    fxp = quantize(gain, sos, dt, input_range_v=spec.export["input_range_v"], output_limits_v=lim, f_max_hz=f_max,
+                   voltage_model=model)
     ctrl_q = control.ss(from_sos(*fxp.quantized_sos(), dt))
     q_rows, q_worst = family_margins(freq, _loops_discrete(ctrl_q, freq, members, delay_samples))
     summary["designs"]["loop_shape"]["worst_quantized"] = _worst_summary(q_worst)
@@ -148,9 +172,15 @@ def run_study(study_path, out_dir, progress=None):
                 and w["gain_margin_db"]["value"] >= spec.targets["gain_margin_db"] for w in (ls.worst, q_worst))
     summary["designs"]["loop_shape"]["meets_targets"] = bool(meets)
 
-    # 5. export with anti-windup
-    rates = rate_limits_v_per_s(plant.pzt)
-    aw = hanus(ls.controller_d, lim, rates)
+    # 5. export with anti-windup (the conditioned cascade the fixed-point step runs)
+    r_c = plant.pzt.series_resistance_ohm * plant.pzt.current_limit_source_a / rate_limits_v_per_s(plant.pzt)[0]
+    aw = {"method": "conditioned_cascade",
+          "description": "the last (integrator) section's output is clamped to the output limits and to "
+                         "[v - headroom_v[1], v + headroom_v[0]], v a model of the stack voltage (v += alpha (u - v), "
+                         "the series R and the largest stack capacitance); the clamped value drives that section's "
+                         "recursion",
+          "voltage_model": {"alpha": model[0], "headroom_v": list(model[1:]), "time_constant_s": r_c},
+          "output_slew_limit_v_per_s": list(fxp.slew_limits_v_per_s), "output_limits_v": list(lim)}
     record = {"name": spec.export["name"], "method": "structured loop shaping (PI, lead, roll-off) against the "
                                                      "describing-function family", "sample_rate_hz": 1 / dt,
               "input": {"signal": "gauge_error", "units": "V"}, "output": {"signal": "pzt_voltage", "units": "V"},
@@ -159,7 +189,9 @@ def run_study(study_path, out_dir, progress=None):
                               "trim": {"scale": g.trim_scale, "bias_v": g.trim_bias_v}},
               "margins": {"discrete": _worst_summary(ls.worst), "quantized": _worst_summary(q_worst),
                           "continuous_no_sampling": _worst_summary(cont_worst)},
-              "anti_windup": aw.as_dict(),
+              "anti_windup": aw,
+              "noise": {"reading_rms_v": noise_v,
+                        "command_change_rms_v": summary["designs"]["loop_shape"]["noise_command_rms_v"]},
               "provenance": _provenance(spec, plant)}
     ctrl_dir = out / spec.export["directory"]
     paths = write_controller(ctrl_dir, spec.export["name"], record, fxp)

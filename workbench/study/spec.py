@@ -42,6 +42,15 @@ _SCHEMA = {
     "loop_shape": {
         "fc_min_hz": Field("float", 0.0, 5e3, lo_open=True, expect="lowest crossover searched, Hz"),
         "fc_max_hz": Field("float", 0.0, 5e3, lo_open=True, expect="highest crossover searched, Hz"),
+        "integral_ratios": Field("floats", 0.0, 100.0, lo_open=True, required=False,
+                                 expect="crossover / PI corner ratios to try, e.g. [0.1, 0.25, 1, 4, 8]"),
+        "lead_ratios": Field("floats", 1.0, 100.0, required=False, expect="lead pole/zero ratios, e.g. [1, 3, 6]"),
+        "rolloff_ratios": Field("floats", 1.0, 100.0, lo_open=True, required=False,
+                                expect="roll-off frequency / crossover ratios, e.g. [4, 8]"),
+        "max_noise_command_v": Field("float", 0.0, 100.0, lo_open=True, required=False,
+                                     expect="largest RMS per-sample command change from gauge noise, V, e.g. 0.03"),
+        "max_overshoot_percent": Field("float", 0.0, 100.0, required=False,
+                                       expect="largest nominal small-step overshoot, %, e.g. 3"),
     },
     "hinf": {
         "time_limit_s": Field("float", 0.0, 3600.0, lo_open=True, expect="time limit of the slycot synthesis, s"),

@@ -10,69 +10,172 @@ Per servo period T (the gauge modulation period, 10 kHz), in this order:
    included) at the displacement a quarter and three quarters into the period
    (interpolated between sub-steps), the x300 amplifier with the ADC range as a clip, the
    difference of the halves (x2), one Gaussian term for the gauge noise and the ADC
-   quantization of the 80 conversions, then the firmware trim. The 80 conversions are not
-   simulated one by one here (``gauge_run`` does that, and the tests tie the two together);
+   quantization of the 80 conversions, then the firmware trim and the servo DAC's
+   quantization (16 bits over +/-2.6 V). The 80 conversions are not simulated one by
+   one here (``gauge_run`` does that, and the tests tie the two together);
 3. the controller computes its output from the reading **sample by sample** as firmware
-   does: the Hanus form of the exported JSON (rate limit from the last output, the output
-   range, the state conditioned on the limited output; see
-   :mod:`workbench.design.antiwindup`), or, with ``anti_windup=False``, the plain linear
-   realization with only the range clip;
+   does, in the form the JSON declares (:class:`FirmwareController`): the 32-bit
+   fixed-point cascade bit for bit (:func:`workbench.export.fixed_point.fixed_step`, the
+   C header's step) when the JSON has a ``fixed_point`` block, else the float cascade,
+   or the Hanus realization when the ``anti_windup`` block says ``hanus``; each with the
+   output range, the current-limit window (a model of the stack voltage; the command
+   never asks for more current than the amplifier gives) and the anti-windup it declares.
+   With ``anti_windup=False`` the same controller runs with the range clip only: no
+   window, the states driven by the unclipped output (what firmware without anti-windup
+   does);
 4. that output is applied at the next period (the one-sample compute delay).
 
-Nothing in the loop allocates or calls Python: a 10^7-period run is a single call.
-Traces are decimated inside the loop; streaming statistics (current peaks, time at the
-current limit or the rate limit) are accumulated there too, so long runs need no
-full-rate arrays.
+Nothing in the loop calls Python per period. The run is cut in chunks of
+:data:`CHUNK` periods (the noise of a chunk is drawn by numpy's PCG64/ziggurat
+generator, faster than a per-sample draw in the loop); traces are decimated inside
+the loop and streaming statistics (current peaks, time at the current limit, rate- and
+range-limited samples) accumulated there, so memory does not grow with the run.
 """
 
 from dataclasses import dataclass
 
+import control
 import numpy as np
 from numba import njit
 
-from ..design.antiwindup import HanusController
+from ..design.antiwindup import HanusController, hanus_initial_state
+from ..export.fixed_point import FixedPointController, fixed_step, float_step, initial_state
+from ..export.sos import from_sos
 from ..plant import kernels as K
-from ..plant.gauge import _bridge, demod_noise_sigma_v
+from ..plant.gauge import _bridge, _quantize, demod_noise_sigma_v
 from ..plant.simulator import PZTSimulator
 
-__all__ = ["controller_from_json", "ClosedLoopRun", "ClosedLoop"]
+__all__ = ["FirmwareController", "controller_from_json", "ClosedLoopRun", "ClosedLoop", "CHUNK"]
 
 TRACE_NAMES = ("x_m", "reading_v", "u_v", "error_v", "force_n", "i_a")
+CHUNK = 1 << 17               # periods per compiled call (13 s at 10 kHz; ~1 MB of noise)
+FORMS = ("hanus", "float", "fixed")
 
 
-def controller_from_json(data):
-    """The ``anti_windup`` block of an exported controller JSON as a HanusController."""
-    aw = data["anti_windup"]
-    n = len(aw["b"])
-    return HanusController(a=np.asarray(aw["a"], dtype=float).reshape(n, n),
-                           b=np.asarray(aw["b"], dtype=float).reshape(n, 1),
-                           c=np.asarray(aw["c"], dtype=float).reshape(1, n), d=float(aw["d"]),
-                           dt_s=1.0 / float(data["sample_rate_hz"]),
-                           output_limits_v=tuple(float(v) for v in aw.get("output_limits_v", data["output_limits_v"])),
-                           rate_limits_v_per_s=tuple(float(v) for v in aw["output_rate_limit_v_per_s"]))
+@dataclass(frozen=True)
+class FirmwareController:
+    """What firmware runs, read from an exported JSON.
+
+    ``form``: "fixed" (the JSON's fixed-point cascade, bit for bit), "float" (the float
+    cascade ``gain``, ``sos``) or "hanus" (a state-space realization conditioned on its
+    limited output). ``voltage_model``: (alpha, h_up, h_down) of the current-limit window
+    (:mod:`workbench.export.fixed_point`), or None.
+    """
+
+    form: str
+    dt_s: float
+    output_limits_v: tuple
+    voltage_model: tuple | None
+    gain: float = 1.0
+    sos: np.ndarray | None = None
+    fixed: FixedPointController | None = None
+    hanus: HanusController | None = None
+
+    def linear(self):
+        """The discrete linear controller (no limits) as a python-control StateSpace."""
+        if self.form == "hanus":
+            h = self.hanus
+            return control.ss(h.a, h.b, h.c, [[h.d]], h.dt_s)
+        if self.form == "fixed":
+            gain, sos = self.fixed.quantized_sos()
+            return control.ss(from_sos(gain, sos, self.dt_s))
+        return control.ss(from_sos(self.gain, self.sos, self.dt_s))
+
+    def describe(self):
+        rate = ("no current-limit window" if self.voltage_model is None
+                else "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(
+                    *self.voltage_model))
+        form = {"fixed": "32-bit fixed-point cascade", "float": "float cascade", "hanus": "Hanus float form"}[self.form]
+        return f"{form}, output {self.output_limits_v[0]:g}..{self.output_limits_v[1]:g} V, {rate}"
+
+
+def _fixed_from_block(data):
+    fp = data["fixed_point"]
+    secs = fp["sections"]
+    return FixedPointController(
+        gain=float(data["gain"]), sos=np.asarray(data["sos"], dtype=float), dt_s=1.0 / float(data["sample_rate_hz"]),
+        input_range_v=float(fp["input"]["range_v"]), output_limits_v=tuple(float(v) for v in fp["output"]["limits_v"]),
+        f_max_hz=float(fp["f_max_hz"]), coeff_bits=int(fp["coeff_bits"]),
+        b=np.array([s["b"] for s in secs], dtype=np.int64), a=np.array([s["a"] for s in secs], dtype=np.int64),
+        b_frac_bits=np.array([s["b_frac_bits"] for s in secs], dtype=np.int64),
+        signal_frac_bits=np.array([s["signal_frac_bits"] for s in secs], dtype=np.int64),
+        input_frac_bits=int(fp["input"]["frac_bits"]), integrator=np.array([bool(s["integrator"]) for s in secs]),
+        max_pole_radius=float(fp["max_pole_radius"]), error_db=float(fp["error_db"]), error_deg=float(fp["error_deg"]),
+        voltage_model=_voltage_model(fp["output"].get("voltage_model")))
+
+
+def _voltage_model(block):
+    if block is None:
+        return None
+    return (float(block["alpha"]), *(float(h) for h in block["headroom_v"]))
+
+
+def controller_from_json(data, form=None, default_limits_v=None):
+    """The controller an exported JSON declares, in the form firmware runs.
+
+    ``form`` None: "fixed" when the JSON has a ``fixed_point`` block, else "hanus" when
+    its ``anti_windup`` block is a Hanus realization, else "float". Pass "float" to run
+    the float cascade of a fixed-point export (to compare the two).
+    ``default_limits_v``: output limits for a JSON that names none (the amplifier's range).
+    Raises KeyError/ValueError/TypeError on a JSON that lacks what the form needs.
+    """
+    dt = 1.0 / float(data["sample_rate_hz"])
+    aw = data.get("anti_windup") or {}
+    if form is None:
+        form = "fixed" if "fixed_point" in data else "hanus" if aw.get("method") == "hanus" else "float"
+    if form not in FORMS:
+        raise ValueError(f"unknown controller form {form!r}; known: {', '.join(FORMS)}")
+    model = _voltage_model(aw.get("voltage_model"))
+    limits = aw.get("output_limits_v", data.get("output_limits_v", default_limits_v))
+    if limits is None:
+        raise KeyError("output_limits_v")
+    limits = tuple(float(v) for v in limits)
+    if form == "hanus":
+        n = len(aw["b"])
+        h = HanusController(a=np.asarray(aw["a"], dtype=float).reshape(n, n),
+                            b=np.asarray(aw["b"], dtype=float).reshape(n, 1),
+                            c=np.asarray(aw["c"], dtype=float).reshape(1, n), d=float(aw["d"]), dt_s=dt,
+                            output_limits_v=limits, rate_limits_v_per_s=(np.inf, np.inf))
+        return FirmwareController("hanus", dt, limits, model, hanus=h)
+    if form == "fixed":
+        fxp = _fixed_from_block(data)
+        if model is not None and fxp.voltage_model is not None and not np.allclose(model, fxp.voltage_model):
+            raise ValueError(f"anti_windup voltage model {model} differs from the fixed-point block's "
+                             f"{fxp.voltage_model}")
+        return FirmwareController("fixed", dt, fxp.output_limits_v, fxp.voltage_model, gain=fxp.gain, sos=fxp.sos,
+                                  fixed=fxp)
+    sos = np.asarray(data["sos"], dtype=float)
+    if sos.ndim != 2 or sos.shape[1] != 6:
+        raise ValueError(f"sos must be rows of 6 numbers; got shape {sos.shape}")
+    return FirmwareController("float", dt, limits, model, gain=float(data["gain"]), sos=sos / sos[:, 3:4])
 
 
 @njit(cache=True, error_model="numpy")
-def _loop(m, st, n_sub, ref, force, gp, r0, a, b, c, d, lim, xk, u0, x0, anti_windup, seed, decimate, rec, stats):
-    """Closed loop over len(ref) servo periods from output ``u0`` and displacement ``x0``.
+def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift, ffrac,
+          f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
+    """Closed loop over len(ref) servo periods.
 
-    ``stats``: [i_max, i_min, n_at_current_limit, n_rate_limited, n_range_limited]. The
-    controller state ``xk`` is updated in place; returns (next output, last displacement).
+    ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
+    2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
+    cascade states ``cs_f`` (float form) and ``cs_i`` (fixed, int64); the window's
+    voltage model ``vm_f`` / ``vm_i`` (1-element). ``lim`` = [lo, hi, alpha, h_up, h_down]
+    in V, ``limw`` the same in output words (alpha in Q1.30). ``io`` =
+    [pending output, last x, -, decimation counter, trace row] carries the loop between chunks.
+    ``stats`` = [i_max, i_min, sub-steps at a current limit, samples held by the
+    current-limit window, range-limited samples].
     """
-    np.random.seed(seed)
     out = np.empty(K.N_OUT)
-    n = xk.shape[0]
+    n = hx.shape[0]
     xn = np.empty(n)
-    L, W, kgf, vm, amp, adc_fs, demod, trim_s, trim_b, sigma = (gp[0], gp[1], gp[2], gp[3], gp[4], gp[5],
-                                                                gp[6], gp[7], gp[8], gp[9])
-    lo, hi, up, down = lim[0], lim[1], lim[2], lim[3]
+    peak = np.zeros((fb.shape[0], 3), np.int64)
+    L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
+    demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
     i_src, i_snk = m[K.I_SRC], m[K.I_SNK]
-    u = u0
-    pending = u0
-    x_prev = x0
-    xprev_sub = x0
-    row = 0
-    count = 0
+    pending = io[0]
+    x_prev = io[1]
+    count = int(io[3])
+    row = int(io[4])
+    xprev_sub = x_prev
     for k in range(ref.shape[0]):
         u = pending
         fk = force[k]
@@ -107,36 +210,43 @@ def _loop(m, st, n_sub, ref, force, gp, r0, a, b, c, d, lim, xk, u0, x0, anti_wi
         x_prev = xprev_sub
         vp = min(max(amp * _bridge(xq, L, W, kgf, r0, vm), -adc_fs), adc_fs)
         vn = min(max(amp * _bridge(xt, L, W, kgf, r0, -vm), -adc_fs), adc_fs)
-        dem = 0.5 * demod * (vp - vn)
-        if sigma > 0.0:
-            dem += sigma * np.random.standard_normal()
-        reading = trim_s * dem + trim_b
+        dem = 0.5 * demod * (vp - vn) + noise[k]
+        reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
         e = ref[k] - reading
-        # controller, sample by sample
-        u_raw = d * e
-        for i in range(n):
-            u_raw += c[i] * xk[i]
-        if anti_windup:
-            un = min(max(u_raw, u - down), u + up)
-            if un != u_raw:
+        if form == 2:
+            # the input word as FixedPointController.input_words makes it (round half even, clamp)
+            v = np.int64(np.rint(e * in_scale))
+            v = min(max(v, -f_in), f_in)
+            wlo, whi = vm_i[0] - limw[4], vm_i[0] + limw[3]
+            u_w = fixed_step(cs_i, v, fb, fa, fshift, ffrac, limw, vm_i, aw, peak)
+            if aw and ((u_w == wlo and wlo > limw[0]) or (u_w == whi and whi < limw[1])):
                 stats[3] += 1
-            u_lim = min(max(un, lo), hi)
-            if u_lim != un:
+            if u_w == limw[0] or u_w == limw[1]:
                 stats[4] += 1
-            # conditioned on the limited output: x <- a x + b e_equiv, e_equiv = (u_lim - c x) / d
-            e_eq = (u_lim - (u_raw - d * e)) / d
+            u_lim = u_w * out_scale
         else:
-            u_lim = min(max(u_raw, lo), hi)
-            if u_lim != u_raw:
+            wlo, whi = vm_f[0] - lim[4], vm_f[0] + lim[3]
+            if form == 1:
+                u_lim = float_step(cs_f, gain * e, sos, lim, vm_f, aw)
+            else:
+                u_raw = hd * e
+                for i in range(n):
+                    u_raw += hc[i] * hx[i]
+                u_lim = min(max(u_raw, max(lim[0], wlo)), min(lim[1], whi))
+                # conditioned on the limited output: x <- a x + b e_equiv, e_equiv = (u_lim - c x) / d
+                e_eq = (u_lim - (u_raw - hd * e)) / hd if aw else e
+                for i in range(n):
+                    acc = hb[i] * e_eq
+                    for jj in range(n):
+                        acc += ha[i, jj] * hx[jj]
+                    xn[i] = acc
+                for i in range(n):
+                    hx[i] = xn[i]
+                vm_f[0] += lim[2] * (u_lim - vm_f[0])
+            if aw and ((u_lim == wlo and wlo > lim[0]) or (u_lim == whi and whi < lim[1])):
+                stats[3] += 1
+            if u_lim == lim[0] or u_lim == lim[1]:
                 stats[4] += 1
-            e_eq = e
-        for i in range(n):
-            acc = b[i] * e_eq
-            for jj in range(n):
-                acc += a[i, jj] * xk[jj]
-            xn[i] = acc
-        for i in range(n):
-            xk[i] = xn[i]
         pending = u_lim
         count += 1
         if count == decimate:
@@ -149,7 +259,10 @@ def _loop(m, st, n_sub, ref, force, gp, r0, a, b, c, d, lim, xk, u0, x0, anti_wi
                 rec[row, 4] = fk
                 rec[row, 5] = i_peak
                 row += 1
-    return pending, x_prev
+    io[0] = pending
+    io[1] = x_prev
+    io[3] = count
+    io[4] = row
 
 
 @dataclass(frozen=True)
@@ -165,7 +278,7 @@ class ClosedLoopRun:
     i_a: np.ndarray
     peak_current_a: tuple
     periods_at_current_limit: float     # sub-steps at a current limit / n_sub
-    samples_rate_limited: int
+    samples_rate_limited: int           # held by the current-limit window (or a Hanus rate limit)
     samples_range_limited: int
     periods: int
 
@@ -176,13 +289,14 @@ class ClosedLoop:
     Parameters
     ----------
     plant : Plant
-    controller : HanusController (see :func:`controller_from_json`)
+    controller : FirmwareController (see :func:`controller_from_json`)
     n_sub : int
         Plant steps per servo period (1: the plant's exact RC step over the whole period).
     noise : bool
         Gauge noise and ADC quantization (one Gaussian term per reading).
     anti_windup : bool
-        Run the declared anti-windup (rate limit + Hanus); False: the plain controller.
+        Run the declared anti-windup (current-limit window, conditioning on the limited output);
+        False: the same controller with the range clip only.
     seed : int
     """
 
@@ -192,44 +306,109 @@ class ClosedLoop:
             raise ValueError(f"controller sample time {controller.dt_s:g} s differs from the servo period "
                              f"{g.period_s:g} s of {plant.source}")
         self.plant, self.controller = plant, controller
-        self.n_sub, self.anti_windup, self.seed = int(n_sub), bool(anti_windup), int(seed)
+        self.n_sub, self.anti_windup = int(n_sub), bool(anti_windup)
         self.sim = PZTSimulator(plant.pzt, g.period_s / self.n_sub)
+        self.sigma_v = demod_noise_sigma_v(g) if noise else 0.0
+        self._rng = np.random.Generator(np.random.PCG64(seed))
         self._gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
-                             g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v,
-                             demod_noise_sigma_v(g) if noise else 0.0])
+                             g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v,
+                             g.dac_bits])
         self._r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
         c = controller
-        self._lim = np.array([c.output_limits_v[0], c.output_limits_v[1], c.rate_limits_v_per_s[0] * c.dt_s,
-                              c.rate_limits_v_per_s[1] * c.dt_s])
-        self._b, self._c = np.ascontiguousarray(c.b[:, 0]), np.ascontiguousarray(c.c[0])
+        dt = c.dt_s
+        model = c.voltage_model if (anti_windup and c.voltage_model is not None) else (1.0, np.inf, np.inf)
+        self._lim = np.array([c.output_limits_v[0], c.output_limits_v[1], *model])
+        self._form = {"hanus": 0, "float": 1, "fixed": 2}[c.form]
+        # arrays of the forms not in use are small dummies (numba compiles one signature)
+        h = c.hanus
+        self._ha = np.zeros((1, 1)) if h is None else np.ascontiguousarray(h.a)
+        self._hb = np.zeros(1) if h is None else np.ascontiguousarray(h.b[:, 0])
+        self._hc = np.zeros(1) if h is None else np.ascontiguousarray(h.c[0])
+        self._hd = 1.0 if h is None else float(h.d)
+        f = c.fixed
+        if f is not None:
+            self._fb, self._fa = f.b, f.a
+            self._fshift = f.b_shift.astype(np.int64)
+            self._ffrac, self._fin = int(f.a_frac_bits), int(f.input_limit)
+            self._in_scale, self._out_scale = 2.0 ** f.input_frac_bits, 2.0 ** -f.output_frac_bits
+            self._limw = f.limit_words.copy()
+            if not anti_windup:
+                self._limw[2:] = (1 << 30, 1 << 40, 1 << 40)
+        else:
+            self._fb, self._fa = np.zeros((1, 3), np.int64), np.zeros((1, 2), np.int64)
+            self._fshift = np.zeros(1, np.int64)
+            self._ffrac, self._fin, self._in_scale, self._out_scale = 29, 1, 1.0, 1.0
+            self._limw = np.zeros(5, np.int64)
+        self._sos = np.zeros((1, 6)) if c.sos is None else np.ascontiguousarray(c.sos, dtype=float)
         self.reset()
 
     def reset(self, u0=0.0):
         """Plant at rest; controller state at rest with output ``u0`` and zero error."""
         self.sim.reset()
         c = self.controller
-        from ..design.antiwindup import hanus_initial_state
-        self.xk = hanus_initial_state(c, u0)
-        self.u = float(u0)
-        self.x = self.plant.pzt.k_q2x_m_per_c * self.plant.pzt.hysteresis.output_at_rest()
+        self._hx = hanus_initial_state(c.hanus, u0) if c.hanus is not None else np.zeros(1)
+        self._csf, self._csi, u_w = np.zeros((1, 2)), np.zeros((1, 2), np.int64), 0
+        if c.form == "fixed":
+            self._csi, u_w = initial_state(c.fixed, u0)
+            u0 = float(u_w) * self._out_scale
+        elif c.form == "float":
+            self._csf = np.zeros((len(self._sos), 2))
+            self._csf[-1] = u0, -self._sos[-1, 5] * u0
+        self._vmf, self._vmi = np.array([float(u0)]), np.array([u_w], dtype=np.int64)
+        x0 = self.plant.pzt.k_q2x_m_per_c * self.plant.pzt.hysteresis.output_at_rest()
+        self._io = np.array([float(u0), x0, 0.0, 0.0, 0.0])
         self._k = 0
 
-    def run(self, ref_v, force_n=None, decimate=1):
-        """Run len(ref_v) servo periods with the reference (firmware volts) and force (N) per period."""
-        ref = np.ascontiguousarray(ref_v, dtype=float)
-        f = np.zeros_like(ref) if force_n is None else np.ascontiguousarray(force_n, dtype=float)
-        if ref.ndim != 1 or f.shape != ref.shape or not (np.all(np.isfinite(ref)) and np.all(np.isfinite(f))):
-            raise ValueError("reference and force must be finite 1-D arrays of one length")
+    @property
+    def u(self):
+        """The output that the next period applies, V."""
+        return float(self._io[0])
+
+    def run(self, ref_v, force_n=None, decimate=1, periods=None):
+        """Run servo periods with the reference (firmware V) and force (N) per period.
+
+        ``ref_v`` and ``force_n`` are arrays of one length, or scalars held for
+        ``periods``. Traces keep one row per ``decimate`` periods.
+        """
+        scalar = np.ndim(ref_v) == 0 and (force_n is None or np.ndim(force_n) == 0)
+        if scalar:
+            if periods is None:
+                raise ValueError("a constant reference needs periods=")
+            n = int(periods)
+            ref = float(ref_v)
+            force = 0.0 if force_n is None else float(force_n)
+            if not (np.isfinite(ref) and np.isfinite(force)):
+                raise ValueError("reference and force must be finite")
+        else:
+            ref = np.ascontiguousarray(np.broadcast_to(ref_v, np.shape(ref_v) if np.ndim(ref_v) else np.shape(force_n)),
+                                       dtype=float)
+            force = np.zeros_like(ref) if force_n is None else np.ascontiguousarray(
+                np.broadcast_to(force_n, ref.shape), dtype=float)
+            if ref.ndim != 1 or not (np.all(np.isfinite(ref)) and np.all(np.isfinite(force))):
+                raise ValueError("reference and force must be finite 1-D arrays of one length")
+            n = ref.size
         decimate = max(1, int(decimate))
-        rec = np.zeros((ref.size // decimate, len(TRACE_NAMES)))
-        stats = np.array([0.0, 0.0, 0.0, 0.0, 0.0])
+        rec = np.zeros((n // decimate, len(TRACE_NAMES)))
+        stats = np.zeros(5)
+        self._io[3] = 0.0
+        self._io[4] = 0.0
         c = self.controller
-        self.u, self.x = _loop(self.sim.m, self.sim.st, self.n_sub, ref, f, self._gp, self._r0, c.a, self._b, self._c, c.d,
-                               self._lim, self.xk, self.u, self.x, self.anti_windup, self.seed + self._k, decimate,
-                               rec, stats)
+        for start in range(0, n, CHUNK):
+            stop = min(n, start + CHUNK)
+            if scalar:
+                r_chunk = np.full(stop - start, ref)
+                f_chunk = np.full(stop - start, force)
+            else:
+                r_chunk, f_chunk = ref[start:stop], force[start:stop]
+            noise = (self._rng.standard_normal(stop - start) * self.sigma_v if self.sigma_v > 0
+                     else np.zeros(stop - start))
+            _loop(self.sim.m, self.sim.st, self.n_sub, r_chunk, f_chunk, noise, self._gp, self._r0, self._form,
+                  self._ha, self._hb, self._hc, self._hd, self._hx, float(c.gain), self._sos, self._fb, self._fa,
+                  self._fshift, self._ffrac, self._fin, self._in_scale, self._out_scale, self._csf, self._csi, self._vmf, self._vmi, self._lim,
+                  self._limw, self.anti_windup, decimate, self._io, rec, stats)
         dt = c.dt_s
         t = (self._k + (np.arange(rec.shape[0]) + 1) * decimate) * dt
-        self._k += ref.size
+        self._k += n
         return ClosedLoopRun(t, *(rec[:, i] for i in range(rec.shape[1])), peak_current_a=(stats[0], stats[1]),
                              periods_at_current_limit=stats[2] / self.n_sub, samples_rate_limited=int(stats[3]),
-                             samples_range_limited=int(stats[4]), periods=int(ref.size))
+                             samples_range_limited=int(stats[4]), periods=int(n))
