@@ -225,6 +225,24 @@ def cmd_verify(args):
     _emit(args, data, lines)
 
 
+def cmd_sweep(args):
+    from .verify.sweep_job import run_sweep
+    if args.scheduler is not None and args.workers is not None:
+        raise WorkbenchError("--workers sets local processes; a dask cluster (--scheduler) has its own: give one")
+    data = run_sweep(args.study, args.controller, out_dir=args.out, table=args.table, scheduler=args.scheduler,
+                     workers=args.workers, amplitudes_v=args.amplitudes, noise=args.noise,
+                     progress=lambda d, t: _progress_bar("sweep", d, t))
+    lines = [f"sweep of {args.study}: {data['cases']} cases ({data['failed']} failed) with {data['controller']}"]
+    for metric, w in data["worst"].items():
+        lines.append(f"  worst {metric}: {w['value']:.4g} ({w['serial']}, C_p x{w['cp_factor']:.2f}, "
+                     f"{w['amplitude_v']:g} V)")
+    for e in data["errors"][:5]:
+        lines.append(f"  FAILED {e['serial']} C_p x{e['cp_factor']:.2f} {e['amplitude_v']:g} V: {e['error']}")
+    if "table" in data:
+        lines.append(f"  table {data['table']}")
+    _emit(args, {k: v for k, v in data.items() if k != "rows"}, lines)
+
+
 def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
@@ -336,6 +354,24 @@ def build_parser():
     p.add_argument("--no-anti-windup", action="store_true", help="plain controller (shows the windup)")
     p.add_argument("--json", type=Path, help="write the metrics as JSON here")
     p.set_defaults(func=cmd_verify)
+
+    p = sub.add_parser("sweep", help="verification and margins over serials x tolerances x amplitudes",
+                       description="For every serial of a study file x C_p (1 - tol, 1, 1 + tol) x amplitude: "
+                                   "the exported controller's margins on the describing function at that "
+                                   "amplitude, and a closed-loop triangle and step of that size with the "
+                                   "nonlinear plant. Local processes by default, or a dask.distributed "
+                                   "cluster with --scheduler; one table with the worst cases named.")
+    p.add_argument("study", type=Path)
+    p.add_argument("--controller", type=Path,
+                   help="exported controller JSON (default: controllers/NAME.json next to the studies folder)")
+    p.add_argument("--amplitudes", type=_quantity("V"), nargs="+", help="amplitudes, default the study's")
+    p.add_argument("--scheduler", help="dask.distributed scheduler address, e.g. tcp://127.0.0.1:8786")
+    p.add_argument("--workers", type=_positive_int, help="local processes (default: all cores)")
+    p.add_argument("--noise", action="store_true", help="gauge noise on in the closed-loop runs (default off)")
+    p.add_argument("--out", type=Path, default=Path("out/sweep"), help="output folder (default out/sweep)")
+    p.add_argument("--table", type=Path, help="table path, .csv or .parquet (default OUT/sweep.csv)")
+    p.add_argument("--json", type=Path, help="write the summary as JSON here")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("demo", help="the default job: seed reproductions with figures",
                        description="Gauge gains, T_em from Table 1, the free-free test on the three "

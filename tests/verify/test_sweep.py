@@ -255,3 +255,41 @@ def test_progress_is_called_once_per_case_up_to_total():
     calls = []
     run_cases(square, _cases(5), workers=2, progress=lambda done, total: calls.append((done, total)))
     assert calls == [(i, 5) for i in range(1, 6)]
+
+
+# --- workbench sweep: the study's grid on local processes and on a dask cluster ----------------------
+
+def _sweep_study(tmp_path):
+    text = (ROOT / "studies" / "sn637_servo.toml").read_text().replace('"../plants/', f'"{ROOT}/plants/')
+    text = re.sub(r'serials = \[.*?\]', "serials = []", text)
+    study = tmp_path / "study.toml"
+    study.write_text(text)
+    return study
+
+
+@pytest.mark.parametrize("where", ["local", "dask"])
+def test_workbench_sweep_runs_the_study_grid_and_names_the_worst_case(tmp_path, where, request):
+    from workbench.cli import main
+    from workbench.verify.sweep_job import run_sweep
+    study = _sweep_study(tmp_path)
+    scheduler = request.getfixturevalue("dask_address") if where == "dask" else None
+    out = tmp_path / "out"
+    summary = run_sweep(study, ROOT / "controllers" / "sn637_loopshape.json", out_dir=out, scheduler=scheduler,
+                        workers=2 if scheduler is None else None, amplitudes_v=[0.3])
+    rows = summary["rows"]
+    # SN637 x C_p (0.8, 1, 1.2) x one amplitude, all run
+    assert [(r["cp_factor"], r["amplitude_v"]) for r in rows] == [(0.8, 0.3), (1.0, 0.3), (1.2, 0.3)]
+    assert all(r["ok"] for r in rows), [r["error"] for r in rows]
+    # a larger working capacitance lowers the loop gain: the crossover falls with C_p
+    xo = [r["crossover_hz"] for r in rows]
+    assert xo[0] > xo[1] > xo[2] > 0
+    assert all(r["phase_margin_deg"] > 45 and r["triangle_error_percent"] < 1.0 for r in rows)
+    assert summary["worst"]["crossover_hz"]["cp_factor"] == 1.2
+    table = pd.read_csv(out / "sweep.csv")
+    assert len(table) == 3 and {"serial", "phase_margin_deg", "step_overshoot_percent"} <= set(table.columns)
+    if where == "local":
+        # the command line: bad scheduler address -> exit 2 with the reason, nothing written
+        bad = tmp_path / "bad"
+        assert main(["sweep", str(study), "--amplitudes", "0.3V", "--scheduler", "tcp://127.0.0.1:1",
+                     "--out", str(bad)]) == 2
+        assert not bad.exists()
