@@ -17,6 +17,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 demo: $(STAMP)
 	$(BIN)/workbench demo --out out/demo --json out/demo/summary.json
 	$(BIN)/workbench study studies/sn637_servo.toml --out out/study
+	$(BIN)/workbench verify plants/p888_51_sn637_creep.toml --controller out/study/controllers/sn637_loopshape.json --out out/verify
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -157,7 +157,7 @@ def chain_gain(x0_m, g):
     return bridge_gain(x0_m, g) * g.amplifier_gain * g.demodulation_gain * g.trim_scale
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _bridge(x, L, W, kgf, r0, vm):
     s = x / L
     r_wy = r0[0] * (1 - kgf * (W / L) * s)
@@ -167,7 +167,7 @@ def _bridge(x, L, W, kgf, r0, vm):
     return ((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _quantize(v, full_scale, bits):
     lsb = 2.0 * full_scale / (2.0 ** bits)
     if v > full_scale - lsb:
