@@ -85,3 +85,15 @@ def test_sine_sweep_agrees_with_the_linear_loop_below_the_slew_limit(sn637_creep
 def test_unknown_scenario(sn637_creep, ctrl):
     with pytest.raises(ValueError, match="unknown scenario"):
         run_scenario(sn637_creep, ctrl, "cartwheel")
+
+
+@pytest.mark.parametrize("line_v, found", [(0.05, True), (0.0, False)])
+def test_the_oscillation_detector_finds_a_line_in_noise_and_nothing_in_noise_alone(line_v, found):
+    from workbench.verify.scenarios import _oscillation
+    t = np.arange(10000) * 1e-4
+    for seed in range(5):
+        u = 0.01 * np.random.default_rng(seed).standard_normal(t.size) + line_v * np.sin(2 * np.pi * 137 * t) + 3 * t
+        amp, freq, line = _oscillation(u, 1e-4, line_ratio=20.0)
+        assert line == found
+        if found:
+            assert freq == 137.0 and amp == pytest.approx(line_v, rel=0.05)

@@ -99,8 +99,9 @@ def _oscillation(e, dt, line_ratio=None):
     amp = 2 * spec[k] / np.sum(np.hanning(tail.size))
     if line_ratio is None:
         return float(amp), float(k / (tail.size * dt))
-    lo, hi = max(k0, int(0.7 * k)), min(spec.size, int(1.3 * k) + 2)
-    floor = np.median(np.concatenate([spec[lo:max(lo, k - 3)], spec[k + 4:hi]])) if hi - lo > 12 else 0.0
+    half = max(20, int(0.3 * k))                 # the neighbourhood: +/-30 %, at least 20 bins
+    lo, hi = max(k0, k - half), min(spec.size, k + half + 1)
+    floor = np.median(np.concatenate([spec[lo:max(lo, k - 3)], spec[min(hi, k + 4):hi]]))
     return float(amp), float(k / (tail.size * dt)), bool(spec[k] > line_ratio * floor)
 
 
