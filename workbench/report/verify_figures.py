@@ -7,7 +7,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from .output import save_figure  # noqa: E402
-from .verify_report import NOISE_FLOOR_DB  # noqa: E402
+from .verify_report import NOISE_FLOOR_DB, scaled  # noqa: E402
 
 __all__ = ["plot_scenario"]
 
@@ -17,12 +17,8 @@ BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)
 
 def _v(m, key, scale=1.0, fmt=".3g"):
     """A metric scaled and formatted; 'n/a' when absent, None or NaN (the figure must still be drawn)."""
-    v = m.get(key)
-    try:
-        v = float(v) * scale
-    except (TypeError, ValueError):
-        return "n/a"
-    if not np.isfinite(v):
+    v = scaled(m.get(key), scale)
+    if v is None:
         return "n/a"
     return f"{v:.0f}" if fmt.endswith("g") and abs(v) >= 1000 else format(v, fmt)   # 1453, not 1.45e+03
 

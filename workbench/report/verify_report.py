@@ -69,15 +69,21 @@ NOT_IN_TABLE = {"scenario", "anti_windup", "noise", "stroke_m", "current_limit_s
 NOISE_FLOOR_DB = -30
 
 
+def scaled(v, scale=1.0):
+    """``v * scale`` as a float, or None for None, NaN, infinities and non-numbers."""
+    try:
+        v = float(v) * scale
+    except (TypeError, ValueError):
+        return None
+    return v if np.isfinite(v) else None
+
+
 def _num(v, scale=1.0):
     """Readable number: 4 significant digits, no exponent above 1000; 'n/a' for None, NaN, non-numbers."""
     if isinstance(v, (bool, np.bool_)):
         return "yes" if v else "no"
-    try:
-        v = float(v) * scale
-    except (TypeError, ValueError):
-        return "n/a"
-    if not np.isfinite(v):
+    v = scaled(v, scale)
+    if v is None:
         return "n/a"
     return f"{v:.0f}" if abs(v) >= 1000 else f"{v:.4g}"
 

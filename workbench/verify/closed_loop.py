@@ -315,7 +315,6 @@ class ClosedLoop:
                              g.dac_bits])
         self._r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
         c = controller
-        dt = c.dt_s
         model = c.voltage_model if (anti_windup and c.voltage_model is not None) else (1.0, np.inf, np.inf)
         self._lim = np.array([c.output_limits_v[0], c.output_limits_v[1], *model])
         self._form = {"hanus": 0, "float": 1, "fixed": 2}[c.form]

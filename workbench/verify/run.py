@@ -78,7 +78,7 @@ def run_verify(plant_path, controller_path, scenarios=SCENARIOS, hold_s=1000.0, 
     data, ctrl = load_controller_json(controller_path, form, (plant.pzt.voltage_min_v, plant.pzt.voltage_max_v))
     say = progress or (lambda *a: None)
     steps = list(scenarios) + ["limit cycles"]
-    results, figures, traces_all = [], {}, {}
+    results, traces_all = [], {}
     for i, name in enumerate(scenarios):
         say("verify", i, len(steps))
         m, tr = run_scenario(plant, ctrl, name, hold_s=hold_s, anti_windup=anti_windup, noise=noise)
