@@ -1,0 +1,307 @@
+"""Measured records: the CSV reader of time series (voltage in, current/charge/displacement/gauge out).
+
+Format (UTF-8, an optional BOM, LF or CRLF line ends)::
+
+    # serial: SN637
+    # series_resistor_ohm: 80
+    time[ms],voltage[V],displacement[um],current[mA]
+    0.0,0.0,0.012,0.0
+    0.1,0.5,0.013,0.21
+    ...
+
+Leading ``#`` lines are metadata, ``# key: value``. Known keys (``serial``, a string, and
+``series_resistor_ohm``, a positive resistance, ``80`` or ``80 ohm``) override the plant file for
+this record; other keys are kept with their values as written (strings). The first other line is
+the header: names from :data:`QUANTITIES` with the unit in brackets, any SI prefix, in any order;
+columns with other names are ignored with a notice. Time and voltage are required, and at least one
+output (:data:`OUTPUTS`). Every used cell must be a finite number, time must increase strictly and
+evenly (within ``rel_jitter`` of the median step), and there must be ``min_samples`` rows.
+
+Values are SI in the returned :class:`Record`. The file is read once, parsed by pandas' C engine and
+checked with vectorised numpy; the line-by-line scan that names a bad cell runs only on failure.
+"""
+
+import codecs
+import csv
+import io
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DataFileError, UnitError
+from ..units import parse_quantity, scale_of
+
+__all__ = ["Record", "read_record", "QUANTITIES", "OUTPUTS", "METADATA_KEYS"]
+
+#: Header name -> (SI unit, key in Record.channels; time goes to Record.t_s).
+QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("A", "current_a"),
+              "charge": ("C", "charge_c"), "displacement": ("m", "displacement_m"),
+              "gauge": ("V", "gauge_v"), "force": ("N", "force_n")}
+#: Measured responses; a record needs at least one of them.
+OUTPUTS = ("current", "charge", "displacement", "gauge")
+#: Metadata keys with a meaning (they override the plant file); other keys are kept as strings.
+METADATA_KEYS = ("serial", "series_resistor_ohm")
+
+_EXAMPLE = "time[s],voltage[V],displacement[um]"
+_NAMES = ", ".join(QUANTITIES)
+# The decimal numbers a data cell may hold; stricter than float(), which also takes "1_0" and "nan".
+_NUMBER = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*$")
+_META = re.compile(r"^#\s*([A-Za-z_][\w.-]*)\s*:\s*(.*?)\s*$")
+
+
+@dataclass(frozen=True, eq=False)      # eq=False: == on arrays is elementwise, not a bool
+class Record:
+    """One measured record, SI throughout; arrays are read-only (the record is frozen).
+
+    ``metadata`` maps key -> value (``series_resistor_ohm`` a float in ohm, others strings);
+    ``channels`` maps keys among voltage_v, current_a, charge_c, displacement_m, gauge_v, force_n
+    to float64 arrays as long as ``t_s``; ``sample_period_s`` is the mean step; ``notices`` says
+    what was ignored.
+    """
+
+    path: Path
+    metadata: dict
+    t_s: np.ndarray
+    channels: dict
+    sample_period_s: float
+    notices: list = field(default_factory=list)
+
+    @property
+    def n(self):
+        """Number of samples."""
+        return int(self.t_s.size)
+
+    def has(self, name):
+        """True if the record holds ``name``, a channel key (``"current_a"``) or a quantity (``"current"``)."""
+        key = QUANTITIES.get(name, (None, name))[1]
+        return key == "t_s" or key in self.channels
+
+
+def read_record(path, min_samples=100, rel_jitter=1e-3):
+    """Read and validate a record CSV; see the module docstring for the format.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (never modified).
+    min_samples : int
+        Fewest data rows accepted (>= 2).
+    rel_jitter : float
+        Largest accepted deviation of a time step from the median step, relative (0 < x < 1).
+
+    Raises
+    ------
+    DataFileError
+        The file breaks a rule; the message names the file, the line, the column and the fix.
+    """
+    if isinstance(min_samples, bool) or not isinstance(min_samples, (int, np.integer)) or min_samples < 2:
+        raise ValueError(f"min_samples must be an integer >= 2, got {min_samples!r}")
+    if isinstance(rel_jitter, bool) or not (isinstance(rel_jitter, (int, float, np.floating))
+                                            and 0 < rel_jitter < 1):
+        raise ValueError(f"rel_jitter must be a number with 0 < rel_jitter < 1, e.g. 1e-3, got {rel_jitter!r}")
+    path = Path(path)
+    data = path.read_bytes()
+    metadata, notices = {}, []
+    header_line, header, offset = _read_preamble(path, data, metadata, notices)
+    columns = _read_header(path, header_line, header, notices)          # name -> (index, scale)
+    first = header_line + 1
+    # Trailing blank lines are harmless; blank lines inside the data are kept as rows (and then
+    # rejected) so that row i is exactly line first + i in every message.
+    body = data[offset:].rstrip()
+    used = sorted(index for index, _ in columns.values())
+    frame, failure = None, None
+    if body:
+        try:
+            frame = pd.read_csv(io.BytesIO(body), header=None, names=list(range(len(header))),
+                                usecols=used, dtype=np.float64, engine="c", index_col=False,
+                                skip_blank_lines=False, encoding="utf-8")
+        except (ValueError, pd.errors.ParserError) as err:        # a non-number, bad UTF-8, ...
+            failure = err
+    n_rows = 0 if frame is None else len(frame)
+    n_lines = body.count(b"\n") + 1 if body else 0
+    # pandas pads short rows with NaN and silently drops extra fields when usecols is given, so
+    # the comma count is the cheap check of the field count (quoted commas only cost a rescan).
+    clean = failure is None and n_rows == n_lines and (
+        frame is None or (body.count(b",") == n_rows * (len(header) - 1)
+                          and all(np.isfinite(frame[i].to_numpy()).all() for i in used)))
+    if not clean:
+        error = _find_bad_cell(path, body, first, header, header_line, columns)
+        if error is not None:
+            raise error
+        if failure is not None or n_rows != n_lines:
+            raise DataFileError(f"{path}, lines {first}-{first + n_lines - 1}: cannot read the data "
+                                f"({failure or 'rows do not match lines'}); write one row of numbers "
+                                f"per line, as many fields as the header")
+    if n_rows < min_samples:
+        raise DataFileError(f"{path}, line {first + n_rows - 1 if n_rows else header_line}: only "
+                            f"{n_rows} data row(s) after the header on line {header_line}, need at "
+                            f"least {min_samples}; record longer or pass a smaller min_samples")
+    arrays = {}
+    for name, (index, scale) in columns.items():
+        values = frame[index].to_numpy(dtype=np.float64, copy=True)
+        if scale != 1.0:
+            values *= scale
+        values.flags.writeable = False
+        arrays[QUANTITIES[name][1]] = values
+    t = arrays.pop("t_s")
+    _check_time(path, t, first, columns["time"][0] + 1, rel_jitter)
+    period = float((t[-1] - t[0]) / (t.size - 1))     # the mean step: immune to rounding of single times
+    return Record(path, metadata, t, arrays, period, notices)
+
+
+def _read_preamble(path, data, metadata, notices):
+    """Read the ``#`` lines into ``metadata``; return (header line number, header cells, data offset)."""
+    offset = len(codecs.BOM_UTF8) if data.startswith(codecs.BOM_UTF8) else 0
+    lineno, seen = 0, {}
+    while offset < len(data):
+        end = data.find(b"\n", offset)
+        end = len(data) if end < 0 else end + 1
+        lineno += 1
+        text = _decode(path, lineno, data[offset:end]).rstrip("\r\n")
+        offset = end
+        if not text.strip():
+            continue
+        if not text.lstrip().startswith("#"):
+            return lineno, next(csv.reader([text])), offset
+        match = _META.match(text.strip())
+        if match is None:
+            # A free comment is fine; one that names a known key is a likely mistyped override.
+            if any(text.lstrip("# ").startswith(key) for key in METADATA_KEYS):
+                notices.append(f"line {lineno}: {text.strip()!r} is not '# key: value'; not read as metadata")
+            continue
+        key, value = match.groups()
+        key = key.lower() if key.lower() in METADATA_KEYS else key
+        where = f"{path}, line {lineno}, column {len(text) - len(text.lstrip()) + match.start(2) + 1}"
+        if key in seen:
+            raise DataFileError(f"{where}: metadata key {key!r} repeats line {seen[key]}; give it once")
+        seen[key] = lineno
+        metadata[key] = _metadata_value(where, key, value)
+    raise DataFileError(f"{path}: no header line; after the '#' metadata lines write the column "
+                        f"names with units, e.g. {_EXAMPLE}, then the data")
+
+
+def _metadata_value(where, key, value):
+    if key == "serial":
+        if not value:
+            raise DataFileError(f"{where}: empty serial; write e.g. '# serial: SN637'")
+        return value
+    if key == "series_resistor_ohm":
+        try:
+            ohm = parse_quantity(value, "ohm")
+        except UnitError as err:
+            raise DataFileError(f"{where}: series_resistor_ohm {value!r} is not a resistance; "
+                                f"write e.g. '# series_resistor_ohm: 80' or '80 ohm'") from err
+        if not (math.isfinite(ohm) and ohm > 0):
+            raise DataFileError(f"{where}: series_resistor_ohm must be a positive resistance, got "
+                                f"{value!r}; write e.g. '# series_resistor_ohm: 80'")
+        return ohm
+    return value
+
+
+def _read_header(path, lineno, cells, notices):
+    """Map each known name to (0-based column, SI scale); note the ignored columns."""
+    columns, ignored = {}, []
+    for index, cell in enumerate(cells, start=1):
+        where = f"{path}, line {lineno}, column {index}"
+        name, bracket, rest = cell.partition("[")
+        name = name.strip()
+        if name not in QUANTITIES:
+            ignored.append(cell.strip())
+            notices.append(f"line {lineno}, column {index}: column {cell.strip()!r} ignored "
+                           f"(not one of {_NAMES})")
+            continue
+        base = QUANTITIES[name][0]
+        example = f"{name}[{base}]" + (" or displacement[um]" if base == "m" else f" or {name}[m{base}]")
+        rest = rest.strip()
+        if not bracket or not rest.endswith("]") or not rest[:-1].strip():
+            raise DataFileError(f"{where}: {cell.strip()!r} needs its unit in brackets; write {example}")
+        unit = rest[:-1].strip()
+        try:
+            scale = scale_of(unit, base)
+        except UnitError as err:
+            raise DataFileError(f"{where}: unknown unit [{unit}] for {name}, expected {base} with an "
+                                f"optional SI prefix; write {example}") from err
+        if name in columns:
+            raise DataFileError(f"{where}: {name} repeats column {columns[name][0] + 1}; give each "
+                                f"quantity once (rename or delete one)")
+        columns[name] = (index - 1, scale)
+    missing = [f"a {name} column" for name in ("time", "voltage") if name not in columns]
+    if not any(name in columns for name in OUTPUTS):
+        missing.append(f"an output column ({' or '.join(OUTPUTS)})")
+    if missing:
+        hint = ""
+        if all(_NUMBER.match(cell) or not cell.strip() for cell in cells):
+            hint = " (this line looks like data: the first line that is not '#' must be the header)"
+        elif ignored:
+            hint = f" (ignored: {', '.join(repr(c) for c in ignored)})"
+        raise DataFileError(f"{path}, line {lineno}: the header lacks {', '.join(missing)}{hint}; "
+                            f"name the columns with units, e.g. {_EXAMPLE}")
+    return columns
+
+
+def _find_bad_cell(path, body, first, header, header_line, columns):
+    """The first malformed data line or cell as a DataFileError, or None. Slow; run only on failure."""
+    try:
+        text = body.decode("utf-8")
+    except UnicodeDecodeError as err:
+        start = body.rfind(b"\n", 0, err.start) + 1
+        _decode(path, first + body.count(b"\n", 0, start), body[start:body.find(b"\n", err.start)])
+    used = sorted(index for index, _ in columns.values())
+    # csv.reader over the whole text runs in C; rows of plain numbers (nearly all) cost one check
+    for k, cells in enumerate(csv.reader(io.StringIO(text))):
+        if len(cells) == len(header) and all(_NUMBER.match(cells[i]) for i in used):
+            continue
+        line = first + k
+        if not "".join(cells).strip():
+            return DataFileError(f"{path}, line {line}: blank line inside the data; delete it")
+        if cells[0].lstrip().startswith("#"):
+            return DataFileError(f"{path}, line {line}, column 1: '#' line after the header; move "
+                                 f"metadata above the header (line {header_line})")
+        if len(cells) != len(header):
+            return DataFileError(f"{path}, line {line}: {len(cells)} fields, the header (line "
+                                 f"{header_line}) has {len(header)}; check for a missing or extra comma")
+        index = next(i for i in used if not _NUMBER.match(cells[i]))
+        cell = cells[index].strip()
+        what = "an empty cell" if not cell else f"{cell!r} is not a number"
+        try:
+            if not math.isfinite(float(cell)):
+                what = f"{cell!r} is not a finite number (NaN or inf)"
+        except ValueError:
+            pass
+        return DataFileError(f"{path}, line {line}, column {index + 1} ({header[index].strip()}): "
+                             f"{what}; write a finite number or cut the record before this line")
+    return None
+
+
+def _check_time(path, t, first, column, rel_jitter):
+    """Time must increase strictly and evenly: a gap or an uneven step names its line."""
+    dt = np.diff(t)
+    back = np.flatnonzero(dt <= 0)
+    if back.size:
+        i = int(back[0]) + 1
+        raise DataFileError(f"{path}, line {first + i}, column {column} (time): {t[i]:.9g} s is not "
+                            f"after {t[i - 1]:.9g} s on line {first + i - 1}; time must increase "
+                            f"strictly (remove repeated or unsorted rows)")
+    step = float(np.median(dt))
+    off = np.flatnonzero(np.abs(dt - step) > rel_jitter * step)
+    if off.size:
+        i = int(off[0]) + 1
+        ratio = dt[i - 1] / step
+        kind = (f"a gap of about {round(ratio) - 1} missing sample(s)" if ratio > 1.5
+                else "uneven sampling")
+        raise DataFileError(f"{path}, line {first + i}, column {column} (time): step {dt[i - 1]:.6g} s "
+                            f"from line {first + i - 1}, expected {step:.6g} s (the median step) within "
+                            f"{rel_jitter:g} relative: {kind}; resample the record on a uniform grid "
+                            f"or cut it at this line")
+
+
+def _decode(path, lineno, raw):
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise DataFileError(f"{path}, line {lineno}: not UTF-8 text (byte {err.start + 1} of the line); "
+                            f"save the file as UTF-8 (\"CSV UTF-8\")") from None
