@@ -1,5 +1,6 @@
 """Tests for workbench.calibrate.pi_fit: Prandtl-Ishlinskii fit of voltage -> displacement."""
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,19 @@ from workbench.calibrate.pi_fit import (fit_pi, pi_thresholds, rms, split_by_cyc
                                         straight_line_rms, turning_points)
 from workbench.plant.hysteresis import PrandtlIshlinskii
 
-REAL = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "real"
+
+def _real_folder():
+    """The shared data folder: $WORKBENCH_SHARED_DIR, else next to the repository, else /work/shared
+    (a clone elsewhere, e.g. CI's, still finds the machine's copy)."""
+    roots = [Path(os.environ["WORKBENCH_SHARED_DIR"])] if os.environ.get("WORKBENCH_SHARED_DIR") else []
+    roots += [Path(__file__).resolve().parents[2].parent / "shared", Path("/work/shared")]
+    for root in roots:
+        if (root / "data" / "real").is_dir():
+            return root / "data" / "real"
+    return roots[0] / "data" / "real"
+
+
+REAL = _real_folder()
 REAL_CSV = REAL / "hysteresis_v_150_1hz.csv"
 REAL_HEADER = "index,time[s],displacement[um],voltage[V]"
 
