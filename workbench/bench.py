@@ -116,7 +116,7 @@ def _closed_loop_reference(plant_path, controller_path, periods):
     def update(t, x, u, params):
         for a, seg in zip(parts, np.split(x, ends[:-1])):
             a.flat[:] = seg                          # int64 words are exact in float64 (int32 range)
-        cl._io[3:] = 0.0                             # a fresh one-row trace each period
+        cl._io[2:] = 0.0                             # a fresh one-row trace each period
         loop(cl.sim.m, cl.sim.st, cl.n_sub, u[0:1], u[1:2], u[2:3], *fixed_args, rec, stats)
         return np.concatenate([a.ravel() for a in parts]).astype(float)
 

@@ -160,7 +160,7 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     cascade states ``cs_f`` (float form) and ``cs_i`` (fixed, int64); the window's
     voltage model ``vm_f`` / ``vm_i`` (1-element). ``lim`` = [lo, hi, alpha, h_up, h_down]
     in V, ``limw`` the same in output words (alpha in Q1.30). ``io`` =
-    [pending output, last x, -, decimation counter, trace row] carries the loop between chunks.
+    [pending output, last x, decimation counter, trace row] carries the loop between chunks.
     ``stats`` = [i_max, i_min, sub-steps at a current limit, samples held by the
     current-limit window, range-limited samples].
     """
@@ -173,8 +173,8 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     i_src, i_snk = m[K.I_SRC], m[K.I_SNK]
     pending = io[0]
     x_prev = io[1]
-    count = int(io[3])
-    row = int(io[4])
+    count = int(io[2])
+    row = int(io[3])
     xprev_sub = x_prev
     for k in range(ref.shape[0]):
         u = pending
@@ -261,8 +261,8 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
                 row += 1
     io[0] = pending
     io[1] = x_prev
-    io[3] = count
-    io[4] = row
+    io[2] = count
+    io[3] = row
 
 
 @dataclass(frozen=True)
@@ -355,7 +355,7 @@ class ClosedLoop:
             self._csf[-1] = u0, -self._sos[-1, 5] * u0
         self._vmf, self._vmi = np.array([float(u0)]), np.array([u_w], dtype=np.int64)
         x0 = self.plant.pzt.k_q2x_m_per_c * self.plant.pzt.hysteresis.output_at_rest()
-        self._io = np.array([float(u0), x0, 0.0, 0.0, 0.0])
+        self._io = np.array([float(u0), x0, 0.0, 0.0])
         self._k = 0
 
     @property
@@ -389,8 +389,7 @@ class ClosedLoop:
         decimate = max(1, int(decimate))
         rec = np.zeros((n // decimate, len(TRACE_NAMES)))
         stats = np.zeros(5)
-        self._io[3] = 0.0
-        self._io[4] = 0.0
+        self._io[2:] = 0.0
         c = self.controller
         for start in range(0, n, CHUNK):
             stop = min(n, start + CHUNK)
