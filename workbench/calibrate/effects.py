@@ -1,0 +1,471 @@
+"""Effect library: candidate effects the declared plant may lack, as additive corrections.
+
+Each effect models the residual ``e = y_meas - y_model`` of ONE output channel as an additive
+term driven by the input ``u`` (and time ``t``; some effects by the base model's prediction
+``y_model`` too)::
+
+    y_meas ~ y_model + effect.term(t, u, params, y_model=y_model)
+
+An :class:`Effect` has
+
+* ``name``, ``n_params`` (the count used in the parsimony penalty), ``channels`` (the channel
+  keys it is a candidate for, or ``None`` for any channel);
+* ``signature(report, t, u, residual) -> float`` in [0, 1]: how strongly the residual shows this
+  effect's fingerprint. It is the fraction of the residual's variance the effect explains when
+  fitted on the whole record (an R^2), multiplied by an effect-specific factor read from the
+  :class:`~workbench.calibrate.residual.ResidualReport` (e.g. drift is scored down when the
+  residual is correlated with the input). It is a diagnostic; :func:`choose_effect` decides by
+  held-out error, not by the signature;
+* ``fit(t, u, residual, train_mask, y_model=None) -> dict``: least squares on the training
+  rows. Every effect's term is computed over the WHOLE record first (filters and integrals
+  need their memory from the start) and only then are training rows taken. Parameters that
+  enter linearly are solved exactly; a nonlinear one (a time constant, a natural frequency and
+  damping, a delay) is found on a small grid (variable projection: the linear gain is solved at
+  each grid point) and refined with ``scipy.optimize.least_squares`` within bounds;
+* ``term(t, u, params, y_model=None) -> ndarray``: the correction.
+
+``y_model`` is an optional keyword of ``fit`` / ``term``; only :class:`Delay` needs it (a
+latency shifts the model's own output) and raises ``ValueError`` without it.
+
+Effects implemented (``dt`` the sampling step, ``lowpass_tau(u)`` the discrete first-order
+lowpass ``y_k = a y_{k-1} + (1 - a) u_k``, ``a = exp(-dt / tau)``, started at rest at ``u_0``):
+
+* ``drift``: ``sum_i p_i s^i``, ``s = (t - t_0) / (t_end - t_0)``; degree + 1 params (3 by
+  default); any channel.
+* ``delay``: ``y_model(t - d dt) - y_model(t)`` (linear interpolation, ends held); 1 param
+  (``d`` in samples); any channel.
+* ``creep``: ``c (lowpass_tau(u) - u)``; 2 params (``c``, ``tau``); displacement and gauge.
+* ``dielectric_absorption``: ``k lowpass_tau(u)``; 2 params (``k``, ``tau``); charge.
+* ``leakage``: ``k int_{t_0}^t u dt`` (trapezoid); 1 param; charge.
+* ``resonance``: ``g (H(s) - 1) u``, ``H = w^2 / (s^2 + 2 zeta w s + w^2)``, ZOH, started at
+  rest at ``u_0``; 3 params (``g``, ``f_n``, ``zeta``); any channel.
+
+* **creep** -- one first-order relaxation with zero static gain: after a step ``Du`` the
+  correction is ``-c Du exp(-t / tau)``, so with ``c > 0`` the output keeps creeping towards
+  the static value set by the base model (which is matched in steady state). The log-creep of
+  a stack is approximated by the best single ``tau`` of a log grid (``tau >= tau_min``, 50
+  samples by default, so that it does not mimic a latency).
+* **dielectric_absorption** -- seed 002 (Ivan et al., self-sensing), eq. 2.9:
+  ``Q_DA(V_in, s) / alpha = k_s / (tau s + 1) V_in``, an internal charge that relaxes to
+  ``k_s V_in`` with time constant ``tau``: the term is ``k lowpass_tau(u)`` on the charge
+  channel (static gain ``k``, no instantaneous part). Creep is the same relaxation written with
+  the opposite convention (instantaneous part ``-c``, static gain 0) on the mechanical
+  channels; the channel decides which one is a candidate.
+* **leakage** -- seed 002 eq. 2.7: the charge lost through the finite leaking resistance is
+  ``(1 / R_FP) int V_in dt``; ``k = -1 / R_FP`` (sign free).
+* **resonance** -- a lightly damped mode (``zeta <= 0.3``) the base model lacks, with unit DC
+  gain so the correction has no static part: ``g (H - 1) u``; ``g = 1`` for a plant whose
+  output is the base model's filtered by the mode.
+* **delay** -- a sensor or actuator latency of ``d`` samples (fractional allowed, either sign,
+  ``|d| <= max_delay``).
+* **drift** -- a slow sensor drift uncorrelated with the input, a polynomial in time (degree 2
+  by default).
+
+Not done yet: ``gauge_nonlinearity`` (seed eq. 27 against the linear gain).
+
+Known limitation: on the charge channel ``leakage`` (``k int u dt``) and ``drift`` are nearly
+collinear when the input is unipolar and roughly steady on average (``int u dt ~ mean(u) t``);
+the parsimony penalty then favours ``leakage`` (1 parameter against 3) for a linear drift in
+a noisy record. An input whose mean changes across the record (holds at very different
+levels, a bipolar segment) separates them.
+
+:func:`choose_effect` fits every candidate on the training rows and scores it on the held-out
+rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none`` rule.
+"""
+
+import numpy as np
+from scipy import signal
+from scipy.integrate import cumulative_trapezoid
+from scipy.optimize import least_squares
+
+from .pi_fit import rms
+from .residual import analyze_residual
+
+__all__ = ["Effect", "Drift", "Delay", "Creep", "DielectricAbsorption", "Leakage", "Resonance",
+           "default_effects", "choose_effect", "lowpass"]
+
+CHARGE = ("charge_c",)
+MECHANICAL = ("displacement_m", "gauge_v")
+
+
+def _dt(t):
+    t = np.asarray(t, dtype=float)
+    return float((t[-1] - t[0]) / (t.size - 1))
+
+
+def lowpass(u, tau, dt):
+    """First-order lowpass ``y_k = a y_{k-1} + (1 - a) u_k``, ``a = exp(-dt / tau)``, at rest at u_0."""
+    u = np.asarray(u, dtype=float)
+    a = float(np.exp(-dt / tau))
+    y, _ = signal.lfilter([1.0 - a], [1.0, -a], u, zi=[a * u[0]])
+    return y
+
+
+def _lstsq(X, y):
+    """Least squares with columns scaled to unit RMS; returns (beta, residual)."""
+    # Normal equations with einsum (no BLAS call on the long vectors: a threaded BLAS on a
+    # loaded machine costs milliseconds per call); columns scaled to unit RMS, a few columns.
+    X = np.atleast_2d(np.asarray(X, dtype=float).T).T
+    scale = np.sqrt(np.einsum("ij,ij->j", X, X) / X.shape[0])
+    scale[scale == 0] = 1.0
+    Xs = X / scale
+    gram = np.einsum("ij,ik->jk", Xs, Xs)
+    rhs = np.einsum("ij,i->j", Xs, y)
+    beta = np.linalg.lstsq(gram, rhs, rcond=1e-12)[0] / scale
+    return beta, y - np.einsum("ij,j->i", X, beta)
+
+
+def _r2(residual, explained):
+    """Fraction of the residual's variance (about zero) removed by subtracting ``explained``."""
+    e = np.asarray(residual, dtype=float)
+    den = float(np.sum(e * e))
+    if not den > 0:
+        return 0.0
+    r = e - explained
+    return float(np.clip(1.0 - np.sum(r * r) / den, 0.0, 1.0))
+
+
+def _varpro(columns, e, mask, grid, lower, upper):
+    """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
+
+    ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
+    """
+    y = e[mask]
+
+    def res(theta):
+        X = np.atleast_2d(columns(theta).T).T[mask]
+        return _lstsq(X, y)[1]
+
+    costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
+    best = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float))
+    lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
+    x0 = np.clip(best, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+    sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60)
+    theta = sol.x if 2 * sol.cost <= min(costs) else best
+    beta, _ = _lstsq(np.atleast_2d(columns(theta).T).T[mask], y)
+    return theta, beta
+
+
+class Effect:
+    """Base class: an additive correction to one channel's model output (see the module notes)."""
+
+    name = "effect"
+    n_params = 0
+    channels = None          # None: a candidate on any channel
+
+    def applies_to(self, channel):
+        return self.channels is None or channel is None or channel in self.channels
+
+    def fit(self, t, u, residual, train_mask, y_model=None):
+        raise NotImplementedError
+
+    def term(self, t, u, params, y_model=None):
+        raise NotImplementedError
+
+    def _fingerprint(self, report, t, u, residual):
+        """Effect-specific factor in [0, 1] applied to the explained-variance score."""
+        return 1.0
+
+    def signature(self, report, t, u, residual, y_model=None):
+        """Score in [0, 1]: explained variance of a whole-record fit times the fingerprint factor."""
+        e = np.asarray(residual, dtype=float)
+        try:
+            p = self.fit(t, u, e, np.ones(e.size, bool), y_model=y_model)
+            r2 = _r2(e, self.term(t, u, p, y_model=y_model))
+        except ValueError:
+            return 0.0
+        return float(np.clip(r2 * self._fingerprint(report, t, u, e), 0.0, 1.0))
+
+    def __repr__(self):
+        return f"{type(self).__name__}()"
+
+
+class Drift(Effect):
+    """Slow sensor drift, a polynomial of ``degree`` in normalized time (uncorrelated with u)."""
+
+    name = "drift"
+
+    def __init__(self, degree=2):
+        self.degree = int(degree)
+        self.n_params = self.degree + 1
+
+    def _X(self, t):
+        t = np.asarray(t, dtype=float)
+        s = (t - t[0]) / (t[-1] - t[0])
+        return np.vander(s, self.degree + 1, increasing=True)
+
+    def fit(self, t, u, residual, train_mask, y_model=None):
+        mask = np.asarray(train_mask, bool)
+        beta, _ = _lstsq(self._X(t)[mask], np.asarray(residual, float)[mask])
+        return {"coefficients": beta, "t0_s": float(t[0]), "t_end_s": float(t[-1])}
+
+    def term(self, t, u, params, y_model=None):
+        t = np.asarray(t, dtype=float)
+        s = (t - params["t0_s"]) / (params["t_end_s"] - params["t0_s"])
+        return np.vander(s, self.degree + 1, increasing=True) @ params["coefficients"]
+
+    def _fingerprint(self, report, t, u, residual):
+        return 1.0 if report.independent else 0.5
+
+
+class Delay(Effect):
+    """Latency of ``d`` samples: ``y_model(t - d dt) - y_model(t)``; needs ``y_model``."""
+
+    name = "delay"
+    n_params = 1
+
+    def __init__(self, max_delay=20):
+        self.max_delay = float(max_delay)
+
+    @staticmethod
+    def _shifted(t, y_model, d):
+        t = np.asarray(t, dtype=float)
+        y = np.asarray(y_model, dtype=float)
+        return np.interp(t - d * _dt(t), t, y) - y
+
+    def fit(self, t, u, residual, train_mask, y_model=None):
+        if y_model is None:
+            raise ValueError("delay needs y_model (the base model's prediction)")
+        mask = np.asarray(train_mask, bool)
+        e = np.asarray(residual, float)
+        grid = np.arange(-self.max_delay, self.max_delay + 0.25, 0.5)
+        grid = grid[grid != 0]
+        costs = [np.sum((e - self._shifted(t, y_model, d))[mask] ** 2) for d in grid]
+        d0 = float(grid[int(np.argmin(costs))])
+        lo, hi = max(-self.max_delay, d0 - 0.5), min(self.max_delay, d0 + 0.5)
+        sol = least_squares(lambda x: (e - self._shifted(t, y_model, x[0]))[mask],
+                            [d0], bounds=([lo], [hi]), max_nfev=40)
+        d = float(sol.x[0]) if 2 * sol.cost <= min(costs) else d0
+        return {"delay_samples": d, "delay_s": d * _dt(t)}
+
+    def term(self, t, u, params, y_model=None):
+        if y_model is None:
+            raise ValueError("delay needs y_model (the base model's prediction)")
+        return self._shifted(t, y_model, params["delay_samples"])
+
+    def _fingerprint(self, report, t, u, residual):
+        return 1.0 if not report.independent else 0.5
+
+
+class _Relaxation(Effect):
+    """Shared machinery: one linear gain times a column depending on a time constant tau."""
+
+    n_params = 2
+
+    def __init__(self, tau_min_samples=50, tau_max_fraction=1.0 / 3.0, n_grid=24):
+        self.tau_min_samples = float(tau_min_samples)
+        self.tau_max_fraction = float(tau_max_fraction)
+        self.n_grid = int(n_grid)
+
+    def _column(self, u, tau, dt):
+        raise NotImplementedError
+
+    def fit(self, t, u, residual, train_mask, y_model=None):
+        dt = _dt(t)
+        u = np.asarray(u, float)
+        lo = np.log(self.tau_min_samples * dt)
+        hi = np.log(max(self.tau_max_fraction * (t[-1] - t[0]), 2 * self.tau_min_samples * dt))
+        grid = [[g] for g in np.linspace(lo, hi, self.n_grid)]
+        theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), dt),
+                              np.asarray(residual, float), np.asarray(train_mask, bool),
+                              grid, [lo], [hi])
+        return {"gain": float(beta[0]), "tau_s": float(np.exp(theta[0]))}
+
+    def term(self, t, u, params, y_model=None):
+        return params["gain"] * self._column(np.asarray(u, float), params["tau_s"], _dt(t))
+
+
+class Creep(_Relaxation):
+    """Creep: ``c (lowpass_tau(u) - u)`` (zero static gain), displacement or gauge channel."""
+
+    name = "creep"
+    channels = MECHANICAL
+
+    def _column(self, u, tau, dt):
+        return lowpass(u, tau, dt) - u
+
+    def _fingerprint(self, report, t, u, residual):
+        # creep drifts during holds, with a rate whose sign follows the step into the hold
+        if len(report.holds) < 2:
+            return 0.5
+        steps, rates = [], []
+        prev = None
+        for h in report.holds:
+            if prev is not None:
+                steps.append(h["input_value"] - prev)
+                rates.append(h["drift_rate_per_s"])
+            prev = h["input_value"]
+        steps, rates = np.asarray(steps), np.asarray(rates)
+        if not (np.any(steps) and np.any(rates)):
+            return 0.5
+        c = abs(float(np.corrcoef(steps, rates)[0, 1])) if steps.size > 1 else 0.5
+        return 0.5 + 0.5 * (c if np.isfinite(c) else 0.0)
+
+
+class DielectricAbsorption(_Relaxation):
+    """Dielectric absorption, seed 002 eq. 2.9: ``k lowpass_tau(u)``, charge channel."""
+
+    name = "dielectric_absorption"
+    channels = CHARGE
+
+    def _column(self, u, tau, dt):
+        return lowpass(u, tau, dt)
+
+
+class Leakage(Effect):
+    """Leakage through a finite resistance: ``k int u dt`` (seed 002 eq. 2.7), charge channel."""
+
+    name = "leakage"
+    n_params = 1
+    channels = CHARGE
+
+    @staticmethod
+    def _column(t, u):
+        return cumulative_trapezoid(np.asarray(u, float), np.asarray(t, float), initial=0.0)
+
+    def fit(self, t, u, residual, train_mask, y_model=None):
+        mask = np.asarray(train_mask, bool)
+        beta, _ = _lstsq(self._column(t, u)[mask], np.asarray(residual, float)[mask])
+        return {"gain_per_s": float(beta[0])}
+
+    def term(self, t, u, params, y_model=None):
+        return params["gain_per_s"] * self._column(t, u)
+
+
+def _zoh_mode(f_hz, zeta, dt):
+    """ZOH discretization of ``w^2 / (s^2 + 2 zeta w s + w^2)`` (0 < zeta < 1), closed form.
+
+    Same as ``scipy.signal.cont2discrete(..., method="zoh")`` without a matrix exponential.
+    """
+    w = 2 * np.pi * float(f_hz)
+    sigma = zeta * w
+    wd = w * np.sqrt(1.0 - zeta * zeta)
+    r = np.exp(-sigma * dt)
+    c, s = np.cos(wd * dt), np.sin(wd * dt)
+    b1 = 1.0 - r * (c + sigma / wd * s)
+    b2 = r * r + r * (sigma / wd * s - c)
+    return np.array([0.0, b1, b2]), np.array([1.0, -2.0 * r * c, r * r])
+
+
+class Resonance(Effect):
+    """A lightly damped mode with unit DC gain the base model lacks: ``g (H(s) - 1) u``."""
+
+    name = "resonance"
+    n_params = 3
+
+    def __init__(self, f_min_hz=None, f_max_fraction=0.4, zeta_min=0.002, zeta_max=0.3,
+                 n_freq=30):
+        self.f_min_hz = f_min_hz
+        self.f_max_fraction = float(f_max_fraction)
+        self.zeta_min, self.zeta_max = float(zeta_min), float(zeta_max)
+        self.n_freq = int(n_freq)
+
+    @staticmethod
+    def _column(u, f_hz, zeta, dt):
+        b, a = _zoh_mode(f_hz, zeta, dt)
+        v = u - u[0]
+        return signal.lfilter(b, a, v) - v
+
+    def _range(self, t):
+        dt = _dt(t)
+        f_lo = self.f_min_hz if self.f_min_hz is not None else max(1.0, 20.0 / (t[-1] - t[0]))
+        return np.log(f_lo), np.log(self.f_max_fraction / dt)
+
+    def fit(self, t, u, residual, train_mask, y_model=None):
+        dt = _dt(t)
+        u = np.asarray(u, float)
+        lf_lo, lf_hi = self._range(t)
+        lz_lo, lz_hi = np.log(self.zeta_min), np.log(self.zeta_max)
+        grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq)
+                for lz in np.linspace(lz_lo, lz_hi, 6)]
+        theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), np.exp(th[1]), dt),
+                              np.asarray(residual, float), np.asarray(train_mask, bool),
+                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi])
+        return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
+                "zeta": float(np.exp(theta[1]))}
+
+    def term(self, t, u, params, y_model=None):
+        return params["gain"] * self._column(np.asarray(u, float), params["f_n_hz"],
+                                             params["zeta"], _dt(t))
+
+
+def default_effects():
+    """One instance of every implemented effect, default settings."""
+    return [Drift(), Delay(), Creep(), DielectricAbsorption(), Leakage(), Resonance()]
+
+
+def _errors(e):
+    return {"rms": rms(e), "max": float(np.max(np.abs(e))) if e.size else float("nan")}
+
+
+def choose_effect(t, u, y_meas, y_model, channel=None, effects=None, train_mask=None,
+                  noise_rms=None, penalty=0.02, improvement=0.05, report=None,
+                  signatures=False):
+    """Pick the effect that best explains the residual ``y_meas - y_model`` of one channel.
+
+    Every effect that applies to ``channel`` (all of :func:`default_effects` when ``effects``
+    is None) is fitted on the rows where ``train_mask`` is True and scored on the others
+    (held out) by ``score = rms_after (1 + penalty n_params)``. The answer is ``"none"`` when
+
+    * the residual is white and independent of the input (:func:`analyze_residual`) and, when
+      ``noise_rms`` is given, its RMS is within 1.2 ``noise_rms``; or
+    * the best score does not beat the held-out RMS before by more than ``improvement``
+      (5 %): ``score > (1 - improvement) rms_before``.
+
+    ``train_mask`` defaults to the first 70 % of the samples. Returns a dict with ``effect``
+    (name or ``"none"``), ``error_before`` and ``error_after`` (``{rms, max}`` on the held-out
+    rows; equal for ``"none"``), ``parameters`` (of the chosen effect, ``{}`` for ``"none"``),
+    ``candidates`` (``{name, score, error_after, signature}`` per effect, best first),
+    ``report`` (the :class:`ResidualReport`) and ``reason``. ``signature`` is each effect's
+    :meth:`Effect.signature` when ``signatures`` is True (it refits on the whole record, so it
+    doubles the cost), else None. A ``report`` from :func:`analyze_residual` may be passed to
+    avoid recomputing it.
+    """
+    t = np.asarray(t, float)
+    u = np.asarray(u, float)
+    y = np.asarray(y_meas, float)
+    yhat = np.asarray(y_model, float)
+    if not (t.shape == u.shape == y.shape == yhat.shape) or t.ndim != 1:
+        raise ValueError("t, u, y_meas and y_model must be 1-D arrays of one length")
+    n = t.size
+    if train_mask is None:
+        train_mask = np.arange(n) < int(0.7 * n)
+    train = np.asarray(train_mask, bool)
+    if train.shape != t.shape or not train.any() or train.all():
+        raise ValueError("train_mask must be a boolean array of the record's length with both "
+                         "training (True) and held-out (False) rows")
+    test = ~train
+    e = y - yhat
+    if report is None:
+        report = analyze_residual(t, u, y, yhat)
+    before = _errors(e[test])
+    effects = default_effects() if effects is None else list(effects)
+    candidates, fitted = [], {}
+    for eff in effects:
+        if not eff.applies_to(channel):
+            continue
+        try:
+            p = eff.fit(t, u, e, train, y_model=yhat)
+            after = _errors((e - eff.term(t, u, p, y_model=yhat))[test])
+        except ValueError:
+            continue
+        sig = eff.signature(report, t, u, e, y_model=yhat) if signatures else None
+        candidates.append({"name": eff.name, "score": after["rms"] * (1 + penalty * eff.n_params),
+                           "error_after": after, "signature": sig})
+        fitted[eff.name] = (eff, p, after)
+    candidates.sort(key=lambda c: c["score"])
+    out = {"effect": "none", "error_before": before, "error_after": before, "parameters": {},
+           "candidates": candidates, "report": report}
+    noise_ok = noise_rms is None or report.rms <= 1.2 * float(noise_rms)
+    if report.white and report.independent and noise_ok:
+        out["reason"] = "residual white and independent of the input" + (
+            "" if noise_rms is None else ", RMS within 1.2 x noise_rms")
+        return out
+    if not candidates or candidates[0]["score"] > (1 - improvement) * before["rms"]:
+        out["reason"] = "no candidate reduces the held-out RMS enough"
+        return out
+    best = candidates[0]
+    eff, p, after = fitted[best["name"]]
+    out.update(effect=best["name"], error_after=after, parameters=p,
+               reason="lowest penalized held-out RMS")
+    return out
