@@ -73,10 +73,14 @@ class HanusController:
     output_limits_v: tuple
     rate_limits_v_per_s: tuple
 
-    def as_dict(self):
-        return {"method": "hanus", "output_rate_limit_v_per_s": list(self.rate_limits_v_per_s),
-                "output_limits_v": list(self.output_limits_v),
-                "a": self.a.tolist(), "b": self.b.ravel().tolist(), "c": self.c.ravel().tolist(), "d": self.d}
+    def as_dict(self, voltage_model=None):
+        """The ``anti_windup`` block of a controller JSON that ``workbench verify --form hanus`` runs;
+        ``voltage_model`` (alpha, h_up, h_down): the current-limit window to run it with."""
+        block = {"method": "hanus", "output_limits_v": list(self.output_limits_v),
+                 "a": self.a.tolist(), "b": self.b.ravel().tolist(), "c": self.c.ravel().tolist(), "d": self.d}
+        if voltage_model is not None:
+            block["voltage_model"] = {"alpha": voltage_model[0], "headroom_v": list(voltage_model[1:])}
+        return block
 
 
 def hanus(ctrl_d, output_limits_v, rate_limits):

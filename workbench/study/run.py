@@ -111,11 +111,12 @@ def run_study(study_path, out_dir, progress=None):
     grid = {key: tuple(float(v) for v in lsk[key]) for key in ("integral_ratios", "lead_ratios", "rolloff_ratios")
             if key in lsk}
     noise_v = demod_noise_sigma_v(g) * g.trim_scale          # one reading's noise, firmware V
+    model = current_limit_model(plant.pzt, dt)               # the exported current-limit window
     ls_spec = LoopShapeSpec(phase_margin_deg=spec.targets["phase_margin_deg"],
                             gain_margin_db=spec.targets["gain_margin_db"],
                             fc_range_hz=(lsk["fc_min_hz"], lsk["fc_max_hz"]), dt_s=dt, delay_samples=delay_samples,
                             max_noise_command_v=lsk.get("max_noise_command_v"), noise_reading_v=noise_v,
-                            voltage_alpha=current_limit_model(plant.pzt, dt)[0],
+                            voltage_alpha=model[0],
                             max_overshoot_percent=lsk.get("max_overshoot_percent"), **grid)
     # the overshoot limit is judged where a small step up runs: the ascending branch at mid-stroke
     c_asc = operating_point(plant.pzt, fam_spec["bias_v"], "ascending").capacitance_f
@@ -130,8 +131,7 @@ def run_study(study_path, out_dir, progress=None):
     summary["designs"]["loop_shape"] = {"params": ls.params, "crossover_hz": ls.crossover_hz,
                                         "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched,
                                         "noise_command_rms_v": noise_command_rms_v(
-                                            ls.controller_d, ub.nominal, noise_v, delay_samples,
-                                            current_limit_model(plant.pzt, dt)[0]),
+                                            ls.controller_d, ub.nominal, noise_v, delay_samples, model[0]),
                                         "noise_reading_v": noise_v, "step_overshoot_percent": overshoot,
                                         "step_settling_s": settling}
 
@@ -162,7 +162,6 @@ def run_study(study_path, out_dir, progress=None):
     # the current-limit window (anti-windup): firmware models the stack voltage (RC at the largest
     # capacitance) and never commands more than R I_max beyond it, so a large step slews in the
     # controller as in the stack while small and noisy moves pass
-    model = current_limit_model(plant.pzt, dt)
     fxp = quantize(gain, sos, dt, input_range_v=spec.export["input_range_v"], output_limits_v=lim, f_max_hz=f_max,
                    voltage_model=model)
     ctrl_q = control.ss(from_sos(*fxp.quantized_sos(), dt))

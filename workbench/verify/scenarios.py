@@ -177,14 +177,16 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
         # drift: the mean over the first and last tenth of the settled hold (noise averaged out)
         k = max(1, xs.size // 10)
         m.update(hold_s=hold_s, drift_m=float(np.mean(xs[-k:]) - np.mean(xs[:k])),
-                 noise_rms_m=float(np.std(xs[:k])), open_loop_creep_m=_open_loop_creep(plant, hold_s))
+                 noise_rms_m=float(np.std(xs[:k])))
         amp, freq = _oscillation(r.x_m[settled], dt * dec)
         m.update(oscillation_m=amp, oscillation_hz=freq)
         # a persistent oscillation of the settled loop, at full rate on the command (the describing
         # function predicts the PZT voltage's amplitude): one more second after the hold
         tail = cl.run(float(_to_volts(X_START_M, g)), periods=int(1.0 / dt))
         _command_oscillation(m, tail.u_v, dt)
-        extra = {"ref_m": np.full(r.x_m.size, X_START_M), "open_loop_creep": _open_loop_creep_trace(plant, hold_s)}
+        creep = _open_loop_creep_trace(plant, hold_s)
+        m.update(open_loop_creep_m=float(creep[1, -1]))      # from 1 s to the end of the hold, as the trace
+        extra = {"ref_m": np.full(r.x_m.size, X_START_M), "open_loop_creep": creep}
     elif name == "force_step":
         n = int(0.2 / dt)
         force = np.concatenate([np.zeros(n // 4), np.full(n - n // 4, -100.0)])   # 100 N compression
@@ -281,9 +283,3 @@ def _open_loop_creep_trace(plant, hold_s):
     return np.vstack([t, tr.x_m - tr.x_m[min(9, tr.x_m.size - 1)]])
 
 
-def _open_loop_creep(plant, hold_s):
-    """Open-loop creep over the hold at the voltage that gives the start point (for comparison)."""
-    sim = PZTSimulator(plant.pzt, 1e-2)
-    v = 50.0
-    tr = sim.run(np.full(int(min(hold_s, 1000.0) / 1e-2), v), decimate=100)
-    return float(tr.x_m[-1] - tr.x_m[0])          # from 1 s (the first decimated sample) to the end
