@@ -7,7 +7,8 @@ import pytest
 from scipy import signal, stats
 
 from workbench.calibrate.record import Record
-from workbench.calibrate.residual import analyze_record, analyze_residual, charge_from_current
+from workbench.calibrate.residual import (_covariance_set, _covariances, _welch, analyze_record,
+                                          analyze_residual, charge_from_current)
 
 FS = 1000.0
 
@@ -72,6 +73,22 @@ def test_cross_bound_widens_for_coloured_residual_and_input():
         assert not rep.white
     assert np.median(ratios) == pytest.approx(np.sqrt(factor), rel=0.2)
     assert outside / (20 * (2 * m + 1)) <= 0.12
+
+
+@pytest.mark.parametrize("n, max_lag", [(110, 50), (4099, 1), (20000, 200)])
+def test_fft_covariances_equal_the_direct_sums(n, max_lag):
+    # coloured, offset, differently scaled signals: the FFT route must give the direct sums
+    g = np.random.default_rng(n)
+    e = 3e-7 + 1e-8 * _ar1(g, n, 0.7)
+    u = 40.0 + 10.0 * _ar1(g, n, 0.95)
+    r_e, r_u, r_eu = _covariance_set(e, u, max_lag)
+    direct = (_covariances(e, e, max_lag)[max_lag:], _covariances(u, u, max_lag)[max_lag:],
+              _covariances(e, u, max_lag))
+    scales = (r_e[0], r_u[0], np.sqrt(r_e[0] * r_u[0]))
+    for fast, slow, scale in zip((r_e, r_u, r_eu), direct, scales):
+        assert fast.shape == slow.shape
+        np.testing.assert_allclose(fast, slow, rtol=1e-10, atol=1e-10 * scale)
+    assert r_e[0] == direct[0][0] and r_u[0] == direct[1][0]      # zero lags: the same sums
 
 
 # --- 2. coloured residual ----------------------------------------------------------------------
@@ -153,6 +170,15 @@ def test_psd_of_white_noise_and_of_a_sine(rng):
     assert rep.freq_hz[np.argmax(rep.psd)] == pytest.approx(f0, abs=FS / 256)
     # Parseval: integral of the density is the variance (1/2 for a unit sine)
     assert np.sum(rep.psd) * (rep.freq_hz[1] - rep.freq_hz[0]) == pytest.approx(0.5, rel=0.02)
+
+
+@pytest.mark.parametrize("n, nperseg", [(2, 2), (300, 256), (1001, 255), (5000, 64)])
+def test_batched_welch_equals_scipy(n, nperseg):
+    x = 2e-6 + 1e-7 * np.random.default_rng(n).standard_normal(n)
+    f_ref, p_ref = signal.welch(x, fs=FS, nperseg=nperseg, detrend="constant", scaling="density")
+    f, p = _welch(x, FS, nperseg)
+    np.testing.assert_array_equal(f, f_ref)
+    np.testing.assert_allclose(p, p_ref, rtol=1e-10, atol=1e-12 * np.max(p_ref))
 
 
 # --- 5. drift in holds ------------------------------------------------------------------------

@@ -18,6 +18,8 @@ Definitions, and why
   positive lag means the input leads the residual: a residual containing ``u(t - 3)`` peaks at
   tau = +3 (unmodelled dynamics or a wrong delay); peaks at tau < 0 (future inputs) point to
   feedback from the output to the input.
+  Computed by zero-padded FFT (O(N log N); the zero lags as direct sums); the same numbers as
+  the direct sums to round-off.
 * **Whiteness band**: for a white residual ``sqrt(N) R_e(k) / R_e(0)`` is asymptotically N(0, 1)
   for k != 0, so ``autocorr_bound = z / sqrt(N)`` with ``z = Phi^-1((1 + confidence) / 2)``
   (2.58 at 99 %, per lag, two-sided).
@@ -40,8 +42,8 @@ Definitions, and why
   uses lags 1 .. max_lag, independence all lags -max_lag .. max_lag. A residual (or input)
   that is constant (up to round-off, 1e-12 of its largest magnitude) has zero correlations
   (``autocorr[0]`` stays 1) and passes.
-* **Spectrum**: Welch (``scipy.signal.welch``), Hann segments of ``min(256, N)`` samples, mean
-  removed per segment, one-sided density in unit^2/Hz.
+* **Spectrum**: Welch (``scipy.signal.welch``'s estimate, computed in one batch), Hann segments
+  of ``min(256, N)`` samples, mean removed per segment, one-sided density in unit^2/Hz.
 * **Holds**: maximal runs of samples whose input spread ``max(u) - min(u)`` stays within
   ``hold_tol`` (so every sample lies within ``hold_tol`` of the hold's mean, ``input_value``),
   found left to right, kept when ``t_end_s - t_start_s >= hold_min_s`` (and >= 2 samples).
@@ -58,7 +60,8 @@ spectrum needs one sampling rate.
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, stats
+from numba import njit
+from scipy import fft, signal, stats
 from scipy.integrate import cumulative_trapezoid
 
 __all__ = ["ResidualReport", "analyze_residual", "analyze_record", "charge_from_current",
@@ -186,7 +189,11 @@ def fit_percent(y_meas, y_model):
 
 
 def _covariances(a, b, max_lag):
-    """Biased cross-covariances ``1/N sum_t a(t) b(t - k)`` for k = -max_lag .. max_lag (means removed)."""
+    """Biased cross-covariances ``1/N sum_t a(t) b(t - k)``, k = -max_lag .. max_lag, means removed.
+
+    The direct sums, one dot product of record length per lag: the reference that
+    :func:`_covariance_set` (FFT) is tested against.
+    """
     a = a - a.mean()
     b = b - b.mean()
     n = a.size
@@ -194,6 +201,55 @@ def _covariances(a, b, max_lag):
     for j, k in enumerate(range(-max_lag, max_lag + 1)):
         out[j] = (a[k:] @ b[: n - k] if k >= 0 else a[: n + k] @ b[-k:]) / n
     return out
+
+
+def _covariance_set(e, u, max_lag):
+    """``R_e(k)``, ``R_u(k)`` for k = 0 .. max_lag and ``R_eu(tau)`` for tau = -max_lag .. max_lag.
+
+    Same definitions as :func:`_covariances` (means removed, biased, divided by N), computed
+    from two zero-padded real FFTs: with ``nfft >= N + max_lag`` the circular correlation
+    ``irfft(A conj(B))`` holds ``sum_t a(t) b(t - k)`` at index k for k >= 0 and at
+    ``nfft + k`` for k < 0, with no wrap-around for ``|k| <= max_lag``. O(N log N) instead of
+    the direct sums' O(N max_lag). The zero-lag autocovariances are the direct sums
+    ``a @ a / N`` (exactly as before, so the constant-signal test and ``autocorr[0]`` do not
+    see FFT round-off); the other lags agree with the direct sums to round-off (~1e-15 of
+    ``sqrt(R_a(0) R_b(0))``).
+    """
+    e = e - e.mean()
+    u = u - u.mean()
+    n = e.size
+    nfft = fft.next_fast_len(n + max_lag, real=True)
+    fe = fft.rfft(e, nfft)
+    fu = fft.rfft(u, nfft)
+    r_e = fft.irfft(fe * fe.conj(), nfft)[: max_lag + 1] / n
+    r_u = fft.irfft(fu * fu.conj(), nfft)[: max_lag + 1] / n
+    c = fft.irfft(fe * fu.conj(), nfft)
+    r_eu = np.r_[c[nfft - max_lag:], c[: max_lag + 1]] / n
+    r_e[0] = (e @ e) / n
+    r_u[0] = (u @ u) / n
+    return r_e, r_u, r_eu
+
+
+def _welch(x, fs, nperseg):
+    """``scipy.signal.welch(x, fs=fs, nperseg=nperseg, detrend="constant", scaling="density")``.
+
+    The same estimate (periodic Hann window, 50 % overlap, trailing samples that fill no
+    segment dropped, mean removed per segment, one-sided density, segments averaged), with the
+    segments transformed in one batch: recent scipy runs ``welch`` through ``ShortTimeFFT``,
+    which detrends and transforms segment by segment in Python (~2,700 calls for 350,000
+    samples, most of this function's time). Agrees with scipy to round-off (tested).
+    """
+    step = nperseg - nperseg // 2
+    win = signal.get_window("hann", nperseg)
+    segs = np.lib.stride_tricks.sliding_window_view(x, nperseg)[::step]
+    segs = segs - segs.mean(axis=1, keepdims=True)
+    spec = np.abs(fft.rfft(segs * win, axis=1)) ** 2
+    psd = spec.mean(axis=0) / (fs * float(win @ win))
+    if nperseg % 2:
+        psd[1:] *= 2.0
+    else:
+        psd[1:-1] *= 2.0
+    return fft.rfftfreq(nperseg, 1.0 / fs), psd
 
 
 def _passes(r, bound, confidence):
@@ -207,35 +263,54 @@ def _passes(r, bound, confidence):
     return bool(outside <= allowed and np.max(np.abs(r)) <= bound * z_family / z)
 
 
-def _holds(t, u, e, tol, min_s):
-    """Constant-input segments (spread <= tol, duration >= min_s) and the residual's drift in each."""
-    out = []
+def _hold_spans(t, u, tol, min_s):
+    """Index spans ``(i, j)`` (samples i .. j-1) of the holds of the module notes.
+
+    Maximal runs of spread ``max(u) - min(u) <= tol``, grown left to right (a new run starts at
+    the sample that broke the previous one), kept when ``t[j-1] - t[i] >= min_s`` and
+    ``j - i >= 2``. Returns an int array of shape (n_holds, 2).
+    """
     # A hold lies inside a run of consecutive steps |du| <= tol; runs too short are skipped at
-    # once, so a moving or noisy input costs no Python loop per sample.
+    # once in numpy; the greedy growth inside the remaining runs is one compiled pass, O(1) per
+    # sample (a slowly moving input otherwise costs a Python iteration every few samples).
     still = np.abs(np.diff(u)) <= tol
     edges = np.flatnonzero(np.diff(np.r_[0, still.astype(np.int8), 0]))
-    for a, b in zip(edges[::2], edges[1::2] + 1):           # samples a .. b-1 of one run
-        if t[b - 1] - t[a] < min_s:
-            continue
-        i = a
+    a, b = edges[::2], edges[1::2] + 1                       # samples a .. b-1 of one run
+    keep = t[b - 1] - t[a] >= min_s
+    if not np.any(keep):
+        return np.empty((0, 2), dtype=np.int64)
+    return _greedy_spans(t, u, a[keep].astype(np.int64), b[keep].astype(np.int64),
+                         float(tol), float(min_s))
+
+
+@njit(cache=True)
+def _greedy_spans(t, u, starts, stops, tol, min_s):
+    """The left-to-right growth of :func:`_hold_spans` inside runs ``starts[r] .. stops[r]-1``."""
+    out = np.empty((t.size // 2 + 1, 2), dtype=np.int64)
+    m = 0
+    for r in range(starts.size):
+        i, b = starts[r], stops[r]
         while i < b - 1:
-            # grow [i, j) while max - min <= tol, in doubling chunks: O(1) per sample
-            j, chunk, lo, hi = i + 1, 64, u[i], u[i]
+            lo = u[i]
+            hi = u[i]
+            j = i + 1
             while j < b:
-                seg = u[j: min(j + chunk, b)]
-                hi_run = np.maximum(np.maximum.accumulate(seg), hi)
-                lo_run = np.minimum(np.minimum.accumulate(seg), lo)
-                over = np.flatnonzero(hi_run - lo_run > tol)
-                if over.size:
-                    j += int(over[0])
+                hi = max(hi, u[j])
+                lo = min(lo, u[j])
+                if hi - lo > tol:
                     break
-                j += seg.size
-                hi, lo = hi_run[-1], lo_run[-1]
-                chunk *= 2
+                j += 1
             if j - i >= 2 and t[j - 1] - t[i] >= min_s:
-                out.append(_drift(t[i:j], u[i:j], e[i:j]))
+                out[m, 0] = i
+                out[m, 1] = j
+                m += 1
             i = j
-    return out
+    return out[:m].copy()
+
+
+def _holds(t, u, e, tol, min_s):
+    """Constant-input segments (spread <= tol, duration >= min_s) and the residual's drift in each."""
+    return [_drift(t[i:j], u[i:j], e[i:j]) for i, j in _hold_spans(t, u, tol, min_s)]
 
 
 def _drift(t, u, e):
@@ -296,9 +371,8 @@ def analyze_residual(t_s, u, y_meas, y_model, max_lag=50, confidence=0.99, hold_
     z = float(stats.norm.ppf(0.5 + confidence / 2.0))
     white_bound = z / np.sqrt(n)
 
-    r_e = _covariances(e, e, max_lag)[max_lag:]            # k = 0 .. max_lag
-    r_u = _covariances(u, u, max_lag)[max_lag:]
-    r_eu = _covariances(e, u, max_lag)                      # tau = -max_lag .. max_lag
+    # k = 0 .. max_lag for r_e, r_u; tau = -max_lag .. max_lag for r_eu (FFT, see _covariance_set)
+    r_e, r_u, r_eu = _covariance_set(e, u, max_lag)
     # a signal constant up to round-off (e.g. a constant model error) has no correlation structure
     e_varies = np.sqrt(r_e[0]) > 1e-12 * np.max(np.abs(e))
     u_varies = np.sqrt(r_u[0]) > 1e-12 * np.max(np.abs(u))
@@ -322,8 +396,7 @@ def analyze_residual(t_s, u, y_meas, y_model, max_lag=50, confidence=0.99, hold_
     cross_bound = white_bound * np.sqrt(p1)
 
     fs = (n - 1) / (t[-1] - t[0])
-    freq, psd = signal.welch(e, fs=fs, nperseg=min(nperseg, n), detrend="constant",
-                             scaling="density")
+    freq, psd = _welch(e, fs, min(nperseg, n))
     tol = 1e-3 * float(np.ptp(u)) if hold_tol is None else float(hold_tol)
     holds = _holds(t, u, e, tol, float(hold_min_s))
 
