@@ -373,6 +373,9 @@ def build_parser():
     p.add_argument("--json", type=Path, help="write the summary as JSON here")
     p.set_defaults(func=cmd_sweep)
 
+    from .selfsense.command import add_parser as add_selfsense
+    add_selfsense(sub)
+
     p = sub.add_parser("demo", help="the default job: seed reproductions with figures",
                        description="Gauge gains, T_em from Table 1, the free-free test on the three "
                                    "serials, creep, and the gauge chain's sampled behaviour, with figures.")

@@ -1,0 +1,107 @@
+"""`workbench selfsense PLANT.toml --json OUT --out DIR`: the staged self-sensing study.
+
+Wiring into :mod:`workbench.cli`: ``from .selfsense.command import add_parser`` and call
+``add_parser(sub)`` next to the other sub-commands; ``main`` then runs ``args.func(args)``
+and turns a :class:`~workbench.errors.WorkbenchError` (or ValueError) into exit status 2.
+"""
+
+import argparse
+from pathlib import Path
+
+from ..errors import DataFileError, WorkbenchError
+from ..units import parse_quantity
+
+__all__ = ["add_parser", "run", "main"]
+
+
+def _quantity(expected):
+    def parse(text):
+        try:
+            return parse_quantity(text, expected)
+        except WorkbenchError as err:
+            raise argparse.ArgumentTypeError(str(err)) from err
+    parse.__name__ = f"quantity in {expected}"
+    return parse
+
+
+def add_parser(sub):
+    """Register `selfsense` on an argparse sub-parsers object."""
+    from .run import DEFAULT_CONTROLLER
+    p = sub.add_parser("selfsense", help="displacement from the stack's own charge (seed 002), staged errors",
+                       description="Self-sensing as seed 002 builds it, for a stack: a charge amplifier "
+                                   "(integrator, reference capacitor, bias current, leakage resistance, "
+                                   "dielectric absorption) on the PZT model; i_bias, R_FP, alpha, the "
+                                   "absorption and a stage-4 creep/PI operator identified on a separate "
+                                   "simulated record; the estimate's peak-to-peak and RMS error at each "
+                                   "stage on a staircase record, its noise beside the gauge chain's, and "
+                                   "the committed controller's margins with the dynamic estimator in place "
+                                   "of the gauge.")
+    p.add_argument("plant", type=Path, help="plant file, e.g. plants/p888_51_sn637_creep.toml")
+    p.add_argument("--duration", type=_quantity("s"), default=1000.0,
+                   help="evaluation staircase length (default 1000s, at least 100s)")
+    p.add_argument("--controller", type=Path, default=DEFAULT_CONTROLLER,
+                   help="controller JSON for the loop analysis (default controllers/sn637_loopshape.json)")
+    p.add_argument("--no-loop", action="store_true", help="skip the loop analysis")
+    p.add_argument("--seed", type=int, default=2, help="noise and staircase seed (default 2)")
+    p.add_argument("--out", type=Path, help="folder for the stage figures, noise.png, loop.png, report.md")
+    p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.set_defaults(func=run)
+    return p
+
+
+def _emit(args, data, lines):
+    from ..report import write_json
+    for line in lines:
+        print(line)
+    if getattr(args, "json", None):
+        write_json(args.json, data)
+        print(f"wrote {args.json}")
+
+
+def run(args):
+    """Run the study for parsed ``args`` and print/write the results."""
+    from .run import run_selfsense
+    if not Path(args.plant).is_file():
+        raise DataFileError(f"{args.plant}: no such plant file; give one of plants/*.toml, "
+                            f"e.g. plants/p888_51_sn637_creep.toml")
+    if args.out is not None and Path(args.out).exists() and not Path(args.out).is_dir():
+        raise DataFileError(f"--out {args.out}: exists and is not a folder; give a folder path")
+    data = run_selfsense(args.plant, duration_s=args.duration, out_dir=args.out, seed=args.seed,
+                         controller_path=args.controller, loop=not args.no_loop)
+    stroke = data["stroke_m"]
+    lines = [f"{args.plant}: self-sensing over a {data['duration_s']:.0f} s staircase, stroke {stroke * 1e6:.2f} um"]
+    for s in data["stages"]:
+        lines.append(f"  {s['title']}: {s['error_pp_m'] * 1e9:.1f} nm p-p ({s['error_pp_percent_stroke']:.2f} % "
+                     f"of stroke), {s['error_rms_m'] * 1e9:.1f} nm RMS")
+    g, n = data["gauge_on_same_record"], data["noise_per_10khz_sample"]
+    lines.append(f"  gauge chain on the same record: {g['error_pp_m'] * 1e9:.1f} nm p-p, {g['error_rms_m'] * 1e9:.1f} nm RMS")
+    lines.append(f"  noise per 10 kHz sample: self-sensed {n['self_sensed_rms_m'] * 1e9:.2f} nm RMS, "
+                 f"gauge {n['gauge_rms_m'] * 1e9:.1f} nm RMS")
+    if "loop" in data:
+        mg, ms = data["loop"]["margins_gauge"], data["loop"]["margins_self_sensed"]
+        lines.append(f"  loop: gauge PM {mg['phase_margin_deg']:.1f} deg GM {mg['gain_margin_db']:.1f} dB; "
+                     f"self-sensed PM {ms['phase_margin_deg']:.1f} deg GM {ms['gain_margin_db']:.1f} dB")
+    lines.append(f"  target (last stage <= 1 % of stroke p-p): {'met' if data['target_met'] else 'MISSED'}")
+    if args.out is not None:
+        lines.append(f"  report {Path(args.out) / 'report.md'}")
+    _emit(args, data, lines)
+
+
+def main(argv=None):
+    """Stand-alone entry (`python -m workbench.selfsense.command ...`) with the CLI's error convention:
+    a user error prints one message on stderr and returns 2."""
+    import sys
+    parser = argparse.ArgumentParser(prog="workbench")
+    sub = parser.add_subparsers(dest="command", required=True)
+    add_parser(sub)
+    args = parser.parse_args(["selfsense", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        args.func(args)
+    except (WorkbenchError, ValueError) as err:
+        print(f"workbench selfsense: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
