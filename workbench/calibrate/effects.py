@@ -81,7 +81,8 @@ from scipy.optimize import least_squares
 from .pi_fit import rms
 from .residual import analyze_residual
 
-__all__ = ["Effect", "Drift", "Delay", "Creep", "DielectricAbsorption", "Leakage", "Resonance",
+__all__ = ["Effect", "Drift", "Delay", "Creep", "CreepSpectrum", "DielectricAbsorption", "Leakage", "Resonance",
+           "GaugeNonlinearity",
            "default_effects", "choose_effect", "lowpass"]
 
 CHARGE = ("charge_c",)
@@ -115,6 +116,14 @@ def _lstsq(X, y):
     return beta, y - np.einsum("ij,j->i", X, beta)
 
 
+def _rows(X, mask, project=None):
+    """Training rows of ``X`` (a vector or columns), minus their projection on the base model's
+    columns when ``project`` is given: the effect is then fitted jointly with the base model
+    (variable projection), so what the base model could absorb is not credited to the effect."""
+    X = np.asarray(X, dtype=float)[mask]
+    return X if project is None else project(X)
+
+
 def _r2(residual, explained):
     """Fraction of the residual's variance (about zero) removed by subtracting ``explained``."""
     e = np.asarray(residual, dtype=float)
@@ -125,15 +134,15 @@ def _r2(residual, explained):
     return float(np.clip(1.0 - np.sum(r * r) / den, 0.0, 1.0))
 
 
-def _varpro(columns, e, mask, grid, lower, upper):
+def _varpro(columns, e, mask, grid, lower, upper, project=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
     """
-    y = e[mask]
+    y = _rows(e, mask, project)
 
     def res(theta):
-        X = np.atleast_2d(columns(theta).T).T[mask]
+        X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
         return _lstsq(X, y)[1]
 
     costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
@@ -142,7 +151,7 @@ def _varpro(columns, e, mask, grid, lower, upper):
     x0 = np.clip(best, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
     sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60)
     theta = sol.x if 2 * sol.cost <= min(costs) else best
-    beta, _ = _lstsq(np.atleast_2d(columns(theta).T).T[mask], y)
+    beta, _ = _lstsq(_rows(np.atleast_2d(columns(theta).T).T, mask, project), y)
     return theta, beta
 
 
@@ -156,7 +165,7 @@ class Effect:
     def applies_to(self, channel):
         return self.channels is None or channel is None or channel in self.channels
 
-    def fit(self, t, u, residual, train_mask, y_model=None):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         raise NotImplementedError
 
     def term(self, t, u, params, y_model=None):
@@ -194,9 +203,15 @@ class Drift(Effect):
         s = (t - t[0]) / (t[-1] - t[0])
         return np.vander(s, self.degree + 1, increasing=True)
 
-    def fit(self, t, u, residual, train_mask, y_model=None):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         mask = np.asarray(train_mask, bool)
-        beta, _ = _lstsq(self._X(t)[mask], np.asarray(residual, float)[mask])
+        X = self._X(t)
+        if project is not None:
+            # the base model has its own offset: the constant column projects to zero
+            X = X[:, 1:]
+        beta, _ = _lstsq(_rows(X, mask, project), _rows(residual, mask, project))
+        if project is not None:
+            beta = np.r_[0.0, beta]
         return {"coefficients": beta, "t0_s": float(t[0]), "t_end_s": float(t[-1])}
 
     def term(self, t, u, params, y_model=None):
@@ -223,17 +238,17 @@ class Delay(Effect):
         y = np.asarray(y_model, dtype=float)
         return np.interp(t - d * _dt(t), t, y) - y
 
-    def fit(self, t, u, residual, train_mask, y_model=None):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
         mask = np.asarray(train_mask, bool)
         e = np.asarray(residual, float)
         grid = np.arange(-self.max_delay, self.max_delay + 0.25, 0.5)
         grid = grid[grid != 0]
-        costs = [np.sum((e - self._shifted(t, y_model, d))[mask] ** 2) for d in grid]
+        costs = [np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2) for d in grid]
         d0 = float(grid[int(np.argmin(costs))])
         lo, hi = max(-self.max_delay, d0 - 0.5), min(self.max_delay, d0 + 0.5)
-        sol = least_squares(lambda x: (e - self._shifted(t, y_model, x[0]))[mask],
+        sol = least_squares(lambda x: _rows(e - self._shifted(t, y_model, x[0]), mask, project),
                             [d0], bounds=([lo], [hi]), max_nfev=40)
         d = float(sol.x[0]) if 2 * sol.cost <= min(costs) else d0
         return {"delay_samples": d, "delay_s": d * _dt(t)}
@@ -260,7 +275,7 @@ class _Relaxation(Effect):
     def _column(self, u, tau, dt):
         raise NotImplementedError
 
-    def fit(self, t, u, residual, train_mask, y_model=None):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         dt = _dt(t)
         u = np.asarray(u, float)
         lo = np.log(self.tau_min_samples * dt)
@@ -268,7 +283,7 @@ class _Relaxation(Effect):
         grid = [[g] for g in np.linspace(lo, hi, self.n_grid)]
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
-                              grid, [lo], [hi])
+                              grid, [lo], [hi], project)
         return {"gain": float(beta[0]), "tau_s": float(np.exp(theta[0]))}
 
     def term(self, t, u, params, y_model=None):
@@ -302,6 +317,95 @@ class Creep(_Relaxation):
         return 0.5 + 0.5 * (c if np.isfinite(c) else 0.0)
 
 
+class CreepSpectrum(Effect):
+    """Creep as a spectrum of relaxations: ``sum_j c_j (lowpass_tau_j(u) - u)``, ``c_j >= 0``.
+
+    One branch per ``taus_s`` entry (default: half a decade apart from 10 samples to a third of
+    the record), the gains by non-negative least squares: the discrete form of the Kelvin-Voigt
+    branches of ``workbench.plant.creep``, whose sum approximates seed 001's logarithmic law over
+    the decades covered. ``c_j >= 0`` because creep continues in the direction of the step;
+    this sign constraint is what keeps the spectrum from fitting arbitrary slow residuals.
+    Same name as :class:`Creep` (it is the same effect); ``n_params`` counts the branches that
+    came out non-zero.
+    """
+
+    name = "creep"
+    channels = MECHANICAL + CHARGE
+    n_params = 2
+
+    def __init__(self, taus_s=None, per_decade=2):
+        self.taus_s = None if taus_s is None else np.asarray(taus_s, float)
+        self.per_decade = int(per_decade)
+
+    def _taus(self, t):
+        if self.taus_s is not None:
+            return self.taus_s
+        dt = _dt(t)
+        lo, hi = np.log10(10 * dt), np.log10(max((t[-1] - t[0]) / 3.0, 100 * dt))
+        return 10.0 ** np.arange(lo, hi + 1e-9, 1.0 / self.per_decade)
+
+    @staticmethod
+    def _columns(u, taus, dt):
+        return np.column_stack([lowpass(u, tau, dt) - u for tau in taus])
+
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
+        from scipy.optimize import nnls
+        taus = self._taus(np.asarray(t, float))
+        mask = np.asarray(train_mask, bool)
+        X = _rows(self._columns(np.asarray(u, float), taus, _dt(t)), mask, project)
+        scale = np.sqrt(np.mean(X * X, axis=0))
+        scale[scale == 0] = 1.0
+        gains, _ = nnls(X / scale, _rows(residual, mask, project))
+        gains = gains / scale
+        self.n_params = max(1, int(np.count_nonzero(gains)))
+        return {"gains": gains.tolist(), "taus_s": taus.tolist()}
+
+    def term(self, t, u, params, y_model=None):
+        X = self._columns(np.asarray(u, float), np.asarray(params["taus_s"], float), _dt(t))
+        return X @ np.asarray(params["gains"], float)
+
+
+class GaugeNonlinearity(Effect):
+    """The bridge's bow, seed 000 eq. 27, against a linear gauge gain.
+
+    For the gauge channel modelled as ``a + b x`` from the recorded displacement ``x`` (passed
+    as ``u``), eq. 27 reads ``V = G d / (1 + beta d)`` about a reference ``d = x - x_ref``; to
+    first order in ``beta d`` the residual from the line is ``c0 + c1 d + c2 d^2`` with
+    ``c2 = -G beta``. The fit solves the three gains (the line is refitted with the bow, so
+    only ``beta`` is new: one parameter) and reports ``coefficient_per_m = -c2 / b`` with ``b``
+    the base model's slope (from ``y_model``; 1 when it is not given).
+    """
+
+    name = "gauge_nonlinearity"
+    n_params = 1
+    channels = ("gauge_v",)
+
+    @staticmethod
+    def _columns(u, x_ref):
+        d = np.asarray(u, float) - x_ref
+        return np.column_stack([np.ones_like(d), d, d * d])
+
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
+        u = np.asarray(u, float)
+        mask = np.asarray(train_mask, bool)
+        x_ref = float(np.mean(u[mask]))
+        X = self._columns(u, x_ref)
+        if project is None:
+            beta, _ = _lstsq(X[mask], np.asarray(residual, float)[mask])
+        else:
+            # fitted jointly with the base line a + b x: only the bow is new
+            c2, _ = _lstsq(_rows(X[:, 2:], mask, project), _rows(residual, mask, project))
+            beta = np.r_[0.0, 0.0, c2]
+        slope = 1.0
+        if y_model is not None:
+            slope = float(np.polyfit(u[mask], np.asarray(y_model, float)[mask], 1)[0]) or 1.0
+        return {"c0": float(beta[0]), "c1": float(beta[1]), "c2": float(beta[2]), "x_ref": x_ref,
+                "coefficient_per_m": float(-beta[2] / (slope + beta[1]))}
+
+    def term(self, t, u, params, y_model=None):
+        return self._columns(u, params["x_ref"]) @ np.array([params["c0"], params["c1"], params["c2"]])
+
+
 class DielectricAbsorption(_Relaxation):
     """Dielectric absorption, seed 002 eq. 2.9: ``k lowpass_tau(u)``, charge channel."""
 
@@ -323,9 +427,9 @@ class Leakage(Effect):
     def _column(t, u):
         return cumulative_trapezoid(np.asarray(u, float), np.asarray(t, float), initial=0.0)
 
-    def fit(self, t, u, residual, train_mask, y_model=None):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         mask = np.asarray(train_mask, bool)
-        beta, _ = _lstsq(self._column(t, u)[mask], np.asarray(residual, float)[mask])
+        beta, _ = _lstsq(_rows(self._column(t, u), mask, project), _rows(residual, mask, project))
         return {"gain_per_s": float(beta[0])}
 
     def term(self, t, u, params, y_model=None):
@@ -371,7 +475,7 @@ class Resonance(Effect):
         f_lo = self.f_min_hz if self.f_min_hz is not None else max(1.0, 20.0 / (t[-1] - t[0]))
         return np.log(f_lo), np.log(self.f_max_fraction / dt)
 
-    def fit(self, t, u, residual, train_mask, y_model=None):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         dt = _dt(t)
         u = np.asarray(u, float)
         lf_lo, lf_hi = self._range(t)
@@ -380,7 +484,7 @@ class Resonance(Effect):
                 for lz in np.linspace(lz_lo, lz_hi, 6)]
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), np.exp(th[1]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
-                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi])
+                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project)
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}
 

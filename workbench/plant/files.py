@@ -16,6 +16,7 @@ import numpy as np
 
 from ..errors import PlantDefinitionError
 from ..fields import Field as _Field, check_value
+from .additions import Additions
 from .creep import CreepParams
 from .gauge import GaugeParams
 from .hysteresis import PrandtlIshlinskii
@@ -62,6 +63,22 @@ _SCHEMA = {
         "time_constants_s": _Field("floats", 0.0, 1e7, lo_open=True, expect="positive, increasing time constants in s"),
         "capacitances_f": _Field("floats", 0.0, 1e-3, lo_open=True, expect="one positive capacitance in F per time constant"),
     },
+    "leakage": {
+        "resistance_ohm": _pos("the insulation resistance R_FP in ohm, e.g. 1e9", 1e18),
+    },
+    "dielectric_absorption": {
+        "gain_f": _pos("k_s, the absorbed charge per volt at equilibrium in F, e.g. 1e-6", 1e-2),
+        "time_constant_s": _pos("tau, the absorption time constant in s, e.g. 2.0", 1e7),
+    },
+    "displacement_sensor": {
+        "delay_s": _Field("float", 0.0, 10.0, expect="the sensor latency in s, >= 0 (0 = none)"),
+        "drift_rate_m_per_s": _Field("float", -1e-3, 1e-3, expect="the sensor drift rate in m/s (0 = none)"),
+        "drift_curvature_m_per_s2": _Field("float", -1e-3, 1e-3,
+                                           expect="the drift's quadratic coefficient in m/s^2 (0 = none)"),
+    },
+    "gauge_nonlinearity": {
+        "coefficient_per_m": _Field("float", -1e5, 1e5, expect="b of the bow x / (1 + b x) in 1/m, e.g. 2000"),
+    },
     "gauge": {
         "rest_length_m": _pos("L_rest in m, e.g. 0.018", 1.0),
         "rest_width_m": _pos("W_rest in m, e.g. 0.010", 1.0),
@@ -87,7 +104,7 @@ _SCHEMA = {
         "calibration_m_per_v": _pos("the serial's calibration in m/V, e.g. 3.077e-6", 1.0),
     },
 }
-_SECTIONS_OPTIONAL = {"creep"}
+_SECTIONS_OPTIONAL = {"creep", "leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity"}
 _TABLE_ARRAYS = {"mechanics": "modes"}
 
 
@@ -100,6 +117,7 @@ class Plant:
     pzt: PZTParams
     gauge: GaugeParams
     source: str = ""
+    additions: Additions = Additions()
 
     @property
     def creep(self):
@@ -167,7 +185,8 @@ def load_plant(path):
     if top["schema"] != SCHEMA_VERSION:
         raise PlantDefinitionError(path, "schema", f"got {top['schema']!r}; expected {SCHEMA_VERSION!r}")
     sections = {}
-    for name in ("electrical", "hysteresis", "mechanics", "gauge", "creep"):
+    for name in ("electrical", "hysteresis", "mechanics", "gauge", "creep", "leakage", "dielectric_absorption",
+                 "displacement_sensor", "gauge_nonlinearity"):
         if name not in doc:
             if name in _SECTIONS_OPTIONAL:
                 continue
@@ -238,7 +257,17 @@ def load_plant(path):
         gauge.check()
     except ValueError as err:
         raise PlantDefinitionError(path, "gauge", str(err)) from err
-    return Plant(name=top["name"], serial=top["serial"], pzt=pzt, gauge=gauge, source=str(path))
+    leak = sections.get("leakage", {})
+    da = sections.get("dielectric_absorption", {})
+    sens = sections.get("displacement_sensor", {})
+    additions = Additions(
+        leakage_resistance_ohm=leak.get("resistance_ohm"),
+        absorption_gain_f=da.get("gain_f"), absorption_time_constant_s=da.get("time_constant_s"),
+        sensor_delay_s=sens.get("delay_s", 0.0), sensor_drift_rate_m_per_s=sens.get("drift_rate_m_per_s", 0.0),
+        sensor_drift_curvature_m_per_s2=sens.get("drift_curvature_m_per_s2", 0.0),
+        gauge_nonlinearity_per_m=sections.get("gauge_nonlinearity", {}).get("coefficient_per_m", 0.0))
+    return Plant(name=top["name"], serial=top["serial"], pzt=pzt, gauge=gauge, source=str(path),
+                 additions=additions)
 
 
 def _raise(path, key, message):

@@ -1,0 +1,181 @@
+"""Synthetic records from the project's own simulator, with or without one added effect.
+
+:func:`simulate_record` runs the compiled PZT (``workbench.plant.simulator``) on a command,
+applies the plant file's additions (leakage, dielectric absorption, the displacement sensor's
+latency and drift, a bowed gauge; ``workbench.plant.additions``), reads the displacement
+through the strain-gauge chain (``gauge_run_equivalent``: bridge, x300, ADC, x2 demodulation,
+trim, DAC) and adds sensor noise. The columns are what a lab would log:
+
+* ``voltage`` -- the amplifier's OUTPUT as its monitor reads it, ``V_t + R i``: while the
+  amplifier is current-limited this lags the command;
+* ``current`` -- the terminal current (the core model's plus the leakage and absorption
+  currents);
+* ``displacement`` -- an external displacement sensor (capacitive or interferometric);
+* ``gauge`` -- the firmware's DAC output, V.
+
+:func:`plant_with_effect` draws one effect with randomized, physically plausible values into a
+copy of a plant: the test-bed for the calibration's effect tracing. The ranges are chosen so
+each effect stands above the sensors' noise on the calibration protocol; they are stated in
+``EFFECT_RANGES`` with why.
+"""
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..plant.additions import Additions, absorption_charge, delayed, drift, gauge_bow, leakage_charge
+from ..plant.creep import CreepParams
+from ..plant.gauge import gauge_run_equivalent
+from ..plant.pzt import Mode
+from ..plant.simulator import PZTSimulator
+from ..report.output import write_text
+
+__all__ = ["SensorNoise", "simulate_record", "write_record", "plant_with_effect", "EFFECTS", "EFFECT_RANGES"]
+
+EFFECTS = ("creep", "dielectric_absorption", "leakage", "resonance", "delay", "drift", "gauge_nonlinearity")
+
+# Randomized ranges (uniform unless noted) and why: each must be visible on a ~35 s protocol.
+EFFECT_RANGES = {
+    # one Kelvin-Voigt branch per decade 0.1-1000 s; 0.4-1.4 uF each gives gamma ~0.01-0.03 (seed 001)
+    "creep": {"branch_capacitance_f": (0.4e-6, 1.4e-6)},
+    # k_s 1-4 % of the ~30 uF large-signal capacitance, tau 0.5-5 s (seed 002 Fig. 2.13: seconds)
+    "dielectric_absorption": {"gain_f": (0.3e-6, 1.2e-6), "time_constant_s": (0.5, 5.0)},
+    # a degraded stack or a damp cable: 20-200 Mohm (a sound stack is ~TOhm, seed 002 Fig. 2.12)
+    "leakage": {"resistance_ohm": (2e7, 2e8)},
+    # a stack loaded by a mirror or stage: first mode 300-1500 Hz, 1-5 % damping
+    "resonance": {"freq_hz": (300.0, 1500.0), "damping_ratio": (0.01, 0.05)},
+    # sensor electronics / filter latency 0.3-2 ms
+    "delay": {"delay_s": (0.3e-3, 2e-3)},
+    # thermal drift of the displacement sensor: 100-400 nm over the record (sign random)
+    "drift": {"excursion_m": (100e-9, 400e-9)},
+    # a bow of 1.5-6 % of the stroke in the gauge (eq. 27's shape with a larger coefficient)
+    "gauge_nonlinearity": {"coefficient_per_m": (1.5e3, 5e3)},
+}
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """White noise RMS of each logged channel (the gauge's own noise is its chain's)."""
+
+    displacement_m: float = 1e-9       # capacitive or interferometric sensor at 10 kHz bandwidth
+    current_a: float = 0.5e-6          # current monitor
+    voltage_v: float = 2e-3            # amplifier monitor
+
+
+def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True):
+    """Simulate a record of ``plant`` driven by ``v_cmd`` sampled at ``t_s``.
+
+    Returns
+    -------
+    dict of ndarray
+        ``time_s``, ``voltage_v``, ``current_a``, ``displacement_m``, ``gauge_v`` (SI) and the
+        noise-free truths ``x_true_m`` (the stack) and ``v_t_v`` (terminal voltage).
+    """
+    t = np.asarray(t_s, float)
+    dt = float(np.mean(np.diff(t)))
+    sim = PZTSimulator(plant.pzt, dt, n_sub=n_sub)
+    tr = sim.run(np.asarray(v_cmd, float))
+    add = plant.additions
+    rng = np.random.default_rng(seed)
+    r = plant.pzt.series_resistance_ohm
+    q = tr.q_c.copy()
+    if add.leakage_resistance_ohm:
+        q += leakage_charge(t, tr.v_t_v, add.leakage_resistance_ohm)
+    if add.absorption_gain_f:
+        qa = absorption_charge(t, tr.v_t_v, add.absorption_gain_f, add.absorption_time_constant_s)
+        q += qa - qa[0]
+    # current as the per-sample mean (the charge difference over the step), the first from rest
+    i = np.diff(q, prepend=0.0) / dt
+    i[0] = tr.i_a[0]
+    v_mon = tr.v_t_v + r * i
+    x_sensor = tr.x_m
+    if add.sensor_delay_s:
+        x_sensor = delayed(t, x_sensor, add.sensor_delay_s)
+    x_sensor = x_sensor + drift(t, add.sensor_drift_rate_m_per_s, add.sensor_drift_curvature_m_per_s2)
+    out = {
+        "time_s": t,
+        "voltage_v": v_mon + noise.voltage_v * rng.standard_normal(t.size),
+        "current_a": i + noise.current_a * rng.standard_normal(t.size),
+        "displacement_m": x_sensor + noise.displacement_m * rng.standard_normal(t.size),
+        "x_true_m": tr.x_m,
+        "v_t_v": tr.v_t_v,
+    }
+    if gauge:
+        x_g = tr.x_m
+        if add.gauge_nonlinearity_per_m:
+            x_g = gauge_bow(x_g, add.gauge_nonlinearity_per_m, x_ref_m=0.0)
+        out["gauge_v"] = gauge_run_equivalent(x_g, plant.gauge, seed=int(rng.integers(2**31))).dac_v
+    return out
+
+
+_CSV_COLUMNS = (("time_s", "time[s]"), ("voltage_v", "voltage[V]"), ("current_a", "current[A]"),
+                ("displacement_m", "displacement[m]"), ("gauge_v", "gauge[V]"))
+
+
+def write_record(path, record, metadata=None):
+    """Write a simulated record as the calibration's CSV (written whole or not at all)."""
+    cols = [(k, h) for k, h in _CSV_COLUMNS if k in record]
+    lines = [f"# {k}: {v}" for k, v in (metadata or {}).items()]
+    lines.append(",".join(h for _, h in cols))
+    data = np.column_stack([record[k] for k, _ in cols])
+    body = "\n".join(",".join(f"{v:.10g}" for v in row) for row in data)
+    write_text(Path(path), "\n".join(lines) + "\n" + body + "\n")
+    return Path(path)
+
+
+def _uniform(rng, lo_hi, log=False):
+    lo, hi = lo_hi
+    if log:
+        return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    return float(rng.uniform(lo, hi))
+
+
+def plant_with_effect(plant, effect, rng, duration_s=35.0):
+    """A copy of ``plant`` (no creep, no additions) with one effect drawn at random.
+
+    Returns
+    -------
+    plant, truth : Plant, dict
+        The modified plant and the drawn values (SI).
+    """
+    rng = np.random.default_rng(rng)
+    pzt = dataclasses.replace(plant.pzt, creep=None)
+    add = Additions()
+    rg = EFFECT_RANGES.get(effect)
+    truth = {}
+    if effect == "none":
+        pass
+    elif effect == "creep":
+        c = _uniform(rng, rg["branch_capacitance_f"])
+        tau = np.array([0.1, 1.0, 10.0, 100.0, 1000.0])
+        pzt = dataclasses.replace(pzt, creep=CreepParams(tau, np.full(tau.size, c)))
+        truth = {"branch_capacitance_f": c, "time_constants_s": tau.tolist()}
+    elif effect == "dielectric_absorption":
+        truth = {"gain_f": _uniform(rng, rg["gain_f"]), "time_constant_s": _uniform(rng, rg["time_constant_s"], True)}
+        add = Additions(absorption_gain_f=truth["gain_f"], absorption_time_constant_s=truth["time_constant_s"])
+    elif effect == "leakage":
+        truth = {"resistance_ohm": _uniform(rng, rg["resistance_ohm"], True)}
+        add = Additions(leakage_resistance_ohm=truth["resistance_ohm"])
+    elif effect == "resonance":
+        truth = {"freq_hz": _uniform(rng, rg["freq_hz"], True), "damping_ratio": _uniform(rng, rg["damping_ratio"])}
+        pzt = dataclasses.replace(pzt, modes=(Mode(truth["freq_hz"], truth["damping_ratio"]),))
+    elif effect == "delay":
+        truth = {"delay_s": _uniform(rng, rg["delay_s"])}
+        add = Additions(sensor_delay_s=truth["delay_s"])
+    elif effect == "drift":
+        # a t + b t^2 with a random share of curvature, scaled to the drawn excursion
+        ex = _uniform(rng, rg["excursion_m"]) * rng.choice([-1.0, 1.0])
+        share = rng.uniform(-1.0, 1.0)
+        a, b = (1.0 - abs(share)) / duration_s, share / duration_s ** 2
+        peak = np.max(np.abs(a * np.linspace(0, duration_s, 200) + b * np.linspace(0, duration_s, 200) ** 2))
+        truth = {"drift_rate_m_per_s": ex * a / peak, "drift_curvature_m_per_s2": ex * b / peak}
+        add = Additions(sensor_drift_rate_m_per_s=truth["drift_rate_m_per_s"],
+                        sensor_drift_curvature_m_per_s2=truth["drift_curvature_m_per_s2"])
+    elif effect == "gauge_nonlinearity":
+        truth = {"coefficient_per_m": _uniform(rng, rg["coefficient_per_m"]) * rng.choice([-1.0, 1.0])}
+        add = Additions(gauge_nonlinearity_per_m=truth["coefficient_per_m"])
+    else:
+        raise ValueError(f"unknown effect {effect!r}; known: none, {', '.join(EFFECTS)}")
+    return dataclasses.replace(plant, pzt=pzt, additions=add), truth
