@@ -243,6 +243,22 @@ def cmd_sweep(args):
     _emit(args, {k: v for k, v in data.items() if k != "rows"}, lines)
 
 
+def cmd_calibrate(args):
+    from .calibrate.run import run_calibrate
+    data = run_calibrate(args.data, args.plant, out_dir=args.out, split=args.split, train_cycles=args.train_cycles,
+                         max_ratio=args.max_ratio, progress=lambda stage, d, t: _progress_bar(stage, d, t))
+    eb, ea = data["error_before"], data["error_after"]
+    lines = [f"{args.data} against {args.plant}: effect {data['effect']} on the {data['channel']} channel",
+             f"  held-out RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
+             f"{ea['max']:.4g} {eb['units']}  ({data['reason']})"]
+    for c in data["candidates"][:6]:
+        lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}")
+    if "updated_plant" in data:
+        lines.append(f"  updated plant {data['updated_plant']}; report {data['report']}")
+    lines.append(f"  {data['elapsed_s']:.1f} s")
+    _emit(args, data, lines)
+
+
 def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
@@ -372,6 +388,22 @@ def build_parser():
     p.add_argument("--table", type=Path, help="table path, .csv or .parquet (default OUT/sweep.csv)")
     p.add_argument("--json", type=Path, help="write the summary as JSON here")
     p.set_defaults(func=cmd_sweep)
+
+    p = sub.add_parser("calibrate", help="fit the declared plant to a record, trace the residual to an effect",
+                       description="Fit the plant to a measured record, analyse the residual, name the physical "
+                                   "effect the plant lacks, add it, and report the error before and after on "
+                                   "held-out data; writes an updated plant file into --out.")
+    p.add_argument("data", type=Path, help="record CSV (time[s], voltage[V], and current/charge/displacement/gauge)")
+    p.add_argument("--plant", type=Path, required=True, help="declared plant: plants/*.toml or a generic stack")
+    p.add_argument("--out", type=Path, default=None, help="folder for the report, figures and updated plant")
+    p.add_argument("--json", type=Path, default=None, help="write the result as JSON here")
+    p.add_argument("--split", choices=("blocks", "cycles"), default=None,
+                   help="held-out rows: 1 s blocks (default for a PZT plant) or after the first cycles "
+                        "(default for a generic stack)")
+    p.add_argument("--train-cycles", type=float, default=3, help="input cycles that train with --split cycles")
+    p.add_argument("--max-ratio", type=float, default=0.8,
+                   help="an effect must bring the held-out RMS ratio (penalized) to at most this")
+    p.set_defaults(func=cmd_calibrate)
 
     from .selfsense.command import add_parser as add_selfsense
     add_selfsense(sub)

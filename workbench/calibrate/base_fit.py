@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .pi_fit import fit_pi, play_matrix, pi_thresholds, rms, split_by_cycles
+from .pi_fit import play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
 from .residual import charge_from_current
 
 __all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "CHANNEL_KEYS", "CHANNEL_UNITS"]
@@ -75,6 +75,7 @@ class BaseFit:
     channels: dict
     starts_from_rest: bool
     basis: np.ndarray = None          # plays + a column of ones: the columns every channel's model spans
+    test: np.ndarray = None           # held-out rows (default: every row not trained on)
     k_q2x_m_per_c: float | None = None
     working_capacitance_f: float | None = None
     gauge_gain_v_per_m: float | None = None
@@ -82,7 +83,7 @@ class BaseFit:
     notes: list = field(default_factory=list)
 
 
-def holdout_mask(t, v, split="blocks", block_s=1.0, every=3, train_cycles=3):
+def holdout_mask(t, v, split="blocks", block_s=0.25, every=3, train_cycles=3):
     """Training rows (True) of a record; the rest is held out for every error reported.
 
     ``"blocks"``: the record cut into ``block_s`` blocks, every ``every``-th held out, so each
@@ -95,13 +96,18 @@ def holdout_mask(t, v, split="blocks", block_s=1.0, every=3, train_cycles=3):
         # held-out blocks picked by the golden-ratio sequence, not every n-th: a protocol's own
         # period (3 s holds) must not line its steps up with the held-out blocks
         k = np.floor((t - t[0]) / block_s).astype(int)
-        mask = np.mod(k * 0.6180339887498949, 1.0) >= 1.0 / every
+        # (k + 1: the first block, where a record from rest takes its virgin branch, trains)
+        mask = np.mod((k + 1) * 0.6180339887498949, 1.0) >= 1.0 / every
         if mask.all() or not mask.any():
             raise ValueError(f"the record ({t[-1] - t[0]:.3g} s) is too short for {block_s:g} s blocks "
                              f"with every {every}th held out; use a shorter block")
         return mask
     if split == "cycles":
-        return split_by_cycles(v, train_cycles)
+        # training starts at the input's second reversal: a start transient (a step from rest,
+        # the virgin branch) is left out of the weights; everything after the cycles is held out
+        first = split_by_cycles(v, train_cycles)
+        tp = turning_points(v)
+        return first & (np.arange(first.size) >= (tp[1] if tp.size > 1 else 0))
     raise ValueError(f"split must be 'blocks' or 'cycles', got {split!r}")
 
 
@@ -125,7 +131,9 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0):
     col[col == 0] = 1.0
     bscale = rms(y[rows]) or 1.0
     lb = np.r_[np.zeros(thresholds.size), -np.inf]
-    sol = lsq_linear(a / col, y[rows] / bscale, bounds=(lb, np.full(thresholds.size + 1, np.inf)),
+    # ||A w - b|| = ||R w - Q^T b|| + const with A = QR: the bounded solve runs on the small R
+    q, r = np.linalg.qr(a / col)
+    sol = lsq_linear(r, q.T @ (y[rows] / bscale), bounds=(lb, np.full(thresholds.size + 1, np.inf)),
                      method="bvls", tol=1e-12)
     p = sol.x / col * bscale
     w = np.maximum(p[:-1], 0.0)
@@ -139,7 +147,8 @@ def _gauge_valid(g, dac_range_v=None):
     return np.abs(g) < 0.998 * lim
 
 
-def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic", pzt=None, dac_range_v=None):
+def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic", pzt=None, dac_range_v=None,
+             test=None):
     """Fit the base model of every recorded output channel (see the module notes).
 
     Parameters
@@ -199,7 +208,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             models[name] = _fit_channel(name, P, y, train, valid[name], r, z0)
     models = {k: models[k] for k in outputs}
     fit = BaseFit(t=t, v_drive=vd, voltage_source=label, train=train, channels=models, starts_from_rest=from_rest,
-                  basis=np.column_stack([P, np.ones(t.size)]), notes=notes)
+                  basis=np.column_stack([P, np.ones(t.size)]), notes=notes,
+                  test=~train if test is None else np.asarray(test, bool) & ~train)
     if "charge" in outputs and "displacement" in outputs:
         q = outputs["charge"] - outputs["charge"][0]
         x = outputs["displacement"] - (np.mean(outputs["displacement"][t - t[0] <= REST_S]) if from_rest else 0.0)

@@ -219,6 +219,14 @@ class Drift(Effect):
         s = (t - params["t0_s"]) / (params["t_end_s"] - params["t0_s"])
         return np.vander(s, self.degree + 1, increasing=True) @ params["coefficients"]
 
+    def columns(self, t, u, params, y_model=None):
+        """Powers 1 .. degree of normalized time (the base model has the constant), free signs."""
+        X = self._X(t)[:, 1:]
+        return X, np.full(X.shape[1], -np.inf)
+
+    def with_gains(self, params, gains):
+        return {**params, "coefficients": np.r_[0.0, gains]}
+
     def _fingerprint(self, report, t, u, residual):
         return 1.0 if report.independent else 0.5
 
@@ -243,10 +251,17 @@ class Delay(Effect):
             raise ValueError("delay needs y_model (the base model's prediction)")
         mask = np.asarray(train_mask, bool)
         e = np.asarray(residual, float)
-        grid = np.arange(-self.max_delay, self.max_delay + 0.25, 0.5)
+        # whole samples first, then the bracketing half samples, then a bounded refinement
+        grid = np.arange(-np.floor(self.max_delay), np.floor(self.max_delay) + 0.5, 1.0)
         grid = grid[grid != 0]
         costs = [np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2) for d in grid]
         d0 = float(grid[int(np.argmin(costs))])
+        for d in (d0 - 0.5, d0 + 0.5):
+            if d != 0 and abs(d) <= self.max_delay:
+                c = np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2)
+                if c < min(costs):
+                    d0 = d
+                costs.append(c)
         lo, hi = max(-self.max_delay, d0 - 0.5), min(self.max_delay, d0 + 0.5)
         sol = least_squares(lambda x: _rows(e - self._shifted(t, y_model, x[0]), mask, project),
                             [d0], bounds=([lo], [hi]), max_nfev=40)
@@ -289,6 +304,12 @@ class _Relaxation(Effect):
     def term(self, t, u, params, y_model=None):
         return params["gain"] * self._column(np.asarray(u, float), params["tau_s"], _dt(t))
 
+    def columns(self, t, u, params, y_model=None):
+        return self._column(np.asarray(u, float), params["tau_s"], _dt(t)), [-np.inf]
+
+    def with_gains(self, params, gains):
+        return {**params, "gain": float(gains[0])}
+
 
 class Creep(_Relaxation):
     """Creep: ``c (lowpass_tau(u) - u)`` (zero static gain), displacement or gauge channel."""
@@ -320,8 +341,8 @@ class Creep(_Relaxation):
 class CreepSpectrum(Effect):
     """Creep as a spectrum of relaxations: ``sum_j c_j (lowpass_tau_j(u) - u)``, ``c_j >= 0``.
 
-    One branch per ``taus_s`` entry (default: half a decade apart from 10 samples to a third of
-    the record), the gains by non-negative least squares: the discrete form of the Kelvin-Voigt
+    One branch per ``taus_s`` entry (default: half a decade apart from 10 samples to ten record
+    lengths), the gains by non-negative least squares: the discrete form of the Kelvin-Voigt
     branches of ``workbench.plant.creep``, whose sum approximates seed 001's logarithmic law over
     the decades covered. ``c_j >= 0`` because creep continues in the direction of the step;
     this sign constraint is what keeps the spectrum from fitting arbitrary slow residuals.
@@ -341,7 +362,8 @@ class CreepSpectrum(Effect):
         if self.taus_s is not None:
             return self.taus_s
         dt = _dt(t)
-        lo, hi = np.log10(10 * dt), np.log10(max((t[-1] - t[0]) / 3.0, 100 * dt))
+        # up to ten record lengths: slower branches still charge during the record (a ramp)
+        lo, hi = np.log10(10 * dt), np.log10(max(10.0 * (t[-1] - t[0]), 100 * dt))
         return 10.0 ** np.arange(lo, hi + 1e-9, 1.0 / self.per_decade)
 
     @staticmethod
@@ -363,6 +385,14 @@ class CreepSpectrum(Effect):
     def term(self, t, u, params, y_model=None):
         X = self._columns(np.asarray(u, float), np.asarray(params["taus_s"], float), _dt(t))
         return X @ np.asarray(params["gains"], float)
+
+    def columns(self, t, u, params, y_model=None):
+        """The branches as columns and their lower bounds (0: creep follows the step)."""
+        taus = np.asarray(params["taus_s"], float)
+        return self._columns(np.asarray(u, float), taus, _dt(t)), np.zeros(taus.size)
+
+    def with_gains(self, params, gains):
+        return {**params, "gains": np.maximum(np.asarray(gains, float), 0.0).tolist()}
 
 
 class GaugeNonlinearity(Effect):
@@ -405,6 +435,16 @@ class GaugeNonlinearity(Effect):
     def term(self, t, u, params, y_model=None):
         return self._columns(u, params["x_ref"]) @ np.array([params["c0"], params["c1"], params["c2"]])
 
+    def columns(self, t, u, params, y_model=None):
+        d = np.asarray(u, float) - params["x_ref"]
+        return d * d, [-np.inf]
+
+    def with_gains(self, params, gains):
+        # the joint fit refits the line; the bow's coefficient keeps the base slope's scale
+        c2 = float(gains[0])
+        scale = c2 / params["c2"] if params["c2"] else 1.0
+        return {**params, "c0": 0.0, "c1": 0.0, "c2": c2, "coefficient_per_m": params["coefficient_per_m"] * scale}
+
 
 class DielectricAbsorption(_Relaxation):
     """Dielectric absorption, seed 002 eq. 2.9: ``k lowpass_tau(u)``, charge channel."""
@@ -434,6 +474,12 @@ class Leakage(Effect):
 
     def term(self, t, u, params, y_model=None):
         return params["gain_per_s"] * self._column(t, u)
+
+    def columns(self, t, u, params, y_model=None):
+        return self._column(t, u), [-np.inf]
+
+    def with_gains(self, params, gains):
+        return {**params, "gain_per_s": float(gains[0])}
 
 
 def _zoh_mode(f_hz, zeta, dt):
@@ -480,8 +526,20 @@ class Resonance(Effect):
         u = np.asarray(u, float)
         lf_lo, lf_hi = self._range(t)
         lz_lo, lz_hi = np.log(self.zeta_min), np.log(self.zeta_max)
-        grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq)
-                for lz in np.linspace(lz_lo, lz_hi, 6)]
+        # a coarse log grid plus a fine one about the residual spectrum's strongest peak: a light
+        # mode's cost valley is narrower than any affordable global grid
+        e_fit = np.asarray(residual, float)[np.asarray(train_mask, bool)]
+        f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=1.0 / dt, nperseg=min(4096, e_fit.size))
+        band = (f_psd >= np.exp(lf_lo)) & (f_psd <= np.exp(lf_hi))
+        lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
+        if band.any():
+            # the peak of the spectrum relative to its smoothed neighbourhood (a mode, not 1/f)
+            p_b = pxx[band]
+            smooth = np.convolve(p_b, np.ones(15) / 15, mode="same") + 1e-300
+            f_peak = f_psd[band][int(np.argmax(p_b / smooth * p_b))]
+            lfs += list(np.log(f_peak) + np.linspace(-0.15, 0.15, 13))
+        lfs = np.clip(lfs, lf_lo, lf_hi)
+        grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), np.exp(th[1]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project)
@@ -491,6 +549,12 @@ class Resonance(Effect):
     def term(self, t, u, params, y_model=None):
         return params["gain"] * self._column(np.asarray(u, float), params["f_n_hz"],
                                              params["zeta"], _dt(t))
+
+    def columns(self, t, u, params, y_model=None):
+        return self._column(np.asarray(u, float), params["f_n_hz"], params["zeta"], _dt(t)), [-np.inf]
+
+    def with_gains(self, params, gains):
+        return {**params, "gain": float(gains[0])}
 
 
 def default_effects():

@@ -52,7 +52,7 @@ def candidate_plan(channels):
     has_x = "displacement" in channels
     if "displacement" in channels:
         plan += [("displacement", CreepSpectrum(), "model"), ("displacement", Resonance(), "model"),
-                 ("displacement", Delay(max_delay=50), "model"), ("displacement", Drift(), "time")]
+                 ("displacement", Delay(max_delay=30), "model"), ("displacement", Drift(), "time")]
     if "charge" in channels:
         plan += [("charge", DielectricAbsorption(), "voltage"), ("charge", Leakage(), "voltage"),
                  ("charge", Drift(degree=1), "time")]
@@ -60,7 +60,7 @@ def candidate_plan(channels):
             plan.append(("charge", CreepSpectrum(), "model"))
     if "gauge" in channels:
         plan += [("gauge", CreepSpectrum(), "model"), ("gauge", Resonance(), "model"),
-                 ("gauge", Delay(max_delay=50), "model"), ("gauge", Drift(), "time")]
+                 ("gauge", Delay(max_delay=30), "model"), ("gauge", Drift(), "time")]
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
     return plan
@@ -96,6 +96,28 @@ class _Joint:
     def project(self, X):
         return X - self.Q @ (self.Q.T @ X)
 
+    def fit_with(self, C_full, y, lower):
+        """Base and extra columns ``C_full`` (bounds ``lower``, upper +inf) fitted jointly to ``y``.
+
+        A block QR update (the extra columns orthogonalized against the base's Q) keeps this a
+        small bounded least-squares problem. Returns ``(prediction, extra_gains)``.
+        """
+        C_full = np.atleast_2d(np.asarray(C_full, float).T).T
+        C = C_full[self.rows]
+        norms = np.sqrt(np.einsum("ij,ij->j", C, C))
+        norms[norms == 0] = 1.0
+        C = C / norms
+        B = self.Q.T @ C
+        Q2, R2 = np.linalg.qr(C - self.Q @ B)
+        k, m = self.R.shape[1], C.shape[1]
+        R = np.block([[self.R, B], [np.zeros((m, k)), R2]])
+        yr = np.asarray(y)[self.rows]
+        rhs = np.r_[self.Q.T @ yr, Q2.T @ yr]
+        lb = np.r_[np.where(self.nonneg, 0.0, -np.inf), np.asarray(lower, float)]
+        sol = lsq_linear(R, rhs, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
+        g = sol[k:] / norms
+        return self.A_full @ sol[:k] + C_full @ g, g
+
     def refit(self, target):
         rhs = self.Q.T @ np.asarray(target)[self.rows]
         lb = np.where(self.nonneg, 0.0, -np.inf)
@@ -103,7 +125,34 @@ class _Joint:
         return self.A_full @ c
 
 
-def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, progress=None):
+def _fit_candidate(eff, t, u, y, yhat, rows, joint, rounds=None):
+    """Fit one effect together with the base model.
+
+    The effect's nonlinear parameters (a time constant, a mode, a delay) come from its own fit
+    with the base columns projected out (variable projection against the unconstrained base,
+    so a term the base would otherwise absorb -- a charge term proportional to V, say -- is
+    found). Then the base and the effect's columns are solved jointly by one bounded least
+    squares with the base's sign constraints (play weights >= 0) and the effect's own (creep
+    gains >= 0): the constrained joint optimum, so the two cannot trade a term against negative
+    weights that only fit the training rows. Effects without ``columns`` enter as their fitted
+    term with a free non-negative scale.
+    """
+    p = eff.fit(t, u, y - yhat, rows, y_model=yhat, project=joint.project)
+    if hasattr(eff, "columns"):
+        C, lower = eff.columns(t, u, p, y_model=yhat)
+        C = np.atleast_2d(np.asarray(C, float).T).T
+        pred, g = joint.fit_with(C, y, lower)
+        p = eff.with_gains(p, g)
+        term = C @ g
+    else:
+        term0 = eff.term(t, u, p, y_model=yhat)
+        pred, g = joint.fit_with(term0, y, [0.0])
+        term = term0 * g[0]
+        p = {**p, "scale": float(g[0])}
+    return pred, term, p
+
+
+def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, rounds=2, progress=None):
     """Fit every candidate, score it on the held-out rows and name the effect.
 
     Returns
@@ -126,7 +175,7 @@ def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, progress=None):
         if progress:
             progress("effects", k, len(plan))
         m = base.channels[ch]
-        test = (~train) & m.valid
+        test = base.test & m.valid
         fit_rows = train & m.valid
         if eff.name == "gauge_nonlinearity":
             yhat, u = _gauge_line(base)
@@ -144,11 +193,9 @@ def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, progress=None):
         if key not in before:
             before[key] = _errors(e[test])
         try:
-            p = eff.fit(t, u, e, fit_rows, y_model=yhat, project=joint.project)
-            term = eff.term(t, u, p, y_model=yhat)
+            pred, term, p = _fit_candidate(eff, t, u, m.y, yhat, fit_rows, joint, rounds)
         except ValueError:
             continue
-        pred = joint.refit(m.y - term) + term
         after = _errors((m.y - pred)[test])
         ratio = after["rms"] * (1 + penalty * eff.n_params) / before[key]["rms"]
         cands.append({"name": eff.name, "channel": ch, "score": float(ratio), "n_params": int(eff.n_params),

@@ -1,0 +1,228 @@
+"""Tests for workbench.report.calibrate_figures and workbench.report.calibrate_report.
+
+One short synthetic record (a sensor latency drawn into SN637, the calibration protocol cut to
+11.5 s) is fitted and traced once per module; every test reads those real engine objects. The
+'none' case is the same base with the answer forced to ``none`` (no terms). Figures are checked
+for existence and content, not for how long they take (no timed tests).
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from workbench.calibrate.base_fit import fit_base
+from workbench.calibrate.creep_holds import fit_holds
+from workbench.calibrate.effects import Delay
+from workbench.calibrate.protocol import calibration_protocol
+from workbench.calibrate.record import Record
+from workbench.calibrate.synthetic import plant_with_effect, simulate_record
+from workbench.calibrate.tracing import trace_effect
+from workbench.report.calibrate_figures import (MAX_POINTS, calibration_figures, decimate, residual_models,
+                                                residual_reports, si_scale)
+from workbench.report.calibrate_report import _num, calibration_markdown, parameter_rows
+
+PLANT = Path(__file__).resolve().parents[2] / "plants" / "p888_51_sn637.toml"
+PNG = b"\x89PNG\r\n\x1a\n"
+ALL = ["overview", "residual", "correlation", "spectrum", "candidates"]
+
+
+def _with_terms(base, result):
+    """The engine's answer when it has terms; else the same dict with a delay fitted by hand.
+
+    The engine is tuned independently: these tests are about the figures and the report, so an
+    effect case must exist whatever the tracing decides on this short record.
+    """
+    if result.get("terms") is not None and result["effect"] != "none":
+        return result
+    m = base.channels["displacement"]
+    test = ~base.train
+    eff = Delay(max_delay=50)
+    p = eff.fit(base.t, m.yhat, m.residual, base.train, y_model=m.yhat)
+    term = eff.term(base.t, m.yhat, p, y_model=m.yhat)
+    after = m.residual - term
+
+    def err(e):
+        return {"rms": float(np.sqrt(np.mean(e[test] ** 2))), "max": float(np.max(np.abs(e[test]))), "units": "m"}
+
+    return {**result, "effect": "delay", "channel": "displacement", "error_before": err(m.residual),
+            "error_after": err(after), "parameters": p, "reason": "fitted by the test (engine said none)",
+            "terms": {"channel": "displacement", "base": m.yhat, "term": term}}
+
+
+@pytest.fixture(scope="module")
+def traced(sn637):
+    t, v = calibration_protocol(sine_cycles=2, stairs_v=(50.0, 20.0), chirp_s=1.0)
+    plant, _ = plant_with_effect(sn637, "delay", 1)
+    r = simulate_record(plant, t, v, seed=1)
+    rec = Record(Path("x.csv"), {}, r["time_s"],
+                 {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, 1e-4)
+    base = fit_base(rec, 80.0, pzt=plant.pzt, dac_range_v=2.6)
+    result = _with_terms(base, trace_effect(base))
+    holds = fit_holds(base.t, base.v_drive, base.channels["displacement"].y, noise_rms=1e-9)
+    nan = float("nan")
+    holds.append({"start_s": 11.0, "duration_s": 1.2, "voltage_v": 20.0, "step_v": nan, "l0": nan, "gamma": nan,
+                  "sigma_l0": nan, "sigma_gamma": nan, "chi2_reduced": nan, "n": 0,
+                  "skip_reason": "no constant input before the hold: the step is unknown"})
+    return base, result, holds
+
+
+@pytest.fixture(scope="module")
+def none_result(traced):
+    _, result, _ = traced
+    out = {k: v for k, v in result.items() if k != "terms"}
+    out.update(effect="none", parameters={}, reason="forced by the test")
+    out["error_after"] = out["error_before"] = out["channels"]["displacement"]
+    return out
+
+
+def _check_pngs(paths, names):
+    assert [p.stem for p in paths] == names
+    for p in paths:
+        assert p.is_file() and p.suffix == ".png"
+        data = p.read_bytes()
+        assert data[:8] == PNG and len(data) > 20_000, p
+
+
+# --- figures ------------------------------------------------------------------------------------
+
+def test_figures_effect_case(traced, tmp_path):
+    base, result, holds = traced
+    paths = calibration_figures(tmp_path / "fig", base, result, holds=holds)
+    _check_pngs(paths, ALL + ["creep_holds"])
+    assert all(p.parent == tmp_path / "fig" for p in paths)
+
+
+def test_figures_none_case(traced, none_result, tmp_path):
+    base, _, _ = traced
+    reports = residual_reports(base, none_result)
+    assert reports["after"] is None and reports["before"].n == base.t.size
+    paths = calibration_figures(tmp_path, base, none_result, holds=None, reports=reports)
+    _check_pngs(paths, ALL)
+    assert not (tmp_path / "creep_holds.png").exists()
+
+
+def test_candidates_and_holds_figures_when_nothing_fitted(traced, none_result, tmp_path):
+    from workbench.report.calibrate_figures import _plot_candidates, _plot_holds
+    _, _, holds = traced
+    skipped = [h for h in holds if not np.isfinite(h["gamma"])]
+    for path in (_plot_candidates({**none_result, "candidates": []}, tmp_path / "c.png"),
+                 _plot_holds(skipped, tmp_path / "h.png")):
+        assert Path(path).read_bytes()[:8] == PNG and Path(path).stat().st_size > 3_000
+
+
+def test_residual_models_before_and_after(traced, none_result):
+    base, result, _ = traced
+    ch, before, after, term = residual_models(base, result)
+    assert ch == result["channel"]
+    np.testing.assert_array_equal(before, base.channels[ch].yhat)
+    np.testing.assert_allclose(after, result["terms"]["base"] + result["terms"]["term"])
+    np.testing.assert_array_equal(term, result["terms"]["term"])
+    ch, before, after, term = residual_models(base, none_result)
+    assert ch == "displacement" and after is None and term is None
+
+
+def test_gauge_nonlinearity_is_scored_against_the_gauge_line(traced, tmp_path):
+    base, result, _ = traced
+    line = base.gauge_offset_v + base.gauge_gain_v_per_m * base.channels["displacement"].y
+    g = base.channels["gauge"]
+    fake = {**result, "effect": "gauge_nonlinearity", "channel": "gauge", "parameters": {"coefficient_per_m": 3e3},
+            "terms": {"channel": "gauge", "base": line, "term": np.zeros_like(line)},
+            "error_before": {"rms": float(np.sqrt(np.mean((g.y - line)[~base.train] ** 2))), "max": 0.05, "units": "V"},
+            "error_after": {"rms": 0.007, "max": 0.03, "units": "V"}}
+    ch, before, after, _ = residual_models(base, fake)
+    assert ch == "gauge"
+    np.testing.assert_allclose(before, line)
+    md = calibration_markdown("r.csv", PLANT, base, fake, None, [], None, 1.0)
+    assert "the line gauge offset + gain x of the recorded displacement" in md
+    assert "bow coefficient beta (eq. 27)" in md
+    from workbench.report.calibrate_figures import _plot_residual
+    assert Path(_plot_residual(base, fake, tmp_path / "residual.png")).stat().st_size > 20_000
+
+
+# --- report -------------------------------------------------------------------------------------
+
+def test_markdown_effect_case(traced, tmp_path):
+    base, result, holds = traced
+    figures = [tmp_path / f"{name}.png" for name in ALL + ["creep_holds"]]     # as calibration_figures names them
+    md = calibration_markdown(Path("data/rec.csv"), PLANT, base, result, holds, figures,
+                              tmp_path / "plant_calibrated.toml", 12.34, report_dir=tmp_path)
+    assert md.startswith("# Calibration of `p888_51_sn637.toml` against `rec.csv`")
+    assert f"**{result['effect']}** on the **{result['channel']}** channel" in md
+    # the error table: the answer's channel with its held-out numbers in readable units
+    eb, ea = result["error_before"], result["error_after"]
+    f, unit = si_scale("m", max(eb["max"], ea["max"]))
+    assert unit == "nm"
+    row = (f"| **{result['channel']}** | {_num(eb['rms'] * f)} | {_num(eb['max'] * f)} | {_num(ea['rms'] * f)} | "
+           f"{_num(ea['max'] * f)} | nm | {ea['rms'] / eb['rms']:.3f} |")
+    assert row in md
+    assert "| charge |" in md and "1 (unchanged)" in md
+    # base fit, gains, candidates, holds, figures
+    assert base.voltage_source in md and "Starts from rest: **yes**" in md
+    assert "nm/uC" in md and "uF" in md and "mV/um" in md
+    assert md.count("**chosen**") == 1
+    assert len(result["candidates"]) == sum(1 for line in md.splitlines() if line.startswith("| ")
+                                                        and line.split("|")[2].strip() in
+                                                        {c["name"] for c in result["candidates"]}
+                                                        and line.split("|")[1].strip().isdigit()
+                                                        and "±" not in line)
+    assert "## Creep per hold (seed 001)" in md and "L0 ± sigma (um)" in md
+    first = holds[0]
+    assert f"{_num(first['gamma'])} ± {_num(first['sigma_gamma'], 2)}" in md
+    assert "no constant input before the hold" in md
+    for name in ALL + ["creep_holds"]:
+        assert f"![{name}]({name}.png)" in md
+    assert "plant_calibrated.toml" in md and "12.3 s" in md
+    for note in base.notes:
+        assert f"- {note}" in md
+
+
+def test_markdown_none_case_without_holds(traced, none_result):
+    base, _, _ = traced
+    md = calibration_markdown("rec.csv", "plant.toml", base, none_result, None, [], None, 3.0)
+    assert "**No effect added.**" in md and "forced by the test" in md
+    assert "No plant file written." in md
+    assert "Creep per hold" not in md and "## Figures" not in md
+    assert "**displacement**" not in md and md.count("1 (unchanged)") == len(base.channels)
+
+
+@pytest.mark.parametrize("effect, params, unit, expected", [
+    ("creep", {"gains": [0.0, 0.02, 0.0, 0.01], "taus_s": [0.001, 0.01, 0.1, 1.0]}, "m",
+     ["2 of 4", "branch tau = 10 ms", "branch tau = 1 s", "total creep gain sum c_j"]),
+    ("leakage", {"gain_per_s": -1e-8}, "C", ["S (A/V)", "100 Mohm"]),
+    ("dielectric_absorption", {"gain": 7.6e-7, "tau_s": 4.46}, "C", ["760 | nF", "4.46 | s"]),
+    ("resonance", {"gain": 1.0, "f_n_hz": 683.7, "zeta": 0.048}, "m", ["683.7 | Hz", "0.048 | 1"]),
+    ("delay", {"delay_samples": 6.5, "delay_s": 6.5e-4}, "m", ["6.5 | samples", "650 | us"]),
+    ("drift", {"coefficients": [0.0, 2e-7, -1e-7], "t0_s": 0.0, "t_end_s": 11.5}, "m",
+     ["s^1", "200 | nm", "-100 | nm", "11.5 | s"]),
+    ("mystery", {"k_new": 3.0}, "m", ["k_new | 3 | SI"]),
+])
+def test_parameter_rows_units(effect, params, unit, expected):
+    text = "\n".join(" | ".join(str(c) for c in r) for r in parameter_rows(effect, params, unit))
+    for e in expected:
+        assert e in text, text
+
+
+# --- helpers ------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("unit, typical, factor, label", [
+    ("m", 12e-6, 1e6, "um"), ("m", 3.9e-9, 1e9, "nm"), ("C", 8.9e-4, 1e6, "uC"), ("V", 0.0073, 1e3, "mV"),
+    ("V", 4.1, 1.0, "V"), ("ohm", 5e7, 1e-6, "Mohm"), ("m", 0.0, 1.0, "m"), ("m", float("nan"), 1.0, "m"),
+])
+def test_si_scale(unit, typical, factor, label):
+    assert si_scale(unit, typical) == (factor, label)
+
+
+def test_decimate_keeps_extremes_and_order():
+    rng = np.random.default_rng(7)
+    n = 350_001
+    t = np.arange(n) * 1e-4
+    y = 1e-3 * rng.standard_normal(n)
+    y[123_457] = 5.0                       # a one-sample spike must survive
+    y[200_000:200_010] = np.nan            # rows not plotted stay out of the min/max
+    td, yd = decimate(t, y)
+    assert td.size <= MAX_POINTS + 10
+    assert np.all(np.diff(td) >= 0)
+    assert np.nanmax(yd) == 5.0 and np.nanmin(yd) == np.nanmin(y)
+    short_t, short_y = decimate(t[:100], y[:100])
+    np.testing.assert_array_equal(short_y, y[:100])

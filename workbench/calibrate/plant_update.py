@@ -1,0 +1,97 @@
+"""The updated plant file: the declared plant with the effect calibration found.
+
+The declared file's text is kept line for line (its sources and comments stay true); the
+section of the found effect is replaced or appended, with every value commented with the record
+it came from. Mapping of the tracing's parameters to plant-file sections
+(``workbench.plant.additions`` and the core's ``[creep]`` / ``[[mechanics.modes]]``):
+
+* ``leakage``: ``gain_per_s`` is charge per volt-second, ``1 / R_FP``;
+* ``dielectric_absorption``: ``gain`` is ``k_s`` (C/V), ``tau_s`` the time constant;
+* ``creep`` (displacement channel): the spectrum's gains ``c_j`` are fractions of the
+  quasi-static displacement; a Kelvin-Voigt branch across C_h takes up ``C_j V_h`` and so adds
+  ``C_j / C_sec`` of the displacement, ``C_sec`` the hysteretic capacitance's large-signal secant
+  (charge span over voltage span of the base fit), hence ``C_j = c_j C_sec`` -- an
+  approximation (V_h is not recorded), stated in the file;
+* ``resonance``: an added ``[[mechanics.modes]]`` entry;
+* ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
+* ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
+
+An effect with no plant-file form (drift or delay of the gauge or the charge, a resonance seen
+only on the gauge) is recorded in the header comment only.
+"""
+
+import datetime
+import re
+
+import numpy as np
+
+__all__ = ["updated_plant_text"]
+
+_REPLACED = ("leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity", "creep")
+
+
+def _drop_sections(text, names):
+    out, skip = [], False
+    for line in text.splitlines():
+        m = re.match(r"^\s*\[\[?\s*([A-Za-z0-9_.]+)\s*\]\]?", line)
+        if m:
+            skip = m.group(1) in names
+        if not skip:
+            out.append(line)
+    return "\n".join(out).rstrip() + "\n"
+
+
+def _fmt(x):
+    return repr(float(x))
+
+
+def updated_plant_text(plant_path, plant, base, result, data_path):
+    """TOML text of the declared plant plus the found effect (see the module notes)."""
+    text = plant_path.read_text(encoding="utf-8")
+    effect, ch, p = result["effect"], result["channel"], result["parameters"]
+    src = f"workbench calibrate on {data_path.name}"
+    eb, ea = result["error_before"], result["error_after"]
+    header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: effect {effect} on the {ch} channel;",
+              f"# held-out RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
+              f"{ea['max']:.4g}). The declared values below are unchanged; the section of the effect is new."]
+    block = []
+    if effect == "leakage" and p.get("gain_per_s", 0) > 0:
+        block = ["[leakage]", f"resistance_ohm = {_fmt(1.0 / p['gain_per_s'])}   # ohm; {src} (leakage fit)"]
+    elif effect == "dielectric_absorption" and p.get("gain", 0) > 0:
+        block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
+                 f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]
+    elif effect == "creep" and ch == "displacement" and "charge" in base.channels:
+        q = base.channels["charge"].yhat
+        c_sec = float(np.ptp(q) / max(np.ptp(base.v_drive), 1e-12))
+        gains, taus = np.asarray(p["gains"]), np.asarray(p["taus_s"])
+        keep = gains > 0
+        if keep.any():
+            block = ["[creep]", f"# C_j = c_j x C_sec, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
+                                f"(an approximation: V_h is not recorded)",
+                     f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
+                     f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
+    elif effect == "resonance" and ch == "displacement":
+        block = ["[[mechanics.modes]]", f"freq_hz = {_fmt(p['f_n_hz'])}   # Hz; {src} (resonance fit)",
+                 f"damping_ratio = {_fmt(min(max(p['zeta'], 1e-6), 1.0))}   # {src}"]
+    elif effect == "delay" and ch == "displacement":
+        block = ["[displacement_sensor]", f"delay_s = {_fmt(max(p['delay_s'], 0.0))}   # s; {src}",
+                 "drift_rate_m_per_s = 0.0   # m/s; none found", "drift_curvature_m_per_s2 = 0.0   # m/s^2; none found"]
+    elif effect == "drift" and ch == "displacement":
+        c = np.asarray(p["coefficients"], float)
+        span = p["t_end_s"] - p["t0_s"]
+        rate = c[1] / span if c.size > 1 else 0.0
+        curv = c[2] / span ** 2 if c.size > 2 else 0.0
+        block = ["[displacement_sensor]", "delay_s = 0.0   # s; none found",
+                 f"drift_rate_m_per_s = {_fmt(rate)}   # m/s; {src} (from the record's start)",
+                 f"drift_curvature_m_per_s2 = {_fmt(curv)}   # m/s^2; {src}"]
+    elif effect == "gauge_nonlinearity":
+        block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
+    if effect != "none" and not block:
+        header.append(f"# The {effect} found on the {ch} channel has no plant-file form; its parameters are in the "
+                      f"calibration JSON.")
+    name = block[0].strip("[]") if block else None
+    body = _drop_sections(text, (name,) if name in _REPLACED else ())
+    out = "\n".join(header) + "\n" + body
+    if block:
+        out += "\n" + "\n".join(block) + "\n"
+    return out

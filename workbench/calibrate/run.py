@@ -1,0 +1,161 @@
+"""``workbench calibrate``: fit the declared plant, trace the residual, add the effect, report.
+
+Flow: read the record (``record.read_record``) and the plant (a full PZT file or a generic
+stack, told apart by ``plant.generic.plant_kind``); the record's ``series_resistor_ohm`` and
+``serial`` override the plant's; split the rows into training and held-out parts; fit the base
+model of every recorded channel (``base_fit``); fit every candidate effect and name the one
+the plant lacks (``tracing``); fit seed 001's creep law per hold (``creep_holds``); write the
+figures, the report, the JSON and the updated plant file (the input files are never touched;
+every output is written whole or not at all).
+"""
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import DataFileError, PlantDefinitionError, WorkbenchError
+from ..plant.files import load_plant
+from ..plant.generic import load_generic_stack, plant_kind, to_toml
+from ..report.output import write_json, write_text
+from .base_fit import fit_base, holdout_mask
+from .creep_holds import fit_holds
+from .pi_fit import split_by_cycles
+from .plant_update import updated_plant_text
+from .record import read_record
+from .tracing import trace_effect
+
+__all__ = ["run_calibrate"]
+
+
+def _json_candidates(cands):
+    return [{"name": c["name"], "channel": c["channel"], "score": c["score"], "n_params": c["n_params"],
+             "error_before": c["error_before"], "error_after": c["error_after"]} for c in cands]
+
+
+def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=3, max_ratio=0.8,
+                  penalty=0.02, figures=True, progress=None):
+    """Calibrate ``plant_path`` on the record ``data_path``; returns the JSON-ready dict.
+
+    ``split``: ``"blocks"`` (default for a full PZT plant: 1 s blocks, a third held out by a
+    golden-ratio pattern) or ``"cycles"`` (default for a generic stack: the first
+    ``train_cycles`` input cycles train, the rest is predicted).
+    """
+    t0 = time.perf_counter()
+    data_path, plant_path = Path(data_path), Path(plant_path)
+    kind = plant_kind(plant_path)
+    plant = load_plant(plant_path) if kind == "pzt" else load_generic_stack(plant_path)
+    record = read_record(data_path)
+    notes = list(record.notices)
+    ch = record.channels
+    if kind == "generic_stack":
+        if "displacement_m" not in ch:
+            raise DataFileError(f"{data_path}: a generic stack is calibrated from voltage to displacement; "
+                                f"the record has no displacement column (add e.g. displacement[um])")
+        v = ch["voltage_v"]
+        lo, hi = plant.min_v, plant.max_v
+        if v.min() < lo - 1e-9 or v.max() > hi + 1e-9:
+            raise DataFileError(f"{data_path}: voltage spans {v.min():.4g}..{v.max():.4g} V, outside the plant's "
+                                f"[voltage] {lo:g}..{hi:g} V in {plant_path}; widen min_v/max_v there")
+        record = type(record)(record.path, record.metadata, record.t_s, {"voltage_v": v, "displacement_m":
+                                                                        ch["displacement_m"]},
+                              record.sample_period_s, record.notices)
+        resistance, pzt, dac, n_plays, grid = 0.0, None, None, plant.n_plays, plant.threshold_grid
+        split = split or "cycles"
+    else:
+        resistance = plant.pzt.series_resistance_ohm
+        if "series_resistor_ohm" in record.metadata:
+            resistance = float(record.metadata["series_resistor_ohm"])
+            notes.append(f"series resistor {resistance:g} ohm from the record's metadata (plant: "
+                         f"{plant.pzt.series_resistance_ohm:g} ohm)")
+        pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
+        split = split or "blocks"
+    serial = record.metadata.get("serial")
+    if serial and kind == "pzt" and serial != plant.serial:
+        notes.append(f"the record's serial {serial} differs from the plant's {plant.serial}; the record's is used")
+    t, v = record.t_s, record.channels["voltage_v"]
+    try:
+        train = holdout_mask(t, v, split=split, train_cycles=train_cycles)
+        test = ~split_by_cycles(v, train_cycles) if split == "cycles" else ~train
+    except ValueError as err:
+        raise DataFileError(f"{data_path}: cannot split the record into training and held-out parts: {err}") from err
+    if progress:
+        progress("base fit", 0, 1)
+    base = fit_base(record, resistance, train=train, n_plays=n_plays, grid=grid, pzt=pzt, dac_range_v=dac, test=test)
+    base.notes = notes + base.notes
+    if progress:
+        progress("base fit", 1, 1)
+    result = trace_effect(base, penalty=penalty, max_ratio=max_ratio, progress=progress)
+    holds = []
+    y_hold = base.channels.get("displacement") or base.channels.get("gauge")
+    if y_hold is not None:
+        noise = None
+        if kind == "pzt" and y_hold.name == "gauge":
+            noise = None
+        try:
+            holds = fit_holds(t, base.v_drive, y_hold.y, noise_rms=noise)
+        except ValueError:
+            holds = []
+    data = {
+        "record": str(data_path), "plant": str(plant_path), "plant_kind": kind,
+        "effect": result["effect"], "channel": result["channel"],
+        "error_before": result["error_before"], "error_after": result["error_after"],
+        "parameters": result["parameters"], "candidates": _json_candidates(result["candidates"]),
+        "reason": result["reason"], "max_ratio": max_ratio, "penalty": penalty,
+        "split": split, "train_fraction": float(np.mean(train)), "held_out_fraction": float(np.mean(test)),
+        "base_fit": {
+            "voltage_source": base.voltage_source, "starts_from_rest": base.starts_from_rest,
+            "series_resistor_ohm": resistance,
+            "channels": result["channels"],
+            "k_q2x_m_per_c": base.k_q2x_m_per_c, "working_capacitance_f": base.working_capacitance_f,
+            "gauge_gain_v_per_m": base.gauge_gain_v_per_m, "gauge_offset_v": base.gauge_offset_v,
+            "n_plays": int(base.channels[next(iter(base.channels))].thresholds_v.size),
+            "notes": base.notes,
+        },
+        "creep_holds": [{k: (None if isinstance(x, float) and not np.isfinite(x) else x) for k, x in h.items()}
+                        for h in holds],
+    }
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        stem = plant_path.stem + "_calibrated.toml"
+        if kind == "pzt":
+            text = updated_plant_text(plant_path, plant, base, result, data_path)
+        else:
+            m = base.channels["displacement"]
+            stack = plant.with_calibration(thresholds_v=tuple(m.thresholds_v), weights_m_per_v=tuple(m.weights),
+                                           offset_m=m.offset, initial_states_v=tuple(m.initial_states_v))
+            text = to_toml(stack, f"workbench calibrate on {data_path.name}, {split} split")
+        plant_out = out / stem
+        _check_plant_text(text, plant_out, kind)
+        write_text(plant_out, text)
+        data["updated_plant"] = str(plant_out)
+        figs = []
+        if figures:
+            from ..report.calibrate_figures import calibration_figures
+            if progress:
+                progress("figures", 0, 1)
+            figs = calibration_figures(out, base, result, holds=holds or None)
+        data["figures"] = [str(f) for f in figs]
+        data["elapsed_s"] = time.perf_counter() - t0
+        from ..report.calibrate_report import calibration_markdown
+        md = calibration_markdown(data_path, plant_path, base, {**result, "max_ratio": max_ratio,
+                                                                "penalty": penalty},
+                                  holds, figs, plant_out, data["elapsed_s"], report_dir=out)
+        write_text(out / "report.md", md)
+        data["report"] = str(out / "report.md")
+    data["elapsed_s"] = time.perf_counter() - t0
+    return data
+
+
+def _check_plant_text(text, path, kind):
+    """Load the updated plant from a scratch copy before it is written: never hand back a file
+    the workbench itself would reject."""
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / path.name
+        p.write_text(text, encoding="utf-8")
+        try:
+            load_plant(p) if kind == "pzt" else load_generic_stack(p)
+        except PlantDefinitionError as err:       # a bug here, not the user's
+            raise WorkbenchError(f"internal: the updated plant would not load ({err})") from err
