@@ -35,7 +35,7 @@ import numpy as np
 from .pi_fit import play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
 from .residual import charge_from_current
 
-__all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "CHANNEL_KEYS", "CHANNEL_UNITS"]
+__all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "CHANNEL_KEYS", "CHANNEL_UNITS"]
 
 CHANNEL_KEYS = {"displacement": "displacement_m", "charge": "charge_c", "gauge": "gauge_v"}
 CHANNEL_UNITS = {"displacement": "m", "charge": "C", "gauge": "V"}
@@ -123,6 +123,26 @@ def _initial_states(v0, thresholds, from_rest):
     return np.sign(v0) * np.maximum(0.0, abs(v0) - thresholds)
 
 
+def small_problem(A, b=None):
+    """``(R, c)`` with ``R^T R = A^T A`` and ``R^T c = A^T b``: ``||A w - b||`` equals
+    ``||R w - c||`` up to a constant, so a bounded least squares over a long record runs on a
+    columns x columns system.
+
+    From the Gram matrix's eigen-decomposition (far cheaper than a QR of the tall matrix, and
+    exact when plays that never engage leave zero or duplicate columns: those directions get
+    zero rows).
+    """
+    gram = np.einsum("ij,ik->jk", A, A)
+    lam, V = np.linalg.eigh(gram)
+    ok = lam > 1e-12 * max(lam.max(), 0.0)
+    s = np.where(ok, np.sqrt(np.where(ok, lam, 1.0)), 0.0)
+    R = s[:, None] * V.T
+    if b is None:
+        return R, None
+    c = np.where(ok, (V.T @ np.einsum("ij,i->j", A, b)) / np.where(ok, s, 1.0), 0.0)
+    return R, c
+
+
 def _fit_channel(name, P, y, train, valid, thresholds, z0):
     from scipy.optimize import lsq_linear
     rows = train & valid
@@ -131,10 +151,8 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0):
     col[col == 0] = 1.0
     bscale = rms(y[rows]) or 1.0
     lb = np.r_[np.zeros(thresholds.size), -np.inf]
-    # ||A w - b|| = ||R w - Q^T b|| + const with A = QR: the bounded solve runs on the small R
-    q, r = np.linalg.qr(a / col)
-    sol = lsq_linear(r, q.T @ (y[rows] / bscale), bounds=(lb, np.full(thresholds.size + 1, np.inf)),
-                     method="bvls", tol=1e-12)
+    r, rhs = small_problem(a / col, y[rows] / bscale)
+    sol = lsq_linear(r, rhs, bounds=(lb, np.full(thresholds.size + 1, np.inf)), method="bvls", tol=1e-12)
     p = sol.x / col * bscale
     w = np.maximum(p[:-1], 0.0)
     yhat = P @ w + p[-1]

@@ -35,7 +35,7 @@ Cross-channel rules turn a fit into a diagnosis (the "tracing"):
 import numpy as np
 from scipy.optimize import lsq_linear
 
-from .base_fit import BaseFit
+from .base_fit import BaseFit, small_problem
 from .effects import CreepSpectrum, Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage, Resonance
 from .pi_fit import rms
 
@@ -72,56 +72,56 @@ def _gauge_line(base):
 
 
 class _Joint:
-    """The base model's columns on the fitting rows, for joint (projected) effect fits.
+    """The base model's columns on the fitting rows, for joint effect fits.
 
     ``project(X)`` removes from training-row columns what the base columns explain (the
-    unconstrained projection, for the effect's own parameters); ``refit(target)`` refits the
-    base model to ``target`` with its sign constraints (play weights >= 0) over the whole
-    record. An effect's held-out error is that of ``refit(y - term) + term``: the base model
-    refitted together with the effect, as the calibrated plant will have it. The constrained
-    refit is what keeps a model with a few dozen plays from overfitting the training blocks.
-    With ``A = Q R`` on the fitting rows, ``||A w - b||`` differs from ``||R w - Q^T b||`` by
-    a constant, so the bounded least squares runs on the small ``R`` (columns x columns).
+    unconstrained projection, for an effect's own nonlinear parameters); ``fit_with`` solves
+    base and effect columns together with their sign constraints; ``refit(target)`` the base
+    alone. With ``R^T R`` the Gram matrix of the (unit-scaled) base columns, every bounded
+    solve runs on a columns x columns system (``base_fit.small_problem``).
     """
 
     def __init__(self, A_full, rows, nonneg):
         A = A_full[rows]
-        norms = np.sqrt(np.einsum("ij,ij->j", A, A))
+        norms = np.sqrt(np.einsum("ij,ij->j", A, A) / max(int(rows.sum()), 1))
         keep = norms > 1e-12 * norms.max()
         self.A_full = A_full[:, keep] / norms[keep]
         self.nonneg = np.asarray(nonneg, bool)[keep]
         self.rows = rows
-        self.Q, self.R = np.linalg.qr(self.A_full[rows])
+        self.A = self.A_full[rows]
+        self.R, _ = small_problem(self.A)
+        # the search for an effect's nonlinear parameters scores every 3rd fitting row: the
+        # columns are still computed at the full rate (filters need it), only the cost is thinned
+        idx = np.flatnonzero(rows)[::3]
+        self.search = np.zeros(rows.size, bool)
+        self.search[idx] = True
+        self.A_s = self.A_full[idx]
+        self.gram_inv_s = np.linalg.pinv(self.A_s.T @ self.A_s, rcond=1e-12)
 
     def project(self, X):
-        return X - self.Q @ (self.Q.T @ X)
+        """Project out the base columns from columns on the SEARCH rows (``self.search``)."""
+        return X - self.A_s @ (self.gram_inv_s @ (self.A_s.T @ X))
 
     def fit_with(self, C_full, y, lower):
         """Base and extra columns ``C_full`` (bounds ``lower``, upper +inf) fitted jointly to ``y``.
 
-        A block QR update (the extra columns orthogonalized against the base's Q) keeps this a
-        small bounded least-squares problem. Returns ``(prediction, extra_gains)``.
+        Returns ``(prediction over the whole record, extra gains)``.
         """
         C_full = np.atleast_2d(np.asarray(C_full, float).T).T
         C = C_full[self.rows]
-        norms = np.sqrt(np.einsum("ij,ij->j", C, C))
+        norms = np.sqrt(np.einsum("ij,ij->j", C, C) / C.shape[0])
         norms[norms == 0] = 1.0
-        C = C / norms
-        B = self.Q.T @ C
-        Q2, R2 = np.linalg.qr(C - self.Q @ B)
-        k, m = self.R.shape[1], C.shape[1]
-        R = np.block([[self.R, B], [np.zeros((m, k)), R2]])
-        yr = np.asarray(y)[self.rows]
-        rhs = np.r_[self.Q.T @ yr, Q2.T @ yr]
+        k = self.A.shape[1]
+        R, rhs = small_problem(np.column_stack([self.A, C / norms]), np.asarray(y)[self.rows])
         lb = np.r_[np.where(self.nonneg, 0.0, -np.inf), np.asarray(lower, float)]
         sol = lsq_linear(R, rhs, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
         g = sol[k:] / norms
         return self.A_full @ sol[:k] + C_full @ g, g
 
     def refit(self, target):
-        rhs = self.Q.T @ np.asarray(target)[self.rows]
+        R, rhs = small_problem(self.A, np.asarray(target)[self.rows])
         lb = np.where(self.nonneg, 0.0, -np.inf)
-        c = lsq_linear(self.R, rhs, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
+        c = lsq_linear(R, rhs, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
         return self.A_full @ c
 
 
@@ -137,7 +137,7 @@ def _fit_candidate(eff, t, u, y, yhat, rows, joint, rounds=None):
     weights that only fit the training rows. Effects without ``columns`` enter as their fitted
     term with a free non-negative scale.
     """
-    p = eff.fit(t, u, y - yhat, rows, y_model=yhat, project=joint.project)
+    p = eff.fit(t, u, y - yhat, joint.search, y_model=yhat, project=joint.project)
     if hasattr(eff, "columns"):
         C, lower = eff.columns(t, u, p, y_model=yhat)
         C = np.atleast_2d(np.asarray(C, float).T).T

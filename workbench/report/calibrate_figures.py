@@ -31,7 +31,7 @@ from .output import save_figure  # noqa: E402
 __all__ = ["calibration_figures", "residual_models", "residual_reports", "si_scale", "decimate",
            "MAX_POINTS", "MAX_RATIO", "PENALTY"]
 
-MAX_POINTS = 20000          # points per line, at most
+MAX_POINTS = 6000           # points per line, at most (min/max pairs keep the envelope)
 MAX_RATIO = 0.8             # trace_effect's default decision threshold (penalized held-out ratio)
 PENALTY = 0.02              # trace_effect's default parsimony penalty per parameter
 HELD_OUT = dict(color="0.88", zorder=0, lw=0)
