@@ -18,6 +18,9 @@ demo: $(STAMP)
 	$(BIN)/workbench demo --out out/demo --json out/demo/summary.json
 	$(BIN)/workbench study studies/sn637_servo.toml --out out/study
 	$(BIN)/workbench verify plants/p888_51_sn637_creep.toml --controller out/study/controllers/sn637_loopshape.json --out out/verify
+	$(BIN)/workbench synth plants/p888_51_sn637.toml --effect creep --seed 1 --out out/calibrate/record.csv
+	$(BIN)/workbench calibrate out/calibrate/record.csv --plant plants/p888_51_sn637.toml --out out/calibrate --json out/calibrate/result.json
+	$(BIN)/workbench selfsense plants/p888_51_sn637_creep.toml --out out/selfsense --json out/selfsense/selfsense.json
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

@@ -8,7 +8,7 @@ import pytest
 
 from workbench.cli import main
 
-COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"], ["selfsense"], ["linearize"],
+COMMANDS = [["gauge"], ["identify"], ["identify", "transducer"], ["freefree"], ["bench"], ["demo"], ["selfsense"], ["calibrate"], ["synth"], ["linearize"],
             ["study"], ["verify"]]
 
 

@@ -259,6 +259,20 @@ def cmd_calibrate(args):
     _emit(args, data, lines)
 
 
+def cmd_synth(args):
+    from .calibrate.protocol import calibration_protocol
+    from .calibrate.synthetic import plant_with_effect, simulate_record, write_record
+    from .plant import load_plant
+    plant = load_plant(args.plant)
+    drawn, truth = plant_with_effect(plant, args.effect, args.seed)
+    t, v = calibration_protocol()
+    path = write_record(args.out, simulate_record(drawn, t, v, seed=args.seed),
+                        {"serial": plant.serial, "source": f"workbench synth {args.plant.name} --effect {args.effect} "
+                                                          f"--seed {args.seed}"})
+    data = {"record": str(path), "effect": args.effect, "truth": truth, "rows": int(t.size)}
+    _emit(args, data, [f"wrote {path}: {t.size} rows of the calibration protocol, effect {args.effect} {truth}"])
+
+
 def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
@@ -404,6 +418,18 @@ def build_parser():
     p.add_argument("--max-ratio", type=float, default=0.8,
                    help="an effect must bring the held-out RMS ratio (penalized) to at most this")
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("synth", help="a synthetic calibration record from the simulator, with one effect",
+                       description="Simulate the 35.5 s calibration protocol (decaying sines, 3 s holds, a chirp) "
+                                   "through the plant with one effect drawn at random; writes the CSV "
+                                   "`workbench calibrate` reads.")
+    p.add_argument("plant", type=Path, help="plant file, e.g. plants/p888_51_sn637.toml")
+    p.add_argument("--effect", default="none", choices=("none", "creep", "dielectric_absorption", "leakage",
+                                                         "resonance", "delay", "drift", "gauge_nonlinearity"))
+    p.add_argument("--seed", type=int, default=1, help="draws the effect's values and the noise")
+    p.add_argument("--out", type=Path, required=True, help="CSV file to write")
+    p.add_argument("--json", type=Path, default=None, help="write the drawn values as JSON here")
+    p.set_defaults(func=cmd_synth)
 
     from .selfsense.command import add_parser as add_selfsense
     add_selfsense(sub)
