@@ -154,3 +154,20 @@ def test_real_record_against_generic_stack(tmp_path):
     assert res["error_after"]["rms"] <= res["error_before"]["rms"]
     stack = tomllib.loads(Path(res["updated_plant"]).read_text())
     assert len(stack["hysteresis"]["weights_m_per_v"]) == 20
+
+
+def test_base_fit_recovers_cp_gauge_gain_and_rest(sn637):
+    """Eqs. 10-12 on a clean record give the plant's C_p; the gauge line is the serial's calibration."""
+    t, v = calibration_protocol(sine_cycles=2, stairs_v=(50.0, 20.0), chirp_s=0.5)
+    plant, _ = plant_with_effect(sn637, "none", 2)
+    r = simulate_record(plant, t, v, seed=2)
+    rec = Record(Path("r.csv"), {}, r["time_s"], {k: r[k] for k in ("voltage_v", "current_a", "displacement_m",
+                                                                   "gauge_v")}, 1e-4)
+    base = fit_base(rec, 80.0, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    assert base.starts_from_rest and base.voltage_source.startswith("terminal")
+    assert base.k_q2x_m_per_c == pytest.approx(plant.pzt.k_q2x_m_per_c, rel=2e-3)
+    assert base.working_capacitance_f == pytest.approx(plant.pzt.working_capacitance_f, rel=0.02)
+    assert base.gauge_gain_v_per_m == pytest.approx(1.0 / plant.gauge.calibration_m_per_v, rel=0.02)
+    # the noise floor: the displacement model leaves little more than the sensor's 1 nm
+    x = base.channels["displacement"]
+    assert np.sqrt(np.mean(x.residual[base.test] ** 2)) < 3e-9
