@@ -207,6 +207,13 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
                      f"as if reached monotonically from 0 V")
     valid = {name: (_gauge_valid(y, dac_range_v) if name == "gauge" else np.ones(y.size, bool))
              for name, y in outputs.items()}
+    for name in list(outputs):
+        if int((train & valid[name]).sum()) < 100:
+            notes.append(f"the {name} channel has {int((train & valid[name]).sum())} usable training rows "
+                         f"(pinned at its rails or too short); it is left out")
+            del outputs[name], valid[name]
+    if not outputs:
+        raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
     first = next(iter(outputs))
     best = None
     for label, vd in drives.items():

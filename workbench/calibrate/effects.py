@@ -52,7 +52,7 @@ lowpass ``y_k = a y_{k-1} + (1 - a) u_k``, ``a = exp(-dt / tau)``, started at re
   the opposite convention (instantaneous part ``-c``, static gain 0) on the mechanical
   channels; the channel decides which one is a candidate.
 * **leakage** -- seed 002 eq. 2.7: the charge lost through the finite leaking resistance is
-  ``(1 / R_FP) int V_in dt``; ``k = -1 / R_FP`` (sign free).
+  ``(1 / R_FP) int V_in dt``; ``k = 1 / R_FP`` (free sign in ``fit``, >= 0 in the joint fit).
 * **resonance** -- a lightly damped mode (``zeta <= 0.3``) the base model lacks, with unit DC
   gain so the correction has no static part: ``g (H - 1) u``; ``g = 1`` for a plant whose
   output is the base model's filtered by the mode.
@@ -236,6 +236,7 @@ class Delay(Effect):
 
     name = "delay"
     n_params = 1
+    nonlinear = True
 
     def __init__(self, max_delay=20):
         self.max_delay = float(max_delay)
@@ -281,6 +282,7 @@ class _Relaxation(Effect):
     """Shared machinery: one linear gain times a column depending on a time constant tau."""
 
     n_params = 2
+    nonlinear = True
 
     def __init__(self, tau_min_samples=50, tau_max_fraction=1.0 / 3.0, n_grid=24):
         self.tau_min_samples = float(tau_min_samples)
@@ -305,7 +307,9 @@ class _Relaxation(Effect):
         return params["gain"] * self._column(np.asarray(u, float), params["tau_s"], _dt(t))
 
     def columns(self, t, u, params, y_model=None):
-        return self._column(np.asarray(u, float), params["tau_s"], _dt(t)), [-np.inf]
+        # absorbed charge follows the voltage (k_s > 0); creep's single-tau form keeps a free sign
+        lower = 0.0 if self.name == "dielectric_absorption" else -np.inf
+        return self._column(np.asarray(u, float), params["tau_s"], _dt(t)), [lower]
 
     def with_gains(self, params, gains):
         return {**params, "gain": float(gains[0])}
@@ -476,7 +480,8 @@ class Leakage(Effect):
         return params["gain_per_s"] * self._column(t, u)
 
     def columns(self, t, u, params, y_model=None):
-        return self._column(t, u), [-np.inf]
+        # a resistance draws charge with the voltage's sign: gain 1 / R_FP >= 0
+        return self._column(t, u), [0.0]
 
     def with_gains(self, params, gains):
         return {**params, "gain_per_s": float(gains[0])}
@@ -502,6 +507,7 @@ class Resonance(Effect):
 
     name = "resonance"
     n_params = 3
+    nonlinear = True
 
     def __init__(self, f_min_hz=None, f_max_fraction=0.4, zeta_min=0.002, zeta_max=0.3,
                  n_freq=30):
@@ -528,8 +534,11 @@ class Resonance(Effect):
         lz_lo, lz_hi = np.log(self.zeta_min), np.log(self.zeta_max)
         # a coarse log grid plus a fine one about the residual spectrum's strongest peak: a light
         # mode's cost valley is narrower than any affordable global grid
-        e_fit = np.asarray(residual, float)[np.asarray(train_mask, bool)]
-        f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=1.0 / dt, nperseg=min(4096, e_fit.size))
+        rows = np.flatnonzero(np.asarray(train_mask, bool))
+        e_fit = np.asarray(residual, float)[rows]
+        # the training rows may be thinned (every k-th row): the spectrum's rate is the rows' own
+        step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
+        f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=1.0 / (dt * step), nperseg=min(4096, e_fit.size))
         band = (f_psd >= np.exp(lf_lo)) & (f_psd <= np.exp(lf_hi))
         lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
         if band.any():

@@ -137,18 +137,28 @@ def _fit_candidate(eff, t, u, y, yhat, rows, joint, rounds=None):
     weights that only fit the training rows. Effects without ``columns`` enter as their fitted
     term with a free non-negative scale.
     """
-    p = eff.fit(t, u, y - yhat, joint.search, y_model=yhat, project=joint.project)
-    if hasattr(eff, "columns"):
-        C, lower = eff.columns(t, u, p, y_model=yhat)
-        C = np.atleast_2d(np.asarray(C, float).T).T
-        pred, g = joint.fit_with(C, y, lower)
-        p = eff.with_gains(p, g)
-        term = C @ g
-    else:
-        term0 = eff.term(t, u, p, y_model=yhat)
-        pred, g = joint.fit_with(term0, y, [0.0])
-        term = term0 * g[0]
-        p = {**p, "scale": float(g[0])}
+    best = None
+    # effects with nonlinear parameters search twice: against the projected base (finds what the
+    # base would absorb) and on the plain residual (no projection to distort a narrow valley);
+    # the joint constrained fit on the training rows decides (held-out rows never do)
+    modes = (joint.project, None) if getattr(eff, "nonlinear", False) else (joint.project,)
+    for project in modes:
+        p = eff.fit(t, u, y - yhat, joint.search, y_model=yhat, project=project)
+        if hasattr(eff, "columns"):
+            C, lower = eff.columns(t, u, p, y_model=yhat)
+            C = np.atleast_2d(np.asarray(C, float).T).T
+            pred, g = joint.fit_with(C, y, lower)
+            p = eff.with_gains(p, g)
+            term = C @ g
+        else:
+            term0 = eff.term(t, u, p, y_model=yhat)
+            pred, g = joint.fit_with(term0, y, [0.0])
+            term = term0 * g[0]
+            p = {**p, "scale": float(g[0])}
+        cost = rms((y - pred)[rows])
+        if best is None or cost < best[0]:
+            best = (cost, pred, term, p)
+    _, pred, term, p = best
     return pred, term, p
 
 
@@ -192,6 +202,8 @@ def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, rounds=2, progress=
         e = m.y - yhat
         if key not in before:
             before[key] = _errors(e[test])
+        if not before[key]["rms"] > 0 or int(fit_rows.sum()) < 10 * (base.basis.shape[1] + 3):
+            continue                        # a dead or fully clipped channel: nothing to explain
         try:
             pred, term, p = _fit_candidate(eff, t, u, m.y, yhat, fit_rows, joint, rounds)
         except ValueError:
@@ -204,18 +216,18 @@ def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, rounds=2, progress=
         fitted[(eff.name, ch)] = (p, pred - term, term)
     if progress:
         progress("effects", len(plan), len(plan))
-    cands.sort(key=lambda c: c["score"])
+    cands.sort(key=lambda c: c["score"] if np.isfinite(c["score"]) else np.inf)
     by = {(c["name"], c["channel"]): c for c in cands}
     out = {"candidates": cands,
            "channels": {ch: {**before[(ch, "model")], "units": base.channels[ch].units} for ch in base.channels
                         if (ch, "model") in before}}
-    passing = [c for c in cands if c["score"] <= max_ratio]
+    passing = [c for c in cands if np.isfinite(c["score"]) and c["score"] <= max_ratio]
     if not passing:
         first = next(iter(base.channels))
         ch = "displacement" if "displacement" in base.channels else first
         err = {**before[(ch, "model")], "units": base.channels[ch].units}
         out.update(effect="none", channel=ch, error_before=err, error_after=err, parameters={},
-                   reason=f"no candidate removes a fifth of the held-out error (best ratio "
+                   reason=f"no candidate brings the held-out error ratio to {max_ratio} (best "
                           f"{cands[0]['score']:.2f} > {max_ratio})" if cands else "no candidate applies")
         return out
     best = passing[0]
