@@ -134,7 +134,7 @@ def _r2(residual, explained):
     return float(np.clip(1.0 - np.sum(r * r) / den, 0.0, 1.0))
 
 
-def _varpro(columns, e, mask, grid, lower, upper, project=None):
+def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -146,11 +146,14 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None):
         return _lstsq(X, y)[1]
 
     costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
-    best = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float))
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
-    x0 = np.clip(best, lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-    sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60)
-    theta = sol.x if 2 * sol.cost <= min(costs) else best
+    theta, best_cost = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float)), min(costs)
+    # refine from the best few grid points: a light mode's valleys are narrow and several
+    for k in np.argsort(costs)[:starts]:
+        x0 = np.clip(np.atleast_1d(np.asarray(grid[int(k)], dtype=float)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
+        sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60)
+        if 2 * sol.cost < best_cost:
+            theta, best_cost = sol.x, 2 * sol.cost
     beta, _ = _lstsq(_rows(np.atleast_2d(columns(theta).T).T, mask, project), y)
     return theta, beta
 
@@ -539,19 +542,29 @@ class Resonance(Effect):
         # the training rows may be thinned (every k-th row): the spectrum's rate is the rows' own
         step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
         f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=1.0 / (dt * step), nperseg=min(4096, e_fit.size))
-        band = (f_psd >= np.exp(lf_lo)) & (f_psd <= np.exp(lf_hi))
+        # peaks above 20 Hz (below, the base model's own slow errors dominate the spectrum),
+        # ranked by prominence over a running median: a mode stands out of its neighbourhood
+        band = (f_psd >= max(np.exp(lf_lo), 20.0)) & (f_psd <= np.exp(lf_hi))
         lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
-        if band.any():
-            # the peak of the spectrum relative to its smoothed neighbourhood (a mode, not 1/f)
-            p_b = pxx[band]
-            smooth = np.convolve(p_b, np.ones(15) / 15, mode="same") + 1e-300
-            f_peak = f_psd[band][int(np.argmax(p_b / smooth * p_b))]
-            lfs += list(np.log(f_peak) + np.linspace(-0.15, 0.15, 13))
+        peaks = []
+        if band.sum() > 31:
+            from scipy.ndimage import median_filter
+            p_b, f_b = pxx[band], f_psd[band]
+            prominence = p_b / (median_filter(p_b, size=31, mode="nearest") + 1e-300)
+            # two by power (a broad, damped mode) and two by prominence (a sharp, weak one)
+            for order, quota in ((np.argsort(p_b)[::-1], 2), (np.argsort(prominence)[::-1], 4)):
+                for k in order:
+                    if len(peaks) >= quota:
+                        break
+                    if all(abs(np.log(f_b[k] / q)) > 0.1 for q in peaks):
+                        peaks.append(f_b[k])
         lfs = np.clip(lfs, lf_lo, lf_hi)
         grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
+        grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-0.12, 0.12, 11)
+                 for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), np.exp(th[1]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
-                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project)
+                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3)
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}
 
