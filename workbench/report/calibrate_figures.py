@@ -112,8 +112,14 @@ def _spans(mask):
     return edges.reshape(-1, 2)
 
 
-def _shade_held_out(ax, t, train):
-    for i, j in _spans(~np.asarray(train, bool)):
+def _held_out(base):
+    """The scored held-out rows (``base.test``; rows before a cycles split's training start are
+    neither trained on nor scored)."""
+    return base.test if getattr(base, "test", None) is not None else ~base.train
+
+
+def _shade_held_out(ax, t, test):
+    for i, j in _spans(np.asarray(test, bool)):
         ax.axvspan(t[i], t[j - 1], **HELD_OUT)
 
 
@@ -183,9 +189,9 @@ def _plot_overview(base, result, path):
     fig, axes = plt.subplots(len(names) + 1, 1, sharex=True, figsize=(11, 2.3 * (len(names) + 1) + 0.8),
                              layout="constrained")
     axes = np.atleast_1d(axes)
-    test = ~base.train
+    test = _held_out(base)
     av = axes[0]
-    _shade_held_out(av, t, base.train)
+    _shade_held_out(av, t, _held_out(base))
     _plot(av, t, base.v_drive, "k", lw=0.7)
     av.set_ylabel("voltage (V)")
     av.set_title(f"driving voltage: {base.voltage_source}" + ("" if base.starts_from_rest else
@@ -193,7 +199,7 @@ def _plot_overview(base, result, path):
     for ax, name in zip(axes[1:], names):
         m = base.channels[name]
         f, lab = si_scale(m.units, _peak(m.y))
-        _shade_held_out(ax, t, base.train)
+        _shade_held_out(ax, t, _held_out(base))
         y = np.where(m.valid, m.y, np.nan)
         _plot(ax, t, y * f, color=CHANNEL_COLORS.get(name, "C0"), lw=0.8, label="measured")
         _plot(ax, t, m.yhat * f, "k--", lw=0.8, label="base model (PI of V)")
@@ -268,8 +274,8 @@ def _plot_residual(base, result, path):
     fig = plt.figure(figsize=(11, 8), layout="constrained")
     gs = fig.add_gridspec(2, 2, height_ratios=[1.2, 1])
     ax = fig.add_subplot(gs[0, :])
-    _shade_held_out(ax, t, base.train)
-    test = ~base.train
+    _shade_held_out(ax, t, _held_out(base))
+    test = _held_out(base)
     _plot(ax, t, e0 * f, color="0.6", lw=0.6, label="before (training rows)")
     _plot(ax, t, np.where(test, e0, np.nan) * f, color="C0", lw=0.6, alpha=0.7, label="before (held out)")
     if e1 is not None:
@@ -307,7 +313,7 @@ def _plot_residual(base, result, path):
     fy, ly = si_scale(m.units, _peak(m.y[sl]))
     tz = t[sl]
     for a in (az, ar):
-        _shade_held_out(a, tz, base.train[sl])
+        _shade_held_out(a, tz, _held_out(base)[sl])
     az.plot(tz, np.where(valid[sl], m.y[sl], np.nan) * fy, color=CHANNEL_COLORS.get(ch, "C0"), lw=1.0,
             label="measured")
     az.plot(tz, before[sl] * fy, "k--", lw=0.9, label="model before")

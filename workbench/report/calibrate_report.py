@@ -137,7 +137,7 @@ def parameter_rows(effect, parameters, channel_unit):
 
 
 def _base_section(base):
-    test = ~np.asarray(base.train, bool)
+    test = base.test if getattr(base, "test", None) is not None else ~np.asarray(base.train, bool)
     rows = []
     for name, m in base.channels.items():
         r = test & m.valid
@@ -155,7 +155,7 @@ def _base_section(base):
              f"offset (non-negative weights, training rows only). Driving voltage: **{base.voltage_source}**. "
              f"Starts from rest: **{'yes' if base.starts_from_rest else 'no'}**. Training rows "
              f"{100 * float(np.mean(base.train)):.0f} %, held out {100 * float(np.mean(test)):.0f} % "
-             f"(blocks through the whole record).", ""]
+             f"({'blocks through the whole record' if np.any(test[: test.size // 2]) else 'the record after the training cycles'}).", ""]
     lines += _table(("channel", "span (peak-to-peak)", "held-out RMS", "held-out max", "fit (%)", "held-out rows"),
                     rows)
     gains = []
