@@ -412,7 +412,7 @@ def build_parser():
     p.add_argument("--out", type=Path, default=None, help="folder for the report, figures and updated plant")
     p.add_argument("--json", type=Path, default=None, help="write the result as JSON here")
     p.add_argument("--split", choices=("blocks", "cycles"), default=None,
-                   help="held-out rows: a third of 0.25 s blocks (default for a PZT plant) or after the first cycles "
+                   help="held-out rows: a third of 0.1 s blocks (default for a PZT plant) or after the first cycles "
                         "(default for a generic stack)")
     p.add_argument("--train-cycles", type=float, default=3, help="input cycles that train with --split cycles")
     p.add_argument("--max-ratio", type=float, default=0.8,

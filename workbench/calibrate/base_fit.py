@@ -83,10 +83,12 @@ class BaseFit:
     notes: list = field(default_factory=list)
 
 
-def holdout_mask(t, v, split="blocks", block_s=0.25, every=3, train_cycles=3):
+def holdout_mask(t, v, split="blocks", block_s=0.1, every=3, train_cycles=3):
     """Training rows (True) of a record; the rest is held out for every error reported.
 
-    ``"blocks"``: the record cut into ``block_s`` blocks, every ``every``-th held out, so each
+    ``"blocks"``: the record cut into ``block_s`` blocks (0.1 s: a chirp sweeps through a light
+    mode in tens of ms, so longer blocks can leave its ringing all in training or all held out),
+    a third of them held out, so each
     part of a protocol (sines, holds, chirp) is both fitted and tested; models with memory run
     over the whole record, only the rows scored differ. ``"cycles"``: the first
     ``train_cycles`` input cycles train, the rest is predicted (``split_by_cycles``).

@@ -22,10 +22,14 @@ from scipy.signal import chirp
 __all__ = ["calibration_protocol"]
 
 
-def calibration_protocol(dt_s=1e-4, rest_s=0.5, v_max=100.0, sine_hz=0.5, sine_cycles=5, sine_decay=0.7,
+def calibration_protocol(dt_s=1e-4, rest_s=0.5, v_max=100.0, sine_hz=0.5, sine_cycles=4, sine_decay=0.65,
                          stairs_v=(25.0, 50.0, 75.0, 100.0, 60.0, 30.0, 10.0), hold_s=3.0,
-                         chirp_amplitude_v=0.5, chirp_f0_hz=1.0, chirp_f1_hz=2000.0, chirp_s=4.0):
+                         chirp_amplitude_v=0.5, chirp_f0_hz=10.0, chirp_f1_hz=2000.0, chirp_s=6.0):
     """Time and command of the protocol, sampled at ``dt_s``; about 35.5 s by default.
+
+    The chirp starts at 10 Hz (the sines and holds cover the slower range) and takes 6 s, so it
+    dwells ~2.6 s per decade: a light mode's ringing then lasts long enough to be both fitted
+    and tested.
 
     Returns
     -------

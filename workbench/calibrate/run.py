@@ -37,7 +37,7 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
                   penalty=0.02, figures=True, progress=None):
     """Calibrate ``plant_path`` on the record ``data_path``; returns the JSON-ready dict.
 
-    ``split``: ``"blocks"`` (default for a full PZT plant: 0.25 s blocks, a third held out by a
+    ``split``: ``"blocks"`` (default for a full PZT plant: 0.1 s blocks, a third held out by a
     golden-ratio pattern) or ``"cycles"`` (default for a generic stack: the first
     ``train_cycles`` input cycles train, the rest is predicted).
     """
