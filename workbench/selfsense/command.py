@@ -50,12 +50,8 @@ def add_parser(sub):
 
 
 def _emit(args, data, lines):
-    from ..report import write_json
-    for line in lines:
-        print(line)
-    if getattr(args, "json", None):
-        write_json(args.json, data)
-        print(f"wrote {args.json}")
+    from ..cli import _emit as emit        # the CLI's one output convention (lines or --json)
+    emit(args, data, lines)
 
 
 def run(args):
