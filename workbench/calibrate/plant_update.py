@@ -64,10 +64,12 @@ def updated_plant_text(plant_path, plant, base, result, data_path):
         q = base.channels["charge"].yhat
         c_sec = float(np.ptp(q) / max(np.ptp(base.v_drive), 1e-12))
         gains, taus = np.asarray(p["gains"]), np.asarray(p["taus_s"])
-        keep = gains > 0
+        # branches faster than 10 ms take up rate-dependent misfit of the base model (the
+        # amplifier's slews), not creep: they stay in the JSON, not in the plant's creep
+        keep = (gains > 0) & (taus >= 0.01)
         if keep.any():
             block = ["[creep]", f"# C_j = c_j x C_sec, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
-                                f"(an approximation: V_h is not recorded)",
+                                f"(an approximation: V_h is not recorded); branches under 10 ms left out",
                      f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
                      f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
     elif effect == "resonance" and ch == "displacement":
