@@ -46,7 +46,8 @@ EFFECT_RANGES = {
     "leakage": {"resistance_ohm": (2e7, 2e8)},
     # a stack loaded by a mirror or stage: first mode 150-400 Hz, 0.5-2 % damping. The P-888.51
     # amplifier's +2 mA limit shrinks the chirp at the stack as 1/f, so a mode's share of the
-    # held-out error falls with f and damping: measured, 900 Hz / 1 % is found and halved (0.47),
+    # held-out error falls with f and damping: measured with a 4 s chirp from 1 Hz (the protocol's
+    # chirp now dwells 1.5x longer per decade), 900 Hz / 1 % is found and halved (0.47),
     # 450 Hz / 3 % found but not halved (0.64), 663 Hz / 2.6 % and 1.37 kHz / 3 % answered none.
     # Halving needs the mode's RMS above ~1.7 x the rest (after = the rest): the range keeps it there
     "resonance": {"freq_hz": (150.0, 400.0), "damping_ratio": (0.005, 0.02)},
