@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import DataFileError, PlantDefinitionError, WorkbenchError
 from ..plant.files import load_plant
 from ..plant.generic import load_generic_stack, plant_kind, to_toml
-from ..report.output import write_json, write_text
+from ..report.output import write_text
 from .base_fit import fit_base, holdout_mask
 from .creep_holds import fit_holds
 from .pi_fit import split_by_cycles

@@ -9,23 +9,13 @@ import argparse
 from pathlib import Path
 
 from ..errors import DataFileError, WorkbenchError
-from ..units import parse_quantity
 
 __all__ = ["add_parser", "run", "main"]
 
 
-def _quantity(expected):
-    def parse(text):
-        try:
-            return parse_quantity(text, expected)
-        except WorkbenchError as err:
-            raise argparse.ArgumentTypeError(str(err)) from err
-    parse.__name__ = f"quantity in {expected}"
-    return parse
-
-
 def add_parser(sub):
     """Register `selfsense` on an argparse sub-parsers object."""
+    from ..cli import _quantity             # the CLI's one quantity parser ("1000s", "20min")
     from .run import DEFAULT_CONTROLLER
     p = sub.add_parser("selfsense", help="displacement from the stack's own charge (seed 002), staged errors",
                        description="Self-sensing as seed 002 builds it, for a stack: a charge amplifier "
