@@ -76,9 +76,9 @@ class _Joint:
 
     ``project(X)`` removes from training-row columns what the base columns explain (the
     unconstrained projection, for an effect's own nonlinear parameters); ``fit_with`` solves
-    base and effect columns together with their sign constraints; ``refit(target)`` the base
-    alone. With ``R^T R`` the Gram matrix of the (unit-scaled) base columns, every bounded
-    solve runs on a columns x columns system (``base_fit.small_problem``).
+    base and effect columns together with their sign constraints. With ``R^T R`` the Gram
+    matrix of the (unit-scaled) columns, the bounded solve runs on a columns x columns system
+    (``base_fit.small_problem``).
     """
 
     def __init__(self, A_full, rows, nonneg):
@@ -89,7 +89,6 @@ class _Joint:
         self.nonneg = np.asarray(nonneg, bool)[keep]
         self.rows = rows
         self.A = self.A_full[rows]
-        self.R, _ = small_problem(self.A)
         # the search for an effect's nonlinear parameters scores every 3rd fitting row: the
         # columns are still computed at the full rate (filters need it), only the cost is thinned
         idx = np.flatnonzero(rows)[::3]
@@ -118,14 +117,8 @@ class _Joint:
         g = sol[k:] / norms
         return self.A_full @ sol[:k] + C_full @ g, g
 
-    def refit(self, target):
-        R, rhs = small_problem(self.A, np.asarray(target)[self.rows])
-        lb = np.where(self.nonneg, 0.0, -np.inf)
-        c = lsq_linear(R, rhs, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
-        return self.A_full @ c
 
-
-def _fit_candidate(eff, t, u, y, yhat, rows, joint, rounds=None):
+def _fit_candidate(eff, t, u, y, yhat, rows, joint):
     """Fit one effect together with the base model.
 
     The effect's nonlinear parameters (a time constant, a mode, a delay) come from its own fit
@@ -162,7 +155,7 @@ def _fit_candidate(eff, t, u, y, yhat, rows, joint, rounds=None):
     return pred, term, p
 
 
-def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, rounds=2, progress=None):
+def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, progress=None):
     """Fit every candidate, score it on the held-out rows and name the effect.
 
     Returns
@@ -205,7 +198,7 @@ def trace_effect(base: BaseFit, penalty=0.02, max_ratio=0.8, rounds=2, progress=
         if not before[key]["rms"] > 0 or int(fit_rows.sum()) < 10 * (base.basis.shape[1] + 3):
             continue                        # a dead or fully clipped channel: nothing to explain
         try:
-            pred, term, p = _fit_candidate(eff, t, u, m.y, yhat, fit_rows, joint, rounds)
+            pred, term, p = _fit_candidate(eff, t, u, m.y, yhat, fit_rows, joint)
         except ValueError:
             continue
         after = _errors((m.y - pred)[test])
