@@ -9,13 +9,13 @@ import argparse
 from pathlib import Path
 
 from ..errors import DataFileError, WorkbenchError
+from ..units import parse_quantity
 
 __all__ = ["add_parser", "run", "main"]
 
 
 def add_parser(sub):
     """Register `selfsense` on an argparse sub-parsers object."""
-    from ..cli import _quantity             # the CLI's one quantity parser ("1000s", "20min")
     from .run import DEFAULT_CONTROLLER
     p = sub.add_parser("selfsense", help="displacement from the stack's own charge (seed 002), staged errors",
                        description="Self-sensing as seed 002 builds it, for a stack: a charge amplifier "
@@ -39,9 +39,26 @@ def add_parser(sub):
     return p
 
 
+def _quantity(expected):
+    """argparse type: a quantity in ``expected`` units ("1000s", "20min") via :func:`workbench.units.parse_quantity`;
+    a bad value is an argparse error (usage message, exit status 2)."""
+    def parse(text):
+        try:
+            return parse_quantity(text, expected)
+        except WorkbenchError as err:
+            raise argparse.ArgumentTypeError(str(err)) from err
+    parse.__name__ = f"quantity in {expected}"
+    return parse
+
+
 def _emit(args, data, lines):
-    from ..cli import _emit as emit        # the CLI's one output convention (lines or --json)
-    emit(args, data, lines)
+    """The CLI's output convention: the lines on stdout, the data as JSON (written whole) when ``--json``."""
+    from ..report import write_json
+    for line in lines:
+        print(line)
+    if getattr(args, "json", None):
+        write_json(args.json, data)
+        print(f"wrote {args.json}")
 
 
 def run(args):
