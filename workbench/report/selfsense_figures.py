@@ -8,7 +8,8 @@ import numpy as np  # noqa: E402
 
 from .output import save_figure, write_json, write_text  # noqa: E402
 
-__all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs"]
+__all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs", "plot_force",
+           "write_force_outputs"]
 
 UM, NM = 1e6, 1e9
 BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)
@@ -182,4 +183,128 @@ def write_selfsense_outputs(out, data, rec, errs, noise, la):
     write_text(out / "report.md", _report(data, figures))
     figures["report"] = "report.md"
     write_json(out / "selfsense.json", {**data, "figures": figures})
+    return figures
+
+
+# ---- force self-sensing (`workbench selfsense --force`) ------------------------------------------
+
+def plot_force(data, path):
+    """Estimated against true force: the simulated step (absolute and tared, its error) and the Table 1 runs."""
+    arr, step, ins = data["_arrays"], data["force_step"], data["instron"]
+    t, f_true = arr["t_s"], arr["f_true_n"]
+    last = list(arr["estimates_n"])[-1]
+    est = arr["estimates_n"][last]
+    fig = plt.figure(figsize=(11, 7.5))
+    gs = fig.add_gridspec(2, 2, width_ratios=[1.5, 1])
+    ax1 = fig.add_subplot(gs[0, 0])
+    ax2 = fig.add_subplot(gs[1, 0], sharex=ax1)
+    ax3 = fig.add_subplot(gs[:, 1])
+    k = _thin(t.size)
+    ax1.plot(t[k], f_true[k], color="0.2", lw=1.6, label="true F_e (simulation)")
+    for name, e in arr["estimates_n"].items():
+        if name != last:
+            ax1.plot(t[k], e[k], lw=0.6, alpha=0.6, label=f"estimate, {name.replace('_', ' ')}")
+    ax1.plot(t[k], est[k], color="C3", lw=1.0, label="estimate, all stages (from reset)")
+    ax1.plot(t[k], est[k] - arr["tare_n"], color="C1", lw=1.0, ls="--", label="estimate, all stages, tared 1 s before")
+    ax1.set_ylabel("environmental force F_e, N")
+    ax1.set_title(f"{step['force_n']:+.0f} N force step on the stack held at {step['bias_v']:.0f} V")
+    ax1.legend(fontsize=7, loc="lower left", ncol=2)
+    lo = min(float(np.min(f_true)), 0.0)
+    ax1.set_ylim(lo - 0.5 * abs(step["force_n"]), max(float(np.max(f_true)), 0.0) + 0.5 * abs(step["force_n"]))
+    tol = step["target_fraction"] * abs(step["force_n"])
+    ax2.plot(t[k], (est - f_true)[k], color="C3", lw=0.8, label="from reset")
+    ax2.plot(t[k], (est - arr["tare_n"] - f_true)[k], color="C1", lw=0.8, label="tared")
+    ax2.axhspan(-tol, tol, color="C2", alpha=0.15, label=f"+/- {100 * step['target_fraction']:.0f} % of the step")
+    ax2.axvline(step["step_at_s"] + 1.0, color="0.5", lw=0.6, ls=":")
+    ax2.set_ylim(-8 * tol, 8 * tol)
+    ax2.set_xlabel("time, s")
+    ax2.set_ylabel("estimate - true, N")
+    ax2.legend(fontsize=7, loc="upper left")
+    s4 = step["stages"][-1]
+    ax2.text(0.98, 0.04, f"1 s to end: {s4['tared_error_max_n']['1s_end']:.2f} N tared, "
+             f"{s4['abs_error_max_n']['1s_end']:.2f} N from reset\n1-5 s: {s4['tared_error_max_n']['1_5s']:.2f} N tared",
+             transform=ax2.transAxes, ha="right", va="bottom", fontsize=8, bbox=BOX)
+    runs = ins["runs"]
+    true = np.array([-r["force_n"] for r in runs])
+    sim = np.array([-r["simulated"]["peak_force_estimate_n"] for r in runs])
+    cfg = np.array([r["config"] for r in runs])
+    for c, mk in (("R_in", "o"), ("R_out", "s")):
+        m = cfg == c
+        ax3.plot(true[m], sim[m], mk, mfc="none", color="C0", label=f"simulated run, {c.replace('_', ' ')}")
+    ro = [r for r in runs if "measured_back_emf" in r]
+    ax3.plot([-r["force_n"] for r in ro], [-r["measured_back_emf"]["peak_force_estimate_n"] for r in ro], "^",
+             color="C3", label="measured back EMF, model gain")
+    ax3.plot([-r["force_n"] for r in ro], [-r["measured_back_emf"]["calibrated_leave_one_out"]["peak_force_estimate_n"]
+                                            for r in ro], "v", color="C2", label="measured back EMF, gain of the other runs")
+    every = np.concatenate([true, sim, [-r["measured_back_emf"]["peak_force_estimate_n"] for r in ro]])
+    span = np.array([np.floor(every.min() / 50) * 50 - 25, np.ceil(every.max() / 50) * 50 + 25])
+    ax3.plot(span, span, color="0.3", lw=0.8)
+    ax3.fill_between(span, span * (1 - ins["target_fraction"]), span * (1 + ins["target_fraction"]), color="0.5",
+                     alpha=0.15, label=f"+/- {100 * ins['target_fraction']:.0f} %")
+    ax3.set_xlim(*span)
+    ax3.set_ylim(*span)
+    ax3.set_aspect("equal")
+    ax3.set_xlabel("Table 1 peak compression, N")
+    ax3.set_ylabel("self-sensed peak compression, N")
+    ax3.set_title("Instron runs (seed 000 Table 1)")
+    ax3.legend(fontsize=7, loc="lower right")
+    for ax in (ax1, ax2, ax3):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def _force_report(data, figure):
+    step, ins = data["force_step"], data["instron"]
+    yes = lambda b: "met" if b else "MISSED"    # noqa: E731
+    lines = ["# Force self-sensing", "",
+             f"Plant `{data['plant']}`. Force from the terminal voltage and the drift-compensated charge through "
+             "the seed 000 model read backwards (V_h by the exact PI inverse of C_h and its creep branches, "
+             "V_p = V_t - V_h, x from eq. 9, F_e from eq. 5).", "",
+             f"![]({figure})", "",
+             f"## {step['force_n']:+.0f} N step at {step['bias_v']:.0f} V ({step['sample_hz']:.0f} Hz record)", "",
+             "| stage | max error 1 s-end, N | tared 1-2 s, N | tared 1-5 s, N | tared 1 s-end, N | x error, nm | x = k_q2x q error, nm |",
+             "|---|---|---|---|---|---|---|"]
+    for s in step["stages"]:
+        a, tr = s["abs_error_max_n"], s["tared_error_max_n"]
+        lines.append(f"| {s['title']} | {a['1s_end']:.2f} | {tr['1_2s']:.2f} | {tr['1_5s']:.2f} | {tr['1s_end']:.2f} | "
+                     f"{s['x_error_max_m'] * NM:.1f} | {s['x_from_charge_only_error_max_m'] * NM:.1f} |")
+    tol = step["target_fraction"] * abs(step["force_n"])
+    lines += ["", f"Target {tol:.1f} N ({100 * step['target_fraction']:.0f} %) after 1 s: tared over 1-5 s "
+              f"**{yes(step['target_met_tared_1_5s'])}**; tared to the end of the record **{yes(step['target_met_tared_1s_end'])}**; "
+              f"from the reset **{yes(step['target_met_absolute_1s_end'])}**.", "",
+              "## Instron runs (Table 1)", "",
+              "| serial | run | config | F, N | simulated estimate, N | error % | model x / measured x, um | "
+              "model / measured back EMF, V | from measured back EMF, N (error %) | gain of the other runs, N (error %) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in ins["runs"]:
+        s = r["simulated"]
+        m = r.get("measured_back_emf")
+        mtxt = f"{m['peak_force_estimate_n']:.1f} ({100 * m['error_fraction']:+.1f})" if m else "n/a (V_t = 0, no charge in Table 1)"
+        ctxt = (f"{m['calibrated_leave_one_out']['peak_force_estimate_n']:.1f} "
+                f"({100 * m['calibrated_leave_one_out']['error_fraction']:+.1f})") if m else ""
+        flag = " (printed x/gauge swapped?)" if r["suspected_swap"] else ""
+        lines.append(f"| {r['serial']} | {r['run']} | {r['config'].replace('_', ' ')} | {r['force_n']:.1f} | "
+                     f"{s['peak_force_estimate_n']:.1f} | {100 * s['error_fraction']:+.2f} | "
+                     f"{s['model_displacement_m'] * UM:.3f} / {r['displacement_m'] * UM:.3f}{flag} | "
+                     f"{s['model_back_emf_v']:.2f} / {r['back_emf_v']:.2f} | {mtxt} | {ctxt} |")
+    lines += ["", f"Target: peak force within {100 * ins['target_fraction']:.0f} %: simulated runs "
+              f"(max {100 * ins['simulated_max_error_fraction']:.2f} %) **{yes(ins['target_met_simulated'])}**; "
+              f"measured R out back EMF with the model's {ins['force_per_back_emf_model_n_per_v']:.2f} N/V "
+              f"(max {100 * ins['measured_r_out_max_error_fraction']:.1f} %, mean "
+              f"{100 * ins['measured_r_out_mean_error_fraction']:+.1f} %) **{yes(ins['target_met_measured_r_out'])}**; "
+              f"with the gain identified on the other runs (seed 002 eq. 2.32; max "
+              f"{100 * ins['measured_r_out_calibrated_max_error_fraction']:.1f} %, RMS "
+              f"{100 * ins['measured_r_out_calibrated_rms_error_fraction']:.1f} %) "
+              f"**{yes(ins['target_met_measured_r_out_calibrated'])}**.", ""]
+    return "\n".join(lines) + "\n"
+
+
+def write_force_outputs(out, data):
+    """force.png, force_report.md and force.json into ``out``; {name: file}. ``data['_arrays']`` is not written."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {"force": plot_force(data, out / "force.png").name}
+    write_text(out / "force_report.md", _force_report(data, figures["force"]))
+    figures["report"] = "force_report.md"
+    write_json(out / "force.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures

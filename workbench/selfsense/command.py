@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import DataFileError, WorkbenchError
 from ..units import parse_quantity
 
-__all__ = ["add_parser", "run", "main"]
+__all__ = ["add_parser", "run", "run_force", "main"]
 
 
 def add_parser(sub):
@@ -35,6 +35,12 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=2, help="noise and staircase seed (default 2)")
     p.add_argument("--out", type=Path, help="folder for the stage figures, noise.png, loop.png, report.md")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.add_argument("--force", action="store_true",
+                   help="force self-sensing instead of the displacement stages: a simulated force step "
+                        "(--step-force, default -100N, at 50 V) and the Table 1 Instron runs; writes force.png, "
+                        "force_report.md and force.json with --out")
+    p.add_argument("--step-force", type=_quantity("N"), default=-100.0,
+                   help="force step of the --force study (default -100N: compression is negative)")
     p.set_defaults(func=run)
     return p
 
@@ -69,6 +75,8 @@ def run(args):
                             f"e.g. plants/p888_51_sn637_creep.toml")
     if args.out is not None and Path(args.out).exists() and not Path(args.out).is_dir():
         raise DataFileError(f"--out {args.out}: exists and is not a folder; give a folder path")
+    if getattr(args, "force", False):
+        return run_force(args)
     data = run_selfsense(args.plant, duration_s=args.duration, out_dir=args.out, seed=args.seed,
                          controller_path=args.controller, loop=not args.no_loop)
     stroke = data["stroke_m"]
@@ -87,6 +95,38 @@ def run(args):
     lines.append(f"  target (last stage <= 1 % of stroke p-p): {'met' if data['target_met'] else 'MISSED'}")
     if args.out is not None:
         lines.append(f"  report {Path(args.out) / 'report.md'}")
+    _emit(args, data, lines)
+
+
+def run_force(args):
+    """`workbench selfsense --force`: the force study, printed; figures/report with --out, JSON with --json."""
+    from .force import run_force_study
+    if not args.step_force != 0.0:
+        raise DataFileError("--step-force must be nonzero, e.g. -100N (compression) or 50N")
+    data = run_force_study(args.plant, seed=args.seed, step_n=args.step_force)
+    if args.out is not None:
+        from ..report.selfsense_figures import write_force_outputs
+        data["figures"] = write_force_outputs(Path(args.out), data)
+    data.pop("_arrays")
+    st, ins = data["force_step"], data["instron"]
+    tol = st["target_fraction"] * abs(st["force_n"])
+    lines = [f"{args.plant}: force self-sensing, {st['force_n']:+.0f} N step at {st['bias_v']:.0f} V "
+             f"(error max from 1 s after the step to the end, N)"]
+    for s in st["stages"]:
+        lines.append(f"  {s['title']}: {s['abs_error_max_n']['1s_end']:.2f} N from reset, "
+                     f"{s['tared_error_max_n']['1s_end']:.2f} N tared ({s['tared_error_max_n']['1_5s']:.2f} N over 1-5 s); "
+                     f"x {s['x_error_max_m'] * 1e9:.1f} nm (x = k_q2x q: {s['x_from_charge_only_error_max_m'] * 1e9:.1f} nm)")
+    met = lambda b: "met" if b else "MISSED"    # noqa: E731
+    lines.append(f"  target {tol:.1f} N after 1 s: tared 1-5 s {met(st['target_met_tared_1_5s'])}, tared to the end "
+                 f"{met(st['target_met_tared_1s_end'])}, from reset {met(st['target_met_absolute_1s_end'])}")
+    lines.append(f"  Table 1, {len(ins['runs'])} runs simulated: peak force max error "
+                 f"{100 * ins['simulated_max_error_fraction']:.2f} % ({met(ins['target_met_simulated'])})")
+    lines.append(f"  Table 1 R out from the measured back EMF: model gain {ins['force_per_back_emf_model_n_per_v']:.2f} N/V "
+                 f"max error {100 * ins['measured_r_out_max_error_fraction']:.1f} % ({met(ins['target_met_measured_r_out'])}); "
+                 f"gain of the other runs max {100 * ins['measured_r_out_calibrated_max_error_fraction']:.1f} % "
+                 f"({met(ins['target_met_measured_r_out_calibrated'])})")
+    if args.out is not None:
+        lines.append(f"  report {Path(args.out) / 'force_report.md'}, figure {Path(args.out) / 'force.png'}")
     _emit(args, data, lines)
 
 
