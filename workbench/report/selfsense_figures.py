@@ -9,7 +9,7 @@ import numpy as np  # noqa: E402
 from .output import save_figure, write_json, write_text  # noqa: E402
 
 __all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs", "plot_force",
-           "write_force_outputs"]
+           "write_force_outputs", "plot_dynamics", "write_dynamics_outputs"]
 
 UM, NM = 1e6, 1e9
 BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)
@@ -307,4 +307,77 @@ def write_force_outputs(out, data):
     write_text(out / "force_report.md", _force_report(data, figures["force"]))
     figures["report"] = "force_report.md"
     write_json(out / "force.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
+    return figures
+
+
+# ---- identified dynamics (`workbench selfsense --dynamics`) ----------------------------------------
+
+def plot_dynamics(data, path):
+    """K D(s) and H(s): model-derived beside identified (Bode), and the dynamic estimators' errors on the staircase."""
+    resp, rec = data["_arrays"]["responses"], data["_arrays"]["records"]
+    f = resp["freq_hz"]
+    fig = plt.figure(figsize=(11, 8.5))
+    gs = fig.add_gridspec(3, 2, height_ratios=[1, 0.7, 1])
+    for col, (key, title, unit) in enumerate((("kd", "K D(s) = x / V_in", "m/V"), ("h", "H(s) = V_out / V_in", "V/V"))):
+        axm = fig.add_subplot(gs[0, col])
+        axp = fig.add_subplot(gs[1, col], sharex=axm)
+        for src, color, ls in (("model", "C0", "-"), ("identified", "C3", "--")):
+            y = resp[f"{key}_{src}"]
+            axm.loglog(f, np.abs(y), color=color, ls=ls, label=f"{src}")
+            axp.semilogx(f, np.degrees(np.angle(y)), color=color, ls=ls)
+        axm.set_title(title)
+        axm.set_ylabel(f"magnitude, {unit}")
+        axp.set_ylabel("phase, deg")
+        axp.set_xlabel("frequency, Hz")
+        axm.legend(fontsize=8)
+        for ax in (axm, axp):
+            ax.grid(alpha=0.3, which="both")
+    ax = fig.add_subplot(gs[2, :])
+    t = rec["t_s"]
+    c = data["comparison"]
+    for key, color, label in (("static", "0.6", "static estimate (stage 3)"), ("model", "C0", "dynamic, model E(s)"),
+                              ("identified", "C3", "dynamic, identified E(s)")):
+        tb, lo, hi = _envelope(t, (rec[f"{key}_m"] - rec["x_m"]) * NM)
+        ax.fill_between(tb, lo, hi, color=color, alpha=0.5 if key != "static" else 0.3, lw=0.5,
+                        label=f"{label}: {c[key]['error_rms_m'] * NM:.1f} nm RMS, {c[key]['error_pp_m'] * NM:.0f} nm p-p")
+    ax.axhline(0, color="0.4", lw=0.6)
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("estimate - true x, nm")
+    ax.set_title(f"Staircase record neither fit saw: identified/model RMS = {c['ratio_rms_identified_over_model']:.2f}")
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def write_dynamics_outputs(out, data):
+    """dynamics.png, dynamics_report.md and dynamics.json into ``out``; {name: file}."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {"dynamics": plot_dynamics(data, out / "dynamics.png").name}
+    dyn, c = data["dynamics"], data["comparison"]
+    kd, h = dyn["kd"], dyn["h_r"]
+    fmt = lambda g, s: f"{g:.4g} +/- {s:.2g}"   # noqa: E731
+    lines = ["# Identified dynamics of the self-sensing estimator", "",
+             f"Plant `{data['plant']}`. K D(s) and H(s) fitted on a simulated 20 V step record (seed 002 sec. 2.5.3), "
+             f"orders {dyn['order_kd']} and {dyn['order_h']} by BIC; the dynamic estimators compared on a "
+             f"{data['evaluation_duration_s']:.0f} s staircase neither fit saw.", "", f"![]({figures['dynamics']})", "",
+             f"K: identified {kd['dc_gain'] * UM:.5f} +/- {kd['sigma_dc_gain'] * UM:.1g} um/V (20 V step secant), "
+             f"model {data['model']['k_m_per_v'] * UM:.5f} um/V (small signal at 50 V).", "",
+             "| relaxation | K D: gain, m/V | tau, s | H_r: gain, V/V | tau, s |", "|---|---|---|---|---|",
+             f"| direct | {fmt(kd['direct'], kd['sigma_direct'])} | | {fmt(h['direct'], h['sigma_direct'])} | |"]
+    for i in range(max(len(kd["gains"]), len(h["gains"]))):
+        a = (f"{fmt(kd['gains'][i], kd['sigma_gains'][i])} | {fmt(kd['time_constants_s'][i], kd['sigma_time_constants_s'][i])}"
+             if i < len(kd["gains"]) else " | ")
+        b = (f"{fmt(h['gains'][i], h['sigma_gains'][i])} | {fmt(h['time_constants_s'][i], h['sigma_time_constants_s'][i])}"
+             if i < len(h["gains"]) else " | ")
+        lines.append(f"| {i + 1} | {a} | {b} |")
+    lines += ["", "| estimate | error RMS, nm | error p-p, nm |", "|---|---|---|"]
+    for key, label in (("static", "static (stage 3)"), ("model", "dynamic, model-derived E"),
+                       ("identified", "dynamic, identified E")):
+        lines.append(f"| {label} | {c[key]['error_rms_m'] * NM:.1f} | {c[key]['error_pp_m'] * NM:.1f} |")
+    lines += ["", f"Target: identified within {data['target_ratio']:.1f}x the model-derived error (RMS): ratio "
+              f"{c['ratio_rms_identified_over_model']:.2f}, **{'met' if data['target_met'] else 'MISSED'}**.", ""]
+    write_text(out / "dynamics_report.md", "\n".join(lines) + "\n")
+    figures["report"] = "dynamics_report.md"
+    write_json(out / "dynamics.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures

@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import DataFileError, WorkbenchError
 from ..units import parse_quantity
 
-__all__ = ["add_parser", "run", "run_force", "main"]
+__all__ = ["add_parser", "run", "run_force", "run_dynamics", "main"]
 
 
 def add_parser(sub):
@@ -39,6 +39,10 @@ def add_parser(sub):
                    help="force self-sensing instead of the displacement stages: a simulated force step "
                         "(--step-force, default -100N, at 50 V) and the Table 1 Instron runs; writes force.png, "
                         "force_report.md and force.json with --out")
+    p.add_argument("--dynamics", action="store_true",
+                   help="the estimator's K D(s) and H(s) identified from a step record instead of the displacement "
+                        "stages; both dynamic estimators scored on a staircase; writes dynamics.png, "
+                        "dynamics_report.md and dynamics.json with --out")
     p.add_argument("--step-force", type=_quantity("N"), default=-100.0,
                    help="force step of the --force study (default -100N: compression is negative)")
     p.set_defaults(func=run)
@@ -75,8 +79,12 @@ def run(args):
                             f"e.g. plants/p888_51_sn637_creep.toml")
     if args.out is not None and Path(args.out).exists() and not Path(args.out).is_dir():
         raise DataFileError(f"--out {args.out}: exists and is not a folder; give a folder path")
+    if getattr(args, "force", False) and getattr(args, "dynamics", False):
+        raise DataFileError("--force and --dynamics are separate studies; give one of them")
     if getattr(args, "force", False):
         return run_force(args)
+    if getattr(args, "dynamics", False):
+        return run_dynamics(args)
     data = run_selfsense(args.plant, duration_s=args.duration, out_dir=args.out, seed=args.seed,
                          controller_path=args.controller, loop=not args.no_loop)
     stroke = data["stroke_m"]
@@ -127,6 +135,32 @@ def run_force(args):
                  f"({met(ins['target_met_measured_r_out_calibrated'])})")
     if args.out is not None:
         lines.append(f"  report {Path(args.out) / 'force_report.md'}, figure {Path(args.out) / 'force.png'}")
+    _emit(args, data, lines)
+
+
+def run_dynamics(args):
+    """`workbench selfsense --dynamics`: identified K D(s), H(s) and the two dynamic estimators, printed."""
+    from .sysid import run_dynamics_study
+    data = run_dynamics_study(args.plant, seed=args.seed)
+    if args.out is not None:
+        from ..report.selfsense_figures import write_dynamics_outputs
+        data["figures"] = write_dynamics_outputs(Path(args.out), data)
+    data.pop("_arrays")
+    dyn, c = data["dynamics"], data["comparison"]
+    kd = dyn["kd"]
+    lines = [f"{args.plant}: estimator dynamics identified from a 20 V step (orders by BIC: K D {dyn['order_kd']}, "
+             f"H {dyn['order_h']})",
+             f"  K = {kd['dc_gain'] * 1e6:.5f} +/- {kd['sigma_dc_gain'] * 1e6:.1g} um/V (model, small signal at 50 V: "
+             f"{data['model']['k_m_per_v'] * 1e6:.5f} um/V); creep time constants "
+             + ", ".join(f"{t:.3g} s" for t in kd["time_constants_s"])]
+    for key, label in (("static", "static estimate (stage 3)"), ("model", "dynamic, model-derived E"),
+                       ("identified", "dynamic, identified E")):
+        lines.append(f"  {label}: {c[key]['error_rms_m'] * 1e9:.1f} nm RMS, {c[key]['error_pp_m'] * 1e9:.1f} nm p-p "
+                     f"over {data['evaluation_duration_s']:.0f} s")
+    lines.append(f"  target (identified <= {data['target_ratio']:.1f}x model, RMS): ratio "
+                 f"{c['ratio_rms_identified_over_model']:.2f}, {'met' if data['target_met'] else 'MISSED'}")
+    if args.out is not None:
+        lines.append(f"  report {Path(args.out) / 'dynamics_report.md'}, figure {Path(args.out) / 'dynamics.png'}")
     _emit(args, data, lines)
 
 
