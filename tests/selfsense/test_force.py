@@ -1,7 +1,6 @@
 """Force self-sensing on the stack (seed 000 Fig. 3 read backwards; seed 002 sec. 2.4): exactness on the model,
 the physics of separating force from displacement, the staged force step and the Table 1 runs."""
 
-from dataclasses import replace
 
 import numpy as np
 import pytest

@@ -155,7 +155,7 @@ def simulate_force_step(pzt, amp=ChargeAmpParams(), duration_s=60.0, step_at_s=3
                         force_n=-100.0, dt_s=1e-4, sample_hz=1000.0, seed=3):
     """The stack driven at ``bias_v`` through its amplifier, a force step at ``step_at_s``.
 
-    Returns (ChargeRecord, true F_e per kept sample, true quasi-static x). Compression is negative.
+    Returns (ChargeRecord, true F_e per kept sample). Compression is negative.
     """
     dec = max(1, int(round(1.0 / (sample_hz * dt_s))))
     v, f = force_step_voltage(duration_s, dt_s, step_at_s, bias_v, force_n)
