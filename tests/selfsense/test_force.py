@@ -110,3 +110,20 @@ def test_cli_force_bad_input(root, capsys):
     with pytest.raises(SystemExit) as exc:
         selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--force", "--step-force", "100V"])
     assert exc.value.code == 2
+
+
+def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, capsys):
+    """`selfsense --force --out --json` on the reduced study's data: lines, figure, report and JSON written whole."""
+    import json
+
+    import workbench.selfsense.force as force_mod
+    monkeypatch.setattr(force_mod, "run_force_study", lambda *a, **k: dict(force_study))
+    out, js = tmp_path / "out", tmp_path / "f.json"
+    assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--force", "--out", str(out),
+                           "--json", str(js)]) == 0
+    text = capsys.readouterr().out
+    assert "hysteresis and creep" in text and "Table 1" in text
+    data = json.loads(js.read_text())
+    assert "_arrays" not in data and len(data["instron"]["runs"]) == 18
+    assert {"force.png", "force_report.md", "force.json"} <= {p.name for p in out.iterdir()}
+    assert "| serial | run |" in (out / "force_report.md").read_text()

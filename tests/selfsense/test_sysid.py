@@ -60,3 +60,19 @@ def test_apply_estimator_is_the_tustin_filter():
     u = np.sin(2 * np.pi * 3 * t) + (t > 1.0)
     ref = np.squeeze(control.forced_response(control.c2d(e, 1e-3, "tustin"), U=u).outputs)
     np.testing.assert_allclose(apply_estimator(e, t, u), ref, rtol=1e-10, atol=1e-12)
+
+
+def test_cli_dynamics_prints_and_writes(dyn_study, root, tmp_path, monkeypatch, capsys):
+    """`selfsense --dynamics --out --json` on the reduced study's data."""
+    import json
+
+    from workbench.selfsense import sysid
+    from workbench.selfsense.command import main as selfsense_main
+    monkeypatch.setattr(sysid, "run_dynamics_study", lambda *a, **k: dict(dyn_study))
+    out, js = tmp_path / "out", tmp_path / "d.json"
+    assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--dynamics", "--out", str(out),
+                           "--json", str(js)]) == 0
+    assert "identified E" in capsys.readouterr().out
+    assert json.loads(js.read_text())["dynamics"]["order_kd"] in range(5)
+    assert {"dynamics.png", "dynamics_report.md", "dynamics.json"} <= {p.name for p in out.iterdir()}
+    assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--dynamics", "--force"]) == 2
