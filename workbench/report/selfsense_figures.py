@@ -124,13 +124,13 @@ def _report(data, figures):
              "| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
     for s in data["stages"]:
         lines.append(f"| {s['title']} | {nm(s['error_pp_m'])} | {s['error_pp_percent_stroke']:.2f} | "
-                     f"{nm(s['error_rms_m'])} | ![]({figures.get(s['name'], '')}) |")
+                     f"{nm(s['error_rms_m'])} | ![{s['name']}]({figures.get(s['name'], '')}) |")
     g = data["gauge_on_same_record"]
     n = data["noise_per_10khz_sample"]
     lines += ["", f"Target: last stage <= 1 % of stroke peak-to-peak: **{'met' if data['target_met'] else 'MISSED'}**.",
               "", f"Gauge chain on the same record: {nm(g['error_pp_m'])} nm p-p, {nm(g['error_rms_m'])} nm RMS.",
               f"Noise per 10 kHz sample at 50 V: self-sensed {n['self_sensed_rms_m'] * NM:.2f} nm RMS, "
-              f"gauge chain {n['gauge_rms_m'] * NM:.1f} nm RMS (![]({figures.get('noise', '')})).", ""]
+              f"gauge chain {n['gauge_rms_m'] * NM:.1f} nm RMS (![noise]({figures.get('noise', '')})).", ""]
     idf, tru = data["identified"], data["true"]
     lines += ["| parameter | identified | true (simulation) |", "|---|---|---|",
               f"| alpha, C/m | {idf['alpha_c_per_m']:.4f} | {tru['alpha_c_per_m']:.4f} |",
@@ -152,7 +152,7 @@ def _report(data, figures):
                   f"{mg['disk_margin']:.3f} |",
                   f"| self-sensed, dynamic estimator | {ms['phase_margin_deg']:.1f} | {ms['gain_margin_db']:.1f} | "
                   f"{ms['crossover_hz']:.0f} | {ms['disk_margin']:.3f} |", "",
-                  f"![]({figures.get('loop', '')})", ""]
+                  f"![loop]({figures.get('loop', '')})", ""]
         cs, cg = lp.get("closed_loop_small_step"), lp.get("closed_loop_small_step_gauge_noise_free")
         if cs and cg:
             ls, lg = lp["linear_step_self"], lp["linear_step_gauge"]
@@ -162,7 +162,7 @@ def _report(data, figures):
                       f"{ls['overshoot_percent']:.3f} %, {ls['settling_s'] * 1e3:.1f} ms |",
                       f"| gauge chain (noise-free) | {cg['overshoot_percent']:.2f} | {cg['settling_s'] * 1e3:.1f} | "
                       f"{lg['overshoot_percent']:.3f} %, {lg['settling_s'] * 1e3:.1f} ms |", "",
-                      f"![]({figures.get('closed_loop', '')})", ""]
+                      f"![closed_loop]({figures.get('closed_loop', '')})", ""]
     return "\n".join(lines) + "\n"
 
 
@@ -181,5 +181,7 @@ def write_selfsense_outputs(out, data, rec, errs, noise, la):
                                                       out / "closed_loop.png").name
     write_text(out / "report.md", _report(data, figures))
     figures["report"] = "report.md"
+    from .html import write_html_report
+    figures["report_html"] = write_html_report(out / "report.md").name
     write_json(out / "selfsense.json", {**data, "figures": figures})
     return figures
