@@ -75,12 +75,22 @@ def readable_quantity(key, value):
     Non-numbers are shown as text.
     """
     words = str(key).split("_")
+    low = [w.lower() for w in words]
     unit = ""
+    k = len(low) - 1 - low[::-1].index("per") if "per" in low else -1
+    if 1 < k < len(low) - 1 and low[k - 1] in _SUFFIX_UNITS and "_".join(low[k + 1:]) in _SUFFIX_UNITS:
+        # a ratio: stiffness_n_per_m -> N/m (shown without a prefix)
+        unit = f"{_SUFFIX_UNITS[low[k - 1]]}/{_SUFFIX_UNITS['_'.join(low[k + 1:])]}"
+        words = words[:k - 1]
+    elif 0 < k < len(low) - 1 and "_".join(low[k + 1:]) in _SUFFIX_UNITS:
+        unit = f"1/{_SUFFIX_UNITS['_'.join(low[k + 1:])]}"          # gain_per_s -> 1/s
+        words = words[:k]
     for n in (3, 2, 1):
-        if len(words) > n and "_".join(words[-n:]).lower() in _SUFFIX_UNITS:
-            unit = _SUFFIX_UNITS["_".join(words[-n:]).lower()]
-            words = words[:-n]
+        if unit:
             break
+        if len(words) > n and "_".join(low[-n:]) in _SUFFIX_UNITS:
+            unit = _SUFFIX_UNITS["_".join(low[-n:])]
+            words = words[:-n]
     label = " ".join(words)
     if isinstance(value, (bool, np.bool_)):
         return label, "yes" if value else "no", ""
@@ -93,7 +103,7 @@ def readable_quantity(key, value):
     if unit == "1" and "fraction" in str(key):
         v, unit = 100 * v, "%"
     factor, prefix = 1.0, ""
-    if unit and unit not in _UNPREFIXED and v != 0:
+    if unit and unit not in _UNPREFIXED and "/" not in unit and v != 0:
         for factor, prefix in _PREFIXES:
             if abs(v) * factor < 1000:
                 break

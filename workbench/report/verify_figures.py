@@ -30,7 +30,17 @@ def _finite(m, key):
 
 def _conditions(m):
     return (f"anti-windup {'on' if m.get('anti_windup', True) else 'OFF'}, "
-            f"gauge noise {'on' if m.get('noise', True) else 'off'}")
+            f"{'noisy run (gauge noise on)' if m.get('noise', True) else 'NOISE-FREE run (gauge noise off)'}")
+
+
+def _save(fig, path, m):
+    """Stamp the run's noise condition in the top-left corner (noisy and noise-free figures are told apart
+    at a glance, also when cropped), then save."""
+    noisy = m.get("noise", True)
+    fig.text(0.003, 0.997, "NOISY: gauge noise on" if noisy else "NOISE-FREE: gauge noise off", ha="left", va="top",
+             fontsize=8, fontweight="bold", color="white", bbox=dict(boxstyle="square,pad=0.3",
+                                                                    fc="C3" if noisy else "C2", ec="none"))
+    return save_figure(fig, path)
 
 
 def _text(ax, lines, x=0.98, y=0.04, ha="right", va="bottom"):
@@ -120,7 +130,7 @@ def _plot_step(m, tr, path, companion=None):
     size = f"{step * NM:.0f} nm" if abs(step) < 1e-6 else f"{step * UM:.3g} um"
     fig.suptitle(f"{name} step {size} ({x0 * UM:.2f} -> {x1 * UM:.2f} um), {_conditions(m)}", fontsize=11)
     _finish(fig, (ax, au, ai))
-    return save_figure(fig, path)
+    return _save(fig, path, m)
 
 
 def _plot_triangle(m, tr, path, companion=None):
@@ -179,7 +189,7 @@ def _plot_triangle(m, tr, path, companion=None):
     for a in (ax, ae):
         plt.setp(a.get_xticklabels(), visible=False)
     _finish(fig, (ax, ae, ai, ah, al))
-    return save_figure(fig, path)
+    return _save(fig, path, m)
 
 
 def _running_mean(y, n, center=False):
@@ -225,7 +235,7 @@ def _plot_hold(m, tr, path, companion=None):
                  f"{_conditions(m)}", fontsize=10)
     _finish(fig, (ac, ao))
     fig.tight_layout()
-    return save_figure(fig, path)
+    return _save(fig, path, m)
 
 
 def _plot_force(m, tr, path, companion=None):
@@ -253,7 +263,7 @@ def _plot_force(m, tr, path, companion=None):
                  f"{_conditions(m)}", fontsize=10)
     _finish(fig, (ax, au, ai))
     fig.tight_layout()
-    return save_figure(fig, path)
+    return _save(fig, path, m)
 
 
 def _plot_sweep(m, tr, path, companion=None):
@@ -265,7 +275,8 @@ def _plot_sweep(m, tr, path, companion=None):
     am.semilogx(f, m["linear_db"], "k-", lw=1.2, label="linear small-signal loop")
     db = np.asarray(m["measured_db"], float)
     low = db < NOISE_FLOOR_DB
-    for sel, style in ((~low, dict(color="C0", label="measured (nonlinear plant, gauge noise)")),
+    for sel, style in ((~low, dict(color="C0", label="measured (nonlinear plant, "
+                                                    + ("gauge noise on)" if m.get("noise", True) else "noise-free)"))),
                        (low, dict(mfc="none", color="C0", label=f"measured below {NOISE_FLOOR_DB} dB: "
                                                                "at the noise floor of the lock-in"))):
         if sel.any():
@@ -295,7 +306,7 @@ def _plot_sweep(m, tr, path, companion=None):
                  f"{_v(m, 'bandwidth_hz', fmt='.0f')} Hz measured, {_v(m, 'linear_bandwidth_hz', fmt='.0f')} Hz linear",
                  fontsize=10)
     fig.tight_layout()
-    return save_figure(fig, path)
+    return _save(fig, path, m)
 
 
 _PLOTS = {"small_step": _plot_step, "large_step": _plot_step, "triangle_0p1hz": _plot_triangle,
