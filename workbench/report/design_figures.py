@@ -143,15 +143,17 @@ def plot_sensitivities(freq_hz, loops, ub, path):
     ax.semilogx(freq_hz, -db(w), "k--", lw=1.5, label="1 / |W_m|: |T| must stay below")
     handles = [Line2D([], [], color="C0", lw=1, label="|S| of each member"),
                Line2D([], [], color="C1", lw=1, label="|T| of each member")]
-    for key, curves, col, name in (("s_peak_db", sens, "C0", "S"), ("t_peak_db", comp, "C1", "T")):
+    # the worst members in darker shades of their curves' colours, their peaks annotated in the empty upper left
+    for key, curves, col, name, y_txt in (("s_peak_db", sens, "#08306b", "S", 0.93), ("t_peak_db", comp, "#a63603",
+                                                                                      "T", 0.85)):
         w_m = worst.get(key, {})
         if w_m.get("member") is None or not np.isfinite(w_m["value"]):
             continue
         ax.semilogx(freq_hz, db(curves[w_m["member"]]), color=col, lw=2, zorder=4)
         ax.plot([w_m["freq_hz"]], [w_m["value"]], "v", color=col, mec="k", ms=8, zorder=5)
         ax.annotate(f"peak |{name}| {w_m['value']:.1f} dB at {w_m['freq_hz']:.0f} Hz", (w_m["freq_hz"], w_m["value"]),
-                    (6, 6 if name == "S" else 14), textcoords="offset points", fontsize=8, color=col,
-                    bbox=dict(fc="white", ec="none", alpha=0.8), zorder=6)
+                    (0.03, y_txt), textcoords="axes fraction", fontsize=8, color=col, va="center",
+                    arrowprops=dict(arrowstyle="->", color=col, lw=0.8), zorder=6)
         handles.append(Line2D([], [], color=col, lw=2, label=f"worst |{name}|: {w_m['member']}"))
     ax.axhline(6, color="C3", lw=0.8, ls=":", label="|S| = 6 dB")
     ax.axhline(0, color="k", lw=0.6)
@@ -165,10 +167,15 @@ def plot_sensitivities(freq_hz, loops, ub, path):
 
 
 def label_locus(ax, locus, amplitudes_v, color="C3", max_labels=8):
-    """Write the drive amplitude beside points of a -1/N(A) locus (at most ``max_labels``, ends included)."""
-    n = len(locus)
-    idx = sorted(set(np.linspace(0, n - 1, min(n, max_labels)).round().astype(int)))
-    for i in idx:
+    """Write the drive amplitude beside the points of a -1/N(A) locus inside the axes' current limits
+    (at most ``max_labels``, the visible ends included); call after setting the limits."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    locus = np.asarray(locus)
+    vis = np.flatnonzero((locus.real > x0) & (locus.real < x1) & (locus.imag > y0) & (locus.imag < y1))
+    if vis.size == 0:
+        return
+    pick = vis[np.unique(np.linspace(0, vis.size - 1, min(vis.size, max_labels)).round().astype(int))]
+    for i in pick:
         z = locus[i]
         ax.annotate(f"{amplitudes_v[i]:g} V", (z.real, z.imag), (5, -9 if i % 2 else 5), textcoords="offset points",
                     fontsize=7, color=color, bbox=dict(fc="white", ec="none", alpha=0.7, pad=0.5), zorder=6)
@@ -182,7 +189,7 @@ def plot_nyquist_family(freq_hz, loops, df, ub, ctrl_d, fw_factor, cycles, path)
     """
     from matplotlib.lines import Line2D
     rows, worst = _margins(freq_hz, loops)
-    fig, ax = plt.subplots(figsize=(11, 7.5), layout="constrained")
+    fig, ax = plt.subplots(figsize=(8.5, 9.5), layout="constrained")
     for name, l in loops.items():
         df_member = _kind(name) == "DF"
         ax.plot(np.real(l), np.imag(l), color=DF_COLOUR if df_member else GREY, lw=0.6, alpha=0.6 if df_member else 0.5,
@@ -205,11 +212,11 @@ def plot_nyquist_family(freq_hz, loops, df, ub, ctrl_d, fw_factor, cycles, path)
     n = ub.nominal_gauge_v_per_m * df.x_m_per_v[0, :, k] / p_nom[k]
     ok = np.isfinite(n) & (np.abs(n) > 0)
     locus = -1 / n[ok]
-    ax.plot(locus.real, locus.imag, "C3s-", ms=4, zorder=5)
-    label_locus(ax, locus, df.amplitudes_v[ok])
-    handles.append(Line2D([], [], color="C3", marker="s", ms=4,
-                          label=f"-1/N(A) at {freq_hz[k]:.0f} Hz, A = drive amplitude (labels, V): "
-                                f"a loop through a point predicts a limit cycle there"))
+    ax.plot(locus.real, locus.imag, "C1s-", ms=4, zorder=5)
+    amps = df.amplitudes_v[ok]
+    handles.append(Line2D([], [], color="C1", marker="s", ms=4,
+                          label=f"-1/N(A) at {freq_hz[k]:.0f} Hz, A = {amps[0]:g}-{amps[-1]:g} V drive amplitude "
+                                f"(labels): a loop through a point predicts a limit cycle of that amplitude"))
     ax.plot([-1], [0], "r+", ms=14, mew=2, zorder=6)
     t = np.linspace(0, 2 * np.pi, 200)
     ax.plot(-1 + 0.5 * np.cos(t), 0.5 * np.sin(t), "C3:", lw=0.8)
@@ -220,10 +227,12 @@ def plot_nyquist_family(freq_hz, loops, df, ub, ctrl_d, fw_factor, cycles, path)
     ax.set_xlim(-2.5, 1.5)
     ax.set_ylim(-2.5, 1.5)
     ax.set_aspect("equal")
+    label_locus(ax, locus, amps, color="C1")
     ax.set_xlabel("Re L")
     ax.set_ylabel("Im L")
     ax.grid(True, alpha=0.3)
-    fig.legend(handles, [h.get_label() for h in handles], loc="outside right upper", fontsize=8, frameon=False)
+    fig.legend(handles, [h.get_label() for h in handles], loc="outside lower center", ncol=1, fontsize=8,
+               frameon=False)
     return save_figure(fig, path)
 
 

@@ -33,16 +33,6 @@ def _conditions(m):
             f"{'noisy run (gauge noise on)' if m.get('noise', True) else 'NOISE-FREE run (gauge noise off)'}")
 
 
-def _save(fig, path, m):
-    """Stamp the run's noise condition in the top-left corner (noisy and noise-free figures are told apart
-    at a glance, also when cropped), then save."""
-    noisy = m.get("noise", True)
-    fig.text(0.003, 0.997, "NOISY: gauge noise on" if noisy else "NOISE-FREE: gauge noise off", ha="left", va="top",
-             fontsize=8, fontweight="bold", color="white", bbox=dict(boxstyle="square,pad=0.3",
-                                                                    fc="C3" if noisy else "C2", ec="none"))
-    return save_figure(fig, path)
-
-
 def _text(ax, lines, x=0.98, y=0.04, ha="right", va="bottom"):
     ax.text(x, y, "\n".join(lines), transform=ax.transAxes, ha=ha, va=va, fontsize=8, bbox=BOX, zorder=10)
 
@@ -130,7 +120,7 @@ def _plot_step(m, tr, path, companion=None):
     size = f"{step * NM:.0f} nm" if abs(step) < 1e-6 else f"{step * UM:.3g} um"
     fig.suptitle(f"{name} step {size} ({x0 * UM:.2f} -> {x1 * UM:.2f} um), {_conditions(m)}", fontsize=11)
     _finish(fig, (ax, au, ai))
-    return _save(fig, path, m)
+    return save_figure(fig, path)
 
 
 def _plot_triangle(m, tr, path, companion=None):
@@ -189,7 +179,7 @@ def _plot_triangle(m, tr, path, companion=None):
     for a in (ax, ae):
         plt.setp(a.get_xticklabels(), visible=False)
     _finish(fig, (ax, ae, ai, ah, al))
-    return _save(fig, path, m)
+    return save_figure(fig, path)
 
 
 def _running_mean(y, n, center=False):
@@ -235,7 +225,7 @@ def _plot_hold(m, tr, path, companion=None):
                  f"{_conditions(m)}", fontsize=10)
     _finish(fig, (ac, ao))
     fig.tight_layout()
-    return _save(fig, path, m)
+    return save_figure(fig, path)
 
 
 def _plot_force(m, tr, path, companion=None):
@@ -263,7 +253,7 @@ def _plot_force(m, tr, path, companion=None):
                  f"{_conditions(m)}", fontsize=10)
     _finish(fig, (ax, au, ai))
     fig.tight_layout()
-    return _save(fig, path, m)
+    return save_figure(fig, path)
 
 
 def _plot_sweep(m, tr, path, companion=None):
@@ -274,7 +264,7 @@ def _plot_sweep(m, tr, path, companion=None):
     fig, (am, ap, ar) = plt.subplots(3, 1, sharex=True, figsize=(9, 8.5), gridspec_kw={"height_ratios": [2.2, 2, 1]})
     am.semilogx(f, m["linear_db"], "k-", lw=1.2, label="linear small-signal loop")
     db = np.asarray(m["measured_db"], float)
-    low = db < NOISE_FLOOR_DB
+    low = (db < NOISE_FLOOR_DB) & bool(m.get("noise", True))      # a noise-free run has no noise floor
     for sel, style in ((~low, dict(color="C0", label="measured (nonlinear plant, "
                                                     + ("gauge noise on)" if m.get("noise", True) else "noise-free)"))),
                        (low, dict(mfc="none", color="C0", label=f"measured below {NOISE_FLOOR_DB} dB: "
@@ -303,10 +293,10 @@ def _plot_sweep(m, tr, path, companion=None):
         a.grid(True, which="both", alpha=0.3)
     fig.align_ylabels((am, ap, ar))
     am.set_title(f"Closed-loop response, {_v(m, 'amplitude_m', NM, '.0f')} nm tones at 7.5 um: bandwidth "
-                 f"{_v(m, 'bandwidth_hz', fmt='.0f')} Hz measured, {_v(m, 'linear_bandwidth_hz', fmt='.0f')} Hz linear",
-                 fontsize=10)
+                 f"{_v(m, 'bandwidth_hz', fmt='.0f')} Hz measured, {_v(m, 'linear_bandwidth_hz', fmt='.0f')} Hz linear\n"
+                 f"{_conditions(m)}", fontsize=10)
     fig.tight_layout()
-    return _save(fig, path, m)
+    return save_figure(fig, path)
 
 
 _PLOTS = {"small_step": _plot_step, "large_step": _plot_step, "triangle_0p1hz": _plot_triangle,

@@ -140,7 +140,8 @@ def _sweep_table(m):
     get = lambda k, i: m[k][i] if i < len(m[k]) else None  # noqa: E731
     lines = (["", _row(*(c[1] for c in cols)), "|" + "---|" * len(cols)]
              + [_row(*(_num(get(k, i), s) for k, _, s in cols)) for i in range(n)])
-    low = [f for f, db in zip(m["freq_hz"], m.get("measured_db", [])) if _finite(db) and db < NOISE_FLOOR_DB]
+    low = [f for f, db in zip(m["freq_hz"], m.get("measured_db", []))
+           if _finite(db) and db < NOISE_FLOOR_DB and m.get("noise", True)]     # noise-free: no noise floor
     if low:
         lines += ["", f"Tones measured below {NOISE_FLOOR_DB} dB ({', '.join(_num(f) for f in low)} Hz) are at the "
                       "noise floor of the lock-in (about 0.3 nm of reading): their gain and phase, and the worst "
