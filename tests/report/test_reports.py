@@ -168,6 +168,26 @@ def test_readable_quantity(key, value, expected):
     assert readable_quantity(key, value) == expected
 
 
+def test_unwrapped_phase_and_db_of_a_delayed_integrator():
+    """L = e^{-j w tau} / (j w): phase -90 - 360 f tau deg exactly, drawn through -180 and -540 without
+    folding; |L| in dB is -20 log10(w); a NaN gap stays a gap and the sheet is kept across it."""
+    import numpy as np
+    from workbench.report.design_figures import db, unwrapped_deg
+    f = np.geomspace(1.0, 5000.0, 400)
+    tau = 400e-6                                  # 2 turns of extra phase by 5 kHz
+    w = 2 * np.pi * f
+    loop = np.exp(-1j * w * tau) / (1j * w)
+    ph = unwrapped_deg(loop)
+    np.testing.assert_allclose(ph, -90 - 360 * f * tau, atol=1e-9)
+    np.testing.assert_allclose(db(loop), -20 * np.log10(w), atol=1e-9)
+    gap = loop.copy()
+    gap[150:160] = np.nan
+    ph_gap = unwrapped_deg(gap)
+    assert np.isnan(ph_gap[150:160]).all() and np.isnan(db(gap)[150:160]).all()
+    np.testing.assert_allclose(np.delete(ph_gap, range(150, 160)), np.delete(ph, range(150, 160)), atol=1e-9)
+    assert np.isnan(db(np.zeros(3))).all()
+
+
 def test_html_is_self_contained_and_well_formed(tmp_path):
     import matplotlib
     matplotlib.use("Agg")
@@ -209,7 +229,7 @@ def test_calibrate_report_renders(sn637, tmp_path, monkeypatch):
     from workbench.calibrate.synthetic import plant_with_effect, simulate_record, write_record
     from workbench.cli import main
     monkeypatch.chdir(tmp_path)
-    t, v = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0), chirp_s=1.0)
+    t, v = calibration_protocol(sine_cycles=2, stairs_v=(50.0, 20.0), chirp_s=0.5)
     plant, _ = plant_with_effect(sn637, "leakage", 3)
     write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=3), {"serial": "SN637"})
     assert main(["calibrate", "rec.csv", "--plant", str(PLANTS / "p888_51_sn637.toml"), "--out", "out/calibrate",

@@ -144,8 +144,8 @@ def plot_sensitivities(freq_hz, loops, ub, path):
     handles = [Line2D([], [], color="C0", lw=1, label="|S| of each member"),
                Line2D([], [], color="C1", lw=1, label="|T| of each member")]
     # the worst members in darker shades of their curves' colours, their peaks annotated in the empty upper left
-    for key, curves, col, name, y_txt in (("s_peak_db", sens, "#08306b", "S", 0.93), ("t_peak_db", comp, "#a63603",
-                                                                                      "T", 0.85)):
+    for key, curves, col, name, y_txt in (("s_peak_db", sens, "#08306b", "S", 0.965), ("t_peak_db", comp, "#a63603",
+                                                                                      "T", 0.915)):
         w_m = worst.get(key, {})
         if w_m.get("member") is None or not np.isfinite(w_m["value"]):
             continue
