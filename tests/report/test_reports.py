@@ -204,7 +204,8 @@ def test_html_is_self_contained_and_well_formed(tmp_path):
     assert html_problems(html, md) == []
     text = html.read_text()
     assert "<td>|S|</td>" in text and "&lt;b&gt;tag" in text and "<strong>bold</strong>" in text
-    assert "example.com" not in text and "<li>two</li>" in text
+    assert "example.com" not in text and "<li>two</li>" in text and "<title>T x|y</title>" in text
+    assert "<title>Design study sn637_servo</title>" in markdown_to_html("# Design study `sn637_servo`\n")
     # a missing figure is named in the page, never linked
     md.write_text("![gone](gone.png)\n")
     assert "gone.png not found" in markdown_to_html(md.read_text(), tmp_path)

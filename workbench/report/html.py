@@ -163,7 +163,7 @@ def markdown_to_html(text, base_dir=None, title=None):
             flush()
             level = len(s) - len(s.lstrip("#"))
             heading = s[level:].strip()
-            title = title or re.sub(r"[`*_]", "", heading)
+            title = title or re.sub(r"`|\*\*", "", heading)
             body.append(f"<h{level}>{_inline(heading, base_dir)}</h{level}>")
             i += 1
         elif "|" in s and i + 1 < len(lines) and _is_delimiter(lines[i + 1]):

@@ -204,6 +204,9 @@ def _plot_hold(m, tr, path, companion=None):
     ac.plot(t, avg, "C0", lw=1.5, label="1 s running mean")
     ac.axhline(0, color="k", lw=0.6)
     ac.set_ylabel("closed loop: x - reference (nm)")
+    # head and foot room for the legend and the numbers: neither covers the trace
+    lo, hi = ac.get_ylim()
+    ac.set_ylim(lo - 0.45 * (hi - lo), hi + 0.2 * (hi - lo))
     ac.legend(fontsize=8, loc="upper right", ncol=3)
     _text(ac, [f"drift {_v(m, 'drift_m', NM, '.3g')} nm (mean of the last tenth - first tenth)",
                f"x noise RMS {_v(m, 'noise_rms_m', NM, '.3g')} nm",
@@ -244,7 +247,9 @@ def _plot_force(m, tr, path, companion=None):
     ax.legend(fontsize=8, loc="center right", bbox_to_anchor=(1, 0.55))
     _text(ax, [f"peak |deviation| {_v(m, 'peak_deviation_m', NM, '.3g')} nm, final {_v(m, 'final_deviation_m', NM, '.2g')} nm",
                f"open-loop deflection {_v(m, 'open_loop_deflection_m', NM, '.3g')} nm",
-               f"peak currents {_v(m, 'peak_current_source_a', MA, '+.2f')} / {_v(m, 'peak_current_sink_a', MA, '+.2f')} mA"])
+               f"peak currents {_v(m, 'peak_current_source_a', MA, '+.2f')} / {_v(m, 'peak_current_sink_a', MA, '+.2f')} mA"],
+          # clear of the open-loop deflection line, which sits at the bottom (compression) or top (tension)
+          **({"y": 0.12} if (scaled(m.get("open_loop_deflection_m")) or 0) <= 0 else {"y": 0.88, "va": "top"}))
     au.plot(t(tr), tr["u_v"], "C0", lw=0.8)
     au.set_ylabel("command u (V)")
     _current_panel(ai, t, [(tr, "stack current", "C0")], m)
