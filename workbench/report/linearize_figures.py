@@ -87,25 +87,26 @@ def plot_capacitances(pzt, caps, spec, path):
 
 
 def plot_uncertainty(freq_hz, ub, path):
-    """Every member's |G_i/G_nom - 1|, their envelope and the fitted |W_m|."""
-    fig, ax = plt.subplots(figsize=(9, 5.5))
+    """Every member's |G_i/G_nom - 1| in dB, their envelope and the fitted |W_m|; the member setting the margin."""
+    fig, ax = plt.subplots(figsize=(9, 6), layout="constrained")
     for name, d in ub.deltas.items():
-        m = np.abs(d)
-        ax.loglog(freq_hz[m > 0], m[m > 0], color="0.7", lw=0.6)
-    ax.loglog(freq_hz, ub.envelope, "k", lw=1.5, label="envelope over members")
+        ax.semilogx(freq_hz, db(d), color="0.7", lw=0.6)
+    ax.semilogx(freq_hz, db(ub.envelope), "k", lw=1.5, label="envelope over members")
     fd = np.geomspace(freq_hz[0], freq_hz[-1], 400)
-    w = np.abs(_freq_response(ub.fit.weight, fd))
-    ax.loglog(fd, w, "C3", lw=2, label=f"|W_m|, order {ub.fit.order}: zeros {np.round(ub.fit.zeros_hz, 1)} Hz, "
-                                      f"poles {np.round(ub.fit.poles_hz, 1)} Hz")
-    ax.plot([ub.coverage.freq_hz], [np.interp(ub.coverage.freq_hz, freq_hz, ub.envelope)], "C3o")
-    ax.annotate(f"  sets the margin ({ub.coverage.margin_db:.2f} dB):\n  {ub.coverage.member}",
-                (ub.coverage.freq_hz, np.interp(ub.coverage.freq_hz, freq_hz, ub.envelope)), fontsize=8, va="top",
-                xytext=(10, -25), textcoords="offset points", arrowprops={"arrowstyle": "-", "color": "C3"})
+    w = _freq_response(ub.fit.weight, fd)
+    ax.semilogx(fd, db(w), "C3", lw=2, label=f"|W_m|, order {ub.fit.order}: zeros {np.round(ub.fit.zeros_hz, 1)} Hz, "
+                                            f"poles {np.round(ub.fit.poles_hz, 1)} Hz")
+    y_c = db(np.interp(ub.coverage.freq_hz, freq_hz, ub.envelope))
+    ax.plot([ub.coverage.freq_hz], [y_c], "C3o")
+    # the note in the empty lower left (low frequency, small deviation), a line to the point
+    ax.annotate(f"sets the margin ({ub.coverage.margin_db:.2f} dB):\n{ub.coverage.member}",
+                (ub.coverage.freq_hz, y_c), fontsize=8, va="bottom", ha="left", xytext=(0.03, 0.05),
+                textcoords="axes fraction", arrowprops={"arrowstyle": "-", "color": "C3", "lw": 0.8})
     ax.set_xlabel("frequency (Hz)")
-    ax.set_ylabel("relative deviation from the nominal")
+    ax.set_ylabel("relative deviation from the nominal (dB)")
     ax.set_title(f"Multiplicative uncertainty: {len(ub.deltas)} members "
-                 f"(nominal: small-signal with C_h = {ub.nominal_capacitance_f * 1e6:.1f} uF)")
-    ax.legend(fontsize=8, loc="lower left")
+                 f"(nominal: small-signal with C_h = {ub.nominal_capacitance_f * 1e6:.1f} uF)", fontsize=10)
+    fig.legend(*ax.get_legend_handles_labels(), loc="outside lower center", ncol=2, fontsize=8, frameon=False)
     ax.grid(True, which="both", alpha=0.3)
     return save_figure(fig, path)
 
