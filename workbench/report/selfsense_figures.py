@@ -6,13 +6,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .design_figures import db, unwrapped_deg  # noqa: E402
 from .output import save_figure, write_json, write_text  # noqa: E402
 
 __all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs", "plot_force",
            "write_force_outputs", "plot_dynamics", "write_dynamics_outputs"]
 
 UM, NM = 1e6, 1e9
-BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)
 MAX_POINTS = 20000
 
 
@@ -36,7 +36,7 @@ def plot_stage(t, x_m, est_m, stage, stroke_m, path):
     ax1.plot(t[k], x_m[k] * UM, lw=1.2, color="0.3", label="true x (simulation)")
     ax1.plot(t[k], est_m[k] * UM, lw=0.8, color="C1", ls="--", label="self-sensed estimate")
     ax1.set_ylabel("displacement, um")
-    ax1.legend(loc="upper right", fontsize=8)
+    ax1.legend(loc="best", fontsize=8)
     ax1.set_title(f"Self-sensing, {stage['title']}")
     e = est_m - x_m
     tb, lo, hi = _envelope(t, e * NM)
@@ -44,10 +44,10 @@ def plot_stage(t, x_m, est_m, stage, stroke_m, path):
     ax2.axhline(0.0, color="0.5", lw=0.6)
     ax2.set_ylabel("estimate - true, nm")
     ax2.set_xlabel("time, s")
-    ax2.text(0.98, 0.04, f"peak-to-peak {stage['error_pp_m'] * NM:.1f} nm "
-             f"({100 * stage['error_pp_m'] / stroke_m:.2f} % of {stroke_m * UM:.2f} um)\n"
-             f"RMS {stage['error_rms_m'] * NM:.1f} nm", transform=ax2.transAxes, ha="right", va="bottom",
-             fontsize=8, bbox=BOX)
+    # the numbers in the panel's title: a box inside the axes would cover the error wherever it goes
+    ax2.set_title(f"error peak-to-peak {stage['error_pp_m'] * NM:.1f} nm "
+                  f"({100 * stage['error_pp_m'] / stroke_m:.2f} % of {stroke_m * UM:.2f} um), "
+                  f"RMS {stage['error_rms_m'] * NM:.1f} nm", fontsize=9)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -67,7 +67,9 @@ def plot_noise(noise, path):
     ax2.set_xlabel("time in the hold, ms (first 100 ms of 1 s shown)")
     for ax in (ax1, ax2):
         ax.set_ylabel("reading - true x, nm")
-        ax.legend(loc="upper right", fontsize=8)
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(lo, hi + 0.3 * (hi - lo))          # head room: the legend above the trace, not on it
+        ax.legend(loc="upper right", fontsize=8, ncol=2)
         ax.grid(alpha=0.3)
     ax1.set_title("Noise per 10 kHz sample at mid-stroke (50 V hold, detrended)")
     fig.tight_layout()
@@ -101,10 +103,19 @@ def plot_loop(la, path):
         m = la["margins_gauge" if key == "l_gauge" else "margins_self_sensed"]
         lab = f"{label}: PM {m['phase_margin_deg']:.1f} deg, GM {m['gain_margin_db']:.1f} dB, " \
               f"f_c {m['crossover_hz']:.0f} Hz"
-        ax1.semilogx(f, 20 * np.log10(np.abs(la[key])), color=color, label=lab)
-        ax2.semilogx(f, np.degrees(np.unwrap(np.angle(la[key]))), color=color)
+        ax1.semilogx(f, db(la[key]), color=color, label=lab)
+        ph = unwrapped_deg(la[key])
+        ax2.semilogx(f, ph, color=color)
+        # crossover on 0 dB; phase margin as the gap from the crossover's phase down to -180 deg
+        f_c, pm = m.get("pm_freq_hz", float("nan")), m.get("phase_margin_deg", float("nan"))
+        if np.isfinite(f_c) and np.isfinite(pm):
+            ax1.plot([f_c], [0], "o", color=color, mfc="white", mew=1.5, ms=6, zorder=5)
+            ph_c = np.interp(np.log(f_c), np.log(f)[np.isfinite(ph)], ph[np.isfinite(ph)])
+            ax2.annotate("", (f_c, ph_c), (f_c, ph_c - pm), arrowprops=dict(arrowstyle="<->", color=color, lw=1.2))
     ax1.axhline(0, color="0.5", lw=0.6)
     ax2.axhline(-180, color="0.5", lw=0.6)
+    lo, hi = ax1.get_ylim()
+    ax1.set_ylim(max(lo, -100), hi)        # the notch at the Nyquist frequency would take the axis to -200 dB
     ax1.set_ylabel("|L|, dB")
     ax2.set_ylabel("phase of L, deg")
     ax2.set_xlabel("frequency, Hz")
@@ -125,13 +136,13 @@ def _report(data, figures):
              "| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
     for s in data["stages"]:
         lines.append(f"| {s['title']} | {nm(s['error_pp_m'])} | {s['error_pp_percent_stroke']:.2f} | "
-                     f"{nm(s['error_rms_m'])} | ![]({figures.get(s['name'], '')}) |")
+                     f"{nm(s['error_rms_m'])} | ![{s['name']}]({figures.get(s['name'], '')}) |")
     g = data["gauge_on_same_record"]
     n = data["noise_per_10khz_sample"]
     lines += ["", f"Target: last stage <= 1 % of stroke peak-to-peak: **{'met' if data['target_met'] else 'MISSED'}**.",
               "", f"Gauge chain on the same record: {nm(g['error_pp_m'])} nm p-p, {nm(g['error_rms_m'])} nm RMS.",
               f"Noise per 10 kHz sample at 50 V: self-sensed {n['self_sensed_rms_m'] * NM:.2f} nm RMS, "
-              f"gauge chain {n['gauge_rms_m'] * NM:.1f} nm RMS (![]({figures.get('noise', '')})).", ""]
+              f"gauge chain {n['gauge_rms_m'] * NM:.1f} nm RMS (![noise]({figures.get('noise', '')})).", ""]
     idf, tru = data["identified"], data["true"]
     lines += ["| parameter | identified | true (simulation) |", "|---|---|---|",
               f"| alpha, C/m | {idf['alpha_c_per_m']:.4f} | {tru['alpha_c_per_m']:.4f} |",
@@ -153,7 +164,7 @@ def _report(data, figures):
                   f"{mg['disk_margin']:.3f} |",
                   f"| self-sensed, dynamic estimator | {ms['phase_margin_deg']:.1f} | {ms['gain_margin_db']:.1f} | "
                   f"{ms['crossover_hz']:.0f} | {ms['disk_margin']:.3f} |", "",
-                  f"![]({figures.get('loop', '')})", ""]
+                  f"![loop]({figures.get('loop', '')})", ""]
         cs, cg = lp.get("closed_loop_small_step"), lp.get("closed_loop_small_step_gauge_noise_free")
         if cs and cg:
             ls, lg = lp["linear_step_self"], lp["linear_step_gauge"]
@@ -163,7 +174,7 @@ def _report(data, figures):
                       f"{ls['overshoot_percent']:.3f} %, {ls['settling_s'] * 1e3:.1f} ms |",
                       f"| gauge chain (noise-free) | {cg['overshoot_percent']:.2f} | {cg['settling_s'] * 1e3:.1f} | "
                       f"{lg['overshoot_percent']:.3f} %, {lg['settling_s'] * 1e3:.1f} ms |", "",
-                      f"![]({figures.get('closed_loop', '')})", ""]
+                      f"![closed_loop]({figures.get('closed_loop', '')})", ""]
     return "\n".join(lines) + "\n"
 
 
@@ -182,6 +193,8 @@ def write_selfsense_outputs(out, data, rec, errs, noise, la):
                                                       out / "closed_loop.png").name
     write_text(out / "report.md", _report(data, figures))
     figures["report"] = "report.md"
+    from .html import write_html_report
+    figures["report_html"] = write_html_report(out / "report.md").name
     write_json(out / "selfsense.json", {**data, "figures": figures})
     return figures
 

@@ -119,5 +119,7 @@ def _write_outputs(out, summary, traces_all):
               "targets": {k: (v["value"], v["limit"], v["unit"], v["met"]) for k, v in summary["targets"].items()}}
     results = [{"metrics": m, "figure": figures.get(m["scenario"])} for m in summary["scenarios"]]
     report = write_verify_report(out / "report.md", header, results)
+    from ..report.html import write_html_report
+    write_html_report(report)
     write_json(out / "verify.json", {**summary, "figures": figures})
     return {"figures": figures, "report": str(report)}
