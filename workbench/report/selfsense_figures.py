@@ -9,6 +9,8 @@ import numpy as np  # noqa: E402
 from .design_figures import db, unwrapped_deg  # noqa: E402
 from .output import save_figure, write_json, write_text  # noqa: E402
 
+BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)   # text boxes over data
+
 __all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs", "plot_force",
            "write_force_outputs", "plot_dynamics", "write_dynamics_outputs"]
 
