@@ -440,14 +440,20 @@ def build_parser():
     p.add_argument("--out", type=Path, default=Path("out/demo"))
     p.add_argument("--json", type=Path, help="write the summary as JSON here")
     p.set_defaults(func=cmd_demo)
+
+    from .preflight import add_force_flags
+    add_force_flags(sub)
     return parser
 
 
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .preflight import preflight
     try:
-        args.func(args)
+        # file arguments, flag ranges and run size checked before the work; no partial output after a failure
+        with preflight(args):
+            args.func(args)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
