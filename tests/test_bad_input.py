@@ -347,6 +347,7 @@ CASES = [
 # cases for another engineer's validator (issue 17 item 2: controllers; records): in the suite when they
 # already pass, listed in the report otherwise
 OTHERS = [
+    ("verify-controller-no-sos", ["verify", CREEP, "--controller", "bad/ctrl_no_sos.json"], ["ctrl_no_sos.json", "'sos'"]),
     ("calibrate-record-semicolon", ["calibrate", "bad/semicolon.csv", "--plant", PLANT], ["semicolon.csv"]),
     ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
@@ -398,3 +399,51 @@ def test_bad_input_subprocess(argv, fragment, ws):
     assert done.returncode == 2, done.stderr
     assert fragment in done.stderr and "Traceback" not in done.stderr
     assert _hashes(ws) == before
+
+
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_failed_run_writes_nothing(existing, ws, tmp_path, capsys, monkeypatch):
+    """A command that fails after writing some of its outputs leaves the output folder as it found it."""
+    import workbench.cli as cli
+    from workbench.errors import WorkbenchError
+    from workbench.report import write_json
+    from workbench.report.output import write_text
+
+    def fails_late(args):
+        write_text(Path(args.out) / "freefree.png", "half a figure")
+        write_json(Path(args.out) / "sub" / "part.json", {"a": 1})
+        raise WorkbenchError("the fit diverged")
+
+    monkeypatch.setattr(cli, "cmd_freefree", fails_late)
+    out = tmp_path / "ff"
+    if existing:
+        out.mkdir()
+        (out / "earlier.txt").write_text("a previous run's file\n", encoding="utf-8")
+    code, err = _run(["freefree", PLANT, "--out", str(out), "--json", str(tmp_path / "ff.json")], ws, out,
+                     capsys, monkeypatch)
+    assert code == 2 and "the fit diverged" in err
+    assert not (tmp_path / "ff.json").exists()
+    if existing:
+        assert [p.name for p in out.iterdir()] == ["earlier.txt"]
+        assert (out / "earlier.txt").read_text(encoding="utf-8") == "a previous run's file\n"
+    else:
+        assert not out.exists()
+
+
+def test_writers_never_replace_an_input(ws, tmp_path):
+    """Inside a run, every atomic writer refuses an input path however it is spelled."""
+    from workbench.report.output import OutputOntoInputError, protect_inputs, write_json, write_text
+    plant = ws / PLANT
+    before = plant.read_bytes()
+    link = tmp_path / "link.toml"
+    link.symlink_to(plant)
+    with protect_inputs([("plant", plant)]):
+        for spelling in (plant, ws / "plants" / ".." / PLANT, link):
+            with pytest.raises(OutputOntoInputError, match="is the input plant"):
+                write_text(spelling, "overwritten")
+        with pytest.raises(OutputOntoInputError):
+            write_json(plant, {"a": 1})
+        write_text(tmp_path / "other.toml", "fine")      # anything else is written
+    assert plant.read_bytes() == before
+    write_text(tmp_path / "again.toml", "x")              # the guard ends with the run
+    assert (tmp_path / "other.toml").read_text(encoding="utf-8") == "fine"

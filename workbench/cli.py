@@ -236,6 +236,11 @@ def cmd_sweep(args):
     for metric, w in data["worst"].items():
         lines.append(f"  worst {metric}: {w['value']:.4g} ({w['serial']}, C_p x{w['cp_factor']:.2f}, "
                      f"{w['amplitude_v']:g} V)")
+    for metric in ("phase_margin_deg", "gain_margin_db", "crossover_hz"):
+        if metric not in data["worst"]:
+            slew = sum(bool(r.get("slews_at_crossover")) for r in data["rows"])
+            lines.append(f"  no case has a {metric}: {slew} of {data['cases']} slew at crossover (column "
+                         f"slews_at_crossover), {data['failed']} failed (column error)")
     for e in data["errors"][:5]:
         lines.append(f"  FAILED {e['serial']} C_p x{e['cp_factor']:.2f} {e['amplitude_v']:g} V: {e['error']}")
     if "table" in data:
