@@ -72,6 +72,7 @@ def ws(tmp_path_factory):
     (bad / "dir.csv").mkdir()
     (bad / "semicolon.csv").write_text("time[s];voltage[V];displacement[m]\n0;0;0\n0.001;1;1e-7\n",
                                        encoding="utf-8")
+    (bad / "tabs.csv").write_text("# a table\nserial\trun\tconfig\nSN637\t1\tR_in\n", encoding="utf-8")
     (bad / "header_only.csv").write_text("time[s],voltage[V],displacement[m]\n", encoding="utf-8")
     (bad / "empty.csv").write_text("", encoding="utf-8")
     (bad / "latin1_study.toml").write_bytes(_study_text().encode("utf-8").replace(b"# The SN637", b"# The \xc9SN637"))
@@ -177,6 +178,9 @@ CASES = [
     ("calibrate-record-binary", ["calibrate", "bad/binary.csv", "--plant", PLANT], ["bad/binary.csv", "binary"]),
     ("calibrate-record-latin1", ["calibrate", "bad/latin1_table.csv", "--plant", PLANT], ["bad/latin1_table.csv",
                                                                                           "not UTF-8"]),
+    ("calibrate-record-semicolon", ["calibrate", "bad/semicolon.csv", "--plant", PLANT],
+     ["bad/semicolon.csv", "line 1", "semicolons"]),
+    ("identify-table-tabs", ["identify", "transducer", "bad/tabs.csv"], ["bad/tabs.csv", "line 2", "tabs"]),
     ("calibrate-plant-missing", ["calibrate", RECORD, "--plant", "plants/none.toml"],
      ["--plant plants/none.toml", "no such file"]),
     ("calibrate-plant-dir", ["calibrate", RECORD, "--plant", "plants"], ["--plant plants", "is a folder"]),
@@ -249,7 +253,7 @@ CASES = [
     ("study-export-name-empty", ["study", "studies/export_name_empty.toml", "--out", "{out}"],
      ["export_name_empty.toml", "[export.name]"]),
     ("study-unknown-section", ["study", "studies/unknown_section.toml", "--out", "{out}"],
-     ["unknown_section.toml", "[famly]"]),
+     ["unknown_section.toml", "[famly]", "unknown section"]),
     ("study-unknown-key", ["study", "studies/unknown_key.toml", "--out", "{out}"],
      ["unknown_key.toml", "[family.bias_mv]"]),
     ("study-bad-schema", ["study", "studies/bad_schema.toml", "--out", "{out}"], ["bad_schema.toml", "[schema]"]),
@@ -348,7 +352,6 @@ CASES = [
 # already pass, listed in the report otherwise
 OTHERS = [
     ("verify-controller-no-sos", ["verify", CREEP, "--controller", "bad/ctrl_no_sos.json"], ["ctrl_no_sos.json", "'sos'"]),
-    ("calibrate-record-semicolon", ["calibrate", "bad/semicolon.csv", "--plant", PLANT], ["semicolon.csv"]),
     ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
 ]

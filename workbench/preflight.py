@@ -97,6 +97,8 @@ def _check_files(args):
         check_input_file(path, name)
         if path.suffix.lower() == ".json":
             _check_json(path, name)
+        if path.suffix.lower() == ".csv":
+            _check_csv_delimiter(path, name)
     for name, path in out_files:
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:
@@ -122,6 +124,22 @@ def _check_json(path, name):
     except json.JSONDecodeError as err:
         raise FileArgumentError(f"{name} {path}: line {err.lineno}, column {err.colno}: not valid JSON ({err.msg}); "
                                 f"give a controller JSON exported by `workbench study`") from None
+
+
+def _check_csv_delimiter(path, name):
+    """The header (first line not a '#' comment) of a CSV must be comma-separated."""
+    with open(path, encoding="utf-8") as fh:
+        for lineno, line in enumerate(fh, 1):
+            text = line.strip()
+            if not text or text.startswith("#"):
+                continue
+            if "," not in text:
+                for sep, what in ((";", "semicolons"), ("\t", "tabs")):
+                    if sep in text:
+                        raise FileArgumentError(f"{name} {path}: line {lineno}: columns separated by {what}; the "
+                                                f"workbench reads comma-separated CSV (e.g. time[s],voltage[V],...): "
+                                                f"export it with ',' as the separator and '.' as the decimal point")
+            return
 
 
 # files a command writes into its --out folder under fixed names (a --json there would be replaced)
@@ -153,7 +171,14 @@ def _check_study_file(args):
         if not isinstance(value, dict):
             raise StudyDefinitionError(path, section, f"is a value ({section} = {value!r}), not a section; "
                                                       f"write [{section}] with its keys on the lines below")
+    from .study.spec import _SCHEMA as schema
+    for key, value in data.items():
+        if isinstance(value, dict) and key not in schema:
+            raise StudyDefinitionError(path, key, f"unknown section [{key}]; known sections: "
+                                                  f"{', '.join(f'[{s}]' for s in schema if s)}")
     export = data.get("export", {})
+    if not isinstance(export, dict):
+        return
     name = export.get("name")
     if isinstance(name, str) and not _STEM.match(name):
         raise StudyDefinitionError(path, "export.name", f"got {name!r}; a file stem of letters, digits, '_', '-' "
