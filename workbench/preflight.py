@@ -32,21 +32,23 @@ __all__ = ["preflight", "add_force_flags", "estimate_run", "FlagRangeError", "MA
 # should not start a job of days; a deliberate long run says so).
 MAX_SECONDS = 3600.0
 
-# Cost of one unit of work of each long-running command: (seconds, bytes) per unit, measured on
-# the 2-core reference machine of the README ("Bad input") with `/usr/bin/time -f "%e s %M KB"`
-# on two sizes of each command and the difference taken (so start-up and compile times cancel).
-# The estimate is an order of magnitude (the machine may be faster or loaded): it only has to
-# tell a 10-second run from a 10-day one.
+# Cost of one unit of work of each long-running command: (seconds, bytes) per unit, measured with
+# benchmarks/preflight_estimates.py (two sizes of each library entry point in one process after a
+# warm-up, the difference taken so start-up and compile cancel) on the 2-core machine of the README
+# ("Bad input"), rounded up. The estimate is an order of magnitude (the machine may be faster or
+# loaded): it only has to tell a 10-second run from a 10-day one.
 RUN_COSTS = {
-    # verify: one servo period of the closed loop (all scenarios but the hold are fixed-size)
-    "verify_period": (4.0e-7, 0.0),
-    # selfsense: one second of the 10 kHz staircase record, identification and stages
-    "selfsense_second": (1.0e-2, 2.6e5),
+    # verify: one servo period of the closed-loop hold (traces decimated to 20000 points: no memory
+    # per period; the other scenarios are fixed-size)
+    "verify_period": (2.5e-7, 0.0),
+    # selfsense: one second of the 10 kHz staircase record through the stages (peak RSS 675 MB at
+    # 400 s, 1356 MB at 3000 s: /usr/bin/time)
+    "selfsense_second": (1.2e-2, 2.6e5),
     # linearize: one describing-function point (an amplitude at a frequency) of one serial, with its
     # C_p and imbalance members in the uncertainty family
-    "linearize_point": (0.25, 1.0e4),
+    "linearize_point": (0.2, 1.0e4),
     # freefree: one gauge-rate sample of the simulated sine and its gauge reading
-    "freefree_sample": (2.0e-6, 200.0),
+    "freefree_sample": (1.2e-6, 120.0),
 }
 
 
@@ -142,9 +144,10 @@ def _check_csv_delimiter(path, name):
             return
 
 
-# files a command writes into its --out folder under fixed names (a --json there would be replaced)
-_RESERVED = {"study": ("summary.json", "report.md"), "verify": ("verify.json", "report.md"),
-             "selfsense": ("report.md",), "calibrate": ("report.md",)}
+# the report a command writes into its --out folder: a --json of the same path would replace it
+# (summary.json / verify.json there hold the same data as --json, so those names are allowed)
+_RESERVED = {"study": ("report.md",), "verify": ("report.md",), "selfsense": ("report.md",),
+             "calibrate": ("report.md",)}
 
 
 # ---------------------------------------------------------------------------------------------
