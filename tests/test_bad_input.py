@@ -393,7 +393,6 @@ def test_enough_cases():
 
 @pytest.mark.parametrize("argv, fragment", [
     (["gauge", "bad/latin1.toml"], "line 3"),
-    (["gauge", PLANT, "--json", PLANT], "is the input plant"),
     (["verify", CREEP, "--controller", CTRL, "--hold", "1e12s"], "estimated"),
 ])
 def test_bad_input_subprocess(argv, fragment, ws):

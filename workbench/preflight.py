@@ -292,13 +292,15 @@ def _check_flags(args):
 # long runs
 
 def _human_s(s):
-    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+    for unit, size in (("years", 365.25 * 86400.0), ("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
         if s >= size:
             return f"{s / size:.3g} {unit}"
     return f"{s:.3g} s"
 
 
 def _human_b(b):
+    if b < 1e6:
+        return "under 1 MB"
     for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
         if b >= size:
             return f"{b / size:.3g} {unit}"
