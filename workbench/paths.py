@@ -7,9 +7,11 @@ an entry point runs all of them before any work starts.
 
 Examples
 --------
->>> from workbench.paths import check_input_file
->>> check_input_file("plants/missing.toml", "plant")          # doctest: +SKIP
-FileArgumentError: plant plants/missing.toml: no such file; ...
+>>> from workbench.paths import is_inside, same_path
+>>> same_path("plants/../plants/a.toml", "plants/a.toml")
+True
+>>> is_inside("out/study/../../elsewhere", "out/study")
+False
 """
 
 import os

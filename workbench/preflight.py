@@ -196,6 +196,16 @@ def _check_study_file(args):
                                                                  f"e.g. \"controllers\"")
 
 
+def _study_inputs(args):
+    """The plant files a study names (its inputs too), resolved against the study file's folder."""
+    import tomllib
+    path = Path(args.study)
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    serials = data.get("serials") if isinstance(data.get("serials"), list) else []
+    names = [("plant", data.get("plant"))] + [(f"serials[{i}]", s) for i, s in enumerate(serials)]
+    return [(f"{path}: {key}", path.parent / value) for key, value in names if isinstance(value, str)]
+
+
 # ---------------------------------------------------------------------------------------------
 # flags
 
@@ -421,6 +431,10 @@ def preflight(args):
     ins, out_files, out_dirs = _check_files(args)
     if args.command in ("study", "sweep"):
         _check_study_file(args)
+        extra = _study_inputs(args)
+        for name, path in out_files:
+            check_output_file(path, name, inputs=extra)
+        ins = ins + extra
     _check_flags(args)
     _check_size(args)
     outs = [p for _, p in out_files + out_dirs]
