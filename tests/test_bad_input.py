@@ -455,3 +455,30 @@ def test_writers_never_replace_an_input(ws, tmp_path):
     assert plant.read_bytes() == before
     write_text(tmp_path / "again.toml", "x")              # the guard ends with the run
     assert (tmp_path / "other.toml").read_text(encoding="utf-8") == "fine"
+
+
+def test_sweep_writes_its_table_when_no_case_has_a_margin(tmp_path, capsys, monkeypatch):
+    """The README's `sweep ... --amplitudes 1V 20V`: every member slews at crossover, so no case has a
+    phase margin; the sweep still writes its table (issue 17 rejected it after running every case).
+    The cases' rows are those of a slewing loop (margins NaN, the reason in slews_at_crossover)."""
+    import csv
+    import math
+
+    import workbench.verify.sweep_job as job
+
+    def slewing_rows(fn, cases, **kw):
+        return [{**c.key, "slews_at_crossover": True, "phase_margin_deg": math.nan, "gain_margin_db": math.nan,
+                 "crossover_hz": math.nan, "triangle_error_percent": 0.05, "step_overshoot_percent": 0.1,
+                 "step_settling_s": 0.02, "ok": True, "error": ""} for c in cases]
+
+    monkeypatch.setattr(job, "run_cases", slewing_rows)
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "sweep"
+    assert main(["sweep", STUDY, "--amplitudes", "1V", "20V", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "no case has a phase_margin_deg: 18 of 18 slew at crossover" in text
+    with open(out / "sweep.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    # 3 serials x C_p (1 - tol, 1, 1 + tol) x 2 amplitudes, each with its reason
+    assert len(rows) == 18 and all(r["slews_at_crossover"] == "True" and r["phase_margin_deg"] == "" for r in rows)
+    assert sorted({float(r["amplitude_v"]) for r in rows}) == [1.0, 20.0]
