@@ -482,3 +482,20 @@ def test_sweep_writes_its_table_when_no_case_has_a_margin(tmp_path, capsys, monk
     # 3 serials x C_p (1 - tol, 1, 1 + tol) x 2 amplitudes, each with its reason
     assert len(rows) == 18 and all(r["slews_at_crossover"] == "True" and r["phase_margin_deg"] == "" for r in rows)
     assert sorted({float(r["amplitude_v"]) for r in rows}) == [1.0, 20.0]
+
+
+def test_force_runs_beyond_the_time_bound_but_not_beyond_memory(capsys, monkeypatch):
+    """--force lifts the time bound (the run is stated first), never the memory the machine lacks."""
+    from workbench import preflight
+    from workbench.cli import build_parser
+    monkeypatch.chdir(ROOT)
+    parse = build_parser().parse_args
+    hold = ["verify", CREEP, "--controller", CTRL, "--hold", "1e8s"]    # 1e12 periods: days, little memory
+    with pytest.raises(preflight.FlagRangeError, match="--force"):
+        preflight._check_size(parse(hold))
+    preflight._check_size(parse(hold + ["--force"]))
+    err = capsys.readouterr().err
+    assert "--hold 1e+08 s" in err and "estimated" in err
+    cycles = ["freefree", PLANT, "--cycles", "1000000", "--force"]      # 1e11 samples of ~120 B each
+    with pytest.raises(preflight.FlagRangeError, match="more than this machine"):
+        preflight._check_size(parse(cycles))
