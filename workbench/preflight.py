@@ -14,6 +14,7 @@
    every file and folder it created under its outputs is removed (a failed run writes nothing).
 """
 
+import argparse
 import contextlib
 import itertools
 import math
@@ -380,9 +381,13 @@ def add_force_flags(sub):
     """Give the commands whose size a flag sets a ``--force`` flag (the run-size bound's override)."""
     for name in ("verify", "selfsense", "linearize", "freefree"):
         p = sub.choices.get(name)
-        if p is not None and "--force" not in p._option_string_actions:
+        if p is None:
+            continue
+        try:
             p.add_argument("--force", action="store_true",
                            help=f"run even if the estimated time exceeds {MAX_SECONDS / 3600:g} h")
+        except argparse.ArgumentError:      # the command already has one
+            pass
 
 
 # ---------------------------------------------------------------------------------------------
