@@ -236,6 +236,11 @@ def cmd_sweep(args):
     for metric, w in data["worst"].items():
         lines.append(f"  worst {metric}: {w['value']:.4g} ({w['serial']}, C_p x{w['cp_factor']:.2f}, "
                      f"{w['amplitude_v']:g} V)")
+    for metric in ("phase_margin_deg", "gain_margin_db", "crossover_hz"):
+        if metric not in data["worst"]:
+            slew = sum(bool(r.get("slews_at_crossover")) for r in data["rows"])
+            lines.append(f"  no case has a {metric}: {slew} of {data['cases']} slew at crossover (column "
+                         f"slews_at_crossover), {data['failed']} failed (column error)")
     for e in data["errors"][:5]:
         lines.append(f"  FAILED {e['serial']} C_p x{e['cp_factor']:.2f} {e['amplitude_v']:g} V: {e['error']}")
     if "table" in data:
@@ -440,14 +445,20 @@ def build_parser():
     p.add_argument("--out", type=Path, default=Path("out/demo"))
     p.add_argument("--json", type=Path, help="write the summary as JSON here")
     p.set_defaults(func=cmd_demo)
+
+    from .preflight import add_force_flags
+    add_force_flags(sub)
     return parser
 
 
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .preflight import preflight
     try:
-        args.func(args)
+        # file arguments, flag ranges and run size checked before the work; no partial output after a failure
+        with preflight(args):
+            args.func(args)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
