@@ -18,12 +18,18 @@ the two are the same arithmetic.
 
 One sub-step of length h:
 
-1. x_dyn at mid-step from the structure held on the previous force (exact zero-order-hold
-   half step, so a stiff mode cannot make the prediction blow up);
+The stack force splits as T_em V_p + F_e = g - (T_em^2/C_pp) x_dyn with the charge force
+g = T_em q / C_pp + F_e C_p / C_pp: the open-circuit stiffness T_em^2/C_pp is a linear spring
+at the stack, so it is put into the structure's matrices (stepped exactly), and only the
+charge, which moves through R, is exchanged between the two sides. Stepping the whole force
+explicitly instead went unstable once h f_mode exceeded ~0.05.
+
+1. x_dyn at mid-step from the (stiffened) structure with g held at its last value (exact
+   zero-order-hold half step);
 2. per stack, the electrical step of today's kernel on that x_dyn: R dq_h/dt = V - V_t on
    G's local slope, exact through current-limited slews (open leads: q fixed, the creep
    branches redistribute charge inside);
-3. the structure advanced over h with its force inputs linear between the two step ends
+3. the stiffened structure advanced over h with g linear between the two step ends
    (first-order hold, one matrix exponential).
 
 Why not ``kernels.pzt_step``: its packed model bakes T_em F_e / k_p with k_p > 0 into C_pp and
@@ -47,8 +53,8 @@ from .structure import Structure, mode_filter
 __all__ = ["CoupledSimulator", "CoupledTrajectory", "coupled_run", "STACK_OUT_NAMES"]
 
 # per-stack scalar columns
-(C_R, C_ISRC, C_ISNK, C_VMIN, C_VMAX, C_T, C_RES, C_INVCPP, C_OPEN, C_INVISRC, C_INVISNK) = range(11)
-N_SC = 11
+(C_R, C_ISRC, C_ISNK, C_VMIN, C_VMAX, C_T, C_RES, C_INVCPP, C_OPEN, C_INVISRC, C_INVISNK, C_GF) = range(12)
+N_SC = 12
 # per-stack electrical state columns: hysteretic charge, G output, creep charge, 1/slopes of G
 E_QH, E_U, E_QC, E_GUP, E_GDN = range(5)
 STACK_OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v", "force_n")
@@ -56,7 +62,7 @@ STACK_OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v", "force_n")
 
 @njit(cache=True, error_model="numpy")
 def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
-                ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp, u_prev, u_now, y,
+                ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp, g_prev, g_now, u_now, y,
                 h, v, fe, w, n_sub, decimate, rec_s, rec_y, rec_xi):
     """Run stacks + structure over the samples (rows of ``v``, ``fe``, ``w``), each held n_sub sub-steps.
 
@@ -81,7 +87,7 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 for b in range(n):
                     xd += hx[j, b] * xi[b]
                 for c in range(nu):
-                    xd += hu[j, c] * u_prev[c]
+                    xd += hu[j, c] * g_prev[c]
                 for e in range(ne):
                     xd += dy[j, ns + e] * w[k, e]
                 t_em = sc[j, C_T]
@@ -166,6 +172,7 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 q = qh_new + qc_tot
                 v_p = (q - f_term) * inv_cpp
                 u_now[j] = t_em * v_p + f_e
+                g_now[j] = t_em * inv_cpp * q + sc[j, C_GF] * f_e
                 rec_s[row, j, 1] = q
                 rec_s[row, j, 2] = (q - q_old) * inv_h if s == 0 else rec_s[row, j, 2] + (q - q_old) * inv_h
                 rec_s[row, j, 3] = v_h
@@ -174,18 +181,19 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 rec_s[row, j, 6] = u_now[j]
             for e in range(ne):
                 u_now[ns + e] = w[k, e]
+                g_now[ns + e] = w[k, e]
             # 3. structure over the sub-step, inputs linear between its ends
             for a in range(n):
                 acc = 0.0
                 for b in range(n):
                     acc += ad[a, b] * xi[b]
                 for c in range(nu):
-                    acc += b0[a, c] * u_prev[c] + b1[a, c] * u_now[c]
+                    acc += b0[a, c] * g_prev[c] + b1[a, c] * g_now[c]
                 xi_tmp[a] = acc
             for a in range(n):
                 xi[a] = xi_tmp[a]
             for c in range(nu):
-                u_prev[c] = u_now[c]
+                g_prev[c] = g_now[c]
         for o in range(ny):
             acc = 0.0
             for b in range(n):
@@ -322,6 +330,7 @@ class CoupledSimulator:
             t = pz.transducer_constant_n_per_v
             c_pp = pz.working_capacitance_f + t * t * res[j]
             sc[j, C_T], sc[j, C_RES], sc[j, C_INVCPP] = t, res[j], 1.0 / c_pp
+            sc[j, C_GF] = pz.working_capacitance_f / c_pp
             sc[j, C_VMIN], sc[j, C_VMAX] = pz.voltage_min_v, pz.voltage_max_v
             if term == "amplifier":
                 if pz.series_resistance_ohm <= 0:
@@ -356,13 +365,22 @@ class CoupledSimulator:
         self.c_off = np.concatenate([[0], np.cumsum([c.size for c, _ in c_tabs])]).astype(np.int64)
         st = structure
         n = st.n_states
-        self.ad, self.b0, self.b1 = (np.ascontiguousarray(m) for m in _foh(st.a, st.b, h))
-        ah, bh = _zoh(st.a, st.b, h / 2)
+        # the open-circuit stiffness T^2/C_pp moves into the stepped structure (exact, so a stiff
+        # coupled mode cannot go unstable); the structure is then driven by the charge force
+        # g = T q / C_pp + F_e C_p / C_pp and the external inputs
+        k_e = sc[:, C_T] ** 2 * sc[:, C_INVCPP]
+        cx, dxw = st.c[:ns], st.d[:ns, ns:]
+        a_cl = st.a - st.b[:, :ns] @ (k_e[:, None] * cx)
+        b_cl = st.b.copy()
+        b_cl[:, ns:] -= st.b[:, :ns] @ (k_e[:, None] * dxw)
+        self.ad, self.b0, self.b1 = (np.ascontiguousarray(m) for m in _foh(a_cl, b_cl, h))
+        ah, bh = _zoh(a_cl, b_cl, h / 2)
         self.hx = np.ascontiguousarray(st.c[:ns] @ ah)
         self.hu = np.ascontiguousarray(st.c[:ns] @ bh)
         self.cy, self.dy = np.ascontiguousarray(st.c), np.ascontiguousarray(st.d)
         self.xi, self.xi_tmp = np.zeros(n), np.zeros(n)
-        self.u_prev, self.u_now = np.zeros(st.d.shape[1]), np.zeros(st.d.shape[1])
+        nu = st.d.shape[1]
+        self.g_prev, self.g_now, self.u_now = np.zeros(nu), np.zeros(nu), np.zeros(nu)
         self.y = np.zeros(st.d.shape[0])
         self.reset()
 
@@ -384,11 +402,13 @@ class CoupledSimulator:
         s = self.structure.static_compliance_m_per_n() if self.structure.n_states else \
             np.diag(self.structure.residual_compliance_m_per_n)
         vp = np.linalg.solve(np.diag(cp) + t[:, None] * s * t[None, :], qh)
-        self.u_prev[:] = 0.0
-        self.u_prev[:ns] = t * vp
-        self.u_now[:] = self.u_prev
+        self.u_now[:] = 0.0
+        self.u_now[:ns] = t * vp
+        self.g_prev[:] = 0.0
+        self.g_prev[:ns] = t * self.sc[:, C_INVCPP] * qh
+        self.g_now[:] = self.g_prev
         if self.structure.n_states:
-            self.xi[:] = -np.linalg.solve(self.structure.a, self.structure.b @ self.u_prev)
+            self.xi[:] = -np.linalg.solve(self.structure.a, self.structure.b @ self.u_now)
         self.y[:] = 0.0
 
     def run(self, v_pea_v, f_e_n=None, external_n=None, decimate=1, record_states=False, t0_s=0.0):
@@ -426,7 +446,7 @@ class CoupledSimulator:
         rec_xi = np.zeros((rows if record_states else 0, self.structure.n_states))
         kept = coupled_run(self.sc, self.g_r, self.g_w, self.g_off, self.c_cap, self.c_dec, self.c_off,
                            self.es, self.zg, self.qc, self.ad, self.b0, self.b1, self.hx, self.hu,
-                           self.cy, self.dy, self.xi, self.xi_tmp, self.u_prev, self.u_now, self.y,
+                           self.cy, self.dy, self.xi, self.xi_tmp, self.g_prev, self.g_now, self.u_now, self.y,
                            self.h_s, v, f, w, self.n_sub, decimate, rec_s, rec_y, rec_xi)
         rec_s = rec_s[:kept]
         idx = np.arange(1, kept + 1) * decimate - 1
