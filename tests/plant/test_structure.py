@@ -6,10 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from workbench.errors import PlantDefinitionError
+from workbench.errors import DataFileError, PlantDefinitionError
 from workbench.plant import PZTSimulator, load_plant, play
 from workbench.plant.coupled import CoupledSimulator
-from workbench.plant.structure import mode_filter, modal_structure, spring
+from workbench.plant.structure import load_state_space, mode_filter, modal_structure, spring
 
 ROOT = Path(__file__).resolve().parents[2]
 SN637 = ROOT / "plants" / "p888_51_sn637.toml"
@@ -215,3 +215,36 @@ def test_flexure_plant_file(tmp_path):
     both.write_text(text + "\n[[mechanics.modes]]\nfreq_hz = 70000.0\ndamping_ratio = 0.02\n")
     with pytest.raises(PlantDefinitionError):
         load_plant(both)
+
+
+@pytest.mark.parametrize("suffix", [".npz", ".mat"])
+def test_state_space_file_is_the_modal_model(tmp_path, pz, suffix):
+    """A structure read from A, B, C, D runs exactly as the modal model it was written from."""
+    import scipy.io
+
+    st = load_plant(FLEXURE).structure
+    path = tmp_path / f"flexure{suffix}"
+    if suffix == ".npz":
+        np.savez(path, A=st.a, B=st.b, C=st.c, D=st.d)
+    else:
+        scipy.io.savemat(path, {"A": st.a, "B": st.b, "C": st.c, "D": st.d})
+    loaded = load_state_space(path)
+    t = np.arange(3000) * 1e-5
+    v = 40 + 30 * np.sin(2 * np.pi * 50 * t)
+    a = CoupledSimulator([pz], st, 1e-5).run(v)
+    b = CoupledSimulator([pz], loaded, 1e-5).run(v)
+    assert np.array_equal(a.x_m, b.x_m)
+    bad = tmp_path / "bad.npz"
+    np.savez(bad, A=st.a, B=st.b, C=st.c)
+    with pytest.raises(DataFileError, match="missing matrices"):
+        load_state_space(bad)
+
+
+def test_state_space_section_in_a_plant_file(tmp_path):
+    st = load_plant(FLEXURE).structure
+    np.savez(tmp_path / "m.npz", A=st.a, B=st.b, C=st.c, D=st.d)
+    text = FLEXURE.read_text()
+    i, j = text.index("\n[structure]\n") + 1, text.index("\n[gauge]\n") + 1
+    (tmp_path / "p.toml").write_text(text[:i] + '[structure]\nstate_space_file = "m.npz"\n\n' + text[j:])
+    got = load_plant(tmp_path / "p.toml").structure
+    assert np.array_equal(got.a, st.a) and got.modal is None
