@@ -248,3 +248,44 @@ def test_state_space_section_in_a_plant_file(tmp_path):
     (tmp_path / "p.toml").write_text(text[:i] + '[structure]\nstate_space_file = "m.npz"\n\n' + text[j:])
     got = load_plant(tmp_path / "p.toml").structure
     assert np.array_equal(got.a, st.a) and got.modal is None
+
+
+def test_two_stacks_on_one_mode_are_one_stack_on_half_the_mass(pz):
+    """Two identical stacks driven alike push one mode with twice the force: one stack on m/2 does the same."""
+    f_hz, k = 900.0, 2.2e8
+    w = 2 * np.pi * f_hz
+    m = k / (0.8 * w * w)                                    # modal mass, kg
+    r = 0.2 / k                                              # residual per stack, m/N
+    # static stiffness per stack: 1/(r + psi^2/(m w^2)) for the pair (each alone sees the shared mode)
+    two = modal_structure([f_hz], [0.02], [m], [[0.0, 0.0]], [[1.0, 1.0]],
+                          [1.0 / (r + 1.0 / (m * w * w))] * 2)
+    one = modal_structure([f_hz], [0.02], [m / 2], [0.0], [1.0], 1.0 / (r + 2.0 / (m * w * w)))
+    assert two.residual_compliance_m_per_n == pytest.approx([r, r], rel=1e-12)
+    assert one.residual_compliance_m_per_n == pytest.approx([r], rel=1e-12)
+    dt = 2e-5
+    t = np.arange(5000) * dt
+    v = 40 + 30 * np.sin(2 * np.pi * 30 * t)
+    f = 50 * np.sin(2 * np.pi * 700 * t)
+    a = CoupledSimulator([pz, pz], two, dt).run(np.column_stack([v, v]), np.column_stack([f, f]))
+    b = CoupledSimulator([pz], one, dt).run(v, f)
+    for got in (a.x_m[:, 0], a.x_m[:, 1]):
+        assert np.abs(got - b.x_m[:, 0]).max() <= 1e-9 * np.abs(b.x_m).max()
+    assert np.abs(a.i_a[:, 1] - b.i_a[:, 0]).max() <= 1e-9 * np.abs(b.i_a).max()
+
+
+def test_an_open_stack_senses_its_neighbour(pz):
+    """Stack 2 with open leads on the mode stack 1 drives: its back EMF is -T_em x_2 / C_pp (eq. 9, q = 0)."""
+    f_hz, k = 900.0, 2.2e8
+    w = 2 * np.pi * f_hz
+    m = 8.0
+    st = modal_structure([f_hz], [0.02], [m], [[0.0, 0.0]], [[1.0, -0.5]], [k, k])
+    dt = 2e-5
+    v = np.full(5000, 30.0)
+    tr = CoupledSimulator([pz, pz], st, dt, terminations=["amplifier", "open"]).run(np.column_stack([v, v]))
+    r2 = st.residual_compliance_m_per_n[1]
+    t_em = pz.transducer_constant_n_per_v
+    cpp = pz.working_capacitance_f + t_em ** 2 * r2
+    x2_dyn = tr.x_m[:, 1] - r2 * tr.force_n[:, 1]
+    assert np.abs(tr.q_c[:, 1]).max() == 0.0
+    assert np.abs(tr.x_m[:, 1]).max() > 1e-8                  # the neighbour moves it (psi = -0.5)
+    assert np.allclose(tr.v_t_v[:, 1], -t_em * x2_dyn / cpp, rtol=0, atol=1e-3 * np.abs(tr.v_t_v[:, 1]).max())
