@@ -9,7 +9,7 @@ import pytest
 from workbench.errors import DataFileError, PlantDefinitionError
 from workbench.plant import PZTSimulator, load_plant, play
 from workbench.plant.coupled import CoupledSimulator
-from workbench.plant.structure import load_state_space, mode_filter, modal_structure, spring
+from workbench.plant.structure import Structure, load_state_space, mode_filter, modal_structure, spring
 
 ROOT = Path(__file__).resolve().parents[2]
 SN637 = ROOT / "plants" / "p888_51_sn637.toml"
@@ -290,3 +290,20 @@ def test_an_open_stack_senses_its_neighbour(pz):
     assert np.abs(tr.q_c[:, 1]).max() == 0.0
     assert np.abs(tr.x_m[:, 1]).max() > 1e-8                  # the neighbour moves it (psi = -0.5)
     assert np.allclose(tr.v_t_v[:, 1], -t_em * x2_dyn / cpp, rtol=0, atol=1e-3 * np.abs(tr.v_t_v[:, 1]).max())
+
+
+def test_structure_and_simulator_reject_bad_input(pz):
+    st = modal_structure([900.0, 2000.0], [0.02, 0.02], [50.0, 50.0], [[0, 0], [0, 0]], [[1, 1], [1, -1]],
+                         [3e8, 3e8])
+    with pytest.raises(ValueError, match="diagonal"):
+        Structure(st.a, st.b, st.c, st.d + np.pad([[0, 1e-12], [1e-12, 0]], ((0, 2), (0, 0))), 2)
+    with pytest.raises(ValueError, match="rates"):
+        Structure(st.a, st.b, st.c, st.d + np.pad([[1e-12, 0]], ((2, 1), (0, 0))), 2)
+    with pytest.raises(ValueError, match="more compliance"):
+        modal_structure([900.0], [0.02], [1.0], [0.0], [1.0], 2e8)   # the mode alone is softer than k_static
+    with pytest.raises(ValueError, match="termination"):
+        CoupledSimulator([pz], spring(2e8), 1e-5, terminations=["shorted"])
+    with pytest.raises(ValueError, match="2 stack"):
+        CoupledSimulator([pz], st, 1e-5)
+    with pytest.raises(ValueError, match="finite"):
+        CoupledSimulator([pz], spring(2e8), 1e-5).run(np.array([0.0, np.nan]))

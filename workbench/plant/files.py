@@ -109,7 +109,8 @@ _SCHEMA = {
                             lo_open=lo_open, expect=expect, required=False)
                   for k, (kind, lo, hi, lo_open, expect) in STRUCTURE_SCHEMA.items()},
 }
-_SECTIONS_OPTIONAL = {"structure", "creep", "leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity"}
+_SECTIONS_OPTIONAL = {"structure", "creep", "leakage", "dielectric_absorption", "displacement_sensor",
+                      "gauge_nonlinearity"}
 _TABLE_ARRAYS = {"mechanics": "modes"}
 
 
