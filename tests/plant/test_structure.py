@@ -307,3 +307,20 @@ def test_structure_and_simulator_reject_bad_input(pz):
         CoupledSimulator([pz], st, 1e-5)
     with pytest.raises(ValueError, match="finite"):
         CoupledSimulator([pz], spring(2e8), 1e-5).run(np.array([0.0, np.nan]))
+
+
+def test_external_force_at_the_stack_end_is_f_e(pz):
+    """With no residual compliance, a force on the structure at the stack's moving end is Fig. 3's F_e."""
+    f_hz = 700.0
+    w = 2 * np.pi * f_hz
+    m = 2.2e8 / w ** 2                                       # all the static compliance in the mode
+    st = modal_structure([f_hz], [0.02], [m], [0.0], [1.0], 2.2e8, input_participation=[1.0])
+    assert st.residual_compliance_m_per_n[0] == pytest.approx(0.0, abs=1e-20)
+    dt = 2e-5
+    t = np.arange(4000) * dt
+    v = 30 + 20 * np.sin(2 * np.pi * 40 * t)
+    f = 200 * np.sin(2 * np.pi * 650 * t)
+    a = CoupledSimulator([pz], st, dt).run(v, f)
+    b = CoupledSimulator([pz], st, dt).run(v, external_n=f[:, None])
+    assert np.abs(a.x_m - b.x_m).max() <= 1e-9 * np.abs(a.x_m).max()
+    assert np.abs(a.i_a - b.i_a).max() <= 1e-9 * np.abs(a.i_a).max()

@@ -192,7 +192,8 @@ def mode_filter(stiffness_n_per_m, modes):
 
 
 def modal_structure(freqs_hz, damping_ratios, modal_masses_kg, participation_end_a, participation_end_b,
-                    static_stiffness_n_per_m, *, output_participation=None, output_names=()):
+                    static_stiffness_n_per_m, *, input_participation=None, output_participation=None,
+                    output_names=()):
     """A modal model of M(.) with its static correction.
 
     Parameters
@@ -206,6 +207,9 @@ def modal_structure(freqs_hz, damping_ratios, modal_masses_kg, participation_end
         A 1-D array is read as one stack.
     static_stiffness_n_per_m : array_like of float, shape (n_stacks,)
         Force per elongation at each stack at DC, N/m (>= the stack's k_p: M holds the stack).
+    input_participation : array_like, shape (n_modes, n_ext), optional
+        Mode shape at further force inputs (external forces after the stack forces; a
+        disturbance torque with the shape in rad per modal coordinate).
     output_participation : array_like, shape (n_modes, n_out), optional
         Further outputs as modal sums (e.g. a mirror angle per modal coordinate).
 
@@ -242,19 +246,25 @@ def modal_structure(freqs_hz, damping_ratios, modal_masses_kg, participation_end
     po = np.zeros((nm, 0)) if output_participation is None else np.asarray(output_participation, float)
     if po.ndim == 1:
         po = po[:, None]
+    pi = np.zeros((nm, 0)) if input_participation is None else np.asarray(input_participation, float)
+    if pi.ndim == 1:
+        pi = pi[:, None]
+    if pi.shape[0] != nm or po.shape[0] != nm:
+        raise ValueError(f"input and output participation need one row per mode ({nm}); got {pi.shape}, {po.shape}")
     n = 2 * nm
     a = np.zeros((n, n))
-    b = np.zeros((n, ns))
+    b = np.zeros((n, ns + pi.shape[1]))
     for i in range(nm):
         a[2 * i, 2 * i + 1] = 1.0
         a[2 * i + 1, 2 * i] = -w[i] ** 2
         a[2 * i + 1, 2 * i + 1] = -2 * z[i] * w[i]
-        b[2 * i + 1] = psi[i] / m[i]
+        b[2 * i + 1, :ns] = psi[i] / m[i]
+        b[2 * i + 1, ns:] = pi[i] / m[i]
     c = np.zeros((2 * ns + po.shape[1], n))
     c[:ns, 0::2] = psi.T
     c[ns:2 * ns, 1::2] = psi.T
     c[2 * ns:, 0::2] = po.T
-    d = np.zeros((c.shape[0], ns))
+    d = np.zeros((c.shape[0], b.shape[1]))
     d[:ns, :ns] = np.diag(resid)
     modal = {"freqs_hz": f, "damping_ratios": z, "modal_masses_kg": m, "psi": psi}
     return Structure(a, b, c, d, ns, tuple(output_names), modal)
