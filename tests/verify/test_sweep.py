@@ -2,6 +2,7 @@
 
 import importlib.util
 import math
+import multiprocessing
 import os
 import re
 import socket
@@ -207,9 +208,11 @@ def test_a_sweep_past_its_time_limit_marks_the_rest_and_stops_its_processes(tmp_
     payload = {"dir": str(tmp_path), "n": 2, "wait_s": 60.0}
     (row,) = run_cases(meet, [Case(key={"i": 0}, payload=payload)], workers=1, timeout_s=1.5)
     assert row == {"i": 0, "ok": False, "error": "TimeoutError: not finished within timeout_s = 1.5 s"}
-    (checked_in,) = tmp_path.iterdir()
-    with pytest.raises(ProcessLookupError):        # the worker that ran the case was killed and reaped
-        os.kill(int(checked_in.name), 0)
+    assert not multiprocessing.active_children()   # the pool's workers were killed and reaped
+    # under heavy load the worker may not even have started the case within 1.5 s: no check-in then
+    for checked_in in tmp_path.iterdir():
+        with pytest.raises(ProcessLookupError):    # the worker that ran the case was killed and reaped
+            os.kill(int(checked_in.name), 0)
 
 
 def test_worst_picks_among_ok_rows_and_ignores_nan():
