@@ -295,13 +295,14 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     io[3] = row
 
 
-@njit(cache=True, error_model="numpy")
-def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift, ffrac,
-          f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
-    """The closed loop as first written (plant step through its packed arrays, helpers as called).
+def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift,
+                    ffrac, f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
+    """The closed loop as first written, run by the interpreter: the slow reference of :func:`_loop`.
 
-    Kept as the reference the optimized :func:`_loop` must reproduce bit for bit (tests);
-    same arguments, same effect.
+    The plant step through its packed arrays and an output array, the gauge and
+    controller helpers called as they are (those run compiled), every number in the
+    order :func:`_loop` computes it. The tests hold the two equal bit for bit; ~50 us a
+    period, for short runs only. Same arguments, same effect as :func:`_loop`.
 
     ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
     2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
