@@ -7,7 +7,10 @@ the state ``st``, so later stages (closed-loop verification) can call ``pzt_step
 from their own compiled loops. Packing matters: numba reference-counts every array
 handed to a function, and with a dozen separate arrays that bookkeeping cost more
 than the physics. ``pzt_step.py_func`` is the same code run by the interpreter,
-which the benchmark hands to python-control.
+which the benchmark hands to python-control. A long loop reads the model's scalars
+and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the same
+step, returning its outputs instead of writing an array), as :func:`pzt_run` and the
+closed loop do; :func:`pzt_step` is that pair in one call.
 
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
