@@ -206,9 +206,10 @@ def test_malformed_metrics_fail_the_case(fn, match):
 def test_a_sweep_past_its_time_limit_marks_the_rest_and_stops_its_processes(tmp_path):
     # the lone case waits for a partner that never comes: only the time limit ends it
     payload = {"dir": str(tmp_path), "n": 2, "wait_s": 60.0}
+    others = set(multiprocessing.active_children())    # e.g. a dask cluster of another test in this module
     (row,) = run_cases(meet, [Case(key={"i": 0}, payload=payload)], workers=1, timeout_s=1.5)
     assert row == {"i": 0, "ok": False, "error": "TimeoutError: not finished within timeout_s = 1.5 s"}
-    assert not multiprocessing.active_children()   # the pool's workers were killed and reaped
+    assert set(multiprocessing.active_children()) <= others   # the pool's workers were killed and reaped
     # under heavy load the worker may not even have started the case within 1.5 s: no check-in then
     for checked_in in tmp_path.iterdir():
         with pytest.raises(ProcessLookupError):    # the worker that ran the case was killed and reaped
