@@ -120,6 +120,12 @@ def cmd_bench(args):
         f"|dx| {cl['python_control_state_difference']['x_m']:.1e} m, "
         f"|du| {cl['python_control_state_difference']['u_v']:.1e} V",
     ]
+    if "c_reference" in cl:
+        c = cl["c_reference"]
+        lines.append(f"  the same loop in plain C ({' '.join(c['cflags'])}): "
+                     f"{c['ns_per_period']['c_kernel']:.1f} ns/period against {c['ns_per_period']['numba']:.1f}; ratio {c['ratio_vs_c_kernel']:.2f} (target <= "
+                     f"{t['ratio_vs_c_max']:g}: {'met' if ok['ratio_vs_c'] else 'NOT met'}); output words identical: "
+                     f"{c['agreement_decimate_1']['output_words_identical']}/{c['agreement_decimate_1']['rows']}")
     if "memory" in cl:
         m = cl["memory"]
         lines.append(f"  peak RSS of a {m['periods']:.0e}-period hold (decimate {m['decimate']}): "
