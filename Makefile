@@ -23,10 +23,10 @@ demo: $(STAMP)
 	$(BIN)/workbench selfsense plants/p888_51_sn637_creep.toml --out out/selfsense --json out/selfsense/selfsense.json
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --dist loadfile
 
 test-full: $(STAMP)
-	WORKBENCH_FULL=1 $(BIN)/python -m pytest -q
+	WORKBENCH_FULL=1 $(BIN)/python -m pytest -q -n auto --dist loadfile
 
 bench: $(STAMP)
 	$(BIN)/workbench bench --json out/bench.json
