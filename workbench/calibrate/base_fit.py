@@ -45,6 +45,9 @@ REST_S, REST_TOL_REL = 0.02, 0.005
 #: A play whose output moves less than this fraction of the training input's span over the training
 #: rows is not excited there (below a 10-bit monitor's step): its column would only copy the offset's.
 MOVE_REL = 1e-3
+#: Held-out drive more than this fraction of the training span outside the training range is
+#: "beyond" it (sampling alone puts a sine's held-out peaks a hair outside the trained ones).
+BEYOND_REL = 0.01
 #: Ridge strengths tried by the blocked cross-validation, relative to the Gram diagonal of the
 #: unit-RMS columns (0 = plain bounded least squares; the largest is the straight line).
 RIDGE_GRID = (0.0,) + tuple(10.0 ** np.arange(-8, 3))
@@ -346,19 +349,34 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         if not from_rest:
             notes.append(f"the record does not start from rest (V = {v[0]:.3g} V at the start): the plays start "
                          f"as if reached monotonically from 0 V")
-    best = None
-    for label, vd in drives.items():
+    def trial(vd):
         r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
         m = _fit_channel(first, P, outputs[first], train, valid[first], r, _z0(vd, r, from_rest, input_kind),
                          ridge=0.0)
-        score = rms(m.residual[train & valid[first]])
+        return rms(m.residual[train & valid[first]]), r, keep, P
+
+    best = None
+    for label, vd in drives.items():
+        score, r, keep, P = trial(vd)
         if best is None or score < best[0]:
             best = (score, label, vd, r, keep, P)
+    if input_kind == "command" and best[1][0] != "none":
+        # refine the winning lag or delay between its grid neighbours (log scale)
+        from scipy.optimize import minimize_scalar
+        kind, x = best[1]
+        i = int(np.flatnonzero(taus == x)[0])
+        lo_, hi_ = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, taus.size - 1)])
+        res = minimize_scalar(lambda z: trial(_lagged(t, v, **{f"{kind}_s": float(np.exp(z))}))[0],
+                              bounds=(lo_, hi_), method="bounded", options={"xatol": 0.01})
+        if res.fun < best[0]:
+            x = float(np.exp(res.x))
+            vd = _lagged(t, v, **{f"{kind}_s": x})
+            best = (float(res.fun), (kind, x), vd, *trial(vd)[1:])
     _, label, vd, r_all, keep, P = best
     if input_kind == "command":
         kind, x = label
-        command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": x if kind == "lag" else 0.0,
-                       "delay_s": x if kind == "delay" else 0.0,
+        command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
+                       "delay_s": float(x) if kind == "delay" else 0.0,
                        "note": "gain and offset are absorbed by the play weights and thresholds (the "
                                "model runs in command volts): the outputs alone cannot tell them apart"}
         label = ("amplifier command" + (f" through a {x:.4g} s first-order lag" if kind == "lag" else
@@ -384,7 +402,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
                             f"clearly below a straight line's ({m.line_rms_test:.4g} {m.units}; clearly = at most "
                             f"{LINE_MARGIN:g}x): the declared model explains this record no better than a line")
     lo, hi = float(vd[train].min()), float(vd[train].max())
-    beyond = test & ((vd < lo) | (vd > hi))
+    tol = BEYOND_REL * (hi - lo)
+    beyond = test & ((vd < lo - tol) | (vd > hi + tol))
     if beyond.any():
         warnings.append(f"{100 * beyond.sum() / max(int(test.sum()), 1):.3g} % of the held-out rows drive beyond "
                         f"the training input's range {lo:.4g} .. {hi:.4g} V (to {vd[test].min():.4g} .. "

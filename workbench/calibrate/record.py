@@ -22,7 +22,9 @@ evenly (within ``rel_jitter`` of the median step), and there must be ``min_sampl
 Record-level garbage is refused too: the voltage or an output that never changes (a dead or
 unplugged channel: nothing to fit), and a single absurd cell (a glitch such as ``1e300``): a value
 more than :data:`GLITCH_SPANS` times the channel's bulk span outside that bulk (the bulk: the
-channel without its 0.1 % most extreme cells at either end, at least one).
+channel without its 0.1 % most extreme cells at either end, at least one); a current, a rate that
+spikes genuinely when a step meets the stack without its resistor, is judged by the charge one
+cell carries against the span of the charge the bulk carries.
 
 Values are SI in the returned :class:`Record`. The file is read once, parsed by pandas' C engine and
 checked with vectorised numpy; the line-by-line scan that names a bad cell runs only on failure.
@@ -163,7 +165,8 @@ def read_record(path, min_samples=100, rel_jitter=1e-3):
     _check_time(path, t, first, columns["time"][0] + 1, rel_jitter)
     for name, (index, scale) in columns.items():
         if name != "time":
-            _check_channel(path, name, header[index].strip(), arrays[QUANTITIES[name][1]] / scale, first, index + 1)
+            _check_channel(path, name, header[index].strip(), arrays[QUANTITIES[name][1]] / scale, first, index + 1,
+                           float(np.mean(np.diff(t))))
     period = float((t[-1] - t[0]) / (t.size - 1))     # the mean step: immune to rounding of single times
     return Record(path, metadata, t, arrays, period, notices)
 
@@ -321,10 +324,11 @@ def _check_time(path, t, first, column, rel_jitter):
                             f"or cut it at this line")
 
 
-def _check_channel(path, name, label, y, first, column):
+def _check_channel(path, name, label, y, first, column, dt_s):
     """A channel that never changes, or one absurd cell in it, is refused (see the module notes).
 
-    ``y`` is in the file's unit (as the cells are written), so the message quotes the cell."""
+    ``y`` is in the file's unit (as the cells are written), so the message quotes the cell; ``dt_s``
+    is the time step (a current's cell is judged by the charge it carries)."""
     where = f"{path}, column {column} ({label})"
     if name == "force":
         return                                      # read but not used by the calibration
@@ -336,7 +340,14 @@ def _check_channel(path, name, label, y, first, column):
     k = max(1, y.size // 1000)                      # the bulk leaves out the k lowest and k highest cells
     lo, hi = float(np.partition(y, k)[k]), float(np.partition(y, y.size - 1 - k)[y.size - 1 - k])
     span = hi - lo
-    if span > 0:
+    if name == "current":
+        # a current is a rate: a step of the voltage into the stack (resistor out) is a genuine spike
+        # far above the bulk. Its cell is absurd only when the charge it carries in one sample,
+        # |i - median| dt, exceeds GLITCH_SPANS times the span of the charge the bulk carries.
+        med = float(np.median(y))
+        q = np.cumsum(np.clip(y, lo, hi) - med) * dt_s
+        bad = np.flatnonzero(np.abs(y - med) * dt_s > GLITCH_SPANS * max(float(np.ptp(q)), span * dt_s))
+    elif span > 0:
         bad = np.flatnonzero((y < lo - GLITCH_SPANS * span) | (y > hi + GLITCH_SPANS * span))
     else:                                           # constant but for a few cells: they are the glitch
         bad = np.flatnonzero(y != lo)
@@ -344,7 +355,8 @@ def _check_channel(path, name, label, y, first, column):
         i = int(bad[0])
         raise DataFileError(f"{path}, line {first + i}, column {column} ({label}): {y[i]:.6g} is more than "
                             f"{GLITCH_SPANS:g} times the channel's range ({lo:.6g} .. {hi:.6g} without its extreme "
-                            f"cells) away from it: a logging glitch, not a measurement"
+                            f"cells{'; for a current, in charge per sample' if name == 'current' else ''}) "
+                            f"away from it: a logging glitch, not a measurement"
                             f"{f' ({bad.size} such cells)' if bad.size > 1 else ''}; correct the cell or "
                             f"cut the record before this line")
 
