@@ -53,7 +53,7 @@ def test_top_plays_unexcited_in_training_do_not_blow_up(k, rate_hz):
     """15 cycles at 80 % of the command range, the 16th at 100 %: in training (3-10 cycles from the
     second reversal) the upper plays never move, which once gave weights of ~1000 m/V."""
     rng = np.random.default_rng(1300 + k)
-    t, u, x, truth = command_rig(rng, rate_hz, [0.8] * 15 + [1.0])
+    t, u, x, truth = command_rig(rng, rate_hz, [0.8] * 15 + [1.0], max_rows=30_000)
     rec = _command_record(t, u, x)
     everything = np.ones(t.size, bool)
     ref = rms(fit_base(rec, train=everything, test=~everything, n_plays=20, grid="uniform")
@@ -83,7 +83,7 @@ def test_command_lag_is_found_and_growing_range_stays_below_the_line(k, rate_hz)
     part extrapolates (flagged); the base must still beat a straight line, and the amplifier's lag
     comes back from the displacement alone."""
     rng = np.random.default_rng(1400 + k)
-    t, u, x, truth = command_rig(rng, rate_hz, np.r_[np.linspace(0.45, 1.0, 10), np.ones(6)])
+    t, u, x, truth = command_rig(rng, rate_hz, np.r_[np.linspace(0.45, 1.0, 10), np.ones(6)], max_rows=30_000)
     rec = _command_record(t, u, x)
     for n in CYCLES:
         train, test = _split(u, n)
@@ -92,8 +92,9 @@ def test_command_lag_is_found_and_growing_range_stays_below_the_line(k, rate_hz)
         lag = base.command_map["lag_s"] + base.command_map["delay_s"]
         print(f"\n{rate_hz:.0f} Hz, {n} cycles: held-out {m.rms_test * 1e9:.0f} nm, line {m.line_rms_test * 1e9:.0f} nm; "
               f"lag {truth['lag_s'] * 1e3:.3g} ms found {lag * 1e3:.3g} ms ({base.voltage_source})")
-        assert m.rms_test < m.line_rms_test
-        assert base.beyond_train.any() and base.input_kind == "command"
+        assert m.rms_test < m.line_rms_test and base.input_kind == "command"
+        if n < 10:                            # the range still grows after training: extrapolation, flagged
+            assert base.beyond_train.any()
         assert lag == pytest.approx(truth["lag_s"], rel=0.25)
 
 
@@ -132,6 +133,8 @@ def test_resistor_out_record_calibrates(sn637, short_protocol, tmp_path):
     t, v = short_protocol
     r = simulate_record(plant, t, v, seed=3)
     data = write_record(tmp_path / "rout.csv", r, {"series_resistor_ohm": 0})
+    head = write_record(tmp_path / "rout_head.csv", {k: a[t < 3.0] for k, a in r.items()},
+                        {"series_resistor_ohm": 0})      # the command's check, on a shorter record
     rec = read_record(data)
     assert rec.metadata["series_resistor_ohm"] == 0.0
     base = fit_base(rec, 0.0, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
@@ -139,7 +142,7 @@ def test_resistor_out_record_calibrates(sn637, short_protocol, tmp_path):
     assert base.working_capacitance_f == pytest.approx(plant.pzt.working_capacitance_f, rel=0.02)
     assert base.channels["displacement"].rms_test < 3e-9                 # 1 nm sensor noise
     out = tmp_path / "r.json"
-    assert main(["calibrate", str(data), "--plant", str(PLANTS / "p888_51_sn637.toml"), "--json", str(out)]) == 0
+    assert main(["calibrate", str(head), "--plant", str(PLANTS / "p888_51_sn637.toml"), "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     assert res["base_fit"]["series_resistor_ohm"] == 0.0
     assert any("resistor is out" in n for n in res["base_fit"]["notes"])
