@@ -195,3 +195,30 @@ def test_eq11_off_rest_has_an_offset(sn637, short_protocol):
     base = fit_base(rec, 80.0, pzt=plant.pzt)
     assert not base.starts_from_rest
     assert base.k_q2x_m_per_c == pytest.approx(plant.pzt.k_q2x_m_per_c, rel=5e-3)
+
+
+def test_generic_stack_without_range_takes_the_records(tmp_path):
+    """A generic-stack file to be fitted may omit [voltage]: the record's range is used and said,
+    and the calibrated file carries it; a calibrated file without it is refused."""
+    from workbench.errors import PlantDefinitionError
+    from workbench.plant.generic import load_generic_stack
+    rng = np.random.default_rng(1700)
+    t, u, x, _ = command_rig(rng, 200.0, [1.0] * 8, max_rows=20_000)
+    v = 40.0 * (u - COMMAND_V / 2)                     # a bipolar terminal voltage, about +/-72 V
+    data = write_record(tmp_path / "bipolar.csv", {"time_s": t, "voltage_v": v, "displacement_m": x},
+                        {"input": "terminal"})
+    text = (PLANTS / "generic_stack.toml").read_text()
+    plant = tmp_path / "norange.toml"
+    plant.write_text(text.split("[voltage]")[0] + "[hysteresis]" + text.split("[hysteresis]")[1])
+    assert load_generic_stack(plant).min_v is None
+    assert main(["calibrate", str(data), "--plant", str(plant), "--out", str(tmp_path / "out"),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    res = json.loads((tmp_path / "r.json").read_text())
+    assert any("gives no [voltage] range" in n for n in res["base_fit"]["notes"])
+    stack = load_generic_stack(res["updated_plant"])
+    assert (stack.min_v, stack.max_v) == (pytest.approx(v.min()), pytest.approx(v.max()))
+    calibrated = Path(res["updated_plant"]).read_text()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(calibrated.split("[voltage]")[0] + "[hysteresis]" + calibrated.split("[hysteresis]")[1])
+    with pytest.raises(PlantDefinitionError, match="needs its drive range"):
+        load_generic_stack(bad)
