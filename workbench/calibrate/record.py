@@ -332,19 +332,20 @@ def _check_channel(path, name, label, y, first, column, dt_s):
     where = f"{path}, column {column} ({label})"
     if name == "force":
         return                                      # read but not used by the calibration
-    if not np.ptp(y) > 0:
+    k = max(1, y.size // 1000)                      # the bulk leaves out the k lowest and k highest cells
+    part = np.partition(y, [0, k, y.size // 2, y.size - 1 - k, y.size - 1])
+    if not part[-1] > part[0]:
         what = "the input" if name == "voltage" else "an output"
         raise DataFileError(f"{where}, lines {first}-{first + y.size - 1}: every value is {y[0]:.6g}; {what} "
                             f"that never changes is a dead or unplugged channel with nothing to fit: "
                             f"check the logger's channel, or delete the column")
-    k = max(1, y.size // 1000)                      # the bulk leaves out the k lowest and k highest cells
-    lo, hi = float(np.partition(y, k)[k]), float(np.partition(y, y.size - 1 - k)[y.size - 1 - k])
+    lo, hi = float(part[k]), float(part[y.size - 1 - k])
     span = hi - lo
     if name == "current":
         # a current is a rate: a step of the voltage into the stack (resistor out) is a genuine spike
         # far above the bulk. Its cell is absurd only when the charge it carries in one sample,
         # |i - median| dt, exceeds GLITCH_SPANS times the span of the charge the bulk carries.
-        med = float(np.median(y))
+        med = float(part[y.size // 2])
         q = np.cumsum(np.clip(y, lo, hi) - med) * dt_s
         bad = np.flatnonzero(np.abs(y - med) * dt_s > GLITCH_SPANS * max(float(np.ptp(q)), span * dt_s))
     elif span > 0:
