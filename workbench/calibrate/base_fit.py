@@ -32,7 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .pi_fit import play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
+from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
 from .residual import charge_from_current
 
 __all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "CHANNEL_KEYS", "CHANNEL_UNITS"]
@@ -42,9 +42,6 @@ CHANNEL_UNITS = {"displacement": "m", "charge": "C", "gauge": "V"}
 #: "From rest": the first REST_S (at most 2 % of the record) hold within REST_TOL_REL of the record's
 #: peak |V| of 0 V (0.5 V on a 100 V protocol: the amplifier monitor's noise and offset, not motion).
 REST_S, REST_TOL_REL = 0.02, 0.005
-#: A play whose output moves less than this fraction of the training input's span over the training
-#: rows is not excited there (below a 10-bit monitor's step): its column would only copy the offset's.
-MOVE_REL = 1e-3
 #: Held-out drive more than this fraction of the training span outside the training range is
 #: "beyond" it (sampling alone puts a sine's held-out peaks a hair outside the trained ones).
 BEYOND_REL = 0.01
