@@ -222,3 +222,26 @@ def test_generic_stack_without_range_takes_the_records(tmp_path):
     bad.write_text(calibrated.split("[voltage]")[0] + "[hysteresis]" + calibrated.split("[hysteresis]")[1])
     with pytest.raises(PlantDefinitionError, match="needs its drive range"):
         load_generic_stack(bad)
+
+
+@pytest.mark.parametrize("kind", ["line", "unrelated"])
+def test_base_no_better_than_a_line_is_warned(kind):
+    """A displacement that is a straight line of the voltage plus noise, or one unrelated to it (a
+    random walk): the base cannot be clearly better than a line, and says so."""
+    rng = np.random.default_rng(1800 if kind == "line" else 1801)
+    rate = float(np.exp(rng.uniform(np.log(100.0), np.log(5000.0))))
+    t = np.arange(int(8 * rate)) / rate
+    v = rng.uniform(20.0, 150.0) * np.sin(2 * np.pi * t)
+    noise = rng.uniform(1e-9, 1e-7)
+    if kind == "line":
+        x = rng.uniform(0.05, 0.2) * 1e-6 * v + noise * rng.standard_normal(t.size)
+    else:
+        x = np.cumsum(noise * rng.standard_normal(t.size))
+    rec = Record(Path("flat.csv"), {}, t, {"voltage_v": v, "displacement_m": x}, 1 / rate)
+    train, test = _split(v, 3)
+    base = fit_base(rec, train=train, test=test, n_plays=20, grid="uniform")
+    m = base.channels["displacement"]
+    print(f"\n{kind}, {rate:.0f} Hz: base {m.rms_test:.3g} m, line {m.line_rms_test:.3g} m, ridge {m.ridge:g}")
+    assert not m.clearly_better_than_line
+    assert any("no better than a line" in w for w in base.warnings)
+    assert m.rms_test < 1.5 * m.line_rms_test             # and not much worse either: the ridge reaches the line
