@@ -264,6 +264,7 @@ def cmd_calibrate(args):
              f"{ea['max']:.4g} {eb['units']}  ({data['reason']})"]
     for c in data["candidates"][:6]:
         lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}")
+    lines += [f"  warning: {w}" for w in data["base_fit"].get("warnings", [])]
     if "updated_plant" in data:
         lines.append(f"  updated plant {data['updated_plant']}; report {data['report']}")
     lines.append(f"  {data['elapsed_s']:.1f} s")

@@ -187,3 +187,21 @@ def test_real_record_rest_level_and_published_window(real_record):
     print(f"published window t = 7..9 s, in-sample: {pub.rms_train_m * 1e6:.4f} um "
           f"(published sparse Duhem model: 0.0915 um)")
     assert pub.rms_train_m < 0.12e-6           # measured 0.074 um
+
+
+def test_play_unexcited_in_training_gets_no_weight(rng):
+    """Training on small cycles, predicting a larger one: the grid spans the training input, a play
+    it never moves gets weight 0, and the prediction stays bounded (no offset traded against it)."""
+    t = np.linspace(0.0, 8.0, 8000)
+    amp = np.where(t < 6.0, rng.uniform(0.4, 0.8), 1.0) * rng.uniform(10.0, 200.0)       # V
+    v = amp * 0.5 * (1.0 - np.cos(2 * np.pi * t))                 # unipolar, from rest
+    r = pi_thresholds(v, 8)
+    x = PrandtlIshlinskii(r, rng.uniform(0.2, 1.0, 8) * 1e-8, np.zeros(8))(v)
+    train = (t >= 0.5) & (t < 6.0)          # from the first reversal: the virgin rise is not trained on
+    fit = fit_pi(v, x, n_plays=10, train=train)
+    span_train = np.max(v[train])
+    assert fit.thresholds_v[-1] < span_train                     # the grid is the training input's
+    moved = np.array([np.ptp(PrandtlIshlinskii(np.array([ri]), np.ones(1), np.zeros(1),
+                                               check_invertible=False)(v)[train]) for ri in fit.thresholds_v])
+    assert np.all(fit.weights[moved < 1e-3 * span_train] == 0) and np.any(moved < 1e-3 * span_train)
+    assert np.max(np.abs(fit.predict(v) - x)) < 0.5 * np.ptp(x)

@@ -127,7 +127,7 @@ CASES = [
     ("time-backwards", _time(31, 0.0295), 35, 1, "not after"),
     ("gap", _drop(50), 54, 1, "gap of about 1 missing"),
     ("uneven", _time(60, 0.0603), 64, 1, "uneven sampling"),
-    ("resistor-negative", _line(2, "# series_resistor_ohm: -5"), 2, 24, "positive"),
+    ("resistor-negative", _line(2, "# series_resistor_ohm: -5"), 2, 24, ">= 0"),
     ("resistor-text", _line(2, "# series_resistor_ohm: eighty"), 2, 24, "not a resistance"),
     ("metadata-repeat", _line(2, "# serial: SN629"), 2, 11, "repeats line 1"),
 ]
@@ -195,3 +195,45 @@ def test_large_record_loads(tmp_path):
     assert sorted(rec.channels) == ["charge_c", "current_a", "displacement_m", "voltage_v"]
     assert all(v.shape == (n,) for v in rec.channels.values())
     assert rec.sample_period_s == pytest.approx(1e-6, rel=1e-12)
+
+
+def test_resistor_out_and_input_kind(tmp_path):
+    """Seed 000's free-free test logs with the series resistor out: 0 ohm is a valid value."""
+    rec = read_record(_write(tmp_path, ["# series_resistor_ohm: 0", "# Input: Command", HEADER] + _rows()))
+    assert rec.metadata == {"series_resistor_ohm": 0.0, "input": "command"}
+    with pytest.raises(DataFileError, match=r"line 1, column 10: input 'amplifier' is not one of terminal, command"):
+        read_record(_write(tmp_path, ["# input: amplifier", HEADER] + _rows()))
+
+
+@pytest.mark.parametrize("column", [2, 3])
+@pytest.mark.parametrize("glitch, shown", [("1e300", r"1e\+300"), ("-4e12", "-4e\\+12")])
+def test_one_absurd_cell_is_named(tmp_path, column, glitch, shown, rng):
+    """A single glitch anywhere in the input or an output is refused with its line and column."""
+    n = int(rng.integers(120, 3000))
+    rows = _rows(n)
+    k = int(rng.integers(0, n))
+    cells = rows[k].split(",")
+    cells[column - 1] = glitch
+    rows[k] = ",".join(cells)
+    with pytest.raises(DataFileError, match=rf"line {2 + k}, column {column} \(.*\): {shown} .* glitch"):
+        read_record(_write(tmp_path, [HEADER] + rows))
+
+
+@pytest.mark.parametrize("value", ["0", "0.25"])
+@pytest.mark.parametrize("column", [2, 3])
+def test_constant_channel_is_refused(tmp_path, value, column):
+    rows = []
+    for row in _rows():
+        cells = row.split(",")
+        cells[column - 1] = value
+        rows.append(",".join(cells))
+    with pytest.raises(DataFileError, match=rf"column {column} .*lines 2-{N + 1}: every value is {value}.*dead"):
+        read_record(_write(tmp_path, [HEADER] + rows))
+
+
+def test_large_but_genuine_swings_are_kept(tmp_path):
+    """A step from a long rest to the full stroke is not a glitch: the bulk spans both levels."""
+    rows = [f"{k * 1e-3!r},{0.0 if k < 150 else 100.0},{(0.0 if k < 150 else 20.0) + 1e-3 * np.sin(k):.6f}"
+            for k in range(N)]
+    rec = read_record(_write(tmp_path, [HEADER] + rows))
+    assert rec.channels["voltage_v"].max() == 100.0

@@ -32,14 +32,27 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .pi_fit import play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
+from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
 from .residual import charge_from_current
 
 __all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "CHANNEL_KEYS", "CHANNEL_UNITS"]
 
 CHANNEL_KEYS = {"displacement": "displacement_m", "charge": "charge_c", "gauge": "gauge_v"}
 CHANNEL_UNITS = {"displacement": "m", "charge": "C", "gauge": "V"}
-REST_S, REST_TOL_V = 0.02, 0.5
+#: "From rest": the first REST_S (at most 2 % of the record) hold within REST_TOL_REL of the record's
+#: peak |V| of 0 V (0.5 V on a 100 V protocol: the amplifier monitor's noise and offset, not motion).
+REST_S, REST_TOL_REL = 0.02, 0.005
+#: Held-out drive more than this fraction of the training span outside the training range is
+#: "beyond" it (sampling alone puts a sine's held-out peaks a hair outside the trained ones).
+BEYOND_REL = 0.01
+#: Ridge strengths tried by the blocked cross-validation, relative to the Gram diagonal of the
+#: unit-RMS columns (0 = plain bounded least squares; the largest is the straight line).
+RIDGE_GRID = (0.0,) + tuple(10.0 ** np.arange(-8, 3))
+#: Contiguous folds of the training rows for that cross-validation.
+RIDGE_FOLDS = 5
+#: The base is "clearly better" than a straight line when its held-out error is at most this
+#: fraction of the line's (the margin the tracing asks of an effect, ``max_ratio``).
+LINE_MARGIN = 0.8
 
 
 @dataclass(eq=False)
@@ -54,6 +67,16 @@ class ChannelModel:
     weights: np.ndarray
     offset: float
     initial_states_v: np.ndarray
+    ridge: float = 0.0                # the ridge chosen by cross-validation on the training rows (relative)
+    rms_test: float = float("nan")    # held-out RMS of the base, channel units
+    line_rms_test: float = float("nan")   # held-out RMS of a straight line of the drive fitted on training rows
+    line_slope: float = float("nan")      # that line: y = line_slope * v_drive + line_offset
+    line_offset: float = float("nan")
+
+    @property
+    def clearly_better_than_line(self):
+        """True when the base's held-out error is at most ``LINE_MARGIN`` of the straight line's."""
+        return bool(self.rms_test <= LINE_MARGIN * self.line_rms_test)
 
     @property
     def units(self):
@@ -81,6 +104,12 @@ class BaseFit:
     gauge_gain_v_per_m: float | None = None
     gauge_offset_v: float | None = None
     notes: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)      # also in ``notes``; the CLI prints them
+    input_kind: str = "terminal"      # "terminal" or "command" (amplifier command, see ``command_map``)
+    command_map: dict | None = None   # command -> terminal: gain, offset_v, lag_s, delay_s, note
+    train_range_v: tuple | None = None    # (lo, hi) of the drive over the training rows
+    beyond_train: np.ndarray = None   # held-out rows whose drive leaves ``train_range_v``
+    dropped_thresholds_v: np.ndarray = None   # plays never excited in the training rows (left out)
 
 
 def holdout_mask(t, v, split="blocks", block_s=0.1, every=3, train_cycles=3):
@@ -113,9 +142,22 @@ def holdout_mask(t, v, split="blocks", block_s=0.1, every=3, train_cycles=3):
     raise ValueError(f"split must be 'blocks' or 'cycles', got {split!r}")
 
 
+def _rest_window_s(t):
+    """The start window that decides "from rest": REST_S, but at most 2 % of a short record."""
+    return min(REST_S, 0.02 * float(t[-1] - t[0]))
+
+
 def _starts_from_rest(t, v):
-    head = v[t - t[0] <= REST_S]
-    return bool(head.size and np.all(np.abs(head) <= REST_TOL_V))
+    """The first window holds within REST_TOL_REL of the record's peak |V| of 0 V."""
+    head = v[t - t[0] <= _rest_window_s(t)]
+    tol = REST_TOL_REL * float(np.max(np.abs(v)))
+    return bool(head.size and np.all(np.abs(head) <= tol))
+
+
+def _starts_flat(t, u):
+    """The first window holds within REST_TOL_REL of the input's span of its first value."""
+    head = u[t - t[0] <= _rest_window_s(t)]
+    return bool(head.size and np.all(np.abs(head - u[0]) <= REST_TOL_REL * float(np.ptp(u))))
 
 
 def _initial_states(v0, thresholds, from_rest):
@@ -145,20 +187,72 @@ def small_problem(A, b=None):
     return R, c
 
 
-def _fit_channel(name, P, y, train, valid, thresholds, z0):
+def _gram_solve(G, h, lower):
+    """min w'G w - 2 h'w subject to w >= lower (BVLS on the square-root system of ``G``)."""
     from scipy.optimize import lsq_linear
+    lam, V = np.linalg.eigh(G)
+    ok = lam > 1e-12 * max(lam.max(), 0.0)
+    sq = np.sqrt(np.where(ok, lam, 1.0))
+    R = np.where(ok, sq, 0.0)[:, None] * V.T
+    c = np.where(ok, (V.T @ h) / sq, 0.0)
+    return lsq_linear(R, c, bounds=(lower, np.full(lower.size, np.inf)), method="bvls", tol=1e-12).x
+
+
+def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None):
+    """Non-negative play weights and a free offset by bounded, ridge-regularized least squares.
+
+    Columns are scaled to unit RMS on the fitting rows. The ridge penalizes every play but the
+    r = 0 one (the identity) and the offset, so a large ridge leaves the straight line
+    ``w_0 V + c``: the path runs from the free PI to the line. Its strength is chosen from
+    :data:`RIDGE_GRID` by blocked cross-validation over :data:`RIDGE_FOLDS` contiguous stretches
+    of the fitting rows (plays run over the whole record; only the scored rows differ), unless
+    ``ridge`` is given.
+    """
     rows = train & valid
-    a = np.column_stack([P[rows], np.ones(int(rows.sum()))])
+    n = int(rows.sum())
+    a = np.column_stack([P[rows], np.ones(n)])
     col = np.sqrt(np.mean(a * a, axis=0))
     col[col == 0] = 1.0
     bscale = rms(y[rows]) or 1.0
-    lb = np.r_[np.zeros(thresholds.size), -np.inf]
-    r, rhs = small_problem(a / col, y[rows] / bscale)
-    sol = lsq_linear(r, rhs, bounds=(lb, np.full(thresholds.size + 1, np.inf)), method="bvls", tol=1e-12)
-    p = sol.x / col * bscale
+    an, b = a / col, y[rows] / bscale
+    k = thresholds.size
+    lower = np.r_[np.zeros(k), -np.inf]
+    pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
+    G, h = an.T @ an, an.T @ b
+    if ridge is None:
+        edges = np.linspace(0, n, RIDGE_FOLDS + 1).astype(int)
+        folds = [(an[i:j].T @ an[i:j], an[i:j].T @ b[i:j], float(b[i:j] @ b[i:j]))
+                 for i, j in zip(edges[:-1], edges[1:]) if j > i]
+        cv = []
+        for lam in RIDGE_GRID:
+            err = 0.0
+            for Gf, hf, sf in folds:
+                w = _gram_solve(G - Gf + lam * (n - 0) * np.diag(pen), h - hf, lower)
+                err += float(w @ Gf @ w - 2 * w @ hf + sf)
+            cv.append(err)
+        ridge = float(RIDGE_GRID[int(np.argmin(cv))])
+    p = _gram_solve(G + ridge * n * np.diag(pen), h, lower) / col * bscale
     w = np.maximum(p[:-1], 0.0)
     yhat = P @ w + p[-1]
-    return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0)
+    return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0, ridge=ridge)
+
+
+def _lagged(t, u, lag_s=0.0, delay_s=0.0):
+    """The command through a first-order lag ``lag_s`` or a pure delay ``delay_s`` (settled at u[0])."""
+    from scipy.signal import lfilter
+    if delay_s > 0:
+        return np.interp(t - delay_s, t, u, left=u[0])
+    if lag_s > 0:
+        dt = float(t[1] - t[0])
+        a = 1.0 - np.exp(-dt / lag_s)
+        return lfilter([a], [1.0, a - 1.0], u, zi=[(1.0 - a) * u[0]])[0]
+    return np.asarray(u, float)
+
+
+def excitation_period_s(t, u):
+    """The input's period, s: twice the median time between its reversals (NaN with fewer than 3)."""
+    tp = turning_points(u)
+    return 2.0 * float(np.median(np.diff(t[tp]))) if tp.size >= 3 else float("nan")
 
 
 def _gauge_valid(g, dac_range_v=None):
@@ -167,8 +261,15 @@ def _gauge_valid(g, dac_range_v=None):
     return np.abs(g) < 0.998 * lim
 
 
+def _line(v, y, rows, test):
+    """Straight line y = a v + b on ``rows``; (a, b, held-out RMS on ``test``)."""
+    a = np.column_stack([v[rows], np.ones(int(rows.sum()))])
+    (slope, off), *_ = np.linalg.lstsq(a, y[rows], rcond=None)
+    return float(slope), float(off), rms((slope * v + off - y)[test])
+
+
 def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic", pzt=None, dac_range_v=None,
-             test=None):
+             test=None, input_kind=None):
     """Fit the base model of every recorded output channel (see the module notes).
 
     Parameters
@@ -176,19 +277,32 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     record : Record
         From :func:`~workbench.calibrate.record.read_record`.
     resistance_ohm : float
-        Series resistor R between amplifier and stack; ``V - R i`` is the terminal voltage.
+        Series resistor R between amplifier and stack; ``V - R i`` is the terminal voltage
+        (0: the resistor is out, the recorded voltage is the terminal voltage).
     train : ndarray of bool, optional
         Training rows (default :func:`holdout_mask` with blocks).
     pzt : PZTParams, optional
         The declared PZT: its ``T_em`` and ``k_p`` turn ``k_q2x`` into ``C_p`` (eq. 12).
     dac_range_v : float, optional
         The gauge's DAC range; readings at the rails are left out of its fit and errors.
+    test : ndarray of bool, optional
+        Held-out rows scored (default: every row not trained on).
+    input_kind : {"terminal", "command"}, optional
+        What the voltage column is (default: the record's ``# input:``, else ``"terminal"``). A
+        command is mapped to the terminal voltage by a gain, an offset and a first-order lag or a
+        delay (seconds, searched up to a quarter of the excitation period); the lag or delay is
+        fitted on the training rows; gain and offset are absorbed by the play weights and
+        thresholds (the model runs in command volts), see ``command_map``.
     """
     t = record.t_s
     ch = record.channels
     v = ch["voltage_v"]
     train = holdout_mask(t, v) if train is None else np.asarray(train, bool)
-    notes = []
+    test = ~train if test is None else np.asarray(test, bool) & ~train
+    input_kind = input_kind or record.metadata.get("input", "terminal")
+    if input_kind not in ("terminal", "command"):
+        raise ValueError(f"input_kind must be 'terminal' or 'command', got {input_kind!r}")
+    notes, warnings = [], []
     outputs = {}
     if "charge_c" in ch:
         outputs["charge"] = ch["charge_c"]
@@ -200,13 +314,6 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         outputs["gauge"] = ch["gauge_v"]
     if not outputs:
         raise ValueError("the record has no output channel (charge, current, displacement or gauge)")
-    drives = {"recorded voltage": v}
-    if "current_a" in ch and resistance_ohm > 0:
-        drives = {"terminal voltage V - R i": v - resistance_ohm * ch["current_a"], "recorded voltage": v}
-    from_rest = _starts_from_rest(t, v)
-    if not from_rest:
-        notes.append(f"the record does not start from rest (V = {v[0]:.3g} V at the start): the plays start "
-                     f"as if reached monotonically from 0 V")
     valid = {name: (_gauge_valid(y, dac_range_v) if name == "gauge" else np.ones(y.size, bool))
              for name, y in outputs.items()}
     for name in list(outputs):
@@ -217,30 +324,100 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     if not outputs:
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
     first = next(iter(outputs))
+    last = int(np.flatnonzero(train)[-1])
+    command_map = None
+    if input_kind == "command":
+        from_rest = _starts_flat(t, v)
+        period = excitation_period_s(t, v)
+        bound = 0.25 * (period if np.isfinite(period) else float(t[-1] - t[0]) / 4)
+        dt = float(record.sample_period_s)
+        taus = np.geomspace(min(dt / 2, bound), bound, 16) if bound > 0 else np.array([])
+        drives = {("none", 0.0): v}
+        drives.update({("lag", x): _lagged(t, v, lag_s=x) for x in taus})
+        drives.update({("delay", x): _lagged(t, v, delay_s=x) for x in taus})
+        notes.append(f"the voltage column is the amplifier's command: its lag or delay is searched from "
+                     f"{min(dt / 2, bound):.3g} s to {bound:.3g} s (a quarter of the excitation period "
+                     f"{period:.4g} s); the plays start at the first command value")
+    else:
+        from_rest = _starts_from_rest(t, v)
+        drives = {"recorded voltage": v}
+        if "current_a" in ch and resistance_ohm > 0:
+            drives = {"terminal voltage V - R i": v - resistance_ohm * ch["current_a"], "recorded voltage": v}
+        if not from_rest:
+            notes.append(f"the record does not start from rest (V = {v[0]:.3g} V at the start): the plays start "
+                         f"as if reached monotonically from 0 V")
+    def trial(vd):
+        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
+        m = _fit_channel(first, P, outputs[first], train, valid[first], r, _z0(vd, r, from_rest, input_kind),
+                         ridge=0.0)
+        return rms(m.residual[train & valid[first]]), r, keep, P
+
     best = None
     for label, vd in drives.items():
-        r = pi_thresholds(vd, n_plays, grid)
-        z0 = _initial_states(vd[0], r, from_rest)
-        P = play_matrix(vd, r, z0)
-        m = _fit_channel(first, P, outputs[first], train, valid[first], r, z0)
-        score = rms(m.residual[train & valid[first]]) / (np.std(outputs[first]) or 1.0)
+        score, r, keep, P = trial(vd)
         if best is None or score < best[0]:
-            best = (score, label, vd, r, z0, m, P)
-    _, label, vd, r, z0, m0, P = best
-    if len(drives) > 1:
+            best = (score, label, vd, r, keep, P)
+    if input_kind == "command" and best[1][0] != "none":
+        # refine the winning lag or delay between its grid neighbours (log scale)
+        from scipy.optimize import minimize_scalar
+        kind, x = best[1]
+        i = int(np.flatnonzero(taus == x)[0])
+        lo_, hi_ = np.log(taus[max(i - 1, 0)]), np.log(taus[min(i + 1, taus.size - 1)])
+        res = minimize_scalar(lambda z: trial(_lagged(t, v, **{f"{kind}_s": float(np.exp(z))}))[0],
+                              bounds=(lo_, hi_), method="bounded", options={"xatol": 0.01})
+        if res.fun < best[0]:
+            x = float(np.exp(res.x))
+            vd = _lagged(t, v, **{f"{kind}_s": x})
+            best = (float(res.fun), (kind, x), vd, *trial(vd)[1:])
+    _, label, vd, r_all, keep, P = best
+    if input_kind == "command":
+        kind, x = label
+        command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
+                       "delay_s": float(x) if kind == "delay" else 0.0,
+                       "note": "gain and offset are absorbed by the play weights and thresholds (the "
+                               "model runs in command volts): the outputs alone cannot tell them apart"}
+        label = ("amplifier command" + (f" through a {x:.4g} s first-order lag" if kind == "lag" else
+                                        f" delayed {x:.4g} s" if kind == "delay" else ", no lag"))
+        notes.append(f"driven by the {label} (best of {len(drives)} lags and delays on the training rows)")
+    elif len(drives) > 1:
         notes.append(f"driven by the {label} (fits {first} better on the training rows than the other reading)")
-    models = {first: m0}
+    r, P = r_all[keep], P[:, keep]
+    z0 = _z0(vd, r, from_rest, input_kind)
+    if not keep.all():
+        notes.append(f"{int((~keep).sum())} of {keep.size} plays never move in the training rows (thresholds "
+                     f"{', '.join(f'{x:.4g}' for x in r_all[~keep])} V) and are left out; the training input's "
+                     f"range does not reach them")
+    models = {}
     for name, y in outputs.items():
-        if name not in models:
-            models[name] = _fit_channel(name, P, y, train, valid[name], r, z0)
-    models = {k: models[k] for k in outputs}
+        m = _fit_channel(name, P, y, train, valid[name], r, z0)
+        rows, tst = train & valid[name], test & valid[name]
+        m.rms_test = rms(m.residual[tst])
+        m.line_slope, m.line_offset, m.line_rms_test = _line(vd, y, rows, tst)
+        models[name] = m
+        if tst.any() and not m.clearly_better_than_line:
+            warnings.append(f"the base's held-out error on the {name} channel ({m.rms_test:.4g} {m.units}) is not "
+                            f"clearly below a straight line's ({m.line_rms_test:.4g} {m.units}; clearly = at most "
+                            f"{LINE_MARGIN:g}x): the declared model explains this record no better than a line")
+    lo, hi = float(vd[train].min()), float(vd[train].max())
+    tol = BEYOND_REL * (hi - lo)
+    beyond = test & ((vd < lo - tol) | (vd > hi + tol))
+    if beyond.any():
+        warnings.append(f"{100 * beyond.sum() / max(int(test.sum()), 1):.3g} % of the held-out rows drive beyond "
+                        f"the training input's range {lo:.4g} .. {hi:.4g} V (to {vd[test].min():.4g} .. "
+                        f"{vd[test].max():.4g} V): there the base extrapolates")
     fit = BaseFit(t=t, v_drive=vd, voltage_source=label, train=train, channels=models, starts_from_rest=from_rest,
-                  basis=np.column_stack([P, np.ones(t.size)]), notes=notes,
-                  test=~train if test is None else np.asarray(test, bool) & ~train)
+                  basis=np.column_stack([P, np.ones(t.size)]), notes=notes + [f"warning: {w}" for w in warnings],
+                  test=test, warnings=warnings, input_kind=input_kind, command_map=command_map,
+                  train_range_v=(lo, hi), beyond_train=beyond, dropped_thresholds_v=r_all[~keep])
     if "charge" in outputs and "displacement" in outputs:
         q = outputs["charge"] - outputs["charge"][0]
-        x = outputs["displacement"] - (np.mean(outputs["displacement"][t - t[0] <= REST_S]) if from_rest else 0.0)
-        k = float(q[train] @ x[train] / (q[train] @ q[train]))       # eq. 11
+        x = outputs["displacement"]
+        if from_rest:          # eq. 11 through the origin, the displacement measured from its rest level
+            x = x - np.mean(x[t - t[0] <= _rest_window_s(t)])
+            k = float(q[train] @ x[train] / (q[train] @ q[train]))
+        else:                  # not from rest: neither the charge nor the displacement has a known zero
+            k = float(np.polyfit(q[train], x[train], 1)[0])
+            fit.notes.append("k_q2x (eq. 11) fitted with an offset: the record does not start from rest")
         fit.k_q2x_m_per_c = k
         if pzt is not None:
             tem, kp = pzt.transducer_constant_n_per_v, pzt.stiffness_n_per_m
@@ -250,3 +427,23 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         b, a = np.polyfit(outputs["displacement"][rows], outputs["gauge"][rows], 1)
         fit.gauge_gain_v_per_m, fit.gauge_offset_v = float(b), float(a)
     return fit
+
+
+def _z0(vd, r, from_rest, input_kind):
+    """Initial play states: at the first command value for a command, else see ``_initial_states``."""
+    if input_kind == "command":
+        return np.full(r.size, float(vd[0]))
+    return _initial_states(vd[0], r, from_rest)
+
+
+def _plays(vd, train, last, n_plays, grid, from_rest, input_kind):
+    """Thresholds from the input up to the last training row, which plays move there, the play matrix.
+
+    Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
+    """
+    r = pi_thresholds(vd[: last + 1], n_plays, grid)
+    P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
+    span = float(np.ptp(vd[train]))
+    keep = np.ptp(P[train], axis=0) > MOVE_REL * span
+    keep[0] = True                          # the identity (r = 0) always moves with the input
+    return r, keep, P

@@ -8,7 +8,10 @@ is the slope right after a reversal.
 Choices, and why
 ----------------
 * **Thresholds**: uniform grid ``r_i = i / n * R`` for i = 0 .. n-1, with
-  R = max |V - V0| (``grid="uniform"``, the default). A play with r >= R never leaves its
+  R = max |V - V0| over the input up to the last training sample (``grid="uniform"``, the
+  default): the held-out part's range does not set the grid. A play that still does not move in
+  the training rows gets weight 0 (its column would copy the offset's and let the two trade
+  unbounded values). A play with r >= R never leaves its
   initial state V0 over this record, so it would only be a copy of the offset column; the
   uniform grid spans the whole range of reachable thresholds evenly, which is what the
   symmetric, near-sinusoidal loops of a stack under a periodic drive need (the loop width
@@ -41,6 +44,9 @@ __all__ = ["PIFit", "LineFit", "fit_pi", "pi_thresholds", "play_matrix", "turnin
            "split_by_cycles", "straight_line_rms", "rms"]
 
 GRIDS = ("uniform", "quadratic")
+#: A play moving less than this fraction of the training input's span over the training rows is
+#: not excited there (below a 10-bit monitor's step); its weight is 0 (``base_fit`` drops it).
+MOVE_REL = 1e-3
 
 
 def rms(a):
@@ -161,25 +167,34 @@ def fit_pi(v, x, n_plays=20, thresholds=None, train=None, grid="uniform"):
         Threshold grid when ``thresholds`` is None.
     """
     v, x = _inputs(v, x)
-    r = pi_thresholds(v, n_plays, grid) if thresholds is None else np.asarray(thresholds, float)
+    mask = _mask(train, v.size)
+    if not mask.any():
+        raise ValueError("no training samples")
+    last = int(np.flatnonzero(mask)[-1])
+    # the grid spans the input as far as the training rows reach, not the held-out part's range
+    r = pi_thresholds(v[: last + 1], n_plays, grid) if thresholds is None else np.asarray(thresholds, float)
     if r.ndim != 1 or r.size < 1 or np.any(r < 0) or np.any(np.diff(r) <= 0) or not np.all(np.isfinite(r)):
         raise ValueError(f"thresholds must be finite, >= 0 and strictly increasing; got {r}")
     z0 = np.full(r.size, v[0])
-    mask = _mask(train, v.size)
     if mask.sum() < r.size + 1:
         raise ValueError(f"{int(mask.sum())} training samples for {r.size + 1} unknowns")
-    a = np.column_stack([play_matrix(v, r, z0)[mask], np.ones(int(mask.sum()))])
+    P = play_matrix(v, r, z0)[mask]
+    # a play that does not move in the training rows would only copy the offset's column: weight 0
+    moves = np.ptp(P, axis=0) > MOVE_REL * float(np.ptp(v[mask]))
+    a = np.column_stack([P[:, moves], np.ones(int(mask.sum()))])
     b = x[mask]
     col = np.sqrt(np.mean(a * a, axis=0))
-    col[col == 0] = 1.0                     # a play stuck at 0 V: weight 0 either way
+    col[col == 0] = 1.0
     bscale = rms(b) or 1.0
-    lb = np.r_[np.zeros(r.size), -np.inf]
-    ub = np.full(r.size + 1, np.inf)
+    k = int(moves.sum())
+    lb = np.r_[np.zeros(k), -np.inf]
+    ub = np.full(k + 1, np.inf)
     sol = lsq_linear(a / col, b / bscale, bounds=(lb, ub), method="bvls", tol=1e-12)
     p = sol.x / col * bscale
-    w = np.maximum(p[:-1], 0.0)             # BVLS keeps the bound; clip -0.0 and round-off
+    w = np.zeros(r.size)
+    w[moves] = np.maximum(p[:-1], 0.0)      # BVLS keeps the bound; clip -0.0 and round-off
     offset = float(p[-1])
-    resid = a[:, :-1] @ w + offset - b
+    resid = P @ w + offset - b
     return PIFit(r.copy(), w, offset, z0, rms(resid))
 
 

@@ -9,13 +9,22 @@ Format (UTF-8, an optional BOM, LF or CRLF line ends)::
     0.1,0.5,0.013,0.21
     ...
 
-Leading ``#`` lines are metadata, ``# key: value``. Known keys (``serial``, a string, and
-``series_resistor_ohm``, a positive resistance, ``80`` or ``80 ohm``) override the plant file for
-this record; other keys are kept with their values as written (strings). The first other line is
+Leading ``#`` lines are metadata, ``# key: value``. Known keys (``serial``, a string,
+``series_resistor_ohm``, a resistance >= 0, ``80`` or ``80 ohm``, where ``0`` means the resistor is
+out and the terminal voltage is the recorded one, seed 000's free-free test, and ``input``,
+``terminal`` or ``command``: the voltage column is the stack's terminal voltage or the command to
+its amplifier, of unknown gain, offset and lag) override the plant file for this record; other keys
+are kept with their values as written (strings). The first other line is
 the header: names from :data:`QUANTITIES` with the unit in brackets, any SI prefix, in any order;
 columns with other names are ignored with a notice. Time and voltage are required, and at least one
 output (:data:`OUTPUTS`). Every used cell must be a finite number, time must increase strictly and
 evenly (within ``rel_jitter`` of the median step), and there must be ``min_samples`` rows.
+Record-level garbage is refused too: the voltage or an output that never changes (a dead or
+unplugged channel: nothing to fit), and a single absurd cell (a glitch such as ``1e300``): a value
+more than :data:`GLITCH_SPANS` times the channel's bulk span outside that bulk (the bulk: the
+channel without its 0.1 % most extreme cells at either end, at least one); a current, a rate that
+spikes genuinely when a step meets the stack without its resistor, is judged by the charge one
+cell carries against the span of the charge the bulk carries.
 
 Values are SI in the returned :class:`Record`. The file is read once, parsed by pandas' C engine and
 checked with vectorised numpy; the line-by-line scan that names a bad cell runs only on failure.
@@ -35,7 +44,7 @@ import pandas as pd
 from ..errors import DataFileError, UnitError
 from ..units import parse_quantity, scale_of
 
-__all__ = ["Record", "read_record", "QUANTITIES", "OUTPUTS", "METADATA_KEYS"]
+__all__ = ["Record", "read_record", "QUANTITIES", "OUTPUTS", "METADATA_KEYS", "INPUT_KINDS", "GLITCH_SPANS"]
 
 #: Header name -> (SI unit, key in Record.channels; time goes to Record.t_s).
 QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("A", "current_a"),
@@ -44,7 +53,12 @@ QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("
 #: Measured responses; a record needs at least one of them.
 OUTPUTS = ("current", "charge", "displacement", "gauge")
 #: Metadata keys with a meaning (they override the plant file); other keys are kept as strings.
-METADATA_KEYS = ("serial", "series_resistor_ohm")
+METADATA_KEYS = ("serial", "series_resistor_ohm", "input")
+#: Values of ``# input:``: the voltage column is the stack's terminal voltage or its amplifier's command.
+INPUT_KINDS = ("terminal", "command")
+#: A cell this many bulk spans (the range without the 0.1 % extreme cells) outside the bulk is a glitch, not
+#: physics: no stack, amplifier or sensor moves 100 times its own range for one sample.
+GLITCH_SPANS = 100.0
 
 _EXAMPLE = "time[s],voltage[V],displacement[um]"
 _NAMES = ", ".join(QUANTITIES)
@@ -149,6 +163,10 @@ def read_record(path, min_samples=100, rel_jitter=1e-3):
         arrays[QUANTITIES[name][1]] = values
     t = arrays.pop("t_s")
     _check_time(path, t, first, columns["time"][0] + 1, rel_jitter)
+    for name, (index, scale) in columns.items():
+        if name != "time":
+            _check_channel(path, name, header[index].strip(), arrays[QUANTITIES[name][1]] / scale, first, index + 1,
+                           float(np.mean(np.diff(t))))
     period = float((t[-1] - t[0]) / (t.size - 1))     # the mean step: immune to rounding of single times
     return Record(path, metadata, t, arrays, period, notices)
 
@@ -195,10 +213,17 @@ def _metadata_value(where, key, value):
         except UnitError as err:
             raise DataFileError(f"{where}: series_resistor_ohm {value!r} is not a resistance; "
                                 f"write e.g. '# series_resistor_ohm: 80' or '80 ohm'") from err
-        if not (math.isfinite(ohm) and ohm > 0):
-            raise DataFileError(f"{where}: series_resistor_ohm must be a positive resistance, got "
-                                f"{value!r}; write e.g. '# series_resistor_ohm: 80'")
+        if not (math.isfinite(ohm) and ohm >= 0):
+            raise DataFileError(f"{where}: series_resistor_ohm must be a resistance >= 0 (0: the resistor "
+                                f"is out), got {value!r}; write e.g. '# series_resistor_ohm: 80'")
         return ohm
+    if key == "input":
+        kind = value.strip().lower()
+        if kind not in INPUT_KINDS:
+            raise DataFileError(f"{where}: input {value!r} is not one of {', '.join(INPUT_KINDS)}; write "
+                                f"'# input: terminal' (the stack's voltage) or '# input: command' (the "
+                                f"amplifier's command, of unknown gain, offset and lag)")
+        return kind
     return value
 
 
@@ -297,6 +322,44 @@ def _check_time(path, t, first, column, rel_jitter):
                             f"from line {first + i - 1}, expected {step:.6g} s (the median step) within "
                             f"{rel_jitter:g} relative: {kind}; resample the record on a uniform grid "
                             f"or cut it at this line")
+
+
+def _check_channel(path, name, label, y, first, column, dt_s):
+    """A channel that never changes, or one absurd cell in it, is refused (see the module notes).
+
+    ``y`` is in the file's unit (as the cells are written), so the message quotes the cell; ``dt_s``
+    is the time step (a current's cell is judged by the charge it carries)."""
+    where = f"{path}, column {column} ({label})"
+    if name == "force":
+        return                                      # read but not used by the calibration
+    k = max(1, y.size // 1000)                      # the bulk leaves out the k lowest and k highest cells
+    part = np.partition(y, [0, k, y.size // 2, y.size - 1 - k, y.size - 1])
+    if not part[-1] > part[0]:
+        what = "the input" if name == "voltage" else "an output"
+        raise DataFileError(f"{where}, lines {first}-{first + y.size - 1}: every value is {y[0]:.6g}; {what} "
+                            f"that never changes is a dead or unplugged channel with nothing to fit: "
+                            f"check the logger's channel, or delete the column")
+    lo, hi = float(part[k]), float(part[y.size - 1 - k])
+    span = hi - lo
+    if name == "current":
+        # a current is a rate: a step of the voltage into the stack (resistor out) is a genuine spike
+        # far above the bulk. Its cell is absurd only when the charge it carries in one sample,
+        # |i - median| dt, exceeds GLITCH_SPANS times the span of the charge the bulk carries.
+        med = float(part[y.size // 2])
+        q = np.cumsum(np.clip(y, lo, hi) - med) * dt_s
+        bad = np.flatnonzero(np.abs(y - med) * dt_s > GLITCH_SPANS * max(float(np.ptp(q)), span * dt_s))
+    elif span > 0:
+        bad = np.flatnonzero((y < lo - GLITCH_SPANS * span) | (y > hi + GLITCH_SPANS * span))
+    else:                                           # constant but for a few cells: they are the glitch
+        bad = np.flatnonzero(y != lo)
+    if 0 < bad.size <= 2 * k:
+        i = int(bad[0])
+        raise DataFileError(f"{path}, line {first + i}, column {column} ({label}): {y[i]:.6g} is more than "
+                            f"{GLITCH_SPANS:g} times the channel's range ({lo:.6g} .. {hi:.6g} without its extreme "
+                            f"cells{'; for a current, in charge per sample' if name == 'current' else ''}) "
+                            f"away from it: a logging glitch, not a measurement"
+                            f"{f' ({bad.size} such cells)' if bad.size > 1 else ''}; correct the cell or "
+                            f"cut the record before this line")
 
 
 def _decode(path, lineno, raw):

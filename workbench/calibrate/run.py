@@ -9,6 +9,7 @@ figures, the report, the JSON and the updated plant file (the input files are ne
 every output is written whole or not at all).
 """
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -48,15 +49,21 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
     record = read_record(data_path)
     notes = list(record.notices)
     ch = record.channels
+    input_kind = _input_kind(record, plant, kind, notes)
     if kind == "generic_stack":
         if "displacement_m" not in ch:
             raise DataFileError(f"{data_path}: a generic stack is calibrated from voltage to displacement; "
                                 f"the record has no displacement column (add e.g. displacement[um])")
         v = ch["voltage_v"]
-        lo, hi = plant.min_v, plant.max_v
-        if v.min() < lo - 1e-9 or v.max() > hi + 1e-9:
-            raise DataFileError(f"{data_path}: voltage spans {v.min():.4g}..{v.max():.4g} V, outside the plant's "
-                                f"[voltage] {lo:g}..{hi:g} V in {plant_path}; widen min_v/max_v there")
+        if plant.min_v is None:
+            plant = dataclasses.replace(plant, min_v=float(v.min()), max_v=float(v.max()))
+            notes.append(f"the plant file gives no [voltage] range: the record's {plant.min_v:.4g} .. "
+                         f"{plant.max_v:.4g} V{' (command volts)' if input_kind == 'command' else ''} is used")
+        elif input_kind == "command":
+            # the model runs in command volts: the calibrated file's range is the command's
+            plant = dataclasses.replace(plant, min_v=float(v.min()), max_v=float(v.max()))
+        else:
+            _check_range(data_path, v, plant.min_v, plant.max_v, f"[voltage] min_v/max_v in {plant_path}")
         record = type(record)(record.path, record.metadata, record.t_s, {"voltage_v": v, "displacement_m":
                                                                         ch["displacement_m"]},
                               record.sample_period_s, record.notices)
@@ -67,7 +74,12 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
         if "series_resistor_ohm" in record.metadata:
             resistance = float(record.metadata["series_resistor_ohm"])
             notes.append(f"series resistor {resistance:g} ohm from the record's metadata (plant: "
-                         f"{plant.pzt.series_resistance_ohm:g} ohm)")
+                         f"{plant.pzt.series_resistance_ohm:g} ohm)" + (": the resistor is out, the recorded "
+                                                                        "voltage is the terminal voltage"
+                                                                        if resistance == 0 else ""))
+        if input_kind == "terminal":
+            _check_range(data_path, ch["voltage_v"], plant.pzt.voltage_min_v, plant.pzt.voltage_max_v,
+                         f"[electrical] voltage_min_v/voltage_max_v in {plant_path}")
         pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
         split = split or "blocks"
     serial = record.metadata.get("serial")
@@ -81,7 +93,8 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
         raise DataFileError(f"{data_path}: cannot split the record into training and held-out parts: {err}") from err
     if progress:
         progress("base fit", 0, 1)
-    base = fit_base(record, resistance, train=train, n_plays=n_plays, grid=grid, pzt=pzt, dac_range_v=dac, test=test)
+    base = fit_base(record, resistance, train=train, n_plays=n_plays, grid=grid, pzt=pzt, dac_range_v=dac, test=test,
+                    input_kind=input_kind)
     base.notes = notes + base.notes
     if progress:
         progress("base fit", 1, 1)
@@ -108,6 +121,14 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
             "gauge_gain_v_per_m": base.gauge_gain_v_per_m, "gauge_offset_v": base.gauge_offset_v,
             "n_plays": int(base.channels[next(iter(base.channels))].thresholds_v.size),
             "notes": base.notes,
+            "warnings": base.warnings, "input": base.input_kind, "command_map": base.command_map,
+            "train_range_v": list(base.train_range_v),
+            "held_out_beyond_training_fraction": float(base.beyond_train.sum() / max(int(base.test.sum()), 1)),
+            "dropped_thresholds_v": base.dropped_thresholds_v.tolist(),
+            "line": {name: {"rms": m.line_rms_test, "base_rms": m.rms_test, "slope": m.line_slope,
+                            "offset": m.line_offset, "ridge": m.ridge, "units": m.units,
+                            "base_clearly_better": m.clearly_better_than_line}
+                     for name, m in base.channels.items()},
         },
         "creep_holds": [{k: (None if isinstance(x, float) and not np.isfinite(x) else x) for k, x in h.items()}
                         for h in holds],
@@ -122,7 +143,10 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
             m = base.channels["displacement"]
             stack = plant.with_calibration(thresholds_v=tuple(m.thresholds_v), weights_m_per_v=tuple(m.weights),
                                            offset_m=m.offset, initial_states_v=tuple(m.initial_states_v))
-            text = to_toml(stack, f"workbench calibrate on {data_path.name}, {split} split")
+            cmd = base.command_map
+            text = to_toml(stack, f"workbench calibrate on {data_path.name}, {split} split" + (
+                "" if cmd is None else f", in command volts (the command reached the stack through a "
+                f"{cmd['lag_s']:.4g} s lag and a {cmd['delay_s']:.4g} s delay, not in this file)"))
         plant_out = out / stem
         _check_plant_text(text, plant_out, kind)
         write_text(plant_out, text)
@@ -145,6 +169,43 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
         data["report_html"] = str(write_html_report(out / "report.md"))
     data["elapsed_s"] = time.perf_counter() - t0
     return data
+
+
+#: Slack of the range check: a monitor's noise and the amplifier's own overshoot, 1 % of the range.
+RANGE_SLACK = 0.01
+#: A voltage column whose peak stays under this fraction of the plant's peak |range| is taken for an
+#: amplifier command (0-10 V DAC ranges against stacks of 100 V and more) when the record does not say.
+COMMAND_FRACTION = 0.1
+
+
+def _input_kind(record, plant, kind, notes):
+    """``"terminal"`` or ``"command"``: the record's ``# input:``, else detected from the ranges and said."""
+    said = record.metadata.get("input")
+    if said:
+        return said
+    lo, hi = (plant.min_v, plant.max_v) if kind == "generic_stack" else (plant.pzt.voltage_min_v,
+                                                                          plant.pzt.voltage_max_v)
+    if lo is None:
+        return "terminal"
+    v = record.channels["voltage_v"]
+    peak, top = float(np.max(np.abs(v))), max(abs(lo), abs(hi))
+    if peak < COMMAND_FRACTION * top:
+        notes.append(f"the voltage column peaks at {peak:.3g} V, under {COMMAND_FRACTION:g} of the plant's "
+                     f"{lo:g} .. {hi:g} V: taken for the amplifier's command (unknown gain, offset and lag, "
+                     f"fitted); write '# input: terminal' in the record if it is the stack's voltage")
+        return "command"
+    return "terminal"
+
+
+def _check_range(data_path, v, lo, hi, where):
+    """The recorded terminal voltage must stay within the declared range (``RANGE_SLACK`` of it)."""
+    slack = RANGE_SLACK * (hi - lo)
+    if v.min() < lo - slack or v.max() > hi + slack:
+        i = int(np.argmax((v < lo - slack) | (v > hi + slack)))
+        raise DataFileError(f"{data_path}: the voltage spans {v.min():.4g} .. {v.max():.4g} V (first outside at "
+                            f"data row {i + 1}), outside the plant's range {lo:g} .. {hi:g} V ({where}); "
+                            f"calibrate against the plant of the stack that was driven, check the voltage "
+                            f"column's unit, or write '# input: command' if the column is the amplifier's command")
 
 
 def _check_plant_text(text, path, kind):

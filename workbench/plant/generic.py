@@ -6,7 +6,9 @@ the displacement plus an offset, ``x = sum_i w_i F_{r_i}[V] + offset`` (seed 002
 2.35-2.36; :mod:`workbench.calibrate.pi_fit` fits it). A generic-stack file states that form:
 
 * ``schema = "workbench.generic_stack/1"``, ``name``;
-* ``[voltage]`` ``min_v`` < ``max_v``: the drive range, V (bipolar allowed);
+* ``[voltage]`` ``min_v`` < ``max_v``: the drive range, V (bipolar allowed). A file to be fitted
+  (no weights) may leave the section out: ``workbench calibrate`` then takes the range from the
+  record and says so; a calibrated file needs it;
 * ``[hysteresis]`` ``n_plays`` and ``threshold_grid`` (``"uniform"`` or ``"quadratic"``, the
   grids of :func:`~workbench.calibrate.pi_fit.pi_thresholds`), and optionally
   ``thresholds_v`` (>= 0, strictly increasing, ``n_plays`` of them), ``weights_m_per_v``
@@ -68,7 +70,7 @@ _SCHEMA = {
                           expect="the signed displacement offset in m, e.g. -1.2e-7"),
     },
 }
-_SECTIONS_REQUIRED = ("voltage", "hysteresis")
+_SECTIONS_REQUIRED = ("hysteresis",)
 
 
 def _tuple(a):
@@ -82,8 +84,9 @@ class GenericStack:
     Parameters
     ----------
     name : str
-    min_v, max_v : float
-        Drive voltage range, V (``min_v < max_v``).
+    min_v, max_v : float or None
+        Drive voltage range, V (``min_v < max_v``); both None for an uncalibrated stack whose range
+        is to be taken from the record it is fitted to.
     n_plays : int
         Number of plays.
     threshold_grid : {"uniform", "quadratic"}
@@ -158,7 +161,13 @@ class GenericStack:
 
 def _problem(s):
     """(key, message) of the first inconsistency of a stack, or None."""
-    if not s.min_v < s.max_v:
+    if s.min_v is None or s.max_v is None:
+        if s.min_v is not None or s.max_v is not None:
+            return "voltage.min_v", "give both min_v and max_v, or neither (range from the record)"
+        if s.weights_m_per_v is not None:
+            return "voltage", ("section missing; a calibrated stack (weights given) needs its drive range "
+                               "min_v, max_v in V")
+    elif not s.min_v < s.max_v:
         return "voltage.min_v", (f"min_v {s.min_v:g} V must be below max_v {s.max_v:g} V; swap them "
                                  f"or widen the range")
     if s.threshold_grid not in THRESHOLD_GRIDS:
@@ -193,8 +202,9 @@ def _problem(s):
         if len(z) != len(r):
             return "hysteresis.initial_states_v", (f"{len(z)} initial states for {len(r)} "
                                                    f"thresholds; give one per threshold")
+        lo, hi = (-math.inf, math.inf) if s.min_v is None else (s.min_v, s.max_v)
         for i, (zi, ri) in enumerate(zip(z, r)):
-            if not (math.isfinite(zi) and s.min_v - ri <= zi <= s.max_v + ri):
+            if not (math.isfinite(zi) and lo - ri <= zi <= hi + ri):
                 return f"hysteresis.initial_states_v[{i}]", (
                     f"got {zi!r} V; a play of threshold {ri:g} V driven within {s.min_v:g} .. "
                     f"{s.max_v:g} V stays within {s.min_v - ri:g} .. {s.max_v + ri:g} V")
@@ -286,7 +296,7 @@ def load_generic_stack(path):
             raise PlantDefinitionError(path, name, f"must be a table [{name}], got {doc[name]!r}")
         sec[name] = _table(path, name, doc[name])
     h = sec["hysteresis"]
-    fields = dict(name=top["name"], min_v=sec["voltage"]["min_v"], max_v=sec["voltage"]["max_v"],
+    fields = dict(name=top["name"], min_v=sec["voltage"].get("min_v"), max_v=sec["voltage"].get("max_v"),
                   n_plays=h["n_plays"], threshold_grid=h["threshold_grid"],
                   thresholds_v=h.get("thresholds_v"), weights_m_per_v=h.get("weights_m_per_v"),
                   initial_states_v=h.get("initial_states_v"), offset_m=sec["output"].get("offset_m"))
@@ -349,8 +359,8 @@ def to_toml(stack, source_note):
         f"name = {_toml_string(stack.name)}",
         "",
         "[voltage]",
-        f"min_v = {stack.min_v!r}   # V; drive range of the plant file this calibration started from",
-        f"max_v = {stack.max_v!r}   # V; drive range of the plant file this calibration started from",
+        f"min_v = {stack.min_v!r}   # V; drive range of the plant file calibrated (or of the record if it had none)",
+        f"max_v = {stack.max_v!r}   # V; drive range of the plant file calibrated (or of the record if it had none)",
         "",
         "[hysteresis]",
         f"n_plays = {stack.n_plays}   # plays; {note}",
