@@ -277,3 +277,19 @@ def test_family_and_system_errors_say_what_is_wrong():
         margins_of(control.tf([1], [1, -0.5], True))
     with pytest.raises(ValueError, match="above the Nyquist frequency 5000.0 Hz"):
         margins_of(control.tf([1], [1, -0.5], DT), np.geomspace(1.0, 6e3, 10))
+
+
+@pytest.mark.parametrize("dt", [None, 1e-4])
+def test_vectorized_response_equals_python_control(dt):
+    """design.margins.response: the same values as control.frequency_response (ss and tf, c and d)."""
+    import control
+    from workbench.design.margins import response
+    sys = control.ss(control.tf([1.0, 30.0, 4e4], [1.0, 2.0, 3e5, 1e6, 2e3]))
+    if dt is not None:
+        sys = control.c2d(sys, dt, "tustin")
+    f = np.geomspace(0.1, 4900.0, 200)
+    ref = np.asarray(control.frequency_response(sys, 2 * np.pi * f).complex).ravel()
+    np.testing.assert_allclose(response(sys, f), ref, rtol=1e-9)
+    tf = control.tf(sys)
+    ref_tf = np.asarray(control.frequency_response(tf, 2 * np.pi * f).complex).ravel()
+    np.testing.assert_allclose(response(tf, f), ref_tf, rtol=1e-9)
