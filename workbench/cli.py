@@ -248,7 +248,8 @@ def cmd_sweep(args):
     data = run_sweep(args.study, args.controller, out_dir=args.out, table=args.table, scheduler=args.scheduler,
                      workers=args.workers, amplitudes_v=args.amplitudes, noise=args.noise,
                      progress=lambda d, t: _progress_bar("sweep", d, t))
-    lines = [f"sweep of {args.study}: {data['cases']} cases ({data['failed']} failed) with {data['controller']}"]
+    lines = [f"sweep of {args.study}: {data['cases']} cases ({data['failed']} failed) with {data['controller']}",
+             f"  covers: {data['members_covered']}"]
     for metric, w in data["worst"].items():
         lines.append(f"  worst {metric}: {w['value']:.4g} ({w['serial']}, C_p x{w['cp_factor']:.2f}, "
                      f"{w['amplitude_v']:g} V)")
