@@ -293,3 +293,21 @@ def test_vectorized_response_equals_python_control(dt):
     tf = control.tf(sys)
     ref_tf = np.asarray(control.frequency_response(tf, 2 * np.pi * f).complex).ravel()
     np.testing.assert_allclose(response(tf, f), ref_tf, rtol=1e-9)
+
+
+def test_nominal_plant_is_minimal_and_keeps_the_servo_band(sn637_creep):
+    """The nominal (ascending branch at 50 V, gauge at mid-stroke) drops the five creep states: the servo-band
+    response stays within 1 % of the full small-signal model above 5 Hz, and the sampled plant has no pole left
+    near z = 1 (the creep branches put five within 1e-6 of it)."""
+    import control
+    from workbench.design.nominal import nominal_plant
+    from workbench.linearize.small_signal import small_signal_model
+    nom = nominal_plant(sn637_creep)
+    full = nom.gauge_v_per_m * small_signal_model(sn637_creep.pzt, nom.capacitance_f)[0, 0]
+    assert nom.truncated == 5 and nom.continuous.nstates == full.nstates - 5
+    f = np.geomspace(5.0, 4000.0, 50)
+    w = 2 * np.pi * f
+    ratio = (np.asarray(control.frequency_response(nom.continuous, w).complex).ravel()
+             / np.asarray(control.frequency_response(full, w).complex).ravel())
+    assert np.max(np.abs(ratio - 1)) < 0.01
+    assert np.min(np.abs(nom.firmware.poles() - 1)) > 1e-3
