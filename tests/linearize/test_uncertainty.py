@@ -82,7 +82,7 @@ def test_family_on_two_processes_is_the_family_in_one(sn637_creep):
     frd = one.frd(name)
     assert isinstance(frd, control.FRD)
     np.testing.assert_allclose(frd.omega, 2 * np.pi * one.freq_hz[np.isfinite(g)])
-    np.testing.assert_allclose(np.squeeze(frd.fresp), g[np.isfinite(g)])
+    np.testing.assert_allclose(np.squeeze(frd.frdata), g[np.isfinite(g)])
 
 
 def test_family_cache_key_follows_files_overrides_and_grid(tmp_path, root):

@@ -62,7 +62,8 @@ class Family:
         """Member ``name`` as a python-control FRD (firmware V per V), on the frequencies where it is in."""
         g = np.asarray(self.members[name])
         keep = np.isfinite(g)
-        return control.FRD(g[keep], 2 * np.pi * self.freq_hz[keep], name=name)
+        # python-control names may not hold '.': "C_p x1.00" becomes "C_p x1p00"
+        return control.FRD(g[keep], 2 * np.pi * self.freq_hz[keep], name=name.replace(".", "p"))
 
     def frds(self):
         """Every member with at least one frequency in, as ``{name: control.FRD}``."""
