@@ -173,17 +173,31 @@ def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, alpha
                       alpha)
 
 
-def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000):
+def sampled_nominal(nominal, dt_s, delay_samples=1):
+    """The continuous ``nominal`` (K_g P) held, period-averaged and delayed exactly, as firmware sees it."""
+    from ..linearize.sampled import compute_delay, period_average
+    return period_average(control.ss(nominal), dt_s) * compute_delay(dt_s, delay_samples)
+
+
+def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000, plant_d=None):
     """(overshoot %, 2 % settling time s) of the nominal loop as firmware closes it.
 
     The continuous ``nominal`` (K_g P, firmware V per V) is held, period-averaged and
-    delayed exactly (:mod:`workbench.linearize.sampled`), the loop closed with ``ctrl_d``.
+    delayed exactly (:mod:`workbench.linearize.sampled`; or give that discrete plant as
+    ``plant_d``), the loop closed with ``ctrl_d``; the unit step is run on the closed
+    loop's state space sample by sample (what ``control.step_response`` computes).
     """
-    from ..linearize.sampled import compute_delay, period_average
     dt = ctrl_d.dt
-    g = period_average(control.ss(nominal), dt) * compute_delay(dt, delay_samples)
+    g = sampled_nominal(nominal, dt, delay_samples) if plant_d is None else plant_d
+    cl = control.feedback(control.ss(ctrl_d) * g, 1)
+    a, b = np.asarray(cl.A), np.asarray(cl.B)[:, 0]
+    c, d = np.asarray(cl.C)[0], float(np.asarray(cl.D)[0, 0])
+    x = np.zeros(a.shape[0])
+    y = np.empty(n)
+    for k in range(n):
+        y[k] = c @ x + d
+        x = a @ x + b
     t = np.arange(n) * dt
-    y = np.squeeze(control.step_response(control.feedback(control.ss(ctrl_d) * g, 1), T=t).outputs)
     overshoot = max(0.0, float(np.max(y)) - 1.0) * 100
     outside = np.flatnonzero(np.abs(y - 1.0) > 0.02)
     settle = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < n else (float("nan") if outside.size else 0.0)
@@ -271,6 +285,7 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
     sf = sampled_factor(f, spec.dt_s, spec.delay_samples)
     fn = _noise_grid(spec.dt_s)
     g_noise = response(nominal, fn)
+    step_d = sampled_nominal(step_plant, spec.dt_s, spec.delay_samples) if spec.max_overshoot_percent else None
     shapes = [(ri, al, rr) for ri in spec.integral_ratios for al in spec.lead_ratios for rr in spec.rolloff_ratios]
     best, searched = None, 0
     for n_shape, (ri, al, rr) in enumerate(shapes):
@@ -285,7 +300,7 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
             if reason is None and spec.max_overshoot_percent is not None:
                 ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
                                     spec.dt_s, fc)
-                ov = nominal_step(ctrl_d, step_plant, spec.delay_samples)[0]
+                ov = nominal_step(ctrl_d, step_plant, spec.delay_samples, plant_d=step_d)[0]
                 if ov > spec.max_overshoot_percent:   # (checked last: a step response costs more)
                     reason, value, limit = "overshoot", ov, spec.max_overshoot_percent
             if reason is not None:
