@@ -222,6 +222,8 @@ def relaxed(spec, constraint, times=1):
         value = step(value)
     if field_name in ("phase_margin_deg", "gain_margin_db"):
         value = max(value, 0.0)
+    if field_name == "fc_range_hz":              # the prewarp must stay below Nyquist
+        value = (value[0], min(value[1], 0.45 / spec.dt_s))
     return replace(spec, **{field_name: value})
 
 
