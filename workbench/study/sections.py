@@ -107,7 +107,9 @@ def _fix_lines(summary):
         if step["constraint"] == "noise budget" and budget["source"] == "plant" and r_ohm > 0:
             text += (f" (the budget is R min(I_source, I_sink) / 3: an amplifier limited at "
                      f"{3 * step['limit'] / r_ohm * 1e3:.3g} mA or more both ways, e.g. "
-                     f"`--set electrical.current_limit_source_a={3 * step['limit'] / r_ohm * 1e3:.3g}mA`)")
+                     f"`--set electrical.current_limit_source_a={3 * step['limit'] / r_ohm * 1e3:.3g}mA`; "
+                     f"another amplifier also changes the family's slewing points: re-run with that `--set` "
+                     f"to confirm)")
         lines.append(text)
     if fix["passes"]:
         lines.append(f"\nWith these changes the lowest crossover over the family is {fix['crossover_hz_min']:.0f} Hz "
