@@ -193,11 +193,27 @@ def cmd_linearize(args):
 
 def cmd_study(args):
     from .study.run import run_study
-    data = run_study(args.study, args.out, progress=_progress_bar)
+    if args.workers is not None and args.workers < 1:
+        raise WorkbenchError(f"--workers {args.workers}: give 1 or more processes")
+    cache = None if args.no_cache else ("default" if args.cache_dir is None else args.cache_dir)
+    data = run_study(args.study, args.out, progress=_progress_bar, overrides=args.set, only=args.only,
+                     cache_dir=cache, workers=args.workers)
     ls = data["designs"]["loop_shape"]
     q = ls["worst_quantized"]
+    b = data["binding"]
+    fc = data["family_cache"]
     lines = [
-        f"study {data['name']}: {data['members']} family members",
+        f"study {data['name']}: {data['members']} family members "
+        f"({'cached' if fc['hit'] else 'computed'} in {fc['seconds']:.1f} s"
+        + (f", {fc['path']}" if fc["path"] else "") + ")",
+        f"  nominal crossover {ls['nominal_quantized']['crossover_hz']:.0f} Hz (PM "
+        f"{ls['nominal_quantized']['phase_margin_deg']:.1f} deg); bound by {b['constraint']} "
+        f"({b['value']:.4g} against {b['limit']:.4g} {b['unit']})"
+        + (f"; with it {b['relaxed']['by']}: lowest crossover {b['relaxed']['crossover_hz_min']:.0f} Hz"
+           if "crossover_hz_min" in b.get("relaxed", {}) else ""),
+        "  noise budget " + (f"{data['budgets']['noise_command_v']['value']:.3g} V RMS"
+                             if data['budgets']['noise_command_v']['value'] is not None else "none")
+        + f" (from the {data['budgets']['noise_command_v']['source']})",
         f"  exported {data['exported']['json']}: crossover {ls['crossover_hz']:.0f}-"
         f"{q['crossover_hz_max']['value']:.0f} Hz over the family; quantized worst PM "
         f"{q['phase_margin_deg']['value']:.1f} deg, GM {q['gain_margin_db']['value']:.1f} dB "
@@ -238,7 +254,8 @@ def cmd_sweep(args):
     data = run_sweep(args.study, args.controller, out_dir=args.out, table=args.table, scheduler=args.scheduler,
                      workers=args.workers, amplitudes_v=args.amplitudes, noise=args.noise,
                      progress=lambda d, t: _progress_bar("sweep", d, t))
-    lines = [f"sweep of {args.study}: {data['cases']} cases ({data['failed']} failed) with {data['controller']}"]
+    lines = [f"sweep of {args.study}: {data['cases']} cases ({data['failed']} failed) with {data['controller']}",
+             f"  covers: {data['members_covered']}"]
     for metric, w in data["worst"].items():
         lines.append(f"  worst {metric}: {w['value']:.4g} ({w['serial']}, C_p x{w['cp_factor']:.2f}, "
                      f"{w['amplitude_v']:g} V)")
@@ -375,6 +392,16 @@ def build_parser():
     p.add_argument("study", type=Path, help="e.g. studies/sn637_servo.toml")
     p.add_argument("--out", type=Path, default=Path("out/study"), help="output folder (default out/study)")
     p.add_argument("--json", type=Path, help="write the summary as JSON here (summary.json in --out is always written)")
+    p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                   help="override a plant or study value, units allowed (repeatable), e.g. "
+                        "--set electrical.current_limit_source_a=20mA --set targets.min_crossover_hz=80Hz; plant "
+                        "sections apply to every plant of the study; the files are not modified")
+    p.add_argument("--only", choices=["loopshape"], help="loopshape: the exported design alone, no comparison "
+                                                         "designs (Glover-McFarlane, H-infinity, convex)")
+    p.add_argument("--cache-dir", type=Path, help="family cache folder (default $WORKBENCH_CACHE_DIR, else "
+                                                  "$XDG_CACHE_HOME/workbench, else ~/.cache/workbench)")
+    p.add_argument("--no-cache", action="store_true", help="compute the family, neither read nor write the cache")
+    p.add_argument("--workers", type=int, help="processes for the family (default: the machine's cores)")
     p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("verify", help="the exported controller in closed loop with the nonlinear plant",

@@ -1,5 +1,6 @@
 """Structured loop shaping against a (reduced) family: targets met on every member, trade-offs, errors."""
 
+import control
 import numpy as np
 import pytest
 
@@ -83,3 +84,31 @@ def test_noise_budget_lowers_the_crossover(family):
                             LoopShapeSpec(max_noise_command_v=budget, noise_reading_v=7e-3, **SHAPES))
     assert noise_command_rms_v(tight.controller_d, ub.nominal, 7e-3) <= budget
     assert tight.params["fc_hz"] < free.params["fc_hz"]
+
+
+@pytest.mark.parametrize("fc_hz, ri, al, rr, dt_s", [(120.0, 0.25, 3.0, 8.0, 1e-4), (900.0, 8.0, 1.0, 4.0, 1e-4),
+                                                      (40.0, 1.0, 6.0, 4.0, 2.5e-4)])
+def test_search_scores_exactly_the_discretized_controller(fc_hz, ri, al, rr, dt_s):
+    """The search's closed-form prewarped Tustin response equals python-control's c2d of the same C."""
+    from workbench.design.antiwindup import discretize
+    from workbench.design.loopshape import shape_response, tustin_s
+    f = np.geomspace(0.5, 0.49 / dt_s, 300)
+    c = structured_controller(2.5, fc_hz, ri, al, rr)
+    ref = np.asarray(control.frequency_response(discretize(c, dt_s, fc_hz), 2 * np.pi * f).complex).ravel()
+    fast = shape_response(tustin_s(f, dt_s, fc_hz), 2.5, fc_hz, ri, al, rr)
+    np.testing.assert_allclose(fast, ref, rtol=1e-8)
+
+
+def test_binding_constraint_named_and_relaxing_it_raises_the_crossover(family):
+    """The noise budget set at half the free design's noise binds; doubling it lets the crossover rise."""
+    from workbench.design.loopshape import noise_command_rms_v, relaxed
+    fam, ub = family
+    free = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(**SHAPES, noise_reading_v=7e-3))
+    budget = 0.5 * noise_command_rms_v(free.controller_d, ub.nominal, 7e-3)
+    spec = LoopShapeSpec(**SHAPES, max_noise_command_v=budget, noise_reading_v=7e-3)
+    tight = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, spec)
+    b = tight.binding
+    assert b["constraint"] == "noise budget" and b["value"] > b["limit"] == pytest.approx(budget)
+    assert b["at_fc_hz"] > tight.params["fc_hz"]
+    loose = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, relaxed(spec, "noise budget"))
+    assert loose.crossover_hz > tight.crossover_hz

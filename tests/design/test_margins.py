@@ -277,3 +277,37 @@ def test_family_and_system_errors_say_what_is_wrong():
         margins_of(control.tf([1], [1, -0.5], True))
     with pytest.raises(ValueError, match="above the Nyquist frequency 5000.0 Hz"):
         margins_of(control.tf([1], [1, -0.5], DT), np.geomspace(1.0, 6e3, 10))
+
+
+@pytest.mark.parametrize("dt", [None, 1e-4])
+def test_vectorized_response_equals_python_control(dt):
+    """design.margins.response: the same values as control.frequency_response (ss and tf, c and d)."""
+    import control
+    from workbench.design.margins import response
+    sys = control.ss(control.tf([1.0, 30.0, 4e4], [1.0, 2.0, 3e5, 1e6, 2e3]))
+    if dt is not None:
+        sys = control.c2d(sys, dt, "tustin")
+    f = np.geomspace(0.1, 4900.0, 200)
+    ref = np.asarray(control.frequency_response(sys, 2 * np.pi * f).complex).ravel()
+    np.testing.assert_allclose(response(sys, f), ref, rtol=1e-9)
+    tf = control.tf(sys)
+    ref_tf = np.asarray(control.frequency_response(tf, 2 * np.pi * f).complex).ravel()
+    np.testing.assert_allclose(response(tf, f), ref_tf, rtol=1e-9)
+
+
+def test_nominal_plant_is_minimal_and_keeps_the_servo_band(sn637_creep):
+    """The nominal (ascending branch at 50 V, gauge at mid-stroke) drops the five creep states: the servo-band
+    response stays within 1 % of the full small-signal model above 5 Hz, and the sampled plant has no pole left
+    near z = 1 (the creep branches put five within 1e-6 of it)."""
+    import control
+    from workbench.design.nominal import nominal_plant
+    from workbench.linearize.small_signal import small_signal_model
+    nom = nominal_plant(sn637_creep)
+    full = nom.gauge_v_per_m * small_signal_model(sn637_creep.pzt, nom.capacitance_f)[0, 0]
+    assert nom.truncated == 5 and nom.continuous.nstates == full.nstates - 5
+    f = np.geomspace(5.0, 4000.0, 50)
+    w = 2 * np.pi * f
+    ratio = (np.asarray(control.frequency_response(nom.continuous, w).complex).ravel()
+             / np.asarray(control.frequency_response(full, w).complex).ravel())
+    assert np.max(np.abs(ratio - 1)) < 0.01
+    assert np.min(np.abs(nom.firmware.poles() - 1)) > 1e-3

@@ -110,3 +110,22 @@ def test_bad_grid(sn637):
         pzt_describing_function(sn637.pzt, [0.0], [1.0])
     with pytest.raises(ValueError, match="positive"):
         pzt_describing_function(dataclasses.replace(sn637.pzt), [1.0], [np.nan])
+
+
+def test_quasi_static_column_matches_the_full_computation(sn637_creep):
+    """At 0.1 Hz the quasi-static limit (R and modes left out, creep kept) is the full describing
+    function to within the electrical lag 2 pi f R C it neglects; saturation is judged alike."""
+    from dataclasses import replace
+    from workbench.linearize.pzt_describing import pzt_describing_function, quasi_static_below_hz
+    f_hz, phase = 0.1, 1e-3
+    f_qs = quasi_static_below_hz(sn637_creep.pzt, phase)
+    assert f_hz < f_qs < 1.0                   # the 0.1 Hz column qualifies, the 1 Hz one does not
+    lag = phase * f_hz / f_qs                  # 2 pi f tau of the slowest neglected time constant
+    weak = replace(sn637_creep.pzt, current_limit_source_a=0.2e-3)    # 50 V at 0.1 Hz draws ~0.4 mA
+    for pzt, amps in ((sn637_creep.pzt, (1.0, 20.0)), (weak, (3.0, 50.0))):
+        qs = pzt_describing_function(pzt, amps, (f_hz,), quasi_static_phase_rad=phase)
+        full = pzt_describing_function(pzt, amps, (f_hz,))
+        np.testing.assert_array_equal(qs.saturated, full.saturated)
+        ok = full.linear_ok
+        assert np.all(np.abs(qs.x_m_per_v[ok] / full.x_m_per_v[ok] - 1) <= 2 * lag)
+    assert full.saturated[0, 1, 0] and not full.saturated[0, 0, 0]

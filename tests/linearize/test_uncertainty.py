@@ -62,3 +62,47 @@ def test_nominal_minimizes_the_worst_deviation(bound, root):
         resp = np.array(list(fam.members.values()))
         other = np.nanmax(np.abs(resp / g - 1))
         assert other > worst
+
+
+def test_family_on_two_processes_is_the_family_in_one(sn637_creep):
+    """The parallel family (one process per serial x C_p case) gives the serial computation's members exactly;
+    each member comes back as a python-control FRD on the frequencies where it is in."""
+    import control
+    from workbench.linearize.uncertainty import FamilySpec, plant_family
+    spec = FamilySpec(amplitudes_v=(0.3, 50.0), freq_hz=tuple(np.geomspace(0.1, 3000.0, 7)),
+                      small_signal_biases_v=(50.0,))
+    one = plant_family([sn637_creep], spec, workers=1)
+    two = plant_family([sn637_creep], spec, workers=2)
+    assert list(one.members) == list(two.members)
+    for name, g in one.members.items():
+        np.testing.assert_array_equal(g, two.members[name])
+    name = "SN637 C_p x1.00, DF A=50 V, K_g max"
+    g = one.members[name]
+    assert np.isnan(g).any() and np.isfinite(g).any()            # 50 V slews at the higher frequencies
+    frd = one.frd(name)
+    assert isinstance(frd, control.FRD)
+    np.testing.assert_allclose(frd.omega, 2 * np.pi * one.freq_hz[np.isfinite(g)])
+    np.testing.assert_allclose(np.squeeze(frd.frdata), g[np.isfinite(g)])
+
+
+def test_family_cache_key_follows_files_overrides_and_grid(tmp_path, root):
+    from workbench.linearize.uncertainty import FamilySpec
+    from workbench.study.cache import cached_family, family_key
+    src = (root / "plants" / "p888_51_sn637_creep.toml").read_text()
+    plant = tmp_path / "p.toml"
+    plant.write_text(src)
+    spec = FamilySpec()
+    k0 = family_key([plant], {}, spec)
+    assert family_key([plant], {}, spec) == k0
+    assert family_key([plant], {"electrical.current_limit_source_a": 0.02}, spec) != k0
+    assert family_key([plant], {}, FamilySpec(bias_v=40.0)) != k0
+    plant.write_text(src.replace("current_limit_sink_a = 14.0e-3", "current_limit_sink_a = 20.0e-3"))
+    assert family_key([plant], {}, spec) != k0
+    calls = []
+    first = cached_family(k0, tmp_path / "c", lambda: calls.append(1) or {"x": np.arange(3)})
+    second = cached_family(k0, tmp_path / "c", lambda: calls.append(1) or {"x": None})
+    assert calls == [1] and first[2] is False and second[2] is True
+    np.testing.assert_array_equal(second[0]["x"], np.arange(3))
+    first[1].write_bytes(b"not a pickle")                           # a corrupt entry is recomputed
+    third = cached_family(k0, tmp_path / "c", lambda: calls.append(1) or {"x": 7})
+    assert third[0] == {"x": 7} and calls == [1, 1]

@@ -58,7 +58,7 @@ def test_study_end_to_end(tmp_path, root):
     study = tmp_path / "study.toml"
     study.write_text(_study_text(root, reduced=not FULL))
     out = tmp_path / "out"
-    assert main(["study", str(study), "--out", str(out)]) == 0
+    assert main(["study", str(study), "--out", str(out), "--cache-dir", str(tmp_path / "cache")]) == 0
     summary = json.loads((out / "summary.json").read_text())
     ls = summary["designs"]["loop_shape"]
     assert ls["meets_targets"]
@@ -84,7 +84,9 @@ def test_study_end_to_end(tmp_path, root):
     assert block["alpha"] == pytest.approx(aw["voltage_model"]["alpha"])
     assert block["headroom_v"] == pytest.approx(aw["voltage_model"]["headroom_v"])
     # the gauge noise on the command and the nominal overshoot stay inside the study's budgets
-    assert ls["noise_command_rms_v"] <= 0.05 + 1e-12 and ls["step_overshoot_percent"] <= 3.0
+    budget = summary["budgets"]["noise_command_v"]
+    assert budget["source"] == "plant" and budget["value"] == pytest.approx(80 * 0.002 / 3)
+    assert ls["noise_command_rms_v"] <= budget["value"] + 1e-12 and ls["step_overshoot_percent"] <= 3.0
     for ext in ("h", "csv", "mat"):
         assert (out / "controllers" / f"sn637_loopshape.{ext}").stat().st_size > 100
     report = (out / "report.md").read_text()

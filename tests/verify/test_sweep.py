@@ -292,3 +292,28 @@ def test_workbench_sweep_runs_the_study_grid_and_names_the_worst_case(tmp_path, 
         assert main(["sweep", str(study), "--amplitudes", "0.3V", "--scheduler", "tcp://127.0.0.1:1",
                      "--out", str(bad)]) == 2
         assert not bad.exists()
+
+
+def test_sweep_margins_are_the_study_familys_members(root):
+    """One definition of the worst member: a sweep case's margins are the study family's describing-function
+    members of that serial, C_p and amplitude (K_g min and max), worst of the two, on the same grid."""
+    from workbench.design.loopshape import family_loops
+    from workbench.design.margins import family_margins
+    from workbench.linearize.limit_cycle import load_controller
+    from workbench.linearize.uncertainty import FamilySpec, plant_family
+    from workbench.plant import load_plant
+    from workbench.verify.sweep_job import run_case
+    plant_file = root / "plants" / "p888_51_sn629.toml"
+    ctrl_file = root / "controllers" / "sn637_loopshape.json"
+    grid_hz = (1.0, 4990.0, 30)
+    row = run_case({"plant": str(plant_file), "cp_factor": 1.2, "amplitude_v": 0.3, "controller": str(ctrl_file),
+                    "bias_v": 50.0, "noise": False, "imbalance_tolerance_ohm": 0.4, "freq_hz": grid_hz})
+    assert "DF A=0.3 V" in row["members"] and "small-signal members not swept" in row["members"]
+    fam = plant_family([load_plant(plant_file)], FamilySpec(amplitudes_v=(0.3,), freq_hz=tuple(np.geomspace(*grid_hz)),
+                                                            small_signal_biases_v=(), imbalance_tolerance_ohm=0.4))
+    mine = {n: g for n, g in fam.members.items() if n.startswith("SN629 C_p x1.20, DF A=0.3 V")}
+    assert len(mine) == 2
+    _, w = family_margins(fam.freq_hz, family_loops(load_controller(ctrl_file), fam.freq_hz, mine))
+    assert row["phase_margin_deg"] == pytest.approx(w["phase_margin_deg"]["value"], abs=1e-6)
+    assert row["gain_margin_db"] == pytest.approx(w["gain_margin_db"]["value"], abs=1e-6)
+    assert row["crossover_hz"] == pytest.approx(w["crossover_hz_min"]["value"], rel=1e-6)

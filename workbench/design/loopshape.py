@@ -20,7 +20,7 @@ Margins are checked first on the members that bound the family at each frequency
 (largest and smallest gain and phase), then on all members for the chosen design.
 """
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import control
 import numpy as np
@@ -28,10 +28,10 @@ import numpy as np
 from ..errors import DesignError
 from ..linearize.limit_cycle import sampled_factor
 from .antiwindup import discretize
-from .margins import family_margins
+from .margins import family_margins, response
 
 __all__ = ["LoopShapeSpec", "LoopShapeResult", "structured_controller", "family_loops", "tune_loop_shape",
-           "noise_command_rms_v", "nominal_step"]
+           "noise_command_rms_v", "nominal_step", "shape_response", "tustin_s", "CONSTRAINTS", "relaxed"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,7 @@ class LoopShapeResult:
     worst: dict                       # metric -> {value, member, freq_hz}
     rows: list = field(repr=False)    # margins per member
     searched: int = 0
+    binding: dict = None              # the constraint that bound the crossover (see tune_loop_shape)
 
 
 def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
@@ -95,7 +96,33 @@ def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, r
 
 
 def _discrete_response(ctrl_d, freq_hz):
-    return np.asarray(control.frequency_response(ctrl_d, 2 * np.pi * np.asarray(freq_hz)).complex).ravel()
+    return response(ctrl_d, freq_hz)
+
+
+def shape_response(s, k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
+    """C(s) of :func:`structured_controller` evaluated on the complex array ``s`` (rad/s), vectorized."""
+    wc = 2 * np.pi * fc_hz
+    c = k * (1 + (wc / integral_ratio) / s)
+    if lead_ratio > 1:
+        c = c * (1 + s / (wc / np.sqrt(lead_ratio))) / (1 + s / (wc * np.sqrt(lead_ratio)))
+    wr = wc * rolloff_ratio
+    c = c * wr ** 2 / (s ** 2 + 2 * rolloff_damping * wr * s + wr ** 2)
+    if notch is not None:
+        fn, depth_db, width = notch
+        wn = 2 * np.pi * fn
+        zd = width / 2
+        c = c * (s ** 2 + 2 * zd * 10 ** (-depth_db / 20) * wn * s + wn ** 2) / (s ** 2 + 2 * zd * wn * s + wn ** 2)
+    return c
+
+
+def tustin_s(freq_hz, dt_s, prewarp_hz):
+    """The s at which a continuous C gives the response of its prewarped Tustin map at ``freq_hz``.
+
+    Tustin prewarped at w_c maps s = (w_c / tan(w_c T / 2)) (z - 1) / (z + 1), and on the
+    unit circle (z - 1) / (z + 1) = j tan(w T / 2): C_d(e^{jwT}) = C(j w_c tan(w T / 2) / tan(w_c T / 2)).
+    """
+    wc = 2 * np.pi * prewarp_hz
+    return 1j * wc * np.tan(np.pi * np.asarray(freq_hz, dtype=float) * dt_s) / np.tan(wc * dt_s / 2)
 
 
 def family_loops(ctrl_d, freq_hz, members, delay_samples=1):
@@ -121,6 +148,18 @@ def _meets(worst, spec):
             and worst["gain_margin_db"]["value"] >= spec.gain_margin_db)
 
 
+def _noise_grid(dt_s, n=4096):
+    return (np.arange(n) + 0.5) / n * 0.5 / dt_s
+
+
+def _noise_rms(k, g, f, dt_s, noise_reading_v, delay_samples, alpha):
+    ks = k / (1 + k * sampled_factor(f, dt_s, delay_samples) * g)
+    zi = np.exp(-2j * np.pi * f * dt_s)
+    a = 1.0 if alpha is None else float(alpha)
+    h = (1 - zi) / (1 - (1 - a) * zi)
+    return float(noise_reading_v * np.sqrt(np.mean(np.abs(h * ks) ** 2)))
+
+
 def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, alpha=None, n=4096):
     """RMS lead of the command over the stack voltage that the gauge noise causes through K S, V.
 
@@ -129,31 +168,84 @@ def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, alpha
     H = (1 - z^-1) / (1 - (1 - alpha) z^-1) and sigma^2 = sigma_n^2 (1/pi) int_0^pi
     |H K S|^2 d theta. ``alpha`` None (or 1): H = 1 - z^-1, the change per sample.
     """
-    f = (np.arange(n) + 0.5) / n * 0.5 / ctrl_d.dt
-    k = _discrete_response(ctrl_d, f)
-    g = np.asarray(control.frequency_response(nominal, 2 * np.pi * f).complex).ravel()
-    ks = k / (1 + k * sampled_factor(f, ctrl_d.dt, delay_samples) * g)
-    zi = np.exp(-2j * np.pi * f * ctrl_d.dt)
-    a = 1.0 if alpha is None else float(alpha)
-    h = (1 - zi) / (1 - (1 - a) * zi)
-    return float(noise_reading_v * np.sqrt(np.mean(np.abs(h * ks) ** 2)))
+    f = _noise_grid(ctrl_d.dt, n)
+    return _noise_rms(response(ctrl_d, f), response(nominal, f), f, ctrl_d.dt, noise_reading_v, delay_samples,
+                      alpha)
 
 
-def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000):
+def sampled_nominal(nominal, dt_s, delay_samples=1):
+    """The continuous ``nominal`` (K_g P) held, period-averaged and delayed exactly, as firmware sees it."""
+    from ..linearize.sampled import compute_delay, period_average
+    return period_average(control.ss(nominal), dt_s) * compute_delay(dt_s, delay_samples)
+
+
+def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000, plant_d=None):
     """(overshoot %, 2 % settling time s) of the nominal loop as firmware closes it.
 
     The continuous ``nominal`` (K_g P, firmware V per V) is held, period-averaged and
-    delayed exactly (:mod:`workbench.linearize.sampled`), the loop closed with ``ctrl_d``.
+    delayed exactly (:mod:`workbench.linearize.sampled`; or give that discrete plant as
+    ``plant_d``), the loop closed with ``ctrl_d``; the unit step is run on the closed
+    loop's state space sample by sample (what ``control.step_response`` computes).
     """
-    from ..linearize.sampled import compute_delay, period_average
     dt = ctrl_d.dt
-    g = period_average(control.ss(nominal), dt) * compute_delay(dt, delay_samples)
+    g = sampled_nominal(nominal, dt, delay_samples) if plant_d is None else plant_d
+    cl = control.feedback(control.ss(ctrl_d) * g, 1)
+    a, b = np.asarray(cl.A), np.asarray(cl.B)[:, 0]
+    c, d = np.asarray(cl.C)[0], float(np.asarray(cl.D)[0, 0])
+    x = np.zeros(a.shape[0])
+    y = np.empty(n)
+    for k in range(n):
+        y[k] = c @ x + d
+        x = a @ x + b
     t = np.arange(n) * dt
-    y = np.squeeze(control.step_response(control.feedback(control.ss(ctrl_d) * g, 1), T=t).outputs)
     overshoot = max(0.0, float(np.max(y)) - 1.0) * 100
     outside = np.flatnonzero(np.abs(y - 1.0) > 0.02)
     settle = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < n else (float("nan") if outside.size else 0.0)
     return overshoot, settle
+
+
+# what the search can be bound by: constraint -> (LoopShapeSpec field, unit, relaxation, relaxation said)
+CONSTRAINTS = {
+    "noise budget": ("max_noise_command_v", "V RMS", lambda v: 2.0 * v, "doubled"),
+    "phase margin": ("phase_margin_deg", "deg", lambda v: v - 5.0, "5 deg lower"),
+    "gain margin": ("gain_margin_db", "dB", lambda v: v - 1.0, "1 dB lower"),
+    "overshoot": ("max_overshoot_percent", "%", lambda v: v + 2.0, "2 points higher"),
+    "crossover search range": ("fc_range_hz", "Hz", lambda v: (v[0], 2.0 * v[1]), "upper end doubled"),
+}
+
+
+def relaxed(spec, constraint, times=1):
+    """``spec`` with ``constraint`` (a key of :data:`CONSTRAINTS`) relaxed ``times`` times by its stated amount."""
+    field_name, _, step, _ = CONSTRAINTS[constraint]
+    value = getattr(spec, field_name)
+    for _ in range(times):
+        value = step(value)
+    if field_name in ("phase_margin_deg", "gain_margin_db"):
+        value = max(value, 0.0)
+    if field_name == "fc_range_hz":              # the prewarp must stay below Nyquist
+        value = (value[0], min(value[1], 0.45 / spec.dt_s))
+    return replace(spec, **{field_name: value})
+
+
+def _evaluate(s_loop, sf, bounding, f, nominal_fc, spec, fc, ri, al, rr, noise):
+    """Gain and checks of one shape at one f_c; returns (k, reason, value, limit, worst)."""
+    sw = tustin_s([fc], spec.dt_s, fc)
+    l1 = shape_response(sw, 1.0, fc, ri, al, rr, spec.rolloff_damping, spec.notch)[0] * nominal_fc
+    k = 1.0 / abs(l1)
+    c = shape_response(s_loop, k, fc, ri, al, rr, spec.rolloff_damping, spec.notch)
+    if spec.max_noise_command_v is not None:
+        fn, gn, sn = noise
+        rms = _noise_rms(shape_response(sn, k, fc, ri, al, rr, spec.rolloff_damping, spec.notch), gn, fn,
+                         spec.dt_s, spec.noise_reading_v, spec.delay_samples, spec.voltage_alpha)
+        if rms > spec.max_noise_command_v:
+            return k, "noise budget", rms, spec.max_noise_command_v, None
+    _, worst = family_margins(f, {n: c * sf * g for n, g in bounding.items()})
+    pm, gm = worst["phase_margin_deg"]["value"], worst["gain_margin_db"]["value"]
+    if pm < spec.phase_margin_deg:
+        return k, "phase margin", pm, spec.phase_margin_deg, worst
+    if gm < spec.gain_margin_db:
+        return k, "gain margin", gm, spec.gain_margin_db, worst
+    return k, None, None, None, worst
 
 
 def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None, step_plant=None):
@@ -170,6 +262,18 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
     step_plant : continuous SISO LTI, optional
         K_g P(s) the overshoot limit is judged on (default ``nominal``); e.g. the
         ascending-branch model, where a small step up runs.
+
+    Returns
+    -------
+    LoopShapeResult
+        With ``binding``: the constraint that stopped the winning shape from crossing
+        over at the next f_c of the grid (``constraint``, the ``value`` it reached there
+        against its ``limit``, ``at_fc_hz``), or the top of the search range.
+
+    Notes
+    -----
+    Candidates are scored by their exact responses (the prewarped Tustin map evaluated
+    on the unit circle, :func:`tustin_s`), so no state space is built in the search.
     """
     step_plant = nominal if step_plant is None else step_plant
     f = np.asarray(freq_hz, dtype=float)
@@ -179,34 +283,42 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
     resp = np.array([members[n] for n in names])
     bounding = {n: members[n] for n in _bounding_members(names, resp)}
     fcs = np.geomspace(*spec.fc_range_hz, spec.fc_points)
+    nominal_at = response(nominal, fcs)
+    sf = sampled_factor(f, spec.dt_s, spec.delay_samples)
+    fn = _noise_grid(spec.dt_s)
+    g_noise = response(nominal, fn)
+    step_d = sampled_nominal(step_plant, spec.dt_s, spec.delay_samples) if spec.max_overshoot_percent else None
     shapes = [(ri, al, rr) for ri in spec.integral_ratios for al in spec.lead_ratios for rr in spec.rolloff_ratios]
     best, searched = None, 0
     for n_shape, (ri, al, rr) in enumerate(shapes):
-        for fc in fcs[::-1]:
+        above = None               # why the next-higher f_c of this shape failed
+        for j in range(fcs.size - 1, -1, -1):
+            fc = fcs[j]
             searched += 1
-            shape = structured_controller(1.0, fc, ri, al, rr, spec.rolloff_damping, spec.notch)
-            shape_d = discretize(shape, spec.dt_s, fc)
-            l1 = (_discrete_response(shape_d, [fc]) * sampled_factor([fc], spec.dt_s, spec.delay_samples)
-                  * np.asarray(control.frequency_response(nominal, [2 * np.pi * fc]).complex).ravel())[0]
-            k = 1.0 / abs(l1)
-            ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
-                                spec.dt_s, fc)
-            if spec.max_noise_command_v is not None and noise_command_rms_v(
-                    ctrl_d, nominal, spec.noise_reading_v, spec.delay_samples,
-                    spec.voltage_alpha) > spec.max_noise_command_v:
-                continue       # too much noise on the command here; a lower f_c may do
-            _, worst = family_margins(f, family_loops(ctrl_d, f, bounding, spec.delay_samples))
-            if _meets(worst, spec) and spec.max_overshoot_percent is not None and nominal_step(
-                    ctrl_d, step_plant, spec.delay_samples)[0] > spec.max_overshoot_percent:
-                continue       # (checked last: a step response costs more than the margins)
-            if _meets(worst, spec):
-                # the lowest crossover over the family is what the bandwidth target is about
-                cand = (worst["crossover_hz_min"]["value"], worst["disk_margin"]["value"], dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al,
-                                                                rolloff_ratio=rr, rolloff_damping=spec.rolloff_damping,
-                                                                notch=spec.notch))
-                if best is None or (cand[0], cand[1]) > (best[0], best[1]):
-                    best = cand
-                break          # lower f_c on this shape can only be slower
+            s_loop = tustin_s(f, spec.dt_s, fc)
+            noise = (fn, g_noise, tustin_s(fn, spec.dt_s, fc))
+            l_nom = sampled_factor([fc], spec.dt_s, spec.delay_samples)[0] * nominal_at[j]
+            k, reason, value, limit, worst = _evaluate(s_loop, sf, bounding, f, l_nom, spec, fc, ri, al, rr, noise)
+            if reason is None and spec.max_overshoot_percent is not None:
+                ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
+                                    spec.dt_s, fc)
+                ov = nominal_step(ctrl_d, step_plant, spec.delay_samples, plant_d=step_d)[0]
+                if ov > spec.max_overshoot_percent:   # (checked last: a step response costs more)
+                    reason, value, limit = "overshoot", ov, spec.max_overshoot_percent
+            if reason is not None:
+                above = {"constraint": reason, "value": float(value), "limit": float(limit), "at_fc_hz": float(fc),
+                         "unit": CONSTRAINTS[reason][1]}
+                continue       # a lower f_c may do
+            if above is None:
+                above = {"constraint": "crossover search range", "value": float(fc),
+                         "limit": float(spec.fc_range_hz[1]), "at_fc_hz": float(fc), "unit": "Hz"}
+            # the lowest crossover over the family is what the bandwidth target is about
+            cand = (worst["crossover_hz_min"]["value"], worst["disk_margin"]["value"],
+                    dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al, rolloff_ratio=rr,
+                         rolloff_damping=spec.rolloff_damping, notch=spec.notch), above)
+            if best is None or (cand[0], cand[1]) > (best[0], best[1]):
+                best = cand
+            break          # lower f_c on this shape can only be slower
         if progress is not None:
             progress(n_shape + 1, len(shapes))
     if best is None:
@@ -226,4 +338,5 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
     if not _meets(worst, spec):
         raise DesignError(f"the chosen design misses the targets on a member outside the bounding set "
                           f"({worst['phase_margin_deg']['member']}); refine the frequency grid")
-    return LoopShapeResult(ctrl_c, ctrl_d, p, float(worst["crossover_hz_min"]["value"]), worst, rows, searched)
+    return LoopShapeResult(ctrl_c, ctrl_d, p, float(worst["crossover_hz_min"]["value"]), worst, rows, searched,
+                           best[3])

@@ -22,7 +22,7 @@ voltage range, and whether the response became periodic at all (if it repeats on
 every two periods: a subharmonic).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import control
 import numpy as np
@@ -30,7 +30,7 @@ from scipy.signal import lfilter
 
 from ..plant.simulator import PZTSimulator
 
-__all__ = ["DFFamily", "pzt_describing_function"]
+__all__ = ["DFFamily", "pzt_describing_function", "quasi_static_below_hz"]
 
 
 @dataclass(frozen=True)
@@ -150,8 +150,27 @@ def _samples_per_period(pzt, freq_hz, n_min):
     return max(n_min, 1 << int(np.ceil(np.log2(1.0 / (freq_hz * dt_max)))))
 
 
+def quasi_static_below_hz(pzt, phase_rad=1e-3):
+    """Frequency below which a period is long against every time constant but creep's, Hz.
+
+    The electrical one R C (C the largest terminal capacitance: all plays engaged, creep
+    settled, in series with C_pp) and the modes' 1 / (2 pi f_mode): below the returned
+    frequency each lags by at most ``phase_rad``, so the describing function is its
+    quasi-static limit (R = 0, modes static) to that accuracy. Creep is kept: its
+    branches (0.1-1000 s) are not fast against any period.
+    """
+    c_h = float(np.sum(pzt.hysteresis.weights))
+    if pzt.creep is not None:
+        c_h += float(np.sum(pzt.creep.capacitances_f))
+    taus = [pzt.series_resistance_ohm / (1.0 / c_h + 1.0 / pzt.c_pp_f)]
+    taus += [1.0 / (2 * np.pi * m.freq_hz) for m in pzt.modes]
+    tau = max(taus)
+    return np.inf if tau == 0 else phase_rad / (2 * np.pi * tau)
+
+
 def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), samples_per_period=1024,
-                            tol=1e-7, max_cycles=400, skip_above_saturation=False, progress=None):
+                            tol=1e-7, max_cycles=400, skip_above_saturation=False, progress=None,
+                            quasi_static_phase_rad=None):
     """Describing-function family of the PZT ``pzt`` (a PZTParams), V_pea -> x and V_pea -> i.
 
     Parameters
@@ -165,6 +184,11 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
         Relative change of the first harmonic between periods that counts as periodic.
     max_cycles : int
         Periods simulated at most per point.
+    quasi_static_phase_rad : float, optional
+        Below :func:`quasi_static_below_hz` of this phase, compute the point as its
+        quasi-static limit (series R and modes left out, creep kept; ``samples_per_period``
+        steps): the full computation there needs ~1/(f R C) steps per period for the same
+        answer. Current saturation is judged from the charge's rate of change. None: never.
     skip_above_saturation : bool
         Once an amplitude saturates the current at a frequency, mark the larger ones
         saturated without simulating them (their response is NaN): the slew limit
@@ -187,11 +211,18 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
     i_limits = (pzt.current_limit_source_a, pzt.current_limit_sink_a)
     quasi_static = pzt.series_resistance_ohm == 0.0
     total, done = int(np.prod(shape)), 0
+    f_qs = -np.inf if quasi_static_phase_rad is None else quasi_static_below_hz(pzt, quasi_static_phase_rad)
+    pzt_qs = replace(pzt, series_resistance_ohm=0.0, modes=())
+    st0_qs = {}
     for b, bias in enumerate(biases):
-        st0, x_static = _settle_at_bias(pzt, bias)
+        st0_full, x_static = _settle_at_bias(pzt, bias)
         for k, f in enumerate(freqs):
-            n_f = _samples_per_period(pzt, f, n)
-            sim = PZTSimulator(pzt, 1.0 / (f * n_f))
+            qs_point = f <= f_qs and not quasi_static
+            if qs_point and bias not in st0_qs:
+                st0_qs[bias] = _settle_at_bias(pzt_qs, bias)[0]
+            st0 = st0_qs[bias] if qs_point else st0_full
+            n_f = n if qs_point else _samples_per_period(pzt, f, n)
+            sim = PZTSimulator(pzt_qs if qs_point else pzt, 1.0 / (f * n_f))
             theta = 2 * np.pi * np.arange(n_f) / n_f
             v1_unit = -1j * np.sinc(1.0 / n_f) * np.exp(-1j * np.pi / n_f)
             fundamental = np.exp(-1j * theta)
@@ -229,7 +260,7 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                                     < np.max(np.abs(history[-1] - history[-2])))
                 hx = _harmonics(tr.x_m, n_f)
                 hq = _harmonics(tr.q_c, n_f)
-                if quasi_static:
+                if quasi_static or qs_point:
                     # output and input are staircases on the same steps: no hold correction
                     vx = _harmonics(v, n_f)[1]
                 else:
@@ -239,6 +270,9 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                 shift[b, a, k] = hx[0].real - x_static
                 thd[b, a, k] = np.sqrt(np.sum(np.abs(hx[2:n_f // 2]) ** 2)) / abs(hx[1])
                 i_max, i_min = tr.peak_current_a
+                if qs_point:           # no series R in the run: the current is the charge's rate
+                    dq = np.diff(np.concatenate([tr.q_c[-1:], tr.q_c])) / sim.dt_s
+                    i_max, i_min = float(dq.max()), float(dq.min())
                 sat[b, a, k] = (not quasi_static) and (i_max >= i_limits[0] * (1 - 1e-9)
                                                       or -i_min >= i_limits[1] * (1 - 1e-9))
                 clip[b, a, k] = bias - amp < pzt.voltage_min_v or bias + amp > pzt.voltage_max_v

@@ -25,6 +25,7 @@ import control
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from ..design.margins import response
 from .pzt_describing import pzt_describing_function
 from .sampled import gauge_gain_v_per_m
 from .small_signal import BRANCHES, operating_point, small_signal_model
@@ -57,6 +58,17 @@ class Family:
     dfs: dict                # serial/tolerance label -> DFFamily (for plots and JSON)
     gauge_gains: dict        # serial -> (nominal, min, max) firmware V/m
 
+    def frd(self, name):
+        """Member ``name`` as a python-control FRD (firmware V per V), on the frequencies where it is in."""
+        g = np.asarray(self.members[name])
+        keep = np.isfinite(g)
+        # python-control names may not hold '.': "C_p x1.00" becomes "C_p x1p00"
+        return control.FRD(g[keep], 2 * np.pi * self.freq_hz[keep], name=name.replace(".", "p"))
+
+    def frds(self):
+        """Every member with at least one frequency in, as ``{name: control.FRD}``."""
+        return {n: self.frd(n) for n, g in self.members.items() if np.any(np.isfinite(g))}
+
 
 def _gauge_range(plant, spec):
     """Nominal chain gain at mid-stroke and its extremes over x0 and the imbalance corners."""
@@ -70,29 +82,64 @@ def _gauge_range(plant, spec):
     return nominal, min(gains), max(gains)
 
 
-def plant_family(plants, spec=FamilySpec(), progress=None):
-    """Responses of every member over ``plants`` (loaded plant files, one per serial)."""
+def _case_df(args):
+    """Describing functions of one (plant, C_p factor) case; runs in a worker process."""
+    pzt, amplitudes_v, freq, bias_v, qs_phase = args
+    return pzt_describing_function(pzt, sorted(amplitudes_v), freq, (bias_v,), skip_above_saturation=True,
+                                   quasi_static_phase_rad=qs_phase)
+
+
+def _map(fn, items, workers, progress):
+    """``fn`` over ``items`` in order, on ``workers`` local processes (1: in this process)."""
+    if workers <= 1 or len(items) <= 1:
+        out = []
+        for i, item in enumerate(items):
+            out.append(fn(item))
+            if progress is not None:
+                progress(i + 1, len(items))
+        return out
+    import concurrent.futures
+    import multiprocessing
+    with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(items)),
+                                                mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(fn, item) for item in items]
+        for i, _ in enumerate(concurrent.futures.as_completed(futures)):
+            if progress is not None:
+                progress(i + 1, len(items))
+        return [fut.result() for fut in futures]
+
+
+def plant_family(plants, spec=FamilySpec(), progress=None, workers=1, quasi_static_phase_rad=1e-3):
+    """Responses of every member over ``plants`` (loaded plant files, one per serial).
+
+    Parameters
+    ----------
+    plants : list of Plant
+    spec : FamilySpec
+    progress : callable(done, total), optional
+        Called per (serial, C_p corner) case done.
+    workers : int or None
+        Local processes the describing functions run on (one case per task); None: the
+        machine's cores (``os.cpu_count()``); 1: in this process.
+    quasi_static_phase_rad : float or None
+        Frequencies long against every time constant but creep's by this phase are
+        computed as their quasi-static limit (:func:`~.pzt_describing.quasi_static_below_hz`).
+    """
+    import os
     freq = np.asarray(spec.freq_hz, dtype=float)
-    s = 2j * np.pi * freq
     members, dfs, gauges = {}, {}, {}
     excluded = 0
     cases = [(p, f) for p in plants for f in (1.0 - spec.cp_tolerance, 1.0, 1.0 + spec.cp_tolerance)]
-    total = len(cases) * len(spec.amplitudes_v) * freq.size
-    done = [0]
-
-    def step(d, _t):
-        if progress is not None:
-            progress(done[0] + d, total)
-
-    for plant, cp_factor in cases:
-        pzt = replace(plant.pzt, working_capacitance_f=plant.pzt.working_capacitance_f * cp_factor)
+    pzts = [replace(plant.pzt, working_capacitance_f=plant.pzt.working_capacitance_f * cp_factor)
+            for plant, cp_factor in cases]
+    n_workers = (os.cpu_count() or 1) if workers is None else int(workers)
+    fams = _map(_case_df, [(pzt, tuple(spec.amplitudes_v), freq, spec.bias_v, quasi_static_phase_rad)
+                           for pzt in pzts], n_workers, progress)
+    for (plant, cp_factor), pzt, fam in zip(cases, pzts, fams):
         label = f"{plant.serial} C_p x{cp_factor:.2f}"
         if plant.serial not in gauges:
             gauges[plant.serial] = _gauge_range(plant, spec)
         _, k_lo, k_hi = gauges[plant.serial]
-        fam = pzt_describing_function(pzt, sorted(spec.amplitudes_v), freq, (spec.bias_v,),
-                                      skip_above_saturation=True, progress=step)
-        done[0] += len(spec.amplitudes_v) * freq.size
         dfs[label] = fam
         for a, amp in enumerate(fam.amplitudes_v):
             p = np.where(fam.linear_ok[0, a], fam.x_m_per_v[0, a], np.nan)
@@ -105,7 +152,7 @@ def plant_family(plants, spec=FamilySpec(), progress=None):
                     continue
                 op = operating_point(pzt, bias, branch, spec.v_range)
                 ss = small_signal_model(pzt, op.capacitance_f)
-                p = np.array([complex(np.atleast_2d(ss(si))[0, 0]) for si in s])
+                p = response(ss[0, 0], freq)
                 for kname, k in (("K_g min", k_lo), ("K_g max", k_hi)):
                     members[f"{label}, {branch} at {bias:g} V, {kname}"] = k * p
     return Family(freq, members, excluded, dfs, gauges)
@@ -126,15 +173,13 @@ class UncertaintyBound:
 
 def uncertainty_bound(family, nominal_plant, max_order=3, guard_db=0.5):
     """Choose the nominal, form the deviations, fit W_m and check it covers every member."""
-    s = 2j * np.pi * family.freq_hz
     k_nom = family.gauge_gains[nominal_plant.serial][0]
     pzt = nominal_plant.pzt
     names = list(family.members)
     resp = np.array([family.members[n] for n in names])
 
     def deltas_for(c_f):
-        p = small_signal_model(pzt, c_f)
-        g = k_nom * np.array([complex(np.atleast_2d(p(si))[0, 0]) for si in s])
+        g = k_nom * response(small_signal_model(pzt, c_f)[0, 0], family.freq_hz)
         d = resp / g[None, :] - 1.0
         return np.where(np.isnan(d), 0.0, d)
 

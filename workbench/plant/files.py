@@ -156,13 +156,16 @@ def _read_table(path, section, table):
     return out
 
 
-def load_plant(path):
+def load_plant(path, overrides=None):
     """Load and validate a plant file.
 
     Parameters
     ----------
     path : str or Path
         A ``plants/*.toml`` file.
+    overrides : dict, optional
+        ``{"section.key": value}`` (SI) set into the file's values before they are
+        validated (``workbench study --set``); the file itself is not modified.
 
     Returns
     -------
@@ -183,6 +186,11 @@ def load_plant(path):
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise PlantDefinitionError(path, "syntax", f"is not valid TOML: {err}") from err
+    for where, value in (overrides or {}).items():
+        section, _, key = where.partition(".")
+        if not isinstance(doc.get(section), dict):
+            raise PlantDefinitionError(path, where, f"--set names section [{section}], which this file lacks")
+        doc[section][key] = value
 
     for key, value in doc.items():
         if isinstance(value, dict) and key not in _SCHEMA:

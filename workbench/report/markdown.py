@@ -152,6 +152,7 @@ def write_report(path, spec, summary, table):
                                                          _worst_rows(ls["worst_quantized"]),
                                                          _worst_rows(ls["worst_continuous_no_sampling"])):
         lines.append(md_row(name, v_d, v_q, v_c, m_q))
+    lines += [""] + summary.get("study_sections", [])      # budgets, binding constraint, nominal (workbench.study)
     lines += ["", "Files: " + ", ".join(f"`{Path(v).name}`" for v in summary["exported"].values()), "",
               md_image("loop", summary["figures"].get("loop_bode", path.parent / "loop_bode.png"), path), "",
               md_image("S and T", summary["figures"].get("sensitivity", path.parent / "sensitivity.png"), path), "",
@@ -169,13 +170,14 @@ def write_report(path, spec, summary, table):
         lines.append(md_row(r["serial"], r["member"], _f(r["phase_margin_deg"]), _f(r["gain_margin_db"]),
                             _f(r["disk_margin"], ".2f"),
                             f"{_f(r['crossover_min_hz'], '.0f')}-{_f(r['crossover_max_hz'], '.0f')}"))
-    ncf = d["coprime"]
-    lines += ["", "## Other designs on the same family", "",
+    ncf = d.get("coprime")
+    lines += ["", "## Other designs on the same family", ""] + ([
+              "- none: run with `--only loopshape`"] if ncf is None else [
               f"- Glover-McFarlane on the same shape: best achievable margin eps_max = {ncf['eps_max']:.3f}, "
               f"controller {ncf['eps']:.3f}; reduced from {ncf['order_full']} to {ncf['order_reduced']} states "
               f"(error bound {ncf['reduction_error_bound']:.3g}, measured {ncf['reduction_error_measured']:.3g}); "
               f"worst PM {_f(ncf['worst_discrete']['phase_margin_deg']['value'])} deg, GM "
-              f"{_f(ncf['worst_discrete']['gain_margin_db']['value'])} dB."]
+              f"{_f(ncf['worst_discrete']['gain_margin_db']['value'])} dB."])
     for key, title in (("hinf", "H-infinity mixed sensitivity (slycot)"), ("convex", "Convex Youla FIR design (cvxpy)")):
         if key in d:
             h = d[key]
@@ -194,7 +196,7 @@ def write_report(path, spec, summary, table):
                      f"stacked weighted norm is {d['cross_check']['hinf_over_convex_stacked_norm']:.3f} x the "
                      f"convex design's (continuous plant with a Pade delay against the exact sampled plant, "
                      f"60 FIR taps, plant without the creep branches).")
-    lines += ["", md_image("steps", summary["figures"].get("steps", path.parent / "steps.png"), path), "",
+    lines += ["", md_image("steps", summary["figures"]["steps"], path) if "steps" in summary["figures"] else "", "",
               "What the linear analysis does not see: slewing at the current limit (members left out above; the "
               "exported controller carries a rate limit and Hanus anti-windup for it) and the shift of the mean "
               "under the asymmetric current limits. The verification runs are the check.", ""]

@@ -11,13 +11,20 @@ from pathlib import Path
 import control
 import numpy as np
 
-from ..errors import DesignError
+from ..errors import DesignError, StudyDefinitionError
 from ..linearize.limit_cycle import loop_responses, predict_limit_cycles, sampled_factor
 from ..linearize.uncertainty import FamilySpec, plant_family, uncertainty_bound
 from ..plant import load_plant
 from .spec import load_study
 
-__all__ = ["run_study"]
+__all__ = ["run_study", "StudyFailed", "ONLY"]
+
+ONLY = ("loopshape",)          # --only: the exported design alone, no comparison designs
+_DEFAULT = "default"
+
+
+class StudyFailed(DesignError):
+    """The study ran but its best design misses a target; its report is written (names the constraint and the fix)."""
 
 
 def _members_table(rows, freq_hz, members):
@@ -64,26 +71,94 @@ def _worst_summary(worst):
     return {k: worst[k] for k in keys}
 
 
-def run_study(study_path, out_dir, progress=None):
-    """Run the study file ``study_path``; write the report into ``out_dir``; return the summary."""
+def _nominal_summary(m):
+    return {"crossover_hz": m.crossover_hz, "phase_margin_deg": m.phase_margin_deg,
+            "gain_margin_db": m.gain_margin_db, "pm_freq_hz": m.pm_freq_hz, "gm_freq_hz": m.gm_freq_hz}
+
+
+def _binding_summary(ls_spec, ls, tune):
+    """The constraint that bound the design, and the design with it relaxed by its stated amount."""
+    from ..design.loopshape import CONSTRAINTS, relaxed
+    b = dict(ls.binding)
+    name = b["constraint"]
+    field, _, _, said = CONSTRAINTS[name]
+    r_spec = relaxed(ls_spec, name)
+    try:
+        r = tune(r_spec, "design: relaxed " + name)
+        b["relaxed"] = {"by": said, "field": field, "limit": getattr(r_spec, field),
+                        "crossover_hz_min": r.crossover_hz, "fc_hz": r.params["fc_hz"],
+                        "then_binding": r.binding["constraint"]}
+    except DesignError as err:
+        b["relaxed"] = {"by": said, "field": field, "limit": getattr(r_spec, field), "error": str(err)}
+    return b
+
+
+def _fix_for(ls_spec, ls, target_hz, tune, max_steps=4):
+    """The change that makes the lowest crossover reach ``target_hz``: relax the binding constraint(s) step by step."""
+    from ..design.loopshape import CONSTRAINTS, relaxed
+    spec, steps, cur = ls_spec, [], ls
+    for _ in range(max_steps):
+        name = cur.binding["constraint"]
+        field = CONSTRAINTS[name][0]
+        spec = relaxed(spec, name)
+        steps.append({"constraint": name, "field": field, "limit": getattr(spec, field)})
+        try:
+            cur = tune(spec, "fix: relax " + name)
+        except DesignError:
+            continue
+        if cur.crossover_hz >= target_hz:
+            return {"passes": True, "changes": steps, "crossover_hz_min": cur.crossover_hz}
+    return {"passes": False, "changes": steps, "crossover_hz_min": cur.crossover_hz}
+
+
+def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cache_dir=_DEFAULT, workers=None):
+    """Run the study file ``study_path``; write the report into ``out_dir``; return the summary.
+
+    Parameters
+    ----------
+    study_path, out_dir : str or Path
+    progress : callable(stage, done, total), optional
+    overrides : list of str or dict, optional
+        ``section.key=value`` items (or ``{"section.key": value}`` in SI) for plant and study
+        values (:mod:`.overrides`); plant sections apply to every plant of the study.
+    only : {None, "loopshape"}
+        ``"loopshape"``: the exported design alone (no Glover-McFarlane, H-infinity, convex).
+    cache_dir : path, "default" or None
+        Where the family is cached (:mod:`.cache`; "default": the user cache folder; None: no cache).
+    workers : int, optional
+        Processes the family runs on (default: the machine's cores).
+
+    Raises
+    ------
+    StudyFailed
+        After writing the report, when the best design misses ``targets.min_crossover_hz``
+        or no design meets the targets (the CLI exits 2).
+    """
     from ..design.antiwindup import current_limit_model, discretize, rate_limits_v_per_s
+    from ..design.budgets import plant_budgets
     from ..design.coprime import ncf_synthesis
     from ..design.loopshape import LoopShapeSpec, noise_command_rms_v, nominal_step, tune_loop_shape
-    from ..linearize.sampled import gauge_gain_v_per_m
-    from ..linearize.small_signal import operating_point, small_signal_model
+    from ..design.nominal import nominal_margins, nominal_plant
     from ..plant.gauge import demod_noise_sigma_v
     from ..design.margins import family_margins
     from ..design.reduce import reduce_controller
     from ..report import design_figures as figs
     from ..report.html import write_html_report
     from ..report.markdown import write_report
+    from .cache import cached_family, default_cache_dir, family_key
+    from .overrides import parse_overrides, split_overrides
+    from .sections import failure_report, study_lines
 
-    spec = load_study(study_path)
+    ovr = dict(overrides) if isinstance(overrides, dict) else parse_overrides(overrides)
+    plant_ovr, study_ovr = split_overrides(ovr)
+    if only is not None and only not in ONLY:
+        raise StudyDefinitionError("--only", only, f"unknown; expected one of {', '.join(ONLY)}")
+    spec = load_study(study_path, study_ovr)
     out = Path(out_dir)
     say = (lambda stage, d, t: progress(stage, d, t)) if progress else (lambda *a: None)
     t0 = time.perf_counter()
-    plant = load_plant(spec.plant)
-    serials = [load_plant(p) for p in spec.serials]
+    plant = load_plant(spec.plant, plant_ovr)
+    serials = [load_plant(p, plant_ovr) for p in spec.serials]
     g = plant.gauge
     dt = g.period_s
     delay_samples = 1
@@ -95,63 +170,93 @@ def run_study(study_path, out_dir, progress=None):
     fspec = FamilySpec(amplitudes_v=tuple(sorted(fam_spec["amplitudes_v"])), freq_hz=tuple(freq),
                        bias_v=fam_spec["bias_v"], cp_tolerance=fam_spec["cp_tolerance"],
                        imbalance_tolerance_ohm=fam_spec["imbalance_tolerance_ohm"])
-    family = plant_family([plant] + serials, fspec, progress=lambda d, t: say("linearize: family", d, t))
+    cache = default_cache_dir() if cache_dir == _DEFAULT else cache_dir
+    key = family_key([spec.plant, *spec.serials], plant_ovr, fspec)
+    family, cache_path, hit = cached_family(
+        key, cache, lambda: plant_family([plant] + serials, fspec, workers=workers,
+                                         progress=lambda d, t: say("linearize: family", d, t)))
+    if hit:
+        say("linearize: family (cached)", 1, 1)
+    t_family = time.perf_counter() - t0
     ub = uncertainty_bound(family, plant)
     members = family.members
     summary = {"study": str(spec.path), "name": spec.name, "plant": str(spec.plant),
                "serials": [str(p) for p in spec.serials], "members": len(members),
-               "excluded_points": family.excluded_points,
+               "excluded_points": family.excluded_points, "overrides": {k: v for k, v in ovr.items()},
+               "only": only,
+               "family_cache": {"path": None if cache_path is None else str(cache_path), "hit": hit,
+                                "seconds": t_family},
                "uncertainty": {"weight": {"zeros_hz": list(ub.fit.zeros_hz), "poles_hz": list(ub.fit.poles_hz),
                                           "gain": ub.fit.gain, "order": ub.fit.order},
                                "coverage_margin_db": ub.coverage.margin_db, "worst_member": ub.coverage.member,
                                "nominal_capacitance_f": ub.nominal_capacitance_f},
                "designs": {}, "figures": {}}
 
-    # 1. structured loop shaping: the exported design
+    # 1. structured loop shaping: the exported design, its budgets derived from the plant
     lsk = spec.loop_shape
     grid = {key: tuple(float(v) for v in lsk[key]) for key in ("integral_ratios", "lead_ratios", "rolloff_ratios")
             if key in lsk}
     noise_v = demod_noise_sigma_v(g) * g.trim_scale          # one reading's noise, firmware V
+    budgets = plant_budgets(plant, dt, lsk.get("max_noise_command_v"), spec.path)
+    summary["budgets"] = {k: b.as_dict() for k, b in budgets.items()}
+    summary["budgets"]["noise_command_v"]["series_resistance_ohm"] = plant.pzt.series_resistance_ohm
     model = current_limit_model(plant.pzt, dt)               # the exported current-limit window
+    nom = nominal_plant(plant, fam_spec["bias_v"], delay_samples)
+    summary["nominal_plant"] = {"definition": "small-signal model on the ascending branch at the bias, gauge at "
+                                              "mid-stroke, sampled chain (workbench.design.nominal)",
+                                "bias_v": nom.bias_v, "capacitance_f": nom.capacitance_f,
+                                "gauge_v_per_m": nom.gauge_v_per_m, "states": int(nom.continuous.nstates),
+                                "creep_states_truncated": nom.truncated}
     ls_spec = LoopShapeSpec(phase_margin_deg=spec.targets["phase_margin_deg"],
                             gain_margin_db=spec.targets["gain_margin_db"],
                             fc_range_hz=(lsk["fc_min_hz"], lsk["fc_max_hz"]), dt_s=dt, delay_samples=delay_samples,
-                            max_noise_command_v=lsk.get("max_noise_command_v"), noise_reading_v=noise_v,
+                            max_noise_command_v=budgets["noise_command_v"].value, noise_reading_v=noise_v,
                             voltage_alpha=model[0],
                             max_overshoot_percent=lsk.get("max_overshoot_percent"), **grid)
-    # the overshoot limit is judged where a small step up runs: the ascending branch at mid-stroke
-    c_asc = operating_point(plant.pzt, fam_spec["bias_v"], "ascending").capacitance_f
-    step_plant = gauge_gain_v_per_m(7.5e-6, g) * small_signal_model(plant.pzt, c_asc)[0, 0]
-    ls = tune_loop_shape(freq, members, ub.nominal, ls_spec, progress=lambda d, t: say("design: loop shape", d, t),
-                         step_plant=step_plant)
+    step_plant = nom.continuous        # the overshoot is judged on the nominal: where a small step up runs
+
+    def tune(s, stage="design: loop shape"):
+        return tune_loop_shape(freq, members, nom.continuous, s, progress=lambda d, t: say(stage, d, t),
+                               step_plant=step_plant)
+
+    min_fc = spec.targets["min_crossover_hz"]
+    try:
+        ls = tune(ls_spec)
+    except DesignError as err:
+        summary["failure"] = {"constraint": "targets", "message": str(err)}
+        _fail(out, spec, summary, freq, family, ub, None, failure_report, t0)
     fc = ls.params["fc_hz"]
-    if ls.crossover_hz < spec.targets["min_crossover_hz"]:
-        raise DesignError(f"{spec.path}: the best loop shape crosses over at {ls.crossover_hz:.0f} Hz, below "
-                          f"targets.min_crossover_hz = {spec.targets['min_crossover_hz']:g} Hz")
+    summary["binding"] = _binding_summary(ls_spec, ls, tune)
     overshoot, settling = nominal_step(ls.controller_d, step_plant, delay_samples)
     summary["designs"]["loop_shape"] = {"params": ls.params, "crossover_hz": ls.crossover_hz,
+                                        "nominal": _nominal_summary(nominal_margins(ls.controller_d, nom)),
                                         "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched,
                                         "noise_command_rms_v": noise_command_rms_v(
-                                            ls.controller_d, ub.nominal, noise_v, delay_samples, model[0]),
+                                            ls.controller_d, nom.continuous, noise_v, delay_samples, model[0]),
                                         "noise_reading_v": noise_v, "step_overshoot_percent": overshoot,
                                         "step_settling_s": settling}
+    if ls.crossover_hz < min_fc:
+        summary["failure"] = {"constraint": "targets.min_crossover_hz", "limit": min_fc,
+                              "value": ls.crossover_hz, "fix": _fix_for(ls_spec, ls, min_fc, tune)}
+        _fail(out, spec, summary, freq, family, ub, ls, failure_report, t0)
 
-    # 2. Glover-McFarlane on the same shape, reduced and discretized
-    say("design: coprime factors", 0, 1)
-    delayed = ub.nominal * control.ss(control.tf(*control.pade(dt * (1 + delay_samples), 2)))
-    ncf = ncf_synthesis(delayed, ls.controller_c, beta=0.9)
-    red = reduce_controller(ncf.controller, min(ncf.controller.nstates, control.ss(ls.controller_c).nstates + 2))
-    ncf_d = discretize(red.controller, dt, fc)
-    ncf_rows, ncf_worst = family_margins(freq, _loops_discrete(ncf_d, freq, members, delay_samples))
-    summary["designs"]["coprime"] = {"eps_max": ncf.eps_max, "eps": ncf.eps, "order_full": red.order_before,
-                                     "order_reduced": red.order_after, "reduction_error_bound": red.error_bound,
-                                     "reduction_error_measured": red.error_measured,
-                                     "worst_discrete": _worst_summary(ncf_worst)}
-    say("design: coprime factors", 1, 1)
+    if only is None:
+        # 2. Glover-McFarlane on the same shape, reduced and discretized
+        say("design: coprime factors", 0, 1)
+        delayed = ub.nominal * control.ss(control.tf(*control.pade(dt * (1 + delay_samples), 2)))
+        ncf = ncf_synthesis(delayed, ls.controller_c, beta=0.9)
+        red = reduce_controller(ncf.controller, min(ncf.controller.nstates, control.ss(ls.controller_c).nstates + 2))
+        ncf_d = discretize(red.controller, dt, fc)
+        ncf_rows, ncf_worst = family_margins(freq, _loops_discrete(ncf_d, freq, members, delay_samples))
+        summary["designs"]["coprime"] = {"eps_max": ncf.eps_max, "eps": ncf.eps, "order_full": red.order_before,
+                                         "order_reduced": red.order_after, "reduction_error_bound": red.error_bound,
+                                         "reduction_error_measured": red.error_measured,
+                                         "worst_discrete": _worst_summary(ncf_worst)}
+        say("design: coprime factors", 1, 1)
 
-    # 3. H-infinity (slycot, time-limited) and the convex route on the same weights, cross-checked
-    summary["designs"].update(_hinf_and_convex(spec, ub, g, plant.pzt, dt, delay_samples, delayed, freq, members,
-                                               say))
+        # 3. H-infinity (slycot, time-limited) and the convex route on the same weights, cross-checked
+        summary["designs"].update(_hinf_and_convex(spec, ub, g, plant.pzt, dt, delay_samples, delayed, freq, members,
+                                                   say))
 
     # 4. margins of the continuous, discrete and quantized exported controller
     cont_rows, cont_worst = family_margins(freq, _loops_continuous(ls.controller_c, freq, members, 0.0))
@@ -168,6 +273,7 @@ def run_study(study_path, out_dir, progress=None):
     ctrl_q = control.ss(from_sos(*fxp.quantized_sos(), dt))
     q_rows, q_worst = family_margins(freq, _loops_discrete(ctrl_q, freq, members, delay_samples))
     summary["designs"]["loop_shape"]["worst_quantized"] = _worst_summary(q_worst)
+    summary["designs"]["loop_shape"]["nominal_quantized"] = _nominal_summary(nominal_margins(ctrl_q, nom))
     meets = all(w["phase_margin_deg"]["value"] >= spec.targets["phase_margin_deg"]
                 and w["gain_margin_db"]["value"] >= spec.targets["gain_margin_db"] for w in (ls.worst, q_worst))
     summary["designs"]["loop_shape"]["meets_targets"] = bool(meets)
@@ -210,16 +316,29 @@ def run_study(study_path, out_dir, progress=None):
     fig["sensitivity"] = str(figs.plot_sensitivities(freq, loops_d, ub, out / "sensitivity.png"))
     fig["nyquist"] = str(figs.plot_nyquist_family(freq, loops_d, nominal_df, ub, ls.controller_d, fw_sf,
                                                   cycles, out / "nyquist.png"))
-    fig["steps"] = str(figs.plot_steps(plant, serials, ls.controller_d, ncf_d, dt, delay_samples, out / "steps.png"))
+    if only is None:
+        fig["steps"] = str(figs.plot_steps(plant, serials, ls.controller_d, ncf_d, dt, delay_samples,
+                                           out / "steps.png"))
     table = _members_table(q_rows, freq, members)
     summary["margins_table"] = table
     summary["seconds"] = time.perf_counter() - t0
+    summary["study_sections"] = study_lines(summary)
     summary["report"] = str(write_report(out / "report.md", spec, summary, table))
     summary["report_html"] = str(write_html_report(out / "report.md"))
     from ..report import write_json
     write_json(out / "summary.json", summary)
     say("report", 1, 1)
     return summary
+
+
+def _fail(out, spec, summary, freq, family, ub, ls, failure_report, t0):
+    """Write the failed study's report and summary, then raise :class:`StudyFailed`."""
+    from ..report import write_json
+    summary["seconds"] = time.perf_counter() - t0
+    report, message = failure_report(out, spec, summary, freq, family, ub, ls)
+    summary["report"] = str(report)
+    write_json(out / "summary.json", summary)
+    raise StudyFailed(f"{spec.path}: {message}; report {report}")
 
 
 def _hinf_and_convex(spec, ub, g, plant_pzt, dt, delay_samples, delayed, freq, members, say):

@@ -85,8 +85,12 @@ def _check(path, key, field, value):
     return check_value(path, key, field, value, StudyDefinitionError)
 
 
-def load_study(path):
-    """Read and validate a study file; paths come back resolved against its folder."""
+def load_study(path, overrides=None):
+    """Read and validate a study file; paths come back resolved against its folder.
+
+    ``overrides`` ``{"section.key": value}`` (SI, see :mod:`.overrides`) replace the file's
+    values before validation; the file is not modified.
+    """
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -95,6 +99,12 @@ def load_study(path):
                                                  f"e.g. studies/sn637_servo.toml") from None
     except tomllib.TOMLDecodeError as exc:
         raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
+    for where, value in (overrides or {}).items():
+        section, _, key = where.partition(".")
+        data.setdefault(section, {})
+        if not isinstance(data[section], dict):
+            raise StudyDefinitionError(path, where, f"--set names [{section}], which is not a table here")
+        data[section][key] = value
     out = {}
     for section, schema in _SCHEMA.items():
         table = data if section == "" else data.get(section)

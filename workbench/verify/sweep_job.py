@@ -5,8 +5,15 @@ One case is one plant (a serial of the study with its working capacitance scaled
 ``family.amplitudes_v``). For each case:
 
 - **margins**: the exported controller's loop with that plant's describing function at
-  amplitude A (bias at mid-range), seen through the sampled gauge chain: phase and gain
-  margins, crossover, and the limit cycle the describing function predicts, if any;
+  amplitude A (bias at mid-range), seen through the sampled gauge chain with the gauge
+  gain at its two extremes (over x0 and the bridge tolerance), on the study's frequency
+  grid: exactly the study family's members "DF A=... V, K_g min/max" for this serial and
+  C_p, and the worst of the two, as the study takes it
+  (:func:`workbench.design.margins.family_margins`). The small-signal members of the
+  study's family are NOT swept (they have no amplitude): the study's worst member is
+  often one of them (e.g. PM 62 deg on "initial at 50 V" against 95 deg on the
+  describing functions), so compare like with like: the table's ``members`` column says
+  what each row covers;
 - **verification**: the compiled closed loop (the controller as firmware runs it) with
   that plant: a 0.1 Hz triangle of +/- A volts' worth of stroke around mid-stroke
   (tracking error RMS after the first period, % of the triangle's span) and a step of
@@ -45,14 +52,15 @@ def sweep_cases(study, controller_path, amplitudes_v=None, noise=False):
     for point in grid(plant=[str(p) for p in plants], cp_factor=sorted({1.0 - tol, 1.0, 1.0 + tol}),
                       amplitude_v=amps):
         key = {"serial": Path(point["plant"]).stem, **{k: point[k] for k in ("cp_factor", "amplitude_v")}}
-        cases.append(Case(key, {**point, "controller": str(controller_path), "bias_v": study.family["bias_v"],
-                                "noise": bool(noise)}))
+        fam = study.family
+        cases.append(Case(key, {**point, "controller": str(controller_path), "bias_v": fam["bias_v"],
+                                "noise": bool(noise), "imbalance_tolerance_ohm": fam["imbalance_tolerance_ohm"],
+                                "freq_hz": (fam["freq_min_hz"], fam["freq_max_hz"], fam["freq_points"])}))
     return cases
 
 
 def run_case(payload):
     """Margins and closed-loop runs of one case (module docstring); a flat dict of metrics."""
-    from ..design.margins import loop_margins
     from ..linearize.limit_cycle import loop_responses
     from ..linearize.pzt_describing import pzt_describing_function
     from ..linearize.sampled import gauge_gain_v_per_m
@@ -69,21 +77,29 @@ def run_case(payload):
     g = plant.gauge
     dt = ctrl.dt_s
 
-    # margins on the describing function at this amplitude
-    f = np.asarray(SWEEP_FREQ_HZ)
+    # margins on the describing function at this amplitude: the study family's members for this case
+    from ..design.margins import family_margins
+    from ..linearize.uncertainty import FamilySpec, _gauge_range
+    f = np.geomspace(*payload["freq_hz"][:2], payload["freq_hz"][2]) if "freq_hz" in payload \
+        else np.asarray(SWEEP_FREQ_HZ)
     df = pzt_describing_function(pzt, (a_v,), f, biases_v=(payload["bias_v"],))
-    loop = loop_responses(ctrl.linear(), gauge_gain_v_per_m(X_START_M, g), df)[0]
-    # where the amplitude slews (current limit reached) the describing function is not a linear
-    # behaviour to take margins on (as the study's family, issue 3): those points are left out
-    loop = np.where(df.saturated[0, 0], np.nan, loop)
-    out = {"linear_up_to_hz": float(f[np.isfinite(loop)][-1]) if np.any(np.isfinite(loop)) else float("nan")}
-    ok = np.isfinite(loop)
-    # margins only when the gain crossover lies inside the linear range (else the amplitude slews there)
-    out["slews_at_crossover"] = not (np.sum(ok) >= 2 and np.any(np.abs(loop[ok]) < 1))
+    _, k_lo, k_hi = _gauge_range(plant, FamilySpec(imbalance_tolerance_ohm=payload.get("imbalance_tolerance_ohm",
+                                                                                         0.4)))
+    lin = df.linear_ok[0, 0]
+    # where the amplitude slews, clips or is not periodic the describing function is not a linear
+    # behaviour to take margins on (as the study's family): those points are left out
+    loops = {f"K_g {n}": np.where(lin, loop_responses(ctrl.linear(), k, df)[0], np.nan)
+             for n, k in (("min", k_lo), ("max", k_hi))}
+    out = {"members": f"DF A={a_v:g} V, K_g min and max (the study family's members of this serial and C_p; "
+                      f"small-signal members not swept)",
+           "linear_up_to_hz": float(f[lin][-1]) if np.any(lin) else float("nan")}
+    _, w = family_margins(f, loops) if np.any(lin) else (None, None)
+    # margins only when a gain crossover lies inside the linear range (else the amplitude slews there)
+    out["slews_at_crossover"] = w is None or w["crossover_hz_min"]["member"] is None
     if not out["slews_at_crossover"]:
-        mg = loop_margins(f[ok], loop[ok])
-        out.update(phase_margin_deg=float(mg.phase_margin_deg), gain_margin_db=float(mg.gain_margin_db),
-                   crossover_hz=float(mg.crossover_hz))
+        out.update(phase_margin_deg=float(w["phase_margin_deg"]["value"]),
+                   gain_margin_db=float(w["gain_margin_db"]["value"]),
+                   crossover_hz=float(w["crossover_hz_min"]["value"]))
     else:
         out.update(phase_margin_deg=float("nan"), gain_margin_db=float("nan"), crossover_hz=float("nan"))
 
@@ -137,6 +153,10 @@ def run_sweep(study_path, controller_path=None, out_dir=None, table=None, schedu
         if w is not None:
             worst_cases[metric] = {"value": w[metric], **{k: w[k] for k in ("serial", "cp_factor", "amplitude_v")}}
     summary = {"study": str(study.path), "controller": str(controller_path), "cases": len(rows),
+               "members_covered": "margins on the describing-function members of the study's family (each serial x "
+                                  "C_p corner x amplitude, worst of K_g min and max, the study's frequency grid); "
+                                  "the small-signal members (branches at each bias) are in `workbench study`'s "
+                                  "table, not here",
                "failed": sum(not r["ok"] for r in rows), "worst": worst_cases,
                "errors": [{**{k: r[k] for k in ("serial", "cp_factor", "amplitude_v")}, "error": r["error"]}
                           for r in rows if not r["ok"]]}

@@ -1,0 +1,90 @@
+"""Design budgets derived from the plant: the gauge-noise command budget, the current-limit window, slew limits.
+
+The amplifier's current limits and the series resistor R set what the controller may
+ask of the stack:
+
+- **current-limit window**: firmware models the stack voltage as the RC response to its
+  output at the largest terminal capacitance and keeps the command within
+  [v - R I_sink, v + R I_source] (:func:`~.antiwindup.current_limit_model`);
+- **slew limits**: I_source / C and I_sink / C at that capacitance, V/s
+  (:func:`~.antiwindup.rate_limits_v_per_s`);
+- **noise budget**: the gauge noise passed to the command through K S makes the command
+  lead the modelled stack voltage by u - v; that lead over R is current asked of the
+  amplifier. Noise that reaches the smaller of the two limits is rectified by their
+  asymmetry into a position bias (the verification issue found this), so the budget is
+  R min(I_source, I_sink) / k with k = 3 (the limit at 3 sigma of a Gaussian lead):
+  80 ohm x 2 mA / 3 = 53 mV for the flight amplifier, 533 mV for a +/-20 mA one.
+
+A study may override each (``loop_shape.max_noise_command_v``); the result says which
+value was used and where it came from.
+"""
+
+from dataclasses import dataclass
+
+__all__ = ["Budget", "NOISE_SIGMAS", "plant_budgets"]
+
+NOISE_SIGMAS = 3.0     # the noise lead stays below the current limit at this many sigma
+
+
+@dataclass(frozen=True)
+class Budget:
+    """One budget: its value (SI, ``unit``), ``source`` ("plant" or "study") and how it was derived."""
+
+    name: str
+    value: object
+    unit: str
+    source: str
+    derivation: str
+
+    def as_dict(self):
+        v = self.value
+        return {"name": self.name, "value": list(v) if isinstance(v, tuple) else v, "unit": self.unit,
+                "source": self.source, "derivation": self.derivation}
+
+
+def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
+    """The budgets of ``plant`` (a loaded Plant) at the servo period ``dt_s``.
+
+    Parameters
+    ----------
+    plant : Plant
+    dt_s : float
+        Servo period, s.
+    noise_override_v : float, optional
+        ``loop_shape.max_noise_command_v`` from the study: used instead of the derived budget.
+    study_path : str, optional
+        Named in the override's derivation.
+
+    Returns
+    -------
+    dict of str to Budget
+        ``noise_command_v`` (None value with R = 0: no window, no budget),
+        ``current_window`` (alpha, headroom up V, headroom down V), ``slew_v_per_s`` (up, down).
+    """
+    from .antiwindup import _largest_capacitance_f, current_limit_model, rate_limits_v_per_s
+    pzt = plant.pzt
+    r = pzt.series_resistance_ohm
+    i_src, i_snk = pzt.current_limit_source_a, pzt.current_limit_sink_a
+    src = f"{plant.source}"
+    if noise_override_v is not None:
+        noise = Budget("noise_command_v", float(noise_override_v), "V RMS", "study",
+                       f"loop_shape.max_noise_command_v = {noise_override_v:g} V in {study_path} (the plant would "
+                       f"give R min(I_source, I_sink) / {NOISE_SIGMAS:g} = "
+                       f"{r * min(i_src, i_snk) / NOISE_SIGMAS:.4g} V)")
+    elif r > 0:
+        noise = Budget("noise_command_v", r * min(i_src, i_snk) / NOISE_SIGMAS, "V RMS", "plant",
+                       f"R min(I_source, I_sink) / {NOISE_SIGMAS:g} = {r:g} ohm x {min(i_src, i_snk) * 1e3:g} mA / "
+                       f"{NOISE_SIGMAS:g} (electrical.series_resistor_ohm, current_limit_source_a/sink_a of {src})")
+    else:
+        noise = Budget("noise_command_v", None, "V RMS", "plant",
+                       f"series resistor out in {src} (R = 0): no current-limit window, no noise budget")
+    alpha, h_up, h_down = current_limit_model(pzt, dt_s)
+    c = _largest_capacitance_f(pzt)
+    window = Budget("current_window", (alpha, h_up, h_down), "(1, V, V)", "plant",
+                    f"alpha = 1 - exp(-T / (R C)), headroom R I_source = {h_up:.4g} V up, R I_sink = {h_down:.4g} V "
+                    f"down; R = {r:g} ohm, C = {c * 1e6:.4g} uF (largest terminal capacitance), T = {dt_s:g} s")
+    up, down = rate_limits_v_per_s(pzt)
+    slew = Budget("slew_v_per_s", (up, down), "V/s", "plant",
+                  f"I_source / C = {i_src * 1e3:g} mA / {c * 1e6:.4g} uF, I_sink / C = {i_snk * 1e3:g} mA / "
+                  f"{c * 1e6:.4g} uF")
+    return {"noise_command_v": noise, "current_window": window, "slew_v_per_s": slew}

@@ -1,0 +1,84 @@
+"""``--set section.key=value`` overrides of plant and study values, validated like the files.
+
+A value may carry a unit (``20mA``, ``1.5 kHz``, ``80ohm``); the key's unit suffix
+(``_a``, ``_v``, ``_hz``, ...) names the SI unit it must have and the value is
+converted to SI. A bare value is read as TOML (``45``, ``[0.1, 1]``, ``true``,
+``"name"``) and taken as already SI. The sections of a plant file
+(``electrical``, ``gauge``, ...) apply to every plant of the study (the nominal and
+the other serials); the sections of a study file to the study. The result is then
+validated by the same schema as the files, so a bad override fails before any work
+starts with the file, the key and the fix named.
+"""
+
+import re
+import tomllib
+
+from ..errors import StudyDefinitionError, UnitError
+from ..units import parse_quantity
+
+__all__ = ["PLANT_SECTIONS", "parse_overrides", "split_overrides"]
+
+PLANT_SECTIONS = ("electrical", "hysteresis", "mechanics", "creep", "gauge", "leakage", "dielectric_absorption",
+                  "displacement_sensor", "gauge_nonlinearity")
+STUDY_SECTIONS = ("family", "targets", "loop_shape", "hinf", "export")
+
+# key suffix -> SI unit a value with a unit must have
+_UNIT_OF_SUFFIX = {"_a": "A", "_v": "V", "_hz": "Hz", "_ohm": "ohm", "_f": "F", "_m": "m", "_s": "s",
+                   "_n_per_m": "N/m", "_n_per_v": "N/V", "_m_per_v": "m/V"}
+_KEY = re.compile(r"^([a-z_]+)\.([a-z0-9_]+)$")
+_WITH_UNIT = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*[A-Za-zµμ/]+\s*$")
+
+
+def _unit_of(key):
+    for suffix in sorted(_UNIT_OF_SUFFIX, key=len, reverse=True):
+        if key.endswith(suffix):
+            return _UNIT_OF_SUFFIX[suffix]
+    return None
+
+
+def _value(where, key, text):
+    unit = _unit_of(key)
+    if _WITH_UNIT.match(text) and text.strip().lower() not in ("true", "false", "nan", "inf"):
+        if unit is None:
+            raise UnitError(f"--set {where}={text}: {key} takes no unit; give a plain number")
+        try:
+            return parse_quantity(text, unit)
+        except UnitError as err:
+            raise UnitError(f"--set {where}={text}: {err}") from None
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text          # a bare word: a string (the schema decides whether that is allowed)
+
+
+def parse_overrides(items):
+    """``["section.key=value", ...]`` -> ``{"section.key": value}`` (SI), in order.
+
+    Raises
+    ------
+    StudyDefinitionError, UnitError
+        On a malformed item, an unknown section, or a unit that does not fit the key.
+    """
+    out = {}
+    for item in items or ():
+        where, sep, text = item.partition("=")
+        where = where.strip()
+        m = _KEY.match(where)
+        if not sep or m is None:
+            raise StudyDefinitionError("--set", item, "expected section.key=value, e.g. "
+                                                      "electrical.current_limit_source_a=20mA")
+        section = m.group(1)
+        if section not in PLANT_SECTIONS + STUDY_SECTIONS:
+            raise StudyDefinitionError("--set", where, f"unknown section {section!r}; plant sections: "
+                                                       f"{', '.join(PLANT_SECTIONS)}; study sections: "
+                                                       f"{', '.join(STUDY_SECTIONS)}")
+        out[where] = _value(where, m.group(2), text.strip())
+    return out
+
+
+def split_overrides(overrides):
+    """(plant overrides, study overrides), each ``{"section.key": value}``."""
+    plant = {k: v for k, v in overrides.items() if k.split(".", 1)[0] in PLANT_SECTIONS}
+    study = {k: v for k, v in overrides.items() if k not in plant}
+    return plant, study
+
