@@ -449,6 +449,11 @@ def preflight(args):
         with protect_inputs(ins):
             yield
         ok = True
+    except WorkbenchError as err:
+        # a run that completed with a negative answer (a study whose best design misses a target)
+        # keeps the report that says why; any other failure leaves nothing behind
+        ok = getattr(err, "outputs_are_the_result", False)
+        raise
     finally:
         if not ok:
             for p in outs:

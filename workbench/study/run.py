@@ -26,6 +26,8 @@ _DEFAULT = "default"
 class StudyFailed(DesignError):
     """The study ran but its best design misses a target; its report is written (names the constraint and the fix)."""
 
+    outputs_are_the_result = True      # the CLI keeps the failed study's report (exit 2), unlike a broken run's
+
 
 def _members_table(rows, freq_hz, members):
     """Margins grouped per serial and per amplitude/branch (worst over C_p corners and gauge extremes).
