@@ -286,7 +286,7 @@ def _check_words(src, fxp, allow_unstable):
         k, i = bad[0]
         raise ControllerError(src, f"fixed_point.sections[{k}].a",
                               f"a{i + 1} word {int(fxp.a[k, i])} is {da[k, i] / lsb_a:.3g} LSB from the float "
-                              f"section's a{i + 1} = {sos[k, 4 + i]!r}: the words are not these sections quantized; "
+                              f"section's a{i + 1} = {float(sos[k, 4 + i])!r}: the words are not these sections quantized; "
                               f"re-export the controller")
     _, q = fxp.quantized_sos()
     b_real = sos[:, :3].copy()
@@ -298,8 +298,8 @@ def _check_words(src, fxp, allow_unstable):
     if bad.size:
         k, i = bad[0]
         raise ControllerError(src, f"fixed_point.sections[{k}].b",
-                              f"b{i} word {int(fxp.b[k, i])} implements {q[k, i]!r} but the float section (gain "
-                              f"folded into section 0) has {b_real[k, i]!r}, {db[k, i] / lsb_b[k]:.3g} LSB away: the "
+                              f"b{i} word {int(fxp.b[k, i])} implements {float(q[k, i])!r} but the float section (gain "
+                              f"folded into section 0) has {float(b_real[k, i])!r}, {db[k, i] / lsb_b[k]:.3g} LSB away: the "
                               f"words are not these sections quantized; re-export the controller")
     return radius
 
@@ -389,10 +389,15 @@ class Controller:
                 *self.voltage_model)
             if self.window_source == "plant":
                 win += ", derived from the plant (the file has none)"
-        return f"{form}, {len(self.sos)} sections at {self.sample_rate_hz:g} Hz, {lim}, {win}"
+        n = len(self.sos)
+        return f"{form}, {n} section{'s' if n > 1 else ''} at {self.sample_rate_hz:g} Hz, {lim}, {win}"
 
     def as_lti(self, quantized=False):
-        """The linear controller (no limits, no window) as a python-control TransferFunction.
+        """The linear controller (no limits, no window) as a python-control StateSpace.
+
+        A StateSpace, not a TransferFunction: products with the plant's state-space models
+        stay well conditioned (a TransferFunction times the SN637 plant loses the loop's
+        margins to polynomial rounding near z = 1).
 
         Parameters
         ----------
@@ -401,15 +406,15 @@ class Controller:
 
         Returns
         -------
-        control.TransferFunction
+        control.StateSpace
             Discrete, sample time :attr:`dt_s`; firmware volts of error in, V out.
         """
         if quantized:
             if self.fixed is None:
                 raise ExportError("this controller has no fixed-point words; quantize it with Controller.from_lti "
                                   "or load an exported JSON")
-            return from_sos(*self.fixed.quantized_sos(), self.dt_s)
-        return from_sos(self.gain, self.sos, self.dt_s)
+            return control.ss(from_sos(*self.fixed.quantized_sos(), self.dt_s))
+        return control.ss(from_sos(self.gain, self.sos, self.dt_s))
 
     def run(self, e_v, form=None, u0_v=0.0):
         """The firmware step over a record of errors: what NAME.h computes, sample by sample.
@@ -594,7 +599,7 @@ class Controller:
         off = np.flatnonzero(np.abs(sos[:, 3] - 1.0) > _A0_TOL)
         if off.size:
             k = off[0]
-            raise ControllerError(src, f"sos[{k}]", f"a0 = {sos[k, 3]!r}, must be 1: divide the row by a0 (scipy's "
+            raise ControllerError(src, f"sos[{k}]", f"a0 = {float(sos[k, 3])!r}, must be 1: divide the row by a0 (scipy's "
                                                     f"sos rows are normalized)")
         zero = np.flatnonzero(np.all(sos[:, :3] == 0, axis=1))
         if zero.size:

@@ -14,7 +14,7 @@ from ..plant.gauge import TRIM_CENTER_M
 from ..plant.simulator import PZTSimulator
 from .closed_loop import ClosedLoop
 
-__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "linear_step_prediction"]
+__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "linear_step_prediction", "nominal_loop_plant"]
 
 SCENARIOS = ("small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold", "force_step", "sine_sweep")
 SWEEP_FREQ_HZ = (5.0, 10.0, 20.0, 50.0, 100.0, 150.0, 200.0, 300.0, 500.0, 1000.0, 2000.0)
@@ -63,13 +63,33 @@ def _ratio(a, b):
     return float(a / b) if np.isfinite(a) and np.isfinite(b) and b > 0 else float("nan")
 
 
-def _nominal_loop_plant(plant, branch="ascending"):
-    """Firmware plant (V -> reading V, sampled chain) at mid-stroke on ``branch``: ascending where a
-    step up from the approach runs, reversal for the small tones of the sweep (minor loops)."""
+def nominal_loop_plant(plant, branch="ascending", minimal=True):
+    """The nominal plant as firmware sees it: a discrete python-control StateSpace, PZT volts in,
+    firmware volts of reading out (sampled gauge chain, one-sample compute delay), at mid-stroke.
+
+    Parameters
+    ----------
+    plant : Plant
+    branch : str, default "ascending"
+        Hysteresis branch of the operating point at 50 V: ascending where a step up from the
+        approach runs, "reversal" for small tones (minor loops).
+    minimal : bool, default True
+        Remove the states that ``control.minreal`` (tolerance 1e-6) finds uncontrollable or
+        unobservable: the creep branches leave nearly cancelling pole/zero pairs within 1e-7
+        of z = 1, and ``control.feedback`` of the unreduced model with a controller puts a
+        spurious closed-loop pole outside the unit circle (|z| = 1.015 with the SN637 export).
+        The frequency response is unchanged (see tests/test_api.py).
+    """
+    import control
     from ..linearize.sampled import firmware_plant
     from ..linearize.small_signal import operating_point, small_signal_model
     c_h = operating_point(plant.pzt, 50.0, branch).capacitance_f
-    return firmware_plant(small_signal_model(plant.pzt, c_h)[0, 0], plant.gauge, X_START_M, 1)
+    p = firmware_plant(small_signal_model(plant.pzt, c_h)[0, 0], plant.gauge, X_START_M, 1)
+    return control.minreal(p, tol=1e-6, verbose=False) if minimal else p
+
+
+def _nominal_loop_plant(plant, branch="ascending"):
+    return nominal_loop_plant(plant, branch)
 
 
 def linear_step_response(plant, controller, n=2000):
