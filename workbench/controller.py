@@ -297,9 +297,11 @@ def _check_words(src, fxp, allow_unstable):
     bad = np.argwhere(db > lsb_b[:, None] * (1 + 1e-9) + 4 * np.finfo(float).eps * np.abs(b_real))
     if bad.size:
         k, i = bad[0]
+        with np.errstate(over="ignore", divide="ignore"):
+            away = db[k, i] / lsb_b[k]
         raise ControllerError(src, f"fixed_point.sections[{k}].b",
                               f"b{i} word {int(fxp.b[k, i])} implements {float(q[k, i])!r} but the float section (gain "
-                              f"folded into section 0) has {float(b_real[k, i])!r}, {db[k, i] / lsb_b[k]:.3g} LSB away: the "
+                              f"folded into section 0) has {float(b_real[k, i])!r}, {away:.3g} LSB away: the "
                               f"words are not these sections quantized; re-export the controller")
     return radius
 
@@ -851,7 +853,7 @@ def _read_mat(path):
     from scipy import io as sio
     try:
         m = sio.loadmat(path, squeeze_me=False)
-    except (OSError, ValueError, TypeError, NotImplementedError) as exc:
+    except Exception as exc:      # scipy raises MatReadError, ValueError, OSError... on a bad file
         raise ControllerError(path, "", f"cannot be read as a MATLAB file ({exc}); give an exported "
                                         f"controller .mat or .json") from None
 
