@@ -53,7 +53,7 @@ class ControllerError(DataFileError):
 
     def __init__(self, source, key, message):
         self.source, self.key = str(source or "<controller>"), key
-        super().__init__(f"{self.source}: [{key}] {message}")
+        super().__init__(f"{self.source}: [{key}] {message}" if key else f"{self.source}: {message}")
 
 
 class ControllerMismatchError(WorkbenchError, ValueError):
@@ -695,7 +695,7 @@ class Controller:
             try:
                 data = json.loads(text)
             except json.JSONDecodeError as exc:
-                raise ControllerError(path, f"line {exc.lineno}", f"not JSON ({exc.msg}); give an exported "
+                raise ControllerError(path, "", f"line {exc.lineno}: not JSON ({exc.msg}); give an exported "
                                                                   f"controller .json or .mat") from None
         return cls.from_dict(data, source=str(path), plant=plant, allow_unstable=allow_unstable)
 
