@@ -389,9 +389,13 @@ def build_parser():
                                    "and anti-windup) with the hysteretic, creeping PZT, the current and "
                                    "voltage limits and the gauge chain with its noise: small and large "
                                    "steps, triangles at 0.1 and 1 Hz, a hold, a force step, a sine sweep; "
-                                   "metrics beside the linear prediction, figures and a report.")
+                                   "metrics beside the linear prediction, figures and a report. First a "
+                                   "preflight compares the controller with the plant (SHA-256, serial, trim, "
+                                   "gauge gain, limits, current-limit window): a mismatch warns, or with "
+                                   "--strict is an error.")
     p.add_argument("plant", type=Path)
-    p.add_argument("--controller", type=Path, required=True, help="e.g. controllers/sn637_loopshape.json")
+    p.add_argument("--controller", type=Path, required=True,
+                   help="an exported .json or .mat, e.g. controllers/sn637_loopshape.json")
     p.add_argument("--scenario", nargs="+", default=["all"], metavar="NAME",
                    choices=["all", "small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold",
                             "force_step", "sine_sweep"],
