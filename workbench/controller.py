@@ -363,6 +363,10 @@ class Controller:
     def __post_init__(self):
         self.sos.flags.writeable = False
 
+    def __repr__(self):
+        where = f" from {self.source}" if self.source else ""
+        return f"Controller({self.name!r}{where}: {self.describe()})"
+
     # ------------------------------------------------------------------ views
     @property
     def dt_s(self):

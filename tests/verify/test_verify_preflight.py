@@ -116,3 +116,14 @@ def test_bad_target_flag_exits_2(capsys):
 def test_multiple_scenarios_deduplicated_and_checked():
     with pytest.raises(Exception, match="unknown scenario 'wobble'"):
         verify(PLANTS / "p888_51_sn637_creep.toml", CTRL, ["small_step", "wobble"])
+
+
+def test_a_bare_controller_runs_with_the_plants_window_and_says_so(sn637_creep):
+    # an integrator crossing over near 40 Hz: gain 0.5 x the plant's 0.047 V/V x 1e4 / (2 pi)
+    bare = Controller.from_dict({"sample_rate_hz": 1e4, "gain": 0.5, "sos": [[1, 0, 0, 1, -1, 0]]})
+    assert "no current-limit window (anti-windup off)" in bare.describe()
+    res = verify(sn637_creep, bare, ["force_step"], noise=False)
+    assert res.controller.window_source == "plant" and "derived from" in res.notes[0]
+    assert "current-limit window +0.16/-1.12 V" in res.form and res.mismatches == []
+    m = res.metrics("force_step")
+    assert abs(m["final_deviation_m"]) < 0.1 * abs(m["open_loop_deflection_m"])   # the integrator holds x
