@@ -90,6 +90,14 @@ def test_bare_controller_window_from_plant_or_said_to_be_off(tmp_path):
     assert with_plant.window_source == "plant" and "derived from the plant" in with_plant.describe()
     assert with_plant.voltage_model[1] == pytest.approx(plant.pzt.series_resistance_ohm * plant.pzt.current_limit_source_a)
     assert with_plant.output_limits_v == (plant.pzt.voltage_min_v, plant.pzt.voltage_max_v)
+    # a gain no reading can use: one 79 uV LSB commands more than the 140 V range at every frequency
+    # (1e300, and also the smallest such gain, 140 V / 79 uV = 1.8e6, with 2x margin); 250 passes
+    for gain in (1e300, 3.6e6):
+        bare.write_text(json.dumps({"sample_rate_hz": 1e4, "gain": gain, "sos": [[1, 0, 0, 1, 0, 0]]}))
+        with pytest.raises(ControllerError, match=r"bare.json: \[gain\].*switch between its limits"):
+            Controller.load(bare, plant=plant)
+    bare.write_text(json.dumps({"sample_rate_hz": 1e4, "gain": 1.0e6, "sos": [[1, 0, 0, 1, 0, 0]]}))
+    assert Controller.load(bare, plant=plant).gain == 1.0e6                 # 79 V per LSB: within range
 
 
 def _set(d, path, value):

@@ -657,6 +657,8 @@ class Controller:
                 fxp = replace(fxp, voltage_model=model)
         if radius is None:
             radius = _float_radius(sos)
+        if plant is not None and limits is not None:
+            _check_not_bang_bang(src, gain, sos, fs, limits, plant)
         prov = _provenance_of(data)
         record = {k: v for k, v in data.items() if k not in _RESERVED}
         return cls(sample_rate_hz=fs, gain=gain, sos=sos, output_limits_v=limits, voltage_model=model,
@@ -815,6 +817,23 @@ class Controller:
             out.append({"check": "not recorded", "message": "the controller does not record its "
                                                             + ", ".join(unknown) + ": not compared"})
         return out
+
+
+def _check_not_bang_bang(src, gain, sos, fs, limits, plant):
+    """Refuse a controller for which one LSB of the reading commands more than the whole output
+    range at every frequency (e.g. a gain of 1e300): it can only switch between its limits."""
+    g = plant.gauge
+    lsb_v = 2.0 * g.dac_range_v / 2 ** int(g.dac_bits)          # one step of the servo DAC's reading
+    w = np.geomspace(1e-4, 0.5, 200) * 2 * np.pi                 # rad/sample, 1e-4 of fs to Nyquist
+    from scipy import signal
+    with np.errstate(all="ignore"):
+        k = np.abs(gain * signal.sosfreqz(sos, worN=w)[1])
+    smallest = float(np.nanmin(k)) if np.any(np.isfinite(k)) else float("inf")
+    if smallest * lsb_v > limits[1] - limits[0]:
+        raise ControllerError(src, "gain", f"|K| >= {smallest:.3g} V/V at every frequency: one LSB of the reading "
+                                           f"({lsb_v * 1e6:.3g} uV) commands more than the whole output range "
+                                           f"{limits[0]:g}..{limits[1]:g} V, so the controller can only switch "
+                                           f"between its limits; check the gain's units (V of PZT per firmware V)")
 
 
 def _provenance_of(data):
