@@ -52,7 +52,13 @@ def hold(periods, decimate, plant_path=PLANT, controller_path=CONTROLLER):
 
 
 def peak_rss_mb(periods, decimate, plant_path=PLANT, controller_path=CONTROLLER):
-    """Run the hold in a child process; return (its peak RSS in MB, the run's seconds).
+    """Run the hold in a child process; return (its peak RSS in MB, the run's seconds) (:func:`child_figures`)."""
+    data = child_figures(periods, decimate, plant_path, controller_path)
+    return data["peak_rss_mb"], data["seconds"]
+
+
+def child_figures(periods, decimate, plant_path=PLANT, controller_path=CONTROLLER):
+    """Run the hold in a child process; return its figures (``main --json``: peak RSS before and after, MB).
 
     Linux charges the memory image an ``exec`` replaces to the new program's ru_maxrss:
     spawned directly from a large process (python's subprocess uses vfork) the child
@@ -65,8 +71,7 @@ def peak_rss_mb(periods, decimate, plant_path=PLANT, controller_path=CONTROLLER)
                           check=False)
     if done.returncode not in (0, 1):             # 1 = over the limit, still a measurement
         raise RuntimeError(f"closed_loop_memory.py failed:\n{done.stderr}")
-    data = json.loads(done.stdout.strip().splitlines()[-1])
-    return data["peak_rss_mb"], data["seconds"]
+    return json.loads(done.stdout.strip().splitlines()[-1])
 
 
 def main(argv=None):

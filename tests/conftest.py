@@ -1,10 +1,22 @@
-"""Shared fixtures: the plant files and loaded plants."""
+"""Shared fixtures: the plant files and loaded plants; the hypothesis profiles.
+
+Hypothesis runs derandomized by default (profile "ci": the examples follow from each
+test's source, no example database, no deadline), so `make test` draws the same
+examples on every run and machine. ``HYPOTHESIS_PROFILE=explore`` draws fresh random
+examples (and keeps a local database) to hunt for new failures; a failure found that
+way should become an ``@example`` on the test.
+"""
 
 import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import settings
+
+settings.register_profile("ci", derandomize=True, database=None, deadline=None, print_blob=True)
+settings.register_profile("explore", derandomize=False, deadline=None)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 from workbench.plant import load_plant
 

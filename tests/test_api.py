@@ -11,8 +11,14 @@ from .conftest import ROOT
 def test_every_public_name_resolves_and_verify_is_the_function():
     for name in wb.__all__:
         assert getattr(wb, name) is not None, name
-    import workbench.verify.closed_loop  # noqa: F401  (importing the subpackage must not rebind wb.verify)
-    assert callable(wb.verify) and wb.verify.__module__ == "workbench.verify.run"
+    import workbench.verify.sweep_job as job            # the subpackage's modules import as usual
+    assert callable(wb.verify) and job.__name__ == "workbench.verify.sweep_job"
+    try:                                                # and wb.verify(...) is verify.run.verify
+        wb.verify("plants/none.toml", "controllers/sn637_loopshape.json", ["small_step"])
+    except wb.WorkbenchError as err:
+        assert "none.toml" in str(err)
+    else:
+        raise AssertionError("a missing plant file must raise")
     assert wb.calibrate.__name__ == "run_calibrate"
 
 

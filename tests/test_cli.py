@@ -48,16 +48,16 @@ def test_freefree_json_and_figure(tmp_path, root):
 
 
 @pytest.mark.parametrize("argv, fragment", [
-    (["gauge", "plants/missing.toml"], "cannot be read"),
+    (["gauge", "plants/missing.toml"], "plants/missing.toml: no such file"),
     (["gauge", "plants/p888_51_sn637.toml", "--x0", "7.5parsec"], "is not 'm' with an SI prefix"),
-    (["freefree", "plants/p888_51_sn637.toml", "--v-peak", "500V"], "v_peak_v must be in"),
+    (["freefree", "plants/p888_51_sn637.toml", "--v-peak", "500V"], "--v-peak 500 V: out of range"),
     (["identify", "transducer", "plants/p888_51_sn637.toml"], "p888_51_sn637.toml"),
     (["bench", "--steps", "0"], "must be >= 1"),
     (["linearize", "plants/p888_51_sn637.toml", "--freq-min", "1kHz", "--freq-max", "10Hz"], "must be below"),
-    (["linearize", "plants/p888_51_sn637.toml", "--amplitudes", "0V"], "must be positive"),
+    (["linearize", "plants/p888_51_sn637.toml", "--amplitudes", "0V"], "--amplitudes 0 V: out of range"),
     (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/sn637_loopshape.json", "--form", "hanus"],
      "drop --form hanus"),
-    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/missing.json"], "missing.json: cannot be read"),
+    (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/missing.json"], "missing.json: no such file"),
     (["verify", "plants/p888_51_sn637.toml", "--controller", "controllers/sn637_loopshape.json", "--hold", "5m"],
      "is not 's'"),
     (["linearize", "plants/p888_51_sn637.toml", "--cp-tolerance", "1.5"], "cp-tolerance"),

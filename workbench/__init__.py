@@ -46,18 +46,16 @@ _API = {
     "ncf_synthesis": "design.coprime", "youla_mixed_sensitivity": "design.convex",
     "reduce_controller": "design.reduce", "discretize": "design.antiwindup",
     "Controller": "controller", "ControllerError": "controller", "to_sos": "export", "quantize": "export",
-    "verify": "verify.run", "VerifyResult": "verify.run", "SCENARIOS": "verify.scenarios",
+    "verify": "verify", "VerifyResult": "verify.run", "SCENARIOS": "verify.scenarios",
     "read_record": "calibrate.record", "calibrate": ("calibrate.run", "run_calibrate"),
     "WorkbenchError": "errors",
 }
 
 __all__ = sorted(_API)
 
-# ``wb.verify`` is the function; the subpackage of the same name is imported here once so that
-# later imports of its modules never rebind the package attribute over the function
-from . import verify as _verify_package  # noqa: E402,F401
-
-del verify
+# ``wb.verify`` is the subpackage, made callable: wb.verify(plant, controller, scenarios) runs
+# workbench.verify.run.verify, and ``import workbench.verify.sweep_job`` keeps working
+from . import verify  # noqa: E402
 
 
 def __getattr__(name):

@@ -120,6 +120,12 @@ def cmd_bench(args):
         f"|dx| {cl['python_control_state_difference']['x_m']:.1e} m, "
         f"|du| {cl['python_control_state_difference']['u_v']:.1e} V",
     ]
+    if "c_reference" in cl:
+        c = cl["c_reference"]
+        lines.append(f"  the same loop in plain C ({' '.join(c['cflags'])}): "
+                     f"{c['ns_per_period']['c_kernel']:.1f} ns/period against {c['ns_per_period']['numba']:.1f}; ratio {c['ratio_vs_c_kernel']:.2f} (target <= "
+                     f"{t['ratio_vs_c_max']:g}: {'met' if ok['ratio_vs_c'] else 'NOT met'}); output words identical: "
+                     f"{c['agreement_decimate_1']['output_words_identical']}/{c['agreement_decimate_1']['rows']}")
     if "memory" in cl:
         m = cl["memory"]
         lines.append(f"  peak RSS of a {m['periods']:.0e}-period hold (decimate {m['decimate']}): "
@@ -254,6 +260,11 @@ def cmd_sweep(args):
     for metric, w in data["worst"].items():
         lines.append(f"  worst {metric}: {w['value']:.4g} ({w['serial']}, C_p x{w['cp_factor']:.2f}, "
                      f"{w['amplitude_v']:g} V)")
+    for metric in ("phase_margin_deg", "gain_margin_db", "crossover_hz"):
+        if metric not in data["worst"]:
+            slew = sum(bool(r.get("slews_at_crossover")) for r in data["rows"])
+            lines.append(f"  no case has a {metric}: {slew} of {data['cases']} slew at crossover (column "
+                         f"slews_at_crossover), {data['failed']} failed (column error)")
     for e in data["errors"][:5]:
         lines.append(f"  FAILED {e['serial']} C_p x{e['cp_factor']:.2f} {e['amplitude_v']:g} V: {e['error']}")
     if "table" in data:
@@ -475,14 +486,20 @@ def build_parser():
     p.add_argument("--out", type=Path, default=Path("out/demo"))
     p.add_argument("--json", type=Path, help="write the summary as JSON here")
     p.set_defaults(func=cmd_demo)
+
+    from .preflight import add_force_flags
+    add_force_flags(sub)
     return parser
 
 
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    from .preflight import preflight
     try:
-        args.func(args)
+        # file arguments, flag ranges and run size checked before the work; no partial output after a failure
+        with preflight(args):
+            args.func(args)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2

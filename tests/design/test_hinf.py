@@ -1,7 +1,6 @@
 """Mixed-sensitivity H-infinity synthesis in a child process: weights, achieved norms, stability, failures."""
 
 import multiprocessing
-import time
 
 import control
 import numpy as np
@@ -109,20 +108,17 @@ def test_conflicting_weights_give_gamma_above_the_closed_form_bound(plants, weig
 
 
 def test_tiny_time_limit_stops_at_once(plants, weights):
-    t0 = time.perf_counter()
+    # the limit is reported as such (not a late success) and the worker is gone; no wall-clock assertion
     with pytest.raises(DesignError, match=r"did not finish in 0.001 s .*convex route"):
         mixed_sensitivity(plants[1], *weights, time_limit_s=1e-3)
-    assert time.perf_counter() - t0 < 5.0
     assert not multiprocessing.active_children()
 
 
 def test_hanging_synthesis_is_killed_at_the_limit(weights):
     # an undamped plant mode on the imaginary axis: SB10AD searches on and on (python-control #152)
     oscillator = control.tf([1e6], [1, 0, 1e6])
-    t0 = time.perf_counter()
     with pytest.raises(DesignError, match=r"did not finish in 3 s"):
         mixed_sensitivity(oscillator, *weights, time_limit_s=3.0)
-    assert 3.0 <= time.perf_counter() - t0 < 8.0
     assert not multiprocessing.active_children()
 
 
@@ -136,16 +132,19 @@ def test_slycot_failure_is_translated(weights):
     ("integrator_w_s", r"w_s has a pole at s = 0"),
     ("strictly_proper_w_ks", r"D12 .* zero.*w_ks needs a nonzero high-frequency gain"),
 ])
-def test_ill_posed_weights_are_refused_before_synthesis(plants, weights, bad, match):
+def test_ill_posed_weights_are_refused_before_synthesis(plants, weights, bad, match, monkeypatch):
     w_s, w_ks, w_t = weights
     if bad == "integrator_w_s":
         w_s = 1 / S
     else:
         w_ks = 1 / (S / 1000 + 1)
-    t0 = time.perf_counter()
+
+    def no_process(*args, **kwargs):
+        raise AssertionError("a synthesis process was started for ill-posed weights")
+
+    monkeypatch.setattr(multiprocessing, "get_context", no_process)   # refused before any process starts
     with pytest.raises(DesignError, match=match):
         mixed_sensitivity(plants[1], w_s, w_ks, w_t)
-    assert time.perf_counter() - t0 < 1.0           # no process started
 
 
 @pytest.mark.parametrize("kwargs, error, match", [

@@ -204,3 +204,17 @@ def test_cli_bad_unit_is_an_argparse_error(root):
     with pytest.raises(SystemExit) as exc:
         selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--duration", "5V"])
     assert exc.value.code == 2
+
+
+def test_selfsense_modules_do_not_import_the_cli(root):
+    """Library first: nothing under workbench/selfsense imports workbench.cli (no library -> CLI cycle)."""
+    import ast
+    for path in sorted((root / "workbench/selfsense").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            assert not any(n == "cli" or n.endswith(".cli") or n == "workbench.cli" for n in names), (path, names)

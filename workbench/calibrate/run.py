@@ -141,6 +141,8 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
                                   holds, figs, plant_out, data["elapsed_s"], report_dir=out)
         write_text(out / "report.md", md)
         data["report"] = str(out / "report.md")
+        from ..report.html import write_html_report
+        data["report_html"] = str(write_html_report(out / "report.md"))
     data["elapsed_s"] = time.perf_counter() - t0
     return data
 

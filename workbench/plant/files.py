@@ -21,6 +21,7 @@ from .creep import CreepParams
 from .gauge import GaugeParams
 from .hysteresis import PrandtlIshlinskii
 from .pzt import Mode, PZTParams
+from .structure import STRUCTURE_SCHEMA, structure_from_section
 
 __all__ = ["Plant", "load_plant", "SCHEMA_VERSION"]
 
@@ -103,8 +104,13 @@ _SCHEMA = {
         "noise_rms_m": _Field("float", 0.0, 1e-3, expect="the gauge noise referred to displacement, m RMS, >= 0"),
         "calibration_m_per_v": _pos("the serial's calibration in m/V, e.g. 3.077e-6", 1.0),
     },
+    # [structure]: M(.) as a modal model or a state-space file (plant/structure.py owns the keys)
+    "structure": {k: _Field(kind, lo if lo is not None else -math.inf, hi if hi is not None else math.inf,
+                            lo_open=lo_open, expect=expect, required=False)
+                  for k, (kind, lo, hi, lo_open, expect) in STRUCTURE_SCHEMA.items()},
 }
-_SECTIONS_OPTIONAL = {"creep", "leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity"}
+_SECTIONS_OPTIONAL = {"structure", "creep", "leakage", "dielectric_absorption", "displacement_sensor",
+                      "gauge_nonlinearity"}
 _TABLE_ARRAYS = {"mechanics": "modes"}
 
 
@@ -118,6 +124,7 @@ class Plant:
     gauge: GaugeParams
     source: str = ""
     additions: Additions = Additions()
+    structure: object = None   # plant.structure.Structure from [structure], or None (M = k_p with modes)
 
     @property
     def creep(self):
@@ -186,7 +193,7 @@ def load_plant(path):
         raise PlantDefinitionError(path, "schema", f"got {top['schema']!r}; expected {SCHEMA_VERSION!r}")
     sections = {}
     for name in ("electrical", "hysteresis", "mechanics", "gauge", "creep", "leakage", "dielectric_absorption",
-                 "displacement_sensor", "gauge_nonlinearity"):
+                 "displacement_sensor", "gauge_nonlinearity", "structure"):
         if name not in doc:
             if name in _SECTIONS_OPTIONAL:
                 continue
@@ -266,8 +273,14 @@ def load_plant(path):
         sensor_delay_s=sens.get("delay_s", 0.0), sensor_drift_rate_m_per_s=sens.get("drift_rate_m_per_s", 0.0),
         sensor_drift_curvature_m_per_s2=sens.get("drift_curvature_m_per_s2", 0.0),
         gauge_nonlinearity_per_m=sections.get("gauge_nonlinearity", {}).get("coefficient_per_m", 0.0))
+    structure = None
+    if "structure" in sections:
+        if modes:
+            raise PlantDefinitionError(path, "structure", "give either [structure] or [[mechanics.modes]]: "
+                                       "the structure is the whole M(.), the stack's own modes included")
+        structure = structure_from_section(path, sections["structure"], pzt.stiffness_n_per_m)
     return Plant(name=top["name"], serial=top["serial"], pzt=pzt, gauge=gauge, source=str(path),
-                 additions=additions)
+                 additions=additions, structure=structure)
 
 
 def _raise(path, key, message):

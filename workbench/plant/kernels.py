@@ -7,7 +7,10 @@ the state ``st``, so later stages (closed-loop verification) can call ``pzt_step
 from their own compiled loops. Packing matters: numba reference-counts every array
 handed to a function, and with a dozen separate arrays that bookkeeping cost more
 than the physics. ``pzt_step.py_func`` is the same code run by the interpreter,
-which the benchmark hands to python-control.
+which the benchmark hands to python-control. A long loop reads the model's scalars
+and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the same
+step, returning its outputs instead of writing an array), as :func:`pzt_run` and the
+closed loop do; :func:`pzt_step` is that pair in one call.
 
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
@@ -18,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["pzt_step", "pzt_run", "OUT_NAMES", "pack_model", "pack_state"]
+__all__ = ["pzt_step", "pzt_advance", "plant_params", "pzt_run", "OUT_NAMES", "pack_model", "pack_state"]
 
 # scalars at the head of m (reciprocals too: divisions otherwise dominate a step)
 (R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
@@ -107,26 +110,41 @@ def _pi_update_slopes(m, o_r, o_w, st, o_z, n, v):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def pzt_step(m, st, v_cmd, f_e, out):
-    """Advance the PZT by one sub-step; write x, q, i, V_h, V_p, V_t into ``out``.
+def plant_params(m):
+    """The scalars and table offsets at the head of ``m``, read once (a tuple for :func:`pzt_advance`).
 
-    Electrical part (dynamic form): with the creep charge and force held,
-    R dq_h/dt = u* - G[q_h]. On the local slope of G this is an RC relaxation;
-    while |u* - u|/R exceeds the current limit the charge moves at the limit
-    (exactly), then relaxes exponentially for the rest of the step. The slope is the
-    one at the start of the step; G's slope only falls as more plays engage, so the
-    step never overshoots u* and creates no spurious reversal.
+    A loop that calls :func:`pzt_advance` with these keeps them in registers: read from
+    ``m`` at every step they must be reloaded after each store to ``st`` (the compiler
+    cannot tell the two arrays apart), and the offsets converted from float again.
     """
-    dt = m[DT]
-    v = min(max(v_cmd, m[V_MIN]), m[V_MAX])
-    t_em = m[T_EM]
-    inv_cpp = m[INV_C_PP]
+    return (m[R], m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], m[T_EM], m[DT], m[QUASI_STATIC] > 0.5,
+            m[INV_I_SRC], m[INV_I_SNK], m[INV_K_P], m[INV_C_PP], m[INV_DT],
+            int(m[N_G]), int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG]),
+            int(m[N_Q]), int(m[O_RQ]), int(m[O_WQ]), int(m[OS_ZQ]),
+            int(m[N_C]), int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC]),
+            int(m[N_M]), int(m[OS_XM]), int(m[O_AD]), int(m[O_BD]), int(m[O_CD]), m[int(m[O_DD])])
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def pzt_advance(p, m, st, v_cmd, f_e):
+    """Advance the PZT by one sub-step; return (x, q, i, V_h, V_p).
+
+    ``p`` is :func:`plant_params` of ``m``. Electrical part (dynamic form): with the creep
+    charge and force held, R dq_h/dt = u* - G[q_h]. On the local slope of G this is an RC
+    relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
+    (exactly), then relaxes exponentially for the rest of the step. The slope is the one
+    at the start of the step; G's slope only falls as more plays engage, so the step never
+    overshoots u* and creates no spurious reversal.
+    """
+    (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
+     n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cc, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_d) = p
+    v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
-    f_term = t_em * f_e * m[INV_K_P]          # T_em F_e / k_p, C
+    f_term = t_em * f_e * inv_kp              # T_em F_e / k_p, C
     u_target = v - (st[S_QC] - f_term) * inv_cpp
-    if m[QUASI_STATIC] > 0.5:
-        qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
+    if quasi_static:
+        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_target)
         u_new = u_target
     else:
         du = u_target - u
@@ -134,14 +152,13 @@ def pzt_step(m, st, v_cmd, f_e, out):
             if du > 0:
                 d = 1.0
                 cap = st[S_GUP]
-                i_lim = m[I_SRC]
-                inv_i = m[INV_I_SRC]
+                i_lim = i_src
+                inv_i = inv_i_src
             else:
                 d = -1.0
                 cap = st[S_GDN]
-                i_lim = m[I_SNK]
-                inv_i = m[INV_I_SNK]
-            r = m[R]
+                i_lim = i_snk
+                inv_i = inv_i_snk
             gap = abs(du)
             t_left = dt
             dq = 0.0
@@ -159,19 +176,16 @@ def pzt_step(m, st, v_cmd, f_e, out):
                 # RC relaxation on the local slope: tau = R C
                 dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
             qh_new = qh + dq
-            u_new = _pi_update_slopes(m, int(m[O_RG]), int(m[O_WG]), st, int(m[OS_ZG]), int(m[N_G]), qh_new)
+            u_new = _pi_update_slopes(m, o_rg, o_wg, st, o_zg, n_g, qh_new)
         else:
             qh_new = qh
             u_new = u
     v_h = u_new - qh_new * inv_cpp
     # creep branches relax toward C_j V_h (tau_j >> dt: V_h held over the step)
     qc_tot = 0.0
-    o_c = int(m[O_CC])
-    o_dec = int(m[O_CDEC])
-    o_qc = int(m[OS_QC])
-    for j in range(int(m[N_C])):
-        target = m[o_c + j] * v_h
-        qj = target + (st[o_qc + j] - target) * m[o_dec + j]
+    for j in range(n_c):
+        target = m[o_cc + j] * v_h
+        qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
         st[o_qc + j] = qj
         qc_tot += qj
     q_old = qh + st[S_QC]
@@ -180,32 +194,34 @@ def pzt_step(m, st, v_cmd, f_e, out):
     st[S_U] = u_new
     st[S_QC] = qc_tot
     v_p = (q - f_term) * inv_cpp
-    x_qs = (f_e + t_em * v_p) * m[INV_K_P]
+    x_qs = (f_e + t_em * v_p) * inv_kp
     # modes: the quasi-static displacement drives them, taken as linear over the step
     # (first-order hold: no delay, unlike a zero-order hold of the end value). st holds
     # the modal state, a scratch copy and the previous x_qs, so the step allocates nothing.
-    n = int(m[N_M])
     if n > 0:
-        o_x = int(m[OS_XM])
-        o_a = int(m[O_AD])
-        o_b = int(m[O_BD])
-        o_cd = int(m[O_CD])
         x_before = st[o_x + 2 * n]
         for a in range(n):
             acc = m[o_b + a] * x_before + m[o_b + n + a] * x_qs
             for b in range(n):
                 acc += m[o_a + a * n + b] * st[o_x + b]
             st[o_x + n + a] = acc
-        x = m[int(m[O_DD])] * x_qs
+        x = d_d * x_qs
         for a in range(n):
             st[o_x + a] = st[o_x + n + a]
             x += m[o_cd + a] * st[o_x + a]
         st[o_x + 2 * n] = x_qs
     else:
         x = x_qs
+    return x, q, (q - q_old) * inv_dt, v_h, v_p
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def pzt_step(m, st, v_cmd, f_e, out):
+    """Advance the PZT by one sub-step; write x, q, i, V_h, V_p, V_t into ``out`` (:func:`pzt_advance`)."""
+    x, q, i, v_h, v_p = pzt_advance(plant_params(m), m, st, v_cmd, f_e)
     out[0] = x
     out[1] = q
-    out[2] = (q - q_old) * m[INV_DT]
+    out[2] = i
     out[3] = v_h
     out[4] = v_p
     out[5] = v_h + v_p
@@ -220,27 +236,31 @@ def pzt_run(m, st, v, f, n_sub, decimate, rec):
     the recorded charge is the integral of the recorded current. Returns the peak
     source and sink currents seen at sub-step resolution.
     """
-    out = np.empty(N_OUT)
+    p = plant_params(m)
     i_max = 0.0
     i_min = 0.0
     row = 0
     count = 0
     inv_sample = m[INV_DT] / n_sub
+    x = q = i = v_h = v_p = 0.0
     for k in range(v.shape[0]):
         q0 = st[S_QH] + st[S_QC]
         vk = v[k]
         fk = f[k]
         for _ in range(n_sub):
-            pzt_step(m, st, vk, fk, out)
-            if out[2] > i_max:
-                i_max = out[2]
-            if out[2] < i_min:
-                i_min = out[2]
+            x, q, i, v_h, v_p = pzt_advance(p, m, st, vk, fk)
+            if i > i_max:
+                i_max = i
+            if i < i_min:
+                i_min = i
         count += 1
         if count == decimate:
             count = 0
-            for c in range(N_OUT):
-                rec[row, c] = out[c]
-            rec[row, 2] = (out[1] - q0) * inv_sample
+            rec[row, 0] = x
+            rec[row, 1] = q
+            rec[row, 2] = (q - q0) * inv_sample
+            rec[row, 3] = v_h
+            rec[row, 4] = v_p
+            rec[row, 5] = v_h + v_p
             row += 1
     return i_max, i_min

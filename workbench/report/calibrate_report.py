@@ -14,6 +14,7 @@ import numpy as np
 
 from ..calibrate.residual import fit_percent
 from .calibrate_figures import MAX_RATIO, PENALTY, si_scale
+from .markdown import md_image, md_row
 
 __all__ = ["calibration_markdown", "parameter_rows"]
 
@@ -74,22 +75,18 @@ def _q(v, unit, scale=None):
     return f"{_num(float(v) * f)} {lab}"
 
 
-def _row(*cells):
-    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+_row = md_row
 
 
 def _table(header, rows):
     return [_row(*header), "|" + "---|" * len(header)] + [_row(*r) for r in rows]
 
 
-def _link(fig, folder):
-    p = Path(fig)
-    if folder is not None and p.is_absolute():
-        try:
-            return p.relative_to(Path(folder).resolve()).as_posix()
-        except ValueError:
-            pass
-    return p.name if p.is_absolute() or folder is None else p.as_posix()
+def _figure_link(stem, fig, folder):
+    """The figure's image line, its link relative to the report's folder (a file name without one)."""
+    if folder is None:
+        return f"![{stem}]({Path(fig).name})"
+    return md_image(stem, fig, Path(folder) / "report.md")
 
 
 def parameter_rows(effect, parameters, channel_unit):
@@ -306,7 +303,7 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
         lines += ["## Figures", ""]
         for fig in figures:
             stem = Path(fig).stem
-            lines += [f"### {FIGURE_TITLES.get(stem, stem)}", "", f"![{stem}]({_link(fig, report_dir)})", ""]
+            lines += [f"### {FIGURE_TITLES.get(stem, stem)}", "", _figure_link(stem, fig, report_dir), ""]
     notes = list(base.notes or [])
     if "gauge" in base.channels and not base.channels["gauge"].valid.all():
         notes.append("gauge rows at the DAC rails are left out of the gauge's errors and drawn apart in the "

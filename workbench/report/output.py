@@ -1,5 +1,6 @@
-"""Write outputs whole or not at all: temp file in the target folder, then rename."""
+"""Write outputs whole or not at all: temp file in the target folder, then rename; never onto an input."""
 
+import contextlib
 import json
 import os
 import tempfile
@@ -7,7 +8,43 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["write_json", "write_text", "write_bytes", "save_figure", "to_jsonable"]
+from ..errors import WorkbenchError
+
+__all__ = ["write_json", "write_text", "write_bytes", "save_figure", "to_jsonable", "protect_inputs",
+           "OutputOntoInputError"]
+
+# input files of the running command (set by :func:`protect_inputs`): no writer may replace one
+_PROTECTED = []
+
+
+class OutputOntoInputError(WorkbenchError, ValueError):
+    """An output path that is one of the run's input files: refused, the input is kept."""
+
+
+@contextlib.contextmanager
+def protect_inputs(paths):
+    """Within the block, every writer of this module refuses to replace one of ``paths``.
+
+    Parameters
+    ----------
+    paths : iterable of (name, path-like)
+        The run's input files with the argument that named them, e.g. ``("plant", "plants/a.toml")``.
+    """
+    added = [(name, Path(p)) for name, p in paths if p is not None]
+    _PROTECTED.extend(added)
+    try:
+        yield
+    finally:
+        for item in added:
+            _PROTECTED.remove(item)
+
+
+def _refuse_inputs(path):
+    from ..paths import same_path
+    for name, src in _PROTECTED:
+        if same_path(path, src):
+            raise OutputOntoInputError(f"{path}: is the input {name} {src}; an output never overwrites an input: "
+                                       f"give another output path")
 
 
 def to_jsonable(obj):
@@ -27,6 +64,7 @@ def to_jsonable(obj):
 
 def _atomic(path, write):
     path = Path(path)
+    _refuse_inputs(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
     os.close(fd)

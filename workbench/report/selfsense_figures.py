@@ -6,12 +6,15 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .design_figures import db, unwrapped_deg  # noqa: E402
 from .output import save_figure, write_json, write_text  # noqa: E402
 
-__all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs"]
+BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)   # text boxes over data
+
+__all__ = ["plot_stage", "plot_noise", "plot_loop", "plot_closed_loop", "write_selfsense_outputs", "plot_force",
+           "write_force_outputs", "plot_dynamics", "write_dynamics_outputs"]
 
 UM, NM = 1e6, 1e9
-BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)
 MAX_POINTS = 20000
 
 
@@ -35,7 +38,7 @@ def plot_stage(t, x_m, est_m, stage, stroke_m, path):
     ax1.plot(t[k], x_m[k] * UM, lw=1.2, color="0.3", label="true x (simulation)")
     ax1.plot(t[k], est_m[k] * UM, lw=0.8, color="C1", ls="--", label="self-sensed estimate")
     ax1.set_ylabel("displacement, um")
-    ax1.legend(loc="upper right", fontsize=8)
+    ax1.legend(loc="best", fontsize=8)
     ax1.set_title(f"Self-sensing, {stage['title']}")
     e = est_m - x_m
     tb, lo, hi = _envelope(t, e * NM)
@@ -43,10 +46,10 @@ def plot_stage(t, x_m, est_m, stage, stroke_m, path):
     ax2.axhline(0.0, color="0.5", lw=0.6)
     ax2.set_ylabel("estimate - true, nm")
     ax2.set_xlabel("time, s")
-    ax2.text(0.98, 0.04, f"peak-to-peak {stage['error_pp_m'] * NM:.1f} nm "
-             f"({100 * stage['error_pp_m'] / stroke_m:.2f} % of {stroke_m * UM:.2f} um)\n"
-             f"RMS {stage['error_rms_m'] * NM:.1f} nm", transform=ax2.transAxes, ha="right", va="bottom",
-             fontsize=8, bbox=BOX)
+    # the numbers in the panel's title: a box inside the axes would cover the error wherever it goes
+    ax2.set_title(f"error peak-to-peak {stage['error_pp_m'] * NM:.1f} nm "
+                  f"({100 * stage['error_pp_m'] / stroke_m:.2f} % of {stroke_m * UM:.2f} um), "
+                  f"RMS {stage['error_rms_m'] * NM:.1f} nm", fontsize=9)
     for ax in (ax1, ax2):
         ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -66,7 +69,9 @@ def plot_noise(noise, path):
     ax2.set_xlabel("time in the hold, ms (first 100 ms of 1 s shown)")
     for ax in (ax1, ax2):
         ax.set_ylabel("reading - true x, nm")
-        ax.legend(loc="upper right", fontsize=8)
+        lo, hi = ax.get_ylim()
+        ax.set_ylim(lo, hi + 0.3 * (hi - lo))          # head room: the legend above the trace, not on it
+        ax.legend(loc="upper right", fontsize=8, ncol=2)
         ax.grid(alpha=0.3)
     ax1.set_title("Noise per 10 kHz sample at mid-stroke (50 V hold, detrended)")
     fig.tight_layout()
@@ -100,10 +105,19 @@ def plot_loop(la, path):
         m = la["margins_gauge" if key == "l_gauge" else "margins_self_sensed"]
         lab = f"{label}: PM {m['phase_margin_deg']:.1f} deg, GM {m['gain_margin_db']:.1f} dB, " \
               f"f_c {m['crossover_hz']:.0f} Hz"
-        ax1.semilogx(f, 20 * np.log10(np.abs(la[key])), color=color, label=lab)
-        ax2.semilogx(f, np.degrees(np.unwrap(np.angle(la[key]))), color=color)
+        ax1.semilogx(f, db(la[key]), color=color, label=lab)
+        ph = unwrapped_deg(la[key])
+        ax2.semilogx(f, ph, color=color)
+        # crossover on 0 dB; phase margin as the gap from the crossover's phase down to -180 deg
+        f_c, pm = m.get("pm_freq_hz", float("nan")), m.get("phase_margin_deg", float("nan"))
+        if np.isfinite(f_c) and np.isfinite(pm):
+            ax1.plot([f_c], [0], "o", color=color, mfc="white", mew=1.5, ms=6, zorder=5)
+            ph_c = np.interp(np.log(f_c), np.log(f)[np.isfinite(ph)], ph[np.isfinite(ph)])
+            ax2.annotate("", (f_c, ph_c), (f_c, ph_c - pm), arrowprops=dict(arrowstyle="<->", color=color, lw=1.2))
     ax1.axhline(0, color="0.5", lw=0.6)
     ax2.axhline(-180, color="0.5", lw=0.6)
+    lo, hi = ax1.get_ylim()
+    ax1.set_ylim(max(lo, -100), hi)        # the notch at the Nyquist frequency would take the axis to -200 dB
     ax1.set_ylabel("|L|, dB")
     ax2.set_ylabel("phase of L, deg")
     ax2.set_xlabel("frequency, Hz")
@@ -124,13 +138,13 @@ def _report(data, figures):
              "| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
     for s in data["stages"]:
         lines.append(f"| {s['title']} | {nm(s['error_pp_m'])} | {s['error_pp_percent_stroke']:.2f} | "
-                     f"{nm(s['error_rms_m'])} | ![]({figures.get(s['name'], '')}) |")
+                     f"{nm(s['error_rms_m'])} | ![{s['name']}]({figures.get(s['name'], '')}) |")
     g = data["gauge_on_same_record"]
     n = data["noise_per_10khz_sample"]
     lines += ["", f"Target: last stage <= 1 % of stroke peak-to-peak: **{'met' if data['target_met'] else 'MISSED'}**.",
               "", f"Gauge chain on the same record: {nm(g['error_pp_m'])} nm p-p, {nm(g['error_rms_m'])} nm RMS.",
               f"Noise per 10 kHz sample at 50 V: self-sensed {n['self_sensed_rms_m'] * NM:.2f} nm RMS, "
-              f"gauge chain {n['gauge_rms_m'] * NM:.1f} nm RMS (![]({figures.get('noise', '')})).", ""]
+              f"gauge chain {n['gauge_rms_m'] * NM:.1f} nm RMS (![noise]({figures.get('noise', '')})).", ""]
     idf, tru = data["identified"], data["true"]
     lines += ["| parameter | identified | true (simulation) |", "|---|---|---|",
               f"| alpha, C/m | {idf['alpha_c_per_m']:.4f} | {tru['alpha_c_per_m']:.4f} |",
@@ -152,7 +166,7 @@ def _report(data, figures):
                   f"{mg['disk_margin']:.3f} |",
                   f"| self-sensed, dynamic estimator | {ms['phase_margin_deg']:.1f} | {ms['gain_margin_db']:.1f} | "
                   f"{ms['crossover_hz']:.0f} | {ms['disk_margin']:.3f} |", "",
-                  f"![]({figures.get('loop', '')})", ""]
+                  f"![loop]({figures.get('loop', '')})", ""]
         cs, cg = lp.get("closed_loop_small_step"), lp.get("closed_loop_small_step_gauge_noise_free")
         if cs and cg:
             ls, lg = lp["linear_step_self"], lp["linear_step_gauge"]
@@ -162,7 +176,7 @@ def _report(data, figures):
                       f"{ls['overshoot_percent']:.3f} %, {ls['settling_s'] * 1e3:.1f} ms |",
                       f"| gauge chain (noise-free) | {cg['overshoot_percent']:.2f} | {cg['settling_s'] * 1e3:.1f} | "
                       f"{lg['overshoot_percent']:.3f} %, {lg['settling_s'] * 1e3:.1f} ms |", "",
-                      f"![]({figures.get('closed_loop', '')})", ""]
+                      f"![closed_loop]({figures.get('closed_loop', '')})", ""]
     return "\n".join(lines) + "\n"
 
 
@@ -181,5 +195,204 @@ def write_selfsense_outputs(out, data, rec, errs, noise, la):
                                                       out / "closed_loop.png").name
     write_text(out / "report.md", _report(data, figures))
     figures["report"] = "report.md"
+    from .html import write_html_report
+    figures["report_html"] = write_html_report(out / "report.md").name
     write_json(out / "selfsense.json", {**data, "figures": figures})
+    return figures
+
+
+# ---- force self-sensing (`workbench selfsense --force`) ------------------------------------------
+
+def plot_force(data, path):
+    """Estimated against true force: the simulated step (absolute and tared, its error) and the Table 1 runs."""
+    arr, step, ins = data["_arrays"], data["force_step"], data["instron"]
+    t, f_true = arr["t_s"], arr["f_true_n"]
+    last = list(arr["estimates_n"])[-1]
+    est = arr["estimates_n"][last]
+    fig = plt.figure(figsize=(11, 7.5))
+    gs = fig.add_gridspec(2, 2, width_ratios=[1.5, 1])
+    ax1 = fig.add_subplot(gs[0, 0])
+    ax2 = fig.add_subplot(gs[1, 0], sharex=ax1)
+    ax3 = fig.add_subplot(gs[:, 1])
+    k = _thin(t.size)
+    ax1.plot(t[k], f_true[k], color="0.2", lw=1.6, label="true F_e (simulation)")
+    for name, e in arr["estimates_n"].items():
+        if name != last:
+            ax1.plot(t[k], e[k], lw=0.6, alpha=0.6, label=f"estimate, {name.replace('_', ' ')}")
+    ax1.plot(t[k], est[k], color="C3", lw=1.0, label="estimate, all stages (from reset)")
+    ax1.plot(t[k], est[k] - arr["tare_n"], color="C1", lw=1.0, ls="--", label="estimate, all stages, tared 1 s before")
+    ax1.set_ylabel("environmental force F_e, N")
+    ax1.set_title(f"{step['force_n']:+.0f} N force step on the stack held at {step['bias_v']:.0f} V")
+    ax1.legend(fontsize=7, loc="lower left", ncol=2)
+    lo = min(float(np.min(f_true)), 0.0)
+    ax1.set_ylim(lo - 0.5 * abs(step["force_n"]), max(float(np.max(f_true)), 0.0) + 0.5 * abs(step["force_n"]))
+    tol = step["target_fraction"] * abs(step["force_n"])
+    ax2.plot(t[k], (est - f_true)[k], color="C3", lw=0.8, label="from reset")
+    ax2.plot(t[k], (est - arr["tare_n"] - f_true)[k], color="C1", lw=0.8, label="tared")
+    ax2.axhspan(-tol, tol, color="C2", alpha=0.15, label=f"+/- {100 * step['target_fraction']:.0f} % of the step")
+    ax2.axvline(step["step_at_s"] + 1.0, color="0.5", lw=0.6, ls=":")
+    ax2.set_ylim(-8 * tol, 8 * tol)
+    ax2.set_xlabel("time, s")
+    ax2.set_ylabel("estimate - true, N")
+    ax2.legend(fontsize=7, loc="upper left")
+    s4 = step["stages"][-1]
+    ax2.text(0.98, 0.04, f"1 s to end: {s4['tared_error_max_n']['1s_end']:.2f} N tared, "
+             f"{s4['abs_error_max_n']['1s_end']:.2f} N from reset\n1-5 s: {s4['tared_error_max_n']['1_5s']:.2f} N tared",
+             transform=ax2.transAxes, ha="right", va="bottom", fontsize=8, bbox=BOX)
+    runs = ins["runs"]
+    true = np.array([-r["force_n"] for r in runs])
+    sim = np.array([-r["simulated"]["peak_force_estimate_n"] for r in runs])
+    cfg = np.array([r["config"] for r in runs])
+    for c, mk in (("R_in", "o"), ("R_out", "s")):
+        m = cfg == c
+        ax3.plot(true[m], sim[m], mk, mfc="none", color="C0", label=f"simulated run, {c.replace('_', ' ')}")
+    ro = [r for r in runs if "measured_back_emf" in r]
+    ax3.plot([-r["force_n"] for r in ro], [-r["measured_back_emf"]["peak_force_estimate_n"] for r in ro], "^",
+             color="C3", label="measured back EMF, model gain")
+    ax3.plot([-r["force_n"] for r in ro], [-r["measured_back_emf"]["calibrated_leave_one_out"]["peak_force_estimate_n"]
+                                            for r in ro], "v", color="C2", label="measured back EMF, gain of the other runs")
+    every = np.concatenate([true, sim, [-r["measured_back_emf"]["peak_force_estimate_n"] for r in ro]])
+    span = np.array([np.floor(every.min() / 50) * 50 - 25, np.ceil(every.max() / 50) * 50 + 25])
+    ax3.plot(span, span, color="0.3", lw=0.8)
+    ax3.fill_between(span, span * (1 - ins["target_fraction"]), span * (1 + ins["target_fraction"]), color="0.5",
+                     alpha=0.15, label=f"+/- {100 * ins['target_fraction']:.0f} %")
+    ax3.set_xlim(*span)
+    ax3.set_ylim(*span)
+    ax3.set_aspect("equal")
+    ax3.set_xlabel("Table 1 peak compression, N")
+    ax3.set_ylabel("self-sensed peak compression, N")
+    ax3.set_title("Instron runs (seed 000 Table 1)")
+    ax3.legend(fontsize=7, loc="lower right")
+    for ax in (ax1, ax2, ax3):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def _force_report(data, figure):
+    step, ins = data["force_step"], data["instron"]
+    yes = lambda b: "met" if b else "MISSED"    # noqa: E731
+    lines = ["# Force self-sensing", "",
+             f"Plant `{data['plant']}`. Force from the terminal voltage and the drift-compensated charge through "
+             "the seed 000 model read backwards (V_h by the exact PI inverse of C_h and its creep branches, "
+             "V_p = V_t - V_h, x from eq. 9, F_e from eq. 5).", "",
+             f"![]({figure})", "",
+             f"## {step['force_n']:+.0f} N step at {step['bias_v']:.0f} V ({step['sample_hz']:.0f} Hz record)", "",
+             "| stage | max error 1 s-end, N | tared 1-2 s, N | tared 1-5 s, N | tared 1 s-end, N | x error, nm | x = k_q2x q error, nm |",
+             "|---|---|---|---|---|---|---|"]
+    for s in step["stages"]:
+        a, tr = s["abs_error_max_n"], s["tared_error_max_n"]
+        lines.append(f"| {s['title']} | {a['1s_end']:.2f} | {tr['1_2s']:.2f} | {tr['1_5s']:.2f} | {tr['1s_end']:.2f} | "
+                     f"{s['x_error_max_m'] * NM:.1f} | {s['x_from_charge_only_error_max_m'] * NM:.1f} |")
+    tol = step["target_fraction"] * abs(step["force_n"])
+    lines += ["", f"Target {tol:.1f} N ({100 * step['target_fraction']:.0f} %) after 1 s: tared over 1-5 s "
+              f"**{yes(step['target_met_tared_1_5s'])}**; tared to the end of the record **{yes(step['target_met_tared_1s_end'])}**; "
+              f"from the reset **{yes(step['target_met_absolute_1s_end'])}**.", "",
+              "## Instron runs (Table 1)", "",
+              "| serial | run | config | F, N | simulated estimate, N | error % | model x / measured x, um | "
+              "model / measured back EMF, V | from measured back EMF, N (error %) | gain of the other runs, N (error %) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in ins["runs"]:
+        s = r["simulated"]
+        m = r.get("measured_back_emf")
+        mtxt = f"{m['peak_force_estimate_n']:.1f} ({100 * m['error_fraction']:+.1f})" if m else "n/a (V_t = 0, no charge in Table 1)"
+        ctxt = (f"{m['calibrated_leave_one_out']['peak_force_estimate_n']:.1f} "
+                f"({100 * m['calibrated_leave_one_out']['error_fraction']:+.1f})") if m else ""
+        flag = " (printed x/gauge swapped?)" if r["suspected_swap"] else ""
+        lines.append(f"| {r['serial']} | {r['run']} | {r['config'].replace('_', ' ')} | {r['force_n']:.1f} | "
+                     f"{s['peak_force_estimate_n']:.1f} | {100 * s['error_fraction']:+.2f} | "
+                     f"{s['model_displacement_m'] * UM:.3f} / {r['displacement_m'] * UM:.3f}{flag} | "
+                     f"{s['model_back_emf_v']:.2f} / {r['back_emf_v']:.2f} | {mtxt} | {ctxt} |")
+    lines += ["", f"Target: peak force within {100 * ins['target_fraction']:.0f} %: simulated runs "
+              f"(max {100 * ins['simulated_max_error_fraction']:.2f} %) **{yes(ins['target_met_simulated'])}**; "
+              f"measured R out back EMF with the model's {ins['force_per_back_emf_model_n_per_v']:.2f} N/V "
+              f"(max {100 * ins['measured_r_out_max_error_fraction']:.1f} %, mean "
+              f"{100 * ins['measured_r_out_mean_error_fraction']:+.1f} %) **{yes(ins['target_met_measured_r_out'])}**; "
+              f"with the gain identified on the other runs (seed 002 eq. 2.32; max "
+              f"{100 * ins['measured_r_out_calibrated_max_error_fraction']:.1f} %, RMS "
+              f"{100 * ins['measured_r_out_calibrated_rms_error_fraction']:.1f} %) "
+              f"**{yes(ins['target_met_measured_r_out_calibrated'])}**.", ""]
+    return "\n".join(lines) + "\n"
+
+
+def write_force_outputs(out, data):
+    """force.png, force_report.md and force.json into ``out``; {name: file}. ``data['_arrays']`` is not written."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {"force": plot_force(data, out / "force.png").name}
+    write_text(out / "force_report.md", _force_report(data, figures["force"]))
+    figures["report"] = "force_report.md"
+    write_json(out / "force.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
+    return figures
+
+
+# ---- identified dynamics (`workbench selfsense --dynamics`) ----------------------------------------
+
+def plot_dynamics(data, path):
+    """K D(s) and H(s): model-derived beside identified (Bode), and the dynamic estimators' errors on the staircase."""
+    resp, rec = data["_arrays"]["responses"], data["_arrays"]["records"]
+    f = resp["freq_hz"]
+    fig = plt.figure(figsize=(11, 8.5))
+    gs = fig.add_gridspec(3, 2, height_ratios=[1, 0.7, 1])
+    for col, (key, title, unit) in enumerate((("kd", "K D(s) = x / V_in", "m/V"), ("h", "H(s) = V_out / V_in", "V/V"))):
+        axm = fig.add_subplot(gs[0, col])
+        axp = fig.add_subplot(gs[1, col], sharex=axm)
+        for src, color, ls in (("model", "C0", "-"), ("identified", "C3", "--")):
+            y = resp[f"{key}_{src}"]
+            axm.loglog(f, np.abs(y), color=color, ls=ls, label=f"{src}")
+            axp.semilogx(f, np.degrees(np.angle(y)), color=color, ls=ls)
+        axm.set_title(title)
+        axm.set_ylabel(f"magnitude, {unit}")
+        axp.set_ylabel("phase, deg")
+        axp.set_xlabel("frequency, Hz")
+        axm.legend(fontsize=8)
+        for ax in (axm, axp):
+            ax.grid(alpha=0.3, which="both")
+    ax = fig.add_subplot(gs[2, :])
+    t = rec["t_s"]
+    c = data["comparison"]
+    for key, color, label in (("static", "0.6", "static estimate (stage 3)"), ("model", "C0", "dynamic, model E(s)"),
+                              ("identified", "C3", "dynamic, identified E(s)")):
+        tb, lo, hi = _envelope(t, (rec[f"{key}_m"] - rec["x_m"]) * NM)
+        ax.fill_between(tb, lo, hi, color=color, alpha=0.5 if key != "static" else 0.3, lw=0.5,
+                        label=f"{label}: {c[key]['error_rms_m'] * NM:.1f} nm RMS, {c[key]['error_pp_m'] * NM:.0f} nm p-p")
+    ax.axhline(0, color="0.4", lw=0.6)
+    ax.set_xlabel("time, s")
+    ax.set_ylabel("estimate - true x, nm")
+    ax.set_title(f"Staircase record neither fit saw: identified/model RMS = {c['ratio_rms_identified_over_model']:.2f}")
+    ax.legend(fontsize=8, loc="upper left")
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def write_dynamics_outputs(out, data):
+    """dynamics.png, dynamics_report.md and dynamics.json into ``out``; {name: file}."""
+    out.mkdir(parents=True, exist_ok=True)
+    figures = {"dynamics": plot_dynamics(data, out / "dynamics.png").name}
+    dyn, c = data["dynamics"], data["comparison"]
+    kd, h = dyn["kd"], dyn["h_r"]
+    fmt = lambda g, s: f"{g:.4g} +/- {s:.2g}"   # noqa: E731
+    lines = ["# Identified dynamics of the self-sensing estimator", "",
+             f"Plant `{data['plant']}`. K D(s) and H(s) fitted on a simulated 20 V step record (seed 002 sec. 2.5.3), "
+             f"orders {dyn['order_kd']} and {dyn['order_h']} by BIC; the dynamic estimators compared on a "
+             f"{data['evaluation_duration_s']:.0f} s staircase neither fit saw.", "", f"![]({figures['dynamics']})", "",
+             f"K: identified {kd['dc_gain'] * UM:.5f} +/- {kd['sigma_dc_gain'] * UM:.1g} um/V (20 V step secant), "
+             f"model {data['model']['k_m_per_v'] * UM:.5f} um/V (small signal at 50 V).", "",
+             "| relaxation | K D: gain, m/V | tau, s | H_r: gain, V/V | tau, s |", "|---|---|---|---|---|",
+             f"| direct | {fmt(kd['direct'], kd['sigma_direct'])} | | {fmt(h['direct'], h['sigma_direct'])} | |"]
+    for i in range(max(len(kd["gains"]), len(h["gains"]))):
+        a = (f"{fmt(kd['gains'][i], kd['sigma_gains'][i])} | {fmt(kd['time_constants_s'][i], kd['sigma_time_constants_s'][i])}"
+             if i < len(kd["gains"]) else " | ")
+        b = (f"{fmt(h['gains'][i], h['sigma_gains'][i])} | {fmt(h['time_constants_s'][i], h['sigma_time_constants_s'][i])}"
+             if i < len(h["gains"]) else " | ")
+        lines.append(f"| {i + 1} | {a} | {b} |")
+    lines += ["", "| estimate | error RMS, nm | error p-p, nm |", "|---|---|---|"]
+    for key, label in (("static", "static (stage 3)"), ("model", "dynamic, model-derived E"),
+                       ("identified", "dynamic, identified E")):
+        lines.append(f"| {label} | {c[key]['error_rms_m'] * NM:.1f} | {c[key]['error_pp_m'] * NM:.1f} |")
+    lines += ["", f"Target: identified within {data['target_ratio']:.1f}x the model-derived error (RMS): ratio "
+              f"{c['ratio_rms_identified_over_model']:.2f}, **{'met' if data['target_met'] else 'MISSED'}**.", ""]
+    write_text(out / "dynamics_report.md", "\n".join(lines) + "\n")
+    figures["report"] = "dynamics_report.md"
+    write_json(out / "dynamics.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures

@@ -30,7 +30,7 @@ def _finite(m, key):
 
 def _conditions(m):
     return (f"anti-windup {'on' if m.get('anti_windup', True) else 'OFF'}, "
-            f"gauge noise {'on' if m.get('noise', True) else 'off'}")
+            f"{'noisy run (gauge noise on)' if m.get('noise', True) else 'NOISE-FREE run (gauge noise off)'}")
 
 
 def _text(ax, lines, x=0.98, y=0.04, ha="right", va="bottom"):
@@ -204,6 +204,9 @@ def _plot_hold(m, tr, path, companion=None):
     ac.plot(t, avg, "C0", lw=1.5, label="1 s running mean")
     ac.axhline(0, color="k", lw=0.6)
     ac.set_ylabel("closed loop: x - reference (nm)")
+    # head and foot room for the legend and the numbers: neither covers the trace
+    lo, hi = ac.get_ylim()
+    ac.set_ylim(lo - 0.45 * (hi - lo), hi + 0.2 * (hi - lo))
     ac.legend(fontsize=8, loc="upper right", ncol=3)
     _text(ac, [f"drift {_v(m, 'drift_m', NM, '.3g')} nm (mean of the last tenth - first tenth)",
                f"x noise RMS {_v(m, 'noise_rms_m', NM, '.3g')} nm",
@@ -244,7 +247,9 @@ def _plot_force(m, tr, path, companion=None):
     ax.legend(fontsize=8, loc="center right", bbox_to_anchor=(1, 0.55))
     _text(ax, [f"peak |deviation| {_v(m, 'peak_deviation_m', NM, '.3g')} nm, final {_v(m, 'final_deviation_m', NM, '.2g')} nm",
                f"open-loop deflection {_v(m, 'open_loop_deflection_m', NM, '.3g')} nm",
-               f"peak currents {_v(m, 'peak_current_source_a', MA, '+.2f')} / {_v(m, 'peak_current_sink_a', MA, '+.2f')} mA"])
+               f"peak currents {_v(m, 'peak_current_source_a', MA, '+.2f')} / {_v(m, 'peak_current_sink_a', MA, '+.2f')} mA"],
+          # clear of the open-loop deflection line, which sits at the bottom (compression) or top (tension)
+          **({"y": 0.12} if (scaled(m.get("open_loop_deflection_m")) or 0) <= 0 else {"y": 0.88, "va": "top"}))
     au.plot(t(tr), tr["u_v"], "C0", lw=0.8)
     au.set_ylabel("command u (V)")
     _current_panel(ai, t, [(tr, "stack current", "C0")], m)
@@ -264,8 +269,9 @@ def _plot_sweep(m, tr, path, companion=None):
     fig, (am, ap, ar) = plt.subplots(3, 1, sharex=True, figsize=(9, 8.5), gridspec_kw={"height_ratios": [2.2, 2, 1]})
     am.semilogx(f, m["linear_db"], "k-", lw=1.2, label="linear small-signal loop")
     db = np.asarray(m["measured_db"], float)
-    low = db < NOISE_FLOOR_DB
-    for sel, style in ((~low, dict(color="C0", label="measured (nonlinear plant, gauge noise)")),
+    low = (db < NOISE_FLOOR_DB) & bool(m.get("noise", True))      # a noise-free run has no noise floor
+    for sel, style in ((~low, dict(color="C0", label="measured (nonlinear plant, "
+                                                    + ("gauge noise on)" if m.get("noise", True) else "noise-free)"))),
                        (low, dict(mfc="none", color="C0", label=f"measured below {NOISE_FLOOR_DB} dB: "
                                                                "at the noise floor of the lock-in"))):
         if sel.any():
@@ -292,8 +298,8 @@ def _plot_sweep(m, tr, path, companion=None):
         a.grid(True, which="both", alpha=0.3)
     fig.align_ylabels((am, ap, ar))
     am.set_title(f"Closed-loop response, {_v(m, 'amplitude_m', NM, '.0f')} nm tones at 7.5 um: bandwidth "
-                 f"{_v(m, 'bandwidth_hz', fmt='.0f')} Hz measured, {_v(m, 'linear_bandwidth_hz', fmt='.0f')} Hz linear",
-                 fontsize=10)
+                 f"{_v(m, 'bandwidth_hz', fmt='.0f')} Hz measured, {_v(m, 'linear_bandwidth_hz', fmt='.0f')} Hz linear\n"
+                 f"{_conditions(m)}", fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path)
 

@@ -4,13 +4,15 @@ from pathlib import Path
 
 import numpy as np
 
+from .markdown import md_image, md_row, readable_quantity
 from .output import write_text
 
 __all__ = ["write_verify_report"]
 
 TITLES = {"small_step": "Small step", "large_step": "Large step", "triangle_0p1hz": "Triangle 0.1 Hz",
           "triangle_1hz": "Triangle 1 Hz", "hold": "Hold", "force_step": "Force step",
-          "sine_sweep": "Sine sweep (closed-loop frequency response)"}
+          "sine_sweep": "Sine sweep (closed-loop frequency response)",
+          "large_step_no_anti_windup": "Large step"}
 
 WHAT = {"small_step": "A step up from 7.5 um, against the step response of the linear small-signal loop.",
         "large_step": "A step the current limit slews: what the anti-windup and the current-limit window are for.",
@@ -88,8 +90,12 @@ def _num(v, scale=1.0):
     return f"{v:.0f}" if abs(v) >= 1000 else f"{v:.4g}"
 
 
-def _row(*cells):
-    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+_row = md_row
+
+
+def _title(key):
+    """A scenario's or target's readable name: its title, else its key in words."""
+    return TITLES.get(key, str(key).replace("_", " "))
 
 
 def _finite(v):
@@ -109,16 +115,16 @@ def _targets(targets):
         result = "**not measured**" if not _finite(value) else ("met" if ok else "**MISSED**")
         req = f"{_num(target)} {unit}" if _finite(target) else f"{target} {unit}"
         val = f"{_num(value)} {unit}" if _finite(value) else "n/a"
-        lines.append(_row(name, val, req.strip(), result))
+        lines.append(_row(_title(name), val, req.strip(), result))
     return lines
 
 
 def _metric_table(m):
     rows = [(label, _num(m[k], scale), unit) for k, (label, scale, unit) in METRICS.items()
             if k in m and not isinstance(m[k], (list, tuple, np.ndarray))]
-    # keys this table does not know yet: shown raw (SI) rather than hidden
-    rows += [(k, _num(v), "SI") for k, v in m.items()
-             if k not in METRICS and k not in NOT_IN_TABLE and not isinstance(v, (list, tuple, np.ndarray, str))]
+    # keys this table has no label for yet: shown in words with the unit of their suffix rather than hidden
+    rows += [readable_quantity(k, v) for k, v in m.items()
+             if k not in METRICS and k not in NOT_IN_TABLE and not isinstance(v, (list, tuple, np.ndarray, str, dict))]
     return ["| metric | value | unit |", "|---|---|---|"] + [_row(*r) for r in rows]
 
 
@@ -134,7 +140,8 @@ def _sweep_table(m):
     get = lambda k, i: m[k][i] if i < len(m[k]) else None  # noqa: E731
     lines = (["", _row(*(c[1] for c in cols)), "|" + "---|" * len(cols)]
              + [_row(*(_num(get(k, i), s) for k, _, s in cols)) for i in range(n)])
-    low = [f for f, db in zip(m["freq_hz"], m.get("measured_db", [])) if _finite(db) and db < NOISE_FLOOR_DB]
+    low = [f for f, db in zip(m["freq_hz"], m.get("measured_db", []))
+           if _finite(db) and db < NOISE_FLOOR_DB and m.get("noise", True)]     # noise-free: no noise floor
     if low:
         lines += ["", f"Tones measured below {NOISE_FLOOR_DB} dB ({', '.join(_num(f) for f in low)} Hz) are at the "
                       "noise floor of the lock-in (about 0.3 nm of reading): their gain and phase, and the worst "
@@ -142,15 +149,10 @@ def _sweep_table(m):
     return lines
 
 
-def _link(fig, folder):
-    """The figure's path relative to the report's folder (its file name when it sits elsewhere)."""
+def _figure_path(fig, report_path):
+    """Where the figure is: a bare file name sits beside the report; any other path is taken as given."""
     p = Path(fig)
-    if p.is_absolute():
-        try:
-            p = p.relative_to(folder.resolve())
-        except ValueError:
-            p = Path(p.name)
-    return p.as_posix()
+    return Path(report_path).parent / p if len(p.parts) == 1 else p
 
 
 def _plant_line(ms):
@@ -177,6 +179,7 @@ def write_verify_report(path, header, results):
         lines += ["", f"## {TITLES.get(name, name)}{' (' + ', '.join(off) + ')' if off else ''}", "",
                   f"{WHAT.get(name, '')} Anti-windup {'on' if m.get('anti_windup', True) else 'OFF'}, gauge noise "
                   f"{'on' if m.get('noise', True) else 'off'}.".strip(), ""]
-        lines += [f"![{name}]({_link(r['figure'], path.parent)})" if r.get("figure") else "_No figure._", ""]
+        lines += [md_image(_title(name), _figure_path(r["figure"], path), path) if r.get("figure")
+                  else "_No figure._", ""]
         lines += _metric_table(m) + _sweep_table(m)
     return write_text(path, "\n".join(lines) + "\n")

@@ -3,14 +3,19 @@
 :mod:`.charge_amp` the charge amplifier on the PZT model; :mod:`.estimator` the static
 (eqs. 2.5-2.9, 2.30) and dynamic (eqs. 2.42-2.48) estimators; :mod:`.identify` the
 identification of sec. 2.3.2 on a simulated record; :mod:`.run` the staged study behind
-`workbench selfsense` (:mod:`.command`).
+`workbench selfsense` (:mod:`.command`); :mod:`.force` force and elongation from V_t and the
+charge (`--force`); :mod:`.sysid` K D(s) and H(s) identified from a step record (`--dynamics`).
 """
 
 from .charge_amp import ChargeAmpParams, ChargeAmpStream, ChargeRecord, measure
 from .estimator import (EstimatorParams, ResidualCorrection, StreamingEstimator, band_limited, dynamic_estimator,
                         dynamic_gains, static_estimate)
+from .force import ForceEstimate, estimate_force, run_force_study, staged_charge
 from .identify import Identified, identify, simulate_identification
+from .sysid import IdentifiedDynamics, fit_relaxations, identify_dynamics, identified_estimator, run_dynamics_study
 
 __all__ = ["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure", "EstimatorParams", "ResidualCorrection",
            "StreamingEstimator", "band_limited", "static_estimate", "dynamic_gains", "dynamic_estimator",
-           "Identified", "identify", "simulate_identification"]
+           "Identified", "identify", "simulate_identification", "ForceEstimate", "estimate_force", "staged_charge",
+           "run_force_study", "IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
+           "run_dynamics_study"]

@@ -9,13 +9,13 @@ import argparse
 from pathlib import Path
 
 from ..errors import DataFileError, WorkbenchError
+from ..units import parse_quantity
 
-__all__ = ["add_parser", "run", "main"]
+__all__ = ["add_parser", "run", "run_force", "run_dynamics", "main"]
 
 
 def add_parser(sub):
     """Register `selfsense` on an argparse sub-parsers object."""
-    from ..cli import _quantity             # the CLI's one quantity parser ("1000s", "20min")
     from .run import DEFAULT_CONTROLLER
     p = sub.add_parser("selfsense", help="displacement from the stack's own charge (seed 002), staged errors",
                        description="Self-sensing as seed 002 builds it, for a stack: a charge amplifier "
@@ -35,13 +35,40 @@ def add_parser(sub):
     p.add_argument("--seed", type=int, default=2, help="noise and staircase seed (default 2)")
     p.add_argument("--out", type=Path, help="folder for the stage figures, noise.png, loop.png, report.md")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
+    p.add_argument("--force", action="store_true",
+                   help="force self-sensing instead of the displacement stages: a simulated force step "
+                        "(--step-force, default -100N, at 50 V) and the Table 1 Instron runs; writes force.png, "
+                        "force_report.md and force.json with --out")
+    p.add_argument("--dynamics", action="store_true",
+                   help="the estimator's K D(s) and H(s) identified from a step record instead of the displacement "
+                        "stages; both dynamic estimators scored on a staircase; writes dynamics.png, "
+                        "dynamics_report.md and dynamics.json with --out")
+    p.add_argument("--step-force", type=_quantity("N"), default=-100.0,
+                   help="force step of the --force study (default -100N: compression is negative)")
     p.set_defaults(func=run)
     return p
 
 
+def _quantity(expected):
+    """argparse type: a quantity in ``expected`` units ("1000s", "20min") via :func:`workbench.units.parse_quantity`;
+    a bad value is an argparse error (usage message, exit status 2)."""
+    def parse(text):
+        try:
+            return parse_quantity(text, expected)
+        except WorkbenchError as err:
+            raise argparse.ArgumentTypeError(str(err)) from err
+    parse.__name__ = f"quantity in {expected}"
+    return parse
+
+
 def _emit(args, data, lines):
-    from ..cli import _emit as emit        # the CLI's one output convention (lines or --json)
-    emit(args, data, lines)
+    """The CLI's output convention: the lines on stdout, the data as JSON (written whole) when ``--json``."""
+    from ..report import write_json
+    for line in lines:
+        print(line)
+    if getattr(args, "json", None):
+        write_json(args.json, data)
+        print(f"wrote {args.json}")
 
 
 def run(args):
@@ -52,6 +79,12 @@ def run(args):
                             f"e.g. plants/p888_51_sn637_creep.toml")
     if args.out is not None and Path(args.out).exists() and not Path(args.out).is_dir():
         raise DataFileError(f"--out {args.out}: exists and is not a folder; give a folder path")
+    if getattr(args, "force", False) and getattr(args, "dynamics", False):
+        raise DataFileError("--force and --dynamics are separate studies; give one of them")
+    if getattr(args, "force", False):
+        return run_force(args)
+    if getattr(args, "dynamics", False):
+        return run_dynamics(args)
     data = run_selfsense(args.plant, duration_s=args.duration, out_dir=args.out, seed=args.seed,
                          controller_path=args.controller, loop=not args.no_loop)
     stroke = data["stroke_m"]
@@ -70,6 +103,64 @@ def run(args):
     lines.append(f"  target (last stage <= 1 % of stroke p-p): {'met' if data['target_met'] else 'MISSED'}")
     if args.out is not None:
         lines.append(f"  report {Path(args.out) / 'report.md'}")
+    _emit(args, data, lines)
+
+
+def run_force(args):
+    """`workbench selfsense --force`: the force study, printed; figures/report with --out, JSON with --json."""
+    from .force import run_force_study
+    if not args.step_force != 0.0:
+        raise DataFileError("--step-force must be nonzero, e.g. -100N (compression) or 50N")
+    data = run_force_study(args.plant, seed=args.seed, step_n=args.step_force)
+    if args.out is not None:
+        from ..report.selfsense_figures import write_force_outputs
+        data["figures"] = write_force_outputs(Path(args.out), data)
+    data.pop("_arrays")
+    st, ins = data["force_step"], data["instron"]
+    tol = st["target_fraction"] * abs(st["force_n"])
+    lines = [f"{args.plant}: force self-sensing, {st['force_n']:+.0f} N step at {st['bias_v']:.0f} V "
+             f"(error max from 1 s after the step to the end, N)"]
+    for s in st["stages"]:
+        lines.append(f"  {s['title']}: {s['abs_error_max_n']['1s_end']:.2f} N from reset, "
+                     f"{s['tared_error_max_n']['1s_end']:.2f} N tared ({s['tared_error_max_n']['1_5s']:.2f} N over 1-5 s); "
+                     f"x {s['x_error_max_m'] * 1e9:.1f} nm (x = k_q2x q: {s['x_from_charge_only_error_max_m'] * 1e9:.1f} nm)")
+    met = lambda b: "met" if b else "MISSED"    # noqa: E731
+    lines.append(f"  target {tol:.1f} N after 1 s: tared 1-5 s {met(st['target_met_tared_1_5s'])}, tared to the end "
+                 f"{met(st['target_met_tared_1s_end'])}, from reset {met(st['target_met_absolute_1s_end'])}")
+    lines.append(f"  Table 1, {len(ins['runs'])} runs simulated: peak force max error "
+                 f"{100 * ins['simulated_max_error_fraction']:.2f} % ({met(ins['target_met_simulated'])})")
+    lines.append(f"  Table 1 R out from the measured back EMF: model gain {ins['force_per_back_emf_model_n_per_v']:.2f} N/V "
+                 f"max error {100 * ins['measured_r_out_max_error_fraction']:.1f} % ({met(ins['target_met_measured_r_out'])}); "
+                 f"gain of the other runs max {100 * ins['measured_r_out_calibrated_max_error_fraction']:.1f} % "
+                 f"({met(ins['target_met_measured_r_out_calibrated'])})")
+    if args.out is not None:
+        lines.append(f"  report {Path(args.out) / 'force_report.md'}, figure {Path(args.out) / 'force.png'}")
+    _emit(args, data, lines)
+
+
+def run_dynamics(args):
+    """`workbench selfsense --dynamics`: identified K D(s), H(s) and the two dynamic estimators, printed."""
+    from .sysid import run_dynamics_study
+    data = run_dynamics_study(args.plant, seed=args.seed)
+    if args.out is not None:
+        from ..report.selfsense_figures import write_dynamics_outputs
+        data["figures"] = write_dynamics_outputs(Path(args.out), data)
+    data.pop("_arrays")
+    dyn, c = data["dynamics"], data["comparison"]
+    kd = dyn["kd"]
+    lines = [f"{args.plant}: estimator dynamics identified from a 20 V step (orders by BIC: K D {dyn['order_kd']}, "
+             f"H {dyn['order_h']})",
+             f"  K = {kd['dc_gain'] * 1e6:.5f} +/- {kd['sigma_dc_gain'] * 1e6:.1g} um/V (model, small signal at 50 V: "
+             f"{data['model']['k_m_per_v'] * 1e6:.5f} um/V); creep time constants "
+             + ", ".join(f"{t:.3g} s" for t in kd["time_constants_s"])]
+    for key, label in (("static", "static estimate (stage 3)"), ("model", "dynamic, model-derived E"),
+                       ("identified", "dynamic, identified E")):
+        lines.append(f"  {label}: {c[key]['error_rms_m'] * 1e9:.1f} nm RMS, {c[key]['error_pp_m'] * 1e9:.1f} nm p-p "
+                     f"over {data['evaluation_duration_s']:.0f} s")
+    lines.append(f"  target (identified <= {data['target_ratio']:.1f}x model, RMS): ratio "
+                 f"{c['ratio_rms_identified_over_model']:.2f}, {'met' if data['target_met'] else 'MISSED'}")
+    if args.out is not None:
+        lines.append(f"  report {Path(args.out) / 'dynamics_report.md'}, figure {Path(args.out) / 'dynamics.png'}")
     _emit(args, data, lines)
 
 

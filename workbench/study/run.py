@@ -75,6 +75,7 @@ def run_study(study_path, out_dir, progress=None):
     from ..design.margins import family_margins
     from ..design.reduce import reduce_controller
     from ..report import design_figures as figs
+    from ..report.html import write_html_report
     from ..report.markdown import write_report
 
     spec = load_study(study_path)
@@ -206,6 +207,7 @@ def run_study(study_path, out_dir, progress=None):
     summary["margins_table"] = table
     summary["seconds"] = time.perf_counter() - t0
     summary["report"] = str(write_report(out / "report.md", spec, summary, table))
+    summary["report_html"] = str(write_html_report(out / "report.md"))
     from ..report import write_json
     write_json(out / "summary.json", summary)
     say("report", 1, 1)

@@ -32,6 +32,7 @@ the loop and streaming statistics (current peaks, time at the current limit, rat
 range-limited samples) accumulated there, so memory does not grow with the run.
 """
 
+import math
 from dataclasses import dataclass
 
 import control
@@ -111,6 +112,154 @@ def controller_from_json(data, form=None, default_limits_v=None, plant=None, sou
 def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift, ffrac,
           f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
     """Closed loop over len(ref) servo periods.
+
+    ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
+    2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
+    cascade states ``cs_f`` (float form) and ``cs_i`` (fixed, int64); the window's
+    voltage model ``vm_f`` / ``vm_i`` (1-element). ``lim`` = [lo, hi, alpha, h_up, h_down]
+    in V, ``limw`` the same in output words (alpha in Q1.30). ``io`` =
+    [pending output, last x, decimation counter, trace row] carries the loop between chunks.
+    ``stats`` = [i_max, i_min, sub-steps at a current limit, samples held by the
+    current-limit window, range-limited samples].
+
+    The same arithmetic as :func:`_loop_reference`, in the same order (the tests hold the
+    two equal bit for bit), arranged for speed: the plant's scalars and offsets read once
+    (:func:`workbench.plant.kernels.plant_params`) and the step returning its outputs
+    instead of writing an array, the gauge constants (bridge factors, DAC step) and the
+    sub-steps that hold the quarter and three-quarter points worked out before the loop,
+    the statistics kept in locals, nothing allocated per period.
+    """
+    p = K.plant_params(m)
+    n = hx.shape[0]
+    xn = np.empty(n)
+    peak = np.zeros((fb.shape[0], 3), np.int64)
+    L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
+    demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
+    # _bridge's factors, as it computes them
+    kw = kgf * (W / L)
+    r0a, r0b, r0c, r0d = r0[0], r0[1], r0[2], r0[3]
+    # _quantize's step and its top code
+    dac_lsb = 2.0 * dac_fs / (2.0 ** dac_bits)
+    dac_top = dac_fs - dac_lsb
+    i_src_lim, i_snk_lim = p[1] * (1 - 1e-9), p[2] * (1 - 1e-9)
+    # the sub-steps whose interval holds t = 1/4 and t = 3/4 of the period, and their offsets
+    jq = jt = -1
+    fq = ft = 0.0
+    for j in range(n_sub):
+        t_end = (j + 1) / n_sub
+        t_beg = j / n_sub
+        if t_beg < 0.25 <= t_end:
+            jq, fq = j, 0.25 - t_beg
+        if t_beg < 0.75 <= t_end:
+            jt, ft = j, 0.75 - t_beg
+    i_max, i_min, n_lim, n_win, n_range = stats[0], stats[1], stats[2], stats[3], stats[4]
+    lo_v, hi_v, h_up_v, h_dn_v = lim[0], lim[1], lim[3], lim[4]
+    lo_w, hi_w, h_up_w, h_dn_w = limw[0], limw[1], limw[3], limw[4]
+    pending = io[0]
+    x_prev = io[1]
+    count = int(io[2])
+    row = int(io[3])
+    n_rows = rec.shape[0]
+    for k in range(ref.shape[0]):
+        u = pending
+        fk = force[k]
+        xb = x_prev
+        xq = 0.0
+        xt = 0.0
+        xsum = 0.0
+        i_peak = 0.0
+        for j in range(n_sub):
+            xj, _, ij, _, _ = K.pzt_advance(p, m, st, u, fk)
+            # positions a quarter and three quarters into the period, linear between sub-steps
+            if j == jq:
+                xq = xb + (xj - xb) * fq * n_sub
+            if j == jt:
+                xt = xb + (xj - xb) * ft * n_sub
+            xb = xj
+            xsum += xj
+            if abs(ij) > abs(i_peak):
+                i_peak = ij
+            i_max = max(i_max, ij)
+            i_min = min(i_min, ij)
+            if ij >= i_src_lim or -ij >= i_snk_lim:
+                n_lim += 1
+        x_prev = xb
+        # the bridge (eq. 26) at the two points, as _bridge; the amplifier, the ADC range as a clip
+        s = xq / L
+        a_w = 1 - kw * s
+        a_l = 1 + kgf * s
+        r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
+        vp = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm), -adc_fs), adc_fs)
+        s = xt / L
+        a_w = 1 - kw * s
+        a_l = 1 + kgf * s
+        r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
+        vn = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * -vm), -adc_fs), adc_fs)
+        dem = 0.5 * demod * (vp - vn) + noise[k]
+        # trim and the servo DAC, as _quantize
+        reading = min(max(trim_s * dem + trim_b, -dac_fs), dac_top)
+        reading = math.floor(reading / dac_lsb + 0.5) * dac_lsb
+        e = ref[k] - reading
+        if form == 2:
+            # the input word as FixedPointController.input_words makes it (round half even, clamp)
+            v = min(max(np.int64(np.rint(e * in_scale)), -f_in), f_in)
+            wlo, whi = vm_i[0] - h_dn_w, vm_i[0] + h_up_w
+            u_w = fixed_step(cs_i, v, fb, fa, fshift, ffrac, limw, vm_i, aw, peak)
+            if aw and ((u_w == wlo and wlo > lo_w) or (u_w == whi and whi < hi_w)):
+                n_win += 1
+            if u_w == lo_w or u_w == hi_w:
+                n_range += 1
+            u_lim = u_w * out_scale
+        else:
+            wlo, whi = vm_f[0] - h_dn_v, vm_f[0] + h_up_v
+            if form == 1:
+                u_lim = float_step(cs_f, gain * e, sos, lim, vm_f, aw)
+            else:
+                u_raw = hd * e
+                for i in range(n):
+                    u_raw += hc[i] * hx[i]
+                u_lim = min(max(u_raw, max(lo_v, wlo)), min(hi_v, whi))
+                # conditioned on the limited output: x <- a x + b e_equiv, e_equiv = (u_lim - c x) / d
+                e_eq = (u_lim - (u_raw - hd * e)) / hd if aw else e
+                for i in range(n):
+                    acc = hb[i] * e_eq
+                    for jj in range(n):
+                        acc += ha[i, jj] * hx[jj]
+                    xn[i] = acc
+                for i in range(n):
+                    hx[i] = xn[i]
+                vm_f[0] += lim[2] * (u_lim - vm_f[0])
+            if aw and ((u_lim == wlo and wlo > lo_v) or (u_lim == whi and whi < hi_v)):
+                n_win += 1
+            if u_lim == lo_v or u_lim == hi_v:
+                n_range += 1
+        pending = u_lim
+        count += 1
+        if count == decimate:
+            count = 0
+            if row < n_rows:
+                rec[row, 0] = xsum / n_sub
+                rec[row, 1] = reading
+                rec[row, 2] = u
+                rec[row, 3] = e
+                rec[row, 4] = fk
+                rec[row, 5] = i_peak
+                row += 1
+    stats[0], stats[1], stats[2], stats[3], stats[4] = i_max, i_min, n_lim, n_win, n_range
+    io[0] = pending
+    io[1] = x_prev
+    io[2] = count
+    io[3] = row
+
+
+def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift,
+                    ffrac, f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
+    """The closed loop as first written, run by the interpreter: the slow reference of :func:`_loop`.
+
+    The plant step through its packed arrays and an output array, the gauge and
+    controller helpers called as they are (those run compiled), every number in the
+    order :func:`_loop` computes it. The tests hold the two equal bit for bit; ~50 us a
+    period, for short runs only. Same arguments, same effect as :func:`_loop`.
 
     ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
     2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);

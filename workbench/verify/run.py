@@ -397,6 +397,8 @@ def _write_outputs(out, summary, traces_all):
         if why:
             text = text.replace("## Targets\n", "## Targets\n\n" + "\n".join(why) + "\n", 1)
         write_text(report, text)
+    from ..report.html import write_html_report
+    write_html_report(report)
     write_json(out / "verify.json", {**summary, "figures": figures})
     return {"figures": figures, "report": str(report)}
 

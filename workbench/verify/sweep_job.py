@@ -130,7 +130,10 @@ def run_sweep(study_path, controller_path=None, out_dir=None, table=None, schedu
     rows = run_cases(run_case, cases, scheduler=scheduler, workers=workers, progress=progress, timeout_s=timeout_s)
     worst_cases = {}
     for metric, larger in WORST:
-        w = worst(rows, metric, larger_is_worse=larger)
+        try:
+            w = worst(rows, metric, larger_is_worse=larger)
+        except ValueError:       # no row has a number (e.g. every case slews at crossover): the table says why
+            w = None
         if w is not None:
             worst_cases[metric] = {"value": w[metric], **{k: w[k] for k in ("serial", "cp_factor", "amplitude_v")}}
     summary = {"study": str(study.path), "controller": str(controller_path), "cases": len(rows),

@@ -1,0 +1,217 @@
+/* closed_loop_vs_c.c: the closed loop of workbench.verify.closed_loop in plain C, for the speed reference.
+ *
+ * The same computation per servo period as the compiled loop (_loop, fixed-point form):
+ *   1. the PZT: n_sub steps of workbench.plant.kernels.pzt_step (voltage range, R and the current limits,
+ *      the PI operators G and Q, the creep branches, the modes), command held;
+ *   2. the gauge chain, equivalent discrete model: the bridge (eq. 26, imbalance included) a quarter and
+ *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise, trim,
+ *      DAC quantization;
+ *   3. the controller: the exported header's CTRL_fixed_step (int32 words, int64 accumulators, the output
+ *      range and the current-limit window around the stack-voltage model), input word round-half-even;
+ *   4. its output applied the next period.
+ * Streaming statistics and the decimated trace as _loop keeps them.
+ *
+ * The model and the plant state are the packed vectors of workbench.plant.kernels (m, st): their layout is
+ * read from the head of m, so this file follows pack_model. Built by benchmarks/closed_loop_vs_c.py with
+ *   gcc -O2 -march=native -ffp-contract=off -shared -fPIC -include CTRL.h -DCTRL=name
+ * (-ffp-contract=off: no fused multiply-add, so the doubles round as numba's do and the words agree).
+ */
+#include <math.h>
+#include <stdint.h>
+#include <string.h>
+
+#ifndef CTRL
+#error "define CTRL (the controller name) and -include its exported header"
+#endif
+#define PASTE2(a, b) a##b
+#define PASTE(a, b) PASTE2(a, b)
+#define STATE PASTE(CTRL, _fixed_state)
+#define STEP PASTE(CTRL, _fixed_step)
+#define N_SEC ((int)(sizeof(((STATE *)0)->s) / sizeof(((STATE *)0)->s[0])))
+
+/* m head: workbench.plant.kernels */
+enum { R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
+       INV_R, INV_I_SRC, INV_I_SNK, INV_K_P, INV_C_PP, INV_DT,
+       N_G, O_RG, O_WG, N_Q, O_RQ, O_WQ, N_C, O_CC, O_CDEC, N_M, O_AD, O_BD, O_CD, O_DD,
+       OS_ZG, OS_ZQ, OS_QC, OS_XM };
+enum { S_QH, S_U, S_QC, S_GUP, S_GDN };
+
+static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
+
+static inline double bridge(double x, double L, double W, double kgf, const double *r0, double vm)
+{
+    double s = x / L;
+    double r_wy = r0[0] * (1 - kgf * (W / L) * s);
+    double r_gb = r0[1] * (1 - kgf * (W / L) * s);
+    double r_yg = r0[2] * (1 + kgf * s);
+    double r_wb = r0[3] * (1 + kgf * s);
+    return ((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm;
+}
+
+static inline double quantize(double v, double full_scale, double lsb)
+{
+    if (v > full_scale - lsb) v = full_scale - lsb;
+    if (v < -full_scale) v = -full_scale;
+    return floor(v / lsb + 0.5) * lsb;
+}
+
+/* One plant sub-step: pzt_step of workbench.plant.kernels; returns x, writes the current to *i_a. */
+static inline double pzt_step(const double *m, double *st, double v_cmd, double f_e, double *i_a)
+{
+    const double dt = m[DT], t_em = m[T_EM], inv_cpp = m[INV_C_PP];
+    double v = clampd(v_cmd, m[V_MIN], m[V_MAX]);
+    double qh = st[S_QH], u = st[S_U], qh_new, u_new;
+    double f_term = t_em * f_e * m[INV_K_P];
+    double u_target = v - (st[S_QC] - f_term) * inv_cpp;
+    if (m[QUASI_STATIC] > 0.5) {
+        const int n = (int)m[N_Q], o_r = (int)m[O_RQ], o_w = (int)m[O_WQ], o_z = (int)m[OS_ZQ];
+        double y = 0.0;
+        for (int i = 0; i < n; i++) {
+            double z = clampd(st[o_z + i], u_target - m[o_r + i], u_target + m[o_r + i]);
+            st[o_z + i] = z;
+            y += m[o_w + i] * z;
+        }
+        qh_new = y;
+        u_new = u_target;
+    } else {
+        double du = u_target - u;
+        if (du != 0.0) {
+            double d, cap, i_lim, inv_i;
+            if (du > 0) { d = 1.0; cap = st[S_GUP]; i_lim = m[I_SRC]; inv_i = m[INV_I_SRC]; }
+            else { d = -1.0; cap = st[S_GDN]; i_lim = m[I_SNK]; inv_i = m[INV_I_SNK]; }
+            double r = m[R], gap = fabs(du), t_left = dt, dq = 0.0;
+            if (gap > r * i_lim) {
+                double t_sat = (gap - r * i_lim) * inv_i * cap;
+                if (t_sat >= dt) { dq = d * i_lim * dt; t_left = 0.0; }
+                else { dq = d * i_lim * t_sat; t_left = dt - t_sat; gap = r * i_lim; }
+            }
+            if (t_left > 0.0) dq += d * gap * cap * (1.0 - exp(-t_left / (r * cap)));
+            qh_new = qh + dq;
+            const int n = (int)m[N_G], o_r = (int)m[O_RG], o_w = (int)m[O_WG], o_z = (int)m[OS_ZG];
+            double y = 0.0, up = 0.0, dn = 0.0;
+            for (int i = 0; i < n; i++) {
+                double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
+                double z = st[o_z + i];
+                if (z < lo) z = lo; else if (z > hi) z = hi;
+                if (z <= lo) up += wi;
+                if (z >= hi) dn += wi;
+                st[o_z + i] = z;
+                y += wi * z;
+            }
+            st[S_GUP] = 1.0 / up;
+            st[S_GDN] = 1.0 / dn;
+            u_new = y;
+        } else {
+            qh_new = qh;
+            u_new = u;
+        }
+    }
+    double v_h = u_new - qh_new * inv_cpp;
+    double qc_tot = 0.0;
+    const int nc = (int)m[N_C], o_c = (int)m[O_CC], o_dec = (int)m[O_CDEC], o_qc = (int)m[OS_QC];
+    for (int j = 0; j < nc; j++) {
+        double target = m[o_c + j] * v_h;
+        double qj = target + (st[o_qc + j] - target) * m[o_dec + j];
+        st[o_qc + j] = qj;
+        qc_tot += qj;
+    }
+    double q_old = qh + st[S_QC], q = qh_new + qc_tot;
+    st[S_QH] = qh_new;
+    st[S_U] = u_new;
+    st[S_QC] = qc_tot;
+    double v_p = (q - f_term) * inv_cpp;
+    double x_qs = (f_e + t_em * v_p) * m[INV_K_P];
+    const int nm = (int)m[N_M];
+    double x;
+    if (nm > 0) {
+        const int o_x = (int)m[OS_XM], o_a = (int)m[O_AD], o_b = (int)m[O_BD], o_cd = (int)m[O_CD];
+        double x_before = st[o_x + 2 * nm];
+        for (int a = 0; a < nm; a++) {
+            double acc = m[o_b + a] * x_before + m[o_b + nm + a] * x_qs;
+            for (int b = 0; b < nm; b++) acc += m[o_a + a * nm + b] * st[o_x + b];
+            st[o_x + nm + a] = acc;
+        }
+        x = m[(int)m[O_DD]] * x_qs;
+        for (int a = 0; a < nm; a++) {
+            st[o_x + a] = st[o_x + nm + a];
+            x += m[o_cd + a] * st[o_x + a];
+        }
+        st[o_x + 2 * nm] = x_qs;
+    } else {
+        x = x_qs;
+    }
+    *i_a = (q - q_old) * m[INV_DT];
+    return x;
+}
+
+/* n periods. gp: the gauge parameters as ClosedLoop._gp; r0: the four arm rest resistances;
+ * cs (n_sections x 2) and vm: the cascade's words (int64, in and out); lim: [lo, hi] output words;
+ * in_scale, out_scale, in_lim: the input/output word scales and the input clamp; io: [pending output V,
+ * last x, decimation counter, trace row]; rec (rows x 6) and stats (5) as _loop. */
+void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, const double *force,
+            const double *noise, const double *gp, const double *r0, int64_t *cs, int64_t *vm,
+            const int64_t *lim, double in_scale, double out_scale, int64_t in_lim, double *io, long decimate,
+            double *rec, long rec_rows, double *stats)
+{
+    const double L = gp[0], W = gp[1], kgf = gp[2], vmod = gp[3], amp = gp[4], adc_fs = gp[5];
+    const double demod = gp[6], trim_s = gp[7], trim_b = gp[8], dac_fs = gp[9];
+    const double dac_lsb = 2.0 * dac_fs / ldexp(1.0, (int)gp[10]);
+    const double i_src = m[I_SRC], i_snk = m[I_SNK];
+    const int64_t lo_w = lim[0], hi_w = lim[1], h_up = lim[3], h_dn = lim[4];
+    STATE c;
+    for (int k = 0; k < N_SEC; k++) {
+        c.s[k][0] = (int32_t)cs[2 * k];
+        c.s[k][1] = (int32_t)cs[2 * k + 1];
+    }
+    c.v = (int32_t)vm[0];
+    double pending = io[0], x_prev = io[1];
+    long count = (long)io[2], row = (long)io[3];
+    for (long k = 0; k < n; k++) {
+        double u = pending, fk = force[k], x_start = x_prev, xq = 0.0, xt = 0.0, xsum = 0.0, i_peak = 0.0;
+        double xprev_sub = x_prev;
+        for (long j = 0; j < n_sub; j++) {
+            double ij, xj = pzt_step(m, st, u, fk, &ij);
+            double t_end = (double)(j + 1) / n_sub, t_beg = (double)j / n_sub;
+            if (t_beg < 0.25 && 0.25 <= t_end) {
+                double xb = j == 0 ? x_start : xprev_sub;
+                xq = xb + (xj - xb) * (0.25 - t_beg) * n_sub;
+            }
+            if (t_beg < 0.75 && 0.75 <= t_end) {
+                double xb = j == 0 ? x_start : xprev_sub;
+                xt = xb + (xj - xb) * (0.75 - t_beg) * n_sub;
+            }
+            xprev_sub = xj;
+            xsum += xj;
+            if (fabs(ij) > fabs(i_peak)) i_peak = ij;
+            if (ij > stats[0]) stats[0] = ij;
+            if (ij < stats[1]) stats[1] = ij;
+            if (ij >= i_src * (1 - 1e-9) || -ij >= i_snk * (1 - 1e-9)) stats[2] += 1;
+        }
+        x_prev = xprev_sub;
+        double vp = clampd(amp * bridge(xq, L, W, kgf, r0, vmod), -adc_fs, adc_fs);
+        double vn = clampd(amp * bridge(xt, L, W, kgf, r0, -vmod), -adc_fs, adc_fs);
+        double dem = 0.5 * demod * (vp - vn) + noise[k];
+        double reading = quantize(trim_s * dem + trim_b, dac_fs, dac_lsb);
+        double e = ref[k] - reading;
+        double ew = rint(e * in_scale);                       /* round half even, as np.rint */
+        int64_t v = ew > (double)in_lim ? in_lim : ew < -(double)in_lim ? -in_lim : (int64_t)ew;
+        int64_t wlo = (int64_t)c.v - h_dn, whi = (int64_t)c.v + h_up;
+        int64_t u_w = STEP(&c, (int32_t)v);
+        if ((u_w == wlo && wlo > lo_w) || (u_w == whi && whi < hi_w)) stats[3] += 1;
+        if (u_w == lo_w || u_w == hi_w) stats[4] += 1;
+        pending = (double)u_w * out_scale;
+        if (++count == decimate) {
+            count = 0;
+            if (row < rec_rows) {
+                double *r = rec + 6 * row++;
+                r[0] = xsum / n_sub; r[1] = reading; r[2] = u; r[3] = e; r[4] = fk; r[5] = i_peak;
+            }
+        }
+    }
+    for (int k = 0; k < N_SEC; k++) {
+        cs[2 * k] = c.s[k][0];
+        cs[2 * k + 1] = c.s[k][1];
+    }
+    vm[0] = c.v;
+    io[0] = pending; io[1] = x_prev; io[2] = (double)count; io[3] = (double)row;
+}

@@ -1,0 +1,501 @@
+"""Bad input, as a careless user gives it, to every command: exit 2, one message, nothing lost.
+
+Each case runs ``workbench.cli.main`` in-process (a few through a subprocess, as a user runs
+it) in a workspace holding copies of the repository's plant, study, controller and table files
+and a set of broken ones, and asserts what issue 17 asks of every failure:
+
+- exit status 2 and no traceback;
+- the message names the file (or the flag) and the place (key, line, flag, range);
+- every input file's hash is unchanged (no input overwritten);
+- no output at all (nothing left in the output folder or at the --json path).
+
+The cases are the probes of issue 17 that failed (tracebacks, overwritten inputs, values
+accepted that should fail, unbounded runs, weak messages) and the ones the validators already
+caught, so that what is fixed stays fixed.
+"""
+
+import hashlib
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from workbench.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL_RECORD = Path("/work/shared/data/real/hysteresis_v_150_1hz.csv")
+
+PLANT = "plants/p888_51_sn637.toml"
+CREEP = "plants/p888_51_sn637_creep.toml"
+CTRL = "controllers/sn637_loopshape.json"
+STUDY = "studies/sn637_servo.toml"
+TABLE = "plants/data/p888_51_instron_table1.csv"
+RECORD = "data/record.csv"
+
+
+def _study_text(replace=None, append=""):
+    text = (ROOT / STUDY).read_text(encoding="utf-8")
+    for old, new in (replace or {}).items():
+        assert old in text, old
+        text = text.replace(old, new)
+    return text + append
+
+
+@pytest.fixture(scope="module")
+def ws(tmp_path_factory):
+    """A workspace: copies of the repository's inputs and the broken files of the cases."""
+    ws = tmp_path_factory.mktemp("ws")
+    for folder in ("plants", "studies", "controllers"):
+        shutil.copytree(ROOT / folder, ws / folder)
+    (ws / "data").mkdir()
+    if REAL_RECORD.is_file():
+        shutil.copy(REAL_RECORD, ws / RECORD)
+    else:                                      # a record of the calibrate format
+        (ws / RECORD).write_text("time[s],voltage[V],displacement[m]\n0,0,0\n0.001,1,1e-7\n", encoding="utf-8")
+    bad = ws / "bad"
+    bad.mkdir()
+    plant_text = (ROOT / PLANT).read_bytes()
+    # non-UTF-8: a Latin-1 degree sign in a comment on line 3
+    lines = plant_text.split(b"\n")
+    lines[2] = lines[2] + b"   # 25 \xb0C"
+    (bad / "latin1.toml").write_bytes(b"\n".join(lines))
+    (bad / "binary.toml").write_bytes(b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR" + bytes(range(256)))
+    (bad / "utf16.toml").write_bytes(plant_text.decode("utf-8").encode("utf-16"))
+    (bad / "dir.toml").mkdir()
+    (bad / "empty.toml").write_bytes(b"")
+    table = (ROOT / TABLE).read_bytes()
+    (bad / "latin1_table.csv").write_bytes(table.replace(b"# Instron", b"# Instron \xe9", 1))
+    (bad / "binary.csv").write_bytes(b"\x00\x01\x02" * 100)
+    (bad / "dir.csv").mkdir()
+    (bad / "semicolon.csv").write_text("time[s];voltage[V];displacement[m]\n0;0;0\n0.001;1;1e-7\n",
+                                       encoding="utf-8")
+    (bad / "tabs.csv").write_text("# a table\nserial\trun\tconfig\nSN637\t1\tR_in\n", encoding="utf-8")
+    (bad / "header_only.csv").write_text("time[s],voltage[V],displacement[m]\n", encoding="utf-8")
+    (bad / "empty.csv").write_text("", encoding="utf-8")
+    (bad / "latin1_study.toml").write_bytes(_study_text().encode("utf-8").replace(b"# The SN637", b"# The \xc9SN637"))
+    (bad / "binary.json").write_bytes(b"\x00\xff" * 50)
+    (bad / "latin1.json").write_bytes(b'{"name": "caf\xe9"}')
+    (bad / "dir.json").mkdir()
+    (bad / "not_json.json").write_text("sample_rate_hz = 10000\n", encoding="utf-8")
+    # study variants (paths inside are relative to the study file: keep them in studies/)
+    studies = {
+        "family_scalar": _study_text({"[family]\n": "family = 5\n[family_x]\n"}),
+        "targets_array": _study_text({"[targets]\n": "[[targets]]\n"}),
+        "export_absolute": _study_text({'directory = "controllers"': f'directory = "{ws / "elsewhere"}"'}),
+        "export_escape": _study_text({'directory = "controllers"': 'directory = "../../escaped"'}),
+        "export_name_slash": _study_text({'name = "sn637_loopshape"': 'name = "../sn637_loopshape"'}),
+        "export_name_empty": _study_text({'name = "sn637_loopshape"': 'name = ""'}),
+        "unknown_section": _study_text(append="\n[famly]\nbias_v = 1.0\n"),
+        "unknown_key": _study_text({"bias_v = 50.0": "bias_v = 50.0\nbias_mv = 3.0"}),
+        "bad_schema": _study_text({'schema = "workbench.study/1"': 'schema = "workbench.study/9"'}),
+        "missing_plant": _study_text({'plant = "../plants/p888_51_sn637_creep.toml"': 'plant = "../plants/nope.toml"'}),
+        "freq_reversed": _study_text({"freq_min_hz = 1.0 ": "freq_min_hz = 6000.0 "}),
+        "amplitude_negative": _study_text({"amplitudes_v = [0.1,": "amplitudes_v = [-0.1,"}),
+        "limits_reversed": _study_text({"output_limits_v = [-20.0, 120.0]": "output_limits_v = [120.0, -20.0]"}),
+        "bad_toml": _study_text(append="\n[hinf\n"),
+        "string_number": _study_text({"freq_points = 60": 'freq_points = "60"'}),
+        "missing_section": _study_text({"[hinf]\ntime_limit_s = 60.0\n": ""}),
+    }
+    for name, text in studies.items():
+        (ws / "studies" / f"{name}.toml").write_text(text, encoding="utf-8")
+    # plant variants
+    plants = {
+        "neg_capacitance": plant_text.replace(b"working_capacitance_f = 5.802e-06", b"working_capacitance_f = -5.8e-06"),
+        "unknown_key": plant_text.replace(b"[electrical]\n", b"[electrical]\nvoltage_mid_v = 50.0\n"),
+        "nan_value": plant_text.replace(b"series_resistor_ohm = 80.0", b"series_resistor_ohm = nan"),
+        "limits_reversed": plant_text.replace(b"voltage_min_v = -20.0", b"voltage_min_v = 130.0"),
+    }
+    for name, text in plants.items():
+        assert text != plant_text, name
+        (bad / f"plant_{name}.toml").write_bytes(text)
+    ctrl = json.loads((ROOT / CTRL).read_text(encoding="utf-8"))
+    (bad / "ctrl_rate0.json").write_text(json.dumps({**ctrl, "sample_rate_hz": 0.0}), encoding="utf-8")
+    (bad / "ctrl_no_sos.json").write_text(json.dumps({k: v for k, v in ctrl.items() if k != "sos"}), encoding="utf-8")
+    (bad / "a_file").write_text("not a folder\n", encoding="utf-8")
+    return ws
+
+
+def _hashes(ws):
+    return {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(ws.rglob("*")) if p.is_file()}
+
+
+# (id, argv with {out} for the test's empty output folder, fragments every message must contain)
+CASES = [
+    # ---- input files: missing, a folder, binary, not UTF-8 -------------------------------------------------
+    ("gauge-missing", ["gauge", "plants/missing.toml"], ["plants/missing.toml", "no such file"]),
+    ("gauge-dir", ["gauge", "bad/dir.toml"], ["bad/dir.toml", "is a folder"]),
+    ("gauge-latin1", ["gauge", "bad/latin1.toml"], ["bad/latin1.toml", "line 3", "not UTF-8"]),
+    ("gauge-binary", ["gauge", "bad/binary.toml"], ["bad/binary.toml", "line 3", "binary"]),
+    ("gauge-utf16", ["gauge", "bad/utf16.toml"], ["bad/utf16.toml", "line 1"]),
+    ("gauge-empty", ["gauge", "bad/empty.toml"], ["bad/empty.toml"]),
+    ("gauge-folder-dot", ["gauge", "plants"], ["plants", "is a folder"]),
+    ("freefree-missing", ["freefree", "plants/none.toml"], ["plants/none.toml", "no such file"]),
+    ("freefree-latin1", ["freefree", "bad/latin1.toml"], ["bad/latin1.toml", "line 3"]),
+    ("synth-missing", ["synth", "plants/none.toml", "--out", "{out}/r.csv"], ["plants/none.toml", "no such file"]),
+    ("synth-binary", ["synth", "bad/binary.toml", "--out", "{out}/r.csv"], ["bad/binary.toml", "binary"]),
+    ("identify-missing", ["identify", "transducer", "plants/data/none.csv"], ["plants/data/none.csv", "no such file"]),
+    ("identify-dir", ["identify", "transducer", "bad/dir.csv"], ["bad/dir.csv", "is a folder"]),
+    ("identify-latin1", ["identify", "transducer", "bad/latin1_table.csv"], ["bad/latin1_table.csv", "line 1",
+                                                                              "column 11"]),
+    ("identify-binary", ["identify", "transducer", "bad/binary.csv"], ["bad/binary.csv", "binary"]),
+    ("identify-plant", ["identify", "transducer", PLANT], ["p888_51_sn637.toml"]),
+    ("identify-empty", ["identify", "transducer", "bad/empty.csv"], ["bad/empty.csv"]),
+    ("linearize-missing", ["linearize", "plants/none.toml"], ["plants/none.toml", "no such file"]),
+    ("linearize-serial-missing", ["linearize", PLANT, "--serials", "plants/none.toml"],
+     ["--serials plants/none.toml", "no such file"]),
+    ("linearize-serial-dir", ["linearize", PLANT, "--serials", "plants"], ["--serials plants", "is a folder"]),
+    ("linearize-controller-missing", ["linearize", PLANT, "--controller", "controllers/none.json"],
+     ["--controller controllers/none.json", "no such file"]),
+    ("linearize-controller-binary", ["linearize", PLANT, "--controller", "bad/binary.json"],
+     ["bad/binary.json", "binary"]),
+    ("verify-plant-missing", ["verify", "plants/none.toml", "--controller", CTRL], ["plants/none.toml"]),
+    ("verify-controller-missing", ["verify", CREEP, "--controller", "controllers/none.json"],
+     ["controllers/none.json", "no such file"]),
+    ("verify-controller-dir", ["verify", CREEP, "--controller", "bad/dir.json"], ["bad/dir.json", "is a folder"]),
+    ("verify-controller-latin1", ["verify", CREEP, "--controller", "bad/latin1.json"],
+     ["bad/latin1.json", "line 1, column 14"]),
+    ("verify-controller-not-json", ["verify", CREEP, "--controller", "bad/not_json.json"],
+     ["bad/not_json.json", "line 1, column 1", "not valid JSON"]),
+    ("linearize-controller-not-json", ["linearize", PLANT, "--controller", "bad/not_json.json"],
+     ["bad/not_json.json", "line 1, column 1"]),
+    ("verify-controller-binary", ["verify", CREEP, "--controller", "bad/binary.json"], ["bad/binary.json", "binary"]),
+    ("bench-plant-missing", ["bench", "--plant", "plants/none.toml"], ["--plant plants/none.toml", "no such file"]),
+    ("bench-controller-missing", ["bench", "--controller", "controllers/none.json"],
+     ["--controller controllers/none.json", "no such file"]),
+    ("bench-controller-dir", ["bench", "--controller", "controllers"], ["--controller controllers", "is a folder"]),
+    ("study-missing", ["study", "studies/none.toml", "--out", "{out}"], ["studies/none.toml", "no such file"]),
+    ("study-dir", ["study", "studies", "--out", "{out}"], ["studies", "is a folder"]),
+    ("study-latin1", ["study", "bad/latin1_study.toml", "--out", "{out}"], ["bad/latin1_study.toml", "line 1"]),
+    ("study-binary", ["study", "bad/binary.toml", "--out", "{out}"], ["bad/binary.toml", "binary"]),
+    ("sweep-missing", ["sweep", "studies/none.toml", "--out", "{out}"], ["studies/none.toml", "no such file"]),
+    ("sweep-controller-missing", ["sweep", STUDY, "--controller", "controllers/none.json", "--out", "{out}"],
+     ["controllers/none.json", "no such file"]),
+    ("calibrate-record-missing", ["calibrate", "data/none.csv", "--plant", PLANT], ["data/none.csv", "no such file"]),
+    ("calibrate-record-dir", ["calibrate", "bad/dir.csv", "--plant", PLANT], ["bad/dir.csv", "is a folder"]),
+    ("calibrate-record-binary", ["calibrate", "bad/binary.csv", "--plant", PLANT], ["bad/binary.csv", "binary"]),
+    ("calibrate-record-latin1", ["calibrate", "bad/latin1_table.csv", "--plant", PLANT], ["bad/latin1_table.csv",
+                                                                                          "not UTF-8"]),
+    ("calibrate-record-semicolon", ["calibrate", "bad/semicolon.csv", "--plant", PLANT],
+     ["bad/semicolon.csv", "line 1", "semicolons"]),
+    ("identify-table-tabs", ["identify", "transducer", "bad/tabs.csv"], ["bad/tabs.csv", "line 2", "tabs"]),
+    ("calibrate-plant-missing", ["calibrate", RECORD, "--plant", "plants/none.toml"],
+     ["--plant plants/none.toml", "no such file"]),
+    ("calibrate-plant-dir", ["calibrate", RECORD, "--plant", "plants"], ["--plant plants", "is a folder"]),
+    ("selfsense-missing", ["selfsense", "plants/none.toml"], ["plants/none.toml"]),
+    ("selfsense-controller-missing", ["selfsense", CREEP, "--controller", "controllers/none.json"],
+     ["controllers/none.json", "no such file"]),
+    ("selfsense-latin1", ["selfsense", "bad/latin1.toml"], ["bad/latin1.toml", "line 3"]),
+    # ---- outputs: onto an input, onto a folder, under a file, --out a file ----------------------------------
+    ("gauge-json-onto-plant", ["gauge", PLANT, "--json", PLANT], [PLANT, "is the input plant"]),
+    ("gauge-json-onto-plant-dotted", ["gauge", PLANT, "--json", "plants/../" + PLANT],
+     ["is the input plant"]),
+    ("gauge-json-dir", ["gauge", PLANT, "--json", "{out}"], ["--json", "is a folder"]),
+    ("gauge-json-under-file", ["gauge", PLANT, "--json", "bad/a_file/g.json"], ["bad/a_file", "is a file"]),
+    ("synth-out-onto-plant", ["synth", PLANT, "--out", PLANT], ["--out", "is the input plant"]),
+    ("synth-out-dir", ["synth", PLANT, "--out", "{out}"], ["--out", "is a folder"]),
+    ("synth-out-under-file", ["synth", PLANT, "--out", "bad/a_file/r.csv"], ["bad/a_file", "is a file"]),
+    ("synth-out-equals-json", ["synth", PLANT, "--out", "{out}/r.csv", "--json", "{out}/r.csv"],
+     ["two outputs cannot share a path"]),
+    ("synth-json-onto-plant", ["synth", PLANT, "--out", "{out}/r.csv", "--json", PLANT], ["is the input plant"]),
+    ("calibrate-json-onto-record", ["calibrate", RECORD, "--plant", PLANT, "--json", RECORD],
+     [RECORD, "is the input record"]),
+    ("calibrate-json-onto-plant", ["calibrate", RECORD, "--plant", PLANT, "--json", PLANT],
+     [PLANT, "is the input --plant"]),
+    ("calibrate-out-file", ["calibrate", RECORD, "--plant", PLANT, "--out", "bad/a_file"],
+     ["--out bad/a_file", "is a file"]),
+    ("calibrate-out-onto-record", ["calibrate", RECORD, "--plant", PLANT, "--out", RECORD],
+     ["is the input record"]),
+    ("identify-json-onto-table", ["identify", "transducer", TABLE, "--json", TABLE], ["is the input table"]),
+    ("freefree-out-file", ["freefree", PLANT, "--out", "bad/a_file"], ["--out bad/a_file", "is a file"]),
+    ("freefree-out-under-file", ["freefree", PLANT, "--out", "bad/a_file/ff"], ["bad/a_file", "is a file"]),
+    ("freefree-json-dir", ["freefree", PLANT, "--json", "{out}"], ["--json", "is a folder"]),
+    ("linearize-out-file", ["linearize", PLANT, "--out", "bad/a_file"], ["--out bad/a_file", "is a file"]),
+    ("linearize-json-onto-serial", ["linearize", PLANT, "--serials", "plants/p888_51_sn629.toml", "--json",
+                                    "plants/p888_51_sn629.toml"], ["is the input --serials"]),
+    ("linearize-json-onto-controller", ["linearize", PLANT, "--controller", CTRL, "--json", CTRL],
+     ["is the input --controller"]),
+    ("study-out-file", ["study", STUDY, "--out", "bad/a_file"], ["--out bad/a_file", "is a file"]),
+    ("study-out-under-file", ["study", STUDY, "--out", "bad/a_file/study"], ["bad/a_file", "is a file"]),
+    ("study-json-dir", ["study", STUDY, "--out", "{out}", "--json", "studies"], ["--json studies", "is a folder"]),
+    ("study-json-under-file", ["study", STUDY, "--out", "{out}", "--json", "bad/a_file/s.json"],
+     ["bad/a_file", "is a file"]),
+    ("study-json-onto-study", ["study", STUDY, "--out", "{out}", "--json", STUDY], ["is the input study"]),
+    ("study-json-onto-its-plant", ["study", STUDY, "--out", "{out}", "--json", CREEP],
+     [CREEP, "is the input studies/sn637_servo.toml: plant"]),
+    ("sweep-table-onto-a-serial", ["sweep", STUDY, "--out", "{out}", "--table", "plants/p888_51_sn618.toml"],
+     ["is the input studies/sn637_servo.toml: serials[1]"]),
+    ("study-json-onto-report", ["study", STUDY, "--out", "{out}", "--json", "{out}/report.md"],
+     ["report.md", "its own"]),
+    ("verify-json-onto-report", ["verify", CREEP, "--controller", CTRL, "--out", "{out}", "--json", "{out}/report.md"],
+     ["report.md", "its own"]),
+    ("verify-out-file", ["verify", CREEP, "--controller", CTRL, "--out", "bad/a_file"], ["--out bad/a_file", "is a file"]),
+    ("verify-json-onto-controller", ["verify", CREEP, "--controller", CTRL, "--json", CTRL],
+     ["is the input --controller"]),
+    ("verify-json-dir", ["verify", CREEP, "--controller", CTRL, "--json", "{out}"], ["--json", "is a folder"]),
+    ("sweep-table-onto-study", ["sweep", STUDY, "--out", "{out}", "--table", STUDY], ["is the input study"]),
+    ("sweep-table-dir", ["sweep", STUDY, "--out", "{out}", "--table", "{out}"], ["--table", "is a folder"]),
+    ("sweep-out-file", ["sweep", STUDY, "--out", "bad/a_file"], ["--out bad/a_file", "is a file"]),
+    ("selfsense-out-file", ["selfsense", CREEP, "--out", "bad/a_file"], ["bad/a_file", "file"]),
+    ("selfsense-json-onto-plant", ["selfsense", CREEP, "--json", CREEP], ["is the input plant"]),
+    ("demo-out-file", ["demo", "--out", "bad/a_file"], ["--out bad/a_file", "is a file"]),
+    ("demo-json-dir", ["demo", "--out", "{out}", "--json", "plants"], ["--json plants", "is a folder"]),
+    ("bench-json-onto-plant", ["bench", "--json", CREEP], ["is the input --plant"]),
+    # ---- study files: sections, export folder and name, the validators' own cases --------------------------
+    ("study-family-scalar", ["study", "studies/family_scalar.toml", "--out", "{out}"],
+     ["family_scalar.toml", "[family]", "not a section"]),
+    ("study-targets-array", ["study", "studies/targets_array.toml", "--out", "{out}"],
+     ["targets_array.toml", "[targets]", "array of tables"]),
+    ("sweep-family-scalar", ["sweep", "studies/family_scalar.toml", "--out", "{out}"],
+     ["family_scalar.toml", "[family]"]),
+    ("study-export-absolute", ["study", "studies/export_absolute.toml", "--out", "{out}"],
+     ["export_absolute.toml", "[export.directory]", "outside the output folder"]),
+    ("study-export-escape", ["study", "studies/export_escape.toml", "--out", "{out}"],
+     ["export_escape.toml", "[export.directory]"]),
+    ("study-export-name-slash", ["study", "studies/export_name_slash.toml", "--out", "{out}"],
+     ["export_name_slash.toml", "[export.name]"]),
+    ("study-export-name-empty", ["study", "studies/export_name_empty.toml", "--out", "{out}"],
+     ["export_name_empty.toml", "[export.name]"]),
+    ("study-unknown-section", ["study", "studies/unknown_section.toml", "--out", "{out}"],
+     ["unknown_section.toml", "[famly]", "unknown section"]),
+    ("study-unknown-key", ["study", "studies/unknown_key.toml", "--out", "{out}"],
+     ["unknown_key.toml", "[family.bias_mv]"]),
+    ("study-bad-schema", ["study", "studies/bad_schema.toml", "--out", "{out}"], ["bad_schema.toml", "[schema]"]),
+    ("study-missing-plant", ["study", "studies/missing_plant.toml", "--out", "{out}"],
+     ["missing_plant.toml", "[plant]"]),
+    ("study-freq-reversed", ["study", "studies/freq_reversed.toml", "--out", "{out}"],
+     ["freq_reversed.toml", "[family.freq_max_hz]"]),
+    ("study-amplitude-negative", ["study", "studies/amplitude_negative.toml", "--out", "{out}"],
+     ["amplitude_negative.toml", "[family.amplitudes_v[0]]"]),
+    ("study-limits-reversed", ["study", "studies/limits_reversed.toml", "--out", "{out}"],
+     ["limits_reversed.toml", "[export.output_limits_v]"]),
+    ("study-bad-toml", ["study", "studies/bad_toml.toml", "--out", "{out}"], ["bad_toml.toml", "[syntax]"]),
+    ("study-string-number", ["study", "studies/string_number.toml", "--out", "{out}"],
+     ["string_number.toml", "[family.freq_points]"]),
+    ("study-missing-section", ["study", "studies/missing_section.toml", "--out", "{out}"],
+     ["missing_section.toml", "[hinf]"]),
+    # ---- plant files: the plant validator's cases -----------------------------------------------------------
+    ("gauge-plant-neg-cp", ["gauge", "bad/plant_neg_capacitance.toml"],
+     ["plant_neg_capacitance.toml", "working_capacitance_f"]),
+    ("gauge-plant-unknown-key", ["gauge", "bad/plant_unknown_key.toml"], ["plant_unknown_key.toml", "voltage_mid_v"]),
+    ("gauge-plant-nan", ["gauge", "bad/plant_nan_value.toml"], ["plant_nan_value.toml", "series_resistor_ohm"]),
+    ("gauge-plant-limits-reversed", ["gauge", "bad/plant_limits_reversed.toml"],
+     ["plant_limits_reversed.toml", "voltage_m"]),
+    ("freefree-plant-neg-cp", ["freefree", "bad/plant_neg_capacitance.toml"], ["plant_neg_capacitance.toml"]),
+    ("gauge-study-as-plant", ["gauge", STUDY], ["sn637_servo.toml"]),
+    # ---- flags: range, unit, finite; long runs bounded -------------------------------------------------------
+    ("gauge-x0-1km", ["gauge", PLANT, "--x0", "1km"], ["--x0", "um", "out of range", "stroke"]),
+    ("gauge-x0-negative", ["gauge", PLANT, "--x0=-1mm"], ["--x0", "out of range"]),
+    ("gauge-x0-inf", ["gauge", PLANT, "--x0", "1e400m"], ["--x0", "finite"]),
+    ("gauge-x0-unit", ["gauge", PLANT, "--x0", "7.5parsec"], ["--x0", "'m'"]),
+    ("gauge-x0-text", ["gauge", PLANT, "--x0", "nan"], ["--x0", "cannot read"]),
+    ("freefree-freq-1ghz", ["freefree", PLANT, "--freq", "1GHz"], ["--freq", "Hz", "out of range", "gauge samples"]),
+    ("freefree-freq-0", ["freefree", PLANT, "--freq", "0Hz"], ["--freq", "out of range"]),
+    ("freefree-freq-negative", ["freefree", PLANT, "--freq=-1Hz"], ["--freq", "out of range"]),
+    ("freefree-vpeak-500", ["freefree", PLANT, "--v-peak", "500V"], ["--v-peak", "out of range"]),
+    ("freefree-vpeak-0", ["freefree", PLANT, "--v-peak", "0V"], ["--v-peak", "out of range"]),
+    ("freefree-cycles-1e6", ["freefree", PLANT, "--cycles", "1000000"], ["--cycles", "estimated", "memory"]),
+    ("freefree-cycles-1e6-force", ["freefree", PLANT, "--cycles", "1000000", "--force"],
+     ["--cycles", "more than this machine"]),
+    ("freefree-cycles-0", ["freefree", PLANT, "--cycles", "0"], ["--cycles", ">= 1"]),
+    ("linearize-freq-points-1e5", ["linearize", PLANT, "--freq-points", "100000"],
+     ["--freq-points", "estimated", "days"]),
+    ("linearize-freq-points-1", ["linearize", PLANT, "--freq-points", "1"], ["--freq-points", "out of range"]),
+    ("linearize-freq-reversed", ["linearize", PLANT, "--freq-min", "1kHz", "--freq-max", "10Hz"], ["must be below"]),
+    ("linearize-freq-max-1ghz", ["linearize", PLANT, "--freq-max", "1GHz"], ["--freq-max", "out of range"]),
+    ("linearize-amplitude-0", ["linearize", PLANT, "--amplitudes", "0V"], ["--amplitudes", "out of range"]),
+    ("linearize-amplitude-1kv", ["linearize", PLANT, "--amplitudes", "1kV"], ["--amplitudes", "out of range"]),
+    ("linearize-bias-500", ["linearize", PLANT, "--bias", "500V"], ["--bias", "out of range"]),
+    ("linearize-bias-unit", ["linearize", PLANT, "--bias", "5A"], ["--bias", "'V'"]),
+    ("linearize-cp-tolerance", ["linearize", PLANT, "--cp-tolerance", "1.5"], ["--cp-tolerance", "out of range"]),
+    ("linearize-cp-tolerance-nan", ["linearize", PLANT, "--cp-tolerance", "nan"], ["--cp-tolerance", "finite"]),
+    ("linearize-imbalance-negative", ["linearize", PLANT, "--imbalance-tolerance=-1ohm"],
+     ["--imbalance-tolerance", "ohm", "out of range"]),
+    ("linearize-imbalance-huge", ["linearize", PLANT, "--imbalance-tolerance", "1kohm"],
+     ["--imbalance-tolerance", "out of range"]),
+    ("verify-hold-0", ["verify", CREEP, "--controller", CTRL, "--hold", "0s"], ["--hold", "s", "out of range"]),
+    ("verify-hold-1ms", ["verify", CREEP, "--controller", CTRL, "--hold", "1ms"], ["--hold", "out of range"]),
+    ("verify-hold-negative", ["verify", CREEP, "--controller", CTRL, "--hold=-5s"], ["--hold", "out of range"]),
+    ("verify-hold-1e12", ["verify", CREEP, "--controller", CTRL, "--hold", "1e12s"],
+     ["--hold", "estimated", "--force"]),
+    ("verify-hold-unit", ["verify", CREEP, "--controller", CTRL, "--hold", "5m"], ["--hold", "'s'"]),
+    ("selfsense-duration-1e12", ["selfsense", CREEP, "--duration", "1e12s"], ["--duration", "estimated"]),
+    ("selfsense-duration-short", ["selfsense", CREEP, "--duration", "10s"], ["--duration", "out of range"]),
+    ("selfsense-duration-negative", ["selfsense", CREEP, "--duration=-5s"], ["--duration", "out of range"]),
+    ("calibrate-max-ratio-nan", ["calibrate", RECORD, "--plant", PLANT, "--max-ratio", "nan"],
+     ["--max-ratio", "finite"]),
+    ("calibrate-max-ratio-negative", ["calibrate", RECORD, "--plant", PLANT, "--max-ratio=-1"],
+     ["--max-ratio", "out of range"]),
+    ("calibrate-max-ratio-2", ["calibrate", RECORD, "--plant", PLANT, "--max-ratio", "2"],
+     ["--max-ratio", "out of range"]),
+    ("calibrate-train-cycles-0", ["calibrate", RECORD, "--plant", PLANT, "--train-cycles", "0"],
+     ["--train-cycles", "out of range"]),
+    ("calibrate-train-cycles-inf", ["calibrate", RECORD, "--plant", PLANT, "--train-cycles", "inf"],
+     ["--train-cycles", "finite"]),
+    ("synth-seed-negative", ["synth", PLANT, "--out", "{out}/r.csv", "--seed=-1"], ["--seed", "out of range"]),
+    ("sweep-amplitude-negative", ["sweep", STUDY, "--out", "{out}", "--amplitudes=-1V"],
+     ["--amplitudes", "out of range"]),
+    ("sweep-amplitude-1kv", ["sweep", STUDY, "--out", "{out}", "--amplitudes", "1kV"],
+     ["--amplitudes", "out of range"]),
+    ("sweep-workers-0", ["sweep", STUDY, "--out", "{out}", "--workers", "0"], ["--workers", ">= 1"]),
+    ("bench-steps-0", ["bench", "--steps", "0"], ["--steps", ">= 1"]),
+    ("bench-memory-negative", ["bench", "--memory-periods=-1"], ["--memory-periods", ">= 0"]),
+    ("identify-stiffness-0", ["identify", "transducer", TABLE, "--stiffness", "0N/m"],
+     ["--stiffness", "out of range"]),
+    ("identify-stiffness-negative", ["identify", "transducer", TABLE, "--stiffness=-2e8"],
+     ["--stiffness", "out of range"]),
+    ("verify-form-hanus", ["verify", CREEP, "--controller", CTRL, "--form", "hanus"], ["hanus"]),
+    ("verify-scenario-unknown", ["verify", CREEP, "--controller", CTRL, "--scenario", "ramp"], ["--scenario"]),
+    ("synth-effect-unknown", ["synth", PLANT, "--out", "{out}/r.csv", "--effect", "magic"], ["--effect"]),
+    ("calibrate-split-unknown", ["calibrate", RECORD, "--plant", PLANT, "--split", "halves"], ["--split"]),
+    ("gauge-no-plant", ["gauge"], ["plant"]),
+    ("verify-no-controller", ["verify", CREEP], ["--controller"]),
+]
+
+# cases for another engineer's validator (issue 17 item 2: controllers; records): in the suite when they
+# already pass, listed in the report otherwise
+OTHERS = [
+    ("verify-controller-no-sos", ["verify", CREEP, "--controller", "bad/ctrl_no_sos.json"], ["ctrl_no_sos.json", "[sos]"]),
+    ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
+    ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
+]
+
+
+def _run(argv, ws, out, capsys, monkeypatch):
+    monkeypatch.chdir(ws)
+    argv = [a.replace("{out}", str(out)) for a in argv]
+    try:
+        code = main(argv)
+    except SystemExit as err:          # argparse's own errors
+        code = err.code
+    cap = capsys.readouterr()
+    return code, cap.err
+
+
+@pytest.mark.parametrize("argv, fragments", [c[1:] for c in CASES + OTHERS], ids=[c[0] for c in CASES + OTHERS])
+def test_bad_input(argv, fragments, ws, tmp_path, capsys, monkeypatch):
+    out = tmp_path / "out"
+    out.mkdir()
+    before = _hashes(ws)
+    code, err = _run(argv, ws, out, capsys, monkeypatch)
+    assert code == 2, err
+    assert "Traceback" not in err
+    assert len([line for line in err.splitlines() if "error:" in line]) == 1, err
+    for fragment in fragments:
+        assert fragment.replace("{out}", str(out)) in err, (fragment, err)
+    after = _hashes(ws)
+    assert after == before, "an input file changed or a file appeared in the workspace"
+    assert list(out.iterdir()) == [], "a failed run left output"
+
+
+def test_enough_cases():
+    assert len(CASES) + len(OTHERS) >= 100
+    assert len({c[0] for c in CASES + OTHERS}) == len(CASES) + len(OTHERS)
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["gauge", "bad/latin1.toml"], "line 3"),
+    (["verify", CREEP, "--controller", CTRL, "--hold", "1e12s"], "estimated"),
+])
+def test_bad_input_subprocess(argv, fragment, ws):
+    # as a user runs it: the installed entry point, a real process, its exit status
+    before = _hashes(ws)
+    done = subprocess.run([sys.executable, "-m", "workbench", *argv], cwd=ws, capture_output=True, text=True,
+                          check=False, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 2, done.stderr
+    assert fragment in done.stderr and "Traceback" not in done.stderr
+    assert _hashes(ws) == before
+
+
+@pytest.mark.parametrize("existing", [False, True])
+def test_a_failed_run_writes_nothing(existing, ws, tmp_path, capsys, monkeypatch):
+    """A command that fails after writing some of its outputs leaves the output folder as it found it."""
+    import workbench.cli as cli
+    from workbench.errors import WorkbenchError
+    from workbench.report import write_json
+    from workbench.report.output import write_text
+
+    def fails_late(args):
+        write_text(Path(args.out) / "freefree.png", "half a figure")
+        write_json(Path(args.out) / "sub" / "part.json", {"a": 1})
+        raise WorkbenchError("the fit diverged")
+
+    monkeypatch.setattr(cli, "cmd_freefree", fails_late)
+    out = tmp_path / "ff"
+    if existing:
+        out.mkdir()
+        (out / "earlier.txt").write_text("a previous run's file\n", encoding="utf-8")
+    code, err = _run(["freefree", PLANT, "--out", str(out), "--json", str(tmp_path / "ff.json")], ws, out,
+                     capsys, monkeypatch)
+    assert code == 2 and "the fit diverged" in err
+    assert not (tmp_path / "ff.json").exists()
+    if existing:
+        assert [p.name for p in out.iterdir()] == ["earlier.txt"]
+        assert (out / "earlier.txt").read_text(encoding="utf-8") == "a previous run's file\n"
+    else:
+        assert not out.exists()
+
+
+def test_writers_never_replace_an_input(ws, tmp_path):
+    """Inside a run, every atomic writer refuses an input path however it is spelled."""
+    from workbench.report.output import OutputOntoInputError, protect_inputs, write_json, write_text
+    plant = ws / PLANT
+    before = plant.read_bytes()
+    link = tmp_path / "link.toml"
+    link.symlink_to(plant)
+    with protect_inputs([("plant", plant)]):
+        for spelling in (plant, ws / "plants" / ".." / PLANT, link):
+            with pytest.raises(OutputOntoInputError, match="is the input plant"):
+                write_text(spelling, "overwritten")
+        with pytest.raises(OutputOntoInputError):
+            write_json(plant, {"a": 1})
+        write_text(tmp_path / "other.toml", "fine")      # anything else is written
+    assert plant.read_bytes() == before
+    write_text(tmp_path / "again.toml", "x")              # the guard ends with the run
+    assert (tmp_path / "other.toml").read_text(encoding="utf-8") == "fine"
+
+
+def test_sweep_writes_its_table_when_no_case_has_a_margin(tmp_path, capsys, monkeypatch):
+    """The README's `sweep ... --amplitudes 1V 20V`: every member slews at crossover, so no case has a
+    phase margin; the sweep still writes its table (issue 17 rejected it after running every case).
+    The cases' rows are those of a slewing loop (margins NaN, the reason in slews_at_crossover)."""
+    import csv
+    import math
+
+    import workbench.verify.sweep_job as job
+
+    def slewing_rows(fn, cases, **kw):
+        return [{**c.key, "slews_at_crossover": True, "phase_margin_deg": math.nan, "gain_margin_db": math.nan,
+                 "crossover_hz": math.nan, "triangle_error_percent": 0.05, "step_overshoot_percent": 0.1,
+                 "step_settling_s": 0.02, "ok": True, "error": ""} for c in cases]
+
+    monkeypatch.setattr(job, "run_cases", slewing_rows)
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "sweep"
+    assert main(["sweep", STUDY, "--amplitudes", "1V", "20V", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "no case has a phase_margin_deg: 18 of 18 slew at crossover" in text
+    with open(out / "sweep.csv", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    # 3 serials x C_p (1 - tol, 1, 1 + tol) x 2 amplitudes, each with its reason
+    assert len(rows) == 18 and all(r["slews_at_crossover"] == "True" and r["phase_margin_deg"] == "" for r in rows)
+    assert sorted({float(r["amplitude_v"]) for r in rows}) == [1.0, 20.0]
+
+
+def test_force_runs_beyond_the_time_bound_but_not_beyond_memory(capsys, monkeypatch):
+    """--force lifts the time bound (the run is stated first), never the memory the machine lacks."""
+    from workbench import preflight
+    from workbench.cli import build_parser
+    monkeypatch.chdir(ROOT)
+    parse = build_parser().parse_args
+    hold = ["verify", CREEP, "--controller", CTRL, "--hold", "1e8s"]    # 1e12 periods: days, little memory
+    with pytest.raises(preflight.FlagRangeError, match="--force"):
+        preflight._check_size(parse(hold))
+    preflight._check_size(parse(hold + ["--force"]))
+    err = capsys.readouterr().err
+    assert "--hold 1e+08 s" in err and "estimated" in err
+    cycles = ["freefree", PLANT, "--cycles", "1000000", "--force"]      # 1e11 samples of ~120 B each
+    with pytest.raises(preflight.FlagRangeError, match="more than this machine"):
+        preflight._check_size(parse(cycles))

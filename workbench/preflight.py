@@ -1,0 +1,456 @@
+"""Checks a command's arguments before any work starts, and keeps a failed run from leaving files.
+
+:func:`preflight` is what ``workbench.cli.main`` wraps every command in:
+
+1. every file argument is checked (:mod:`workbench.paths`): inputs exist, are files, are
+   readable and decode as UTF-8; outputs are writable, not a folder where a file is wanted
+   (or the reverse), and never one of the run's inputs;
+2. flags are range-checked with their unit and the sane range in the message, the range
+   derived from the plant file where the plant sets it (stroke, amplifier range, sample rate);
+3. runs whose size a flag sets (``verify --hold``, ``selfsense --duration``, ``linearize
+   --freq-points``, ``freefree --cycles``) state their estimated time and memory first and are
+   refused beyond :data:`MAX_SECONDS` or the machine's memory unless ``--force`` is given;
+4. during the run, the report writers refuse to replace an input file, and if the run fails
+   every file and folder it created under its outputs is removed (a failed run writes nothing).
+"""
+
+import argparse
+import contextlib
+import itertools
+import math
+import os
+import re
+import shutil
+import sys
+from pathlib import Path
+
+from .errors import StudyDefinitionError, WorkbenchError
+from .paths import FileArgumentError, check_input_file, check_output_dir, check_output_file, is_inside, same_path
+
+__all__ = ["preflight", "add_force_flags", "estimate_run", "FlagRangeError", "MAX_SECONDS", "RUN_COSTS"]
+
+# A run estimated longer than this is refused unless --force (an accident, such as --hold 1e12s,
+# should not start a job of days; a deliberate long run says so).
+MAX_SECONDS = 3600.0
+
+# Cost of one unit of work of each long-running command: (seconds, bytes) per unit, measured with
+# benchmarks/preflight_estimates.py (two sizes of each library entry point in one process after a
+# warm-up, the difference taken so start-up and compile cancel) on the 2-core machine of the README
+# ("Bad input"), rounded up. The estimate is an order of magnitude (the machine may be faster or
+# loaded): it only has to tell a 10-second run from a 10-day one.
+RUN_COSTS = {
+    # verify: one servo period of the closed-loop hold (traces decimated to 20000 points: no memory
+    # per period; the other scenarios are fixed-size)
+    "verify_period": (2.5e-7, 0.0),
+    # selfsense: one second of the 10 kHz staircase record through the stages (peak RSS 675 MB at
+    # 400 s, 1356 MB at 3000 s: /usr/bin/time)
+    "selfsense_second": (1.2e-2, 2.6e5),
+    # linearize: one describing-function point (an amplitude at a frequency) of one serial, with its
+    # C_p and imbalance members in the uncertainty family
+    "linearize_point": (0.2, 1.0e4),
+    # freefree: one gauge-rate sample of the simulated sine and its gauge reading
+    "freefree_sample": (1.2e-6, 120.0),
+}
+
+
+class FlagRangeError(WorkbenchError, ValueError):
+    """A flag outside its sane range: names the flag, the value with its unit, the range and why."""
+
+
+# ---------------------------------------------------------------------------------------------
+# which argument of which command is an input or an output
+
+def _files(args):
+    """(inputs, output_files, output_dirs) of parsed ``args``: lists of (argument name, path)."""
+    cmd = args.command
+    ins, out_files, out_dirs = [], [], []
+
+    def add(lst, name, flag):
+        value = getattr(args, name, None)
+        if value is None:
+            return
+        for v in (value if isinstance(value, (list, tuple)) else [value]):
+            lst.append((flag, Path(v)))
+
+    if cmd == "identify":
+        add(ins, "table", "table")
+    elif cmd in ("study", "sweep"):
+        add(ins, "study", "study")
+    elif cmd == "calibrate":
+        add(ins, "data", "record")
+    if cmd not in ("demo", "identify", "study", "sweep") and cmd != "bench":
+        add(ins, "plant", "plant" if cmd != "calibrate" else "--plant")
+    if cmd == "bench":
+        add(ins, "plant", "--plant")
+    add(ins, "serials", "--serials")
+    add(ins, "controller", "--controller")
+    if cmd == "synth":
+        add(out_files, "out", "--out")
+    else:
+        add(out_dirs, "out", "--out")
+    if cmd == "sweep":
+        add(out_files, "table", "--table")
+    add(out_files, "json", "--json")
+    return ins, out_files, out_dirs
+
+
+def _check_files(args):
+    ins, out_files, out_dirs = _files(args)
+    for name, path in ins:
+        check_input_file(path, name)
+        if path.suffix.lower() == ".json":
+            _check_json(path, name)
+        if path.suffix.lower() == ".csv":
+            _check_csv_delimiter(path, name)
+    for name, path in out_files:
+        check_output_file(path, name, inputs=ins)
+    for name, path in out_dirs:
+        check_output_dir(path, name, inputs=ins)
+    outs = out_files + out_dirs
+    for i, (name, path) in enumerate(outs):
+        for other, p2 in outs[i + 1:]:
+            if same_path(path, p2):
+                raise FileArgumentError(f"{name} {path}: is also {other}; two outputs cannot share a path")
+    for name, path in out_files:
+        for dname, d in out_dirs:
+            if same_path(path.parent, d) and path.name in _RESERVED.get(args.command, ()):
+                raise FileArgumentError(f"{name} {path}: the command writes its own {path.name} into {dname} {d}; "
+                                        f"give another file name")
+    return ins, out_files, out_dirs
+
+
+def _check_json(path, name):
+    import json
+    text = path.read_text(encoding="utf-8")
+    try:
+        json.loads(text)
+    except json.JSONDecodeError as err:
+        raise FileArgumentError(f"{name} {path}: line {err.lineno}, column {err.colno}: not valid JSON ({err.msg}); "
+                                f"give a controller JSON exported by `workbench study`") from None
+
+
+def _check_csv_delimiter(path, name):
+    """The header (first line not a '#' comment) of a CSV must be comma-separated."""
+    with open(path, encoding="utf-8") as fh:
+        for lineno, line in enumerate(fh, 1):
+            text = line.strip()
+            if not text or text.startswith("#"):
+                continue
+            if "," not in text:
+                for sep, what in ((";", "semicolons"), ("\t", "tabs")):
+                    if sep in text:
+                        raise FileArgumentError(f"{name} {path}: line {lineno}: columns separated by {what}; the "
+                                                f"workbench reads comma-separated CSV (e.g. time[s],voltage[V],...): "
+                                                f"export it with ',' as the separator and '.' as the decimal point")
+            return
+
+
+# the report a command writes into its --out folder: a --json of the same path would replace it
+# (summary.json / verify.json there hold the same data as --json, so those names are allowed)
+_RESERVED = {"study": ("report.md",), "verify": ("report.md",), "selfsense": ("report.md",),
+             "calibrate": ("report.md",)}
+
+
+# ---------------------------------------------------------------------------------------------
+# study files: the parts whose mistakes are otherwise found late
+
+_STEM = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+
+
+def _check_study_file(args):
+    import tomllib
+    path = Path(args.study)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
+    from .study.spec import _SCHEMA
+    for section in _SCHEMA:
+        if not section or section not in data:
+            continue
+        value = data[section]
+        if isinstance(value, list) and value and all(isinstance(v, dict) for v in value):
+            raise StudyDefinitionError(path, section, f"written as an array of tables [[{section}]]; write it "
+                                                      f"once as [{section}]")
+        if not isinstance(value, dict):
+            raise StudyDefinitionError(path, section, f"is a value ({section} = {value!r}), not a section; "
+                                                      f"write [{section}] with its keys on the lines below")
+    from .study.spec import _SCHEMA as schema
+    for key, value in data.items():
+        if isinstance(value, dict) and key not in schema:
+            raise StudyDefinitionError(path, key, f"unknown section [{key}]; known sections: "
+                                                  f"{', '.join(f'[{s}]' for s in schema if s)}")
+    export = data.get("export", {})
+    if not isinstance(export, dict):
+        return
+    name = export.get("name")
+    if isinstance(name, str) and not _STEM.match(name):
+        raise StudyDefinitionError(path, "export.name", f"got {name!r}; a file stem of letters, digits, '_', '-' "
+                                                        f"and '.', e.g. \"sn637_loopshape\"")
+    directory = export.get("directory")
+    if args.command == "study" and isinstance(directory, str):
+        out = Path(args.out)
+        target = out / directory
+        if Path(directory).is_absolute() or not is_inside(target, out):
+            raise StudyDefinitionError(path, "export.directory", f"got {directory!r}, which is outside the output "
+                                                                 f"folder {out}; give a folder relative to --out, "
+                                                                 f"e.g. \"controllers\"")
+
+
+def _study_inputs(args):
+    """The plant files a study names (its inputs too), resolved against the study file's folder."""
+    import tomllib
+    path = Path(args.study)
+    data = tomllib.loads(path.read_text(encoding="utf-8"))
+    serials = data.get("serials") if isinstance(data.get("serials"), list) else []
+    names = [("plant", data.get("plant"))] + [(f"serials[{i}]", s) for i, s in enumerate(serials)]
+    return [(f"{path}: {key}", path.parent / value) for key, value in names if isinstance(value, str)]
+
+
+# ---------------------------------------------------------------------------------------------
+# flags
+
+def _finite(flag, value, unit):
+    if not math.isfinite(value):
+        raise FlagRangeError(f"{flag} {value:g} {unit}: must be a finite number")
+
+
+def _in_range(flag, value, unit, lo, hi, why, lo_open=False, hi_open=False):
+    _finite(flag, value, unit)
+    low_ok = value > lo if lo_open else value >= lo
+    high_ok = value < hi if hi_open else value <= hi
+    if not (low_ok and high_ok):
+        rng = f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'} {unit}"
+        raise FlagRangeError(f"{flag} {value:g} {unit}: out of range {rng} ({why})")
+
+
+def _plant(path):
+    from .plant import load_plant
+    return load_plant(path)
+
+
+def _stroke_range_m(pzt):
+    """Quasi-static displacement from rest at the amplifier's lowest and highest voltage, m."""
+    import numpy as np
+    op = pzt.terminal_operator().inverse()
+    lo = float(pzt.k_q2x_m_per_c * op(np.array([0.0, pzt.voltage_min_v]))[-1]) if pzt.voltage_min_v < 0 else 0.0
+    hi = float(pzt.k_q2x_m_per_c * op(np.array([0.0, pzt.voltage_max_v]))[-1])
+    return min(lo, 0.0), hi
+
+
+def _check_flags(args):
+    cmd = args.command
+    if cmd == "gauge":
+        pzt = _plant(args.plant).pzt
+        lo, hi = _stroke_range_m(pzt)
+        _finite("--x0", args.x0, "m")
+        if not lo <= args.x0 <= hi:
+            raise FlagRangeError(f"--x0 {args.x0 * 1e6:g} um: out of range [{lo * 1e6:.2f}, {hi * 1e6:.2f}] um, the "
+                                 f"stack's quasi-static stroke over the amplifier's {pzt.voltage_min_v:g}.."
+                                 f"{pzt.voltage_max_v:g} V in {args.plant}")
+    elif cmd == "identify":
+        _in_range("--stiffness", args.stiffness, "N/m", 0.0, math.inf, "a stiffness is positive", lo_open=True)
+    elif cmd == "freefree":
+        plant = _plant(args.plant)
+        fs = plant.gauge.modulation_hz
+        _in_range("--v-peak", args.v_peak, "V", 0.0, plant.pzt.voltage_max_v,
+                  f"the amplifier's highest output in {args.plant}", lo_open=True)
+        _in_range("--freq", args.freq, "Hz", 0.0, fs / 20, f"at least 20 gauge samples a period at the "
+                  f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
+    elif cmd == "linearize":
+        pzt = _plant(args.plant).pzt
+        span = pzt.voltage_max_v - pzt.voltage_min_v
+        for a in args.amplitudes:
+            _in_range("--amplitudes", a, "V", 0.0, span, f"the amplifier's {pzt.voltage_min_v:g}..{pzt.voltage_max_v:g} "
+                      f"V span of {args.plant}", lo_open=True)
+        _in_range("--bias", args.bias, "V", pzt.voltage_min_v, pzt.voltage_max_v, f"the amplifier range of {args.plant}")
+        _in_range("--freq-min", args.freq_min, "Hz", 0.0, 1e5, "positive, at most the study schema's 100 kHz",
+                  lo_open=True)
+        _in_range("--freq-max", args.freq_max, "Hz", 0.0, 1e5, "positive, at most the study schema's 100 kHz",
+                  lo_open=True)
+        if not args.freq_min < args.freq_max:
+            raise FlagRangeError(f"--freq-min ({args.freq_min:g} Hz) must be below --freq-max ({args.freq_max:g} Hz)")
+        _in_range("--freq-points", args.freq_points, "points", 2, 100_000, "at least two frequencies")
+        _in_range("--cp-tolerance", args.cp_tolerance, "(fraction of C_p)", 0.0, 1.0, "e.g. 0.2 for +/-20 %",
+                  hi_open=True)
+        _in_range("--imbalance-tolerance", args.imbalance_tolerance, "ohm", 0.0, 10.0,
+                  "per-arm bridge imbalance, the study schema's range; e.g. 0.4ohm")
+    elif cmd == "verify":
+        # the hold scores the settled loop after its first second: at least one more second
+        _in_range("--hold", args.hold, "s", 2.0, math.inf, "the first second of the hold settles the loop and "
+                  "is not scored; give at least 2s, e.g. 1000s")
+    elif cmd == "sweep" and args.amplitudes:
+        for a in args.amplitudes:
+            _in_range("--amplitudes", a, "V", 0.0, 200.0, "the study schema's family.amplitudes_v range",
+                      lo_open=True)
+    elif cmd == "calibrate":
+        _in_range("--max-ratio", args.max_ratio, "(held-out RMS after / before)", 0.0, 1.0,
+                  "an effect must lower the held-out error; e.g. 0.8", lo_open=True, hi_open=True)
+        _in_range("--train-cycles", args.train_cycles, "cycles", 0.0, 1e6, "input cycles that train, e.g. 3",
+                  lo_open=True)
+    elif cmd == "synth":
+        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+    elif cmd == "selfsense":
+        _in_range("--duration", args.duration, "s", 100.0, math.inf, "a few steps of 20-60 s; e.g. 1000s")
+        if args.seed is not None:
+            _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+    elif cmd == "bench":
+        if args.memory_periods < 0:
+            raise FlagRangeError(f"--memory-periods {args.memory_periods}: must be >= 0 (0 skips the memory check)")
+
+
+# ---------------------------------------------------------------------------------------------
+# long runs
+
+def _human_s(s):
+    for unit, size in (("years", 365.25 * 86400.0), ("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if s >= size:
+            return f"{s / size:.3g} {unit}"
+    return f"{s:.3g} s"
+
+
+def _human_b(b):
+    if b < 1e6:
+        return "under 1 MB"
+    for unit, size in (("TB", 1e12), ("GB", 1e9), ("MB", 1e6)):
+        if b >= size:
+            return f"{b / size:.3g} {unit}"
+    return f"{b / 1e3:.3g} kB"
+
+
+def _memory_bytes():
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):
+        return 8e9
+
+
+def _controller_rate_hz(path, default):
+    import json
+    try:
+        rate = float(json.loads(Path(path).read_text(encoding="utf-8")).get("sample_rate_hz", default))
+    except (OSError, ValueError, TypeError, AttributeError):
+        return default       # the controller loader reports what is wrong with the file itself
+    return rate if math.isfinite(rate) and rate > 0 else default
+
+
+def estimate_run(args):
+    """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs."""
+    cmd = args.command
+    if cmd == "verify":
+        fs = _controller_rate_hz(args.controller, _plant(args.plant).gauge.modulation_hz)
+        scenarios = [args.scenario] if isinstance(args.scenario, str) else args.scenario   # --scenario takes several
+        periods = args.hold * fs if {"all", "hold"} & set(scenarios) else 0
+        s, b = RUN_COSTS["verify_period"]
+        return f"--hold {args.hold:g} s ({periods:.3g} servo periods at {fs:g} Hz)", periods * s, periods * b
+    if cmd == "selfsense":
+        s, b = RUN_COSTS["selfsense_second"]
+        return f"--duration {args.duration:g} s", args.duration * s, args.duration * b
+    if cmd == "linearize":
+        serials = 1 + len(args.serials)
+        points = len(args.amplitudes) * args.freq_points * serials
+        s, b = RUN_COSTS["linearize_point"]
+        return (f"--freq-points {args.freq_points} x {len(args.amplitudes)} amplitudes x {serials} serial(s)",
+                points * s, points * b)
+    if cmd == "freefree":
+        fs = _plant(args.plant).gauge.modulation_hz
+        n = args.cycles * fs / args.freq
+        s, b = RUN_COSTS["freefree_sample"]
+        return f"--cycles {args.cycles} at {args.freq:g} Hz ({n:.3g} samples at {fs:g} Hz)", n * s, n * b
+    return None
+
+
+def _check_size(args):
+    est = estimate_run(args)
+    if est is None:
+        return
+    what, seconds, nbytes = est
+    force = getattr(args, "force", False)
+    ram = _memory_bytes()
+    if nbytes > ram:
+        raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, more than "
+                             f"this machine's {_human_b(ram)}; shorten the run")
+    if seconds > MAX_SECONDS and not force:
+        raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, beyond the "
+                             f"{_human_s(MAX_SECONDS)} bound; shorten the run or give --force to run it anyway")
+    if seconds > 30.0:
+        print(f"workbench {args.command}: {what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory",
+              file=sys.stderr, flush=True)
+
+
+def add_force_flags(sub):
+    """Give the commands whose size a flag sets a ``--force`` flag (the run-size bound's override)."""
+    for name in ("verify", "selfsense", "linearize", "freefree"):
+        p = sub.choices.get(name)
+        if p is None:
+            continue
+        try:
+            p.add_argument("--force", action="store_true",
+                           help=f"run even if the estimated time exceeds {MAX_SECONDS / 3600:g} h")
+        except argparse.ArgumentError:      # the command already has one
+            pass
+
+
+# ---------------------------------------------------------------------------------------------
+# no partial outputs
+
+_SNAPSHOT_MAX = 100_000      # entries; an --out folder larger than this (e.g. '.') is not cleaned
+
+
+def _snapshot(path):
+    if not path.exists():
+        return None
+    if path.is_file():
+        return {path}
+    entries = set(itertools.islice(path.rglob("*"), _SNAPSHOT_MAX + 1))
+    return "skip" if len(entries) > _SNAPSHOT_MAX else {path, *entries}
+
+
+def _remove_new(path, before):
+    if before == "skip":
+        return
+    if before is None:
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        elif path.exists():
+            path.unlink()
+        return
+    if path.is_dir():
+        new = sorted((p for p in path.rglob("*") if p not in before), key=lambda p: len(p.parts), reverse=True)
+        for p in new:
+            if p.is_dir() and not p.is_symlink():
+                shutil.rmtree(p, ignore_errors=True)
+            elif p.exists() or p.is_symlink():
+                p.unlink()
+
+
+@contextlib.contextmanager
+def preflight(args):
+    """Check ``args`` before the command runs; protect its inputs and clean up after a failure.
+
+    Raises
+    ------
+    WorkbenchError
+        From the checks, before the block runs.
+    """
+    from .report.output import protect_inputs
+    ins, out_files, out_dirs = _check_files(args)
+    if args.command in ("study", "sweep"):
+        _check_study_file(args)
+        extra = _study_inputs(args)
+        for name, path in out_files:
+            check_output_file(path, name, inputs=extra)
+        ins = ins + extra
+    _check_flags(args)
+    _check_size(args)
+    outs = [p for _, p in out_files + out_dirs]
+    before = {p: _snapshot(p) for p in outs}
+    ok = False
+    try:
+        with protect_inputs(ins):
+            yield
+        ok = True
+    finally:
+        if not ok:
+            for p in outs:
+                _remove_new(p, before[p])
