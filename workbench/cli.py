@@ -223,24 +223,42 @@ def cmd_study(args):
     _emit(args, data, lines)
 
 
+def _fmt_metric(m, key):
+    """A metric for the terminal: the number, or why there is none (never a bare nan)."""
+    import math
+    v = m[key]
+    if v is None or not math.isfinite(v):
+        return f"{key} n/a ({m.get(key + '_why', 'not measurable in this run')})"
+    return f"{key} {v:.4g}"
+
+
 def cmd_verify(args):
-    from .verify.run import run_verify
-    from .verify.scenarios import SCENARIOS
-    names = SCENARIOS if args.scenario == "all" else (args.scenario,)
-    data = run_verify(args.plant, args.controller, names, hold_s=args.hold, noise=not args.no_noise,
+    from .verify.run import load_verify_targets, parse_target, run_verify
+    limits = load_verify_targets(args.targets_from) if args.targets_from else {}
+    limits.update(dict(parse_target(t) for t in args.target or ()))
+    data = run_verify(args.plant, args.controller, args.scenario, hold_s=args.hold, noise=not args.no_noise,
                       anti_windup=not args.no_anti_windup, form=args.form, out_dir=args.out,
-                      progress=lambda stage, d, t: _progress_bar(stage, d, t))
-    lines = [f"{args.plant} with {data['controller_name'] or args.controller} ({data['controller_form']}):"]
+                      progress=lambda stage, d, t: _progress_bar(stage, d, t), seed=args.seed, targets=limits,
+                      strict=args.strict, allow_unstable=args.allow_unstable)
+    lines = [f"{args.plant} with {data['controller_name'] or args.controller} ({data['controller_form']}), "
+             f"seed {data['seed']}, gauge noise {'on' if data['noise'] else 'off'}:"]
+    for p in data["preflight"]:
+        lines.append(("  note: " if p["check"] == "not recorded" else f"  WARNING preflight {p['check']}: ")
+                     + p["message"])
+    lines += [f"  note: {n}" for n in data["notes"]]
     for m in data["scenarios"]:
-        keys = [k for k in m if k.endswith(("_percent", "_m", "_s", "_fraction", "_points", "_db", "_deg"))
+        keys = [k for k in m if k.endswith(("_percent", "_m", "_s", "_fraction", "_points", "_db", "_deg", "_ratio"))
                 and not isinstance(m[k], (list, tuple)) and k != "stroke_m"]
-        lines.append(f"  {m['scenario']}: " + ", ".join(f"{k} {m[k]:.4g}" for k in keys))
+        lines.append(f"  {m['scenario']}: " + ", ".join(_fmt_metric(m, k) for k in keys))
     cyc = data["predicted_limit_cycles"]
     lines.append("  describing-function limit cycles predicted: " + (", ".join(
         f"{c['amplitude_v']:.3g} V at {c['freq_hz']:.0f} Hz ({'stable' if c['stable'] else 'unstable'})"
         for c in cyc) if cyc else "none"))
+    met = sum(t["met"] for t in data["targets"].values())
+    lines.append(f"  {met} of {len(data['targets'])} targets met")
     for name, t in data["targets"].items():
-        lines.append(f"  target {name}: {t['metric']} {t['value']:.4g} (limit {t['limit']:g} {t['unit']}): "
+        value = f"{t['value']:.4g}" if t["value"] is not None else f"n/a ({t['why']})"
+        lines.append(f"  target {name}: {t['metric']} {value} (limit {t['limit']:g} {t['unit']}): "
                      f"{'met' if t['met'] else 'MISSED'}")
     if "report" in data:
         lines.append(f"  report {data['report']}")
@@ -410,17 +428,34 @@ def build_parser():
                                    "and anti-windup) with the hysteretic, creeping PZT, the current and "
                                    "voltage limits and the gauge chain with its noise: small and large "
                                    "steps, triangles at 0.1 and 1 Hz, a hold, a force step, a sine sweep; "
-                                   "metrics beside the linear prediction, figures and a report.")
+                                   "metrics beside the linear prediction, figures and a report. First a "
+                                   "preflight compares the controller with the plant (SHA-256, serial, trim, "
+                                   "gauge gain, limits, current-limit window): a mismatch warns, or with "
+                                   "--strict is an error.")
     p.add_argument("plant", type=Path)
-    p.add_argument("--controller", type=Path, required=True, help="e.g. controllers/sn637_loopshape.json")
-    p.add_argument("--scenario", default="all", choices=["all", "small_step", "large_step", "triangle_0p1hz",
-                                                          "triangle_1hz", "hold", "force_step", "sine_sweep"])
+    p.add_argument("--controller", type=Path, required=True,
+                   help="an exported .json or .mat, e.g. controllers/sn637_loopshape.json")
+    p.add_argument("--scenario", nargs="+", default=["all"], metavar="NAME",
+                   choices=["all", "small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold",
+                            "force_step", "sine_sweep"],
+                   help="one or more of: all (default), small_step, large_step, triangle_0p1hz, triangle_1hz, "
+                        "hold, force_step, sine_sweep")
     p.add_argument("--form", choices=["fixed", "float", "hanus"],
                    help="controller form to run (default: what the JSON declares, fixed point first)")
     p.add_argument("--out", type=Path, help="folder for the figures, report.md and verify.json")
     p.add_argument("--hold", type=_quantity("s"), default=1000.0, help="hold duration, default 1000s")
     p.add_argument("--no-noise", action="store_true", help="gauge noise off")
     p.add_argument("--no-anti-windup", action="store_true", help="plain controller (shows the windup)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the gauge noise (default 0)")
+    p.add_argument("--strict", action="store_true",
+                   help="a controller exported for another plant (SHA-256, serial, trim, gauge gain, limits, "
+                        "current-limit window) is an error, not a warning")
+    p.add_argument("--allow-unstable", action="store_true",
+                   help="accept a controller with poles on or outside the unit circle (analysis runs only)")
+    p.add_argument("--target", action="append", metavar="NAME=VALUE",
+                   help="override a target limit, e.g. small_step_settling_ratio=3 (repeatable)")
+    p.add_argument("--targets-from", type=Path, metavar="TOML",
+                   help="read target limits from the [verify] table of a study (or any TOML) file")
     p.add_argument("--json", type=Path, help="write the metrics as JSON here")
     p.set_defaults(func=cmd_verify)
 

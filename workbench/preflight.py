@@ -339,7 +339,8 @@ def estimate_run(args):
     cmd = args.command
     if cmd == "verify":
         fs = _controller_rate_hz(args.controller, _plant(args.plant).gauge.modulation_hz)
-        periods = args.hold * fs if args.scenario in ("all", "hold") else 0
+        scenarios = [args.scenario] if isinstance(args.scenario, str) else args.scenario   # --scenario takes several
+        periods = args.hold * fs if {"all", "hold"} & set(scenarios) else 0
         s, b = RUN_COSTS["verify_period"]
         return f"--hold {args.hold:g} s ({periods:.3g} servo periods at {fs:g} Hz)", periods * s, periods * b
     if cmd == "selfsense":

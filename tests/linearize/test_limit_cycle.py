@@ -85,7 +85,7 @@ def test_controller_file_errors(tmp_path):
     with pytest.raises(DataFileError, match="sample_rate_hz"):
         load_controller(bad)
     bad.write_text(json.dumps({"sample_rate_hz": 1e4, "sos": [[1, 0, 0, 0, 0, 0]]}))
-    with pytest.raises(DataFileError, match="a0 != 0"):
+    with pytest.raises(DataFileError, match="a0 = 0.0, must be 1"):
         load_controller(bad)
     ok = tmp_path / "ok.json"
     ok.write_text(json.dumps({"sample_rate_hz": 1e4, "gain": 2.0, "sos": [[1, 0.5, 0, 1, -0.5, 0], [0, 1, 0, 1, -1, 0]]}))

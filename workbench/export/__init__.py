@@ -1,5 +1,8 @@
 """Controller export: second-order sections, fixed-point quantization, firmware files.
 
+The front door is :class:`workbench.Controller` (``from_lti``, ``load``, ``write``); these are
+the steps it is made of.
+
 Flow: :func:`to_sos` (a python-control controller to sections and a gain),
 :func:`quantize` (sections to a :class:`FixedPointController` that cannot
 overflow), :func:`write_controller` (NAME.json, NAME.h, NAME.csv, NAME.mat).

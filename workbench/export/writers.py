@@ -19,7 +19,7 @@ from ..report.output import to_jsonable, write_bytes, write_text
 from .fixed_point import ALPHA_FRAC_BITS
 from .sos import ExportError
 
-__all__ = ["write_controller"]
+__all__ = ["write_controller", "controller_json"]
 
 _ASSUMPTIONS = (
     "The output is clamped to output_limits_v (and, if given, to the current-limit window around the model of "
@@ -57,7 +57,8 @@ def _fixed_point_block(fxp):
     }
 
 
-def _json(record, fxp):
+def controller_json(record, fxp):
+    """The text of NAME.json: ``record`` plus ``sample_rate_hz``, ``gain``, ``sos`` and the ``fixed_point`` block."""
     fs_hz = 1.0 / fxp.dt_s
     if "sample_rate_hz" in record and not np.isclose(record["sample_rate_hz"], fs_hz, rtol=1e-12, atol=0.0):
         raise ExportError(f"record['sample_rate_hz'] = {record['sample_rate_hz']} but the controller was quantized "
@@ -72,9 +73,15 @@ def _csv(fxp):
     return f"# gain = {_double(fxp.gain)}\nb0,b1,b2,a0,a1,a2\n{rows}"
 
 
-def _mat(fxp):
+def _mat(record, fxp):
     buf = io.BytesIO()
+    # the window (alpha, h_up, h_down; empty without one), the checked band and the JSON record
+    # (provenance, anti-windup, margins) travel with the arrays, so Controller.load reads a .mat whole
+    rest = {k: v for k, v in record.items() if k not in _RESERVED}
     sio.savemat(buf, {
+        "voltage_model": np.array([] if fxp.voltage_model is None else list(fxp.voltage_model), dtype=float),
+        "f_max_hz": fxp.f_max_hz,
+        "record_json": json.dumps(to_jsonable(rest), allow_nan=False),
         "sos": fxp.sos, "gain": fxp.gain, "fs": 1.0 / fxp.dt_s,
         "b_q": fxp.b.astype(np.int32), "a_q": fxp.a.astype(np.int32),
         "b_frac_bits": fxp.b_frac_bits.astype(np.int32), "b_shift": fxp.b_shift.astype(np.int32),
@@ -305,7 +312,9 @@ def write_controller(out_dir, name, record, fxp):
     and a ``fixed_point`` block (Q formats, integer coefficients, shifts,
     error figures, assumptions). NAME.csv: ``# gain = ...``, then the header
     ``b0,b1,b2,a0,a1,a2`` and one row per section. NAME.mat: ``sos``, ``gain``,
-    ``fs`` and the fixed-point arrays. Floats are written with 17 significant
+    ``fs``, the fixed-point arrays, ``voltage_model`` ([alpha, h_up_v, h_down_v],
+    empty without a window), ``f_max_hz`` and ``record_json`` (the record as JSON
+    text): :meth:`workbench.Controller.load` reads it back whole. Floats are written with 17 significant
     digits where text is involved, so they read back exactly.
     """
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
@@ -316,6 +325,7 @@ def write_controller(out_dir, name, record, fxp):
         raise ExportError(f"record holds {clash}, which write_controller fills from the quantized controller; "
                           f"drop them from the record")
     out_dir = Path(out_dir)
-    payloads = {"json": _json(record, fxp), "h": _header(name, fxp), "csv": _csv(fxp), "mat": _mat(fxp)}
+    payloads = {"json": controller_json(record, fxp), "h": _header(name, fxp), "csv": _csv(fxp),
+                "mat": _mat(record, fxp)}
     return {ext: (write_bytes if isinstance(data, bytes) else write_text)(out_dir / f"{name}.{ext}", data)
             for ext, data in payloads.items()}

@@ -17,45 +17,28 @@ cycle is predicted there, stable when the loop gain falls through 1 as A grows
 (Loeb's criterion).
 """
 
-import json
 from dataclasses import dataclass
-from pathlib import Path
 
 import control
 import numpy as np
 
-from ..errors import DataFileError
-
 __all__ = ["load_controller", "sampled_factor", "loop_responses", "predict_limit_cycles", "LimitCycle"]
 
 
-def load_controller(path):
-    """A discrete controller from a JSON file: ``sample_rate_hz``, ``sos`` rows, optional ``gain``.
+def load_controller(path, allow_unstable=False):
+    """The linear part of a controller file (.json or .mat) as a discrete python-control TransferFunction.
 
-    The rows follow scipy: [b0, b1, b2, 1, a1, a2]; input firmware volts of error,
-    output PZT volts (the design issue's export format).
+    Read and validated by :meth:`workbench.controller.Controller.load` (a bare
+    ``{sample_rate_hz, gain, sos}`` JSON is enough; rows [b0, b1, b2, 1, a1, a2]; input
+    firmware volts of error, output PZT volts). Limits and the current-limit window are not
+    part of this linear view. ``allow_unstable``: accept poles outside the unit circle
+    (an analysis of an unstable controller). Raises ControllerError (a DataFileError)
+    naming the file and the key.
     """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise DataFileError(f"{path}: cannot read the controller JSON ({exc}); export one with the design "
-                            f"commands or write {{\"sample_rate_hz\": ..., \"sos\": [[b0, b1, b2, 1, a1, a2]]}}") from None
-    try:
-        fs = float(data["sample_rate_hz"])
-        sos = np.asarray(data["sos"], dtype=float)
-        gain = float(data.get("gain", 1.0))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DataFileError(f"{path}: controller needs 'sample_rate_hz' (number) and 'sos' (rows of 6 numbers); "
-                            f"problem: {exc!r}") from None
-    if not (fs > 0 and np.isfinite(fs) and np.isfinite(gain)) or sos.ndim != 2 or sos.shape[1] != 6 \
-            or not np.all(np.isfinite(sos)) or np.any(sos[:, 3] == 0):
-        raise DataFileError(f"{path}: 'sos' must be rows [b0, b1, b2, a0, a1, a2] of finite numbers with a0 != 0 "
-                            f"and 'sample_rate_hz' positive; got shape {sos.shape}, {fs}")
-    c = control.tf([gain], [1.0], 1.0 / fs)
-    for row in sos:
-        c = c * control.tf(np.trim_zeros(row[:3], "f") if np.any(row[:3]) else [0.0], row[3:], 1.0 / fs)
-    return c
+    from ..controller import Controller
+    from ..export.sos import from_sos
+    c = Controller.load(path, allow_unstable=allow_unstable)
+    return from_sos(c.gain, c.sos, c.dt_s)
 
 
 def sampled_factor(freq_hz, dt_s, delay_samples=1):

@@ -263,16 +263,20 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     # 4. margins of the continuous, discrete and quantized exported controller
     cont_rows, cont_worst = family_margins(freq, _loops_continuous(ls.controller_c, freq, members, 0.0))
     summary["designs"]["loop_shape"]["worst_continuous_no_sampling"] = _worst_summary(cont_worst)
-    from ..export import from_sos, quantize, to_sos, write_controller
-    gain, sos = to_sos(ls.controller_d)
+    from ..controller import Controller
+    from dataclasses import replace as _replace_ctrl
     lim = tuple(float(v) for v in spec.export["output_limits_v"])
     f_max = min(10 * fc, 0.499 / dt)
-    # the current-limit window (anti-windup): firmware models the stack voltage (RC at the largest
-    # capacitance) and never commands more than R I_max beyond it, so a large step slews in the
-    # controller as in the stack while small and noisy moves pass
-    fxp = quantize(gain, sos, dt, input_range_v=spec.export["input_range_v"], output_limits_v=lim, f_max_hz=f_max,
-                   voltage_model=model)
-    ctrl_q = control.ss(from_sos(*fxp.quantized_sos(), dt))
+    # the exported controller: sections, 32-bit words and the current-limit window (anti-windup):
+    # firmware models the stack voltage (RC at the largest capacitance) and never commands more
+    # than R I_max beyond it, so a large step slews in the controller as in the stack while small
+    # and noisy moves pass. Controller.from_lti derives that window from the plant.
+    ctrl = Controller.from_lti(ls.controller_d, plant, output_limits_v=lim, input_range_v=spec.export["input_range_v"],
+                               f_max_hz=f_max, name=spec.export["name"],
+                               method="structured loop shaping (PI, lead, roll-off) against the describing-function "
+                                      "family")
+    fxp = ctrl.fixed
+    ctrl_q = control.ss(ctrl.as_lti(quantized=True))
     q_rows, q_worst = family_margins(freq, _loops_discrete(ctrl_q, freq, members, delay_samples))
     summary["designs"]["loop_shape"]["worst_quantized"] = _worst_summary(q_worst)
     summary["designs"]["loop_shape"]["nominal_quantized"] = _nominal_summary(nominal_margins(ctrl_q, nom))
@@ -281,28 +285,16 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     summary["designs"]["loop_shape"]["meets_targets"] = bool(meets)
 
     # 5. export with anti-windup (the conditioned cascade the fixed-point step runs)
-    r_c = plant.pzt.series_resistance_ohm * plant.pzt.current_limit_source_a / rate_limits_v_per_s(plant.pzt)[0]
-    aw = {"method": "conditioned_cascade",
-          "description": "the last (integrator) section's output is clamped to the output limits and to "
-                         "[v - headroom_v[1], v + headroom_v[0]], v a model of the stack voltage (v += alpha (u - v), "
-                         "the series R and the largest stack capacitance); the clamped value drives that section's "
-                         "recursion",
-          "voltage_model": {"alpha": model[0], "headroom_v": list(model[1:]), "time_constant_s": r_c},
-          "output_slew_limit_v_per_s": list(fxp.slew_limits_v_per_s), "output_limits_v": list(lim)}
-    record = {"name": spec.export["name"], "method": "structured loop shaping (PI, lead, roll-off) against the "
-                                                     "describing-function family", "sample_rate_hz": 1 / dt,
-              "input": {"signal": "gauge_error", "units": "V"}, "output": {"signal": "pzt_voltage", "units": "V"},
-              "output_limits_v": list(lim),
-              "gauge_chain": {"volts_per_meter": ub.nominal_gauge_v_per_m,
-                              "trim": {"scale": g.trim_scale, "bias_v": g.trim_bias_v}},
+    record = {**ctrl.record, "gauge_chain": {"volts_per_meter": ub.nominal_gauge_v_per_m,
+                                             "trim": {"scale": g.trim_scale, "bias_v": g.trim_bias_v}},
               "margins": {"discrete": _worst_summary(ls.worst), "quantized": _worst_summary(q_worst),
                           "continuous_no_sampling": _worst_summary(cont_worst)},
-              "anti_windup": aw,
+              "anti_windup": {**ctrl.record["anti_windup"], "output_slew_limit_v_per_s": list(fxp.slew_limits_v_per_s)},
               "noise": {"reading_rms_v": noise_v,
                         "command_change_rms_v": summary["designs"]["loop_shape"]["noise_command_rms_v"]},
-              "provenance": _provenance(spec, plant)}
-    ctrl_dir = out / spec.export["directory"]
-    paths = write_controller(ctrl_dir, spec.export["name"], record, fxp)
+              "provenance": {**_provenance(spec, plant), "serial": plant.serial}}
+    ctrl = _replace_ctrl(ctrl, record=record)
+    paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
     summary["exported"] = {k: str(v) for k, v in paths.items()}
 
     # 6. figures and report

@@ -90,65 +90,22 @@ class FirmwareController:
         return f"{form}, output {self.output_limits_v[0]:g}..{self.output_limits_v[1]:g} V, {rate}"
 
 
-def _fixed_from_block(data):
-    fp = data["fixed_point"]
-    secs = fp["sections"]
-    return FixedPointController(
-        gain=float(data["gain"]), sos=np.asarray(data["sos"], dtype=float), dt_s=1.0 / float(data["sample_rate_hz"]),
-        input_range_v=float(fp["input"]["range_v"]), output_limits_v=tuple(float(v) for v in fp["output"]["limits_v"]),
-        f_max_hz=float(fp["f_max_hz"]), coeff_bits=int(fp["coeff_bits"]),
-        b=np.array([s["b"] for s in secs], dtype=np.int64), a=np.array([s["a"] for s in secs], dtype=np.int64),
-        b_frac_bits=np.array([s["b_frac_bits"] for s in secs], dtype=np.int64),
-        signal_frac_bits=np.array([s["signal_frac_bits"] for s in secs], dtype=np.int64),
-        input_frac_bits=int(fp["input"]["frac_bits"]), integrator=np.array([bool(s["integrator"]) for s in secs]),
-        max_pole_radius=float(fp["max_pole_radius"]), error_db=float(fp["error_db"]), error_deg=float(fp["error_deg"]),
-        voltage_model=_voltage_model(fp["output"].get("voltage_model")))
-
-
-def _voltage_model(block):
-    if block is None:
-        return None
-    return (float(block["alpha"]), *(float(h) for h in block["headroom_v"]))
-
-
-def controller_from_json(data, form=None, default_limits_v=None):
+def controller_from_json(data, form=None, default_limits_v=None, plant=None, source="", allow_unstable=False):
     """The controller an exported JSON declares, in the form firmware runs.
 
-    ``form`` None: "fixed" when the JSON has a ``fixed_point`` block, else "hanus" when
-    its ``anti_windup`` block is a Hanus realization, else "float". Pass "float" to run
-    the float cascade of a fixed-point export (to compare the two).
-    ``default_limits_v``: output limits for a JSON that names none (the amplifier's range).
-    Raises KeyError/ValueError/TypeError on a JSON that lacks what the form needs.
+    Validation and the choice of form are :class:`workbench.controller.Controller`'s
+    (``Controller.from_dict(...).firmware(form)``): ``form`` None is "fixed" when the JSON
+    has a ``fixed_point`` block, else "hanus" when its ``anti_windup`` block is a Hanus
+    realization, else "float". ``default_limits_v``: output limits for a JSON that names
+    none (the amplifier's range); ``plant``: the same and the current-limit window of a bare
+    controller. Raises :class:`workbench.controller.ControllerError` (a ValueError) naming the key.
     """
-    dt = 1.0 / float(data["sample_rate_hz"])
-    aw = data.get("anti_windup") or {}
-    if form is None:
-        form = "fixed" if "fixed_point" in data else "hanus" if aw.get("method") == "hanus" else "float"
-    if form not in FORMS:
-        raise ValueError(f"unknown controller form {form!r}; known: {', '.join(FORMS)}")
-    model = _voltage_model(aw.get("voltage_model"))
-    limits = aw.get("output_limits_v", data.get("output_limits_v", default_limits_v))
-    if limits is None:
-        raise KeyError("output_limits_v")
-    limits = tuple(float(v) for v in limits)
-    if form == "hanus":
-        n = len(aw["b"])
-        h = HanusController(a=np.asarray(aw["a"], dtype=float).reshape(n, n),
-                            b=np.asarray(aw["b"], dtype=float).reshape(n, 1),
-                            c=np.asarray(aw["c"], dtype=float).reshape(1, n), d=float(aw["d"]), dt_s=dt,
-                            output_limits_v=limits, rate_limits_v_per_s=(np.inf, np.inf))
-        return FirmwareController("hanus", dt, limits, model, hanus=h)
-    if form == "fixed":
-        fxp = _fixed_from_block(data)
-        if model is not None and fxp.voltage_model is not None and not np.allclose(model, fxp.voltage_model):
-            raise ValueError(f"anti_windup voltage model {model} differs from the fixed-point block's "
-                             f"{fxp.voltage_model}")
-        return FirmwareController("fixed", dt, fxp.output_limits_v, fxp.voltage_model, gain=fxp.gain, sos=fxp.sos,
-                                  fixed=fxp)
-    sos = np.asarray(data["sos"], dtype=float)
-    if sos.ndim != 2 or sos.shape[1] != 6:
-        raise ValueError(f"sos must be rows of 6 numbers; got shape {sos.shape}")
-    return FirmwareController("float", dt, limits, model, gain=float(data["gain"]), sos=sos / sos[:, 3:4])
+    from ..controller import Controller
+    c = Controller.from_dict(data, source=source, plant=plant, allow_unstable=allow_unstable)
+    if c.output_limits_v is None and default_limits_v is not None:
+        from dataclasses import replace
+        c = replace(c, output_limits_v=tuple(float(v) for v in default_limits_v))
+    return c.firmware(form)
 
 
 @njit(cache=True, error_model="numpy")

@@ -1,4 +1,10 @@
-"""The ``workbench verify`` job: scenarios, the issue's targets, predicted limit cycles, figures, report.
+"""Verify: a controller in closed loop with the nonlinear plant, preflight, scenarios, targets, report.
+
+:func:`verify` is the library entry point (``wb.verify(plant, controller, scenarios)``): it
+compares the controller with the plant it is about to run on (the preflight: plant SHA-256,
+serial, gauge trim and gain, output limits, current-limit window), runs the scenarios, and
+scores them against configurable targets. :func:`run_verify` is the command's job on top:
+paths in, figures, report.md and verify.json out.
 
 Every persistent oscillation a scenario shows is set beside the limit cycles the
 describing-function analysis predicts for this controller on this plant (the loop of
@@ -6,43 +12,133 @@ describing-function analysis predicts for this controller on this plant (the loo
 mid-stroke bias), so the report says whether the linear-plus-DF analysis saw it coming.
 """
 
-import json
+import math
+import tomllib
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import DataFileError
-from ..plant import load_plant
-from .closed_loop import controller_from_json
+from ..controller import Controller, ControllerMismatchError
+from ..errors import StudyDefinitionError, WorkbenchError
+from ..plant import Plant, load_plant
 from .scenarios import SCENARIOS, run_scenario
 
-__all__ = ["load_controller_json", "predicted_limit_cycles", "evaluate_targets", "run_verify"]
+__all__ = ["TARGETS", "VerifyResult", "verify", "load_controller_json", "load_verify_targets", "parse_target",
+           "predicted_limit_cycles", "evaluate_targets", "run_verify"]
 
-# the issue's targets: (metric, limit, unit, sense) on plants/p888_51_sn637_creep.toml
+
+@dataclass(frozen=True)
+class Target:
+    """One verify target: ``metric`` of ``scenario`` compared with ``limit`` (``sense``: max or abs_max)."""
+
+    scenario: str
+    metrics: tuple          # the first one present is scored (a noise-free twin first when there is one)
+    limit: float
+    unit: str
+    sense: str
+    text: str
+
+
+# Defaults, each overridable by a [verify] table or --target name=value. The first four are the
+# servo issue's targets on plants/p888_51_sn637_creep.toml; the others flag what that issue's
+# targets let through (issue 14): choices, stated as such.
 TARGETS = {
-    "triangle_0p1hz": ("error_rms_percent_of_stroke", 0.1, "% of stroke RMS", "max"),
-    "hold": ("drift_m", 1e-9, "m", "abs_max"),
-    "small_step": ("overshoot_difference_points", 3.0, "points of overshoot vs linear", "abs_max"),
-    "large_step": ("oscillation_m", 1e-8, "m of persistent oscillation", "max"),
+    "triangle_0p1hz_error_rms_percent": Target("triangle_0p1hz", ("error_rms_percent_of_stroke",), 0.1,
+                                               "% of stroke RMS", "max", "0.1 Hz triangle tracking error"),
+    "hold_drift_m": Target("hold", ("drift_m",), 1e-9, "m", "abs_max", "hold drift"),
+    "small_step_overshoot_points": Target("small_step", ("overshoot_difference_points",), 3.0,
+                                          "points vs linear", "abs_max",
+                                          "small-step overshoot against the linear prediction (noise-free run)"),
+    "large_step_oscillation_m": Target("large_step", ("oscillation_m",), 1e-8, "m", "max",
+                                       "persistent oscillation after the large step"),
+    # choice: a nonlinear settling more than twice (rise 1.5x) the linear loop's is a design the linear
+    # analysis does not describe (issue 14: 50 ms against 9 ms passed on overshoot alone)
+    "small_step_settling_ratio": Target("small_step", ("settling_ratio",), 2.0, "x linear", "max",
+                                        "small-step 2 % settling against the linear prediction"),
+    "small_step_rise_ratio": Target("small_step", ("rise_ratio",), 1.5, "x linear", "max",
+                                    "small-step 10-90 % rise against the linear prediction"),
+    # closed loop must do better than open loop on the hysteresis it exists to remove
+    "triangle_1hz_hysteresis_ratio": Target("triangle_1hz", ("hysteresis_ratio",), 1.0, "x open loop", "max",
+                                            "1 Hz triangle hysteresis, closed over open loop"),
+    "triangle_0p1hz_hysteresis_ratio": Target("triangle_0p1hz", ("hysteresis_ratio",), 1.0, "x open loop", "max",
+                                              "0.1 Hz triangle hysteresis, closed over open loop"),
+    # choice: 5 % overshoot on a step the current limit slews (the window's purpose: issue 14 saw 13.6 %)
+    "large_step_overshoot_percent": Target("large_step", ("overshoot_noise_free_percent", "overshoot_percent"), 5.0,
+                                           "%", "max", "large-step overshoot"),
+    # choice: holding a point needs no current beyond noise; 0.1 % of the hold at the limit is a flag
+    # (issue 14: 201 s of a 1000 s hold)
+    "hold_current_limit_fraction": Target("hold", ("current_limit_fraction",), 1e-3, "of the hold", "max",
+                                          "time at the amplifier's current limit during the hold"),
 }
 DF_AMPLITUDES_V = (0.05, 0.1, 0.3, 1.0, 3.0, 10.0)
 DF_FREQ_HZ = tuple(np.geomspace(20.0, 4990.0, 28))
 
 
-def load_controller_json(path, form=None, default_limits_v=None):
-    """(json dict, FirmwareController) of an exported controller; DataFileError naming the file if not one."""
+def load_controller_json(path, form=None, default_limits_v=None, plant=None, allow_unstable=False):
+    """(JSON dict, FirmwareController) of a controller file (.json or .mat), validated by :class:`Controller`.
+
+    ``default_limits_v``: output limits for a controller that names none; ``plant``: the same and
+    the current-limit window of a bare controller. Raises ControllerError naming the file and key.
+    """
+    from dataclasses import replace
+    c = Controller.load(path, plant=plant, allow_unstable=allow_unstable)
+    if c.output_limits_v is None and default_limits_v is not None:
+        c = replace(c, output_limits_v=tuple(float(v) for v in default_limits_v))
+    return {**c.record, "gain": c.gain, "sos": c.sos.tolist()}, c.firmware(form)
+
+
+def _check_target_value(name, value, where):
+    if name not in TARGETS:
+        raise WorkbenchError(f"{where}: unknown target {name!r}; known: {', '.join(TARGETS)}")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise WorkbenchError(f"{where}: target {name} must be a finite non-negative number in "
+                             f"{TARGETS[name].unit}; got {value!r}")
+    return float(value)
+
+
+def parse_target(text):
+    """``name=value`` of ``--target`` as (name, limit); WorkbenchError naming the flag otherwise."""
+    name, sep, value = str(text).partition("=")
+    name = name.strip()
+    if not sep:
+        raise WorkbenchError(f"--target {text!r}: expected name=value, e.g. small_step_settling_ratio=3; "
+                             f"known names: {', '.join(TARGETS)}")
+    try:
+        number = float(value)
+    except ValueError:
+        raise WorkbenchError(f"--target {text!r}: {value!r} is not a number (in {TARGETS[name].unit if name in TARGETS else 'the target unit'})") from None
+    return name, _check_target_value(name, number, f"--target {name}")
+
+
+def load_verify_targets(path):
+    """Target limits of the ``[verify]`` table of a study (or any TOML) file: {name: limit}.
+
+    Each key is a name of :data:`TARGETS` and its value a number in that target's unit;
+    other sections of the file are not read here.
+    """
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
-        return data, controller_from_json(data, form, default_limits_v)
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
     except OSError as exc:
-        raise DataFileError(f"{path}: cannot be read ({exc.strerror}); give an exported controller JSON, "
-                            f"e.g. controllers/sn637_loopshape.json") from None
-    except json.JSONDecodeError as exc:
-        raise DataFileError(f"{path}: line {exc.lineno}: not JSON ({exc.msg}); give an exported controller JSON")
-    except (ValueError, KeyError, TypeError) as exc:
-        raise DataFileError(f"{path}: not an exported controller (missing or bad {exc}); export one with "
-                            f"`workbench study`" + (f", or drop --form {form}" if form else "")) from None
+        raise StudyDefinitionError(path, "verify", f"cannot be read ({exc.strerror or exc})") from None
+    except UnicodeDecodeError:
+        raise StudyDefinitionError(path, "verify", "the file is not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyDefinitionError(path, "verify", f"not TOML: {exc}") from None
+    table = data.get("verify")
+    if table is None:
+        raise StudyDefinitionError(path, "verify", "the file has no [verify] table; add one, e.g. "
+                                                   "[verify] small_step_settling_ratio = 2.0")
+    if not isinstance(table, dict):
+        raise StudyDefinitionError(path, "verify", f"must be a table of target = number; got {table!r}")
+    out = {}
+    for key, value in table.items():
+        try:
+            out[key] = _check_target_value(key, value, f"{path}: [verify.{key}]")
+        except WorkbenchError as err:
+            raise StudyDefinitionError(path, f"verify.{key}", str(err).split("]: ", 1)[-1]) from None
+    return out
 
 
 def predicted_limit_cycles(plant, controller, bias_v=50.0):
@@ -56,56 +152,228 @@ def predicted_limit_cycles(plant, controller, bias_v=50.0):
     return [{"amplitude_v": c.amplitude_v, "freq_hz": c.freq_hz, "stable": bool(c.stable)} for c in cycles]
 
 
-def evaluate_targets(results):
-    """{scenario: {metric, value, limit, unit, met}} for the scenarios run that carry a target."""
+def _why_missing(m, key):
+    return m.get(f"{key}_why") or f"{key} was not computed in this run"
+
+
+def evaluate_targets(results, limits=None):
+    """{target: {metric, value, limit, unit, met, text[, why]}} for the targets whose scenario ran.
+
+    ``limits``: {target: limit} overriding :data:`TARGETS`. A value that could not be
+    measured (``why`` says why) is not met. Runs without anti-windup are not scored.
+    """
+    limits = limits or {}
+    by_name = {m["scenario"]: m for m in results if m.get("anti_windup", True)}
     out = {}
-    for m in results:
-        t = TARGETS.get(m["scenario"])
-        if t is None or not (m.get("anti_windup", True)):
+    for name, t in TARGETS.items():
+        m = by_name.get(t.scenario)
+        if m is None:
             continue
-        key, limit, unit, sense = t
-        value = m.get(key, float("nan"))
-        met = bool(np.isfinite(value) and (abs(value) if sense == "abs_max" else value) <= limit)
-        out[m["scenario"]] = {"metric": key, "value": value, "limit": limit, "unit": unit, "met": met}
+        key = next((k for k in t.metrics if k in m), t.metrics[-1])
+        value = m.get(key)
+        limit = limits.get(name, t.limit)
+        entry = {"scenario": t.scenario, "metric": key, "value": value, "limit": limit, "unit": t.unit,
+                 "text": t.text}
+        if value is None or not np.isfinite(value):
+            entry.update(value=None, met=False, why=_why_missing(m, key))
+        else:
+            entry["met"] = bool((abs(value) if t.sense == "abs_max" else value) <= limit)
+        out[name] = entry
     return out
 
 
-def run_verify(plant_path, controller_path, scenarios=SCENARIOS, hold_s=1000.0, noise=True, anti_windup=True,
-               form=None, out_dir=None, progress=None):
-    """Run the scenarios; write figures and report.md into ``out_dir`` (if given); return the summary."""
-    plant = load_plant(plant_path)
-    # a bare controller (gain, sos) gets the amplifier's range as its output limits
-    data, ctrl = load_controller_json(controller_path, form, (plant.pzt.voltage_min_v, plant.pzt.voltage_max_v))
+@dataclass
+class VerifyResult:
+    """What :func:`verify` returns.
+
+    Attributes
+    ----------
+    plant : Plant
+    controller : Controller
+    scenarios : list of dict
+        Metrics per run (SI; keys ending in the unit), in the order run.
+    traces : dict
+        scenario -> (metrics, decimated traces) for figures.
+    targets : dict
+        :func:`evaluate_targets` of the runs.
+    preflight : list of dict
+        Controller/plant mismatches (``check``, ``message``); see :meth:`Controller.compare_plant`.
+    predicted_limit_cycles : list of dict
+    seed, noise, anti_windup, form : the run's settings.
+    """
+
+    plant: Plant
+    controller: Controller
+    scenarios: list
+    traces: dict
+    targets: dict
+    preflight: list
+    predicted_limit_cycles: list
+    seed: int = 0
+    noise: bool = True
+    anti_windup: bool = True
+    form: str = ""
+    notes: list = field(default_factory=list)
+
+    @property
+    def mismatches(self):
+        """Preflight findings that are mismatches (not just items the controller does not record)."""
+        return [p for p in self.preflight if p["check"] != "not recorded"]
+
+    @property
+    def missed(self):
+        """Names of the targets missed (or not measurable)."""
+        return [k for k, t in self.targets.items() if not t["met"]]
+
+    def metrics(self, scenario):
+        """The metrics dict of ``scenario`` (the anti-windup run)."""
+        return next(m for m in self.scenarios if m["scenario"] == scenario)
+
+    def summary(self):
+        """A JSON-ready dict (what verify.json holds, without figures)."""
+        c = self.controller
+        return {"plant": str(self.plant.source), "controller": c.source or c.name, "controller_name": c.name,
+                "controller_form": self.form, "window": c.window_source, "noise": self.noise,
+                "anti_windup": self.anti_windup, "seed": self.seed, "preflight": self.preflight,
+                "notes": self.notes, "predicted_limit_cycles": self.predicted_limit_cycles,
+                "targets": self.targets, "scenarios": self.scenarios}
+
+    def __repr__(self):
+        met = sum(t["met"] for t in self.targets.values())
+        return (f"VerifyResult({self.controller.name} on {self.plant.serial}: {len(self.scenarios)} runs, "
+                f"{met} of {len(self.targets)} targets met, {len(self.mismatches)} preflight mismatches)")
+
+
+def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise=True, anti_windup=True,
+           form=None, seed=0, targets=None, strict=False, allow_unstable=False, progress=None):
+    """Run a controller in closed loop with the nonlinear plant, as firmware runs it.
+
+    Parameters
+    ----------
+    plant : Plant or str or Path
+        A plant (:func:`workbench.load_plant`) or its file.
+    controller : Controller or str or Path
+        A :class:`Controller` or an exported .json/.mat. A controller without output limits
+        or window gets the plant's (and the result says so).
+    scenarios : sequence of str or "all"
+        Names of :data:`workbench.verify.scenarios.SCENARIOS`.
+    hold_s : float, default 1000
+        Duration of the hold scenario, s.
+    noise, anti_windup : bool
+        Gauge noise; the declared anti-windup (False: range clip only, to show windup).
+    form : {"fixed", "float", "hanus"}, optional
+        Default: what the controller declares (fixed point first).
+    seed : int, default 0
+        Seed of the gauge noise (PCG64).
+    targets : dict, optional
+        {target name: limit} overriding :data:`TARGETS`.
+    strict : bool, default False
+        Raise :class:`ControllerMismatchError` on a preflight mismatch instead of running.
+    allow_unstable : bool, default False
+        Accept a controller with poles outside the unit circle (analysis only).
+    progress : callable(stage, done, total), optional
+
+    Returns
+    -------
+    VerifyResult
+    """
+    if not isinstance(plant, Plant):
+        plant = load_plant(plant)
+    if not isinstance(controller, Controller):
+        controller = Controller.load(controller, plant=plant, allow_unstable=allow_unstable)
+    elif controller.output_limits_v is None or controller.voltage_model is None:
+        controller = Controller.from_dict({**controller.to_dict()} if controller.fixed is not None else
+                                          {**controller.record, "gain": controller.gain,
+                                           "sos": controller.sos.tolist()},
+                                          source=controller.source, plant=plant, allow_unstable=allow_unstable)
+    if isinstance(scenarios, str):
+        scenarios = SCENARIOS if scenarios == "all" else (scenarios,)
+    scenarios = list(dict.fromkeys(SCENARIOS if "all" in scenarios else scenarios))
+    unknown = [s for s in scenarios if s not in SCENARIOS]
+    if unknown:
+        raise WorkbenchError(f"unknown scenario {unknown[0]!r}; known: {', '.join(SCENARIOS)} or all")
+    limits = {}
+    for name, value in (targets or {}).items():
+        limits[name] = _check_target_value(name, value, "targets")
+    pre = controller.compare_plant(plant)
+    notes = []
+    if controller.window_source == "plant":
+        notes.append(f"{controller.source or 'the controller'} has no current-limit window: the window "
+                     f"+{controller.voltage_model[1]:.4g}/-{controller.voltage_model[2]:.4g} V, alpha "
+                     f"{controller.voltage_model[0]:.4g} was derived from {plant.source}")
+    if not anti_windup:
+        notes.append("run without anti-windup (--no-anti-windup): the range clip only, no current-limit window")
+    bad = [p for p in pre if p["check"] != "not recorded"]
+    if strict and bad:
+        raise ControllerMismatchError(
+            f"{controller.source or controller.name} was not exported for {plant.source} (--strict): "
+            + "; ".join(f"{p['check']}: {p['message']}" for p in bad))
+    fw = controller.firmware(form)
     say = progress or (lambda *a: None)
-    steps = list(scenarios) + ["limit cycles"]
+    steps = len(scenarios) + 1
     results, traces_all = [], {}
     for i, name in enumerate(scenarios):
-        say("verify", i, len(steps))
-        m, tr = run_scenario(plant, ctrl, name, hold_s=hold_s, anti_windup=anti_windup, noise=noise)
+        say("verify", i, steps)
+        m, tr = run_scenario(plant, fw, name, hold_s=hold_s, anti_windup=anti_windup, noise=noise, seed=seed)
         results.append(m)
         traces_all[name] = (m, tr)
     if "large_step" in scenarios and anti_windup:
         # the report shows the same step without the anti-windup (the issue asks for it)
-        m, tr = run_scenario(plant, ctrl, "large_step", anti_windup=False, noise=noise)
+        m, tr = run_scenario(plant, fw, "large_step", anti_windup=False, noise=noise, seed=seed)
         m["scenario"] = "large_step_no_anti_windup"
         results.append(m)
         traces_all["large_step_no_anti_windup"] = (m, tr)
-    say("verify", len(scenarios), len(steps))
-    cycles = predicted_limit_cycles(plant, ctrl)
+    say("verify", len(scenarios), steps)
+    cycles = predicted_limit_cycles(plant, fw)
     for m in results:
         if "oscillation_m" in m:
             m["predicted_limit_cycles"] = cycles
-    say("verify", len(steps), len(steps))
-    summary = {"plant": str(plant_path), "controller": str(controller_path), "controller_name": data.get("name"),
-               "controller_form": ctrl.describe(), "noise": noise, "anti_windup": anti_windup,
-               "predicted_limit_cycles": cycles, "targets": evaluate_targets(results), "scenarios": results}
+    say("verify", steps, steps)
+    form_text = fw.describe().replace("no current-limit window", "no current-limit window (anti-windup off)")
+    return VerifyResult(plant=plant, controller=controller, scenarios=results, traces=traces_all,
+                        targets=evaluate_targets(results, limits), preflight=pre, predicted_limit_cycles=cycles,
+                        seed=int(seed), noise=bool(noise), anti_windup=bool(anti_windup), form=form_text,
+                        notes=notes)
+
+
+def run_verify(plant_path, controller_path, scenarios=SCENARIOS, hold_s=1000.0, noise=True, anti_windup=True,
+               form=None, out_dir=None, progress=None, seed=0, targets=None, strict=False, allow_unstable=False):
+    """The ``workbench verify`` job: :func:`verify`, then figures, report.md and verify.json in ``out_dir``.
+
+    Returns the summary dict (:meth:`VerifyResult.summary`, plus ``figures`` and ``report``).
+    """
+    res = verify(plant_path, controller_path, scenarios, hold_s=hold_s, noise=noise, anti_windup=anti_windup,
+                 form=form, seed=seed, targets=targets, strict=strict, allow_unstable=allow_unstable,
+                 progress=progress)
+    summary = res.summary()
+    summary["plant"], summary["controller"] = str(plant_path), str(controller_path)
     if out_dir is not None:
-        summary.update(_write_outputs(Path(out_dir), summary, traces_all))
+        summary.update(_write_outputs(Path(out_dir), summary, res.traces))
     return summary
+
+
+def _preflight_lines(summary):
+    pre = summary.get("preflight") or []
+    bad = [p for p in pre if p["check"] != "not recorded"]
+    lines = ["## Preflight: controller against plant", ""]
+    if not bad:
+        lines.append("The controller's provenance, trim, gauge gain, output limits and current-limit window agree "
+                     "with the plant it runs on.")
+    else:
+        lines.append(f"**WARNING: {len(bad)} mismatch(es): the controller was not exported for this plant.** "
+                     f"(`--strict` makes this an error.)")
+        lines.append("")
+        lines += [f"- **{p['check']}**: {p['message']}" for p in bad]
+    info = [p for p in pre if p["check"] == "not recorded"] + [{"message": n} for n in summary.get("notes") or []]
+    if info:
+        lines.append("")
+        lines += [f"- {p['message']}" for p in info]
+    return lines + [""]
 
 
 def _write_outputs(out, summary, traces_all):
     from ..report import write_json
+    from ..report.output import write_text
     from ..report.verify_figures import plot_scenario
     from ..report.verify_report import write_verify_report
     figures = {}
@@ -115,11 +383,22 @@ def _write_outputs(out, summary, traces_all):
         companion = traces_all.get("large_step_no_anti_windup") if name == "large_step" else None
         figures[name] = str(plot_scenario(m, tr, out / f"{name}.png", companion=companion).name)
     header = {"plant": summary["plant"], "controller": summary["controller"],
-              "controller_form": summary["controller_form"],
-              "targets": {k: (v["value"], v["limit"], v["unit"], v["met"]) for k, v in summary["targets"].items()}}
+              "controller_form": summary["controller_form"], "preflight": summary["preflight"],
+              "targets": {f"{k} ({v['text']})": (v["value"], v["limit"], v["unit"], v["met"])
+                          for k, v in summary["targets"].items()}}
     results = [{"metrics": m, "figure": figures.get(m["scenario"])} for m in summary["scenarios"]]
     report = write_verify_report(out / "report.md", header, results)
+    text = Path(report).read_text()
+    if "## Preflight" not in text:
+        # the preflight goes before the targets (the report module does not render it yet)
+        head, sep, rest = text.partition("## Targets")
+        why = [f"- {k}: not measured: {v['why']}" for k, v in summary["targets"].items() if "why" in v]
+        text = head + "\n".join(_preflight_lines(summary)) + "\n" + sep + rest
+        if why:
+            text = text.replace("## Targets\n", "## Targets\n\n" + "\n".join(why) + "\n", 1)
+        write_text(report, text)
     from ..report.html import write_html_report
     write_html_report(report)
     write_json(out / "verify.json", {**summary, "figures": figures})
     return {"figures": figures, "report": str(report)}
+

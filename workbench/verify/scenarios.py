@@ -14,7 +14,7 @@ from ..plant.gauge import TRIM_CENTER_M
 from ..plant.simulator import PZTSimulator
 from .closed_loop import ClosedLoop
 
-__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "linear_step_prediction"]
+__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "linear_step_prediction", "nominal_loop_plant"]
 
 SCENARIOS = ("small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold", "force_step", "sine_sweep")
 SWEEP_FREQ_HZ = (5.0, 10.0, 20.0, 50.0, 100.0, 150.0, 200.0, 300.0, 500.0, 1000.0, 2000.0)
@@ -50,13 +50,46 @@ def _step_metrics(t, x, x0, x1, band=0.02):
     return overshoot, settle
 
 
-def _nominal_loop_plant(plant, branch="ascending"):
-    """Firmware plant (V -> reading V, sampled chain) at mid-stroke on ``branch``: ascending where a
-    step up from the approach runs, reversal for the small tones of the sweep (minor loops)."""
+def _rise_time(t, x, x0, x1):
+    """10-90 % rise time of a step from x0 to x1, s; NaN if the response never reaches 90 %."""
+    y = (np.asarray(x) - x0) / (x1 - x0)
+    k10, k90 = np.flatnonzero(y >= 0.1), np.flatnonzero(y >= 0.9)
+    if not k90.size:
+        return float("nan")
+    return float(t[k90[0]] - t[k10[0]])
+
+
+def _ratio(a, b):
+    return float(a / b) if np.isfinite(a) and np.isfinite(b) and b > 0 else float("nan")
+
+
+def nominal_loop_plant(plant, branch="ascending", minimal=True):
+    """The nominal plant as firmware sees it: a discrete python-control StateSpace, PZT volts in,
+    firmware volts of reading out (sampled gauge chain, one-sample compute delay), at mid-stroke.
+
+    Parameters
+    ----------
+    plant : Plant
+    branch : str, default "ascending"
+        Hysteresis branch of the operating point at 50 V: ascending where a step up from the
+        approach runs, "reversal" for small tones (minor loops).
+    minimal : bool, default True
+        Remove the states that ``control.minreal`` (tolerance 1e-6) finds uncontrollable or
+        unobservable: the creep branches leave nearly cancelling pole/zero pairs within 1e-7
+        of z = 1, and ``control.feedback`` of the unreduced model with a controller puts a
+        spurious closed-loop pole outside the unit circle (|z| = 1.015 with the SN637 export).
+        The frequency response is unchanged (see tests/test_api.py).
+    """
+    import control
     from ..linearize.sampled import firmware_plant
     from ..linearize.small_signal import operating_point, small_signal_model
     c_h = operating_point(plant.pzt, 50.0, branch).capacitance_f
-    return firmware_plant(small_signal_model(plant.pzt, c_h)[0, 0], plant.gauge, X_START_M, 1)
+    p = firmware_plant(small_signal_model(plant.pzt, c_h)[0, 0], plant.gauge, X_START_M, 1)
+    return control.minreal(p, tol=1e-6, verbose=False) if minimal else p
+
+
+def _nominal_loop_plant(plant, branch="ascending"):
+    return nominal_loop_plant(plant, branch)
 
 
 def linear_step_response(plant, controller, n=2000):
@@ -132,7 +165,11 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
         t_lin, y_lin = linear_step_response(plant, controller, n)
         ov_lin, st_lin = _step_metrics(t_lin, y_lin, 0.0, 1.0)
         m.update(linear_overshoot_percent=ov_lin, linear_settling_s=st_lin,
-                 overshoot_difference_points=ov - ov_lin, settling_difference_s=st - st_lin)
+                 overshoot_difference_points=ov - ov_lin, settling_difference_s=st - st_lin,
+                 rise_s=_rise_time(r.t_s - r.t_s[0] + dt, r.x_m, x0, x1), linear_rise_s=_rise_time(t_lin, y_lin, 0.0, 1.0))
+        window_ms = n * dt * 1e3
+        m["settling_ratio"] = _ratio(st, st_lin)
+        m["rise_ratio"] = _ratio(m["rise_s"], m["linear_rise_s"])
         if noise:
             # the overshoot of one noisy step is mostly noise (22 nm RMS on a 100 nm step): the comparison
             # with the noise-free linear prediction is made on the same step run without gauge noise
@@ -141,7 +178,18 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
             rq = quiet.run(_to_volts(np.full(n, x1), g))
             ov_q, st_q = _step_metrics(rq.t_s, rq.x_m, x0, x1)
             m.update(overshoot_noise_free_percent=ov_q, settling_noise_free_s=st_q,
-                     overshoot_difference_points=ov_q - ov_lin, settling_difference_s=st_q - st_lin)
+                     overshoot_difference_points=ov_q - ov_lin, settling_difference_s=st_q - st_lin,
+                     rise_noise_free_s=_rise_time(rq.t_s - rq.t_s[0] + dt, rq.x_m, x0, x1))
+            m["settling_ratio"] = _ratio(st_q, st_lin)            # scored on the noise-free twin
+            m["rise_ratio"] = _ratio(m["rise_noise_free_s"], m["linear_rise_s"])
+        for key in ("settling_s", "settling_noise_free_s", "settling_ratio", "settling_difference_s"):
+            if key in m and not np.isfinite(m[key]):
+                m[f"{key}_why"] = (f"the step did not stay within 2 % of its size before the {window_ms:.0f} ms "
+                                   f"window ended" if np.isfinite(st_lin) else
+                                   f"the linear prediction does not settle within the {window_ms:.0f} ms window")
+        for key in ("rise_s", "rise_noise_free_s", "rise_ratio"):
+            if key in m and not np.isfinite(m[key]):
+                m[f"{key}_why"] = f"the step did not reach 90 % of its size within the {window_ms:.0f} ms window"
         amp, freq = _oscillation(r.x_m[-n // 2:], dt)
         m.update(oscillation_m=amp, oscillation_hz=freq)
         extra = {"ref_m": np.full(r.x_m.size, x1), "x_linear_m": x0 + dx * y_lin[: r.x_m.size],
@@ -168,6 +216,7 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
                  hysteresis_closed_loop_percent=hysteresis_fraction(ref_d[after], r.x_m[after]) * 100 * (
                      np.ptp(r.x_m[after]) / stroke),
                  hysteresis_open_loop_percent=_open_loop_hysteresis(plant, f) * 100)
+        m["hysteresis_ratio"] = _ratio(m["hysteresis_closed_loop_percent"], m["hysteresis_open_loop_percent"])
     elif name == "hold":
         n = int(hold_s / dt)
         dec = max(1, n // 20000)
@@ -176,7 +225,8 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
         xs = r.x_m[settled]
         # drift: the mean over the first and last tenth of the settled hold (noise averaged out)
         k = max(1, xs.size // 10)
-        m.update(hold_s=hold_s, drift_m=float(np.mean(xs[-k:]) - np.mean(xs[:k])),
+        m.update(hold_s=hold_s, current_limit_fraction=r.periods_at_current_limit / max(1, n),
+                 drift_m=float(np.mean(xs[-k:]) - np.mean(xs[:k])),
                  noise_rms_m=float(np.std(xs[:k])))
         amp, freq = _oscillation(r.x_m[settled], dt * dec)
         m.update(oscillation_m=amp, oscillation_hz=freq)
@@ -250,6 +300,10 @@ def _sine_sweep(cl, plant, controller, g, m):
              compared_up_to_hz=float(f_hz[ok][-1]),
              rate_limited_fraction_per_freq=rate_frac, x_amplitude_m=x_amp,
              bandwidth_hz=_bandwidth(f_hz, np.abs(meas)), linear_bandwidth_hz=_bandwidth(f_hz, np.abs(lin)))
+    for key, mag in (("bandwidth_hz", np.abs(meas)), ("linear_bandwidth_hz", np.abs(lin))):
+        if not np.isfinite(m[key]):
+            m[f"{key}_why"] = (f"|T| is already below -3 dB at the first tone, {f_hz[0]:g} Hz" if mag[0] < 10 ** (-3 / 20)
+                               else f"|T| stays above -3 dB up to the last tone, {f_hz[-1]:g} Hz")
     return r, {}
 
 

@@ -1,0 +1,236 @@
+"""The one Controller: round trips, from_lti against the committed export, validation on load, plant comparison."""
+
+import copy
+import json
+
+import control
+import numpy as np
+import pytest
+
+from workbench.controller import NO_WINDOW_TEXT, Controller, ControllerError
+from workbench.export import from_sos, quantize, run_fixed
+from workbench.plant import load_plant
+
+from .conftest import PLANTS, ROOT
+
+COMMITTED = ROOT / "controllers" / "sn637_loopshape.json"
+
+
+@pytest.fixture(scope="module")
+def data():
+    return json.loads(COMMITTED.read_text())
+
+
+@pytest.fixture(scope="module")
+def ctrl():
+    return Controller.load(COMMITTED)
+
+
+def test_json_round_trip_is_byte_identical_and_mat_carries_everything(ctrl, tmp_path, rng):
+    paths = ctrl.write(tmp_path)
+    for ext in ("json", "h", "csv"):
+        assert paths[ext].read_bytes() == COMMITTED.with_suffix(f".{ext}").read_bytes(), ext
+    for mat in (paths["mat"], COMMITTED.with_suffix(".mat")):      # the committed .mat is re-exported too
+        m = Controller.load(mat)
+        assert m.voltage_model == ctrl.voltage_model and m.window_source == "file"
+        assert m.provenance == ctrl.provenance and m.output_limits_v == ctrl.output_limits_v
+        np.testing.assert_array_equal(m.fixed.b, ctrl.fixed.b)
+        np.testing.assert_array_equal(m.fixed.a, ctrl.fixed.a)
+        # a record through the window and the limits: the firmware step bit for bit
+        e = np.concatenate([rng.normal(0, 0.05, 3000), np.full(2000, 1.5), np.full(2000, -2.0)])
+        np.testing.assert_array_equal(m.run(e), ctrl.run(e))
+    np.testing.assert_array_equal(ctrl.run(e), run_fixed(ctrl.fixed, e))
+    assert np.min(ctrl.run(e)) >= -20.0 and np.max(ctrl.run(e)) <= 120.0
+
+
+def test_from_lti_reproduces_the_committed_export(ctrl, data):
+    # the study exports through Controller.from_lti: from the committed float design and the SN637
+    # creep plant it must give the committed words and window (to the last bit)
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml")
+    k = from_sos(ctrl.gain, ctrl.sos, ctrl.dt_s)
+    c = Controller.from_lti(k, plant, output_limits_v=(-20.0, 120.0), input_range_v=2.6,
+                            f_max_hz=data["fixed_point"]["f_max_hz"])
+    np.testing.assert_array_equal(c.fixed.b, ctrl.fixed.b)
+    np.testing.assert_array_equal(c.fixed.a, ctrl.fixed.a)
+    np.testing.assert_array_equal(c.fixed.signal_frac_bits, ctrl.fixed.signal_frac_bits)
+    assert c.voltage_model == pytest.approx(ctrl.voltage_model, rel=1e-12)
+    assert c.provenance["plant_sha256"] == data["provenance"]["plant_sha256"]
+    assert c.provenance["gauge_v_per_m"] == pytest.approx(data["gauge_chain"]["volts_per_meter"], rel=1e-9)
+    assert c.compare_plant(plant) == []
+
+
+@pytest.mark.parametrize("fc_hz", [20.0, 150.0, 900.0])
+def test_from_lti_tustin_and_window_from_the_plant(fc_hz):
+    # a continuous PI is discretized by Tustin; the window is alpha = 1 - exp(-T / (R C_max)),
+    # h = R I (80 ohm x 2 mA = 0.16 V up, x 14 mA = 1.12 V down for SN629)
+    plant = load_plant(PLANTS / "p888_51_sn629.toml")
+    s = control.tf("s")
+    k_c = 3.0 * (s + 2 * np.pi * fc_hz) / s
+    c = Controller.from_lti(k_c, plant)
+    dt = plant.gauge.period_s
+    for f in (1.0, 100.0, 2000.0):
+        z = np.exp(2j * np.pi * f * dt)
+        w = 2 / dt * (z - 1) / (z + 1)                                  # Tustin's s of z
+        want = 3.0 * (w + 2 * np.pi * fc_hz) / w
+        assert complex(c.as_lti()(z)) == pytest.approx(want, rel=1e-9)
+        assert complex(c.as_lti(quantized=True)(z)) == pytest.approx(want, rel=1e-6)
+    alpha, h_up, h_down = c.voltage_model
+    assert h_up == pytest.approx(80 * 2e-3) and h_down == pytest.approx(80 * 14e-3)
+    assert 0 < alpha < 1 and c.window_source == "file"
+    assert c.output_limits_v == (-20.0, 120.0) and c.provenance["serial"] == "SN629"
+
+
+def test_bare_controller_window_from_plant_or_said_to_be_off(tmp_path):
+    bare = tmp_path / "bare.json"
+    bare.write_text(json.dumps({"sample_rate_hz": 1e4, "gain": 250.0, "sos": [[1, 0, 0, 1, 0, 0]]}))
+    alone = Controller.load(bare)
+    assert alone.voltage_model is None and NO_WINDOW_TEXT in alone.describe()
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml")
+    with_plant = Controller.load(bare, plant=plant)
+    assert with_plant.window_source == "plant" and "derived from the plant" in with_plant.describe()
+    assert with_plant.voltage_model[1] == pytest.approx(plant.pzt.series_resistance_ohm * plant.pzt.current_limit_source_a)
+    assert with_plant.output_limits_v == (plant.pzt.voltage_min_v, plant.pzt.voltage_max_v)
+    # a gain no reading can use: one 79 uV LSB commands more than the 140 V range at every frequency
+    # (1e300, and also the smallest such gain, 140 V / 79 uV = 1.8e6, with 2x margin); 250 passes
+    for gain in (1e300, 3.6e6):
+        bare.write_text(json.dumps({"sample_rate_hz": 1e4, "gain": gain, "sos": [[1, 0, 0, 1, 0, 0]]}))
+        with pytest.raises(ControllerError, match=r"bare.json: \[gain\].*switch between its limits"):
+            Controller.load(bare, plant=plant)
+    bare.write_text(json.dumps({"sample_rate_hz": 1e4, "gain": 1.0e6, "sos": [[1, 0, 0, 1, 0, 0]]}))
+    assert Controller.load(bare, plant=plant).gain == 1.0e6                 # 79 V per LSB: within range
+
+
+def _set(d, path, value):
+    keys = path.split("/")
+    for k in keys[:-1]:
+        d = d[int(k)] if isinstance(d, list) else d[k]
+    last = keys[-1]
+    if value is _DROP:
+        del d[last]
+    elif isinstance(d, list):
+        d[int(last)] = value
+    else:
+        d[last] = value
+
+
+_DROP = object()
+# (mutation of the committed JSON, the key the message must name)
+BAD = [
+    ("sample_rate_hz", 0, "sample_rate_hz"), ("sample_rate_hz", -1e4, "sample_rate_hz"),
+    ("sample_rate_hz", "fast", "sample_rate_hz"), ("sample_rate_hz", _DROP, "sample_rate_hz"),
+    ("gain", float("nan"), "gain"), ("gain", 0.0, "gain"), ("gain", 1e300, "fixed_point.sections[0].b"),
+    ("sos/0/1", float("nan"), "sos"), ("sos/0/3", 2.0, "sos[0]"), ("sos/1", [1.0, 0.5, 0.0, 1.0, -1.0], "sos"),
+    ("sos", [], "sos"), ("sos", _DROP, "sos"),
+    ("output_limits_v", [120.0, -20.0], "output_limits_v"), ("output_limits_v", [120.0], "output_limits_v"),
+    ("anti_windup/output_limits_v", [-20.0, 100.0], "anti_windup.output_limits_v"),
+    ("anti_windup/voltage_model/alpha", 5.0, "anti_windup.voltage_model.alpha"),
+    ("anti_windup/voltage_model/alpha", 0.0, "anti_windup.voltage_model.alpha"),
+    ("anti_windup/voltage_model/headroom_v", [-0.16, 1.12], "anti_windup.voltage_model.headroom_v"),
+    ("fixed_point/output/voltage_model/alpha", 0.2, "fixed_point.output.voltage_model"),
+    ("fixed_point/sections/0/b/0", 123456, "fixed_point.sections[0].b"),
+    ("fixed_point/sections/1/a/1", -(1 << 28), "fixed_point.sections[1]"),      # the integrator's identity
+    ("fixed_point/sections/0/a/1", 1 << 20, "fixed_point.sections[0].a"),
+    ("fixed_point/sections/0/b/1", 1.5, "fixed_point.sections[0].b"),
+    ("fixed_point/sections/0/b", [1, 2], "fixed_point.sections[0].b"),
+    ("fixed_point/coeff_bits", 64, "fixed_point.coeff_bits"),
+    ("fixed_point/f_max_hz", _DROP, "fixed_point.f_max_hz"),
+    ("fixed_point/sections/0/integrator", True, "fixed_point.sections[0]"),
+]
+
+
+@pytest.mark.parametrize("path, value, key", BAD, ids=[f"{p}={v!r}"[:40] for p, v, _ in BAD])
+def test_bad_controllers_name_the_file_and_key(data, tmp_path, path, value, key):
+    bad = copy.deepcopy(data)
+    _set(bad, path, value)
+    f = tmp_path / "ctrl.json"
+    f.write_text(json.dumps(bad))
+    with pytest.raises(ControllerError) as err:
+        Controller.load(f)
+    assert str(f) in str(err.value) and f"[{key}" in str(err.value), str(err.value)
+
+
+def test_quantized_pole_outside_the_circle_is_refused_whatever_max_pole_radius_says(data, tmp_path):
+    # words for poles at |z| = 1.41 in the first section, with the float section and the recorded
+    # radius (0.876) left as they were: the loader computes the radius from the words
+    bad = copy.deepcopy(data)
+    f_a = bad["fixed_point"]["a_frac_bits"]
+    bad["fixed_point"]["sections"][0]["a"] = [0, int(2.0 * 2 ** f_a) - 1]       # z^2 + 2 -> |z| = 1.41
+    f = tmp_path / "c.json"
+    f.write_text(json.dumps(bad))
+    with pytest.raises(ControllerError, match=r"fixed_point.sections\[0\].a.*\|z\| = 1.41"):
+        Controller.load(f)
+
+
+def test_unstable_float_poles_refused_unless_allowed(tmp_path):
+    f = tmp_path / "u.json"
+    f.write_text(json.dumps({"sample_rate_hz": 1e4, "sos": [[1, 0, 0, 1, -1.5, 0], [1, 0, 0, 1, -1, 0]]}))
+    with pytest.raises(ControllerError, match=r"u.json: \[sos\[0\]\].*1.5.*--allow-unstable"):
+        Controller.load(f)
+    assert Controller.load(f, allow_unstable=True).max_pole_radius == pytest.approx(1.5)
+    # an integrator is fine in the last section only
+    f.write_text(json.dumps({"sample_rate_hz": 1e4, "sos": [[1, 0, 0, 1, -1, 0], [1, 0, 0, 1, -0.5, 0]]}))
+    with pytest.raises(ControllerError, match=r"\[sos\[0\]\].*integrator outside the last section"):
+        Controller.load(f)
+
+
+def test_unreadable_files(tmp_path):
+    for name, payload in (("x.json", b"{not json"), ("y.json", b"\xff\xfe\x00"), ("z.mat", b"not a mat"),
+                          ("w.json", b"[1, 2]")):
+        f = tmp_path / name
+        f.write_bytes(payload)
+        with pytest.raises(ControllerError, match=name):
+            Controller.load(f)
+    with pytest.raises(ControllerError, match="missing.json.*cannot be read"):
+        Controller.load(tmp_path / "missing.json")
+
+
+def _plant_with_limits(tmp_path, source_a, sink_a):
+    text = (PLANTS / "p888_51_sn637_creep.toml").read_text()
+    text = text.replace("current_limit_source_a = 2.0e-3", f"current_limit_source_a = {source_a}")
+    text = text.replace("current_limit_sink_a = 14.0e-3", f"current_limit_sink_a = {sink_a}")
+    assert f"current_limit_source_a = {source_a}" in text
+    path = tmp_path / "sn637_20ma.toml"
+    path.write_text(text)
+    return load_plant(path)
+
+
+def test_compare_plant_flags_other_serials_and_another_amplifier(ctrl, tmp_path):
+    assert [p["check"] for p in ctrl.compare_plant(load_plant(PLANTS / "p888_51_sn637_creep.toml"))] \
+        == ["not recorded"]                                              # the committed JSON has no serial
+    for serial in ("sn629", "sn618"):
+        checks = {p["check"] for p in ctrl.compare_plant(load_plant(PLANTS / f"p888_51_{serial}.toml"))}
+        assert {"plant_sha256", "trim_scale", "trim_bias_v", "gauge_v_per_m", "window"} <= checks, serial
+    checks = {p["check"]: p["message"] for p in ctrl.compare_plant(_plant_with_limits(tmp_path, 20e-3, 20e-3))}
+    assert set(checks) == {"plant_sha256", "window", "not recorded"}
+    assert "+1.6/-1.6 V" in checks["window"]                              # 80 ohm x 20 mA
+
+
+def test_feedback_of_the_nominal_loop_is_stable_and_matches_the_frequency_response(ctrl):
+    # control.feedback of the exported controller with the API's nominal plant: poles inside the unit
+    # circle, and margins of the LTI product equal those of the pointwise frequency response of the
+    # unreduced plant (what family_margins uses) to 0.5 deg / 0.2 dB
+    import workbench as wb
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml")
+    p = wb.nominal_loop_plant(plant)
+    k = ctrl.as_lti(quantized=True)
+    assert np.max(np.abs(control.feedback(k * p, 1).poles())) < 1.0
+    full = wb.nominal_loop_plant(plant, minimal=False)
+    f = np.geomspace(0.01, 4990.0, 6000)
+    z = np.exp(2j * np.pi * f * ctrl.dt_s)
+    loop = np.array([complex(k(x)) * complex(full(x)) for x in z])
+    ref, got = wb.loop_margins(f, loop), wb.margins_of(k * p)
+    assert got.phase_margin_deg == pytest.approx(ref.phase_margin_deg, abs=0.5)
+    assert got.gain_margin_db == pytest.approx(ref.gain_margin_db, abs=0.2)
+    assert 30 < ref.phase_margin_deg < 90 and 50 < ref.crossover_hz < 500
+
+
+def test_quantize_agrees_with_from_dict_words(ctrl):
+    # the loader's LSB check accepts what quantize produces for any coefficient width it allows
+    for bits in (16, 24, 32):
+        fxp = quantize(ctrl.gain, ctrl.sos, ctrl.dt_s, input_range_v=2.6, output_limits_v=(-20.0, 120.0),
+                       f_max_hz=500.0, coeff_bits=bits, max_error_db=1.0, max_error_deg=5.0,
+                       voltage_model=ctrl.voltage_model)
+        from workbench.export.writers import controller_json
+        back = Controller.from_dict(json.loads(controller_json({"name": "q"}, fxp)), source=f"q{bits}")
+        np.testing.assert_array_equal(back.fixed.b, fxp.b)
+        assert back.max_pole_radius == pytest.approx(fxp.max_pole_radius, abs=1e-12)
