@@ -113,7 +113,14 @@ def _set(d, path, value):
         d[last] = value
 
 
-_DROP = object()
+class _Dropped:
+    """The key removed; a fixed repr so test ids agree between pytest-xdist workers."""
+
+    def __repr__(self):
+        return "<dropped>"
+
+
+_DROP = _Dropped()
 # (mutation of the committed JSON, the key the message must name)
 BAD = [
     ("sample_rate_hz", 0, "sample_rate_hz"), ("sample_rate_hz", -1e4, "sample_rate_hz"),
