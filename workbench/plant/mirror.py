@@ -29,8 +29,8 @@ energy in the flexures and in the bracket (modal strain energy). The stack force
 (they push mirror and housing apart), so at DC the housing does not move.
 
 Outputs of the structure after the stack elongations and rates: tip_rad, tilt_rad, piston_m.
-External inputs after the stack forces: a force along the mirror axis (N) and torques about x
-and y (N m), collocated with those outputs (input participation = output participation).
+External inputs after the stack forces: torques about x and y (N m) and a force along the
+mirror axis (N), collocated with those outputs (input participation = output participation).
 
 Kinematics: quasi-statically each lever input is u_j = g_j x_j with the static transmission
 g_j = beta K_u^-1 / (1/(k_p + k_s) + beta^2 K_u^-1) (load sharing between stack and lever), so
@@ -226,7 +226,7 @@ class FastSteeringMirror:
 
         Modes: the five of :meth:`modes`. Outputs after the elongations and rates: ``tip_rad``,
         ``tilt_rad``, ``piston_m`` (the mirror's, inertial); external inputs after the stack
-        forces: piston force (N), torques about x and y (N m) on the mirror.
+        forces: torques about x and y (N m) and the piston force (N) on the mirror (collocated).
         """
         _, _, beta, resid = self._k
         freqs, zeta, phi, h, m, _ = self.modes()
@@ -285,7 +285,7 @@ def mirror_run(sim, v_pea_v, external=None, decimate=1):
     v_pea_v : array_like, shape (samples, 3)
         Amplifier command per stack, V.
     external : array_like, shape (samples, 3), optional
-        Piston force (N), torque about x (N m), torque about y (N m) on the mirror.
+        Torque about x (N m), torque about y (N m), piston force (N) on the mirror.
     decimate : int
     """
     v = np.asarray(v_pea_v, float)
