@@ -35,12 +35,12 @@ mirror axis (N), collocated with those outputs (input participation = output par
 Kinematics: quasi-statically each lever input is u_j = g_j x_j with the static transmission
 g_j = beta K_u^-1 / (1/(k_p + k_s) + beta^2 K_u^-1) (load sharing between stack and lever), so
 q = K x with K = a P^{-1} diag(g) and x = K^{-1} q. For stacks at 90/210/330 deg this is
-tip = a g (x_1 - (x_2 + x_3)/2) / (1.5 r), tilt = a g (x_3 - x_2) / (sqrt(3) r),
+tip = a g (x_1 - (x_2 + x_3)/2) / (1.5 r), tilt = a g (x_2 - x_3) / (sqrt(3) r),
 piston = a g (x_1 + x_2 + x_3)/3. At DC this is exactly the structure's static map
 (:attr:`FastSteeringMirror.kinematic_error`).
 """
 
-import math
+import dataclasses
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,6 +52,7 @@ from ..errors import PlantDefinitionError
 from ..fields import Field, check_value
 from .coupled import CoupledSimulator
 from .files import load_plant
+from .hysteresis import PrandtlIshlinskii
 from .structure import modal_structure
 
 __all__ = ["FastSteeringMirror", "MirrorTrajectory", "load_mirror", "mirror_run", "FSM_SCHEMA_VERSION",
@@ -244,6 +245,22 @@ class FastSteeringMirror:
         dc = st.d - st.c @ np.linalg.solve(st.a, st.b)
         k_dc = dc[6:9, :3] @ np.linalg.inv(dc[:3, :3])
         return float(np.abs(k_dc - self.kinematics).max() / np.abs(self.kinematics).max())
+
+    def with_capacitance_scales(self, c_h_scales):
+        """The same mirror with each stack's C_h (every play weight) scaled by ``c_h_scales[j]``.
+
+        The three serial files share one assumed C_h shape (seed 000 tabulates none); this is
+        how a study makes the stacks' hysteresis unequal (PI's capacitance tolerance is +/-20 %).
+        """
+        sc = np.asarray(c_h_scales, float)
+        if sc.shape != (3,) or np.any(sc <= 0):
+            raise ValueError(f"need three positive scale factors; got {c_h_scales}")
+        plants = []
+        for pl, k in zip(self.plants, sc):
+            h = pl.pzt.hysteresis
+            ch = PrandtlIshlinskii(h.thresholds, h.weights * k, h.initial_states)
+            plants.append(dataclasses.replace(pl, pzt=dataclasses.replace(pl.pzt, hysteresis=ch)))
+        return dataclasses.replace(self, plants=tuple(plants))
 
     def simulator(self, dt_s, n_sub=1, terminations=None):
         """A :class:`~workbench.plant.coupled.CoupledSimulator` of the three stacks on :meth:`structure`."""
