@@ -198,7 +198,7 @@ def mirror_family(fsm, bias_v=50.0, v_range=(0.0, 100.0), branches=BRANCHES, df_
     Members, by name: ``"<branch> at <bias> V, K_g <nom|min|max>"`` (StateSpace: all three stacks
     on that branch of their own loops, at their own slopes) and ``"DF A=<a> V, K_g <...>"``
     (FRD: each stack's describing function at amplitude a about the bias, frequencies where
-    any stack slews, clips or is not periodic dropped).
+    any stack slews, clips or is not periodic dropped; an amplitude with none left gives no member).
     """
     kg = gauge_gains(fsm)
     members = {}
@@ -216,6 +216,8 @@ def mirror_family(fsm, bias_v=50.0, v_range=(0.0, 100.0), branches=BRANCHES, df_
                                           (lambda d, t, j=j: progress(j * t + d, 3 * t)))
             keep &= fam.linear_ok[0, 0]
             ys.append(df_admittance(pz, fam.x_m_per_v[0, 0], freq))
+        if not keep.any():
+            continue                       # every frequency slews or clips: no linear member at this amplitude
         ys = np.array(ys)[:, keep]
         for c, label in enumerate(("nom", "min", "max")):
             members[f"DF A={amp:g} V, K_g {label}"] = mirror_frd(fsm, ys, freq[keep], kg[:, c],
