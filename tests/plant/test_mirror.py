@@ -8,7 +8,7 @@ import pytest
 from scipy.signal import find_peaks
 
 from workbench.errors import PlantDefinitionError
-from workbench.linearize.mimo import structural_modes, terminated_structure
+from workbench.linearize.mimo import mirror_small_signal, structural_modes, terminated_structure
 from workbench.linearize.small_signal import operating_point
 from workbench.plant.coupled import CoupledSimulator
 from workbench.plant.mirror import load_mirror, mirror_run
@@ -124,7 +124,6 @@ def test_bad_file_names_file_and_key(tmp_path, old, new, key):
 def _tip_sine(m, dt):
     """50 V bias (smooth ramp over 1 s), then a 1 Hz tip sine through K^-1 swinging stack 1 by +/-30 V."""
     caps = [operating_point(pz, 50.0, "initial").capacitance_f for pz in m.stacks]
-    from workbench.linearize.mimo import mirror_small_signal
     g = mirror_small_signal(m, caps).dcgain()[0, 0]       # nominal stack gain in the mirror, m/V
     t = np.arange(int(3.0 / dt)) * dt
     ramp = np.where(t < 1, 0.5 - 0.5 * np.cos(np.pi * t), 1.0)

@@ -61,7 +61,6 @@ __all__ = ["FastSteeringMirror", "MirrorTrajectory", "load_mirror", "mirror_run"
 FSM_SCHEMA_VERSION = "workbench.fsm/1"
 AXES = ("tip_rad", "tilt_rad", "piston_m")
 
-_POS = dict(lo=0.0, lo_open=True)
 _SCHEMA = {
     "": {"schema": Field("str", expect=f'the string "{FSM_SCHEMA_VERSION}"'),
          "name": Field("str", expect="a descriptive name")},
