@@ -119,6 +119,16 @@ def test_bad_file_names_file_and_key(tmp_path, old, new, key):
     assert bad.read_text() == before
 
 
+def test_missing_file_and_scales(fsm, tmp_path):
+    with pytest.raises(PlantDefinitionError, match=r"fsm_none.toml: \[file\]"):
+        load_mirror(tmp_path / "fsm_none.toml")
+    with pytest.raises(ValueError, match="three positive"):
+        fsm.with_capacitance_scales([1.0, -1.0, 1.0])
+    m = fsm.with_capacitance_scales([1.0, 2.0, 1.0])
+    assert np.allclose(m.stacks[1].hysteresis.weights, 2 * fsm.stacks[1].hysteresis.weights)
+    assert np.array_equal(m.stacks[0].hysteresis.weights, fsm.stacks[0].hysteresis.weights)
+
+
 # -- simulation ---------------------------------------------------------------------------------
 
 def _tip_sine(m, dt):
