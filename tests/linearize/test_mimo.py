@@ -113,3 +113,16 @@ def test_modes_match_the_simulation_with_amplifiers(fsm):
     # and the amplifier case is told apart from open leads by more than the tolerance above
     f_open, _ = structural_modes(fsm, "open", caps)
     assert np.abs(f_open / fn - 1).max() > 1e-3
+
+
+def test_family_large_amplitude_df_between_the_branches(fsm):
+    """At 5 V about 50 V more plays move: each stack's gain lies between its reversal slope (only r = 0) and the
+    virgin slope (every play), at every frequency, with the stacks' C_h unequal."""
+    m = fsm.with_capacitance_scales([1.0, 0.85, 1.15])
+    f = np.array([0.3, 1.0, 3.0])
+    fam = mirror_family(m, df_amplitudes_v=(5.0,), freq_hz=f, branches=("reversal", "initial"))
+    df = np.abs(np.diagonal(fam["DF A=5 V, K_g nom"].frdata[:3, :3], axis1=0, axis2=1))
+    lo, hi = (np.abs(np.diagonal(np.asarray(fam[f"{b} at 50 V, K_g nom"](2j * np.pi * f))[:3, :3], axis1=0, axis2=1))
+              for b in ("reversal", "initial"))
+    assert df.shape == (3, 3) and np.all(lo < df) and np.all(df < hi)
+    assert np.all(df > 1.05 * lo)                      # hysteresis visible at this amplitude
