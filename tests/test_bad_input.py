@@ -114,6 +114,15 @@ def ws(tmp_path_factory):
     ctrl = json.loads((ROOT / CTRL).read_text(encoding="utf-8"))
     (bad / "ctrl_rate0.json").write_text(json.dumps({**ctrl, "sample_rate_hz": 0.0}), encoding="utf-8")
     (bad / "ctrl_no_sos.json").write_text(json.dumps({k: v for k, v in ctrl.items() if k != "sos"}), encoding="utf-8")
+    (bad / "ctrl_one_limit.json").write_text(json.dumps({**ctrl, "output_limits_v": [120.0]}), encoding="utf-8")
+    (bad / "ctrl_limits_reversed.json").write_text(json.dumps({**ctrl, "output_limits_v": [120.0, -20.0]}),
+                                                   encoding="utf-8")
+    unstable = json.loads(json.dumps(ctrl))
+    unstable["sos"][0] = [1.0, 0.0, 0.0, 1.0, -1.5, 0.0]          # a pole at z = 1.5
+    (bad / "ctrl_unstable.json").write_text(json.dumps(unstable), encoding="utf-8")
+    nan_sos = json.loads(json.dumps(ctrl))
+    nan_sos["sos"][0][1] = "NaN"
+    (bad / "ctrl_nan.json").write_text(json.dumps(nan_sos).replace('"NaN"', "NaN"), encoding="utf-8")
     (bad / "a_file").write_text("not a folder\n", encoding="utf-8")
     return ws
 
@@ -358,6 +367,12 @@ CASES = [
 # already pass, listed in the report otherwise
 OTHERS = [
     ("verify-controller-no-sos", ["verify", CREEP, "--controller", "bad/ctrl_no_sos.json"], ["ctrl_no_sos.json", "[sos]"]),
+    # controller contents, through every command that takes one: refused by the one loader before the work
+    *[(f"{cmd}-controller-{kind}", [cmd, *pre, "--controller", f"bad/ctrl_{kind}.json", *post],
+       [f"ctrl_{kind}.json", key])
+      for cmd, pre, post in (("verify", [CREEP], []), ("linearize", [PLANT], []), ("bench", [], []))
+      for kind, key in (("rate0", "sample_rate_hz"), ("one_limit", "output_limits_v"),
+                        ("limits_reversed", "output_limits_v"), ("unstable", "sos"), ("nan", "sos"))],
     ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
 ]
@@ -383,6 +398,7 @@ def test_bad_input(argv, fragments, ws, tmp_path, capsys, monkeypatch):
     assert code == 2, err
     assert "Traceback" not in err
     assert len([line for line in err.splitlines() if "error:" in line]) == 1, err
+    assert "[#" not in err and "[...." not in err, "work (a progress bar) started before the input was refused"
     for fragment in fragments:
         assert fragment.replace("{out}", str(out)) in err, (fragment, err)
     after = _hashes(ws)

@@ -102,6 +102,11 @@ def _check_files(args):
             _check_json(path, name)
         if path.suffix.lower() == ".csv":
             _check_csv_delimiter(path, name)
+    for name, path in ins:
+        if name == "--controller" and path.suffix.lower() in (".json", ".mat"):
+            # the one controller loader validates it now, not after minutes of linearization
+            from .controller import Controller
+            Controller.load(path, allow_unstable=getattr(args, "allow_unstable", False))
     for name, path in out_files:
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:
