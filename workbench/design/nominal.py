@@ -101,7 +101,7 @@ def minimal(sys, slow_hz=SLOW_HZ):
     return control.ss(red.A, red.B, red.C, red.D), k
 
 
-def nominal_plant(plant, bias_v=NOMINAL_BIAS_V, delay_samples=1, slow_hz=SLOW_HZ):
+def nominal_plant(plant, bias_v=NOMINAL_BIAS_V, delay_samples=1, slow_hz=SLOW_HZ, branch=NOMINAL_BRANCH):
     """The nominal plant of ``plant`` (a loaded Plant), module docstring's definition.
 
     Parameters
@@ -112,17 +112,19 @@ def nominal_plant(plant, bias_v=NOMINAL_BIAS_V, delay_samples=1, slow_hz=SLOW_HZ
     delay_samples : int
         Compute delay, samples.
     slow_hz : float
-        Modes slower than this are truncated (:func:`minimal`).
+        Modes slower than this are truncated (:func:`minimal`); 0 keeps every state.
+    branch : str, default "ascending"
+        Hysteresis branch of the operating point. The nominal is the ascending branch; verify's
+        small-tone prediction asks for the same plant on the "reversal" branch (minor loops).
     """
     from ..linearize.sampled import firmware_plant, gauge_gain_v_per_m
     from ..linearize.small_signal import operating_point, small_signal_model
     g = plant.gauge
-    c_h = operating_point(plant.pzt, bias_v, NOMINAL_BRANCH).capacitance_f
+    c_h = operating_point(plant.pzt, bias_v, branch).capacitance_f
     x_per_v, removed = minimal(small_signal_model(plant.pzt, c_h)[0, 0], slow_hz)
     k_g = gauge_gain_v_per_m(NOMINAL_X0_M, g)
     fw = firmware_plant(x_per_v, g, NOMINAL_X0_M, delay_samples)
-    return NominalPlant(k_g * x_per_v, control.ss(fw), c_h, k_g, float(bias_v), NOMINAL_X0_M, NOMINAL_BRANCH,
-                        removed)
+    return NominalPlant(k_g * x_per_v, control.ss(fw), c_h, k_g, float(bias_v), NOMINAL_X0_M, branch, removed)
 
 
 def nominal_loop(controller_d, nominal):

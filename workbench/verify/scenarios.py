@@ -67,6 +67,9 @@ def nominal_loop_plant(plant, branch="ascending", minimal=True):
     """The nominal plant as firmware sees it: a discrete python-control StateSpace, PZT volts in,
     firmware volts of reading out (sampled gauge chain, one-sample compute delay), at mid-stroke.
 
+    The one definition is :func:`workbench.design.nominal.nominal_plant` (its ``firmware``
+    attribute); this is that plant, with the branch and the reduction as options.
+
     Parameters
     ----------
     plant : Plant
@@ -74,18 +77,13 @@ def nominal_loop_plant(plant, branch="ascending", minimal=True):
         Hysteresis branch of the operating point at 50 V: ascending where a step up from the
         approach runs, "reversal" for small tones (minor loops).
     minimal : bool, default True
-        Remove the states that ``control.minreal`` (tolerance 1e-6) finds uncontrollable or
-        unobservable: the creep branches leave nearly cancelling pole/zero pairs within 1e-7
-        of z = 1, and ``control.feedback`` of the unreduced model with a controller puts a
-        spurious closed-loop pole outside the unit circle (|z| = 1.015 with the SN637 export).
-        The frequency response is unchanged (see tests/test_api.py).
+        Truncate the slow creep modes (:func:`workbench.design.nominal.minimal`): they leave
+        nearly cancelling pole/zero pairs within 1e-7 of z = 1, and ``control.feedback`` of the
+        unreduced model with a controller puts a spurious closed-loop pole outside the unit
+        circle (|z| = 1.015 with the SN637 export). The servo band is unchanged (tests/test_controller.py).
     """
-    import control
-    from ..linearize.sampled import firmware_plant
-    from ..linearize.small_signal import operating_point, small_signal_model
-    c_h = operating_point(plant.pzt, 50.0, branch).capacitance_f
-    p = firmware_plant(small_signal_model(plant.pzt, c_h)[0, 0], plant.gauge, X_START_M, 1)
-    return control.minreal(p, tol=1e-6, verbose=False) if minimal else p
+    from ..design.nominal import SLOW_HZ, nominal_plant
+    return nominal_plant(plant, slow_hz=SLOW_HZ if minimal else 0.0, branch=branch).firmware
 
 
 def _nominal_loop_plant(plant, branch="ascending"):
