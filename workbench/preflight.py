@@ -181,8 +181,9 @@ def _check_study_file(args):
             raise StudyDefinitionError(path, section, f"is a value ({section} = {value!r}), not a section; "
                                                       f"write [{section}] with its keys on the lines below")
     from .study.spec import _SCHEMA as schema
+    from .study.spec import OTHER_SECTIONS
     for key, value in data.items():
-        if isinstance(value, dict) and key not in schema:
+        if isinstance(value, dict) and key not in schema and key not in OTHER_SECTIONS:
             raise StudyDefinitionError(path, key, f"unknown section [{key}]; known sections: "
                                                   f"{', '.join(f'[{s}]' for s in schema if s)}")
     export = data.get("export", {})

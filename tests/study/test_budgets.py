@@ -121,6 +121,9 @@ def test_a_failed_study_reports_the_constraint_and_the_fix(studies):
     assert "FAILED" in report and "noise budget" in report and "What would make it pass" in report
     assert (out / "loop_bode.png").stat().st_size > 10_000
     assert not (out / "controllers").exists()            # nothing exported
+    from ..report.test_reports import html_problems, markdown_problems
+    assert markdown_problems(out / "report.md") == []                   # renders on GitHub
+    assert html_problems(out / "report.html", out / "report.md") == []  # and as HTML, figures embedded
     fix = f["fix"]
     assert fix["changes"][0]["constraint"] == "noise budget"
     if fix["passes"]:

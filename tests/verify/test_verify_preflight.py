@@ -1,5 +1,6 @@
 """Verify's preflight (controller against plant), configurable targets, several scenarios, --seed."""
 
+import argparse
 import json
 
 import pytest
@@ -126,3 +127,20 @@ def test_a_bare_controller_runs_with_the_plants_window_and_says_so(sn637_creep):
     assert "current-limit window +0.16/-1.12 V" in res.form and res.mismatches == []
     m = res.metrics("force_step")
     assert abs(m["final_deviation_m"]) < 0.1 * abs(m["open_loop_deflection_m"])   # the integrator holds x
+
+
+def test_a_study_file_carries_its_verify_table(tmp_path):
+    # issue 14: targets in a [verify] table of the study itself; the study accepts the section
+    # (it is verify's to read) and verify reads its limits from the same file
+    from workbench.preflight import _check_study_file
+    from workbench.study.spec import load_study
+    text = (ROOT / "studies" / "sn637_servo.toml").read_text()
+    copy = tmp_path / "studies" / "s.toml"
+    copy.parent.mkdir()
+    copy.write_text(text.replace('"../plants/', f'"{PLANTS}/') + "\n[verify]\nsmall_step_settling_ratio = 2.5\n")
+    assert load_study(copy).path == copy
+    _check_study_file(argparse.Namespace(command="study", study=str(copy), out=str(tmp_path / "out")))
+    assert load_verify_targets(copy) == {"small_step_settling_ratio": 2.5}
+    copy.write_text(copy.read_text() + "\n[verifyy]\nx = 1\n")          # a misspelt section is still refused
+    with pytest.raises(Exception, match="verifyy"):
+        load_study(copy)

@@ -68,13 +68,13 @@ def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
     src = f"{plant.source}"
     if noise_override_v is not None:
         noise = Budget("noise_command_v", float(noise_override_v), "V RMS", "study",
-                       f"loop_shape.max_noise_command_v = {noise_override_v:g} V in {study_path} (the plant would "
+                       f"`loop_shape.max_noise_command_v = {noise_override_v:g}` V in {study_path} (the plant would "
                        f"give R min(I_source, I_sink) / {NOISE_SIGMAS:g} = "
                        f"{r * min(i_src, i_snk) / NOISE_SIGMAS:.4g} V)")
     elif r > 0:
         noise = Budget("noise_command_v", r * min(i_src, i_snk) / NOISE_SIGMAS, "V RMS", "plant",
                        f"R min(I_source, I_sink) / {NOISE_SIGMAS:g} = {r:g} ohm x {min(i_src, i_snk) * 1e3:g} mA / "
-                       f"{NOISE_SIGMAS:g} (electrical.series_resistor_ohm, current_limit_source_a/sink_a of {src})")
+                       f"{NOISE_SIGMAS:g} (`electrical.series_resistor_ohm`, `current_limit_source_a`/`current_limit_sink_a` of {src})")
     else:
         noise = Budget("noise_command_v", None, "V RMS", "plant",
                        f"series resistor out in {src} (R = 0): no current-limit window, no noise budget")

@@ -331,6 +331,8 @@ def _fail(out, spec, summary, freq, family, ub, ls, failure_report, t0):
     summary["seconds"] = time.perf_counter() - t0
     report, message = failure_report(out, spec, summary, freq, family, ub, ls)
     summary["report"] = str(report)
+    from ..report.html import write_html_report
+    summary["report_html"] = str(write_html_report(report))
     write_json(out / "summary.json", summary)
     raise StudyFailed(f"{spec.path}: {message}; report {report}")
 

@@ -77,6 +77,11 @@ class StudySpec:
     export: dict
 
 
+# Sections a study file may carry for other commands: [verify] holds verify's target limits
+# (`workbench verify ... --targets-from STUDY.toml` reads and validates it); the study ignores it.
+OTHER_SECTIONS = ("verify",)
+
+
 def _check(path, key, field, value):
     if field.kind == "strs":
         if not isinstance(value, list) or not all(isinstance(v, str) and v.strip() for v in value):
@@ -113,7 +118,7 @@ def load_study(path, overrides=None):
         vals = {}
         for key, value in table.items():
             where = f"{section}.{key}" if section else key
-            if section == "" and key in _SCHEMA:
+            if section == "" and (key in _SCHEMA or key in OTHER_SECTIONS):
                 continue
             if key not in schema:
                 raise StudyDefinitionError(path, where, f"unknown key (value {value!r}); known keys here: "
@@ -124,7 +129,7 @@ def load_study(path, overrides=None):
                 where = f"{section}.{key}" if section else key
                 raise StudyDefinitionError(path, where, f"missing; expected {field.expect}")
         out[section] = vals
-    unknown = set(data) - set(_SCHEMA) - set(_SCHEMA[""])
+    unknown = set(data) - set(_SCHEMA) - set(_SCHEMA[""]) - set(OTHER_SECTIONS)
     if unknown:
         raise StudyDefinitionError(path, sorted(unknown)[0], f"unknown section; known: {', '.join(s for s in _SCHEMA if s)}")
     top = out[""]
