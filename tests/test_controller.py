@@ -241,3 +241,22 @@ def test_quantize_agrees_with_from_dict_words(ctrl):
         back = Controller.from_dict(json.loads(controller_json({"name": "q"}, fxp)), source=f"q{bits}")
         np.testing.assert_array_equal(back.fixed.b, fxp.b)
         assert back.max_pole_radius == pytest.approx(fxp.max_pole_radius, abs=1e-12)
+
+
+def test_series_resistor_out_gives_no_window_and_a_controller_that_moves():
+    # R = 0 (seed 000's free-free configuration): the window [v - R I_sink, v + R I_source] would
+    # have zero width and pin the command; the controller must carry no window and must move
+    import control
+    from workbench.design.budgets import plant_budgets
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml", overrides={"electrical.series_resistor_in": False})
+    assert plant.pzt.series_resistance_ohm == 0.0
+    k = control.c2d(control.tf([50.0, 50.0 * 2 * np.pi * 20.0], [1.0, 0.0]), 1e-4, "tustin")   # a PI
+    ctrl = Controller.from_lti(k, plant)
+    assert ctrl.voltage_model is None and "anti-windup off" in ctrl.describe()
+    u = ctrl.run(np.full(200, 0.01))
+    assert np.all(np.diff(u) > 0) and u[-1] > 0.5            # the integrator winds the command up
+    assert [c for c in ctrl.compare_plant(plant) if c["check"] == "window"] == []
+    windowed = Controller.from_lti(k, load_plant(PLANTS / "p888_51_sn637_creep.toml"))
+    assert windowed.voltage_model is not None
+    assert [c["check"] for c in windowed.compare_plant(plant) if c["check"] == "window"] == ["window"]
+    assert plant_budgets(plant, 1e-4, None, "study.toml")["current_window"].value is None

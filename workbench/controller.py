@@ -91,8 +91,8 @@ def plant_window(plant, dt_s):
     """(alpha, h_up, h_down) of the current-limit window for ``plant`` at sample time ``dt_s``.
 
     alpha = 1 - exp(-T / (R C)) with R the series resistor and C the largest terminal
-    capacitance; h_up = R I_source, h_down = R I_sink (V). See
-    :func:`workbench.design.antiwindup.current_limit_model`.
+    capacitance; h_up = R I_source, h_down = R I_sink (V). None with the series resistor out
+    (R = 0): no window (see :func:`workbench.design.antiwindup.current_limit_model`).
     """
     from .design.antiwindup import current_limit_model
     return current_limit_model(plant.pzt, dt_s)
@@ -649,12 +649,15 @@ class Controller:
             if limits is None:
                 limits = (float(plant.pzt.voltage_min_v), float(plant.pzt.voltage_max_v))
             if model is None and fxp is None:
-                model, window_source = plant_window(plant, 1.0 / fs), "plant"
+                model = plant_window(plant, 1.0 / fs)
+                window_source = "plant" if model is not None else "none"
             elif model is None:
                 # words without a window: the limit words derive from the float window, so the
                 # plant's can be attached; the run says so
-                model, window_source = plant_window(plant, 1.0 / fs), "plant"
-                fxp = replace(fxp, voltage_model=model)
+                model = plant_window(plant, 1.0 / fs)
+                if model is not None:
+                    window_source = "plant"
+                    fxp = replace(fxp, voltage_model=model)
         if radius is None:
             radius = _float_radius(sos)
         if plant is not None and limits is not None:
@@ -803,7 +806,12 @@ class Controller:
             bad("output_limits_v", f"output limits {lo:g}..{hi:g} V, the amplifier's range {amp[0]:g}..{amp[1]:g} V"
                                    + (" (the controller asks for more than the amplifier gives)" if beyond else ""))
         want = plant_window(plant, self.dt_s)
-        if self.voltage_model is None:
+        if want is None:
+            if self.voltage_model is not None:
+                bad("window", "a current-limit window in the controller, but the plant's series resistor is out "
+                              "(R = 0): no resistor drop bounds the current, the window would pin the command; "
+                              "export without a window for this plant")
+        elif self.voltage_model is None:
             bad("window", f"{NO_WINDOW_TEXT}; the plant's current limits ({plant.pzt.current_limit_source_a * 1e3:g}"
                           f"/-{plant.pzt.current_limit_sink_a * 1e3:g} mA through {plant.pzt.series_resistance_ohm:g} "
                           f"ohm) give a window of +{want[1]:.4g}/-{want[2]:.4g} V, alpha {want[0]:.4g}")

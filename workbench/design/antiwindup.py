@@ -47,9 +47,17 @@ def current_limit_model(pzt, dt_s):
     alpha = 1 - exp(-T / (R C)); it keeps u within [v - R I_sink, v + R I_source], so the
     current it asks for stays within the amplifier's limits (see
     :mod:`workbench.export.fixed_point`).
+
+    Returns None when the series resistor is out (R = 0, seed 000's free-free configuration):
+    the window [v - R I_sink, v + R I_source] would have zero width and pin the command to
+    the modelled voltage, so the controller could never move the stack. There the current
+    limit is the amplifier's own slew limit, which no resistor drop lets firmware anticipate:
+    no window, and the run says "anti-windup off".
     """
     r = pzt.series_resistance_ohm
-    alpha = -np.expm1(-dt_s / (r * _largest_capacitance_f(pzt))) if r > 0 else 1.0
+    if not r > 0:
+        return None
+    alpha = -np.expm1(-dt_s / (r * _largest_capacitance_f(pzt)))
     return float(alpha), r * pzt.current_limit_source_a, r * pzt.current_limit_sink_a
 
 

@@ -78,11 +78,17 @@ def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
     else:
         noise = Budget("noise_command_v", None, "V RMS", "plant",
                        f"series resistor out in {src} (R = 0): no current-limit window, no noise budget")
-    alpha, h_up, h_down = current_limit_model(pzt, dt_s)
+    model = current_limit_model(pzt, dt_s)
     c = _largest_capacitance_f(pzt)
-    window = Budget("current_window", (alpha, h_up, h_down), "(1, V, V)", "plant",
-                    f"alpha = 1 - exp(-T / (R C)), headroom R I_source = {h_up:.4g} V up, R I_sink = {h_down:.4g} V "
-                    f"down; R = {r:g} ohm, C = {c * 1e6:.4g} uF (largest terminal capacitance), T = {dt_s:g} s")
+    if model is None:
+        window = Budget("current_window", None, "(1, V, V)", "plant",
+                        f"series resistor out in {src} (R = 0): no window (it would have zero width); the current "
+                        f"limit acts as the amplifier's slew limit, anti-windup off")
+    else:
+        alpha, h_up, h_down = model
+        window = Budget("current_window", model, "(1, V, V)", "plant",
+                        f"alpha = 1 - exp(-T / (R C)), headroom R I_source = {h_up:.4g} V up, R I_sink = {h_down:.4g} "
+                        f"V down; R = {r:g} ohm, C = {c * 1e6:.4g} uF (largest terminal capacitance), T = {dt_s:g} s")
     up, down = rate_limits_v_per_s(pzt)
     slew = Budget("slew_v_per_s", (up, down), "V/s", "plant",
                   f"I_source / C = {i_src * 1e3:g} mA / {c * 1e6:.4g} uF, I_sink / C = {i_snk * 1e3:g} mA / "

@@ -213,7 +213,7 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
                             gain_margin_db=spec.targets["gain_margin_db"],
                             fc_range_hz=(lsk["fc_min_hz"], lsk["fc_max_hz"]), dt_s=dt, delay_samples=delay_samples,
                             max_noise_command_v=budgets["noise_command_v"].value, noise_reading_v=noise_v,
-                            voltage_alpha=model[0],
+                            voltage_alpha=None if model is None else model[0],
                             max_overshoot_percent=lsk.get("max_overshoot_percent"), **grid)
     step_plant = nom.continuous        # the overshoot is judged on the nominal: where a small step up runs
 
@@ -234,7 +234,8 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
                                         "nominal": _nominal_summary(nominal_margins(ls.controller_d, nom)),
                                         "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched,
                                         "noise_command_rms_v": noise_command_rms_v(
-                                            ls.controller_d, nom.continuous, noise_v, delay_samples, model[0]),
+                                            ls.controller_d, nom.continuous, noise_v, delay_samples,
+                                            None if model is None else model[0]),
                                         "noise_reading_v": noise_v, "step_overshoot_percent": overshoot,
                                         "step_settling_s": settling}
     if ls.crossover_hz < min_fc:

@@ -31,14 +31,15 @@ def _g(v, fmt=".3g"):
 def _budget_lines(summary):
     b = summary["budgets"]
     noise, win, slew = b["noise_command_v"], b["current_window"], b["slew_v_per_s"]
-    alpha, up, down = win["value"]
+    window = ("none (series resistor out)" if win["value"] is None else
+              "headroom {1:.3g} V up, {2:.3g} V down; alpha {0:.3g}".format(*win["value"]))
     lines = ["## Budgets", "",
              "Derived from the plant file unless the study overrides them ("
              + ("overrides: " + ", ".join(f"`{k} = {v}`" for k, v in summary["overrides"].items())
                 if summary.get("overrides") else "no `--set` overrides") + ").", "",
              "| budget | value | from | derivation |", "|---|---|---|---|",
              f"| gauge-noise command budget | {_g(noise['value'])} V RMS | {noise['source']} | {noise['derivation']} |",
-             f"| current-limit window | headroom {up:.3g} V up, {down:.3g} V down; alpha {alpha:.3g} | "
+             f"| current-limit window | {window} | "
              f"{win['source']} | {win['derivation']} |",
              f"| slew limits | {slew['value'][0]:.4g} V/s up, {slew['value'][1]:.4g} V/s down | {slew['source']} | "
              f"{slew['derivation']} |", ""]
