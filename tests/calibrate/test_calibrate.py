@@ -19,6 +19,7 @@ from tests.conftest import FULL, PLANTS
 from workbench.calibrate.base_fit import fit_base
 from workbench.calibrate.protocol import calibration_protocol
 from workbench.calibrate.record import Record
+from workbench.calibrate.splits import make_split
 from workbench.calibrate.synthetic import EFFECTS, plant_with_effect, simulate_record, write_record
 from workbench.calibrate.tracing import trace_effect
 from workbench.cli import main
@@ -44,20 +45,26 @@ def _record(plant, protocol, seed):
                   {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, 1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("effect", ("none",) + EFFECTS)
 def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed):
+    """The 35.5 s protocol with one effect at its nominal size (EFFECT_RANGES): never a wrong
+    effect; when the effect is named, its channel's test error is at least halved and its
+    parameters match the drawn ones. (~2 min per record on a loaded 2-core machine: slow; the
+    fast slice of the confusion benchmark runs in make test.)"""
     plant, truth = plant_with_effect(sn637, effect, seed)
-    base = fit_base(_record(plant, protocol, seed), sn637.pzt.series_resistance_ohm, pzt=plant.pzt,
+    rec = _record(plant, protocol, seed)
+    split = make_split(rec.t_s, rec.channels["voltage_v"], "blocks")
+    base = fit_base(rec, sn637.pzt.series_resistance_ohm, train=split.train, test=split.test, pzt=plant.pzt,
                     dac_range_v=plant.gauge.dac_range_v)
-    res = trace_effect(base)
-    print(f"\n{effect} {truth}: -> {res['effect']} on {res['channel']}, held-out RMS "
-          f"{res['error_before']['rms']:.4g} -> {res['error_after']['rms']:.4g} {res['error_before']['units']}; "
-          f"best {[(c['name'], c['channel'], round(c['score'], 3)) for c in res['candidates'][:3]]}")
-    if effect == "none":
-        assert res["effect"] == "none"
+    res = trace_effect(base, split=split)
+    named = [st["effect"] for st in res["stages"]]
+    print(f"\n{effect} {truth}: -> {res['effect']} on {res['channel']} ({res['agreement']}), stages {named}, test RMS "
+          f"{res['error_before']['rms']:.4g} -> {res['error_after']['rms']:.4g} {res['error_before']['units']}")
+    assert all(n == effect for n in named), named
+    if effect == "none" or not named:
         return
-    assert res["effect"] == effect
     assert res["channel"] == CHANNEL[effect]
     assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]
     p = res["parameters"]
@@ -100,12 +107,14 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     assert before == {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (data, plant_file)}
 
 
-def test_updated_plant_simulates_the_found_effect(sn637, tmp_path, protocol):
+def test_updated_plant_simulates_the_found_effect(sn637, tmp_path):
     """Round trip: the plant file calibration writes, simulated again, carries the effect."""
     from workbench.calibrate.plant_update import updated_plant_text
     plant, truth = plant_with_effect(sn637, "dielectric_absorption", 5)
-    base = fit_base(_record(plant, protocol, 5), 80.0, pzt=plant.pzt, dac_range_v=2.6)
+    short = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0, 80.0, 40.0), chirp_s=1.0)
+    base = fit_base(_record(plant, short, 5), 80.0, pzt=plant.pzt, dac_range_v=2.6)
     res = trace_effect(base)
+    assert res["effect"] == "dielectric_absorption", (res["effect"], res["fold_winners"])
     text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("rec.csv"))
     (tmp_path / "p.toml").write_text(text)
     again = load_plant(tmp_path / "p.toml")
@@ -139,21 +148,34 @@ def test_calibrate_bad_input_exits_2(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not REAL_CSV.is_file(), reason="the shared real record is not on this machine")
-def test_real_record_against_generic_stack(tmp_path):
-    """The measured record, calibrated against plants/generic_stack.toml: fit on the first cycles,
-    predict the rest (published in-sample 0.0915 um; a straight line leaves ~1.9 um)."""
+def test_real_record_same_answer_for_every_training_length(tmp_path):
+    """The measured record against plants/generic_stack.toml: the answer (effect, or none, or
+    inconclusive) must not depend on how many cycles train, 2 to 5 (issue 13; before it the
+    answer was creep at 2, 3, 5 and resonance at 4). Published in-sample 0.0915 um; a straight
+    line leaves ~1.9 um."""
     data = tmp_path / "real.csv"
     data.write_text(REAL_HEADER + "\n" + REAL_CSV.read_text())
-    assert main(["calibrate", str(data), "--plant", str(PLANTS / "generic_stack.toml"), "--out",
-                 str(tmp_path / "out"), "--json", str(tmp_path / "r.json")]) == 0
-    res = json.loads((tmp_path / "r.json").read_text())
-    ch = res["base_fit"]["channels"]["displacement"]
-    print(f"\nreal record, generic stack: held-out RMS {ch['rms'] * 1e6:.4f} um, effect {res['effect']}")
-    assert res["split"] == "cycles" and ch["units"] == "m"
-    assert ch["rms"] < 0.15e-6
-    assert res["error_after"]["rms"] <= res["error_before"]["rms"]
-    stack = tomllib.loads(Path(res["updated_plant"]).read_text())
-    assert len(stack["hysteresis"]["weights_m_per_v"]) == 20
+    answers = {}
+    for cycles in (2, 3, 4, 5):
+        js = tmp_path / f"r{cycles}.json"
+        out = tmp_path / f"out{cycles}" if cycles == 3 else None
+        argv = ["calibrate", str(data), "--plant", str(PLANTS / "generic_stack.toml"), "--train-cycles", str(cycles),
+                "--json", str(js)] + (["--out", str(out)] if out else [])
+        assert main(argv) == 0
+        res = json.loads(js.read_text())
+        ch = res["base_fit"]["channels"]["displacement"]
+        print(f"\nreal record, {cycles} training cycles: test RMS {ch['rms'] * 1e6:.4f} um, answer {res['effect']} "
+              f"({res['agreement']}; folds {res['fold_winners']})")
+        assert res["split"] == "cycles" and ch["units"] == "m"
+        assert ch["rms"] < 0.15e-6
+        assert res["error_after"]["rms"] <= res["error_before"]["rms"]
+        assert res["agreement"].endswith("of 5")
+        answers[cycles] = (res["effect"], res["channel"]) if res["effect"] not in ("none", "inconclusive") \
+            else res["effect"]
+        if out:
+            stack = tomllib.loads(Path(res["updated_plant"]).read_text())
+            assert len(stack["hysteresis"]["weights_m_per_v"]) == 20
+    assert len(set(answers.values())) == 1, answers
 
 
 def test_base_fit_recovers_cp_gauge_gain_and_rest(sn637):

@@ -140,6 +140,10 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1):
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
     """
     y = _rows(e, mask, project)
+    # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
+    # residual in metres (1e-8) would stop it at its first step
+    y_scale = float(np.sqrt(np.mean(y * y))) or 1.0
+    y = y / y_scale
 
     def res(theta):
         X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
@@ -155,7 +159,7 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1):
         if 2 * sol.cost < best_cost:
             theta, best_cost = sol.x, 2 * sol.cost
     beta, _ = _lstsq(_rows(np.atleast_2d(columns(theta).T).T, mask, project), y)
-    return theta, beta
+    return theta, beta * y_scale
 
 
 class Effect:
