@@ -193,3 +193,31 @@ def test_base_fit_recovers_cp_gauge_gain_and_rest(sn637):
     # the noise floor: the displacement model leaves little more than the sensor's 1 nm
     x = base.channels["displacement"]
     assert np.sqrt(np.mean(x.residual[base.test] ** 2)) < 3e-9
+
+
+def test_updated_plant_carries_every_stage(sn637, tmp_path):
+    """A two-stage answer (delay and drift of the displacement sensor, then a mode) is written
+    whole: one [displacement_sensor] with both, the mode, and the file loads back with them."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.plant_update import updated_plant_text
+    rng = np.random.default_rng(4)
+    delay_s, rate, f_n = rng.uniform(1e-4, 3e-3), rng.uniform(1e-9, 1e-8), rng.uniform(100.0, 900.0)
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    stages = [{"effect": "delay", "channel": "displacement", "parameters": {"delay_s": delay_s},
+               "error_before": err, "error_after": err},
+              {"effect": "drift", "channel": "displacement",
+               "parameters": {"coefficients": [0.0, rate * 20.0, 0.0], "t0_s": 0.0, "t_end_s": 20.0},
+               "error_before": err, "error_after": err},
+              {"effect": "resonance", "channel": "displacement", "parameters": {"f_n_hz": f_n, "zeta": 0.01},
+               "error_before": err, "error_after": err}]
+    result = {"effect": "delay", "channel": "displacement", "parameters": stages[0]["parameters"],
+              "error_before": err, "error_after": err, "stages": stages}
+    base = SimpleNamespace(channels={}, v_drive=np.zeros(3))
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, result, Path("rec.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    again = load_plant(tmp_path / "p.toml")
+    assert again.additions.sensor_delay_s == pytest.approx(delay_s)
+    assert again.additions.sensor_drift_rate_m_per_s == pytest.approx(rate)
+    assert any(m.freq_hz == pytest.approx(f_n) for m in again.pzt.modes)
+    assert text.count("[displacement_sensor]") == 1

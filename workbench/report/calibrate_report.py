@@ -204,6 +204,8 @@ def _error_table(base, result):
 
 def _candidate_table(result, max_ratio=None):
     chosen = {(st["effect"], st["channel"]) for st in (result.get("stages") or [])}
+    if result.get("effect") not in (None, "none", "inconclusive"):
+        chosen.add((result.get("effect"), result.get("channel")))
     channels = result.get("channels") or {}
     n_folds = result.get("n_folds") or len((result.get("candidates") or [{}])[0].get("ratios") or []) or "n"
     rows = []
@@ -212,9 +214,9 @@ def _candidate_table(result, max_ratio=None):
         unit = ea.get("units", eb.get("units", ""))
         # the error table's prefix for the channel (its held-out max), so the two tables read alike
         scale = si_scale(unit, (channels.get(c["channel"]) or eb).get("max", float("nan")))
-        mark = "**named**" if (c["name"], c["channel"]) in chosen else ""
-        name = c["name"] + (f" ({c['variant']})" if c.get("variant") else "")
-        rows.append((i, name, c["channel"], c.get("n_params", "n/a"), _q(eb.get("rms"), unit, scale),
+        mark = "**chosen**" if (c["name"], c["channel"]) in chosen else ""
+        npar = f"{c.get('n_params', 'n/a')}" + (f" ({c['variant']})" if c.get("variant") else "")
+        rows.append((i, c["name"], c["channel"], npar, _q(eb.get("rms"), unit, scale),
                      _q(ea.get("rms"), unit, scale) if ea else "-",
                      f"{float(c['score']):.3f}" if _finite(c.get("score")) else "n/a",
                      f"{c.get('passes', 'n/a')} of {n_folds}", mark))
