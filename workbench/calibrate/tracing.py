@@ -44,7 +44,9 @@ shows too is creep (seed 002: Q_DA and the leakage charge do not move the stack;
 creep passes the fold on the displacement with a validation ratio at most the square root of
 the charge candidate's: the stack relaxes comparably; and when the charge term, turned into
 displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
-the stack could not have shown it, and the fold is undecided between the two), and a
+the stack could not have shown it, and the fold is undecided between the two; likewise when
+the absorption's fitted time constant is half the record or longer, since it then cannot be
+told from leakage), and a
 mechanical effect seen on the gauge that the displacement shows too is the stack's, reported
 on the displacement.
 
@@ -343,6 +345,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         probs[(ch, "model")] = _Problem(split, valid, base.basis, lower, m.y - m.yhat, search)
         infos[ch] = {"noise_floor": noise_floor((m.y - m.yhat)[dev_rows & valid])}
     infos["k_q2x"] = base.k_q2x_m_per_c
+    infos["duration_s"] = float(t[-1] - t[0])
     if "gauge" in base.channels and "displacement" in base.channels and base.gauge_gain_v_per_m is not None:
         m = base.channels["gauge"]
         line, x = _gauge_line(base)
@@ -516,6 +519,13 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         best = ok[0]
         tags = {(r["name"], r["channel"]): r for r in ok}
+        da = tags.get(("dielectric_absorption", "charge"))
+        if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage") and da is not None \
+                and da["params"].get("tau_s", 0.0) >= 0.5 * infos["duration_s"]:
+            # an absorption that does not settle within the record is k/tau times the integral of
+            # V over it: leakage's term; the record cannot tell them apart
+            winners.append(("undecided", "dielectric_absorption or leakage"))
+            continue
         cx = tags.get(("creep", "displacement"))
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage") \
                 and cx is not None and cx["passes"][f] and cx["ratios"][f] <= np.sqrt(best["ratios"][f]):
