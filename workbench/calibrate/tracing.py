@@ -75,7 +75,8 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from .base_fit import BaseFit
-from .effects import CreepSpectrum as _CreepSpectrum, Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage, Resonance
+from .effects import CreepSpectrum as _CreepSpectrum
+from .effects import Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage, Resonance
 from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
@@ -408,7 +409,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         g_before = _stacked(prob, extra[key], None)
         g_after = _stacked(prob, extra[key], c)
         before = _test_errors(prob, g_before, dev_blocks, test_blocks)
-        corr, term_scaled, gains = prob.predict(g_after, dev_blocks)
+        corr, _, gains = prob.predict(g_after, dev_blocks)
         after = _errors(((prob.r * prob.scale) - corr)[split.test & prob.valid])
         k_c = c["g"]["C"].shape[1]
         own_gains = gains[gains.size - k_c:] if k_c else np.zeros(0)
@@ -484,7 +485,6 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 a = prob.fold_rms(gg, tr, va)
                 gains[f] = max(gains[f], befores[key][f] ** 2 - a ** 2)
         null_gain[key] = gains
-    rows = []
     by = {}
     for c in cands:
         tag = (c["name"], c["channel"])
