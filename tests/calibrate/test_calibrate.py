@@ -224,3 +224,32 @@ def test_updated_plant_carries_every_stage(sn637, tmp_path):
     assert again.additions.sensor_drift_rate_m_per_s == pytest.approx(rate)
     assert any(m.freq_hz == pytest.approx(f_n) for m in again.pzt.modes)
     assert text.count("[displacement_sensor]") == 1
+
+
+def test_temperature_cycle_drift_is_drift_not_creep(sn637):
+    """Issue 13: a sensor zero that drifts linearly and swings slowly (a temperature cycle), with
+    no creep, was named creep. Rate (1-100 kHz), period (a quarter to 0.6 of the record),
+    amplitude and slope drawn; 20,000 rows of the scaled protocol."""
+    from workbench.calibrate.synthetic import benchmark_protocol
+    rng = np.random.default_rng(2026)
+    rate = float(np.exp(rng.uniform(np.log(1e3), np.log(1e5))))
+    t, v = benchmark_protocol("calibration", rate, 20_000)
+    plant, _ = plant_with_effect(sn637, "none", 1)
+    r = simulate_record(plant, t, v, seed=1)
+    span = t[-1] - t[0]
+    period = rng.uniform(0.25, 0.6) * span
+    amp, slope = rng.uniform(20e-9, 100e-9), rng.uniform(-50e-9, 50e-9)
+    r["displacement_m"] = r["displacement_m"] + slope * (t - t[0]) / span \
+        + amp * np.sin(2 * np.pi * (t - t[0]) / period + rng.uniform(0, 2 * np.pi))
+    rec = Record(Path("drift.csv"), {}, r["time_s"], {k: r[k] for k in ("voltage_v", "current_a", "displacement_m",
+                                                                       "gauge_v")}, 1.0 / rate)
+    split = make_split(t, r["voltage_v"], "blocks")
+    base = fit_base(rec, 80.0, train=split.train, test=split.test, pzt=plant.pzt, dac_range_v=2.6)
+    res = trace_effect(base, split=split)
+    print(f"\n{rate:.0f} Hz, period {period:.3g} s, {amp * 1e9:.0f} nm: {res['effect']} ({res['agreement']}), "
+          f"stages {[(st['effect'], st['variant']) for st in res['stages']]}")
+    assert res["effect"] == "drift" and res["channel"] == "displacement"
+    assert res["stages"][0]["variant"] == "periodic"
+    assert res["parameters"]["period_s"] == pytest.approx(period, rel=0.05)
+    assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]
+    assert all(st["effect"] != "creep" for st in res["stages"])
