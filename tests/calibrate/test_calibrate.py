@@ -178,6 +178,16 @@ def test_real_record_same_answer_for_every_training_length(tmp_path):
         if out:
             stack = tomllib.loads(Path(res["updated_plant"]).read_text())
             assert len(stack["hysteresis"]["weights_m_per_v"]) == 20
+            # item 6: the updated plant, loaded back and run on the record's voltage, reproduces
+            # the reported test error within 10 %
+            from workbench.calibrate.record import read_record
+            from workbench.calibrate.splits import make_split
+            from workbench.plant.generic import load_generic_stack
+            rec = read_record(data)
+            v, x = rec.channels["voltage_v"], rec.channels["displacement_m"]
+            test = make_split(rec.t_s, v, "cycles", train_cycles=cycles).test
+            e = load_generic_stack(Path(res["updated_plant"])).predict(v) - x
+            assert np.sqrt(np.mean(e[test] ** 2)) == pytest.approx(res["error_after"]["rms"], rel=0.1)
     assert len(set(answers.values())) == 1, answers
 
 
