@@ -178,6 +178,11 @@ class _Problem:
         As = self.A[search]
         self.As = As
         self.gram_inv_s = np.linalg.pinv(np.einsum("ij,ik->jk", As, As), rcond=1e-12)
+        # the base columns and the target per block, and their Gram matrices, computed once:
+        # a candidate adds only its own columns' products
+        Z0 = np.column_stack([self.A, self.r])
+        self.Z0b = [Z0[i] for i in self.idx]
+        self.G0 = np.stack([z.T @ z for z in self.Z0b])
         self.base = self.grams(np.zeros((r.size, 0)), [])
 
     def project(self, X):
@@ -193,8 +198,21 @@ class _Problem:
             lower = np.asarray(lower, float)[ok]
         else:
             n, ok = np.ones(0), np.ones(0, bool)
-        Z = np.column_stack([self.A, C, self.r])
-        G = np.stack([Z[i].T @ Z[i] if i.size else np.zeros((Z.shape[1],) * 2) for i in self.idx])
+        k, m = self.A.shape[1], C.shape[1]
+        G = np.zeros((len(self.idx), k + m + 1, k + m + 1))
+        G[:, :k, :k] = self.G0[:, :k, :k]
+        G[:, :k, -1] = self.G0[:, :k, k]
+        G[:, -1, :k] = self.G0[:, k, :k]
+        G[:, -1, -1] = self.G0[:, k, k]
+        if m:
+            for b, (i, z) in enumerate(zip(self.idx, self.Z0b)):
+                if i.size:
+                    X = C[i]
+                    XZ = X.T @ z
+                    G[b, k:k + m, :k] = XZ[:, :k]
+                    G[b, :k, k:k + m] = XZ[:, :k].T
+                    G[b, k:k + m, -1] = G[b, -1, k:k + m] = XZ[:, k]
+                    G[b, k:k + m, k:k + m] = X.T @ X
         lb = np.r_[self.lower_A, np.asarray(lower, float)]
         return {"G": G, "lb": lb, "C": C, "norms": n[ok] if C.shape[1] else n, "ok": ok}
 
