@@ -294,11 +294,15 @@ def cmd_calibrate(args):
     data = run_calibrate(args.data, args.plant, out_dir=args.out, split=args.split, train_cycles=args.train_cycles,
                          max_ratio=args.max_ratio, progress=lambda stage, d, t: _progress_bar(stage, d, t))
     eb, ea = data["error_before"], data["error_after"]
-    lines = [f"{args.data} against {args.plant}: effect {data['effect']} on the {data['channel']} channel",
-             f"  held-out RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
+    lines = [f"{args.data} against {args.plant}: effect {data['effect']} on the {data['channel']} channel "
+             f"({data['agreement']} validation folds)",
+             f"  test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
              f"{ea['max']:.4g} {eb['units']}  ({data['reason']})"]
+    for st in data["stages"][1:]:
+        lines.append(f"  then {st['effect']} on the {st['channel']} ({st['agreement']}): test RMS "
+                     f"{st['error_before']['rms']:.4g} -> {st['error_after']['rms']:.4g} {st['error_before']['units']}")
     for c in data["candidates"][:6]:
-        lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}")
+        lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}, passes {c['passes']} folds")
     lines += [f"  warning: {w}" for w in data["base_fit"].get("warnings", [])]
     if "updated_plant" in data:
         lines.append(f"  updated plant {data['updated_plant']}; report {data['report']}")
@@ -485,12 +489,13 @@ def build_parser():
     p.add_argument("--plant", type=Path, required=True, help="declared plant: plants/*.toml or a generic stack")
     p.add_argument("--out", type=Path, default=None, help="folder for the report, figures and updated plant")
     p.add_argument("--json", type=Path, default=None, help="write the result as JSON here")
-    p.add_argument("--split", choices=("blocks", "cycles"), default=None,
-                   help="held-out rows: a third of 0.1 s blocks (default for a PZT plant) or after the first cycles "
-                        "(default for a generic stack)")
+    p.add_argument("--split", choices=("blocks", "forward", "cycles"), default=None,
+                   help="test and validation rows: interleaved blocks (default for a PZT plant), forward (train on "
+                        "the past, predict the last quarter) or after the first cycles (default for a generic stack)")
     p.add_argument("--train-cycles", type=float, default=3, help="input cycles that train with --split cycles")
     p.add_argument("--max-ratio", type=float, default=0.8,
-                   help="an effect must bring the held-out RMS ratio (penalized) to at most this")
+                   help="ignored (kept for scripts): the decision is against the noise floor and a null reference "
+                        "over validation folds")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("synth", help="a synthetic calibration record from the simulator, with one effect",

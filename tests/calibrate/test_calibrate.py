@@ -19,6 +19,7 @@ from tests.conftest import FULL, PLANTS
 from workbench.calibrate.base_fit import fit_base
 from workbench.calibrate.protocol import calibration_protocol
 from workbench.calibrate.record import Record
+from workbench.calibrate.splits import make_split
 from workbench.calibrate.synthetic import EFFECTS, plant_with_effect, simulate_record, write_record
 from workbench.calibrate.tracing import trace_effect
 from workbench.cli import main
@@ -44,20 +45,29 @@ def _record(plant, protocol, seed):
                   {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, 1e-4)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("effect", ("none",) + EFFECTS)
 def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed):
+    """The 35.5 s protocol with one effect at its nominal size (EFFECT_RANGES): never a wrong
+    effect; when the effect is named, its channel's test error is at least halved and its
+    parameters match the drawn ones. (~2 min per record on a loaded 2-core machine: slow; the
+    fast slice of the confusion benchmark runs in make test.)"""
+    if not FULL:
+        pytest.skip("~2 min per 355,000-row record: WORKBENCH_FULL=1 (make test runs the confusion benchmark's "
+                    "fast slice, tests/calibrate/test_confusion.py)")
     plant, truth = plant_with_effect(sn637, effect, seed)
-    base = fit_base(_record(plant, protocol, seed), sn637.pzt.series_resistance_ohm, pzt=plant.pzt,
+    rec = _record(plant, protocol, seed)
+    split = make_split(rec.t_s, rec.channels["voltage_v"], "blocks")
+    base = fit_base(rec, sn637.pzt.series_resistance_ohm, train=split.train, test=split.test, pzt=plant.pzt,
                     dac_range_v=plant.gauge.dac_range_v)
-    res = trace_effect(base)
-    print(f"\n{effect} {truth}: -> {res['effect']} on {res['channel']}, held-out RMS "
-          f"{res['error_before']['rms']:.4g} -> {res['error_after']['rms']:.4g} {res['error_before']['units']}; "
-          f"best {[(c['name'], c['channel'], round(c['score'], 3)) for c in res['candidates'][:3]]}")
-    if effect == "none":
-        assert res["effect"] == "none"
+    res = trace_effect(base, split=split)
+    named = [st["effect"] for st in res["stages"]]
+    print(f"\n{effect} {truth}: -> {res['effect']} on {res['channel']} ({res['agreement']}), stages {named}, test RMS "
+          f"{res['error_before']['rms']:.4g} -> {res['error_after']['rms']:.4g} {res['error_before']['units']}")
+    assert all(n == effect for n in named), named
+    if effect == "none" or not named:
         return
-    assert res["effect"] == effect
     assert res["channel"] == CHANNEL[effect]
     assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]
     p = res["parameters"]
@@ -100,12 +110,14 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     assert before == {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (data, plant_file)}
 
 
-def test_updated_plant_simulates_the_found_effect(sn637, tmp_path, protocol):
+def test_updated_plant_simulates_the_found_effect(sn637, tmp_path):
     """Round trip: the plant file calibration writes, simulated again, carries the effect."""
     from workbench.calibrate.plant_update import updated_plant_text
     plant, truth = plant_with_effect(sn637, "dielectric_absorption", 5)
-    base = fit_base(_record(plant, protocol, 5), 80.0, pzt=plant.pzt, dac_range_v=2.6)
+    short = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0, 80.0, 40.0), chirp_s=1.0)
+    base = fit_base(_record(plant, short, 5), 80.0, pzt=plant.pzt, dac_range_v=2.6)
     res = trace_effect(base)
+    assert res["effect"] == "dielectric_absorption", (res["effect"], res["fold_winners"])
     text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("rec.csv"))
     (tmp_path / "p.toml").write_text(text)
     again = load_plant(tmp_path / "p.toml")
@@ -139,21 +151,44 @@ def test_calibrate_bad_input_exits_2(tmp_path, capsys):
 
 
 @pytest.mark.skipif(not REAL_CSV.is_file(), reason="the shared real record is not on this machine")
-def test_real_record_against_generic_stack(tmp_path):
-    """The measured record, calibrated against plants/generic_stack.toml: fit on the first cycles,
-    predict the rest (published in-sample 0.0915 um; a straight line leaves ~1.9 um)."""
+def test_real_record_same_answer_for_every_training_length(tmp_path):
+    """The measured record against plants/generic_stack.toml: the answer (effect, or none, or
+    inconclusive) must not depend on how many cycles train, 2 to 5 (issue 13; before it the
+    answer was creep at 2, 3, 5 and resonance at 4). Published in-sample 0.0915 um; a straight
+    line leaves ~1.9 um."""
     data = tmp_path / "real.csv"
     data.write_text(REAL_HEADER + "\n" + REAL_CSV.read_text())
-    assert main(["calibrate", str(data), "--plant", str(PLANTS / "generic_stack.toml"), "--out",
-                 str(tmp_path / "out"), "--json", str(tmp_path / "r.json")]) == 0
-    res = json.loads((tmp_path / "r.json").read_text())
-    ch = res["base_fit"]["channels"]["displacement"]
-    print(f"\nreal record, generic stack: held-out RMS {ch['rms'] * 1e6:.4f} um, effect {res['effect']}")
-    assert res["split"] == "cycles" and ch["units"] == "m"
-    assert ch["rms"] < 0.15e-6
-    assert res["error_after"]["rms"] <= res["error_before"]["rms"]
-    stack = tomllib.loads(Path(res["updated_plant"]).read_text())
-    assert len(stack["hysteresis"]["weights_m_per_v"]) == 20
+    answers = {}
+    for cycles in (2, 3, 4, 5):
+        js = tmp_path / f"r{cycles}.json"
+        out = tmp_path / f"out{cycles}" if cycles == 3 else None
+        argv = ["calibrate", str(data), "--plant", str(PLANTS / "generic_stack.toml"), "--train-cycles", str(cycles),
+                "--json", str(js)] + (["--out", str(out)] if out else [])
+        assert main(argv) == 0
+        res = json.loads(js.read_text())
+        ch = res["base_fit"]["channels"]["displacement"]
+        print(f"\nreal record, {cycles} training cycles: test RMS {ch['rms'] * 1e6:.4f} um, answer {res['effect']} "
+              f"({res['agreement']}; folds {res['fold_winners']})")
+        assert res["split"] == "cycles" and ch["units"] == "m"
+        assert ch["rms"] < 0.15e-6
+        assert res["error_after"]["rms"] <= res["error_before"]["rms"]
+        assert res["agreement"].endswith("of 5")
+        answers[cycles] = (res["effect"], res["channel"]) if res["effect"] not in ("none", "inconclusive") \
+            else res["effect"]
+        if out:
+            stack = tomllib.loads(Path(res["updated_plant"]).read_text())
+            assert len(stack["hysteresis"]["weights_m_per_v"]) == 20
+            # item 6: the updated plant, loaded back and run on the record's voltage, reproduces
+            # the reported test error within 10 %
+            from workbench.calibrate.record import read_record
+            from workbench.calibrate.splits import make_split
+            from workbench.plant.generic import load_generic_stack
+            rec = read_record(data)
+            v, x = rec.channels["voltage_v"], rec.channels["displacement_m"]
+            test = make_split(rec.t_s, v, "cycles", train_cycles=cycles).test
+            e = load_generic_stack(Path(res["updated_plant"])).predict(v) - x
+            assert np.sqrt(np.mean(e[test] ** 2)) == pytest.approx(res["error_after"]["rms"], rel=0.1)
+    assert len(set(answers.values())) == 1, answers
 
 
 def test_base_fit_recovers_cp_gauge_gain_and_rest(sn637):
@@ -171,3 +206,60 @@ def test_base_fit_recovers_cp_gauge_gain_and_rest(sn637):
     # the noise floor: the displacement model leaves little more than the sensor's 1 nm
     x = base.channels["displacement"]
     assert np.sqrt(np.mean(x.residual[base.test] ** 2)) < 3e-9
+
+
+def test_updated_plant_carries_every_stage(sn637, tmp_path):
+    """A two-stage answer (delay and drift of the displacement sensor, then a mode) is written
+    whole: one [displacement_sensor] with both, the mode, and the file loads back with them."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.plant_update import updated_plant_text
+    rng = np.random.default_rng(4)
+    delay_s, rate, f_n = rng.uniform(1e-4, 3e-3), rng.uniform(1e-9, 1e-8), rng.uniform(100.0, 900.0)
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    stages = [{"effect": "delay", "channel": "displacement", "parameters": {"delay_s": delay_s},
+               "error_before": err, "error_after": err},
+              {"effect": "drift", "channel": "displacement",
+               "parameters": {"coefficients": [0.0, rate * 20.0, 0.0], "t0_s": 0.0, "t_end_s": 20.0},
+               "error_before": err, "error_after": err},
+              {"effect": "resonance", "channel": "displacement", "parameters": {"f_n_hz": f_n, "zeta": 0.01},
+               "error_before": err, "error_after": err}]
+    result = {"effect": "delay", "channel": "displacement", "parameters": stages[0]["parameters"],
+              "error_before": err, "error_after": err, "stages": stages}
+    base = SimpleNamespace(channels={}, v_drive=np.zeros(3))
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, result, Path("rec.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    again = load_plant(tmp_path / "p.toml")
+    assert again.additions.sensor_delay_s == pytest.approx(delay_s)
+    assert again.additions.sensor_drift_rate_m_per_s == pytest.approx(rate)
+    assert any(m.freq_hz == pytest.approx(f_n) for m in again.pzt.modes)
+    assert text.count("[displacement_sensor]") == 1
+
+
+def test_temperature_cycle_drift_is_drift_not_creep(sn637):
+    """Issue 13: a sensor zero that drifts linearly and swings slowly (a temperature cycle), with
+    no creep, was named creep. Rate (1-100 kHz), period (a quarter to 0.6 of the record),
+    amplitude and slope drawn; 20,000 rows of the scaled protocol."""
+    from workbench.calibrate.synthetic import benchmark_protocol
+    rng = np.random.default_rng(2026)
+    rate = float(np.exp(rng.uniform(np.log(1e3), np.log(1e5))))
+    t, v = benchmark_protocol("calibration", rate, 20_000)
+    plant, _ = plant_with_effect(sn637, "none", 1)
+    r = simulate_record(plant, t, v, seed=1)
+    span = t[-1] - t[0]
+    period = rng.uniform(0.25, 0.6) * span
+    amp, slope = rng.uniform(20e-9, 100e-9), rng.uniform(-50e-9, 50e-9)
+    r["displacement_m"] = r["displacement_m"] + slope * (t - t[0]) / span \
+        + amp * np.sin(2 * np.pi * (t - t[0]) / period + rng.uniform(0, 2 * np.pi))
+    rec = Record(Path("drift.csv"), {}, r["time_s"], {k: r[k] for k in ("voltage_v", "current_a", "displacement_m",
+                                                                       "gauge_v")}, 1.0 / rate)
+    split = make_split(t, r["voltage_v"], "blocks")
+    base = fit_base(rec, 80.0, train=split.train, test=split.test, pzt=plant.pzt, dac_range_v=2.6)
+    res = trace_effect(base, split=split)
+    print(f"\n{rate:.0f} Hz, period {period:.3g} s, {amp * 1e9:.0f} nm: {res['effect']} ({res['agreement']}), "
+          f"stages {[(st['effect'], st['variant']) for st in res['stages']]}")
+    assert res["effect"] == "drift" and res["channel"] == "displacement"
+    assert res["stages"][0]["variant"] == "periodic"
+    assert res["parameters"]["period_s"] == pytest.approx(period, rel=0.05)
+    assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]
+    assert all(st["effect"] != "creep" for st in res["stages"])

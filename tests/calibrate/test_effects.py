@@ -150,3 +150,62 @@ def test_zoh_mode_matches_cont2discrete():
         b2, a2 = _zoh_mode(f, z, 1 / FS)
         np.testing.assert_allclose(np.ravel(b), b2, atol=1e-12)
         np.testing.assert_allclose(a, a2, atol=1e-12)
+
+
+# ---- issue 13: splits in seconds, the periodic drift, the product-path effect classes
+
+@pytest.mark.parametrize("rate_hz, duration_s", [(200.0, 60.0), (5e3, 10.0), (1e6, 0.05)])
+def test_split_blocks_are_seconds_from_the_record_and_the_test_part_is_untouched(rate_hz, duration_s):
+    from workbench.calibrate.splits import make_split
+    t = np.arange(int(rate_hz * duration_s)) / rate_hz
+    v = 50 * (1 - np.cos(2 * np.pi * 4 * t / duration_s))
+    for kind in ("blocks", "forward"):
+        sp = make_split(t, v, kind)
+        assert sp.block_s == pytest.approx(max(50 / rate_hz, duration_s / 100), rel=0.02)
+        # no held-out stretch shorter than 50 samples: never interpolation between neighbours
+        assert sp.block_s * rate_hz >= 49.9
+        assert not np.any(sp.train & sp.test)
+        assert 0.15 < sp.test.mean() < 0.3
+        for tr, va in sp.folds:
+            assert not np.any(tr & va) and not np.any((tr | va) & sp.test_blocks)
+        if kind == "forward":
+            # train on the past, predict the future
+            assert t[sp.test].min() > t[sp.train].max()
+            for tr, va in sp.folds:
+                assert t[sp.rows(va)].min() > t[sp.rows(tr)].max()
+
+
+def test_periodic_drift_recovers_a_temperature_cycle():
+    rng = np.random.default_rng(3)
+    t = np.arange(0, 40, 0.01)
+    period = rng.uniform(8.0, 30.0)
+    e = 2e-8 * (t / 40) + 5e-8 * np.sin(2 * np.pi * t / period + 0.7) + 1e-9 * rng.standard_normal(t.size)
+    eff = Drift(periodic_hz=(0.5 / 40, 10 / 40))
+    p = eff.fit(t, t, e, np.ones(t.size, bool))
+    assert p["period_s"] == pytest.approx(period, rel=0.05)
+    assert np.sqrt(np.mean((e - eff.term(t, t, p)) ** 2)) < 2e-9
+
+
+def test_creep_spectrum_and_gauge_bow_on_the_product_path():
+    """CreepSpectrum recovers a relaxation's shape (non-negative gains); GaugeNonlinearity's
+    coefficient is eq. 27's beta to first order, both for draws over wide ranges."""
+    from workbench.calibrate.effects import CreepSpectrum, GaugeNonlinearity
+    rng = np.random.default_rng(5)
+    dt = 1e-3
+    t = np.arange(0, 30, dt)
+    u = np.repeat(rng.uniform(0, 1e-5, 10), t.size // 10)
+    tau = float(np.exp(rng.uniform(np.log(0.05), np.log(5.0))))
+    c = float(np.exp(rng.uniform(np.log(0.01), np.log(0.3))))
+    e = c * (lowpass(u, tau, dt) - u)
+    eff = CreepSpectrum(taus_s=10.0 ** np.arange(-2, 2.51, 0.5))
+    p = eff.fit(t, u, e, np.ones(t.size, bool))
+    assert min(p["gains"]) >= 0
+    assert np.sqrt(np.mean((e - eff.term(t, u, p)) ** 2)) < 0.1 * np.sqrt(np.mean(e ** 2))
+    beta = float(rng.uniform(500, 5000)) * rng.choice([-1, 1])
+    x = np.linspace(-1e-5, 1e-5, 5001)
+    g, G = 1.0 / 1.7e-5, 1.0
+    meas = G * g * x / (1 + beta * x)
+    gn = GaugeNonlinearity()
+    line = g * x
+    q = gn.fit(t[: x.size], x, meas - line, np.ones(x.size, bool), y_model=line)
+    assert q["coefficient_per_m"] == pytest.approx(beta, rel=0.1)

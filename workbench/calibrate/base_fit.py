@@ -112,34 +112,7 @@ class BaseFit:
     dropped_thresholds_v: np.ndarray = None   # plays never excited in the training rows (left out)
 
 
-def holdout_mask(t, v, split="blocks", block_s=0.1, every=3, train_cycles=3):
-    """Training rows (True) of a record; the rest is held out for every error reported.
-
-    ``"blocks"``: the record cut into ``block_s`` blocks (0.1 s: a chirp sweeps through a light
-    mode in tens of ms, so longer blocks can leave its ringing all in training or all held out),
-    a third of them held out, so each
-    part of a protocol (sines, holds, chirp) is both fitted and tested; models with memory run
-    over the whole record, only the rows scored differ. ``"cycles"``: the first
-    ``train_cycles`` input cycles train, the rest is predicted (``split_by_cycles``).
-    """
-    t = np.asarray(t, float)
-    if split == "blocks":
-        # held-out blocks picked by the golden-ratio sequence, not every n-th: a protocol's own
-        # period (3 s holds) must not line its steps up with the held-out blocks
-        k = np.floor((t - t[0]) / block_s).astype(int)
-        # (k + 1: the first block, where a record from rest takes its virgin branch, trains)
-        mask = np.mod((k + 1) * 0.6180339887498949, 1.0) >= 1.0 / every
-        if mask.all() or not mask.any():
-            raise ValueError(f"the record ({t[-1] - t[0]:.3g} s) is too short for {block_s:g} s blocks "
-                             f"with every {every}th held out; use a shorter block")
-        return mask
-    if split == "cycles":
-        # training starts at the input's second reversal: a start transient (a step from rest,
-        # the virgin branch) is left out of the weights; everything after the cycles is held out
-        first = split_by_cycles(v, train_cycles)
-        tp = turning_points(v)
-        return first & (np.arange(first.size) >= (tp[1] if tp.size > 1 else 0))
-    raise ValueError(f"split must be 'blocks' or 'cycles', got {split!r}")
+from .splits import holdout_mask  # noqa: E402,F401  (moved to splits.py; re-exported for callers)
 
 
 def _rest_window_s(t):

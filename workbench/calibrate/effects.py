@@ -140,6 +140,10 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1):
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
     """
     y = _rows(e, mask, project)
+    # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
+    # residual in metres (1e-8) would stop it at its first step
+    y_scale = float(np.sqrt(np.mean(y * y))) or 1.0
+    y = y / y_scale
 
     def res(theta):
         X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
@@ -155,7 +159,7 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1):
         if 2 * sol.cost < best_cost:
             theta, best_cost = sol.x, 2 * sol.cost
     beta, _ = _lstsq(_rows(np.atleast_2d(columns(theta).T).T, mask, project), y)
-    return theta, beta
+    return theta, beta * y_scale
 
 
 class Effect:
@@ -193,42 +197,72 @@ class Effect:
 
 
 class Drift(Effect):
-    """Slow sensor drift, a polynomial of ``degree`` in normalized time (uncorrelated with u)."""
+    """Slow sensor drift: a polynomial of ``degree`` in normalized time, optionally plus one slow
+    periodic term (a temperature cycle) whose frequency is searched in ``periodic_hz``
+    (``(f_lo, f_hi)``, Hz). Time only: independent of the input's history (that is creep)."""
 
     name = "drift"
 
-    def __init__(self, degree=2):
+    def __init__(self, degree=2, periodic_hz=None):
         self.degree = int(degree)
-        self.n_params = self.degree + 1
+        self.periodic_hz = None if periodic_hz is None else (float(min(periodic_hz)), float(max(periodic_hz)))
+        self.nonlinear = self.periodic_hz is not None
+        self.n_params = self.degree + 1 + (3 if self.periodic_hz else 0)
 
-    def _X(self, t):
+    def _X(self, t, f_hz=None):
         t = np.asarray(t, dtype=float)
         s = (t - t[0]) / (t[-1] - t[0])
-        return np.vander(s, self.degree + 1, increasing=True)
+        X = np.vander(s, self.degree + 1, increasing=True)
+        if f_hz:
+            ph = 2 * np.pi * f_hz * (t - t[0])
+            X = np.column_stack([X, np.sin(ph), np.cos(ph)])
+        return X
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         mask = np.asarray(train_mask, bool)
-        X = self._X(t)
+        t = np.asarray(t, float)
+        f_hz = None
+        if self.periodic_hz:
+            lo, hi = np.log(self.periodic_hz[0]), np.log(max(self.periodic_hz[1], 1.01 * self.periodic_hz[0]))
+            cols = (lambda th: self._X(t, np.exp(th[0]))[:, 1:]) if project is not None else \
+                (lambda th: self._X(t, np.exp(th[0])))
+            theta, _ = _varpro(cols, np.asarray(residual, float), mask, [[g] for g in np.linspace(lo, hi, 16)],
+                               [lo], [hi], project)
+            f_hz = float(np.exp(theta[0]))
+        X = self._X(t, f_hz)
         if project is not None:
             # the base model has its own offset: the constant column projects to zero
             X = X[:, 1:]
         beta, _ = _lstsq(_rows(X, mask, project), _rows(residual, mask, project))
         if project is not None:
             beta = np.r_[0.0, beta]
-        return {"coefficients": beta, "t0_s": float(t[0]), "t_end_s": float(t[-1])}
+        out = {"coefficients": beta[: self.degree + 1], "t0_s": float(t[0]), "t_end_s": float(t[-1])}
+        if f_hz:
+            out.update(period_s=1.0 / f_hz, sin_cos=beta[self.degree + 1:])
+        return out
 
     def term(self, t, u, params, y_model=None):
         t = np.asarray(t, dtype=float)
         s = (t - params["t0_s"]) / (params["t_end_s"] - params["t0_s"])
-        return np.vander(s, self.degree + 1, increasing=True) @ params["coefficients"]
+        y = np.vander(s, self.degree + 1, increasing=True) @ np.asarray(params["coefficients"], float)
+        if params.get("period_s"):
+            ph = 2 * np.pi * (t - params["t0_s"]) / params["period_s"]
+            a, b = params["sin_cos"]
+            y = y + a * np.sin(ph) + b * np.cos(ph)
+        return y
 
     def columns(self, t, u, params, y_model=None):
-        """Powers 1 .. degree of normalized time (the base model has the constant), free signs."""
-        X = self._X(t)[:, 1:]
+        """Powers 1 .. degree of normalized time (the base model has the constant) and the periodic
+        pair when fitted, free signs."""
+        X = self._X(t, 1.0 / params["period_s"] if params.get("period_s") else None)[:, 1:]
         return X, np.full(X.shape[1], -np.inf)
 
     def with_gains(self, params, gains):
-        return {**params, "coefficients": np.r_[0.0, gains]}
+        g = np.asarray(gains, float)
+        out = {**params, "coefficients": np.r_[0.0, g[: self.degree]]}
+        if params.get("period_s"):
+            out["sin_cos"] = g[self.degree: self.degree + 2]
+        return out
 
     def _fingerprint(self, report, t, u, residual):
         return 1.0 if report.independent else 0.5
@@ -255,18 +289,18 @@ class Delay(Effect):
             raise ValueError("delay needs y_model (the base model's prediction)")
         mask = np.asarray(train_mask, bool)
         e = np.asarray(residual, float)
-        # whole samples first, then the bracketing half samples, then a bounded refinement
-        grid = np.arange(-np.floor(self.max_delay), np.floor(self.max_delay) + 0.5, 1.0)
-        grid = grid[grid != 0]
-        costs = [np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2) for d in grid]
-        d0 = float(grid[int(np.argmin(costs))])
-        for d in (d0 - 0.5, d0 + 0.5):
-            if d != 0 and abs(d) <= self.max_delay:
-                c = np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2)
-                if c < min(costs):
-                    d0 = d
-                costs.append(c)
-        lo, hi = max(-self.max_delay, d0 - 0.5), min(self.max_delay, d0 + 0.5)
+        # a log grid of delays of either sign from half a sample to the bound (the bound is in
+        # samples of this record, set from seconds by the caller), then a bounded refinement
+        mags = np.geomspace(0.5, max(self.max_delay, 1.0), 36)
+        grid = np.r_[-mags[::-1], mags]
+        cost = lambda d: float(np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2))  # noqa: E731
+        costs = [cost(d) for d in grid]
+        k = int(np.argmin(costs))
+        d0 = float(grid[k])
+        lo = float(grid[k - 1]) if k > 0 else -self.max_delay
+        hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
+        if lo < 0 < hi:
+            lo, hi = (lo, -0.25) if d0 < 0 else (0.25, hi)
         sol = least_squares(lambda x: _rows(e - self._shifted(t, y_model, x[0]), mask, project),
                             [d0], bounds=([lo], [hi]), max_nfev=40)
         d = float(sol.x[0]) if 2 * sol.cost <= min(costs) else d0

@@ -46,14 +46,47 @@ def _fmt(x):
 
 
 def updated_plant_text(plant_path, plant, base, result, data_path):
-    """TOML text of the declared plant plus the found effect (see the module notes)."""
+    """TOML text of the declared plant plus every effect found (see the module notes).
+
+    Every stage of ``result["stages"]`` is written (the first is ``result["effect"]``); a
+    delay and a drift of the displacement sensor share one ``[displacement_sensor]`` section.
+    """
     text = plant_path.read_text(encoding="utf-8")
-    effect, ch, p = result["effect"], result["channel"], result["parameters"]
     src = f"workbench calibrate on {data_path.name}"
+    stages = result.get("stages") or ([{"effect": result["effect"], "channel": result["channel"],
+                                        "parameters": result["parameters"], "error_before": result["error_before"],
+                                        "error_after": result["error_after"]}]
+                                      if result.get("effect") not in (None, "none", "inconclusive") else [])
     eb, ea = result["error_before"], result["error_after"]
-    header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: effect {effect} on the {ch} channel;",
-              f"# held-out RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
-              f"{ea['max']:.4g}). The declared values below are unchanged; the section of the effect is new."]
+    names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
+    header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
+              f"# test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
+              f"{ea['max']:.4g}; first effect). The declared values below are unchanged; the sections of the "
+              f"effects are new."]
+    blocks = []
+    sensor = {}
+    for st in stages:
+        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor)
+        if block:
+            blocks.append(block)
+        elif st["effect"] not in ("delay", "drift") or st["channel"] != "displacement":
+            header.append(f"# The {st['effect']} found on the {st['channel']} channel has no plant-file form; its "
+                          f"parameters are in the calibration JSON.")
+    if sensor:
+        blocks.append(["[displacement_sensor]",
+                       sensor.get("delay", "delay_s = 0.0   # s; none found"),
+                       *sensor.get("drift", ["drift_rate_m_per_s = 0.0   # m/s; none found",
+                                             "drift_curvature_m_per_s2 = 0.0   # m/s^2; none found"])])
+    names = {b[0].strip("[]") for b in blocks}
+    body = _drop_sections(text, tuple(n for n in names if n in _REPLACED))
+    out = "\n".join(header) + "\n" + body
+    for block in blocks:
+        out += "\n" + "\n".join(block) + "\n"
+    return out
+
+
+def _block(effect, ch, p, base, src, sensor):
+    """The plant-file lines of one effect (a displacement sensor's go into ``sensor``)."""
     block = []
     if effect == "leakage" and p.get("gain_per_s", 0) > 0:
         block = ["[leakage]", f"resistance_ohm = {_fmt(1.0 / p['gain_per_s'])}   # ohm; {src} (leakage fit)"]
@@ -64,36 +97,26 @@ def updated_plant_text(plant_path, plant, base, result, data_path):
         q = base.channels["charge"].yhat
         c_sec = float(np.ptp(q) / max(np.ptp(base.v_drive), 1e-12))
         gains, taus = np.asarray(p["gains"]), np.asarray(p["taus_s"])
-        # branches faster than 10 ms take up rate-dependent misfit of the base model (the
-        # amplifier's slews), not creep: they stay in the JSON, not in the plant's creep
-        keep = (gains > 0) & (taus >= 0.01)
+        keep = gains > 0
         if keep.any():
             block = ["[creep]", f"# C_j = c_j x C_sec, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
-                                f"(an approximation: V_h is not recorded); branches under 10 ms left out",
+                                f"(an approximation: V_h is not recorded)",
                      f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
                      f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
     elif effect == "resonance" and ch == "displacement":
         block = ["[[mechanics.modes]]", f"freq_hz = {_fmt(p['f_n_hz'])}   # Hz; {src} (resonance fit)",
                  f"damping_ratio = {_fmt(min(max(p['zeta'], 1e-6), 1.0))}   # {src}"]
     elif effect == "delay" and ch == "displacement":
-        block = ["[displacement_sensor]", f"delay_s = {_fmt(max(p['delay_s'], 0.0))}   # s; {src}",
-                 "drift_rate_m_per_s = 0.0   # m/s; none found", "drift_curvature_m_per_s2 = 0.0   # m/s^2; none found"]
+        # the plant file takes a latency >= 0; a negative one (the sensor leads) stays in the JSON
+        sensor["delay"] = f"delay_s = {_fmt(max(p['delay_s'], 0.0))}   # s; {src}"
     elif effect == "drift" and ch == "displacement":
         c = np.asarray(p["coefficients"], float)
         span = p["t_end_s"] - p["t0_s"]
         rate = c[1] / span if c.size > 1 else 0.0
         curv = c[2] / span ** 2 if c.size > 2 else 0.0
-        block = ["[displacement_sensor]", "delay_s = 0.0   # s; none found",
-                 f"drift_rate_m_per_s = {_fmt(rate)}   # m/s; {src} (from the record's start)",
-                 f"drift_curvature_m_per_s2 = {_fmt(curv)}   # m/s^2; {src}"]
+        sensor["drift"] = [f"drift_rate_m_per_s = {_fmt(rate)}   # m/s; {src} (from the record's start)",
+                           f"drift_curvature_m_per_s2 = {_fmt(curv)}   # m/s^2; {src}"
+                           + ("; its slow periodic term has no plant-file form (JSON)" if p.get("period_s") else "")]
     elif effect == "gauge_nonlinearity":
         block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
-    if effect != "none" and not block:
-        header.append(f"# The {effect} found on the {ch} channel has no plant-file form; its parameters are in the "
-                      f"calibration JSON.")
-    name = block[0].strip("[]") if block else None
-    body = _drop_sections(text, (name,) if name in _REPLACED else ())
-    out = "\n".join(header) + "\n" + body
-    if block:
-        out += "\n" + "\n".join(block) + "\n"
-    return out
+    return block

@@ -46,8 +46,9 @@ def calibration_protocol(dt_s=1e-4, rest_s=0.5, v_max=100.0, sine_hz=0.5, sine_c
     parts.extend(np.full(n(hold_s), float(v)) for v in stairs_v)
     tc = np.arange(n(chirp_s)) * dt_s
     bias = float(stairs_v[-1]) if len(stairs_v) else 0.0
-    parts.append(bias + chirp_amplitude_v * chirp(tc, chirp_f0_hz, tc[-1], chirp_f1_hz, method="logarithmic",
-                                                  phi=-90.0))
+    if tc.size > 1:
+        parts.append(bias + chirp_amplitude_v * chirp(tc, chirp_f0_hz, tc[-1], chirp_f1_hz, method="logarithmic",
+                                                      phi=-90.0))
     v = np.concatenate(parts)
     t = (np.arange(v.size) + 1) * dt_s
     return t, v

@@ -19,28 +19,32 @@ from ..errors import DataFileError, PlantDefinitionError, WorkbenchError
 from ..plant.files import load_plant
 from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
-from .base_fit import fit_base, holdout_mask
+from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .pi_fit import split_by_cycles
 from .plant_update import updated_plant_text
 from .record import read_record
+from .splits import make_split
 from .tracing import trace_effect
 
 __all__ = ["run_calibrate"]
 
 
 def _json_candidates(cands):
-    return [{"name": c["name"], "channel": c["channel"], "score": c["score"], "n_params": c["n_params"],
-             "error_before": c["error_before"], "error_after": c["error_after"]} for c in cands]
+    return [{"name": c["name"], "channel": c["channel"], "variant": c.get("variant"), "score": c["score"],
+             "n_params": c["n_params"], "passes": c["passes"], "ratios": c["ratios"],
+             "error_before": c["error_before"], **({"error_after": c["error_after"]} if "error_after" in c else {})}
+            for c in cands]
 
 
 def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=3, max_ratio=0.8,
                   penalty=0.02, figures=True, progress=None):
     """Calibrate ``plant_path`` on the record ``data_path``; returns the JSON-ready dict.
 
-    ``split``: ``"blocks"`` (default for a full PZT plant: 0.1 s blocks, a third held out by a
-    golden-ratio pattern) or ``"cycles"`` (default for a generic stack: the first
-    ``train_cycles`` input cycles train, the rest is predicted).
+    ``split``: ``"blocks"`` (default for a full PZT plant), ``"forward"`` or ``"cycles"``
+    (default for a generic stack: the first ``train_cycles`` input cycles are the development
+    rows, the rest is predicted); see :mod:`.splits`. ``max_ratio`` is ignored (kept for
+    callers of the earlier interface: the decision is against the noise floor and a null
+    reference over validation folds, :mod:`.tracing`).
     """
     t0 = time.perf_counter()
     data_path, plant_path = Path(data_path), Path(plant_path)
@@ -87,10 +91,10 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
         notes.append(f"the record's serial {serial} differs from the plant's {plant.serial}; the record's is used")
     t, v = record.t_s, record.channels["voltage_v"]
     try:
-        train = holdout_mask(t, v, split=split, train_cycles=train_cycles)
-        test = ~split_by_cycles(v, train_cycles) if split == "cycles" else ~train
+        sp = make_split(t, v, kind=split, train_cycles=train_cycles)
     except ValueError as err:
         raise DataFileError(f"{data_path}: cannot split the record into training and held-out parts: {err}") from err
+    train, test = sp.train, sp.test
     if progress:
         progress("base fit", 0, 1)
     base = fit_base(record, resistance, train=train, n_plays=n_plays, grid=grid, pzt=pzt, dac_range_v=dac, test=test,
@@ -98,7 +102,7 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
     base.notes = notes + base.notes
     if progress:
         progress("base fit", 1, 1)
-    result = trace_effect(base, penalty=penalty, max_ratio=max_ratio, progress=progress)
+    result = trace_effect(base, split=sp, penalty=penalty, progress=progress)
     holds = []
     y_hold = base.channels.get("displacement") or base.channels.get("gauge")
     if y_hold is not None:
@@ -110,9 +114,12 @@ def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=
         "record": str(data_path), "plant": str(plant_path), "plant_kind": kind,
         "effect": result["effect"], "channel": result["channel"],
         "error_before": result["error_before"], "error_after": result["error_after"],
-        "parameters": result["parameters"], "candidates": _json_candidates(result["candidates"]),
-        "reason": result["reason"], "max_ratio": max_ratio, "penalty": penalty,
-        "split": split, "train_fraction": float(np.mean(train)), "held_out_fraction": float(np.mean(test)),
+        "parameters": result["parameters"], "agreement": result["agreement"],
+        "fold_winners": result["fold_winners"], "leading": result["leading"], "stages": result["stages"],
+        "candidates": _json_candidates(result["candidates"]),
+        "reason": result["reason"], "penalty": penalty,
+        "split": split, "block_s": sp.block_s, "n_folds": len(sp.folds),
+        "train_fraction": float(np.mean(train)), "held_out_fraction": float(np.mean(test)),
         "base_fit": {
             "voltage_source": base.voltage_source, "starts_from_rest": base.starts_from_rest,
             "series_resistor_ohm": resistance,

@@ -139,8 +139,14 @@ def _uniform(rng, lo_hi, log=False):
     return float(rng.uniform(lo, hi))
 
 
-def plant_with_effect(plant, effect, rng, duration_s=35.0):
+def plant_with_effect(plant, effect, rng, duration_s=35.0, size=1.0):
     """A copy of ``plant`` (no creep, no additions) with one effect drawn at random.
+
+    ``effect`` may also be a tuple of effects (a record with two). ``size`` multiplies the
+    effect's magnitude drawn from ``EFFECT_RANGES`` (creep capacitance, absorption gain,
+    leakage conductance, delay, drift excursion, bow coefficient; for a resonance it divides
+    the damping ratio's floor and lowers the frequency, ``f / sqrt(size)``): the confusion
+    benchmark draws it from well below the noise floor to large.
 
     Returns
     -------
@@ -150,39 +156,85 @@ def plant_with_effect(plant, effect, rng, duration_s=35.0):
     rng = np.random.default_rng(rng)
     pzt = dataclasses.replace(plant.pzt, creep=None)
     add = Additions()
+    effects = (effect,) if isinstance(effect, str) else tuple(effect)
+    truth = {}
+    for eff in effects:
+        pzt, add, tr = _draw(eff, rng, pzt, add, duration_s, float(size))
+        truth.update(tr)
+    return dataclasses.replace(plant, pzt=pzt, additions=add), truth
+
+
+def _draw(effect, rng, pzt, add, duration_s, size):
     rg = EFFECT_RANGES.get(effect)
     truth = {}
     if effect == "none":
         pass
     elif effect == "creep":
-        c = _uniform(rng, rg["branch_capacitance_f"])
+        c = _uniform(rng, rg["branch_capacitance_f"]) * size
         tau = np.array([0.1, 1.0, 10.0, 100.0, 1000.0])
         pzt = dataclasses.replace(pzt, creep=CreepParams(tau, np.full(tau.size, c)))
         truth = {"branch_capacitance_f": c, "time_constants_s": tau.tolist()}
     elif effect == "dielectric_absorption":
-        truth = {"gain_f": _uniform(rng, rg["gain_f"]), "time_constant_s": _uniform(rng, rg["time_constant_s"], True)}
-        add = Additions(absorption_gain_f=truth["gain_f"], absorption_time_constant_s=truth["time_constant_s"])
+        truth = {"gain_f": _uniform(rng, rg["gain_f"]) * size,
+                 "time_constant_s": _uniform(rng, rg["time_constant_s"], True)}
+        add = dataclasses.replace(add, absorption_gain_f=truth["gain_f"],
+                                  absorption_time_constant_s=truth["time_constant_s"])
     elif effect == "leakage":
-        truth = {"resistance_ohm": _uniform(rng, rg["resistance_ohm"], True)}
-        add = Additions(leakage_resistance_ohm=truth["resistance_ohm"])
+        truth = {"resistance_ohm": _uniform(rng, rg["resistance_ohm"], True) / size}
+        add = dataclasses.replace(add, leakage_resistance_ohm=truth["resistance_ohm"])
     elif effect == "resonance":
-        truth = {"freq_hz": _uniform(rng, rg["freq_hz"], True), "damping_ratio": _uniform(rng, rg["damping_ratio"])}
+        truth = {"freq_hz": _uniform(rng, rg["freq_hz"], True) / np.sqrt(size),
+                 "damping_ratio": _uniform(rng, rg["damping_ratio"])}
         pzt = dataclasses.replace(pzt, modes=(Mode(truth["freq_hz"], truth["damping_ratio"]),))
     elif effect == "delay":
-        truth = {"delay_s": _uniform(rng, rg["delay_s"])}
-        add = Additions(sensor_delay_s=truth["delay_s"])
+        truth = {"delay_s": _uniform(rng, rg["delay_s"]) * size}
+        add = dataclasses.replace(add, sensor_delay_s=truth["delay_s"])
     elif effect == "drift":
         # a t + b t^2 with a random share of curvature, scaled to the drawn excursion
-        ex = _uniform(rng, rg["excursion_m"]) * rng.choice([-1.0, 1.0])
+        ex = _uniform(rng, rg["excursion_m"]) * rng.choice([-1.0, 1.0]) * size
         share = rng.uniform(-1.0, 1.0)
         a, b = (1.0 - abs(share)) / duration_s, share / duration_s ** 2
         peak = np.max(np.abs(a * np.linspace(0, duration_s, 200) + b * np.linspace(0, duration_s, 200) ** 2))
         truth = {"drift_rate_m_per_s": ex * a / peak, "drift_curvature_m_per_s2": ex * b / peak}
-        add = Additions(sensor_drift_rate_m_per_s=truth["drift_rate_m_per_s"],
-                        sensor_drift_curvature_m_per_s2=truth["drift_curvature_m_per_s2"])
+        add = dataclasses.replace(add, sensor_drift_rate_m_per_s=truth["drift_rate_m_per_s"],
+                                  sensor_drift_curvature_m_per_s2=truth["drift_curvature_m_per_s2"])
     elif effect == "gauge_nonlinearity":
-        truth = {"coefficient_per_m": _uniform(rng, rg["coefficient_per_m"]) * rng.choice([-1.0, 1.0])}
-        add = Additions(gauge_nonlinearity_per_m=truth["coefficient_per_m"])
+        truth = {"coefficient_per_m": _uniform(rng, rg["coefficient_per_m"]) * rng.choice([-1.0, 1.0]) * size}
+        add = dataclasses.replace(add, gauge_nonlinearity_per_m=truth["coefficient_per_m"])
     else:
         raise ValueError(f"unknown effect {effect!r}; known: none, {', '.join(EFFECTS)}")
-    return dataclasses.replace(plant, pzt=pzt, additions=add), truth
+    return pzt, add, truth
+
+
+PROTOCOLS = ("calibration", "sine", "steps")
+
+
+def benchmark_protocol(kind, rate_hz, n_rows):
+    """The command of a confusion-benchmark record: ``n_rows`` samples at ``rate_hz``.
+
+    The calibration protocol's parts (``calibration_protocol``) scaled in time to the record's
+    duration ``D = n_rows / rate_hz`` (its nominal 14.5 s: 0.5 s rest, three 0.5 Hz decaying
+    sines, four 1.5 s holds, a 2 s chirp from 10 Hz to ``min(2 kHz, 0.3 rate)``, all times
+    times ``D / 14.5 s``); ``"sine"``: decaying sines only (0.5 s rest, then sines over the
+    rest of the record, six cycles); ``"steps"``: holds only (rest, then eight steps between
+    10 and 100 V).
+    """
+    from .protocol import calibration_protocol
+    dt = 1.0 / float(rate_hz)
+    dur = n_rows * dt
+    k = dur / 14.5
+    if kind == "calibration":
+        t, v = calibration_protocol(dt_s=dt, rest_s=0.5 * k, sine_hz=0.5 / k, sine_cycles=3,
+                                    stairs_v=(50.0, 20.0, 80.0, 40.0), hold_s=1.5 * k,
+                                    chirp_f0_hz=10.0 / k, chirp_f1_hz=min(2000.0 / max(k, 1.0), 0.3 * rate_hz),
+                                    chirp_s=2.0 * k)
+    elif kind == "sine":
+        t, v = calibration_protocol(dt_s=dt, rest_s=0.5 * k, sine_hz=6.0 / (dur - 0.5 * k), sine_cycles=6,
+                                    sine_decay=0.8, stairs_v=(), chirp_s=0.0)
+    elif kind == "steps":
+        steps = (30.0, 80.0, 10.0, 100.0, 50.0, 20.0, 70.0, 40.0)
+        t, v = calibration_protocol(dt_s=dt, rest_s=0.5 * k, sine_cycles=0, stairs_v=steps,
+                                    hold_s=(dur - 0.5 * k) / len(steps), chirp_s=0.0)
+    else:
+        raise ValueError(f"protocol must be one of {', '.join(PROTOCOLS)}, got {kind!r}")
+    return t, v

@@ -32,7 +32,7 @@ __all__ = ["calibration_figures", "residual_models", "residual_reports", "si_sca
            "MAX_POINTS", "MAX_RATIO", "PENALTY"]
 
 MAX_POINTS = 6000           # points per line, at most (min/max pairs keep the envelope)
-MAX_RATIO = 0.8             # trace_effect's default decision threshold (penalized held-out ratio)
+MAX_RATIO = 0.8             # kept for importers of the earlier interface (the decision is in tracing.py)
 PENALTY = 0.02              # trace_effect's default parsimony penalty per parameter
 HELD_OUT = dict(color="0.88", zorder=0, lw=0)
 BOX = dict(boxstyle="round", fc="white", ec="0.7", alpha=0.9)
@@ -428,8 +428,8 @@ def _plot_spectrum(base, result, path):
 
 
 def _plot_candidates(result, path):
-    # the tracing's threshold and penalty when the result states them, else its defaults
-    max_ratio = float(result.get("max_ratio", MAX_RATIO))
+    # the ratio at which a candidate explains the tracing's minimum share of the held-out variance
+    max_ratio = float(np.sqrt(1.0 - float(result.get("min_share", 0.3))))
     penalty = float(result.get("penalty", PENALTY))
     cands = list(result.get("candidates") or [])
     chosen = (result.get("effect"), result.get("channel"))
@@ -465,11 +465,13 @@ def _plot_candidates(result, path):
     for i in range(1, n):
         if order[i]["channel"] != order[i - 1]["channel"]:
             ax.axhline(y[i] + 0.5, color="0.6", lw=0.6)
-    handles = [Line2D([], [], color="C3", ls="--", lw=1.2, label=f"decision threshold {max_ratio:g}")]
+    handles = [Line2D([], [], color="C3", ls="--", lw=1.2, label=f"explains {100 * (1 - max_ratio ** 2):.0f} % of the variance "
+                      f"(one of the tests a fold applies)")]
     handles += [Patch(color=CHANNEL_COLORS.get(chn, "C7"), alpha=0.6, label=f"{chn} channel") for chn in channels]
     handles.append(Patch(fc="0.6", ec="k", lw=2.0, label="chosen (bold edge)"))
     ax.set_xlim(0, xmax * 1.18)
-    ax.set_xlabel(f"score: held-out RMS after x (1 + {penalty:g} n_params) / held-out RMS before (lower is better)")
+    ax.set_xlabel(f"score: median over the validation folds of RMS after x (1 + {penalty:g} n_params) / RMS before "
+                  f"(lower is better)")
     fig.legend(handles=handles, fontsize=8, loc="outside lower center", ncol=len(handles), frameon=False)
     ax.grid(True, axis="x", alpha=0.3)
     ax.set_title(f"Candidate effects, grouped by channel: answer {chosen[0]}"

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from ..calibrate.residual import fit_percent
-from .calibrate_figures import MAX_RATIO, PENALTY, si_scale
+from .calibrate_figures import PENALTY, si_scale
 from .markdown import md_image, md_row
 
 __all__ = ["calibration_markdown", "parameter_rows"]
@@ -178,7 +178,7 @@ def _error_table(base, result):
     for name, err in (result.get("channels") or {}).items():
         before = err
         after = err
-        if eff != "none" and name == ch:
+        if eff not in ("none", "inconclusive") and name == ch:
             before, after = result.get("error_before", err), result.get("error_after", err)
             if _finite(err.get("rms")) and _finite(before.get("rms")) and \
                     not np.isclose(float(before["rms"]), float(err["rms"]), rtol=1e-9):
@@ -190,7 +190,7 @@ def _error_table(base, result):
         scale = si_scale(unit, max(abs(float(before.get("max", 0) or 0)), abs(float(after.get("max", 0) or 0))))
         ratio = (float(after["rms"]) / float(before["rms"]) if _finite(after.get("rms")) and _finite(before.get("rms"))
                  and float(before["rms"]) > 0 else float("nan"))
-        changed = eff != "none" and name == ch
+        changed = eff not in ("none", "inconclusive") and name == ch
         rows.append((f"**{name}**" if changed else name, _num(float(before["rms"]) * scale[0]),
                      _num(float(before["max"]) * scale[0]), _num(float(after["rms"]) * scale[0]),
                      _num(float(after["max"]) * scale[0]), scale[1],
@@ -199,23 +199,38 @@ def _error_table(base, result):
     return lines + ([""] + note if note else [])
 
 
-def _candidate_table(result, max_ratio):
-    chosen = (result.get("effect"), result.get("channel"))
+def _candidate_table(result, max_ratio=None):
+    chosen = {(st["effect"], st["channel"]) for st in (result.get("stages") or [])}
+    if result.get("effect") not in (None, "none", "inconclusive"):
+        chosen.add((result.get("effect"), result.get("channel")))
     channels = result.get("channels") or {}
+    n_folds = result.get("n_folds") or len((result.get("candidates") or [{}])[0].get("ratios") or []) or "n"
     rows = []
     for i, c in enumerate(result.get("candidates") or [], 1):
         eb, ea = c.get("error_before") or {}, c.get("error_after") or {}
         unit = ea.get("units", eb.get("units", ""))
         # the error table's prefix for the channel (its held-out max), so the two tables read alike
         scale = si_scale(unit, (channels.get(c["channel"]) or eb).get("max", float("nan")))
-        mark = "**chosen**" if (c["name"], c["channel"]) == chosen else ""
-        rows.append((i, c["name"], c["channel"], c.get("n_params", "n/a"), _q(eb.get("rms"), unit, scale),
-                     _q(ea.get("rms"), unit, scale), f"{float(c['score']):.3f}" if _finite(c.get("score")) else "n/a",
-                     "yes" if _finite(c.get("score")) and float(c["score"]) <= max_ratio else "no", mark))
+        mark = "**chosen**" if (c["name"], c["channel"]) in chosen else ""
+        npar = f"{c.get('n_params', 'n/a')}" + (f" ({c['variant']})" if c.get("variant") else "")
+        rows.append((i, c["name"], c["channel"], npar, _q(eb.get("rms"), unit, scale),
+                     _q(ea.get("rms"), unit, scale) if ea else "-",
+                     f"{float(c['score']):.3f}" if _finite(c.get("score")) else "n/a",
+                     f"{c.get('passes', 'n/a')} of {n_folds}", mark))
     if not rows:
         return ["No candidate could be fitted."]
-    return _table(("rank", "effect", "channel", "parameters", "held-out RMS before", "held-out RMS after",
-                   "score", f"passes {max_ratio:g}", ""), rows)
+    return _table(("rank", "effect", "channel", "parameters", "test RMS before", "test RMS after",
+                   "median validation ratio", "folds passed", ""), rows)
+
+
+def _stages_table(result):
+    rows = []
+    for k, st in enumerate(result.get("stages") or [], 1):
+        eb, ea = st["error_before"], st["error_after"]
+        scale = si_scale(eb.get("units", ""), eb.get("max", float("nan")))
+        rows.append((k, st["effect"], st["channel"], st["agreement"], _q(eb["rms"], eb.get("units", ""), scale),
+                     _q(ea["rms"], ea.get("units", ""), scale)))
+    return _table(("stage", "effect", "channel", "folds won", "test RMS before", "test RMS after"), rows)
 
 
 def _holds_table(holds):
@@ -259,8 +274,8 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
         The report's folder: figure links are made relative to it (default: file names, the
         figures sitting beside the report).
 
-    The decision threshold and penalty are ``result["max_ratio"]`` / ``result["penalty"]`` when
-    the result states them, else the tracing's defaults (0.8, 0.02).
+    The penalty is ``result["penalty"]`` when the result states it, else the tracing's default
+    (0.02).
 
     Returns
     -------
@@ -268,32 +283,46 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
     """
     eff = result.get("effect", "none")
     ch = result.get("channel")
-    max_ratio = float(result.get("max_ratio", MAX_RATIO))
     penalty = float(result.get("penalty", PENALTY))
     lines = [f"# Calibration of `{Path(plant_path).name}` against `{Path(record_path).name}`", "",
              f"Record: `{record_path}`, {base.t.size} samples over {base.t[-1] - base.t[0]:.4g} s "
              f"({_num((base.t.size - 1) / (base.t[-1] - base.t[0]))} samples/s); channels "
              f"{', '.join(base.channels)}. Declared plant: `{plant_path}`. Run time {_num(elapsed_s, 3)} s.",
-             "", "Every error below is on the **held-out** rows (blocks of the record not used for fitting).", ""]
+             "", f"Every error below is on the **test** rows (a part of the record no fit and no choice saw; "
+             f"{result.get('split', 'blocks')} split, {_num(result.get('block_s'))} s blocks); the effect is chosen on "
+             f"{result.get('n_folds', 'several')} validation folds of the other rows.", ""]
     lines += ["## Answer", ""]
+    agreement = result.get("agreement")
     if eff == "none":
         lines += [f"**No effect added.** {result.get('reason', '')}.".replace("..", "."), "",
-                  "The declared plant explains the record as well as any candidate effect does (penalty "
-                  "included); the residual is what the sensors' noise and the base model's own approximation "
-                  "leave.", ""]
+                  "No candidate explains more of the held-out error than the record's noise floor, a random term "
+                  "of its size and the base model's own misfit allow, consistently over the validation folds"
+                  + (f" ({agreement} folds answer none)" if agreement else "") + ".", ""]
+    elif eff == "inconclusive":
+        lead = ", ".join(f"{x['answer']} ({x['folds']} folds)" for x in result.get("leading") or [])
+        lines += [f"**Inconclusive.** {result.get('reason', '')}.".replace("..", "."), "",
+                  f"Leading answers: {lead}. No effect is added: the folds do not agree on one.", ""]
     else:
-        lines += [f"**{eff}** on the **{ch}** channel: {result.get('reason', '')}.", ""]
+        lines += [f"**{eff}** on the **{ch}** channel (wins {agreement} validation folds): "
+                  f"{result.get('reason', '')}.", ""]
         prow = parameter_rows(eff, result.get("parameters"), (result.get("error_before") or {}).get("units", ""))
         if prow:
             lines += _table(("parameter", "value", "unit"), prow) + [""]
+        if len(result.get("stages") or []) > 1:
+            lines += ["Staged tracing (each effect added to the model before the next search):", ""]
+            lines += _stages_table(result) + [""]
     lines += (["Updated plant: `" + str(updated_plant_path) + "`.", ""] if updated_plant_path
               else ["No plant file written.", ""])
     lines += ["## Error before and after (held out)", ""] + _error_table(base, result) + [""]
     lines += _base_section(base) + [""]
     lines += ["## Candidates", "",
-              f"Each candidate is fitted to one channel's residual jointly with the base model (training rows) "
-              f"and scored on the held-out rows by RMS after x (1 + {penalty:g} n_params) / RMS before; the lowest score "
-              f"wins if it is at most {max_ratio:g}.", ""] + _candidate_table(result, max_ratio) + [""]
+              f"Each candidate is fitted to one channel's residual jointly with the base model on each validation "
+              f"fold's training rows and scored on the fold by RMS after x (1 + {penalty:g} n_params) / RMS before. "
+              f"It passes a fold when that ratio is below 1, what it explains stands above the channel's noise floor "
+              f"and above what a random term of the residual's size and spectrum explains, and it explains at least "
+              f"{100 * float(result.get('min_share', 0.3)):.0f} % of the fold's held-out variance; each fold's "
+              f"winner is the passing candidate with the lowest ratio. Test errors are on rows no choice saw.",
+              ""] + _candidate_table(result) + [""]
     if holds:
         lines += ["## Creep per hold (seed 001)", "",
                   "L(t) = L0 (1 + gamma log10(t / 0.1 s)) fitted on each hold of the displacement; L0 is the "

@@ -1,0 +1,159 @@
+"""How a record's rows are divided for calibration: training, validation folds, and a test part.
+
+Every error the calibration reports is measured on rows that took no part in what it reports:
+
+* the **test** part is never seen by the choice of the effect; ``error_before`` /
+  ``error_after`` are measured there (the base and the chosen effect refitted on all the
+  development rows);
+* the **development** rows (everything else that is used) are cut into ``n_folds``
+  validation folds: for each fold the base and every candidate are fitted on the other
+  development rows and scored on the fold. The effect named is the one that wins the folds
+  consistently (:mod:`.tracing`).
+
+Rows are grouped in **blocks** of ``block_s`` seconds derived from the record (never a
+fixed count of samples): ``block_s = max(50 dt, duration / 100)`` -- at least 50 samples,
+so a held-out block is a stretch to predict, not a sample to interpolate between its
+neighbours at a low rate, and at most ~100 blocks so each fold holds many. Splits:
+
+``"blocks"``
+    Blocks labelled by the golden-ratio sequence (not every n-th: a protocol's own period must
+    not line its steps up with one fold): a fifth to the test part, the rest spread over the
+    folds. The first block always trains (a record from rest takes its virgin branch there).
+    Each part of a protocol (sines, holds, chirp) is fitted and tested.
+``"forward"``
+    Train on the past, predict the future: the last quarter of the record is the test part;
+    the development rows are cut into ``n_folds + 1`` contiguous chunks and fold ``k`` trains
+    on chunks ``0..k-1`` and validates on chunk ``k`` (expanding windows). For records whose
+    later parts excite what earlier parts do not (the protocol's chirp comes last) this can
+    only find slow effects.
+``"cycles"``
+    The first ``train_cycles`` input cycles are the development rows (from the input's second
+    reversal: a start transient is left out), everything after is the test part; the folds
+    are contiguous chunks of the development rows, each left out in turn.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .pi_fit import split_by_cycles, turning_points
+
+__all__ = ["Split", "make_split", "holdout_mask", "block_length_s", "SPLITS"]
+
+SPLITS = ("blocks", "forward", "cycles")
+GOLDEN = 0.6180339887498949
+
+
+def block_length_s(t):
+    """Block length in seconds: ``max(50 dt, duration / 100)`` (see the module notes)."""
+    t = np.asarray(t, float)
+    dur = float(t[-1] - t[0])
+    dt = dur / max(t.size - 1, 1)
+    return max(50.0 * dt, dur / 100.0)
+
+
+@dataclass(eq=False)
+class Split:
+    """Rows of a record by block; ``block[i]`` is row i's block (-1: row unused)."""
+
+    kind: str
+    block: np.ndarray            # int per row
+    block_s: float
+    test_blocks: np.ndarray      # bool per block
+    folds: list                  # [(train_blocks bool per block, val_blocks bool per block)]
+
+    @property
+    def n_blocks(self):
+        return self.test_blocks.size
+
+    def rows(self, blocks):
+        """Boolean row mask of the given blocks (a bool array per block)."""
+        b = np.asarray(blocks, bool)
+        return (self.block >= 0) & b[np.maximum(self.block, 0)]
+
+    @property
+    def dev_blocks(self):
+        return np.any([tr | va for tr, va in self.folds], axis=0)
+
+    @property
+    def train(self):
+        """Development rows (every fold's training or validation rows)."""
+        return self.rows(self.dev_blocks)
+
+    @property
+    def test(self):
+        return self.rows(self.test_blocks)
+
+
+def _chunks(dev_idx, n):
+    """Contiguous groups of the (sorted) development blocks: ``n`` labels."""
+    k = np.arange(dev_idx.size)
+    return np.minimum((k * n) // max(dev_idx.size, 1), n - 1)
+
+
+def make_split(t, v, kind="blocks", n_folds=5, train_cycles=3, block_s=None):
+    """The record's :class:`Split` (see the module notes); ``ValueError`` when it cannot be made."""
+    t = np.asarray(t, float)
+    v = np.asarray(v, float)
+    if kind not in SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {kind!r}")
+    bs = float(block_s) if block_s else block_length_s(t)
+    block = np.floor((t - t[0]) / bs).astype(int)
+    nb = int(block.max()) + 1
+    if nb < 2 * (n_folds + 1):
+        raise ValueError(f"the record ({t[-1] - t[0]:.3g} s) makes only {nb} blocks of {bs:.3g} s; "
+                         f"{2 * (n_folds + 1)} are needed for {n_folds} folds and a test part")
+    test = np.zeros(nb, bool)
+    label = np.full(nb, -1)                 # fold of each development block
+    if kind == "blocks":
+        u = np.mod((np.arange(nb) + 1) * GOLDEN, 1.0)
+        test = u < 0.2
+        test[0] = False
+        label = np.where(test, -1, np.minimum(((u - 0.2) / 0.8 * n_folds).astype(int), n_folds - 1))
+        label[0] = np.clip(label[0], 0, n_folds - 1)
+        folds = [((label >= 0) & (label != k), label == k) for k in range(n_folds)]
+    elif kind == "forward":
+        start = (t - t[0]) / (t[-1] - t[0])
+        first_of_block = np.array([start[block == b][0] if np.any(block == b) else 1.0 for b in range(nb)])
+        test = first_of_block >= 0.75
+        dev = np.flatnonzero(~test)
+        c = _chunks(dev, n_folds + 1)
+        folds = []
+        for k in range(1, n_folds + 1):
+            tr = np.zeros(nb, bool)
+            va = np.zeros(nb, bool)
+            tr[dev[c < k]] = True
+            va[dev[c == k]] = True
+            folds.append((tr, va))
+    else:
+        first = split_by_cycles(v, train_cycles)
+        tp = turning_points(v)
+        start = tp[1] if tp.size > 1 else 0
+        dev_rows = first & (np.arange(t.size) >= start)
+        # blocks cut from the development rows' own start, so the folds tile them
+        rel = np.where(dev_rows, t - t[start], -1.0)
+        n_dev = int(dev_rows.sum())
+        bs = min(bs, (t[first][-1] - t[start]) / (2 * (n_folds + 1))) if n_dev else bs
+        block = np.where(dev_rows, np.floor(rel / bs).astype(int), -1)
+        n_dev_blocks = int(block.max()) + 1
+        after = ~first
+        block[after] = n_dev_blocks
+        nb = n_dev_blocks + 1
+        test = np.zeros(nb, bool)
+        test[-1] = True
+        dev = np.arange(n_dev_blocks)
+        c = _chunks(dev, n_folds)
+        folds = [(np.r_[c != k, False], np.r_[c == k, False]) for k in range(n_folds)]
+        if not after.any() or n_dev_blocks < n_folds:
+            raise ValueError(f"{train_cycles} training cycles leave {int(after.sum())} rows to predict and "
+                             f"{n_dev_blocks} development blocks; use fewer training cycles or a longer record")
+    return Split(kind, block, bs, test, folds)
+
+
+def holdout_mask(t, v, split="blocks", block_s=None, every=None, train_cycles=3):
+    """Development rows (True) of a record: :attr:`Split.train` of :func:`make_split`.
+
+    Kept for callers of the earlier interface (``every`` is ignored: the test part is a fifth
+    of the blocks, see the module notes).
+    """
+    return make_split(t, v, kind=split, train_cycles=train_cycles, block_s=block_s).train
