@@ -154,6 +154,9 @@ def holdout_mask(t, v, split="blocks", block_s=None, every=None, train_cycles=3)
     """Development rows (True) of a record: :attr:`Split.train` of :func:`make_split`.
 
     Kept for callers of the earlier interface (``every`` is ignored: the test part is a fifth
-    of the blocks, see the module notes).
+    of the blocks, see the module notes). ``t`` may be None for a record sampled uniformly
+    (the sample index is then its clock: the cycles split needs no time).
     """
+    if t is None:
+        t = np.arange(len(v), dtype=float)
     return make_split(t, v, kind=split, train_cycles=train_cycles, block_s=block_s).train
