@@ -515,3 +515,17 @@ def test_force_runs_beyond_the_time_bound_but_not_beyond_memory(capsys, monkeypa
     cycles = ["freefree", PLANT, "--cycles", "1000000", "--force"]      # 1e11 samples of ~120 B each
     with pytest.raises(preflight.FlagRangeError, match="more than this machine"):
         preflight._check_size(parse(cycles))
+
+
+def test_selfsense_size_bound_is_lifted_by_its_own_flag(monkeypatch):
+    """selfsense's --force is the force study (issue 16): the size bound's override there is another flag,
+    and a refusal names the flag that works on that command."""
+    from workbench import preflight
+    from workbench.cli import build_parser
+    monkeypatch.chdir(ROOT)
+    parse = build_parser().parse_args
+    ss = parse(["selfsense", CREEP, "--force"])
+    assert ss.force is True and ss.force_size is False                  # the force study, not the override
+    assert parse(["selfsense", CREEP, "--allow-long-run"]).force_size is True
+    assert parse(["verify", CREEP, "--controller", CTRL, "--force"]).force_size is True
+    assert preflight.size_flag("selfsense") == "--allow-long-run" and preflight.size_flag("verify") == "--force"

@@ -371,30 +371,33 @@ def _check_size(args):
     if est is None:
         return
     what, seconds, nbytes = est
-    force = getattr(args, "force", False)
+    force = getattr(args, "force_size", False)
     ram = _memory_bytes()
     if nbytes > ram:
         raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, more than "
                              f"this machine's {_human_b(ram)}; shorten the run")
     if seconds > MAX_SECONDS and not force:
         raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, beyond the "
-                             f"{_human_s(MAX_SECONDS)} bound; shorten the run or give --force to run it anyway")
+                             f"{_human_s(MAX_SECONDS)} bound; shorten the run or give {size_flag(args.command)} to "
+                             f"run it anyway")
     if seconds > 30.0:
         print(f"workbench {args.command}: {what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory",
               file=sys.stderr, flush=True)
 
 
+def size_flag(command):
+    """The flag that lifts the run-size bound of ``command``: ``--force``, except on selfsense,
+    where ``--force`` runs the force self-sensing study (issue 16 names it so)."""
+    return "--allow-long-run" if command == "selfsense" else "--force"
+
+
 def add_force_flags(sub):
-    """Give the commands whose size a flag sets a ``--force`` flag (the run-size bound's override)."""
+    """Give the commands whose size a flag sets the run-size bound's override (:func:`size_flag`)."""
     for name in ("verify", "selfsense", "linearize", "freefree"):
         p = sub.choices.get(name)
-        if p is None:
-            continue
-        try:
-            p.add_argument("--force", action="store_true",
+        if p is not None:
+            p.add_argument(size_flag(name), dest="force_size", action="store_true",
                            help=f"run even if the estimated time exceeds {MAX_SECONDS / 3600:g} h")
-        except argparse.ArgumentError:      # the command already has one
-            pass
 
 
 # ---------------------------------------------------------------------------------------------
