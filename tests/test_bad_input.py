@@ -113,6 +113,7 @@ def ws(tmp_path_factory):
         (bad / f"plant_{name}.toml").write_bytes(text)
     ctrl = json.loads((ROOT / CTRL).read_text(encoding="utf-8"))
     (bad / "ctrl_rate0.json").write_text(json.dumps({**ctrl, "sample_rate_hz": 0.0}), encoding="utf-8")
+    (bad / "ctrl_rate20k.json").write_text(json.dumps({**ctrl, "sample_rate_hz": 20000.0}), encoding="utf-8")
     (bad / "ctrl_no_sos.json").write_text(json.dumps({k: v for k, v in ctrl.items() if k != "sos"}), encoding="utf-8")
     (bad / "ctrl_one_limit.json").write_text(json.dumps({**ctrl, "output_limits_v": [120.0]}), encoding="utf-8")
     (bad / "ctrl_limits_reversed.json").write_text(json.dumps({**ctrl, "output_limits_v": [120.0, -20.0]}),
@@ -367,6 +368,10 @@ CASES = [
 # already pass, listed in the report otherwise
 OTHERS = [
     ("verify-controller-no-sos", ["verify", CREEP, "--controller", "bad/ctrl_no_sos.json"], ["ctrl_no_sos.json", "[sos]"]),
+    ("verify-controller-other-rate", ["verify", CREEP, "--controller", "bad/ctrl_rate20k.json"],
+     ["ctrl_rate20k.json", "20000 Hz differs from the servo rate 10000 Hz"]),
+    ("verify-json-onto-targets", ["verify", CREEP, "--controller", CTRL, "--targets-from", STUDY, "--json", STUDY],
+     [STUDY]),
     # controller contents, through every command that takes one: refused by the one loader before the work
     *[(f"{cmd}-controller-{kind}", [cmd, *pre, "--controller", f"bad/ctrl_{kind}.json", *post],
        [f"ctrl_{kind}.json", key])

@@ -84,6 +84,7 @@ def _files(args):
         add(ins, "plant", "--plant")
     add(ins, "serials", "--serials")
     add(ins, "controller", "--controller")
+    add(ins, "targets_from", "--targets-from")
     if cmd == "synth":
         add(out_files, "out", "--out")
     else:
@@ -105,8 +106,15 @@ def _check_files(args):
     for name, path in ins:
         if name == "--controller" and path.suffix.lower() in (".json", ".mat"):
             # the one controller loader validates it now, not after minutes of linearization
-            from .controller import Controller
-            Controller.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+            from .controller import Controller, ControllerMismatchError
+            ctrl = Controller.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+            if args.command in ("verify", "selfsense") and getattr(args, "plant", None):
+                fs = _plant(args.plant).gauge.modulation_hz        # the servo runs once per modulation period
+                if abs(ctrl.sample_rate_hz - fs) > 1e-9 * fs:
+                    raise ControllerMismatchError(
+                        f"--controller {path}: [sample_rate_hz] {ctrl.sample_rate_hz:g} Hz differs from the servo "
+                        f"rate {fs:g} Hz of {args.plant} (its gauge modulation): it cannot run on this plant; "
+                        f"export the controller at {fs:g} Hz")
     for name, path in out_files:
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:

@@ -409,8 +409,11 @@ class ClosedLoop:
     def __init__(self, plant, controller, n_sub=1, noise=True, anti_windup=True, seed=0):
         g = plant.gauge
         if abs(controller.dt_s - g.period_s) > 1e-9 * g.period_s:
-            raise ValueError(f"controller sample time {controller.dt_s:g} s differs from the servo period "
-                             f"{g.period_s:g} s of {plant.source}")
+            from ..controller import ControllerMismatchError
+            raise ControllerMismatchError(
+                f"controller sample rate {1.0 / controller.dt_s:g} Hz differs from the servo rate "
+                f"{1.0 / g.period_s:g} Hz of {plant.source} (its gauge modulation): it cannot run on this "
+                f"plant; export the controller at {1.0 / g.period_s:g} Hz")
         self.plant, self.controller = plant, controller
         self.n_sub, self.anti_windup = int(n_sub), bool(anti_windup)
         self.sim = PZTSimulator(plant.pzt, g.period_s / self.n_sub)
