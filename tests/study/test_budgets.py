@@ -147,3 +147,16 @@ def test_python_control_closes_the_nominal_loop_as_the_study_reports(studies, ro
     reported = s["designs"]["loop_shape"]["nominal"]
     assert pm == pytest.approx(reported["phase_margin_deg"], abs=0.5)
     assert 20 * np.log10(gm) == pytest.approx(reported["gain_margin_db"], abs=0.2)
+
+
+def test_an_unwritable_family_cache_costs_time_never_the_run(tmp_path):
+    # a cache folder that is a file (or read-only) is warned about; the family is still returned
+    from workbench.study.cache import cached_family
+    blocker = tmp_path / "cache"
+    blocker.write_text("a file where the cache folder should be\n")
+    with pytest.warns(RuntimeWarning, match="not written"):
+        fam, path, hit = cached_family("ab" * 32, blocker / "sub", lambda: {"members": 3})
+    assert fam == {"members": 3} and path is None and hit is False
+    fam, path, hit = cached_family("ab" * 32, tmp_path / "ok", lambda: {"members": 3})
+    assert path.is_file() and not hit
+    assert cached_family("ab" * 32, tmp_path / "ok", lambda: {"members": 4})[0] == {"members": 3}   # served

@@ -29,10 +29,15 @@ def _code_digest():
     import workbench
     root = Path(workbench.__file__).parent
     h = hashlib.sha256()
-    for sub in ("linearize", "plant"):
-        for p in sorted((root / sub).glob("*.py")):
-            h.update(p.name.encode())
-            h.update(p.read_bytes())
+    # the family is computed by linearize/ and plant/, through design/margins.py's responses
+    files = [p for sub in ("linearize", "plant") for p in sorted((root / sub).glob("*.py"))]
+    for p in files + [root / "design" / "margins.py"]:
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    import control
+    import numpy
+    import scipy
+    h.update(f"numpy {numpy.__version__} scipy {scipy.__version__} control {control.__version__}".encode())
     return h.hexdigest()
 
 
@@ -66,6 +71,12 @@ def cached_family(key, cache_dir, compute):
         except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError):
             pass
     family = compute()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_bytes(path, pickle.dumps(family, protocol=pickle.HIGHEST_PROTOCOL))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_bytes(path, pickle.dumps(family, protocol=pickle.HIGHEST_PROTOCOL))
+    except OSError as err:       # a cache that cannot be written costs the next run time, never this run's work
+        import warnings
+        warnings.warn(f"family cache {path} not written ({err.strerror or err}); the next study recomputes it",
+                      RuntimeWarning, stacklevel=2)
+        return family, None, False
     return family, path, False
