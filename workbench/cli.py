@@ -167,7 +167,8 @@ def cmd_linearize(args):
     spec = FamilySpec(amplitudes_v=amps, freq_hz=tuple(np.geomspace(args.freq_min, args.freq_max, args.freq_points)),
                       bias_v=args.bias, cp_tolerance=args.cp_tolerance,
                       imbalance_tolerance_ohm=args.imbalance_tolerance)
-    data = run_linearize(args.plant, args.serials, args.controller, spec, args.out, progress=_progress_bar)
+    data = run_linearize(args.plant, args.serials, args.controller, spec, args.out, progress=_progress_bar,
+                         allow_unstable=args.allow_unstable)
     u, c = data["uncertainty"], data["capacitances"]
     lines = [
         f"{data['serial']}: linearized over {len(amps)} amplitudes x {args.freq_points} frequencies at bias "
@@ -402,6 +403,8 @@ def build_parser():
     p.add_argument("--cp-tolerance", type=float, default=0.2, help="relative C_p tolerance, default 0.2")
     p.add_argument("--imbalance-tolerance", type=_quantity("ohm"), default=0.4,
                    help="per-arm bridge imbalance tolerance, default 0.4ohm")
+    p.add_argument("--allow-unstable", action="store_true",
+                   help="analyse a --controller with poles on or outside the unit circle (refused otherwise)")
     p.add_argument("--out", type=Path, help="folder for the figures")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
     p.set_defaults(func=cmd_linearize)

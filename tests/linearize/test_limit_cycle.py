@@ -94,3 +94,20 @@ def test_controller_file_errors(tmp_path):
     assert complex(np.squeeze(c(z))) == pytest.approx(2 * (1 + 0.5 / z) / (1 - 0.5 / z) * (1 / z) / (1 - 1 / z))
     assert c.dt == pytest.approx(1e-4)
     assert isinstance(c, control.TransferFunction)
+
+
+def test_an_unstable_controller_is_analysed_only_when_asked(tmp_path):
+    # linearize is an analysis run: --allow-unstable (allow_unstable) lets it study a controller with a
+    # pole outside the unit circle, which every other path refuses
+    import json
+    from workbench.controller import ControllerError
+    from ..conftest import ROOT
+    d = json.loads((ROOT / "controllers" / "sn637_loopshape.json").read_text())
+    d["sos"][0] = [1.0, 0.0, 0.0, 1.0, -1.5, 0.0]          # a pole at z = 1.5
+    d.pop("fixed_point")
+    path = tmp_path / "unstable.json"
+    path.write_text(json.dumps(d))
+    with pytest.raises(ControllerError, match="--allow-unstable"):
+        load_controller(path)
+    ctrl = load_controller(path, allow_unstable=True)
+    assert max(abs(p) for p in ctrl.poles()) == pytest.approx(1.5, rel=1e-9)

@@ -42,8 +42,12 @@ def _small_signal_rows(pzt, biases_v, v_range):
 
 
 def run_linearize(plant_path, serial_paths=(), controller_path=None, spec=FamilySpec(), out_dir=None,
-                  delay_samples=1, progress=None):
-    """Linearize ``plant_path``; the family spans it and ``serial_paths``. Returns the JSON dict."""
+                  delay_samples=1, progress=None, allow_unstable=False):
+    """Linearize ``plant_path``; the family spans it and ``serial_paths``. Returns the JSON dict.
+
+    ``allow_unstable``: analyse a controller with poles on or outside the unit circle (an
+    analysis run may study one; verify and export refuse it).
+    """
     from ..report.linearize_figures import (plot_capacitances, plot_df_bode, plot_nyquist, plot_sampled,
                                             plot_uncertainty)
     plant = load_plant(plant_path)
@@ -106,7 +110,7 @@ def run_linearize(plant_path, serial_paths=(), controller_path=None, spec=Family
         "figures": {},
     }
     if controller_path is not None:
-        ctrl = load_controller(controller_path)
+        ctrl = load_controller(controller_path, allow_unstable=allow_unstable)
         if abs(ctrl.dt - g.period_s) > 1e-12 * g.period_s:
             from ..errors import DataFileError
             raise DataFileError(f"{controller_path}: sample rate {1 / ctrl.dt:g} Hz differs from the servo rate "
