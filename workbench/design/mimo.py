@@ -11,8 +11,9 @@ decoupled plant G_dec = K diag(1/K_g) G_gv diag(1/p) K^-1 has DC gain I on the n
 
 **Per-axis loops.** Tip, tilt and piston each get the structured controller of
 :mod:`~workbench.design.loopshape` (PI + lead + roll-off [+ notch]), tuned with
-:func:`~workbench.design.loopshape.tune_loop_shape` on that axis' diagonal of the decoupled
-family (every member, sampled chain: hold, period-averaging gauge, compute delay).
+:func:`~workbench.design.loopshape.tune_loop_shape` shape by shape on that axis' diagonal of the
+decoupled family (every member, sampled chain: hold, period-averaging gauge, compute delay); the
+shape whose worst member's closed-loop bandwidth is highest wins.
 
 **Notch-only design**: a notch at each axis' structural resonance (the largest peak of the
 nominal diagonal above 100 Hz; width to cover its spread over the family).
@@ -48,9 +49,10 @@ from slycot import ab13md
 from ..linearize.limit_cycle import sampled_factor
 from ..linearize.mimo import gauge_gains
 from .antiwindup import discretize
-from .loopshape import LoopShapeSpec, tune_loop_shape
+from ..errors import DesignError
+from .loopshape import LoopShapeSpec, family_loops, tune_loop_shape
 from .margins import family_margins, loop_margins, response
-from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, minimal
+from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
 __all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "IFF", "iff_response",
            "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "loop_at_a_time", "MimoDesign",
@@ -202,7 +204,7 @@ def _inner_ok(f, loop, pm_deg, gm_db):
     return True
 
 
-def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, corner_ratio=0.01,
+def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, corner_ratio=0.001,
              pm_deg=45.0, gm_db=6.0):
     """IFF gain maximizing the smallest damping ratio of the target modes on the nominal member.
 
@@ -402,6 +404,37 @@ def _axis_notch(f, nominal_diag, family_diags, depth_db):
     return (float(fn), float(depth_db), float(width))
 
 
+def _siso_bandwidth_hz(f, loop):
+    """First frequency where |L / (1 + L)| falls below 1/sqrt(2), Hz."""
+    return closed_loop_bandwidth_hz(f, np.asarray(loop)[:, None, None])[0]
+
+
+def _tune_axis(f, members, nominal, spec):
+    """:func:`tune_loop_shape` per shape of ``spec``; the shape whose worst member's closed-loop bandwidth is highest.
+
+    The SISO tuner ranks shapes by the members' highest gain crossover, which a loop whose |L|
+    hovers near 1 over a band (a lead on a flat plant) wins without tracking anything there;
+    the closed-loop bandwidth cannot be gamed that way. Ties: the larger worst disk margin.
+    """
+    best = None
+    for ri in spec.integral_ratios:
+        for al in spec.lead_ratios:
+            for rr in spec.rolloff_ratios:
+                one = replace(spec, integral_ratios=(ri,), lead_ratios=(al,), rolloff_ratios=(rr,))
+                try:
+                    res = tune_loop_shape(f, members, nominal, one)
+                except DesignError:
+                    continue
+                loops = family_loops(res.controller_d, f, members, spec.delay_samples)
+                bw = min(_siso_bandwidth_hz(f, l) for l in loops.values())
+                key = (bw, res.worst["disk_margin"]["value"])
+                if best is None or key > best[0]:
+                    best = (key, res)
+    if best is None:
+        raise DesignError("no shape meets the margins on every member of this axis; lower the targets")
+    return best[1]
+
+
 # integral-dominated PIs only (r_i <= 1; the SISO lead and roll-off grid): the decoupled (and more so
 # the damped) plant is flat over the servo band, where a PI zero below crossover lets |L| hover near 1
 # over a band, and the tuner (which ranks a shape by its members' highest crossover) prefers such loops
@@ -440,12 +473,13 @@ def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_
     axes, notches = {}, {}
     for a, ax in enumerate(AXIS_NAMES):
         members = {n: p[:, a, a] for n, p in plants.items()}
-        nom_axis, _ = minimal(control.ss(nom_dec[a, a]))
+        # creep truncated as design.nominal does, but never the IFF's own slow poles (its shelf sets the band's gain)
+        nom_axis, _ = minimal(control.ss(nom_dec[a, a]), SLOW_HZ if iff is None else min(SLOW_HZ, iff.corner_hz / 10))
         nt = None if damping else _axis_notch(f, plants[nominal_name()][:, a, a] if nominal_name() in plants
                                                 else members[next(iter(members))], list(members.values()),
                                                 notch_depth_db)
         notches[ax] = nt
-        axes[ax] = tune_loop_shape(f, members, nom_axis, replace(spec, notch=nt))
+        axes[ax] = _tune_axis(f, members, nom_axis, replace(spec, notch=nt))
         if progress is not None:
             progress(a + 1, 3)
     ctrl = np.array([response(axes[ax].controller_d, f) for ax in AXIS_NAMES]).T   # (freqs, 3)
