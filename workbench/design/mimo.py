@@ -26,11 +26,12 @@ T x_dyn) / C_pp, x = x_dyn + r F, C_pp = C_p + T^2 r):
     F_hat = T (q - T x) / C_p,
 
 and each stack's voltage gets v_j = v_outer,j - g s / (s + w_l) F_hat_j: the amplifier's R in series
-with the stack's capacitance integrates the command into charge, so a gain high-passed at w_l (a
-decade below the lowest mode; no force loop at DC) is integral force feedback. The gain g is the one that maximizes the smallest damping ratio of
-the mirror's modes on the nominal member, with the firmware's two-sample loop delay (Pade) in
-the loop, and that keeps every small-signal member stable. The outer loops are then tuned on the
-damped family, without a notch.
+with the stack's capacitance integrates the command into charge, so a gain high-passed at w_l
+(0.1 % of the lowest flexure mode: no force loop at DC, and its shelf under the outer integrator)
+is integral force feedback. The gain g maximizes the smallest damping ratio of the flexure modes
+on the nominal member, with the firmware's two-sample loop delay (Pade) in the loop, among the
+gains whose sampled IFF loops keep PM/GM and that keep every small-signal member stable. The
+outer loops are then tuned on the damped family, without a notch.
 
 **Margins.** Loop-at-a-time: axis i broken with the other two closed, l_i = L_ii - L_io (I +
 L_oo)^-1 L_oi (:func:`loop_at_a_time`). Simultaneous: the balanced (skew 0) multiloop disk
@@ -215,7 +216,6 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
         the axis resonances the gauges see, :func:`axis_resonances_hz`).
     corner_ratio : float
         High-pass corner w_l as a fraction of the lowest target mode.
-
     pm_deg, gm_db : float
         Margins each stack's sampled IFF loop must keep on the nominal member (others open,
         and others closed).
