@@ -161,5 +161,15 @@ def test_design_margins_over_the_family(fsm, family, damping):
     for disk in (d.disk_in, d.disk_out):
         assert disk["alpha"] >= 0.4
         assert disk["member"] in family
+    # closed-loop poles (continuous, Pade of the sampled chain's lag): stable on every member, and the
+    # smallest loop-at-a-time gain margin is where it stops being so (2.5 dB either side: Pade vs sampled)
+    for name, member in family.items():
+        assert mimo.closed_loop_poles(fsm, member, d).real.max() < 0, name
+    gm_db = min(d.lat[ax][1]["gain_margin_db"]["value"] for ax in mimo.AXIS_NAMES)
+    worst = family[d.lat[mimo.AXIS_NAMES[0]][1]["gain_margin_db"]["member"]]
+    for db, stable in ((gm_db - 2.5, True), (gm_db + 2.5, False)):
+        scaled = dataclasses.replace(d, axes={ax: dataclasses.replace(r, controller_c=r.controller_c * 10 ** (db / 20))
+                                              for ax, r in d.axes.items()})
+        assert (mimo.closed_loop_poles(fsm, worst, scaled).real.max() < 0) == stable, db
     # the firmware's gauge gains: the design uses the nominal chains
     assert np.allclose(np.linalg.inv(d.decoupler.out_q_per_v) @ fsm.kinematics, np.diag(gauge_gains(fsm)[:, 0]))

@@ -56,7 +56,7 @@ from .margins import family_margins, loop_margins, response
 from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
 __all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "IFF", "iff_response",
-           "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "loop_at_a_time", "MimoDesign",
+           "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
            "design_mimo", "MIMO_SPEC", "default_freq_hz", "nominal_name", "AXIS_NAMES"]
 
 G = ["g0", "g1", "g2"]
@@ -501,6 +501,42 @@ def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_
         return {"member": n, **res[n]}
     return MimoDesign(dec, iff, axes, notches, f, loop_in, loop_out, lat, worst_disk(loop_in), worst_disk(loop_out),
                       iff_info)
+
+
+def closed_loop_poles(fsm, member, design, dt_s=1e-4):
+    """Poles (rad/s) of ``member`` (a StateSpace) with the whole design closed, continuous approximation.
+
+    The axis controllers as designed in continuous time (before their prewarped Tustin map), the
+    IFF likewise, and the sampled chain (hold, averaging gauge, one sample of delay: two samples
+    of lag at low frequency) as a 2nd-order Pade of 2 dt_s in each loop. Independent of the
+    frequency-response margins, which take the closed loop's stability for granted.
+    """
+    t, cp = _force_consts(fsm)
+    st = fsm.structure()
+    n = st.n_states
+    gm = control.ss(member[G + X, V])
+    cq = np.zeros((3, gm.nstates))
+    cq[:, n:n + 3] = np.diag(cp + t * t * st.residual_compliance_m_per_n)
+    py = control.ss(gm.A, gm.B, np.vstack([gm.C, cq]), np.vstack([gm.D, np.zeros((3, 3))]))   # v -> (g, x, q)
+    m = np.zeros((6, 9))
+    m[:3, :3] = np.eye(3)
+    m[3:, 3:6] = -np.diag(t * t / cp)
+    m[3:, 6:] = np.diag(t / cp)
+    p6 = control.ss([], [], [], m) * py                                                       # v -> (g, F_hat)
+    num, den = control.pade(2 * dt_s, 2)
+    pade = control.ss(control.tf(num, den))
+    outer = control.append(*[control.ss(design.axes[ax].controller_c) * pade for ax in AXIS_NAMES])
+    k_out = control.ss([], [], [], design.decoupler.in_v_per_q) * outer * \
+        control.ss([], [], [], design.decoupler.out_q_per_v)
+    if design.iff is None:
+        k_in = control.ss([], [], [], np.zeros((3, 3)))
+    else:
+        c1 = control.ss(design.iff.tf()) * pade
+        k_in = control.append(c1, c1, c1)
+    k = control.ss(k_out.A, k_out.B, k_out.C, k_out.D)
+    k = control.append(k, k_in)                                       # (g, F_hat) -> (v from outer, v from IFF)
+    k = control.ss([], [], [], np.hstack([np.eye(3), np.eye(3)])) * k
+    return control.feedback(p6, k, sign=-1).poles()
 
 
 def comparison_markdown(notch, damped):
