@@ -1,0 +1,175 @@
+"""MIMO design of the three-stack mirror (issue 15 item 4): decoupling, margins two ways, IFF, the design's margins."""
+
+import dataclasses
+from pathlib import Path
+
+import control
+import numpy as np
+import pytest
+
+from workbench.design import mimo
+from workbench.design.margins import loop_margins
+from workbench.linearize.mimo import gauge_gains, mirror_family, structural_modes
+from workbench.linearize.small_signal import operating_point
+from workbench.plant.mirror import load_mirror
+
+ROOT = Path(__file__).resolve().parents[2]
+FSM = ROOT / "plants" / "fsm_p888_51.toml"
+# a lean grid: log 1 Hz - Nyquist, refined over the flexure modes
+FREQ = np.unique(np.concatenate([np.geomspace(1.0, 4900.0, 260), np.arange(700.0, 1300.0, 4.0)]))
+
+
+@pytest.fixture(scope="module")
+def fsm():
+    return load_mirror(FSM)
+
+
+@pytest.fixture(scope="module")
+def family(fsm):
+    # the nominal branch (ascending) and the reversal (the smallest C_h slope: the lowest gain)
+    return mirror_family(fsm, branches=("ascending", "reversal"))
+
+
+@pytest.mark.parametrize("scales", [(1.0, 1.0, 1.0), (1.0, 0.85, 1.15), (1.2, 0.8, 0.95)])
+def test_decoupled_dc_gain(fsm, scales):
+    """Nominal member: G_dec(0) = I. Another branch: K diag(p_j / p_nom,j) K^-1 (closed form from the x outputs)."""
+    m = fsm.with_capacitance_scales(scales)
+    fam = mirror_family(m, branches=("ascending", "reversal"))
+    nom = fam[mimo.nominal_name()]
+    dec = mimo.kinematic_decoupler(m, nom)
+    g_dc = np.asarray(nom[mimo.G, mimo.V].dcgain())
+    assert np.allclose(dec.out_q_per_v @ g_dc @ dec.in_v_per_q, np.eye(3), atol=1e-5)   # the DC solve of a 13-state model: ~1e-6
+    other = fam["reversal at 50 V, K_g nom"]
+    ratio = np.diag(other[mimo.X, mimo.V].dcgain()) / np.diag(nom[mimo.X, mimo.V].dcgain())
+    expect = m.kinematics @ np.diag(ratio) @ m.inverse_kinematics
+    got = dec.out_q_per_v @ np.asarray(other[mimo.G, mimo.V].dcgain()) @ dec.in_v_per_q
+    assert np.allclose(got, expect, atol=1e-5 * np.abs(expect).max())
+    if len(set(scales)) > 1:    # unequal hysteresis: the branch member couples the axes
+        assert np.abs(got - np.diag(np.diag(got))).max() > 1e-3
+
+
+def test_force_estimate_dc_is_static_stiffness(fsm, family):
+    """F_hat = T (q - T x) / C_p at DC equals the structure's static stiffness at each stack times x (closed form)."""
+    kp = np.array([pz.stiffness_n_per_m for pz in fsm.stacks])
+    ks, kg, a = fsm.series_stiffness_n_per_m, fsm.guide_stiffness_n_per_m, fsm.amplification
+    k_u = ks * kp / (ks + kp) + a * a * kg
+    beta = ks / (kp + ks)
+    k_static = 1.0 / (1.0 / (kp + ks) + beta ** 2 / k_u)
+    for name, member in family.items():
+        # 10 mHz: quasi-static (the slowest pole is at 190 Hz), above where q = i / (j w) loses digits
+        fh = mimo.force_estimate(fsm, member, [1e-2])[0]
+        x = mimo.member_responses(member, [1e-2], mimo.X)[0]
+        assert np.allclose(np.diag(fh) / np.diag(x), k_static, rtol=1e-4), name
+        assert np.abs(fh - np.diag(np.diag(fh))).max() < 1e-5 * np.abs(np.diag(fh)).max()   # stacks decouple statically
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_loop_at_a_time_is_the_schur_complement(seed):
+    """With the other loops closed, channel i's sensitivity 1 / (1 + l_i) is [(I + L)^-1]_ii."""
+    rng = np.random.default_rng(seed)
+    loop = rng.normal(size=(50, 3, 3)) * 10 ** rng.uniform(-1, 1, (50, 1, 1)) + 1j * rng.normal(size=(50, 3, 3))
+    l_i = mimo.loop_at_a_time(loop)
+    s = np.linalg.inv(np.eye(3)[None] + loop)
+    assert np.allclose(1.0 / (1.0 + l_i), np.einsum("fii->fi", s), rtol=1e-9, atol=1e-12)
+
+
+def test_disk_margin_siso_and_diagonal_agree_with_loop_margins():
+    """1x1 and diagonal loops: mu = sigma = |S - 1/2|, alpha = the worst channel's SISO disk margin."""
+    f = np.geomspace(0.1, 1000.0, 4001)
+    s = 2j * np.pi * f
+    chans = [w / (s * (1 + s / 200.0)) for w in (100.0, 300.0, 600.0)]
+    siso = [loop_margins(f, c).disk_margin for c in chans]
+    for c, alpha in zip(chans, siso):
+        assert mimo.mimo_disk_margin(f, c[:, None, None])["alpha"] == pytest.approx(alpha, rel=1e-4)
+    diag = np.zeros((f.size, 3, 3), complex)
+    for i, c in enumerate(chans):
+        diag[:, i, i] = c
+    dm = mimo.mimo_disk_margin(f, diag)
+    assert dm["alpha"] == pytest.approx(min(siso), rel=1e-4)
+    assert dm["alpha_unstructured"] == pytest.approx(dm["alpha"], rel=1e-6)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_disk_margin_full_loop_agrees_with_python_control(seed):
+    """Coupled 3x3 loop: alpha as python-control's disk_margins computes it; the unstructured bound below it."""
+    rng = np.random.default_rng(seed)
+    p = control.rss(4, 3, 3, strictly_proper=True)
+    while np.any(p.poles().real > -1e-3):
+        p = control.rss(4, 3, 3, strictly_proper=True)
+    k = control.ss([], [], [], 0.3 * np.eye(3) + 0.2 * rng.normal(size=(3, 3)))
+    loop = p * k
+    w = np.geomspace(1e-2, 1e3, 600)
+    resp = np.moveaxis(np.asarray(loop(1j * w)), -1, 0)
+    dm = mimo.mimo_disk_margin(w / (2 * np.pi), resp)
+    ref = control.disk_margins(loop, w)[0]
+    assert dm["alpha"] == pytest.approx(ref, rel=1e-6)
+    assert dm["alpha_unstructured"] <= dm["alpha"] * (1 + 1e-9)
+
+
+def test_notch_sits_on_the_flexure_modes(fsm, family):
+    """The decoupled axes' resonance peaks are the amplifier-terminated tip, tilt and piston modes (poles)."""
+    nom = family[mimo.nominal_name()]
+    peaks = mimo.axis_resonances_hz(fsm, nom)
+    caps = [operating_point(pz, 50.0, "ascending").capacitance_f for pz in fsm.stacks]
+    modes, _ = structural_modes(fsm, "amplifier", caps)
+    flex = np.sort(modes)[-3:]                       # piston, tip, tilt (the housing's two lie below)
+    assert peaks[2] == pytest.approx(flex[0], rel=0.02)
+    assert peaks[0] == pytest.approx(flex[1], rel=0.02)
+    assert peaks[1] == pytest.approx(flex[2], rel=0.02)
+
+
+def _torque_to_tip(fsm, member, f, iff):
+    """tau_x -> tip_rad with the IFF loop closed (frequency domain, sampled IFF), rad per N m."""
+    s = 2j * np.pi * f
+    t = np.array([pz.transducer_constant_n_per_v for pz in fsm.stacks])
+    cp = np.array([pz.working_capacitance_f for pz in fsm.stacks])
+    def resp(outs, ins):
+        return np.moveaxis(np.asarray(member[outs, ins](s)).reshape(len(outs), len(ins), f.size), -1, 0)
+    def fhat(ins):
+        return (t / cp)[None, :, None] * (resp(mimo.I_, ins) / s[:, None, None] - t[None, :, None] * resp(mimo.X, ins))
+    direct = resp(["tip_rad"], ["tau_x"])[:, 0, 0]
+    if iff is None:
+        return direct
+    c = mimo.iff_response(iff, f, 1e-4)[:, None, None]
+    v = -np.linalg.solve(np.eye(3)[None] + c * fhat(mimo.V), c * fhat(["tau_x"]))      # stack voltages per N m
+    return direct + (resp(["tip_rad"], mimo.V) @ v)[:, 0, 0]
+
+
+def test_iff_damps_the_flexure_modes(fsm, family):
+    """IFF from charge + gauge raises the flexure modes' damping (poles) and cuts the mirror's tip compliance peak."""
+    nom = family[mimo.nominal_name()]
+    iff, info = mimo.tune_iff(fsm, family)
+    assert info["zeta_min_damped"] > 1.5 * info["zeta_min_open"]
+    f = np.arange(950.0, 1200.0, 0.5)
+    peaks = [np.abs(_torque_to_tip(fsm, nom, f, d)).max() for d in (None, iff)]
+    # a resonance's peak scales as 1 / zeta: the pole damping's gain shows in the disturbance response
+    assert peaks[1] < peaks[0] / 1.5, peaks
+
+
+@pytest.mark.parametrize("damping", [False, True])
+def test_design_margins_over_the_family(fsm, family, damping):
+    """Per-axis design on the diagonal keeps PM 45 / GM 6 loop-at-a-time (MIMO) and alpha >= 0.4 simultaneous."""
+    # a reduced shape grid (the margins must hold for whatever shape wins)
+    spec = dataclasses.replace(mimo.MIMO_SPEC, fc_points=12, integral_ratios=(0.25, 1.0), rolloff_ratios=(8.0,))
+    d = mimo.design_mimo(fsm, family, damping=damping, freq_hz=FREQ, spec=spec)
+    for ax in mimo.AXIS_NAMES:
+        rows, worst = d.lat[ax]
+        assert len(rows) == len(family)
+        assert abs(worst["phase_margin_deg"]["value"]) >= 45.0 - 0.5
+        assert abs(worst["gain_margin_db"]["value"]) >= 6.0 - 0.1
+        assert (d.notches[ax] is None) == damping
+    for disk in (d.disk_in, d.disk_out):
+        assert disk["alpha"] >= 0.4
+        assert disk["member"] in family
+    # closed-loop poles (continuous, Pade of the sampled chain's lag): stable on every member, and the
+    # smallest loop-at-a-time gain margin is where it stops being so (2.5 dB either side: Pade vs sampled)
+    for name, member in family.items():
+        assert mimo.closed_loop_poles(fsm, member, d).real.max() < 0, name
+    gm_db = min(d.lat[ax][1]["gain_margin_db"]["value"] for ax in mimo.AXIS_NAMES)
+    worst = family[d.lat[mimo.AXIS_NAMES[0]][1]["gain_margin_db"]["member"]]
+    for db, stable in ((gm_db - 2.5, True), (gm_db + 2.5, False)):
+        scaled = dataclasses.replace(d, axes={ax: dataclasses.replace(r, controller_c=r.controller_c * 10 ** (db / 20))
+                                              for ax, r in d.axes.items()})
+        assert (mimo.closed_loop_poles(fsm, worst, scaled).real.max() < 0) == stable, db
+    # the firmware's gauge gains: the design uses the nominal chains
+    assert np.allclose(np.linalg.inv(d.decoupler.out_q_per_v) @ fsm.kinematics, np.diag(gauge_gains(fsm)[:, 0]))
