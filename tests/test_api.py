@@ -19,7 +19,8 @@ def test_every_public_name_resolves_and_verify_is_the_function():
         assert "none.toml" in str(err)
     else:
         raise AssertionError("a missing plant file must raise")
-    assert wb.calibrate.__name__ == "run_calibrate"
+    import workbench.calibrate.record  # noqa: F401  -- importing the subpackage must not shadow the API name
+    assert wb.calibrate_record.__name__ == "run_calibrate"
 
 
 def test_the_api_does_not_import_the_cli():

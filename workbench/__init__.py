@@ -24,7 +24,8 @@ Controller
 Verification
     :func:`verify` -> :class:`VerifyResult`, :data:`SCENARIOS`
 Calibration
-    :func:`read_record`, :func:`calibrate`
+    :func:`read_record`, :func:`calibrate_record` (``workbench.calibrate.run.run_calibrate``; not
+    ``wb.calibrate``, which is the subpackage once any of its modules is imported)
 Errors
     :class:`WorkbenchError` (every error a user's input can cause), :class:`ControllerError`
 """
@@ -47,7 +48,7 @@ _API = {
     "reduce_controller": "design.reduce", "discretize": "design.antiwindup",
     "Controller": "controller", "ControllerError": "controller", "to_sos": "export", "quantize": "export",
     "verify": "verify", "VerifyResult": "verify.run", "SCENARIOS": "verify.scenarios",
-    "read_record": "calibrate.record", "calibrate": ("calibrate.run", "run_calibrate"),
+    "read_record": "calibrate.record", "calibrate_record": ("calibrate.run", "run_calibrate"),
     "WorkbenchError": "errors",
 }
 
