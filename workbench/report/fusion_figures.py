@@ -21,7 +21,8 @@ def plot_fusion(data, path):
     fc = data["blend"]["crossover_hz"]
     fig, (ax1, ax2, ax3) = plt.subplots(1, 3, figsize=(15, 4.8))
     f = a["freq_hz"]
-    ax1.loglog(f, np.sqrt(a["s_gauge"]) * NM, color="C0", label=f"gauge (white, {data['noise_per_sample_m']['gauge'] * NM:.1f} nm per sample)")
+    sg = data["noise_per_sample_m"]["gauge"] * NM
+    ax1.loglog(f, np.sqrt(a["s_gauge"]) * NM, color="C0", label=f"gauge (white, {sg:.1f} nm per sample)")
     ax1.loglog(f, np.sqrt(a["s_charge"]) * NM, color="C1", label="charge estimate (drift + noise)")
     ax1.loglog(f, np.sqrt(a["s_fused"]) * NM, color="k", lw=1.6, label=f"fused, blend at {fc:.2f} Hz")
     ax1.axvline(fc, color="0.5", ls=":", lw=1)
@@ -64,7 +65,8 @@ def _report(data, figure):
     lines = ["# Fused gauge + charge feedback", "",
              f"Plant `{data['plant']}`, stroke {data['stroke_m'] * 1e6:.2f} um, servo {data['sample_hz']:.0f} Hz.", "",
              f"Blend crossover **{b['crossover_hz']:.3g} Hz** (minimum of the fused error over "
-             f"{b['band_hz'][0]:.3g}-{b['band_hz'][1]:.0f} Hz; drift spectrum from a {b['drift_record_s']:.0f} s staircase, "
+             f"{b['band_hz'][0]:.3g}-{b['band_hz'][1]:.0f} Hz; drift spectrum from a {b['drift_record_s']:.0f} s "
+             f"staircase, "
              f"stage-4 error {b['drift_record_pp_m'] * NM:.1f} nm p-p). Error RMS over that band: gauge "
              f"{b['gauge_error_rms_m'] * NM:.2f} nm, charge {b['charge_error_rms_m'] * NM:.2f} nm, fused "
              f"{b['fused_error_rms_m'] * NM:.2f} nm.", "",

@@ -188,7 +188,8 @@ def run_fused(args):
             raise DataFileError(f"{pth}: no such controller JSON; give e.g. controllers/sn637_loopshape.json "
                                 f"(--controller) and controllers/sn637_fused_loopshape.json (--fused-controller)")
     data = run_fused_study(args.plant, gauge_controller=args.controller, fused_controller=args.fused_controller,
-                           seed=args.seed, hold_s=args.hold, progress=lambda stage: print(f"  ... {stage}", file=sys.stderr, flush=True))
+                           seed=args.seed, hold_s=args.hold,
+                           progress=lambda stage: print(f"  ... {stage}", file=sys.stderr, flush=True))
     if args.out is not None:
         from ..report.fusion_figures import write_fused_outputs
         data["figures"] = write_fused_outputs(Path(args.out), data)
@@ -200,7 +201,8 @@ def run_fused(args):
     for r in data["closed_loops"]:
         m = r["margins"]
         lines.append(f"  {r['sensor']}: crossover {m['crossover_hz']:.0f} Hz, PM {m['phase_margin_deg']:.1f} deg, "
-                     f"GM {m['gain_margin_db']:.1f} dB; triangle {r['triangle_rms_percent_stroke']:.4f} % of stroke RMS; "
+                     f"GM {m['gain_margin_db']:.1f} dB; triangle {r['triangle_rms_percent_stroke']:.4f} % of stroke "
+                     f"RMS; "
                      f"hold drift {r['hold_drift_m'] * 1e9:+.2f} nm over {r['hold_s']:.0f} s; noise "
                      f"{r['hold_noise_rms_m'] * 1e9:.2f} nm RMS")
     if "targets_met" in data:
