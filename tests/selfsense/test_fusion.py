@@ -99,7 +99,8 @@ def test_fused_loop_has_charge_noise_and_gauge_drift(loop_parts):
     from workbench.selfsense.fused_loop import closed_loop_run
     plant, amp, ident, ctrl, ctrl_g, e_d = loop_parts
     kw = dict(triangle_hz=0.5, triangle_periods=2, hold_s=3.0, stroke_m=15e-6, seed=7)
-    fused = closed_loop_run(plant, ident, amp, e_d, ctrl, sensor="fused", blend=Blend(1.0), **kw)
+    from workbench.selfsense.blend_fixed import FixedBlend
+    fused = closed_loop_run(plant, ident, amp, e_d, ctrl, sensor="fused", blend=FixedBlend(Blend(1.0)), **kw)
     gauge = closed_loop_run(plant, ident, amp, e_d, ctrl_g, sensor="gauge", **kw)    # each with its own design
     assert fused["hold_noise_rms_m"] < gauge["hold_noise_rms_m"] / 5
     assert abs(fused["hold_drift_m"]) < 3e-9
@@ -121,3 +122,61 @@ def test_cli_bad_input_exits_2(argv, needle, root, capsys, monkeypatch):
 def test_blend_rejects_a_crossover_above_nyquist():
     with pytest.raises(ValueError, match="Nyquist"):
         Blend(6000.0, 1e-4)
+
+
+C_MAIN = r"""
+#include <stdio.h>
+#include "fused_blend.h"
+int main(void) {
+    long n; long long y0; fused_blend_state s;
+    if (scanf("%ld %lld", &n, &y0) != 2) return 1;
+    s.y = y0;
+    for (long i = 0; i < n; i++) {
+        long g, c;
+        if (scanf("%ld %ld", &g, &c) != 2) return 1;
+        printf("%ld\n", (long)fused_blend_step(&s, (int32_t)g, (int32_t)c));
+    }
+    printf("%lld\n", (long long)s.y);
+    return 0;
+}
+"""
+
+
+@pytest.mark.parametrize("fc_hz, seed", [(0.05, 1), (0.89, 2), (12.0, 3), (150.0, 4)])
+def test_fixed_point_blend_bit_for_bit_with_its_c_header(fc_hz, seed, tmp_path):
+    """The C header compiled with gcc gives every output and the final state of FixedBlend.run, on records
+    with a sensor offset of microns, a drifting charge and noise of both signs; and the fixed point follows
+    the floating-point blend (with the quantized pole) within its truncation bound."""
+    import shutil
+    import subprocess
+    from workbench.selfsense.blend_fixed import FixedBlend, blend_header
+    if shutil.which("gcc") is None:
+        pytest.skip("no gcc: the header cannot be compiled here")
+    r = np.random.default_rng(seed)
+    n = 20000
+    x = 7e-6 + 6e-6 * np.sin(2 * np.pi * r.uniform(0.05, 5.0) * np.arange(n) * 1e-4)
+    fb = FixedBlend(Blend(fc_hz, 1e-4))
+    g = fb.counts(x + r.standard_normal(n) * 22e-9)
+    c = fb.counts(x - r.uniform(-10e-6, 10e-6) + np.linspace(0, r.uniform(-50e-9, 50e-9), n)
+                  + r.standard_normal(n) * 0.3e-9)
+    y0 = int(r.integers(-2 ** 36, 2 ** 36))
+    out, y_end = fb.run(g, c, y0=y0)
+    (tmp_path / "fused_blend.h").write_text(blend_header(fb))
+    (tmp_path / "main.c").write_text(C_MAIN)
+    subprocess.run(["gcc", "-std=c99", "-O2", "-Wall", "-Werror", "-o", str(tmp_path / "blend"),
+                    str(tmp_path / "main.c")], check=True, cwd=tmp_path)
+    stdin = f"{n} {y0}\n" + "\n".join(f"{a} {b}" for a, b in zip(g, c)) + "\n"
+    res = subprocess.run([str(tmp_path / "blend")], input=stdin, capture_output=True, text=True, check=True)
+    vals = np.array([int(v) for v in res.stdout.split()], dtype=np.int64)
+    assert np.array_equal(vals[:-1], out) and int(vals[-1]) == y_end
+    y, stepped = y0, []
+    for a, b in zip(g[:500], c[:500]):         # the per-sample step the closed loop runs is the same recursion
+        y, o = fb.step(y, a, b)
+        stepped.append(o)
+    assert np.array_equal(np.array(stepped), out[:500])
+    a_q = 1.0 - fb.k / 2 ** fb.coef_bits
+    d = (g - c).astype(float)
+    from scipy import signal as sps
+    y_f, _ = sps.lfilter([1 - a_q], [1, -a_q], d, zi=[a_q * y0 / 2 ** fb.frac_bits])
+    # the floor in the state update loses < 1 LSB of Q F per step: a bias below 1 / ((1 - a) 2^F) counts, + rounding
+    assert np.max(np.abs(out - (c + y_f))) <= 1.0 + 1.0 / ((1 - a_q) * 2 ** fb.frac_bits)

@@ -88,16 +88,29 @@ def _report(data, figure):
                      + f" (over {data['closed_loops'][-1]['hold_s']:.0f} s, target 1000 s); PM >= 45 / GM >= 6 dB "
                      + ("met" if tm["margins"] else "MISSED") + ".")
         lines.append("")
+    if "fixed_point" in b:
+        fp = b["fixed_point"]
+        lines += [f"Firmware blend: `fused_blend.h` (fixed point, k = {fp['k']} / 2^{fp['coef_bits']}, state "
+                  f"Q{fp['frac_bits']} of {fp['lsb_m']:.3g} m counts; bit for bit with "
+                  "`workbench.selfsense.blend_fixed.FixedBlend.run`).", ""]
     lines += [f"![fusion]({figure.rsplit('/', 1)[-1]})", ""]
     return "\n".join(lines)
 
 
 def write_fused_outputs(out, data):
-    """fused.png, fused_report.md and fused.json in ``out``; returns {"fused": path}."""
+    """fused.png, fused_report.md, fused.json and the blend's fixed-point C header fused_blend.h in ``out``;
+    returns {"fused": figure path, "header": header path}."""
     from pathlib import Path
+
+    from ..selfsense.blend_fixed import FixedBlend, blend_header
+    from ..selfsense.fusion import Blend
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    fixed = FixedBlend(Blend(data["blend"]["crossover_hz"], 1.0 / data["sample_hz"]))
+    write_text(out / "fused_blend.h", blend_header(fixed))
+    data["blend"]["fixed_point"] = {"k": fixed.k, "coef_bits": fixed.coef_bits, "frac_bits": fixed.frac_bits,
+                                    "lsb_m": fixed.lsb_m, "header": str(out / "fused_blend.h")}
     fig = plot_fusion(data, out / "fused.png")
     write_text(out / "fused_report.md", _report(data, fig))
     write_json(out / "fused.json", {k: v for k, v in data.items() if k != "_arrays"})
-    return {"fused": fig}
+    return {"fused": fig, "header": str(out / "fused_blend.h")}

@@ -56,8 +56,9 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
     controller : FirmwareController
         Its ``linear()`` discrete system is run; input firmware V (the gauge chain's gain), output V.
     sensor : {"gauge", "charge", "fused"}
-    blend : Blend
-        Needed for ``sensor="fused"``.
+    blend : Blend or FixedBlend
+        Needed for ``sensor="fused"``; a :class:`~.blend_fixed.FixedBlend` runs the firmware's
+        fixed-point step.
     stroke_m : float
         Stroke the triangle's 10-90 % refers to, m.
     hold_s : float
@@ -86,7 +87,9 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
     ea, eb, ec, edd = (np.asarray(m_, float) for m_ in (ed.A, ed.B, ed.C, ed.D))
     k_fw = gauge_gain_v_per_m(7.5e-6, plant.gauge)
     sigma_g = float(plant.gauge.noise_rms_m)
-    a_bl = blend.pole if blend is not None else 0.0
+    from .blend_fixed import FixedBlend
+    fixed = blend if isinstance(blend, FixedBlend) else None
+    a_bl = (fixed.blend if fixed else blend).pole if blend is not None else 0.0
     n_settle = int(round(settle_s / dt))
     n_tri = int(round(triangle_periods / triangle_hz / dt))
     n_hold = int(round(hold_s / dt))
@@ -121,9 +124,16 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
         elif sensor == "charge":
             reading = charge
         else:
-            diff = gauge - charge
-            y_bl = diff if y_bl is None else a_bl * y_bl + (1.0 - a_bl) * diff
-            reading = charge + y_bl
+            if fixed is not None:        # the firmware's fixed-point blend, on counts of fixed.lsb_m
+                gq, cq = int(round(gauge / fixed.lsb_m)), int(round(charge / fixed.lsb_m))
+                if y_bl is None:
+                    y_bl = (gq - cq) << int(fixed.frac_bits)
+                y_bl, fq = fixed.step(y_bl, gq, cq)
+                reading = fq * fixed.lsb_m
+            else:
+                diff = gauge - charge
+                y_bl = diff if y_bl is None else a_bl * y_bl + (1.0 - a_bl) * diff
+                reading = charge + y_bl
         if j == -1:
             ref0 = reading
         if j >= 0:
@@ -147,7 +157,8 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
     return {"sensor": sensor, "triangle_rms_m": float(np.sqrt(np.mean(e_tri ** 2))),
             "triangle_rms_percent_stroke": float(100 * np.sqrt(np.mean(e_tri ** 2)) / stroke_m),
             "hold_s": float(hold_s), "hold_drift_m": drift, "hold_noise_rms_m": noise, "stroke_m": float(stroke_m),
-            "blend_crossover_hz": None if blend is None else float(blend.crossover_hz),
+            "blend_crossover_hz": None if blend is None else float(getattr(blend, "blend", blend).crossover_hz),
+            "blend_fixed_point": fixed is not None,
             "t_s": t, "x_m": xs, "reading_m": rd, "reference_rel_m": r_rel}
 
 
@@ -188,6 +199,7 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     from ..design.margins import loop_margins
     from ..plant.files import load_plant
     from ..verify.run import load_controller_json
+    from .blend_fixed import FixedBlend
     from .charge_amp import ChargeAmpParams
     from .fusion import (Blend, choose_crossover, drift_record, fused_error_variance, fused_noise_rms_per_sample,
                          fused_psd, sensor_spectra)
@@ -228,7 +240,7 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     rows, arrays = [], {}
     for s in sensors:
         say(f"closed loop: {s}")
-        r = closed_loop_run(plant, ident, amp, e_dyn, c_g if s == "gauge" else c_f, sensor=s, blend=blend,
+        r = closed_loop_run(plant, ident, amp, e_dyn, c_g if s == "gauge" else c_f, sensor=s, blend=FixedBlend(blend),
                             stroke_m=stroke, triangle_hz=triangle_hz, triangle_periods=triangle_periods,
                             hold_s=hold_s, seed=seed + 2)
         arrays[s] = {k: v for k, v in r.items() if isinstance(v, np.ndarray)}
