@@ -48,6 +48,7 @@ class Blend:
 
     @property
     def omega_rad_s(self):
+        """w_c = 2 pi f_c, rad/s."""
         return 2 * np.pi * self.crossover_hz
 
     def low(self):
