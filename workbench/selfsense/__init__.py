@@ -4,12 +4,16 @@
 (eqs. 2.5-2.9, 2.30) and dynamic (eqs. 2.42-2.48) estimators; :mod:`.identify` the
 identification of sec. 2.3.2 on a simulated record; :mod:`.run` the staged study behind
 `workbench selfsense` (:mod:`.command`); :mod:`.force` force and elongation from V_t and the
-charge (`--force`); :mod:`.sysid` K D(s) and H(s) identified from a step record (`--dynamics`).
+charge (`--force`); :mod:`.sysid` K D(s) and H(s) identified from a step record (`--dynamics`);
+:mod:`.fusion` the complementary gauge + charge blend and :mod:`.fused_loop` the three sensors'
+closed loops (`--fused`).
 """
 
 from .charge_amp import ChargeAmpParams, ChargeAmpStream, ChargeRecord, measure
 from .estimator import (EstimatorParams, ResidualCorrection, StreamingEstimator, band_limited, dynamic_estimator,
                         dynamic_gains, static_estimate)
+from .fused_loop import closed_loop_run, run_fused_study
+from .fusion import Blend, choose_crossover, sensor_spectra
 from .force import ForceEstimate, estimate_force, run_force_study, staged_charge
 from .identify import Identified, identify, simulate_identification
 from .sysid import IdentifiedDynamics, fit_relaxations, identify_dynamics, identified_estimator, run_dynamics_study
@@ -18,4 +22,4 @@ __all__ = ["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure", "Est
            "StreamingEstimator", "band_limited", "static_estimate", "dynamic_gains", "dynamic_estimator",
            "Identified", "identify", "simulate_identification", "ForceEstimate", "estimate_force", "staged_charge",
            "run_force_study", "IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
-           "run_dynamics_study"]
+           "run_dynamics_study", "Blend", "sensor_spectra", "choose_crossover", "closed_loop_run", "run_fused_study"]

@@ -11,7 +11,7 @@ from pathlib import Path
 from ..errors import DataFileError, WorkbenchError
 from ..units import parse_quantity
 
-__all__ = ["add_parser", "run", "run_force", "run_dynamics", "main"]
+__all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused", "main"]
 
 
 def add_parser(sub):
@@ -43,6 +43,16 @@ def add_parser(sub):
                    help="the estimator's K D(s) and H(s) identified from a step record instead of the displacement "
                         "stages; both dynamic estimators scored on a staircase; writes dynamics.png, "
                         "dynamics_report.md and dynamics.json with --out")
+    p.add_argument("--fused", action="store_true",
+                   help="fused gauge + charge feedback instead of the displacement stages: the blend's crossover "
+                        "from the two sensors' error spectra, the gauge, charge and fused closed loops on the "
+                        "nonlinear plant side by side (0.1 Hz triangle, then a --hold); writes fused.png, "
+                        "fused_report.md and fused.json with --out")
+    p.add_argument("--fused-controller", type=Path, default=None,
+                   help="controller JSON designed on the fused signal (default controllers/sn637_fused_loopshape.json)")
+    p.add_argument("--hold", type=_quantity("s"), default=100.0,
+                   help="hold after the triangle in the --fused closed loops (default 100s; the target is set "
+                        "for 1000s, ~25 min per sensor)")
     p.add_argument("--step-force", type=_quantity("N"), default=-100.0,
                    help="force step of the --force study (default -100N: compression is negative)")
     p.set_defaults(func=run)
@@ -79,8 +89,10 @@ def run(args):
                             f"e.g. plants/p888_51_sn637_creep.toml")
     if args.out is not None and Path(args.out).exists() and not Path(args.out).is_dir():
         raise DataFileError(f"--out {args.out}: exists and is not a folder; give a folder path")
-    if getattr(args, "force", False) and getattr(args, "dynamics", False):
-        raise DataFileError("--force and --dynamics are separate studies; give one of them")
+    if sum(bool(getattr(args, k, False)) for k in ("force", "dynamics", "fused")) > 1:
+        raise DataFileError("--force, --dynamics and --fused are separate studies; give one of them")
+    if getattr(args, "fused", False):
+        return run_fused(args)
     if getattr(args, "force", False):
         return run_force(args)
     if getattr(args, "dynamics", False):
@@ -161,6 +173,45 @@ def run_dynamics(args):
                  f"{c['ratio_rms_identified_over_model']:.2f}, {'met' if data['target_met'] else 'MISSED'}")
     if args.out is not None:
         lines.append(f"  report {Path(args.out) / 'dynamics_report.md'}, figure {Path(args.out) / 'dynamics.png'}")
+    _emit(args, data, lines)
+
+
+def run_fused(args):
+    """`workbench selfsense --fused`: the blend and the three sensors' closed loops, printed."""
+    import sys
+
+    from .fused_loop import run_fused_study
+    if not args.hold >= 3.0:
+        raise DataFileError(f"--hold must be at least 3s (1 s settling and two 1 s windows); got {args.hold:g} s")
+    for pth in (args.controller, args.fused_controller):
+        if pth is not None and not Path(pth).is_file():
+            raise DataFileError(f"{pth}: no such controller JSON; give e.g. controllers/sn637_loopshape.json "
+                                f"(--controller) and controllers/sn637_fused_loopshape.json (--fused-controller)")
+    data = run_fused_study(args.plant, gauge_controller=args.controller, fused_controller=args.fused_controller,
+                           seed=args.seed, hold_s=args.hold,
+                           progress=lambda stage: print(f"  ... {stage}", file=sys.stderr, flush=True))
+    if args.out is not None:
+        from ..report.fusion_figures import write_fused_outputs
+        data["figures"] = write_fused_outputs(Path(args.out), data)
+    data.pop("_arrays")
+    b = data["blend"]
+    lines = [f"{args.plant}: fused feedback, blend crossover {b['crossover_hz']:.3g} Hz (error RMS gauge "
+             f"{b['gauge_error_rms_m'] * 1e9:.2f} nm, charge {b['charge_error_rms_m'] * 1e9:.2f} nm, fused "
+             f"{b['fused_error_rms_m'] * 1e9:.2f} nm)"]
+    for r in data["closed_loops"]:
+        m = r["margins"]
+        lines.append(f"  {r['sensor']}: crossover {m['crossover_hz']:.0f} Hz, PM {m['phase_margin_deg']:.1f} deg, "
+                     f"GM {m['gain_margin_db']:.1f} dB; triangle {r['triangle_rms_percent_stroke']:.4f} % of stroke "
+                     f"RMS; "
+                     f"hold drift {r['hold_drift_m'] * 1e9:+.2f} nm over {r['hold_s']:.0f} s; noise "
+                     f"{r['hold_noise_rms_m'] * 1e9:.2f} nm RMS")
+    if "targets_met" in data:
+        met = lambda b_: "met" if b_ else "MISSED"    # noqa: E731
+        tm = data["targets_met"]
+        lines.append(f"  targets (fused): triangle <= 0.01 % {met(tm['triangle'])}, hold drift <= 1 nm "
+                     f"{met(tm['hold_drift'])}, PM >= 45 / GM >= 6 dB {met(tm['margins'])}")
+    if args.out is not None:
+        lines.append(f"  report {Path(args.out) / 'fused_report.md'}, figure {Path(args.out) / 'fused.png'}")
     _emit(args, data, lines)
 
 
