@@ -143,6 +143,13 @@ def test_loop_with_the_self_sensed_signal(study):
     # no half-period averaging in the charge path: a little more phase than the gauge chain, same crossover
     assert ms["phase_margin_deg"] >= mg["phase_margin_deg"]
     assert ms["crossover_hz"] == pytest.approx(mg["crossover_hz"], rel=0.05)
+    # the gauge loop is the study's nominal loop (one definition, design/nominal.py): same margins
+    from workbench.controller import Controller
+    from workbench.design.nominal import nominal_margins, nominal_plant
+    from workbench.plant import load_plant
+    nom = nominal_margins(Controller.load(lp["controller"]).as_lti(), nominal_plant(load_plant(study["plant"])))
+    assert mg["phase_margin_deg"] == pytest.approx(nom.phase_margin_deg, abs=0.2)
+    assert mg["crossover_hz"] == pytest.approx(nom.crossover_hz, rel=0.01)
     assert lp["estimate_over_true_max_dev_0p1_1khz"] < 0.02
     # E has the stack's mode and nothing else that matters: minimal realization of 4 states at most
     assert lp["e_states_minimal"] <= 4 and max(lp["e_poles_hz"]) == pytest.approx(70e3, rel=1e-3)

@@ -107,9 +107,10 @@ def loop_analysis(plant, ident, amp, controller_path=DEFAULT_CONTROLLER, bias_v=
     alpha_id/alpha and two nearly cancelled slow pole-zero pairs: the dynamic part has
     nothing to correct in the servo band because the charge already tracks x there.
     """
-    from ..linearize.sampled import compute_delay, firmware_plant, gauge_gain_v_per_m
+    from ..linearize.sampled import compute_delay, gauge_gain_v_per_m
     from ..linearize.small_signal import operating_point, small_signal_model
     from ..design.margins import margins_of
+    from ..design.nominal import nominal_plant
     from ..verify.run import load_controller_json
 
     pzt, g = plant.pzt, plant.gauge
@@ -139,7 +140,7 @@ def loop_analysis(plant, ident, amp, controller_path=DEFAULT_CONTROLLER, bias_v=
     sens = control.ss(e) * ps_true * vt_of_vpea                          # V_pea -> delta_d (continuous E)
     k_fw = gauge_gain_v_per_m(7.5e-6, g)
     l_self = c * compute_delay(dt, 1) * e_d * control.c2d(ps_true * vt_of_vpea, dt, "zoh") * k_fw
-    l_gauge = c * firmware_plant(x_of_vpea, g, 7.5e-6, 1)
+    l_gauge = c * nominal_plant(plant, bias_v).firmware          # the one nominal plant (design/nominal.py)
     f = np.geomspace(0.01, 0.4999 / dt, 1500)
     m_self, m_gauge = margins_of(l_self, f), margins_of(l_gauge, f)
     band = np.geomspace(0.1, 1000.0, 200)
