@@ -197,11 +197,8 @@ def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000, plant_d=None):
     for k in range(n):
         y[k] = c @ x + d
         x = a @ x + b
-    t = np.arange(n) * dt
-    overshoot = max(0.0, float(np.max(y)) - 1.0) * 100
-    outside = np.flatnonzero(np.abs(y - 1.0) > 0.02)
-    settle = float(t[outside[-1] + 1]) if outside.size and outside[-1] + 1 < n else (float("nan") if outside.size else 0.0)
-    return overshoot, settle
+    from .step import step_metrics
+    return step_metrics(np.arange(n) * dt, y, 0.0, 1.0)
 
 
 # what the search can be bound by: constraint -> (LoopShapeSpec field, unit, relaxation, relaxation said)

@@ -160,12 +160,9 @@ def loop_analysis(plant, ident, amp, controller_path=DEFAULT_CONTROLLER, bias_v=
 
 
 def _step_metrics(t, y, y0, y1, band=0.02):
-    """Overshoot (% of the step) and settling time into +/- band of the step, s (nan if never)."""
-    r = (np.asarray(y) - y0) / (y1 - y0)
-    overshoot = max(0.0, float(np.max(r) - 1.0)) * 100
-    outside = np.flatnonzero(np.abs(r - 1.0) > band)
-    settle = float(t[outside[-1] + 1] - t[0]) if outside.size and outside[-1] + 1 < t.size else (
-        float("nan") if outside.size else 0.0)
+    """Overshoot (% of the step) and 2 % settling, s (:func:`workbench.design.step.step_metrics`)."""
+    from ..design.step import step_metrics
+    overshoot, settle = step_metrics(t, y, y0, y1, band)
     return {"overshoot_percent": overshoot, "settling_s": settle}
 
 

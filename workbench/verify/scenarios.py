@@ -40,23 +40,15 @@ def _approach(cl, g, x_start, dt):
 
 
 def _step_metrics(t, x, x0, x1, band=0.02):
-    """Overshoot (% of the step) and settling time into +/- band of the step."""
-    span = x1 - x0
-    y = (x - x0) / span
-    overshoot = max(0.0, float(np.max(y) - 1.0)) * 100
-    outside = np.flatnonzero(np.abs(y - 1.0) > band)
-    settle = float(t[outside[-1] + 1] - t[0]) if outside.size and outside[-1] + 1 < t.size else (
-        float("nan") if outside.size else 0.0)
-    return overshoot, settle
+    """(overshoot %, settling s): :func:`workbench.design.step.step_metrics`."""
+    from ..design.step import step_metrics
+    return step_metrics(t, x, x0, x1, band)
 
 
 def _rise_time(t, x, x0, x1):
-    """10-90 % rise time of a step from x0 to x1, s; NaN if the response never reaches 90 %."""
-    y = (np.asarray(x) - x0) / (x1 - x0)
-    k10, k90 = np.flatnonzero(y >= 0.1), np.flatnonzero(y >= 0.9)
-    if not k90.size:
-        return float("nan")
-    return float(t[k90[0]] - t[k10[0]])
+    """10-90 % rise, s: :func:`workbench.design.step.rise_time`."""
+    from ..design.step import rise_time
+    return rise_time(t, x, x0, x1)
 
 
 def _ratio(a, b):
