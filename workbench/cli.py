@@ -9,19 +9,12 @@ import sys
 from pathlib import Path
 
 from .errors import WorkbenchError
-from .units import parse_quantity
+from .arguments import emit, quantity
 
 __all__ = ["main"]
 
 
-def _quantity(expected):
-    def parse(text):
-        try:
-            return parse_quantity(text, expected)
-        except WorkbenchError as err:
-            raise argparse.ArgumentTypeError(str(err)) from err
-    parse.__name__ = f"quantity in {expected}"
-    return parse
+_quantity = quantity          # argparse type of a quantity with its unit (workbench.arguments)
 
 
 def _positive_int(text):
@@ -34,13 +27,7 @@ def _positive_int(text):
     return value
 
 
-def _emit(args, data, lines):
-    from .report import write_json
-    for line in lines:
-        print(line)
-    if getattr(args, "json", None):
-        write_json(args.json, data)
-        print(f"wrote {args.json}")
+_emit = emit                  # lines on stdout, --json written whole (workbench.arguments)
 
 
 def cmd_gauge(args):

@@ -9,7 +9,7 @@ import argparse
 from pathlib import Path
 
 from ..errors import DataFileError, WorkbenchError
-from ..units import parse_quantity
+from ..arguments import emit, quantity
 
 __all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused", "main"]
 
@@ -59,26 +59,8 @@ def add_parser(sub):
     return p
 
 
-def _quantity(expected):
-    """argparse type: a quantity in ``expected`` units ("1000s", "20min") via :func:`workbench.units.parse_quantity`;
-    a bad value is an argparse error (usage message, exit status 2)."""
-    def parse(text):
-        try:
-            return parse_quantity(text, expected)
-        except WorkbenchError as err:
-            raise argparse.ArgumentTypeError(str(err)) from err
-    parse.__name__ = f"quantity in {expected}"
-    return parse
-
-
-def _emit(args, data, lines):
-    """The CLI's output convention: the lines on stdout, the data as JSON (written whole) when ``--json``."""
-    from ..report import write_json
-    for line in lines:
-        print(line)
-    if getattr(args, "json", None):
-        write_json(args.json, data)
-        print(f"wrote {args.json}")
+_quantity = quantity
+_emit = emit
 
 
 def run(args):
