@@ -30,7 +30,7 @@ from pathlib import Path
 import control
 import numpy as np
 
-from .errors import DataFileError, WorkbenchError
+from .errors import ControllerError, ControllerMismatchError
 from .export.fixed_point import FixedPointController, quantize, run_fixed, run_float
 from .export.sos import ExportError, from_sos, to_sos
 
@@ -46,18 +46,6 @@ _RESERVED = ("gain", "sos", "fixed_point")
 _RTOL_GAUGE = 1e-3
 _RTOL_TRIM = 1e-6
 _RTOL_WINDOW = 1e-3
-
-
-class ControllerError(DataFileError):
-    """A controller file or object is not a valid controller: names the file, the key and the fix."""
-
-    def __init__(self, source, key, message):
-        self.source, self.key = str(source or "<controller>"), key
-        super().__init__(f"{self.source}: [{key}] {message}" if key else f"{self.source}: {message}")
-
-
-class ControllerMismatchError(WorkbenchError, ValueError):
-    """The controller was exported for another plant (raised by ``verify --strict``)."""
 
 
 def _sha256(path):

@@ -6,9 +6,10 @@ status 2. Each class also subclasses the matching built-in so library callers ca
 catch ``ValueError`` as usual.
 """
 
-__all__ = ["WorkbenchError", "PlantDefinitionError", "UnitError", "DataFileError", "DesignError",
-           "StudyDefinitionError",
-           "UnsupportedError"]
+__all__ = ["WorkbenchError", "PlantDefinitionError", "StudyDefinitionError", "UnitError", "DataFileError",
+           "UnsupportedError", "DesignError", "StudyFailed", "FileArgumentError", "FlagRangeError",
+           "OutputOntoInputError", "ControllerError", "ControllerMismatchError", "ExportError",
+           "SweepError"]
 
 
 class WorkbenchError(Exception):
@@ -47,3 +48,41 @@ class UnsupportedError(WorkbenchError, NotImplementedError):
 
 class DesignError(WorkbenchError):
     """A design that cannot be met: infeasible weights, a failed or timed-out synthesis."""
+
+
+class FileArgumentError(WorkbenchError, ValueError):
+    """A file or folder argument that cannot be used: names the argument, the path and the fix."""
+
+
+class ControllerError(DataFileError):
+    """A controller file or object is not a valid controller: names the file, the key and the fix."""
+
+    def __init__(self, source, key, message):
+        self.source, self.key = str(source or "<controller>"), key
+        super().__init__(f"{self.source}: [{key}] {message}" if key else f"{self.source}: {message}")
+
+
+class ControllerMismatchError(WorkbenchError, ValueError):
+    """The controller was exported for another plant (raised by ``verify --strict``)."""
+
+
+class OutputOntoInputError(WorkbenchError, ValueError):
+    """An output path that is one of the run's input files: refused, the input is kept."""
+
+
+class ExportError(WorkbenchError, ValueError):
+    """A controller cannot be exported as asked: says what is wrong and what to change."""
+
+
+class FlagRangeError(WorkbenchError, ValueError):
+    """A flag outside its sane range: names the flag, the value with its unit, the range and why."""
+
+
+class SweepError(WorkbenchError, ConnectionError):
+    """A dask cluster cannot run the sweep (unreachable, no workers, no workbench): names the address and the fix."""
+
+
+class StudyFailed(DesignError):
+    """The study ran but its best design misses a target; its report is written (names the constraint and the fix)."""
+
+    outputs_are_the_result = True      # the CLI keeps the failed study's report (exit 2), unlike a broken run's

@@ -17,7 +17,7 @@ False
 import os
 from pathlib import Path
 
-from .errors import WorkbenchError
+from .errors import FileArgumentError
 
 __all__ = ["FileArgumentError", "check_input_file", "check_input_dir", "check_output_file", "check_output_dir",
            "check_text_file", "same_path", "is_inside"]
@@ -25,10 +25,6 @@ __all__ = ["FileArgumentError", "check_input_file", "check_input_dir", "check_ou
 # how much of a text input is read to find an undecodable byte (the plant, study and record files of
 # the workbench are at most a few MB; a larger file is still read whole by its loader)
 _TEXT_SUFFIXES = (".toml", ".csv", ".json", ".txt", ".md")
-
-
-class FileArgumentError(WorkbenchError, ValueError):
-    """A file or folder argument that cannot be used: names the argument, the path and the fix."""
 
 
 def _name(path, what):

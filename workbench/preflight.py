@@ -24,7 +24,7 @@ import shutil
 import sys
 from pathlib import Path
 
-from .errors import StudyDefinitionError, WorkbenchError
+from .errors import FlagRangeError, StudyDefinitionError, WorkbenchError
 from .paths import FileArgumentError, check_input_file, check_output_dir, check_output_file, is_inside, same_path
 
 __all__ = ["preflight", "add_force_flags", "estimate_run", "FlagRangeError", "MAX_SECONDS", "RUN_COSTS"]
@@ -51,10 +51,6 @@ RUN_COSTS = {
     # freefree: one gauge-rate sample of the simulated sine and its gauge reading
     "freefree_sample": (1.2e-6, 120.0),
 }
-
-
-class FlagRangeError(WorkbenchError, ValueError):
-    """A flag outside its sane range: names the flag, the value with its unit, the range and why."""
 
 
 # ---------------------------------------------------------------------------------------------

@@ -33,17 +33,13 @@ Conventions chosen here (the firmware export relies on them):
 import control
 import numpy as np
 
-from ..errors import WorkbenchError
+from ..errors import ExportError
 
 __all__ = ["ExportError", "to_sos", "from_sos"]
 
 # Poles this close to z = 1 are integrators (a real pole at 1 - 1e-8 is a
 # 16 uHz corner at 10 kHz); np.roots places a simple root at 1 within ~1e-15.
 _INTEGRATOR_TOL = 1e-8
-
-
-class ExportError(WorkbenchError, ValueError):
-    """A controller cannot be exported as asked: says what is wrong and what to change."""
 
 
 def _check_controller(ctrl):

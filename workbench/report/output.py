@@ -8,17 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import WorkbenchError
+from ..errors import OutputOntoInputError
 
 __all__ = ["write_json", "write_text", "write_bytes", "save_figure", "to_jsonable", "protect_inputs",
            "OutputOntoInputError"]
 
 # input files of the running command (set by :func:`protect_inputs`): no writer may replace one
 _PROTECTED = []
-
-
-class OutputOntoInputError(WorkbenchError, ValueError):
-    """An output path that is one of the run's input files: refused, the input is kept."""
 
 
 @contextlib.contextmanager

@@ -11,7 +11,7 @@ from pathlib import Path
 import control
 import numpy as np
 
-from ..errors import DesignError, StudyDefinitionError
+from ..errors import DesignError, StudyDefinitionError, StudyFailed
 from ..linearize.limit_cycle import loop_responses, predict_limit_cycles, sampled_factor
 from ..linearize.uncertainty import FamilySpec, plant_family, uncertainty_bound
 from ..plant import load_plant
@@ -21,12 +21,6 @@ __all__ = ["run_study", "StudyFailed", "ONLY"]
 
 ONLY = ("loopshape",)          # --only: the exported design alone, no comparison designs
 _DEFAULT = "default"
-
-
-class StudyFailed(DesignError):
-    """The study ran but its best design misses a target; its report is written (names the constraint and the fix)."""
-
-    outputs_are_the_result = True      # the CLI keeps the failed study's report (exit 2), unlike a broken run's
 
 
 def _members_table(rows, freq_hz, members):

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import WorkbenchError
+from ..errors import SweepError
 from ..report.output import write_bytes, write_text
 
 __all__ = ["Case", "SweepError", "grid", "run_cases", "worst", "write_table"]
@@ -32,10 +32,6 @@ __all__ = ["Case", "SweepError", "grid", "run_cases", "worst", "write_table"]
 _RESERVED = ("ok", "error")
 _ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})")
 _TABLE_SUFFIXES = (".csv", ".parquet")
-
-
-class SweepError(WorkbenchError, ConnectionError):
-    """A dask cluster cannot run the sweep (unreachable, no workers, no workbench): names the address and the fix."""
 
 
 @dataclass(frozen=True)
