@@ -8,12 +8,12 @@ import re
 
 from .errors import UnitError
 
-__all__ = ["PREFIXES", "parse_quantity", "scale_of"]
+__all__ = ["PREFIXES", "BASE_UNITS", "KEY_SUFFIX_UNITS", "parse_quantity", "scale_of", "unit_of_key"]
 
 PREFIXES = {"": 1.0, "p": 1e-12, "n": 1e-9, "u": 1e-6, "µ": 1e-6, "μ": 1e-6,
             "m": 1e-3, "k": 1e3, "M": 1e6, "G": 1e9}
 
-_BASE_UNITS = ("m", "V", "A", "C", "F", "N", "s", "ohm", "Hz")
+BASE_UNITS = _BASE_UNITS = ("m", "V", "A", "C", "F", "N", "s", "ohm", "Hz")
 _QUANTITY = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([^\s\d].*)?$")
 
 
@@ -72,3 +72,44 @@ def parse_quantity(text, expected):
     if unit is None:
         return value
     return value * scale_of(unit, expected)
+
+
+# the unit suffixes of the workbench's SI keys (``current_limit_source_a``, ``stiffness_n_per_m``,
+# ``noise_rms_m``): one table for the --set parser and the reports
+KEY_SUFFIX_UNITS = {"v": "V", "s": "s", "m": "m", "a": "A", "hz": "Hz", "n": "N", "ohm": "ohm", "f": "F",
+                    "c": "C", "w": "W", "j": "J", "pa": "Pa", "m_per_v": "m/V", "v_per_m": "V/m",
+                    "v_per_s": "V/s", "percent": "%", "deg": "deg", "db": "dB", "rad": "rad",
+                    "points": "points", "fraction": "1"}
+
+
+def unit_of_key(key):
+    """The unit a key's suffix names, and the key's other words.
+
+    ``stiffness_n_per_m`` -> ``("N/m", ["stiffness"])``, ``gain_per_s`` -> ``("1/s", ["gain"])``,
+    ``noise_rms_m`` -> ``("m", ["noise", "rms"])``; a key without a known suffix gives
+    ``("", words)``.
+
+    Parameters
+    ----------
+    key : str
+        A snake_case key whose last words name its unit.
+
+    Returns
+    -------
+    unit : str
+        The unit (``""`` for none).
+    words : list of str
+        The key's words before the unit, in their original case.
+    """
+    words = str(key).split("_")
+    low = [w.lower() for w in words]
+    k = len(low) - 1 - low[::-1].index("per") if "per" in low else -1
+    if 1 < k < len(low) - 1 and low[k - 1] in KEY_SUFFIX_UNITS and "_".join(low[k + 1:]) in KEY_SUFFIX_UNITS:
+        # a ratio: stiffness_n_per_m -> N/m
+        return f"{KEY_SUFFIX_UNITS[low[k - 1]]}/{KEY_SUFFIX_UNITS['_'.join(low[k + 1:])]}", words[:k - 1]
+    if 0 < k < len(low) - 1 and "_".join(low[k + 1:]) in KEY_SUFFIX_UNITS:
+        return f"1/{KEY_SUFFIX_UNITS['_'.join(low[k + 1:])]}", words[:k]          # gain_per_s -> 1/s
+    for n in (3, 2, 1):
+        if len(words) > n and "_".join(low[-n:]) in KEY_SUFFIX_UNITS:
+            return KEY_SUFFIX_UNITS["_".join(low[-n:])], words[:-n]
+    return "", words

@@ -14,6 +14,8 @@ from urllib.parse import quote
 
 import numpy as np
 
+from ..units import unit_of_key
+
 __all__ = ["write_report", "md_cell", "md_row", "md_table", "md_image", "readable_quantity"]
 
 
@@ -57,10 +59,6 @@ def md_image(alt, figure, report_path):
     return f"![{str(alt).replace(']', '')}]({quote(Path(rel).as_posix())})"
 
 
-# unit suffixes of the workbench's SI keys -> (unit symbol, quantity is prefixable)
-_SUFFIX_UNITS = {"v": "V", "s": "s", "m": "m", "a": "A", "hz": "Hz", "n": "N", "ohm": "ohm", "f": "F", "c": "C",
-                 "w": "W", "j": "J", "pa": "Pa", "m_per_v": "m/V", "v_per_m": "V/m", "v_per_s": "V/s",
-                 "percent": "%", "deg": "deg", "db": "dB", "rad": "rad", "points": "points", "fraction": "1"}
 _PREFIXES = ((1e9, "n"), (1e6, "u"), (1e3, "m"), (1.0, ""), (1e-3, "k"), (1e-6, "M"))
 _UNPREFIXED = {"%", "deg", "dB", "rad", "points", "1", "m/V", "V/m", "V/s"}
 
@@ -74,23 +72,7 @@ def readable_quantity(key, value):
     A key without a known suffix keeps its number and gets unit "" (dimensionless).
     Non-numbers are shown as text.
     """
-    words = str(key).split("_")
-    low = [w.lower() for w in words]
-    unit = ""
-    k = len(low) - 1 - low[::-1].index("per") if "per" in low else -1
-    if 1 < k < len(low) - 1 and low[k - 1] in _SUFFIX_UNITS and "_".join(low[k + 1:]) in _SUFFIX_UNITS:
-        # a ratio: stiffness_n_per_m -> N/m (shown without a prefix)
-        unit = f"{_SUFFIX_UNITS[low[k - 1]]}/{_SUFFIX_UNITS['_'.join(low[k + 1:])]}"
-        words = words[:k - 1]
-    elif 0 < k < len(low) - 1 and "_".join(low[k + 1:]) in _SUFFIX_UNITS:
-        unit = f"1/{_SUFFIX_UNITS['_'.join(low[k + 1:])]}"          # gain_per_s -> 1/s
-        words = words[:k]
-    for n in (3, 2, 1):
-        if unit:
-            break
-        if len(words) > n and "_".join(low[-n:]) in _SUFFIX_UNITS:
-            unit = _SUFFIX_UNITS["_".join(low[-n:])]
-            words = words[:-n]
+    unit, words = unit_of_key(key)
     label = " ".join(words)
     if isinstance(value, (bool, np.bool_)):
         return label, "yes" if value else "no", ""

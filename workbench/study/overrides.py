@@ -14,7 +14,7 @@ import re
 import tomllib
 
 from ..errors import StudyDefinitionError, UnitError
-from ..units import parse_quantity
+from ..units import BASE_UNITS as _SI_UNITS, parse_quantity, unit_of_key
 
 __all__ = ["PLANT_SECTIONS", "parse_overrides", "split_overrides"]
 
@@ -22,18 +22,16 @@ PLANT_SECTIONS = ("electrical", "hysteresis", "mechanics", "creep", "gauge", "le
                   "displacement_sensor", "gauge_nonlinearity")
 STUDY_SECTIONS = ("family", "targets", "loop_shape", "hinf", "export")
 
-# key suffix -> SI unit a value with a unit must have
-_UNIT_OF_SUFFIX = {"_a": "A", "_v": "V", "_hz": "Hz", "_ohm": "ohm", "_f": "F", "_m": "m", "_s": "s",
-                   "_n_per_m": "N/m", "_n_per_v": "N/V", "_m_per_v": "m/V"}
 _KEY = re.compile(r"^([a-z_]+)\.([a-z0-9_]+)$")
 _WITH_UNIT = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*[A-Za-zµμ/]+\s*$")
 
 
 def _unit_of(key):
-    for suffix in sorted(_UNIT_OF_SUFFIX, key=len, reverse=True):
-        if key.endswith(suffix):
-            return _UNIT_OF_SUFFIX[suffix]
-    return None
+    """The SI unit a value for ``key`` must carry (its suffix, as ``units.unit_of_key`` reads it), or
+    None when the key takes a plain number (no suffix, or %, deg, dB...)."""
+    unit, _ = unit_of_key(key)
+    parts = unit.split("/") if unit else []
+    return unit if parts and all(p in _SI_UNITS for p in parts) else None
 
 
 def _value(where, key, text):
