@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Field", "check_value"]
+__all__ = ["Field", "check_value", "check_table"]
 
 
 @dataclass(frozen=True)
@@ -49,3 +49,49 @@ def check_value(path, key, field, value, error):
         bound = f"{'>' if field.lo_open else '>='} {field.lo:g} and <= {field.hi:g}"
         raise error(path, key, f"got {value!r}; expected {field.expect} ({bound})")
     return float(value) if field.kind == "float" else int(value)
+
+
+def check_table(path, section, table, schema, error, *, sections=(), check=None, missing_hint=""):
+    """One table of a TOML file checked against its schema: unknown and missing keys, each value.
+
+    Parameters
+    ----------
+    path : path-like
+        The file, named in every message.
+    section : str
+        The table's name (``""`` for the file's top level).
+    table : dict
+        The parsed table.
+    schema : dict of str to Field
+        The keys this table may hold.
+    error : type
+        The error class raised as ``error(path, key, message)``.
+    sections : iterable of str, optional
+        At the top level: the names of the file's sections, read on their own (skipped here; each
+        must be a table).
+    check : callable, optional
+        ``check(path, key, field, value)`` for one value; :func:`check_value` by default.
+    missing_hint : str, optional
+        Appended to the message of a missing key (e.g. "see plants/generic_stack.toml").
+
+    Returns
+    -------
+    dict
+        The checked values by key.
+    """
+    check = check or (lambda p, k, fld, v: check_value(p, k, fld, v, error))
+    out = {}
+    for key, value in table.items():
+        where = f"{section}.{key}" if section else key
+        if not section and key in sections:
+            if not isinstance(value, dict):
+                raise error(path, key, f"must be a table [{key}], got {value!r}")
+            continue                                   # sections are read on their own
+        if key not in schema:
+            raise error(path, where, f"unknown key (value {value!r}); known keys here: {', '.join(sorted(schema))}")
+        out[key] = check(path, where, schema[key], value)
+    for key, field in schema.items():
+        if field.required and key not in out:
+            where = f"{section}.{key}" if section else key
+            raise error(path, where, f"missing; expected {field.expect}" + (f" ({missing_hint})" if missing_hint else ""))
+    return out

@@ -35,7 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import PlantDefinitionError
-from ..fields import Field, check_value
+from ..fields import Field, check_table
 from .files import SCHEMA_VERSION as PZT_SCHEMA
 from .hysteresis import PrandtlIshlinskii
 
@@ -226,24 +226,8 @@ def _read(path):
 
 
 def _table(path, section, table):
-    schema = _SCHEMA[section]
-    out = {}
-    for key, value in table.items():
-        where = f"{section}.{key}" if section else key
-        if section == "" and key in _SCHEMA:
-            if not isinstance(value, dict):
-                raise PlantDefinitionError(path, key, f"must be a table [{key}], got {value!r}")
-            continue                                   # sections are read on their own
-        if key not in schema:
-            raise PlantDefinitionError(path, where, f"unknown key (value {value!r}); known keys "
-                                                    f"here: {', '.join(sorted(schema))}")
-        out[key] = check_value(path, where, schema[key], value, PlantDefinitionError)
-    for key, field in schema.items():
-        if field.required and key not in out:
-            where = f"{section}.{key}" if section else key
-            raise PlantDefinitionError(path, where, f"missing; expected {field.expect} (see "
-                                                    f"plants/generic_stack.toml)")
-    return out
+    return check_table(path, section, table, _SCHEMA[section], PlantDefinitionError,
+                       sections=[k for k in _SCHEMA if k], missing_hint="see plants/generic_stack.toml")
 
 
 def load_generic_stack(path):

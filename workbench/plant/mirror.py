@@ -49,7 +49,7 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import PlantDefinitionError
-from ..fields import Field, check_value
+from ..fields import Field, check_table, check_value
 from .coupled import CoupledSimulator
 from .files import load_plant
 from .hysteresis import PrandtlIshlinskii
@@ -96,20 +96,8 @@ def _check(path, key, field, value):
 
 
 def _table(path, section, table):
-    schema = _SCHEMA[section]
-    out = {}
-    for key, value in table.items():
-        where = f"{section}.{key}" if section else key
-        if section == "" and isinstance(value, dict) and key in _SCHEMA:
-            continue
-        if key not in schema:
-            raise PlantDefinitionError(path, where, f"unknown key (value {value!r}); known keys here: "
-                                       f"{', '.join(sorted(schema))}")
-        out[key] = _check(path, where, schema[key], value)
-    for key, field in schema.items():
-        if key not in out:
-            raise PlantDefinitionError(path, f"{section}.{key}" if section else key, f"missing; expected {field.expect}")
-    return out
+    return check_table(path, section, table, _SCHEMA[section], PlantDefinitionError, sections=_SCHEMA,
+                       check=_check)
 
 
 @dataclass(frozen=True)

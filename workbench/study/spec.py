@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import StudyDefinitionError
-from ..fields import Field, check_value
+from ..fields import Field, check_table, check_value
 
 __all__ = ["SCHEMA_VERSION", "StudySpec", "load_study"]
 
@@ -115,19 +115,8 @@ def load_study(path, overrides=None):
         table = data if section == "" else data.get(section)
         if table is None:
             raise StudyDefinitionError(path, section, f"missing section [{section}]; expected keys {', '.join(schema)}")
-        vals = {}
-        for key, value in table.items():
-            where = f"{section}.{key}" if section else key
-            if section == "" and (key in _SCHEMA or key in OTHER_SECTIONS):
-                continue
-            if key not in schema:
-                raise StudyDefinitionError(path, where, f"unknown key (value {value!r}); known keys here: "
-                                                        f"{', '.join(sorted(schema))}")
-            vals[key] = _check(path, where, schema[key], value)
-        for key, field in schema.items():
-            if field.required and key not in vals:
-                where = f"{section}.{key}" if section else key
-                raise StudyDefinitionError(path, where, f"missing; expected {field.expect}")
+        vals = check_table(path, section, table, schema, StudyDefinitionError,
+                           sections=[*(k for k in _SCHEMA if k), *OTHER_SECTIONS], check=_check)
         out[section] = vals
     unknown = set(data) - set(_SCHEMA) - set(_SCHEMA[""]) - set(OTHER_SECTIONS)
     if unknown:
