@@ -86,16 +86,18 @@ def test_noise_budget_lowers_the_crossover(family):
     assert tight.params["fc_hz"] < free.params["fc_hz"]
 
 
-@pytest.mark.parametrize("fc_hz, ri, al, rr, dt_s", [(120.0, 0.25, 3.0, 8.0, 1e-4), (900.0, 8.0, 1.0, 4.0, 1e-4),
-                                                      (40.0, 1.0, 6.0, 4.0, 2.5e-4)])
-def test_search_scores_exactly_the_discretized_controller(fc_hz, ri, al, rr, dt_s):
+@pytest.mark.parametrize("fc_hz, ri, al, rr, dt_s, notch", [(120.0, 0.25, 3.0, 8.0, 1e-4, None),
+                                                             (900.0, 8.0, 1.0, 4.0, 1e-4, None),
+                                                             (40.0, 1.0, 6.0, 4.0, 2.5e-4, None),
+                                                             (250.0, 1.0, 3.0, 6.0, 1e-4, (1070.0, 20.0, 0.4))])
+def test_search_scores_exactly_the_discretized_controller(fc_hz, ri, al, rr, dt_s, notch):
     """The search's closed-form prewarped Tustin response equals python-control's c2d of the same C."""
     from workbench.design.antiwindup import discretize
     from workbench.design.loopshape import shape_response, tustin_s
     f = np.geomspace(0.5, 0.49 / dt_s, 300)
-    c = structured_controller(2.5, fc_hz, ri, al, rr)
+    c = structured_controller(2.5, fc_hz, ri, al, rr, notch=notch)
     ref = np.asarray(control.frequency_response(discretize(c, dt_s, fc_hz), 2 * np.pi * f).complex).ravel()
-    fast = shape_response(tustin_s(f, dt_s, fc_hz), 2.5, fc_hz, ri, al, rr)
+    fast = shape_response(tustin_s(f, dt_s, fc_hz), 2.5, fc_hz, ri, al, rr, notch=notch)
     np.testing.assert_allclose(fast, ref, rtol=1e-8)
 
 

@@ -80,19 +80,8 @@ class LoopShapeResult:
 
 def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
     """C(s) of the module docstring (continuous TransferFunction)."""
-    s = control.tf("s")
-    wc = 2 * np.pi * fc_hz
-    c = k * (1 + (wc / integral_ratio) / s)
-    if lead_ratio > 1:
-        c = c * (1 + s / (wc / np.sqrt(lead_ratio))) / (1 + s / (wc * np.sqrt(lead_ratio)))
-    wr = wc * rolloff_ratio
-    c = c * wr ** 2 / (s ** 2 + 2 * rolloff_damping * wr * s + wr ** 2)
-    if notch is not None:
-        fn, depth_db, width = notch
-        wn = 2 * np.pi * fn
-        zd = width / 2
-        c = c * (s ** 2 + 2 * zd * 10 ** (-depth_db / 20) * wn * s + wn ** 2) / (s ** 2 + 2 * zd * wn * s + wn ** 2)
-    return control.minreal(c, verbose=False)
+    return control.minreal(shape_response(control.tf("s"), k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio,
+                                          rolloff_damping, notch), verbose=False)
 
 
 def _discrete_response(ctrl_d, freq_hz):
@@ -100,7 +89,11 @@ def _discrete_response(ctrl_d, freq_hz):
 
 
 def shape_response(s, k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
-    """C(s) of :func:`structured_controller` evaluated on the complex array ``s`` (rad/s), vectorized."""
+    """C(s) of the module docstring at ``s``: a complex array (rad/s, vectorized) or ``control.tf("s")``.
+
+    The one formula of the structured controller; :func:`structured_controller` is this at
+    ``tf("s")``, minimal.
+    """
     wc = 2 * np.pi * fc_hz
     c = k * (1 + (wc / integral_ratio) / s)
     if lead_ratio > 1:
