@@ -159,7 +159,7 @@ def test_an_unpicklable_payload_fails_its_row_only():
     assert re.match(r"TypeError: cannot pickle '_thread.lock' object.*payload cannot be pickled", rows[1]["error"])
 
 
-def test_an_unreachable_scheduler_raises_sweep_error_quickly():
+def test_an_unreachable_scheduler_raises_sweep_error_naming_address_and_fix():
     with socket.socket() as sock:          # a port that was free a moment ago: nothing listens there
         sock.bind(("127.0.0.1", 0))
         address = f"tcp://127.0.0.1:{sock.getsockname()[1]}"
