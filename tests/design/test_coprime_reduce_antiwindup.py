@@ -7,7 +7,7 @@ import pytest
 from workbench.design.antiwindup import (discretize, hanus, hanus_initial_state, rate_limits_v_per_s,
                                          run_hanus)
 from workbench.design.coprime import ncf_margin, ncf_synthesis
-from workbench.design.reduce import reduce_controller
+from workbench.design.reduce import hankel_singular_values, reduce_controller
 from workbench.errors import DesignError
 
 
@@ -42,6 +42,28 @@ def test_reduction_error_within_its_bound():
     assert np.min(np.abs(red.controller.poles())) < 1e-9             # the integrator survives
     with pytest.raises(ValueError, match="marginal"):
         reduce_controller(k, 0)
+
+
+@pytest.mark.parametrize("slycot", [True, False])
+def test_hankel_singular_values_closed_form(slycot, monkeypatch):
+    """b c / (s + a) has the one Hankel singular value |b c| / (2 a); a sum of two far-apart lags has
+    about one each. Without slycot (its Lyapunov solver refused) scipy's Gramians give the same."""
+    if not slycot:
+        monkeypatch.setattr(control, "hsvd", lambda sys: (_ for _ in ()).throw(ValueError("refused")))
+    assert hankel_singular_values(control.ss(control.tf([3.0], [1, 2.0]))) == pytest.approx([0.75], rel=1e-12)
+    two = control.ss(control.tf([1.0], [1, 1e-3]) + control.tf([1.0], [1, 1e3]))
+    hsv = hankel_singular_values(two)
+    assert np.all(np.isreal(hsv)) and hsv[0] == pytest.approx(1 / 2e-3, rel=1e-3)
+    assert hsv[1] == pytest.approx(1 / 2e3, rel=1e-2)
+
+
+def test_reduction_of_a_large_gain_integrator_controller_stays_within_its_bound():
+    """An integrator of gain 1e3 with fast weak modes: the error measured on the stable parts stays
+    under the bound (on K itself the integrator's rounding at 10 mHz would exceed it)."""
+    s = control.tf("s")
+    k = 1e3 / s * (1 + s / 300) + sum(1e-6 * 10.0 ** i / (s / (2e3 * (i + 1)) + 1) for i in range(4))
+    red = reduce_controller(k, 3)
+    assert np.isfinite(red.error_bound) and red.error_measured <= red.error_bound * (1 + 1e-6)
 
 
 def _pi_lead():

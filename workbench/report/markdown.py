@@ -99,6 +99,14 @@ def _f(v, fmt=".1f"):
     return "n/a" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, fmt)
 
 
+def _reduction_error(ncf):
+    bound, measured = ncf["reduction_error_bound"], ncf["reduction_error_measured"]
+    if bound is None or not np.isfinite(bound):
+        return (f"measured error {measured:.3g}; no bound: the Gramians of the controller's stable part "
+                f"could not be computed")
+    return f"error bound {bound:.3g}, measured {measured:.3g}"
+
+
 def _worst_rows(worst):
     return [
         ("phase margin (deg)", _f(worst["phase_margin_deg"]["value"]), worst["phase_margin_deg"]["member"]),
@@ -157,7 +165,7 @@ def write_report(path, spec, summary, table):
               "- none: run with `--only loopshape`"] if ncf is None else [
               f"- Glover-McFarlane on the same shape: best achievable margin eps_max = {ncf['eps_max']:.3f}, "
               f"controller {ncf['eps']:.3f}; reduced from {ncf['order_full']} to {ncf['order_reduced']} states "
-              f"(error bound {ncf['reduction_error_bound']:.3g}, measured {ncf['reduction_error_measured']:.3g}); "
+              f"({_reduction_error(ncf)}); "
               f"worst PM {_f(ncf['worst_discrete']['phase_margin_deg']['value'])} deg, GM "
               f"{_f(ncf['worst_discrete']['gain_margin_db']['value'])} dB."])
     for key, title in (("hinf", "H-infinity mixed sensitivity (slycot)"), ("convex", "Convex Youla FIR design (cvxpy)")):
