@@ -28,3 +28,18 @@ def test_top_level_sections_skipped_but_must_be_tables():
     assert check_table("f.toml", "", top, SCHEMA, PlantDefinitionError, sections=("sec",)) == {"a_m": 0.1}
     with pytest.raises(PlantDefinitionError, match=r"\[sec\] must be a table \[sec\], got 5"):
         check_table("f.toml", "", {"a_m": 0.1, "sec": 5}, SCHEMA, PlantDefinitionError, sections=("sec",))
+
+
+@pytest.mark.parametrize("content, key, text", [
+    (None, "file", "cannot be read (No such file or directory); check the path"),
+    (b"a = \xff\xfe\n", "file", "is not UTF-8 text (byte 4)"),
+    (b"a = = 1\n", "syntax", "is not valid TOML"),
+])
+def test_read_toml_names_file_and_fault(tmp_path, content, key, text):
+    from workbench.fields import read_toml
+    path = tmp_path / "p.toml"
+    if content is not None:
+        path.write_bytes(content)
+    with pytest.raises(PlantDefinitionError) as err:
+        read_toml(path, PlantDefinitionError)
+    assert err.value.key == key and text in str(err.value) and str(path) in str(err.value)

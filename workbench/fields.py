@@ -5,11 +5,13 @@ value found and what is expected, as the error class the caller names.
 """
 
 import math
+import tomllib
+from pathlib import Path
 from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Field", "check_value", "check_table"]
+__all__ = ["Field", "check_value", "check_table", "read_toml"]
 
 
 @dataclass(frozen=True)
@@ -95,3 +97,31 @@ def check_table(path, section, table, schema, error, *, sections=(), check=None,
             where = f"{section}.{key}" if section else key
             raise error(path, where, f"missing; expected {field.expect}" + (f" ({missing_hint})" if missing_hint else ""))
     return out
+
+
+def read_toml(path, error, fix="check the path"):
+    """The parsed TOML file ``path``; an unreadable, non-UTF-8 or invalid file raises ``error``.
+
+    Parameters
+    ----------
+    path : path-like
+    error : type
+        Raised as ``error(path, "file" | "syntax", message)``.
+    fix : str, optional
+        What to do about an unreadable file, appended to its message.
+
+    Returns
+    -------
+    dict
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise error(path, "file", f"cannot be read ({err.strerror or err}); {fix}") from None
+    except UnicodeDecodeError as err:
+        raise error(path, "file", f"is not UTF-8 text (byte {err.start}); save it as UTF-8 TOML") from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise error(path, "syntax", f"is not valid TOML: {err}") from None

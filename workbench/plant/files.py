@@ -8,14 +8,13 @@ and what was expected; a file is never written back.
 """
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import PlantDefinitionError
-from ..fields import Field as _Field, check_value
+from ..fields import Field as _Field, check_value, read_toml
 from .additions import Additions
 from .creep import CreepParams
 from .gauge import GaugeParams
@@ -178,14 +177,7 @@ def load_plant(path, overrides=None):
         out-of-range value; the message names the file, key, value and expectation.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise PlantDefinitionError(path, "file", f"cannot be read ({err.strerror}); check the path") from err
-    try:
-        doc = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise PlantDefinitionError(path, "syntax", f"is not valid TOML: {err}") from err
+    doc = read_toml(path, PlantDefinitionError)
     for where, value in (overrides or {}).items():
         section, _, key = where.partition(".")
         if not isinstance(doc.get(section), dict):

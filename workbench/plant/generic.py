@@ -27,7 +27,6 @@ value commented with its source; :func:`plant_kind` tells a full PZT file
 """
 
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -35,7 +34,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import PlantDefinitionError
-from ..fields import Field, check_table
+from ..fields import Field, check_table, read_toml
 from .files import SCHEMA_VERSION as PZT_SCHEMA
 from .hysteresis import PrandtlIshlinskii
 
@@ -215,14 +214,7 @@ def _problem(s):
 
 def _read(path):
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as err:
-        raise PlantDefinitionError(path, "file", f"cannot be read ({err.strerror}); check the path") from err
-    try:
-        return path, tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise PlantDefinitionError(path, "syntax", f"is not valid TOML: {err}") from err
+    return path, read_toml(path, PlantDefinitionError)
 
 
 def _table(path, section, table):

@@ -41,7 +41,6 @@ piston = a g (x_1 + x_2 + x_3)/3. At DC this is exactly the structure's static m
 """
 
 import dataclasses
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,7 +48,7 @@ import numpy as np
 import scipy.linalg
 
 from ..errors import PlantDefinitionError
-from ..fields import Field, check_table, check_value
+from ..fields import Field, check_table, check_value, read_toml
 from .coupled import CoupledSimulator
 from .files import load_plant
 from .hysteresis import PrandtlIshlinskii
@@ -312,12 +311,7 @@ def load_mirror(path):
         wrong type, sign or range, a stack file that does not load, or a degenerate geometry.
     """
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise PlantDefinitionError(path, "file", f"cannot be read ({err.strerror}); check the path") from err
-    except tomllib.TOMLDecodeError as err:
-        raise PlantDefinitionError(path, "syntax", f"is not valid TOML: {err}") from err
+    doc = read_toml(path, PlantDefinitionError)
     known = ("stacks", "geometry", "mirror", "flexures", "housing")
     for key, value in doc.items():
         if isinstance(value, (dict, list)) and key not in _SCHEMA:

@@ -7,12 +7,11 @@ and what is expected.
 """
 
 import math
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import StudyDefinitionError
-from ..fields import Field, check_table, check_value
+from ..fields import Field, check_table, check_value, read_toml
 
 __all__ = ["SCHEMA_VERSION", "StudySpec", "load_study"]
 
@@ -97,13 +96,7 @@ def load_study(path, overrides=None):
     values before validation; the file is not modified.
     """
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise StudyDefinitionError(path, "file", f"cannot be read ({exc.strerror}); give an existing study file, "
-                                                 f"e.g. studies/sn637_servo.toml") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
+    data = read_toml(path, StudyDefinitionError, "give an existing study file, e.g. studies/sn637_servo.toml")
     for where, value in (overrides or {}).items():
         section, _, key = where.partition(".")
         data.setdefault(section, {})
