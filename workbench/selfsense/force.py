@@ -47,13 +47,15 @@ from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, measure
 from .estimator import charge_estimate, static_estimate
 
-__all__ = ["ForceEstimate", "estimate_force", "staged_charge", "force_step_voltage", "simulate_force_step",
+__all__ = ["ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE", "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
            "INSTRON_R_OUT_OHM"]
 
 INSTRON_R_IN_OHM = 200.0        # seed 000 sec. 3.2 / Fig. 4: the 200 ohm load resistor across the leads
 INSTRON_R_OUT_OHM = 200e12      # seed 000 sec. 3.2: Keithley 617, 200 TOhm input impedance
+FORCE_STAGE = "charge_drift"    # the force path's own stage after the displacement estimator's four (charge_drift.py)
+FORCE_STAGE_TITLE = "+ absorption in coulombs, alpha from reversals"
 
 
 @dataclass(frozen=True)
@@ -130,12 +132,19 @@ def estimate_force(t_s, v_t_v, q_c, pzt):
     return ForceEstimate(t, q + q0, v_h, v_p, x, f)
 
 
-def staged_charge(rec, ident, stage):
+def staged_charge(rec, ident, stage, drift=None):
     """The stack's charge from a :class:`~.charge_amp.ChargeRecord` with one stage of drift compensation, C.
 
     Stages as the displacement estimator's (:meth:`~.identify.Identified.stage`); the stage-4
-    operator, identified in metres at F_e = 0, enters as charge through the identified alpha.
+    operator, identified in metres at F_e = 0, enters as charge through the identified alpha
+    (so that stage returns alpha times the displacement estimate, not q: see
+    :mod:`.charge_drift`). ``FORCE_STAGE`` is the compensation identified in coulombs,
+    ``drift`` (a :class:`~.charge_drift.ChargeDrift`).
     """
+    if stage == FORCE_STAGE:
+        if drift is None:
+            raise ValueError(f"stage {FORCE_STAGE!r} needs the ChargeDrift (charge_drift.identify_charge_drift)")
+        return drift.charge(rec.t_s, rec.v_in_v, rec.v_out_v)
     p = ident.stage(stage)
     if p.correction is None:
         return charge_estimate(rec.t_s, rec.v_in_v, rec.v_out_v, p)
@@ -215,7 +224,7 @@ def _window(t, a, b):
     return (t >= a) & (t < b)
 
 
-def force_step_errors(rec, f_true, ident, pzt, step_at_s, stages):
+def force_step_errors(rec, f_true, ident, pzt, step_at_s, stages, drift=None):
     """Per stage: the force estimate's error on a force-step record, absolute and tared (N), and x errors (m).
 
     ``tared``: the estimate minus its mean over the ``TARE_S`` before the step (the load is known
@@ -225,7 +234,7 @@ def force_step_errors(rec, f_true, ident, pzt, step_at_s, stages):
     t = rec.t_s
     out = {}
     for name in stages:
-        est = estimate_force(t, rec.v_in_v, staged_charge(rec, ident, name), pzt)
+        est = estimate_force(t, rec.v_in_v, staged_charge(rec, ident, name, drift), pzt)
         err = est.f_e_n - f_true
         tare = float(np.mean(est.f_e_n[_window(t, step_at_s - TARE_S, step_at_s)]))
         after = {k: _window(t, step_at_s + a, step_at_s + b) for k, (a, b) in
@@ -261,6 +270,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     """
     from ..identify.transducer import DEFAULT_CALIBRATIONS_M_PER_V, _SUSPECTED_SWAP, _read_table
     from ..plant.files import load_plant
+    from .charge_drift import identify_charge_drift
     from .identify import identify, simulate_identification
     from .run import STAGES, STAGE_TITLES
 
@@ -276,14 +286,17 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     tick("identification record")
     idrec = simulate_identification(pzt, amp, hold_s=id_hold_s, seed=seed + 100, dt_s=dt_s)
     ident = identify(idrec, amp)
+    drift = identify_charge_drift(idrec, ident)
+    stages_all = (*STAGES, FORCE_STAGE)
+    titles = {**STAGE_TITLES, FORCE_STAGE: FORCE_STAGE_TITLE}
     tick("force step")
     step_at = 30.0
     rec, f_true = simulate_force_step(pzt, amp, duration_s=60.0, step_at_s=step_at, bias_v=bias_v, force_n=step_n,
                                       dt_s=dt_s, seed=seed)
-    errs = force_step_errors(rec, f_true, ident, pzt, step_at, STAGES)
-    stages = [{"name": n, "title": STAGE_TITLES[n], **{k: v for k, v in errs[n].items()
-                                                       if k not in ("estimate_n", "x_estimate_m")}} for n in STAGES]
-    last = errs[STAGES[-1]]
+    errs = force_step_errors(rec, f_true, ident, pzt, step_at, stages_all, drift)
+    stages = [{"name": n, "title": titles[n], **{k: v for k, v in errs[n].items()
+                                                 if k not in ("estimate_n", "x_estimate_m")}} for n in stages_all]
+    last = errs[FORCE_STAGE]
     step = {"force_n": step_n, "bias_v": bias_v, "step_at_s": step_at, "duration_s": float(rec.t_s[-1]),
             "sample_hz": 1.0 / float(rec.t_s[1] - rec.t_s[0]), "stages": stages,
             "target_fraction": FORCE_TARGET_STEP_FRACTION,
@@ -294,7 +307,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     table = []
     for r in runs:
         srec, sf, (a, b) = simulate_instron_run(pzt, r.config, r.force_n, amp, dt_s=dt_s, seed=seed + r.run)
-        est = estimate_force(srec.t_s, srec.v_in_v, staged_charge(srec, ident, STAGES[-1]), pzt)
+        est = estimate_force(srec.t_s, srec.v_in_v, staged_charge(srec, ident, FORCE_STAGE, drift), pzt)
         hold = _window(srec.t_s, a, b)
         tare = float(np.mean(est.f_e_n[_window(srec.t_s, 0.0, TARE_S)]))
         peak = float(np.mean(est.f_e_n[hold])) - tare
@@ -333,10 +346,11 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
                "measured_r_out_calibrated_rms_error_fraction": float(np.sqrt(np.mean(np.square(loo_err)))),
                "target_met_measured_r_out_calibrated": bool(max(loo_err) <= FORCE_TARGET_PEAK_FRACTION),
                "force_per_back_emf_model_n_per_v": float(pzt.stiffness_n_per_m * pzt.c_pp_f / pzt.transducer_constant_n_per_v)}
-    data = {"plant": str(plant_path), "identified": ident.as_dict(), "force_step": step, "instron": instron,
+    data = {"plant": str(plant_path), "identified": ident.as_dict(), "charge_drift": drift.as_dict(),
+            "force_step": step, "instron": instron,
             "_arrays": {"t_s": rec.t_s, "f_true_n": f_true, "x_m": rec.x_m,
-                        "estimates_n": {n: errs[n]["estimate_n"] for n in STAGES},
+                        "estimates_n": {n: errs[n]["estimate_n"] for n in stages_all},
                         "x_estimate_m": last["x_estimate_m"], "tare_n": last["tare_n"],
                         "x_from_charge_m": pzt.k_q2x_m_per_c * estimate_force(
-                            rec.t_s, rec.v_in_v, staged_charge(rec, ident, STAGES[-1]), pzt).q_c}}
+                            rec.t_s, rec.v_in_v, staged_charge(rec, ident, FORCE_STAGE, drift), pzt).q_c}}
     return data
