@@ -29,11 +29,11 @@ What this module does instead (on the same identification record, no extra test)
 Leakage and bias are the ones :func:`.identify.identify` found (stage 2).
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .charge_amp import relax_foh
+from .charge_amp import cumulative_integral, relax_foh
 from .estimator import charge_estimate
 from .identify import CREEP_TAUS_S
 
@@ -163,16 +163,17 @@ def identify_charge_drift(idrec, ident, taus_s=CREEP_TAUS_S):
     """
     rec, x_ref = idrec.record, idrec.x_ref_m
     t, v = rec.t_s, rec.v_in_v
-    base = ident.stage("leakage_bias")
-    q2 = charge_estimate(t, v, rec.v_out_v, base)
-    alpha, sem, n = reversal_alpha(t, v, q2, x_ref)
+    raw = replace(ident.stage("uncompensated"), alpha_c_per_m=1.0)
+    q_raw = charge_estimate(t, v, rec.v_out_v, raw)             # C_R V_in - C_int V_out
+    alpha, sem, n = reversal_alpha(t, v, q_raw, x_ref)
     dt = float(t[1] - t[0])
-    cols = np.column_stack([relax_foh(v, tau, dt) for tau in taus_s])
-    y = q2 - alpha * x_ref
+    cols = np.column_stack([cumulative_integral(t, v), t] + [relax_foh(v, tau, dt) for tau in taus_s])
+    y = q_raw - alpha * x_ref
     scale = np.sqrt(np.mean(cols * cols, axis=0))
     scale[scale == 0] = 1.0
     k, *_ = np.linalg.lstsq(cols / scale, y, rcond=None)
     k = k / scale
     r = y - cols @ k
-    return ChargeDrift(alpha, sem, n, base, tuple(float(x) for x in taus_s), tuple(float(x) for x in k),
+    base = replace(raw, alpha_c_per_m=alpha, r_leak_ohm=1.0 / k[0] if k[0] > 0 else float("inf"), i_bias_a=float(k[1]))
+    return ChargeDrift(alpha, sem, n, base, tuple(float(x) for x in taus_s), tuple(float(x) for x in k[2:]),
                        float(np.sqrt(np.mean(r * r))))
