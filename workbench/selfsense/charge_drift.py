@@ -35,12 +35,15 @@ import numpy as np
 
 from .charge_amp import cumulative_integral, relax_foh
 from .estimator import charge_estimate
-from .identify import CREEP_TAUS_S
 
-__all__ = ["ChargeDrift", "reversal_alpha", "identify_charge_drift", "REVERSAL_WINDOW_FRACTION",
+__all__ = ["ChargeDrift", "reversal_alpha", "identify_charge_drift", "ABSORPTION_BANKS", "REVERSAL_WINDOW_FRACTION",
            "REVERSAL_MIN_RATE_V_PER_S"]
 
+#: Candidate absorption banks: relaxations of V_in spaced 1, 2, 3 or 4 per decade over 0.1-1000 s.
+ABSORPTION_BANKS = {f"{n} per decade": tuple(float(x) for x in 10.0 ** np.arange(-1.0, 3.0 + 1e-9, 1.0 / n))
+                    for n in (1, 2, 3, 4)}
 REVERSAL_WINDOW_FRACTION = 0.9     # each side of the fit spans 90 % of the shorter adjacent ramp
+REVERSAL_DEGREE = 3                # each side: cubic (the hysteresis cancels; see the module notes)
 REVERSAL_MIN_RATE_V_PER_S = 1.0    # a reversal: V_in's slope changes sign, at least this fast on both sides
 
 
@@ -60,6 +63,8 @@ class ChargeDrift:
     time_constants_s: tuple
     gains_f: tuple
     fit_rms_c: float
+    bank: str = ""
+    held_out_rms_c: dict = None
 
     def charge(self, t_s, v_in_v, v_out_v):
         """The stack's terminal charge since the reset from a charge-amplifier record, C."""
@@ -75,7 +80,7 @@ class ChargeDrift:
         return {"alpha_c_per_m": self.alpha_c_per_m, "alpha_sem_c_per_m": self.alpha_sem_c_per_m,
                 "n_reversals": self.n_reversals, "r_leak_ohm": self.base.r_leak_ohm, "i_bias_a": self.base.i_bias_a,
                 "time_constants_s": list(self.time_constants_s), "gains_f": list(self.gains_f),
-                "fit_rms_c": self.fit_rms_c}
+                "fit_rms_c": self.fit_rms_c, "bank": self.bank, "held_out_rms_c": dict(self.held_out_rms_c or {})}
 
 
 def _slope_jump(y, i, n, dt):
@@ -83,7 +88,7 @@ def _slope_jump(y, i, n, dt):
     curvature on each side) fitted over the n samples either side, least squares."""
     tau = np.arange(-n, n + 1) * dt
     lo, hi = np.minimum(tau, 0.0), np.maximum(tau, 0.0)
-    cols = np.column_stack([np.ones_like(tau), lo, hi, lo ** 2, hi ** 2, lo ** 3, hi ** 3])
+    cols = np.column_stack([np.ones_like(tau)] + [c ** p for p in range(1, REVERSAL_DEGREE + 1) for c in (lo, hi)])
     scale = np.max(np.abs(cols), axis=0)
     c, *_ = np.linalg.lstsq(cols / scale, y[i - n:i + n + 1], rcond=None)
     c = c / scale
@@ -149,31 +154,49 @@ def reversal_alpha(t_s, v_in_v, q_c, x_ref_m, window_fraction=REVERSAL_WINDOW_FR
     return alpha, sem, int(jx.size)
 
 
-def identify_charge_drift(idrec, ident, taus_s=CREEP_TAUS_S):
-    """:class:`ChargeDrift` from an identification record and the stage-2 leakage and bias of ``ident``.
+def _drift_columns(t, v, taus_s):
+    dt = float(t[1] - t[0])
+    return np.column_stack([cumulative_integral(t, v), t] + [relax_foh(v, tau, dt) for tau in taus_s])
+
+
+def _fit(cols, y, mask):
+    scale = np.sqrt(np.mean(cols[mask] ** 2, axis=0))
+    scale[scale == 0] = 1.0
+    k, *_ = np.linalg.lstsq(cols[mask] / scale, y[mask], rcond=None)
+    return k / scale
+
+
+def identify_charge_drift(idrec, ident, banks=ABSORPTION_BANKS):
+    """:class:`ChargeDrift` from an identification record (module notes).
 
     Parameters
     ----------
     idrec : IdentificationRecord
         The record :func:`.identify.identify` used (F_e = 0, interferometer reference).
     ident : Identified
-        Supplies R_FP, i_bias and the circuit's C_int, C_R.
-    taus_s : tuple of float
-        The absorption bank's time constants, s.
+        Supplies only the circuit's known C_int and C_R.
+    banks : dict of str to tuple of float
+        Candidate absorption banks (time constants, s). Each is fitted without the record's
+        validation part (the small triangles and the last hold) and scored on it; the one with
+        the lowest held-out RMS is refitted on the whole record.
     """
     rec, x_ref = idrec.record, idrec.x_ref_m
     t, v = rec.t_s, rec.v_in_v
     raw = replace(ident.stage("uncompensated"), alpha_c_per_m=1.0)
     q_raw = charge_estimate(t, v, rec.v_out_v, raw)             # C_R V_in - C_int V_out
     alpha, sem, n = reversal_alpha(t, v, q_raw, x_ref)
-    dt = float(t[1] - t[0])
-    cols = np.column_stack([cumulative_integral(t, v), t] + [relax_foh(v, tau, dt) for tau in taus_s])
     y = q_raw - alpha * x_ref
-    scale = np.sqrt(np.mean(cols * cols, axis=0))
-    scale[scale == 0] = 1.0
-    k, *_ = np.linalg.lstsq(cols / scale, y, rcond=None)
-    k = k / scale
+    val = (t >= idrec.validation[0]) & (t <= idrec.validation[1])
+    held_out = {}
+    for name, taus in banks.items():
+        cols = _drift_columns(t, v, taus)
+        r = (y - cols @ _fit(cols, y, ~val))[val]
+        held_out[name] = float(np.sqrt(np.mean(r * r)))
+    best = min(held_out, key=held_out.get)
+    taus = tuple(float(x) for x in banks[best])
+    cols = _drift_columns(t, v, taus)
+    k = _fit(cols, y, np.ones(t.size, bool))
     r = y - cols @ k
     base = replace(raw, alpha_c_per_m=alpha, r_leak_ohm=1.0 / k[0] if k[0] > 0 else float("inf"), i_bias_a=float(k[1]))
-    return ChargeDrift(alpha, sem, n, base, tuple(float(x) for x in taus_s), tuple(float(x) for x in k[2:]),
-                       float(np.sqrt(np.mean(r * r))))
+    return ChargeDrift(alpha, sem, n, base, taus, tuple(float(x) for x in k[2:]), float(np.sqrt(np.mean(r * r))),
+                       best, held_out)
