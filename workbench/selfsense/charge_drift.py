@@ -15,18 +15,22 @@ What this module does instead (on the same identification record, no extra test)
    (tau y' = V_in - y) have derivatives that are continuous functions of V_in, which is
    continuous. The stack's charge and its displacement jump in slope together (q = alpha x at
    F_e = 0, seed 000 eq. 10, creep included). So alpha = (jump in dq/dt) / (jump in dx_ref/dt).
-   Each side's slope is the derivative at the reversal of a cubic fitted over
-   ``REVERSAL_WINDOW_FRACTION`` of the shorter adjacent ramp (the cubic takes the hysteresis
-   curvature; the window stays on one branch). The reversals are pooled by least squares
-   (sum dq dx / sum dx^2) and the spread between them gives alpha's standard error.
-2. **Absorption in coulombs.** With that alpha fixed, the leakage- and bias-compensated charge
-   minus alpha x_ref is fitted by least squares with the relaxations of V_in on the
-   displacement estimator's own bank of time constants (:data:`.identify.CREEP_TAUS_S`): real
-   absorption is a spread of time constants (the one-relaxation model of eq. 2.11 leaves the
-   slower branch in the residual), and the bank replaces eq. 2.11 and the stage-4 operator in
-   charge units. No alpha sits between the fit and the charge it corrects.
+   The jump is read by least squares with a continuous piecewise cubic around the reversal
+   (one value, each side its own slope and curvature) over ``REVERSAL_WINDOW_FRACTION`` of
+   the shorter adjacent ramp. The fit is linear, applied alike to q and x_ref, so the
+   stack's hysteresis (x's kinks after a reversal) cancels in the ratio; only the drift's
+   departure from a cubic and the reference noise remain, so the window is as long as the
+   ramps allow. The reversals are pooled by least squares (sum dq dx / sum dx^2); their
+   scatter gives alpha's standard error.
+2. **Leakage, bias and absorption in coulombs.** With that alpha fixed, q_raw - alpha x_ref
+   (q_raw = C_R V_in - C_int V_out) is fitted by linear least squares with int V_in dt
+   (1/R_FP), t (i_bias) and relaxations of V_in: real absorption is a spread of time
+   constants (eq. 2.11's single relaxation leaves the slower branch in the residual). The
+   bank's density (:data:`ABSORPTION_BANKS`) is chosen on the record's held-out part, the
+   small triangles and the last hold, as :mod:`.identify` chooses its stage-4 structure.
+   No alpha sits between the fit and the charge it corrects.
 
-Leakage and bias are the ones :func:`.identify.identify` found (stage 2).
+Only the circuit's known C_int and C_R are taken from :func:`.identify.identify`.
 """
 
 from dataclasses import dataclass, replace
