@@ -48,7 +48,8 @@ from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, measure
 from .estimator import charge_estimate, static_estimate
 
-__all__ = ["ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE", "force_step_voltage", "simulate_force_step",
+__all__ = ["ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
+           "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
            "INSTRON_R_OUT_OHM"]
@@ -347,7 +348,8 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     # (r_max - r_min) / (r_max + r_min); a gain within 5 % on every run must lie in [0.95 r_max, 1.05 r_min]
     ratio = np.abs(gains)
     best_gain_err = float((ratio.max() - ratio.min()) / (ratio.max() + ratio.min()))
-    window = [float((1.0 - FORCE_TARGET_PEAK_FRACTION) * ratio.max()), float((1.0 + FORCE_TARGET_PEAK_FRACTION) * ratio.min())]
+    window = [float((1.0 - FORCE_TARGET_PEAK_FRACTION) * ratio.max()),
+              float((1.0 + FORCE_TARGET_PEAK_FRACTION) * ratio.min())]
     sim_err = [abs(row["simulated"]["error_fraction"]) for row in table]
     meas_err = [abs(row["measured_back_emf"]["error_fraction"]) for row in table if "measured_back_emf" in row]
     instron = {"table": str(table_path), "runs": table,
