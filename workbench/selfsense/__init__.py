@@ -23,3 +23,8 @@ __all__ = ["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure", "Est
            "Identified", "identify", "simulate_identification", "ForceEstimate", "estimate_force", "staged_charge",
            "run_force_study", "IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
            "run_dynamics_study", "Blend", "sensor_spectra", "choose_crossover", "closed_loop_run", "run_fused_study"]
+
+# the force path's charge, identified in coulombs (:mod:`.charge_drift`)
+from .charge_drift import ChargeDrift, identify_charge_drift, reversal_alpha  # noqa: E402
+
+__all__ += ["ChargeDrift", "identify_charge_drift", "reversal_alpha"]
