@@ -28,6 +28,7 @@ statically within their amplifier range about the operating point (every stack a
 trim centre, 7.5 um), on each stack's static gain on the mirror.
 """
 
+import dataclasses
 import inspect
 import math
 from dataclasses import dataclass
@@ -41,6 +42,7 @@ from ..plant.coupled import STACK_OUT_NAMES, coupled_run
 from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
 
 __all__ = ["MirrorLoop", "MirrorRun", "mirror_operating_point", "tip_range_rad", "mirror_scenarios",
+           "verification_mirror", "run_mirror_verify", "check_pairing",
            "run_mirror_scenarios", "TARGETS"]
 
 # the coupled kernel's arguments this module's compiled loop passes (plant/coupled.py is being sped up on
@@ -263,8 +265,15 @@ def _torque_for(fsm, tip_rad):
     return float(tip_rad / dc[2 * ns, ns])
 
 
-def mirror_scenarios(fsm, controller, hold_s=0.1, triangle_periods=1.0, piston_hold_s=2.0):
-    """The scenarios of the module docstring: name -> (ref (samples, 3), external (samples, 3) or None, info)."""
+def mirror_scenarios(fsm, controller, hold_s=0.1, large_hold_s=1.5, triangle_periods=2, piston_hold_s=5.0):
+    """The scenarios of the module docstring: name -> (ref (samples, 3), external (samples, 3) or None, info).
+
+    Sizes: steps 1 % of the tip range (``hold_s`` before and after); the 0.1 Hz triangle over 10-90 %
+    of the tip range (``triangle_periods`` periods, the last scored); a piston step of 25 % of the
+    piston at the operating point, held ``piston_hold_s``; a tip step -40 % -> +40 % of the range
+    (``large_hold_s`` per level: ~55 V per stack, which the axis current-limit window slews at ~65 V/s); a
+    torque step about x whose open-loop static tip deflection is 1 % of the range.
+    """
     dt = controller.dt_s
     tr = tip_range_rad(fsm, controller)
     span = 2 * tr
@@ -278,34 +287,45 @@ def mirror_scenarios(fsm, controller, hold_s=0.1, triangle_periods=1.0, piston_h
     n_h = int(round(hold_s / dt))
     out["tip_step"] = (steps(0, 0.01 * span, hold_s), None, {"axis": 0, "size": 0.01 * span, "t_step_s": hold_s})
     out["tilt_step"] = (steps(1, 0.01 * span, hold_s), None, {"axis": 1, "size": 0.01 * span, "t_step_s": hold_s})
-    # triangle 10-90 % of the tip range at 0.1 Hz, starting at its centre going up
     period = 10.0
     n = int(round(triangle_periods * period / dt))
     t = np.arange(n) * dt
-    phase = (t / period + 0.25) % 1.0
-    tri = 4 * np.abs(phase - 0.5) - 1            # 0 at t = 0, rising
-    tri = -tri
     ref = np.zeros((n, 3))
-    ref[:, 0] = 0.8 * tr * tri
-    out["tip_triangle"] = (ref, None, {"amplitude_rad": 0.8 * tr, "period_s": period})
-    # piston hold: a step of 25 % of the piston the stacks reach about the operating point, held (creep)
+    ref[:, 0] = 0.8 * tr * (1 - 4 * np.abs((t / period + 0.25) % 1.0 - 0.5))   # from the centre, rising
+    out["tip_triangle"] = (ref, None, {"amplitude_rad": 0.8 * tr, "period_s": period,
+                                       "scored_from_s": (triangle_periods - 1) * period})
     n = int(round(piston_hold_s / dt))
-    k = fsm.kinematics
-    pist = 0.25 * k[2].sum() * TRIM_CENTER_M
+    pist = 0.25 * fsm.kinematics[2].sum() * TRIM_CENTER_M
     ref = np.zeros((n_h + n, 3))
     ref[n_h:, 2] = pist
     out["piston_hold"] = (ref, None, {"size_m": pist, "t_step_s": hold_s})
-    # large tip step: -40 % -> +40 % of the range
-    ref = np.zeros((3 * n_h, 3))
-    ref[:n_h, 0] = -0.4 * span
-    ref[n_h:, 0] = 0.4 * span
-    out["tip_large_step"] = (ref, None, {"axis": 0, "size": 0.8 * span, "t_step_s": hold_s, "y0": -0.4 * span})
-    # torque step about x: open-loop static tip deflection = 10 % of the range
-    tau = _torque_for(fsm, 0.1 * span)
+    n_l = int(round(large_hold_s / dt))
+    ref = np.zeros((2 * n_l, 3))
+    ref[:n_l, 0] = -0.4 * span
+    ref[n_l:, 0] = 0.4 * span
+    out["tip_large_step"] = (ref, None, {"axis": 0, "size": 0.8 * span, "t_step_s": large_hold_s,
+                                         "y0": -0.4 * span})
+    tau = _torque_for(fsm, 0.01 * span)
     ext = np.zeros((2 * n_h, 3))
     ext[n_h:, 0] = tau
-    out["torque_step"] = (np.zeros((2 * n_h, 3)), ext, {"torque_n_m": tau, "open_loop_tip_rad": 0.1 * span,
+    out["torque_step"] = (np.zeros((2 * n_h, 3)), ext, {"torque_n_m": tau, "open_loop_tip_rad": 0.01 * span,
                                                        "t_step_s": hold_s})
+    return out
+
+
+def verification_mirror(fsm, c_h_scales=(1.0, 0.85, 1.15), creep_plant=None):
+    """The mirror as verified: each stack's C_h scaled (unequal hysteresis) and, optionally, creep branches.
+
+    The serial files share one assumed C_h shape and carry no creep; ``c_h_scales`` (assumed,
+    within PI's +/-20 % capacitance tolerance) makes the hysteresis unequal and ``creep_plant`` (a
+    loaded Plant with ``[creep]``, e.g. ``plants/p888_51_sn637_creep.toml``, assumed for all three)
+    gives every stack those creep branches.
+    """
+    out = fsm.with_capacitance_scales(c_h_scales)
+    if creep_plant is not None:
+        cr = creep_plant.pzt.creep
+        out = dataclasses.replace(out, plants=tuple(dataclasses.replace(pl, pzt=dataclasses.replace(pl.pzt, creep=cr))
+                                                    for pl in out.plants))
     return out
 
 
@@ -324,7 +344,8 @@ def _metrics(name, run, info, span):
         y1 = y0 + info["size"]
         base = float(np.mean(axes[a][k0 // 2:k0]))
         ov, ts = step_metrics(t[k0:] - t[k0 - 1], y - base + y0, y0, y1)
-        m.update({"step_urad": info["size"] * urad, "overshoot_percent": ov, "settling_s": ts,
+        m.update({"step_urad": info["size"] * urad, "noise_rms_urad": float(np.std(axes[a][k0 // 2:k0]) * urad),
+                  "overshoot_percent": ov, "settling_s": ts,
                   "rise_s": rise_time(t[k0:] - t[k0 - 1], y - base + y0, y0, y1),
                   "final_error_urad": float((np.mean(y[-len(y) // 4:]) - base + y0 - y1) * urad)})
         other = 1 - a if a < 2 else 0
@@ -336,8 +357,7 @@ def _metrics(name, run, info, span):
                                                         | (np.abs(run.i_a[k0:, j]) >= 2e-3)) * dt * 1e3)
                                              for j in range(3)]
     elif name == "tip_triangle":
-        # skip the first 5 % (the loop locks onto the ramp), score the rest
-        k0 = int(0.05 * len(t))
+        k0 = int(round(info["scored_from_s"] / dt))
         err = run.tip_rad[k0:] - run.ref[k0:, 0]
         tilt = run.tilt_rad[k0:] - run.ref[k0:, 1]
         m.update({"tip_rms_error_urad": float(np.sqrt(np.mean(err ** 2)) * urad),
@@ -351,23 +371,42 @@ def _metrics(name, run, info, span):
     elif name == "piston_hold":
         k0 = int(round(info["t_step_s"] / dt))
         p = run.piston_m[k0:]
-        k1 = int(round(0.1 / dt))
-        late = p[k1:]
-        m.update({"step_nm": info["size_m"] * 1e9,
-                  "piston_drift_nm": float((np.mean(late[-k1 // 2:]) - np.mean(late[:k1 // 2])) * 1e9),
-                  "piston_final_error_nm": float((np.mean(late[-k1 // 2:]) - info["size_m"]) * 1e9),
-                  "stack_voltage_drift_v": [float(np.mean(run.v_cmd_v[-k1 // 2:, j]) -
-                                                  np.mean(run.v_cmd_v[k0 + k1:k0 + k1 + k1 // 2, j]))
-                                            for j in range(3)],
-                  "hold_s": float(t[-1] - t[k0])})
+        k1, kw = int(round(0.5 / dt)), int(round(0.05 / dt))     # from 0.5 s after the step; 50 ms means
+        late, v = p[k1:], run.v_cmd_v[k0 + k1:]
+        m.update({"step_nm": float(info["size_m"] * 1e9),
+                  "piston_drift_nm": float((np.mean(late[-kw:]) - np.mean(late[:kw])) * 1e9),
+                  "piston_final_error_nm": float((np.mean(late[-kw:]) - info["size_m"]) * 1e9),
+                  "stack_voltage_drift_v": [float(np.mean(v[-kw:, j]) - np.mean(v[:kw, j])) for j in range(3)],
+                  "scored_s": float(t[-1] - t[k0 + k1])})
     elif name == "torque_step":
         k0 = int(round(info["t_step_s"] / dt))
         dev = run.tip_rad[k0:] - np.mean(run.tip_rad[k0 // 2:k0])
         m.update({"open_loop_tip_urad": info["open_loop_tip_rad"] * urad, "torque_n_m": info["torque_n_m"],
                   "peak_tip_urad": float(np.abs(dev).max() * urad),
+                  "tip_after_20ms_urad": float(np.mean(dev[int(0.02 / dt):int(0.025 / dt)]) * urad),
                   "final_tip_urad": float(np.mean(dev[-len(dev) // 4:]) * urad),
                   "rejection_ratio": float(np.abs(dev).max() / info["open_loop_tip_rad"])})
     return m
+
+
+def _open_loop_creep(fsm, controller, run, info):
+    """The same piston step open loop: the stacks held at the voltages the loop reached 0.5 s after the step.
+
+    Returns the open-loop piston drift over the same window (nm), beside the closed loop's.
+    """
+    dt = controller.dt_s
+    k0 = int(round(info["t_step_s"] / dt))
+    k1, kw = int(round(0.5 / dt)), int(round(0.05 / dt))
+    v_hold = run.v_cmd_v[k0 + k1:k0 + k1 + kw].mean(axis=0)
+    sim = fsm.simulator(dt)
+    v0, _ = mirror_operating_point(fsm, controller)
+    n = run.t_s.size
+    v = np.empty((int(round(0.3 / dt)) + n, 3))
+    v[:int(round(0.3 / dt)) + k0] = v0
+    v[int(round(0.3 / dt)) + k0:] = v_hold
+    tr = sim.run(v)
+    p = tr.y[int(round(0.3 / dt)) + k0 + k1:, 8]
+    return {"open_loop_piston_drift_nm": float((np.mean(p[-kw:]) - np.mean(p[:kw])) * 1e9)}
 
 
 def run_mirror_scenarios(fsm, controller, names=None, noise=True, seed=0, progress=None, **sizes):
@@ -382,10 +421,145 @@ def run_mirror_scenarios(fsm, controller, names=None, noise=True, seed=0, progre
         loop.start()
         r = loop.run(ref, ext, progress=None if progress is None else (lambda d, t, nm=name: progress(nm, d, t)))
         runs[name] = r
-        metrics.append(_metrics(name, r, info, span))
+        m = _metrics(name, r, info, span)
+        if name == "piston_hold":
+            m.update(_open_loop_creep(fsm, controller, r, info))
+        metrics.append(m)
     targets = {}
     tri = next((m for m in metrics if m["scenario"] == "tip_triangle"), None)
     if tri is not None:
         for key, lim in TARGETS.items():
             targets[key] = {"value": tri[key], "limit": lim, "unit": "% of the tip range", "met": tri[key] <= lim}
     return metrics, runs, targets
+
+
+# ----------------------------------------------------------------------------- the command
+
+def _clean(obj):
+    """JSON-safe: NaN/inf -> None, numpy scalars -> Python."""
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, (np.floating, float)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.integer):
+        return int(obj)
+    return obj
+
+
+def check_pairing(plant_path, controller_path):
+    """Refuse a SISO controller on a mirror file and a MIMO controller on a single-stack plant (exit 2 in the CLI).
+
+    Returns True when ``plant_path`` is a mirror file (schema ``workbench.fsm/1``).
+    """
+    import tomllib
+    from pathlib import Path
+    from ..controller import ControllerError
+    from ..export.mimo import MIMO_SCHEMA, is_mimo_controller_file
+    from ..plant.mirror import FSM_SCHEMA_VERSION
+    try:
+        schema = tomllib.loads(Path(plant_path).read_text(encoding="utf-8")).get("schema")
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False            # the plant loader reports it, naming the file
+    mirror = schema == FSM_SCHEMA_VERSION
+    mimo = is_mimo_controller_file(controller_path)
+    if mirror and not mimo and Path(controller_path).is_file():
+        raise ControllerError(controller_path, "schema", f"is not a MIMO controller ({MIMO_SCHEMA!r}), but "
+                                                         f"{plant_path} is a three-stack mirror ({FSM_SCHEMA_VERSION}): "
+                                                         f"give the controller `workbench study "
+                                                         f"studies/fsm_servo.toml` exports (controllers/NAME.json)")
+    if mimo and not mirror:
+        raise ControllerError(controller_path, "schema", f"is a MIMO mirror controller ({MIMO_SCHEMA!r}), but "
+                                                         f"{plant_path} is a single-stack plant: give a mirror file "
+                                                         f"(plants/fsm_*.toml) or a SISO controller")
+    return mirror
+
+
+def run_mirror_verify(plant_path, controller_path, out_dir=None, c_h_scales=(1.0, 0.85, 1.15),
+                      creep_file="p888_51_sn637_creep.toml", noise=True, seed=0, names=None, progress=None,
+                      **sizes):
+    """``workbench verify plants/fsm_*.toml --controller NAME.json``: scenarios, figures, report.
+
+    Parameters
+    ----------
+    plant_path : path
+        The mirror file (``workbench.fsm/1``).
+    controller_path : path
+        The exported :class:`~workbench.export.mimo.MimoController` JSON.
+    c_h_scales : sequence of 3 float
+        Each stack's C_h scale (unequal hysteresis; assumed, see :func:`verification_mirror`).
+    creep_file : str or None
+        A plant file with ``[creep]`` (relative to the mirror file) whose branches every stack gets
+        (assumed); None: the serial files' (no creep).
+
+    Returns
+    -------
+    dict
+        ``metrics`` (per scenario), ``targets``, ``assumptions``, paths of ``report``/``json``/``figures``.
+    """
+    from pathlib import Path
+    from ..export.mimo import MimoController
+    from ..plant.files import load_plant
+    from ..plant.mirror import load_mirror
+    fsm0 = load_mirror(plant_path)
+    ctrl = MimoController.load(controller_path)
+    creep_plant = None if creep_file is None else load_plant(Path(plant_path).parent / creep_file)
+    fsm = verification_mirror(fsm0, c_h_scales, creep_plant)
+    metrics, runs, targets = run_mirror_scenarios(fsm, ctrl, names=names, noise=noise, seed=seed,
+                                                  progress=progress, **sizes)
+    assumptions = [f"stacks' C_h scaled by {list(c_h_scales)} (unequal hysteresis; the serial files share one "
+                   f"assumed C_h shape)",
+                   ("no creep (the serial files have none)" if creep_plant is None else
+                    f"every stack has the creep branches of {creep_plant.source} (assumed)"),
+                   f"gauge noise {'on' if noise else 'off'} (seed {seed}); amplifier current limits of each serial "
+                   f"file; one sample of compute delay"]
+    data = {"plant": str(plant_path), "controller": str(controller_path), "controller_name": ctrl.name,
+            "tip_range_urad": 2e6 * tip_range_rad(fsm, ctrl), "assumptions": assumptions,
+            "compiled_loop": bool(_FAST), "metrics": metrics, "targets": targets}
+    if out_dir is not None:
+        from ..report.html import write_html_report
+        from ..report.mirror_figures import plot_mirror_run
+        from ..report.output import write_json, write_text
+        out = Path(out_dir)
+        figs = {}
+        for name, r in runs.items():
+            figs[name] = plot_mirror_run(out / f"mirror_{name}.png", r, f"{name} ({ctrl.name} on {fsm0.name})")
+        data["figures"] = {k: str(v) for k, v in figs.items()}
+        data["json"] = str(write_json(out / "verify.json", _clean(data)))
+        md = out / "report.md"
+        write_text(md, mirror_verify_markdown(data, figs, md))
+        data["report"] = str(md)
+        data["report_html"] = str(write_html_report(md))
+    return _clean(data)
+
+
+def _fmt(v, f=".3g"):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x, f) for x in v)
+    return format(v, f)
+
+
+def mirror_verify_markdown(data, figs, report_path):
+    """The verification report (GitHub Markdown)."""
+    from ..report.markdown import md_image, md_table
+    lines = [f"# Mirror verification: {data['controller_name']} on {data['plant']}", "",
+             f"Controller `{data['controller']}` (fixed-point MIMO step, bit for bit its C header) in closed loop "
+             f"with the coupled three-stack mirror. Tip range (static, amplifier ranges about the operating point): "
+             f"{data['tip_range_urad']:.0f} urad.", "", "Assumptions:", ""]
+    lines += [f"- {a}" for a in data["assumptions"]]
+    lines += ["", "## Targets (issue 15)", ""]
+    rows = [[k, _fmt(t["value"]), f"{t['limit']:g} {t['unit']}", "met" if t["met"] else "**MISSED**"]
+            for k, t in data["targets"].items()]
+    lines += md_table(["target", "value", "limit", "result"], rows) if rows else ["(no triangle run)"]
+    lines += ["", "## Scenarios", ""]
+    for m in data["metrics"]:
+        lines += [f"### {m['scenario']}", ""]
+        rows = [[k, _fmt(v)] for k, v in m.items() if k != "scenario"]
+        lines += md_table(["metric", "value"], rows)
+        if m["scenario"] in figs:
+            lines += ["", md_image(m["scenario"], figs[m["scenario"]], report_path)]
+        lines.append("")
+    return "\n".join(lines) + "\n"
