@@ -39,7 +39,7 @@ def plot_mimo_bode(path, freq_hz, plants, nominal_name):
         a.grid(True, which="both", alpha=0.3)
     a1.set_ylabel("gain, dB (axis unit per axis unit)")
     a2.legend(fontsize=8)
-    a1.set_ylim(-80, 40)
+    a1.set_ylim(-140, 20)
     save_figure(fig, path)
     plt.close(fig)
     return path
@@ -70,9 +70,12 @@ def plot_modes(path, freq_hz, nominal_diag, modes_hz, labels, notches):
     fig, ax = plt.subplots(figsize=(7.5, 4.2))
     for i, a in enumerate(_AX):
         ax.semilogx(freq_hz, 20 * np.log10(np.abs(nominal_diag[:, i])), label=a)
+    prev, y = -np.inf, 0.97
     for f, lab in zip(modes_hz, labels):
         ax.axvline(f, color="0.5", lw=0.7, ls=":")
-        ax.text(f, 0.97, f" {lab}\n {f:.0f} Hz", rotation=90, va="top", fontsize=7, transform=ax.get_xaxis_transform())
+        y = 0.6 if (f / prev < 1.03 and y > 0.9) else 0.97       # stagger labels of modes a few % apart
+        ax.text(f, y, f" {lab}\n {f:.0f} Hz", rotation=90, va="top", fontsize=7, transform=ax.get_xaxis_transform())
+        prev = f
     for a, n in notches.items():
         if n is not None:
             ax.plot([n[0]], [0], "v", color="r", ms=6)
@@ -89,6 +92,8 @@ def plot_modes(path, freq_hz, nominal_diag, modes_hz, labels, notches):
 
 def plot_mirror_run(path, run, title):
     """Axes (tip/tilt urad, piston nm) against the references; per-stack command (V) and current (mA)."""
+    dec = max(1, run.t_s.size // 20000)          # at most ~20000 points per trace
+    run = _decimated(run, dec)
     t = run.t_s
     fig, axs = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     a = axs[0]
@@ -98,7 +103,7 @@ def plot_mirror_run(path, run, title):
     if np.any(run.ref[:, 1]):
         a.plot(t, run.ref[:, 1] * 1e6, "k:", lw=0.8, label="tilt reference")
     a.set_ylabel("angle, urad")
-    a.legend(fontsize=8, loc="best")
+    a.legend(fontsize=8, loc="upper left")
     a2 = a.twinx()
     a2.plot(t, run.piston_m * 1e9, color="tab:green", lw=0.6, alpha=0.7)
     a2.set_ylabel("piston, nm", color="tab:green")
@@ -108,10 +113,17 @@ def plot_mirror_run(path, run, title):
     axs[1].set_ylabel("command, V")
     axs[2].set_ylabel("current, mA")
     axs[2].set_xlabel("time, s")
-    axs[1].legend(fontsize=8)
+    axs[1].legend(fontsize=8, loc="upper left")
     for a in axs:
         a.grid(True, alpha=0.3)
     axs[0].set_title(title)
     save_figure(fig, path)
     plt.close(fig)
     return path
+
+
+def _decimated(run, k):
+    import dataclasses
+    if k == 1:
+        return run
+    return dataclasses.replace(run, **{f.name: getattr(run, f.name)[k - 1::k] for f in dataclasses.fields(run)})

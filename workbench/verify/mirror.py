@@ -265,13 +265,13 @@ def _torque_for(fsm, tip_rad):
     return float(tip_rad / dc[2 * ns, ns])
 
 
-def mirror_scenarios(fsm, controller, hold_s=0.1, large_hold_s=1.5, triangle_periods=2, piston_hold_s=5.0):
+def mirror_scenarios(fsm, controller, hold_s=0.1, large_hold_s=2.5, triangle_periods=2, piston_hold_s=5.0):
     """The scenarios of the module docstring: name -> (ref (samples, 3), external (samples, 3) or None, info).
 
     Sizes: steps 1 % of the tip range (``hold_s`` before and after); the 0.1 Hz triangle over 10-90 %
     of the tip range (``triangle_periods`` periods, the last scored); a piston step of 25 % of the
     piston at the operating point, held ``piston_hold_s``; a tip step -40 % -> +40 % of the range
-    (``large_hold_s`` per level: ~55 V per stack, which the axis current-limit window slews at ~65 V/s); a
+    (``large_hold_s`` per level: 110 V on stack 1, which the axis current-limit window slews at ~65 V/s); a
     torque step about x whose open-loop static tip deflection is 1 % of the range.
     """
     dt = controller.dt_s
