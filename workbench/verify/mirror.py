@@ -352,6 +352,7 @@ def _metrics(name, run, info, span):
         cross = axes[other][k0:] - np.mean(axes[other][k0 // 2:k0])
         m["coupling_peak_urad"] = float(np.abs(cross).max() * urad)
         m["coupling_peak_percent"] = float(np.abs(cross).max() / span * 100)
+        m["coupling_final_urad"] = float(np.mean(cross[-len(cross) // 4:]) * urad)
         if name == "tip_large_step":
             m["time_at_current_limit_ms"] = [float(np.sum(np.isclose(np.abs(run.i_a[k0:, j]), 2e-3, rtol=1e-3)
                                                         | (np.abs(run.i_a[k0:, j]) >= 2e-3)) * dt * 1e3)
