@@ -73,7 +73,7 @@ def plot_modes(path, freq_hz, nominal_diag, modes_hz, labels, notches):
     prev, y = -np.inf, 0.97
     for f, lab in zip(modes_hz, labels):
         ax.axvline(f, color="0.5", lw=0.7, ls=":")
-        y = 0.6 if (f / prev < 1.03 and y > 0.9) else 0.97       # stagger labels of modes a few % apart
+        y = 0.6 if (prev > 0 and f / prev < 1.03 and y > 0.9) else 0.97   # stagger labels of modes a few % apart
         ax.text(f, y, f" {lab}\n {f:.0f} Hz", rotation=90, va="top", fontsize=7, transform=ax.get_xaxis_transform())
         prev = f
     for a, n in notches.items():
