@@ -18,6 +18,7 @@ loop-shaping tuner takes it as ``max_noise_command_v = rho`` with ``noise_readin
 (``[design] noise_budget = false`` drops it).
 """
 
+import os
 import time
 import tomllib
 from dataclasses import replace
@@ -116,7 +117,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
 
     path, spec = _load(study_path)
     top, fam_s, des_s, exp_s = spec[""], spec["family"], spec["design"], spec["export"]
-    plant_path = path.parent / top["plant"]
+    plant_path = Path(os.path.normpath(path.parent / top["plant"]))
     try:
         fsm = load_mirror(plant_path)
     except PlantDefinitionError as err:
@@ -195,9 +196,11 @@ def run_mirror_study(study_path, out_dir, progress=None):
               f"**{'met' if min(di['alpha'], do['alpha']) >= 0.4 else 'MISSED'}**.", "",
               "## Exported controller", "",
               f"`{paths['json']}` and `{paths['h']}` (+ one SISO header per axis): gauges -> axes matrix, three "
-              f"32-bit cascades (axis volts; axis ranges {data['axis_ranges_v']}), axes -> stacks matrix, each axis "
-              f"with a current-limit window (alpha, +h, -h) = "
-              f"{ {k: [round(x, 4) for x in v] for k, v in data['axis_windows'].items()} }. Verify it with "
+              f"32-bit cascades (axis volts; ranges "
+              + ", ".join(f"{k} {v[0]:.4g}..{v[1]:.4g}" for k, v in data["axis_ranges_v"].items())
+              + " axis V), axes -> stacks matrix, each axis with a current-limit window (alpha, +h, -h): "
+              + ", ".join(f"{k} ({v[0]:.4g}, {v[1]:.3g} V, {v[2]:.3g} V)" for k, v in data["axis_windows"].items())
+              + f". Verify it with "
               f"`workbench verify {plant_path} --controller {paths['json']}`.", "",
               "## Figures", "", md_image("MIMO Bode", figs["bode"], md), "", md_image("disk margins", figs["disk"], md),
               "", md_image("modes", figs["modes"], md), ""]

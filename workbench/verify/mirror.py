@@ -539,7 +539,9 @@ def _fmt(v, f=".3g"):
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "n/a"
     if isinstance(v, (list, tuple)):
-        return ", ".join(_fmt(x, f) for x in v)
+        if v and isinstance(v[0], (list, tuple)):
+            return " / ".join("..".join(_fmt(x, f) for x in row) for row in v)      # per stack: lo..hi
+        return " / ".join(_fmt(x, f) for x in v)                                   # per stack
     return format(v, f)
 
 
@@ -549,7 +551,8 @@ def mirror_verify_markdown(data, figs, report_path):
     lines = [f"# Mirror verification: {data['controller_name']} on {data['plant']}", "",
              f"Controller `{data['controller']}` (fixed-point MIMO step, bit for bit its C header) in closed loop "
              f"with the coupled three-stack mirror. Tip range (static, amplifier ranges about the operating point): "
-             f"{data['tip_range_urad']:.0f} urad.", "", "Assumptions:", ""]
+             f"{data['tip_range_urad']:.0f} urad (+/-{data['tip_range_urad'] / 2:.0f}). Per-stack values: stack 1 / "
+             f"2 / 3.", "", "Assumptions:", ""]
     lines += [f"- {a}" for a in data["assumptions"]]
     lines += ["", "## Targets (issue 15)", ""]
     rows = [[k, _fmt(t["value"]), f"{t['limit']:g} {t['unit']}", "met" if t["met"] else "**MISSED**"]
