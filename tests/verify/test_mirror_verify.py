@@ -2,6 +2,7 @@
 and the commands' dispatch and bad input."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -114,3 +115,27 @@ def test_verify_command_writes_report_and_figures(root, tmp_path, ctrl, monkeypa
                                                        "torque_step"}
     text = (out / "report.md").read_text()
     assert "![tip_step](mirror_tip_step.png)" in text and (out / "mirror_torque_step.png").stat().st_size > 10000
+
+
+@pytest.mark.slow
+def test_mirror_study_command_designs_exports_and_reports(root, tmp_path):
+    """`workbench study` on a mirror study: the issue's floors on every member, the exported controller loads,
+    the report shows its figures. Reduced form (make test): crossovers searched over 50-70 Hz without the
+    noise budget; full (WORKBENCH_FULL=1): studies/fsm_servo.toml as shipped."""
+    from workbench.study.mirror import run_mirror_study
+    text = (root / "studies" / "fsm_servo.toml").read_text().replace(
+        'plant = "../plants/fsm_p888_51.toml"', f'plant = "{(root / "plants" / "fsm_p888_51.toml").as_posix()}"')
+    if os.environ.get("WORKBENCH_FULL") != "1":
+        text = text.replace("noise_budget = true", "noise_budget = false\nfc_min_hz = 50.0\nfc_max_hz = 70.0")
+    study = tmp_path / "fsm.toml"
+    study.write_text(text)
+    assert main(["study", str(study), "--out", str(tmp_path / "o"), "--json", str(tmp_path / "s.json")]) == 0
+    data = json.loads((tmp_path / "s.json").read_text())
+    for ax, a in data["design"]["axes"].items():
+        assert a["phase_margin_deg"]["value"] >= 40 and a["gain_margin_db"]["value"] >= 6, ax
+    assert min(data["design"]["disk_in"]["alpha"], data["design"]["disk_out"]["alpha"]) >= 0.4
+    c = MimoController.load(data["exported"]["json"])
+    assert c.sample_rate_hz == 10000.0
+    report = (tmp_path / "o" / "report.md").read_text()
+    for fig in ("mimo_bode.png", "disk_margins.png", "modes.png"):
+        assert f"]({fig})" in report and (tmp_path / "o" / fig).stat().st_size > 10000
