@@ -185,15 +185,9 @@ class MirrorLoop:
         s, vm = self.state
         for k0 in range(0, n, chunk):
             k1 = min(n, k0 + chunk)
-            if _FAST:
-                sim = self.sim
-                rec_s = np.zeros((2, 3, len(STACK_OUT_NAMES)))
-                rec_y = np.zeros((1, sim.y.size))
-                rec_xi = np.zeros((0, sim.structure.n_states))
-                _loop(sim.sc, sim.g_r, sim.g_w, sim.g_off, sim.c_cap, sim.c_dec, sim.c_off, sim.es, sim.zg, sim.qc,
-                      sim.ad, sim.b0, sim.b1, sim.hx, sim.hu, sim.cy, sim.dy, sim.xi, sim.xi_tmp, sim.g_prev,
-                      sim.g_now, sim.u_now, sim.y, sim.h_s, sim.n_sub, rec_s, rec_y, rec_xi,
-                      w[k0:k1], rw[k0:k1], noise[k0:k1], self.gp, self.r0, np.int64(ctrl.gauge_frac_bits),
+            kernel = self._kernel_args() if _FAST else None
+            if kernel is not None:
+                _loop(*kernel, w[k0:k1], rw[k0:k1], noise[k0:k1], self.gp, self.r0, np.int64(ctrl.gauge_frac_bits),
                       float(2.0 ** -ctrl.stack_frac_bits), io, s, vm, out[k0:k1], mir[k0:k1], *ctrl.plan)
             else:
                 self._run_python(w[k0:k1], rw[k0:k1], noise[k0:k1], io, s, vm, out[k0:k1], mir[k0:k1])
@@ -204,6 +198,17 @@ class MirrorLoop:
         names = ("x_m", "i_a", "v_cmd_v", "v_t_v", "reading_v")
         return MirrorRun(t_s=t, ref=ref, tip_rad=mir[:, 0] - self.q0[0], tilt_rad=mir[:, 1] - self.q0[1],
                          piston_m=mir[:, 2] - self.q0[2], **{nm: out[:, i] for i, nm in enumerate(names)})
+
+    def _kernel_args(self):
+        """The simulator's buffers in coupled_run's order (None if the simulator no longer has them)."""
+        sim = self.sim
+        try:
+            return (sim.sc, sim.g_r, sim.g_w, sim.g_off, sim.c_cap, sim.c_dec, sim.c_off, sim.es, sim.zg, sim.qc,
+                    sim.ad, sim.b0, sim.b1, sim.hx, sim.hu, sim.cy, sim.dy, sim.xi, sim.xi_tmp, sim.g_prev,
+                    sim.g_now, sim.u_now, sim.y, sim.h_s, sim.n_sub, np.zeros((2, 3, len(STACK_OUT_NAMES))),
+                    np.zeros((1, sim.y.size)), np.zeros((0, sim.structure.n_states)))
+        except AttributeError:
+            return None
 
     def _run_python(self, w, rw, noise, io, s, vm, out, mir):
         ctrl, sim = self.ctrl, self.sim
@@ -499,6 +504,7 @@ def run_mirror_verify(plant_path, controller_path, out_dir=None, c_h_scales=(1.0
     dict
         ``metrics`` (per scenario), ``targets``, ``assumptions``, paths of ``report``/``json``/``figures``.
     """
+    import hashlib
     from pathlib import Path
     from ..export.mimo import MimoController
     from ..plant.files import load_plant
@@ -509,7 +515,13 @@ def run_mirror_verify(plant_path, controller_path, out_dir=None, c_h_scales=(1.0
     fsm = verification_mirror(fsm0, c_h_scales, creep_plant)
     metrics, runs, targets = run_mirror_scenarios(fsm, ctrl, names=names, noise=noise, seed=seed,
                                                   progress=progress, **sizes)
-    assumptions = [f"stacks' C_h scaled by {list(c_h_scales)} (unequal hysteresis; the serial files share one "
+    notes = []
+    prov = ctrl.record.get("provenance") or {}
+    sha = hashlib.sha256(Path(plant_path).read_bytes()).hexdigest()
+    if prov.get("plant_sha256") and prov["plant_sha256"] != sha:
+        notes.append(f"WARNING: the controller was exported for {prov.get('plant_file', 'another mirror file')} "
+                     f"(SHA-256 {prov['plant_sha256'][:12]}...), this file is {sha[:12]}...")
+    assumptions = notes + [f"stacks' C_h scaled by {list(c_h_scales)} (unequal hysteresis; the serial files share one "
                    f"assumed C_h shape)",
                    ("no creep (the serial files have none)" if creep_plant is None else
                     f"every stack has the creep branches of {creep_plant.source} (assumed)"),
