@@ -122,7 +122,6 @@ def test_mirror_study_command_designs_exports_and_reports(root, tmp_path):
     """`workbench study` on a mirror study: the issue's floors on every member, the exported controller loads,
     the report shows its figures. Reduced form (make test): crossovers searched over 50-70 Hz without the
     noise budget; full (WORKBENCH_FULL=1): studies/fsm_servo.toml as shipped."""
-    from workbench.study.mirror import run_mirror_study
     text = (root / "studies" / "fsm_servo.toml").read_text().replace(
         'plant = "../plants/fsm_p888_51.toml"', f'plant = "{(root / "plants" / "fsm_p888_51.toml").as_posix()}"')
     if os.environ.get("WORKBENCH_FULL") != "1":
