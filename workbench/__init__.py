@@ -23,6 +23,8 @@ Controller
     :func:`quantize`
 Verification
     :func:`verify` -> :class:`VerifyResult`, :data:`SCENARIOS`
+Mirror (three stacks, MIMO)
+    :class:`MimoController` (the exported MIMO controller), :func:`run_mirror_scenarios` (its closed loop)
 Calibration
     :func:`read_record`, :func:`calibrate_record` (``workbench.calibrate.run.run_calibrate``; not
     ``wb.calibrate``, which is the subpackage once any of its modules is imported)
@@ -50,6 +52,7 @@ _API = {
     "verify": "verify", "VerifyResult": "verify.run", "SCENARIOS": "verify.scenarios",
     "read_record": "calibrate.record", "calibrate_record": ("calibrate.run", "run_calibrate"),
     "WorkbenchError": "errors",
+    "MimoController": "export.mimo", "run_mirror_scenarios": "verify.mirror",
 }
 
 __all__ = sorted(_API)

@@ -180,6 +180,9 @@ def cmd_linearize(args):
 
 
 def cmd_study(args):
+    from .study.mirror import is_mirror_study
+    if is_mirror_study(args.study):
+        return _cmd_mirror_study(args)
     from .study.run import run_study
     if args.workers is not None and args.workers < 1:
         raise WorkbenchError(f"--workers {args.workers}: give 1 or more processes")
@@ -220,7 +223,44 @@ def _fmt_metric(m, key):
     return f"{key} {v:.4g}"
 
 
+def _cmd_mirror_study(args):
+    from .study.mirror import run_mirror_study
+    data = run_mirror_study(args.study, args.out, progress=_progress_bar)
+    d = data["design"]
+    lines = [f"mirror study {data['name']}: {data['members']} family members, {data['seconds']:.0f} s; noise gain "
+             f"bound {data['noise_gain_bound']:.3g} ({'used' if data['noise_budget_used'] else 'not used'})"]
+    for ax, a in d["axes"].items():
+        lines.append(f"  {ax}: bandwidth {a['bandwidth_hz']['value']:.0f} Hz, PM {a['phase_margin_deg']['value']:.1f} "
+                     f"deg, GM {a['gain_margin_db']['value']:.2f} dB (worst members)")
+    lines += [f"  simultaneous disk margin alpha {d['disk_in']['alpha']:.3f} (stack inputs), "
+              f"{d['disk_out']['alpha']:.3f} (axis outputs)",
+              f"  exported {data['exported']['json']} and {data['exported']['h']}", f"  report {data['report']}"]
+    _emit(args, data, lines)
+
+
+def _cmd_mirror_verify(args):
+    from .verify.mirror import run_mirror_verify
+    data = run_mirror_verify(args.plant, args.controller, out_dir=args.out, noise=not args.no_noise, seed=args.seed,
+                             progress=lambda stage, d, t: _progress_bar(stage, d, t))
+    lines = [f"{args.plant} with {data['controller_name']} (MIMO fixed-point step), tip range "
+             f"{data['tip_range_urad']:.0f} urad:"] + [f"  note: {a}" for a in data["assumptions"]]
+    for m in data["metrics"]:
+        keys = [k for k in m if k.endswith(("_urad", "_percent", "_nm", "_s", "_ratio")) and k != "tip_range_urad"
+                and not isinstance(m[k], list)]
+        lines.append(f"  {m['scenario']}: " + ", ".join(
+            f"{k} {m[k]:.4g}" if m[k] is not None else f"{k} n/a" for k in keys))
+    for name, t in data["targets"].items():
+        lines.append(f"  target {name}: {t['value']:.4g} (limit {t['limit']:g} {t['unit']}): "
+                     f"{'met' if t['met'] else 'MISSED'}")
+    if "report" in data:
+        lines.append(f"  report {data['report']}")
+    _emit(args, data, lines)
+
+
 def cmd_verify(args):
+    from .verify.mirror import check_pairing
+    if check_pairing(args.plant, args.controller):
+        return _cmd_mirror_verify(args)
     from .verify.run import load_verify_targets, parse_target, run_verify
     limits = load_verify_targets(args.targets_from) if args.targets_from else {}
     limits.update(dict(parse_target(t) for t in args.target or ()))

@@ -101,6 +101,8 @@ def _check_files(args):
             _check_csv_delimiter(path, name)
     for name, path in ins:
         if name == "--controller" and path.suffix.lower() in (".json", ".mat"):
+            if args.command == "verify" and _mirror_pairing(args, path):
+                continue          # a three-stack mirror and its MIMO controller (validated there)
             # the one controller loader validates it now, not after minutes of linearization
             from .controller import Controller, ControllerMismatchError
             ctrl = Controller.load(path, allow_unstable=getattr(args, "allow_unstable", False))
@@ -126,6 +128,26 @@ def _check_files(args):
                 raise FileArgumentError(f"{name} {path}: the command writes its own {path.name} into {dname} {d}; "
                                         f"give another file name")
     return ins, out_files, out_dirs
+
+
+def _mirror_pairing(args, path):
+    """A mirror file (workbench.fsm/1) with a MIMO controller: validate the controller, True; a mismatch
+    (SISO controller on the mirror or the reverse) raises naming the file; a single stack with a SISO one: False."""
+    from .verify.mirror import check_pairing
+    if not check_pairing(args.plant, path):
+        return False
+    from .export.mimo import MimoController
+    MimoController.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+    return True
+
+
+def _is_mirror_file(path):
+    from .plant.mirror import FSM_SCHEMA_VERSION
+    import tomllib
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8")).get("schema") == FSM_SCHEMA_VERSION
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False
 
 
 def _check_json(path, name):
@@ -173,6 +195,9 @@ def _check_study_file(args):
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
+    from .study.mirror import FSM_STUDY_SCHEMA
+    if data.get("schema") == FSM_STUDY_SCHEMA:
+        return                      # the mirror study's loader checks its own schema (workbench/study/mirror.py)
     from .study.spec import _SCHEMA
     for section in _SCHEMA:
         if not section or section not in data:
@@ -347,6 +372,8 @@ def _controller_rate_hz(path, default):
 def estimate_run(args):
     """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs."""
     cmd = args.command
+    if cmd == "verify" and _is_mirror_file(args.plant):
+        return None                 # the mirror's scenarios have a fixed size (tens of seconds of mirror time)
     if cmd == "verify":
         fs = _controller_rate_hz(args.controller, _plant(args.plant).gauge.modulation_hz)
         scenarios = [args.scenario] if isinstance(args.scenario, str) else args.scenario   # --scenario takes several

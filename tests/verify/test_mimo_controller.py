@@ -1,0 +1,150 @@
+"""The mirror's exported MIMO controller (workbench/export/mimo.py): the C header bit for bit, the
+composition against the float design, validation on load."""
+
+import json
+import os
+import shutil
+import subprocess
+
+import control
+import numpy as np
+import pytest
+
+from workbench.export.mimo import MIMO_SCHEMA, MimoController, MimoControllerError
+from workbench.plant.mirror import load_mirror
+
+from .mirror_cases import quick_design
+
+MAIN_C = r"""
+#include <stdio.h>
+#include "mimo.h"
+int main(void)
+{
+    mimo_fixed_state st;
+    int32_t u0[3], g[3], r[3], v[3];
+    long long a, b, c;
+    if (scanf("%lld %lld %lld", &a, &b, &c) != 3) return 1;
+    u0[0] = (int32_t)a; u0[1] = (int32_t)b; u0[2] = (int32_t)c;
+    mimo_fixed_reset(&st, u0);
+    long long x[6];
+    while (scanf("%lld %lld %lld %lld %lld %lld", &x[0], &x[1], &x[2], &x[3], &x[4], &x[5]) == 6) {
+        for (int j = 0; j < 3; j++) { g[j] = (int32_t)x[j]; r[j] = (int32_t)x[3 + j]; }
+        mimo_fixed_step(&st, g, r, v);
+        printf("%ld %ld %ld\n", (long)v[0], (long)v[1], (long)v[2]);
+    }
+    return 0;
+}
+"""
+
+
+@pytest.fixture(scope="module")
+def fsm(root):
+    return load_mirror(root / "plants" / "fsm_p888_51.toml")
+
+
+@pytest.fixture(scope="module")
+def ctrl(fsm):
+    design, _ = quick_design(fsm)
+    return MimoController.from_design(design, fsm, name="mimo")
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(15)
+
+
+def _records(ctrl, rng, n, n_held):
+    """Gauge readings over the DAC range and beyond, references over the axes' reach: random, then held
+    extremes (``n_held`` samples each: the window slews ~65 V/s) that drive the cascades into their
+    output clamps and the stacks into theirs."""
+    g = np.concatenate([rng.uniform(-3.0, 3.0, (n, 3)), np.tile([2.6, -2.6, 2.6], (n_held, 1)),
+                        np.tile([-2.6, 2.6, -2.6], (n_held, 1))])
+    reach = 80.0 * ctrl.axis_scale                          # ~ the axis ranges, in rad / m
+    r = np.concatenate([rng.uniform(-1, 1, (n, 3)) * reach, np.tile(reach, (n_held, 1)),
+                        -np.tile(reach, (n_held, 1))])
+    return g, r
+
+
+def test_header_step_equals_python_step_bit_for_bit(ctrl, tmp_path, rng):
+    cc = os.environ.get("CC") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no gcc: the header cannot be compiled here")
+    ctrl.write(tmp_path, "mimo")
+    (tmp_path / "main.c").write_text(MAIN_C)
+    base = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(tmp_path), "-o", str(tmp_path / "main"),
+            str(tmp_path / "main.c")]
+    for extra in (["-fsanitize=undefined", "-fno-sanitize-recover=all"], []):
+        done = subprocess.run(base + extra, capture_output=True, text=True)
+        if done.returncode == 0:
+            break
+    else:
+        pytest.fail(f"the header does not compile:\n{done.stderr}")
+    g, r = _records(ctrl, rng, 1500, 25000)
+    u0_axes = np.array([3.0, -2.0, 40.0])                 # at rest at a bias (axis volts)
+    st = ctrl.reset(u0_axes)
+    u0_words = st[1].copy()                               # the window models start at the output words
+    gw, rw = ctrl.gauge_words(g), ctrl.reference_words(r)
+    want = np.array([ctrl.step_words(st, gw[k], rw[k]) for k in range(len(gw))])
+    stdin = " ".join(map(str, u0_words.tolist())) + "\n" + "".join(
+        " ".join(map(str, list(a) + list(b))) + "\n" for a, b in zip(gw.tolist(), rw.tolist()))
+    out = subprocess.run([str(tmp_path / "main")], input=stdin, capture_output=True, text=True, check=True).stdout
+    got = np.array(out.split(), dtype=np.int64).reshape(-1, 3)
+    np.testing.assert_array_equal(got, want)
+    lim = ctrl.stack_limit_words
+    assert np.any(want == lim[:, 0]) and np.any(want == lim[:, 1]), "the records must reach the stack clamps"
+
+
+def test_step_composes_the_float_matrices_and_cascades(ctrl, rng):
+    """Small inputs (no clamp, no window): the words give In' K (r' - Out' g), K the axis cascades' own LTI,
+    to within quantization; a transposed or swapped matrix would miss by the signal itself."""
+    n = 400
+    g = 1e-3 * rng.standard_normal((n, 3))
+    r = 1e-3 * rng.standard_normal((n, 3)) * ctrl.axis_scale
+    v = ctrl.run(g, r)
+    e = r / ctrl.axis_scale - g @ ctrl.gauge_to_axes.T
+    u = np.column_stack([control.forced_response(ctrl.axes[k].as_lti(), U=e[:, a]).outputs
+                         for a, k in enumerate(("tip", "tilt", "piston"))])
+    want = u @ ctrl.axes_to_stacks.T
+    # the words' rounding, integrated over the record: ~1e-5 V (1e-7 of the 140 V range); a swapped or
+    # transposed matrix misses by the signal (~1e-3 V)
+    assert np.abs(want).max() > 1e-3
+    np.testing.assert_allclose(v, want, atol=2e-5, rtol=0)
+
+
+def test_json_round_trip_is_the_same_controller(ctrl, tmp_path, rng):
+    paths = ctrl.write(tmp_path, "mimo")
+    back = MimoController.load(paths["json"])
+    g, r = _records(ctrl, rng, 200, 200)
+    np.testing.assert_array_equal(back.run(g, r), ctrl.run(g, r))
+    assert back.record["provenance"]["serials"] == ctrl.record["provenance"]["serials"]
+
+
+def _corrupt(data, change):
+    data = json.loads(json.dumps(data))
+    change(data)
+    return data
+
+
+@pytest.mark.parametrize("change, key", [
+    (lambda d: d.update(schema="workbench.controller/9"), "schema"),
+    (lambda d: d["gauge_to_axes"][1].__setitem__(2, float("nan")), "gauge_to_axes"),
+    (lambda d: d.update(axes_to_stacks=[[1, 1, 1], [1, 1, 1], [0, 1, 0]]), "axes_to_stacks"),
+    (lambda d: d.update(axis_scale=[1.0, -1.0, 1.0]), "axis_scale"),
+    (lambda d: d.update(stack_limits_v=[[120, -20], [-20, 120], [-20, 120]]), "stack_limits_v"),
+    (lambda d: d["controllers"]["tilt"]["sos"][0].__setitem__(5, 1.5), "controllers.tilt"),
+    (lambda d: d["controllers"].pop("piston"), "controllers.piston"),
+    (lambda d: d.update(sample_rate_hz=20000.0), "sample_rate_hz"),
+    (lambda d: d["fixed_point"]["axes_to_stacks_q"][0].__setitem__(0, 7), "fixed_point.axes_to_stacks_q"),
+])
+def test_bad_controller_files_name_the_key(ctrl, tmp_path, change, key):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(_corrupt(ctrl.to_dict(), change)))
+    with pytest.raises(MimoControllerError) as err:
+        MimoController.load(path)
+    assert f"[{key}]" in str(err.value) and str(path) in str(err.value)
+
+
+def test_a_siso_controller_is_named_as_such(root, tmp_path):
+    with pytest.raises(MimoControllerError, match=r"\[schema\].*SISO"):
+        MimoController.load(root / "controllers" / "sn637_loopshape.json")
+    assert MIMO_SCHEMA.startswith("workbench.mimo_controller/")

@@ -1,0 +1,591 @@
+"""The mirror's MIMO controller as firmware runs it: two matrices around three SISO cascades (issue 15, item 5).
+
+A :class:`MimoController` is composed of three :class:`~workbench.controller.Controller` s (tip,
+tilt, piston: each the SISO 32-bit cascade with its own words, header and validation; no second
+copy of the cascade code) and the kinematic decoupler of :mod:`workbench.design.mimo` in words.
+
+**Axis volts.** The design's axis loops map an axis error (rad, rad, m) to an axis command in the
+same unit. Firmware runs them on "axis volts": axis a in units of ``axis_scale[a]`` (rad or m per
+axis volt), chosen so that one axis volt moves the stack that axis moves most by one volt
+(``axis_scale[a] = 1 / max_j |In[j, a]|``). A per-axis (diagonal) controller is unchanged by this
+scaling (S^-1 K S = K), so the cascades are the design's, and the output range of each cascade
+is in volts of its stacks' range. The matrices become
+
+    gauge_to_axes = S^-1 Out   (axis V per firmware V of gauge reading),
+    axes_to_stacks = In S      (stack V per axis V).
+
+**Fixed-point step** (:meth:`MimoController.step_words`, bit for bit NAME_fixed_step of the
+header :meth:`MimoController.write` generates; the gcc test runs both):
+
+1. gauge words g_j (firmware V x 2^GF) -> acc_a = sum_j OUT_Q[a][j] g_j (int64; OUT_Q row a in
+   Q(FO_a), every |word| < 2^30 so three products cannot overflow), q_a = (acc_a + 2^(sh_a - 1))
+   >> sh_a with sh_a = FO_a + GF - FI_a, FI_a the axis cascade's input fraction bits;
+2. e_a = sat32(r_a - q_a), r_a the reference in the same format; the axis cascade's own step
+   (input clamp, sections, output clamp to its range, anti-windup) gives u_a (Q(FU_a));
+3. stack j: acc_j = sum_a (IN_Q[j][a] u_a) >> (FN_a + FU_a - FA) (IN_Q column a in Q(FN_a),
+   FA = min_a (FN_a + FU_a)), v_j = (acc_j + 2^(FA - FV - 1)) >> (FA - FV), clamped to the stack's
+   amplifier range in Q(FV): the stack command in volts x 2^FV.
+
+Right shifts are arithmetic (floor), as in the SISO header.
+
+**Current-limit window, per axis.** Each axis cascade carries the SISO cascade's own window
+(:mod:`workbench.export.fixed_point`): a model m_a += alpha (u_a - m_a) of its output and the
+output kept within m_a +/- h_a. With alpha the slowest stack's (1 - exp(-T / (R C)), C its
+largest capacitance) and h_a = min_j R_j min(I_source,j, I_sink,j) / max_j sum_a |In'[j, a]|, every
+stack's command stays within its current headroom of In' m (the stacks' voltage model when
+their alphas are equal; the slowest alpha is the conservative choice otherwise), so the axis
+integrators are conditioned on what the current-limited stacks can follow. The box is
+conservative: a single-axis move slews at ~1 / max row sum (~40 %) of the fastest rate, and the
+sink's larger limit is not used.
+
+Loading (:meth:`MimoController.load`) validates: schema, three axes, finite 3 x 3 matrices of
+full rank, each axis controller as :meth:`Controller.from_dict` does (finite, stable poles,
+words), one sample rate, ordered stack ranges, and matrix words that are the float matrices
+quantized (within half an LSB). :class:`MimoControllerError` names the file and the key.
+"""
+
+import hashlib
+import json
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from ..controller import Controller, ControllerError, plant_window
+from ..report.output import write_text
+from .fixed_point import fixed_step, initial_state, quantize
+from .sos import ExportError
+
+__all__ = ["MimoController", "MimoControllerError", "MIMO_SCHEMA", "AXIS_KEYS", "is_mimo_controller_file", "mimo_step"]
+
+MIMO_SCHEMA = "workbench.mimo_controller/1"
+AXIS_KEYS = ("tip", "tilt", "piston")
+AXIS_UNITS = ("rad", "rad", "m")
+_COEF_TOP_BITS = 30          # matrix words: |word| < 2^30
+
+
+class MimoControllerError(ControllerError):
+    """A MIMO controller file or object is not valid: names the file, the key and the fix."""
+
+
+def _frac_for(max_abs, top_bits=_COEF_TOP_BITS):
+    """Most fraction bits keeping |value| * 2^F < 2^top_bits (F may be > 31 for tiny values; capped at 62)."""
+    if not max_abs > 0:
+        return 0
+    return int(min(62, top_bits - int(np.floor(np.log2(max_abs))) - 1))
+
+
+def _words_rows(mat, frac):
+    """int64 words of ``mat``, row i in Q(frac[i])."""
+    return np.rint(mat * 2.0 ** np.asarray(frac, float)[:, None]).astype(np.int64)
+
+
+@njit(cache=True)
+def mimo_step(g, r, s, vm, out, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
+    """One sample of the MIMO fixed-point step (module docstring), bit for bit the header's NAME_fixed_step.
+
+    ``g``, ``r``: gauge and reference words (int64, 3); ``s`` (3, n_max, 2) and ``vm`` (3,) the
+    axis cascades' states and window models, updated in place; ``out`` receives the stack words.
+    The rest is :attr:`MimoController.plan`. Each axis runs :func:`~workbench.export.fixed_point.fixed_step`.
+    """
+    top, bottom = np.int64(2 ** 31 - 1), np.int64(-2 ** 31)
+    one = np.int64(1)
+    u = np.empty(3, np.int64)
+    for a in range(3):
+        acc = oq[a, 0] * g[0] + oq[a, 1] * g[1] + oq[a, 2] * g[2]
+        q = (acc + (one << (osh[a] - 1))) >> osh[a]
+        e = min(max(r[a] - q, bottom), top)
+        e = min(max(e, -in_lim[a]), in_lim[a])
+        n = nsec[a]
+        peak = np.zeros((n, 3), np.int64)
+        u[a] = fixed_step(s[a, :n], e, B[a, :n], A[a, :n], BSH[a, :n], frac[a], lim[a], vm[a:a + 1], True, peak)
+    for j in range(3):
+        acc = np.int64(0)
+        for a in range(3):
+            acc += (iq[j, a] * u[a]) >> ish[a]
+        v = (acc + (one << (vsh - 1))) >> vsh
+        out[j] = min(max(v, lw[j, 0]), lw[j, 1])
+
+
+@dataclass(frozen=True, eq=False)
+class MimoController:
+    """Gauges -> axes matrix, three axis cascades, axes -> stacks matrix, in 32-bit words.
+
+    Attributes
+    ----------
+    name : str
+        File stem and C prefix.
+    axes : dict
+        ``{"tip": Controller, "tilt": Controller, "piston": Controller}``: axis volts of error in,
+        axis volts out (each with fixed-point words).
+    axis_scale : ndarray, shape (3,)
+        rad (tip, tilt) or m (piston) per axis volt.
+    gauge_to_axes : ndarray, shape (3, 3)
+        Axis volts per firmware volt of each gauge reading (S^-1 Out).
+    axes_to_stacks : ndarray, shape (3, 3)
+        Stack volts per axis volt (In S).
+    stack_limits_v : ndarray, shape (3, 2)
+        Each stack's amplifier range, V.
+    gauge_frac_bits, stack_frac_bits : int
+        Fraction bits of the gauge reading words and of the stack command words.
+    record : dict
+        Everything else of the JSON (provenance, design summary, notes).
+    source : str
+    """
+
+    name: str
+    axes: dict
+    axis_scale: np.ndarray
+    gauge_to_axes: np.ndarray
+    axes_to_stacks: np.ndarray
+    stack_limits_v: np.ndarray
+    gauge_frac_bits: int
+    stack_frac_bits: int
+    record: dict = field(default_factory=dict)
+    source: str = ""
+
+    # ------------------------------------------------------------------ words
+    @property
+    def sample_rate_hz(self):
+        return self.axes["tip"].sample_rate_hz
+
+    @property
+    def dt_s(self):
+        return 1.0 / self.sample_rate_hz
+
+    @property
+    def out_frac_bits(self):
+        """FO_a: fraction bits of row a of the gauge -> axes words."""
+        return np.array([_frac_for(np.abs(r).max()) for r in self.gauge_to_axes], dtype=np.int64)
+
+    @property
+    def in_frac_bits(self):
+        """FN_a: fraction bits of column a of the axes -> stacks words."""
+        return np.array([_frac_for(np.abs(c).max()) for c in self.axes_to_stacks.T], dtype=np.int64)
+
+    @property
+    def out_q(self):
+        return _words_rows(self.gauge_to_axes, self.out_frac_bits)
+
+    @property
+    def in_q(self):
+        return _words_rows(self.axes_to_stacks.T, self.in_frac_bits).T
+
+    def _fixed(self):
+        return [self.axes[k].fixed for k in AXIS_KEYS]
+
+    @property
+    def out_shift(self):
+        """sh_a = FO_a + GF - FI_a (right shift from the gauge products to the axis input word)."""
+        return np.array([fo + self.gauge_frac_bits - f.input_frac_bits
+                         for fo, f in zip(self.out_frac_bits, self._fixed())], dtype=np.int64)
+
+    @property
+    def acc_frac_bits(self):
+        """FA = min_a (FN_a + FU_a)."""
+        return int(min(fn + f.output_frac_bits for fn, f in zip(self.in_frac_bits, self._fixed())))
+
+    @property
+    def in_shift(self):
+        """Per axis: right shift of its products to FA."""
+        return np.array([fn + f.output_frac_bits - self.acc_frac_bits
+                         for fn, f in zip(self.in_frac_bits, self._fixed())], dtype=np.int64)
+
+    @property
+    def stack_limit_words(self):
+        sc = 2.0 ** self.stack_frac_bits
+        return np.column_stack([np.ceil(self.stack_limits_v[:, 0] * sc), np.floor(self.stack_limits_v[:, 1] * sc)]
+                               ).astype(np.int64)
+
+    def gauge_words(self, g_v):
+        """Gauge readings (firmware V) as words, rounded to nearest, saturated to int32."""
+        return np.clip(np.rint(np.asarray(g_v, float) * 2.0 ** self.gauge_frac_bits), -2 ** 31, 2 ** 31 - 1
+                       ).astype(np.int64)
+
+    def reference_words(self, r_axes):
+        """References in axis units (rad, rad, m) as each cascade's input words (saturated to int32)."""
+        r = np.asarray(r_axes, float) / self.axis_scale
+        fi = np.array([f.input_frac_bits for f in self._fixed()], float)
+        return np.clip(np.rint(r * 2.0 ** fi), -2 ** 31, 2 ** 31 - 1).astype(np.int64)
+
+    # ------------------------------------------------------------------ firmware step
+    @cached_property
+    def plan(self):
+        """The step's words as int64 arrays (:func:`mimo_step`'s arguments after the inputs and state), once."""
+        fx = self._fixed()
+        nmax = max(len(f.b) for f in fx)
+        B = np.zeros((3, nmax, 3), np.int64)
+        A = np.zeros((3, nmax, 2), np.int64)
+        BSH = np.zeros((3, nmax), np.int64)
+        for a, f in enumerate(fx):
+            n = len(f.b)
+            B[a, :n], A[a, :n], BSH[a, :n] = f.b, f.a, f.b_shift
+        nsec = np.array([len(f.b) for f in fx], np.int64)
+        frac = np.array([f.a_frac_bits for f in fx], np.int64)
+        lim = np.array([f.limit_words for f in fx], np.int64)
+        in_lim = np.array([f.input_limit for f in fx], np.int64)
+        return (self.out_q, self.out_shift, self.in_q, self.in_shift,
+                np.int64(self.acc_frac_bits - self.stack_frac_bits), self.stack_limit_words,
+                B, A, BSH, nsec, frac, lim, in_lim)
+
+    def reset(self, u0_axes_v=(0.0, 0.0, 0.0)):
+        """State (cascade states (3, n_max, 2), window models (3,), int64) at rest at ``u0_axes_v`` (axis V), zero error."""
+        fx = self._fixed()
+        nmax = max(len(f.b) for f in fx)
+        s = np.zeros((3, nmax, 2), np.int64)
+        vm = np.zeros(3, np.int64)
+        for a, (f, u0) in enumerate(zip(fx, u0_axes_v)):
+            sa, w = initial_state(f, float(u0))
+            s[a, :len(f.b)] = sa
+            vm[a] = w
+        return s, vm
+
+    def step_words(self, state, g_w, r_w):
+        """One sample: gauge words and reference words in, stack command words out (``state`` updated).
+
+        :func:`mimo_step`: bit for bit NAME_fixed_step of the header (module docstring).
+        """
+        s, vm = state
+        out = np.empty(3, np.int64)
+        mimo_step(np.asarray(g_w, np.int64), np.asarray(r_w, np.int64), s, vm, out, *self.plan)
+        return out
+
+    def stack_volts(self, words):
+        return np.asarray(words, float) * 2.0 ** -self.stack_frac_bits
+
+    def axis_to_stack_volts(self, u_axes_v):
+        """Float: stack volts of axis commands (axis V)."""
+        return self.axes_to_stacks @ np.asarray(u_axes_v, float)
+
+    def run(self, g_v, r_axes, u0_axes_v=(0.0, 0.0, 0.0)):
+        """The fixed-point step over records: gauges (samples, 3) firmware V, references (samples, 3) axis units.
+
+        Returns
+        -------
+        ndarray, shape (samples, 3)
+            Stack commands, V (words times 2^-FV, exact).
+        """
+        gw = self.gauge_words(g_v)
+        rw = self.reference_words(r_axes)
+        st = self.reset(u0_axes_v)
+        out = np.empty(gw.shape, np.int64)
+        for k in range(gw.shape[0]):
+            out[k] = self.step_words(st, gw[k], rw[k])
+        return self.stack_volts(out)
+
+    # ------------------------------------------------------------------ build
+    @classmethod
+    def from_design(cls, design, fsm, *, name="fsm_controller", record=None, coeff_bits=32):
+        """Export a :class:`~workbench.design.mimo.MimoDesign` for the mirror ``fsm``.
+
+        Only a design without IFF (the notch-only design) exports: the IFF path needs a charge
+        measurement per stack that the firmware chain modelled here does not have.
+
+        Each axis cascade: :meth:`Controller.from_lti` of the axis' discrete controller, input range
+        the largest |axis volts| the gauges' DAC ranges can produce, output range the axis volts that
+        keep every stack within its amplifier range with the other axes at their centre (piston: the
+        whole range), the axis current-limit window of the module docstring.
+        """
+        if design.iff is not None:
+            raise ExportError("the IFF-damped design needs each stack's charge in the firmware; export the "
+                              "notch-only design (design_mimo(..., damping=False))")
+        dec = design.decoupler
+        dt = float(design.axes["tip"].controller_d.dt)
+        inv = np.asarray(dec.in_v_per_q, float)
+        scale = 1.0 / np.abs(inv).max(axis=0)
+        g2a = np.asarray(dec.out_q_per_v, float) / scale[:, None]
+        a2s = inv * scale[None, :]
+        stacks = fsm.stacks
+        lim = np.array([[pz.voltage_min_v, pz.voltage_max_v] for pz in stacks], float)
+        dac = np.array([pl.gauge.dac_range_v for pl in fsm.plants], float)
+        in_range = np.abs(g2a) @ dac
+        # the axis window (module docstring): the slowest stack RC model, the smallest current headroom,
+        # shared so that the box of axis deviations maps inside every stack's window
+        windows = [plant_window(pl, dt) for pl in fsm.plants]
+        if any(w is None for w in windows):
+            raise ExportError("a stack has no series resistor (R = 0): no current-limit window to build")
+        alpha = float(min(w[0] for w in windows))
+        h = float(min(min(w[1], w[2]) for w in windows))
+        head = np.full(3, h / np.abs(a2s).sum(axis=1).max())
+        axes = {}
+        for a, key in enumerate(AXIS_KEYS):
+            col = a2s[:, a]
+            if key == "piston":
+                lo = np.max(np.where(col > 0, lim[:, 0] / col, lim[:, 1] / col))
+                hi = np.min(np.where(col > 0, lim[:, 1] / col, lim[:, 0] / col))
+            else:
+                half = 0.5 * (lim[:, 1] - lim[:, 0])
+                nz = np.abs(col) > 1e-12 * np.abs(col).max()
+                hi = float(np.min(half[nz] / np.abs(col[nz])))
+                lo = -hi
+            k_d = design.axes[key].controller_d
+            c = Controller.from_lti(k_d, dt_s=float(k_d.dt), output_limits_v=(float(lo), float(hi)),
+                                    input_range_v=float(in_range[a]), coeff_bits=coeff_bits, window=False,
+                                    name=f"{name}_{key}", method="mirror axis loop (design.mimo)",
+                                    record={"axis": key, "axis_unit": AXIS_UNITS[a],
+                                            "notch": design.notches.get(key)})
+            model = (alpha, float(head[a]), float(head[a]))
+            fxp = quantize(c.gain, np.array(c.sos), c.dt_s, input_range_v=float(in_range[a]),
+                           output_limits_v=c.output_limits_v, f_max_hz=c.fixed.f_max_hz, coeff_bits=coeff_bits,
+                           voltage_model=model)
+            aw = {"method": "conditioned_cascade", "output_limits_v": list(c.output_limits_v),
+                  "voltage_model": {"alpha": model[0], "headroom_v": [model[1], model[2]]},
+                  "description": "axis window: the axis output stays within +/- headroom of its model "
+                                 "m += alpha (u - m), so every stack's command stays within R min(I_source, "
+                                 "I_sink) of In m (workbench/export/mimo.py)"}
+            axes[key] = replace(c, fixed=fxp, voltage_model=model, window_source="file",
+                                record={**c.record, "anti_windup": aw}, max_pole_radius=fxp.max_pole_radius)
+        dv = max(np.abs(lim).max(), 1e-9)
+        rec = {"provenance": _mirror_provenance(fsm), **(record or {})}
+        return cls(name=name, axes=axes, axis_scale=scale, gauge_to_axes=g2a, axes_to_stacks=a2s,
+                   stack_limits_v=lim, gauge_frac_bits=_frac_for(dac.max(), 31),
+                   stack_frac_bits=_frac_for(dv, 31), record=rec)
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self):
+        """The JSON form: schema, matrices (float and words), the three axis controllers' JSON."""
+        return {"schema": MIMO_SCHEMA, "name": self.name, "sample_rate_hz": self.sample_rate_hz,
+                **{k: v for k, v in self.record.items() if k not in _TOP_KEYS},
+                "axes": list(AXIS_KEYS), "axis_units": list(AXIS_UNITS),
+                "axis_scale": self.axis_scale.tolist(),
+                "gauge_to_axes": self.gauge_to_axes.tolist(), "axes_to_stacks": self.axes_to_stacks.tolist(),
+                "stack_limits_v": self.stack_limits_v.tolist(),
+                "fixed_point": {"gauge_frac_bits": self.gauge_frac_bits, "stack_frac_bits": self.stack_frac_bits,
+                                "gauge_to_axes_q": self.out_q.tolist(),
+                                "gauge_to_axes_frac_bits": self.out_frac_bits.tolist(),
+                                "axes_to_stacks_q": self.in_q.tolist(),
+                                "axes_to_stacks_frac_bits": self.in_frac_bits.tolist(),
+                                "note": "step: module docstring of workbench/export/mimo.py; the per-axis "
+                                        "cascades are controllers[axis], each with its axis current-limit window"},
+                "controllers": {k: c.to_dict() for k, c in self.axes.items()}}
+
+    def write(self, out_dir, name=None):
+        """Write NAME.json, NAME.h and each axis' NAME_AXIS.{json,h,csv,mat} (atomic writes).
+
+        Returns
+        -------
+        dict of Path
+            ``"json"``, ``"h"`` and ``"<axis>_h"`` etc.
+        """
+        name = name or self.name
+        out_dir = Path(out_dir)
+        paths = {}
+        for k, c in self.axes.items():
+            for ext, p in c.write(out_dir, f"{name}_{k}").items():
+                paths[f"{k}_{ext}"] = p
+        d = self.to_dict()
+        d["name"] = name
+        paths["json"] = write_text(out_dir / f"{name}.json", json.dumps(d, indent=1) + "\n")
+        paths["h"] = write_text(out_dir / f"{name}.h", self.header(name))
+        return paths
+
+    @classmethod
+    def from_dict(cls, data, *, source="", allow_unstable=False):
+        """Validate and build from the JSON form (see the module docstring for what is checked)."""
+        src = source or "<mimo controller>"
+        if not isinstance(data, dict):
+            raise MimoControllerError(src, "", "a MIMO controller JSON is an object; re-export it")
+        if data.get("schema") != MIMO_SCHEMA:
+            got = data.get("schema")
+            hint = (" (a SISO controller: it drives one stack; the mirror needs the MIMO controller "
+                    "`workbench study studies/fsm_servo.toml` exports)" if got is None and "sos" in data else "")
+            raise MimoControllerError(src, "schema", f"got {got!r}; expected {MIMO_SCHEMA!r}{hint}")
+        axes_list = data.get("axes")
+        if axes_list != list(AXIS_KEYS):
+            raise MimoControllerError(src, "axes", f"got {axes_list!r}; expected {list(AXIS_KEYS)}")
+
+        def mat(key, shape):
+            try:
+                m = np.asarray(data[key], dtype=float)
+            except KeyError:
+                raise MimoControllerError(src, key, "is missing; re-export the controller") from None
+            except (TypeError, ValueError):
+                raise MimoControllerError(src, key, f"must hold numbers; got {str(data[key])[:80]}") from None
+            if m.shape != shape:
+                raise MimoControllerError(src, key, f"must have shape {shape}; got {m.shape}")
+            if not np.all(np.isfinite(m)):
+                raise MimoControllerError(src, key, f"must hold finite numbers; got {m.tolist()}")
+            return m
+        scale = mat("axis_scale", (3,))
+        if np.any(scale <= 0):
+            raise MimoControllerError(src, "axis_scale", f"must be positive (rad or m per axis volt); got {scale}")
+        g2a, a2s = mat("gauge_to_axes", (3, 3)), mat("axes_to_stacks", (3, 3))
+        for key, m in (("gauge_to_axes", g2a), ("axes_to_stacks", a2s)):
+            if np.linalg.cond(m) > 1e8:
+                raise MimoControllerError(src, key, f"is singular (condition {np.linalg.cond(m):.3g}): the axes "
+                                                    f"cannot be told apart; re-export from the mirror's kinematics")
+        lim = mat("stack_limits_v", (3, 2))
+        if np.any(lim[:, 0] >= lim[:, 1]):
+            raise MimoControllerError(src, "stack_limits_v", f"each row must be ordered [lo, hi] V; got {lim.tolist()}")
+        ctr = data.get("controllers")
+        if not isinstance(ctr, dict):
+            raise MimoControllerError(src, "controllers", "must be a table {tip, tilt, piston} of exported "
+                                                          "controllers")
+        axes = {}
+        for k in AXIS_KEYS:
+            if k not in ctr:
+                raise MimoControllerError(src, f"controllers.{k}", "is missing; re-export the controller")
+            try:
+                c = Controller.from_dict(ctr[k], source=f"{src} controllers.{k}", allow_unstable=allow_unstable)
+            except ControllerError as err:
+                raise MimoControllerError(src, f"controllers.{k}", str(err)) from None
+            if c.fixed is None:
+                raise MimoControllerError(src, f"controllers.{k}.fixed_point", "is missing: the MIMO step runs "
+                                                                                "the words; re-export")
+            axes[k] = c
+        rates = {k: c.sample_rate_hz for k, c in axes.items()}
+        fs = data.get("sample_rate_hz")
+        if not isinstance(fs, (int, float)) or any(abs(r - fs) > 1e-9 * fs for r in rates.values()):
+            raise MimoControllerError(src, "sample_rate_hz", f"{fs!r} must equal every axis controller's rate "
+                                                             f"{rates}")
+        fp = data.get("fixed_point")
+        if not isinstance(fp, dict):
+            raise MimoControllerError(src, "fixed_point", "is missing; re-export the controller")
+        try:
+            gf, vf = int(fp["gauge_frac_bits"]), int(fp["stack_frac_bits"])
+        except (KeyError, TypeError, ValueError) as exc:
+            raise MimoControllerError(src, "fixed_point", f"needs integer gauge_frac_bits and stack_frac_bits "
+                                                          f"({exc})") from None
+        if not (0 <= gf <= 31 and 0 <= vf <= 31):
+            raise MimoControllerError(src, "fixed_point", f"fraction bits must lie in 0..31; got {gf}, {vf}")
+        rec = {k: v for k, v in data.items() if k not in _TOP_KEYS}
+        out = cls(name=str(data.get("name") or "fsm_controller"), axes=axes, axis_scale=scale, gauge_to_axes=g2a,
+                  axes_to_stacks=a2s, stack_limits_v=lim, gauge_frac_bits=gf, stack_frac_bits=vf, record=rec,
+                  source=str(source))
+        for key, words, want in (("gauge_to_axes_q", fp.get("gauge_to_axes_q"), out.out_q),
+                                 ("axes_to_stacks_q", fp.get("axes_to_stacks_q"), out.in_q)):
+            try:
+                w = np.asarray(words, dtype=np.int64)
+            except (TypeError, ValueError):
+                w = None
+            if w is None or w.shape != (3, 3) or not np.array_equal(w, want):
+                raise MimoControllerError(src, f"fixed_point.{key}", "are not the float matrix quantized as the "
+                                                                     "exporter does; re-export the controller")
+        if np.any(out.out_shift < 1) or out.acc_frac_bits - vf < 1:
+            raise MimoControllerError(src, "fixed_point", "word formats leave no rounding shift; re-export")
+        return out
+
+    @classmethod
+    def load(cls, path, *, allow_unstable=False):
+        """Load and validate NAME.json (:class:`MimoControllerError` naming the file and key)."""
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise MimoControllerError(path, "", f"cannot be read ({exc.strerror or exc}); give the exported "
+                                                f"MIMO controller NAME.json") from None
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise MimoControllerError(path, "", f"is not JSON ({exc}); give the exported MIMO controller .json") \
+                from None
+        return cls.from_dict(data, source=str(path), allow_unstable=allow_unstable)
+
+    # ------------------------------------------------------------------ C
+    def header(self, name=None):
+        """NAME.h: includes the three axis headers and runs the step of the module docstring."""
+        name = name or self.name
+        up = name.upper()
+        ax = [f"{name}_{k}" for k in AXIS_KEYS]
+
+        def arr(m):
+            return ",\n".join("    {" + ", ".join(f"INT64_C({int(v)})" for v in row) + "}" for row in m)
+        lw = self.stack_limit_words
+        return f"""\
+/* {name}.h: the mirror's MIMO controller "{name}", exported by workbench.export.mimo. Re-export rather than edit.
+ *
+ * Per sample: gauge words g[3] (firmware V x 2^{up}_GAUGE_FRAC_BITS) and reference words r[3] (each
+ * axis cascade's input format, axis volts; axis volt = {self.axis_scale[0]:.6g} rad tip, {self.axis_scale[1]:.6g} rad tilt,
+ * {self.axis_scale[2]:.6g} m piston) in; stack command words v[3] (V x 2^{up}_STACK_FRAC_BITS) out:
+ *   q[a] = (sum_j OUT_Q[a][j] g[j] + 2^(OUT_SHIFT[a]-1)) >> OUT_SHIFT[a]   (gauges -> axes)
+ *   u[a] = AXIS_fixed_step(r[a] - q[a])                                    (the axis cascades)
+ *   v[j] = clamp((sum_a (IN_Q[j][a] u[a]) >> IN_SHIFT[a] + 2^(V_SHIFT-1)) >> V_SHIFT)   (axes -> stacks)
+ * int64 accumulators, arithmetic right shifts. Each axis cascade clamps its output to its axis range and to
+ * its current-limit window (a model of its output; the box maps inside every stack's current headroom), and
+ * the clamped value drives its integrator (anti-windup).
+ */
+#ifndef {up}_H
+#define {up}_H
+
+#include <stdint.h>
+#include "{ax[0]}.h"
+#include "{ax[1]}.h"
+#include "{ax[2]}.h"
+
+#define {up}_GAUGE_FRAC_BITS {self.gauge_frac_bits}
+#define {up}_STACK_FRAC_BITS {self.stack_frac_bits}
+#define {up}_V_SHIFT {self.acc_frac_bits - self.stack_frac_bits}
+
+static const int64_t {up}_OUT_Q[3][3] = {{
+{arr(self.out_q)}
+}};
+static const int {up}_OUT_SHIFT[3] = {{{", ".join(str(int(v)) for v in self.out_shift)}}};
+static const int64_t {up}_IN_Q[3][3] = {{
+{arr(self.in_q)}
+}};
+static const int {up}_IN_SHIFT[3] = {{{", ".join(str(int(v)) for v in self.in_shift)}}};
+static const int64_t {up}_STACK_LIMITS_Q[3][2] = {{
+{arr(lw)}
+}};
+
+typedef struct {{ {ax[0]}_fixed_state a0; {ax[1]}_fixed_state a1; {ax[2]}_fixed_state a2; }} {name}_fixed_state;
+
+/* At rest with the axis cascades' outputs at u0_q (each in its output format) and zero error. */
+static inline void {name}_fixed_reset({name}_fixed_state *st, const int32_t u0_q[3])
+{{
+    {ax[0]}_fixed_reset(&st->a0, u0_q[0]);
+    {ax[1]}_fixed_reset(&st->a1, u0_q[1]);
+    {ax[2]}_fixed_reset(&st->a2, u0_q[2]);
+}}
+
+static inline int32_t {name}_sat32_(int64_t v)
+{{
+    return v > INT32_MAX ? INT32_MAX : v < INT32_MIN ? INT32_MIN : (int32_t)v;
+}}
+
+static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3], const int32_t r_q[3],
+                                     int32_t v_q[3])
+{{
+    int64_t u[3];
+    int32_t e[3];
+    for (int a = 0; a < 3; a++) {{
+        int64_t acc = 0;
+        for (int j = 0; j < 3; j++) acc += {up}_OUT_Q[a][j] * (int64_t)g_q[j];
+        const int64_t q = (acc + ((int64_t)1 << ({up}_OUT_SHIFT[a] - 1))) >> {up}_OUT_SHIFT[a];
+        e[a] = {name}_sat32_((int64_t)r_q[a] - q);
+    }}
+    u[0] = {ax[0]}_fixed_step(&st->a0, e[0]);
+    u[1] = {ax[1]}_fixed_step(&st->a1, e[1]);
+    u[2] = {ax[2]}_fixed_step(&st->a2, e[2]);
+    for (int j = 0; j < 3; j++) {{
+        int64_t acc = 0;
+        for (int a = 0; a < 3; a++) acc += ({up}_IN_Q[j][a] * u[a]) >> {up}_IN_SHIFT[a];
+        int64_t v = (acc + ((int64_t)1 << ({up}_V_SHIFT - 1))) >> {up}_V_SHIFT;
+        v = v < {up}_STACK_LIMITS_Q[j][0] ? {up}_STACK_LIMITS_Q[j][0] : v > {up}_STACK_LIMITS_Q[j][1] ? {up}_STACK_LIMITS_Q[j][1] : v;
+        v_q[j] = (int32_t)v;
+    }}
+}}
+
+#endif /* {up}_H */
+"""
+
+
+_TOP_KEYS = ("schema", "name", "sample_rate_hz", "axes", "axis_units", "axis_scale", "gauge_to_axes",
+             "axes_to_stacks", "stack_limits_v", "fixed_point", "controllers")
+
+
+def _mirror_provenance(fsm):
+    out = {"plant_file": str(fsm.source), "stack_files": [str(p.source) for p in fsm.plants],
+           "serials": [p.serial for p in fsm.plants]}
+    if fsm.source and Path(fsm.source).is_file():
+        out["plant_sha256"] = hashlib.sha256(Path(fsm.source).read_bytes()).hexdigest()
+    return out
+
+
+def is_mimo_controller_file(path):
+    """True when ``path`` is a JSON object whose ``schema`` is the MIMO controller's (False on anything else)."""
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(data, dict) and data.get("schema") == MIMO_SCHEMA
