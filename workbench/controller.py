@@ -405,9 +405,8 @@ class Controller:
         n = len(self.sos)
         sens = ""
         if self.sensor is not None:
-            sens = {"gauge": ", closes on the gauge", "charge": ", closes on the charge estimate",
-                    "fused": f", closes on the gauge + charge blend at {self.sensor.crossover_hz:.4g} Hz"
-                    if self.sensor.kind == "fused" else ""}[self.sensor.kind]
+            sens = {"gauge": ", closes on the gauge", "charge": ", closes on the charge estimate"}.get(
+                self.sensor.kind) or f", closes on the gauge + charge blend at {self.sensor.crossover_hz:.4g} Hz"
         return f"{form}, {n} section{'s' if n > 1 else ''} at {self.sample_rate_hz:g} Hz, {lim}, {win}{sens}"
 
     @property

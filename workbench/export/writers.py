@@ -285,9 +285,9 @@ def _sensor_c(name, fxp, sensor):
     up = name.upper()
     s_q, s_bits = sensor.error_scale(fxp.input_frac_bits)
     kind = sensor.kind
-    what = {"gauge": "the gauge reading g", "charge": "the charge estimate c",
-            "fused": f"the complementary blend c + lowpass(g - c), crossover {sensor.crossover_hz:.6g} Hz "
-                     f"(a = exp(-w_c T) = {sensor.pole:.12g})"}[kind]
+    what = {"gauge": "the gauge reading g", "charge": "the charge estimate c"}.get(kind) or (
+        f"the complementary blend c + lowpass(g - c), crossover {sensor.crossover_hz:.6g} Hz "
+        f"(a = exp(-w_c T) = {sensor.pole:.12g})")
     blend_defs = ""
     if kind == "fused":
         blend_defs = (f"#define {up}_BLEND_K INT64_C({sensor.k})\n#define {up}_BLEND_K_BITS {sensor.coef_bits}\n"
