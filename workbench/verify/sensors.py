@@ -81,8 +81,10 @@ class SensorSetup:
         self.plant, self.ident, self.amp, self.e_d, self.loops = plant, ident, amp, e_d, loops
 
 
-def sensor_setup(plant, controller, amp=None, seed=2, progress=None):
+def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_s=700.0):
     """Identify the estimator on a simulated record of ``plant`` and analyse the loops (~30 s).
+
+    ``ident_hold_s``: the identification record's final hold, s (700 s as ``workbench selfsense``).
 
     Returns a :class:`SensorSetup`; ``loops`` maps each sensor to the nominal loop's margins
     (:func:`workbench.selfsense.run.loop_analysis` at 50 V; the fused loop F_low L_gauge + F_high L_charge
@@ -98,7 +100,7 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None):
     amp = ChargeAmpParams() if amp is None else amp
     dt = plant.gauge.period_s
     say("identification record")
-    rec = simulate_identification(plant.pzt, amp, hold_s=700.0, seed=seed + 100, dt_s=dt)
+    rec = simulate_identification(plant.pzt, amp, hold_s=float(ident_hold_s), seed=seed + 100, dt_s=dt)
     ident = identify(rec, amp)
     say("loop analysis")
     if controller.source and Path(controller.source).is_file():
@@ -117,10 +119,12 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None):
 @njit(cache=True, error_model="numpy")
 def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, cs, ep, eg, ea_, eb0, eb1, es, er, ew,
                  ez, xa, xb, xc, xd, xe, kind, bk, bfrac, bkbits, scale, sbits, in_lim, fb, fa, fshift, ffrac, limw,
-                 cst, vm, io, rec_x, rec_r):
+                 cst, vm, io, dec, rec):
     """Periods of the sensor loop (module notes). ``io`` = [pending u (V), x_prev, blend y, decim count, row,
     output LSB (V), last reading (counts), blend started]; ``cs`` charge-amp state [t, v_prev, q_leak] and DA states ``ck``-sized in ``cs[3:]``;
-    ``es`` estimator state [t, v_prev, q_leak]; ``ez`` play states; ``xe`` E(z) states."""
+    ``es`` estimator state [t, v_prev, q_leak]; ``ez`` play states; ``xe`` E(z) states. Every ``dec``-th
+    period a row of ``rec``: true x (m), the reading the cascade closed on (m), the gauge and charge counts
+    the sensor step received, and the output it computed (V)."""
     out = np.empty(K.N_OUT)
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vmod, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
@@ -207,12 +211,15 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
             io[0] = u_w * io[5]
         io[6] = f
         io[3] += 1
-        if io[3] >= DECIMATE:
+        if io[3] >= dec:
             io[3] = 0
             row = int(io[4])
-            if row < rec_x.shape[0]:
-                rec_x[row] = x
-                rec_r[row] = f * lsb_m
+            if row < rec.shape[0]:
+                rec[row, 0] = x
+                rec[row, 1] = f * lsb_m
+                rec[row, 2] = g
+                rec[row, 3] = c
+                rec[row, 4] = io[0]
                 io[4] = row + 1
 
 
@@ -229,7 +236,7 @@ def _estimator_arrays(p, dt):
 
 
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2,
-                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None):
+                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE):
     """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
 
     Parameters
@@ -244,12 +251,16 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         The stroke the triangle's 10-90 % refers to (default: rest to 100 V, quasi-static).
     noise : bool
         Gauge noise and the charge amplifier's noise.
+    decimate : int, default 10
+        Periods per recorded row (1: every period, to replay the sensor step).
 
     Returns
     -------
     dict
         ``triangle_rms_m``, ``triangle_rms_percent_stroke``, ``hold_drift_m``, ``hold_noise_rms_m`` and the
-        settings; ``_t_s``, ``_x_m``, ``_reading_m``, ``_reference_m`` (1 kHz arrays) for figures.
+        settings; arrays of the closed loop, one per ``decimate`` periods (keys starting with "_"): ``_t_s``,
+        ``_x_m``, ``_reading_m``, ``_reference_rel_m``, and what the sensor step received and computed
+        (``_reference_counts``, ``_gauge_counts``, ``_charge_counts``, ``_u_v``).
     """
     from dataclasses import replace
 
@@ -325,17 +336,18 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     sig_g = demod_noise_sigma_v(g) if noise else 0.0
     sig_o = amp.out_noise_v_rms if noise else 0.0
     sig_i = amp.vin_noise_v_rms if noise else 0.0
-    rec_x = np.zeros(n // DECIMATE)
-    rec_r = np.zeros(n // DECIMATE)
-    dummy_x, dummy_r = np.zeros(n_settle // DECIMATE + 1), np.zeros(n_settle // DECIMATE + 1)
+    dec = int(decimate)
+    rec = np.zeros((n // dec, 5))
+    rec_open = np.zeros((n_settle // dec + 1, 5))
     words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
              np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
              fxp.limit_words, cst, vm)
     total = n_settle + n
     done = 0
-    for closed, count, rx, rr in ((False, n_settle, dummy_x, dummy_r), (True, n, rec_x, rec_r)):
+    for closed, count, rr in ((False, n_settle, rec_open), (True, n, rec)):
         io[3], io[4] = 0.0, 0.0
         if closed:
+            y_close = int(io[2])                    # the blend's state when the loop closes
             ref_counts = np.int64(io[6])            # the reading at the moment the loop closes
             refs = ref_counts + np.round(r_rel / sb.lsb_m).astype(np.int64)
         else:
@@ -347,16 +359,17 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
             on = rng.standard_normal(m) * sig_o if sig_o > 0 else np.zeros(m)
             vn = rng.standard_normal(m) * sig_i if sig_i > 0 else np.zeros(m)
             _sensor_loop(sim.m, sim.st, closed, refs[start:stop], gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
-                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, rx, rr)
+                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec, rr)
             done += m
             if progress:
                 progress(f"sensor loop: {sensor}", done, total)
-    per = int(round(1.0 / triangle_hz / dt)) // DECIMATE
-    nt = n_tri // DECIMATE
-    r_dec = r_rel[DECIMATE - 1::DECIMATE][:rec_x.size]
+    rec_x = rec[:, 0]
+    per = int(round(1.0 / triangle_hz / dt)) // dec
+    nt = n_tri // dec
+    r_dec = r_rel[dec - 1::dec][:rec_x.size]
     e_tri = rec_x[per:nt] - r_dec[per:nt]
     e_tri = e_tri - np.mean(e_tri)
-    one = int(round(1.0 / dt)) // DECIMATE
+    one = int(round(1.0 / dt)) // dec
     h0 = nt + one
     hold_x = rec_x[nt:]
     drift = float(np.mean(rec_x[-one:]) - np.mean(rec_x[h0:h0 + one]))
@@ -367,8 +380,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
-            "_t_s": t[DECIMATE - 1::DECIMATE][:rec_x.size], "_x_m": rec_x, "_reading_m": rec_r,
-            "_reference_rel_m": r_dec}
+            "_t_s": t[dec - 1::dec][:rec_x.size], "_x_m": rec_x, "_reading_m": rec[:, 1],
+            "_reference_rel_m": r_dec, "_reference_counts": refs[dec - 1::dec][:rec_x.size],
+            "_gauge_counts": rec[:, 2].astype(np.int64), "_charge_counts": rec[:, 3].astype(np.int64),
+            "_u_v": rec[:, 4], "_u0_v": float(bias_v), "_blend_state_at_closing": y_close}
 
 
 def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, noise=True, seed=4, progress=None,
