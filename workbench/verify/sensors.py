@@ -298,8 +298,11 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     n_tri = int(round(triangle_periods / triangle_hz / dt))
     n_hold = int(round(hold_s / dt))
     n = n_tri + n_hold
-    t = np.arange(1, n + 1) * dt
-    r_rel = np.where(np.arange(n) < n_tri, triangle_reference(t, 0.4 * stroke, triangle_hz), 0.0)
+
+    def r_rel(i0, i1):
+        """The reference about the reading at closing for periods i0..i1 - 1 after closing, m."""
+        i = np.arange(i0, i1)
+        return np.where(i < n_tri, triangle_reference((i + 1) * dt, 0.4 * stroke, triangle_hz), 0.0)
 
     sim = PZTSimulator(plant.pzt, dt)
     amp = setup.amp
@@ -349,16 +352,17 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         if closed:
             y_close = int(io[2])                    # the blend's state when the loop closes
             ref_counts = np.int64(io[6])            # the reading at the moment the loop closes
-            refs = ref_counts + np.round(r_rel / sb.lsb_m).astype(np.int64)
         else:
-            refs = np.zeros(count, np.int64)
+            ref_counts = np.int64(0)
         for start in range(0, count, CHUNK):
             stop = min(count, start + CHUNK)
             m = stop - start
             gn = rng.standard_normal(m) * sig_g if sig_g > 0 else np.zeros(m)
             on = rng.standard_normal(m) * sig_o if sig_o > 0 else np.zeros(m)
             vn = rng.standard_normal(m) * sig_i if sig_i > 0 else np.zeros(m)
-            _sensor_loop(sim.m, sim.st, closed, refs[start:stop], gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
+            refs = ref_counts + np.round(r_rel(start, stop) / sb.lsb_m).astype(np.int64) if closed else \
+                np.zeros(m, np.int64)
+            _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
                          cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec, rr)
             done += m
             if progress:
@@ -366,7 +370,9 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     rec_x = rec[:, 0]
     per = int(round(1.0 / triangle_hz / dt)) // dec
     nt = n_tri // dec
-    r_dec = r_rel[dec - 1::dec][:rec_x.size]
+    idx = np.arange(rec_x.size) * dec + dec - 1          # the periods the rows were taken at
+    r_dec = r_rel(0, 0) if rec_x.size == 0 else np.where(idx < n_tri, triangle_reference((idx + 1) * dt,
+                                                                                        0.4 * stroke, triangle_hz), 0.0)
     e_tri = rec_x[per:nt] - r_dec[per:nt]
     e_tri = e_tri - np.mean(e_tri)
     one = int(round(1.0 / dt)) // dec
@@ -380,8 +386,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
-            "_t_s": t[dec - 1::dec][:rec_x.size], "_x_m": rec_x, "_reading_m": rec[:, 1],
-            "_reference_rel_m": r_dec, "_reference_counts": refs[dec - 1::dec][:rec_x.size],
+            "_t_s": (idx + 1) * dt, "_x_m": rec_x, "_reading_m": rec[:, 1],
+            "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_dec / sb.lsb_m).astype(np.int64),
             "_gauge_counts": rec[:, 2].astype(np.int64), "_charge_counts": rec[:, 3].astype(np.int64),
             "_u_v": rec[:, 4], "_u0_v": float(bias_v), "_blend_state_at_closing": y_close}
 
