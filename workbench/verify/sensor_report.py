@@ -67,14 +67,18 @@ def plot_sensors(rows, traces, path):
         e = e - np.mean(e[per:n_tri])
         lab = f"{TITLES[s]}: {r['triangle_rms_percent_stroke']:.3f} % RMS"
         a1.plot(t[:n_tri], e * 1e9, color=COLORS[s], lw=0.6, label=lab)
+        one = max(1, per // 10)                       # 1 s of rows (the triangle's period is 10 s)
         h = x[n_tri:]
-        a2.plot(t[n_tri:] - t[n_tri], (h - np.mean(h[: max(1, per // 10)])) * 1e9, color=COLORS[s], lw=0.5,
+        h1 = np.convolve(h, np.ones(one) / one, mode="valid")[::max(1, one // 20)]    # 1 s means, 20 a second
+        th = (t[n_tri:][one - 1:] - t[n_tri])[::max(1, one // 20)]
+        a2.plot(th, (h1 - h1[0]) * 1e9, color=COLORS[s], lw=0.9,
                 label=f"{TITLES[s]}: noise {r['hold_noise_rms_m'] * 1e9:.2f} nm RMS, drift "
                       f"{r['hold_drift_m'] * 1e9:+.2f} nm")
     a1.axvspan(0, rows[0]["triangle_hz"] ** -1 + t[0], color="0.9", zorder=0, label="first period (not scored)")
     a1.set(xlabel="time after closing the loop (s)", ylabel="true x - reference (nm, mean removed)",
            title=f"{rows[0]['triangle_hz']:g} Hz triangle, 10-90 % of stroke")
-    a2.set(xlabel="time into the hold (s)", ylabel="true x - its start (nm)", title="hold")
+    a2.set(xlabel="time into the hold (s)", ylabel="true x, 1 s running mean, from its start (nm)",
+           title="hold: drift (noise RMS about the 1 s mean in the legend)")
     for a in (a1, a2):
         a.grid(True, alpha=0.3)
         a.legend(fontsize=7, loc="upper right")
