@@ -87,3 +87,18 @@ def test_verify_table_sensor_key(tmp_path):
     f.write_text('[verify]\nsensor = "strain"\n')
     with pytest.raises(StudyDefinitionError, match=r"verify.sensor.*gauge, charge, fused, all"):
         load_verify_sensor(f)
+
+
+@pytest.mark.parametrize("fc_hz", [3.0, 47.0, 410.0])
+def test_closed_loop_bandwidth_of_an_integrator_loop_is_its_crossover(fc_hz):
+    # L = w_c / s: T = w_c / (s + w_c), whose -3 dB point is f_c exactly
+    from workbench.verify.sensors import closed_loop_bandwidth_hz
+    f = np.geomspace(0.01, 4999.0, 1500)
+    loop = fc_hz / (1j * f)
+    assert closed_loop_bandwidth_hz(f, loop) == pytest.approx(fc_hz, rel=2e-3)
+
+
+def test_a_fused_controller_on_the_gauge_scenarios_is_flagged(tmp_path, capsys):
+    assert main(["verify", str(CREEP), "--controller", str(FUSED), "--scenario", "small_step", "--strict",
+                 "--out", str(tmp_path / "o")]) == 2
+    assert "the scenarios close on the gauge, but the controller's sensor block says 'fused'" in capsys.readouterr().err

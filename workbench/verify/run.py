@@ -336,7 +336,11 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
         pre.append({"check": "sensor", "message": f"--sensor {other[0]}, but the controller's sensor block says "
                                                   f"{controller.sensor_kind!r} (the reading it was designed to close "
                                                   f"on); the {other[0]} loop runs it anyway"})
-    elif other:
+    if scenarios and controller.sensor_kind != "gauge":
+        pre.append({"check": "sensor", "message": f"the scenarios close on the gauge, but the controller's sensor "
+                                                  f"block says {controller.sensor_kind!r}; --sensor "
+                                                  f"{controller.sensor_kind} runs it on its own reading"})
+    if len(sensors) > 1 and other:
         notes.append(f"the {' and '.join(other)} runs close this controller on another reading than its sensor block's "
                      f"{controller.sensor_kind!r} (side by side, as asked)")
     if controller.window_source == "plant":

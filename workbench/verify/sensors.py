@@ -108,12 +108,29 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_
     else:                                   # loop_analysis reads a file: the cascade is what it uses
         with tempfile.TemporaryDirectory() as tmp:
             la = loop_analysis(plant, ident, amp, controller.write(tmp, "controller")["json"])
-    loops = {"gauge": la["margins_gauge"], "charge": la["margins_self_sensed"]}
+    f = la["freq_hz"]
+    loops = {"gauge": dict(la["margins_gauge"]), "charge": dict(la["margins_self_sensed"])}
+    responses = {"gauge": la["l_gauge"], "charge": la["l_self"]}
     if controller.sensor is not None and controller.sensor.kind == "fused":
-        f = la["freq_hz"]
         blend = Blend(controller.sensor.crossover_hz, dt)
-        loops["fused"] = loop_margins(f, fused_loop_response(f, la["l_gauge"], la["l_self"], blend)).as_dict()
+        responses["fused"] = fused_loop_response(f, la["l_gauge"], la["l_self"], blend)
+        loops["fused"] = loop_margins(f, responses["fused"]).as_dict()
+    for s, l_ in responses.items():
+        loops[s]["bandwidth_hz"] = closed_loop_bandwidth_hz(f, l_)
     return SensorSetup(plant, ident, amp, la["systems"]["E_d"], loops)
+
+
+def closed_loop_bandwidth_hz(freq_hz, loop):
+    """-3 dB bandwidth of T = L / (1 + L) from a loop's frequency response: the first frequency where |T|
+    falls below 1/sqrt(2) of its low-frequency value (log-interpolated), Hz; NaN when it never does."""
+    f = np.asarray(freq_hz, float)
+    t = np.abs(np.asarray(loop) / (1.0 + np.asarray(loop)))
+    below = np.flatnonzero(t < t[0] / np.sqrt(2.0))
+    if below.size == 0 or below[0] == 0:
+        return float("nan")
+    i = below[0]
+    lt, lf = np.log(t[i - 1:i + 1]), np.log(f[i - 1:i + 1])
+    return float(np.exp(np.interp(np.log(t[0] / np.sqrt(2.0)), lt[::-1], lf[::-1])))
 
 
 @njit(cache=True, error_model="numpy")
@@ -396,8 +413,8 @@ def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, no
                     setup=None):
     """The closed loops of ``controller`` on each of ``sensors``, side by side (list of metric dicts).
 
-    Each row adds the nominal loop's crossover and margins on that sensor's path (``crossover_hz``,
-    ``phase_margin_deg``, ``gain_margin_db``; :func:`sensor_setup`).
+    Each row adds the nominal loop's crossover, closed-loop -3 dB bandwidth and margins on that sensor's
+    path (``crossover_hz``, ``bandwidth_hz``, ``phase_margin_deg``, ``gain_margin_db``; :func:`sensor_setup`).
     """
     if setup is None:
         setup = sensor_setup(plant, controller, progress=progress)
@@ -405,7 +422,7 @@ def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, no
     for s in sensors:
         r = run_sensor_loop(setup, controller, s, hold_s=hold_s, noise=noise, seed=seed, progress=progress)
         mg = setup.loops.get(s) or {}
-        r.update({"crossover_hz": mg.get("crossover_hz"), "phase_margin_deg": mg.get("phase_margin_deg"),
-                  "gain_margin_db": mg.get("gain_margin_db")})
+        r.update({"crossover_hz": mg.get("crossover_hz"), "bandwidth_hz": mg.get("bandwidth_hz"),
+                  "phase_margin_deg": mg.get("phase_margin_deg"), "gain_margin_db": mg.get("gain_margin_db")})
         rows.append(r)
     return rows
