@@ -446,8 +446,10 @@ def _preflight_lines(summary):
         lines.append("The controller's provenance, trim, gauge gain, output limits and current-limit window agree "
                      "with the plant it runs on.")
     else:
-        lines.append(f"**WARNING: {len(bad)} mismatch(es): the controller was not exported for this plant.** "
-                     f"(`--strict` makes this an error.)")
+        n_plant = sum(p["check"] != "sensor" for p in bad)
+        what = ([f"{n_plant} mismatch(es): the controller was not exported for this plant"] if n_plant else []) + \
+            (["the run closes on another reading than the controller's sensor block"] if n_plant < len(bad) else [])
+        lines.append(f"**WARNING: {'; '.join(what)}.** (`--strict` makes this an error.)")
         lines.append("")
         lines += [f"- **{p['check']}**: {p['message']}" for p in bad]
     info = [p for p in pre if p["check"] == "not recorded"] + [{"message": n} for n in summary.get("notes") or []]
