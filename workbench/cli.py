@@ -255,7 +255,8 @@ def cmd_verify(args):
         lines.append(f"  target {name}: {t['metric']} {value} (limit {t['limit']:g} {t['unit']}): "
                      f"{'met' if t['met'] else 'MISSED'}")
     for r in data.get("sensors") or []:
-        lines.append(f"  sensor {r['sensor']}: bandwidth {r['bandwidth_hz'] or float('nan'):.0f} Hz, crossover "
+        lines.append(f"  sensor {r['sensor']}: bandwidth {r.get('bandwidth_hz') or float('nan'):.0f} Hz (linear "
+                     f"{r.get('linear_bandwidth_hz') or float('nan'):.0f} Hz), crossover "
                      f"{r['crossover_hz'] or float('nan'):.0f} Hz, triangle "
                      f"{r['triangle_rms_percent_stroke']:.3f} % of stroke RMS, hold drift {r['hold_drift_m'] * 1e9:+.2f} nm "
                      f"over {r['hold_s']:g} s, hold noise {r['hold_noise_rms_m'] * 1e9:.2f} nm RMS")

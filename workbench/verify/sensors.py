@@ -253,7 +253,7 @@ def _estimator_arrays(p, dt):
 
 
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2,
-                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE):
+                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True):
     """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
 
     Parameters
@@ -270,6 +270,11 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         Gauge noise and the charge amplifier's noise.
     decimate : int, default 10
         Periods per recorded row (1: every period, to replay the sensor step).
+    sweep : bool, default True
+        After the hold, the closed-loop response from the time domain as verify's ``sine_sweep`` takes
+        it (:data:`.scenarios.SWEEP_FREQ_HZ`, tones of :data:`.scenarios.SWEEP_AMPLITUDE_M` about the
+        hold point, 2 s of each after 5 periods of settling), on the true x: ``bandwidth_hz`` is where
+        |x / reference| falls below -3 dB (NaN with a ``bandwidth_why``).
 
     Returns
     -------
@@ -362,14 +367,18 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
              np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
              fxp.limit_words, cst, vm)
-    total = n_settle + n
+    tones = _sweep_reference(dt) if sweep else None
+    n_sw = 0 if tones is None else tones[0].size
+    rec_sw = np.zeros((n_sw, 5))
+    total = n_settle + n + n_sw
     done = 0
-    for closed, count, rr in ((False, n_settle, rec_open), (True, n, rec)):
+    for phase, count, rr, dec_ in (("open", n_settle, rec_open, dec), ("closed", n, rec, dec), ("sweep", n_sw, rec_sw, 1)):
         io[3], io[4] = 0.0, 0.0
-        if closed:
+        closed = phase != "open"
+        if phase == "closed":
             y_close = int(io[2])                    # the blend's state when the loop closes
             ref_counts = np.int64(io[6])            # the reading at the moment the loop closes
-        else:
+        elif phase == "open":
             ref_counts = np.int64(0)
         for start in range(0, count, CHUNK):
             stop = min(count, start + CHUNK)
@@ -377,10 +386,14 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
             gn = rng.standard_normal(m) * sig_g if sig_g > 0 else np.zeros(m)
             on = rng.standard_normal(m) * sig_o if sig_o > 0 else np.zeros(m)
             vn = rng.standard_normal(m) * sig_i if sig_i > 0 else np.zeros(m)
-            refs = ref_counts + np.round(r_rel(start, stop) / sb.lsb_m).astype(np.int64) if closed else \
-                np.zeros(m, np.int64)
+            if phase == "closed":
+                refs = ref_counts + np.round(r_rel(start, stop) / sb.lsb_m).astype(np.int64)
+            elif phase == "sweep":                  # tones about the hold point
+                refs = ref_counts + np.round(tones[0][start:stop] / sb.lsb_m).astype(np.int64)
+            else:
+                refs = np.zeros(m, np.int64)
             _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
-                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec, rr)
+                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec_, rr)
             done += m
             if progress:
                 progress(f"sensor loop: {sensor}", done, total)
@@ -399,7 +412,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     run_mean = np.convolve(hold_x, np.ones(one) / one, mode="valid")
     noise_rms = float(np.std(hold_x[one - 1:] - run_mean))
     tri = float(np.sqrt(np.mean(e_tri ** 2)))
-    return {"sensor": sensor, "triangle_hz": float(triangle_hz), "triangle_rms_m": tri,
+    bw = {}
+    if tones is not None:
+        bw = _sweep_bandwidth(tones, rec_sw[:, 0], dt)
+    return {**bw, "sensor": sensor, "triangle_hz": float(triangle_hz), "triangle_rms_m": tri,
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
@@ -409,12 +425,59 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
             "_u_v": rec[:, 4], "_u0_v": float(bias_v), "_blend_state_at_closing": y_close}
 
 
+def _sweep_reference(dt):
+    """(reference relative to the hold point, m; [(freq_eff_hz, first, last) of each tone's scored window])."""
+    from .scenarios import SWEEP_AMPLITUDE_M, SWEEP_FREQ_HZ
+    parts, windows, at = [], [], 0
+    for f in SWEEP_FREQ_HZ:                 # as scenarios._sine_sweep: whole periods, >= 5 periods or 0.1 s settling
+        cycles = max(4, int(round(2.0 * f)))
+        n_settle = int(round(max(0.1, 5.0 / f) / dt))
+        n = int(round(cycles / f / dt))
+        f_eff = cycles / (n * dt)
+        t = np.arange(n_settle + n) * dt
+        parts.append(SWEEP_AMPLITUDE_M * np.sin(2 * np.pi * f_eff * t))
+        windows.append((f_eff, at + n_settle, at + n_settle + n))
+        at += n_settle + n
+    return np.concatenate(parts), windows
+
+
+def _sweep_bandwidth(tones, x_m, dt):
+    """Lock-in of the true x against the reference per tone; the -3 dB bandwidth (scenarios._bandwidth)."""
+    from .scenarios import SWEEP_AMPLITUDE_M, SWEEP_FREQ_HZ, _bandwidth
+    ref, windows = tones
+    mag, snr = [], []
+    for f_eff, i0, i1 in windows:
+        t = np.arange(i0, i1) * dt
+        xw = x_m[i0:i1] - np.mean(x_m[i0:i1])
+        r_h = 2 * np.mean((ref[i0:i1] - np.mean(ref[i0:i1])) * np.exp(-2j * np.pi * f_eff * t))
+        x_h = 2 * np.mean(xw * np.exp(-2j * np.pi * f_eff * t))
+        # the same lock-in half a bin-width off the tone's neighbours: what the loop's noise alone gives
+        off = [abs(2 * np.mean(xw * np.exp(-2j * np.pi * f_eff * k * t))) for k in (0.75, 1.25)]
+        mag.append(abs(x_h / r_h))
+        snr.append(abs(x_h) / max(max(off), 1e-30))
+    mag, snr = np.asarray(mag), np.asarray(snr)
+    f = np.asarray(SWEEP_FREQ_HZ)
+    out = {"bandwidth_hz": _bandwidth(f, mag), "sweep_freq_hz": list(SWEEP_FREQ_HZ),
+           "sweep_db": (20 * np.log10(mag)).tolist(), "sweep_snr": snr.tolist()}
+    upto = f <= (out["bandwidth_hz"] if np.isfinite(out["bandwidth_hz"]) else f[-1])
+    noisy = np.flatnonzero(upto & (snr < 3.0))
+    if noisy.size:
+        out["bandwidth_hz"] = float("nan")
+        out["bandwidth_why"] = (f"the {SWEEP_AMPLITUDE_M * 1e9:g} nm tones are lost in the loop's noise (tone / "
+                                f"off-tone lock-in {snr[noisy[0]]:.3g} < 3 at {f[noisy[0]]:g} Hz)")
+    elif not np.isfinite(out["bandwidth_hz"]):
+        out["bandwidth_why"] = ("|x / reference| is below -3 dB at the first tone" if mag[0] < 10 ** (-3 / 20)
+                                else f"|x / reference| stays above -3 dB up to {SWEEP_FREQ_HZ[-1]:g} Hz")
+    return out
+
+
 def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, noise=True, seed=4, progress=None,
                     setup=None):
     """The closed loops of ``controller`` on each of ``sensors``, side by side (list of metric dicts).
 
-    Each row adds the nominal loop's crossover, closed-loop -3 dB bandwidth and margins on that sensor's
-    path (``crossover_hz``, ``bandwidth_hz``, ``phase_margin_deg``, ``gain_margin_db``; :func:`sensor_setup`).
+    Each row has the measured bandwidth (``bandwidth_hz``, the sweep of :func:`run_sensor_loop`) and adds
+    the nominal linear loop's closed-loop -3 dB bandwidth, crossover and margins on that sensor's path
+    (``linear_bandwidth_hz``, ``crossover_hz``, ``phase_margin_deg``, ``gain_margin_db``; :func:`sensor_setup`).
     """
     if setup is None:
         setup = sensor_setup(plant, controller, progress=progress)
@@ -422,7 +485,7 @@ def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, no
     for s in sensors:
         r = run_sensor_loop(setup, controller, s, hold_s=hold_s, noise=noise, seed=seed, progress=progress)
         mg = setup.loops.get(s) or {}
-        r.update({"crossover_hz": mg.get("crossover_hz"), "bandwidth_hz": mg.get("bandwidth_hz"),
+        r.update({"crossover_hz": mg.get("crossover_hz"), "linear_bandwidth_hz": mg.get("bandwidth_hz"),
                   "phase_margin_deg": mg.get("phase_margin_deg"), "gain_margin_db": mg.get("gain_margin_db")})
         rows.append(r)
     return rows
