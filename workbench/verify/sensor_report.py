@@ -40,6 +40,10 @@ def sensor_lines(rows, figure=None):
                    f"{_f(r['triangle_rms_percent_stroke'], 1, '.3f')} % of stroke | "
                    f"{_f(r['hold_drift_m'], 1e9, '+.2f')} nm over {r['hold_s']:g} s | "
                    f"{_f(r['hold_noise_rms_m'], 1e9, '.2f')} nm |")
+    why = [f"- {TITLES[r['sensor']]}: measured bandwidth n/a: {r['bandwidth_why']}" for r in rows
+           if r.get("bandwidth_why")]
+    if why:
+        out += [""] + why
     fused = next((r for r in rows if r["sensor"] == "fused"), None)
     if fused is not None:
         tri_ok = fused["triangle_rms_percent_stroke"] <= TRIANGLE_TARGET_PERCENT
