@@ -40,11 +40,12 @@ from numba import njit
 
 from .fixed_point import fixed_step
 
-__all__ = ["SENSOR_KINDS", "SensorBlend", "blend_step", "blend_c", "run_sensor", "MAX_DIFF_COUNTS"]
+__all__ = ["SENSOR_KINDS", "KIND_CODE", "SensorBlend", "blend_step", "sensor_reading", "error_word", "blend_c",
+           "run_sensor", "MAX_DIFF_COUNTS"]
 
 SENSOR_KINDS = ("gauge", "charge", "fused")
 MAX_DIFF_COUNTS = 2 ** 26          # |gauge - charge| bound of the blend's int64 arithmetic, counts
-_KIND_CODE = {"gauge": 0, "charge": 1, "fused": 2}
+KIND_CODE = {"gauge": 0, "charge": 1, "fused": 2}       # the sensor kinds as the compiled steps take them
 
 
 @njit(cache=True, inline="always")
@@ -58,6 +59,23 @@ def blend_step(y, g, c, k, frac_bits, coef_bits):
     d = min(max(d, -lim), lim)
     y += (k * ((d << frac_bits) - y)) >> coef_bits
     return y, c + ((y + (np.int64(1) << (frac_bits - 1))) >> frac_bits)
+
+
+@njit(cache=True, inline="always")
+def sensor_reading(kind, y, g, c, k, frac_bits, coef_bits):
+    """(new blend state, reading count) of the sensor step: ``kind`` 0 gauge, 1 charge, 2 fused (blend)."""
+    if kind == 0:
+        return y, g
+    if kind == 1:
+        return y, c
+    return blend_step(y, g, c, k, frac_bits, coef_bits)
+
+
+@njit(cache=True, inline="always")
+def error_word(r, f, scale, scale_bits, in_lim):
+    """The cascade's input word of reference ``r`` and reading ``f`` (counts): (e S + 2^(B-1)) >> B, clamped."""
+    e = ((r - f) * scale + (np.int64(1) << (scale_bits - 1))) >> scale_bits
+    return min(max(e, -in_lim), in_lim)
 
 
 def blend_c(prefix, state_expr, g, c):
@@ -218,18 +236,11 @@ def _sensor_kernel(r, g, c, kind, k, frac, kbits, scale, scale_bits, in_lim, b, 
                    fused):
     peak = np.zeros((b.shape[0], 3), np.int64)
     out = np.empty(r.size, np.int64)
-    half = np.int64(1) << (scale_bits - 1)
     for i in range(r.size):
-        if kind == 0:
-            f = g[i]
-        elif kind == 1:
-            f = c[i]
-        else:
-            y[0], f = blend_step(y[0], g[i], c[i], k, frac, kbits)
+        y[0], f = sensor_reading(kind, y[0], g[i], c[i], k, frac, kbits)
         fused[i] = f
-        e = ((r[i] - f) * scale + half) >> scale_bits
-        e = min(max(e, -in_lim), in_lim)
-        out[i] = fixed_step(s, e, b, a, b_shift, afrac, lim, vm, True, peak)
+        out[i] = fixed_step(s, error_word(r[i], f, scale, scale_bits, in_lim), b, a, b_shift, afrac, lim, vm, True,
+                            peak)
     return out
 
 
@@ -269,7 +280,7 @@ def run_sensor(sensor, fxp, ref_counts, gauge_counts, charge_counts, u0_v=0.0, y
     frac = int(sensor.frac_bits)
     y = np.array([(int(g[0] - c[0]) << frac) if (y0 is None and g.size) else int(y0 or 0)], np.int64)
     fused = np.empty(r.size, np.int64)
-    out = _sensor_kernel(r, g, c, _KIND_CODE[sensor.kind], np.int64(sensor.k or 0), frac, int(sensor.coef_bits),
+    out = _sensor_kernel(r, g, c, KIND_CODE[sensor.kind], np.int64(sensor.k or 0), frac, int(sensor.coef_bits),
                          np.int64(scale), int(scale_bits), np.int64(fxp.input_limit), fxp.b, fxp.a,
                          fxp.b_shift.astype(np.int64), fxp.a_frac_bits, fxp.limit_words, s, np.array([u0]), y, fused)
     return out * 2.0 ** -fxp.output_frac_bits, fused, int(y[0])

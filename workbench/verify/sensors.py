@@ -40,7 +40,7 @@ from numba import njit
 
 from ..errors import WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
-from ..export.sensor import SENSOR_KINDS, blend_step
+from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
 from ..plant import kernels as K
 from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
 
@@ -154,7 +154,6 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
     nda = ck.shape[0]
     ne = xe.shape[0]
     xn = np.empty(ne)
-    half_s = np.int64(1) << (sbits - 1)
     for k in range(ref.shape[0]):
         u = io[0]
         x_start = io[1]
@@ -211,20 +210,14 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
         # the firmware's sensor step on counts
         g = np.int64(math.floor(gauge_m / lsb_m + 0.5))
         c = np.int64(math.floor(ch / lsb_m + 0.5))
-        if kind == 0:
-            f = g
-        elif kind == 1:
-            f = c
-        else:
-            if io[7] == 0.0:            # NAME_sensor_reset: the state starts at the first difference
-                io[2] = float((g - c) << bfrac)
-                io[7] = 1.0
-            yb, f = blend_step(np.int64(io[2]), g, c, bk, bfrac, bkbits)
-            io[2] = yb
+        if io[7] == 0.0:                # NAME_sensor_reset: the blend state starts at the first difference
+            io[2] = float((g - c) << bfrac)
+            io[7] = 1.0
+        yb, f = sensor_reading(kind, np.int64(io[2]), g, c, bk, bfrac, bkbits)
+        io[2] = yb
         if closed:
-            e = ((ref[k] - f) * scale + half_s) >> sbits
-            e = min(max(e, -in_lim), in_lim)
-            u_w = fixed_step(cst, e, fb, fa, fshift, ffrac, limw, vm, True, peak)
+            u_w = fixed_step(cst, error_word(ref[k], f, scale, sbits, in_lim), fb, fa, fshift, ffrac, limw, vm, True,
+                             peak)
             io[0] = u_w * io[5]
         io[6] = f
         io[3] += 1
@@ -350,7 +343,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     xe = np.zeros(xa.shape[0])
     if xa.shape[0] == 0:
         xa, xb, xc, xe = np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0)
-    kind = {"gauge": 0, "charge": 1, "fused": 2}[sensor]
+    kind = KIND_CODE[sensor]
     scale, sbits = sb.error_scale(fxp.input_frac_bits)
     cst, u_w0 = initial_state(fxp, bias_v)
     vm = np.array([u_w0], np.int64)
