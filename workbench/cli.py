@@ -254,8 +254,11 @@ def cmd_verify(args):
         value = f"{t['value']:.4g}" if t["value"] is not None else f"n/a ({t['why']})"
         lines.append(f"  target {name}: {t['metric']} {value} (limit {t['limit']:g} {t['unit']}): "
                      f"{'met' if t['met'] else 'MISSED'}")
+    import math
     for r in data.get("sensors") or []:
-        lines.append(f"  sensor {r['sensor']}: bandwidth {r.get('bandwidth_hz') or float('nan'):.0f} Hz (linear "
+        bw = r.get("bandwidth_hz")
+        bw = f"{bw:.0f} Hz" if bw is not None and math.isfinite(bw) else f"n/a ({r.get('bandwidth_why', 'not measured')})"
+        lines.append(f"  sensor {r['sensor']}: bandwidth {bw} (linear "
                      f"{r.get('linear_bandwidth_hz') or float('nan'):.0f} Hz), crossover "
                      f"{r['crossover_hz'] or float('nan'):.0f} Hz, triangle "
                      f"{r['triangle_rms_percent_stroke']:.3f} % of stroke RMS, hold drift {r['hold_drift_m'] * 1e9:+.2f} nm "

@@ -105,3 +105,17 @@ def test_a_fused_controller_on_the_gauge_scenarios_is_flagged(tmp_path, capsys):
     assert main(["verify", str(CREEP), "--controller", str(FUSED), "--scenario", "small_step", "--strict",
                  "--out", str(tmp_path / "o")]) == 2
     assert "the scenarios close on the gauge, but the controller's sensor block says 'fused'" in capsys.readouterr().err
+
+
+def test_cli_sensor_run_writes_the_side_by_side_report(tmp_path, capsys):
+    import json
+    out = tmp_path / "out"
+    assert main(["verify", str(CREEP), "--controller", str(FUSED), "--sensor", "fused", "--hold", "3s",
+                 "--out", str(out), "--json", str(tmp_path / "v.json")]) == 0
+    text = capsys.readouterr().out
+    assert "sensor fused: bandwidth" in text and "hold noise" in text
+    rows = json.loads((tmp_path / "v.json").read_text())["sensors"]
+    assert [r["sensor"] for r in rows] == ["fused"] and rows[0]["blend_crossover_hz"] == pytest.approx(0.8939, rel=1e-4)
+    report = (out / "report.md").read_text()
+    assert "## Sensors side by side" in report and "![sensors](sensors.png)" in report
+    assert (out / "sensors.png").stat().st_size > 10000 and (out / "verify.json").exists()
