@@ -2,6 +2,7 @@
 
 import copy
 import json
+from dataclasses import replace
 
 import control
 import numpy as np
@@ -260,3 +261,148 @@ def test_series_resistor_out_gives_no_window_and_a_controller_that_moves():
     assert windowed.voltage_model is not None
     assert [c["check"] for c in windowed.compare_plant(plant) if c["check"] == "window"] == ["window"]
     assert plant_budgets(plant, 1e-4, None, "study.toml")["current_window"].value is None
+
+
+# ----------------------------------------------------------------------------- the sensor block
+
+FUSED = ROOT / "controllers" / "sn637_fused_loopshape.json"
+
+SENSOR_MAIN_C = r"""
+#include <stdio.h>
+#include <inttypes.h>
+#include "ctrl.h"
+int main(void)
+{
+    long n; long long u0, y0; ctrl_sensor_state st;
+    if (scanf("%ld %lld %lld", &n, &u0, &y0) != 3) return 1;
+    for (long i = 0; i < n; i++) {
+        long long r, g, c; int64_t f;
+        if (scanf("%lld %lld %lld", &r, &g, &c) != 3) return 1;
+        if (i == 0) { ctrl_sensor_reset(&st, (int32_t)u0, (int32_t)g, (int32_t)c); st.y = (int64_t)y0; }
+        int32_t u = ctrl_sensor_step(&st, (int32_t)r, (int32_t)g, (int32_t)c, &f);
+        printf("%" PRId32 " %" PRId64 "\n", u, f);
+    }
+    printf("%" PRId64 "\n", st.y);
+    return 0;
+}
+"""
+
+
+def test_gauge_only_controller_has_no_sensor_block_and_its_files_are_unchanged(ctrl, tmp_path):
+    # the committed gauge controller loads as before: no block, the header without a sensor step
+    assert ctrl.sensor is None and ctrl.sensor_kind == "gauge" and "sensor" not in ctrl.to_dict()
+    paths = ctrl.write(tmp_path)
+    assert b"sensor_step" not in paths["h"].read_bytes()
+    assert paths["h"].read_bytes() == COMMITTED.with_suffix(".h").read_bytes()
+
+
+@pytest.mark.parametrize("kind, fc_hz", [("gauge", None), ("charge", None), ("fused", 0.89), ("fused", 37.0)])
+def test_sensor_block_round_trips_json_and_mat(kind, fc_hz, tmp_path):
+    c = Controller.load(FUSED).with_sensor(kind, fc_hz)
+    paths = c.write(tmp_path, "ctrl")
+    for p in (paths["json"], paths["mat"]):
+        back = Controller.load(p)
+        assert back.sensor == c.sensor and back.sensor_kind == kind
+    # the cascade is untouched by the block
+    np.testing.assert_array_equal(Controller.load(paths["json"]).fixed.b, c.fixed.b)
+
+
+BAD_SENSOR = [
+    ("kind", "strain", "sensor.kind"),
+    ("crossover_hz", -1.0, "sensor.crossover_hz"),
+    ("crossover_hz", float("nan"), "sensor.crossover_hz"),
+    ("crossover_hz", 6000.0, "sensor"),                 # above the 5 kHz Nyquist frequency
+    ("crossover_hz", 0.5, "sensor"),                    # k no longer the crossover quantized
+    ("blend/k", 9400, "sensor"),
+    ("blend/k", 9380.5, "sensor"),
+    ("error_scale/q", 12345, "sensor"),
+    ("v_per_m", 0.0, "sensor.v_per_m"),
+    ("v_per_m", _DROP, "sensor.v_per_m"),
+]
+
+
+@pytest.mark.parametrize("path, value, key", BAD_SENSOR, ids=[f"{p}={v!r}" for p, v, _ in BAD_SENSOR])
+def test_bad_sensor_blocks_name_the_file_and_key(path, value, key, tmp_path):
+    data = Controller.load(FUSED).with_sensor("fused", 0.89).to_dict()
+    assert data["sensor"]["blend"]["k"] == 9379
+    _set(data["sensor"], path, value)
+    f = tmp_path / "ctrl.json"
+    f.write_text(json.dumps(data, allow_nan=True))
+    with pytest.raises(ControllerError) as err:
+        Controller.load(f)
+    assert str(f) in str(err.value) and f"[{key}" in str(err.value), str(err.value)
+
+
+def test_sensor_block_is_refused_on_a_float_only_controller():
+    with pytest.raises(ControllerError, match=r"x.json: \[sensor\]"):
+        Controller.from_dict({"sample_rate_hz": 1e4, "gain": 1.0, "sos": [[1, 0, 0, 1, -0.5, 0]],
+                              "sensor": {"kind": "gauge", "v_per_m": 1e5}}, source="x.json")
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_fused_step_is_exactly_complementary_in_its_words(seed):
+    """F_low + F_high = 1 in the firmware words: adding any sequence t to both readings adds t to the
+    fused reading, count for count (the blend sees only g - c), and two agreeing sensors pass unchanged."""
+    from workbench.export.sensor import run_sensor
+    r = np.random.default_rng(seed)
+    dt = 1.0 / r.choice([2e3, 1e4, 4e4])
+    fc = float(np.exp(r.uniform(np.log(0.05), np.log(0.2 / dt))))
+    c = Controller.load(FUSED).with_sensor("fused", fc)
+    sb = replace(c.sensor, dt_s=dt, k=None)
+    n = 4000
+    g = r.integers(-2 ** 24, 2 ** 24, n)
+    ch = g - r.integers(-2 ** 22, 2 ** 22) + r.integers(-3000, 3000, n)
+    t = np.cumsum(r.integers(-10 ** 5, 10 ** 5, n))
+    ref = np.zeros(n, np.int64)
+    _, f1, y1 = run_sensor(sb, c.fixed, ref, g, ch)
+    _, f2, y2 = run_sensor(sb, c.fixed, ref, g + t, ch + t)
+    np.testing.assert_array_equal(f2 - f1, t)
+    assert y1 == y2
+    _, f3, _ = run_sensor(sb, c.fixed, ref, g, g)
+    np.testing.assert_array_equal(f3, g)
+
+
+@pytest.mark.parametrize("kind, fc_hz, seed", [("fused", 0.89, 1), ("fused", 150.0, 2), ("charge", None, 3),
+                                               ("gauge", None, 4)])
+def test_sensor_step_bit_for_bit_with_the_c_header(kind, fc_hz, seed, tmp_path):
+    """NAME_sensor_step compiled with gcc (the sanitizer on when available) gives every output word, every
+    fused reading and the final blend state of Controller.run_sensors, through the output limits."""
+    import shutil
+    import subprocess
+    from workbench.export.sensor import run_sensor
+    cc = shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no gcc: the header cannot be compiled here")
+    c = Controller.load(FUSED).with_sensor(kind, fc_hz)
+    c.write(tmp_path, "ctrl")
+    (tmp_path / "main.c").write_text(SENSOR_MAIN_C)
+    base = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-o", str(tmp_path / "main"), str(tmp_path / "main.c")]
+    for extra in (["-fsanitize=undefined", "-fno-sanitize-recover=all"], []):
+        if subprocess.run(base + extra, capture_output=True, cwd=tmp_path).returncode == 0:
+            break
+    else:
+        pytest.fail("the header does not compile")
+    r = np.random.default_rng(seed)
+    n = 30000
+    sb = c.sensor
+    x = 7e-6 + 6e-6 * np.sin(2 * np.pi * r.uniform(0.5, 5.0) * np.arange(n) * c.dt_s)
+    ref = sb.counts(np.concatenate([np.full(n // 3, 7e-6), np.full(n // 3, 20e-6), np.full(n - 2 * (n // 3), -5e-6)]))
+    g = sb.counts(x + r.standard_normal(n) * 22e-9)
+    ch = sb.counts(x - r.uniform(-10e-6, 10e-6) + np.linspace(0, 50e-9, n) + r.standard_normal(n) * 0.3e-9)
+    u0_v = 50.0
+    u0_q = int(np.rint(u0_v * 2.0 ** c.fixed.output_frac_bits))
+    y0 = int(r.integers(-2 ** 36, 2 ** 36))
+    u_v, fused, y_end = run_sensor(sb, c.fixed, ref, g, ch, u0_v=u0_v, y0=y0)
+    stdin = f"{n} {u0_q} {y0}\n" + "".join(f"{a} {b} {d}\n" for a, b, d in zip(ref, g, ch))
+    out = subprocess.run([str(tmp_path / "main")], input=stdin, capture_output=True, text=True, check=True).stdout.split()
+    vals = np.array(out, dtype=np.int64)
+    u_q, f_c = vals[:-1:2], vals[1:-1:2]
+    np.testing.assert_array_equal(u_q * 2.0 ** -c.fixed.output_frac_bits, u_v)
+    np.testing.assert_array_equal(f_c, fused)
+    if kind == "fused":
+        assert int(vals[-1]) == y_end
+    lo, hi = c.output_limits_v
+    assert u_v.min() == lo and u_v.max() == hi          # the record drives both output limits
+    # and Controller.run_sensors (metres in) is the same step
+    u_m, f_m = c.run_sensors(ref * sb.lsb_m, g * sb.lsb_m, ch * sb.lsb_m, u0_v=u0_v, y0=y0)
+    np.testing.assert_array_equal(u_m, u_v)

@@ -257,17 +257,23 @@ def _cmd_mirror_verify(args):
     _emit(args, data, lines)
 
 
+_DEFAULT_SCENARIOS = ["all"]
+
+
 def cmd_verify(args):
     from .verify.mirror import check_pairing
     if check_pairing(args.plant, args.controller):
         return _cmd_mirror_verify(args)
-    from .verify.run import load_verify_targets, parse_target, run_verify
+    from .verify.run import load_verify_sensor, load_verify_targets, parse_target, run_verify
     limits = load_verify_targets(args.targets_from) if args.targets_from else {}
     limits.update(dict(parse_target(t) for t in args.target or ()))
-    data = run_verify(args.plant, args.controller, args.scenario, hold_s=args.hold, noise=not args.no_noise,
+    sensor = args.sensor or (load_verify_sensor(args.targets_from) if args.targets_from else None)
+    # --sensor without --scenario: the sensor runs only (argparse hands back the default object itself)
+    scenarios = [] if (sensor and args.scenario is _DEFAULT_SCENARIOS) else args.scenario
+    data = run_verify(args.plant, args.controller, scenarios, hold_s=args.hold, noise=not args.no_noise,
                       anti_windup=not args.no_anti_windup, form=args.form, out_dir=args.out,
                       progress=lambda stage, d, t: _progress_bar(stage, d, t), seed=args.seed, targets=limits,
-                      strict=args.strict, allow_unstable=args.allow_unstable)
+                      strict=args.strict, allow_unstable=args.allow_unstable, sensor=sensor)
     lines = [f"{args.plant} with {data['controller_name'] or args.controller} ({data['controller_form']}), "
              f"seed {data['seed']}, gauge noise {'on' if data['noise'] else 'off'}:"]
     for p in data["preflight"]:
@@ -288,6 +294,15 @@ def cmd_verify(args):
         value = f"{t['value']:.4g}" if t["value"] is not None else f"n/a ({t['why']})"
         lines.append(f"  target {name}: {t['metric']} {value} (limit {t['limit']:g} {t['unit']}): "
                      f"{'met' if t['met'] else 'MISSED'}")
+    import math
+    for r in data.get("sensors") or []:
+        bw = r.get("bandwidth_hz")
+        bw = f"{bw:.0f} Hz" if bw is not None and math.isfinite(bw) else f"n/a ({r.get('bandwidth_why', 'not measured')})"
+        lines.append(f"  sensor {r['sensor']}: bandwidth {bw} (linear "
+                     f"{r.get('linear_bandwidth_hz') or float('nan'):.0f} Hz), crossover "
+                     f"{r['crossover_hz'] or float('nan'):.0f} Hz, triangle "
+                     f"{r['triangle_rms_percent_stroke']:.3f} % of stroke RMS, hold drift {r['hold_drift_m'] * 1e9:+.2f} nm "
+                     f"over {r['hold_s']:g} s, hold noise {r['hold_noise_rms_m'] * 1e9:.2f} nm RMS")
     if "report" in data:
         lines.append(f"  report {data['report']}")
     _emit(args, data, lines)
@@ -469,11 +484,16 @@ def build_parser():
     p.add_argument("plant", type=Path)
     p.add_argument("--controller", type=Path, required=True,
                    help="an exported .json or .mat, e.g. controllers/sn637_loopshape.json")
-    p.add_argument("--scenario", nargs="+", default=["all"], metavar="NAME",
+    p.add_argument("--scenario", nargs="+", default=_DEFAULT_SCENARIOS, metavar="NAME",
                    choices=["all", "small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold",
                             "force_step", "sine_sweep"],
-                   help="one or more of: all (default), small_step, large_step, triangle_0p1hz, triangle_1hz, "
-                        "hold, force_step, sine_sweep")
+                   help="one or more of: all (default without --sensor), small_step, large_step, triangle_0p1hz, "
+                        "triangle_1hz, hold, force_step, sine_sweep")
+    p.add_argument("--sensor", choices=["gauge", "charge", "fused", "all"],
+                   help="also run the controller's fixed-point sensor step closing on the gauge, the charge "
+                        "estimate or their blend (all: the three side by side; 0.1 Hz triangle, then a --hold "
+                        "hold, charge amplifier drifts and gauge noise present); alone, only these runs. "
+                        "Default: the [verify] table's sensor key of --targets-from")
     p.add_argument("--form", choices=["fixed", "float", "hanus"],
                    help="controller form to run (default: what the JSON declares, fixed point first)")
     p.add_argument("--out", type=Path, help="folder for the figures, report.md and verify.json")

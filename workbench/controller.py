@@ -32,15 +32,17 @@ import numpy as np
 
 from .errors import ControllerError, ControllerMismatchError
 from .export.fixed_point import FixedPointController, quantize, run_fixed, run_float
+from .export.sensor import SENSOR_KINDS, SensorBlend, run_sensor
 from .export.sos import ExportError, from_sos, to_sos
 
-__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "X_GAUGE_M"]
+__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "X_GAUGE_M", "SensorBlend",
+           "SENSOR_KINDS"]
 
 NO_WINDOW_TEXT = "no current-limit window (anti-windup off)"
 X_GAUGE_M = 7.5e-6            # the operating point the gauge gain is quoted at (mid-stroke, the seed's x0)
 _INTEGRATOR_TOL = 1e-12       # |1 + a1 + a2| of a section built with a pole at z = 1 (fixed_point's rule)
 _A0_TOL = 1e-12
-_RESERVED = ("gain", "sos", "fixed_point")
+_RESERVED = ("gain", "sos", "fixed_point", "sensor")
 # Preflight tolerances (relative): the same plant file gives the same numbers to ~1e-15; a
 # different serial differs by percents (C_p, calibration), so these separate the two cases.
 _RTOL_GAUGE = 1e-3
@@ -333,6 +335,10 @@ class Controller:
         The file it was loaded from ("" when built in memory).
     max_pole_radius : float
         Largest |z| of the poles (quantized ones when there are words), integrators excluded.
+    sensor : SensorBlend or None
+        The sensor block (:mod:`workbench.export.sensor`): which reading the loop closes on
+        (gauge, charge estimate or their complementary blend) and the blend's words. None: a
+        gauge controller as before (input: the gauge error in firmware V).
     """
 
     sample_rate_hz: float
@@ -347,6 +353,7 @@ class Controller:
     hanus: object = None
     source: str = ""
     max_pole_radius: float = 0.0
+    sensor: SensorBlend | None = None
 
     def __post_init__(self):
         self.sos.flags.writeable = False
@@ -384,7 +391,89 @@ class Controller:
             if self.window_source == "plant":
                 win += ", derived from the plant (the file has none)"
         n = len(self.sos)
-        return f"{form}, {n} section{'s' if n > 1 else ''} at {self.sample_rate_hz:g} Hz, {lim}, {win}"
+        sens = ""
+        if self.sensor is not None:
+            sens = {"gauge": ", closes on the gauge", "charge": ", closes on the charge estimate"}.get(
+                self.sensor.kind) or f", closes on the gauge + charge blend at {self.sensor.crossover_hz:.4g} Hz"
+        return f"{form}, {n} section{'s' if n > 1 else ''} at {self.sample_rate_hz:g} Hz, {lim}, {win}{sens}"
+
+    @property
+    def sensor_kind(self):
+        """"gauge", "charge" or "fused": the reading the loop closes on ("gauge" without a sensor block)."""
+        return "gauge" if self.sensor is None else self.sensor.kind
+
+    def with_sensor(self, kind, crossover_hz=None, *, v_per_m=None, lsb_m=1e-12):
+        """This controller with a sensor block: the loop closes on ``kind``'s reading.
+
+        Parameters
+        ----------
+        kind : {"gauge", "charge", "fused"}
+            The gauge reading, the compensated charge estimate, or their complementary blend
+            (:class:`workbench.selfsense.fusion.Blend`: the gauge below ``crossover_hz``).
+        crossover_hz : float, optional
+            Blend crossover, Hz ("fused" only; positive, below the Nyquist frequency).
+        v_per_m : float, optional
+            Firmware V of error per metre (default: the gauge gain of the provenance, ``gauge_v_per_m``,
+            the gain the cascade was designed with).
+        lsb_m : float, default 1e-12
+            Metres per count of the firmware step's int32 inputs.
+
+        Returns
+        -------
+        Controller
+            A new controller; the cascade and its words are unchanged.
+
+        Raises
+        ------
+        ControllerError
+            A bad kind or crossover, no words (a float-only controller), or no gain to scale the error.
+        """
+        if v_per_m is None:
+            v_per_m = self.provenance.get("gauge_v_per_m")
+            if v_per_m is None:
+                raise ControllerError(self.source, "sensor.v_per_m", "is needed: the controller records no gauge "
+                                                                     "gain (gauge_chain.volts_per_meter); pass v_per_m=")
+        if self.fixed is None:
+            raise ControllerError(self.source, "sensor", "needs the fixed-point words (the sensor step runs the "
+                                                         "fixed-point cascade); build it with Controller.from_lti")
+        try:
+            sb = SensorBlend(kind=kind, crossover_hz=None if crossover_hz is None else float(crossover_hz),
+                             dt_s=self.dt_s, v_per_m=float(v_per_m), lsb_m=float(lsb_m))
+            sb.error_scale(self.fixed.input_frac_bits)
+        except (TypeError, ValueError) as exc:
+            raise ControllerError(self.source, "sensor", str(exc)) from None
+        return replace(self, sensor=sb)
+
+    def run_sensors(self, ref_m, gauge_m, charge_m=None, u0_v=0.0, y0=None):
+        """The firmware step with its sensor block over records in metres: NAME_sensor_step bit for bit.
+
+        Each input is rounded to counts of ``sensor.lsb_m`` as firmware receives them; a controller
+        without a sensor block runs as a gauge controller (the error scaled by its gauge gain).
+
+        Parameters
+        ----------
+        ref_m, gauge_m, charge_m : array_like of float
+            Reference, gauge reading and charge estimate per sample, m (``charge_m`` may be omitted
+            for a gauge controller).
+        u0_v : float, default 0
+            Output at rest before the first sample, V.
+        y0 : int, optional
+            Blend state before the first sample (default: the first gauge - charge difference).
+
+        Returns
+        -------
+        u_v : ndarray of float
+            Commanded PZT voltage per sample, V.
+        fused_m : ndarray of float
+            The reading the cascade closed on, m (counts times lsb_m).
+        """
+        sb = self.sensor if self.sensor is not None else self.with_sensor("gauge").sensor
+        g = sb.counts(gauge_m)
+        c = np.zeros_like(g) if charge_m is None else sb.counts(charge_m)
+        if charge_m is None and sb.kind != "gauge":
+            raise ValueError(f"a {sb.kind!r} controller needs the charge estimate (charge_m)")
+        u, f, _ = run_sensor(sb, self._words(), sb.counts(ref_m), g, c, u0_v=u0_v, y0=y0)
+        return u, f * sb.lsb_m
 
     def as_lti(self, quantized=False):
         """The linear controller (no limits, no window) as a python-control StateSpace.
@@ -652,9 +741,10 @@ class Controller:
             _check_not_bang_bang(src, gain, sos, fs, limits, plant)
         prov = _provenance_of(data)
         record = {k: v for k, v in data.items() if k not in _RESERVED}
+        sensor = _sensor_from_block(src, data, fs, fxp)
         return cls(sample_rate_hz=fs, gain=gain, sos=sos, output_limits_v=limits, voltage_model=model,
                    window_source=window_source, fixed=fxp, provenance=prov, record=record, hanus=hanus,
-                   source=str(source), max_pole_radius=float(radius))
+                   source=str(source), max_pole_radius=float(radius), sensor=sensor)
 
     @classmethod
     def load(cls, path, *, plant=None, allow_unstable=False):
@@ -714,6 +804,8 @@ class Controller:
             lim = self.output_limits_v
             rec["anti_windup"] = {**_anti_windup_block(self.voltage_model, lim),
                                   "window_source": "derived from the plant on load"}
+        if self.sensor is not None:
+            rec["sensor"] = self.sensor.as_dict(self._words().input_frac_bits)
         return rec
 
     def write(self, out_dir, name=None):
@@ -733,7 +825,7 @@ class Controller:
         from .export.writers import write_controller
         name = name or self.name
         rec = {**self._record_out(), "name": name}
-        return write_controller(out_dir, name, rec, self._words())
+        return write_controller(out_dir, name, rec, self._words(), sensor=self.sensor)
 
     # ------------------------------------------------------------------ against a plant
     def compare_plant(self, plant):
@@ -813,6 +905,31 @@ class Controller:
             out.append({"check": "not recorded", "message": "the controller does not record its "
                                                             + ", ".join(unknown) + ": not compared"})
         return out
+
+
+def _sensor_from_block(src, data, fs, fxp):
+    """The SensorBlend of a JSON ``sensor`` block (None without one), every value and word checked."""
+    if data.get("sensor") is None:
+        return None
+    block = data["sensor"]
+    if fxp is None:
+        raise ControllerError(src, "sensor", "needs the fixed_point block: the sensor step runs the fixed-point "
+                                             "cascade; re-export the controller")
+    if not isinstance(block, dict):
+        raise ControllerError(src, "sensor", f"must be a table {{kind, crossover_hz, v_per_m, ...}}; got {block!r}")
+    if block.get("kind") not in SENSOR_KINDS:
+        raise ControllerError(src, "sensor.kind", f"must be one of {', '.join(SENSOR_KINDS)}; got "
+                                                  f"{block.get('kind')!r}")
+    for key in ("crossover_hz", "v_per_m", "lsb_m"):
+        if block.get(key) is not None:
+            _number(src, f"sensor.{key}", block[key], positive=True)
+    try:
+        return SensorBlend.from_dict(block, 1.0 / fs, fxp.input_frac_bits)
+    except KeyError as exc:
+        raise ControllerError(src, f"sensor.{exc.args[0]}", "is missing; re-export the controller "
+                                                            "(Controller.with_sensor(...).write)") from None
+    except (TypeError, ValueError) as exc:
+        raise ControllerError(src, "sensor", str(exc)) from None
 
 
 def _check_not_bang_bang(src, gain, sos, fs, limits, plant):

@@ -83,12 +83,12 @@ def test_spectra_from_a_record_and_the_fused_noise():
 def loop_parts(root):
     from workbench.plant.files import load_plant
     from workbench.selfsense.identify import identify, simulate_identification
-    from workbench.verify.run import load_controller_json
+    from workbench.controller import Controller
     plant = load_plant(root / "plants/p888_51_sn637_creep.toml")
     amp = ChargeAmpParams()
     ident = identify(simulate_identification(plant.pzt, amp, hold_s=300.0, dt_s=5e-4, seed=31), amp)
-    _, ctrl = load_controller_json(root / "controllers/sn637_fused_loopshape.json")
-    _, ctrl_g = load_controller_json(root / "controllers/sn637_loopshape.json")
+    ctrl = Controller.load(root / "controllers/sn637_fused_loopshape.json")
+    ctrl_g = Controller.load(root / "controllers/sn637_loopshape.json")
     e_d = control.ss([], [], [], [[1.0]], 1e-4)     # E ~ 1 in the servo band (the module notes of run.py)
     return plant, amp, ident, ctrl, ctrl_g, e_d
 

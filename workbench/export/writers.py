@@ -108,7 +108,7 @@ def _c_array(rows, fmt):
     return ",\n".join("    {" + ", ".join(fmt(v) for v in row) + "}" for row in rows)
 
 
-def _header(name, fxp):
+def _header(name, fxp, sensor=None):
     up = name.upper()
     q = fxp.q_formats
     lo_v, hi_v = fxp.output_limits_v
@@ -274,12 +274,59 @@ static inline int32_t {name}_fixed_step({name}_fixed_state *st, int32_t e_q)
                                          + ((int64_t)1 << ({up}_ALPHA_FRAC_BITS - 1))) >> {up}_ALPHA_FRAC_BITS));
     return (int32_t)v;
 }}
-
+{"" if sensor is None else _sensor_c(name, fxp, sensor)}
 #endif /* {up}_H */
 """
 
 
-def write_controller(out_dir, name, record, fxp):
+def _sensor_c(name, fxp, sensor):
+    """The header's sensor step: blend (for "fused"), error scale, then {name}_fixed_step (module sensor)."""
+    from .sensor import MAX_DIFF_COUNTS, blend_c
+    up = name.upper()
+    s_q, s_bits = sensor.error_scale(fxp.input_frac_bits)
+    kind = sensor.kind
+    what = {"gauge": "the gauge reading g", "charge": "the charge estimate c"}.get(kind) or (
+        f"the complementary blend c + lowpass(g - c), crossover {sensor.crossover_hz:.6g} Hz "
+        f"(a = exp(-w_c T) = {sensor.pole:.12g})")
+    blend_defs = ""
+    if kind == "fused":
+        blend_defs = (f"#define {up}_BLEND_K INT64_C({sensor.k})\n#define {up}_BLEND_K_BITS {sensor.coef_bits}\n"
+                      f"#define {up}_BLEND_FRAC_BITS {sensor.frac_bits}\n"
+                      f"#define {up}_BLEND_MAX_DIFF INT64_C({MAX_DIFF_COUNTS - 1})\n")
+        reading = blend_c(f"{name}_blend", "st->y", "g", "c") + f"    int64_t f = {name}_blend_fused;\n"
+    else:
+        used, unused = ("g", "c") if kind == "gauge" else ("c", "g")
+        reading = f"    (void){unused};\n    int64_t f = {used};\n"
+    return f"""
+/* Sensor block: the loop closes on {what}.
+ * Inputs: int32 counts of {sensor.lsb_m:.6g} m (reference r, gauge reading g, charge estimate c).
+ * e = r - reading (counts); cascade input word = (e * {up}_ERROR_SCALE_Q + 2^(B-1)) >> B, B = {s_bits},
+ * clamped to +/-{up}_INPUT_LIMIT_Q ({sensor.v_per_m:.9g} firmware V per m); then {name}_fixed_step. */
+#define {up}_SENSOR_KIND "{kind}"
+#define {up}_ERROR_SCALE_Q INT64_C({s_q})
+#define {up}_ERROR_SCALE_BITS {s_bits}
+{blend_defs}
+typedef struct {{ {name}_fixed_state c; int64_t y; }} {name}_sensor_state;
+
+/* At rest at output word u0_q; the blend state starts at the first gauge - charge difference (g0 - c0). */
+static inline void {name}_sensor_reset({name}_sensor_state *st, int32_t u0_q, int32_t g0, int32_t c0)
+{{
+    {name}_fixed_reset(&st->c, u0_q);
+    st->y = ((int64_t)g0 - (int64_t)c0) * (INT64_C(1) << {sensor.frac_bits});
+}}
+
+/* One sample: counts r, g, c in; output word ({fxp.q_formats['output']}) out. *fused_out (if not NULL): the reading. */
+static inline int32_t {name}_sensor_step({name}_sensor_state *st, int32_t r, int32_t g, int32_t c, int64_t *fused_out)
+{{
+{reading}    if (fused_out) *fused_out = f;
+    int64_t e = (((int64_t)r - f) * {up}_ERROR_SCALE_Q + (INT64_C(1) << ({up}_ERROR_SCALE_BITS - 1))) >> {up}_ERROR_SCALE_BITS;
+    e = e > {up}_INPUT_LIMIT_Q ? {up}_INPUT_LIMIT_Q : e < -{up}_INPUT_LIMIT_Q ? -{up}_INPUT_LIMIT_Q : e;
+    return {name}_fixed_step(&st->c, (int32_t)e);
+}}
+"""
+
+
+def write_controller(out_dir, name, record, fxp, sensor=None):
     """Write a quantized controller as NAME.json, NAME.h, NAME.csv and NAME.mat.
 
     Parameters
@@ -294,6 +341,9 @@ def write_controller(out_dir, name, record, fxp):
         ``fixed_point``. ``sample_rate_hz`` is added if missing.
     fxp : FixedPointController
         From :func:`.quantize`.
+    sensor : workbench.export.sensor.SensorBlend, optional
+        The sensor block: NAME.h then also holds ``NAME_sensor_step`` (blend, error scale,
+        cascade; :func:`.sensor.run_sensor` bit for bit). The JSON block is the record's ``sensor``.
 
     Returns
     -------
@@ -325,7 +375,7 @@ def write_controller(out_dir, name, record, fxp):
         raise ExportError(f"record holds {clash}, which write_controller fills from the quantized controller; "
                           f"drop them from the record")
     out_dir = Path(out_dir)
-    payloads = {"json": controller_json(record, fxp), "h": _header(name, fxp), "csv": _csv(fxp),
+    payloads = {"json": controller_json(record, fxp), "h": _header(name, fxp, sensor), "csv": _csv(fxp),
                 "mat": _mat(record, fxp)}
     return {ext: (write_bytes if isinstance(data, bytes) else write_text)(out_dir / f"{name}.{ext}", data)
             for ext, data in payloads.items()}

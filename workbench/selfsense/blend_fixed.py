@@ -14,19 +14,21 @@ by less than 1 / ((1 - a) 2^F) counts (8 pm at 0.05 Hz, 0.4 pm at 0.9 Hz, with 1
 |d| < 2^26 counts (67 um at 1 pm) and F = 12 keep |(d << F) - y| < 2^39, and k < 2^K = 2^24,
 so the product stays below 2^63. k >= 64 (the pole within 1.6 % of its value; crossovers above
 ~0.006 Hz at 10 kHz).
-:func:`blend_header` writes the same step as a C99 header; the tests compile it with gcc and
+The arithmetic has one home, :func:`workbench.export.sensor.blend_step` (and :func:`~workbench.export.sensor.blend_c`
+for its C), which the controller's firmware step with a "fused" sensor block runs too.
+:func:`blend_header` writes the step alone as a C99 header; the tests compile it with gcc and
 compare every output with :meth:`FixedBlend.run`.
 """
 
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
+from ..export.sensor import MAX_DIFF_COUNTS, blend_c, blend_step
 from .fusion import Blend
 
 __all__ = ["FixedBlend", "blend_header"]
-
-MAX_DIFF_COUNTS = 2 ** 26
 
 
 @dataclass(frozen=True)
@@ -53,9 +55,9 @@ class FixedBlend:
 
     def step(self, y, g, c):
         """One sample: (new state, fused count) from state ``y`` and int counts ``g``, ``c`` (as :meth:`run`)."""
-        d = int(g) - int(c)
-        y += (self.k * ((d << int(self.frac_bits)) - y)) >> int(self.coef_bits)
-        return y, int(c) + ((y + (1 << (int(self.frac_bits) - 1))) >> int(self.frac_bits))
+        y, f = blend_step(np.int64(y), np.int64(g), np.int64(c), np.int64(self.k), int(self.frac_bits),
+                          int(self.coef_bits))
+        return int(y), int(f)
 
     def run(self, gauge_counts, charge_counts, y0=None):
         """Outputs (int64 counts) for int sequences; y0 (Q F counts) defaults to (g_0 - c_0) << F.
@@ -70,15 +72,18 @@ class FixedBlend:
         if d_all.size and int(np.max(np.abs(d_all))) >= MAX_DIFF_COUNTS:
             raise ValueError(f"gauge - charge reaches {int(np.max(np.abs(d_all)))} counts (limit {MAX_DIFF_COUNTS}): "
                              f"a coarser lsb_m or a reset of the charge integrator")
-        k, f_bits, k_bits = self.k, int(self.frac_bits), int(self.coef_bits)
+        f_bits = int(self.frac_bits)
         y = (int(d_all[0]) << f_bits) if y0 is None else int(y0)
-        half = 1 << (f_bits - 1)
         out = np.empty(g.size, dtype=np.int64)
-        for i in range(g.size):            # Python ints: exact, floor shifts like gcc's arithmetic shift
-            d = int(d_all[i])
-            y += (k * ((d << f_bits) - y)) >> k_bits
-            out[i] = int(c[i]) + ((y + half) >> f_bits)
-        return out, y
+        y = _blend_kernel(g, c, np.int64(y), np.int64(self.k), f_bits, int(self.coef_bits), out)
+        return out, int(y)
+
+
+@njit(cache=True)
+def _blend_kernel(g, c, y, k, f_bits, k_bits, out):
+    for i in range(g.size):            # int64: exact within the bounds above, floor shifts like gcc's
+        y, out[i] = blend_step(y, g[i], c[i], k, f_bits, k_bits)
+    return y
 
 
 def blend_header(fixed, name="fused_blend"):
@@ -97,14 +102,13 @@ def blend_header(fixed, name="fused_blend"):
 #define {name.upper()}_K INT64_C({fixed.k})
 #define {name.upper()}_K_BITS {fixed.coef_bits}
 #define {name.upper()}_FRAC_BITS {fixed.frac_bits}
+#define {name.upper()}_MAX_DIFF INT64_C({MAX_DIFF_COUNTS - 1})
 
 typedef struct {{ int64_t y; }} {name}_state;
 
 static inline int32_t {name}_step({name}_state *s, int32_t g, int32_t c)
 {{
-    int64_t d = (int64_t)g - (int64_t)c;
-    s->y += ({name.upper()}_K * (d * (INT64_C(1) << {name.upper()}_FRAC_BITS) - s->y)) >> {name.upper()}_K_BITS;
-    return (int32_t)((int64_t)c + ((s->y + (INT64_C(1) << ({name.upper()}_FRAC_BITS - 1))) >> {name.upper()}_FRAC_BITS));
+{blend_c(name, "s->y", "g", "c")}    return (int32_t){name}_fused;
 }}
 
 #endif

@@ -1,14 +1,14 @@
 """The three sensors' closed loops on the nonlinear plant: gauge, charge estimate, fused.
 
-One sample at a time at the servo rate: the compiled PZT step (creep, hysteresis, the 80 ohm
-and the amplifier's current limits), the charge amplifier on the stack's terminals
-(:class:`~.charge_amp.ChargeAmpStream`: leakage, bias current, dielectric absorption, ADC
-noise), the stage-4 estimator (:class:`~.estimator.StreamingEstimator`) and its dynamic part
-E(z), the gauge chain (per-period equivalent, noise-free, plus its white noise of
-``gauge.noise_rms_m`` per reading from an independent generator), and for ``sensor="fused"``
-the complementary blend (:class:`~.fusion.Blend`). A linear controller (the exported
-controller's linear part, no output window) computes from reading k the output applied in
-period k + 1, added to the bias.
+One compiled loop at the servo rate (:func:`workbench.verify.sensors.run_sensor_loop`, the loop
+`workbench verify --sensor` runs): the PZT step (creep, hysteresis, the 80 ohm and the amplifier's
+current limits), the gauge chain (per-period equivalent with its noise, firmware's metres), the
+charge amplifier on the stack's terminals (leakage, bias current, dielectric absorption, ADC
+noise; as :class:`~.charge_amp.ChargeAmpStream`), the stage-4 estimator (as
+:class:`~.estimator.StreamingEstimator`) and its dynamic part E(z), and the exported controller's
+fixed-point sensor step (:meth:`workbench.Controller.run_sensors`: for ``sensor="fused"`` the
+complementary blend's fixed-point step, then the cascade with its output range and current-limit
+window), whose output from reading k is applied in period k + 1.
 
 Scenario (:func:`closed_loop_run`): open loop at ``bias_v`` for ``settle_s`` (the stack
 charges, the integrator was reset at t = 0), then the loop closes with its reference at the
@@ -45,6 +45,9 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
                     progress=None):
     """Run one sensor's closed loop (see the module notes); returns metrics and the records.
 
+    The loop is :func:`workbench.verify.sensors.run_sensor_loop` (compiled): the controller's
+    fixed-point sensor step, blend included, with the streamed charge amplifier and estimator.
+
     Parameters
     ----------
     plant : Plant
@@ -53,113 +56,38 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
     amp : ChargeAmpParams
     e_d : discrete LTI
         The dynamic estimator E(z) at the servo period (``loop_analysis(...)["systems"]["E_d"]``).
-    controller : FirmwareController
-        Its ``linear()`` discrete system is run; input firmware V (the gauge chain's gain), output V.
+    controller : workbench.Controller or path
+        An exported controller (its fixed-point words run).
     sensor : {"gauge", "charge", "fused"}
-    blend : Blend or FixedBlend
-        Needed for ``sensor="fused"``; a :class:`~.blend_fixed.FixedBlend` runs the firmware's
-        fixed-point step.
+    blend : Blend or FixedBlend, optional
+        For ``sensor="fused"``: the crossover of the controller's sensor block (default: the block the
+        controller already has).
     stroke_m : float
         Stroke the triangle's 10-90 % refers to, m.
     hold_s : float
         Hold after the triangle, s (>= 3 s: 1 s settling and two 1 s windows).
     """
-    import control
-
-    from ..linearize.sampled import gauge_gain_v_per_m
-    from ..plant import kernels as K
-    from ..plant.gauge import displacement_from_reading, gauge_run_equivalent
-    from ..plant.simulator import PZTSimulator
-    from .charge_amp import ChargeAmpStream
-    from .estimator import StreamingEstimator
-    from .run import STAGES
+    from ..controller import Controller
+    from ..verify.sensors import SensorSetup, run_sensor_loop
 
     if sensor not in SENSORS:
         raise ValueError(f"sensor must be one of {', '.join(SENSORS)}; got {sensor!r}")
-    if sensor == "fused" and blend is None:
-        raise ValueError("sensor='fused' needs a Blend")
+    if not isinstance(controller, Controller):
+        controller = Controller.load(controller)
+    if sensor == "fused":
+        if blend is not None:
+            controller = controller.with_sensor("fused", float(getattr(blend, "blend", blend).crossover_hz))
+        elif controller.sensor_kind != "fused":
+            raise ValueError("sensor='fused' needs a Blend (or a controller with a fused sensor block)")
     if not hold_s >= 3.0:
         raise ValueError(f"hold_s must be at least 3 s; got {hold_s}")
-    c = control.ss(controller.linear())
-    dt = float(c.dt)
-    ca, cb, cc, cd = (np.asarray(m_, float) for m_ in (c.A, c.B, c.C, c.D))
-    ed = control.ss(e_d)
-    ea, eb, ec, edd = (np.asarray(m_, float) for m_ in (ed.A, ed.B, ed.C, ed.D))
-    k_fw = gauge_gain_v_per_m(7.5e-6, plant.gauge)
-    sigma_g = float(plant.gauge.noise_rms_m)
-    from .blend_fixed import FixedBlend
-    fixed = blend if isinstance(blend, FixedBlend) else None
-    a_bl = (fixed.blend if fixed else blend).pole if blend is not None else 0.0
-    n_settle = int(round(settle_s / dt))
-    n_tri = int(round(triangle_periods / triangle_hz / dt))
-    n_hold = int(round(hold_s / dt))
-    n = n_tri + n_hold
-    amp_tri = 0.4 * stroke_m
-    t = np.arange(1, n + 1) * dt
-    r_rel = np.where(np.arange(n) < n_tri, triangle_reference(t, amp_tri, triangle_hz), 0.0)
-
-    sim = PZTSimulator(plant.pzt, dt)
-    step, m, st = sim.step_function()
-    out = np.empty(K.N_OUT)
-    amp_s, est = ChargeAmpStream(amp, dt, seed), StreamingEstimator(ident.stage(STAGES[-1]), dt)
-    rng = np.random.default_rng(seed + 1000)
-    g_noise = rng.standard_normal(n_settle + n) * sigma_g
-    xe, xc = np.zeros(ea.shape[0]), np.zeros(ca.shape[0])
-    x_prev, y_bl, y = 0.0, None, 0.0
-    xs, rd = np.empty(n), np.empty(n)
-    ref0 = 0.0
-    for k in range(n_settle + n):
-        j = k - n_settle
-        u = bias_v + (y if j >= 0 else 0.0)
-        step(m, st, u, 0.0, out)
-        gr = gauge_run_equivalent(np.array([out[0]]), plant.gauge, x_prev_m=x_prev, noise=False)
-        x_prev = out[0]
-        gauge = float(displacement_from_reading(gr.demod_v, plant.gauge)[0]) + g_noise[k]
-        if sensor != "gauge":
-            d_s = est.update(*amp_s.update(out[1], out[5]))
-            charge = float(ec[0] @ xe + edd[0, 0] * d_s)
-            xe = ea @ xe + eb[:, 0] * d_s
-        if sensor == "gauge":
-            reading = gauge
-        elif sensor == "charge":
-            reading = charge
-        else:
-            if fixed is not None:        # the firmware's fixed-point blend, on counts of fixed.lsb_m
-                gq, cq = int(round(gauge / fixed.lsb_m)), int(round(charge / fixed.lsb_m))
-                if y_bl is None:
-                    y_bl = (gq - cq) << int(fixed.frac_bits)
-                y_bl, fq = fixed.step(y_bl, gq, cq)
-                reading = fq * fixed.lsb_m
-            else:
-                diff = gauge - charge
-                y_bl = diff if y_bl is None else a_bl * y_bl + (1.0 - a_bl) * diff
-                reading = charge + y_bl
-        if j == -1:
-            ref0 = reading
-        if j >= 0:
-            err = k_fw * (ref0 + r_rel[j] - reading)
-            y = float(cc[0] @ xc + cd[0, 0] * err)
-            xc = ca @ xc + cb[:, 0] * err
-            xs[j], rd[j] = out[0], reading
-        if progress and k % 10000 == 0:
-            progress(k, n_settle + n)
-    # metrics on the true x
-    per = int(round(1.0 / triangle_hz / dt))
-    w = slice(per, n_tri)
-    e_tri = xs[w] - r_rel[w]
-    e_tri = e_tri - np.mean(e_tri)
-    one = int(round(1.0 / dt))
-    h0 = n_tri + one
-    hold_x = xs[n_tri:]
-    drift = float(np.mean(xs[n - one:]) - np.mean(xs[h0:h0 + one]))
-    run_mean = np.convolve(hold_x, np.ones(one) / one, mode="valid")
-    noise = float(np.std(hold_x[one - 1:] - run_mean))
-    return {"sensor": sensor, "triangle_rms_m": float(np.sqrt(np.mean(e_tri ** 2))),
-            "triangle_rms_percent_stroke": float(100 * np.sqrt(np.mean(e_tri ** 2)) / stroke_m),
-            "hold_s": float(hold_s), "hold_drift_m": drift, "hold_noise_rms_m": noise, "stroke_m": float(stroke_m),
-            "blend_crossover_hz": None if blend is None else float(getattr(blend, "blend", blend).crossover_hz),
-            "blend_fixed_point": fixed is not None,
-            "t_s": t, "x_m": xs, "reading_m": rd, "reference_rel_m": r_rel}
+    r = run_sensor_loop(SensorSetup(plant, ident, amp, e_d, {}), controller, sensor, bias_v=bias_v,
+                        settle_s=settle_s, triangle_hz=triangle_hz, triangle_periods=triangle_periods, hold_s=hold_s,
+                        stroke_m=stroke_m, seed=seed, progress=progress, sweep=False)
+    out = {k: v for k, v in r.items() if not k.startswith("_")}
+    out.update({"blend_fixed_point": sensor == "fused", "t_s": r["_t_s"], "x_m": r["_x_m"],
+                "reading_m": r["_reading_m"], "reference_rel_m": r["_reference_rel_m"]})
+    return out
 
 
 FUSED_CONTROLLER = Path(__file__).resolve().parents[2] / "controllers" / "sn637_fused_loopshape.json"
@@ -197,8 +125,8 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
         JSON-ready results; ``_arrays`` holds the spectra and the closed-loop records for the figure.
     """
     from ..design.margins import loop_margins
+    from ..controller import Controller
     from ..plant.files import load_plant
-    from ..verify.run import load_controller_json
     from .blend_fixed import FixedBlend
     from .charge_amp import ChargeAmpParams
     from .fusion import (Blend, choose_crossover, drift_record, fused_error_variance, fused_noise_rms_per_sample,
@@ -234,8 +162,8 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     f = la_f["freq_hz"]
     m_fused = loop_margins(f, fused_loop_response(f, la_f["l_gauge"], la_f["l_self"], blend)).as_dict()
     margins = {"gauge": la_g["margins_gauge"], "charge": la_f["margins_self_sensed"], "fused": m_fused}
-    _, c_g = load_controller_json(gauge_controller)
-    _, c_f = load_controller_json(fused_controller)
+    c_g = Controller.load(gauge_controller)
+    c_f = Controller.load(fused_controller)
     e_dyn = la_g["systems"]["E_d"]
     rows, arrays = [], {}
     for s in sensors:

@@ -24,7 +24,8 @@ from ..errors import StudyDefinitionError, WorkbenchError
 from ..plant import Plant, load_plant
 from .scenarios import SCENARIOS, run_scenario
 
-__all__ = ["TARGETS", "VerifyResult", "verify", "load_controller_json", "load_verify_targets", "parse_target",
+__all__ = ["TARGETS", "VerifyResult", "verify", "load_controller_json", "load_verify_targets", "load_verify_sensor",
+           "parse_target",
            "predicted_limit_cycles", "evaluate_targets", "run_verify"]
 
 
@@ -134,11 +135,29 @@ def load_verify_targets(path):
         raise StudyDefinitionError(path, "verify", f"must be a table of target = number; got {table!r}")
     out = {}
     for key, value in table.items():
+        if key == "sensor":             # not a target: load_verify_sensor reads it
+            continue
         try:
             out[key] = _check_target_value(key, value, f"{path}: [verify.{key}]")
         except WorkbenchError as err:
             raise StudyDefinitionError(path, f"verify.{key}", str(err).split("]: ", 1)[-1]) from None
     return out
+
+
+def load_verify_sensor(path):
+    """The ``sensor`` key of the ``[verify]`` table of a TOML file ("gauge", "charge", "fused", "all"), or None."""
+    from .sensors import SENSOR_CHOICES
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return None                     # load_verify_targets names the problem
+    value = (data.get("verify") or {}).get("sensor") if isinstance(data.get("verify"), dict) else None
+    if value is None:
+        return None
+    if value not in SENSOR_CHOICES:
+        raise StudyDefinitionError(path, "verify.sensor", f"must be one of {', '.join(SENSOR_CHOICES)}; got {value!r}")
+    return value
 
 
 def predicted_limit_cycles(plant, controller, bias_v=50.0):
@@ -200,6 +219,11 @@ class VerifyResult:
         Controller/plant mismatches (``check``, ``message``); see :meth:`Controller.compare_plant`.
     predicted_limit_cycles : list of dict
     seed, noise, anti_windup, form : the run's settings.
+    sensors : list of dict
+        With ``sensor=``: one row per sensor (:func:`workbench.verify.sensors.compare_sensors`):
+        crossover and margins of the nominal loop on that path, triangle error, hold drift and noise.
+    sensor_traces : dict
+        sensor -> 1 kHz arrays (``t_s``, ``x_m``, ``reading_m``, ``reference_rel_m``) for the figure.
     """
 
     plant: Plant
@@ -214,6 +238,8 @@ class VerifyResult:
     anti_windup: bool = True
     form: str = ""
     notes: list = field(default_factory=list)
+    sensors: list = field(default_factory=list)
+    sensor_traces: dict = field(default_factory=dict)
 
     @property
     def mismatches(self):
@@ -236,7 +262,7 @@ class VerifyResult:
                 "controller_form": self.form, "window": c.window_source, "noise": self.noise,
                 "anti_windup": self.anti_windup, "seed": self.seed, "preflight": self.preflight,
                 "notes": self.notes, "predicted_limit_cycles": self.predicted_limit_cycles,
-                "targets": self.targets, "scenarios": self.scenarios}
+                "targets": self.targets, "scenarios": self.scenarios, "sensors": self.sensors}
 
     def __repr__(self):
         met = sum(t["met"] for t in self.targets.values())
@@ -245,7 +271,7 @@ class VerifyResult:
 
 
 def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise=True, anti_windup=True,
-           form=None, seed=0, targets=None, strict=False, allow_unstable=False, progress=None):
+           form=None, seed=0, targets=None, strict=False, allow_unstable=False, progress=None, sensor=None):
     """Run a controller in closed loop with the nonlinear plant, as firmware runs it.
 
     Parameters
@@ -272,6 +298,13 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
     allow_unstable : bool, default False
         Accept a controller with poles outside the unit circle (analysis only).
     progress : callable(stage, done, total), optional
+    sensor : {"gauge", "charge", "fused", "all"} or sequence of them, optional
+        Also run the sensor scenario (:mod:`workbench.verify.sensors`: 0.1 Hz triangle, then a hold of
+        ``hold_s``) with the controller's fixed-point sensor step closing on that reading, the charge
+        amplifier (leakage, bias current, dielectric absorption, noise) and the gauge noise all present;
+        "all" runs the three side by side. A charge or fused loop on a plant with no charge channel model
+        is refused (:class:`~workbench.verify.sensors.ChargeChannelError`); one sensor other than the
+        controller's sensor block is a preflight mismatch (``check`` "sensor"); with several, a note.
 
     Returns
     -------
@@ -295,8 +328,21 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
     limits = {}
     for name, value in (targets or {}).items():
         limits[name] = _check_target_value(name, value, "targets")
+    sensors = _check_sensors(sensor, plant, controller)
     pre = controller.compare_plant(plant)
     notes = []
+    other = [s_ for s_ in sensors if s_ != controller.sensor_kind]
+    if len(sensors) == 1 and other:
+        pre.append({"check": "sensor", "message": f"--sensor {other[0]}, but the controller's sensor block says "
+                                                  f"{controller.sensor_kind!r} (the reading it was designed to close "
+                                                  f"on); the {other[0]} loop runs it anyway"})
+    if scenarios and controller.sensor_kind != "gauge":
+        pre.append({"check": "sensor", "message": f"the scenarios close on the gauge, but the controller's sensor "
+                                                  f"block says {controller.sensor_kind!r}; --sensor "
+                                                  f"{controller.sensor_kind} runs it on its own reading"})
+    if len(sensors) > 1 and other:
+        notes.append(f"the {' and '.join(other)} runs close this controller on another reading than its sensor block's "
+                     f"{controller.sensor_kind!r} (side by side, as asked)")
     if controller.window_source == "plant":
         notes.append(f"{controller.source or 'the controller'} has no current-limit window: the window "
                      f"+{controller.voltage_model[1]:.4g}/-{controller.voltage_model[2]:.4g} V, alpha "
@@ -329,26 +375,66 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
         if "oscillation_m" in m:
             m["predicted_limit_cycles"] = cycles
     say("verify", steps, steps)
+    rows, sensor_traces = [], {}
+    if sensors:
+        from .sensors import compare_sensors
+        rows = compare_sensors(plant, controller, sensors, hold_s=hold_s, noise=noise, seed=seed,
+                               progress=lambda stage, *a: say(stage, *a) if a else say(stage, 0, 1))
+        for r in rows:
+            sensor_traces[r["sensor"]] = {k[1:]: r.pop(k) for k in list(r) if k.startswith("_")}
+        notes.append("sensor runs: the charge amplifier's parameters are assumed (ChargeAmpParams: R_FP 1 GOhm, "
+                     "200 pA bias, absorption 0.25 uF at 5 s and 0.12 uF at 80 s); the estimator is identified on "
+                     "a simulated 700 s record of this plant")
     form_text = fw.describe().replace("no current-limit window", "no current-limit window (anti-windup off)")
     return VerifyResult(plant=plant, controller=controller, scenarios=results, traces=traces_all,
                         targets=evaluate_targets(results, limits), preflight=pre, predicted_limit_cycles=cycles,
                         seed=int(seed), noise=bool(noise), anti_windup=bool(anti_windup), form=form_text,
-                        notes=notes)
+                        notes=notes, sensors=rows, sensor_traces=sensor_traces)
+
+
+def _check_sensors(sensor, plant, controller):
+    """The sensors to run (list), checked before any work: names, the charge channel, the blend's crossover."""
+    from .sensors import SENSOR_CHOICES, ChargeChannelError, charge_channel_missing
+    if sensor is None:
+        return []
+    asked = [sensor] if isinstance(sensor, str) else list(sensor)
+    bad = [s for s in asked if s not in SENSOR_CHOICES]
+    if bad:
+        raise WorkbenchError(f"--sensor {bad[0]!r}: unknown; give one of {', '.join(SENSOR_CHOICES)}")
+    sensors = ["gauge", "charge", "fused"] if "all" in asked else list(dict.fromkeys(asked))
+    if any(s != "gauge" for s in sensors):
+        why = charge_channel_missing(plant)
+        if why:
+            raise ChargeChannelError(f"{plant.source}: no charge channel model, so no {' or '.join(s for s in sensors if s != 'gauge')} "
+                                     f"loop: {why}; verify with --sensor gauge")
+    if controller.fixed is None:
+        raise WorkbenchError(f"{controller.source or controller.name}: --sensor runs the fixed-point sensor step; "
+                             f"the controller has no fixed-point words (export it with Controller.from_lti)")
+    if "fused" in sensors and controller.sensor_kind != "fused":
+        raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's crossover "
+                             f"and words, and the controller has no fused sensor block; export one with "
+                             f"Controller.with_sensor('fused', crossover_hz) (e.g. the crossover of "
+                             f"`workbench selfsense PLANT --fused`), or give --sensor gauge or charge")
+    if controller.sensor is None and "gauge_v_per_m" not in controller.provenance:
+        raise WorkbenchError(f"{controller.source or controller.name}: --sensor needs the gauge gain the controller "
+                             f"was designed with (gauge_chain.volts_per_meter); re-export it with its plant")
+    return sensors
 
 
 def run_verify(plant_path, controller_path, scenarios=SCENARIOS, hold_s=1000.0, noise=True, anti_windup=True,
-               form=None, out_dir=None, progress=None, seed=0, targets=None, strict=False, allow_unstable=False):
+               form=None, out_dir=None, progress=None, seed=0, targets=None, strict=False, allow_unstable=False,
+               sensor=None):
     """The ``workbench verify`` job: :func:`verify`, then figures, report.md and verify.json in ``out_dir``.
 
     Returns the summary dict (:meth:`VerifyResult.summary`, plus ``figures`` and ``report``).
     """
     res = verify(plant_path, controller_path, scenarios, hold_s=hold_s, noise=noise, anti_windup=anti_windup,
                  form=form, seed=seed, targets=targets, strict=strict, allow_unstable=allow_unstable,
-                 progress=progress)
+                 progress=progress, sensor=sensor)
     summary = res.summary()
     summary["plant"], summary["controller"] = str(plant_path), str(controller_path)
     if out_dir is not None:
-        summary.update(_write_outputs(Path(out_dir), summary, res.traces))
+        summary.update(_write_outputs(Path(out_dir), summary, res.traces, res.sensor_traces))
     return summary
 
 
@@ -360,8 +446,10 @@ def _preflight_lines(summary):
         lines.append("The controller's provenance, trim, gauge gain, output limits and current-limit window agree "
                      "with the plant it runs on.")
     else:
-        lines.append(f"**WARNING: {len(bad)} mismatch(es): the controller was not exported for this plant.** "
-                     f"(`--strict` makes this an error.)")
+        n_plant = sum(p["check"] != "sensor" for p in bad)
+        what = ([f"{n_plant} mismatch(es): the controller was not exported for this plant"] if n_plant else []) + \
+            (["the run closes on another reading than the controller's sensor block"] if n_plant < len(bad) else [])
+        lines.append(f"**WARNING: {'; '.join(what)}.** (`--strict` makes this an error.)")
         lines.append("")
         lines += [f"- **{p['check']}**: {p['message']}" for p in bad]
     info = [p for p in pre if p["check"] == "not recorded"] + [{"message": n} for n in summary.get("notes") or []]
@@ -371,7 +459,7 @@ def _preflight_lines(summary):
     return lines + [""]
 
 
-def _write_outputs(out, summary, traces_all):
+def _write_outputs(out, summary, traces_all, sensor_traces=None):
     from ..report import write_json
     from ..report.output import write_text
     from ..report.verify_figures import plot_scenario
@@ -397,6 +485,12 @@ def _write_outputs(out, summary, traces_all):
         if why:
             text = text.replace("## Targets\n", "## Targets\n\n" + "\n".join(why) + "\n", 1)
         write_text(report, text)
+    if summary.get("sensors"):
+        from .sensor_report import plot_sensors, sensor_lines
+        figures["sensors"] = str(plot_sensors(summary["sensors"], sensor_traces, out / "sensors.png").name)
+        text = Path(report).read_text()
+        write_text(report, text.rstrip("\n") + "\n\n" + "\n".join(sensor_lines(summary["sensors"],
+                                                                               figures["sensors"])))
     from ..report.html import write_html_report
     write_html_report(report)
     write_json(out / "verify.json", {**summary, "figures": figures})

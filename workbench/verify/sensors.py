@@ -1,0 +1,484 @@
+"""Verify on the gauge, the charge estimate or their blend: the controller's sensor step in closed loop.
+
+One compiled loop per servo period T (no Python per period), in this order:
+
+1. the PZT (:func:`workbench.plant.kernels.pzt_step`: creep, hysteresis, the series resistor,
+   the amplifier's current and voltage limits) over the period with the command held;
+2. the gauge chain as :mod:`.closed_loop` reads it (the bridge of eq. 26 with its imbalance a
+   quarter and three quarters into the period, the amplifier and ADC clip, one Gaussian term of
+   the gauge noise, the trim and the servo DAC's quantization; :func:`workbench.plant.gauge._bridge`
+   and ``_quantize``), then firmware's conversion to metres (the serial's calibration,
+   :func:`workbench.plant.gauge.displacement_from_reading`);
+3. the charge amplifier on the stack's terminals, streamed as
+   :class:`workbench.selfsense.charge_amp.ChargeAmpStream` does it (leakage through R_FP, the
+   op-amp's bias current, two-branch dielectric absorption, output and HV-monitor noise and
+   ADC quantization), the staged estimator (:class:`workbench.selfsense.estimator.StreamingEstimator`,
+   stage 4) and its dynamic part E(z);
+4. the controller's firmware step with its sensor block (:func:`workbench.export.sensor.run_sensor`,
+   ``NAME_sensor_step`` bit for bit: the blend for "fused", the error scale, the fixed-point
+   cascade with its output range and current-limit window), whose output is applied at the
+   next period.
+
+Scenario (as :func:`workbench.selfsense.fused_loop.closed_loop_run`): open loop at ``bias_v``
+for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, the blend runs),
+then the loop closes (the cascade at rest at the bias) with its reference at the reading of that
+moment; ``triangle_periods`` periods of a ``triangle_hz`` triangle over 10-90 % of the stroke
+around it; then a hold of ``hold_s``. Metrics on the true x (decimated to 1 kHz point samples):
+triangle RMS error after the first period (its mean removed), hold drift (mean of the last
+second minus mean of the second after 1 s of settling), hold noise (RMS about the 1 s running
+mean). The charge amplifier's parameters are the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`
+(the seeds give none for a stack); the estimator is identified on a simulated 700 s record of
+this plant (:func:`workbench.selfsense.identify.identify`), as ``workbench selfsense`` does.
+"""
+
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from ..errors import WorkbenchError
+from ..export.fixed_point import fixed_step, initial_state
+from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
+from ..plant import kernels as K
+from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
+
+__all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
+           "run_sensor_loop", "compare_sensors"]
+
+SENSOR_CHOICES = (*SENSOR_KINDS, "all")
+CHUNK = 1 << 17
+DECIMATE = 10                  # metrics on 1 kHz point samples of x
+
+
+class ChargeChannelError(WorkbenchError, ValueError):
+    """The plant has no charge channel model for a charge or fused loop."""
+
+
+def charge_channel_missing(plant):
+    """Why ``plant`` has no charge channel model (str), or None when it has one.
+
+    The charge estimate reads the stack's terminal charge through the charge amplifier and maps
+    it to x with the free stack's x = k_q2x q (seed 000 eq. 10, seed 002 eq. 2.8). A plant file
+    whose stack sits in a structure (``[structure]``: the mount's compliance and the load's
+    force move x without the charge the estimator assumes) or that is not a stack model has no
+    such channel here.
+    """
+    pzt = getattr(plant, "pzt", None)
+    if pzt is None or not hasattr(pzt, "k_q2x_m_per_c"):
+        return "it is not a stack plant file with the seed-000 electrical model (no terminal charge)"
+    if getattr(plant, "structure", None) is not None:
+        return ("its stack sits in a [structure]: the charge estimate's free-stack x = k_q2x q (seed 000 eq. 10) "
+                "does not hold there, and the workbench models no charge channel for it")
+    return None
+
+
+class SensorSetup:
+    """What the charge path needs, built once per plant: identified estimator, E(z), margins per sensor."""
+
+    def __init__(self, plant, ident, amp, e_d, loops):
+        self.plant, self.ident, self.amp, self.e_d, self.loops = plant, ident, amp, e_d, loops
+
+
+def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_s=700.0):
+    """Identify the estimator on a simulated record of ``plant`` and analyse the loops (~30 s).
+
+    ``ident_hold_s``: the identification record's final hold, s (700 s as ``workbench selfsense``).
+
+    Returns a :class:`SensorSetup`; ``loops`` maps each sensor to the nominal loop's margins
+    (:func:`workbench.selfsense.run.loop_analysis` at 50 V; the fused loop F_low L_gauge + F_high L_charge
+    with the controller's blend, when it has one).
+    """
+    from ..design.margins import loop_margins
+    from ..selfsense.charge_amp import ChargeAmpParams
+    from ..selfsense.fused_loop import fused_loop_response
+    from ..selfsense.fusion import Blend
+    from ..selfsense.identify import identify, simulate_identification
+    from ..selfsense.run import loop_analysis
+    say = progress or (lambda *a: None)
+    amp = ChargeAmpParams() if amp is None else amp
+    dt = plant.gauge.period_s
+    say("identification record")
+    rec = simulate_identification(plant.pzt, amp, hold_s=float(ident_hold_s), seed=seed + 100, dt_s=dt)
+    ident = identify(rec, amp)
+    say("loop analysis")
+    if controller.source and Path(controller.source).is_file():
+        la = loop_analysis(plant, ident, amp, controller.source)
+    else:                                   # loop_analysis reads a file: the cascade is what it uses
+        with tempfile.TemporaryDirectory() as tmp:
+            la = loop_analysis(plant, ident, amp, controller.write(tmp, "controller")["json"])
+    f = la["freq_hz"]
+    loops = {"gauge": dict(la["margins_gauge"]), "charge": dict(la["margins_self_sensed"])}
+    responses = {"gauge": la["l_gauge"], "charge": la["l_self"]}
+    if controller.sensor is not None and controller.sensor.kind == "fused":
+        blend = Blend(controller.sensor.crossover_hz, dt)
+        responses["fused"] = fused_loop_response(f, la["l_gauge"], la["l_self"], blend)
+        loops["fused"] = loop_margins(f, responses["fused"]).as_dict()
+    for s, l_ in responses.items():
+        loops[s]["bandwidth_hz"] = closed_loop_bandwidth_hz(f, l_)
+    return SensorSetup(plant, ident, amp, la["systems"]["E_d"], loops)
+
+
+def closed_loop_bandwidth_hz(freq_hz, loop):
+    """-3 dB bandwidth of T = L / (1 + L) from a loop's frequency response: the first frequency where |T|
+    falls below 1/sqrt(2) of its low-frequency value (log-interpolated), Hz; NaN when it never does."""
+    f = np.asarray(freq_hz, float)
+    t = np.abs(np.asarray(loop) / (1.0 + np.asarray(loop)))
+    below = np.flatnonzero(t < t[0] / np.sqrt(2.0))
+    if below.size == 0 or below[0] == 0:
+        return float("nan")
+    i = below[0]
+    lt, lf = np.log(t[i - 1:i + 1]), np.log(f[i - 1:i + 1])
+    return float(np.exp(np.interp(np.log(t[0] / np.sqrt(2.0)), lt[::-1], lf[::-1])))
+
+
+@njit(cache=True, error_model="numpy")
+def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, cs, ep, eg, ea_, eb0, eb1, es, er, ew,
+                 ez, xa, xb, xc, xd, xe, kind, bk, bfrac, bkbits, scale, sbits, in_lim, fb, fa, fshift, ffrac, limw,
+                 cst, vm, io, dec, rec):
+    """Periods of the sensor loop (module notes). ``io`` = [pending u (V), x_prev, blend y, decim count, row,
+    output LSB (V), last reading (counts), blend started]; ``cs`` charge-amp state [t, v_prev, q_leak] and DA states ``ck``-sized in ``cs[3:]``;
+    ``es`` estimator state [t, v_prev, q_leak]; ``ez`` play states; ``xe`` E(z) states. Every ``dec``-th
+    period a row of ``rec``: true x (m), the reading the cascade closed on (m), the gauge and charge counts
+    the sensor step received, and the output it computed (V)."""
+    out = np.empty(K.N_OUT)
+    peak = np.zeros((fb.shape[0], 3), np.int64)
+    L, W, kgf, vmod, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
+    demod, trim_s, trim_b, dac_fs, dac_bits, cal = gp[6], gp[7], gp[8], gp[9], int(gp[10]), gp[11]
+    dt = cp[0]
+    r_leak, i_bias, c_ref, c_int = cp[1], cp[2], cp[3], cp[4]
+    out_lsb, out_fs, in_lsb, in_fs = cp[5], cp[6], cp[7], cp[8]
+    e_alpha, e_cint, e_cref, e_rleak, e_ibias = ep[0], ep[1], ep[2], ep[3], ep[4]
+    lsb_m = gp[12]
+    nda = ck.shape[0]
+    ne = xe.shape[0]
+    xn = np.empty(ne)
+    for k in range(ref.shape[0]):
+        u = io[0]
+        x_start = io[1]
+        K.pzt_step(m, st, u, 0.0, out)
+        x = out[0]
+        io[1] = x
+        # gauge chain (one period, positions interpolated), firmware's metres
+        xq = x_start + (x - x_start) * 0.25
+        xt = x_start + (x - x_start) * 0.75
+        v_p = min(max(amp * _bridge(xq, L, W, kgf, r0, vmod), -adc_fs), adc_fs)
+        v_n = min(max(amp * _bridge(xt, L, W, kgf, r0, -vmod), -adc_fs), adc_fs)
+        dem = 0.5 * demod * (v_p - v_n) + gn[k]
+        reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
+        gauge_m = reading * cal + TRIM_CENTER_M
+        # charge amplifier (ChargeAmpStream.update)
+        q_c, v_t = out[1], out[5]
+        cs[0] += dt
+        cs[2] += 0.5 * (v_t + cs[1]) / r_leak * dt
+        q_da = 0.0
+        for j in range(nda):
+            cs[3 + j] = ca[j] * cs[3 + j] + cb0[j] * cs[1] + cb1[j] * v_t
+            q_da += ck[j] * cs[3 + j]
+        cs[1] = v_t
+        q_tot = q_c + cs[2] + i_bias * cs[0] + q_da
+        v_out = -(q_tot - c_ref * v_t) / c_int + on[k]
+        v_out = min(max(math.floor(v_out / out_lsb + 0.5) * out_lsb if out_lsb > 0 else v_out, -out_fs), out_fs)
+        v_in = v_t + vn[k]
+        v_in = min(max(math.floor(v_in / in_lsb + 0.5) * in_lsb if in_lsb > 0 else v_in, -in_fs), in_fs)
+        # staged estimator (StreamingEstimator.update)
+        es[0] += dt
+        if e_rleak > 0:
+            es[2] += 0.5 * (v_in + es[1]) / e_rleak * dt
+        corr = 0.0
+        for j in range(eg.shape[0]):
+            es[3 + j] = ea_[j] * es[3 + j] + eb0[j] * es[1] + eb1[j] * v_in
+            corr += eg[j] * es[3 + j]
+        es[1] = v_in
+        for j in range(er.shape[0]):
+            ez[j] = max(v_in - er[j], min(v_in + er[j], ez[j]))
+            corr += ew[j] * ez[j]
+        qe = e_cref * v_in - e_cint * v_out - es[2] - e_ibias * es[0]
+        d_s = qe / e_alpha - corr
+        # dynamic estimator E(z)
+        ch = xd * d_s
+        for i in range(ne):
+            ch += xc[i] * xe[i]
+        for i in range(ne):
+            acc = xb[i] * d_s
+            for jj in range(ne):
+                acc += xa[i, jj] * xe[jj]
+            xn[i] = acc
+        for i in range(ne):
+            xe[i] = xn[i]
+        # the firmware's sensor step on counts
+        g = np.int64(math.floor(gauge_m / lsb_m + 0.5))
+        c = np.int64(math.floor(ch / lsb_m + 0.5))
+        if io[7] == 0.0:                # NAME_sensor_reset: the blend state starts at the first difference
+            io[2] = float((g - c) << bfrac)
+            io[7] = 1.0
+        yb, f = sensor_reading(kind, np.int64(io[2]), g, c, bk, bfrac, bkbits)
+        io[2] = yb
+        if closed:
+            u_w = fixed_step(cst, error_word(ref[k], f, scale, sbits, in_lim), fb, fa, fshift, ffrac, limw, vm, True,
+                             peak)
+            io[0] = u_w * io[5]
+        io[6] = f
+        io[3] += 1
+        if io[3] >= dec:
+            io[3] = 0
+            row = int(io[4])
+            if row < rec.shape[0]:
+                rec[row, 0] = x
+                rec[row, 1] = f * lsb_m
+                rec[row, 2] = g
+                rec[row, 3] = c
+                rec[row, 4] = io[0]
+                io[4] = row + 1
+
+
+def _estimator_arrays(p, dt):
+    from ..selfsense.estimator import ResidualCorrection
+    c = p.correction or ResidualCorrection()
+    taus = np.array([p.da_time_constant_s, *c.creep_time_constants_s], float)
+    gains = np.array([p.da_gain_f / p.alpha_c_per_m, *c.creep_gains_m_per_v], float)
+    a = np.exp(-dt / taus)
+    g = taus / dt * (1.0 - a)
+    return (np.array([p.alpha_c_per_m, p.c_int_f, p.c_ref_f, p.r_leak_ohm if np.isfinite(p.r_leak_ohm) else -1.0,
+                      p.i_bias_a]), gains, a, g - a, 1.0 - g, np.asarray(c.thresholds_v, float),
+            np.asarray(c.play_weights_m_per_v, float))
+
+
+def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2,
+                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True):
+    """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
+
+    Parameters
+    ----------
+    setup : SensorSetup
+        From :func:`sensor_setup` (the same plant).
+    controller : workbench.Controller
+        With fixed-point words; its sensor block gives the blend for "fused" (required) and the
+        error scale (default: the gauge gain of its provenance).
+    sensor : {"gauge", "charge", "fused"}
+    stroke_m : float, optional
+        The stroke the triangle's 10-90 % refers to (default: rest to 100 V, quasi-static).
+    noise : bool
+        Gauge noise and the charge amplifier's noise.
+    decimate : int, default 10
+        Periods per recorded row (1: every period, to replay the sensor step).
+    sweep : bool, default True
+        After the hold, the closed-loop response from the time domain as verify's ``sine_sweep`` takes
+        it (:data:`.scenarios.SWEEP_FREQ_HZ`, tones of :data:`.scenarios.SWEEP_AMPLITUDE_M` about the
+        hold point, 2 s of each after 5 periods of settling), on the true x: ``bandwidth_hz`` is where
+        |x / reference| falls below -3 dB (NaN with a ``bandwidth_why``).
+
+    Returns
+    -------
+    dict
+        ``triangle_rms_m``, ``triangle_rms_percent_stroke``, ``hold_drift_m``, ``hold_noise_rms_m`` and the
+        settings; arrays of the closed loop, one per ``decimate`` periods (keys starting with "_"): ``_t_s``,
+        ``_x_m``, ``_reading_m``, ``_reference_rel_m``, and what the sensor step received and computed
+        (``_reference_counts``, ``_gauge_counts``, ``_charge_counts``, ``_u_v``).
+    """
+    from dataclasses import replace
+
+    import control
+
+    from ..plant.simulator import PZTSimulator
+    from ..selfsense.fused_loop import triangle_reference
+    from ..selfsense.run import STAGES
+    from .scenarios import stroke_m as quasi_static_stroke
+
+    if sensor not in SENSOR_KINDS:
+        raise WorkbenchError(f"sensor must be one of {', '.join(SENSOR_KINDS)}; got {sensor!r}")
+    if not hold_s >= 3.0:
+        raise WorkbenchError(f"the hold must be at least 3 s (1 s settling and two 1 s windows); got {hold_s:g} s")
+    plant = setup.plant
+    if sensor != "gauge":
+        why = charge_channel_missing(plant)
+        if why:
+            raise ChargeChannelError(f"{plant.source}: no charge channel model for a {sensor} loop: {why}; "
+                                     f"verify this controller with --sensor gauge")
+    sb = controller.sensor
+    if sensor == "fused" and (sb is None or sb.kind != "fused"):
+        raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's crossover, "
+                             f"which the controller's sensor block does not give; export it with "
+                             f"Controller.with_sensor('fused', crossover_hz)")
+    if sb is None:
+        sb = controller.with_sensor(sensor).sensor
+    elif sb.kind != sensor:
+        sb = replace(sb, kind=sensor, crossover_hz=None, k=None) if sensor != "fused" else sb
+    fxp = controller.fixed
+    dt = controller.dt_s
+    g = plant.gauge
+    stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
+    n_settle = int(round(settle_s / dt))
+    n_tri = int(round(triangle_periods / triangle_hz / dt))
+    n_hold = int(round(hold_s / dt))
+    n = n_tri + n_hold
+
+    def r_rel(i0, i1):
+        """The reference about the reading at closing for periods i0..i1 - 1 after closing, m."""
+        i = np.arange(i0, i1)
+        return np.where(i < n_tri, triangle_reference((i + 1) * dt, 0.4 * stroke, triangle_hz), 0.0)
+
+    sim = PZTSimulator(plant.pzt, dt)
+    amp = setup.amp
+    gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain, g.adc_range_v,
+                   g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
+                   g.calibration_m_per_v, sb.lsb_m])
+    r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
+    taus = np.asarray(amp.da_time_constants_s, float)
+    ca = np.exp(-dt / taus)
+    cg = taus / dt * (1.0 - ca)
+    out_lsb = 2.0 * amp.adc_range_v / 2.0 ** int(amp.adc_bits) if amp.adc_bits < 60 else 0.0
+    in_lsb = 2.0 * amp.vin_range_v / 2.0 ** int(amp.vin_adc_bits) if amp.vin_adc_bits < 60 else 0.0
+    cp = np.array([dt, amp.r_leak_ohm, amp.i_bias_a, amp.c_ref_f, amp.c_int_f, out_lsb, amp.adc_range_v, in_lsb,
+                   amp.vin_range_v])
+    ck = np.asarray(amp.da_gains_f, float)
+    cs = np.zeros(3 + ck.size)
+    ep, eg, ea_, eb0, eb1, er, ew = _estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
+    es = np.zeros(3 + eg.size)
+    ez = np.zeros(er.size)
+    e_ss = control.ss(setup.e_d)
+    xa, xb, xc = (np.ascontiguousarray(np.asarray(v, float)) for v in (e_ss.A, e_ss.B[:, 0], e_ss.C[0]))
+    xd = float(np.asarray(e_ss.D)[0, 0])
+    xe = np.zeros(xa.shape[0])
+    if xa.shape[0] == 0:
+        xa, xb, xc, xe = np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0)
+    kind = KIND_CODE[sensor]
+    scale, sbits = sb.error_scale(fxp.input_frac_bits)
+    cst, u_w0 = initial_state(fxp, bias_v)
+    vm = np.array([u_w0], np.int64)
+    out_scale = 2.0 ** -fxp.output_frac_bits
+    io = np.array([float(bias_v), float(plant.pzt.k_q2x_m_per_c * plant.pzt.hysteresis.output_at_rest()), 0.0, 0.0,
+                   0.0, out_scale, 0.0, 0.0])
+    rng = np.random.Generator(np.random.PCG64(seed))
+    sig_g = demod_noise_sigma_v(g) if noise else 0.0
+    sig_o = amp.out_noise_v_rms if noise else 0.0
+    sig_i = amp.vin_noise_v_rms if noise else 0.0
+    dec = int(decimate)
+    rec = np.zeros((n // dec, 5))
+    rec_open = np.zeros((n_settle // dec + 1, 5))
+    words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
+             np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
+             fxp.limit_words, cst, vm)
+    tones = _sweep_reference(dt) if sweep else None
+    n_sw = 0 if tones is None else tones[0].size
+    rec_sw = np.zeros((n_sw, 5))
+    total = n_settle + n + n_sw
+    done = 0
+    for phase, count, rr, dec_ in (("open", n_settle, rec_open, dec), ("closed", n, rec, dec), ("sweep", n_sw, rec_sw, 1)):
+        io[3], io[4] = 0.0, 0.0
+        closed = phase != "open"
+        if phase == "closed":
+            y_close = int(io[2])                    # the blend's state when the loop closes
+            ref_counts = np.int64(io[6])            # the reading at the moment the loop closes
+        elif phase == "open":
+            ref_counts = np.int64(0)
+        for start in range(0, count, CHUNK):
+            stop = min(count, start + CHUNK)
+            m = stop - start
+            gn = rng.standard_normal(m) * sig_g if sig_g > 0 else np.zeros(m)
+            on = rng.standard_normal(m) * sig_o if sig_o > 0 else np.zeros(m)
+            vn = rng.standard_normal(m) * sig_i if sig_i > 0 else np.zeros(m)
+            if phase == "closed":
+                refs = ref_counts + np.round(r_rel(start, stop) / sb.lsb_m).astype(np.int64)
+            elif phase == "sweep":                  # tones about the hold point
+                refs = ref_counts + np.round(tones[0][start:stop] / sb.lsb_m).astype(np.int64)
+            else:
+                refs = np.zeros(m, np.int64)
+            _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
+                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec_, rr)
+            done += m
+            if progress:
+                progress(f"sensor loop: {sensor}", done, total)
+    rec_x = rec[:, 0]
+    per = int(round(1.0 / triangle_hz / dt)) // dec
+    nt = n_tri // dec
+    idx = np.arange(rec_x.size) * dec + dec - 1          # the periods the rows were taken at
+    r_dec = r_rel(0, 0) if rec_x.size == 0 else np.where(idx < n_tri, triangle_reference((idx + 1) * dt,
+                                                                                        0.4 * stroke, triangle_hz), 0.0)
+    e_tri = rec_x[per:nt] - r_dec[per:nt]
+    e_tri = e_tri - np.mean(e_tri)
+    one = int(round(1.0 / dt)) // dec
+    h0 = nt + one
+    hold_x = rec_x[nt:]
+    drift = float(np.mean(rec_x[-one:]) - np.mean(rec_x[h0:h0 + one]))
+    run_mean = np.convolve(hold_x, np.ones(one) / one, mode="valid")
+    noise_rms = float(np.std(hold_x[one - 1:] - run_mean))
+    tri = float(np.sqrt(np.mean(e_tri ** 2)))
+    bw = {}
+    if tones is not None:
+        bw = _sweep_bandwidth(tones, rec_sw[:, 0], dt)
+    return {**bw, "sensor": sensor, "triangle_hz": float(triangle_hz), "triangle_rms_m": tri,
+            "triangle_rms_percent_stroke": 100.0 * tri / stroke, "hold_s": float(hold_s), "hold_drift_m": drift,
+            "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
+            "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
+            "_t_s": (idx + 1) * dt, "_x_m": rec_x, "_reading_m": rec[:, 1],
+            "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_dec / sb.lsb_m).astype(np.int64),
+            "_gauge_counts": rec[:, 2].astype(np.int64), "_charge_counts": rec[:, 3].astype(np.int64),
+            "_u_v": rec[:, 4], "_u0_v": float(bias_v), "_blend_state_at_closing": y_close}
+
+
+def _sweep_reference(dt):
+    """(reference relative to the hold point, m; [(freq_eff_hz, first, last) of each tone's scored window])."""
+    from .scenarios import SWEEP_AMPLITUDE_M, SWEEP_FREQ_HZ
+    parts, windows, at = [], [], 0
+    for f in SWEEP_FREQ_HZ:                 # as scenarios._sine_sweep: whole periods, >= 5 periods or 0.1 s settling
+        cycles = max(4, int(round(2.0 * f)))
+        n_settle = int(round(max(0.1, 5.0 / f) / dt))
+        n = int(round(cycles / f / dt))
+        f_eff = cycles / (n * dt)
+        t = np.arange(n_settle + n) * dt
+        parts.append(SWEEP_AMPLITUDE_M * np.sin(2 * np.pi * f_eff * t))
+        windows.append((f_eff, at + n_settle, at + n_settle + n))
+        at += n_settle + n
+    return np.concatenate(parts), windows
+
+
+def _sweep_bandwidth(tones, x_m, dt):
+    """Lock-in of the true x against the reference per tone; the -3 dB bandwidth (scenarios._bandwidth)."""
+    from .scenarios import SWEEP_AMPLITUDE_M, SWEEP_FREQ_HZ, _bandwidth
+    ref, windows = tones
+    mag, snr = [], []
+    for f_eff, i0, i1 in windows:
+        t = np.arange(i0, i1) * dt
+        xw = x_m[i0:i1] - np.mean(x_m[i0:i1])
+        r_h = 2 * np.mean((ref[i0:i1] - np.mean(ref[i0:i1])) * np.exp(-2j * np.pi * f_eff * t))
+        x_h = 2 * np.mean(xw * np.exp(-2j * np.pi * f_eff * t))
+        # the same lock-in half a bin-width off the tone's neighbours: what the loop's noise alone gives
+        off = [abs(2 * np.mean(xw * np.exp(-2j * np.pi * f_eff * k * t))) for k in (0.75, 1.25)]
+        mag.append(abs(x_h / r_h))
+        snr.append(abs(x_h) / max(max(off), 1e-30))
+    mag, snr = np.asarray(mag), np.asarray(snr)
+    f = np.asarray(SWEEP_FREQ_HZ)
+    out = {"bandwidth_hz": _bandwidth(f, mag), "sweep_freq_hz": list(SWEEP_FREQ_HZ),
+           "sweep_db": (20 * np.log10(mag)).tolist(), "sweep_snr": snr.tolist()}
+    upto = f <= (out["bandwidth_hz"] if np.isfinite(out["bandwidth_hz"]) else f[-1])
+    noisy = np.flatnonzero(upto & (snr < 3.0))
+    if noisy.size:
+        out["bandwidth_hz"] = float("nan")
+        out["bandwidth_why"] = (f"the {SWEEP_AMPLITUDE_M * 1e9:g} nm tones are lost in the loop's noise (tone / "
+                                f"off-tone lock-in {snr[noisy[0]]:.3g} < 3 at {f[noisy[0]]:g} Hz)")
+    elif not np.isfinite(out["bandwidth_hz"]):
+        out["bandwidth_why"] = ("|x / reference| is below -3 dB at the first tone" if mag[0] < 10 ** (-3 / 20)
+                                else f"|x / reference| stays above -3 dB up to {SWEEP_FREQ_HZ[-1]:g} Hz")
+    return out
+
+
+def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, noise=True, seed=4, progress=None,
+                    setup=None):
+    """The closed loops of ``controller`` on each of ``sensors``, side by side (list of metric dicts).
+
+    Each row has the measured bandwidth (``bandwidth_hz``, the sweep of :func:`run_sensor_loop`) and adds
+    the nominal linear loop's closed-loop -3 dB bandwidth, crossover and margins on that sensor's path
+    (``linear_bandwidth_hz``, ``crossover_hz``, ``phase_margin_deg``, ``gain_margin_db``; :func:`sensor_setup`).
+    """
+    if setup is None:
+        setup = sensor_setup(plant, controller, progress=progress)
+    rows = []
+    for s in sensors:
+        r = run_sensor_loop(setup, controller, s, hold_s=hold_s, noise=noise, seed=seed, progress=progress)
+        mg = setup.loops.get(s) or {}
+        r.update({"crossover_hz": mg.get("crossover_hz"), "linear_bandwidth_hz": mg.get("bandwidth_hz"),
+                  "phase_margin_deg": mg.get("phase_margin_deg"), "gain_margin_db": mg.get("gain_margin_db")})
+        rows.append(r)
+    return rows
