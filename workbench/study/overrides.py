@@ -20,7 +20,7 @@ __all__ = ["PLANT_SECTIONS", "parse_overrides", "split_overrides"]
 
 PLANT_SECTIONS = ("electrical", "hysteresis", "mechanics", "creep", "gauge", "leakage", "dielectric_absorption",
                   "displacement_sensor", "gauge_nonlinearity")
-STUDY_SECTIONS = ("family", "targets", "loop_shape", "hinf", "export")
+STUDY_SECTIONS = ("family", "targets", "loop_shape", "sensor", "hinf", "export")
 
 # key suffix -> SI unit a value with a unit must have
 _UNIT_OF_SUFFIX = {"_a": "A", "_v": "V", "_hz": "Hz", "_ohm": "ohm", "_f": "F", "_m": "m", "_s": "s",
