@@ -141,7 +141,7 @@ def test_reduced_fused_study_doubles_the_gauge_crossover_on_every_member(fused, 
     gauge.write_text(fam)
     fusedf = tmp_path / "fused.toml"
     fusedf.write_text(fam + '\n[sensor]\nkind = "fused"\ndrift_record_s = 300.0\n')
-    common = ["--only", "loopshape", "--cache-dir", str(cache)]
+    common = ["--only", "loopshape", "--cache-dir", str(cache), "--set", "targets.min_crossover_hz=10"]
     assert main(["study", str(gauge), "--out", str(tmp_path / "g")] + common) == 0
     assert main(["study", str(fusedf), "--out", str(tmp_path / "f")] + common) == 0
     g = json.loads((tmp_path / "g" / "summary.json").read_text())
