@@ -154,3 +154,18 @@ def test_the_search_honours_the_tracking_limit(family):
     with pytest.raises(DesignError, match="tracks the reference"):
         tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(
             **shapes, tracking_freq_hz=tuple(f_tr), tracking_amplitudes=tuple(a_tr), max_tracking_rms=1e-9))
+
+
+def test_type_two_shape_has_a_double_integrator_and_is_scored_exactly():
+    """integral_order 2: (1 + w_i/s)^2, two poles at s = 0 (z = 1 after Tustin); the search's response
+    is the discretized controller's."""
+    from workbench.design.antiwindup import discretize
+    from workbench.design.loopshape import shape_response, tustin_s
+    c = structured_controller(2.0, 300.0, 4.0, 3.0, 8.0, 0.6, integral_order=2)
+    assert np.sum(np.abs(c.poles()) < 1e-6) == 2
+    cd = discretize(c, 1e-4, 300.0)
+    assert np.sum(np.abs(cd.poles() - 1) < 1e-6) == 2
+    f = np.geomspace(0.1, 4000.0, 50)
+    fast = shape_response(tustin_s(f, 1e-4, 300.0), 2.0, 300.0, 4.0, 3.0, 8.0, 0.6, None, 2)
+    exact = np.asarray(control.frequency_response(cd, 2 * np.pi * f).complex).ravel()
+    assert np.allclose(fast, exact, rtol=1e-6)
