@@ -140,7 +140,7 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     from ..design.budgets import plant_budgets
     from ..design.coprime import ncf_synthesis
     from ..design.loopshape import LoopShapeSpec, noise_command_rms_v, nominal_step, tune_loop_shape
-    from ..design.nominal import nominal_margins, nominal_plant
+    from ..design.nominal import nominal_plant
     from ..plant.gauge import demod_noise_sigma_v
     from ..design.margins import family_margins
     from ..design.reduce import reduce_controller
