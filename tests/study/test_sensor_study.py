@@ -153,4 +153,6 @@ def test_reduced_fused_study_doubles_the_gauge_crossover_on_every_member(fused, 
     assert f["budgets"]["reading_noise_v"]["value"] < 0.1 * g["budgets"]["reading_noise_v"]["value"]
     ctrl = json.loads((tmp_path / "f" / "controllers" / "sn637_loopshape.json").read_text())
     assert ctrl["sensor"]["blend"]["crossover_hz"] == pytest.approx(f["sensor"]["blend"]["crossover_hz"])
+    header = (tmp_path / "f" / "controllers" / "fused_blend.h").read_text()
+    assert f"FUSED_BLEND_K INT64_C({ctrl['sensor']['blend']['fixed_point']['k']})" in header
     assert "Sensor" in (tmp_path / "f" / "report.md").read_text()

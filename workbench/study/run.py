@@ -325,6 +325,11 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
               "sensor": sensor.record()}
     ctrl = _replace_ctrl(ctrl, record=record)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
+    if sensor.kind == "fused":      # the blend's fixed-point step beside the controller (bit for bit: its gcc test)
+        from ..report.output import write_text
+        from ..selfsense.blend_fixed import FixedBlend, blend_header
+        paths = {**paths, "blend_h": write_text(out / spec.export["directory"] / "fused_blend.h",
+                                                blend_header(FixedBlend(sensor.blend)))}
     summary["exported"] = {k: str(v) for k, v in paths.items()}
 
     # 6. figures and report
