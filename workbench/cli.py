@@ -205,6 +205,7 @@ def cmd_study(args):
         "  noise budget " + (f"{data['budgets']['noise_command_v']['value']:.3g} V RMS"
                              if data['budgets']['noise_command_v']['value'] is not None else "none")
         + f" (from the {data['budgets']['noise_command_v']['source']})",
+        *_study_sensor_lines(data, ls),
         f"  exported {data['exported']['json']}: crossover {ls['crossover_hz']:.0f}-"
         f"{q['crossover_hz_max']['value']:.0f} Hz over the family; quantized worst PM "
         f"{q['phase_margin_deg']['value']:.1f} deg, GM {q['gain_margin_db']['value']:.1f} dB "
@@ -212,6 +213,21 @@ def cmd_study(args):
         f"  report {data['report']}",
     ]
     _emit(args, data, lines)
+
+
+def _study_sensor_lines(data, ls):
+    """The study's sensor and triangle-tracking lines (none for a plain gauge study)."""
+    sn = data.get("sensor") or {}
+    out = []
+    if sn.get("kind", "gauge") != "gauge":
+        bl = sn.get("blend")
+        out.append(f"  sensor {sn['kind']}: reading noise {sn['noise_per_reading_m']['reading'] * 1e9:.3g} nm"
+                   + (f", blend crossover {bl['crossover_hz']:.3g} Hz ({bl['source']})" if bl else ""))
+    t = ls.get("tracking")
+    if t:
+        out.append(f"  triangle tracking (nominal loop) {100 * t['rms']:.3g} % of stroke RMS, limit "
+                   f"{100 * t['limit']:.3g} %")
+    return out
 
 
 def _fmt_metric(m, key):

@@ -114,3 +114,60 @@ def test_binding_constraint_named_and_relaxing_it_raises_the_crossover(family):
     assert b["at_fc_hz"] > tight.params["fc_hz"]
     loose = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, relaxed(spec, "noise budget"))
     assert loose.crossover_hz > tight.crossover_hz
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_triangle_tracking_of_a_pure_integrator_loop_closed_form(seed):
+    """L = K_v / s: the error is a square wave of +/- r'/K_v with exponential corners; over a half period H
+    its mean square is (r'/K_v)^2 (1 - 2/(K_v H) + O(e^{-K_v H})). Frequencies, spans and K_v drawn wide."""
+    from workbench.design.loopshape import tracking_rms, triangle_harmonics
+    rng = np.random.default_rng(seed)
+    f0 = 10 ** rng.uniform(-2, 1)
+    span = rng.uniform(0.1, 1.0)
+    half = 0.5 / f0
+    kv = 10 ** rng.uniform(np.log10(30 / half), np.log10(2000 / half))
+    f, a = triangle_harmonics(f0, span)
+    rate = span / half                                     # p-p span in half a period
+    expected = rate / kv * np.sqrt(1 - 2 / (kv * half))
+    assert tracking_rms(kv / (2j * np.pi * f), a) == pytest.approx(expected, rel=2e-3)
+    # the harmonics themselves: a triangle of p-p ``span`` (Parseval: RMS^2 = span^2 / 12)
+    assert np.sqrt(0.5 * np.sum(a ** 2)) == pytest.approx(span / np.sqrt(12), rel=1e-6)
+
+
+def test_the_search_honours_the_tracking_limit(family):
+    """With a tracking limit below what the free design reaches, the chosen design meets it, every shape ruled
+    out missed it on the nominal loop, and tightening it can only cost crossover."""
+    from workbench.design.loopshape import triangle_harmonics
+    fam, ub = family
+    shapes = dict(integral_ratios=(0.25, 1.0, 8.0), lead_ratios=(1.0, 3.0), rolloff_ratios=(8.0,), fc_points=12)
+    f_tr, a_tr = triangle_harmonics(0.1, 0.8, 4500.0)
+    probe = LoopShapeSpec(**shapes, tracking_freq_hz=tuple(f_tr), tracking_amplitudes=tuple(a_tr),
+                          max_tracking_rms=1.0)            # never binds: measures the free design
+    free = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, probe)
+    assert not free.tracking["ruled_out"]
+    limit = 0.7 * free.tracking["rms"]
+    r = tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(
+        **shapes, tracking_freq_hz=tuple(f_tr), tracking_amplitudes=tuple(a_tr), max_tracking_rms=limit))
+    assert r.tracking["rms"] <= limit
+    assert r.tracking["ruled_out"] and all(m["rms"] > limit for m in r.tracking["ruled_out"])
+    assert r.crossover_hz <= free.crossover_hz
+    assert (r.params["integral_ratio"], r.params["lead_ratio"]) != (free.params["integral_ratio"],
+                                                                   free.params["lead_ratio"])
+    with pytest.raises(DesignError, match="tracks the reference"):
+        tune_loop_shape(fam.freq_hz, fam.members, ub.nominal, LoopShapeSpec(
+            **shapes, tracking_freq_hz=tuple(f_tr), tracking_amplitudes=tuple(a_tr), max_tracking_rms=1e-9))
+
+
+def test_type_two_shape_has_a_double_integrator_and_is_scored_exactly():
+    """integral_order 2: (1 + w_i/s)^2, two poles at s = 0 (z = 1 after Tustin); the search's response
+    is the discretized controller's."""
+    from workbench.design.antiwindup import discretize
+    from workbench.design.loopshape import shape_response, tustin_s
+    c = structured_controller(2.0, 300.0, 4.0, 3.0, 8.0, 0.6, integral_order=2)
+    assert np.sum(np.abs(c.poles()) < 1e-6) == 2
+    cd = discretize(c, 1e-4, 300.0)
+    assert np.sum(np.abs(cd.poles() - 1) < 1e-6) == 2
+    f = np.geomspace(0.1, 4000.0, 50)
+    fast = shape_response(tustin_s(f, 1e-4, 300.0), 2.0, 300.0, 4.0, 3.0, 8.0, 0.6, None, 2)
+    exact = np.asarray(control.frequency_response(cd, 2 * np.pi * f).complex).ravel()
+    assert np.allclose(fast, exact, rtol=1e-6)

@@ -21,7 +21,7 @@ value was used and where it came from.
 
 from dataclasses import dataclass
 
-__all__ = ["Budget", "NOISE_SIGMAS", "plant_budgets"]
+__all__ = ["Budget", "NOISE_SIGMAS", "plant_budgets", "reading_noise_budget", "tracking_budget"]
 
 NOISE_SIGMAS = 3.0     # the noise lead stays below the current limit at this many sigma
 
@@ -94,3 +94,71 @@ def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
                   f"I_source / C = {i_src * 1e3:g} mA / {c * 1e6:.4g} uF, I_sink / C = {i_snk * 1e3:g} mA / "
                   f"{c * 1e6:.4g} uF")
     return {"noise_command_v": noise, "current_window": window, "slew_v_per_s": slew}
+
+
+def reading_noise_budget(sensor, gauge_reading_v):
+    """RMS noise of one reading in firmware V, the noise the command budget is checked against, with its derivation.
+
+    Parameters
+    ----------
+    sensor : workbench.study.sensor.SensorModel
+    gauge_reading_v : float
+        One gauge reading's noise, firmware V (:func:`~workbench.plant.gauge.demod_noise_sigma_v`
+        times the trim scale): the gauge sensor's value, unchanged.
+    """
+    n = sensor.noise_m
+    k = sensor.gauge_v_per_m
+    if sensor.kind == "gauge":
+        return Budget("reading_noise_v", float(gauge_reading_v), "V RMS", "plant",
+                      f"gauge chain: demodulated reading noise x trim scale = {gauge_reading_v:.4g} V "
+                      f"(`gauge.noise_rms_m` = {n['gauge'] * 1e9:.3g} nm)")
+    if sensor.kind == "charge":
+        return Budget("reading_noise_v", n["reading"] * k, "V RMS", "plant",
+                      f"charge estimate (stage 4): sigma_c K_g = {n['charge'] * 1e9:.3g} nm x {k:.4g} V/m = "
+                      f"{n['reading'] * k:.4g} V (simulated hold at 50 V; its drift is not noise and is not counted)")
+    b = sensor.blend
+    a = b.pole
+    return Budget("reading_noise_v", n["reading"] * k, "V RMS", "plant",
+                  f"fused: sqrt(sigma_g^2 (1 - a)/(1 + a) + sigma_c^2 2 a^2/(1 + a)) K_g with sigma_g = "
+                  f"{n['gauge'] * 1e9:.3g} nm, sigma_c = {n['charge'] * 1e9:.3g} nm, a = exp(-2 pi f_b T) = {a:.6f} "
+                  f"(blend f_b = {b.crossover_hz:.3g} Hz from {sensor.crossover_source}), K_g = {k:.4g} V/m: "
+                  f"{n['reading'] * 1e9:.3g} nm = {n['reading'] * k:.4g} V (the white noise each path passes; "
+                  f"conservative: the low-passed gauge noise is counted as if white)")
+
+
+def tracking_budget(triangle_hz, target_percent, sensor, fc_min_hz):
+    """The triangle's tracking-error budget, fraction of stroke RMS: the target less the sensor's own error.
+
+    The error of the true x is the loop's tracking error (reading - reference) plus the sensor's
+    error (reading - x), independent: RMS^2 adds. The sensor's share is its error RMS over the band
+    of the spectra (fused or charge: :mod:`workbench.selfsense.fusion`); for the gauge, its white
+    noise up to the lowest crossover searched, sigma_g sqrt(2 f_c,min T) (a lower bound: the loop
+    passes it up to its own crossover). None value when the sensor alone exceeds the target.
+    """
+    target = target_percent / 100.0
+    if sensor.kind == "gauge":
+        e_m = sensor.noise_m["gauge"] * (2 * fc_min_hz * sensor.dt_s) ** 0.5
+        how = (f"gauge noise below the lowest searched crossover, sigma_g sqrt(2 f_c,min T) = "
+               f"{sensor.noise_m['gauge'] * 1e9:.3g} nm x sqrt(2 x {fc_min_hz:g} Hz x {sensor.dt_s:g} s)")
+        stroke = None
+    else:
+        key = "fused_error_rms_m" if sensor.kind == "fused" else "charge_error_rms_m"
+        e_m = sensor.spectra[key]
+        lo, hi = sensor.spectra["band_hz"]
+        how = f"{sensor.kind} error RMS over {lo:.2g}-{hi:.4g} Hz (spectra)"
+        stroke = sensor.stroke_m
+    if stroke is None or not stroke == stroke:
+        stroke = STROKE_M
+        stroke_how = f"{STROKE_M * 1e6:.3g} um (SN637 staircase 0-100 V, assumed)"
+    else:
+        stroke_how = f"{stroke * 1e6:.4g} um (p-p of the simulated 0-100 V staircase)"
+    share = e_m / stroke
+    value = (target ** 2 - share ** 2) ** 0.5 if share < target else None
+    derivation = (f"sqrt(target^2 - e_s^2): target {target_percent:g} % of stroke, sensor share e_s = {how} = "
+                  f"{e_m * 1e9:.3g} nm / {stroke_how} = {100 * share:.3g} %"
+                  + (f" -> tracking RMS <= {100 * value:.3g} % for the {triangle_hz:g} Hz triangle (10-90 % of stroke)"
+                     if value is not None else ": the sensor alone misses the target; no tracking budget"))
+    return Budget("triangle_tracking", value, "fraction of stroke RMS", "study", derivation)
+
+
+STROKE_M = 15.58e-6    # m: SN637's 0-100 V staircase p-p (selfsense drift record); the gauge study's fallback

@@ -31,7 +31,8 @@ from .antiwindup import discretize
 from .margins import family_margins, response
 
 __all__ = ["LoopShapeSpec", "LoopShapeResult", "structured_controller", "family_loops", "tune_loop_shape",
-           "noise_command_rms_v", "nominal_step", "shape_response", "tustin_s", "CONSTRAINTS", "relaxed"]
+           "noise_command_rms_v", "nominal_step", "shape_response", "tustin_s", "CONSTRAINTS", "relaxed",
+           "triangle_harmonics", "tracking_rms"]
 
 
 @dataclass(frozen=True)
@@ -45,6 +46,9 @@ class LoopShapeSpec:
     # r_i < 1 (the PI zero above the crossover, integral action dominating) is the low-noise
     # choice for this flat plant; with a noise budget try e.g. (0.1, 0.25, 1, 8)
     integral_ratios: tuple = (4.0, 8.0)
+    # 1: PI (type-1 loop: a ramp leaves r'/K_v); 2: (1 + w_i/s)^2, a type-2 loop that tracks a ramp without
+    # steady error (the triangle's error is then left at its corners)
+    integral_orders: tuple = (1,)
     lead_ratios: tuple = (1.0, 3.0, 6.0)
     rolloff_ratios: tuple = (4.0, 8.0)
     rolloff_damping: float = 0.6
@@ -62,6 +66,16 @@ class LoopShapeSpec:
     # slews (as a 0.1 um step does on the ascending branch at > 100 Hz) loses its overshoot, so a
     # design that promises little is one the hardware can keep; None: no limit
     max_overshoot_percent: float | None = None
+    # reference tracking (:func:`triangle_harmonics`): the steady-state RMS of S r over the reference's
+    # harmonics (``tracking_freq_hz``, peak ``tracking_amplitudes``, fraction of stroke) on the nominal
+    # loop may be at most ``max_tracking_rms`` (fraction of stroke); None: no limit
+    tracking_freq_hz: tuple = ()
+    tracking_amplitudes: tuple = ()
+    max_tracking_rms: float | None = None
+    # with a tracking limit and this crossover floor (Hz), shapes are ranked by the smaller of their two
+    # target ratios, min(lowest crossover / target_crossover_hz, max_tracking_rms / tracking RMS): the design
+    # keeps the most margin on both floors; None: ranked by the lowest crossover alone
+    target_crossover_hz: float | None = None
     dt_s: float = 1e-4
     delay_samples: int = 1
 
@@ -76,26 +90,29 @@ class LoopShapeResult:
     rows: list = field(repr=False)    # margins per member
     searched: int = 0
     binding: dict = None              # the constraint that bound the crossover (see tune_loop_shape)
+    tracking: dict = None             # the reference-tracking check (None without one): winner's RMS, shapes it ruled out
 
 
-def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
-    """C(s) of the module docstring (continuous TransferFunction)."""
+def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None,
+                          integral_order=1):
+    """C(s) of the module docstring (continuous TransferFunction); ``integral_order`` 2: (1 + w_i/s)^2 (type 2)."""
     return control.minreal(shape_response(control.tf("s"), k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio,
-                                          rolloff_damping, notch), verbose=False)
+                                          rolloff_damping, notch, integral_order), verbose=False)
 
 
 def _discrete_response(ctrl_d, freq_hz):
     return response(ctrl_d, freq_hz)
 
 
-def shape_response(s, k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None):
+def shape_response(s, k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None,
+                   integral_order=1):
     """C(s) of the module docstring at ``s``: a complex array (rad/s, vectorized) or ``control.tf("s")``.
 
     The one formula of the structured controller; :func:`structured_controller` is this at
     ``tf("s")``, minimal.
     """
     wc = 2 * np.pi * fc_hz
-    c = k * (1 + (wc / integral_ratio) / s)
+    c = k * (1 + (wc / integral_ratio) / s) ** int(integral_order)
     if lead_ratio > 1:
         c = c * (1 + s / (wc / np.sqrt(lead_ratio))) / (1 + s / (wc * np.sqrt(lead_ratio)))
     wr = wc * rolloff_ratio
@@ -153,17 +170,18 @@ def _noise_rms(k, g, f, dt_s, noise_reading_v, delay_samples, alpha):
     return float(noise_reading_v * np.sqrt(np.mean(np.abs(h * ks) ** 2)))
 
 
-def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, alpha=None, n=4096):
+def noise_command_rms_v(ctrl_d, nominal, noise_reading_v, delay_samples=1, alpha=None, n=4096, nominal_factor=None):
     """RMS lead of the command over the stack voltage that the gauge noise causes through K S, V.
 
     White noise of ``noise_reading_v`` RMS per reading; the nominal sampled loop; the stack
     voltage follows the command as v <- v + alpha (u - v), so u - v = H u with
     H = (1 - z^-1) / (1 - (1 - alpha) z^-1) and sigma^2 = sigma_n^2 (1/pi) int_0^pi
     |H K S|^2 d theta. ``alpha`` None (or 1): H = 1 - z^-1, the change per sample.
+    ``nominal_factor``: the sensor's path (as in :func:`tune_loop_shape`).
     """
     f = _noise_grid(ctrl_d.dt, n)
-    return _noise_rms(response(ctrl_d, f), response(nominal, f), f, ctrl_d.dt, noise_reading_v, delay_samples,
-                      alpha)
+    g = response(nominal, f) * (1.0 if nominal_factor is None else nominal_factor(f))
+    return _noise_rms(response(ctrl_d, f), g, f, ctrl_d.dt, noise_reading_v, delay_samples, alpha)
 
 
 def sampled_nominal(nominal, dt_s, delay_samples=1):
@@ -194,12 +212,37 @@ def nominal_step(ctrl_d, nominal, delay_samples=1, n=2000, plant_d=None):
     return step_metrics(np.arange(n) * dt, y, 0.0, 1.0)
 
 
+def triangle_harmonics(freq_hz, span_fraction=0.8, f_max_hz=None, n_max=20001):
+    """(harmonic frequencies Hz, peak amplitudes) of a triangle of ``freq_hz`` spanning ``span_fraction``
+    peak to peak (10-90 % of stroke: 0.8; amplitudes in the same unit).
+
+    A triangle of peak A (p-p 2A) is (8 A / pi^2) sum over odd k of (-1)^((k-1)/2) sin(k w t) / k^2: the
+    k-th amplitude is 4 span / (pi^2 k^2). Harmonics up to ``f_max_hz`` (and k <= ``n_max``).
+    """
+    k = np.arange(1, n_max + 1, 2, dtype=float)
+    if f_max_hz is not None:
+        k = k[k * freq_hz <= f_max_hz]
+    return k * freq_hz, 4.0 * span_fraction / (np.pi ** 2 * k ** 2)
+
+
+def tracking_rms(loop, amplitudes):
+    """Steady-state RMS error of a reference with harmonics of peak ``amplitudes`` through S = 1 / (1 + L)
+    (``loop``: L at those harmonics): sqrt(sum |S_k r_k|^2 / 2).
+
+    For a type-1 loop and a triangle this tends to ramp rate / K_v (the error is a square wave of
+    +/- r' / K_v) when every harmonic that matters lies well below the crossover.
+    """
+    e = np.abs(np.asarray(amplitudes) / (1.0 + np.asarray(loop)))
+    return float(np.sqrt(0.5 * np.sum(e ** 2)))
+
+
 # what the search can be bound by: constraint -> (LoopShapeSpec field, unit, relaxation, relaxation said)
 CONSTRAINTS = {
     "noise budget": ("max_noise_command_v", "V RMS", lambda v: 2.0 * v, "doubled"),
     "phase margin": ("phase_margin_deg", "deg", lambda v: v - 5.0, "5 deg lower"),
     "gain margin": ("gain_margin_db", "dB", lambda v: v - 1.0, "1 dB lower"),
     "overshoot": ("max_overshoot_percent", "%", lambda v: v + 2.0, "2 points higher"),
+    "triangle tracking": ("max_tracking_rms", "fraction of stroke RMS", lambda v: 2.0 * v, "doubled"),
     "crossover search range": ("fc_range_hz", "Hz", lambda v: (v[0], 2.0 * v[1]), "upper end doubled"),
 }
 
@@ -217,15 +260,15 @@ def relaxed(spec, constraint, times=1):
     return replace(spec, **{field_name: value})
 
 
-def _evaluate(s_loop, sf, bounding, f, nominal_fc, spec, fc, ri, al, rr, noise):
+def _evaluate(s_loop, sf, bounding, f, nominal_fc, spec, fc, ri, al, rr, noise, no=1):
     """Gain and checks of one shape at one f_c; returns (k, reason, value, limit, worst)."""
     sw = tustin_s([fc], spec.dt_s, fc)
-    l1 = shape_response(sw, 1.0, fc, ri, al, rr, spec.rolloff_damping, spec.notch)[0] * nominal_fc
+    l1 = shape_response(sw, 1.0, fc, ri, al, rr, spec.rolloff_damping, spec.notch, no)[0] * nominal_fc
     k = 1.0 / abs(l1)
-    c = shape_response(s_loop, k, fc, ri, al, rr, spec.rolloff_damping, spec.notch)
+    c = shape_response(s_loop, k, fc, ri, al, rr, spec.rolloff_damping, spec.notch, no)
     if spec.max_noise_command_v is not None:
         fn, gn, sn = noise
-        rms = _noise_rms(shape_response(sn, k, fc, ri, al, rr, spec.rolloff_damping, spec.notch), gn, fn,
+        rms = _noise_rms(shape_response(sn, k, fc, ri, al, rr, spec.rolloff_damping, spec.notch, no), gn, fn,
                          spec.dt_s, spec.noise_reading_v, spec.delay_samples, spec.voltage_alpha)
         if rms > spec.max_noise_command_v:
             return k, "noise budget", rms, spec.max_noise_command_v, None
@@ -238,7 +281,8 @@ def _evaluate(s_loop, sf, bounding, f, nominal_fc, spec, fc, ri, al, rr, noise):
     return k, None, None, None, worst
 
 
-def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None, step_plant=None):
+def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=None, step_plant=None,
+                    nominal_factor=None, step_plant_d=None):
     """Highest-crossover structured controller meeting the margins on every member.
 
     Parameters
@@ -252,6 +296,13 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
     step_plant : continuous SISO LTI, optional
         K_g P(s) the overshoot limit is judged on (default ``nominal``); e.g. the
         ascending-branch model, where a small step up runs.
+    nominal_factor : callable(freq_hz) -> complex ndarray, optional
+        Multiplies the nominal's response wherever the search uses it (crossover placement,
+        noise, tracking): the sensor's path relative to the gauge chain
+        (:meth:`workbench.study.sensor.SensorModel.factor`); None: the gauge chain.
+    step_plant_d : discrete SISO LTI, optional
+        The sampled plant the overshoot is judged on, as firmware closes the loop (default:
+        ``step_plant`` held, averaged and delayed).
 
     Returns
     -------
@@ -273,14 +324,27 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
     resp = np.array([members[n] for n in names])
     bounding = {n: members[n] for n in _bounding_members(names, resp)}
     fcs = np.geomspace(*spec.fc_range_hz, spec.fc_points)
-    nominal_at = response(nominal, fcs)
+
+    def nominal_resp(fr):
+        r = response(nominal, fr)
+        return r if nominal_factor is None else r * nominal_factor(fr)
+    nominal_at = nominal_resp(fcs)
     sf = sampled_factor(f, spec.dt_s, spec.delay_samples)
     fn = _noise_grid(spec.dt_s)
-    g_noise = response(nominal, fn)
-    step_d = sampled_nominal(step_plant, spec.dt_s, spec.delay_samples) if spec.max_overshoot_percent else None
-    shapes = [(ri, al, rr) for ri in spec.integral_ratios for al in spec.lead_ratios for rr in spec.rolloff_ratios]
+    g_noise = nominal_resp(fn)
+    step_d = None
+    if spec.max_overshoot_percent:
+        step_d = (sampled_nominal(step_plant, spec.dt_s, spec.delay_samples) if step_plant_d is None
+                  else step_plant_d)
+    track = spec.max_tracking_rms is not None
+    if track:
+        f_tr = np.asarray(spec.tracking_freq_hz, dtype=float)
+        g_tr = nominal_resp(f_tr) * sampled_factor(f_tr, spec.dt_s, spec.delay_samples)
+    tracking_misses = []       # (shape, f_c, RMS): shapes whose highest admissible f_c tracks too poorly
+    shapes = [(ri, al, rr, no) for no in spec.integral_orders for ri in spec.integral_ratios
+              for al in spec.lead_ratios for rr in spec.rolloff_ratios]
     best, searched = None, 0
-    for n_shape, (ri, al, rr) in enumerate(shapes):
+    for n_shape, (ri, al, rr, no) in enumerate(shapes):
         above = None               # why the next-higher f_c of this shape failed
         for j in range(fcs.size - 1, -1, -1):
             fc = fcs[j]
@@ -288,9 +352,18 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
             s_loop = tustin_s(f, spec.dt_s, fc)
             noise = (fn, g_noise, tustin_s(fn, spec.dt_s, fc))
             l_nom = sampled_factor([fc], spec.dt_s, spec.delay_samples)[0] * nominal_at[j]
-            k, reason, value, limit, worst = _evaluate(s_loop, sf, bounding, f, l_nom, spec, fc, ri, al, rr, noise)
+            k, reason, value, limit, worst = _evaluate(s_loop, sf, bounding, f, l_nom, spec, fc, ri, al, rr, noise, no)
+            e_tr = None
+            if reason is None and track:
+                l_tr = shape_response(tustin_s(f_tr, spec.dt_s, fc), k, fc, ri, al, rr, spec.rolloff_damping,
+                                      spec.notch, no) * g_tr
+                e_tr = tracking_rms(l_tr, spec.tracking_amplitudes)
+                if e_tr > spec.max_tracking_rms:
+                    # a lower f_c only weakens the low-frequency gain: this shape cannot track the reference
+                    tracking_misses.append(((ri, al, rr, no), float(fc), e_tr))
+                    break
             if reason is None and spec.max_overshoot_percent is not None:
-                ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch),
+                ctrl_d = discretize(structured_controller(k, fc, ri, al, rr, spec.rolloff_damping, spec.notch, no),
                                     spec.dt_s, fc)
                 ov = nominal_step(ctrl_d, step_plant, spec.delay_samples, plant_d=step_d)[0]
                 if ov > spec.max_overshoot_percent:   # (checked last: a step response costs more)
@@ -303,9 +376,12 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
                 above = {"constraint": "crossover search range", "value": float(fc),
                          "limit": float(spec.fc_range_hz[1]), "at_fc_hz": float(fc), "unit": "Hz"}
             # the lowest crossover over the family is what the bandwidth target is about
-            cand = (worst["crossover_hz_min"]["value"], worst["disk_margin"]["value"],
+            score = worst["crossover_hz_min"]["value"]
+            if e_tr is not None and spec.target_crossover_hz:
+                score = min(score / spec.target_crossover_hz, spec.max_tracking_rms / max(e_tr, 1e-300))
+            cand = (score, worst["disk_margin"]["value"],
                     dict(k=k, fc_hz=fc, integral_ratio=ri, lead_ratio=al, rolloff_ratio=rr,
-                         rolloff_damping=spec.rolloff_damping, notch=spec.notch), above)
+                         rolloff_damping=spec.rolloff_damping, notch=spec.notch, integral_order=no), above)
             if best is None or (cand[0], cand[1]) > (best[0], best[1]):
                 best = cand
             break          # lower f_c on this shape can only be slower
@@ -318,15 +394,28 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
                              if spec.max_noise_command_v is not None else "")
                           + (f" and overshoots at most {spec.max_overshoot_percent:g} %"
                              if spec.max_overshoot_percent is not None else "")
+                          + (f" and tracks the reference within {spec.max_tracking_rms:.3g} of stroke RMS (best "
+                             f"found {min(m[2] for m in tracking_misses):.3g})"
+                             if track and tracking_misses else "")
                           + f" with a crossover in {spec.fc_range_hz[0]:g}-{spec.fc_range_hz[1]:g} Hz; "
                             f"lower the range or the targets")
     p = best[2]
     ctrl_c = structured_controller(p["k"], p["fc_hz"], p["integral_ratio"], p["lead_ratio"], p["rolloff_ratio"],
-                                   p["rolloff_damping"], p["notch"])
+                                   p["rolloff_damping"], p["notch"], p["integral_order"])
     ctrl_d = discretize(ctrl_c, spec.dt_s, p["fc_hz"])
     rows, worst = family_margins(f, family_loops(ctrl_d, f, members, spec.delay_samples))
     if not _meets(worst, spec):
         raise DesignError(f"the chosen design misses the targets on a member outside the bounding set "
                           f"({worst['phase_margin_deg']['member']}); refine the frequency grid")
+    tracking = None
+    if track:
+        l_tr = shape_response(tustin_s(f_tr, spec.dt_s, p["fc_hz"]), p["k"], p["fc_hz"], p["integral_ratio"],
+                              p["lead_ratio"], p["rolloff_ratio"], p["rolloff_damping"], p["notch"],
+                              p["integral_order"]) * g_tr
+        tracking = {"rms": tracking_rms(l_tr, spec.tracking_amplitudes), "limit": spec.max_tracking_rms,
+                    "harmonics": int(f_tr.size),
+                    "ruled_out": [{"integral_ratio": sh[0], "lead_ratio": sh[1], "rolloff_ratio": sh[2],
+                                   "integral_order": sh[3],
+                                   "fc_hz": fc_, "rms": e_} for sh, fc_, e_ in tracking_misses]}
     return LoopShapeResult(ctrl_c, ctrl_d, p, float(worst["crossover_hz_min"]["value"]), worst, rows, searched,
-                           best[3])
+                           best[3], tracking)

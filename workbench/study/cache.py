@@ -54,16 +54,17 @@ def family_key(plant_paths, plant_overrides, fspec, extra=()):
     return h.hexdigest()
 
 
-def cached_family(key, cache_dir, compute):
+def cached_family(key, cache_dir, compute, prefix="family"):
     """``(family, path, hit)``: the cached family under ``key`` in ``cache_dir`` or ``compute()``, then stored.
 
     ``cache_dir`` None: no cache (computed every time; path None). An unreadable or
-    corrupt entry is recomputed and overwritten.
+    corrupt entry is recomputed and overwritten. ``prefix`` names the kind of entry (the
+    study also caches its sensor records, ``prefix="sensor"``).
     """
     if cache_dir is None:
         return compute(), None, False
     from ..report.output import write_bytes
-    path = Path(cache_dir) / f"family-{key[:24]}.pkl"
+    path = Path(cache_dir) / f"{prefix}-{key[:24]}.pkl"
     if path.is_file():
         try:
             with path.open("rb") as fh:

@@ -20,7 +20,7 @@ __all__ = ["PLANT_SECTIONS", "parse_overrides", "split_overrides"]
 
 PLANT_SECTIONS = ("electrical", "hysteresis", "mechanics", "creep", "gauge", "leakage", "dielectric_absorption",
                   "displacement_sensor", "gauge_nonlinearity")
-STUDY_SECTIONS = ("family", "targets", "loop_shape", "hinf", "export")
+STUDY_SECTIONS = ("family", "targets", "loop_shape", "sensor", "hinf", "export")
 
 _KEY = re.compile(r"^([a-z_]+)\.([a-z0-9_]+)$")
 _WITH_UNIT = re.compile(r"^\s*[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?\s*[A-Za-zµμ/]+\s*$")

@@ -134,14 +134,17 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     from ..design.budgets import plant_budgets
     from ..design.coprime import ncf_synthesis
     from ..design.loopshape import LoopShapeSpec, noise_command_rms_v, nominal_step, tune_loop_shape
-    from ..design.nominal import nominal_margins, nominal_plant
+    from ..design.nominal import nominal_plant
     from ..plant.gauge import demod_noise_sigma_v
     from ..design.margins import family_margins
     from ..design.reduce import reduce_controller
     from ..report import design_figures as figs
     from ..report.html import write_html_report
     from ..report.markdown import write_report
+    from ..design.budgets import reading_noise_budget, tracking_budget
+    from ..design.loopshape import triangle_harmonics
     from .cache import cached_family, default_cache_dir, family_key
+    from .sensor import apply_sensor, sensor_model
     from .overrides import parse_overrides, split_overrides
     from .sections import failure_report, study_lines
 
@@ -192,12 +195,29 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     lsk = spec.loop_shape
     grid = {key: tuple(float(v) for v in lsk[key]) for key in ("integral_ratios", "lead_ratios", "rolloff_ratios")
             if key in lsk}
-    noise_v = demod_noise_sigma_v(g) * g.trim_scale          # one reading's noise, firmware V
+    if "integral_orders" in lsk:
+        grid["integral_orders"] = tuple(int(v) for v in lsk["integral_orders"])
+    nom = nominal_plant(plant, fam_spec["bias_v"], delay_samples)
+    # the feedback sensor (study/sensor.py): gauge (the members as they are), charge or fused (each member's
+    # loop taken on the sensor's path, the noise that of the sensor's reading)
+    sensor = sensor_model(plant, [spec.plant, *spec.serials], plant_ovr, spec.sensor, nom.gauge_v_per_m, cache, say)
+    members = apply_sensor(sensor, freq, family.members, family)
+    summary["sensor"] = sensor.as_dict()
     budgets = plant_budgets(plant, dt, lsk.get("max_noise_command_v"), spec.path)
+    budgets["reading_noise_v"] = reading_noise_budget(sensor, demod_noise_sigma_v(g) * g.trim_scale)
+    noise_v = budgets["reading_noise_v"].value                # one reading's noise, firmware V
+    tracking = {}
+    if "triangle_hz" in spec.targets:
+        tb = tracking_budget(spec.targets["triangle_hz"], spec.targets["triangle_rms_percent_stroke"], sensor,
+                             lsk["fc_min_hz"])
+        budgets["triangle_tracking"] = tb
+        f_tr, a_tr = triangle_harmonics(spec.targets["triangle_hz"], 0.8, 0.45 / dt)
+        tracking = {"tracking_freq_hz": tuple(f_tr), "tracking_amplitudes": tuple(a_tr),
+                    "max_tracking_rms": tb.value if tb.value is not None else 0.0,
+                    "target_crossover_hz": spec.targets["min_crossover_hz"]}
     summary["budgets"] = {k: b.as_dict() for k, b in budgets.items()}
     summary["budgets"]["noise_command_v"]["series_resistance_ohm"] = plant.pzt.series_resistance_ohm
     model = current_limit_model(plant.pzt, dt)               # the exported current-limit window
-    nom = nominal_plant(plant, fam_spec["bias_v"], delay_samples)
     summary["nominal_plant"] = {"definition": "small-signal model on the ascending branch at the bias, gauge at "
                                               "mid-stroke, sampled chain (workbench.design.nominal)",
                                 "bias_v": nom.bias_v, "capacitance_f": nom.capacitance_f,
@@ -208,14 +228,21 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
                             fc_range_hz=(lsk["fc_min_hz"], lsk["fc_max_hz"]), dt_s=dt, delay_samples=delay_samples,
                             max_noise_command_v=budgets["noise_command_v"].value, noise_reading_v=noise_v,
                             voltage_alpha=None if model is None else model[0],
-                            max_overshoot_percent=lsk.get("max_overshoot_percent"), **grid)
+                            max_overshoot_percent=lsk.get("max_overshoot_percent"), **tracking, **grid)
     step_plant = nom.continuous        # the overshoot is judged on the nominal: where a small step up runs
+    gauge = sensor.kind == "gauge"
+    nominal_factor = None if gauge else sensor.factor
+    step_plant_d = None if gauge else sensor.discrete_plant(nom.firmware)
 
     def tune(s, stage="design: loop shape"):
         return tune_loop_shape(freq, members, nom.continuous, s, progress=lambda d, t: say(stage, d, t),
-                               step_plant=step_plant)
+                               step_plant=step_plant, nominal_factor=nominal_factor, step_plant_d=step_plant_d)
 
     min_fc = spec.targets["min_crossover_hz"]
+    if tracking and budgets["triangle_tracking"].value is None:
+        summary["failure"] = {"constraint": "targets.triangle_rms_percent_stroke",
+                              "message": budgets["triangle_tracking"].derivation}
+        _fail(out, spec, summary, freq, family, ub, None, failure_report, t0)
     try:
         ls = tune(ls_spec)
     except DesignError as err:
@@ -223,15 +250,15 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
         _fail(out, spec, summary, freq, family, ub, None, failure_report, t0)
     fc = ls.params["fc_hz"]
     summary["binding"] = _binding_summary(ls_spec, ls, tune)
-    overshoot, settling = nominal_step(ls.controller_d, step_plant, delay_samples)
+    overshoot, settling = nominal_step(ls.controller_d, step_plant, delay_samples, plant_d=step_plant_d)
     summary["designs"]["loop_shape"] = {"params": ls.params, "crossover_hz": ls.crossover_hz,
-                                        "nominal": _nominal_summary(nominal_margins(ls.controller_d, nom)),
+                                        "nominal": _nominal_summary(_nominal_margins(ls.controller_d, nom, sensor)),
                                         "worst_discrete": _worst_summary(ls.worst), "shapes_searched": ls.searched,
                                         "noise_command_rms_v": noise_command_rms_v(
                                             ls.controller_d, nom.continuous, noise_v, delay_samples,
-                                            None if model is None else model[0]),
+                                            None if model is None else model[0], nominal_factor=nominal_factor),
                                         "noise_reading_v": noise_v, "step_overshoot_percent": overshoot,
-                                        "step_settling_s": settling}
+                                        "step_settling_s": settling, "tracking": ls.tracking}
     if ls.crossover_hz < min_fc:
         summary["failure"] = {"constraint": "targets.min_crossover_hz", "limit": min_fc,
                               "value": ls.crossover_hz, "fix": _fix_for(ls_spec, ls, min_fc, tune)}
@@ -274,7 +301,7 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     ctrl_q = control.ss(ctrl.as_lti(quantized=True))
     q_rows, q_worst = family_margins(freq, _loops_discrete(ctrl_q, freq, members, delay_samples))
     summary["designs"]["loop_shape"]["worst_quantized"] = _worst_summary(q_worst)
-    summary["designs"]["loop_shape"]["nominal_quantized"] = _nominal_summary(nominal_margins(ctrl_q, nom))
+    summary["designs"]["loop_shape"]["nominal_quantized"] = _nominal_summary(_nominal_margins(ctrl_q, nom, sensor))
     meets = all(w["phase_margin_deg"]["value"] >= spec.targets["phase_margin_deg"]
                 and w["gain_margin_db"]["value"] >= spec.targets["gain_margin_db"] for w in (ls.worst, q_worst))
     summary["designs"]["loop_shape"]["meets_targets"] = bool(meets)
@@ -287,9 +314,16 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
               "anti_windup": {**ctrl.record["anti_windup"], "output_slew_limit_v_per_s": list(fxp.slew_limits_v_per_s)},
               "noise": {"reading_rms_v": noise_v,
                         "command_change_rms_v": summary["designs"]["loop_shape"]["noise_command_rms_v"]},
-              "provenance": {**_provenance(spec, plant), "serial": plant.serial}}
+              "provenance": {**_provenance(spec, plant), "serial": plant.serial},
+              # the sensor block; branch fused-fw adds it to Controller itself (this is the adapter until then)
+              "sensor": sensor.record()}
     ctrl = _replace_ctrl(ctrl, record=record)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
+    if sensor.kind == "fused":      # the blend's fixed-point step beside the controller (bit for bit: its gcc test)
+        from ..report.output import write_text
+        from ..selfsense.blend_fixed import FixedBlend, blend_header
+        paths = {**paths, "blend_h": write_text(out / spec.export["directory"] / "fused_blend.h",
+                                                blend_header(FixedBlend(sensor.blend)))}
     summary["exported"] = {k: str(v) for k, v in paths.items()}
 
     # 6. figures and report
@@ -298,6 +332,7 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     loops_d = _loops_discrete(ls.controller_d, freq, members, delay_samples)
     fw_sf = sampled_factor(freq, dt, delay_samples)
     lc_loops = loop_responses(ls.controller_d, ub.nominal_gauge_v_per_m, nominal_df, delay_samples=delay_samples)
+    lc_loops = lc_loops * sensor.factor(nominal_df.freq_hz)[None, :]       # 1 for the gauge
     cycles, _ = predict_limit_cycles(nominal_df.amplitudes_v, freq, lc_loops)
     summary["designs"]["loop_shape"]["limit_cycles"] = [c.__dict__ for c in cycles]
     fig = summary["figures"]
@@ -375,6 +410,16 @@ def _hinf_and_convex(spec, ub, g, plant_pzt, dt, delay_samples, delayed, freq, m
         out["cross_check"] = {"hinf_over_convex_stacked_norm": out["hinf"]["norms"].get("stacked", float("nan"))
                               / max(out["convex"]["norms"].get("stacked", float("nan")), 1e-300)}
     return out
+
+
+def _nominal_margins(controller_d, nom, sensor):
+    """Margins of the nominal loop through the study's sensor (design/nominal.py's definition for the gauge)."""
+    from ..design.margins import margins_of
+    from ..design.nominal import nominal_margins
+    if sensor.kind == "gauge":
+        return nominal_margins(controller_d, nom)
+    loop = control.ss(controller_d) * sensor.discrete_plant(nom.firmware)
+    return margins_of(loop, np.geomspace(0.1, 0.4999 / loop.dt, 4000))
 
 
 def _provenance(spec, plant):

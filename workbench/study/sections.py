@@ -17,6 +17,7 @@ _CONSTRAINT_TEXT = {
     "gain margin": "the gain-margin target on the worst member (dB)",
     "overshoot": "the nominal small-step overshoot limit (%)",
     "crossover search range": "the top of the crossover search range (loop_shape.fc_max_hz, Hz)",
+    "triangle tracking": "the triangle target's tracking budget on the nominal loop (fraction of stroke RMS)",
 }
 
 
@@ -42,7 +43,45 @@ def _budget_lines(summary):
              f"| current-limit window | {window} | "
              f"{win['source']} | {win['derivation']} |",
              f"| slew limits | {slew['value'][0]:.4g} V/s up, {slew['value'][1]:.4g} V/s down | {slew['source']} | "
-             f"{slew['derivation']} |", ""]
+             f"{slew['derivation']} |"]
+    rn = b.get("reading_noise_v")
+    if rn:
+        lines.append(f"| noise of one reading (the sensor's) | {_g(rn['value'], '.4g')} V RMS | {rn['source']} | "
+                     f"{rn['derivation']} |")
+    tr = b.get("triangle_tracking")
+    if tr:
+        value = "none" if tr["value"] is None else f"{100 * tr['value']:.3g} % of stroke RMS"
+        lines.append(f"| triangle tracking | {value} | {tr['source']} | {tr['derivation']} |")
+    return lines + [""]
+
+
+def _sensor_lines(summary):
+    s = summary.get("sensor")
+    if not s or s["kind"] == "gauge":
+        return []
+    n = s["noise_per_reading_m"]
+    e = s["error_rms_m"]
+    lines = ["## Sensor", "",
+             f"Feedback on the **{s['kind']}** signal (`[sensor] kind`); each member's loop is taken on its path: "
+             f"{s['member_path']} (R: the charge path over the gauge path of the nominal, from the self-sensing "
+             f"model; `workbench/study/sensor.py`).", "",
+             "| | gauge | charge estimate | reading |", "|---|---|---|---|",
+             f"| noise per reading | {n['gauge'] * 1e9:.3g} nm | {n['charge'] * 1e9:.3g} nm | "
+             f"{n['reading'] * 1e9:.3g} nm |",
+             f"| error RMS over {e['band_hz'][0]:.2g}-{e['band_hz'][1]:.4g} Hz | {e['gauge_error_rms_m'] * 1e9:.3g} nm | "
+             f"{e['charge_error_rms_m'] * 1e9:.3g} nm | "
+             + (f"{e['fused_error_rms_m'] * 1e9:.3g} nm |" if "fused_error_rms_m" in e else "(the charge's) |"), ""]
+    b = s.get("blend")
+    if b:
+        lines += [f"Blend crossover **{b['crossover_hz']:.3g} Hz** ({'chosen from the two error spectra' if b['source'] == 'spectra' else 'given by the study'}: "
+                  f"the charge's drift over a {e['drift_record_s']:.0f} s staircase, {e['drift_pp_m'] * 1e9:.3g} nm "
+                  f"p-p, against the gauge's white noise); firmware: {b['form']}, a = {b['pole']:.6f}.", ""]
+    ls = summary.get("designs", {}).get("loop_shape", {})
+    t = ls.get("tracking")
+    if t:
+        lines += [f"Triangle tracking on the nominal loop: {100 * t['rms']:.3g} % of stroke RMS (limit "
+                  f"{100 * t['limit']:.3g} %, {t['harmonics']} odd harmonics); {len(t['ruled_out'])} shapes were "
+                  f"ruled out by it at their highest admissible crossover.", ""]
     return lines
 
 
@@ -91,7 +130,7 @@ def _nominal_lines(summary):
 
 def study_lines(summary):
     """Markdown lines on budgets, the binding constraint and the nominal loop of a finished study."""
-    return _budget_lines(summary) + _binding_lines(summary) + _nominal_lines(summary)
+    return _budget_lines(summary) + _sensor_lines(summary) + _binding_lines(summary) + _nominal_lines(summary)
 
 
 def _fix_lines(summary):

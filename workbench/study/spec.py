@@ -37,12 +37,19 @@ _SCHEMA = {
         "phase_margin_deg": Field("float", 0.0, 90.0, lo_open=True, expect="phase margin in degrees, e.g. 45"),
         "gain_margin_db": Field("float", 0.0, 40.0, lo_open=True, expect="gain margin in dB, e.g. 6"),
         "min_crossover_hz": Field("float", 0.0, 5e3, lo_open=True, expect="the lowest acceptable crossover in Hz"),
+        "triangle_hz": Field("float", 0.0, 100.0, lo_open=True, required=False,
+                             expect="frequency of the triangle the loop must track (10-90 % of stroke), Hz, e.g. 0.1"),
+        "triangle_rms_percent_stroke": Field("float", 0.0, 100.0, lo_open=True, required=False,
+                                             expect="largest RMS error of that triangle after its first period, % of "
+                                                    "stroke, e.g. 0.01"),
     },
     "loop_shape": {
         "fc_min_hz": Field("float", 0.0, 5e3, lo_open=True, expect="lowest crossover searched, Hz"),
         "fc_max_hz": Field("float", 0.0, 5e3, lo_open=True, expect="highest crossover searched, Hz"),
         "integral_ratios": Field("floats", 0.0, 100.0, lo_open=True, required=False,
                                  expect="crossover / PI corner ratios to try, e.g. [0.1, 0.25, 1, 4, 8]"),
+        "integral_orders": Field("floats", 1.0, 2.0, required=False,
+                                 expect="integrators to try: [1] PI (type-1 loop), [1, 2] also (1 + w_i/s)^2 (type 2)"),
         "lead_ratios": Field("floats", 1.0, 100.0, required=False, expect="lead pole/zero ratios, e.g. [1, 3, 6]"),
         "rolloff_ratios": Field("floats", 1.0, 100.0, lo_open=True, required=False,
                                 expect="roll-off frequency / crossover ratios, e.g. [4, 8]"),
@@ -50,6 +57,16 @@ _SCHEMA = {
                                      expect="largest RMS per-sample command change from gauge noise, V, e.g. 0.03"),
         "max_overshoot_percent": Field("float", 0.0, 100.0, required=False,
                                        expect="largest nominal small-step overshoot, %, e.g. 3"),
+    },
+    "sensor": {
+        "kind": Field("str", required=False, expect='the feedback sensor: "gauge", "charge" or "fused"'),
+        "blend_crossover_hz": Field("float", 0.0, 5e3, lo_open=True, required=False,
+                                    expect="the fused blend's crossover in Hz (default: chosen from the two sensors' "
+                                           "noise and drift spectra)"),
+        "drift_record_s": Field("float", 60.0, 20000.0, required=False,
+                                expect="length of the staircase record that gives the charge's drift spectrum, s, "
+                                       "e.g. 1000"),
+        "seed": Field("int", 0, 2 ** 31 - 1, required=False, expect="seed of the simulated sensor records, e.g. 2"),
     },
     "hinf": {
         "time_limit_s": Field("float", 0.0, 3600.0, lo_open=True, expect="time limit of the slycot synthesis, s"),
@@ -74,6 +91,11 @@ class StudySpec:
     loop_shape: dict
     hinf: dict
     export: dict
+    sensor: dict = None        # [sensor] (optional; kind "gauge" when absent): see SENSOR_KINDS
+
+
+SENSOR_KINDS = ("gauge", "charge", "fused")
+_OPTIONAL_SECTIONS = ("sensor",)         # may be absent (then every key takes its default)
 
 
 # Sections a study file may carry for other commands: [verify] holds verify's target limits
@@ -106,6 +128,8 @@ def load_study(path, overrides=None):
     out = {}
     for section, schema in _SCHEMA.items():
         table = data if section == "" else data.get(section)
+        if table is None and section in _OPTIONAL_SECTIONS:
+            table = {}
         if table is None:
             raise StudyDefinitionError(path, section, f"missing section [{section}]; expected keys {', '.join(schema)}")
         vals = check_table(path, section, table, schema, StudyDefinitionError,
@@ -123,6 +147,9 @@ def load_study(path, overrides=None):
                                                               f"freq_min_hz = {fam['freq_min_hz']:g}")
     if not ls["fc_min_hz"] < ls["fc_max_hz"]:
         raise StudyDefinitionError(path, "loop_shape.fc_max_hz", "must exceed fc_min_hz")
+    if "integral_orders" in ls and not all(float(v) in (1.0, 2.0) for v in ls["integral_orders"]):
+        raise StudyDefinitionError(path, "loop_shape.integral_orders", f"got {list(ls['integral_orders'])}; "
+                                                                       f"expected 1 and/or 2, e.g. [1, 2]")
     lim = ex["output_limits_v"]
     if lim.size != 2 or not lim[0] < lim[1]:
         raise StudyDefinitionError(path, "export.output_limits_v", f"got {lim.tolist()}; expected [low, high], low < high")
@@ -134,5 +161,14 @@ def load_study(path, overrides=None):
             raise StudyDefinitionError(path, key, f"{f} does not exist; paths are relative to the study file")
     if not all(math.isfinite(a) for a in fam["amplitudes_v"]):
         raise StudyDefinitionError(path, "family.amplitudes_v", "must be finite")
+    sensor = {"kind": "gauge", **out["sensor"]}
+    if sensor["kind"] not in SENSOR_KINDS:
+        raise StudyDefinitionError(path, "sensor.kind", f"got {sensor['kind']!r}; expected one of "
+                                                        f"{', '.join(repr(k) for k in SENSOR_KINDS)}")
+    tg = out["targets"]
+    if ("triangle_hz" in tg) != ("triangle_rms_percent_stroke" in tg):
+        missing = "triangle_rms_percent_stroke" if "triangle_hz" in tg else "triangle_hz"
+        raise StudyDefinitionError(path, f"targets.{missing}", "missing; the triangle target takes both "
+                                                               "triangle_hz and triangle_rms_percent_stroke")
     return StudySpec(path=path, name=top["name"], plant=files[0], serials=tuple(files[1:]), family=fam,
-                     targets=out["targets"], loop_shape=ls, hinf=out["hinf"], export=ex)
+                     targets=tg, loop_shape=ls, hinf=out["hinf"], export=ex, sensor=sensor)
