@@ -7,6 +7,8 @@ import re
 import numpy as np
 import pytest
 
+from workbench.controller import Controller
+
 from workbench.cli import main
 from workbench.errors import StudyDefinitionError
 from workbench.study.overrides import parse_overrides, split_overrides
@@ -151,8 +153,11 @@ def test_reduced_fused_study_doubles_the_gauge_crossover_on_every_member(fused, 
     assert q["crossover_hz_min"]["value"] >= 2 * g["designs"]["loop_shape"]["worst_quantized"]["crossover_hz_min"]["value"]
     assert f["sensor"]["kind"] == "fused" and g["sensor"]["kind"] == "gauge"
     assert f["budgets"]["reading_noise_v"]["value"] < 0.1 * g["budgets"]["reading_noise_v"]["value"]
-    ctrl = json.loads((tmp_path / "f" / "controllers" / "sn637_loopshape.json").read_text())
-    assert ctrl["sensor"]["blend"]["crossover_hz"] == pytest.approx(f["sensor"]["blend"]["crossover_hz"])
-    header = (tmp_path / "f" / "controllers" / "fused_blend.h").read_text()
-    assert f"FUSED_BLEND_K INT64_C({ctrl['sensor']['blend']['fixed_point']['k']})" in header
+    # the export carries the Controller's own sensor block: the blend inside its firmware step
+    exported = Controller.load(tmp_path / "f" / "controllers" / "sn637_loopshape.json")
+    assert exported.sensor_kind == "fused"
+    assert exported.sensor.crossover_hz == pytest.approx(f["sensor"]["blend"]["crossover_hz"])
+    header = (tmp_path / "f" / "controllers" / "sn637_loopshape.h").read_text()
+    assert "sn637_loopshape_sensor_step" in header and str(exported.sensor.k) in header
+    assert Controller.load(tmp_path / "g" / "controllers" / "sn637_loopshape.json").sensor is None
     assert "Sensor" in (tmp_path / "f" / "report.md").read_text()

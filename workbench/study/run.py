@@ -314,16 +314,16 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
               "anti_windup": {**ctrl.record["anti_windup"], "output_slew_limit_v_per_s": list(fxp.slew_limits_v_per_s)},
               "noise": {"reading_rms_v": noise_v,
                         "command_change_rms_v": summary["designs"]["loop_shape"]["noise_command_rms_v"]},
-              "provenance": {**_provenance(spec, plant), "serial": plant.serial},
-              # the sensor block; branch fused-fw adds it to Controller itself (this is the adapter until then)
-              "sensor": sensor.record()}
+              "provenance": {**_provenance(spec, plant), "serial": plant.serial}}
+    if sensor.kind != "gauge":
+        record["sensor_model"] = sensor.record()        # how the charge estimate and the blend were derived
     ctrl = _replace_ctrl(ctrl, record=record)
+    if sensor.kind != "gauge":
+        # the controller's own sensor block: the blend and error scaling run inside its firmware step
+        # (NAME_sensor_step of its C header, bit for bit with Controller.run_sensors)
+        ctrl = ctrl.with_sensor(sensor.kind, sensor.blend.crossover_hz if sensor.kind == "fused" else None,
+                                v_per_m=ub.nominal_gauge_v_per_m)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
-    if sensor.kind == "fused":      # the blend's fixed-point step beside the controller (bit for bit: its gcc test)
-        from ..report.output import write_text
-        from ..selfsense.blend_fixed import FixedBlend, blend_header
-        paths = {**paths, "blend_h": write_text(out / spec.export["directory"] / "fused_blend.h",
-                                                blend_header(FixedBlend(sensor.blend)))}
     summary["exported"] = {k: str(v) for k, v in paths.items()}
 
     # 6. figures and report

@@ -137,7 +137,7 @@ class SensorModel:
                             "source": self.crossover_source,
                             "form": "fused = charge + (1 - a)/(1 - a z^-1) (gauge - charge)",
                             "fixed_point": {"lsb_m": fb.lsb_m, "frac_bits": fb.frac_bits, "coef_bits": fb.coef_bits,
-                                            "k": fb.k, "header": "fused_blend.h"}}
+                                            "k": fb.k, "header": "the controller's own NAME.h (NAME_sensor_step)"}}
         return out
 
     def reading_noise_v(self):
