@@ -73,6 +73,8 @@ levels, a bipolar segment) separates them.
 rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none`` rule.
 """
 
+import hashlib
+
 import numpy as np
 from scipy import signal
 from scipy.integrate import cumulative_trapezoid
@@ -135,12 +137,26 @@ def _r2(residual, explained):
     return float(np.clip(1.0 - np.sum(r * r) / den, 0.0, 1.0))
 
 
-def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None):
+def _data_key(*arrays):
+    """A digest of arrays' contents (to tell whether a later search runs on the same data)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
     ``row_columns(theta, rows)``, optional, gives the same values at the sorted row indices
     ``rows`` (the mask's) only: a fast form used by the search (see :mod:`.kernels`).
+    ``plain_costs``, optional dict (with ``row_columns``): a search with ``project`` also
+    evaluates the grid's costs without it from the same columns and leaves them there; a later
+    search on the same data and grid without ``project`` takes them instead of computing every
+    grid column again (the caller clears the dict when the data change).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -157,7 +173,23 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
             X = X if project is None else project(X)
         return _lstsq(X, y)[1]
 
-    costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
+    share = plain_costs is not None and rows is not None
+    grid_key = _data_key(np.asarray(grid, dtype=float)) if share else None
+    if share and project is None and plain_costs.get("grid") == grid_key:
+        costs = plain_costs.pop("costs")
+        del plain_costs["grid"]
+    elif share and project is not None:
+        # the plain search's target, as that search computes it
+        y_plain = _rows(e, mask, None)
+        y_plain = y_plain / (float(np.sqrt(np.mean(y_plain * y_plain))) or 1.0)
+        costs, plain = [], []
+        for g in grid:
+            X = np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
+            plain.append(float(np.sum(_lstsq(X, y_plain)[1] ** 2)))
+            costs.append(float(np.sum(_lstsq(project(X), y)[1] ** 2)))
+        plain_costs.update(grid=grid_key, costs=plain)
+    else:
+        costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
     theta, best_cost = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float)), min(costs)
     # refine from the best few grid points: a light mode's valleys are narrow and several
@@ -644,11 +676,19 @@ class Resonance(Effect):
         grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
         grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-0.12, 0.12, 11)
                  for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
+        # the searches with and without the base's projection (tracing runs both on the same
+        # data) share the grid's columns: see _varpro's plain_costs
+        memo = self.__dict__.setdefault("_grid_costs", {})
+        key = _data_key(u, residual, train_mask, np.array([dt]))
+        if memo.get("key") != key:
+            memo.clear()
+            memo["key"] = key
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), np.exp(th[1]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
                               row_columns=lambda th, rows: mode_column_rows(
-                                  u, *_zoh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows))
+                                  u, *_zoh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows),
+                              plain_costs=memo)
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}
 
