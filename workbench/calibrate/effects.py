@@ -73,11 +73,14 @@ levels, a bipolar segment) separates them.
 rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none`` rule.
 """
 
+import hashlib
+
 import numpy as np
 from scipy import signal
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
+from .kernels import lowpass_rows, mode_column_rows
 from .pi_fit import rms
 from .residual import analyze_residual
 
@@ -134,22 +137,59 @@ def _r2(residual, explained):
     return float(np.clip(1.0 - np.sum(r * r) / den, 0.0, 1.0))
 
 
-def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1):
+def _data_key(*arrays):
+    """A digest of arrays' contents (to tell whether a later search runs on the same data)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
+    ``row_columns(theta, rows)``, optional, gives the same values at the sorted row indices
+    ``rows`` (the mask's) only: a fast form used by the search (see :mod:`.kernels`).
+    ``plain_costs``, optional dict (with ``row_columns``): a search with ``project`` also
+    evaluates the grid's costs without it from the same columns and leaves them there; a later
+    search on the same data and grid without ``project`` takes them instead of computing every
+    grid column again (the caller clears the dict when the data change).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
     # residual in metres (1e-8) would stop it at its first step
     y_scale = float(np.sqrt(np.mean(y * y))) or 1.0
     y = y / y_scale
+    rows = None if row_columns is None else np.flatnonzero(mask)
 
     def res(theta):
-        X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
+        if rows is None:
+            X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
+        else:
+            X = np.atleast_2d(np.asarray(row_columns(theta, rows), dtype=float).T).T
+            X = X if project is None else project(X)
         return _lstsq(X, y)[1]
 
-    costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
+    share = plain_costs is not None and rows is not None
+    grid_key = _data_key(np.asarray(grid, dtype=float)) if share else None
+    if share and project is None and plain_costs.get("grid") == grid_key:
+        costs = plain_costs.pop("costs")
+        del plain_costs["grid"]
+    elif share and project is not None:
+        # the plain search's target, as that search computes it
+        y_plain = _rows(e, mask, None)
+        y_plain = y_plain / (float(np.sqrt(np.mean(y_plain * y_plain))) or 1.0)
+        costs, plain = [], []
+        for g in grid:
+            X = np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
+            plain.append(float(np.sum(_lstsq(X, y_plain)[1] ** 2)))
+            costs.append(float(np.sum(_lstsq(project(X), y)[1] ** 2)))
+        plain_costs.update(grid=grid_key, costs=plain)
+    else:
+        costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
     theta, best_cost = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float)), min(costs)
     # refine from the best few grid points: a light mode's valleys are narrow and several
@@ -226,8 +266,17 @@ class Drift(Effect):
             lo, hi = np.log(self.periodic_hz[0]), np.log(max(self.periodic_hz[1], 1.01 * self.periodic_hz[0]))
             cols = (lambda th: self._X(t, np.exp(th[0]))[:, 1:]) if project is not None else \
                 (lambda th: self._X(t, np.exp(th[0])))
+            # the search's rows only: the powers once, the periodic pair per frequency (equal values)
+            t_rows = t[mask]
+            powers = np.vander((t_rows - t[0]) / (t[-1] - t[0]), self.degree + 1, increasing=True)
+            powers = powers[:, 1:] if project is not None else powers
+
+            def row_cols(th, rows):
+                ph = 2 * np.pi * np.exp(th[0]) * (t_rows - t[0])
+                return np.column_stack([powers, np.sin(ph), np.cos(ph)])
+
             theta, _ = _varpro(cols, np.asarray(residual, float), mask, [[g] for g in np.linspace(lo, hi, 16)],
-                               [lo], [hi], project)
+                               [lo], [hi], project, row_columns=row_cols)
             f_hz = float(np.exp(theta[0]))
         X = self._X(t, f_hz)
         if project is not None:
@@ -284,6 +333,26 @@ class Delay(Effect):
         y = np.asarray(y_model, dtype=float)
         return np.interp(t - d * _dt(t), t, y) - y
 
+    @staticmethod
+    def _residual_fn(t, e, y_model, mask, project):
+        """``d -> _rows(e - _shifted(t, y_model, d), mask, project)``, shifting only the mask's rows
+        (equal values: the interpolation is pointwise)."""
+        t = np.asarray(t, dtype=float)
+        y = np.asarray(y_model, dtype=float)
+        dt = _dt(t)
+        rows = np.flatnonzero(mask)
+        t_r, e_r, y_r = t[rows], e[rows], y[rows]
+
+        def res(d):
+            x = e_r - (np.interp(t_r - d * dt, t, y) - y_r)
+            return x if project is None else project(x)
+        return res
+
+    @staticmethod
+    def _residual_fn_reference(t, e, y_model, mask, project):
+        """The slow reference of :meth:`_residual_fn` (the whole record shifted, then the rows)."""
+        return lambda d: _rows(e - Delay._shifted(t, y_model, d), mask, project)
+
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
@@ -293,7 +362,8 @@ class Delay(Effect):
         # samples of this record, set from seconds by the caller), then a bounded refinement
         mags = np.geomspace(0.5, max(self.max_delay, 1.0), 36)
         grid = np.r_[-mags[::-1], mags]
-        cost = lambda d: float(np.sum(_rows(e - self._shifted(t, y_model, d), mask, project) ** 2))  # noqa: E731
+        res = self._residual_fn(t, e, y_model, mask, project)
+        cost = lambda d: float(np.sum(res(d) ** 2))  # noqa: E731
         costs = [cost(d) for d in grid]
         k = int(np.argmin(costs))
         d0 = float(grid[k])
@@ -301,8 +371,7 @@ class Delay(Effect):
         hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
         if lo < 0 < hi:
             lo, hi = (lo, -0.25) if d0 < 0 else (0.25, hi)
-        sol = least_squares(lambda x: _rows(e - self._shifted(t, y_model, x[0]), mask, project),
-                            [d0], bounds=([lo], [hi]), max_nfev=40)
+        sol = least_squares(lambda x: res(x[0]), [d0], bounds=([lo], [hi]), max_nfev=40)
         d = float(sol.x[0]) if 2 * sol.cost <= min(costs) else d0
         return {"delay_samples": d, "delay_s": d * _dt(t)}
 
@@ -329,6 +398,10 @@ class _Relaxation(Effect):
     def _column(self, u, tau, dt):
         raise NotImplementedError
 
+    def _column_rows(self, u, tau, dt, rows):
+        """``_column(u, tau, dt)[rows]`` (compiled, equal values)."""
+        raise NotImplementedError
+
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         dt = _dt(t)
         u = np.asarray(u, float)
@@ -337,7 +410,8 @@ class _Relaxation(Effect):
         grid = [[g] for g in np.linspace(lo, hi, self.n_grid)]
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
-                              grid, [lo], [hi], project)
+                              grid, [lo], [hi], project,
+                              row_columns=lambda th, rows: self._column_rows(u, np.exp(th[0]), dt, rows))
         return {"gain": float(beta[0]), "tau_s": float(np.exp(theta[0]))}
 
     def term(self, t, u, params, y_model=None):
@@ -360,6 +434,9 @@ class Creep(_Relaxation):
 
     def _column(self, u, tau, dt):
         return lowpass(u, tau, dt) - u
+
+    def _column_rows(self, u, tau, dt, rows):
+        return lowpass_rows(u, tau, dt, rows, minus_input=True)
 
     def _fingerprint(self, report, t, u, residual):
         # creep drifts during holds, with a rate whose sign follows the step into the hold
@@ -496,6 +573,9 @@ class DielectricAbsorption(_Relaxation):
     def _column(self, u, tau, dt):
         return lowpass(u, tau, dt)
 
+    def _column_rows(self, u, tau, dt, rows):
+        return lowpass_rows(u, tau, dt, rows)
+
 
 class Leakage(Effect):
     """Leakage through a finite resistance: ``k int u dt`` (seed 002 eq. 2.7), charge channel."""
@@ -596,9 +676,19 @@ class Resonance(Effect):
         grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
         grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-0.12, 0.12, 11)
                  for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
+        # the searches with and without the base's projection (tracing runs both on the same
+        # data) share the grid's columns: see _varpro's plain_costs
+        memo = self.__dict__.setdefault("_grid_costs", {})
+        key = _data_key(u, residual, train_mask, np.array([dt]))
+        if memo.get("key") != key:
+            memo.clear()
+            memo["key"] = key
         theta, beta = _varpro(lambda th: self._column(u, np.exp(th[0]), np.exp(th[1]), dt),
                               np.asarray(residual, float), np.asarray(train_mask, bool),
-                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3)
+                              grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
+                              row_columns=lambda th, rows: mode_column_rows(
+                                  u, *_zoh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows),
+                              plain_costs=memo)
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}
 

@@ -36,8 +36,30 @@ def _json_candidates(cands):
             for c in cands]
 
 
+#: BLAS threads of a calibration: its solves are many and small (Gram matrices of a few dozen
+#: columns, projections onto them), where a threaded BLAS spends more on waking its threads than
+#: it saves -- several times slower on a loaded 2-core machine (``benchmarks/calibrate_speed.py``).
+BLAS_THREADS = 1
+
+
 def run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=3, max_ratio=0.8,
-                  penalty=0.02, figures=True, progress=None):
+                  penalty=0.02, figures=True, progress=None, blas_threads=BLAS_THREADS):
+    """Calibrate ``plant_path`` on the record ``data_path``; returns the JSON-ready dict.
+
+    ``blas_threads``: the BLAS thread pool is limited to this many threads for the run
+    (``threadpoolctl``; ``None``: left as it is). The other options: :func:`_run_calibrate`.
+    """
+    if blas_threads is None:
+        return _run_calibrate(data_path, plant_path, out_dir, split, train_cycles, max_ratio, penalty, figures,
+                              progress)
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=int(blas_threads), user_api="blas"):
+        return _run_calibrate(data_path, plant_path, out_dir, split, train_cycles, max_ratio, penalty, figures,
+                              progress)
+
+
+def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles=3, max_ratio=0.8,
+                   penalty=0.02, figures=True, progress=None):
     """Calibrate ``plant_path`` on the record ``data_path``; returns the JSON-ready dict.
 
     ``split``: ``"blocks"`` (default for a full PZT plant), ``"forward"`` or ``"cycles"``

@@ -164,7 +164,9 @@ class _Problem:
         self.valid = valid
         self.rows_dev = split.train & valid
         n_dev = max(int(self.rows_dev.sum()), 1)
-        norms = np.sqrt(np.einsum("ij,ij->j", A[self.rows_dev], A[self.rows_dev]) / n_dev)
+        Ad = A[self.rows_dev]
+        norms = np.sqrt(np.einsum("ij,ij->j", Ad, Ad) / n_dev)
+        del Ad
         keep = norms > 1e-12 * max(norms.max(), 1e-300)
         self.A = A[:, keep] / norms[keep]
         self.scale = rms(r[self.rows_dev]) or 1.0
@@ -173,7 +175,11 @@ class _Problem:
         self.r = r / self.scale
         self.search = search
         blk = np.where(valid, split.block, -1)
-        self.idx = [np.flatnonzero(blk == b) for b in range(split.n_blocks)]
+        # each block's rows, ascending (one stable sort rather than a scan per block)
+        order = np.argsort(blk, kind="stable")
+        edges = np.searchsorted(blk[order], np.arange(split.n_blocks + 1))
+        self.idx = [order[edges[b]:edges[b + 1]] for b in range(split.n_blocks)]
+        self.rows_dev_idx = np.flatnonzero(self.rows_dev)
         # the projection onto the base columns on the search rows (an effect's own search)
         As = self.A[search]
         self.As = As
@@ -192,7 +198,8 @@ class _Problem:
         """Per-block Gram matrices of ``[A, C/norms, r]`` and the bounds of ``[A, C]``."""
         C = np.atleast_2d(np.asarray(C, float).T).T
         if C.shape[1]:
-            n = np.sqrt(np.einsum("ij,ij->j", C[self.rows_dev], C[self.rows_dev]) / max(int(self.rows_dev.sum()), 1))
+            Cd = C[self.rows_dev_idx]
+            n = np.sqrt(np.einsum("ij,ij->j", Cd, Cd) / max(self.rows_dev_idx.size, 1))
             ok = n > 0
             C = C[:, ok] / n[ok]
             lower = np.asarray(lower, float)[ok]

@@ -1,0 +1,71 @@
+"""Compiled inner loops of the calibration's searches (numba), equal to their numpy/scipy forms.
+
+The nonlinear searches of :mod:`.effects` evaluate one column per grid point over the whole
+record (a filter needs its memory from the start) and then keep only the search rows. These
+kernels run the same recursion and write only the rows asked for, skipping the full-length
+temporaries and the boolean gather. The arithmetic is the one of ``scipy.signal.lfilter``'s
+direct form II transposed (``y = z_0 + b_0 x``, ``z_0 = z_1 + b_1 x - a_1 y``,
+``z_1 = b_2 x - a_2 y``, in that order, no fused multiply-add), so the values are those of
+the reference forms to the last bit on the machines we measured; the tests compare them
+within 1e-12 (``tests/calibrate/test_speed_equivalence.py``).
+"""
+
+import numpy as np
+from numba import njit
+
+__all__ = ["mode_column_rows", "lowpass_rows"]
+
+
+@njit(cache=True)
+def _biquad_minus_input(u, b0, b1, b2, a1, a2, rows):
+    out = np.empty(rows.size)
+    u0 = u[0]
+    z0 = 0.0
+    z1 = 0.0
+    k = 0
+    n_rows = rows.size
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = u[i] - u0
+        y = z0 + b0 * x
+        z0 = z1 + x * b1 - y * a1
+        z1 = x * b2 - y * a2
+        if k < n_rows and rows[k] == i:
+            out[k] = y - x
+            k += 1
+    return out
+
+
+def mode_column_rows(u, b, a, rows):
+    """``(lfilter(b, a, v) - v)[rows]`` with ``v = u - u[0]``, for a second-order ``b``, ``a``
+    (``a[0] = 1``); ``rows`` sorted row indices (int64)."""
+    b = np.asarray(b, float)
+    a = np.asarray(a, float)
+    return _biquad_minus_input(np.ascontiguousarray(u, dtype=float), float(b[0]), float(b[1]), float(b[2]),
+                               float(a[1]), float(a[2]), np.ascontiguousarray(rows, dtype=np.int64))
+
+
+@njit(cache=True)
+def _lowpass(u, a, minus_input, rows):
+    out = np.empty(rows.size)
+    b0 = 1.0 - a
+    na = -a
+    z = a * u[0]
+    k = 0
+    n_rows = rows.size
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = u[i]
+        y = z + b0 * x
+        z = x * 0.0 - y * na
+        if k < n_rows and rows[k] == i:
+            out[k] = y - x if minus_input else y
+            k += 1
+    return out
+
+
+def lowpass_rows(u, tau, dt, rows, minus_input=False):
+    """``lowpass(u, tau, dt)[rows]`` (``- u[rows]`` with ``minus_input``), see :func:`.effects.lowpass`."""
+    a = float(np.exp(-dt / tau))
+    return _lowpass(np.ascontiguousarray(u, dtype=float), a, bool(minus_input),
+                    np.ascontiguousarray(rows, dtype=np.int64))
