@@ -14,7 +14,7 @@ from workbench.verify.sensors import charge_channel_missing, run_sensor_loop, se
 from ..conftest import PLANTS, ROOT
 
 GAUGE = ROOT / "controllers" / "sn637_loopshape.json"
-FUSED = ROOT / "controllers" / "sn637_fused_blend.json"
+FUSED = ROOT / "controllers" / "sn637_fused_loopshape.json"
 CREEP = PLANTS / "p888_51_sn637_creep.toml"
 SHORT = dict(triangle_hz=0.5, triangle_periods=2, hold_s=3.0)
 
