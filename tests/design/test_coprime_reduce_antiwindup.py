@@ -66,6 +66,17 @@ def test_reduction_of_a_large_gain_integrator_controller_stays_within_its_bound(
     assert np.isfinite(red.error_bound) and red.error_measured <= red.error_bound * (1 + 1e-6)
 
 
+def test_a_near_integrator_is_kept_with_the_integrators_not_balanced():
+    """A pole at -1e-11 rad/s (a synthesis's perturbed integrator) beside fast modes: balancing it
+    would make the Gramians singular (slycot refuses, scipy perturbs and warns, which the suite turns
+    into an error); it is kept exactly like the integrator, and the bound stays finite and holds."""
+    s = control.tf("s")
+    k = 1e3 / s + 50 / (s + 1e-11) + sum(1e-3 * 10.0 ** i / (s / (3e3 * (i + 1)) + 1) for i in range(4))
+    red = reduce_controller(k, 4)
+    assert np.isfinite(red.error_bound) and red.error_measured <= red.error_bound * (1 + 1e-6)
+    assert np.sum(np.abs(red.controller.poles()) < 1e-6) == 2          # both slow poles survive
+
+
 def _pi_lead():
     s = control.tf("s")
     return 300 * (1 + 2 * np.pi * 30 / s) * (1 + s / (2 * np.pi * 150)) / (1 + s / (2 * np.pi * 600))

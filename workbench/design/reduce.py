@@ -14,7 +14,7 @@ import control
 import numpy as np
 import scipy.linalg
 
-__all__ = ["Reduction", "hankel_singular_values", "reduce_controller", "stable_part"]
+__all__ = ["Reduction", "hankel_singular_values", "marginal_tolerance", "reduce_controller", "stable_part"]
 
 
 @dataclass(frozen=True)
@@ -27,10 +27,25 @@ class Reduction:
     hankel_singular_values: tuple
 
 
-def stable_part(sys):
-    """(stable StateSpace, number of marginal/unstable modes) of a continuous system (Re p < 0 vs >= 0)."""
+def marginal_tolerance(sys):
+    """Real part (rad/s) above which a pole counts as marginal: 1e-9 of the fastest pole, at least 1e-9.
+
+    A pole that slow is an integrator for a controller (1e-9 of a 1e5 rad/s pole is a 16 uHz
+    corner); balancing it with the stable part makes the Gramians singular (its eigenvalue pair
+    with itself sums to ~0), so it is kept with the integrators instead.
+    """
+    a = np.asarray(sys.A, dtype=float)
+    return 1e-9 * max(1.0, float(np.max(np.abs(np.linalg.eigvals(a))))) if a.size else 1e-9
+
+
+def stable_part(sys, tol=None):
+    """(stable StateSpace, number of marginal/unstable modes) of a continuous system.
+
+    A pole is stable when Re p < -tol (default :func:`marginal_tolerance`).
+    """
+    tol = marginal_tolerance(sys) if tol is None else tol
     a, b, c, d = (np.asarray(m, dtype=float) for m in (sys.A, sys.B, sys.C, sys.D))
-    t, u, n_s = scipy.linalg.schur(a, output="real", sort=lambda re, im: re < -1e-12 * (1 + abs(im)))
+    t, u, n_s = scipy.linalg.schur(a, output="real", sort=lambda re, im: re < -tol)
     a11, a12, a22 = t[:n_s, :n_s], t[:n_s, n_s:], t[n_s:, n_s:]
     bt, ct = u.T @ b, c @ u
     # decouple: x1' = x1 + X x2 with A11 X - X A22 = -A12
@@ -46,23 +61,25 @@ def reduce_controller(ctrl, order, freq_hz=None):
     n = ctrl.nstates
     if order >= n:
         return Reduction(ctrl, n, n, 0.0, 0.0, ())
-    stable, n_unstable = stable_part(ctrl)
+    tol = marginal_tolerance(ctrl)
+    stable, n_unstable = stable_part(ctrl, tol)
     if order < n_unstable:
         raise ValueError(f"cannot reduce below the {n_unstable} marginal/unstable modes (integrators) it keeps")
     hsv = hankel_singular_values(stable)
-    k_stable = order - n_unstable
-    bound = float(2 * np.sum(hsv[k_stable:])) if np.all(np.isfinite(hsv)) else float("nan")
     with warnings.catch_warnings():
         # slycot warns when the minimal realization is already smaller than ``order``: it then
         # returns that minimal realization, which is what we want
         warnings.simplefilter("ignore")
-        red = control.balred(ctrl, order, method="truncate")
+        red = control.balred(ctrl, order, method="truncate", alpha=-tol)
+    # the bound of what was actually truncated: slycot may return fewer states than asked
+    k_stable = max(int(red.nstates) - n_unstable, 0)
+    bound = float(2 * np.sum(hsv[k_stable:])) if np.all(np.isfinite(hsv)) else float("nan")
     f = np.geomspace(1e-2, 1e5, 800) if freq_hz is None else np.asarray(freq_hz, dtype=float)
     w = 2j * np.pi * f
     # balred keeps the marginal/unstable part exactly, so K - K_r is the difference of the stable
     # parts; measured there, the error is not buried under the rounding of an integrator's gain at
     # low frequency (4e-10 of |K| = 1600 at 10 mHz exceeds a 1e-7 bound otherwise)
-    red_stable, red_unstable = stable_part(control.ss(red))
+    red_stable, red_unstable = stable_part(control.ss(red), tol)
     if red_unstable == n_unstable:
         err = max(abs(complex(np.squeeze(stable(s))) - complex(np.squeeze(red_stable(s)))) for s in w)
     else:
@@ -89,10 +106,13 @@ def hankel_singular_values(stable):
         pass
     a, b, c = (np.asarray(m, dtype=float) for m in (stable.A, stable.B, stable.C))
     try:
-        wc = scipy.linalg.solve_continuous_lyapunov(a, -b @ b.T)
-        wo = scipy.linalg.solve_continuous_lyapunov(a.T, -c.T @ c)
+        with warnings.catch_warnings():
+            # scipy warns when it perturbs a near-singular equation: that solution bounds nothing
+            warnings.simplefilter("error", RuntimeWarning)
+            wc = scipy.linalg.solve_continuous_lyapunov(a, -b @ b.T)
+            wo = scipy.linalg.solve_continuous_lyapunov(a.T, -c.T @ c)
         ev = np.linalg.eigvals(wc @ wo)
-    except (np.linalg.LinAlgError, ValueError):
+    except (np.linalg.LinAlgError, ValueError, RuntimeWarning):
         return np.full(n, np.nan)
     if not np.all(np.isfinite(ev)):
         return np.full(n, np.nan)
