@@ -122,12 +122,17 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     ``stats`` = [i_max, i_min, sub-steps at a current limit, samples held by the
     current-limit window, range-limited samples].
 
-    The same arithmetic as :func:`_loop_reference`, in the same order (the tests hold the
-    two equal bit for bit), arranged for speed: the plant's scalars and offsets read once
-    (:func:`workbench.plant.kernels.plant_params`) and the step returning its outputs
-    instead of writing an array, the gauge constants (bridge factors, DAC step) and the
-    sub-steps that hold the quarter and three-quarter points worked out before the loop,
-    the statistics kept in locals, nothing allocated per period.
+    The physics of :func:`_loop_reference` with the arithmetic arranged for a short
+    dependency chain per period (the tests hold the two equal to 1e-12 relative on the
+    position, and the controller words identical, over runs that reach the output limits,
+    the current limit and the window): the plant step of
+    :func:`workbench.plant.kernels.pzt_advance` (capacitance and exp per capacitance
+    segment, exact creep and mode steps, no division) with its scalars and offsets read
+    once (:func:`workbench.plant.kernels.plant_params`), the gauge constants (bridge
+    factors, 1/L, the DAC step and its reciprocal: the period's only divisions are the
+    bridge's ratios) and the sub-steps that hold the quarter and three-quarter points
+    worked out before the loop, the statistics kept in locals, nothing allocated per period.
+    ``benchmarks/closed_loop_vs_c.c`` is this loop in C, bit for bit.
     """
     p = K.plant_params(m)
     n = hx.shape[0]
@@ -137,10 +142,12 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
     # _bridge's factors, as it computes them
     kw = kgf * (W / L)
+    inv_l = 1.0 / L
     r0a, r0b, r0c, r0d = r0[0], r0[1], r0[2], r0[3]
     # _quantize's step and its top code
     dac_lsb = 2.0 * dac_fs / (2.0 ** dac_bits)
     dac_top = dac_fs - dac_lsb
+    inv_lsb = 1.0 / dac_lsb
     i_src_lim, i_snk_lim = p[1] * (1 - 1e-9), p[2] * (1 - 1e-9)
     # the sub-steps whose interval holds t = 1/4 and t = 3/4 of the period, and their offsets
     jq = jt = -1
@@ -185,12 +192,12 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
                 n_lim += 1
         x_prev = xb
         # the bridge (eq. 26) at the two points, as _bridge; the amplifier, the ADC range as a clip
-        s = xq / L
+        s = xq * inv_l
         a_w = 1 - kw * s
         a_l = 1 + kgf * s
         r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
         vp = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm), -adc_fs), adc_fs)
-        s = xt / L
+        s = xt * inv_l
         a_w = 1 - kw * s
         a_l = 1 + kgf * s
         r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
@@ -198,7 +205,7 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
         dem = 0.5 * demod * (vp - vn) + noise[k]
         # trim and the servo DAC, as _quantize
         reading = min(max(trim_s * dem + trim_b, -dac_fs), dac_top)
-        reading = math.floor(reading / dac_lsb + 0.5) * dac_lsb
+        reading = math.floor(reading * inv_lsb + 0.5) * dac_lsb
         e = ref[k] - reading
         if form == 2:
             # the input word as FixedPointController.input_words makes it (round half even, clamp)
@@ -256,10 +263,12 @@ def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, h
                     ffrac, f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
     """The closed loop as first written, run by the interpreter: the slow reference of :func:`_loop`.
 
-    The plant step through its packed arrays and an output array, the gauge and
-    controller helpers called as they are (those run compiled), every number in the
-    order :func:`_loop` computes it. The tests hold the two equal bit for bit; ~50 us a
-    period, for short runs only. Same arguments, same effect as :func:`_loop`.
+    The plant step as first written (:func:`workbench.plant.kernels.pzt_step_reference`:
+    per-step divisions, exp and formulae) through its packed arrays and an output array,
+    the gauge and controller helpers called as they are (those run compiled). The tests
+    hold :func:`_loop` to it (1e-12 relative on the position, controller words identical);
+    ~50 us a period, for short runs only. Same arguments, same effect as :func:`_loop`
+    up to rounding.
 
     ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
     2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
@@ -291,7 +300,7 @@ def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, h
         xsum = 0.0
         i_peak = 0.0
         for j in range(n_sub):
-            K.pzt_step(m, st, u, fk, out)
+            K.pzt_step_reference(m, st, u, fk, out)
             xj = out[0]
             # positions a quarter and three quarters into the period, linear between sub-steps
             t_end = (j + 1) / n_sub
