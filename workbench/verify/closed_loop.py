@@ -140,10 +140,15 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
-    # _bridge's factors, as it computes them
+    # the bridge (eq. 26): each half's arms are linear in x, so each ratio is (n0 + n1 x) / (d0 + d1 x)
     kw = kgf * (W / L)
-    inv_l = 1.0 / L
     r0a, r0b, r0c, r0d = r0[0], r0[1], r0[2], r0[3]
+    n10, n11 = r0d - r0a, (r0d * kgf + r0a * kw) / L
+    d10, d11 = r0d + r0a, (r0d * kgf - r0a * kw) / L
+    n20, n21 = r0b - r0c, -(r0b * kw + r0c * kgf) / L
+    d20, d21 = r0b + r0c, (r0c * kgf - r0b * kw) / L
+    k_br = amp * vm
+    k_dem = trim_s * (0.5 * demod)
     # _quantize's step and its top code
     dac_lsb = 2.0 * dac_fs / (2.0 ** dac_bits)
     dac_top = dac_fs - dac_lsb
@@ -192,19 +197,12 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
                 n_lim += 1
         x_prev = xb
         # the bridge (eq. 26) at the two points, as _bridge; the amplifier, the ADC range as a clip
-        s = xq * inv_l
-        a_w = 1 - kw * s
-        a_l = 1 + kgf * s
-        r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
-        vp = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm), -adc_fs), adc_fs)
-        s = xt * inv_l
-        a_w = 1 - kw * s
-        a_l = 1 + kgf * s
-        r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
-        vn = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * -vm), -adc_fs), adc_fs)
-        dem = 0.5 * demod * (vp - vn) + noise[k]
-        # trim and the servo DAC, as _quantize
-        reading = min(max(trim_s * dem + trim_b, -dac_fs), dac_top)
+        vp = min(max((((n10 + n11 * xq) / (d10 + d11 * xq)) - ((n20 + n21 * xq) / (d20 + d21 * xq))) * k_br,
+                     -adc_fs), adc_fs)
+        vn = min(max((((n10 + n11 * xt) / (d10 + d11 * xt)) - ((n20 + n21 * xt) / (d20 + d21 * xt))) * -k_br,
+                     -adc_fs), adc_fs)
+        # demodulation (x2 the difference of the halves) with the noise term, trim, the servo DAC, as _quantize
+        reading = min(max(k_dem * (vp - vn) + (trim_s * noise[k] + trim_b), -dac_fs), dac_top)
         reading = math.floor(reading * inv_lsb + 0.5) * dac_lsb
         e = ref[k] - reading
         if form == 2:
