@@ -423,7 +423,7 @@ class CoupledSimulator:
             self.es[j, E_GUP] = 1.0 / G.slope(qh[j], +1)
             self.es[j, E_GDN] = 1.0 / G.slope(qh[j], -1)
             for c, f in ((E_GUP, E_FUP), (E_GDN, E_FDN)):
-                self.es[j, f] = rc_factor.py_func(self.es[j, c], self.h_s, self.sc[j, C_R])
+                self.es[j, f] = getattr(rc_factor, "py_func", rc_factor)(self.es[j, c], self.h_s, self.sc[j, C_R])
         # static equilibrium of the initial charge: V_p = (C_p + T S T)^-1 q, F = T V_p
         t = np.array([pz.transducer_constant_n_per_v for pz in self.stacks])
         cp = np.array([pz.working_capacitance_f for pz in self.stacks])

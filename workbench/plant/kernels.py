@@ -68,8 +68,8 @@ def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
     # no segment key yet: the first step's play pass recomputes the capacitances from the plays
     st[S_KUP] = st[S_KDN] = np.nan
     r = m[R]
-    st[S_FUP], st[S_FDN] = ((cap_up, cap_dn) if r == 0.0 else
-                            (rc_factor.py_func(cap_up, m[DT], r), rc_factor.py_func(cap_dn, m[DT], r)))
+    fac = getattr(rc_factor, "py_func", rc_factor)       # plain Python when numba's JIT is disabled
+    st[S_FUP], st[S_FDN] = (cap_up, cap_dn) if r == 0.0 else (fac(cap_up, m[DT], r), fac(cap_dn, m[DT], r))
     st[S_QC] = np.sum(qc)
     for off, arr in ((OS_ZG, zG), (OS_ZQ, zQ), (OS_QC, qc), (OS_XM, xm)):
         o = int(m[off])
