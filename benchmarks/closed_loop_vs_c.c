@@ -34,7 +34,7 @@ enum { R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
        INV_R, INV_I_SRC, INV_I_SNK, INV_K_P, INV_C_PP, INV_DT,
        N_G, O_RG, O_WG, N_Q, O_RQ, O_WQ, N_C, O_CC, O_CDEC, N_M, O_AD, O_BD, O_CD, O_DD,
        OS_ZG, OS_ZQ, OS_QC, OS_XM, O_CB };
-enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN };
+enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1 };
 
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
@@ -102,17 +102,37 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
                                   rising ? m[I_SRC] : m[I_SNK], rising ? m[INV_I_SRC] : m[INV_I_SNK],
                                   rising ? p->r_isrc : p->r_isnk);
             qh_new = qh + dq;
+            /* _pi_update_segment: the first play every step, the others when qh_new leaves their band */
             const int n = (int)m[N_G], o_r = (int)m[O_RG], o_w = (int)m[O_WG], o_z = (int)m[OS_ZG];
-            double y = 0.0, up = 0.0, dn = 0.0;
-            for (int i = 0; i < n; i++) {
-                double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
-                double z = st[o_z + i];
-                z = z > lo ? z : lo;          /* min(max(z, lo), hi) */
-                z = z < hi ? z : hi;
-                up += z <= lo ? wi : 0.0;
-                dn += z >= hi ? wi : 0.0;
-                st[o_z + i] = z;
-                y += wi * z;
+            const double r0 = m[o_r], w0 = m[o_w], lo0 = qh_new - r0, hi0 = qh_new + r0;
+            double z0 = st[o_z];
+            z0 = z0 > lo0 ? z0 : lo0;
+            z0 = z0 < hi0 ? z0 : hi0;
+            st[o_z] = z0;
+            double up = z0 <= lo0 ? w0 : 0.0, dn = z0 >= hi0 ? w0 : 0.0, y;
+            if (st[S_PL] < qh_new && qh_new < st[S_PU]) {
+                y = w0 * z0 + st[S_Y1];
+            } else {
+                double pl = -INFINITY, pu = INFINITY, r_max = r0, y1 = 0.0;
+                y = w0 * z0;
+                for (int i = 1; i < n; i++) {
+                    double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
+                    double z = st[o_z + i];
+                    z = z > lo ? z : lo;          /* min(max(z, lo), hi) */
+                    z = z < hi ? z : hi;
+                    up += z <= lo ? wi : 0.0;
+                    dn += z >= hi ? wi : 0.0;
+                    st[o_z + i] = z;
+                    y += wi * z;
+                    y1 += wi * z;
+                    pl = z - ri > pl ? z - ri : pl;
+                    pu = z + ri < pu ? z + ri : pu;
+                    r_max = ri > r_max ? ri : r_max;
+                }
+                double margin = 1e-12 * (fabs(qh_new) + r_max);
+                st[S_PL] = pl + margin;
+                st[S_PU] = pu - margin;
+                st[S_Y1] = y1;
             }
             if (up != st[S_KUP]) {
                 st[S_KUP] = up;

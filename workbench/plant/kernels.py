@@ -36,9 +36,11 @@ M_HEAD = 35
 # the incremental capacitances (1 / G's slope) for rising and falling q_h at the current state,
 # the slopes themselves as summed (the key of the capacitance segment: the two entries after
 # them are recomputed only when it changes), and the charge per volt of gap that a step
-# of dt moves through R on each segment, C (1 - exp(-dt / (R C))) (see :func:`rc_factor`)
-S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN = range(9)
-S_HEAD = 9
+# of dt moves through R on each segment, C (1 - exp(-dt / (R C))) (see :func:`rc_factor`); then the
+# band of G's input over which its plays after the first stay strictly inside their deadbands (lower,
+# upper, shrunk by a rounding margin) and their summed output there (see :func:`_pi_update_segment`)
+S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1 = range(12)
+S_HEAD = 12
 OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v")
 N_OUT = len(OUT_NAMES)
 
@@ -67,6 +69,7 @@ def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
     st[S_QH], st[S_U], st[S_GUP], st[S_GDN] = qh, u, cap_up, cap_dn
     # no segment key yet: the first step's play pass recomputes the capacitances from the plays
     st[S_KUP] = st[S_KDN] = np.nan
+    st[S_PL] = st[S_PU] = np.nan              # no band yet: the first step runs every play
     r = m[R]
     fac = getattr(rc_factor, "py_func", rc_factor)       # plain Python when numba's JIT is disabled
     st[S_FUP], st[S_FDN] = (cap_up, cap_dn) if r == 0.0 else (fac(cap_up, m[DT], r), fac(cap_dn, m[DT], r))
@@ -127,25 +130,55 @@ def _pi_update(m, o_r, o_w, st, o_z, n, v):
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _pi_update_segment(m, o_r, o_w, st, o_z, n, v, dt, r):
-    """Advance G's plays to v in one branch-free pass; keep the capacitance segment up to date.
+    """Advance G's plays to v; return G's output; keep the capacitance segment up to date.
 
-    The incremental capacitances for the next step (1 / the sums of the weights of the plays
-    on the edge each direction pushes) and their :func:`rc_factor` are recomputed only when
-    the sums change (a play engages or lets go), which in a hold is rarely.
+    The first play (threshold 0: it follows v) is advanced every step. The others are run
+    (one branch-free pass) only when v leaves the band [S_PL, S_PU] over which all of them
+    sit strictly inside their deadbands, by a margin of 1e-12 (|v| + the largest threshold),
+    far above rounding: inside it no play moves or touches an edge (the same decision the
+    full pass would make), and their summed output S_Y1 stands (G's output is then the first
+    play's term plus S_Y1; the full pass sums in play order). A hold or a small signal
+    stays in the band; a slew leaves it every step. The incremental capacitances for the
+    next step (1 / the sums of the weights of the plays on the edge each direction pushes)
+    and their :func:`rc_factor` are recomputed only when the sums change (a play engages
+    or lets go).
     """
-    y = 0.0
-    up = 0.0
-    dn = 0.0
-    for i in range(n):
-        ri = m[o_r + i]
-        wi = m[o_w + i]
-        lo = v - ri
-        hi = v + ri
-        zi = min(max(st[o_z + i], lo), hi)
-        up += wi if zi <= lo else 0.0
-        dn += wi if zi >= hi else 0.0
-        st[o_z + i] = zi
-        y += wi * zi
+    r0 = m[o_r]
+    w0 = m[o_w]
+    lo0 = v - r0
+    hi0 = v + r0
+    z0 = min(max(st[o_z], lo0), hi0)
+    st[o_z] = z0
+    up = w0 if z0 <= lo0 else 0.0
+    dn = w0 if z0 >= hi0 else 0.0
+    if st[S_PL] < v < st[S_PU]:
+        y = w0 * z0 + st[S_Y1]
+    else:
+        # the output summed in play order, as pzt_step_reference sums it: at a play's edge (where this
+        # pass runs) the slopes follow the sign of a residual of an ulp, so the sums round alike there
+        y = w0 * z0
+        y1 = 0.0
+        pl = -math.inf
+        pu = math.inf
+        r_max = r0
+        for i in range(1, n):
+            ri = m[o_r + i]
+            wi = m[o_w + i]
+            lo = v - ri
+            hi = v + ri
+            zi = min(max(st[o_z + i], lo), hi)
+            up += wi if zi <= lo else 0.0
+            dn += wi if zi >= hi else 0.0
+            st[o_z + i] = zi
+            y += wi * zi
+            y1 += wi * zi
+            pl = max(pl, zi - ri)
+            pu = min(pu, zi + ri)
+            r_max = max(r_max, ri)
+        margin = 1e-12 * (abs(v) + r_max)
+        st[S_PL] = pl + margin
+        st[S_PU] = pu - margin
+        st[S_Y1] = y1
     if up != st[S_KUP]:
         st[S_KUP] = up
         cap = 1.0 / up
@@ -357,6 +390,7 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
             st[S_GDN] = 1.0 / dn
             st[S_KUP], st[S_KDN] = up, dn
             st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
+            st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
             u_new = y
         else:
             qh_new = qh
