@@ -507,15 +507,22 @@ class ClosedLoop:
         stats = np.zeros(5)
         self._io[2:] = 0.0
         c = self.controller
+        # buffers made once per run: a constant reference and force, the noise drawn into one chunk's buffer
+        # (the same draw as standard_normal(k) * sigma)
+        size = min(n, CHUNK)
+        if scalar:
+            r_const, f_const = np.full(size, ref), np.full(size, force)
+        noise_buf = np.zeros(size)
         for start in range(0, n, CHUNK):
             stop = min(n, start + CHUNK)
             if scalar:
-                r_chunk = np.full(stop - start, ref)
-                f_chunk = np.full(stop - start, force)
+                r_chunk, f_chunk = r_const[:stop - start], f_const[:stop - start]
             else:
                 r_chunk, f_chunk = ref[start:stop], force[start:stop]
-            noise = (self._rng.standard_normal(stop - start) * self.sigma_v if self.sigma_v > 0
-                     else np.zeros(stop - start))
+            noise = noise_buf[:stop - start]
+            if self.sigma_v > 0:
+                self._rng.standard_normal(out=noise)
+                noise *= self.sigma_v
             _loop(self.sim.m, self.sim.st, self.n_sub, r_chunk, f_chunk, noise, self._gp, self._r0, self._form,
                   self._ha, self._hb, self._hc, self._hd, self._hx, float(c.gain), self._sos, self._fb, self._fa,
                   self._fshift, self._ffrac, self._fin, self._in_scale, self._out_scale, self._csf, self._csi, self._vmf, self._vmi, self._lim,
