@@ -10,7 +10,10 @@ than the physics. ``pzt_step.py_func`` is the same code run by the interpreter,
 which the benchmark hands to python-control. A long loop reads the model's scalars
 and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the same
 step, returning its outputs instead of writing an array), as :func:`pzt_run` and the
-closed loop do; :func:`pzt_step` is that pair in one call.
+closed loop do; :func:`pzt_step` is that pair in one call. The step's arithmetic is arranged for a
+short dependency chain (capacitance and RC factor per capacitance segment, G's plays run only when
+the charge leaves their band, exact creep and mode steps, no division); :func:`pzt_step_reference`
+keeps the step as first written, the oracle the tests hold it to (1e-12 of the stroke).
 
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
