@@ -34,7 +34,7 @@ enum { R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
        INV_R, INV_I_SRC, INV_I_SNK, INV_K_P, INV_C_PP, INV_DT,
        N_G, O_RG, O_WG, N_Q, O_RQ, O_WQ, N_C, O_CC, O_CDEC, N_M, O_AD, O_BD, O_CD, O_DD,
        OS_ZG, OS_ZQ, OS_QC, OS_XM, O_CB };
-enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1 };
+enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1, S_FDT, S_FR };
 
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
@@ -97,6 +97,13 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     } else {
         double du = u_target - u;
         if (du != 0.0) {
+            if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */
+                st[S_FUP] = rc_factor(st[S_GUP], dt, r);
+                st[S_FDN] = rc_factor(st[S_GDN], dt, r);
+                st[S_FDT] = dt;
+                st[S_FR] = r;
+                st[S_PL] = st[S_PU] = NAN;
+            }
             int rising = du > 0;
             double dq = rc_charge(du, rising ? st[S_GUP] : st[S_GDN], rising ? st[S_FUP] : st[S_FDN], dt, r,
                                   rising ? m[I_SRC] : m[I_SNK], rising ? m[INV_I_SRC] : m[INV_I_SNK],

@@ -113,3 +113,19 @@ def test_the_coupled_kernels_segment_entries_are_its_plays_slopes(root, rng):
             c = 1.0 / pi_slope(z, r, w, qh, direction)
             assert sim.es[j, cap] == c
             assert sim.es[j, fac] == K.rc_factor(c, sim.h_s, sim.sc[j, C_R])
+
+
+def test_a_state_copied_into_a_model_with_another_step_is_stepped_as_the_reference(sn637_creep, rng):
+    # the describing functions settle at a bias with 100 us steps and copy that state into simulators
+    # with other steps: the RC factors the state carries are re-formed for the new dt, not reused
+    pz = sn637_creep.pzt
+    settle = PZTSimulator(pz, 1e-4)
+    settle.run(np.full(5000, 50.0))
+    v = 50.0 + 0.1 * np.sin(2 * np.pi * np.arange(4000) / 400)
+    f = np.zeros_like(v)
+    a, b = PZTSimulator(pz, 2.5e-6), PZTSimulator(pz, 2.5e-6)
+    a.st[:] = settle.st
+    b.st[:] = settle.st
+    fast = _run(K.pzt_step, a.m, a.st, v, f)
+    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))

@@ -41,9 +41,11 @@ M_HEAD = 35
 # them are recomputed only when it changes), and the charge per volt of gap that a step
 # of dt moves through R on each segment, C (1 - exp(-dt / (R C))) (see :func:`rc_factor`); then the
 # band of G's input over which its plays after the first stay strictly inside their deadbands (lower,
-# upper, shrunk by a rounding margin) and their summed output there (see :func:`_pi_update_segment`)
-S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1 = range(12)
-S_HEAD = 12
+# upper, shrunk by a rounding margin) and their summed output there (see :func:`_pi_update_segment`);
+# then the step dt and R the RC factors were formed with (a state copied into a model with another dt
+# or R has them re-formed before its first step, see :func:`_check_segment`)
+S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1, S_FDT, S_FR = range(14)
+S_HEAD = 14
 OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v")
 N_OUT = len(OUT_NAMES)
 
@@ -76,6 +78,7 @@ def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
     r = m[R]
     fac = getattr(rc_factor, "py_func", rc_factor)       # plain Python when numba's JIT is disabled
     st[S_FUP], st[S_FDN] = (cap_up, cap_dn) if r == 0.0 else (fac(cap_up, m[DT], r), fac(cap_dn, m[DT], r))
+    st[S_FDT], st[S_FR] = m[DT], r
     st[S_QC] = np.sum(qc)
     for off, arr in ((OS_ZG, zG), (OS_ZQ, zQ), (OS_QC, qc), (OS_XM, xm)):
         o = int(m[off])
@@ -113,6 +116,17 @@ def rc_charge(du, cap, f_full, dt, r, i_lim, inv_i, r_ilim):
         return d * i_lim * dt
     # current-limited for t_sat, then the RC relaxation from a gap of R i_lim for the rest
     return d * i_lim * t_sat + d * r_ilim * cap * (1.0 - math.exp(-(dt - t_sat) / (r * cap)))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _check_segment(st, dt, r):
+    """Re-form the RC factors if ``st`` was made for another dt or R (a state copied between models)."""
+    if st[S_FDT] != dt or st[S_FR] != r:
+        st[S_FUP] = rc_factor(st[S_GUP], dt, r)
+        st[S_FDN] = rc_factor(st[S_GDN], dt, r)
+        st[S_FDT] = dt
+        st[S_FR] = r
+        st[S_PL] = st[S_PU] = np.nan
 
 
 @njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
@@ -266,6 +280,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     else:
         du = u_target - u
         if du != 0.0:
+            _check_segment(st, dt, r)
             rising = du > 0
             dq = rc_charge(du, st[S_GUP] if rising else st[S_GDN], st[S_FUP] if rising else st[S_FDN], dt, r,
                            i_src if rising else i_snk, inv_i_src if rising else inv_i_snk,
@@ -394,6 +409,7 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
             st[S_KUP], st[S_KDN] = up, dn
             st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
             st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
+            st[S_FDT], st[S_FR] = dt, r
             u_new = y
         else:
             qh_new = qh
