@@ -14,7 +14,7 @@ from numba import njit
 
 from workbench.plant import PZTSimulator, load_plant
 from workbench.plant import kernels as K
-from workbench.plant.coupled import C_R, E_FDN, E_FUP, E_GDN, E_GUP, E_QH
+from workbench.plant.coupled import C_R, E_FDN, E_FDT, E_FUP, E_GDN, E_GUP, E_QH
 from workbench.plant.hysteresis import pi_slope
 from workbench.plant.mirror import load_mirror, mirror_run
 
@@ -129,3 +129,23 @@ def test_a_state_copied_into_a_model_with_another_step_is_stepped_as_the_referen
     fast = _run(K.pzt_step, a.m, a.st, v, f)
     ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
     assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
+
+
+def test_a_coupled_state_copied_into_a_simulator_with_another_step_reforms_its_rc_factors(root):
+    # a settled state whose RC factors were formed for another sub-step (as a copy from a simulator with
+    # n_sub = 1 into one with n_sub = 2 carries them): the run re-forms them, so a small signal about the
+    # bias (where the unlimited RC step uses them) gives the same trajectory as the intact state
+    import copy
+    m = load_mirror(root / "plants" / "fsm_p888_51.toml")
+    sim = m.simulator(1e-4, 2)
+    mirror_run(sim, np.full((8000, 3), 30.0))                # the 2 mA source slews 30 V in ~0.45 s
+    intact, copied = copy.deepcopy(sim), copy.deepcopy(sim)
+    h_other = 1e-4
+    for j in range(3):
+        r = copied.sc[j, C_R]
+        copied.es[j, E_FUP] = K.rc_factor(copied.es[j, E_GUP], h_other, r)
+        copied.es[j, E_FDN] = K.rc_factor(copied.es[j, E_GDN], h_other, r)
+        copied.es[j, E_FDT] = h_other
+    v = 30.0 + 0.05 * np.sin(2 * np.pi * np.arange(400)[:, None] / 40 + np.arange(3))
+    a, b = mirror_run(intact, v), mirror_run(copied, v)
+    np.testing.assert_array_equal(a.coupled.x_m, b.coupled.x_m)

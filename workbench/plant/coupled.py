@@ -59,9 +59,10 @@ __all__ = ["CoupledSimulator", "CoupledTrajectory", "coupled_run", "STACK_OUT_NA
 (C_R, C_ISRC, C_ISNK, C_VMIN, C_VMAX, C_T, C_RES, C_INVCPP, C_OPEN, C_INVISRC, C_INVISNK, C_GF) = range(12)
 N_SC = 12
 # per-stack electrical state columns: hysteretic charge, G output, creep charge, 1/slopes of G, the slopes
-# as summed (the capacitance segment's key) and the segment's rc_factor, rising and falling
-E_QH, E_U, E_QC, E_GUP, E_GDN, E_KUP, E_KDN, E_FUP, E_FDN = range(9)
-N_ES = 9
+# as summed (the capacitance segment's key) and the segment's rc_factor, rising and falling, and the
+# sub-step and R those factors were formed with (re-formed at the start of a run if they differ)
+E_QH, E_U, E_QC, E_GUP, E_GDN, E_KUP, E_KDN, E_FUP, E_FDN, E_FDT, E_FR = range(11)
+N_ES = 11
 STACK_OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v", "force_n")
 
 
@@ -124,6 +125,13 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
     ny = y.shape[0]
     ne = nu - ns
     inv_h = 1.0 / h
+    for j in range(ns):
+        # a state copied from a simulator with another sub-step or R: its RC factors are re-formed
+        if es[j, E_FDT] != h or es[j, E_FR] != sc[j, C_R]:
+            es[j, E_FUP] = rc_factor(es[j, E_GUP], h, sc[j, C_R])
+            es[j, E_FDN] = rc_factor(es[j, E_GDN], h, sc[j, C_R])
+            es[j, E_FDT] = h
+            es[j, E_FR] = sc[j, C_R]
     row = 0
     count = 0
     for k in range(v.shape[0]):
@@ -424,6 +432,7 @@ class CoupledSimulator:
             self.es[j, E_GDN] = 1.0 / G.slope(qh[j], -1)
             for c, f in ((E_GUP, E_FUP), (E_GDN, E_FDN)):
                 self.es[j, f] = getattr(rc_factor, "py_func", rc_factor)(self.es[j, c], self.h_s, self.sc[j, C_R])
+            self.es[j, E_FDT], self.es[j, E_FR] = self.h_s, self.sc[j, C_R]
         # static equilibrium of the initial charge: V_p = (C_p + T S T)^-1 q, F = T V_p
         t = np.array([pz.transducer_constant_n_per_v for pz in self.stacks])
         cp = np.array([pz.working_capacitance_f for pz in self.stacks])
