@@ -33,36 +33,57 @@
 enum { R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
        INV_R, INV_I_SRC, INV_I_SNK, INV_K_P, INV_C_PP, INV_DT,
        N_G, O_RG, O_WG, N_Q, O_RQ, O_WQ, N_C, O_CC, O_CDEC, N_M, O_AD, O_BD, O_CD, O_DD,
-       OS_ZG, OS_ZQ, OS_QC, OS_XM };
-enum { S_QH, S_U, S_QC, S_GUP, S_GDN };
+       OS_ZG, OS_ZQ, OS_QC, OS_XM, O_CB };
+enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1, S_FDT, S_FR };
 
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
-static inline double bridge(double x, double L, double W, double kgf, const double *r0, double vm)
+/* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff; } plant_consts;
+
+static plant_consts plant_params(const double *m)
 {
-    double s = x / L;
-    double r_wy = r0[0] * (1 - kgf * (W / L) * s);
-    double r_gb = r0[1] * (1 - kgf * (W / L) * s);
-    double r_yg = r0[2] * (1 + kgf * s);
-    double r_wb = r0[3] * (1 + kgf * s);
-    return ((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm;
+    plant_consts p;
+    const double r = m[R], t_em = m[T_EM], inv_kp = m[INV_K_P], inv_cpp = m[INV_C_PP];
+    const int n_c = (int)m[N_C], o_cb = (int)m[O_CB], n = (int)m[N_M], o_b = (int)m[O_BD], o_cd = (int)m[O_CD];
+    p.b_tot = 0.0;
+    for (int j = 0; j < n_c; j++) p.b_tot += m[o_cb + j];
+    p.d_eff = n > 0 ? m[(int)m[O_DD]] : 1.0;
+    for (int a = 0; a < n; a++) p.d_eff += m[o_cd + a] * m[o_b + n + a];
+    p.r_isrc = r * m[I_SRC];
+    p.r_isnk = r * m[I_SNK];
+    p.k_f = t_em * inv_kp;
+    p.k_x = t_em * inv_cpp * inv_kp;
+    return p;
 }
 
-static inline double quantize(double v, double full_scale, double lsb)
+/* rc_factor and rc_charge of workbench.plant.kernels */
+static inline double rc_factor(double cap, double dt, double r) { return cap * (1.0 - exp(-dt / (r * cap))); }
+
+static inline double rc_charge(double du, double cap, double f_full, double dt, double r, double i_lim,
+                               double inv_i, double r_ilim)
 {
-    if (v > full_scale - lsb) v = full_scale - lsb;
-    if (v < -full_scale) v = -full_scale;
-    return floor(v / lsb + 0.5) * lsb;
+    double gap = fabs(du);
+    if (gap <= r_ilim) return du * f_full;
+    double d = du > 0 ? 1.0 : -1.0;
+    double t_sat = (gap - r_ilim) * inv_i * cap;
+    if (t_sat >= dt) return d * i_lim * dt;
+    return d * i_lim * t_sat + d * r_ilim * cap * (1.0 - exp(-(dt - t_sat) / (r * cap)));
 }
 
-/* One plant sub-step: pzt_step of workbench.plant.kernels; returns x, writes the current to *i_a. */
-static inline double pzt_step(const double *m, double *st, double v_cmd, double f_e, double *i_a)
+/* One plant sub-step: pzt_advance of workbench.plant.kernels; returns x, writes the current to *i_a. */
+static inline double pzt_step(const double *m, double *st, const plant_consts *p, double v_cmd, double f_e,
+                              double *i_a)
 {
-    const double dt = m[DT], t_em = m[T_EM], inv_cpp = m[INV_C_PP];
+    const double dt = m[DT], r = m[R], inv_cpp = m[INV_C_PP];
     double v = clampd(v_cmd, m[V_MIN], m[V_MAX]);
     double qh = st[S_QH], u = st[S_U], qh_new, u_new;
-    double f_term = t_em * f_e * m[INV_K_P];
+    double q_old = qh + st[S_QC];
+    double f_term = f_e * p->k_f;
     double u_target = v - (st[S_QC] - f_term) * inv_cpp;
+    const int nc = (int)m[N_C], o_cb = (int)m[O_CB], o_dec = (int)m[O_CDEC], o_qc = (int)m[OS_QC];
+    double s_dec = 0.0;
+    for (int j = 0; j < nc; j++) s_dec += m[o_dec + j] * st[o_qc + j];
     if (m[QUASI_STATIC] > 0.5) {
         const int n = (int)m[N_Q], o_r = (int)m[O_RQ], o_w = (int)m[O_WQ], o_z = (int)m[OS_ZQ];
         double y = 0.0;
@@ -76,30 +97,62 @@ static inline double pzt_step(const double *m, double *st, double v_cmd, double 
     } else {
         double du = u_target - u;
         if (du != 0.0) {
-            double d, cap, i_lim, inv_i;
-            if (du > 0) { d = 1.0; cap = st[S_GUP]; i_lim = m[I_SRC]; inv_i = m[INV_I_SRC]; }
-            else { d = -1.0; cap = st[S_GDN]; i_lim = m[I_SNK]; inv_i = m[INV_I_SNK]; }
-            double r = m[R], gap = fabs(du), t_left = dt, dq = 0.0;
-            if (gap > r * i_lim) {
-                double t_sat = (gap - r * i_lim) * inv_i * cap;
-                if (t_sat >= dt) { dq = d * i_lim * dt; t_left = 0.0; }
-                else { dq = d * i_lim * t_sat; t_left = dt - t_sat; gap = r * i_lim; }
+            if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */
+                st[S_FUP] = rc_factor(st[S_GUP], dt, r);
+                st[S_FDN] = rc_factor(st[S_GDN], dt, r);
+                st[S_FDT] = dt;
+                st[S_FR] = r;
+                st[S_PL] = st[S_PU] = NAN;
             }
-            if (t_left > 0.0) dq += d * gap * cap * (1.0 - exp(-t_left / (r * cap)));
+            int rising = du > 0;
+            double dq = rc_charge(du, rising ? st[S_GUP] : st[S_GDN], rising ? st[S_FUP] : st[S_FDN], dt, r,
+                                  rising ? m[I_SRC] : m[I_SNK], rising ? m[INV_I_SRC] : m[INV_I_SNK],
+                                  rising ? p->r_isrc : p->r_isnk);
             qh_new = qh + dq;
+            /* _pi_update_segment: the first play every step, the others when qh_new leaves their band */
             const int n = (int)m[N_G], o_r = (int)m[O_RG], o_w = (int)m[O_WG], o_z = (int)m[OS_ZG];
-            double y = 0.0, up = 0.0, dn = 0.0;
-            for (int i = 0; i < n; i++) {
-                double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
-                double z = st[o_z + i];
-                if (z < lo) z = lo; else if (z > hi) z = hi;
-                if (z <= lo) up += wi;
-                if (z >= hi) dn += wi;
-                st[o_z + i] = z;
-                y += wi * z;
+            const double r0 = m[o_r], w0 = m[o_w], lo0 = qh_new - r0, hi0 = qh_new + r0;
+            double z0 = st[o_z];
+            z0 = z0 > lo0 ? z0 : lo0;
+            z0 = z0 < hi0 ? z0 : hi0;
+            st[o_z] = z0;
+            double up = z0 <= lo0 ? w0 : 0.0, dn = z0 >= hi0 ? w0 : 0.0, y;
+            if (st[S_PL] < qh_new && qh_new < st[S_PU]) {
+                y = w0 * z0 + st[S_Y1];
+            } else {
+                double pl = -INFINITY, pu = INFINITY, r_max = r0, y1 = 0.0;
+                y = w0 * z0;
+                for (int i = 1; i < n; i++) {
+                    double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
+                    double z = st[o_z + i];
+                    z = z > lo ? z : lo;          /* min(max(z, lo), hi) */
+                    z = z < hi ? z : hi;
+                    up += z <= lo ? wi : 0.0;
+                    dn += z >= hi ? wi : 0.0;
+                    st[o_z + i] = z;
+                    y += wi * z;
+                    y1 += wi * z;
+                    pl = z - ri > pl ? z - ri : pl;
+                    pu = z + ri < pu ? z + ri : pu;
+                    r_max = ri > r_max ? ri : r_max;
+                }
+                double margin = 1e-12 * (fabs(qh_new) + r_max);
+                st[S_PL] = pl + margin;
+                st[S_PU] = pu - margin;
+                st[S_Y1] = y1;
             }
-            st[S_GUP] = 1.0 / up;
-            st[S_GDN] = 1.0 / dn;
+            if (up != st[S_KUP]) {
+                st[S_KUP] = up;
+                double cap = 1.0 / up;
+                st[S_GUP] = cap;
+                st[S_FUP] = rc_factor(cap, dt, r);
+            }
+            if (dn != st[S_KDN]) {
+                st[S_KDN] = dn;
+                double cap = 1.0 / dn;
+                st[S_GDN] = cap;
+                st[S_FDN] = rc_factor(cap, dt, r);
+            }
             u_new = y;
         } else {
             qh_new = qh;
@@ -107,35 +160,27 @@ static inline double pzt_step(const double *m, double *st, double v_cmd, double 
         }
     }
     double v_h = u_new - qh_new * inv_cpp;
-    double qc_tot = 0.0;
-    const int nc = (int)m[N_C], o_c = (int)m[O_CC], o_dec = (int)m[O_CDEC], o_qc = (int)m[OS_QC];
-    for (int j = 0; j < nc; j++) {
-        double target = m[o_c + j] * v_h;
-        double qj = target + (st[o_qc + j] - target) * m[o_dec + j];
-        st[o_qc + j] = qj;
-        qc_tot += qj;
-    }
-    double q_old = qh + st[S_QC], q = qh_new + qc_tot;
+    double qc_tot = s_dec + p->b_tot * v_h;
+    for (int j = 0; j < nc; j++) st[o_qc + j] = m[o_dec + j] * st[o_qc + j] + m[o_cb + j] * v_h;
+    double q = qh_new + qc_tot;
     st[S_QH] = qh_new;
     st[S_U] = u_new;
     st[S_QC] = qc_tot;
-    double v_p = (q - f_term) * inv_cpp;
-    double x_qs = (f_e + t_em * v_p) * m[INV_K_P];
+    double qf = q - f_term;
+    double x_qs = qf * p->k_x + f_e * m[INV_K_P];
     const int nm = (int)m[N_M];
     double x;
     if (nm > 0) {
         const int o_x = (int)m[OS_XM], o_a = (int)m[O_AD], o_b = (int)m[O_BD], o_cd = (int)m[O_CD];
-        double x_before = st[o_x + 2 * nm];
+        double x_before = st[o_x + 2 * nm], x_part = 0.0;
         for (int a = 0; a < nm; a++) {
-            double acc = m[o_b + a] * x_before + m[o_b + nm + a] * x_qs;
+            double acc = m[o_b + a] * x_before;
             for (int b = 0; b < nm; b++) acc += m[o_a + a * nm + b] * st[o_x + b];
             st[o_x + nm + a] = acc;
+            x_part += m[o_cd + a] * acc;
         }
-        x = m[(int)m[O_DD]] * x_qs;
-        for (int a = 0; a < nm; a++) {
-            st[o_x + a] = st[o_x + nm + a];
-            x += m[o_cd + a] * st[o_x + a];
-        }
+        for (int a = 0; a < nm; a++) st[o_x + a] = st[o_x + nm + a] + m[o_b + nm + a] * x_qs;
+        x = p->d_eff * x_qs + x_part;
         st[o_x + 2 * nm] = x_qs;
     } else {
         x = x_qs;
@@ -155,7 +200,16 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
 {
     const double L = gp[0], W = gp[1], kgf = gp[2], vmod = gp[3], amp = gp[4], adc_fs = gp[5];
     const double demod = gp[6], trim_s = gp[7], trim_b = gp[8], dac_fs = gp[9];
-    const double dac_lsb = 2.0 * dac_fs / ldexp(1.0, (int)gp[10]);
+    const double dac_lsb = 2.0 * dac_fs / ldexp(1.0, (int)gp[10]), inv_lsb = 1.0 / dac_lsb;
+    const double dac_top = dac_fs - dac_lsb;
+    /* the bridge's halves as (n0 + n1 x) / (d0 + d1 x), as _loop forms them */
+    const double kw = kgf * (W / L), r0a = r0[0], r0b = r0[1], r0c = r0[2], r0d = r0[3];
+    const double n10 = r0d - r0a, n11 = (r0d * kgf + r0a * kw) / L;
+    const double d10 = r0d + r0a, d11 = (r0d * kgf - r0a * kw) / L;
+    const double n20 = r0b - r0c, n21 = -(r0b * kw + r0c * kgf) / L;
+    const double d20 = r0b + r0c, d21 = (r0c * kgf - r0b * kw) / L;
+    const double k_br = amp * vmod, k_dem = trim_s * (0.5 * demod);
+    const plant_consts pc = plant_params(m);
     const double i_src = m[I_SRC], i_snk = m[I_SNK];
     const int64_t lo_w = lim[0], hi_w = lim[1], h_up = lim[3], h_dn = lim[4];
     STATE c;
@@ -170,7 +224,7 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
         double u = pending, fk = force[k], x_start = x_prev, xq = 0.0, xt = 0.0, xsum = 0.0, i_peak = 0.0;
         double xprev_sub = x_prev;
         for (long j = 0; j < n_sub; j++) {
-            double ij, xj = pzt_step(m, st, u, fk, &ij);
+            double ij, xj = pzt_step(m, st, &pc, u, fk, &ij);
             double t_end = (double)(j + 1) / n_sub, t_beg = (double)j / n_sub;
             if (t_beg < 0.25 && 0.25 <= t_end) {
                 double xb = j == 0 ? x_start : xprev_sub;
@@ -188,10 +242,12 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
             if (ij >= i_src * (1 - 1e-9) || -ij >= i_snk * (1 - 1e-9)) stats[2] += 1;
         }
         x_prev = xprev_sub;
-        double vp = clampd(amp * bridge(xq, L, W, kgf, r0, vmod), -adc_fs, adc_fs);
-        double vn = clampd(amp * bridge(xt, L, W, kgf, r0, -vmod), -adc_fs, adc_fs);
-        double dem = 0.5 * demod * (vp - vn) + noise[k];
-        double reading = quantize(trim_s * dem + trim_b, dac_fs, dac_lsb);
+        double vp = clampd(((n10 + n11 * xq) / (d10 + d11 * xq) - (n20 + n21 * xq) / (d20 + d21 * xq)) * k_br,
+                           -adc_fs, adc_fs);
+        double vn = clampd(((n10 + n11 * xt) / (d10 + d11 * xt) - (n20 + n21 * xt) / (d20 + d21 * xt)) * -k_br,
+                           -adc_fs, adc_fs);
+        double reading = clampd(k_dem * (vp - vn) + (trim_s * noise[k] + trim_b), -dac_fs, dac_top);
+        reading = floor(reading * inv_lsb + 0.5) * dac_lsb;
         double e = ref[k] - reading;
         double ew = rint(e * in_scale);                       /* round half even, as np.rint */
         int64_t v = ew > (double)in_lim ? in_lim : ew < -(double)in_lim ? -in_lim : (int64_t)ew;

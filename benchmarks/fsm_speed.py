@@ -8,12 +8,15 @@ slews it, so the accuracy check sees the modes, not the limiter). Reports the ti
 ``--repeat`` after a compile run), the time 10^7 periods take at that rate, the ratio to
 PZTSimulator (one stack, its 70 kHz mode filter) on the same number of steps in the same run, and
 the accuracy of ``--n-sub`` against 16 sub-steps (largest tip/tilt difference over 0.2 s, in
-urad and as a fraction of the swing).
+urad and as a fraction of the swing). Wall time and the thread's CPU time are both given (best of
+the repeats each), with the load average: on a shared machine the wall time is the CPU time
+times the queue.
 
     PYTHONPATH=. .venv/bin/python benchmarks/fsm_speed.py [--periods N] [--n-sub K] [--repeat R]
 """
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -36,14 +39,16 @@ def drive(m, n, dt):
 
 
 def timed(make, run, repeat):
+    """(best wall s, best CPU s of this thread) over ``repeat`` runs after a compile run."""
     run(make(), warm=True)
-    best = np.inf
+    best, best_cpu = np.inf, np.inf
     for _ in range(repeat):
         sim = make()
-        t0 = time.perf_counter()
+        c0, t0 = time.thread_time(), time.perf_counter()
         run(sim)
         best = min(best, time.perf_counter() - t0)
-    return best
+        best_cpu = min(best_cpu, time.thread_time() - c0)
+    return best, best_cpu
 
 
 def main(argv=None):
@@ -62,8 +67,9 @@ def main(argv=None):
     def run_ref(sim, warm=False):
         sim.run(v[:1000, 0] if warm else v[:, 0], decimate=1 if warm else 100)
 
-    t_fsm = timed(lambda: m.simulator(dt, a.n_sub), run_fsm, a.repeat)
-    t_ref = timed(lambda: PZTSimulator(m.stacks[0], dt / a.n_sub), lambda s, warm=False: s.run(
+    load = os.getloadavg()
+    (t_fsm, c_fsm) = timed(lambda: m.simulator(dt, a.n_sub), run_fsm, a.repeat)
+    (t_ref, c_ref) = timed(lambda: PZTSimulator(m.stacks[0], dt / a.n_sub), lambda s, warm=False: s.run(
         np.repeat(v[:1000 if warm else None, 0], a.n_sub), decimate=1 if warm else 100), a.repeat)
     # accuracy of n_sub against 16 sub-steps
     n_acc = int(0.2 / dt)
@@ -71,10 +77,12 @@ def main(argv=None):
     got = mirror_run(m.simulator(dt, a.n_sub), v[:n_acc])
     err = max(np.abs(got.tip_rad - ref.tip_rad).max(), np.abs(got.tilt_rad - ref.tilt_rad).max())
     swing = max(np.ptp(ref.tip_rad), np.ptp(ref.tilt_rad))
-    print(f"mirror, 3 stacks + 5 modes, n_sub = {a.n_sub}: {a.periods} periods in {t_fsm:.2f} s "
-          f"({a.periods / t_fsm / 1e6:.2f} M periods/s); 10^7 periods: {t_fsm * 1e7 / a.periods:.1f} s (target 5 s)")
-    print(f"PZTSimulator, 1 stack, same {a.periods * a.n_sub} steps: {t_ref:.2f} s; mirror / reference = "
-          f"{t_fsm / t_ref:.2f}")
+    print(f"mirror, 3 stacks + 5 modes, n_sub = {a.n_sub}: {a.periods} periods in {t_fsm:.2f} s wall, "
+          f"{c_fsm:.2f} s CPU ({a.periods / c_fsm / 1e6:.2f} M periods/s of CPU); 10^7 periods: "
+          f"{t_fsm * 1e7 / a.periods:.1f} s wall, {c_fsm * 1e7 / a.periods:.1f} s CPU (target 5 s)")
+    print(f"PZTSimulator, 1 stack, same {a.periods * a.n_sub} steps: {t_ref:.2f} s wall, {c_ref:.2f} s CPU; "
+          f"mirror / reference = {t_fsm / t_ref:.2f} (CPU {c_fsm / c_ref:.2f})")
+    print(f"load average before / after: {load[0]:.1f} / {os.getloadavg()[0]:.1f} (2 cores)")
     print(f"accuracy vs n_sub = 16 over 0.2 s: {err * 1e6:.3g} urad ({err / swing:.2e} of the {swing * 1e6:.0f} urad swing)")
 
 

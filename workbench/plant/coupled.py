@@ -37,17 +37,20 @@ G and holds one stack; a structure without residual compliance (pure modes, toda
 filter) needs C_pp = C_p and a force term from the structure's states, and several stacks
 share one structure. The play updates are ``hysteresis.pi_step`` and ``pi_slope``.
 
+The charge step through R and the current limit is :func:`workbench.plant.kernels.rc_charge` (its
+one home), with each stack's capacitance and exp(-h/(R C)) worked out once per capacitance segment
+(when a play engages or lets go), and G's plays, output and slopes in one pass.
+
 The step allocates nothing: every buffer is made once by :class:`CoupledSimulator`.
 """
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg
 from numba import njit
 
-from .hysteresis import pi_slope, pi_step
+from .kernels import rc_charge, rc_factor
 from .structure import Structure, mode_filter
 
 __all__ = ["CoupledSimulator", "CoupledTrajectory", "coupled_run", "STACK_OUT_NAMES"]
@@ -55,9 +58,54 @@ __all__ = ["CoupledSimulator", "CoupledTrajectory", "coupled_run", "STACK_OUT_NA
 # per-stack scalar columns
 (C_R, C_ISRC, C_ISNK, C_VMIN, C_VMAX, C_T, C_RES, C_INVCPP, C_OPEN, C_INVISRC, C_INVISNK, C_GF) = range(12)
 N_SC = 12
-# per-stack electrical state columns: hysteretic charge, G output, creep charge, 1/slopes of G
-E_QH, E_U, E_QC, E_GUP, E_GDN = range(5)
+# per-stack electrical state columns: hysteretic charge, G output, creep charge, 1/slopes of G, the slopes
+# as summed (the capacitance segment's key) and the segment's rc_factor, rising and falling, and the
+# sub-step and R those factors were formed with (re-formed at the start of a run if they differ)
+E_QH, E_U, E_QC, E_GUP, E_GDN, E_KUP, E_KDN, E_FUP, E_FDN, E_FDT, E_FR = range(11)
+N_ES = 11
 STACK_OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v", "force_n")
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _pi_update_segment(z, r, w, o0, o1, v, es, j, h, r_ohm):
+    """Advance stack j's G plays (``z[o0:o1]``) to v; keep its capacitance segment in ``es[j]``; return G's output.
+
+    One pass for :func:`workbench.plant.hysteresis.pi_step` and both
+    :func:`~workbench.plant.hysteresis.pi_slope` (same tolerance, same sums); the
+    capacitances 1/slope and their :func:`~workbench.plant.kernels.rc_factor` are recomputed
+    only when a slope changes.
+    """
+    y = 0.0
+    up = 0.0
+    dn = 0.0
+    for i in range(o0, o1):
+        ri = r[i]
+        lo = v - ri
+        hi = v + ri
+        zi = z[i]
+        if zi < lo:
+            zi = lo
+        elif zi > hi:
+            zi = hi
+        z[i] = zi
+        wi = w[i]
+        y += wi * zi
+        tol = 1e-12 * (1.0 + abs(v) + ri)
+        if zi <= lo + tol:
+            up += wi
+        if zi >= hi - tol:
+            dn += wi
+    if up != es[j, E_KUP]:
+        es[j, E_KUP] = up
+        cap = 1.0 / up
+        es[j, E_GUP] = cap
+        es[j, E_FUP] = rc_factor(cap, h, r_ohm)
+    if dn != es[j, E_KDN]:
+        es[j, E_KDN] = dn
+        cap = 1.0 / dn
+        es[j, E_GDN] = cap
+        es[j, E_FDN] = rc_factor(cap, h, r_ohm)
+    return y
 
 
 @njit(cache=True, error_model="numpy")
@@ -77,6 +125,13 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
     ny = y.shape[0]
     ne = nu - ns
     inv_h = 1.0 / h
+    for j in range(ns):
+        # a state copied from a simulator with another sub-step or R: its RC factors are re-formed
+        if es[j, E_FDT] != h or es[j, E_FR] != sc[j, C_R]:
+            es[j, E_FUP] = rc_factor(es[j, E_GUP], h, sc[j, C_R])
+            es[j, E_FDN] = rc_factor(es[j, E_GDN], h, sc[j, C_R])
+            es[j, E_FDT] = h
+            es[j, E_FR] = sc[j, C_R]
     row = 0
     count = 0
     for k in range(v.shape[0]):
@@ -114,9 +169,7 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                         qc_tot += qj
                     if dqc != 0.0:
                         qh_new = qh - dqc
-                        u_new = pi_step(zg[o0:o1], g_r[o0:o1], g_w[o0:o1], qh_new)
-                        es[j, E_GUP] = 1.0 / pi_slope(zg[o0:o1], g_r[o0:o1], g_w[o0:o1], qh_new, 1)
-                        es[j, E_GDN] = 1.0 / pi_slope(zg[o0:o1], g_r[o0:o1], g_w[o0:o1], qh_new, -1)
+                        u_new = _pi_update_segment(zg, g_r, g_w, o0, o1, qh_new, es, j, h, sc[j, C_R])
                     else:
                         qh_new = qh
                         u_new = u
@@ -127,35 +180,15 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                     u_target = vc - (es[j, E_QC] - f_term) * inv_cpp
                     du = u_target - u
                     if du != 0.0:
-                        if du > 0:
-                            d = 1.0
-                            cap = es[j, E_GUP]
-                            i_lim = sc[j, C_ISRC]
-                            inv_i = sc[j, C_INVISRC]
-                        else:
-                            d = -1.0
-                            cap = es[j, E_GDN]
-                            i_lim = sc[j, C_ISNK]
-                            inv_i = sc[j, C_INVISNK]
                         r = sc[j, C_R]
-                        gap = abs(du)
-                        t_left = h
-                        dq = 0.0
-                        if gap > r * i_lim:
-                            t_sat = (gap - r * i_lim) * inv_i * cap
-                            if t_sat >= h:
-                                dq = d * i_lim * h
-                                t_left = 0.0
-                            else:
-                                dq = d * i_lim * t_sat
-                                t_left = h - t_sat
-                                gap = r * i_lim
-                        if t_left > 0.0:
-                            dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
+                        if du > 0:
+                            dq = rc_charge(du, es[j, E_GUP], es[j, E_FUP], h, r, sc[j, C_ISRC], sc[j, C_INVISRC],
+                                           r * sc[j, C_ISRC])
+                        else:
+                            dq = rc_charge(du, es[j, E_GDN], es[j, E_FDN], h, r, sc[j, C_ISNK], sc[j, C_INVISNK],
+                                           r * sc[j, C_ISNK])
                         qh_new = qh + dq
-                        u_new = pi_step(zg[o0:o1], g_r[o0:o1], g_w[o0:o1], qh_new)
-                        es[j, E_GUP] = 1.0 / pi_slope(zg[o0:o1], g_r[o0:o1], g_w[o0:o1], qh_new, 1)
-                        es[j, E_GDN] = 1.0 / pi_slope(zg[o0:o1], g_r[o0:o1], g_w[o0:o1], qh_new, -1)
+                        u_new = _pi_update_segment(zg, g_r, g_w, o0, o1, qh_new, es, j, h, r)
                     else:
                         qh_new = qh
                         u_new = u
@@ -387,7 +420,8 @@ class CoupledSimulator:
     def reset(self):
         """Return to rest: plays at the plant files' states, no creep charge, structure at static equilibrium."""
         ns = self.structure.n_stacks
-        self.es = np.zeros((ns, 5))
+        self.es = np.zeros((ns, N_ES))
+        self.es[:, E_KUP] = self.es[:, E_KDN] = np.nan      # no segment yet: the first play pass sets it
         self.zg = np.concatenate([G.initial_states for G in self._G])
         self.qc = np.zeros(self.c_cap.size)
         qh = np.array([pz.hysteresis.output_at_rest() for pz in self.stacks])
@@ -396,6 +430,9 @@ class CoupledSimulator:
             self.es[j, E_U] = G.output_at_rest()
             self.es[j, E_GUP] = 1.0 / G.slope(qh[j], +1)
             self.es[j, E_GDN] = 1.0 / G.slope(qh[j], -1)
+            for c, f in ((E_GUP, E_FUP), (E_GDN, E_FDN)):
+                self.es[j, f] = getattr(rc_factor, "py_func", rc_factor)(self.es[j, c], self.h_s, self.sc[j, C_R])
+            self.es[j, E_FDT], self.es[j, E_FR] = self.h_s, self.sc[j, C_R]
         # static equilibrium of the initial charge: V_p = (C_p + T S T)^-1 q, F = T V_p
         t = np.array([pz.transducer_constant_n_per_v for pz in self.stacks])
         cp = np.array([pz.working_capacitance_f for pz in self.stacks])

@@ -10,7 +10,10 @@ than the physics. ``pzt_step.py_func`` is the same code run by the interpreter,
 which the benchmark hands to python-control. A long loop reads the model's scalars
 and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the same
 step, returning its outputs instead of writing an array), as :func:`pzt_run` and the
-closed loop do; :func:`pzt_step` is that pair in one call.
+closed loop do; :func:`pzt_step` is that pair in one call. The step's arithmetic is arranged for a
+short dependency chain (capacitance and RC factor per capacitance segment, G's plays run only when
+the charge leaves their band, exact creep and mode steps, no division); :func:`pzt_step_reference`
+keeps the step as first written, the oracle the tests hold it to (1e-12 of the stroke).
 
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
@@ -21,19 +24,28 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["pzt_step", "pzt_advance", "plant_params", "pzt_run", "OUT_NAMES", "pack_model", "pack_state"]
+__all__ = ["pzt_step", "pzt_advance", "plant_params", "pzt_run", "pzt_step_reference", "rc_charge", "rc_factor",
+           "OUT_NAMES", "pack_model", "pack_state"]
 
 # scalars at the head of m (reciprocals too: divisions otherwise dominate a step)
 (R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
  INV_R, INV_I_SRC, INV_I_SNK, INV_K_P, INV_C_PP, INV_DT) = range(16)
-# table layout in m: sizes and offsets (stored as floats)
+# table layout in m: sizes and offsets (stored as floats); O_CB: the creep branches' exact
+# step input coefficients (1 - decay_j) C_j, so a branch steps as q_j <- decay_j q_j + b_j V_h
 (N_G, O_RG, O_WG, N_Q, O_RQ, O_WQ, N_C, O_CC, O_CDEC, N_M, O_AD, O_BD, O_CD, O_DD,
- OS_ZG, OS_ZQ, OS_QC, OS_XM) = range(16, 34)
-M_HEAD = 34
+ OS_ZG, OS_ZQ, OS_QC, OS_XM, O_CB) = range(16, 35)
+M_HEAD = 35
 # scalars at the head of st: hysteretic charge, G output (= V_h + q_h/C_pp), creep charge,
-# and the incremental capacitances (1 / G's slope) for rising and falling q_h at the current state
-S_QH, S_U, S_QC, S_GUP, S_GDN = range(5)
-S_HEAD = 5
+# the incremental capacitances (1 / G's slope) for rising and falling q_h at the current state,
+# the slopes themselves as summed (the key of the capacitance segment: the two entries after
+# them are recomputed only when it changes), and the charge per volt of gap that a step
+# of dt moves through R on each segment, C (1 - exp(-dt / (R C))) (see :func:`rc_factor`); then the
+# band of G's input over which its plays after the first stay strictly inside their deadbands (lower,
+# upper, shrunk by a rounding margin) and their summed output there (see :func:`_pi_update_segment`);
+# then the step dt and R the RC factors were formed with (a state copied into a model with another dt
+# or R has them re-formed before its first step, see :func:`_check_segment`)
+S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1, S_FDT, S_FR = range(14)
+S_HEAD = 14
 OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v")
 N_OUT = len(OUT_NAMES)
 
@@ -41,17 +53,18 @@ N_OUT = len(OUT_NAMES)
 def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
     """Build the model vector from the scalar parameters and the tables."""
     nm = Cd.size
+    creep_b = (1.0 - creep_decay) * creep_c
     tables = [G.thresholds, G.weights, Q.thresholds, Q.weights, creep_c, creep_decay,
-              Ad.ravel(), Bd, Cd, Dd]
+              Ad.ravel(), Bd, Cd, Dd, creep_b]
     offs = np.cumsum([M_HEAD] + [t.size for t in tables])
     m = np.zeros(offs[-1])
     m[:16] = scalars
     for t, o in zip(tables, offs[:-1]):
         m[o:o + t.size] = t
     s_offs = np.cumsum([S_HEAD, G.size, Q.size, creep_c.size, 2 * nm + 1])
-    m[N_G:OS_XM + 1] = [G.size, offs[0], offs[1], Q.size, offs[2], offs[3], creep_c.size, offs[4],
-                         offs[5], nm, offs[6], offs[7], offs[8], offs[9],
-                         s_offs[0], s_offs[1], s_offs[2], s_offs[3]]
+    m[N_G:O_CB + 1] = [G.size, offs[0], offs[1], Q.size, offs[2], offs[3], creep_c.size, offs[4],
+                        offs[5], nm, offs[6], offs[7], offs[8], offs[9],
+                        s_offs[0], s_offs[1], s_offs[2], s_offs[3], offs[10]]
     return m, int(s_offs[4])
 
 
@@ -59,11 +72,61 @@ def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
     """Build the state vector (xm: modal state, scratch copy, previous x_qs)."""
     st = np.zeros(size)
     st[S_QH], st[S_U], st[S_GUP], st[S_GDN] = qh, u, cap_up, cap_dn
+    # no segment key yet: the first step's play pass recomputes the capacitances from the plays
+    st[S_KUP] = st[S_KDN] = np.nan
+    st[S_PL] = st[S_PU] = np.nan              # no band yet: the first step runs every play
+    r = m[R]
+    fac = getattr(rc_factor, "py_func", rc_factor)       # plain Python when numba's JIT is disabled
+    st[S_FUP], st[S_FDN] = (cap_up, cap_dn) if r == 0.0 else (fac(cap_up, m[DT], r), fac(cap_dn, m[DT], r))
+    st[S_FDT], st[S_FR] = m[DT], r
     st[S_QC] = np.sum(qc)
     for off, arr in ((OS_ZG, zG), (OS_ZQ, zQ), (OS_QC, qc), (OS_XM, xm)):
         o = int(m[off])
         st[o:o + arr.size] = arr
     return st
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rc_factor(cap, dt, r):
+    """C (1 - exp(-dt / (R C))), F: the charge per volt of gap an RC step of dt moves (no current limit).
+
+    ``cap`` the capacitance C (F) on the segment, ``dt`` (s), ``r`` (ohm). Worked out once per
+    capacitance segment (:func:`rc_charge`'s ``f_full``), not once per step.
+    """
+    return cap * (1.0 - math.exp(-dt / (r * cap)))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def rc_charge(du, cap, f_full, dt, r, i_lim, inv_i, r_ilim):
+    """Charge (C) that R with a current limit moves in dt into a capacitance ``cap`` behind a gap ``du``.
+
+    R dq/dt = du - q/cap with |dq/dt| <= i_lim, exact: while the gap exceeds R i_lim (``r_ilim``, V)
+    the charge moves at the limit; then, or from the start, it relaxes exponentially (tau = R cap).
+    ``f_full`` = :func:`rc_factor` (cap, dt, r), the segment's precomputed unlimited step;
+    ``inv_i`` = 1 / i_lim. ``i_lim``, ``inv_i``, ``r_ilim`` are the limit in the direction of
+    ``du`` (source for du > 0). The one home of the step for :mod:`workbench.plant.kernels`
+    and :mod:`workbench.plant.coupled`.
+    """
+    gap = abs(du)
+    if gap <= r_ilim:
+        return du * f_full
+    d = 1.0 if du > 0 else -1.0
+    t_sat = (gap - r_ilim) * inv_i * cap
+    if t_sat >= dt:
+        return d * i_lim * dt
+    # current-limited for t_sat, then the RC relaxation from a gap of R i_lim for the rest
+    return d * i_lim * t_sat + d * r_ilim * cap * (1.0 - math.exp(-(dt - t_sat) / (r * cap)))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _check_segment(st, dt, r):
+    """Re-form the RC factors if ``st`` was made for another dt or R (a state copied between models)."""
+    if st[S_FDT] != dt or st[S_FR] != r:
+        st[S_FUP] = rc_factor(st[S_GUP], dt, r)
+        st[S_FDN] = rc_factor(st[S_GDN], dt, r)
+        st[S_FDT] = dt
+        st[S_FR] = r
+        st[S_PL] = st[S_PU] = np.nan
 
 
 @njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
@@ -82,30 +145,67 @@ def _pi_update(m, o_r, o_w, st, o_z, n, v):
     return y
 
 
-@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
-def _pi_update_slopes(m, o_r, o_w, st, o_z, n, v):
-    """_pi_update fused with the incremental capacitances for the next step (one pass)."""
-    y = 0.0
-    up = 0.0
-    dn = 0.0
-    for i in range(n):
-        ri = m[o_r + i]
-        wi = m[o_w + i]
-        lo = v - ri
-        hi = v + ri
-        zi = st[o_z + i]
-        if zi < lo:
-            zi = lo
-        elif zi > hi:
-            zi = hi
-        if zi <= lo:
-            up += wi
-        if zi >= hi:
-            dn += wi
-        st[o_z + i] = zi
-        y += wi * zi
-    st[S_GUP] = 1.0 / up
-    st[S_GDN] = 1.0 / dn
+@njit(cache=True, error_model="numpy", inline="always")
+def _pi_update_segment(m, o_r, o_w, st, o_z, n, v, dt, r):
+    """Advance G's plays to v; return G's output; keep the capacitance segment up to date.
+
+    The first play (threshold 0: it follows v) is advanced every step. The others are run
+    (one branch-free pass) only when v leaves the band [S_PL, S_PU] over which all of them
+    sit strictly inside their deadbands, by a margin of 1e-12 (|v| + the largest threshold),
+    far above rounding: inside it no play moves or touches an edge (the same decision the
+    full pass would make), and their summed output S_Y1 stands (G's output is then the first
+    play's term plus S_Y1; the full pass sums in play order). A hold or a small signal
+    stays in the band; a slew leaves it every step. The incremental capacitances for the
+    next step (1 / the sums of the weights of the plays on the edge each direction pushes)
+    and their :func:`rc_factor` are recomputed only when the sums change (a play engages
+    or lets go).
+    """
+    r0 = m[o_r]
+    w0 = m[o_w]
+    lo0 = v - r0
+    hi0 = v + r0
+    z0 = min(max(st[o_z], lo0), hi0)
+    st[o_z] = z0
+    up = w0 if z0 <= lo0 else 0.0
+    dn = w0 if z0 >= hi0 else 0.0
+    if st[S_PL] < v < st[S_PU]:
+        y = w0 * z0 + st[S_Y1]
+    else:
+        # the output summed in play order, as pzt_step_reference sums it: at a play's edge (where this
+        # pass runs) the slopes follow the sign of a residual of an ulp, so the sums round alike there
+        y = w0 * z0
+        y1 = 0.0
+        pl = -math.inf
+        pu = math.inf
+        r_max = r0
+        for i in range(1, n):
+            ri = m[o_r + i]
+            wi = m[o_w + i]
+            lo = v - ri
+            hi = v + ri
+            zi = min(max(st[o_z + i], lo), hi)
+            up += wi if zi <= lo else 0.0
+            dn += wi if zi >= hi else 0.0
+            st[o_z + i] = zi
+            y += wi * zi
+            y1 += wi * zi
+            pl = max(pl, zi - ri)
+            pu = min(pu, zi + ri)
+            r_max = max(r_max, ri)
+        margin = 1e-12 * (abs(v) + r_max)
+        st[S_PL] = pl + margin
+        st[S_PU] = pu - margin
+        st[S_Y1] = y1
+    if up != st[S_KUP]:
+        st[S_KUP] = up
+        cap = 1.0 / up
+        st[S_GUP] = cap
+        st[S_FUP] = rc_factor(cap, dt, r)
+    if dn != st[S_KDN]:
+        st[S_KDN] = dn
+        cap = 1.0 / dn
+        st[S_GDN] = cap
+        st[S_FDN] = rc_factor(cap, dt, r)
     return y
 
 
@@ -115,14 +215,33 @@ def plant_params(m):
 
     A loop that calls :func:`pzt_advance` with these keeps them in registers: read from
     ``m`` at every step they must be reloaded after each store to ``st`` (the compiler
-    cannot tell the two arrays apart), and the offsets converted from float again.
+    cannot tell the two arrays apart), and the offsets converted from float again. The
+    step's fixed products are formed here: R i_lim per direction, T_em / k_p,
+    T_em / (C_pp k_p), the creep branches' summed input coefficient and the modes'
+    direct gain from the quasi-static displacement (D + C B1 of the first-order hold).
     """
-    return (m[R], m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], m[T_EM], m[DT], m[QUASI_STATIC] > 0.5,
-            m[INV_I_SRC], m[INV_I_SNK], m[INV_K_P], m[INV_C_PP], m[INV_DT],
+    r = m[R]
+    t_em = m[T_EM]
+    inv_kp = m[INV_K_P]
+    inv_cpp = m[INV_C_PP]
+    n_c = int(m[N_C])
+    o_cb = int(m[O_CB])
+    b_tot = 0.0
+    for j in range(n_c):
+        b_tot += m[o_cb + j]
+    n = int(m[N_M])
+    o_b = int(m[O_BD])
+    o_cd = int(m[O_CD])
+    d_eff = m[int(m[O_DD])] if n > 0 else 1.0
+    for a in range(n):
+        d_eff += m[o_cd + a] * m[o_b + n + a]
+    return (r, m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], t_em, m[DT], m[QUASI_STATIC] > 0.5,
+            m[INV_I_SRC], m[INV_I_SNK], inv_kp, inv_cpp, m[INV_DT],
             int(m[N_G]), int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG]),
             int(m[N_Q]), int(m[O_RQ]), int(m[O_WQ]), int(m[OS_ZQ]),
-            int(m[N_C]), int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC]),
-            int(m[N_M]), int(m[OS_XM]), int(m[O_AD]), int(m[O_BD]), int(m[O_CD]), m[int(m[O_DD])])
+            n_c, o_cb, int(m[O_CDEC]), int(m[OS_QC]),
+            n, int(m[OS_XM]), int(m[O_AD]), o_b, o_cd, d_eff,
+            r * m[I_SRC], r * m[I_SNK], t_em * inv_kp, t_em * inv_cpp * inv_kp, b_tot)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -132,19 +251,108 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     ``p`` is :func:`plant_params` of ``m``. Electrical part (dynamic form): with the creep
     charge and force held, R dq_h/dt = u* - G[q_h]. On the local slope of G this is an RC
     relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
-    (exactly), then relaxes exponentially for the rest of the step. The slope is the one
-    at the start of the step; G's slope only falls as more plays engage, so the step never
-    overshoots u* and creates no spurious reversal.
+    (exactly), then relaxes exponentially for the rest of the step (:func:`rc_charge`). The
+    slope is the one at the start of the step; G's slope only falls as more plays engage, so
+    the step never overshoots u* and creates no spurious reversal.
+
+    The arithmetic is arranged for a short dependency chain per step (the physics is that of
+    :func:`pzt_advance_reference`, equal to ~1e-15 relative, the tests hold the two together):
+    the capacitance and its exp(-dt/(R C)) worked out once per capacitance segment, the play
+    pass branch-free, the creep branches and the modes as their exact discrete steps with the
+    parts that do not depend on this step's charge formed off the chain, no division.
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
-     n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cc, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_d) = p
+     n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
+     r_isrc, r_isnk, k_f, k_x, b_tot) = p
+    v = min(max(v_cmd, v_min), v_max)
+    qh = st[S_QH]
+    u = st[S_U]
+    q_old = qh + st[S_QC]
+    f_term = f_e * k_f                       # T_em F_e / k_p, C
+    u_target = v - (st[S_QC] - f_term) * inv_cpp
+    # the creep branches' decayed charges (this step's V_h adds b_j V_h below)
+    s_dec = 0.0
+    for j in range(n_c):
+        s_dec += m[o_cdec + j] * st[o_qc + j]
+    if quasi_static:
+        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_target)
+        u_new = u_target
+    else:
+        du = u_target - u
+        if du != 0.0:
+            _check_segment(st, dt, r)
+            rising = du > 0
+            dq = rc_charge(du, st[S_GUP] if rising else st[S_GDN], st[S_FUP] if rising else st[S_FDN], dt, r,
+                           i_src if rising else i_snk, inv_i_src if rising else inv_i_snk,
+                           r_isrc if rising else r_isnk)
+            qh_new = qh + dq
+            u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+        else:
+            qh_new = qh
+            u_new = u
+    v_h = u_new - qh_new * inv_cpp
+    # creep branches relax toward C_j V_h (tau_j >> dt: V_h held over the step), exact step
+    qc_tot = s_dec + b_tot * v_h
+    for j in range(n_c):
+        st[o_qc + j] = m[o_cdec + j] * st[o_qc + j] + m[o_cb + j] * v_h
+    q = qh_new + qc_tot
+    st[S_QH] = qh_new
+    st[S_U] = u_new
+    st[S_QC] = qc_tot
+    qf = q - f_term
+    v_p = qf * inv_cpp
+    x_qs = qf * k_x + f_e * inv_kp           # (F_e + T_em V_p) / k_p
+    # modes: the quasi-static displacement drives them, taken as linear over the step
+    # (first-order hold: no delay, unlike a zero-order hold of the end value). st holds
+    # the modal state, a scratch copy and the previous x_qs, so the step allocates nothing.
+    # The part of the new state and output not driven by this step's x_qs first (off the chain).
+    if n > 0:
+        x_before = st[o_x + 2 * n]
+        x_part = 0.0
+        for a in range(n):
+            acc = m[o_b + a] * x_before
+            for b in range(n):
+                acc += m[o_a + a * n + b] * st[o_x + b]
+            st[o_x + n + a] = acc
+            x_part += m[o_cd + a] * acc
+        for a in range(n):
+            st[o_x + a] = st[o_x + n + a] + m[o_b + n + a] * x_qs
+        x = d_eff * x_qs + x_part
+        st[o_x + 2 * n] = x_qs
+    else:
+        x = x_qs
+    return x, q, (q - q_old) * inv_dt, v_h, v_p
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def pzt_step(m, st, v_cmd, f_e, out):
+    """Advance the PZT by one sub-step; write x, q, i, V_h, V_p, V_t into ``out`` (:func:`pzt_advance`)."""
+    x, q, i, v_h, v_p = pzt_advance(plant_params(m), m, st, v_cmd, f_e)
+    out[0] = x
+    out[1] = q
+    out[2] = i
+    out[3] = v_h
+    out[4] = v_p
+    out[5] = v_h + v_p
+
+
+@njit(cache=True, error_model="numpy")
+def pzt_step_reference(m, st, v_cmd, f_e, out):
+    """The step as first written (per-step divisions and exp, per-step formulae): the oracle of :func:`pzt_step`.
+
+    Same effect on ``st`` and ``out`` as :func:`pzt_step` up to rounding (~1e-15 relative);
+    it also keeps the capacitance segment entries of ``st`` current, so the two can be
+    mixed on one state. For tests and ``verify.closed_loop._loop_reference`` only.
+    """
+    r, i_src, i_snk, v_min, v_max, t_em, dt = m[R], m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], m[T_EM], m[DT]
+    inv_kp, inv_cpp = m[INV_K_P], m[INV_C_PP]
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
     f_term = t_em * f_e * inv_kp              # T_em F_e / k_p, C
     u_target = v - (st[S_QC] - f_term) * inv_cpp
-    if quasi_static:
-        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_target)
+    if m[QUASI_STATIC] > 0.5:
+        qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
         u_new = u_target
     else:
         du = u_target - u
@@ -153,12 +361,12 @@ def pzt_advance(p, m, st, v_cmd, f_e):
                 d = 1.0
                 cap = st[S_GUP]
                 i_lim = i_src
-                inv_i = inv_i_src
+                inv_i = m[INV_I_SRC]
             else:
                 d = -1.0
                 cap = st[S_GDN]
                 i_lim = i_snk
-                inv_i = inv_i_snk
+                inv_i = m[INV_I_SNK]
             gap = abs(du)
             t_left = dt
             dq = 0.0
@@ -176,14 +384,41 @@ def pzt_advance(p, m, st, v_cmd, f_e):
                 # RC relaxation on the local slope: tau = R C
                 dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
             qh_new = qh + dq
-            u_new = _pi_update_slopes(m, o_rg, o_wg, st, o_zg, n_g, qh_new)
+            o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
+            y = 0.0
+            up = 0.0
+            dn = 0.0
+            for i in range(int(m[N_G])):
+                ri = m[o_r + i]
+                wi = m[o_w + i]
+                lo = qh_new - ri
+                hi = qh_new + ri
+                zi = st[o_z + i]
+                if zi < lo:
+                    zi = lo
+                elif zi > hi:
+                    zi = hi
+                if zi <= lo:
+                    up += wi
+                if zi >= hi:
+                    dn += wi
+                st[o_z + i] = zi
+                y += wi * zi
+            st[S_GUP] = 1.0 / up
+            st[S_GDN] = 1.0 / dn
+            st[S_KUP], st[S_KDN] = up, dn
+            st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
+            st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
+            st[S_FDT], st[S_FR] = dt, r
+            u_new = y
         else:
             qh_new = qh
             u_new = u
     v_h = u_new - qh_new * inv_cpp
     # creep branches relax toward C_j V_h (tau_j >> dt: V_h held over the step)
     qc_tot = 0.0
-    for j in range(n_c):
+    o_cc, o_cdec, o_qc = int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC])
+    for j in range(int(m[N_C])):
         target = m[o_cc + j] * v_h
         qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
         st[o_qc + j] = qj
@@ -195,33 +430,25 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     st[S_QC] = qc_tot
     v_p = (q - f_term) * inv_cpp
     x_qs = (f_e + t_em * v_p) * inv_kp
-    # modes: the quasi-static displacement drives them, taken as linear over the step
-    # (first-order hold: no delay, unlike a zero-order hold of the end value). st holds
-    # the modal state, a scratch copy and the previous x_qs, so the step allocates nothing.
+    n = int(m[N_M])
     if n > 0:
+        o_x, o_a, o_b, o_cd = int(m[OS_XM]), int(m[O_AD]), int(m[O_BD]), int(m[O_CD])
         x_before = st[o_x + 2 * n]
         for a in range(n):
             acc = m[o_b + a] * x_before + m[o_b + n + a] * x_qs
             for b in range(n):
                 acc += m[o_a + a * n + b] * st[o_x + b]
             st[o_x + n + a] = acc
-        x = d_d * x_qs
+        x = m[int(m[O_DD])] * x_qs
         for a in range(n):
             st[o_x + a] = st[o_x + n + a]
             x += m[o_cd + a] * st[o_x + a]
         st[o_x + 2 * n] = x_qs
     else:
         x = x_qs
-    return x, q, (q - q_old) * inv_dt, v_h, v_p
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def pzt_step(m, st, v_cmd, f_e, out):
-    """Advance the PZT by one sub-step; write x, q, i, V_h, V_p, V_t into ``out`` (:func:`pzt_advance`)."""
-    x, q, i, v_h, v_p = pzt_advance(plant_params(m), m, st, v_cmd, f_e)
     out[0] = x
     out[1] = q
-    out[2] = i
+    out[2] = (q - q_old) * m[INV_DT]
     out[3] = v_h
     out[4] = v_p
     out[5] = v_h + v_p

@@ -122,12 +122,17 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     ``stats`` = [i_max, i_min, sub-steps at a current limit, samples held by the
     current-limit window, range-limited samples].
 
-    The same arithmetic as :func:`_loop_reference`, in the same order (the tests hold the
-    two equal bit for bit), arranged for speed: the plant's scalars and offsets read once
-    (:func:`workbench.plant.kernels.plant_params`) and the step returning its outputs
-    instead of writing an array, the gauge constants (bridge factors, DAC step) and the
-    sub-steps that hold the quarter and three-quarter points worked out before the loop,
-    the statistics kept in locals, nothing allocated per period.
+    The physics of :func:`_loop_reference` with the arithmetic arranged for a short
+    dependency chain per period (the tests hold the two equal to 1e-12 relative on the
+    position, and the controller words identical, over runs that reach the output limits,
+    the current limit and the window): the plant step of
+    :func:`workbench.plant.kernels.pzt_advance` (capacitance and exp per capacitance
+    segment, exact creep and mode steps, no division) with its scalars and offsets read
+    once (:func:`workbench.plant.kernels.plant_params`), the gauge constants (bridge
+    factors, 1/L, the DAC step and its reciprocal: the period's only divisions are the
+    bridge's ratios) and the sub-steps that hold the quarter and three-quarter points
+    worked out before the loop, the statistics kept in locals, nothing allocated per period.
+    ``benchmarks/closed_loop_vs_c.c`` is this loop in C, bit for bit.
     """
     p = K.plant_params(m)
     n = hx.shape[0]
@@ -135,12 +140,19 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
-    # _bridge's factors, as it computes them
+    # the bridge (eq. 26): each half's arms are linear in x, so each ratio is (n0 + n1 x) / (d0 + d1 x)
     kw = kgf * (W / L)
     r0a, r0b, r0c, r0d = r0[0], r0[1], r0[2], r0[3]
+    n10, n11 = r0d - r0a, (r0d * kgf + r0a * kw) / L
+    d10, d11 = r0d + r0a, (r0d * kgf - r0a * kw) / L
+    n20, n21 = r0b - r0c, -(r0b * kw + r0c * kgf) / L
+    d20, d21 = r0b + r0c, (r0c * kgf - r0b * kw) / L
+    k_br = amp * vm
+    k_dem = trim_s * (0.5 * demod)
     # _quantize's step and its top code
     dac_lsb = 2.0 * dac_fs / (2.0 ** dac_bits)
     dac_top = dac_fs - dac_lsb
+    inv_lsb = 1.0 / dac_lsb
     i_src_lim, i_snk_lim = p[1] * (1 - 1e-9), p[2] * (1 - 1e-9)
     # the sub-steps whose interval holds t = 1/4 and t = 3/4 of the period, and their offsets
     jq = jt = -1
@@ -185,20 +197,13 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
                 n_lim += 1
         x_prev = xb
         # the bridge (eq. 26) at the two points, as _bridge; the amplifier, the ADC range as a clip
-        s = xq / L
-        a_w = 1 - kw * s
-        a_l = 1 + kgf * s
-        r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
-        vp = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * vm), -adc_fs), adc_fs)
-        s = xt / L
-        a_w = 1 - kw * s
-        a_l = 1 + kgf * s
-        r_wy, r_gb, r_yg, r_wb = r0a * a_w, r0b * a_w, r0c * a_l, r0d * a_l
-        vn = min(max(amp * (((r_wb - r_wy) / (r_wb + r_wy) - (r_gb - r_yg) / (r_gb + r_yg)) * -vm), -adc_fs), adc_fs)
-        dem = 0.5 * demod * (vp - vn) + noise[k]
-        # trim and the servo DAC, as _quantize
-        reading = min(max(trim_s * dem + trim_b, -dac_fs), dac_top)
-        reading = math.floor(reading / dac_lsb + 0.5) * dac_lsb
+        vp = min(max((((n10 + n11 * xq) / (d10 + d11 * xq)) - ((n20 + n21 * xq) / (d20 + d21 * xq))) * k_br,
+                     -adc_fs), adc_fs)
+        vn = min(max((((n10 + n11 * xt) / (d10 + d11 * xt)) - ((n20 + n21 * xt) / (d20 + d21 * xt))) * -k_br,
+                     -adc_fs), adc_fs)
+        # demodulation (x2 the difference of the halves) with the noise term, trim, the servo DAC, as _quantize
+        reading = min(max(k_dem * (vp - vn) + (trim_s * noise[k] + trim_b), -dac_fs), dac_top)
+        reading = math.floor(reading * inv_lsb + 0.5) * dac_lsb
         e = ref[k] - reading
         if form == 2:
             # the input word as FixedPointController.input_words makes it (round half even, clamp)
@@ -256,10 +261,12 @@ def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, h
                     ffrac, f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
     """The closed loop as first written, run by the interpreter: the slow reference of :func:`_loop`.
 
-    The plant step through its packed arrays and an output array, the gauge and
-    controller helpers called as they are (those run compiled), every number in the
-    order :func:`_loop` computes it. The tests hold the two equal bit for bit; ~50 us a
-    period, for short runs only. Same arguments, same effect as :func:`_loop`.
+    The plant step as first written (:func:`workbench.plant.kernels.pzt_step_reference`:
+    per-step divisions, exp and formulae) through its packed arrays and an output array,
+    the gauge and controller helpers called as they are (those run compiled). The tests
+    hold :func:`_loop` to it (1e-12 relative on the position, controller words identical);
+    ~50 us a period, for short runs only. Same arguments, same effect as :func:`_loop`
+    up to rounding.
 
     ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
     2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
@@ -291,7 +298,7 @@ def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, h
         xsum = 0.0
         i_peak = 0.0
         for j in range(n_sub):
-            K.pzt_step(m, st, u, fk, out)
+            K.pzt_step_reference(m, st, u, fk, out)
             xj = out[0]
             # positions a quarter and three quarters into the period, linear between sub-steps
             t_end = (j + 1) / n_sub
@@ -500,15 +507,22 @@ class ClosedLoop:
         stats = np.zeros(5)
         self._io[2:] = 0.0
         c = self.controller
+        # buffers made once per run: a constant reference and force, the noise drawn into one chunk's buffer
+        # (the same draw as standard_normal(k) * sigma)
+        size = min(n, CHUNK)
+        if scalar:
+            r_const, f_const = np.full(size, ref), np.full(size, force)
+        noise_buf = np.zeros(size)
         for start in range(0, n, CHUNK):
             stop = min(n, start + CHUNK)
             if scalar:
-                r_chunk = np.full(stop - start, ref)
-                f_chunk = np.full(stop - start, force)
+                r_chunk, f_chunk = r_const[:stop - start], f_const[:stop - start]
             else:
                 r_chunk, f_chunk = ref[start:stop], force[start:stop]
-            noise = (self._rng.standard_normal(stop - start) * self.sigma_v if self.sigma_v > 0
-                     else np.zeros(stop - start))
+            noise = noise_buf[:stop - start]
+            if self.sigma_v > 0:
+                self._rng.standard_normal(out=noise)
+                noise *= self.sigma_v
             _loop(self.sim.m, self.sim.st, self.n_sub, r_chunk, f_chunk, noise, self._gp, self._r0, self._form,
                   self._ha, self._hb, self._hc, self._hd, self._hx, float(c.gain), self._sos, self._fb, self._fa,
                   self._fshift, self._ffrac, self._fin, self._in_scale, self._out_scale, self._csf, self._csi, self._vmf, self._vmi, self._lim,

@@ -1,0 +1,151 @@
+"""The plant kernels' fast arithmetic is the first formulation's physics.
+
+``kernels.pzt_step`` (capacitance and exp(-dt/(R C)) once per capacitance segment, exact creep and
+mode steps arranged off the dependency chain, no division) against ``kernels.pzt_step_reference``
+(the step as first written, per-step divisions and exp) on drives over the whole range a user may
+bring: every plant file with a stack, sub-steps from 1 us to 1 ms, levels past both voltage limits,
+slews at the current limit, sines up to 2 kHz, force steps, the quasi-static (R = 0) form. And the
+coupled kernel's cached segment entries against a fresh computation from its plays.
+"""
+
+import numpy as np
+import pytest
+from numba import njit
+
+from workbench.plant import PZTSimulator, load_plant
+from workbench.plant import kernels as K
+from workbench.plant.coupled import C_R, E_FDN, E_FDT, E_FUP, E_GDN, E_GUP, E_QH
+from workbench.plant.hysteresis import pi_slope
+from workbench.plant.mirror import load_mirror, mirror_run
+
+PLANTS = ("p888_51_sn637.toml", "p888_51_sn637_creep.toml", "p888_51_sn618.toml", "p888_51_sn629.toml",
+          "p888_51_sn637_on_flexure.toml")
+
+
+@njit  # not cached: numba's cache would keep the kernel compiled into it after kernels.py changes
+def _run(step, m, st, v, f):
+    out = np.empty(K.N_OUT)
+    rec = np.empty((v.size, K.N_OUT))
+    for k in range(v.size):
+        step(m, st, v[k], f[k], out)
+        rec[k] = out
+    return rec
+
+
+def _drive(rng, n, pz):
+    """Held levels from 20 % below the lower voltage limit to 20 % above the upper (every step slews
+    at the current limit at the faster rates), a sine of random frequency (0.5 Hz-2 kHz) on top, force steps."""
+    lo, hi = pz.voltage_min_v, pz.voltage_max_v
+    span = hi - lo
+    levels = rng.uniform(lo - 0.2 * span, hi + 0.2 * span, size=8)
+    levels[:2] = lo - 0.2 * span, hi + 0.2 * span           # both limits reached
+    v = levels.repeat(-(-n // 8))[:n]
+    t = np.arange(n)
+    v = v + rng.uniform(0.0, 0.1) * span * np.sin(2 * np.pi * rng.uniform(0.5, 2000.0) * t * 1e-5)
+    f = rng.uniform(-50.0, 50.0, size=n // 500 + 1).repeat(500)[:n]
+    return v, f
+
+
+@pytest.mark.parametrize("plant_file", PLANTS)
+@pytest.mark.parametrize("dt_s", [1e-6, 1e-5, 1e-4, 1e-3])
+def test_the_fast_step_is_the_reference_step(root, rng, plant_file, dt_s):
+    pz = load_plant(root / "plants" / plant_file).pzt
+    n = 20_000
+    v, f = _drive(rng, n, pz)
+    a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
+    fast = _run(K.pzt_step, a.m, a.st, v, f)
+    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    scale = np.max(np.abs(ref), axis=0)
+    err = np.max(np.abs(fast - ref), axis=0)
+    x, q, i, v_h, v_p, v_t = range(K.N_OUT)
+    assert err[x] <= 1e-12 * scale[x] and err[q] <= 1e-12 * scale[q]
+    assert err[v_h] <= 1e-10 * scale[v_h] and err[v_p] <= 1e-10 * scale[v_p] and err[v_t] <= 1e-10 * scale[v_t]
+    assert err[i] <= 1e-9 * scale[i]
+    # the creep branches, plays and modes end in the same state (the modes' scratch copy and the band aside)
+    keep = np.ones(a.st.size, bool)
+    o_x, n_m = int(a.m[K.OS_XM]), int(a.m[K.N_M])
+    keep[o_x + n_m:o_x + 2 * n_m] = False
+    keep[[K.S_PL, K.S_PU, K.S_Y1]] = False               # the fast step's band (the reference voids it)
+    np.testing.assert_allclose(a.st[keep], b.st[keep], rtol=1e-9, atol=1e-12 * scale[q])
+    # the drive reached the branches: the fall from rest to the lower limit at the sink limit (where a
+    # step is shorter than the slew) and, over the 20 s at 1 ms, the stack from one voltage limit to the other
+    if dt_s <= 1e-4:
+        assert ref[:, i].min() <= -0.98 * pz.current_limit_sink_a
+    else:
+        assert np.ptp(ref[:, v_t]) > 0.9 * (pz.voltage_max_v - pz.voltage_min_v)
+
+
+@pytest.mark.parametrize("dt_s", [1e-5, 1e-3])
+def test_the_fast_quasi_static_step_is_the_reference_step(sn637_creep, rng, dt_s):
+    pz = sn637_creep.pzt.with_resistance(0.0)
+    v, f = _drive(rng, 20_000, pz)
+    a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
+    fast = _run(K.pzt_step, a.m, a.st, v, f)
+    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
+
+
+def test_the_two_steps_can_share_a_state(sn637_creep, rng):
+    # the reference keeps the capacitance segment entries current: alternating the two on one state
+    # stays on the fast step's trajectory
+    pz = sn637_creep.pzt
+    v, f = _drive(rng, 4000, pz)
+    a, b = PZTSimulator(pz, 1e-5), PZTSimulator(pz, 1e-5)
+    fast = _run(K.pzt_step, a.m, a.st, v, f)
+    mixed = np.vstack([_run(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500], f[k:k + 500])
+                       for k in range(0, 4000, 500)])
+    assert np.max(np.abs(mixed[:, 0] - fast[:, 0])) <= 1e-12 * np.max(np.abs(fast[:, 0]))
+
+
+def test_the_coupled_kernels_segment_entries_are_its_plays_slopes(root, rng):
+    # after a drive through the current limit, each stack's cached capacitances are 1 / its plays' slopes
+    # now, and the cached RC factors those capacitances' C (1 - exp(-h / (R C)))
+    m = load_mirror(root / "plants" / "fsm_p888_51.toml")
+    sim = m.simulator(1e-4, 2)
+    n = 3000
+    v = np.clip(rng.normal(0.0, 40.0, size=(n // 100, 3)).repeat(100, axis=0), -20.0, 120.0)
+    mirror_run(sim, v)
+    for j in range(3):
+        o0, o1 = sim.g_off[j], sim.g_off[j + 1]
+        z, r, w = sim.zg[o0:o1], sim.g_r[o0:o1], sim.g_w[o0:o1]
+        qh = sim.es[j, E_QH]
+        for cap, fac, direction in ((E_GUP, E_FUP, 1), (E_GDN, E_FDN, -1)):
+            c = 1.0 / pi_slope(z, r, w, qh, direction)
+            assert sim.es[j, cap] == c
+            assert sim.es[j, fac] == K.rc_factor(c, sim.h_s, sim.sc[j, C_R])
+
+
+def test_a_state_copied_into_a_model_with_another_step_is_stepped_as_the_reference(sn637_creep, rng):
+    # the describing functions settle at a bias with 100 us steps and copy that state into simulators
+    # with other steps: the RC factors the state carries are re-formed for the new dt, not reused
+    pz = sn637_creep.pzt
+    settle = PZTSimulator(pz, 1e-4)
+    settle.run(np.full(5000, 50.0))
+    v = 50.0 + 0.1 * np.sin(2 * np.pi * np.arange(4000) / 400)
+    f = np.zeros_like(v)
+    a, b = PZTSimulator(pz, 2.5e-6), PZTSimulator(pz, 2.5e-6)
+    a.st[:] = settle.st
+    b.st[:] = settle.st
+    fast = _run(K.pzt_step, a.m, a.st, v, f)
+    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
+
+
+def test_a_coupled_state_copied_into_a_simulator_with_another_step_reforms_its_rc_factors(root):
+    # a settled state whose RC factors were formed for another sub-step (as a copy from a simulator with
+    # n_sub = 1 into one with n_sub = 2 carries them): the run re-forms them, so a small signal about the
+    # bias (where the unlimited RC step uses them) gives the same trajectory as the intact state
+    import copy
+    m = load_mirror(root / "plants" / "fsm_p888_51.toml")
+    sim = m.simulator(1e-4, 2)
+    mirror_run(sim, np.full((8000, 3), 30.0))                # the 2 mA source slews 30 V in ~0.45 s
+    intact, copied = copy.deepcopy(sim), copy.deepcopy(sim)
+    h_other = 1e-4
+    for j in range(3):
+        r = copied.sc[j, C_R]
+        copied.es[j, E_FUP] = K.rc_factor(copied.es[j, E_GUP], h_other, r)
+        copied.es[j, E_FDN] = K.rc_factor(copied.es[j, E_GDN], h_other, r)
+        copied.es[j, E_FDT] = h_other
+    v = 30.0 + 0.05 * np.sin(2 * np.pi * np.arange(400)[:, None] / 40 + np.arange(3))
+    a, b = mirror_run(intact, v), mirror_run(copied, v)
+    np.testing.assert_array_equal(a.coupled.x_m, b.coupled.x_m)
