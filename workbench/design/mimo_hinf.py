@@ -478,3 +478,58 @@ def comparison_markdown(notch, damped, hinf):
         lines.append(f"| {label} | {d.disk_in['alpha']:.3f} ({d.disk_in['member']}, {d.disk_in['freq_hz']:.0f}) | "
                      f"{d.disk_out['alpha']:.3f} ({d.disk_out['member']}) | {d.disk_in['alpha_unstructured']:.3f} |")
     return "\n".join(lines)
+
+
+def _diag_ctrl_resp(design, dt_s):
+    """callable freq_hz -> the decoupled design's sampled axis controllers as (freqs, 3, 3) diagonal responses."""
+    def resp(f):
+        c = np.array([response(design.axes[ax].controller_d, f) for ax in AXIS_NAMES]).T
+        return np.einsum("fi,ij->fij", c, np.eye(3))
+    return resp
+
+
+def _hinf_ctrl_resp(design, dt_s):
+    def resp(f):
+        kd = design.controller_d
+        return np.moveaxis(np.asarray(kd(np.exp(2j * np.pi * np.asarray(f) * dt_s))).reshape(3, 3, -1), -1, 0)
+    return resp
+
+
+def main(argv=None):
+    """``python -m workbench.design.mimo_hinf plants/fsm_p888_51.toml``: the three designs on the family, Markdown."""
+    import sys
+    from ..linearize.mimo import mirror_family
+    from ..plant.mirror import load_mirror
+    from .mimo import design_mimo
+    path = (sys.argv[1:] if argv is None else argv) or ["plants/fsm_p888_51.toml"]
+    fsm = load_mirror(path[0])
+    fam = mirror_family(fsm)
+    t0 = time.perf_counter()
+    notch = design_mimo(fsm, fam, damping=False)
+    damped = design_mimo(fsm, fam, damping=True)
+    t1 = time.perf_counter()
+    hinf = design_hinf(fsm, fam, progress=lambda i, n: print(f"w_b bisection {i}/{n}", file=sys.stderr, flush=True))
+    t2 = time.perf_counter()
+    w = hinf.weights
+    print(f"H-inf: w_b = {w.bandwidth_rad_s:.0f} rad/s ({w.bandwidth_rad_s / 2 / np.pi:.0f} Hz; floor "
+          f"{min_bandwidth_rad_s():.0f} rad/s), gamma {hinf.gamma:.3f}; search (w_b rad/s, gamma): "
+          + ", ".join(f"({b:.0f}, {'fail' if g is None else f'{g:.3f}'})" for b, g in hinf.bandwidth_search))
+    fit = w.derivation["w_t_fit"]
+    print(f"W_t order {fit.order}, |W_t| {abs(complex(np.squeeze(w.w_t(0)))):.3f} at DC; W_u {float(np.squeeze(w.w_u.D)):.3f}; "
+          f"controller {hinf.reduction['order_before']} -> {hinf.reduction['order_after']} states, error "
+          f"{hinf.reduction['error_measured']:.3g} (bound {hinf.reduction['error_bound']:.3g}); weighted peaks full "
+          + ", ".join(f"{k} {v:.3f}" for k, v in hinf.peaks.items()) + "; reduced "
+          + ", ".join(f"{k} {v:.3f}" for k, v in hinf.peaks_reduced.items()))
+    nom = fam[nominal_name()]
+    budget = noise_budget(fsm)
+    for label, d, resp in (("notch only", notch, _diag_ctrl_resp(notch, 1e-4)), ("MIMO H-inf", hinf,
+                                                                                  _hinf_ctrl_resp(hinf, 1e-4))):
+        rms = noise_rms_v(fsm, hinf.decoupler, nom, resp)
+        print(f"gauge noise on the stack commands, {label}: " + ", ".join(f"{1e3 * r:.1f}" for r in rms)
+              + f" mV RMS (budget {1e3 * budget:.1f} mV)")
+    print(f"(decoupled designs {t1 - t0:.0f} s, H-inf {t2 - t1:.0f} s)\n")
+    print(comparison_markdown(notch, damped, hinf))
+
+
+if __name__ == "__main__":
+    main()
