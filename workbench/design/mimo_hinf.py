@@ -52,7 +52,6 @@ import numpy as np
 
 from ..errors import DesignError
 from ..linearize.limit_cycle import sampled_factor
-from ..linearize.mimo import gauge_gains
 from ..linearize.weight import fit_weight
 from .antiwindup import discretize
 from .hinf import _SB10AD_ADVICE, _balanced_matrices, _run_with_limit
