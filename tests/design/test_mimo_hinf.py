@@ -93,6 +93,12 @@ def test_every_member_stable_and_margins(fsm, family, design):
     for ax in mimo.AXIS_NAMES:
         rows, worst = design.lat[ax]
         assert len(rows) == len(family)
+    # the comparison table renders: 2 tables, every row with its header's column count
+    table = mimo.comparison_markdown(design, design, design)
+    for block in table.split("\n\n"):
+        lines = block.splitlines()
+        assert all(line.count("|") == lines[0].count("|") for line in lines)
+    assert len(table.splitlines()) == 2 + 9 + 1 + 2 + 3
 
 
 @pytest.mark.parametrize("seed", range(3))

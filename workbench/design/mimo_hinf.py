@@ -56,14 +56,13 @@ from ..linearize.weight import fit_weight
 from .antiwindup import discretize
 from .hinf import _SB10AD_ADVICE, _balanced_matrices, _run_with_limit
 from .margins import family_margins, response
-from .mimo import (AXIS_NAMES, G, V, closed_loop_bandwidth_hz, decoupled, default_freq_hz, kinematic_decoupler,
-                   loop_at_a_time, member_responses, mimo_disk_margin, nominal_name)
+from .mimo import (AXIS_NAMES, G, V, closed_loop_bandwidth_hz, comparison_markdown, decoupled, default_freq_hz,
+                   kinematic_decoupler, loop_at_a_time, member_responses, mimo_disk_margin, nominal_name)
 from .nominal import SLOW_HZ, minimal
 from .reduce import stable_part
 
 __all__ = ["HinfWeights", "HinfDesign", "design_plant", "hinf_weights", "synthesize", "design_hinf",
-           "weighted_peaks", "range_weight", "noise_rms_v", "noise_budget", "min_bandwidth_rad_s", "reduce_mimo", "hinf_closed_loop_poles",
-           "comparison_markdown"]
+           "weighted_peaks", "range_weight", "noise_rms_v", "noise_budget", "min_bandwidth_rad_s", "reduce_mimo", "hinf_closed_loop_poles"]
 
 PEAK_S = 2.0                 # sigma_max(S) bound on the design plant: alpha >= 1 / (2 + 1/2) = 0.4 (the floor)
 LOW_FREQ_S = 1e-3            # |S(0)| bound relative to 1 (integral-like; 1e-4 left SB10AD's Riccati singular)
@@ -456,27 +455,6 @@ def hinf_closed_loop_poles(fsm, member, design, dt_s=1e-4, delay_samples=1):
     pade = control.ss(control.tf(num, den))
     loop_plant = g * control.append(pade, pade, pade)
     return control.feedback(loop_plant, design.controller_c, sign=-1).poles()
-
-
-def comparison_markdown(notch, damped, hinf):
-    """GitHub Markdown table: notch-only, IFF-damped (:class:`~workbench.design.mimo.MimoDesign`) and H-inf per axis."""
-    lines = ["| axis | design | closed-loop bandwidth, Hz (worst member) | lowest crossover, Hz | PM deg (worst) "
-             "| GM dB (worst) | SISO disk alpha |", "|---|---|---|---|---|---|---|"]
-    designs = [(lbl, d) for lbl, d in (("notch only", notch), ("IFF damped", damped), ("MIMO H-inf", hinf))
-               if d is not None]
-    for ax in AXIS_NAMES:
-        for label, d in designs:
-            a = d.summary()["axes"][ax]
-            lines.append(f"| {ax} | {label} | {a['bandwidth_hz']['value']:.0f} ({a['bandwidth_hz']['member']}) | "
-                         f"{a['crossover_hz_min']['value']:.0f} | {a['phase_margin_deg']['value']:.1f} "
-                         f"({a['phase_margin_deg']['member']}) | {a['gain_margin_db']['value']:.2f} "
-                         f"({a['gain_margin_db']['member']}) | {a['disk_margin']['value']:.3f} |")
-    lines += ["", "| design | simultaneous disk alpha at stack inputs (worst member, Hz) | at axis outputs | "
-              "unstructured bound (inputs) |", "|---|---|---|---|"]
-    for label, d in designs:
-        lines.append(f"| {label} | {d.disk_in['alpha']:.3f} ({d.disk_in['member']}, {d.disk_in['freq_hz']:.0f}) | "
-                     f"{d.disk_out['alpha']:.3f} ({d.disk_out['member']}) | {d.disk_in['alpha_unstructured']:.3f} |")
-    return "\n".join(lines)
 
 
 def _diag_ctrl_resp(design, dt_s):
