@@ -107,6 +107,12 @@ def sweep_markdown(rows):
     return "\n".join(lines)
 
 
+def _ratio(row, label, axis, k):
+    """design / notch-only for entry k (0 bandwidth, 1 crossover); NaN where missing (JSON stores NaN as null)."""
+    a, b = row["designs"][label][axis][k], row["designs"]["notch only"][axis][k]
+    return np.nan if a is None or b is None else a / b
+
+
 def plot_sweep(rows, path):
     """Damped / notch-only ratios (closed-loop bandwidth, and crossover) against mode / delay-limited crossover; PNG."""
     import matplotlib
@@ -118,10 +124,10 @@ def plot_sweep(rows, path):
     fig, axes = plt.subplots(1, 2, figsize=(11.0, 4.4), sharey=True)
     for k, (ax, what) in enumerate(zip(axes, ("closed-loop bandwidth (|T_ii| -3 dB)", "lowest gain crossover"))):
         for axis, mk in (("tip", "o"), ("tilt", "s"), ("piston", "^")):
-            y = [r["designs"]["IFF damped"][axis][k] / r["designs"]["notch only"][axis][k] for r in rows]
+            y = [_ratio(r, "IFF damped", axis, k) for r in rows]
             ax.semilogx(x, y, mk + "-", label=f"{axis}: IFF damped / notch only")
         if "MIMO H-inf" in rows[0]["designs"]:
-            y = [r["designs"]["MIMO H-inf"]["tip"][k] / r["designs"]["notch only"]["tip"][k] for r in rows]
+            y = [_ratio(r, "MIMO H-inf", "tip", k) for r in rows]
             ax.semilogx(x, y, "x--", label="tip: MIMO H-inf / notch only")
         ax.axhline(2.0, color="k", ls=":", lw=1, label="issue target (2x)")
         ax.axhline(1.0, color="0.6", lw=0.8)
@@ -130,7 +136,7 @@ def plot_sweep(rows, path):
         ax.set_title(f"ratio of the worst member's {what}", fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].set_ylabel("damped (or H-inf) / notch-only")
-    axes[1].legend(fontsize=8, loc="best")
+    axes[0].legend(fontsize=8, loc="upper left")
     fig.suptitle("What damping buys as the mirror's flexure modes move through the servo band")
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
