@@ -539,12 +539,15 @@ def closed_loop_poles(fsm, member, design, dt_s=1e-4):
     return control.feedback(p6, k, sign=-1).poles()
 
 
-def comparison_markdown(notch, damped):
-    """GitHub Markdown table of a notch-only and a damped :class:`MimoDesign` on the same family, worst members named."""
+def comparison_markdown(notch, damped, hinf=None):
+    """GitHub Markdown table of a notch-only and a damped :class:`MimoDesign` (and optionally a
+    :class:`~workbench.design.mimo_hinf.HinfDesign`) on the same family, worst members named."""
     lines = ["| axis | design | closed-loop bandwidth, Hz (worst member) | lowest crossover, Hz | PM deg (worst) "
              "| GM dB (worst) | SISO disk alpha |", "|---|---|---|---|---|---|---|"]
+    designs = [(lbl, d) for lbl, d in (("notch only", notch), ("IFF damped", damped), ("MIMO H-inf", hinf))
+               if d is not None]
     for ax in AXIS_NAMES:
-        for label, d in (("notch only", notch), ("IFF damped", damped)):
+        for label, d in designs:
             a = d.summary()["axes"][ax]
             lines.append(f"| {ax} | {label} | {a['bandwidth_hz']['value']:.0f} ({a['bandwidth_hz']['member']}) | "
                          f"{a['crossover_hz_min']['value']:.0f} | {a['phase_margin_deg']['value']:.1f} "
@@ -552,7 +555,7 @@ def comparison_markdown(notch, damped):
                          f"({a['gain_margin_db']['member']}) | {a['disk_margin']['value']:.3f} |")
     lines += ["", "| design | simultaneous disk alpha at stack inputs (worst member, Hz) | at axis outputs | "
               "unstructured bound (inputs) |", "|---|---|---|---|"]
-    for label, d in (("notch only", notch), ("IFF damped", damped)):
+    for label, d in designs:
         lines.append(f"| {label} | {d.disk_in['alpha']:.3f} ({d.disk_in['member']}, {d.disk_in['freq_hz']:.0f}) | "
                      f"{d.disk_out['alpha']:.3f} ({d.disk_out['member']}) | {d.disk_in['alpha_unstructured']:.3f} |")
     return "\n".join(lines)
