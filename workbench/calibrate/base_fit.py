@@ -19,8 +19,9 @@ bounded least squares (:func:`~workbench.calibrate.pi_fit.fit_pi`) on the traini
   reported beside them.
 
 When a record's voltage is the amplifier's command rather than its output, ``V - R i`` is not
-the terminal voltage; both readings are fitted and the one that fits the first output channel
-better on the training rows is kept (``voltage_source`` says which).
+the terminal voltage; both readings are fitted and the one that fits the stack's motion (the
+displacement, else the gauge, else the charge: :func:`_drive_judge`) better on the training
+rows is kept (``voltage_source`` says which).
 
 A record starts **from rest** when its first 20 ms hold within 0.5 V of 0 V: the plays start at
 0 (the seed's "leads shorted and drained" state) and the charge integral at 0. Otherwise the
@@ -296,7 +297,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             del outputs[name], valid[name]
     if not outputs:
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
-    first = next(iter(outputs))
+    first = _drive_judge(outputs)
     last = int(np.flatnonzero(train)[-1])
     command_map = None
     if input_kind == "command":
@@ -400,6 +401,21 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         b, a = np.polyfit(outputs["displacement"][rows], outputs["gauge"][rows], 1)
         fit.gauge_gain_v_per_m, fit.gauge_offset_v = float(b), float(a)
     return fit
+
+
+def _drive_judge(outputs):
+    """The channel that decides the driving voltage (V or V - R i, a command's lag or delay).
+
+    The stack's motion when it is recorded (displacement, else the gauge): the charge carries
+    leakage and dielectric absorption, which the base model lacks and which a leading drive
+    (the recorded V = V_t + R i leads V_t by ~R C) partly mimics; judged on the charge, such a
+    record would be driven by the wrong voltage and the displacement would then show a spurious
+    delay of ~R C.
+    """
+    for name in ("displacement", "gauge"):
+        if name in outputs:
+            return name
+    return next(iter(outputs))
 
 
 def _z0(vd, r, from_rest, input_kind):

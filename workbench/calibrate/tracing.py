@@ -84,6 +84,8 @@ __all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
 SEARCH_ROWS = 50_000
 LATER_STAGE_RATIO = 0.7
 MIN_SHARE = 0.3
+#: An absorption fitted with a time constant of this many record lengths or more is leakage's term.
+LEAKAGE_TAU_RECORDS = 30.0
 
 
 def _errors(e):
@@ -128,7 +130,11 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None):
     if "charge" in channels:
         # (no drift on the charge: the integrated current's own noise is a random walk a slow
         # polynomial always fits; a current monitor's offset is leakage-like, seed 002's i_bias)
-        plan += [("charge", DielectricAbsorption(), "voltage"), ("charge", Leakage(), "voltage")]
+        # an absorption may relax slower than the record lasts (seed 002: seconds; a record may
+        # be a fraction of a second): its time constant is searched up to a hundred record
+        # lengths, and :func:`_absorption_or_leakage` decides against leakage
+        plan += [("charge", DielectricAbsorption(tau_max_fraction=100.0), "voltage"),
+                 ("charge", Leakage(), "voltage")]
         if not has_x:
             plan.append(("charge", CreepSpectrum(), "model"))
     if "gauge" in channels:
@@ -537,13 +543,11 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         best = ok[0]
         tags = {(r["name"], r["channel"]): r for r in ok}
-        da = tags.get(("dielectric_absorption", "charge"))
-        if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage") and da is not None \
-                and da["params"].get("tau_s", 0.0) >= 0.5 * infos["duration_s"]:
-            # an absorption that does not settle within the record is k/tau times the integral of
-            # V over it: leakage's term; the record cannot tell them apart
-            winners.append(("undecided", "dielectric_absorption or leakage"))
-            continue
+        if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage"):
+            best = _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share)
+            if best is None:
+                winners.append(("undecided", "dielectric_absorption or leakage"))
+                continue
         cx = tags.get(("creep", "displacement"))
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage") \
                 and cx is not None and cx["passes"][f] and cx["ratios"][f] <= np.sqrt(best["ratios"][f]):
@@ -563,6 +567,38 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             best = tags[(best["name"], "displacement")]
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+def _raw_rms(row, f, befores, penalty):
+    """A candidate's unpenalized validation RMS on fold ``f``."""
+    return befores[row["key"]][f] * row["ratios"][f] / (1 + penalty * row["n_params"])
+
+
+def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share):
+    """Dielectric absorption or leakage on fold ``f`` (both charge terms driven by the voltage).
+
+    An absorption that has not settled within the record (``tau`` at least half its length) is
+    ``k / tau`` times the integral of V, less a curvature: leakage's term plus a correction. It is
+    named only when that curvature is seen -- what the absorption explains beyond leakage stands
+    above the channel's noise floor and is at least ``min_share`` of what leakage leaves (the
+    rule a later stage meets). Leakage is named when the absorption's best time constant is
+    ``LEAKAGE_TAU_RECORDS`` record lengths or more (its term then bends by at most ~T / (2 tau),
+    under 2 % over the record: the record shows no sign of settling). Between the two:
+    ``None``, the record cannot tell them apart (undecided).
+    """
+    da = tags.get(("dielectric_absorption", "charge"))
+    lk = tags.get(("leakage", "charge"))
+    if da is None or lk is None:
+        return best
+    if da["params"].get("tau_s", 0.0) < 0.5 * infos["duration_s"]:
+        return best
+    a_lk, a_da = _raw_rms(lk, f, befores, penalty), _raw_rms(da, f, befores, penalty)
+    beyond = a_lk * a_lk - a_da * a_da
+    if beyond > (noise_factor * infos["charge"]["noise_floor"]) ** 2 and beyond > min_share * a_lk * a_lk:
+        return da
+    if da["params"]["tau_s"] >= LEAKAGE_TAU_RECORDS * infos["duration_s"]:
+        return lk
+    return None
 
 
 def _consensus(winners, need):
