@@ -88,8 +88,9 @@ SEARCH_ROWS = 50_000
 #: 30x leakage), which is not a second effect.
 LATER_STAGE_RATIO = 0.5
 MIN_SHARE = 0.3
-#: An absorption fitted with a time constant of this many record lengths or more is leakage's term.
-LEAKAGE_TAU_RECORDS = 30.0
+#: An absorption slower than this many record lengths is leakage's term within the record (it
+#: bends by at most ~5 % of itself over the record).
+LEAKAGE_TAU_RECORDS = 10.0
 
 
 def _errors(e):
@@ -428,6 +429,12 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         answer, count, winners = _consensus(res["winners"], need if stage == 0 else n_folds)
         if stage > 0 and answer not in (None, "none") and res["by"][answer]["score"] > LATER_STAGE_RATIO:
             answer = None
+        resolved = None
+        if answer is None and stage == 0:
+            ans2, count2, resolved = _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor,
+                                                    infos, found, min_share, base, t, need, n_folds)
+            if ans2 is not None:
+                answer, count = ans2, count2
         if first is None:
             first = {"res": res, "answer": answer, "count": count, "winners": winners}
         if answer in (None, "none"):
@@ -452,7 +459,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         stages.append({"effect": c["name"], "channel": c["channel"], "variant": c["variant"],
                        "parameters": _jsonable(p), "agreement": f"{count} of {n_folds}",
                        "error_before": {**before, "units": units}, "error_after": {**after, "units": units},
-                       "_term": own, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c})
+                       "_term": own, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c,
+                       **({"resolved": resolved} if resolved else {})})
         found.append(answer)
         _absorb(c, extra, probs, base, t)
     out = _answer(first, stages, n_folds, need, base, probs, extra, split, infos, cands, min_share)
@@ -461,6 +469,50 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         out["channels"][ch]["null_reference_rms"] = float(np.sqrt(np.median(first["res"]["null_gain"][key]))) \
             if key in first["res"]["null_gain"] else None
     return out
+
+
+def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share, base, t,
+                   need, n_folds):
+    """Two effects that split the folds between them: does each explain what the other cannot?
+
+    When the folds' winners are two effects A and B (together at least ``need`` folds), each is
+    added to the model in turn and the folds are scored again: the other *survives* when it
+    still passes every fold with a median ratio <= ``LATER_STAGE_RATIO`` (a later stage's
+    rule). Both survive: both are in the record (a two-effect record), the better median
+    first, the other follows as the next stage. One survives: it explains what the other only
+    imitates, it is named. Neither: two readings of one misfit (a rate-dependent phase lag is
+    read as creep, a mode or a delay alike), ``None`` (inconclusive).
+
+    Returns ``(answer, count, note)``; ``(None, count, None)`` when unresolved.
+    """
+    labels = [w for w in res["winners"] if not isinstance(w, str) and w[0] != "undecided"]
+    vals, counts = np.unique([f"{w[0]}|{w[1]}" for w in labels], return_counts=True) if labels else ([], [])
+    order = np.argsort(counts)[::-1]
+    count0 = int(max(counts)) if len(counts) else 0
+    if len(vals) < 2 or int(counts[order[0]] + counts[order[1]]) < need:
+        return None, count0, None
+    pair = [tuple(str(vals[i]).split("|")) for i in order[:2]]
+    if any(p not in res["by"] for p in pair):
+        return None, count0, None
+    survives = {}
+    for x, y in (pair, pair[::-1]):
+        ex = {k: list(v) for k, v in extra.items()}
+        _absorb(res["by"][x], ex, probs, base, t)
+        r2 = _score_stage(cands, probs, nulls, ex, split, penalty, noise_factor, infos, found + [x], min_share)
+        row = r2["by"].get(y)
+        survives[y] = bool(row is not None and all(row["passes"]) and row["score"] <= LATER_STAGE_RATIO)
+    a, b = pair
+    both = int(counts[order[0]] + counts[order[1]])
+    if survives[a] and survives[b]:
+        first = min(pair, key=lambda p: res["by"][p]["score"])
+        other = b if first == a else a
+        return first, both, (f"{first[0]} and {other[0]} split the folds; each explains what the other cannot "
+                             f"(both are in the record)")
+    if survives[a] != survives[b]:
+        win, lose = (a, b) if survives[a] else (b, a)
+        return win, both, (f"{win[0]} and {lose[0]} split the folds; {win[0]} explains what {lose[0]} cannot, "
+                           f"not the reverse")
+    return None, count0, None
 
 
 def _stacked(prob, extra_list, cand):
@@ -611,10 +663,11 @@ def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor,
     ``k / tau`` times the integral of V, less a curvature: leakage's term plus a correction. It is
     named only when that curvature is seen -- what the absorption explains beyond leakage stands
     above the channel's noise floor and is at least ``min_share`` of what leakage leaves (the
-    rule a later stage meets). Leakage is named when the absorption's best time constant is
-    ``LEAKAGE_TAU_RECORDS`` record lengths or more (its term then bends by at most ~T / (2 tau),
-    under 2 % over the record: the record shows no sign of settling). Between the two:
-    ``None``, the record cannot tell them apart (undecided).
+    rule a later stage meets). Leakage is named when an absorption would have to be slower than
+    ``LEAKAGE_TAU_RECORDS`` record lengths: its best time constant is that slow, and so is the
+    slowest whose bend (~T / (2 tau) of its term over the record T) could hide in what leakage
+    leaves (``tau >= T E / (2 a)``, E what leakage explains, a what it leaves; a weak term leaves
+    the time constant unknown). Otherwise ``None``: the record cannot tell them apart (undecided).
     """
     da = tags.get(("dielectric_absorption", "charge"))
     lk = tags.get(("leakage", "charge"))
@@ -626,7 +679,10 @@ def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor,
     beyond = a_lk * a_lk - a_da * a_da
     if beyond > (noise_factor * infos["charge"]["noise_floor"]) ** 2 and beyond > min_share * a_lk * a_lk:
         return da
-    if da["params"]["tau_s"] >= LEAKAGE_TAU_RECORDS * infos["duration_s"]:
+    # how slow must an absorption be to hide its curvature in what leakage leaves? Its bend over
+    # the record is ~T / (2 tau) of its term: unseen, tau >= T E / (2 a) (E explained, a left)
+    tau_bound = infos["duration_s"] * _explained(lk, f, befores, penalty) / (2.0 * max(a_lk, 1e-300))
+    if min(da["params"]["tau_s"], tau_bound) >= LEAKAGE_TAU_RECORDS * infos["duration_s"]:
         return lk
     return None
 
