@@ -665,9 +665,10 @@ def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor,
     above the channel's noise floor and is at least ``min_share`` of what leakage leaves (the
     rule a later stage meets). Leakage is named when an absorption would have to be slower than
     ``LEAKAGE_TAU_RECORDS`` record lengths: its best time constant is that slow, and so is the
-    slowest whose bend (~T / (2 tau) of its term over the record T) could hide in what leakage
-    leaves (``tau >= T E / (2 a)``, E what leakage explains, a what it leaves; a weak term leaves
-    the time constant unknown). Otherwise ``None``: the record cannot tell them apart (undecided).
+    fastest whose bend (``sqrt(3/5) / 12 x T / tau`` of its term over the record T, once leakage's
+    line is taken) could hide in what leakage leaves (``tau >= sqrt(3/5) / 12 x T E / a``, E what
+    leakage explains, a what it leaves; a weak term leaves the time constant unknown). Otherwise
+    ``None``: the record cannot tell them apart (undecided).
     """
     da = tags.get(("dielectric_absorption", "charge"))
     lk = tags.get(("leakage", "charge"))
@@ -679,9 +680,11 @@ def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor,
     beyond = a_lk * a_lk - a_da * a_da
     if beyond > (noise_factor * infos["charge"]["noise_floor"]) ** 2 and beyond > min_share * a_lk * a_lk:
         return da
-    # how slow must an absorption be to hide its curvature in what leakage leaves? Its bend over
-    # the record is ~T / (2 tau) of its term: unseen, tau >= T E / (2 a) (E explained, a left)
-    tau_bound = infos["duration_s"] * _explained(lk, f, befores, penalty) / (2.0 * max(a_lk, 1e-300))
+    # how slow must an absorption be to hide its bend in what leakage leaves? Over a record of
+    # length T, k (1 - exp(-t / tau)) ~ k (t / tau - t^2 / (2 tau^2)); the leakage column takes
+    # the line, the bend left over has RMS sqrt(3/5) / 12 x T / tau of the line's (t^2 less its
+    # best line on [0, T]: T^2 / (6 sqrt 5); t: T / sqrt 3). Unseen when that is below a / E.
+    tau_bound = infos["duration_s"] * np.sqrt(0.6) / 12.0 * _explained(lk, f, befores, penalty) / max(a_lk, 1e-300)
     if min(da["params"]["tau_s"], tau_bound) >= LEAKAGE_TAU_RECORDS * infos["duration_s"]:
         return lk
     return None
