@@ -44,15 +44,17 @@ shows too is creep (seed 002: Q_DA and the leakage charge do not move the stack;
 creep passes the fold on the displacement with a validation ratio at most the square root of
 the charge candidate's: the stack relaxes comparably; and when the charge term, turned into
 displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
-the stack could not have shown it, and the fold is undecided between the two; likewise when
-the absorption's fitted time constant is half the record or longer, since it then cannot be
-told from leakage), and a
+the stack could not have shown it, and the fold is undecided between the two; an absorption
+slower than half the record is told from leakage only by its bend, :func:`_absorption_or_leakage`),
+and a
 mechanical effect seen on the gauge that the displacement shows too is the stack's, reported
 on the displacement.
 
 **Confidence.** The effect is named when it wins at least ``agree`` of the folds (default
 4 of 5); ``none`` likewise; otherwise the answer is ``inconclusive`` with the leading
-candidates. ``agreement`` says how consistently (``"5 of 5"``). The named effect is then
+candidates. ``agreement`` says how consistently (``"5 of 5"``). Two effects that split the
+folds between them are resolved by adding each in turn (:func:`_resolve_split`): the one
+that still explains what the other leaves is real (both, in a two-effect record). The named effect is then
 refitted on all the development rows and ``error_before`` / ``error_after`` are measured on
 the **test** part, which took no part in the choice.
 
