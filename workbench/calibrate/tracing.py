@@ -90,8 +90,8 @@ SEARCH_ROWS = 50_000
 #: 30x leakage), which is not a second effect.
 LATER_STAGE_RATIO = 0.5
 MIN_SHARE = 0.3
-#: An absorption slower than this many record lengths is leakage's term within the record (it
-#: bends by at most ~5 % of itself over the record).
+#: An absorption fitted slower than this many record lengths is leakage's term within the record
+#: (once leakage's line is taken it bends by under 1 % of itself over the record).
 LEAKAGE_TAU_RECORDS = 10.0
 
 
@@ -665,12 +665,13 @@ def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor,
     ``k / tau`` times the integral of V, less a curvature: leakage's term plus a correction. It is
     named only when that curvature is seen -- what the absorption explains beyond leakage stands
     above the channel's noise floor and is at least ``min_share`` of what leakage leaves (the
-    rule a later stage meets). Leakage is named when an absorption would have to be slower than
-    ``LEAKAGE_TAU_RECORDS`` record lengths: its best time constant is that slow, and so is the
-    fastest whose bend (``sqrt(3/5) / 12 x T / tau`` of its term over the record T, once leakage's
-    line is taken) could hide in what leakage leaves (``tau >= sqrt(3/5) / 12 x T E / a``, E what
-    leakage explains, a what it leaves; a weak term leaves the time constant unknown). Otherwise
-    ``None``: the record cannot tell them apart (undecided).
+    rule a later stage meets). Leakage is named when the absorption's best time constant is
+    ``LEAKAGE_TAU_RECORDS`` record lengths or more (no bend at all) and the record rules out
+    every absorption that settles within it: the fastest whose bend (``sqrt(3/5) / 12 x T / tau``
+    of its term over the record T, once leakage's line is taken) could hide in what leakage
+    leaves, ``tau >= sqrt(3/5) / 12 x T E / a`` (E what leakage explains, a what it leaves), is
+    at least T (a weak term leaves the time constant unknown). Otherwise ``None``: the record
+    cannot tell them apart (undecided).
     """
     da = tags.get(("dielectric_absorption", "charge"))
     lk = tags.get(("leakage", "charge"))
@@ -687,7 +688,7 @@ def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor,
     # the line, the bend left over has RMS sqrt(3/5) / 12 x T / tau of the line's (t^2 less its
     # best line on [0, T]: T^2 / (6 sqrt 5); t: T / sqrt 3). Unseen when that is below a / E.
     tau_bound = infos["duration_s"] * np.sqrt(0.6) / 12.0 * _explained(lk, f, befores, penalty) / max(a_lk, 1e-300)
-    if min(da["params"]["tau_s"], tau_bound) >= LEAKAGE_TAU_RECORDS * infos["duration_s"]:
+    if da["params"]["tau_s"] >= LEAKAGE_TAU_RECORDS * infos["duration_s"] and tau_bound >= infos["duration_s"]:
         return lk
     return None
 
