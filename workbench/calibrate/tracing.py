@@ -477,8 +477,8 @@ def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor
                    need, n_folds):
     """Two effects that split the folds between them: does each explain what the other cannot?
 
-    When the folds' winners are two effects A and B (together at least ``need`` folds), each is
-    added to the model in turn and the folds are scored again: the other *survives* when it
+    When the folds' winners are two effects A and B on one channel (together at least ``need``
+    folds), each is added to the model in turn and the folds are scored again: the other *survives* when it
     still passes every fold with a median ratio <= ``LATER_STAGE_RATIO`` (a later stage's
     rule). Both survive: both are in the record (a two-effect record), the better median
     first, the other follows as the next stage. One survives: it explains what the other only
@@ -494,7 +494,9 @@ def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor
     if len(vals) < 2 or int(counts[order[0]] + counts[order[1]]) < need:
         return None, count0, None
     pair = [tuple(str(vals[i]).split("|")) for i in order[:2]]
-    if any(p not in res["by"] for p in pair):
+    if any(p not in res["by"] for p in pair) or pair[0][1] != pair[1][1]:
+        # one channel only: across channels (a charge relaxation against the displacement's creep)
+        # the cross-channel rules decide, and a split between them is the record's doubt
         return None, count0, None
     survives = {}
     for x, y in (pair, pair[::-1]):
