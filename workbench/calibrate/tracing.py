@@ -113,13 +113,16 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None):
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
     range come from the record: creep branches half a decade apart from ``tau_min_s``
     (default the block length, ``max(50 dt, duration / 100)``: faster branches would mimic a
-    latency) to a hundred record lengths; delays up to ``max(30 dt, duration / 200)``; a drift's slow periodic term from
+    latency) to a hundred record lengths; delays up to ``max(30 dt, duration / 200, period / 4)``
+    (``period`` the excitation period); a drift's slow periodic term from
     twice the record's length down to four excitation periods (at most ten per record).
     """
     dt = float((t[-1] - t[0]) / (t.size - 1)) if t is not None else 1e-4
     dur = float(t[-1] - t[0]) if t is not None else 35.0
-    max_delay = max(30.0, dur / 200.0 / dt)
     period = excitation_period_s(t, v) if v is not None else dur / 10
+    # a latency up to a quarter of the excitation period (longer reads as the period's other
+    # half), at least 30 samples and dur / 200
+    max_delay = max(30.0, dur / 200.0 / dt, 0.25 * period / dt)
     slow = (0.5 / dur, max(1.0 / dur, min(0.25 / period, 10.0 / dur)))
     tau_min_s = tau_min_s if tau_min_s is not None else max(50 * dt, dur / 100.0)
     # to a hundred record lengths: a branch far slower than the record still charges during it
@@ -379,6 +382,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         probs[(ch, "model")] = _Problem(split, valid, base.basis, lower, m.y - m.yhat, search)
         infos[ch] = {"noise_floor": noise_floor((m.y - m.yhat)[dev_rows & valid])}
     infos["k_q2x"] = base.k_q2x_m_per_c
+    infos["gauge_gain"] = base.gauge_gain_v_per_m if "gauge" in base.channels else None
     infos["duration_s"] = float(t[-1] - t[0])
     if "gauge" in base.channels and "displacement" in base.channels and base.gauge_gain_v_per_m is not None:
         m = base.channels["gauge"]
@@ -627,6 +631,12 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         elif best["channel"] == "gauge" and best["name"] in ("creep", "resonance") \
                 and (best["name"], "displacement") in tags:
             best = tags[(best["name"], "displacement")]
+        if (best["name"], best["channel"]) == ("creep", "displacement") and ("creep", "gauge") not in tags \
+                and _gauge_would_show(best, f, befores, infos, penalty):
+            # creep moves the stack, which the gauge reads too; a displacement-only relaxation the
+            # gauge would have shown but does not is the displacement sensor's (a long latency)
+            winners.append(("undecided", "creep or a displacement-sensor effect"))
+            continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
 
@@ -653,6 +663,18 @@ def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
         return False
     x_equiv = _explained(charge_row, f, befores, penalty) * abs(k)
     return _explained(creep_row, f, befores, penalty) >= 0.5 * x_equiv
+
+
+def _gauge_would_show(row, f, befores, infos, penalty):
+    """Would the gauge have shown what ``row`` explains on the displacement (>= 3x its noise floor)?
+
+    The explained displacement turned into gauge volts by the gauge's gain against the recorded
+    displacement (the base fit's line).
+    """
+    g = infos.get("gauge_gain")
+    if not g or "gauge" not in infos:
+        return False
+    return _explained(row, f, befores, penalty) * abs(g) >= 3.0 * infos["gauge"]["noise_floor"]
 
 
 def _raw_rms(row, f, befores, penalty):
