@@ -19,6 +19,10 @@ any stage). Printed: the confusion per effect and size band, the error ratio
 at sizes >= 3 (the issue's targets: wrong <= 2 %, right >= 90 % with ratio <= 0.5).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/calibrate_confusion.py [--per-cell N] [--seed S] [--quick]
+        [--rates HZ ...] [--effects NAME|A+B ...] [--protocols NAME ...] [--index K ...]
+
+``--effects``, ``--protocols`` and ``--index`` (1-based, as numbered in the full run of the seed)
+rerun a slice of a seed's records, to reproduce one answer.
 
 ``--quick`` is the fast slice ``make test`` runs (tests/calibrate/test_confusion.py).
 """
@@ -187,7 +191,8 @@ def main(argv=None):
         r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None)
         rows.append(r)
         eff = e if isinstance(e, str) else "+".join(e)
-        print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz {proto:11s} "
+        print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
+              f"{proto:11s} "
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)", flush=True)
     table, head = summarize(rows)
