@@ -19,6 +19,10 @@ any stage). Printed: the confusion per effect and size band, the error ratio
 at sizes >= 3 (the issue's targets: wrong <= 2 %, right >= 90 % with ratio <= 0.5).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/calibrate_confusion.py [--per-cell N] [--seed S] [--quick]
+        [--rates HZ ...] [--effects NAME|A+B ...] [--protocols NAME ...] [--index K ...]
+
+``--effects``, ``--protocols`` and ``--index`` (1-based, as numbered in the full run of the seed)
+rerun a slice of a seed's records, to reproduce one answer.
 
 ``--quick`` is the fast slice ``make test`` runs (tests/calibrate/test_confusion.py).
 """
@@ -163,19 +167,32 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="the fast slice make test runs")
     ap.add_argument("--rates", type=float, nargs="*", default=None, help="only these rates (Hz)")
+    ap.add_argument("--effects", nargs="*", default=None,
+                    help="only these effects (a pair as 'creep+delay'; 'none' for the effect-free records)")
+    ap.add_argument("--protocols", nargs="*", default=None, help="only these protocols")
+    ap.add_argument("--index", type=int, nargs="*", default=None,
+                    help="only these records (1-based, as numbered in the full run of the seed)")
     a = ap.parse_args(argv)
     from workbench.plant import load_plant
     plant0 = load_plant(ROOT / "plants" / "p888_51_sn637.toml")
     todo = cases(a.per_cell, a.seed, a.quick)
+    todo = [(k + 1, c) for k, c in enumerate(todo)]
     if a.rates:
-        todo = [c for c in todo if c[1] in a.rates]
+        todo = [(k, c) for k, c in todo if c[1] in a.rates]
+    if a.effects:
+        todo = [(k, c) for k, c in todo if (c[0] if isinstance(c[0], str) else "+".join(c[0])) in a.effects]
+    if a.protocols:
+        todo = [(k, c) for k, c in todo if c[2] in a.protocols]
+    if a.index:
+        todo = [(k, c) for k, c in todo if k in a.index]
     rows = []
     t0 = time.perf_counter()
-    for k, (e, rate, proto, size, seed) in enumerate(todo):
+    for j, (k, (e, rate, proto, size, seed)) in enumerate(todo):
         r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None)
         rows.append(r)
         eff = e if isinstance(e, str) else "+".join(e)
-        print(f"[{k + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz {proto:11s} "
+        print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
+              f"{proto:11s} "
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)", flush=True)
     table, head = summarize(rows)

@@ -19,8 +19,9 @@ bounded least squares (:func:`~workbench.calibrate.pi_fit.fit_pi`) on the traini
   reported beside them.
 
 When a record's voltage is the amplifier's command rather than its output, ``V - R i`` is not
-the terminal voltage; both readings are fitted and the one that fits the first output channel
-better on the training rows is kept (``voltage_source`` says which).
+the terminal voltage; both readings are fitted and the one that fits the stack's motion (the
+displacement, else the gauge, else the charge: :func:`_drive_judge`) better on the training
+rows is kept (``voltage_source`` says which).
 
 A record starts **from rest** when its first 20 ms hold within 0.5 V of 0 V: the plays start at
 0 (the seed's "leads shorted and drained" state) and the charge integral at 0. Otherwise the
@@ -296,7 +297,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             del outputs[name], valid[name]
     if not outputs:
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
-    first = next(iter(outputs))
+    first = _drive_judge(outputs)
     last = int(np.flatnonzero(train)[-1])
     command_map = None
     if input_kind == "command":
@@ -321,9 +322,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
                          f"as if reached monotonically from 0 V")
     def trial(vd):
         r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
-        m = _fit_channel(first, P, outputs[first], train, valid[first], r, _z0(vd, r, from_rest, input_kind),
-                         ridge=0.0)
-        return rms(m.residual[train & valid[first]]), r, keep, P
+        return _judge_rms(t, P[:, keep], outputs[first], train & valid[first]), r, keep, P
 
     best = None
     for label, vd in drives.items():
@@ -400,6 +399,40 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         b, a = np.polyfit(outputs["displacement"][rows], outputs["gauge"][rows], 1)
         fit.gauge_gain_v_per_m, fit.gauge_offset_v = float(b), float(a)
     return fit
+
+
+def _judge_rms(t, P, y, rows):
+    """Training RMS of ``y`` fitted by the plays (>= 0), an offset and a slow quadratic in time.
+
+    The quadratic is a nuisance for the drive's judgment only: a drifting sensor (microns over
+    the record) would otherwise swamp the small difference two drives make, and the choice would
+    fall to chance (a wrong drive shows later as a spurious ~R C delay).
+    """
+    s = (t - t[0]) / max(float(t[-1] - t[0]), 1e-300)
+    a = np.column_stack([P[rows], np.ones(int(rows.sum())), s[rows], s[rows] ** 2])
+    col = np.sqrt(np.mean(a * a, axis=0))
+    col[col == 0] = 1.0
+    an = a / col
+    b = y[rows]
+    k = P.shape[1]
+    w = _gram_solve(an.T @ an, an.T @ b, np.r_[np.zeros(k), np.full(3, -np.inf)])
+    return rms(b - an @ w)
+
+
+def _drive_judge(outputs):
+    """The channel that decides the driving voltage (V or V - R i, a command's lag or delay).
+
+    The stack's motion when it is recorded (displacement, else the gauge): the charge carries
+    leakage and dielectric absorption, which the base model lacks and which a leading drive
+    (the recorded V = V_t + R i leads V_t by ~R C) partly mimics; judged on the charge, such a
+    record would be driven by the wrong voltage and the displacement would then show a spurious
+    delay of ~R C. The judgment fits a slow quadratic in time beside the plays
+    (:func:`_judge_rms`), so a drifting sensor does not decide it either.
+    """
+    for name in ("displacement", "gauge"):
+        if name in outputs:
+            return name
+    return next(iter(outputs))
 
 
 def _z0(vd, r, from_rest, input_kind):
