@@ -371,6 +371,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         if phase == "closed":
             y_close = int(io[2])                    # the blend's state when the loop closes
             ref_counts = np.int64(io[6])            # the reading at the moment the loop closes
+            ref_pin_counts = ref_counts
         elif phase == "open":
             ref_counts = np.int64(0)
         for start in range(0, count, CHUNK):
@@ -396,8 +397,17 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     idx = np.arange(rec_x.size) * dec + dec - 1          # the periods the rows were taken at
     r_dec = r_rel(0, 0) if rec_x.size == 0 else np.where(idx < n_tri, triangle_reference((idx + 1) * dt,
                                                                                         0.4 * stroke, triangle_hz), 0.0)
-    e_tri = rec_x[per:nt] - r_dec[per:nt]
-    e_tri = e_tri - np.mean(e_tri)
+    # Scored in the true-position frame, nothing subtracted: the cascade holds its reading at the pinned
+    # reference (the reading when the loop closed) plus the triangle; the true position it should then be
+    # at is that plus the sensor's offset as known at closing, the mean of (x - reading) over the last
+    # 0.2 s of the open loop (one noisy sample would put its noise into the score). A sensor error that
+    # changes during the triangle (drift, scale, lag) stays in the error, as in the gauge scenarios.
+    n_open = n_settle // dec
+    n_off = max(1, min(n_open, int(round(0.2 / dt)) // dec))
+    offset_m = float(np.mean(rec_open[n_open - n_off:n_open, 0] - rec_open[n_open - n_off:n_open, 1]))
+    pin_m = float(ref_pin_counts) * sb.lsb_m
+    e_tri = rec_x[per:nt] - (pin_m + offset_m + r_dec[per:nt])
+    tri_mean = float(np.mean(e_tri)) if e_tri.size else float("nan")
     one = int(round(1.0 / dt)) // dec
     h0 = nt + one
     hold_x = rec_x[nt:]
@@ -409,7 +419,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     if tones is not None:
         bw = _sweep_bandwidth(tones, rec_sw[:, 0], dt)
     return {**bw, "sensor": sensor, "triangle_hz": float(triangle_hz), "triangle_rms_m": tri,
-            "triangle_rms_percent_stroke": 100.0 * tri / stroke, "hold_s": float(hold_s), "hold_drift_m": drift,
+            "triangle_rms_percent_stroke": 100.0 * tri / stroke, "triangle_mean_m": tri_mean,
+            "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
             "_t_s": (idx + 1) * dt, "_x_m": rec_x, "_reading_m": rec[:, 1],
