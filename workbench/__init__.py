@@ -34,6 +34,10 @@ Errors
 
 import importlib
 
+from . import _jit_cache
+
+_jit_cache.configure()      # compiled kernels cached per source digest (see _jit_cache: numba's own check misses inlined helpers)
+
 # name -> module (relative to this package) that is its one home
 _API = {
     "load_plant": "plant", "Plant": "plant", "PZTSimulator": "plant",
