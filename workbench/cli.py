@@ -239,7 +239,20 @@ def _fmt_metric(m, key):
     return f"{key} {v:.4g}"
 
 
+def _refuse_for_mirror(command, given):
+    """A flag the mirror's command does not implement is refused before any work (not silently ignored)."""
+    from .errors import UnsupportedError
+    flags = [flag for flag, on in given if on]
+    if flags:
+        raise UnsupportedError(f"{command} of a mirror (schema workbench.fsm) does not take {', '.join(flags)}; "
+                               f"run it without {'them' if len(flags) > 1 else 'it'} (the mirror's scenarios and "
+                               f"targets are those of workbench/verify/mirror.py and study/mirror.py)")
+
+
 def _cmd_mirror_study(args):
+    _refuse_for_mirror("study", [("--set", bool(args.set)), ("--only", args.only is not None),
+                                 ("--cache-dir", args.cache_dir is not None), ("--no-cache", args.no_cache),
+                                 ("--workers", args.workers is not None)])
     from .study.mirror import run_mirror_study
     data = run_mirror_study(args.study, args.out, progress=_progress_bar)
     d = data["design"]
@@ -255,6 +268,11 @@ def _cmd_mirror_study(args):
 
 
 def _cmd_mirror_verify(args):
+    _refuse_for_mirror("verify", [("--scenario", args.scenario is not _DEFAULT_SCENARIOS),
+                                  ("--sensor", args.sensor is not None), ("--form", args.form not in (None, "fixed")),
+                                  ("--hold", args.hold != 1000.0), ("--no-anti-windup", args.no_anti_windup),
+                                  ("--strict", args.strict), ("--allow-unstable", args.allow_unstable),
+                                  ("--target", bool(args.target)), ("--targets-from", args.targets_from is not None)])
     from .verify.mirror import run_mirror_verify
     data = run_mirror_verify(args.plant, args.controller, out_dir=args.out, noise=not args.no_noise, seed=args.seed,
                              progress=lambda stage, d, t: _progress_bar(stage, d, t))

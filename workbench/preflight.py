@@ -14,7 +14,6 @@
    every file and folder it created under its outputs is removed (a failed run writes nothing).
 """
 
-import argparse
 import contextlib
 import itertools
 import math
@@ -186,18 +185,10 @@ _RESERVED = {"study": ("report.md",), "verify": ("report.md",), "selfsense": ("r
 # study files: the parts whose mistakes are otherwise found late
 
 _STEM = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]*$")
+_C_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
-def _check_study_file(args):
-    import tomllib
-    path = Path(args.study)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
-    from .study.mirror import FSM_STUDY_SCHEMA
-    if data.get("schema") == FSM_STUDY_SCHEMA:
-        return                      # the mirror study's loader checks its own schema (workbench/study/mirror.py)
+def _check_study_sections(path, data):
     from .study.spec import _SCHEMA
     for section in _SCHEMA:
         if not section or section not in data:
@@ -215,10 +206,27 @@ def _check_study_file(args):
         if isinstance(value, dict) and key not in schema and key not in OTHER_SECTIONS:
             raise StudyDefinitionError(path, key, f"unknown section [{key}]; known sections: "
                                                   f"{', '.join(f'[{s}]' for s in schema if s)}")
+
+
+def _check_study_file(args):
+    import tomllib
+    path = Path(args.study)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
+    from .study.mirror import FSM_STUDY_SCHEMA
+    mirror = data.get("schema") == FSM_STUDY_SCHEMA      # its loader checks its own sections (study/mirror.py)
+    if not mirror:
+        _check_study_sections(path, data)
     export = data.get("export", {})
     if not isinstance(export, dict):
         return
     name = export.get("name")
+    if mirror and isinstance(name, str) and not _C_NAME.match(name):
+        raise StudyDefinitionError(path, "export.name", f"got {name!r}; the mirror's C header needs a C identifier "
+                                                        f"(letters, digits, '_', not starting with a digit), "
+                                                        f"e.g. \"fsm_servo\"")
     if isinstance(name, str) and not _STEM.match(name):
         raise StudyDefinitionError(path, "export.name", f"got {name!r}; a file stem of letters, digits, '_', '-' "
                                                         f"and '.', e.g. \"sn637_loopshape\"")

@@ -1,0 +1,56 @@
+"""The mirror's commands refuse what they do not implement, before any work: flags they would ignore,
+an export outside --out, a controller name that is no C identifier (review findings)."""
+
+import pytest
+
+from workbench.cli import main
+from workbench.export.mimo import MimoController
+from workbench.plant.mirror import load_mirror
+
+from .mirror_cases import quick_design
+
+
+@pytest.fixture(scope="module")
+def mimo_json(root, tmp_path_factory):
+    fsm = load_mirror(root / "plants" / "fsm_p888_51.toml")
+    design, _ = quick_design(fsm)
+    return MimoController.from_design(design, fsm, name="fsm_quick").write(tmp_path_factory.mktemp("c"), "fsm_quick")["json"]
+
+
+@pytest.mark.parametrize("flags, named", [(["--hold", "2s"], "--hold"), (["--sensor", "fused"], "--sensor"),
+                                          (["--scenario", "small_step"], "--scenario"), (["--strict"], "--strict"),
+                                          (["--target", "small_step_settling_ratio=3"], "--target")])
+def test_mirror_verify_refuses_flags_it_would_ignore(root, tmp_path, mimo_json, capsys, flags, named):
+    out = tmp_path / "o"
+    assert main(["verify", str(root / "plants" / "fsm_p888_51.toml"), "--controller", str(mimo_json),
+                 "--out", str(out)] + flags) == 2
+    err = capsys.readouterr().err
+    assert named in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def _study(root, tmp_path, old=None, new=None):
+    text = (root / "studies" / "fsm_servo.toml").read_text().replace(
+        'plant = "../plants/fsm_p888_51.toml"', f'plant = "{root / "plants" / "fsm_p888_51.toml"}"')
+    if old is not None:
+        assert old in text
+        text = text.replace(old, new)
+    path = tmp_path / "s.toml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("old, new, key", [('directory = "controllers"', 'directory = "/tmp/escaped_fsm"', "export.directory"),
+                                           ('name = "fsm_servo"', 'name = "fsm servo"', "export.name"),
+                                           ('name = "fsm_servo"', 'name = "9fsm"', "export.name")])
+def test_mirror_study_export_checked_before_design(root, tmp_path, capsys, old, new, key):
+    out = tmp_path / "o"
+    assert main(["study", str(_study(root, tmp_path, old, new)), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"[{key}]" in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_mirror_study_refuses_set(root, tmp_path, capsys):
+    assert main(["study", str(_study(root, tmp_path)), "--out", str(tmp_path / "o"), "--set", "design.bias_v=40"]) == 2
+    assert "--set" in capsys.readouterr().err
