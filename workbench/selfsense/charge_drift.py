@@ -200,6 +200,10 @@ def identify_charge_drift(idrec, ident, banks=ABSORPTION_BANKS):
     taus = tuple(float(x) for x in banks[best])
     cols = _drift_columns(t, v, taus)
     k = _fit(cols, y, np.ones(t.size, bool))
+    if k[0] <= 0:
+        # a negative conductance is no leakage: refit without that column, so the bias and the
+        # absorption gains are not the ones fitted beside an unphysical leak
+        k = np.concatenate([[0.0], _fit(cols[:, 1:], y, np.ones(t.size, bool))])
     r = y - cols @ k
     base = replace(raw, alpha_c_per_m=alpha, r_leak_ohm=1.0 / k[0] if k[0] > 0 else float("inf"), i_bias_a=float(k[1]))
     return ChargeDrift(alpha, sem, n, base, taus, tuple(float(x) for x in k[2:]), float(np.sqrt(np.mean(r * r))),
