@@ -322,6 +322,10 @@ def _check_flags(args):
         # the hold scores the settled loop after its first second: at least one more second
         _in_range("--hold", args.hold, "s", 2.0, math.inf, "the first second of the hold settles the loop and "
                   "is not scored; give at least 2s, e.g. 1000s")
+        if getattr(args, "sensor", None):
+            # the sensor loops' hold: 1 s settling and two 1 s windows for the drift (verify/sensors.py)
+            _in_range("--hold", args.hold, "s", 3.0, math.inf, "with --sensor the hold settles 1 s and measures "
+                      "its drift between two 1 s windows; give at least 3s, e.g. 1000s")
     elif cmd == "sweep" and args.amplitudes:
         for a in args.amplitudes:
             _in_range("--amplitudes", a, "V", 0.0, 200.0, "the study schema's family.amplitudes_v range",

@@ -1,4 +1,4 @@
-"""The mirror's commands refuse what they do not implement, before any work: flags they would ignore,
+"""Commands refuse what they do not implement or cannot run, before any work: mirror flags they would ignore,
 an export outside --out, a controller name that is no C identifier (review findings)."""
 
 import pytest
@@ -54,3 +54,23 @@ def test_mirror_study_export_checked_before_design(root, tmp_path, capsys, old, 
 def test_mirror_study_refuses_set(root, tmp_path, capsys):
     assert main(["study", str(_study(root, tmp_path)), "--out", str(tmp_path / "o"), "--set", "design.bias_v=40"]) == 2
     assert "--set" in capsys.readouterr().err
+
+
+def test_sensor_hold_too_short_is_refused_before_identification(root, tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["verify", str(root / "plants" / "p888_51_sn637_creep.toml"), "--controller",
+                 str(root / "controllers" / "sn637_fused_loopshape.json"), "--sensor", "fused", "--hold", "2s",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--hold" in err and "at least 3s" in err and "identification" not in err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("hz", ["0.005", "6000"])
+def test_a_blend_crossover_the_firmware_cannot_hold_is_refused_before_design(root, tmp_path, capsys, hz):
+    out = tmp_path / "o"
+    assert main(["study", str(root / "studies" / "sn637_fused_servo.toml"), "--out", str(out), "--only", "loopshape",
+                 "--set", f"sensor.blend_crossover_hz={hz}Hz"]) == 2
+    err = capsys.readouterr().err
+    assert "[sensor.blend_crossover_hz]" in err and "Traceback" not in err
+    assert not (out / "summary.json").exists()

@@ -130,7 +130,7 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
         After writing the report, when the best design misses ``targets.min_crossover_hz``
         or no design meets the targets (the CLI exits 2).
     """
-    from ..design.antiwindup import current_limit_model, discretize, rate_limits_v_per_s
+    from ..design.antiwindup import current_limit_model, discretize
     from ..design.budgets import plant_budgets
     from ..design.coprime import ncf_synthesis
     from ..design.loopshape import LoopShapeSpec, noise_command_rms_v, nominal_step, tune_loop_shape
@@ -161,6 +161,14 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     g = plant.gauge
     dt = g.period_s
     delay_samples = 1
+    fb = spec.sensor.get("blend_crossover_hz")
+    if spec.sensor.get("kind") == "fused" and fb is not None:
+        # the firmware blend's word must exist at this rate: checked now, not after the family and sensor records
+        from ..export.sensor import SensorBlend
+        try:
+            SensorBlend(kind="fused", crossover_hz=float(fb), dt_s=dt, v_per_m=1.0)
+        except ValueError as exc:
+            raise StudyDefinitionError(spec.path, "sensor.blend_crossover_hz", f"got {fb:g} Hz: {exc}") from None
     fam_spec = spec.family
     freq = np.geomspace(fam_spec["freq_min_hz"], fam_spec["freq_max_hz"], fam_spec["freq_points"])
     if freq[-1] >= 0.5 / dt:

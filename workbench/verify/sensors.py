@@ -483,6 +483,8 @@ def compare_sensors(plant, controller, sensors=SENSOR_KINDS, *, hold_s=100.0, no
     the nominal linear loop's closed-loop -3 dB bandwidth, crossover and margins on that sensor's path
     (``linear_bandwidth_hz``, ``crossover_hz``, ``phase_margin_deg``, ``gain_margin_db``; :func:`sensor_setup`).
     """
+    if not hold_s >= 3.0:                       # before the identification record, not after it
+        raise WorkbenchError(f"the hold must be at least 3 s (1 s settling and two 1 s windows); got {hold_s:g} s")
     if setup is None:
         setup = sensor_setup(plant, controller, progress=progress)
     rows = []
