@@ -74,3 +74,16 @@ def test_a_blend_crossover_the_firmware_cannot_hold_is_refused_before_design(roo
     err = capsys.readouterr().err
     assert "[sensor.blend_crossover_hz]" in err and "Traceback" not in err
     assert not (out / "summary.json").exists()
+
+
+@pytest.mark.parametrize("old, new, key, text", [
+    ("[family]\nbias_v = 50.0", "family = 5", "family", "must be a table [family], got 5"),
+    ("bias_v = 50.0", "bias_v = 900.0", "family.bias_v", "got 900.0"),
+    ("noise_budget = true", "noise_budget = true\nfc_max_hz = 1e4", "design.fc_max_hz", "Nyquist frequency 5000 Hz"),
+])
+def test_mirror_study_file_faults_named_before_design(root, tmp_path, capsys, old, new, key, text):
+    out = tmp_path / "o"
+    assert main(["study", str(_study(root, tmp_path, old, new)), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"[{key}]" in err and text in err and "Traceback" not in err
+    assert not out.exists()

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import StudyDefinitionError
-from ..fields import Field, check_value
+from ..fields import Field, check_table, read_toml
 
 __all__ = ["FSM_STUDY_SCHEMA", "is_mirror_study", "run_mirror_study", "noise_gain_bound"]
 
@@ -37,13 +37,19 @@ _SCHEMA = {
     "": {"schema": Field("str", expect=f'the string "{FSM_STUDY_SCHEMA}"'),
          "name": Field("str", expect="a name (letters, digits, underscores), e.g. \"fsm_servo\""),
          "plant": Field("str", expect="the mirror file relative to this file, e.g. \"../plants/fsm_p888_51.toml\"")},
-    "family": {"bias_v": Field("float", 0.0, 1000.0, expect="the operating bias in V, e.g. 50.0")},
-    "design": {"notch_depth_db": Field("float", 0.0, 80.0, lo_open=True, expect="the notch depth in dB, e.g. 20"),
-               "noise_budget": Field("bool", expect="true or false"),
-               "fc_min_hz": Field("float", 0.0, 1e5, lo_open=True, expect="lowest crossover searched, Hz"),
-               "fc_max_hz": Field("float", 0.0, 1e5, lo_open=True, expect="highest crossover searched, Hz")},
-    "export": {"name": Field("str", expect="a C identifier, e.g. \"fsm_servo\""),
-               "directory": Field("str", expect="a folder inside the output folder, e.g. \"controllers\"")},
+    "family": {"bias_v": Field("float", 0.0, 100.0, required=False,
+                               expect="the operating bias in V inside the 0-100 V loop the family is taken on, "
+                                      "e.g. 50.0")},
+    "design": {"notch_depth_db": Field("float", 0.0, 80.0, lo_open=True, required=False,
+                                       expect="the notch depth in dB, e.g. 20"),
+               "noise_budget": Field("bool", required=False, expect="true or false"),
+               "fc_min_hz": Field("float", 0.0, 1e5, lo_open=True, required=False,
+                                  expect="lowest crossover searched, Hz"),
+               "fc_max_hz": Field("float", 0.0, 1e5, lo_open=True, required=False,
+                                  expect="highest crossover searched, Hz")},
+    "export": {"name": Field("str", required=False, expect="a C identifier, e.g. \"fsm_servo\""),
+               "directory": Field("str", required=False,
+                                  expect="a folder inside the output folder, e.g. \"controllers\"")},
 }
 
 
@@ -57,32 +63,15 @@ def is_mirror_study(path):
 
 def _load(path):
     path = Path(path)
-    try:
-        doc = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise StudyDefinitionError(path, "file", f"cannot be read ({err.strerror}); check the path") from err
-    except tomllib.TOMLDecodeError as err:
-        raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {err}") from err
-    out = {}
-    for sec, fields in _SCHEMA.items():
-        table = doc if sec == "" else doc.get(sec, {})
-        if not isinstance(table, dict):
-            raise StudyDefinitionError(path, sec, "must be a table")
-        got = {}
-        for key, value in table.items():
-            if sec == "" and isinstance(value, dict):
-                if key not in _SCHEMA:
-                    raise StudyDefinitionError(path, key, f"unknown section; known: {', '.join(k for k in _SCHEMA if k)}")
-                continue
-            where = f"{sec}.{key}" if sec else key
-            if key not in fields:
-                raise StudyDefinitionError(path, where, f"unknown key; known keys here: {', '.join(sorted(fields))}")
-            got[key] = check_value(path, where, fields[key], value, StudyDefinitionError)
-        out[sec] = got
+    doc = read_toml(path, StudyDefinitionError, "give an existing study file, e.g. studies/fsm_servo.toml")
+    sections = [k for k in _SCHEMA if k]
+    for key, value in doc.items():
+        if isinstance(value, dict) and key not in _SCHEMA:
+            raise StudyDefinitionError(path, key, f"unknown section; known: {', '.join(sections)}")
+    out = {"": check_table(path, "", doc, _SCHEMA[""], StudyDefinitionError, sections=sections)}
+    for sec in sections:
+        out[sec] = check_table(path, sec, doc.get(sec, {}), _SCHEMA[sec], StudyDefinitionError)
     top = out[""]
-    for key in ("schema", "name", "plant"):
-        if key not in top:
-            raise StudyDefinitionError(path, key, f"missing; expected {_SCHEMA[''][key].expect}")
     if top["schema"] != FSM_STUDY_SCHEMA:
         raise StudyDefinitionError(path, "schema", f"got {top['schema']!r}; expected {FSM_STUDY_SCHEMA!r}")
     d = out["design"]
@@ -122,6 +111,11 @@ def run_mirror_study(study_path, out_dir, progress=None):
         fsm = load_mirror(plant_path)
     except PlantDefinitionError as err:
         raise StudyDefinitionError(path, "plant", f"{top['plant']!r} does not load: {err}") from err
+    nyquist_hz = 0.5 / float(fsm.plants[0].gauge.period_s)
+    for key in ("fc_min_hz", "fc_max_hz"):
+        if des_s.get(key, 0.0) >= nyquist_hz:
+            raise StudyDefinitionError(path, f"design.{key}", f"got {des_s[key]:g} Hz; a crossover must lie below "
+                                                              f"the servo's Nyquist frequency {nyquist_hz:g} Hz")
     out = Path(out_dir)
     t0 = time.perf_counter()
     stage = (lambda s, d, t: progress(s, d, t)) if progress else (lambda *a: None)
