@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..export.sensor import MAX_DIFF_COUNTS, blend_c, blend_step
+from ..export.sensor import MAX_DIFF_COUNTS, SensorBlend, blend_c, blend_step
 from .fusion import Blend
 
 __all__ = ["FixedBlend", "blend_header"]
@@ -42,12 +42,15 @@ class FixedBlend:
 
     @property
     def k(self):
-        """round((1 - a) 2^K), the low-pass coefficient (int)."""
-        k = int(round((1.0 - self.blend.pole) * 2 ** self.coef_bits))
-        if not 64 <= k < 2 ** self.coef_bits:
-            raise ValueError(f"blend crossover {self.blend.crossover_hz:g} Hz gives k = {k}: outside 64..2^"
-                             f"{self.coef_bits} (the crossover is too low for {self.coef_bits} coefficient bits)")
-        return k
+        """round((1 - a) 2^K), the low-pass coefficient (int): the controller's sensor block's word."""
+        return self.sensor_block().k
+
+    def sensor_block(self):
+        """The same blend as a controller's sensor block (:class:`~workbench.export.sensor.SensorBlend`), which
+        derives and checks the word (64 <= k < 2^K); raises ValueError for a crossover it cannot hold."""
+        return SensorBlend(kind="fused", crossover_hz=float(self.blend.crossover_hz), dt_s=float(self.blend.dt_s),
+                           v_per_m=1.0, lsb_m=float(self.lsb_m), frac_bits=int(self.frac_bits),
+                           coef_bits=int(self.coef_bits))
 
     def counts(self, x_m):
         """Metres to int32 counts (rounded)."""
