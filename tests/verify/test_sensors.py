@@ -95,10 +95,13 @@ def test_verify_table_sensor_key(tmp_path):
 @pytest.mark.parametrize("fc_hz", [3.0, 47.0, 410.0])
 def test_closed_loop_bandwidth_of_an_integrator_loop_is_its_crossover(fc_hz):
     # L = w_c / s: T = w_c / (s + w_c), whose -3 dB point is f_c exactly
-    from workbench.verify.sensors import closed_loop_bandwidth_hz
+    from workbench.design.margins import closed_loop_bandwidth_hz
     f = np.geomspace(0.01, 4999.0, 1500)
     loop = fc_hz / (1j * f)
     assert closed_loop_bandwidth_hz(f, loop) == pytest.approx(fc_hz, rel=2e-3)
+    # a type-0 loop 3 / (1 + s/w_p): T = 3 / (4 + s/w_p), -3 dB below T(0) = 3/4 at 4 f_p
+    type0 = 3.0 / (1 + 1j * f / (fc_hz / 4))
+    assert closed_loop_bandwidth_hz(f, type0, reference="low_frequency") == pytest.approx(fc_hz, rel=2e-3)
 
 
 def test_a_fused_controller_on_the_gauge_scenarios_is_flagged(tmp_path, capsys):

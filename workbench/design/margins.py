@@ -22,7 +22,7 @@ from dataclasses import asdict, dataclass
 import control
 import numpy as np
 
-__all__ = ["Margins", "loop_margins", "margins_of", "family_margins", "response"]
+__all__ = ["Margins", "loop_margins", "margins_of", "family_margins", "response", "closed_loop_bandwidth_hz"]
 
 _DB_PER_NEPER = 20.0 / math.log(10.0)
 _DEFAULT_POINTS = 2000
@@ -370,3 +370,40 @@ def family_margins(freq_hz, loops):
     worst["crossover_hz_min"] = _pick(rows, "crossover_hz", "crossover_hz", float)
     worst["crossover_hz_max"] = _pick(rows, "crossover_hz", "crossover_hz", lambda v: -v)
     return rows, worst
+
+
+def closed_loop_bandwidth_hz(freq_hz, loop, reference="unity"):
+    """The -3 dB bandwidth of T = L (I + L)^-1 from a loop's frequency response, per channel, Hz.
+
+    The first frequency where |T_ii| falls below 1/sqrt(2) of the reference, interpolated in log
+    frequency and dB; NaN when it never does, the first frequency when it starts below.
+
+    Parameters
+    ----------
+    freq_hz : array_like, shape (n,)
+    loop : array_like of complex, shape (n,) (SISO) or (n, k, k) (MIMO, T's diagonal)
+    reference : {"unity", "low_frequency"}
+        1 (a loop with integral action), or |T_ii| at the first frequency.
+
+    Returns
+    -------
+    float (SISO) or ndarray of shape (k,)
+    """
+    f = np.asarray(freq_hz, float)
+    arr = np.asarray(loop, complex)
+    siso = arr.ndim == 1
+    if siso:
+        arr = arr[:, None, None]
+    t = arr @ np.linalg.inv(np.eye(arr.shape[1])[None] + arr)
+    out = []
+    for i in range(arr.shape[1]):
+        mag = np.abs(t[:, i, i])
+        ref = 1.0 if reference == "unity" else mag[0]
+        db = 20 * np.log10(mag / ref) + 10 * np.log10(2)
+        below = np.flatnonzero(db < 0)
+        if below.size == 0 or below[0] == 0:
+            out.append(np.nan if below.size == 0 else f[0])
+            continue
+        k = below[0]
+        out.append(float(np.exp(np.interp(0.0, [db[k], db[k - 1]], [np.log(f[k]), np.log(f[k - 1])]))))
+    return float(out[0]) if siso else np.array(out)

@@ -47,6 +47,7 @@ import control
 import numpy as np
 from slycot import ab13md
 
+from .margins import closed_loop_bandwidth_hz
 from ..linearize.limit_cycle import sampled_factor
 from ..linearize.mimo import gauge_gains
 from .antiwindup import discretize
@@ -56,7 +57,7 @@ from .margins import family_margins, loop_margins, response
 from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
 __all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "IFF", "iff_response",
-           "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
+           "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "lowest_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
            "design_mimo", "MIMO_SPEC", "default_freq_hz", "nominal_name", "AXIS_NAMES"]
 
 G = ["g0", "g1", "g2"]
@@ -307,23 +308,6 @@ def loop_at_a_time(loop):
     return out
 
 
-def closed_loop_bandwidth_hz(freq_hz, loop):
-    """Per channel, the first frequency where |T_ii| = |[L (I + L)^-1]_ii| falls below 1/sqrt(2), Hz (linear interpolation in dB)."""
-    f = np.asarray(freq_hz, float)
-    loop = np.asarray(loop, complex)
-    t = loop @ np.linalg.inv(np.eye(loop.shape[1])[None] + loop)
-    out = []
-    for i in range(loop.shape[1]):
-        db = 20 * np.log10(np.abs(t[:, i, i])) + 10 * np.log10(2)
-        below = np.flatnonzero(db < 0)
-        if below.size == 0 or below[0] == 0:
-            out.append(np.nan if below.size == 0 else f[0])
-            continue
-        k = below[0]
-        out.append(float(np.exp(np.interp(0.0, [db[k], db[k - 1]], [np.log(f[k]), np.log(f[k - 1])]))))
-    return np.array(out)
-
-
 def mimo_disk_margin(freq_hz, loop):
     """Balanced simultaneous disk margin of a square loop response (freqs, n, n).
 
@@ -371,11 +355,8 @@ class MimoDesign:
     iff_info: dict = None
 
     def bandwidth_hz(self, axis):
-        """(Hz, member): lowest closed-loop bandwidth of ``axis`` over the family (:func:`closed_loop_bandwidth_hz`)."""
-        a = AXIS_NAMES.index(axis)
-        bw = {n: closed_loop_bandwidth_hz(self.freq_hz, l)[a] for n, l in self.loop_out.items()}
-        n = min(bw, key=bw.get)
-        return float(bw[n]), n
+        """(Hz, member): lowest closed-loop bandwidth of ``axis`` over the family (:func:`lowest_bandwidth_hz`)."""
+        return lowest_bandwidth_hz(self.freq_hz, self.loop_out, axis)
 
     def summary(self):
         """Plain dict of the headline numbers (per axis and simultaneous), worst members named."""
@@ -402,6 +383,15 @@ def _axis_notch(f, nominal_diag, family_diags, depth_db):
     spread = [p for p in (peak(r) for r in family_diags) if p is not None and abs(p / fn - 1) < 0.3]
     width = max(0.2, 2.0 * (max(spread) - min(spread)) / fn + 0.2)
     return (float(fn), float(depth_db), float(width))
+
+
+def lowest_bandwidth_hz(freq_hz, loops, axis):
+    """(Hz, member): the lowest closed-loop bandwidth of ``axis`` over ``loops`` (member -> (n, 3, 3) loop at
+    the axis outputs), :func:`~workbench.design.margins.closed_loop_bandwidth_hz` of each."""
+    a = AXIS_NAMES.index(axis)
+    bw = {n: closed_loop_bandwidth_hz(freq_hz, l)[a] for n, l in loops.items()}
+    n = min(bw, key=bw.get)
+    return float(bw[n]), n
 
 
 def _siso_bandwidth_hz(f, loop):

@@ -56,7 +56,7 @@ from ..linearize.weight import fit_weight
 from .antiwindup import discretize
 from .hinf import _SB10AD_ADVICE, _balanced_matrices, _run_with_limit
 from .margins import family_margins, response
-from .mimo import (AXIS_NAMES, G, V, closed_loop_bandwidth_hz, comparison_markdown, decoupled, default_freq_hz,
+from .mimo import (AXIS_NAMES, G, V, comparison_markdown, lowest_bandwidth_hz, decoupled, default_freq_hz,
                    kinematic_decoupler, loop_at_a_time, member_responses, mimo_disk_margin, nominal_name)
 from .nominal import SLOW_HZ, minimal
 from .reduce import stable_part
@@ -316,11 +316,8 @@ class HinfDesign:
     controller_scaled: control.StateSpace = field(default=None, repr=False)   # K_g reduced (gauge coordinates)
 
     def bandwidth_hz(self, axis):
-        """(Hz, member): lowest closed-loop bandwidth of ``axis`` over the family."""
-        a = AXIS_NAMES.index(axis)
-        bw = {n: closed_loop_bandwidth_hz(self.freq_hz, l)[a] for n, l in self.loop_out.items()}
-        n = min(bw, key=bw.get)
-        return float(bw[n]), n
+        """(Hz, member): lowest closed-loop bandwidth of ``axis`` over the family (as :class:`MimoDesign`'s)."""
+        return lowest_bandwidth_hz(self.freq_hz, self.loop_out, axis)
 
     def summary(self):
         """Plain dict of the headline numbers, in the shape of :meth:`MimoDesign.summary`'s ``axes``."""

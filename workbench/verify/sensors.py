@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
+from ..design.margins import closed_loop_bandwidth_hz
 from ..errors import WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
 from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
@@ -116,21 +117,8 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_
         responses["fused"] = fused_loop_response(f, la["l_gauge"], la["l_self"], blend)
         loops["fused"] = loop_margins(f, responses["fused"]).as_dict()
     for s, l_ in responses.items():
-        loops[s]["bandwidth_hz"] = closed_loop_bandwidth_hz(f, l_)
+        loops[s]["bandwidth_hz"] = closed_loop_bandwidth_hz(f, l_, reference="low_frequency")
     return SensorSetup(plant, ident, amp, la["systems"]["E_d"], loops)
-
-
-def closed_loop_bandwidth_hz(freq_hz, loop):
-    """-3 dB bandwidth of T = L / (1 + L) from a loop's frequency response: the first frequency where |T|
-    falls below 1/sqrt(2) of its low-frequency value (log-interpolated), Hz; NaN when it never does."""
-    f = np.asarray(freq_hz, float)
-    t = np.abs(np.asarray(loop) / (1.0 + np.asarray(loop)))
-    below = np.flatnonzero(t < t[0] / np.sqrt(2.0))
-    if below.size == 0 or below[0] == 0:
-        return float("nan")
-    i = below[0]
-    lt, lf = np.log(t[i - 1:i + 1]), np.log(f[i - 1:i + 1])
-    return float(np.exp(np.interp(np.log(t[0] / np.sqrt(2.0)), lt[::-1], lf[::-1])))
 
 
 @njit(cache=True, error_model="numpy")
