@@ -24,9 +24,12 @@ import numpy as np
 
 from ..errors import DesignError
 from ..linearize.mimo import mirror_family
-from .mimo import axis_resonances_hz, design_mimo, nominal_name
+from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, design_mimo, nominal_name
 
-__all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ"]
+__all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ",
+           "rate_spec", "rate_sweep", "rate_markdown", "DEFAULT_RATES_HZ"]
+
+DEFAULT_RATES_HZ = (10e3, 20e3, 40e3)   # servo sample rates, Hz (space FSMs run 5-40 kHz)
 
 DEFAULT_MODES_HZ = (250.0, 400.0, 600.0, None, 2000.0, 4000.0)   # None: the committed mirror
 
@@ -142,12 +145,106 @@ def plot_sweep(rows, path):
     save_figure(fig, path, dpi=110)
 
 
+def rate_spec(rate_hz, spec=MIMO_SPEC):
+    """``spec`` at servo rate ``rate_hz``: dt_s = 1/rate, crossover search up to 0.15 rate (1.5 kHz at 10 kHz).
+
+    The chain's hold, period-averaging gauge and compute delay are all in units of dt_s
+    (:func:`~workbench.linearize.limit_cycle.sampled_factor`, the Pade of 2 dt_s in the IFF loop), so they
+    scale with the rate. The search's upper end scales with it too (at 10 kHz it is the committed
+    1500 Hz), with as many grid points per decade as at 10 kHz, so the range never binds first.
+    """
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz must be positive; got {rate_hz!r}")
+    lo, hi = spec.fc_range_hz[0], spec.fc_range_hz[1] * rate_hz * spec.dt_s
+    per_decade = (spec.fc_points - 1) / np.log10(spec.fc_range_hz[1] / lo)
+    return dataclasses.replace(spec, dt_s=1.0 / rate_hz, fc_range_hz=(lo, hi),
+                               fc_points=int(round(per_decade * np.log10(hi / lo))) + 1)
+
+
+def _design_row(d):
+    """Per axis (bandwidth Hz, lowest crossover Hz, PM deg, GM dB) and the simultaneous alphas of a MimoDesign."""
+    s = d.summary()
+    ax = {a: tuple(float(s["axes"][a][k]["value"]) for k in
+                   ("bandwidth_hz", "crossover_hz_min", "phase_margin_deg", "gain_margin_db")) for a in AXIS_NAMES}
+    return {"axes": ax, "alpha_in": float(d.disk_in["alpha"]), "alpha_out": float(d.disk_out["alpha"]),
+            "alpha_member": d.disk_in["member"]}
+
+
+def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"), reference_mode_ratio=12.0,
+               progress=None):
+    """Notch-only and IFF-damped designs of the mirror ``fsm`` (as loaded) at each servo rate.
+
+    At each rate also the notch-only design with the flexure modes moved (``scaled_mirror``) to
+    ``reference_mode_ratio`` x 0.03 rate (~12 x the crossover the delay alone allows, i.e. far
+    above the band, below Nyquist): its tip crossover is that rate's delay-limited crossover f_d.
+    The committed mirror's notch-only design is mode-limited at a rate where its crossover falls
+    clearly (< 0.8x) below f_d.
+
+    Returns a list of dicts (one per rate): ``rate_hz``, ``tip_mode_hz``, ``delay_limited_crossover_hz``,
+    ``reference_tip_mode_hz``, ``designs`` {"notch only", "IFF damped"} -> :func:`_design_row`,
+    ``iff`` (gain V/N, damping open -> damped), ``seconds``.
+    """
+    fam = mirror_family(fsm, branches=branches)
+    f1 = axis_resonances_hz(fsm, fam[nominal_name()])[0]
+    rows = []
+    for i, rate in enumerate(rates_hz):
+        t0 = time.perf_counter()
+        spec = rate_spec(rate)
+        nd = design_mimo(fsm, fam, damping=False, spec=spec)
+        dd = design_mimo(fsm, fam, damping=True, spec=spec)
+        ref_target = reference_mode_ratio * 0.03 * rate
+        ref = scaled_mirror(fsm, (f1 / ref_target) ** 2)
+        ref_fam = mirror_family(ref, branches=branches)
+        rd = design_mimo(ref, ref_fam, damping=False, spec=spec)
+        rows.append({"rate_hz": float(rate), "tip_mode_hz": float(f1),
+                     "reference_tip_mode_hz": float(axis_resonances_hz(ref, ref_fam[nominal_name()])[0]),
+                     "delay_limited_crossover_hz": float(rd.summary()["axes"]["tip"]["crossover_hz_min"]["value"]),
+                     "designs": {"notch only": _design_row(nd), "IFF damped": _design_row(dd)},
+                     "iff": {"gain_v_per_n": dd.iff.gain_v_per_n, "zeta_open": dd.iff_info["zeta_min_open"],
+                             "zeta_damped": dd.iff_info["zeta_min_damped"]},
+                     "seconds": time.perf_counter() - t0})
+        if progress is not None:
+            progress(i + 1, len(rates_hz))
+    return rows
+
+
+def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0):
+    """GitHub Markdown table of :func:`rate_sweep` for one axis, with the issue's floors judged per rate."""
+    head = ["servo rate kHz", "f_d Hz (delay-limited)", "mode / f_d", "notch only BW / f_c Hz", "IFF BW / f_c Hz",
+            "IFF / notch BW", "PM deg notch / IFF", "GM dB notch / IFF", "alpha notch / IFF",
+            "flexure damping open -> IFF", "2x target"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        n, d = r["designs"]["notch only"], r["designs"]["IFF damped"]
+        na, da = n["axes"][axis], d["axes"][axis]
+        rat = da[0] / na[0]
+        ok = (rat >= ratio and da[2] >= pm_deg and da[3] >= gm_db and d["alpha_in"] >= alpha
+              and min(d["alpha_in"], d["alpha_out"]) >= alpha)
+        cells = [f"{r['rate_hz'] / 1e3:g}", f"{r['delay_limited_crossover_hz']:.0f}",
+                 f"{r['tip_mode_hz'] / r['delay_limited_crossover_hz']:.2f}",
+                 f"{na[0]:.0f} / {na[1]:.0f}", f"{da[0]:.0f} / {da[1]:.0f}", f"{rat:.2f}",
+                 f"{na[2]:.1f} / {da[2]:.1f}", f"{na[3]:.2f} / {da[3]:.2f}",
+                 f"{min(n['alpha_in'], n['alpha_out']):.3f} / {min(d['alpha_in'], d['alpha_out']):.3f}",
+                 f"{100 * r['iff']['zeta_open']:.2f} % -> {100 * r['iff']['zeta_damped']:.2f} %",
+                 "**met**" if ok else "missed"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     from ..plant.mirror import load_mirror
     args = sys.argv[1:] if argv is None else list(argv)
     hinf = "--hinf" in args
     paths = [a for a in args if not a.startswith("--")] or ["plants/fsm_p888_51.toml"]
     fsm = load_mirror(paths[0])
+    if "--rates" in args:
+        from ..report.output import write_json
+        rows = rate_sweep(fsm, progress=lambda i, n: print(f"rate {i}/{n}", file=sys.stderr, flush=True))
+        for ax in AXIS_NAMES:
+            print(f"\n{ax}:\n")
+            print(rate_markdown(rows, ax))
+        write_json("out/mimo_rate_sweep.json", rows)
+        return rows
     rows = damping_sweep(fsm, hinf=hinf, progress=lambda i, n: print(f"point {i}/{n}", file=sys.stderr, flush=True),
                          hinf_kwargs={"bisections": 4})
     print(f"delay-limited crossover f_d = {rows[0]['delay_limited_crossover_hz']:.0f} Hz (notch-only tip crossover, "
