@@ -24,7 +24,7 @@ import numpy as np
 
 from ..errors import DesignError
 from ..linearize.mimo import mirror_family
-from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, design_mimo, nominal_name
+from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, default_freq_hz, design_mimo, nominal_name
 
 __all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ",
            "rate_spec", "rate_sweep", "rate_markdown", "DEFAULT_RATES_HZ"]
@@ -197,7 +197,8 @@ def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"
         ref_fam = mirror_family(ref, branches=branches)
         rd = design_mimo(ref, ref_fam, damping=False, spec=spec)
         rows.append({"rate_hz": float(rate), "tip_mode_hz": float(f1),
-                     "reference_tip_mode_hz": float(axis_resonances_hz(ref, ref_fam[nominal_name()])[0]),
+                     "reference_tip_mode_hz": float(axis_resonances_hz(ref, ref_fam[nominal_name()],
+                                                                          default_freq_hz(spec.dt_s))[0]),
                      "delay_limited_crossover_hz": float(rd.summary()["axes"]["tip"]["crossover_hz_min"]["value"]),
                      "designs": {"notch only": _design_row(nd), "IFF damped": _design_row(dd)},
                      "iff": {"gain_v_per_n": dd.iff.gain_v_per_n, "zeta_open": dd.iff_info["zeta_min_open"],
