@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from workbench.design import mimo
-from workbench.design.mimo_sweep import rate_markdown, rate_spec, scaled_mirror
+from workbench.design.mimo_sweep import rate_markdown, rate_spec, scaled_mirror, sensitivity_bandwidth_hz
 from workbench.linearize.limit_cycle import sampled_factor
 from workbench.linearize.mimo import mirror_family
 from workbench.plant.mirror import load_mirror
@@ -67,14 +67,27 @@ def test_crossover_rises_with_the_rate_less_than_proportionally():
 def test_rate_markdown_judges_the_floors():
     """The table marks a rate met only with the ratio, both loop-at-a-time margins and alpha at their floors."""
     def row(bw_n, bw_d, pm, gm, alpha):
-        axes = {a: (bw_n, 100.0, 50.0, 8.0) for a in mimo.AXIS_NAMES}
-        daxes = {a: (bw_d, 150.0, pm, gm) for a in mimo.AXIS_NAMES}
+        axes = {a: (bw_n, 100.0, 50.0, 8.0, bw_n / 2) for a in mimo.AXIS_NAMES}
+        daxes = {a: (bw_d, 150.0, pm, gm, bw_d / 2) for a in mimo.AXIS_NAMES}
         return {"rate_hz": 20e3, "tip_mode_hz": 1000.0, "delay_limited_crossover_hz": 600.0,
                 "designs": {"notch only": {"axes": axes, "alpha_in": 0.5, "alpha_out": 0.5},
                             "IFF damped": {"axes": daxes, "alpha_in": alpha, "alpha_out": alpha}},
                 "iff": {"zeta_open": 0.016, "zeta_damped": 0.05}}
     rows = [row(300, 650, 45, 7, 0.5), row(300, 550, 45, 7, 0.5), row(300, 650, 39, 7, 0.5),
-            row(300, 650, 45, 5.9, 0.5), row(300, 650, 45, 7, 0.39)]
+            row(300, 650, 45, 5.9, 0.5), row(300, 650, 45, 7, 0.39), row(300, 650, 45, 7, 0.5)]
+    d = rows[-1]["designs"]["IFF damped"]["axes"]
+    for a in d:                                    # |T| bandwidth 2.17x, |S| bandwidth only 1.5x: missed
+        d[a] = d[a][:4] + (225.0,)
     lines = rate_markdown(rows).splitlines()[2:]
-    assert [ln.endswith("**met** |") for ln in lines] == [True, False, False, False, False]
-    assert "| 2.17 |" in lines[0] and "| 1.83 |" in lines[1]
+    assert [ln.endswith("**met** |") for ln in lines] == [True, False, False, False, False, False]
+    assert "| 2.17 | 2.17 |" in lines[0] and "| 1.83 | 1.83 |" in lines[1] and "| 2.17 | 1.50 |" in lines[5]
+
+
+def test_sensitivity_bandwidth_closed_forms():
+    """|S| bandwidth: an integrator loop w_c/s gives exactly f_c; |L| = 1 at -120 deg is never attenuating."""
+    f = np.geomspace(1.0, 1e4, 2001)
+    fc = np.array([37.0, 310.0, 2200.0])
+    integ = np.einsum("fi,ij->fij", fc[None, :] / (1j * f[:, None]), np.eye(3))
+    assert sensitivity_bandwidth_hz(f, integ) == pytest.approx(fc, rel=1e-4)
+    hover = np.einsum("f,ij->fij", np.full(f.size, np.exp(-2j * np.pi / 3)), np.eye(3))
+    assert np.all(sensitivity_bandwidth_hz(f, hover) == f[0])      # |S| = 1 everywhere
