@@ -187,14 +187,48 @@ def sensitivity_bandwidth_hz(freq_hz, loop):
     return np.array(out)
 
 
-def _design_row(d):
+MIRROR_OUTPUTS = ["tip_rad", "tilt_rad", "piston_m"]
+
+
+def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
+    """Per axis, lowest over ``family``: where |T_ii| from the reference to the *mirror's* angle falls 3 dB, Hz.
+
+    The designs' bandwidths are measured at the gauge-estimated axes (the stacks' elongations
+    through the kinematics); above the flexure modes the mirror (behind the levers) no longer
+    follows them. Here T = P_m C (I + L)^-1 with P_m the member's (IFF-damped) response from the
+    outer loop's axis commands to ``tip_rad``, ``tilt_rad``, ``piston_m`` and C the sampled axis
+    controllers with the chain, normalized by its value at the grid's first frequency (a gauge-gain
+    corner member tracks a scaled angle). NaN if it never falls.
+    """
+    from ..linearize.limit_cycle import sampled_factor
+    from .margins import response
+    from .mimo import force_estimate, iff_response, member_responses
+    f = design.freq_hz
+    ctrl = np.array([response(design.axes[ax].controller_d, f) for ax in AXIS_NAMES]).T
+    cdiag = np.einsum("fi,ij->fij", ctrl * sampled_factor(f, dt_s, delay_samples)[:, None], np.eye(3))
+    out = np.full(3, np.inf)
+    for n, m in family.items():
+        pm = member_responses(m, f, MIRROR_OUTPUTS)
+        if design.iff is not None:
+            c = iff_response(design.iff, f, dt_s, delay_samples)
+            pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, m, f))
+        t = pm @ design.decoupler.in_v_per_q[None] @ cdiag @ np.linalg.inv(np.eye(3)[None] + design.loop_out[n])
+        mag = np.abs(np.einsum("fii->fi", t))
+        for a in range(3):
+            below = np.nonzero(mag[:, a] < mag[0, a] / np.sqrt(2))[0]
+            out[a] = min(out[a], f[below[0]] if below.size else np.nan)
+    return out
+
+
+def _design_row(d, mirror_bw=None):
     """Per axis (|T| bandwidth Hz, lowest crossover Hz, PM deg, GM dB, |S| bandwidth Hz) and the alphas of a MimoDesign."""
     s = d.summary()
     wb = np.nanmin([sensitivity_bandwidth_hz(d.freq_hz, l) for l in d.loop_out.values()], axis=0)
     ax = {a: tuple(float(s["axes"][a][k]["value"]) for k in
                    ("bandwidth_hz", "crossover_hz_min", "phase_margin_deg", "gain_margin_db")) + (float(wb[i]),)
           for i, a in enumerate(AXIS_NAMES)}
-    return {"axes": ax, "alpha_in": float(d.disk_in["alpha"]), "alpha_out": float(d.disk_out["alpha"]),
+    return {"axes": ax, "mirror_bw_hz": None if mirror_bw is None else [float(v) for v in mirror_bw],
+            "alpha_in": float(d.disk_in["alpha"]), "alpha_out": float(d.disk_out["alpha"]),
             "alpha_member": d.disk_in["member"]}
 
 
@@ -228,13 +262,23 @@ def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"
                      "reference_tip_mode_hz": float(axis_resonances_hz(ref, ref_fam[nominal_name()],
                                                                           default_freq_hz(spec.dt_s))[0]),
                      "delay_limited_crossover_hz": float(rd.summary()["axes"]["tip"]["crossover_hz_min"]["value"]),
-                     "designs": {"notch only": _design_row(nd), "IFF damped": _design_row(dd)},
+                     "designs": {"notch only": _design_row(nd, mirror_bandwidth_hz(fsm, fam, nd, spec.dt_s,
+                                                                                   spec.delay_samples)),
+                                 "IFF damped": _design_row(dd, mirror_bandwidth_hz(fsm, fam, dd, spec.dt_s,
+                                                                                   spec.delay_samples))},
                      "iff": {"gain_v_per_n": dd.iff.gain_v_per_n, "zeta_open": dd.iff_info["zeta_min_open"],
                              "zeta_damped": dd.iff_info["zeta_min_damped"]},
                      "seconds": time.perf_counter() - t0})
         if progress is not None:
             progress(i + 1, len(rates_hz))
     return rows
+
+
+def _mirror_cell(n, d, axis):
+    a = AXIS_NAMES.index(axis)
+    if n.get("mirror_bw_hz") is None or d.get("mirror_bw_hz") is None:
+        return "-"
+    return f"{n['mirror_bw_hz'][a]:.0f} / {d['mirror_bw_hz'][a]:.0f}"
 
 
 def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0):
@@ -246,7 +290,7 @@ def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0
     """
     head = ["servo rate kHz", "f_d Hz", "mode / f_d", "notch only BW_T / BW_S / f_c Hz",
             "IFF BW_T / BW_S / f_c Hz", "IFF / notch BW_T", "IFF / notch BW_S", "PM deg notch / IFF", "GM dB notch / IFF", "alpha notch / IFF",
-            "flexure damping open -> IFF", "2x target"]
+            "mirror-angle BW notch / IFF Hz", "flexure damping open -> IFF", "2x target"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         n, d = r["designs"]["notch only"], r["designs"]["IFF damped"]
@@ -260,6 +304,7 @@ def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0
                  f"{rat:.2f}", f"{rat_s:.2f}",
                  f"{na[2]:.1f} / {da[2]:.1f}", f"{na[3]:.2f} / {da[3]:.2f}",
                  f"{min(n['alpha_in'], n['alpha_out']):.3f} / {min(d['alpha_in'], d['alpha_out']):.3f}",
+                 _mirror_cell(n, d, axis),
                  f"{100 * r['iff']['zeta_open']:.2f} % -> {100 * r['iff']['zeta_damped']:.2f} %",
                  "**met**" if ok else "missed"]
         lines.append("| " + " | ".join(cells) + " |")
