@@ -199,6 +199,13 @@ def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
     outer loop's axis commands to ``tip_rad``, ``tilt_rad``, ``piston_m`` and C the sampled axis
     controllers with the chain, normalized by its value at the grid's first frequency (a gauge-gain
     corner member tracks a scaled angle). NaN if it never falls.
+
+    Returns
+    -------
+    bandwidth_hz, peak : ndarray, shape (3,)
+        The bandwidth (lowest over the members) and the largest normalized |T_ii| over the grid and
+        the members (the mirror's resonances in the closed loop, e.g. the housing's rocking modes,
+        which the gauges do not see).
     """
     from ..linearize.limit_cycle import sampled_factor
     from .margins import response
@@ -206,7 +213,7 @@ def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
     f = design.freq_hz
     ctrl = np.array([response(design.axes[ax].controller_d, f) for ax in AXIS_NAMES]).T
     cdiag = np.einsum("fi,ij->fij", ctrl * sampled_factor(f, dt_s, delay_samples)[:, None], np.eye(3))
-    out = np.full(3, np.inf)
+    out, peak = np.full(3, np.inf), np.zeros(3)
     for n, m in family.items():
         pm = member_responses(m, f, MIRROR_OUTPUTS)
         if design.iff is not None:
@@ -217,7 +224,8 @@ def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
         for a in range(3):
             below = np.nonzero(mag[:, a] < mag[0, a] / np.sqrt(2))[0]
             out[a] = min(out[a], f[below[0]] if below.size else np.nan)
-    return out
+            peak[a] = max(peak[a], float(np.max(mag[:, a] / mag[0, a])))
+    return out, peak
 
 
 def _design_row(d, mirror_bw=None):
@@ -227,7 +235,8 @@ def _design_row(d, mirror_bw=None):
     ax = {a: tuple(float(s["axes"][a][k]["value"]) for k in
                    ("bandwidth_hz", "crossover_hz_min", "phase_margin_deg", "gain_margin_db")) + (float(wb[i]),)
           for i, a in enumerate(AXIS_NAMES)}
-    return {"axes": ax, "mirror_bw_hz": None if mirror_bw is None else [float(v) for v in mirror_bw],
+    return {"axes": ax, "mirror_bw_hz": None if mirror_bw is None else [float(v) for v in mirror_bw[0]],
+            "mirror_peak": None if mirror_bw is None else [float(v) for v in mirror_bw[1]],
             "alpha_in": float(d.disk_in["alpha"]), "alpha_out": float(d.disk_out["alpha"]),
             "alpha_member": d.disk_in["member"]}
 
@@ -278,7 +287,8 @@ def _mirror_cell(n, d, axis):
     a = AXIS_NAMES.index(axis)
     if n.get("mirror_bw_hz") is None or d.get("mirror_bw_hz") is None:
         return "-"
-    return f"{n['mirror_bw_hz'][a]:.0f} / {d['mirror_bw_hz'][a]:.0f}"
+    return (f"{n['mirror_bw_hz'][a]:.0f} / {d['mirror_bw_hz'][a]:.0f} (peak {n['mirror_peak'][a]:.1f} / "
+            f"{d['mirror_peak'][a]:.1f})")
 
 
 def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0):
@@ -290,7 +300,7 @@ def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0
     """
     head = ["servo rate kHz", "f_d Hz", "mode / f_d", "notch only BW_T / BW_S / f_c Hz",
             "IFF BW_T / BW_S / f_c Hz", "IFF / notch BW_T", "IFF / notch BW_S", "PM deg notch / IFF", "GM dB notch / IFF", "alpha notch / IFF",
-            "mirror-angle BW notch / IFF Hz", "flexure damping open -> IFF", "2x target"]
+            "mirror-angle BW notch / IFF Hz (peak \\|T\\|)", "flexure damping open -> IFF", "2x target"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         n, d = r["designs"]["notch only"], r["designs"]["IFF damped"]
