@@ -27,7 +27,8 @@ from ..linearize.mimo import mirror_family
 from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, default_freq_hz, design_mimo, nominal_name
 
 __all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ",
-           "rate_spec", "rate_sweep", "rate_markdown", "sensitivity_bandwidth_hz", "DEFAULT_RATES_HZ"]
+           "rate_spec", "rate_sweep", "rate_markdown", "sensitivity_bandwidth_hz", "mirror_closed_loop",
+           "mirror_bandwidth_hz", "DEFAULT_RATES_HZ"]
 
 DEFAULT_RATES_HZ = (10e3, 20e3, 40e3)   # servo sample rates, Hz (space FSMs run 5-40 kHz)
 
@@ -190,6 +191,27 @@ def sensitivity_bandwidth_hz(freq_hz, loop):
 MIRROR_OUTPUTS = ["tip_rad", "tilt_rad", "piston_m"]
 
 
+def mirror_closed_loop(fsm, member, design, loop_out, dt_s, delay_samples=1):
+    """Reference (axes) -> mirror ``tip_rad``, ``tilt_rad``, ``piston_m`` of one member, shape (freqs, 3, 3).
+
+    T = P_m In C (I + L)^-1 on ``design.freq_hz``: P_m the member's response from the stack
+    voltages to the mirror outputs (with the design's IFF closed per stack), In the decoupler's
+    axes -> stacks matrix, C the sampled axis controllers times the chain, L = ``loop_out``
+    (the member's loop at the gauge-estimated axes).
+    """
+    from ..linearize.limit_cycle import sampled_factor
+    from .margins import response
+    from .mimo import force_estimate, iff_response, member_responses
+    f = design.freq_hz
+    ctrl = np.array([response(design.axes[ax].controller_d, f) for ax in AXIS_NAMES]).T
+    cdiag = np.einsum("fi,ij->fij", ctrl * sampled_factor(f, dt_s, delay_samples)[:, None], np.eye(3))
+    pm = member_responses(member, f, MIRROR_OUTPUTS)
+    if design.iff is not None:
+        c = iff_response(design.iff, f, dt_s, delay_samples)
+        pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, member, f))
+    return pm @ design.decoupler.in_v_per_q[None] @ cdiag @ np.linalg.inv(np.eye(3)[None] + loop_out)
+
+
 def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
     """Per axis, lowest over ``family``: where |T_ii| from the reference to the *mirror's* angle falls 3 dB, Hz.
 
@@ -207,19 +229,10 @@ def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
         the members (the mirror's resonances in the closed loop, e.g. the housing's rocking modes,
         which the gauges do not see).
     """
-    from ..linearize.limit_cycle import sampled_factor
-    from .margins import response
-    from .mimo import force_estimate, iff_response, member_responses
     f = design.freq_hz
-    ctrl = np.array([response(design.axes[ax].controller_d, f) for ax in AXIS_NAMES]).T
-    cdiag = np.einsum("fi,ij->fij", ctrl * sampled_factor(f, dt_s, delay_samples)[:, None], np.eye(3))
     out, peak = np.full(3, np.inf), np.zeros(3)
     for n, m in family.items():
-        pm = member_responses(m, f, MIRROR_OUTPUTS)
-        if design.iff is not None:
-            c = iff_response(design.iff, f, dt_s, delay_samples)
-            pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, m, f))
-        t = pm @ design.decoupler.in_v_per_q[None] @ cdiag @ np.linalg.inv(np.eye(3)[None] + design.loop_out[n])
+        t = mirror_closed_loop(fsm, m, design, design.loop_out[n], dt_s, delay_samples)
         mag = np.abs(np.einsum("fii->fi", t))
         for a in range(3):
             below = np.nonzero(mag[:, a] < mag[0, a] / np.sqrt(2))[0]
