@@ -34,17 +34,16 @@ def test_rate_spec_scales_the_chain_and_the_search(rate_hz):
         rate_spec(0.0)
 
 
-def test_crossover_rises_with_the_rate_less_than_proportionally():
-    """Modes far above the band: doubling the rate raises the notch-only crossover, but not 2x.
+def test_crossover_rises_with_the_rate():
+    """Modes far above the band: doubling the rate raises the notch-only crossover by more than a grid step.
 
     The mirror's flexure modes moved to ~3.6 kHz (mass x 0.08, ``scaled_mirror``), out of the
-    band at both rates. If the loop were limited by the chain's lag alone (hold, averaging gauge,
-    compute delay: phase a function of f dt), the crossover would double with the rate; if dt_s
-    did not reach the chain it would not move. It does neither: the decoupled plant is not flat
-    over the band (the amplifier's R with each stack's capacitance: a first-order lag whose phase
-    at the 10 kHz crossover is more than twice the chain's, measured here from the plant and
-    ``sampled_factor``), and that lag does not scale with the rate. The band: more than one step
-    of the crossover grid (15.6 points per decade: 16 %) above, at least one step below 2x.
+    band at both rates. If dt_s did not reach the chain (hold, averaging gauge, compute delay) the
+    crossover would not move. How far it moves depends on the shapes searched: the decoupled plant
+    is not flat over the band (the amplifier's R with each stack's capacitance, a first-order lag
+    whose phase at the 10 kHz crossover is more than twice the chain's, asserted here from the
+    plant and ``sampled_factor``), which a lead can partly buy back; with this reduced grid (lead
+    <= 3) it moves 1.3x, with the full grid (lead 6) the sweep's reference mirror 2.07x.
     A reduced shape grid and family keep this lean.
     """
     fsm = scaled_mirror(load_mirror(FSM), 0.08)
@@ -62,7 +61,7 @@ def test_crossover_rises_with_the_rate_less_than_proportionally():
         t = mirror_closed_loop(fsm, nom, d, d.loop_out[mimo.nominal_name()], spec.dt_s)
         assert np.max(np.abs(t[0] - np.eye(3))) < 0.03
     step = 10 ** (1 / 15.57)
-    assert step < fc[20e3] / fc[10e3] < 2.0 / step
+    assert fc[20e3] / fc[10e3] > step
     dec = mimo.kinematic_decoupler(fsm, nom)
     plant = mimo.decoupled(dec, mimo.damped_gauges(fsm, nom, [fc[10e3]], None))[0, 0, 0]
     chain = sampled_factor(np.array([fc[10e3]]), 1e-4, 1)[0]
