@@ -14,6 +14,14 @@ modes far above the band, the sweep's stiffest point).
 
 ``PYTHONPATH=. .venv/bin/python -m workbench.design.mimo_sweep [plants/fsm_p888_51.toml] [--hinf]``
 prints the Markdown table and writes ``out/mimo_sweep.png`` and ``out/mimo_sweep.json``.
+
+The second sweep, :func:`rate_sweep`, keeps the committed mirror and changes the servo rate
+(:func:`rate_spec`: the chain's hold, averaging and compute delay all scale with dt_s), with each
+rate's lag-limited crossover f_d measured on the mirror with its modes far above the band; it
+reports three bandwidths (|T| and |S| at the gauge-estimated axes, and the mirror angle's own,
+:func:`mirror_closed_loop`) and the margins against the issue's floors.
+``PYTHONPATH=. .venv/bin/python -m workbench.design.mimo_sweep plants/fsm_p888_51.toml --rates``
+prints the tables and writes ``out/mimo_rate_sweep.json``.
 """
 
 import dataclasses
