@@ -14,6 +14,14 @@ modes far above the band, the sweep's stiffest point).
 
 ``PYTHONPATH=. .venv/bin/python -m workbench.design.mimo_sweep [plants/fsm_p888_51.toml] [--hinf]``
 prints the Markdown table and writes ``out/mimo_sweep.png`` and ``out/mimo_sweep.json``.
+
+The second sweep, :func:`rate_sweep`, keeps the committed mirror and changes the servo rate
+(:func:`rate_spec`: the chain's hold, averaging and compute delay all scale with dt_s), with each
+rate's lag-limited crossover f_d measured on the mirror with its modes far above the band; it
+reports three bandwidths (|T| and |S| at the gauge-estimated axes, and the mirror angle's own,
+:func:`mirror_closed_loop`) and the margins against the issue's floors.
+``PYTHONPATH=. .venv/bin/python -m workbench.design.mimo_sweep plants/fsm_p888_51.toml --rates``
+prints the tables and writes ``out/mimo_rate_sweep.json``.
 """
 
 import dataclasses
@@ -24,9 +32,13 @@ import numpy as np
 
 from ..errors import DesignError
 from ..linearize.mimo import mirror_family
-from .mimo import axis_resonances_hz, design_mimo, nominal_name
+from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, default_freq_hz, design_mimo, nominal_name
 
-__all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ"]
+__all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ",
+           "rate_spec", "rate_sweep", "rate_markdown", "sensitivity_bandwidth_hz", "mirror_closed_loop",
+           "mirror_bandwidth_hz", "DEFAULT_RATES_HZ"]
+
+DEFAULT_RATES_HZ = (10e3, 20e3, 40e3)   # servo sample rates, Hz (space FSMs run 5-40 kHz)
 
 DEFAULT_MODES_HZ = (250.0, 400.0, 600.0, None, 2000.0, 4000.0)   # None: the committed mirror
 
@@ -142,12 +154,208 @@ def plot_sweep(rows, path):
     save_figure(fig, path, dpi=110)
 
 
+def rate_spec(rate_hz, spec=MIMO_SPEC):
+    """``spec`` at servo rate ``rate_hz``: dt_s = 1/rate, crossover search up to 0.15 rate (1.5 kHz at 10 kHz).
+
+    The chain's hold, period-averaging gauge and compute delay are all in units of dt_s
+    (:func:`~workbench.linearize.limit_cycle.sampled_factor`, the Pade of 2 dt_s in the IFF loop), so they
+    scale with the rate. The search's upper end scales with it too (at 10 kHz it is the committed
+    1500 Hz), with as many grid points per decade as at 10 kHz, so the range never binds first.
+    """
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz must be positive; got {rate_hz!r}")
+    lo, hi = spec.fc_range_hz[0], spec.fc_range_hz[1] * rate_hz * spec.dt_s
+    per_decade = (spec.fc_points - 1) / np.log10(spec.fc_range_hz[1] / lo)
+    return dataclasses.replace(spec, dt_s=1.0 / rate_hz, fc_range_hz=(lo, hi),
+                               fc_points=int(round(per_decade * np.log10(hi / lo))) + 1)
+
+
+def sensitivity_bandwidth_hz(freq_hz, loop):
+    """Per axis: the first frequency where |S_ii| of the MIMO loop rises to 1/sqrt(2) (-3 dB), Hz.
+
+    ``loop``: (freqs, 3, 3) at the axis outputs, S = (I + L)^-1. Skogestad and Postlethwaite's
+    omega_B (sec. 2.4.5): up to it feedback attenuates errors by at least 3 dB. Unlike the |T|
+    bandwidth it is not fooled by a loop whose |L| hovers near 1 with ~-120 deg of phase (then
+    |T| ~ |S| ~ 1). Linear interpolation in log f between grid points; NaN if never reached.
+    """
+    f = np.asarray(freq_hz, float)
+    sens = np.abs(np.einsum("fii->fi", np.linalg.inv(np.eye(3)[None] + np.asarray(loop))))
+    out = []
+    for s in sens.T:
+        above = np.nonzero(s >= 1 / np.sqrt(2))[0]
+        if above.size == 0:
+            out.append(np.nan)
+            continue
+        k = above[0]
+        if k == 0:
+            out.append(float(f[0]))
+            continue
+        y0, y1 = np.log(s[k - 1]), np.log(s[k])
+        t = (np.log(1 / np.sqrt(2)) - y0) / (y1 - y0)
+        out.append(float(np.exp(np.log(f[k - 1]) + t * (np.log(f[k]) - np.log(f[k - 1])))))
+    return np.array(out)
+
+
+MIRROR_OUTPUTS = ["tip_rad", "tilt_rad", "piston_m"]
+
+
+def mirror_closed_loop(fsm, member, design, loop_out, dt_s, delay_samples=1):
+    """Reference (axes) -> mirror ``tip_rad``, ``tilt_rad``, ``piston_m`` of one member, shape (freqs, 3, 3).
+
+    T = P_m In C (I + L)^-1 on ``design.freq_hz``: P_m the member's response from the stack
+    voltages to the mirror outputs (with the design's IFF closed per stack), In the decoupler's
+    axes -> stacks matrix, C the sampled axis controllers times the chain, L = ``loop_out``
+    (the member's loop at the gauge-estimated axes).
+    """
+    from ..linearize.limit_cycle import sampled_factor
+    from .margins import response
+    from .mimo import force_estimate, iff_response, member_responses
+    f = design.freq_hz
+    ctrl = np.array([response(design.axes[ax].controller_d, f) for ax in AXIS_NAMES]).T
+    cdiag = np.einsum("fi,ij->fij", ctrl * sampled_factor(f, dt_s, delay_samples)[:, None], np.eye(3))
+    pm = member_responses(member, f, MIRROR_OUTPUTS)
+    if design.iff is not None:
+        c = iff_response(design.iff, f, dt_s, delay_samples)
+        pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, member, f))
+    return pm @ design.decoupler.in_v_per_q[None] @ cdiag @ np.linalg.inv(np.eye(3)[None] + loop_out)
+
+
+def mirror_bandwidth_hz(fsm, family, design, dt_s, delay_samples=1):
+    """Per axis, lowest over ``family``: where |T_ii| from the reference to the *mirror's* angle falls 3 dB, Hz.
+
+    The designs' bandwidths are measured at the gauge-estimated axes (the stacks' elongations
+    through the kinematics); above the flexure modes the mirror (behind the levers) no longer
+    follows them. Here T = P_m C (I + L)^-1 with P_m the member's (IFF-damped) response from the
+    outer loop's axis commands to ``tip_rad``, ``tilt_rad``, ``piston_m`` and C the sampled axis
+    controllers with the chain, normalized by its value at the grid's first frequency (a gauge-gain
+    corner member tracks a scaled angle). NaN if it never falls.
+
+    Returns
+    -------
+    bandwidth_hz, peak : ndarray, shape (3,)
+        The bandwidth (lowest over the members) and the largest normalized |T_ii| over the grid and
+        the members (the mirror's resonances in the closed loop, e.g. the housing's rocking modes,
+        which the gauges do not see).
+    """
+    f = design.freq_hz
+    out, peak = np.full(3, np.inf), np.zeros(3)
+    for n, m in family.items():
+        t = mirror_closed_loop(fsm, m, design, design.loop_out[n], dt_s, delay_samples)
+        mag = np.abs(np.einsum("fii->fi", t))
+        for a in range(3):
+            below = np.nonzero(mag[:, a] < mag[0, a] / np.sqrt(2))[0]
+            out[a] = min(out[a], f[below[0]] if below.size else np.nan)
+            peak[a] = max(peak[a], float(np.max(mag[:, a] / mag[0, a])))
+    return out, peak
+
+
+def _design_row(d, mirror_bw=None):
+    """Per axis (|T| bandwidth Hz, lowest crossover Hz, PM deg, GM dB, |S| bandwidth Hz) and the alphas of a MimoDesign."""
+    s = d.summary()
+    wb = np.nanmin([sensitivity_bandwidth_hz(d.freq_hz, l) for l in d.loop_out.values()], axis=0)
+    ax = {a: tuple(float(s["axes"][a][k]["value"]) for k in
+                   ("bandwidth_hz", "crossover_hz_min", "phase_margin_deg", "gain_margin_db")) + (float(wb[i]),)
+          for i, a in enumerate(AXIS_NAMES)}
+    return {"axes": ax, "mirror_bw_hz": None if mirror_bw is None else [float(v) for v in mirror_bw[0]],
+            "mirror_peak": None if mirror_bw is None else [float(v) for v in mirror_bw[1]],
+            "alpha_in": float(d.disk_in["alpha"]), "alpha_out": float(d.disk_out["alpha"]),
+            "alpha_member": d.disk_in["member"]}
+
+
+def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"), reference_mode_ratio=12.0,
+               progress=None):
+    """Notch-only and IFF-damped designs of the mirror ``fsm`` (as loaded) at each servo rate.
+
+    At each rate also the notch-only design with the flexure modes moved (``scaled_mirror``) to
+    ``reference_mode_ratio`` x 0.03 rate (~12 x the crossover the delay alone allows, i.e. far
+    above the band, below Nyquist): its tip crossover is that rate's delay-limited crossover f_d.
+    The committed mirror's notch-only design is mode-limited at a rate where its crossover falls
+    clearly (< 0.8x) below f_d.
+
+    Returns a list of dicts (one per rate): ``rate_hz``, ``tip_mode_hz``, ``delay_limited_crossover_hz``,
+    ``reference_tip_mode_hz``, ``designs`` {"notch only", "IFF damped"} -> :func:`_design_row`,
+    ``iff`` (gain V/N, damping open -> damped), ``seconds``.
+    """
+    fam = mirror_family(fsm, branches=branches)
+    f1 = axis_resonances_hz(fsm, fam[nominal_name()])[0]
+    rows = []
+    for i, rate in enumerate(rates_hz):
+        t0 = time.perf_counter()
+        spec = rate_spec(rate)
+        nd = design_mimo(fsm, fam, damping=False, spec=spec)
+        dd = design_mimo(fsm, fam, damping=True, spec=spec)
+        ref_target = reference_mode_ratio * 0.03 * rate
+        ref = scaled_mirror(fsm, (f1 / ref_target) ** 2)
+        ref_fam = mirror_family(ref, branches=branches)
+        rd = design_mimo(ref, ref_fam, damping=False, spec=spec)
+        rows.append({"rate_hz": float(rate), "tip_mode_hz": float(f1),
+                     "reference_tip_mode_hz": float(axis_resonances_hz(ref, ref_fam[nominal_name()],
+                                                                          default_freq_hz(spec.dt_s))[0]),
+                     "delay_limited_crossover_hz": float(rd.summary()["axes"]["tip"]["crossover_hz_min"]["value"]),
+                     "designs": {"notch only": _design_row(nd, mirror_bandwidth_hz(fsm, fam, nd, spec.dt_s,
+                                                                                   spec.delay_samples)),
+                                 "IFF damped": _design_row(dd, mirror_bandwidth_hz(fsm, fam, dd, spec.dt_s,
+                                                                                   spec.delay_samples))},
+                     "iff": {"gain_v_per_n": dd.iff.gain_v_per_n, "zeta_open": dd.iff_info["zeta_min_open"],
+                             "zeta_damped": dd.iff_info["zeta_min_damped"]},
+                     "seconds": time.perf_counter() - t0})
+        if progress is not None:
+            progress(i + 1, len(rates_hz))
+    return rows
+
+
+def _mirror_cell(n, d, axis):
+    a = AXIS_NAMES.index(axis)
+    if n.get("mirror_bw_hz") is None or d.get("mirror_bw_hz") is None:
+        return "-"
+    return (f"{n['mirror_bw_hz'][a]:.0f} / {d['mirror_bw_hz'][a]:.0f} (peak {n['mirror_peak'][a]:.1f} / "
+            f"{d['mirror_peak'][a]:.1f})")
+
+
+def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0):
+    """GitHub Markdown table of :func:`rate_sweep` for one axis, with the issue's floors judged per rate.
+
+    Met: IFF / notch-only >= ``ratio`` on both bandwidths (|T| -3 dB and |S| -3 dB, worst member
+    each), the IFF design's worst loop-at-a-time PM and GM and its simultaneous alpha (stack inputs
+    and axis outputs) at their floors.
+    """
+    head = ["servo rate kHz", "f_d Hz", "mode / f_d", "notch only BW_T / BW_S / f_c Hz",
+            "IFF BW_T / BW_S / f_c Hz", "IFF / notch BW_T", "IFF / notch BW_S", "PM deg notch / IFF", "GM dB notch / IFF", "alpha notch / IFF",
+            "mirror-angle BW notch / IFF Hz (peak \\|T\\|)", "flexure damping open -> IFF", "2x target"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        n, d = r["designs"]["notch only"], r["designs"]["IFF damped"]
+        na, da = n["axes"][axis], d["axes"][axis]
+        rat, rat_s = da[0] / na[0], da[4] / na[4]
+        ok = (rat >= ratio and rat_s >= ratio and da[2] >= pm_deg and da[3] >= gm_db and d["alpha_in"] >= alpha
+              and min(d["alpha_in"], d["alpha_out"]) >= alpha)
+        cells = [f"{r['rate_hz'] / 1e3:g}", f"{r['delay_limited_crossover_hz']:.0f}",
+                 f"{r['tip_mode_hz'] / r['delay_limited_crossover_hz']:.2f}",
+                 f"{na[0]:.0f} / {na[4]:.0f} / {na[1]:.0f}", f"{da[0]:.0f} / {da[4]:.0f} / {da[1]:.0f}",
+                 f"{rat:.2f}", f"{rat_s:.2f}",
+                 f"{na[2]:.1f} / {da[2]:.1f}", f"{na[3]:.2f} / {da[3]:.2f}",
+                 f"{min(n['alpha_in'], n['alpha_out']):.3f} / {min(d['alpha_in'], d['alpha_out']):.3f}",
+                 _mirror_cell(n, d, axis),
+                 f"{100 * r['iff']['zeta_open']:.2f} % -> {100 * r['iff']['zeta_damped']:.2f} %",
+                 "**met**" if ok else "missed"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main(argv=None):
     from ..plant.mirror import load_mirror
     args = sys.argv[1:] if argv is None else list(argv)
     hinf = "--hinf" in args
     paths = [a for a in args if not a.startswith("--")] or ["plants/fsm_p888_51.toml"]
     fsm = load_mirror(paths[0])
+    if "--rates" in args:
+        from ..report.output import write_json
+        rows = rate_sweep(fsm, progress=lambda i, n: print(f"rate {i}/{n}", file=sys.stderr, flush=True))
+        for ax in AXIS_NAMES:
+            print(f"\n{ax}:\n")
+            print(rate_markdown(rows, ax))
+        write_json("out/mimo_rate_sweep.json", rows)
+        return rows
     rows = damping_sweep(fsm, hinf=hinf, progress=lambda i, n: print(f"point {i}/{n}", file=sys.stderr, flush=True),
                          hinf_kwargs={"bisections": 4})
     print(f"delay-limited crossover f_d = {rows[0]['delay_limited_crossover_hz']:.0f} Hz (notch-only tip crossover, "
