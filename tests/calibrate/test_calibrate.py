@@ -7,6 +7,7 @@ error on its channel, and answer ``none`` for the clean record. One draw per eff
 ``make test``; WORKBENCH_FULL=1 runs three.
 """
 
+import dataclasses
 import hashlib
 import json
 import tomllib
@@ -270,3 +271,55 @@ def test_temperature_cycle_drift_is_drift_not_creep(sn637):
     assert res["parameters"]["period_s"] == pytest.approx(period, rel=0.05)
     assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]
     assert all(st["effect"] != "creep" for st in res["stages"])
+
+
+# (lead s, sample rate Hz): the brief's -0.3 ms at 10 kHz (3 samples) and at a drawn rate
+# (a fractional number of samples); WORKBENCH_FULL=1 adds leads drawn over 0.2-2 ms at rates
+# drawn over 4-20 kHz
+_LEAD_RNG = np.random.default_rng(2613)
+_LEADS = [(-0.3e-3, 1e4), (-0.3e-3, float(np.exp(_LEAD_RNG.uniform(np.log(4e3), np.log(2e4)))))] + [
+    (-float(_LEAD_RNG.uniform(0.2e-3, 2e-3)), float(np.exp(_LEAD_RNG.uniform(np.log(4e3), np.log(2e4)))))
+    for _ in range(5)]
+
+
+@pytest.mark.parametrize("lead_s, rate_hz", _LEADS if FULL else _LEADS[:2])
+def test_sensor_lead_is_found_signed_and_carried_by_the_plant(sn637, tmp_path, lead_s, rate_hz):
+    """Issue 13 item 6: a displacement sensor that LEADS the drive (an acquisition timing offset,
+    a fractional number of samples) is named ``delay`` with its sign within 20 %, the updated
+    plant file carries the signed delay and loads, and simulating the record through it leaves
+    at most the reported ``error_after`` (+10 %) while the declared plant leaves over twice that
+    (a lead clipped to 0, as before, fails here).
+
+    Not within 10 % of ``error_after`` itself: that error is the base fit's (its PI model leaves
+    ~2.2 nm on these records), while the updated file keeps the declared core, which on a record
+    of this very plant leaves ~1.0-1.3 nm (the 1 nm sensor noise and the lead's few-% error)."""
+    from workbench.calibrate.plant_update import updated_plant_text
+    from workbench.calibrate.synthetic import SensorNoise
+    t, v = calibration_protocol(dt_s=1.0 / rate_hz, sine_cycles=3, stairs_v=(50.0, 20.0, 80.0, 40.0), chirp_s=1.0,
+                                chirp_f1_hz=min(2000.0, 0.3 * rate_hz))
+    clean, _ = plant_with_effect(sn637, "none", 7)
+    plant = dataclasses.replace(clean, additions=dataclasses.replace(clean.additions, sensor_delay_s=lead_s))
+    r = simulate_record(plant, t, v, seed=7)
+    rec = Record(Path("lead.csv"), {}, r["time_s"], {k: r[k] for k in ("voltage_v", "current_a", "displacement_m",
+                                                                       "gauge_v")}, 1.0 / rate_hz)
+    split = make_split(rec.t_s, rec.channels["voltage_v"], "blocks")
+    base = fit_base(rec, sn637.pzt.series_resistance_ohm, train=split.train, test=split.test, pzt=plant.pzt,
+                    dac_range_v=plant.gauge.dac_range_v)
+    res = trace_effect(base, split=split)
+    print(f"\nlead {lead_s * 1e3:.3f} ms ({-lead_s * rate_hz:.2f} samples at {rate_hz:.0f} Hz) -> {res['effect']} "
+          f"{res['parameters']} ({res['agreement']}); test RMS {res['error_before']['rms']:.3g} -> "
+          f"{res['error_after']['rms']:.3g} m")
+    assert (res["effect"], res["channel"]) == ("delay", "displacement"), res["fold_winners"]
+    assert res["parameters"]["delay_s"] == pytest.approx(lead_s, rel=0.2)
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("lead.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    again = load_plant(tmp_path / "p.toml")
+    assert again.additions.sensor_delay_s < 0
+    assert again.additions.sensor_delay_s == pytest.approx(res["parameters"]["delay_s"])
+    quiet = SensorNoise(0.0, 0.0, 0.0)
+    x = rec.channels["displacement_m"]
+    rms = {name: float(np.sqrt(np.mean((simulate_record(p, t, v, noise=quiet)["displacement_m"] - x)[split.test]
+                                       ** 2))) for name, p in (("updated", again), ("true", plant), ("declared", sn637))}
+    print(f"simulated through the plant, test RMS: {rms} m")
+    assert rms["updated"] <= 1.1 * res["error_after"]["rms"]
+    assert rms["declared"] > 2.0 * rms["updated"]        # the lead is what the file adds
