@@ -107,6 +107,9 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     assert reloaded.pzt.working_capacitance_f == sn637.pzt.working_capacitance_f
     assert np.array_equal(reloaded.pzt.hysteresis.weights, sn637.pzt.hysteresis.weights)
     assert (out / "report.md").read_text().count("leakage") >= 2
+    # which split and why (issue 13 item 3): blocks, though slow candidates are present
+    assert res["split"] == "blocks" and "slow candidates" in res["split_reason"]
+    assert f"blocks split: {res['split_reason']}" in (out / "report.md").read_text()
     assert all(Path(f).stat().st_size > 10_000 for f in res["figures"])
     assert before == {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (data, plant_file)}
 
@@ -197,6 +200,22 @@ def test_real_record_same_answer_for_every_training_length(tmp_path):
             e = load_generic_stack(Path(res["updated_plant"])).predict(vd) - x
             assert np.sqrt(np.mean(e[test] ** 2)) == pytest.approx(res["error_after"]["rms"], rel=0.1)
     assert len(set(answers.values())) == 1, answers
+
+
+def test_default_split_names_the_split_and_why():
+    """Issue 13 item 3: forward is taken only when asked to and slow candidates are present."""
+    from workbench.calibrate.splits import SLOW_EFFECTS, default_split
+    from workbench.calibrate.tracing import candidate_plan
+    all_names = [e.name for _, e, _ in candidate_plan({"displacement", "charge", "gauge"})]
+    fast = [n for n in all_names if n not in SLOW_EFFECTS]
+    assert set(SLOW_EFFECTS) <= set(all_names) and fast
+    assert default_split("generic_stack", all_names)[0] == "cycles"
+    kind, why = default_split("pzt", all_names)
+    assert kind == "blocks" and all(n in why for n in SLOW_EFFECTS)
+    kind, why = default_split("pzt", all_names, forward_when_slow=True)
+    assert kind == "forward" and "drift" in why
+    assert default_split("pzt", fast, forward_when_slow=True) == ("blocks", "interleaved blocks: no slow, "
+                                                                  "time-driven candidate")
 
 
 def test_base_fit_recovers_cp_gauge_gain_and_rest(sn637):
