@@ -131,7 +131,7 @@ def test_updated_plant_simulates_the_found_effect(sn637, tmp_path):
 
 @pytest.mark.parametrize("section, key, value", [
     ("leakage", "resistance_ohm", -1.0), ("dielectric_absorption", "time_constant_s", "nan"),
-    ("displacement_sensor", "delay_s", 20.0), ("gauge_nonlinearity", "coefficient_per_m", "'big'")])
+    ("displacement_sensor", "delay_s", 20.0), ("displacement_sensor", "delay_s", -20.0), ("gauge_nonlinearity", "coefficient_per_m", "'big'")])
 def test_plant_additions_are_validated(tmp_path, section, key, value):
     from workbench.errors import PlantDefinitionError
     base = (PLANTS / "p888_51_sn637.toml").read_text()

@@ -320,20 +320,29 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         if not from_rest:
             notes.append(f"the record does not start from rest (V = {v[0]:.3g} V at the start): the plays start "
                          f"as if reached monotonically from 0 V")
-    # V against V - R i on a terminal record: judged with the motion's sensor allowed a timing
-    # offset of either sign, so a sensor that leads (or lags) the drive does not pick the
-    # voltage that leads V_t by ~R C and hide part of that offset in the base
+    # V against V - R i on a terminal record: V leads V_t by ~R C, so a motion sensor that leads
+    # the drive makes V fit better and the base hides part of the lead. When V wins, both are
+    # judged again with the sensor allowed a timing offset of either sign; V_t is kept when it
+    # then fits at least as well (the lead, not the drive, made V win)
     shifts_s = _judge_shifts(t, record.sample_period_s) if input_kind != "command" and len(drives) == 2 else None
 
-    def trial(vd):
+    def trial(vd, shifts=None):
         r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
-        return _judge_rms(t, P[:, keep], outputs[first], train & valid[first], shifts_s), r, keep, P
+        return _judge_rms(t, P[:, keep], outputs[first], train & valid[first], shifts), r, keep, P
 
     best = None
+    tried = {}
     for label, vd in drives.items():
         score, r, keep, P = trial(vd)
+        tried[label] = (score, label, vd, r, keep, P)
         if best is None or score < best[0]:
-            best = (score, label, vd, r, keep, P)
+            best = tried[label]
+    if shifts_s is not None and best[1] == "recorded voltage":
+        vt = tried["terminal voltage V - R i"]
+        if trial(vt[2], shifts_s)[0] <= trial(best[2], shifts_s)[0]:
+            best = vt
+            notes.append("the displacement fits the recorded V better than V - R i only through a timing offset "
+                         "(a sensor that leads the drive): V - R i is the drive, the offset is left to the tracing")
     if input_kind == "command" and best[1][0] != "none":
         # refine the winning lag or delay between its grid neighbours (log scale)
         from scipy.optimize import minimize_scalar
