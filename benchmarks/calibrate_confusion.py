@@ -62,8 +62,9 @@ def _record(r, dt):
                   {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, dt)
 
 
-def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None):
-    """Simulate one record, calibrate it, classify the answer; returns a dict."""
+def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks"):
+    """Simulate one record, calibrate it (``split``: see :mod:`workbench.calibrate.splits`), classify
+    the answer; returns a dict."""
     n_rows = n_rows or ROWS[rate_hz]
     t, v = benchmark_protocol(protocol, rate_hz, n_rows)
     effects = () if effect == "none" else ((effect,) if isinstance(effect, str) else tuple(effect))
@@ -71,7 +72,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None):
     clean, _ = plant_with_effect(plant0, "none", seed)
     r = simulate_record(plant, t, v, seed=seed)
     r0 = simulate_record(clean, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], "blocks")
+    sp = make_split(t, r["voltage_v"], split)
     kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
     R = plant0.pzt.series_resistance_ohm
     base = fit_base(_record(r, 1.0 / rate_hz), R, **kw)
@@ -170,6 +171,8 @@ def main(argv=None):
     ap.add_argument("--effects", nargs="*", default=None,
                     help="only these effects (a pair as 'creep+delay'; 'none' for the effect-free records)")
     ap.add_argument("--protocols", nargs="*", default=None, help="only these protocols")
+    ap.add_argument("--split", choices=("blocks", "forward"), default="blocks",
+                    help="the rows' split (default blocks, as workbench calibrate on a PZT plant)")
     ap.add_argument("--index", type=int, nargs="*", default=None,
                     help="only these records (1-based, as numbered in the full run of the seed)")
     a = ap.parse_args(argv)
@@ -188,7 +191,7 @@ def main(argv=None):
     rows = []
     t0 = time.perf_counter()
     for j, (k, (e, rate, proto, size, seed)) in enumerate(todo):
-        r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None)
+        r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None, split=a.split)
         rows.append(r)
         eff = e if isinstance(e, str) else "+".join(e)
         print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "

@@ -320,15 +320,29 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         if not from_rest:
             notes.append(f"the record does not start from rest (V = {v[0]:.3g} V at the start): the plays start "
                          f"as if reached monotonically from 0 V")
-    def trial(vd):
+    # V against V - R i on a terminal record: V leads V_t by ~R C, so a motion sensor that leads
+    # the drive makes V fit better and the base hides part of the lead. When V wins, both are
+    # judged again with the sensor allowed a timing offset of either sign; V_t is kept when it
+    # then fits at least as well (the lead, not the drive, made V win)
+    shifts_s = _judge_shifts(t, record.sample_period_s) if input_kind != "command" and len(drives) == 2 else None
+
+    def trial(vd, shifts=None):
         r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
-        return _judge_rms(t, P[:, keep], outputs[first], train & valid[first]), r, keep, P
+        return _judge_rms(t, P[:, keep], outputs[first], train & valid[first], shifts), r, keep, P
 
     best = None
+    tried = {}
     for label, vd in drives.items():
         score, r, keep, P = trial(vd)
+        tried[label] = (score, label, vd, r, keep, P)
         if best is None or score < best[0]:
-            best = (score, label, vd, r, keep, P)
+            best = tried[label]
+    if shifts_s is not None and best[1] == "recorded voltage":
+        vt = tried["terminal voltage V - R i"]
+        if trial(vt[2], shifts_s)[0] <= trial(best[2], shifts_s)[0]:
+            best = vt
+            notes.append("the displacement fits the recorded V better than V - R i only through a timing offset "
+                         "(a sensor that leads the drive): V - R i is the drive, the offset is left to the tracing")
     if input_kind == "command" and best[1][0] != "none":
         # refine the winning lag or delay between its grid neighbours (log scale)
         from scipy.optimize import minimize_scalar
@@ -401,22 +415,38 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     return fit
 
 
-def _judge_rms(t, P, y, rows):
+def _judge_shifts(t, dt):
+    """Sensor timing offsets (s) the drive's judgment allows: 0 and +/- half a sample to
+    ``max(30 dt, duration / 200)`` (the tracing's delay bound without its excitation-period
+    term), 12 per sign on a log grid."""
+    dur = float(t[-1] - t[0])
+    mags = np.geomspace(0.5 * dt, max(30.0 * dt, dur / 200.0), 12)
+    return np.r_[-mags[::-1], 0.0, mags]
+
+
+def _judge_rms(t, P, y, rows, shifts_s=None):
     """Training RMS of ``y`` fitted by the plays (>= 0), an offset and a slow quadratic in time.
 
     The quadratic is a nuisance for the drive's judgment only: a drifting sensor (microns over
     the record) would otherwise swamp the small difference two drives make, and the choice would
-    fall to chance (a wrong drive shows later as a spurious ~R C delay).
+    fall to chance (a wrong drive shows later as a spurious ~R C delay). With ``shifts_s`` the
+    least RMS over ``y(t - d)`` for each ``d`` (a sensor timing offset, linear interpolation) is
+    returned: the Gram matrix is shared, only ``a' y`` changes.
     """
     s = (t - t[0]) / max(float(t[-1] - t[0]), 1e-300)
     a = np.column_stack([P[rows], np.ones(int(rows.sum())), s[rows], s[rows] ** 2])
     col = np.sqrt(np.mean(a * a, axis=0))
     col[col == 0] = 1.0
     an = a / col
-    b = y[rows]
+    G = an.T @ an
     k = P.shape[1]
-    w = _gram_solve(an.T @ an, an.T @ b, np.r_[np.zeros(k), np.full(3, -np.inf)])
-    return rms(b - an @ w)
+    lower = np.r_[np.zeros(k), np.full(3, -np.inf)]
+    best = np.inf
+    for d in (0.0,) if shifts_s is None else shifts_s:
+        b = y[rows] if d == 0.0 else np.interp(t[rows] - d, t, y)
+        w = _gram_solve(G, an.T @ b, lower)
+        best = min(best, rms(b - an @ w))
+    return best
 
 
 def _drive_judge(outputs):

@@ -107,8 +107,9 @@ def _block(effect, ch, p, base, src, sensor):
         block = ["[[mechanics.modes]]", f"freq_hz = {_fmt(p['f_n_hz'])}   # Hz; {src} (resonance fit)",
                  f"damping_ratio = {_fmt(min(max(p['zeta'], 1e-6), 1.0))}   # {src}"]
     elif effect == "delay" and ch == "displacement":
-        # the plant file takes a latency >= 0; a negative one (the sensor leads) stays in the JSON
-        sensor["delay"] = f"delay_s = {_fmt(max(p['delay_s'], 0.0))}   # s; {src}"
+        # signed: > 0 the sensor lags the drive, < 0 it leads (an acquisition timing offset)
+        lead = " (negative: the sensor leads the drive)" if p["delay_s"] < 0 else ""
+        sensor["delay"] = f"delay_s = {_fmt(p['delay_s'])}   # s; {src}{lead}"
     elif effect == "drift" and ch == "displacement":
         c = np.asarray(p["coefficients"], float)
         span = p["t_end_s"] - p["t0_s"]

@@ -23,8 +23,8 @@ from .base_fit import fit_base
 from .creep_holds import fit_holds
 from .plant_update import updated_plant_text
 from .record import read_record
-from .splits import make_split
-from .tracing import trace_effect
+from .splits import default_split, make_split
+from .tracing import candidate_plan, trace_effect
 
 __all__ = ["run_calibrate"]
 
@@ -64,7 +64,9 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
 
     ``split``: ``"blocks"`` (default for a full PZT plant), ``"forward"`` or ``"cycles"``
     (default for a generic stack: the first ``train_cycles`` input cycles are the development
-    rows, the rest is predicted); see :mod:`.splits`. ``max_ratio`` is ignored (kept for
+    rows, the rest is predicted); see :mod:`.splits` (:func:`~.splits.default_split`). The
+    split used and why are in the JSON (``split``, ``split_reason``) and the report's notes.
+    ``max_ratio`` is ignored (kept for
     callers of the earlier interface: the decision is against the noise floor and a null
     reference over validation folds, :mod:`.tracing`).
     """
@@ -94,7 +96,6 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
                                                                         ch["displacement_m"]},
                               record.sample_period_s, record.notices)
         resistance, pzt, dac, n_plays, grid = 0.0, None, None, plant.n_plays, plant.threshold_grid
-        split = split or "cycles"
     else:
         resistance = plant.pzt.series_resistance_ohm
         if "series_resistor_ohm" in record.metadata:
@@ -107,7 +108,13 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             _check_range(data_path, ch["voltage_v"], plant.pzt.voltage_min_v, plant.pzt.voltage_max_v,
                          f"[electrical] voltage_min_v/voltage_max_v in {plant_path}")
         pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
-        split = split or "blocks"
+    if split is None:
+        names = {"displacement_m": "displacement", "current_a": "charge", "gauge_v": "gauge"}
+        present = {names[c] for c in record.channels if c in names}
+        split, split_reason = default_split(kind, [e.name for _, e, _ in candidate_plan(present)])
+    else:
+        split_reason = "asked for (--split)"
+    notes.append(f"{split} split: {split_reason}")
     serial = record.metadata.get("serial")
     if serial and kind == "pzt" and serial != plant.serial:
         notes.append(f"the record's serial {serial} differs from the plant's {plant.serial}; the record's is used")
@@ -140,7 +147,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         "fold_winners": result["fold_winners"], "leading": result["leading"], "stages": result["stages"],
         "candidates": _json_candidates(result["candidates"]),
         "reason": result["reason"], "penalty": penalty,
-        "split": split, "block_s": sp.block_s, "n_folds": len(sp.folds),
+        "split": split, "split_reason": split_reason, "block_s": sp.block_s, "n_folds": len(sp.folds),
         "train_fraction": float(np.mean(train)), "held_out_fraction": float(np.mean(test)),
         "base_fit": {
             "voltage_source": base.voltage_source, "starts_from_rest": base.starts_from_rest,
@@ -190,7 +197,8 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         data["elapsed_s"] = time.perf_counter() - t0
         from ..report.calibrate_report import calibration_markdown
         md = calibration_markdown(data_path, plant_path, base, {**result, "max_ratio": max_ratio,
-                                                                "penalty": penalty},
+                                                                "penalty": penalty, "split": split,
+                                                                "block_s": sp.block_s, "n_folds": len(sp.folds)},
                                   holds, figs, plant_out, data["elapsed_s"], report_dir=out)
         write_text(out / "report.md", md)
         data["report"] = str(out / "report.md")

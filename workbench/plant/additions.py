@@ -16,7 +16,8 @@ Plant-file sections (all optional, SI, units in the key names):
   ``Q_DA = k_s / (tau s + 1) V_t`` that flows through the terminals without displacement
   (``k_s`` in C/V = F).
 * ``[displacement_sensor] delay_s, drift_rate_m_per_s, drift_curvature_m_per_s2`` -- the
-  external displacement sensor's latency and its slow drift ``a t + b t^2`` (t from the start
+  external displacement sensor's latency (signed, |delay_s| <= 10 s: a negative one is a sensor
+  that leads the drive, an acquisition timing offset) and its slow drift ``a t + b t^2`` (t from the start
   of the record), uncorrelated with the input.
 * ``[gauge_nonlinearity] coefficient_per_m`` -- the strain-gauge bridge read as seed 000
   eq. 27's shape ``x / (1 + b x)`` with a larger ``b`` than the bridge geometry gives
@@ -90,7 +91,11 @@ def absorption_charge(t_s, v_t, gain_f, time_constant_s):
 
 
 def delayed(t_s, y, delay_s):
-    """``y(t - delay)`` by linear interpolation, the first value held before the start."""
+    """``y(t - delay)`` by linear interpolation (fractional samples), either sign.
+
+    ``delay_s > 0`` lags (the first value held before the start); ``delay_s < 0`` leads: the
+    channel is shifted earlier, offline, and its last value held past the end.
+    """
     t = np.asarray(t_s, float)
     return np.interp(t - delay_s, t, np.asarray(y, float))
 

@@ -71,7 +71,9 @@ _SCHEMA = {
         "time_constant_s": _pos("tau, the absorption time constant in s, e.g. 2.0", 1e7),
     },
     "displacement_sensor": {
-        "delay_s": _Field("float", 0.0, 10.0, expect="the sensor latency in s, >= 0 (0 = none)"),
+        "delay_s": _Field("float", -10.0, 10.0,
+                          expect="the sensor latency in s within +/-10 s: > 0 lags the drive, < 0 leads it "
+                                 "(an acquisition timing offset), 0 = none"),
         "drift_rate_m_per_s": _Field("float", -1e-3, 1e-3, expect="the sensor drift rate in m/s (0 = none)"),
         "drift_curvature_m_per_s2": _Field("float", -1e-3, 1e-3,
                                            expect="the drift's quadratic coefficient in m/s^2 (0 = none)"),
