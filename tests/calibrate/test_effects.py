@@ -209,3 +209,17 @@ def test_creep_spectrum_and_gauge_bow_on_the_product_path():
     line = g * x
     q = gn.fit(t[: x.size], x, meas - line, np.ones(x.size, bool), y_model=line)
     assert q["coefficient_per_m"] == pytest.approx(beta, rel=0.1)
+
+
+def test_a_split_resolved_reports_the_named_effects_own_folds(monkeypatch):
+    """Two effects splitting five folds 3:2, each surviving the other: the named one (better median) is
+    reported with its own 3 folds, not the pair's 5 (the agreement is fold consistency)."""
+    from workbench.calibrate import tracing
+    a, b = ("creep", "displacement"), ("delay", "displacement")
+    res = {"winners": [a, a, a, b, b], "by": {a: {"score": 0.3}, b: {"score": 0.4}}}
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+    monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: {
+        "by": {a: {"passes": [True] * 5, "score": 0.1}, b: {"passes": [True] * 5, "score": 0.1}}})
+    answer, count, note = tracing._resolve_split(res, None, {}, None, {}, None, 0.0, 1.0, None, [], 0.0, None,
+                                                 None, 4, 5)
+    assert answer == a and count == 3 and "(3 and 2)" in note

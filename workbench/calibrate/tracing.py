@@ -517,16 +517,17 @@ def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor
         row = r2["by"].get(y)
         survives[y] = bool(row is not None and all(row["passes"]) and row["score"] <= LATER_STAGE_RATIO)
     a, b = pair
-    both = int(counts[order[0]] + counts[order[1]])
+    # the agreement reported is the named effect's own fold wins (the split is in the note), not the pair's
+    won = {pair[0]: int(counts[order[0]]), pair[1]: int(counts[order[1]])}
     if survives[a] and survives[b]:
         first = min(pair, key=lambda p: res["by"][p]["score"])
         other = b if first == a else a
-        return first, both, (f"{first[0]} and {other[0]} split the folds; each explains what the other cannot "
-                             f"(both are in the record)")
+        return first, won[first], (f"{first[0]} and {other[0]} split the folds ({won[first]} and {won[other]}); "
+                                   f"each explains what the other cannot (both are in the record)")
     if survives[a] != survives[b]:
         win, lose = (a, b) if survives[a] else (b, a)
-        return win, both, (f"{win[0]} and {lose[0]} split the folds; {win[0]} explains what {lose[0]} cannot, "
-                           f"not the reverse")
+        return win, won[win], (f"{win[0]} and {lose[0]} split the folds ({won[win]} and {won[lose]}); {win[0]} "
+                               f"explains what {lose[0]} cannot, not the reverse")
     return None, count0, None
 
 
