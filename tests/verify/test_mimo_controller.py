@@ -135,6 +135,8 @@ def _corrupt(data, change):
     (lambda d: d["controllers"].pop("piston"), "controllers.piston"),
     (lambda d: d.update(sample_rate_hz=20000.0), "sample_rate_hz"),
     (lambda d: d["fixed_point"]["axes_to_stacks_q"][0].__setitem__(0, 7), "fixed_point.axes_to_stacks_q"),
+    (lambda d: d.update(name="../../evil"), "name"),
+    (lambda d: d.update(name="9lives"), "name"),
 ])
 def test_bad_controller_files_name_the_key(ctrl, tmp_path, change, key):
     path = tmp_path / "bad.json"

@@ -46,6 +46,7 @@ quantized (within half an LSB). :class:`MimoControllerError` names the file and 
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -392,6 +393,10 @@ class MimoController:
             hint = (" (a SISO controller: it drives one stack; the mirror needs the MIMO controller "
                     "`workbench study studies/fsm_servo.toml` exports)" if got is None and "sos" in data else "")
             raise MimoControllerError(src, "schema", f"got {got!r}; expected {MIMO_SCHEMA!r}{hint}")
+        name = data.get("name", "fsm_controller")
+        if not (isinstance(name, str) and _C_NAME.match(name)):
+            raise MimoControllerError(src, "name", f"got {name!r}; a C identifier (letters, digits, '_', not starting "
+                                                   f"with a digit): it names the header's functions and files")
         axes_list = data.get("axes")
         if axes_list != list(AXIS_KEYS):
             raise MimoControllerError(src, "axes", f"got {axes_list!r}; expected {list(AXIS_KEYS)}")
@@ -485,6 +490,8 @@ class MimoController:
     def header(self, name=None):
         """NAME.h: includes the three axis headers and runs the step of the module docstring."""
         name = name or self.name
+        if not _C_NAME.match(name):
+            raise MimoControllerError(self.name, "name", f"got {name!r}; the header needs a C identifier")
         up = name.upper()
         ax = [f"{name}_{k}" for k in AXIS_KEYS]
 
@@ -570,6 +577,7 @@ static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3
 """
 
 
+_C_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = ("schema", "name", "sample_rate_hz", "axes", "axis_units", "axis_scale", "gauge_to_axes",
              "axes_to_stacks", "stack_limits_v", "fixed_point", "controllers")
 
