@@ -21,6 +21,8 @@ demo: $(STAMP)
 	$(BIN)/workbench synth plants/p888_51_sn637.toml --effect creep --seed 1 --out out/calibrate/record.csv
 	$(BIN)/workbench calibrate out/calibrate/record.csv --plant plants/p888_51_sn637.toml --out out/calibrate --json out/calibrate/result.json
 	$(BIN)/workbench selfsense plants/p888_51_sn637_creep.toml --out out/selfsense --json out/selfsense/selfsense.json
+	$(BIN)/workbench study studies/fsm_servo.toml --out out/fsm
+	$(BIN)/workbench verify plants/fsm_p888_51.toml --controller out/fsm/controllers/fsm_servo.json --out out/fsm_verify
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -n auto --dist loadfile
