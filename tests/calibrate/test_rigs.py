@@ -245,3 +245,16 @@ def test_base_no_better_than_a_line_is_warned(kind):
     assert not m.clearly_better_than_line
     assert any("no better than a line" in w for w in base.warnings)
     assert m.rms_test < 1.5 * m.line_rms_test             # and not much worse either: the ridge reaches the line
+
+
+def test_protocol_chirp_stays_below_nyquist_at_any_rate():
+    """The chirp ends at 2 kHz or 0.3 of the sample rate, whichever is lower; an end past Nyquist is refused."""
+    from workbench.calibrate.protocol import calibration_protocol
+    for rate_hz in (1e3, 3e3, 1e4, 1e5):
+        t, v = calibration_protocol(dt_s=1 / rate_hz, sine_cycles=1, stairs_v=(50.0,), hold_s=0.5, chirp_s=2.0)
+        tail = v[-int(0.05 * rate_hz):] - 50.0                      # the chirp's last 50 ms
+        crossings = np.count_nonzero(np.diff(np.signbit(tail)))
+        f_end = crossings / 2 / 0.05
+        assert f_end < 0.5 * rate_hz and f_end == pytest.approx(min(2000.0, 0.3 * rate_hz), rel=0.1)
+    with pytest.raises(ValueError, match="Nyquist"):
+        calibration_protocol(dt_s=1 / 3e3, chirp_f1_hz=2000.0)

@@ -24,12 +24,13 @@ __all__ = ["calibration_protocol"]
 
 def calibration_protocol(dt_s=1e-4, rest_s=0.5, v_max=100.0, sine_hz=0.5, sine_cycles=4, sine_decay=0.65,
                          stairs_v=(25.0, 50.0, 75.0, 100.0, 60.0, 30.0, 10.0), hold_s=3.0,
-                         chirp_amplitude_v=0.5, chirp_f0_hz=10.0, chirp_f1_hz=2000.0, chirp_s=6.0):
+                         chirp_amplitude_v=0.5, chirp_f0_hz=10.0, chirp_f1_hz=None, chirp_s=6.0):
     """Time and command of the protocol, sampled at ``dt_s``; about 35.5 s by default.
 
     The chirp starts at 10 Hz (the sines and holds cover the slower range) and takes 6 s, so it
     dwells ~2.6 s per decade: a light mode's ringing then lasts long enough to be both fitted
-    and tested.
+    and tested. It ends at ``chirp_f1_hz``, by default 2 kHz or 0.3 of the sample rate, whichever
+    is lower (a chirp past Nyquist would alias); a given end at or above Nyquist is refused.
 
     Returns
     -------
@@ -38,6 +39,13 @@ def calibration_protocol(dt_s=1e-4, rest_s=0.5, v_max=100.0, sine_hz=0.5, sine_c
     """
     def n(seconds):
         return int(round(seconds / dt_s))
+
+    nyquist_hz = 0.5 / dt_s
+    if chirp_f1_hz is None:
+        chirp_f1_hz = min(2000.0, 0.3 / dt_s)
+    if chirp_s > 0 and not (0 < chirp_f0_hz < chirp_f1_hz < nyquist_hz):
+        raise ValueError(f"the chirp {chirp_f0_hz:g}-{chirp_f1_hz:g} Hz must rise within (0, {nyquist_hz:g} Hz), "
+                         f"the Nyquist frequency of dt_s = {dt_s:g} s")
 
     parts = [np.zeros(n(rest_s))]
     ts = np.arange(n(sine_cycles / sine_hz)) * dt_s
