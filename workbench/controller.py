@@ -121,15 +121,16 @@ def _number(src, key, value, *, positive=False, nonzero=False):
     return v
 
 
-def _array(src, key, value, shape_text, ndim):
+def _array(src, key, value, shape_text, ndim, error=ControllerError):
+    """``value`` as a finite float array of ``ndim`` dimensions, else ``error(src, key, message)``."""
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise ControllerError(src, key, f"must be {shape_text} of numbers; got {str(value)[:80]}") from None
+        raise error(src, key, f"must be {shape_text} of numbers; got {str(value)[:80]}") from None
     if arr.ndim != ndim:
-        raise ControllerError(src, key, f"must be {shape_text}; got an array of shape {arr.shape}")
+        raise error(src, key, f"must be {shape_text}; got an array of shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ControllerError(src, key, f"must hold finite numbers only; got {arr.tolist()}")
+        raise error(src, key, f"must hold finite numbers only; got {arr.tolist()}")
     return arr
 
 

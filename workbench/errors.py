@@ -9,7 +9,7 @@ catch ``ValueError`` as usual.
 __all__ = ["WorkbenchError", "PlantDefinitionError", "StudyDefinitionError", "UnitError", "DataFileError",
            "UnsupportedError", "DesignError", "StudyFailed", "FileArgumentError", "FlagRangeError",
            "OutputOntoInputError", "ControllerError", "ControllerMismatchError", "ExportError",
-           "SweepError"]
+           "SweepError", "MimoControllerError", "ChargeChannelError"]
 
 
 class WorkbenchError(Exception):
@@ -86,3 +86,11 @@ class StudyFailed(DesignError):
     """The study ran but its best design misses a target; its report is written (names the constraint and the fix)."""
 
     outputs_are_the_result = True      # the CLI keeps the failed study's report (exit 2), unlike a broken run's
+
+
+class MimoControllerError(ControllerError):
+    """A MIMO controller file or object is not valid: names the file, the key and the fix."""
+
+
+class ChargeChannelError(WorkbenchError, ValueError):
+    """The plant has no charge channel model for a charge or fused loop."""

@@ -54,7 +54,8 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ..controller import Controller, ControllerError, plant_window
+from ..controller import Controller, _array, plant_window
+from ..errors import ControllerError, MimoControllerError
 from ..report.output import write_text
 from .fixed_point import fixed_step, initial_state, quantize
 from .sos import ExportError
@@ -65,10 +66,6 @@ MIMO_SCHEMA = "workbench.mimo_controller/1"
 AXIS_KEYS = ("tip", "tilt", "piston")
 AXIS_UNITS = ("rad", "rad", "m")
 _COEF_TOP_BITS = 30          # matrix words: |word| < 2^30
-
-
-class MimoControllerError(ControllerError):
-    """A MIMO controller file or object is not valid: names the file, the key and the fix."""
 
 
 def _frac_for(max_abs, top_bits=_COEF_TOP_BITS):
@@ -402,16 +399,11 @@ class MimoController:
             raise MimoControllerError(src, "axes", f"got {axes_list!r}; expected {list(AXIS_KEYS)}")
 
         def mat(key, shape):
-            try:
-                m = np.asarray(data[key], dtype=float)
-            except KeyError:
-                raise MimoControllerError(src, key, "is missing; re-export the controller") from None
-            except (TypeError, ValueError):
-                raise MimoControllerError(src, key, f"must hold numbers; got {str(data[key])[:80]}") from None
+            if key not in data:
+                raise MimoControllerError(src, key, "is missing; re-export the controller")
+            m = _array(src, key, data[key], f"an array of shape {shape}", len(shape), MimoControllerError)
             if m.shape != shape:
                 raise MimoControllerError(src, key, f"must have shape {shape}; got {m.shape}")
-            if not np.all(np.isfinite(m)):
-                raise MimoControllerError(src, key, f"must hold finite numbers; got {m.tolist()}")
             return m
         scale = mat("axis_scale", (3,))
         if np.any(scale <= 0):

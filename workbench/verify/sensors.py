@@ -24,7 +24,9 @@ for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, t
 then the loop closes (the cascade at rest at the bias) with its reference at the reading of that
 moment; ``triangle_periods`` periods of a ``triangle_hz`` triangle over 10-90 % of the stroke
 around it; then a hold of ``hold_s``. Metrics on the true x (decimated to 1 kHz point samples):
-triangle RMS error after the first period (its mean removed), hold drift (mean of the last
+triangle RMS error after the first period (in the true-position frame: the pinned reference plus
+the sensor's offset over the last 0.2 s of open loop, nothing subtracted; the mean is reported
+beside it as ``triangle_mean_m``), hold drift (mean of the last
 second minus mean of the second after 1 s of settling), hold noise (RMS about the 1 s running
 mean). The charge amplifier's parameters are the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`
 (the seeds give none for a stack); the estimator is identified on a simulated 700 s record of
@@ -39,7 +41,7 @@ import numpy as np
 from numba import njit
 
 from ..design.margins import closed_loop_bandwidth_hz
-from ..errors import WorkbenchError
+from ..errors import ChargeChannelError, WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
 from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
 from ..plant import kernels as K
@@ -51,10 +53,6 @@ __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "Se
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
 DECIMATE = 10                  # metrics on 1 kHz point samples of x
-
-
-class ChargeChannelError(WorkbenchError, ValueError):
-    """The plant has no charge channel model for a charge or fused loop."""
 
 
 def charge_channel_missing(plant):
