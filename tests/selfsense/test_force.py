@@ -12,8 +12,10 @@ from workbench.plant.simulator import PZTSimulator
 from workbench.selfsense.charge_amp import ChargeAmpParams, cumulative_integral, relax_foh
 from workbench.selfsense.charge_drift import identify_charge_drift, reversal_alpha
 from workbench.selfsense.command import main as selfsense_main
-from workbench.selfsense.force import (FORCE_STAGE, estimate_force, force_step_errors, instron_from_table,
-                                       run_force_study, simulate_force_step)
+from workbench.identify.transducer import identify_transducer
+from workbench.selfsense.force import (FORCE_STAGE, TABLE1_FORMS, estimate_force, force_step_errors, instron_from_table,
+                                       instron_held_out, nested_held_out, run_force_study, simulate_force_step,
+                                       table1_held_out, table1_swap_decision)
 from workbench.selfsense.identify import identify, simulate_identification
 
 DT = 5e-4
@@ -204,3 +206,159 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     assert "_arrays" not in data and len(data["instron"]["runs"]) == 18
     assert {"force.png", "force_report.md", "force.json"} <= {p.name for p in out.iterdir()}
     assert "| serial | run |" in (out / "force_report.md").read_text()
+
+
+# ---- Table 1 peak force, held out (issue 16 item 2: within 5 %) ---------------------------------------------
+
+TABLE1 = "plants/data/p888_51_instron_table1.csv"
+
+
+def _rewrite_table(root, tmp_path, edit):
+    """Table 1 with ``edit(cells)`` applied to each R out data row's cells (list of str); returns the new path."""
+    lines = []
+    for line in (root / TABLE1).read_text().splitlines():
+        cells = line.split(",")
+        if not line.startswith("#") and len(cells) == 7 and cells[2] == "R_out":
+            cells = edit(cells)
+        lines.append(",".join(cells))
+    path = tmp_path / "table1.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_swap_decision_follows_from_the_gauge_calibration(root):
+    """SN618 R out run 3 is read swapped because of its gauge: -1.078 V x 3.246 um/V = -3.499 um against a printed
+    -0.336 um (941 % off), exchanged -0.336 V x 3.246 um/V = -1.091 um against -1.078 um (1.2 %); and exchanged its
+    V/x lies by the serial's other runs'. No other run is swapped."""
+    decided = table1_swap_decision(root / TABLE1)
+    assert len(decided) == 9
+    swapped = [(d["serial"], d["run"]) for d in decided if d["swap"]]
+    assert swapped == [("SN618", 3)]
+    d = next(d for d in decided if d["swap"])
+    assert d["gauge_disagreement_printed"] == pytest.approx((1.078 * 3.246 - 0.336) / 0.336, rel=1e-12)
+    assert d["gauge_disagreement_swapped"] == pytest.approx((0.336 * 3.246 - 1.078) / 1.078, rel=1e-12)
+    k_others = np.mean([12.20 / (-0.334 * 3.246e-6), 12.21 / (-0.334 * 3.246e-6)])
+    assert d["v_per_x_others_v_per_m"] == pytest.approx(k_others, rel=1e-12)
+    assert abs(d["v_per_x_swapped_v_per_m"] / k_others - 1) < 0.02 < 0.5 < abs(d["v_per_x_printed_v_per_m"] / k_others - 1)
+    assert d["x_gauge_m"] == pytest.approx(-0.336 * 3.246e-6, rel=1e-12)
+    # the transducer check flags the same run, and only it, as swapped
+    res = identify_transducer(root / TABLE1)
+    looks = [(f["serial"], f["run"]) for f in res.runs_flagged if "look swapped" in f["reason"]]
+    assert looks == swapped
+
+
+@pytest.mark.parametrize("draw", range(3))
+def test_swap_decision_never_reads_the_force(root, tmp_path, draw):
+    """Every R out force replaced by a draw over 100-2000 N of compression: the decision and its evidence stand."""
+    rng = np.random.default_rng(40 + draw)
+    path = _rewrite_table(root, tmp_path, lambda c: c[:5] + [f"{-rng.uniform(100.0, 2000.0):.1f}", c[6]])
+    keep = ("swap", "gauge_disagreement_printed", "gauge_disagreement_swapped", "v_per_x_printed_v_per_m", "x_gauge_m")
+    a, b = table1_swap_decision(root / TABLE1), table1_swap_decision(path)
+    assert [[r[k] for k in keep] for r in a] == [[r[k] for k in keep] for r in b]
+
+
+def test_swap_decision_finds_a_swap_anywhere_and_leaves_unfixable_runs(root, tmp_path):
+    """SN637 run 2 exchanged in the file: found (and SN618 run 3 still). A gauge that disagrees however it is read
+    (gauge x 1.5) is not 'fixed' by a swap."""
+    def edit(c):
+        if c[0] == "SN637" and c[1] == "2":
+            c = c[:3] + [c[4], c[3]] + c[5:]
+        if c[0] == "SN629" and c[1] == "1":
+            c = c[:3] + [f"{1.5 * float(c[3]):.4f}"] + c[4:]
+        return c
+    decided = table1_swap_decision(_rewrite_table(root, tmp_path, edit))
+    assert [(d["serial"], d["run"]) for d in decided if d["swap"]] == [("SN637", 2), ("SN618", 3)]
+    sn629 = next(d for d in decided if (d["serial"], d["run"]) == ("SN629", 1))
+    assert sn629["gauge_disagreement_printed"] > 0.05 and not sn629["swap"]
+
+
+def _synthetic_runs(rng, n_serials=3, n_runs=3):
+    """R out runs with F/V = G and V/x = kappa_s exactly; G, kappa_s and the forces drawn over wide ranges."""
+    g = -np.exp(rng.uniform(np.log(10.0), np.log(500.0)))                 # N/V
+    kappa = np.exp(rng.uniform(np.log(1e6), np.log(1e8), n_serials))     # V/m, one per serial
+    serial = np.repeat([f"S{k}" for k in range(n_serials)], n_runs)
+    f = -np.exp(rng.uniform(np.log(10.0), np.log(5000.0), serial.size))
+    v = f / g
+    x = v / np.repeat(kappa, n_runs)
+    return f, v, x, serial
+
+
+@pytest.mark.parametrize("draw", range(3))
+def test_held_out_forms_are_exact_on_exact_data(draw):
+    """F = G V and V = kappa_s x exactly (the open-lead stack of the model, one kappa per serial, as each serial's
+    gauge calibration may be off): every form but the pooled gauge gain, in either scheme, and the nested choice
+    estimate every run exactly; the pooled F/x cannot, its serials' F/x differ."""
+    f, v, x, s = _synthetic_runs(np.random.default_rng(60 + draw))
+    for form in TABLE1_FORMS:
+        for scheme in ("loo", "loso"):
+            h = instron_held_out(f, v, x, s, form=form, scheme=scheme)
+            if form.endswith("_serial") and scheme == "loso":
+                assert np.all(np.isnan(h["estimate_n"]))          # no force of the serial to calibrate on
+            elif form == "gauge":
+                assert h["max_error_fraction"] > 1e-3
+            else:
+                np.testing.assert_allclose(h["estimate_n"], f, rtol=1e-9)
+    np.testing.assert_allclose(nested_held_out(f, v, x, s)["estimate_n"], f, rtol=1e-9)
+
+
+@pytest.mark.parametrize("form", TABLE1_FORMS)
+@pytest.mark.parametrize("scheme", ["loo", "loso"])
+def test_held_out_never_uses_the_runs_own_force(form, scheme):
+    """Perturbing run i's force (x 0.3 to x 3) changes no estimate of run i: it is held out of its own gains."""
+    rng = np.random.default_rng(7)
+    f, v, x, s = _synthetic_runs(rng)
+    f = f * rng.uniform(0.9, 1.1, f.size)            # repeat-run scatter, so the gains depend on the forces
+    base = instron_held_out(f, v, x, s, form=form, scheme=scheme)["estimate_n"]
+    nest = nested_held_out(f, v, x, s)["estimate_n"]
+    for i in range(f.size):
+        g = f.copy()
+        g[i] *= rng.uniform(0.3, 3.0)
+        assert instron_held_out(g, v, x, s, form=form, scheme=scheme)["estimate_n"][i] == pytest.approx(
+            base[i], rel=1e-12, nan_ok=True)
+        assert nested_held_out(g, v, x, s)["estimate_n"][i] == pytest.approx(nest[i], rel=1e-12)
+
+
+def test_held_out_forms_by_hand(root):
+    """loo on Table 1 (SN618 run 3 as decided) against the closed forms written out for one run."""
+    decided = table1_swap_decision(root / TABLE1)
+    f, v, x = (np.array([d[k] for d in decided]) for k in ("force_n", "back_emf_v", "x_gauge_m"))
+    s = np.array([d["serial"] for d in decided])
+    i = 8                                                                  # SN618 run 3
+    others, same = np.arange(8), np.array([6, 7])
+    g = np.mean(f[others] / v[others])
+    kappa = np.mean(v[same] / x[same])
+    assert instron_held_out(f, v, x, s, form="back_emf")["estimate_n"][i] == pytest.approx(g * v[i], rel=1e-12)
+    assert instron_held_out(f, v, x, s)["estimate_n"][i] == pytest.approx(g * kappa * x[i], rel=1e-12)
+    g_loso = np.mean(f[:6] / v[:6])
+    assert instron_held_out(f, v, x, s, scheme="loso")["estimate_n"][i] == pytest.approx(g_loso * kappa * x[i],
+                                                                                          rel=1e-12)
+
+
+def test_table1_peak_force_target(root):
+    """Issue 16: peak force of the Table 1 R out runs within 5 %, each run on gains its force never entered; and
+    with the form chosen without the held-out run (nested)."""
+    h = table1_held_out(root / TABLE1)
+    rep = h["reported"]
+    assert rep["loo"]["max_error_fraction"] <= 0.05 and rep["loso"]["max_error_fraction"] <= 0.05
+    assert h["nested"]["max_error_fraction"] <= 0.05
+    assert h["target_met_loo"] and h["target_met_loso"] and h["target_met_nested"]
+    # the spread's implied share of new runs beyond 5 % (normal errors, the held-out RMS): closed form
+    from scipy.stats import norm
+    for sch in ("loo", "loso"):
+        sp = h["spreads"][sch]
+        assert sp["exceed_target_fraction_normal"] == pytest.approx(
+            2 * norm.sf(0.05 / rep[sch]["rms_error_fraction"]), rel=1e-9)
+    fv = np.array([d["force_n"] / d["back_emf_v"] for d in h["runs"] if d["serial"] == "SN629"])
+    assert h["spreads"]["loo"]["f_per_v_relative_std"]["SN629"] == pytest.approx(np.std(fv, ddof=1) / abs(fv.mean()))
+
+
+def test_table1_held_out_bad_arguments(sn637_creep):
+    f, v, x, s = _synthetic_runs(np.random.default_rng(1))
+    with pytest.raises(ValueError, match="unknown Table 1 form"):
+        instron_held_out(f, v, x, s, form="quadratic")
+    with pytest.raises(ValueError, match="loso"):
+        instron_held_out(f, v, x, s, scheme="kfold")
+    with pytest.raises(ValueError, match="nonzero back EMF"):
+        instron_held_out(f, np.zeros_like(v), x, s)
+    with pytest.raises(ValueError, match="x_source"):
+        table1_held_out(x_source="laser")
