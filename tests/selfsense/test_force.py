@@ -206,6 +206,11 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     assert "_arrays" not in data and len(data["instron"]["runs"]) == 18
     assert {"force.png", "force_report.md", "force.json"} <= {p.name for p in out.iterdir()}
     assert "| serial | run |" in (out / "force_report.md").read_text()
+    # the held-out Table 1 figures: the line printed, the section in the report, the JSON's values those of the library
+    assert "held out" in text and "nested" in text
+    assert "## Table 1 R out runs held out" in (out / "force_report.md").read_text()
+    ref = table1_held_out(root / TABLE1)
+    assert data["instron"]["held_out"]["reported"]["loo"]["max_error_fraction"] == ref["reported"]["loo"]["max_error_fraction"]
 
 
 # ---- Table 1 peak force, held out (issue 16 item 2: within 5 %) ---------------------------------------------

@@ -251,6 +251,13 @@ def plot_force(data, path):
              color="C3", label="measured back EMF, model gain")
     ax3.plot([-r["force_n"] for r in ro], [-r["measured_back_emf"]["calibrated_leave_one_out"]["peak_force_estimate_n"]
                                             for r in ro], "v", color="C2", label="measured back EMF, gain of the other runs")
+    h = ins.get("held_out")
+    if h is not None:
+        hf = [-d["force_n"] for d in h["runs"]]
+        ax3.plot(hf, [-e for e in h["reported"]["loo"]["estimate_n"]], "D", ms=5, color="C1",
+                 label=f"back EMF through the gauge, held out: max {100 * h['reported']['loo']['max_error_fraction']:.1f} %")
+        ax3.plot(hf, [-e for e in h["nested"]["estimate_n"]], "x", color="C4",
+                 label=f"form chosen without the run: max {100 * h['nested']['max_error_fraction']:.1f} %")
     every = np.concatenate([true, sim, [-r["measured_back_emf"]["peak_force_estimate_n"] for r in ro]])
     span = np.array([np.floor(every.min() / 50) * 50 - 25, np.ceil(every.max() / 50) * 50 + 25])
     ax3.plot(span, span, color="0.3", lw=0.8)
@@ -312,7 +319,40 @@ def _force_report(data, figure):
               f"{100 * ins['measured_r_out_calibrated_max_error_fraction']:.1f} %, RMS "
               f"{100 * ins['measured_r_out_calibrated_rms_error_fraction']:.1f} %) "
               f"**{yes(ins['target_met_measured_r_out_calibrated'])}**.", ""]
+    if "held_out" in ins:
+        lines += _table1_held_out_report(ins["held_out"], ins["held_out_displacement_column"], yes)
     return "\n".join(lines) + "\n"
+
+
+def _table1_held_out_report(h, hd, yes):
+    """The Table 1 R out runs held out: swap decision, each form's loo/loso errors, nested choice, spread."""
+    pct = lambda a: "n/a" if a is None or not np.isfinite(a) else f"{100 * a:.2f}"    # noqa: E731
+    lines = ["## Table 1 R out runs held out (back EMF and gauge)", ""]
+    for d in h["runs"]:
+        if d["swap"]:
+            lines.append(f"{d['serial']} run {d['run']} is read with its gauge and displacement exchanged, decided on the "
+                         f"gauge alone: as printed gauge x calibration is {100 * d['gauge_disagreement_printed']:.0f} % off "
+                         f"the displacement, exchanged {100 * abs(d['gauge_disagreement_swapped']):.1f} %; V/x "
+                         f"{d['v_per_x_printed_v_per_m'] * 1e-6:.2f} V/um printed, "
+                         f"{d['v_per_x_swapped_v_per_m'] * 1e-6:.2f} V/um exchanged, the serial's other runs "
+                         f"{d['v_per_x_others_v_per_m'] * 1e-6:.2f} V/um.")
+    lines += ["", "| form | loo max % | loo RMS % | loso max % | loso RMS % | x from the displacement column: loso max % |",
+              "|---|---|---|---|---|---|"]
+    for form, r in h["forms"].items():
+        mark = " (reported)" if form == h["reported_form"] else ""
+        lines.append(f"| {form}{mark} | {pct(r['loo']['max_error_fraction'])} | {pct(r['loo']['rms_error_fraction'])} | "
+                     f"{pct(r['loso']['max_error_fraction'])} | {pct(r['loso']['rms_error_fraction'])} | "
+                     f"{pct(hd['forms'][form]['loso']['max_error_fraction'])} |")
+    n, ne = h["nested"], h["nested_reading_back_emf"]
+    sp = h["spreads"]
+    lines += ["", f"The reported form was chosen among these on the same runs. Chosen per run without it (nested "
+              f"leave-one-out, least inner RMS): max {pct(n['max_error_fraction'])} %, RMS {pct(n['rms_error_fraction'])} % "
+              f"**{yes(h['target_met_nested'])}** (chosen: {', '.join(sorted(set(n['chosen_form'])))}); among the forms that "
+              f"read the run's own back EMF only: max {pct(ne['max_error_fraction'])} % **{yes(h['target_met_nested_reading_back_emf'])}**.",
+              "", f"Share of new runs beyond {100 * h['target_fraction']:.0f} % if the errors are normal with the held-out RMS: "
+              f"{pct(sp['loo']['exceed_target_fraction_normal'])} % (loo), {pct(sp['loso']['exceed_target_fraction_normal'])} % (loso). "
+              f"Repeat-run scatter of F/V: {pct(sp['loo']['pooled_f_per_v_relative_std'])} % (pooled within serials).", ""]
+    return lines
 
 
 def write_force_outputs(out, data):

@@ -127,6 +127,14 @@ def run_force(args):
                  f"max error {100 * ins['measured_r_out_max_error_fraction']:.1f} % ({met(ins['target_met_measured_r_out'])}); "
                  f"gain of the other runs max {100 * ins['measured_r_out_calibrated_max_error_fraction']:.1f} % "
                  f"({met(ins['target_met_measured_r_out_calibrated'])})")
+    h, hd = ins["held_out"], ins["held_out_displacement_column"]
+    rep, nest = h["reported"], h["nested"]
+    lines.append(f"  Table 1 R out held out, F = G kappa_s x (back EMF through the gauge): max "
+                 f"{100 * rep['loo']['max_error_fraction']:.1f} % loo ({met(h['target_met_loo'])}), "
+                 f"{100 * rep['loso']['max_error_fraction']:.1f} % loso ({met(h['target_met_loso'])}); "
+                 f"form chosen without the run (nested): {100 * nest['max_error_fraction']:.1f} % "
+                 f"({met(h['target_met_nested'])}); x from the displacement column: "
+                 f"{100 * hd['reported']['loso']['max_error_fraction']:.1f} % loso")
     if args.out is not None:
         lines.append(f"  report {Path(args.out) / 'force_report.md'}, figure {Path(args.out) / 'force.png'}")
     _emit(args, data, lines)

@@ -270,6 +270,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
        (mean over the 2 s hold, the force path's stage, tared) against the applied one, and the model's
        displacement and back EMF beside the measured ones; and each ``R_out`` run read straight
        from its measured back EMF (q = 0: leads open after draining).
+    4. The measured ``R out`` runs' peak forces held out (:func:`table1_held_out`), with each
+       run's displacement from its gauge (``held_out``) and from the printed displacement
+       column (``held_out_displacement_column``).
 
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
@@ -366,7 +369,10 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
                "target_met_measured_r_out_calibrated": bool(max(loo_err) <= FORCE_TARGET_PEAK_FRACTION),
                "measured_r_out_best_single_gain_max_error_fraction": best_gain_err,
                "measured_r_out_gain_window_for_target_n_per_v": window,
-               "force_per_back_emf_model_n_per_v": float(pzt.stiffness_n_per_m * pzt.c_pp_f / pzt.transducer_constant_n_per_v)}
+               "force_per_back_emf_model_n_per_v": float(pzt.stiffness_n_per_m * pzt.c_pp_f / pzt.transducer_constant_n_per_v),
+               # the back EMF read through the gauge strain, each run on gains its force never entered
+               "held_out": table1_held_out(table_path),
+               "held_out_displacement_column": table1_held_out(table_path, x_source="displacement")}
     data = {"plant": str(plant_path), "identified": ident.as_dict(), "charge_drift": drift.as_dict(),
             "force_step": step, "instron": instron,
             "_arrays": {"t_s": rec.t_s, "f_true_n": f_true, "x_m": rec.x_m,
