@@ -348,7 +348,9 @@ def _table1_held_out_report(h, hd, yes):
     lines += ["", f"The reported form was chosen among these on the same runs. Chosen per run without it (nested "
               f"leave-one-out, least inner RMS): max {pct(n['max_error_fraction'])} %, RMS {pct(n['rms_error_fraction'])} % "
               f"**{yes(h['target_met_nested'])}** (chosen: {', '.join(sorted(set(n['chosen_form'])))}); among the forms that "
-              f"read the run's own back EMF only: max {pct(ne['max_error_fraction'])} % **{yes(h['target_met_nested_reading_back_emf'])}**.",
+              f"read the run's own back EMF only: max {pct(ne['max_error_fraction'])} % **{yes(h['target_met_nested_reading_back_emf'])}**. "
+              f"Leave one serial out, chosen without the serial's forces: max {pct(h['nested_loso']['max_error_fraction'])} % "
+              f"**{yes(h['target_met_nested_loso'])}** (chosen: {', '.join(sorted(set(h['nested_loso']['chosen_form'])))}).",
               "", f"Share of new runs beyond {100 * h['target_fraction']:.0f} % if the errors are normal with the held-out RMS: "
               f"{pct(sp['loo']['exceed_target_fraction_normal'])} % (loo), {pct(sp['loso']['exceed_target_fraction_normal'])} % (loso). "
               f"Repeat-run scatter of F/V: {pct(sp['loo']['pooled_f_per_v_relative_std'])} % (pooled within serials).", ""]

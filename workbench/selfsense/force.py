@@ -553,37 +553,58 @@ def instron_held_out(force_n, back_emf_v, x_m, serial, *, form=TABLE1_FORM, sche
             "max_error_fraction": float(np.max(np.abs(err))), "rms_error_fraction": float(np.sqrt(np.mean(err ** 2)))}
 
 
-def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS):
-    """Leave one run out with the form chosen without it: per outer run, the form of least inner-LOO RMS error.
+def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, scheme="loo"):
+    """Each run held out with the form chosen without it: per outer fold, the form of least inner RMS error.
 
-    ``forms`` are the candidates (default all of ``TABLE1_FORMS``).
-
-    The inner leave-one-out runs on the other runs only (the outer run's force, V and x never
-    enter: kappa_s in the inner folds uses neither). A form without an estimate on some inner
-    fold is not a candidate for that outer run.
+    Parameters
+    ----------
+    force_n, back_emf_v, x_m, serial : array_like
+        As :func:`instron_held_out`.
+    forms : sequence of str, default ``TABLE1_FORMS``
+        The candidate forms.
+    scheme : {"loo", "loso"}
+        Outer and inner folds alike: ``loo`` holds out one run (the inner leave-one-out runs
+        on the other runs); ``loso`` holds out the run's serial's forces (the inner
+        leave-one-serial-out runs on the other serials' runs, and the estimate of the held-out
+        run uses its serial's other runs' V/x only, as :func:`instron_held_out` does).
 
     Returns
     -------
     dict
         ``estimate_n``, ``error_fraction``, ``chosen_form`` per run; ``max_error_fraction``,
-        ``rms_error_fraction``.
+        ``rms_error_fraction``, ``scheme``.
+
+    Notes
+    -----
+    The held-out run's force, V and x never enter the choice: the inner folds' training and
+    kappa_s calibration runs are drawn from the outer training runs only. A form without an
+    estimate on some inner fold (a per-serial gain with no run of the serial left) is not a
+    candidate for that outer fold.
     """
+    if scheme not in TABLE1_SCHEMES:
+        raise ValueError(f"unknown scheme {scheme!r}; use 'loo' (leave one run out) or 'loso' (leave one serial out)")
+    unknown = [fm for fm in forms if fm not in TABLE1_FORMS]
+    if unknown or not forms:
+        raise ValueError(f"unknown Table 1 form(s) {unknown}; the forms are {', '.join(TABLE1_FORMS)}")
     f, v, x = (np.asarray(a, float) for a in (force_n, back_emf_v, x_m))
     s = np.asarray(serial)
     n = f.size
     est, chosen = np.empty(n), []
     for i in range(n):
-        rest = [j for j in range(n) if j != i]
+        rest = [j for j in range(n) if j != i and (scheme == "loo" or s[j] != s[i])]
         score = {}
         for form in forms:
-            e = [(_estimate(form, f, v, x, s, [k for k in rest if k != j], rest, j) - f[j]) / abs(f[j]) for j in rest]
+            e = [(_estimate(form, f, v, x, s, [k for k in rest if k != j and (scheme == "loo" or s[k] != s[j])],
+                            rest, j) - f[j]) / abs(f[j]) for j in rest]
             if np.all(np.isfinite(e)):
                 score[form] = float(np.sqrt(np.mean(np.square(e))))
+        if not score:
+            raise ValueError(f"no form among {', '.join(forms)} can be scored under {scheme!r} without run {i}")
         best = min(score, key=score.get)
         chosen.append(best)
         est[i] = _estimate(best, f, v, x, s, rest, range(n), i)
     err = (est - f) / np.abs(f)
-    return {"estimate_n": est.tolist(), "error_fraction": err.tolist(), "chosen_form": chosen,
+    return {"scheme": scheme, "estimate_n": est.tolist(), "error_fraction": err.tolist(), "chosen_form": chosen,
             "max_error_fraction": float(np.max(np.abs(err))), "rms_error_fraction": float(np.sqrt(np.mean(err ** 2)))}
 
 
@@ -645,10 +666,11 @@ def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None):
     dict
         ``runs`` (the swap decision per run), ``forms`` ({form: {scheme: instron_held_out(...)}}),
         ``reported`` (``TABLE1_FORM``'s ``loo`` and ``loso``), ``nested`` (:func:`nested_held_out`
-        over every form) and ``nested_reading_back_emf`` (over ``TABLE1_FORMS_READING_BACK_EMF``),
+        over every form), ``nested_reading_back_emf`` (over ``TABLE1_FORMS_READING_BACK_EMF``) and
+        ``nested_loso`` (every form, leave one serial out),
         ``spreads`` ({scheme: :func:`table1_spreads` of the reported form}), ``target_fraction``,
         ``target_met_loo``, ``target_met_loso``, ``target_met_nested``,
-        ``target_met_nested_reading_back_emf``, ``x_source``.
+        ``target_met_nested_reading_back_emf``, ``target_met_nested_loso``, ``x_source``.
 
     Notes
     -----
@@ -666,11 +688,12 @@ def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None):
              for form in TABLE1_FORMS}
     nested = nested_held_out(f, v, x, s)
     nested_emf = nested_held_out(f, v, x, s, forms=TABLE1_FORMS_READING_BACK_EMF)
+    nested_loso = nested_held_out(f, v, x, s, scheme="loso")
     rep = forms[TABLE1_FORM]
     tgt = FORCE_TARGET_PEAK_FRACTION
     ok = lambda h: bool(h["max_error_fraction"] <= tgt)    # noqa: E731 (NaN compares False: a missing estimate misses)
     return {"x_source": x_source, "runs": decided, "forms": forms, "reported_form": TABLE1_FORM, "reported": rep,
-            "nested": nested, "nested_reading_back_emf": nested_emf,
+            "nested": nested, "nested_reading_back_emf": nested_emf, "nested_loso": nested_loso,
             "spreads": {sch: table1_spreads(decided, rep[sch]) for sch in TABLE1_SCHEMES}, "target_fraction": tgt,
             "target_met_loo": ok(rep["loo"]), "target_met_loso": ok(rep["loso"]), "target_met_nested": ok(nested),
-            "target_met_nested_reading_back_emf": ok(nested_emf)}
+            "target_met_nested_reading_back_emf": ok(nested_emf), "target_met_nested_loso": ok(nested_loso)}
