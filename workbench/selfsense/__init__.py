@@ -14,14 +14,16 @@ from .estimator import (EstimatorParams, ResidualCorrection, StreamingEstimator,
                         dynamic_gains, static_estimate)
 from .fused_loop import closed_loop_run, run_fused_study
 from .fusion import Blend, choose_crossover, sensor_spectra
-from .force import ForceEstimate, estimate_force, run_force_study, staged_charge
+from .force import (ForceEstimate, estimate_force, instron_held_out, nested_held_out, run_force_study, staged_charge,
+                    table1_held_out, table1_swap_decision)
 from .identify import Identified, identify, simulate_identification
 from .sysid import IdentifiedDynamics, fit_relaxations, identify_dynamics, identified_estimator, run_dynamics_study
 
 __all__ = ["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure", "EstimatorParams", "ResidualCorrection",
            "StreamingEstimator", "band_limited", "static_estimate", "dynamic_gains", "dynamic_estimator",
            "Identified", "identify", "simulate_identification", "ForceEstimate", "estimate_force", "staged_charge",
-           "run_force_study", "IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
+           "run_force_study", "table1_held_out", "table1_swap_decision", "instron_held_out", "nested_held_out",
+           "IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
            "run_dynamics_study", "Blend", "sensor_spectra", "choose_crossover", "closed_loop_run", "run_fused_study"]
 
 # the force path's charge, identified in coulombs (:mod:`.charge_drift`)

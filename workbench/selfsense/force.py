@@ -432,8 +432,14 @@ def table1_swap_decision(path=None, *, calibrations_m_per_v=None, gauge_toleranc
         One per ``R_out`` run, in file order: ``serial``, ``run``, ``swap`` (bool), and the
         evidence: ``gauge_disagreement_printed`` and ``gauge_disagreement_swapped`` (fractions),
         ``v_per_x_printed_v_per_m``, ``v_per_x_swapped_v_per_m``, ``v_per_x_others_v_per_m``
-        (mean over the serial's other runs as printed; NaN if it has none) and
-        ``x_gauge_m`` (the gauge displacement as decided, m).
+        (mean over the serial's other runs as printed; NaN if it has none); and the run as decided:
+        ``x_gauge_m`` (gauge change x calibration, m), ``displacement_m`` (the displacement
+        column, m), ``force_n`` (N), ``back_emf_v`` (V).
+
+    Raises
+    ------
+    DataFileError
+        If the table is malformed (as :func:`~workbench.identify.transducer.identify_transducer`).
     """
     from ..identify.transducer import DEFAULT_CALIBRATIONS_M_PER_V, _gauge_disagreement, _read_table
     cals = DEFAULT_CALIBRATIONS_M_PER_V if calibrations_m_per_v is None else calibrations_m_per_v
@@ -464,12 +470,8 @@ def table1_swap_decision(path=None, *, calibrations_m_per_v=None, gauge_toleranc
 
 
 def _form_estimate(form, f, v, x, serial, train, i):
-    """Peak force of run ``i`` by ``form`` from the forces of ``train`` (never ``i``); NaN if the form lacks data.
-
-    The gauge-through-back-EMF forms also use the V/x of the same serial's runs other than ``i``
-    (back EMF and gauge only, no force), restricted to ``train`` plus the runs whose force is
-    withheld but whose V and x are a calibration (all but ``i``: see :func:`instron_held_out`).
-    """
+    """Peak force of run ``i`` by a form that needs no kappa_s, from the forces of ``train`` only; NaN if the form
+    lacks data (a per-serial gain with no run of the serial in ``train``)."""
     train = np.asarray(train, int)
     same = train[serial[train] == serial[i]]
     if form == "back_emf":
@@ -487,7 +489,10 @@ def _form_estimate(form, f, v, x, serial, train, i):
 
 
 def _kappa_form(form, f, v, x, serial, train, calib, i):
-    """The forms that read the back EMF through the gauge: kappa_s = mean V/x over ``calib`` (same serial, not i)."""
+    """The forms that read the back EMF through the gauge: G from ``train``'s forces, kappa_s = mean V/x over the runs
+    of ``calib`` of run i's serial other than i (back EMF and gauge only, no force). On the model's open-lead
+    stack V/x = -T_em / C_p (eq. 9 with q = 0) for every serial; kappa_s per serial absorbs each serial's
+    gauge calibration error."""
     calib = np.asarray([j for j in calib if j != i and serial[j] == serial[i]], int)
     if calib.size == 0:
         return np.nan
