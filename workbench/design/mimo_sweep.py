@@ -222,7 +222,8 @@ def mirror_closed_loop(fsm, member, design, loop_out, dt_s, delay_samples=1):
     pm = member_responses(member, f, MIRROR_OUTPUTS)
     if design.iff is not None:
         c = iff_response(design.iff, f, dt_s, delay_samples)
-        pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, member, f))
+        pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, member, f, design.iff.source,
+                                                                                design.iff.bridge_capacitance_f))
     return pm @ design.decoupler.in_v_per_q[None] @ cdiag @ np.linalg.inv(np.eye(3)[None] + loop_out)
 
 
