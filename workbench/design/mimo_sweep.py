@@ -21,7 +21,8 @@ rate's lag-limited crossover f_d measured on the mirror with its modes far above
 reports three bandwidths (|T| and |S| at the gauge-estimated axes, and the mirror angle's own,
 :func:`mirror_closed_loop`) and the margins against the issue's floors.
 ``PYTHONPATH=. .venv/bin/python -m workbench.design.mimo_sweep plants/fsm_p888_51.toml --rates``
-prints the tables and writes ``out/mimo_rate_sweep.json``.
+prints the tables and writes ``out/mimo_rate_sweep.json`` (``--rates --bridge``: the IFF from each stack's
+charge bridge, the one that exports; ``out/mimo_rate_sweep_bridge.json``).
 
 :func:`mirror_angle_limit` says why no gauge-fed design, damped or not, reaches 2x on the mirror's
 own angle: the transfer from the stack voltages to the mirror's tip/tilt has transmission zeros at
@@ -270,14 +271,15 @@ def _design_row(d, mirror_bw=None):
 
 
 def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"), reference_mode_ratio=12.0,
-               progress=None):
+               progress=None, iff_source="charge+gauge"):
     """Notch-only and IFF-damped designs of the mirror ``fsm`` (as loaded) at each servo rate.
 
     At each rate also the notch-only design with the flexure modes moved (``scaled_mirror``) to
     ``reference_mode_ratio`` x 0.03 rate (~12 x the crossover the delay alone allows, i.e. far
     above the band, below Nyquist): its tip crossover is that rate's delay-limited crossover f_d.
     The committed mirror's notch-only design is mode-limited at a rate where its crossover falls
-    clearly (< 0.8x) below f_d.
+    clearly (< 0.8x) below f_d. ``iff_source``: the IFF design's force estimate
+    (:func:`~workbench.design.mimo.force_estimate`; ``"bridge"``: the charge bridge, which exports).
 
     Returns a list of dicts (one per rate): ``rate_hz``, ``tip_mode_hz``, ``delay_limited_crossover_hz``,
     ``reference_tip_mode_hz``, ``designs`` {"notch only", "IFF damped"} -> :func:`_design_row`,
@@ -290,7 +292,7 @@ def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"
         t0 = time.perf_counter()
         spec = rate_spec(rate)
         nd = design_mimo(fsm, fam, damping=False, spec=spec)
-        dd = design_mimo(fsm, fam, damping=True, spec=spec)
+        dd = design_mimo(fsm, fam, damping=True, spec=spec, iff_source=iff_source)
         ref_target = reference_mode_ratio * 0.03 * rate
         ref = scaled_mirror(fsm, (f1 / ref_target) ** 2)
         ref_fam = mirror_family(ref, branches=branches)
@@ -462,11 +464,13 @@ def main(argv=None):
         return lim
     if "--rates" in args:
         from ..report.output import write_json
-        rows = rate_sweep(fsm, progress=lambda i, n: print(f"rate {i}/{n}", file=sys.stderr, flush=True))
+        src = "bridge" if "--bridge" in args else "charge+gauge"
+        rows = rate_sweep(fsm, progress=lambda i, n: print(f"rate {i}/{n}", file=sys.stderr, flush=True),
+                          iff_source=src)
         for ax in AXIS_NAMES:
             print(f"\n{ax}:\n")
             print(rate_markdown(rows, ax))
-        write_json("out/mimo_rate_sweep.json", rows)
+        write_json("out/mimo_rate_sweep.json" if src == "charge+gauge" else "out/mimo_rate_sweep_bridge.json", rows)
         return rows
     rows = damping_sweep(fsm, hinf=hinf, progress=lambda i, n: print(f"point {i}/{n}", file=sys.stderr, flush=True),
                          hinf_kwargs={"bisections": 4})
