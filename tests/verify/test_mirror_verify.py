@@ -118,14 +118,15 @@ def test_siso_and_mimo_controllers_are_not_crossed(root, tmp_path, ctrl, capsys)
     assert not (tmp_path / "o").exists()
 
 
-def test_bad_mirror_study_names_the_key(tmp_path, root, capsys):
+@pytest.mark.parametrize("old, new, key", [("notch_depth_db = 20.0", "notch_depth_db = -3.0", "design.notch_depth_db"),
+                                           ("noise_budget = true", "noise_budget = true\niff = \"yes\"", "design.iff")])
+def test_bad_mirror_study_names_the_key(tmp_path, root, capsys, old, new, key):
     study = tmp_path / "s.toml"
     study.write_text((root / "studies" / "fsm_servo.toml").read_text().replace(
-        'plant = "../plants/fsm_p888_51.toml"', f'plant = "{root / "plants" / "fsm_p888_51.toml"}"').replace(
-        "notch_depth_db = 20.0", "notch_depth_db = -3.0"))
+        'plant = "../plants/fsm_p888_51.toml"', f'plant = "{root / "plants" / "fsm_p888_51.toml"}"').replace(old, new))
     assert main(["study", str(study), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert str(study) in err and "[design.notch_depth_db]" in err
+    assert str(study) in err and f"[{key}]" in err and "Traceback" not in err
 
 
 def test_verify_command_writes_report_and_figures(root, tmp_path, ctrl, monkeypatch):
