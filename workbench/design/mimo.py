@@ -31,7 +31,10 @@ with the stack's capacitance integrates the command into charge, so a gain high-
 is integral force feedback. The gain g maximizes the smallest damping ratio of the flexure modes
 on the nominal member, with the firmware's two-sample loop delay (Pade) in the loop, among the
 gains whose sampled IFF loops keep PM/GM and that keep every small-signal member stable. The
-outer loops are then tuned on the damped family, without a notch.
+outer loops are then tuned on the damped family, without a notch. The force estimate above has the
+gauge in it (its noise reaches the drive x T^2 / C_p); ``iff_source="bridge"`` uses instead what the
+stack's charge amplifier with a reference capacitor C_R reads, F_hat = T (V_t - q / C_R) (the force
+itself where C_h = C_R; no gauge), and ``"charge"`` the charge alone, T q / C_p (:func:`force_estimate`).
 
 **Margins.** Loop-at-a-time: axis i broken with the other two closed, l_i = L_ii - L_io (I +
 L_oo)^-1 L_oi (:func:`loop_at_a_time`). Simultaneous: the balanced (skew 0) multiloop disk
