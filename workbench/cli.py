@@ -263,7 +263,13 @@ def _cmd_mirror_study(args):
                      f"deg, GM {a['gain_margin_db']['value']:.2f} dB (worst members)")
     lines += [f"  simultaneous disk margin alpha {d['disk_in']['alpha']:.3f} (stack inputs), "
               f"{d['disk_out']['alpha']:.3f} (axis outputs)",
-              f"  exported {data['exported']['json']} and {data['exported']['h']}", f"  report {data['report']}"]
+              f"  exported {data['exported']['json']} and {data['exported']['h']}"]
+    if data.get("damped"):
+        dd = data["damped"]["design"]
+        lines += [f"  IFF-damped (charge bridge, {dd['iff']['gain_v_per_n']:.3g} V/N): bandwidth "
+                  + ", ".join(f"{ax} {a['bandwidth_hz']['value']:.0f} Hz" for ax, a in dd["axes"].items())
+                  + f"; exported {data['damped']['exported']['json']}"]
+    lines.append(f"  report {data['report']}")
     _emit(args, data, lines)
 
 

@@ -63,6 +63,36 @@ def test_force_estimate_dc_is_static_stiffness(fsm, family):
         assert np.abs(fh - np.diag(np.diag(fh))).max() < 1e-5 * np.abs(np.diag(fh)).max()   # stacks decouple statically
 
 
+@pytest.mark.parametrize("scales", [(1.0, 1.0, 1.0), (1.0, 0.85, 1.15), (1.3, 0.7, 1.0)])
+def test_bridge_force_is_the_force_where_c_h_is_the_reference(fsm, scales):
+    """T (V_t - q / C_R) with V_t = v - R i is T V_p = T (q - T x) / C_p exactly when C_R is the member's own
+    C_h (no creep on the serial files); with C_R from another C_h (a stack scaled) it is not (> 1 % off)."""
+    m = fsm.with_capacitance_scales(scales)
+    nom = mirror_family(m, branches=("ascending",))[mimo.nominal_name()]
+    own = mimo.bridge_capacitances_f(m)
+    for cr, same in ((own, True), (mimo.bridge_capacitances_f(fsm), len(set(scales)) == 1)):
+        fb = mimo.force_estimate(m, nom, FREQ, "bridge", cr)
+        fg = mimo.force_estimate(m, nom, FREQ, "charge+gauge")
+        err = np.abs(fb - fg).max(axis=0) / np.abs(fg).max(axis=0)          # per channel, over the grid
+        if same:
+            assert err.max() < 1e-6, (cr, err)
+        else:
+            assert err.max() > 1e-2, (cr, err)
+    with pytest.raises(ValueError, match="reference capacitances"):
+        mimo.IFF(0.1, 1.0, "bridge")
+    with pytest.raises(ValueError, match="IFF source"):
+        mimo.IFF(0.1, 1.0, "gauge")
+
+
+def test_bridge_iff_damps_as_the_gauge_fed_one(fsm, family):
+    """On the nominal member the bridge's estimate is the force itself: tune_iff picks the same gain and damping."""
+    a, ia = mimo.tune_iff(fsm, family, source="charge+gauge")
+    b, ib = mimo.tune_iff(fsm, family, source="bridge")
+    assert b.gain_v_per_n == pytest.approx(a.gain_v_per_n, rel=1e-6)
+    assert ib["zeta_min_damped"] == pytest.approx(ia["zeta_min_damped"], rel=1e-6)
+    assert ib["zeta_min_damped"] > 2 * ib["zeta_min_open"]
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_loop_at_a_time_is_the_schur_complement(seed):
     """With the other loops closed, channel i's sensitivity 1 / (1 + l_i) is [(I + L)^-1]_ii."""

@@ -48,6 +48,29 @@ def ctrl(fsm):
     return MimoController.from_design(design, fsm, name="mimo")
 
 
+MAIN_IFF_C = MAIN_C.replace("int32_t u0[3], g[3], r[3], v[3];", "int32_t u0[3], g[3], r[3], w[3], v[3];").replace(
+    "long long x[6];", "long long x[9];").replace(
+    'while (scanf("%lld %lld %lld %lld %lld %lld", &x[0], &x[1], &x[2], &x[3], &x[4], &x[5]) == 6) {',
+    'while (scanf("%lld %lld %lld %lld %lld %lld %lld %lld %lld", &x[0], &x[1], &x[2], &x[3], &x[4], &x[5], '
+    '&x[6], &x[7], &x[8]) == 9) {').replace(
+    "for (int j = 0; j < 3; j++) { g[j] = (int32_t)x[j]; r[j] = (int32_t)x[3 + j]; }",
+    "for (int j = 0; j < 3; j++) { g[j] = (int32_t)x[j]; r[j] = (int32_t)x[3 + j]; w[j] = (int32_t)x[6 + j]; }").replace(
+    "mimo_fixed_step(&st, g, r, v);", "mimo_fixed_step(&st, g, r, w, v);")
+
+
+@pytest.fixture(scope="module")
+def ctrl_iff(fsm):
+    design, _ = quick_design(fsm, iff=True)
+    return MimoController.from_design(design, fsm, name="mimo")
+
+
+def _bridge_records(ctrl, rng, n):
+    """Bridge readings over the charge amplifier's ADC range and past it (random, then held extremes)."""
+    top = 1.2 * ctrl.iff["bridge"]["adc_range_v"]
+    held = min(1000, n // 4)
+    return np.concatenate([rng.uniform(-top, top, (n - 2 * held, 3)), np.full((held, 3), top), np.full((held, 3), -top)])
+
+
 @pytest.fixture
 def rng():
     return np.random.default_rng(15)
@@ -92,6 +115,89 @@ def test_header_step_equals_python_step_bit_for_bit(ctrl, tmp_path, rng):
     np.testing.assert_array_equal(got, want)
     lim = ctrl.stack_limit_words
     assert np.any(want == lim[:, 0]) and np.any(want == lim[:, 1]), "the records must reach the stack clamps"
+
+
+def test_header_with_iff_equals_python_step_bit_for_bit(ctrl_iff, tmp_path, rng):
+    """The damped export: gauges, references and the three charge-bridge readings in, bit for bit."""
+    cc = os.environ.get("CC") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no gcc: the header cannot be compiled here")
+    ctrl = ctrl_iff
+    paths = ctrl.write(tmp_path, "mimo")
+    assert "iff_stack2_h" in paths
+    (tmp_path / "main.c").write_text(MAIN_IFF_C)
+    base = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(tmp_path), "-o", str(tmp_path / "main"),
+            str(tmp_path / "main.c")]
+    for extra in (["-fsanitize=undefined", "-fno-sanitize-recover=all"], []):
+        done = subprocess.run(base + extra, capture_output=True, text=True)
+        if done.returncode == 0:
+            break
+    else:
+        pytest.fail(f"the header does not compile:\n{done.stderr}")
+    g, r = _records(ctrl, rng, 1500, 25000)
+    b = _bridge_records(ctrl, rng, len(g))
+    st, ist = ctrl.reset(np.array([3.0, -2.0, 40.0])), ctrl.reset_iff()
+    u0_words = st[1].copy()
+    gw, rw, bw = ctrl.gauge_words(g), ctrl.reference_words(r), ctrl.bridge_words(b)
+    want = np.array([ctrl.step_words(st, gw[k], rw[k], bw[k], ist) for k in range(len(gw))])
+    stdin = " ".join(map(str, u0_words.tolist())) + "\n" + "".join(
+        " ".join(map(str, list(a) + list(c) + list(d))) + "\n" for a, c, d in zip(gw.tolist(), rw.tolist(), bw.tolist()))
+    out = subprocess.run([str(tmp_path / "main")], input=stdin, capture_output=True, text=True, check=True).stdout
+    got = np.array(out.split(), dtype=np.int64).reshape(-1, 3)
+    np.testing.assert_array_equal(got, want)
+    lim = ctrl.stack_limit_words
+    assert np.any(want == lim[:, 0]) and np.any(want == lim[:, 1]), "the records must reach the stack clamps"
+
+
+def test_iff_path_is_the_designed_force_feedback(ctrl_iff, fsm, rng):
+    """Small signals: the damped export's stacks get In K (r' - Out' g) - g s/(s + w_l) T C_int b / C_R, the
+    last term computed here from the design's IFF (float, continuous high-pass prewarped as designed)."""
+    from workbench.design.antiwindup import discretize
+    ctrl = ctrl_iff
+    n = 4000
+    g = 1e-3 * rng.standard_normal((n, 3))
+    r = 1e-3 * rng.standard_normal((n, 3)) * ctrl.axis_scale
+    b = 0.05 * rng.standard_normal((n, 3))                 # 50 mV of bridge reading ~ 1.5 N of force
+    v = ctrl.run(g, r, b_v=b)
+    v0 = ctrl.run(g, r, b_v=np.zeros_like(b))
+    br = ctrl.iff["bridge"]
+    hp = discretize(control.tf([br["gain_v_per_n"], 0.0], [1.0, 2 * np.pi * br["corner_hz"]]), ctrl.dt_s, br["corner_hz"])
+    force = b * (np.array(br["transducer_n_per_v"]) * br["integrator_capacitance_f"]
+                 / np.array(br["reference_capacitance_f"]))[None]
+    want = -np.column_stack([control.forced_response(hp, U=force[:, j]).outputs for j in range(3)])
+    assert np.abs(want).max() > 1e-3
+    np.testing.assert_allclose(v - v0, want, atol=2e-5 * np.abs(want).max() + 2e-6, rtol=0)
+    with pytest.raises(ValueError, match="bridge readings"):
+        ctrl.run(g, r)
+
+
+def test_iff_json_round_trip_and_bad_keys(ctrl_iff, tmp_path, rng):
+    paths = ctrl_iff.write(tmp_path, "mimo")
+    back = MimoController.load(paths["json"])
+    g, r = _records(ctrl_iff, rng, 200, 200)
+    b = _bridge_records(ctrl_iff, rng, len(g))
+    np.testing.assert_array_equal(back.run(g, r, b_v=b), ctrl_iff.run(g, r, b_v=b))
+    for change, key in ((lambda d: d["iff"]["bridge"].pop("corner_hz"), "iff.bridge"),
+                        (lambda d: d["iff"]["bridge"].__setitem__("reference_capacitance_f", [1e-5, -1e-5, 1e-5]),
+                         "iff.bridge.reference_capacitance_f"),
+                        (lambda d: d["iff"]["controllers"].pop("stack1"), "iff.controllers.stack1"),
+                        (lambda d: d["iff"]["controllers"]["stack0"]["sos"][0].__setitem__(5, 1.5),
+                         "iff.controllers.stack0")):
+        path = tmp_path / "bad.json"
+        path.write_text(json.dumps(_corrupt(ctrl_iff.to_dict(), change)))
+        with pytest.raises(MimoControllerError) as err:
+            MimoController.load(path)
+        assert f"[{key}]" in str(err.value) and str(path) in str(err.value)
+
+
+def test_only_the_bridge_iff_exports(fsm):
+    from types import SimpleNamespace
+    from workbench.design.mimo import IFF
+    from workbench.export.sos import ExportError
+    design, _ = quick_design(fsm)
+    design = SimpleNamespace(**{**vars(design), "iff": IFF(0.08, 0.88, "charge+gauge")})
+    with pytest.raises(ExportError, match="only the charge bridge"):
+        MimoController.from_design(design, fsm, name="mimo")
 
 
 def test_step_composes_the_float_matrices_and_cascades(ctrl, rng):

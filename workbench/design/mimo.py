@@ -31,7 +31,10 @@ with the stack's capacitance integrates the command into charge, so a gain high-
 is integral force feedback. The gain g maximizes the smallest damping ratio of the flexure modes
 on the nominal member, with the firmware's two-sample loop delay (Pade) in the loop, among the
 gains whose sampled IFF loops keep PM/GM and that keep every small-signal member stable. The
-outer loops are then tuned on the damped family, without a notch.
+outer loops are then tuned on the damped family, without a notch. The force estimate above has the
+gauge in it (its noise reaches the drive x T^2 / C_p); ``iff_source="bridge"`` uses instead what the
+stack's charge amplifier with a reference capacitor C_R reads, F_hat = T (V_t - q / C_R) (the force
+itself where C_h = C_R; no gauge), and ``"charge"`` the charge alone, T q / C_p (:func:`force_estimate`).
 
 **Margins.** Loop-at-a-time: axis i broken with the other two closed, l_i = L_ii - L_io (I +
 L_oo)^-1 L_oi (:func:`loop_at_a_time`). Simultaneous: the balanced (skew 0) multiloop disk
@@ -56,7 +59,7 @@ from .loopshape import LoopShapeSpec, family_loops, tune_loop_shape
 from .margins import family_margins, loop_margins, response
 from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
-__all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "IFF", "iff_response",
+__all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "bridge_capacitances_f", "IFF", "IFF_SOURCES", "iff_response",
            "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "lowest_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
            "design_mimo", "MIMO_SPEC", "default_freq_hz", "nominal_name", "AXIS_NAMES"]
 
@@ -128,13 +131,62 @@ def _force_consts(fsm):
     return t, cp
 
 
-def force_estimate(fsm, member, freq_hz):
-    """v -> F_hat = T (q - T x) / C_p per stack (N per V), q = i / (j w), shape (freqs, 3, 3)."""
+IFF_SOURCES = ("charge+gauge", "charge", "bridge")
+
+
+def _gauge_weight(source):
+    """1 if the force estimate subtracts the gauge's T x (``"charge+gauge"``), 0 otherwise."""
+    if source not in IFF_SOURCES:
+        raise ValueError(f"IFF source must be one of {IFF_SOURCES}; got {source!r}")
+    return 1.0 if source == "charge+gauge" else 0.0
+
+
+def bridge_capacitances_f(fsm, bias_v=NOMINAL_BIAS_V, branch=NOMINAL_BRANCH):
+    """Each stack's incremental C_h at the nominal operating point, F: the bridge's reference capacitor C_R."""
+    from ..linearize.small_signal import operating_point
+    return tuple(float(operating_point(pz, bias_v, branch).capacitance_f) for pz in fsm.stacks)
+
+
+def force_estimate(fsm, member, freq_hz, source="charge+gauge", bridge_capacitance_f=None):
+    """v -> F_hat per stack (N per V), q = i / (j w), shape (freqs, 3, 3).
+
+    ``source="charge+gauge"``: F_hat = T (q - T x) / C_p, the force on the structure (the gauge's
+    elongation x removes the mechanical part of the charge). ``source="charge"``: F_hat = T q / C_p,
+    the charge alone (scaled to newtons the same way): the electrical part stays in it, but none of
+    the gauge's noise (7.1 mV per reading is ~8 N of T^2 x / C_p on the P-888.51; the charge
+    amplifier's 2.4 nC is ~0.02 N). ``source="bridge"``: F_hat = T (V_t - q / C_R) with V_t = v - R i
+    the stack's terminal voltage and C_R = ``bridge_capacitance_f`` (the nominal incremental C_h,
+    :func:`bridge_capacitances_f`): the charge amplifier with its reference capacitor
+    (:mod:`workbench.selfsense.charge_amp`, V_out = -(q - C_R V_t) / C_int) reads -C_R V_p, so this is
+    T V_p, the force itself (exact on a member whose C_h is C_R, without creep), with no gauge in it.
+    """
     f = np.asarray(freq_hz, float)
     t, cp = _force_consts(fsm)
-    q = member_responses(member, f, I_) / (2j * np.pi * f)[:, None, None]
+    i = member_responses(member, f, I_)
+    q = i / (2j * np.pi * f)[:, None, None]
+    if source == "bridge":
+        r = np.array([pz.series_resistance_ohm for pz in fsm.stacks])
+        cr = np.asarray(bridge_capacitances_f(fsm) if bridge_capacitance_f is None else bridge_capacitance_f, float)
+        return t[None, :, None] * (np.eye(3)[None] - r[None, :, None] * i - q / cr[None, :, None])
     x = member_responses(member, f, X)
-    return (t / cp)[None, :, None] * (q - t[None, :, None] * x)
+    return (t / cp)[None, :, None] * (q - _gauge_weight(source) * t[None, :, None] * x)
+
+
+def _force_rows(fsm, member, iff):
+    """(C, D) of v -> F_hat (``iff``'s source) over ``member``'s states: rows appended to its StateSpace."""
+    t, cp = _force_consts(fsm)
+    st = fsm.structure()
+    n = st.n_states
+    sub = control.ss(member[X + I_, V])
+    cq = np.zeros((3, sub.nstates))
+    cq[:, n:n + 3] = np.diag(cp + t * t * st.residual_compliance_m_per_n)     # q_j from the states
+    cx, dx, ci, di = sub.C[:3], sub.D[:3], sub.C[3:], sub.D[3:]
+    if iff.source == "bridge":
+        r = np.array([pz.series_resistance_ohm for pz in fsm.stacks])
+        cr = np.asarray(iff.bridge_capacitance_f, float)
+        return t[:, None] * (-r[:, None] * ci - cq / cr[:, None]), t[:, None] * (np.eye(3) - r[:, None] * di)
+    w = _gauge_weight(iff.source)
+    return (t / cp)[:, None] * (cq - w * t[:, None] * cx), -(t / cp)[:, None] * w * t[:, None] * dx
 
 
 @dataclass(frozen=True)
@@ -148,6 +200,15 @@ class IFF:
 
     gain_v_per_n: float
     corner_hz: float
+    source: str = "charge+gauge"
+    bridge_capacitance_f: tuple = None     # C_R per stack (F), for source "bridge"
+
+    def __post_init__(self):
+        _gauge_weight(self.source)
+        if self.source == "bridge" and (self.bridge_capacitance_f is None or len(self.bridge_capacitance_f) != 3
+                                        or not all(c > 0 for c in self.bridge_capacitance_f)):
+            raise ValueError(f"an IFF from the bridge needs three positive reference capacitances; "
+                             f"got {self.bridge_capacitance_f!r}")
 
     def tf(self):
         """The controller as a continuous TransferFunction (V per N)."""
@@ -162,17 +223,11 @@ def iff_response(iff, freq_hz, dt_s, delay_samples=1):
 
 def _iff_closed(fsm, member, iff, dt_s):
     """Continuous v_outer -> (x, F_hat) of ``member`` with IFF closed through a 2nd-order Pade of the 2-sample delay."""
-    t, cp = _force_consts(fsm)
     # q_j from the states (mirror_small_signal: the structure's states, then q_j / C_pp,j), not as
     # the integral of i (that adds a pole at 0 the current's zero at 0 only cancels in exact arithmetic)
-    st = fsm.structure()
-    n = st.n_states
     xm = control.ss(member[X, V])
-    cq = np.zeros((3, xm.nstates))
-    cq[:, n:n + 3] = np.diag(cp + t * t * st.residual_compliance_m_per_n)
-    xq = control.ss(xm.A, xm.B, np.vstack([xm.C, cq]), np.vstack([xm.D, np.zeros((3, 3))]))   # v -> (x, q)
-    m = np.block([[np.eye(3), np.zeros((3, 3))], [-np.diag(t * t / cp), np.diag(t / cp)]])
-    p6 = control.ss([], [], [], m) * xq                                       # v -> (x, F_hat)
+    cf_, df_ = _force_rows(fsm, member, iff)
+    p6 = control.ss(xm.A, xm.B, np.vstack([xm.C, cf_]), np.vstack([xm.D, df_]))   # v -> (x, F_hat)
     num, den = control.pade(2 * dt_s, 2)
     c1 = control.ss(iff.tf() * control.tf(num, den))
     k = control.append(c1, c1, c1)
@@ -207,7 +262,7 @@ def _inner_ok(f, loop, pm_deg, gm_db):
 
 
 def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, corner_ratio=0.001,
-             pm_deg=45.0, gm_db=6.0):
+             pm_deg=45.0, gm_db=6.0, source="charge+gauge"):
     """IFF gain maximizing the smallest damping ratio of the target modes on the nominal member.
 
     Parameters
@@ -220,6 +275,8 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
     pm_deg, gm_db : float
         Margins each stack's sampled IFF loop must keep on the nominal member (others open,
         and others closed).
+    source : {"charge+gauge", "charge", "bridge"}
+        The force estimate fed back (:func:`force_estimate`).
 
     Only gains that keep those margins and every StateSpace member of ``family`` stable (Pade
     of the two-sample delay in the loop) count.
@@ -239,17 +296,18 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
     modes_hz = np.sort(fp[sel])
     band_hz = (0.9 * target_hz.min(), 1.1 * target_hz.max())
     corner = corner_ratio * modes_hz.min()
+    cr = bridge_capacitances_f(fsm) if source == "bridge" else None
     zeta_open = float((-p.real[sel] / np.abs(p[sel])).min())
     if gains is None:
         # both signs, 5 decades about the inverse of the loop's DC force per volt (T x blocked fraction)
-        g0 = 1.0 / np.abs(force_estimate(fsm, nominal, [1.0])[0].diagonal()).mean()
+        g0 = 1.0 / np.abs(force_estimate(fsm, nominal, [1.0], source, cr)[0].diagonal()).mean()
         mags = g0 * np.geomspace(1e-3, 1e2, 41)
         gains = np.concatenate([mags, -mags])
     f = default_freq_hz(dt_s)
-    fh = force_estimate(fsm, nominal, f)
+    fh = force_estimate(fsm, nominal, f, source, cr)
     best = None
     for g in gains:
-        iff = IFF(float(g), float(corner))
+        iff = IFF(float(g), float(corner), source, cr)
         if not _inner_ok(f, iff_response(iff, f, dt_s)[:, None, None] * fh, pm_deg, gm_db):
             continue
         cl = _iff_closed(fsm, nominal, iff, dt_s)
@@ -287,7 +345,7 @@ def damped_gauges(fsm, member, freq_hz, iff, dt_s=1e-4, delay_samples=1):
     if iff is None:
         return gg
     c = iff_response(iff, f, dt_s, delay_samples)
-    fh = force_estimate(fsm, member, f)
+    fh = force_estimate(fsm, member, f, iff.source, iff.bridge_capacitance_f)
     return gg @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * fh)
 
 
@@ -432,7 +490,7 @@ MIMO_SPEC = LoopShapeSpec(integral_ratios=(0.1, 0.25, 1.0))
 
 
 def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_depth_db=20.0,
-                nominal=None, progress=None):
+                nominal=None, progress=None, iff_source="charge+gauge", iff_corner_ratio=0.001):
     """Kinematic decoupling + per-axis loop shaping, notch-only or with IFF damping (module docstring).
 
     Parameters
@@ -444,11 +502,16 @@ def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_
         False: a notch per axis at its resonance. True: IFF per stack, no notch.
     spec : LoopShapeSpec
         Targets and shapes searched per axis (``notch`` is set here).
+    iff_source : {"charge+gauge", "charge", "bridge"}
+        With ``damping``: the force estimate the IFF feeds back (:func:`force_estimate`).
+    iff_corner_ratio : float
+        With ``damping``: the IFF high-pass corner as a fraction of the lowest flexure mode (:func:`tune_iff`).
     """
     f = default_freq_hz(spec.dt_s) if freq_hz is None else np.asarray(freq_hz, float)
     nominal = family[nominal_name()] if nominal is None else nominal
     dec = kinematic_decoupler(fsm, nominal)
-    iff, iff_info = (tune_iff(fsm, family, nominal, spec.dt_s) if damping else (None, None))
+    iff, iff_info = (tune_iff(fsm, family, nominal, spec.dt_s, corner_ratio=iff_corner_ratio, source=iff_source)
+                     if damping else (None, None))
     plants = {n: decoupled(dec, damped_gauges(fsm, m, f, iff, spec.dt_s, spec.delay_samples))
               for n, m in family.items()}
     if iff is None:
@@ -501,18 +564,9 @@ def closed_loop_poles(fsm, member, design, dt_s=1e-4):
     of lag at low frequency) as a 2nd-order Pade of 2 dt_s in each loop. Independent of the
     frequency-response margins, which take the closed loop's stability for granted.
     """
-    t, cp = _force_consts(fsm)
-    st = fsm.structure()
-    n = st.n_states
-    gm = control.ss(member[G + X, V])
-    cq = np.zeros((3, gm.nstates))
-    cq[:, n:n + 3] = np.diag(cp + t * t * st.residual_compliance_m_per_n)
-    py = control.ss(gm.A, gm.B, np.vstack([gm.C, cq]), np.vstack([gm.D, np.zeros((3, 3))]))   # v -> (g, x, q)
-    m = np.zeros((6, 9))
-    m[:3, :3] = np.eye(3)
-    m[3:, 3:6] = -np.diag(t * t / cp)
-    m[3:, 6:] = np.diag(t / cp)
-    p6 = control.ss([], [], [], m) * py                                                       # v -> (g, F_hat)
+    gm = control.ss(member[G, V])
+    cf_, df_ = _force_rows(fsm, member, design.iff or IFF(0.0, 1.0))
+    p6 = control.ss(gm.A, gm.B, np.vstack([gm.C, cf_]), np.vstack([gm.D, df_]))              # v -> (g, F_hat)
     num, den = control.pade(2 * dt_s, 2)
     pade = control.ss(control.tf(num, den))
     outer = control.append(*[control.ss(design.axes[ax].controller_c) * pade for ax in AXIS_NAMES])

@@ -21,7 +21,13 @@ rate's lag-limited crossover f_d measured on the mirror with its modes far above
 reports three bandwidths (|T| and |S| at the gauge-estimated axes, and the mirror angle's own,
 :func:`mirror_closed_loop`) and the margins against the issue's floors.
 ``PYTHONPATH=. .venv/bin/python -m workbench.design.mimo_sweep plants/fsm_p888_51.toml --rates``
-prints the tables and writes ``out/mimo_rate_sweep.json``.
+prints the tables and writes ``out/mimo_rate_sweep.json`` (``--rates --bridge``: the IFF from each stack's
+charge bridge, the one that exports; ``out/mimo_rate_sweep_bridge.json``).
+
+:func:`mirror_angle_limit` says why no gauge-fed design, damped or not, reaches 2x on the mirror's
+own angle: the transfer from the stack voltages to the mirror's tip/tilt has transmission zeros at
+the housing's rocking frequency with the mirror free, f_rock sqrt(1 + J / I_h), and feedback does not
+move a plant's zeros. ``... -m workbench.design.mimo_sweep plants/fsm_p888_51.toml --limit`` prints them.
 """
 
 import dataclasses
@@ -36,7 +42,8 @@ from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, default_freq_hz, de
 
 __all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ",
            "rate_spec", "rate_sweep", "rate_markdown", "sensitivity_bandwidth_hz", "mirror_closed_loop",
-           "mirror_bandwidth_hz", "DEFAULT_RATES_HZ"]
+           "mirror_bandwidth_hz", "DEFAULT_RATES_HZ", "transmission_zeros", "mirror_angle_limit",
+           "limit_markdown"]
 
 DEFAULT_RATES_HZ = (10e3, 20e3, 40e3)   # servo sample rates, Hz (space FSMs run 5-40 kHz)
 
@@ -216,7 +223,8 @@ def mirror_closed_loop(fsm, member, design, loop_out, dt_s, delay_samples=1):
     pm = member_responses(member, f, MIRROR_OUTPUTS)
     if design.iff is not None:
         c = iff_response(design.iff, f, dt_s, delay_samples)
-        pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, member, f))
+        pm = pm @ np.linalg.inv(np.eye(3)[None] + c[:, None, None] * force_estimate(fsm, member, f, design.iff.source,
+                                                                                design.iff.bridge_capacitance_f))
     return pm @ design.decoupler.in_v_per_q[None] @ cdiag @ np.linalg.inv(np.eye(3)[None] + loop_out)
 
 
@@ -263,14 +271,15 @@ def _design_row(d, mirror_bw=None):
 
 
 def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"), reference_mode_ratio=12.0,
-               progress=None):
+               progress=None, iff_source="charge+gauge"):
     """Notch-only and IFF-damped designs of the mirror ``fsm`` (as loaded) at each servo rate.
 
     At each rate also the notch-only design with the flexure modes moved (``scaled_mirror``) to
     ``reference_mode_ratio`` x 0.03 rate (~12 x the crossover the delay alone allows, i.e. far
     above the band, below Nyquist): its tip crossover is that rate's delay-limited crossover f_d.
     The committed mirror's notch-only design is mode-limited at a rate where its crossover falls
-    clearly (< 0.8x) below f_d.
+    clearly (< 0.8x) below f_d. ``iff_source``: the IFF design's force estimate
+    (:func:`~workbench.design.mimo.force_estimate`; ``"bridge"``: the charge bridge, which exports).
 
     Returns a list of dicts (one per rate): ``rate_hz``, ``tip_mode_hz``, ``delay_limited_crossover_hz``,
     ``reference_tip_mode_hz``, ``designs`` {"notch only", "IFF damped"} -> :func:`_design_row`,
@@ -283,7 +292,7 @@ def rate_sweep(fsm, rates_hz=DEFAULT_RATES_HZ, branches=("ascending", "reversal"
         t0 = time.perf_counter()
         spec = rate_spec(rate)
         nd = design_mimo(fsm, fam, damping=False, spec=spec)
-        dd = design_mimo(fsm, fam, damping=True, spec=spec)
+        dd = design_mimo(fsm, fam, damping=True, spec=spec, iff_source=iff_source)
         ref_target = reference_mode_ratio * 0.03 * rate
         ref = scaled_mirror(fsm, (f1 / ref_target) ** 2)
         ref_fam = mirror_family(ref, branches=branches)
@@ -342,19 +351,126 @@ def rate_markdown(rows, axis="tip", pm_deg=40.0, gm_db=6.0, alpha=0.4, ratio=2.0
     return "\n".join(lines)
 
 
+def transmission_zeros(sys, inputs, outputs):
+    """Invariant (transmission) zeros of the square channel ``inputs`` -> ``outputs`` of a StateSpace, rad/s.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        A model with labelled inputs and outputs (e.g. a :func:`~workbench.linearize.mimo.mirror_family` member).
+    inputs, outputs : sequence of str
+        Equally many labels.
+
+    Returns
+    -------
+    ndarray of complex
+        The finite generalized eigenvalues of the Rosenbrock pencil ([[A, B], [C, D]], [[I, 0], [0, 0]]),
+        rad/s, sorted by magnitude.
+
+    Raises
+    ------
+    ValueError
+        Unequal numbers of inputs and outputs, or a label the model does not have.
+    """
+    import scipy.linalg
+    if len(inputs) != len(outputs):
+        raise ValueError(f"transmission zeros need a square channel; got {len(inputs)} inputs, {len(outputs)} outputs")
+    try:
+        ii = [list(sys.input_labels).index(i) for i in inputs]
+        oo = [list(sys.output_labels).index(o) for o in outputs]
+    except ValueError as err:
+        raise ValueError(f"unknown channel label ({err}); inputs {list(sys.input_labels)}, "
+                         f"outputs {list(sys.output_labels)}") from err
+    a, b, c, d = sys.A, sys.B[:, ii], sys.C[oo], sys.D[np.ix_(oo, ii)]
+    n = a.shape[0]
+    pencil = np.block([[a, b], [c, d]])
+    mass = np.zeros_like(pencil)
+    mass[:n, :n] = np.eye(n)
+    z = scipy.linalg.eigvals(pencil, mass)
+    z = z[np.isfinite(z) & (np.abs(z) < 1e12)]
+    return z[np.argsort(np.abs(z))]
+
+
+def mirror_angle_limit(fsm, member):
+    """The zeros that cap the mirror angle's closed-loop bandwidth, against their closed form.
+
+    The stacks push mirror and housing apart (internal forces). At the frequency where the housing
+    alone (inertia I_h) resonates on its bracket, the bracket takes the stacks' reaction and the
+    housing moves so as to cancel the mirror's inertial angle: with the bracket stiffness
+    k_b = (2 pi f_rock)^2 (I_h + J) of the plant file (f_rock: rocking with the mirror locked), the
+    tip (tilt) angle's zero is at
+
+        f_z = sqrt(k_b / I_h) / (2 pi) = f_rock sqrt(1 + J / I_h).
+
+    A transmission zero of the plant stays a zero of every closed loop around it (output feedback,
+    the IFF loop included, only adds the controller's poles as zeros), so |T| from the reference to
+    the mirror's angle dips to ~2 zeta_z at f_z, whatever the gauges' loop does: the angle's -3 dB
+    bandwidth stays below f_z. Only another actuator or a sensor on the mirror moves it.
+
+    Parameters
+    ----------
+    fsm : FastSteeringMirror
+    member : control.StateSpace
+        A small-signal member of :func:`~workbench.linearize.mimo.mirror_family`.
+
+    Returns
+    -------
+    dict
+        ``zeros_hz`` (|z| / 2 pi of every transmission zero v0..v2 -> tip/tilt/piston below 10 kHz,
+        one per conjugate pair), ``zeros_zeta``, ``closed_form_hz`` {"tip": .., "tilt": ..} and
+        ``cap_hz``: the lowest zero per axis (tip: about x, tilt: about y).
+    """
+    z = transmission_zeros(member, ("v0", "v1", "v2"), ("tip_rad", "tilt_rad", "piston_m"))
+    z = z[(z.imag >= 0) & (np.abs(z) < 2 * np.pi * 1e4)]
+    ratio = np.sqrt(1.0 + fsm.inertia_kg_m2 / fsm.housing_inertia_kg_m2)
+    closed = {"tip": fsm.rocking_freq_x_hz * ratio, "tilt": fsm.rocking_freq_y_hz * ratio}
+    zhz = np.abs(z) / (2 * np.pi)
+    cap = {ax: float(zhz[np.argmin(np.abs(zhz - f))]) for ax, f in closed.items()}
+    return {"zeros_hz": zhz, "zeros_zeta": -z.real / np.abs(z), "closed_form_hz": closed, "cap_hz": cap}
+
+
+def limit_markdown(fsm, limit, notch_mirror_bw_hz=None, ratio=2.0):
+    """The :func:`mirror_angle_limit` table; with the notch-only design's mirror-angle bandwidths, the 2x verdict."""
+    lines = [f"J = {fsm.inertia_kg_m2:g} kg m^2 (mirror), I_h = {fsm.housing_inertia_kg_m2:g} kg m^2 (housing), "
+             f"sqrt(1 + J/I_h) = {np.sqrt(1 + fsm.inertia_kg_m2 / fsm.housing_inertia_kg_m2):.5f}", "",
+             "| axis | f_rock (mirror locked) Hz | closed form f_rock sqrt(1 + J/I_h) Hz | plant zero Hz (damping) |"
+             + (" notch-only mirror-angle BW Hz | 2x needs Hz | 2x feasible |" if notch_mirror_bw_hz is not None else ""),
+             "|---|---|---|---|" + ("---|---|---|" if notch_mirror_bw_hz is not None else "")]
+    for a, (ax, f_rock) in enumerate((("tip", fsm.rocking_freq_x_hz), ("tilt", fsm.rocking_freq_y_hz))):
+        k = int(np.argmin(np.abs(limit["zeros_hz"] - limit["cap_hz"][ax])))
+        row = (f"| {ax} | {f_rock:g} | {limit['closed_form_hz'][ax]:.2f} | {limit['cap_hz'][ax]:.2f} "
+               f"({100 * limit['zeros_zeta'][k]:.2f} %) |")
+        if notch_mirror_bw_hz is not None:
+            need = ratio * notch_mirror_bw_hz[a]
+            row += f" {notch_mirror_bw_hz[a]:.0f} | {need:.0f} | {'yes' if need < limit['cap_hz'][ax] else 'no'} |"
+        lines.append(row)
+    other = [f"{f:.1f}" for f in limit["zeros_hz"] if min(abs(f - c) for c in limit["cap_hz"].values()) > 1e-6 * f]
+    lines += ["", "other transmission zeros below 10 kHz: " + (", ".join(other) + " Hz" if other else "none")]
+    return "\n".join(lines)
+
+
 def main(argv=None):
     from ..plant.mirror import load_mirror
     args = sys.argv[1:] if argv is None else list(argv)
     hinf = "--hinf" in args
     paths = [a for a in args if not a.startswith("--")] or ["plants/fsm_p888_51.toml"]
     fsm = load_mirror(paths[0])
+    if "--limit" in args:
+        fam = mirror_family(fsm, branches=("ascending", "reversal"))
+        lim = mirror_angle_limit(fsm, fam[nominal_name()])
+        nd = design_mimo(fsm, fam, damping=False)
+        bw, _ = mirror_bandwidth_hz(fsm, fam, nd, MIMO_SPEC.dt_s, MIMO_SPEC.delay_samples)
+        print(limit_markdown(fsm, lim, bw))
+        return lim
     if "--rates" in args:
         from ..report.output import write_json
-        rows = rate_sweep(fsm, progress=lambda i, n: print(f"rate {i}/{n}", file=sys.stderr, flush=True))
+        src = "bridge" if "--bridge" in args else "charge+gauge"
+        rows = rate_sweep(fsm, progress=lambda i, n: print(f"rate {i}/{n}", file=sys.stderr, flush=True),
+                          iff_source=src)
         for ax in AXIS_NAMES:
             print(f"\n{ax}:\n")
             print(rate_markdown(rows, ax))
-        write_json("out/mimo_rate_sweep.json", rows)
+        write_json("out/mimo_rate_sweep.json" if src == "charge+gauge" else "out/mimo_rate_sweep_bridge.json", rows)
         return rows
     rows = damping_sweep(fsm, hinf=hinf, progress=lambda i, n: print(f"point {i}/{n}", file=sys.stderr, flush=True),
                          hinf_kwargs={"bisections": 4})

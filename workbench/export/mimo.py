@@ -28,6 +28,17 @@ header :meth:`MimoController.write` generates; the gcc test runs both):
 
 Right shifts are arithmetic (floor), as in the SISO header.
 
+**Active damping (optional), per stack** (:func:`iff_step`, an exported IFF-damped design whose force
+estimate is the stack's charge bridge, ``design_mimo(..., damping=True, iff_source="bridge")``). Each
+stack's charge amplifier with its reference capacitor C_R (:mod:`workbench.selfsense.charge_amp`) reads
+b_j = -(q_j - C_R,j V_t,j) / C_int = C_R,j V_p,j / C_int (V): the force on the structure,
+F_hat_j = T_j C_int b_j / C_R,j, without the gauge in it. A fourth kind of cascade per stack (again a
+SISO :class:`~workbench.controller.Controller`: words, header, validation) maps b_j (its input words,
+``bridge_words``) to d_j = -g s / (s + w_l) F_hat_j in its output format FD_j, which step 3 adds to the
+stack's accumulator before the clamp: v_j = clamp(((acc_j + 2^(FA - FV - 1)) >> (FA - FV)) + D_j) with
+D_j = (d_j + 2^(FD_j - FV - 1)) >> (FD_j - FV) (or d_j << (FV - FD_j) when FD_j <= FV). Without it the
+step and the header are the notch-only ones, unchanged.
+
 **Current-limit window, per axis.** Each axis cascade carries the SISO cascade's own window
 (:mod:`workbench.export.fixed_point`): a model m_a += alpha (u_a - m_a) of its output and the
 output kept within m_a +/- h_a. With alpha the slowest stack's (1 - exp(-T / (R C)), C its
@@ -60,11 +71,13 @@ from ..report.output import write_text
 from .fixed_point import fixed_step, initial_state, quantize
 from .sos import ExportError
 
-__all__ = ["MimoController", "MimoControllerError", "MIMO_SCHEMA", "AXIS_KEYS", "is_mimo_controller_file", "mimo_step"]
+__all__ = ["MimoController", "MimoControllerError", "MIMO_SCHEMA", "AXIS_KEYS", "is_mimo_controller_file", "mimo_step",
+           "iff_step", "IFF_KEYS"]
 
 MIMO_SCHEMA = "workbench.mimo_controller/1"
 AXIS_KEYS = ("tip", "tilt", "piston")
 AXIS_UNITS = ("rad", "rad", "m")
+IFF_KEYS = ("stack0", "stack1", "stack2")
 _COEF_TOP_BITS = 30          # matrix words: |word| < 2^30
 
 
@@ -81,11 +94,28 @@ def _words_rows(mat, frac):
 
 
 @njit(cache=True)
-def mimo_step(g, r, s, vm, out, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
+def iff_step(b, s, vm, dv, B, A, BSH, nsec, frac, lim, in_lim, dsh):
+    """The per-stack IFF cascades (module docstring): bridge words ``b`` in, stack-word corrections ``dv`` out.
+
+    ``s`` (3, n_max, 2) and ``vm`` (3,) the cascades' states, updated in place; the rest is
+    :attr:`MimoController.iff_plan` (``dsh``: FD_j - FV).
+    """
+    one = np.int64(1)
+    for j in range(3):
+        e = min(max(b[j], -in_lim[j]), in_lim[j])
+        n = nsec[j]
+        peak = np.zeros((n, 3), np.int64)
+        d = fixed_step(s[j, :n], e, B[j, :n], A[j, :n], BSH[j, :n], frac[j], lim[j], vm[j:j + 1], True, peak)
+        dv[j] = (d + (one << (dsh[j] - 1))) >> dsh[j] if dsh[j] >= 1 else d << (-dsh[j])
+
+
+@njit(cache=True)
+def mimo_step(g, r, s, vm, out, dv, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
     """One sample of the MIMO fixed-point step (module docstring), bit for bit the header's NAME_fixed_step.
 
     ``g``, ``r``: gauge and reference words (int64, 3); ``s`` (3, n_max, 2) and ``vm`` (3,) the
-    axis cascades' states and window models, updated in place; ``out`` receives the stack words.
+    axis cascades' states and window models, updated in place; ``out`` receives the stack words;
+    ``dv`` (int64, 3): the IFF's corrections in stack words (:func:`iff_step`; zeros without IFF).
     The rest is :attr:`MimoController.plan`. Each axis runs :func:`~workbench.export.fixed_point.fixed_step`.
     """
     top, bottom = np.int64(2 ** 31 - 1), np.int64(-2 ** 31)
@@ -103,7 +133,7 @@ def mimo_step(g, r, s, vm, out, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac
         acc = np.int64(0)
         for a in range(3):
             acc += (iq[j, a] * u[a]) >> ish[a]
-        v = (acc + (one << (vsh - 1))) >> vsh
+        v = ((acc + (one << (vsh - 1))) >> vsh) + dv[j]
         out[j] = min(max(v, lw[j, 0]), lw[j, 1])
 
 
@@ -131,6 +161,11 @@ class MimoController:
     record : dict
         Everything else of the JSON (provenance, design summary, notes).
     source : str
+    iff : dict, optional
+        The active-damping path: ``{"stack0": Controller, "stack1": ..., "stack2": ...}`` (bridge
+        reading V in, stack V out) and ``"bridge"``: a dict of the analog bridge it was designed for
+        (``reference_capacitance_f``, ``integrator_capacitance_f``, ``transducer_n_per_v``, ``gain_v_per_n``,
+        ``corner_hz``). None: no IFF.
     """
 
     name: str
@@ -143,6 +178,7 @@ class MimoController:
     stack_frac_bits: int
     record: dict = field(default_factory=dict)
     source: str = ""
+    iff: dict = None
 
     # ------------------------------------------------------------------ words
     @property
@@ -228,6 +264,40 @@ class MimoController:
                 np.int64(self.acc_frac_bits - self.stack_frac_bits), self.stack_limit_words,
                 B, A, BSH, nsec, frac, lim, in_lim)
 
+    @cached_property
+    def iff_plan(self):
+        """:func:`iff_step`'s arguments after its inputs and state (None without IFF)."""
+        if self.iff is None:
+            return None
+        fx = [self.iff[k].fixed for k in IFF_KEYS]
+        nmax = max(len(f.b) for f in fx)
+        B = np.zeros((3, nmax, 3), np.int64)
+        A = np.zeros((3, nmax, 2), np.int64)
+        BSH = np.zeros((3, nmax), np.int64)
+        for j, f in enumerate(fx):
+            n = len(f.b)
+            B[j, :n], A[j, :n], BSH[j, :n] = f.b, f.a, f.b_shift
+        return (B, A, BSH, np.array([len(f.b) for f in fx], np.int64), np.array([f.a_frac_bits for f in fx], np.int64),
+                np.array([f.limit_words for f in fx], np.int64), np.array([f.input_limit for f in fx], np.int64),
+                self.iff_shift)
+
+    @property
+    def iff_shift(self):
+        """FD_j - FV per stack (int64, 3)."""
+        return np.array([self.iff[k].fixed.output_frac_bits - self.stack_frac_bits for k in IFF_KEYS], np.int64)
+
+    def bridge_words(self, b_v):
+        """Bridge readings (V, per stack) as each IFF cascade's input words, rounded, saturated to int32."""
+        fi = np.array([self.iff[k].fixed.input_frac_bits for k in IFF_KEYS], float)
+        return np.clip(np.rint(np.asarray(b_v, float) * 2.0 ** fi), -2 ** 31, 2 ** 31 - 1).astype(np.int64)
+
+    def reset_iff(self):
+        """IFF cascades' state at rest (states (3, n_max, 2), models (3,), int64); None without IFF."""
+        if self.iff is None:
+            return None
+        nmax = max(len(self.iff[k].fixed.b) for k in IFF_KEYS)
+        return np.zeros((3, nmax, 2), np.int64), np.zeros(3, np.int64)
+
     def reset(self, u0_axes_v=(0.0, 0.0, 0.0)):
         """State (cascade states (3, n_max, 2), window models (3,), int64) at rest at ``u0_axes_v`` (axis V), zero error."""
         fx = self._fixed()
@@ -240,14 +310,18 @@ class MimoController:
             vm[a] = w
         return s, vm
 
-    def step_words(self, state, g_w, r_w):
+    def step_words(self, state, g_w, r_w, b_w=None, iff_state=None):
         """One sample: gauge words and reference words in, stack command words out (``state`` updated).
 
-        :func:`mimo_step`: bit for bit NAME_fixed_step of the header (module docstring).
+        With IFF: ``b_w`` the bridge words and ``iff_state`` (:meth:`reset_iff`, updated).
+        :func:`mimo_step` (after :func:`iff_step`): bit for bit NAME_fixed_step of the header (module docstring).
         """
         s, vm = state
         out = np.empty(3, np.int64)
-        mimo_step(np.asarray(g_w, np.int64), np.asarray(r_w, np.int64), s, vm, out, *self.plan)
+        dv = np.zeros(3, np.int64)
+        if self.iff is not None:
+            iff_step(np.asarray(b_w, np.int64), iff_state[0], iff_state[1], dv, *self.iff_plan)
+        mimo_step(np.asarray(g_w, np.int64), np.asarray(r_w, np.int64), s, vm, out, dv, *self.plan)
         return out
 
     def stack_volts(self, words):
@@ -257,8 +331,10 @@ class MimoController:
         """Float: stack volts of axis commands (axis V)."""
         return self.axes_to_stacks @ np.asarray(u_axes_v, float)
 
-    def run(self, g_v, r_axes, u0_axes_v=(0.0, 0.0, 0.0)):
+    def run(self, g_v, r_axes, u0_axes_v=(0.0, 0.0, 0.0), b_v=None):
         """The fixed-point step over records: gauges (samples, 3) firmware V, references (samples, 3) axis units.
+
+        ``b_v`` (samples, 3): the bridge readings, V (needed with IFF).
 
         Returns
         -------
@@ -267,10 +343,13 @@ class MimoController:
         """
         gw = self.gauge_words(g_v)
         rw = self.reference_words(r_axes)
-        st = self.reset(u0_axes_v)
+        if self.iff is not None and b_v is None:
+            raise ValueError("this controller damps with IFF: give the bridge readings b_v (samples, 3), V")
+        bw = None if self.iff is None else self.bridge_words(b_v)
+        st, ist = self.reset(u0_axes_v), self.reset_iff()
         out = np.empty(gw.shape, np.int64)
         for k in range(gw.shape[0]):
-            out[k] = self.step_words(st, gw[k], rw[k])
+            out[k] = self.step_words(st, gw[k], rw[k], None if bw is None else bw[k], ist)
         return self.stack_volts(out)
 
     # ------------------------------------------------------------------ build
@@ -278,17 +357,21 @@ class MimoController:
     def from_design(cls, design, fsm, *, name="fsm_controller", record=None, coeff_bits=32):
         """Export a :class:`~workbench.design.mimo.MimoDesign` for the mirror ``fsm``.
 
-        Only a design without IFF (the notch-only design) exports: the IFF path needs a charge
-        measurement per stack that the firmware chain modelled here does not have.
+        An IFF-damped design exports when its force estimate is the charge bridge (``iff_source="bridge"``):
+        each stack's IFF becomes a cascade from the bridge reading (module docstring), designed for the
+        charge amplifier :class:`~workbench.selfsense.charge_amp.ChargeAmpParams` (C_int, its ADC range)
+        with C_R = the design's reference capacitance. The gauge-fed estimate (``"charge+gauge"``) does not
+        export: it puts the gauges' noise into the drive (~8 N of force estimate per 7 mV of reading).
 
         Each axis cascade: :meth:`Controller.from_lti` of the axis' discrete controller, input range
         the largest |axis volts| the gauges' DAC ranges can produce, output range the axis volts that
         keep every stack within its amplifier range with the other axes at their centre (piston: the
         whole range), the axis current-limit window of the module docstring.
         """
-        if design.iff is not None:
-            raise ExportError("the IFF-damped design needs each stack's charge in the firmware; export the "
-                              "notch-only design (design_mimo(..., damping=False))")
+        if design.iff is not None and design.iff.source != "bridge":
+            raise ExportError(f"the IFF-damped design's force estimate is {design.iff.source!r}: only the charge "
+                              f"bridge (design_mimo(..., damping=True, iff_source=\"bridge\")) exports; or export "
+                              f"the notch-only design (damping=False)")
         dec = design.decoupler
         dt = float(design.axes["tip"].controller_d.dt)
         inv = np.asarray(dec.in_v_per_q, float)
@@ -337,9 +420,10 @@ class MimoController:
                                 record={**c.record, "anti_windup": aw}, max_pole_radius=fxp.max_pole_radius)
         dv = max(np.abs(lim).max(), 1e-9)
         rec = {"provenance": _mirror_provenance(fsm), **(record or {})}
+        iff = None if design.iff is None else _iff_cascades(design.iff, fsm, dt, name, coeff_bits)
         return cls(name=name, axes=axes, axis_scale=scale, gauge_to_axes=g2a, axes_to_stacks=a2s,
                    stack_limits_v=lim, gauge_frac_bits=_frac_for(dac.max(), 31),
-                   stack_frac_bits=_frac_for(dv, 31), record=rec)
+                   stack_frac_bits=_frac_for(dv, 31), record=rec, iff=iff)
 
     # ------------------------------------------------------------------ JSON
     def to_dict(self):
@@ -357,7 +441,12 @@ class MimoController:
                                 "axes_to_stacks_frac_bits": self.in_frac_bits.tolist(),
                                 "note": "step: module docstring of workbench/export/mimo.py; the per-axis "
                                         "cascades are controllers[axis], each with its axis current-limit window"},
-                "controllers": {k: c.to_dict() for k, c in self.axes.items()}}
+                "controllers": {k: c.to_dict() for k, c in self.axes.items()},
+                **({} if self.iff is None else {"iff": {"bridge": dict(self.iff["bridge"]),
+                                                        "controllers": {k: self.iff[k].to_dict() for k in IFF_KEYS},
+                                                        "note": "stack j's command += this cascade's output; its input "
+                                                                "is the charge bridge's reading b_j = -(q_j - C_R V_t,j) "
+                                                                "/ C_int, V (workbench/export/mimo.py)"}})}
 
     def write(self, out_dir, name=None):
         """Write NAME.json, NAME.h and each axis' NAME_AXIS.{json,h,csv,mat} (atomic writes).
@@ -373,6 +462,9 @@ class MimoController:
         for k, c in self.axes.items():
             for ext, p in c.write(out_dir, f"{name}_{k}").items():
                 paths[f"{k}_{ext}"] = p
+        for k in (IFF_KEYS if self.iff is not None else ()):
+            for ext, p in self.iff[k].write(out_dir, f"{name}_iff_{k}").items():
+                paths[f"iff_{k}_{ext}"] = p
         d = self.to_dict()
         d["name"] = name
         paths["json"] = write_text(out_dir / f"{name}.json", json.dumps(d, indent=1) + "\n")
@@ -448,9 +540,10 @@ class MimoController:
         if not (0 <= gf <= 31 and 0 <= vf <= 31):
             raise MimoControllerError(src, "fixed_point", f"fraction bits must lie in 0..31; got {gf}, {vf}")
         rec = {k: v for k, v in data.items() if k not in _TOP_KEYS}
+        iff = _load_iff(src, data.get("iff"), fs, allow_unstable) if "iff" in data else None
         out = cls(name=str(data.get("name") or "fsm_controller"), axes=axes, axis_scale=scale, gauge_to_axes=g2a,
                   axes_to_stacks=a2s, stack_limits_v=lim, gauge_frac_bits=gf, stack_frac_bits=vf, record=rec,
-                  source=str(source))
+                  source=str(source), iff=iff)
         for key, words, want in (("gauge_to_axes_q", fp.get("gauge_to_axes_q"), out.out_q),
                                  ("axes_to_stacks_q", fp.get("axes_to_stacks_q"), out.in_q)):
             try:
@@ -490,6 +583,23 @@ class MimoController:
         def arr(m):
             return ",\n".join("    {" + ", ".join(f"INT64_C({int(v)})" for v in row) + "}" for row in m)
         lw = self.stack_limit_words
+        has = self.iff is not None
+        fi = [f"{name}_iff_{k}" for k in IFF_KEYS]
+        i_inc = "".join(f'#include "{h}.h"\n' for h in fi) if has else ""
+        i_def = (f"static const int {up}_IFF_SHIFT[3] = {{{', '.join(str(int(v)) for v in self.iff_shift)}}};\n"
+                 if has else "")
+        i_st = (f" {fi[0]}_fixed_state i0; {fi[1]}_fixed_state i1; {fi[2]}_fixed_state i2;" if has else "")
+        i_reset = ("".join(f"    {h}_fixed_reset(&st->i{j}, 0);\n" for j, h in enumerate(fi)) if has else "")
+        i_arg = ", const int32_t b_q[3]" if has else ""
+        i_step = (("    int64_t d[3];\n" + "".join(f"    d[{j}] = {h}_fixed_step(&st->i{j}, b_q[{j}]);\n"
+                                                  for j, h in enumerate(fi))
+                   + f"    for (int j = 0; j < 3; j++) d[j] = {up}_IFF_SHIFT[j] >= 1 ? (d[j] + ((int64_t)1 << "
+                     f"({up}_IFF_SHIFT[j] - 1))) >> {up}_IFF_SHIFT[j] : d[j] * ((int64_t)1 << -{up}_IFF_SHIFT[j]);\n")
+                  if has else "")
+        i_add = f" + d[j]" if has else ""
+        i_doc = (f"\n * IFF (active damping): bridge words b_q[3] (each stack's charge bridge, V, in its IFF cascade's "
+                 f"input format)\n * in; d[j] = STACK_iff_fixed_step(b_q[j]) shifted to stack words is added before "
+                 f"the clamp." if has else "")
         return f"""\
 /* {name}.h: the mirror's MIMO controller "{name}", exported by workbench.export.mimo. Re-export rather than edit.
  *
@@ -501,7 +611,7 @@ class MimoController:
  *   v[j] = clamp((sum_a (IN_Q[j][a] u[a]) >> IN_SHIFT[a] + 2^(V_SHIFT-1)) >> V_SHIFT)   (axes -> stacks)
  * int64 accumulators, arithmetic right shifts. Each axis cascade clamps its output to its axis range and to
  * its current-limit window (a model of its output; the box maps inside every stack's current headroom), and
- * the clamped value drives its integrator (anti-windup).
+ * the clamped value drives its integrator (anti-windup).{i_doc}
  */
 #ifndef {up}_H
 #define {up}_H
@@ -510,7 +620,7 @@ class MimoController:
 #include "{ax[0]}.h"
 #include "{ax[1]}.h"
 #include "{ax[2]}.h"
-
+{i_inc}
 #define {up}_GAUGE_FRAC_BITS {self.gauge_frac_bits}
 #define {up}_STACK_FRAC_BITS {self.stack_frac_bits}
 #define {up}_V_SHIFT {self.acc_frac_bits - self.stack_frac_bits}
@@ -523,11 +633,11 @@ static const int64_t {up}_IN_Q[3][3] = {{
 {arr(self.in_q)}
 }};
 static const int {up}_IN_SHIFT[3] = {{{", ".join(str(int(v)) for v in self.in_shift)}}};
-static const int64_t {up}_STACK_LIMITS_Q[3][2] = {{
+{i_def}static const int64_t {up}_STACK_LIMITS_Q[3][2] = {{
 {arr(lw)}
 }};
 
-typedef struct {{ {ax[0]}_fixed_state a0; {ax[1]}_fixed_state a1; {ax[2]}_fixed_state a2; }} {name}_fixed_state;
+typedef struct {{ {ax[0]}_fixed_state a0; {ax[1]}_fixed_state a1; {ax[2]}_fixed_state a2;{i_st} }} {name}_fixed_state;
 
 /* At rest with the axis cascades' outputs at u0_q (each in its output format) and zero error. */
 static inline void {name}_fixed_reset({name}_fixed_state *st, const int32_t u0_q[3])
@@ -535,17 +645,17 @@ static inline void {name}_fixed_reset({name}_fixed_state *st, const int32_t u0_q
     {ax[0]}_fixed_reset(&st->a0, u0_q[0]);
     {ax[1]}_fixed_reset(&st->a1, u0_q[1]);
     {ax[2]}_fixed_reset(&st->a2, u0_q[2]);
-}}
+{i_reset}}}
 
 static inline int32_t {name}_sat32_(int64_t v)
 {{
     return v > INT32_MAX ? INT32_MAX : v < INT32_MIN ? INT32_MIN : (int32_t)v;
 }}
 
-static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3], const int32_t r_q[3],
+static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3], const int32_t r_q[3]{i_arg},
                                      int32_t v_q[3])
 {{
-    int64_t u[3];
+{i_step}    int64_t u[3];
     int32_t e[3];
     for (int a = 0; a < 3; a++) {{
         int64_t acc = 0;
@@ -559,7 +669,7 @@ static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3
     for (int j = 0; j < 3; j++) {{
         int64_t acc = 0;
         for (int a = 0; a < 3; a++) acc += ({up}_IN_Q[j][a] * u[a]) >> {up}_IN_SHIFT[a];
-        int64_t v = (acc + ((int64_t)1 << ({up}_V_SHIFT - 1))) >> {up}_V_SHIFT;
+        int64_t v = ((acc + ((int64_t)1 << ({up}_V_SHIFT - 1))) >> {up}_V_SHIFT){i_add};
         v = v < {up}_STACK_LIMITS_Q[j][0] ? {up}_STACK_LIMITS_Q[j][0] : v > {up}_STACK_LIMITS_Q[j][1] ? {up}_STACK_LIMITS_Q[j][1] : v;
         v_q[j] = (int32_t)v;
     }}
@@ -571,7 +681,66 @@ static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3
 
 _C_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = ("schema", "name", "sample_rate_hz", "axes", "axis_units", "axis_scale", "gauge_to_axes",
-             "axes_to_stacks", "stack_limits_v", "fixed_point", "controllers")
+             "axes_to_stacks", "stack_limits_v", "fixed_point", "controllers", "iff")
+_BRIDGE_KEYS = ("reference_capacitance_f", "integrator_capacitance_f", "transducer_n_per_v", "gain_v_per_n",
+                "corner_hz", "adc_range_v")
+
+
+def _iff_cascades(iff, fsm, dt_s, name, coeff_bits):
+    """The three IFF cascades of an exported design (bridge reading V -> stack V) and the bridge they assume."""
+    import control
+    from ..design.antiwindup import discretize
+    from ..selfsense.charge_amp import ChargeAmpParams
+    amp = ChargeAmpParams()
+    t = np.array([pz.transducer_constant_n_per_v for pz in fsm.stacks])
+    cr = np.asarray(iff.bridge_capacitance_f, float)
+    base = discretize(iff.tf(), dt_s, iff.corner_hz)          # V per N, as design.mimo.iff_response
+    span = float(max(pz.voltage_max_v - pz.voltage_min_v for pz in fsm.stacks))
+    out = {"bridge": {"reference_capacitance_f": cr.tolist(), "integrator_capacitance_f": float(amp.c_int_f),
+                      "transducer_n_per_v": t.tolist(), "gain_v_per_n": float(iff.gain_v_per_n),
+                      "corner_hz": float(iff.corner_hz), "adc_range_v": float(amp.adc_range_v)}}
+    for j, key in enumerate(IFF_KEYS):
+        k = control.ss(base) * (-t[j] * amp.c_int_f / cr[j])  # d_j = -g s/(s + w_l) T C_int b_j / C_R
+        out[key] = Controller.from_lti(k, dt_s=dt_s, output_limits_v=(-span, span), input_range_v=float(amp.adc_range_v),
+                                       coeff_bits=coeff_bits, window=False, name=f"{name}_iff_{key}",
+                                       method="integral force feedback from the charge bridge (design.mimo)",
+                                       record={"stack": j, "input": {"signal": "charge_bridge", "units": "V"},
+                                               "output": {"signal": "stack_voltage_correction", "units": "V"}})
+    return out
+
+
+def _load_iff(src, data, fs, allow_unstable):
+    """Validate the JSON's ``iff`` table (three stack cascades at the servo rate, the bridge's numbers)."""
+    if not isinstance(data, dict):
+        raise MimoControllerError(src, "iff", "must be a table {bridge, controllers}; re-export the controller")
+    br = data.get("bridge")
+    if not isinstance(br, dict) or any(k not in br for k in _BRIDGE_KEYS):
+        raise MimoControllerError(src, "iff.bridge", f"needs {', '.join(_BRIDGE_KEYS)}; re-export the controller")
+    for k in ("reference_capacitance_f", "transducer_n_per_v"):
+        v = _array(src, f"iff.bridge.{k}", br[k], "three positive numbers", 1, MimoControllerError)
+        if v.shape != (3,) or np.any(v <= 0):
+            raise MimoControllerError(src, f"iff.bridge.{k}", f"must be three positive numbers; got {br[k]!r}")
+    for k in ("integrator_capacitance_f", "corner_hz", "adc_range_v"):
+        if not (isinstance(br[k], (int, float)) and br[k] > 0):
+            raise MimoControllerError(src, f"iff.bridge.{k}", f"must be a positive number; got {br[k]!r}")
+    ctr = data.get("controllers")
+    if not isinstance(ctr, dict):
+        raise MimoControllerError(src, "iff.controllers", "must be a table {stack0, stack1, stack2}")
+    out = {"bridge": dict(br)}
+    for k in IFF_KEYS:
+        if k not in ctr:
+            raise MimoControllerError(src, f"iff.controllers.{k}", "is missing; re-export the controller")
+        try:
+            c = Controller.from_dict(ctr[k], source=f"{src} iff.controllers.{k}", allow_unstable=allow_unstable)
+        except ControllerError as err:
+            raise MimoControllerError(src, f"iff.controllers.{k}", str(err)) from None
+        if c.fixed is None:
+            raise MimoControllerError(src, f"iff.controllers.{k}.fixed_point", "is missing; re-export")
+        if abs(c.sample_rate_hz - fs) > 1e-9 * fs:
+            raise MimoControllerError(src, f"iff.controllers.{k}.sample_rate_hz",
+                                      f"{c.sample_rate_hz!r} must equal the controller's {fs!r}")
+        out[k] = c
+    return out
 
 
 def _mirror_provenance(fsm):

@@ -126,4 +126,5 @@ def _decimated(run, k):
     import dataclasses
     if k == 1:
         return run
-    return dataclasses.replace(run, **{f.name: getattr(run, f.name)[k - 1::k] for f in dataclasses.fields(run)})
+    return dataclasses.replace(run, **{f.name: getattr(run, f.name)[k - 1::k] for f in dataclasses.fields(run)
+                                       if getattr(run, f.name) is not None})

@@ -15,6 +15,13 @@ for one stack:
    bit for bit its C header) computes the three stack commands from the three readings;
 4. those are applied at the next period (one sample of compute delay).
 
+With an IFF-damped controller (:attr:`MimoController.iff`) each stack's charge bridge is read too:
+b_j = (C_R,j (V_t,j - V_t,j(0)) - (q_j - q_j(0))) / C_int plus the charge amplifier's output noise,
+quantized by its ADC (:class:`~workbench.selfsense.charge_amp.ChargeAmpParams`: 50 uV RMS, 18 bits over
++/-10 V, clipped there), the integrator reset when the loop starts; C_R is the controller's (the nominal
+incremental C_h), so the verified mirror's unequal C_h make the bridge's force estimate imperfect, as on
+the bench.
+
 The plant is stepped one period per call from Python (``CoupledSimulator.run`` keeps its state
 between calls), about 0.1 ms of wall time per servo period: fine for the scenarios here (tens of
 seconds of mirror time), not for sweeps.
@@ -37,7 +44,7 @@ import numpy as np
 from numba import njit
 
 from ..design.step import rise_time, step_metrics
-from ..export.mimo import mimo_step
+from ..export.mimo import iff_step, mimo_step
 from ..plant.coupled import STACK_OUT_NAMES, coupled_run
 from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
 
@@ -117,6 +124,8 @@ class MirrorRun:
         The mirror's motion (piston about the operating point).
     x_m, i_a, v_cmd_v, v_t_v, reading_v : ndarray, (samples, 3)
         Per stack: elongation, mean current, command, terminal voltage, gauge reading (firmware V).
+    bridge_v : ndarray, (samples, 3) or None
+        Per stack: the charge bridge's reading (V), with an IFF-damped controller.
     """
 
     t_s: np.ndarray
@@ -129,6 +138,7 @@ class MirrorRun:
     v_cmd_v: np.ndarray
     v_t_v: np.ndarray
     reading_v: np.ndarray
+    bridge_v: np.ndarray = None
 
 
 class MirrorLoop:
@@ -157,13 +167,16 @@ class MirrorLoop:
         self.rng = np.random.default_rng(seed)
         self.v0, self.u0 = mirror_operating_point(fsm, controller)
         self.q0 = fsm.kinematics @ np.full(3, TRIM_CENTER_M)
+        self.bridge = _bridge_table(controller)
 
     def start(self, settle_s=0.3):
         """Drive the stacks open loop to the operating point for ``settle_s``, then reset the controller there."""
         n = max(1, int(round(settle_s / self.ctrl.dt_s)))
         tr = self.sim.run(np.tile(self.v0, (n, 1)))
         self.x_prev = tr.x_m[-1].copy()
+        self.bridge_zero = np.concatenate([tr.q_c[-1], tr.v_t_v[-1]])      # the charge amplifiers' reset
         self.state = self.ctrl.reset(self.u0)
+        self.iff_state = self.ctrl.reset_iff() if self.ctrl.iff is not None else _NO_IFF_STATE
         self.v_cmd = self.v0.copy()
 
     def run(self, ref, external=None, progress=None, chunk=20000):
@@ -180,7 +193,12 @@ class MirrorLoop:
         out = np.empty((n, 5, 3))
         mir = np.empty((n, 3))
         noise = (self.rng.standard_normal((n, 3)) * self.sigma) if self.noise else np.zeros((n, 3))
+        bnoise = (self.rng.standard_normal((n, 3)) * self.bridge[0][:, 3] if self.noise and self.ctrl.iff is not None
+                  else np.zeros((n, 3)))
         ctrl = self.ctrl
+        bt, ifp = self.bridge[0], (ctrl.iff_plan if ctrl.iff is not None else _NO_IFF_PLAN)
+        si, vmi = self.iff_state
+        bout = np.empty((n, 3))
         io = np.concatenate([self.x_prev, self.v_cmd])
         s, vm = self.state
         for k0 in range(0, n, chunk):
@@ -188,16 +206,20 @@ class MirrorLoop:
             kernel = self._kernel_args() if _FAST else None
             if kernel is not None:
                 _loop(*kernel, w[k0:k1], rw[k0:k1], noise[k0:k1], self.gp, self.r0, np.int64(ctrl.gauge_frac_bits),
-                      float(2.0 ** -ctrl.stack_frac_bits), io, s, vm, out[k0:k1], mir[k0:k1], *ctrl.plan)
+                      float(2.0 ** -ctrl.stack_frac_bits), io, s, vm, out[k0:k1], mir[k0:k1],
+                      np.int64(ctrl.iff is not None), bt, self.bridge[1], self.bridge_zero, bnoise[k0:k1], si, vmi,
+                      bout[k0:k1], *ifp, *ctrl.plan)
             else:
-                self._run_python(w[k0:k1], rw[k0:k1], noise[k0:k1], io, s, vm, out[k0:k1], mir[k0:k1])
+                self._run_python(w[k0:k1], rw[k0:k1], noise[k0:k1], io, s, vm, out[k0:k1], mir[k0:k1],
+                                 bnoise[k0:k1], bout[k0:k1])
             if progress is not None:
                 progress(k1, n)
         self.x_prev, self.v_cmd = io[:3].copy(), io[3:].copy()
         t = (np.arange(n) + 1) * ctrl.dt_s
         names = ("x_m", "i_a", "v_cmd_v", "v_t_v", "reading_v")
         return MirrorRun(t_s=t, ref=ref, tip_rad=mir[:, 0] - self.q0[0], tilt_rad=mir[:, 1] - self.q0[1],
-                         piston_m=mir[:, 2] - self.q0[2], **{nm: out[:, i] for i, nm in enumerate(names)})
+                         piston_m=mir[:, 2] - self.q0[2], **{nm: out[:, i] for i, nm in enumerate(names)},
+                         bridge_v=bout if ctrl.iff is not None else None)
 
     def _kernel_args(self):
         """The simulator's buffers in coupled_run's order (None if the simulator no longer has them)."""
@@ -210,11 +232,13 @@ class MirrorLoop:
         except AttributeError:
             return None
 
-    def _run_python(self, w, rw, noise, io, s, vm, out, mir):
+    def _run_python(self, w, rw, noise, io, s, vm, out, mir, bnoise, bout):
         ctrl, sim = self.ctrl, self.sim
         gscale, fv = 2.0 ** ctrl.gauge_frac_bits, 2.0 ** -ctrl.stack_frac_bits
         g = np.empty(3)
         vw = np.empty(3, np.int64)
+        dv = np.zeros(3, np.int64)
+        bt, bsc = self.bridge
         for k in range(w.shape[0]):
             tr = sim.run(io[3:][None, :].copy(), external_n=w[k:k + 1])
             x = tr.x_m[0]
@@ -222,21 +246,65 @@ class MirrorLoop:
             out[k] = x, tr.i_a[0], io[3:], tr.v_t_v[0], g
             mir[k] = tr.y[0, 6:9]
             io[:3] = x
-            mimo_step(np.rint(g * gscale).astype(np.int64), rw[k], s, vm, vw, *ctrl.plan)
+            if ctrl.iff is not None:
+                b = _bridge_reading(tr.q_c[0], tr.v_t_v[0], self.bridge_zero, bt, bnoise[k])
+                bout[k] = b
+                iff_step(np.rint(b * bsc).astype(np.int64), self.iff_state[0], self.iff_state[1], dv, *ctrl.iff_plan)
+            mimo_step(np.rint(g * gscale).astype(np.int64), rw[k], s, vm, vw, dv, *ctrl.plan)
             io[3:] = vw * fv
+
+
+_NO_IFF_STATE = (np.zeros((3, 1, 2), np.int64), np.zeros(3, np.int64))
+_NO_IFF_PLAN = (np.zeros((3, 1, 3), np.int64), np.zeros((3, 1, 2), np.int64), np.zeros((3, 1), np.int64),
+                np.ones(3, np.int64), np.full(3, 30, np.int64), np.zeros((3, 5), np.int64), np.zeros(3, np.int64),
+                np.ones(3, np.int64))
+
+
+def _bridge_table(controller):
+    """((3, 6) per stack [C_R, C_int, ADC range, noise RMS, ADC LSB, 0], (3,) bridge word scale 2^FI_j)."""
+    from ..selfsense.charge_amp import ChargeAmpParams
+    amp = ChargeAmpParams()
+    t = np.zeros((3, 6))
+    t[:, 1], t[:, 2], t[:, 3] = amp.c_int_f, amp.adc_range_v, amp.out_noise_v_rms
+    t[:, 4] = 2 * amp.adc_range_v / 2 ** amp.adc_bits
+    if controller.iff is None:
+        return t, np.ones(3)
+    br = controller.iff["bridge"]
+    t[:, 0] = br["reference_capacitance_f"]
+    t[:, 1] = br["integrator_capacitance_f"]
+    t[:, 2] = br["adc_range_v"]
+    fi = np.array([controller.iff[k].fixed.input_frac_bits for k in ("stack0", "stack1", "stack2")], float)
+    return t, 2.0 ** fi
+
+
+@njit(cache=True)
+def _bridge_reading(q, vt, zero, bt, noise):
+    """Each stack's charge-bridge ADC reading, V: (C_R dV_t - dq) / C_int + noise, quantized, clipped to the range."""
+    out = np.empty(3)
+    for j in range(3):
+        b = (bt[j, 0] * (vt[j] - zero[3 + j]) - (q[j] - zero[j])) / bt[j, 1] + noise[j]
+        b = np.rint(b / bt[j, 4]) * bt[j, 4]
+        out[j] = min(max(b, -bt[j, 2]), bt[j, 2])
+    return out
 
 
 @njit(cache=True)
 def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp, g_prev,
           g_now, u_now, y, h, n_sub, rec_s, rec_y, rec_xi, w, rw, noise, gp, r0, gf, fv, io, s, vm, out, mir,
+          has_iff, bt, bsc, bzero, bnoise, si, vmi, bout, iB, iA, iBSH, insec, ifrac, ilim, iin_lim, idsh,
           oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
-    """Periods of the closed loop (module docstring): the coupled kernel one period at a time, the gauges, the MIMO step."""
+    """Periods of the closed loop (module docstring): the coupled kernel one period at a time, the gauges, the
+    charge bridges and IFF (``has_iff``), the MIMO step."""
     ns = 3
     vrow = np.empty((1, ns))
     fe = np.zeros((1, ns))
     g = np.empty(ns)
     gw = np.empty(ns, np.int64)
     vw = np.empty(ns, np.int64)
+    dv = np.zeros(ns, np.int64)
+    bw = np.empty(ns, np.int64)
+    qv = np.empty(ns)
+    vt = np.empty(ns)
     gscale = 2.0 ** gf
     for k in range(w.shape[0]):
         for j in range(ns):
@@ -255,7 +323,16 @@ def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, 
             gw[j] = np.int64(np.rint(g[j] * gscale))
         for o in range(3):
             mir[k, o] = rec_y[0, 2 * ns + o]
-        mimo_step(gw, rw[k], s, vm, vw, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim)
+        if has_iff:
+            for j in range(ns):
+                qv[j] = rec_s[0, j, 1]
+                vt[j] = rec_s[0, j, 5]
+            b = _bridge_reading(qv, vt, bzero, bt, bnoise[k])
+            for j in range(ns):
+                bout[k, j] = b[j]
+                bw[j] = np.int64(np.rint(b[j] * bsc[j]))
+            iff_step(bw, si, vmi, dv, iB, iA, iBSH, insec, ifrac, ilim, iin_lim, idsh)
+        mimo_step(gw, rw[k], s, vm, vw, dv, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim)
         for j in range(ns):
             io[3 + j] = vw[j] * fv
 
