@@ -4,8 +4,8 @@
  *   1. the PZT: n_sub steps of workbench.plant.kernels.pzt_step (voltage range, R and the current limits,
  *      the PI operators G and Q, the creep branches, the modes), command held;
  *   2. the gauge chain, equivalent discrete model: the bridge (eq. 26, imbalance included) a quarter and
- *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise, trim,
- *      DAC quantization;
+ *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise (one
+ *      standard normal a period from the run's numpy bit generator, times sigma), trim, DAC quantization;
  *   3. the controller: the exported header's CTRL_fixed_step (int32 words, int64 accumulators, the output
  *      range and the current-limit window around the stack-voltage model), input word round-half-even;
  *   4. its output applied the next period.
@@ -13,12 +13,18 @@
  *
  * The model and the plant state are the packed vectors of workbench.plant.kernels (m, st): their layout is
  * read from the head of m, so this file follows pack_model. Built by benchmarks/closed_loop_vs_c.py with
- *   gcc -O2 -march=native -ffp-contract=off -shared -fPIC -include CTRL.h -DCTRL=name
+ *   gcc -O2 -march=native -ffp-contract=off -shared -fPIC -I<numpy include> -include CTRL.h -DCTRL=name
+ *       closed_loop_vs_c.c <numpy>/random/lib/libnpyrandom.a -lm
  * (-ffp-contract=off: no fused multiply-add, so the doubles round as numba's do and the words agree).
  */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
+#include <numpy/random/bitgen.h>
+
+/* numpy's own Gaussian draw (ziggurat on the bit generator), from numpy/random/lib/libnpyrandom.a: the draw
+ * Generator.standard_normal makes and numba's Generator support reproduces, so the loops draw the same noise */
+double random_standard_normal(bitgen_t *bitgen_state);
 
 #ifndef CTRL
 #error "define CTRL (the controller name) and -include its exported header"
@@ -189,12 +195,13 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     return x;
 }
 
-/* n periods. gp: the gauge parameters as ClosedLoop._gp; r0: the four arm rest resistances;
+/* n periods. rng, sigma: the gauge noise's bit generator and its standard deviation (V; 0: no draw);
+ * gp: the gauge parameters as ClosedLoop._gp; r0: the four arm rest resistances;
  * cs (n_sections x 2) and vm: the cascade's words (int64, in and out); lim: [lo, hi] output words;
  * in_scale, out_scale, in_lim: the input/output word scales and the input clamp; io: [pending output V,
  * last x, decimation counter, trace row]; rec (rows x 6) and stats (5) as _loop. */
 void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, const double *force,
-            const double *noise, const double *gp, const double *r0, int64_t *cs, int64_t *vm,
+            bitgen_t *rng, double sigma, const double *gp, const double *r0, int64_t *cs, int64_t *vm,
             const int64_t *lim, double in_scale, double out_scale, int64_t in_lim, double *io, long decimate,
             double *rec, long rec_rows, double *stats)
 {
@@ -246,7 +253,8 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
                            -adc_fs, adc_fs);
         double vn = clampd(((n10 + n11 * xt) / (d10 + d11 * xt) - (n20 + n21 * xt) / (d20 + d21 * xt)) * -k_br,
                            -adc_fs, adc_fs);
-        double reading = clampd(k_dem * (vp - vn) + (trim_s * noise[k] + trim_b), -dac_fs, dac_top);
+        double w = sigma > 0.0 ? random_standard_normal(rng) * sigma : 0.0;
+        double reading = clampd(k_dem * (vp - vn) + (trim_s * w + trim_b), -dac_fs, dac_top);
         reading = floor(reading * inv_lsb + 0.5) * dac_lsb;
         double e = ref[k] - reading;
         double ew = rint(e * in_scale);                       /* round half even, as np.rint */
