@@ -225,6 +225,16 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
         c.s[k][1] = (int32_t)cs[2 * k + 1];
     }
     c.v = (int32_t)vm[0];
+    /* the sub-steps holding a quarter and three quarters of the period, and their interpolation weights */
+    long jq = -1, jt = -1;
+    double fqn = 0.0, ftn = 0.0;
+    for (long j = 0; j < n_sub; j++) {
+        double t_end = (double)(j + 1) / n_sub, t_beg = (double)j / n_sub;
+        if (t_beg < 0.25 && 0.25 <= t_end) { jq = j; fqn = (0.25 - t_beg) * n_sub; }
+        if (t_beg < 0.75 && 0.75 <= t_end) { jt = j; ftn = (0.75 - t_beg) * n_sub; }
+    }
+    /* in_scale is a power of two: ref*s - code*(lsb*s) rounds as (ref - code*lsb)*s, bit for bit */
+    const double lsb_in = dac_lsb * in_scale;
     double pending = io[0], x_prev = io[1];
     long count = (long)io[2], row = (long)io[3];
     for (long k = 0; k < n; k++) {
@@ -232,14 +242,13 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
         double xprev_sub = x_prev;
         for (long j = 0; j < n_sub; j++) {
             double ij, xj = pzt_step(m, st, &pc, u, fk, &ij);
-            double t_end = (double)(j + 1) / n_sub, t_beg = (double)j / n_sub;
-            if (t_beg < 0.25 && 0.25 <= t_end) {
+            if (j == jq) {
                 double xb = j == 0 ? x_start : xprev_sub;
-                xq = xb + (xj - xb) * (0.25 - t_beg) * n_sub;
+                xq = xb + (xj - xb) * fqn;
             }
-            if (t_beg < 0.75 && 0.75 <= t_end) {
+            if (j == jt) {
                 double xb = j == 0 ? x_start : xprev_sub;
-                xt = xb + (xj - xb) * (0.75 - t_beg) * n_sub;
+                xt = xb + (xj - xb) * ftn;
             }
             xprev_sub = xj;
             xsum += xj;
@@ -255,9 +264,10 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
                            -adc_fs, adc_fs);
         double w = sigma > 0.0 ? random_standard_normal(rng) * sigma : 0.0;
         double reading = clampd(k_dem * (vp - vn) + (trim_s * w + trim_b), -dac_fs, dac_top);
-        reading = floor(reading * inv_lsb + 0.5) * dac_lsb;
+        double code = floor(reading * inv_lsb + 0.5);
+        reading = code * dac_lsb;
         double e = ref[k] - reading;
-        double ew = rint(e * in_scale);                       /* round half even, as np.rint */
+        double ew = rint(ref[k] * in_scale - code * lsb_in);  /* round half even, as np.rint */
         int64_t v = ew > (double)in_lim ? in_lim : ew < -(double)in_lim ? -in_lim : (int64_t)ew;
         int64_t wlo = (int64_t)c.v - h_dn, whi = (int64_t)c.v + h_up;
         int64_t u_w = STEP(&c, (int32_t)v);

@@ -169,6 +169,10 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
             jq, fq = j, 0.25 - t_beg
         if t_beg < 0.75 <= t_end:
             jt, ft = j, 0.75 - t_beg
+    fqn, ftn = fq * n_sub, ft * n_sub            # the interpolation weights (n_sub 1: fq and ft exactly)
+    # the error word in input units at once: in_scale is a power of two, so ref*s - code*(lsb*s) rounds as
+    # (ref - code*lsb)*s does, bit for bit, one multiplication fewer on the period's dependency chain
+    lsb_in = dac_lsb * in_scale
     i_max, i_min, n_lim, n_win, n_range = stats[0], stats[1], stats[2], stats[3], stats[4]
     lo_v, hi_v, h_up_v, h_dn_v = lim[0], lim[1], lim[3], lim[4]
     lo_w, hi_w, h_up_w, h_dn_w = limw[0], limw[1], limw[3], limw[4]
@@ -189,9 +193,9 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
             xj, _, ij, _, _ = K.pzt_advance(p, m, st, u, fk)
             # positions a quarter and three quarters into the period, linear between sub-steps
             if j == jq:
-                xq = xb + (xj - xb) * fq * n_sub
+                xq = xb + (xj - xb) * fqn
             if j == jt:
-                xt = xb + (xj - xb) * ft * n_sub
+                xt = xb + (xj - xb) * ftn
             xb = xj
             xsum += xj
             if abs(ij) > abs(i_peak):
@@ -209,11 +213,12 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
         # demodulation (x2 the difference of the halves) with the noise term, trim, the servo DAC, as _quantize
         w = rng.standard_normal() * sigma if draw else 0.0
         reading = min(max(k_dem * (vp - vn) + (trim_s * w + trim_b), -dac_fs), dac_top)
-        reading = math.floor(reading * inv_lsb + 0.5) * dac_lsb
+        code = math.floor(reading * inv_lsb + 0.5)
+        reading = code * dac_lsb
         e = ref[k] - reading
         if form == 2:
             # the input word as FixedPointController.input_words makes it (round half even, clamp)
-            v = min(max(np.int64(np.rint(e * in_scale)), -f_in), f_in)
+            v = min(max(np.int64(np.rint(ref[k] * in_scale - code * lsb_in)), -f_in), f_in)
             wlo, whi = vm_i[0] - h_dn_w, vm_i[0] + h_up_w
             u_w = fixed_step(cs_i, v, fb, fa, fshift, ffrac, limw, vm_i, aw, peak)
             if aw and ((u_w == wlo and wlo > lo_w) or (u_w == whi and whi < hi_w)):
