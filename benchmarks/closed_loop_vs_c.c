@@ -45,7 +45,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_u, kx_qh, kx_c, kx_f; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -60,6 +60,10 @@ static plant_consts plant_params(const double *m)
     p.r_isnk = r * m[I_SNK];
     p.k_f = t_em * inv_kp;
     p.k_x = t_em * inv_cpp * inv_kp;
+    p.kx_u = p.d_eff * p.k_x * p.b_tot;
+    p.kx_qh = p.d_eff * p.k_x * (1.0 - p.b_tot * inv_cpp);
+    p.kx_c = p.d_eff * p.k_x;
+    p.kx_f = p.d_eff * inv_kp;
     return p;
 }
 
@@ -186,7 +190,9 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
             x_part += m[o_cd + a] * acc;
         }
         for (int a = 0; a < nm; a++) st[o_x + a] = st[o_x + nm + a] + m[o_b + nm + a] * x_qs;
-        x = p->d_eff * x_qs + x_part;
+        /* pzt_advance: x_qs's chain expanded, a sum over u_new, qh_new and the held terms */
+        x = ((p->kx_u * u_new + p->kx_qh * qh_new) + (p->kx_c * (s_dec - f_term) + p->kx_f * f_e))
+            + x_part;
         st[o_x + 2 * nm] = x_qs;
     } else {
         x = x_qs;
