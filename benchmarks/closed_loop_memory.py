@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+if __name__ == "__main__" and str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))       # measure this checkout's workbench, not whichever one is installed
 PLANT = ROOT / "plants" / "p888_51_sn637_creep.toml"
 CONTROLLER = ROOT / "controllers" / "sn637_loopshape.json"
 LIMIT_MB = 500.0

@@ -4,8 +4,8 @@
  *   1. the PZT: n_sub steps of workbench.plant.kernels.pzt_step (voltage range, R and the current limits,
  *      the PI operators G and Q, the creep branches, the modes), command held;
  *   2. the gauge chain, equivalent discrete model: the bridge (eq. 26, imbalance included) a quarter and
- *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise, trim,
- *      DAC quantization;
+ *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise (one
+ *      standard normal a period from the run's numpy bit generator, times sigma), trim, DAC quantization;
  *   3. the controller: the exported header's CTRL_fixed_step (int32 words, int64 accumulators, the output
  *      range and the current-limit window around the stack-voltage model), input word round-half-even;
  *   4. its output applied the next period.
@@ -13,12 +13,18 @@
  *
  * The model and the plant state are the packed vectors of workbench.plant.kernels (m, st): their layout is
  * read from the head of m, so this file follows pack_model. Built by benchmarks/closed_loop_vs_c.py with
- *   gcc -O2 -march=native -ffp-contract=off -shared -fPIC -include CTRL.h -DCTRL=name
+ *   gcc -O2 -march=native -ffp-contract=off -shared -fPIC -I<numpy include> -include CTRL.h -DCTRL=name
+ *       closed_loop_vs_c.c <numpy>/random/lib/libnpyrandom.a -lm
  * (-ffp-contract=off: no fused multiply-add, so the doubles round as numba's do and the words agree).
  */
 #include <math.h>
 #include <stdint.h>
 #include <string.h>
+#include <numpy/random/bitgen.h>
+
+/* numpy's own Gaussian draw (ziggurat on the bit generator), from numpy/random/lib/libnpyrandom.a: the draw
+ * Generator.standard_normal makes and numba's Generator support reproduces, so the loops draw the same noise */
+double random_standard_normal(bitgen_t *bitgen_state);
 
 #ifndef CTRL
 #error "define CTRL (the controller name) and -include its exported header"
@@ -39,7 +45,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_u, kx_qh, kx_c, kx_f; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -54,6 +60,10 @@ static plant_consts plant_params(const double *m)
     p.r_isnk = r * m[I_SNK];
     p.k_f = t_em * inv_kp;
     p.k_x = t_em * inv_cpp * inv_kp;
+    p.kx_u = p.d_eff * p.k_x * p.b_tot;
+    p.kx_qh = p.d_eff * p.k_x * (1.0 - p.b_tot * inv_cpp);
+    p.kx_c = p.d_eff * p.k_x;
+    p.kx_f = p.d_eff * inv_kp;
     return p;
 }
 
@@ -180,7 +190,9 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
             x_part += m[o_cd + a] * acc;
         }
         for (int a = 0; a < nm; a++) st[o_x + a] = st[o_x + nm + a] + m[o_b + nm + a] * x_qs;
-        x = p->d_eff * x_qs + x_part;
+        /* pzt_advance: x_qs's chain expanded, a sum over u_new, qh_new and the held terms */
+        x = ((p->kx_u * u_new + p->kx_qh * qh_new) + (p->kx_c * (s_dec - f_term) + p->kx_f * f_e))
+            + x_part;
         st[o_x + 2 * nm] = x_qs;
     } else {
         x = x_qs;
@@ -189,12 +201,13 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     return x;
 }
 
-/* n periods. gp: the gauge parameters as ClosedLoop._gp; r0: the four arm rest resistances;
+/* n periods. rng, sigma: the gauge noise's bit generator and its standard deviation (V; 0: no draw);
+ * gp: the gauge parameters as ClosedLoop._gp; r0: the four arm rest resistances;
  * cs (n_sections x 2) and vm: the cascade's words (int64, in and out); lim: [lo, hi] output words;
  * in_scale, out_scale, in_lim: the input/output word scales and the input clamp; io: [pending output V,
  * last x, decimation counter, trace row]; rec (rows x 6) and stats (5) as _loop. */
 void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, const double *force,
-            const double *noise, const double *gp, const double *r0, int64_t *cs, int64_t *vm,
+            bitgen_t *rng, double sigma, const double *gp, const double *r0, int64_t *cs, int64_t *vm,
             const int64_t *lim, double in_scale, double out_scale, int64_t in_lim, double *io, long decimate,
             double *rec, long rec_rows, double *stats)
 {
@@ -218,6 +231,16 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
         c.s[k][1] = (int32_t)cs[2 * k + 1];
     }
     c.v = (int32_t)vm[0];
+    /* the sub-steps holding a quarter and three quarters of the period, and their interpolation weights */
+    long jq = -1, jt = -1;
+    double fqn = 0.0, ftn = 0.0;
+    for (long j = 0; j < n_sub; j++) {
+        double t_end = (double)(j + 1) / n_sub, t_beg = (double)j / n_sub;
+        if (t_beg < 0.25 && 0.25 <= t_end) { jq = j; fqn = (0.25 - t_beg) * n_sub; }
+        if (t_beg < 0.75 && 0.75 <= t_end) { jt = j; ftn = (0.75 - t_beg) * n_sub; }
+    }
+    /* in_scale is a power of two: ref*s - code*(lsb*s) rounds as (ref - code*lsb)*s, bit for bit */
+    const double lsb_in = dac_lsb * in_scale;
     double pending = io[0], x_prev = io[1];
     long count = (long)io[2], row = (long)io[3];
     for (long k = 0; k < n; k++) {
@@ -225,14 +248,13 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
         double xprev_sub = x_prev;
         for (long j = 0; j < n_sub; j++) {
             double ij, xj = pzt_step(m, st, &pc, u, fk, &ij);
-            double t_end = (double)(j + 1) / n_sub, t_beg = (double)j / n_sub;
-            if (t_beg < 0.25 && 0.25 <= t_end) {
+            if (j == jq) {
                 double xb = j == 0 ? x_start : xprev_sub;
-                xq = xb + (xj - xb) * (0.25 - t_beg) * n_sub;
+                xq = xb + (xj - xb) * fqn;
             }
-            if (t_beg < 0.75 && 0.75 <= t_end) {
+            if (j == jt) {
                 double xb = j == 0 ? x_start : xprev_sub;
-                xt = xb + (xj - xb) * (0.75 - t_beg) * n_sub;
+                xt = xb + (xj - xb) * ftn;
             }
             xprev_sub = xj;
             xsum += xj;
@@ -246,10 +268,12 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
                            -adc_fs, adc_fs);
         double vn = clampd(((n10 + n11 * xt) / (d10 + d11 * xt) - (n20 + n21 * xt) / (d20 + d21 * xt)) * -k_br,
                            -adc_fs, adc_fs);
-        double reading = clampd(k_dem * (vp - vn) + (trim_s * noise[k] + trim_b), -dac_fs, dac_top);
-        reading = floor(reading * inv_lsb + 0.5) * dac_lsb;
+        double w = sigma > 0.0 ? random_standard_normal(rng) * sigma : 0.0;
+        double reading = clampd(k_dem * (vp - vn) + (trim_s * w + trim_b), -dac_fs, dac_top);
+        double code = floor(reading * inv_lsb + 0.5);
+        reading = code * dac_lsb;
         double e = ref[k] - reading;
-        double ew = rint(e * in_scale);                       /* round half even, as np.rint */
+        double ew = rint(ref[k] * in_scale - code * lsb_in);  /* round half even, as np.rint */
         int64_t v = ew > (double)in_lim ? in_lim : ew < -(double)in_lim ? -in_lim : (int64_t)ew;
         int64_t wlo = (int64_t)c.v - h_dn, whi = (int64_t)c.v + h_up;
         int64_t u_w = STEP(&c, (int32_t)v);

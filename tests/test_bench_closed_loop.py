@@ -142,3 +142,19 @@ def test_the_plain_c_loop_of_the_benchmark_is_the_same_computation(root, tmp_pat
     out = mod.agreement(fn, 20_000, 1)
     assert out["rows"] == out["rows_identical"] == out["output_words_identical"] == 20_000
     assert out["plant_state_identical"] and out["controller_words_identical"] and out["stats_identical"]
+
+
+@pytest.mark.parametrize("noise", [True, False])
+def test_the_loop_draws_one_standard_normal_a_period_from_its_generator(root, noise):
+    # the gauge noise is drawn inside the compiled loop (numba's Generator support): one standard normal a
+    # period from the run's generator, whatever the chunking, and none without noise; the generator's state
+    # after a run that crosses a chunk boundary is that of a fresh one after standard_normal(n) (that the
+    # numbers are numpy's own, the C reference that calls numpy's routine shows word for word above)
+    paths = (root / "plants" / "p888_51_sn637_creep.toml", root / "controllers" / "sn637_loopshape.json")
+    n = CHUNK + 30_000
+    cl, ref = _hold(*paths, noise=noise, seed=5)
+    fresh = np.random.Generator(np.random.PCG64(5))
+    cl.run(ref, periods=n)
+    if noise:
+        fresh.standard_normal(n)
+    assert cl._rng.bit_generator.state == fresh.bit_generator.state

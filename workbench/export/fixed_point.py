@@ -550,10 +550,12 @@ def fixed_step(s, v, b, a, b_shift, frac, lim, vm, condition, peak):
     h_up, h_down] (:attr:`FixedPointController.limit_words`). The last section's output is
     clamped to the range and to the current-limit window around the model; with ``condition`` (anti-windup) the clamped word drives its recursion,
     else the raw one (saturated to int32). ``peak`` (n_sections, 3) collects the largest
-    |y|, |s1|, |s2| before saturation. int64 never overflows here (module docstring).
+    |y|, |s1|, |s2| before saturation; an empty ``peak`` (0 rows) skips that bookkeeping
+    (the closed loop's hot path does not read it). int64 never overflows here (module docstring).
     Returns the output word.
     """
     n_sec = b.shape[0]
+    track = peak.shape[0] > 0
     top, bottom = np.int64(2**31 - 1), np.int64(-2**31)
     one, half = np.int64(1) << frac, np.int64(1) << (frac - 1)
     for k in range(n_sec):
@@ -565,7 +567,8 @@ def fixed_step(s, v, b, a, b_shift, frac, lim, vm, condition, peak):
             m = np.int64(1) << -sh
             p0, p1, p2 = p0 * m, p1 * m, p2 * m
         y = (p0 + s[k, 0] * one + half) >> frac
-        peak[k, 0] = max(peak[k, 0], abs(y))
+        if track:
+            peak[k, 0] = max(peak[k, 0], abs(y))
         if k == n_sec - 1:
             lo = max(lim[0], vm[0] - lim[4])
             hi = min(lim[1], vm[0] + lim[3])
@@ -576,8 +579,9 @@ def fixed_step(s, v, b, a, b_shift, frac, lim, vm, condition, peak):
             out = y
         s1 = (p1 - a[k, 0] * y + s[k, 1] * one + half) >> frac
         s2 = (p2 - a[k, 1] * y + half) >> frac
-        peak[k, 1] = max(peak[k, 1], abs(s1))
-        peak[k, 2] = max(peak[k, 2], abs(s2))
+        if track:
+            peak[k, 1] = max(peak[k, 1], abs(s1))
+            peak[k, 2] = max(peak[k, 2], abs(s2))
         s[k, 0] = min(max(s1, bottom), top)
         s[k, 1] = min(max(s2, bottom), top)
         v = out

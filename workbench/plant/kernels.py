@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 from numba import njit
+from numba.extending import overload
 
 __all__ = ["pzt_step", "pzt_advance", "plant_params", "pzt_run", "pzt_step_reference", "rc_charge", "rc_factor",
            "OUT_NAMES", "pack_model", "pack_state"]
@@ -48,6 +49,18 @@ S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_Y1, S_F
 S_HEAD = 14
 OUT_NAMES = ("x_m", "q_c", "i_a", "v_h_v", "v_p_v", "v_t_v")
 N_OUT = len(OUT_NAMES)
+
+
+def _index(x):
+    """A table size or offset read from ``m`` as an index: a Python int when interpreted."""
+    return int(x)
+
+
+@overload(_index, inline="always")
+def _index_compiled(x):
+    # compiled: unsigned, so an index into m or st needs no negative-index wraparound test (numba adds one
+    # to every signed index it cannot prove >= 0; the offsets come from m, so it never can)
+    return lambda x: np.uint64(x)
 
 
 def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
@@ -178,7 +191,7 @@ def _pi_update_segment(m, o_r, o_w, st, o_z, n, v, dt, r):
         pl = -math.inf
         pu = math.inf
         r_max = r0
-        for i in range(1, n):
+        for i in range(_index(1), n):
             ri = m[o_r + i]
             wi = m[o_w + i]
             lo = v - ri
@@ -218,30 +231,35 @@ def plant_params(m):
     cannot tell the two arrays apart), and the offsets converted from float again. The
     step's fixed products are formed here: R i_lim per direction, T_em / k_p,
     T_em / (C_pp k_p), the creep branches' summed input coefficient and the modes'
-    direct gain from the quasi-static displacement (D + C B1 of the first-order hold).
+    direct gain from the quasi-static displacement (D + C B1 of the first-order hold), and
+    the coefficients of x over G's output, the hysteretic charge, the held charge terms and
+    the force (D_eff k_x b_tot, D_eff k_x (1 - b_tot / C_pp), D_eff k_x, D_eff / k_p).
     """
     r = m[R]
     t_em = m[T_EM]
     inv_kp = m[INV_K_P]
     inv_cpp = m[INV_C_PP]
-    n_c = int(m[N_C])
-    o_cb = int(m[O_CB])
+    n_c = _index(m[N_C])
+    o_cb = _index(m[O_CB])
     b_tot = 0.0
     for j in range(n_c):
         b_tot += m[o_cb + j]
-    n = int(m[N_M])
-    o_b = int(m[O_BD])
-    o_cd = int(m[O_CD])
-    d_eff = m[int(m[O_DD])] if n > 0 else 1.0
+    n = _index(m[N_M])
+    o_b = _index(m[O_BD])
+    o_cd = _index(m[O_CD])
+    d_eff = m[_index(m[O_DD])] if n > 0 else 1.0
     for a in range(n):
         d_eff += m[o_cd + a] * m[o_b + n + a]
+    k_x = t_em * inv_cpp * inv_kp
     return (r, m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], t_em, m[DT], m[QUASI_STATIC] > 0.5,
             m[INV_I_SRC], m[INV_I_SNK], inv_kp, inv_cpp, m[INV_DT],
-            int(m[N_G]), int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG]),
-            int(m[N_Q]), int(m[O_RQ]), int(m[O_WQ]), int(m[OS_ZQ]),
-            n_c, o_cb, int(m[O_CDEC]), int(m[OS_QC]),
-            n, int(m[OS_XM]), int(m[O_AD]), o_b, o_cd, d_eff,
-            r * m[I_SRC], r * m[I_SNK], t_em * inv_kp, t_em * inv_cpp * inv_kp, b_tot)
+            _index(m[N_G]), _index(m[O_RG]), _index(m[O_WG]), _index(m[OS_ZG]),
+            _index(m[N_Q]), _index(m[O_RQ]), _index(m[O_WQ]), _index(m[OS_ZQ]),
+            n_c, o_cb, _index(m[O_CDEC]), _index(m[OS_QC]),
+            n, _index(m[OS_XM]), _index(m[O_AD]), o_b, o_cd, d_eff,
+            r * m[I_SRC], r * m[I_SNK], t_em * inv_kp, k_x, b_tot,
+            # x of a plant with modes as one sum over this step's G output and charge (pzt_advance)
+            d_eff * k_x * b_tot, d_eff * k_x * (1.0 - b_tot * inv_cpp), d_eff * k_x, d_eff * inv_kp)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -263,7 +281,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_u, kx_qh, kx_c, kx_f) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
@@ -307,7 +325,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     # the modal state, a scratch copy and the previous x_qs, so the step allocates nothing.
     # The part of the new state and output not driven by this step's x_qs first (off the chain).
     if n > 0:
-        x_before = st[o_x + 2 * n]
+        x_before = st[o_x + n + n]
         x_part = 0.0
         for a in range(n):
             acc = m[o_b + a] * x_before
@@ -317,8 +335,11 @@ def pzt_advance(p, m, st, v_cmd, f_e):
             x_part += m[o_cd + a] * acc
         for a in range(n):
             st[o_x + a] = st[o_x + n + a] + m[o_b + n + a] * x_qs
-        x = d_eff * x_qs + x_part
-        st[o_x + 2 * n] = x_qs
+        # x = D_eff x_qs + x_part with x_qs's chain (V_h, the creep charge, q, x_qs) expanded: a sum over
+        # this step's G output and charge and the held terms, two operations after u_new instead of nine
+        # (equal to rounding: the tests hold it to pzt_step_reference)
+        x = ((kx_u * u_new + kx_qh * qh_new) + (kx_c * (s_dec - f_term) + kx_f * f_e)) + x_part
+        st[o_x + n + n] = x_qs
     else:
         x = x_qs
     return x, q, (q - q_old) * inv_dt, v_h, v_p
@@ -433,7 +454,7 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
     n = int(m[N_M])
     if n > 0:
         o_x, o_a, o_b, o_cd = int(m[OS_XM]), int(m[O_AD]), int(m[O_BD]), int(m[O_CD])
-        x_before = st[o_x + 2 * n]
+        x_before = st[o_x + n + n]
         for a in range(n):
             acc = m[o_b + a] * x_before + m[o_b + n + a] * x_qs
             for b in range(n):

@@ -25,9 +25,11 @@ Per servo period T (the gauge modulation period, 10 kHz), in this order:
    does);
 4. that output is applied at the next period (the one-sample compute delay).
 
-Nothing in the loop calls Python per period. The run is cut in chunks of
-:data:`CHUNK` periods (the noise of a chunk is drawn by numpy's PCG64/ziggurat
-generator, faster than a per-sample draw in the loop); traces are decimated inside
+Nothing in the loop calls Python per period. The gauge noise is drawn inside the loop,
+one standard normal a period from the run's ``numpy.random.Generator`` (numba's
+implementation of numpy's PCG64/ziggurat draw: the same numbers as
+``standard_normal(n) * sigma``, with no noise block in memory). The run is cut in chunks of
+:data:`CHUNK` periods (for a constant reference and force, one chunk's buffer); traces are decimated inside
 the loop and streaming statistics (current peaks, time at the current limit, rate- and
 range-limited samples) accumulated there, so memory does not grow with the run.
 """
@@ -49,7 +51,7 @@ from ..plant.simulator import PZTSimulator
 __all__ = ["FirmwareController", "controller_from_json", "ClosedLoopRun", "ClosedLoop", "CHUNK"]
 
 TRACE_NAMES = ("x_m", "reading_v", "u_v", "error_v", "force_n", "i_a")
-CHUNK = 1 << 17               # periods per compiled call (13 s at 10 kHz; ~1 MB of noise)
+CHUNK = 1 << 17               # periods per compiled call (13 s at 10 kHz)
 FORMS = ("hanus", "float", "fixed")
 
 
@@ -109,10 +111,12 @@ def controller_from_json(data, form=None, default_limits_v=None, plant=None, sou
 
 
 @njit(cache=True, error_model="numpy")
-def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift, ffrac,
+def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift, ffrac,
           f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
     """Closed loop over len(ref) servo periods.
 
+    ``rng``: the numpy Generator the gauge noise is drawn from, one ``standard_normal()`` times
+    ``sigma`` (V, the demodulated reading's noise) a period; none drawn when ``sigma`` is 0.
     ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
     2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
     cascade states ``cs_f`` (float form) and ``cs_i`` (fixed, int64); the window's
@@ -137,7 +141,8 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     p = K.plant_params(m)
     n = hx.shape[0]
     xn = np.empty(n)
-    peak = np.zeros((fb.shape[0], 3), np.int64)
+    peak = np.zeros((0, 3), np.int64)          # fixed_step skips its peak bookkeeping (not read here)
+    draw = sigma > 0.0
     L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
     # the bridge (eq. 26): each half's arms are linear in x, so each ratio is (n0 + n1 x) / (d0 + d1 x)
@@ -164,6 +169,10 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
             jq, fq = j, 0.25 - t_beg
         if t_beg < 0.75 <= t_end:
             jt, ft = j, 0.75 - t_beg
+    fqn, ftn = fq * n_sub, ft * n_sub            # the interpolation weights (n_sub 1: fq and ft exactly)
+    # the error word in input units at once: in_scale is a power of two, so ref*s - code*(lsb*s) rounds as
+    # (ref - code*lsb)*s does, bit for bit, one multiplication fewer on the period's dependency chain
+    lsb_in = dac_lsb * in_scale
     i_max, i_min, n_lim, n_win, n_range = stats[0], stats[1], stats[2], stats[3], stats[4]
     lo_v, hi_v, h_up_v, h_dn_v = lim[0], lim[1], lim[3], lim[4]
     lo_w, hi_w, h_up_w, h_dn_w = limw[0], limw[1], limw[3], limw[4]
@@ -184,9 +193,9 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
             xj, _, ij, _, _ = K.pzt_advance(p, m, st, u, fk)
             # positions a quarter and three quarters into the period, linear between sub-steps
             if j == jq:
-                xq = xb + (xj - xb) * fq * n_sub
+                xq = xb + (xj - xb) * fqn
             if j == jt:
-                xt = xb + (xj - xb) * ft * n_sub
+                xt = xb + (xj - xb) * ftn
             xb = xj
             xsum += xj
             if abs(ij) > abs(i_peak):
@@ -202,12 +211,14 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
         vn = min(max((((n10 + n11 * xt) / (d10 + d11 * xt)) - ((n20 + n21 * xt) / (d20 + d21 * xt))) * -k_br,
                      -adc_fs), adc_fs)
         # demodulation (x2 the difference of the halves) with the noise term, trim, the servo DAC, as _quantize
-        reading = min(max(k_dem * (vp - vn) + (trim_s * noise[k] + trim_b), -dac_fs), dac_top)
-        reading = math.floor(reading * inv_lsb + 0.5) * dac_lsb
+        w = rng.standard_normal() * sigma if draw else 0.0
+        reading = min(max(k_dem * (vp - vn) + (trim_s * w + trim_b), -dac_fs), dac_top)
+        code = math.floor(reading * inv_lsb + 0.5)
+        reading = code * dac_lsb
         e = ref[k] - reading
         if form == 2:
             # the input word as FixedPointController.input_words makes it (round half even, clamp)
-            v = min(max(np.int64(np.rint(e * in_scale)), -f_in), f_in)
+            v = min(max(np.int64(np.rint(ref[k] * in_scale - code * lsb_in)), -f_in), f_in)
             wlo, whi = vm_i[0] - h_dn_w, vm_i[0] + h_up_w
             u_w = fixed_step(cs_i, v, fb, fa, fshift, ffrac, limw, vm_i, aw, peak)
             if aw and ((u_w == wlo and wlo > lo_w) or (u_w == whi and whi < hi_w)):
@@ -257,7 +268,7 @@ def _loop(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gai
     io[3] = row
 
 
-def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift,
+def _loop_reference(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx, gain, sos, fb, fa, fshift,
                     ffrac, f_in, in_scale, out_scale, cs_f, cs_i, vm_f, vm_i, lim, limw, aw, decimate, io, rec, stats):
     """The closed loop as first written, run by the interpreter: the slow reference of :func:`_loop`.
 
@@ -268,6 +279,8 @@ def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, h
     ~50 us a period, for short runs only. Same arguments, same effect as :func:`_loop`
     up to rounding.
 
+    ``rng``: the numpy Generator the gauge noise is drawn from, one ``standard_normal()`` times
+    ``sigma`` (V, the demodulated reading's noise) a period; none drawn when ``sigma`` is 0.
     ``form``: 0 Hanus (``ha, hb, hc, hd``, state ``hx``), 1 float cascade (``gain, sos``),
     2 fixed-point cascade (``fb, fa, fshift, ffrac``, input clamp ``f_in`` words, scales);
     cascade states ``cs_f`` (float form) and ``cs_i`` (fixed, int64); the window's
@@ -323,7 +336,7 @@ def _loop_reference(m, st, n_sub, ref, force, noise, gp, r0, form, ha, hb, hc, h
         x_prev = xprev_sub
         vp = min(max(amp * _bridge(xq, L, W, kgf, r0, vm), -adc_fs), adc_fs)
         vn = min(max(amp * _bridge(xt, L, W, kgf, r0, -vm), -adc_fs), adc_fs)
-        dem = 0.5 * demod * (vp - vn) + noise[k]
+        dem = 0.5 * demod * (vp - vn) + (rng.standard_normal() * sigma if sigma > 0.0 else 0.0)
         reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
         e = ref[k] - reading
         if form == 2:
@@ -424,7 +437,7 @@ class ClosedLoop:
         self.plant, self.controller = plant, controller
         self.n_sub, self.anti_windup = int(n_sub), bool(anti_windup)
         self.sim = PZTSimulator(plant.pzt, g.period_s / self.n_sub)
-        self.sigma_v = demod_noise_sigma_v(g) if noise else 0.0
+        self.sigma_v = float(demod_noise_sigma_v(g)) if noise else 0.0
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
                              g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v,
@@ -507,23 +520,19 @@ class ClosedLoop:
         stats = np.zeros(5)
         self._io[2:] = 0.0
         c = self.controller
-        # buffers made once per run: a constant reference and force, the noise drawn into one chunk's buffer
-        # (the same draw as standard_normal(k) * sigma)
+        # a constant reference and force held in one chunk's buffer, made once per run; the gauge noise is
+        # drawn inside the loop, one standard normal a period from self._rng (the draw of
+        # standard_normal(n) * sigma, in the same order: the stream does not depend on the chunking)
         size = min(n, CHUNK)
         if scalar:
             r_const, f_const = np.full(size, ref), np.full(size, force)
-        noise_buf = np.zeros(size)
         for start in range(0, n, CHUNK):
             stop = min(n, start + CHUNK)
             if scalar:
                 r_chunk, f_chunk = r_const[:stop - start], f_const[:stop - start]
             else:
                 r_chunk, f_chunk = ref[start:stop], force[start:stop]
-            noise = noise_buf[:stop - start]
-            if self.sigma_v > 0:
-                self._rng.standard_normal(out=noise)
-                noise *= self.sigma_v
-            _loop(self.sim.m, self.sim.st, self.n_sub, r_chunk, f_chunk, noise, self._gp, self._r0, self._form,
+            _loop(self.sim.m, self.sim.st, self.n_sub, r_chunk, f_chunk, self._rng, self.sigma_v, self._gp, self._r0, self._form,
                   self._ha, self._hb, self._hc, self._hd, self._hx, float(c.gain), self._sos, self._fb, self._fa,
                   self._fshift, self._ffrac, self._fin, self._in_scale, self._out_scale, self._csf, self._csi, self._vmf, self._vmi, self._lim,
                   self._limw, self.anti_windup, decimate, self._io, rec, stats)
