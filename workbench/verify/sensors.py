@@ -46,6 +46,8 @@ from ..export.fixed_point import fixed_step, initial_state
 from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
 from ..plant import kernels as K
 from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
+from ..selfsense.charge_amp import adc_convert, adc_lsb_v, charge_amp_arrays, charge_amp_step
+from ..selfsense.estimator import estimator_arrays, estimator_step
 
 __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
            "run_sensor_loop", "compare_sensors"]
@@ -120,24 +122,21 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_
 
 
 @njit(cache=True, error_model="numpy")
-def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, cs, ep, eg, ea_, eb0, eb1, es, er, ew,
-                 ez, xa, xb, xc, xd, xe, kind, bk, bfrac, bkbits, scale, sbits, in_lim, fb, fa, fshift, ffrac, limw,
-                 cst, vm, io, dec, rec):
+def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, cs, adc_v, ep, eg, ea_, eb0, eb1, es,
+                 er, ew, ez, xa, xb, xc, xd, xe, kind, bk, bfrac, bkbits, scale, sbits, in_lim, fb, fa, fshift, ffrac,
+                 limw, cst, vm, io, dec, rec):
     """Periods of the sensor loop (module notes). ``io`` = [pending u (V), x_prev, blend y, decim count, row,
-    output LSB (V), last reading (counts), blend started]; ``cs`` charge-amp state [t, v_prev, q_leak] and DA states ``ck``-sized in ``cs[3:]``;
-    ``es`` estimator state [t, v_prev, q_leak]; ``ez`` play states; ``xe`` E(z) states. Every ``dec``-th
-    period a row of ``rec``: true x (m), the reading the cascade closed on (m), the gauge and charge counts
-    the sensor step received, and the output it computed (V)."""
+    output LSB (V), last reading (counts), blend started]; ``cs`` the charge amplifier's state and
+    ``cp, ck, ca, cb0, cb1`` its constants (:func:`~workbench.selfsense.charge_amp.charge_amp_step`);
+    ``adc_v`` = [V_out LSB, V_out range, V_in LSB, V_in range] (V); ``es``, ``ez`` the estimator's states and
+    ``ep .. ew`` its constants (:func:`~workbench.selfsense.estimator.estimator_step`); ``xe`` E(z) states.
+    Every ``dec``-th period a row of ``rec``: true x (m), the reading the cascade closed on (m), the gauge and
+    charge counts the sensor step received, and the output it computed (V)."""
     out = np.empty(K.N_OUT)
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vmod, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits, cal = gp[6], gp[7], gp[8], gp[9], int(gp[10]), gp[11]
-    dt = cp[0]
-    r_leak, i_bias, c_ref, c_int = cp[1], cp[2], cp[3], cp[4]
-    out_lsb, out_fs, in_lsb, in_fs = cp[5], cp[6], cp[7], cp[8]
-    e_alpha, e_cint, e_cref, e_rleak, e_ibias = ep[0], ep[1], ep[2], ep[3], ep[4]
     lsb_m = gp[12]
-    nda = ck.shape[0]
     ne = xe.shape[0]
     xn = np.empty(ne)
     for k in range(ref.shape[0]):
@@ -154,34 +153,11 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
         dem = 0.5 * demod * (v_p - v_n) + gn[k]
         reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
         gauge_m = reading * cal + TRIM_CENTER_M
-        # charge amplifier (ChargeAmpStream.update)
-        q_c, v_t = out[1], out[5]
-        cs[0] += dt
-        cs[2] += 0.5 * (v_t + cs[1]) / r_leak * dt
-        q_da = 0.0
-        for j in range(nda):
-            cs[3 + j] = ca[j] * cs[3 + j] + cb0[j] * cs[1] + cb1[j] * v_t
-            q_da += ck[j] * cs[3 + j]
-        cs[1] = v_t
-        q_tot = q_c + cs[2] + i_bias * cs[0] + q_da
-        v_out = -(q_tot - c_ref * v_t) / c_int + on[k]
-        v_out = min(max(math.floor(v_out / out_lsb + 0.5) * out_lsb if out_lsb > 0 else v_out, -out_fs), out_fs)
-        v_in = v_t + vn[k]
-        v_in = min(max(math.floor(v_in / in_lsb + 0.5) * in_lsb if in_lsb > 0 else v_in, -in_fs), in_fs)
-        # staged estimator (StreamingEstimator.update)
-        es[0] += dt
-        if e_rleak > 0:
-            es[2] += 0.5 * (v_in + es[1]) / e_rleak * dt
-        corr = 0.0
-        for j in range(eg.shape[0]):
-            es[3 + j] = ea_[j] * es[3 + j] + eb0[j] * es[1] + eb1[j] * v_in
-            corr += eg[j] * es[3 + j]
-        es[1] = v_in
-        for j in range(er.shape[0]):
-            ez[j] = max(v_in - er[j], min(v_in + er[j], ez[j]))
-            corr += ew[j] * ez[j]
-        qe = e_cref * v_in - e_cint * v_out - es[2] - e_ibias * es[0]
-        d_s = qe / e_alpha - corr
+        # charge amplifier and its two ADCs (ChargeAmpStream.update), staged estimator (StreamingEstimator.update)
+        v_t = out[5]
+        v_out = adc_convert(charge_amp_step(cs, out[1], v_t, cp, ck, ca, cb0, cb1) + on[k], adc_v[0], adc_v[1])
+        v_in = adc_convert(v_t + vn[k], adc_v[2], adc_v[3])
+        d_s = estimator_step(es, ez, v_in, v_out, ep, eg, ea_, eb0, eb1, er, ew)
         # dynamic estimator E(z)
         ch = xd * d_s
         for i in range(ne):
@@ -217,18 +193,6 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
                 rec[row, 3] = c
                 rec[row, 4] = io[0]
                 io[4] = row + 1
-
-
-def _estimator_arrays(p, dt):
-    from ..selfsense.estimator import ResidualCorrection
-    c = p.correction or ResidualCorrection()
-    taus = np.array([p.da_time_constant_s, *c.creep_time_constants_s], float)
-    gains = np.array([p.da_gain_f / p.alpha_c_per_m, *c.creep_gains_m_per_v], float)
-    a = np.exp(-dt / taus)
-    g = taus / dt * (1.0 - a)
-    return (np.array([p.alpha_c_per_m, p.c_int_f, p.c_ref_f, p.r_leak_ohm if np.isfinite(p.r_leak_ohm) else -1.0,
-                      p.i_bias_a]), gains, a, g - a, 1.0 - g, np.asarray(c.thresholds_v, float),
-            np.asarray(c.play_weights_m_per_v, float))
 
 
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2,
@@ -311,18 +275,13 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
                    g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
                    g.calibration_m_per_v, sb.lsb_m])
     r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
-    taus = np.asarray(amp.da_time_constants_s, float)
-    ca = np.exp(-dt / taus)
-    cg = taus / dt * (1.0 - ca)
-    out_lsb = 2.0 * amp.adc_range_v / 2.0 ** int(amp.adc_bits) if amp.adc_bits < 60 else 0.0
-    in_lsb = 2.0 * amp.vin_range_v / 2.0 ** int(amp.vin_adc_bits) if amp.vin_adc_bits < 60 else 0.0
-    cp = np.array([dt, amp.r_leak_ohm, amp.i_bias_a, amp.c_ref_f, amp.c_int_f, out_lsb, amp.adc_range_v, in_lsb,
-                   amp.vin_range_v])
-    ck = np.asarray(amp.da_gains_f, float)
-    cs = np.zeros(3 + ck.size)
-    ep, eg, ea_, eb0, eb1, er, ew = _estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
-    es = np.zeros(3 + eg.size)
-    ez = np.zeros(er.size)
+    camp = charge_amp_arrays(amp, dt)
+    cs = np.zeros(3 + camp[1].size)
+    adc_v = np.array([adc_lsb_v(amp.adc_bits, amp.adc_range_v), amp.adc_range_v,
+                      adc_lsb_v(amp.vin_adc_bits, amp.vin_range_v), amp.vin_range_v])
+    est = estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
+    es = np.zeros(3 + est[1].size)
+    ez = np.zeros(est[5].size)
     e_ss = control.ss(setup.e_d)
     xa, xb, xc = (np.ascontiguousarray(np.asarray(v, float)) for v in (e_ss.A, e_ss.B[:, 0], e_ss.C[0]))
     xd = float(np.asarray(e_ss.D)[0, 0])
@@ -372,8 +331,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
                 refs = ref_counts + np.round(tones[0][start:stop] / sb.lsb_m).astype(np.int64)
             else:
                 refs = np.zeros(m, np.int64)
-            _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
-                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec_, rr)
+            _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, *camp, cs, adc_v, *est[:5], es, *est[5:],
+                         ez, xa, xb, xc, xd, xe, *words, io, dec_, rr)
             done += m
             if progress:
                 progress(f"sensor loop: {sensor}", done, total)
