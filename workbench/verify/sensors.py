@@ -195,7 +195,126 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
                 io[4] = row + 1
 
 
-def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2,
+class _Loop:
+    """One sensor loop's compiled state and constants (plant, gauge chain, charge channel, E(z), the controller's
+    fixed-point words), at rest with the command at ``bias_v``; :meth:`run` steps it over periods."""
+
+    def __init__(self, setup, controller, sensor, bias_v):
+        from dataclasses import replace
+
+        import control
+
+        from ..plant.simulator import PZTSimulator
+        from ..selfsense.run import STAGES
+
+        plant = setup.plant
+        sb = controller.sensor
+        if sensor == "fused" and (sb is None or sb.kind != "fused"):
+            raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's "
+                                 f"crossover, which the controller's sensor block does not give; export it with "
+                                 f"Controller.with_sensor('fused', crossover_hz)")
+        if sb is None:
+            sb = controller.with_sensor(sensor).sensor
+        elif sb.kind != sensor:
+            sb = replace(sb, kind=sensor, crossover_hz=None, k=None) if sensor != "fused" else sb
+        fxp = controller.fixed
+        dt = controller.dt_s
+        g = plant.gauge
+        sim = PZTSimulator(plant.pzt, dt)
+        amp = setup.amp
+        gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
+                       g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
+                       g.calibration_m_per_v, sb.lsb_m])
+        r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
+        camp = charge_amp_arrays(amp, dt)
+        cs = np.zeros(3 + camp[1].size)
+        adc_v = np.array([adc_lsb_v(amp.adc_bits, amp.adc_range_v), amp.adc_range_v,
+                          adc_lsb_v(amp.vin_adc_bits, amp.vin_range_v), amp.vin_range_v])
+        est = estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
+        es = np.zeros(3 + est[1].size)
+        ez = np.zeros(est[5].size)
+        e_ss = control.ss(setup.e_d)
+        xa, xb, xc = (np.ascontiguousarray(np.asarray(v, float)) for v in (e_ss.A, e_ss.B[:, 0], e_ss.C[0]))
+        xd = float(np.asarray(e_ss.D)[0, 0])
+        xe = np.zeros(xa.shape[0])
+        if xa.shape[0] == 0:
+            xa, xb, xc, xe = np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0)
+        kind = KIND_CODE[sensor]
+        scale, sbits = sb.error_scale(fxp.input_frac_bits)
+        cst, u_w0 = initial_state(fxp, bias_v)
+        vm = np.array([u_w0], np.int64)
+        out_scale = 2.0 ** -fxp.output_frac_bits
+        x0 = float(plant.pzt.k_q2x_m_per_c * plant.pzt.hysteresis.output_at_rest())
+        io = np.array([float(bias_v), x0, 0.0, 0.0, 0.0, out_scale, 0.0, 0.0])
+        words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
+                 np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
+                 fxp.limit_words, cst, vm)
+        self.sb, self.dt, self.io, self.sim = sb, dt, io, sim
+        self.sigmas = (demod_noise_sigma_v(g), amp.out_noise_v_rms, amp.vin_noise_v_rms)
+        self._arrays = (gp, r0, *camp, cs, adc_v, *est[:5], es, *est[5:], ez, xa, xb, xc, xd, xe, *words)
+
+    def run(self, closed, refs, gn, on, vn, dec, rec):
+        """``refs.size`` periods (reference counts ``refs``; gauge, V_out and V_in noise per period, V), a row
+        of ``rec`` every ``dec`` periods (:func:`_sensor_loop`)."""
+        _sensor_loop(self.sim.m, self.sim.st, closed, refs, gn, on, vn, *self._arrays, self.io, dec, rec)
+
+
+def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, seed=4):
+    """The sensor's error in open loop at ``bias_v`` from t = 0 (integrator reset, blend started), per period.
+
+    Returns (t (s), reading - true x without noise (m), RMS of the sensor's noise per period (m): the noisy
+    reading minus the noise-free one over the second half, the same open loop, so x is the same in both).
+    """
+    n = int(round(duration_s / controller.dt_s))
+    rows = []
+    for noise in (False, True):
+        lp = _Loop(setup, controller, sensor, bias_v)
+        rng = np.random.Generator(np.random.PCG64(seed))
+        sig = lp.sigmas if noise else (0.0, 0.0, 0.0)
+        rec = np.zeros((n, 5))
+        for start in range(0, n, CHUNK):
+            m = min(n, start + CHUNK) - start
+            gn, on, vn = (rng.standard_normal(m) * s_ if s_ > 0 else np.zeros(m) for s_ in sig)
+            lp.run(False, np.zeros(m, np.int64), gn, on, vn, 1, rec[start:start + m])
+            lp.io[4] = 0.0
+        rows.append(rec)
+    t = np.arange(1, n + 1) * controller.dt_s
+    # the noise's stationary RMS: the second half (the blend starts from one noisy difference, which decays)
+    return t, rows[0][:, 1] - rows[0][:, 0], float(np.std((rows[1][:, 1] - rows[0][:, 1])[n // 2:]))
+
+
+def settled_time_s(t_s, error_m, tolerance_m):
+    """The earliest time from which ``error_m`` stays within ``tolerance_m`` of its value then, s.
+
+    The first ``t_s[i]`` with max_j>=i |error_j - error_i| <= tolerance (the last sample when none earlier)."""
+    e = np.asarray(error_m, float)
+    hi = np.maximum.accumulate(e[::-1])[::-1]
+    lo = np.minimum.accumulate(e[::-1])[::-1]
+    bad = np.flatnonzero((hi - e > tolerance_m) | (e - lo > tolerance_m))
+    return float(t_s[0] if bad.size == 0 else t_s[min(bad[-1] + 1, e.size - 1)])
+
+
+def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, seed=4):
+    """When to close the loop after the open-loop start at ``bias_v``: the sensor has settled, s.
+
+    At t = 0 the charge integrator is reset and the blend starts; the charge estimate's transients (the
+    absorption and the stack's charging that the estimator models imperfectly) pass the blend's high side,
+    so the reading's error against the true x still moves for a while (~10 nm/s at 1 s on SN637). A loop
+    closed then carries that motion into the triangle. The loop closes when the error, noise-free, stays
+    within the reading's own noise RMS per period (what one reading cannot resolve) of its value at closing
+    for the rest of ``horizon_s`` (:func:`startup_error`, :func:`settled_time_s`). A gauge reading has no
+    transient: its settle time is the first period's.
+
+    Returns
+    -------
+    dict
+        ``settle_s`` (s), ``noise_rms_m`` (the tolerance, m), ``horizon_s``.
+    """
+    t, e, sig = startup_error(setup, controller, sensor, bias_v=bias_v, duration_s=horizon_s, seed=seed)
+    return {"settle_s": settled_time_s(t, e, sig), "noise_rms_m": sig, "horizon_s": float(horizon_s)}
+
+
+def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2,
                     hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True):
     """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
 
@@ -207,6 +326,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         With fixed-point words; its sensor block gives the blend for "fused" (required) and the
         error scale (default: the gauge gain of its provenance).
     sensor : {"gauge", "charge", "fused"}
+    settle_s : float, optional
+        Open loop before the loop closes, s (default: derived, :func:`startup_settle_s`).
     stroke_m : float, optional
         The stroke the triangle's 10-90 % refers to (default: rest to 100 V, quasi-static).
     noise : bool
@@ -227,13 +348,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         ``_x_m``, ``_reading_m``, ``_reference_rel_m``, and what the sensor step received and computed
         (``_reference_counts``, ``_gauge_counts``, ``_charge_counts``, ``_u_v``).
     """
-    from dataclasses import replace
-
-    import control
-
-    from ..plant.simulator import PZTSimulator
     from ..selfsense.fused_loop import triangle_reference
-    from ..selfsense.run import STAGES
     from .scenarios import stroke_m as quasi_static_stroke
 
     if sensor not in SENSOR_KINDS:
@@ -246,18 +361,12 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         if why:
             raise ChargeChannelError(f"{plant.source}: no charge channel model for a {sensor} loop: {why}; "
                                      f"verify this controller with --sensor gauge")
-    sb = controller.sensor
-    if sensor == "fused" and (sb is None or sb.kind != "fused"):
-        raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's crossover, "
-                             f"which the controller's sensor block does not give; export it with "
-                             f"Controller.with_sensor('fused', crossover_hz)")
-    if sb is None:
-        sb = controller.with_sensor(sensor).sensor
-    elif sb.kind != sensor:
-        sb = replace(sb, kind=sensor, crossover_hz=None, k=None) if sensor != "fused" else sb
-    fxp = controller.fixed
-    dt = controller.dt_s
-    g = plant.gauge
+    settle = None
+    if settle_s is None:
+        settle = startup_settle_s(setup, controller, sensor, bias_v=bias_v, seed=seed)
+        settle_s = settle["settle_s"]
+    lp = _Loop(setup, controller, sensor, bias_v)
+    sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
     n_settle = int(round(settle_s / dt))
     n_tri = int(round(triangle_periods / triangle_hz / dt))
@@ -269,42 +378,12 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         i = np.arange(i0, i1)
         return np.where(i < n_tri, triangle_reference((i + 1) * dt, 0.4 * stroke, triangle_hz), 0.0)
 
-    sim = PZTSimulator(plant.pzt, dt)
-    amp = setup.amp
-    gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain, g.adc_range_v,
-                   g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
-                   g.calibration_m_per_v, sb.lsb_m])
-    r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
-    camp = charge_amp_arrays(amp, dt)
-    cs = np.zeros(3 + camp[1].size)
-    adc_v = np.array([adc_lsb_v(amp.adc_bits, amp.adc_range_v), amp.adc_range_v,
-                      adc_lsb_v(amp.vin_adc_bits, amp.vin_range_v), amp.vin_range_v])
-    est = estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
-    es = np.zeros(3 + est[1].size)
-    ez = np.zeros(est[5].size)
-    e_ss = control.ss(setup.e_d)
-    xa, xb, xc = (np.ascontiguousarray(np.asarray(v, float)) for v in (e_ss.A, e_ss.B[:, 0], e_ss.C[0]))
-    xd = float(np.asarray(e_ss.D)[0, 0])
-    xe = np.zeros(xa.shape[0])
-    if xa.shape[0] == 0:
-        xa, xb, xc, xe = np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0)
-    kind = KIND_CODE[sensor]
-    scale, sbits = sb.error_scale(fxp.input_frac_bits)
-    cst, u_w0 = initial_state(fxp, bias_v)
-    vm = np.array([u_w0], np.int64)
-    out_scale = 2.0 ** -fxp.output_frac_bits
-    io = np.array([float(bias_v), float(plant.pzt.k_q2x_m_per_c * plant.pzt.hysteresis.output_at_rest()), 0.0, 0.0,
-                   0.0, out_scale, 0.0, 0.0])
+    io = lp.io
     rng = np.random.Generator(np.random.PCG64(seed))
-    sig_g = demod_noise_sigma_v(g) if noise else 0.0
-    sig_o = amp.out_noise_v_rms if noise else 0.0
-    sig_i = amp.vin_noise_v_rms if noise else 0.0
+    sig_g, sig_o, sig_i = lp.sigmas if noise else (0.0, 0.0, 0.0)
     dec = int(decimate)
     rec = np.zeros((n // dec, 5))
     rec_open = np.zeros((n_settle // dec + 1, 5))
-    words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
-             np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
-             fxp.limit_words, cst, vm)
     tones = _sweep_reference(dt) if sweep else None
     n_sw = 0 if tones is None else tones[0].size
     rec_sw = np.zeros((n_sw, 5))
@@ -331,8 +410,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
                 refs = ref_counts + np.round(tones[0][start:stop] / sb.lsb_m).astype(np.int64)
             else:
                 refs = np.zeros(m, np.int64)
-            _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, *camp, cs, adc_v, *est[:5], es, *est[5:],
-                         ez, xa, xb, xc, xd, xe, *words, io, dec_, rr)
+            lp.run(closed, refs, gn, on, vn, dec_, rr)
             done += m
             if progress:
                 progress(f"sensor loop: {sensor}", done, total)
@@ -352,6 +430,9 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     offset_m = float(np.mean(rec_open[n_open - n_off:n_open, 0] - rec_open[n_open - n_off:n_open, 1]))
     pin_m = float(ref_pin_counts) * sb.lsb_m
     e_tri = rec_x[per:nt] - (pin_m + offset_m + r_dec[per:nt])
+    # against the command alone: the motion from where x was at closing (the same 0.2 s) minus the reference
+    x_close = float(np.mean(rec_open[n_open - n_off:n_open, 0]))
+    e_cmd = rec_x[per:nt] - (x_close + r_dec[per:nt])
     tri_mean = float(np.mean(e_tri)) if e_tri.size else float("nan")
     one = int(round(1.0 / dt)) // dec
     h0 = nt + one
@@ -365,6 +446,9 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         bw = _sweep_bandwidth(tones, rec_sw[:, 0], dt)
     return {**bw, "sensor": sensor, "triangle_hz": float(triangle_hz), "triangle_rms_m": tri,
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "triangle_mean_m": tri_mean,
+            "triangle_commanded_rms_m": float(np.sqrt(np.mean(e_cmd ** 2))),
+            "triangle_commanded_rms_percent_stroke": 100.0 * float(np.sqrt(np.mean(e_cmd ** 2))) / stroke,
+            "settle_s": float(n_settle * dt), "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
             "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
