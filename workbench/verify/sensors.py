@@ -259,6 +259,26 @@ class _Loop:
         _sensor_loop(self.sim.m, self.sim.st, closed, refs, gn, on, vn, *self._arrays, self.io, dec, rec)
 
 
+def velocity_constant_per_s(controller, sensor_block, plant):
+    """K_v = lim s L(s) of the loop on the controller's integrator, 1/s; None when it has none (type 0).
+
+    L = C(z) v_per_m P0: the controller's fixed-point transfer (V per firmware V of error), the sensor
+    block's error scale (firmware V per m of reading) and the plant's quasi-static gain P0 = stroke from
+    rest to 100 V over 100 V (m/V, :func:`workbench.verify.scenarios.stroke_m`). A type-1 loop tracks a
+    ramp of slope v with the error v / K_v; a reference led by v / K_v takes it out.
+    """
+    from .scenarios import stroke_m as quasi_static_stroke
+    c = controller.as_lti(quantized=controller.fixed is not None)
+    dt = controller.dt_s
+    kc = []
+    for f_hz in (1e-4, 1e-3):                           # |j w C| is flat at low frequency only with an integrator
+        w = 2.0 * np.pi * f_hz
+        kc.append(abs(1j * w * complex(c(np.exp(1j * w * dt)))))
+    if not (kc[0] > 0 and abs(kc[0] / kc[1] - 1.0) < 1e-3):
+        return None
+    return float(kc[0] * sensor_block.v_per_m * quasi_static_stroke(plant.pzt) / 100.0)
+
+
 def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, seed=4):
     """The sensor's error in open loop at ``bias_v`` from t = 0 (integrator reset, blend started), per period.
 
@@ -315,7 +335,8 @@ def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, 
 
 
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2,
-                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True):
+                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True,
+                    ramp_feedforward=True):
     """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
 
     Parameters
@@ -334,6 +355,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         Gauge noise and the charge amplifier's noise.
     decimate : int, default 10
         Periods per recorded row (1: every period, to replay the sensor step).
+    ramp_feedforward : bool, default True
+        Feed the sensor step the triangle plus its slope over the loop's velocity constant
+        (:func:`velocity_constant_per_s`): a type-1 loop then has no ramp error to first order. Scored
+        against the triangle itself. No effect when the controller has no integrator.
     sweep : bool, default True
         After the hold, the closed-loop response from the time domain as verify's ``sine_sweep`` takes
         it (:data:`.scenarios.SWEEP_FREQ_HZ`, tones of :data:`.scenarios.SWEEP_AMPLITUDE_M` about the
@@ -373,10 +398,18 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     n_hold = int(round(hold_s / dt))
     n = n_tri + n_hold
 
-    def r_rel(i0, i1):
-        """The reference about the reading at closing for periods i0..i1 - 1 after closing, m."""
-        i = np.arange(i0, i1)
+    kv = velocity_constant_per_s(controller, sb, plant) if ramp_feedforward else None
+
+    def r_at(i):
+        """The triangle about the reading at closing at periods ``i`` after closing, m."""
         return np.where(i < n_tri, triangle_reference((i + 1) * dt, 0.4 * stroke, triangle_hz), 0.0)
+
+    def r_rel(i0, i1):
+        """The reference the sensor step receives for periods i0..i1 - 1 after closing, m: the triangle, plus
+        its slope over the loop's velocity constant when ``ramp_feedforward`` (a type-1 loop's ramp error)."""
+        i = np.arange(i0, i1)
+        r = r_at(i)
+        return r if not kv else r + (r_at(i + 1) - r) / dt / kv
 
     io = lp.io
     rng = np.random.Generator(np.random.PCG64(seed))
@@ -418,8 +451,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     per = int(round(1.0 / triangle_hz / dt)) // dec
     nt = n_tri // dec
     idx = np.arange(rec_x.size) * dec + dec - 1          # the periods the rows were taken at
-    r_dec = r_rel(0, 0) if rec_x.size == 0 else np.where(idx < n_tri, triangle_reference((idx + 1) * dt,
-                                                                                        0.4 * stroke, triangle_hz), 0.0)
+    r_dec = r_at(idx)
+    r_fed = r_dec if not kv else r_dec + (r_at(idx + 1) - r_dec) / dt / kv
     # Scored in the true-position frame, nothing subtracted: the cascade holds its reading at the pinned
     # reference (the reading when the loop closed) plus the triangle; the true position it should then be
     # at is that plus the sensor's offset as known at closing, the mean of (x - reading) over the last
@@ -448,12 +481,12 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "triangle_mean_m": tri_mean,
             "triangle_commanded_rms_m": float(np.sqrt(np.mean(e_cmd ** 2))),
             "triangle_commanded_rms_percent_stroke": 100.0 * float(np.sqrt(np.mean(e_cmd ** 2))) / stroke,
-            "settle_s": float(n_settle * dt), "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
+            "settle_s": float(n_settle * dt), "velocity_constant_per_s": kv, "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
             "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
             "_t_s": (idx + 1) * dt, "_x_m": rec_x, "_reading_m": rec[:, 1],
-            "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_dec / sb.lsb_m).astype(np.int64),
+            "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_fed / sb.lsb_m).astype(np.int64),
             "_gauge_counts": rec[:, 2].astype(np.int64), "_charge_counts": rec[:, 3].astype(np.int64),
             "_u_v": rec[:, 4], "_u0_v": float(bias_v), "_blend_state_at_closing": y_close}
 
