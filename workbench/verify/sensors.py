@@ -20,13 +20,16 @@ One compiled loop per servo period T (no Python per period), in this order:
    next period.
 
 Scenario (as :func:`workbench.selfsense.fused_loop.closed_loop_run`): open loop at ``bias_v``
-for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, the blend runs),
-then the loop closes (the cascade at rest at the bias) with its reference at the reading of that
-moment; ``triangle_periods`` periods of a ``triangle_hz`` triangle over 10-90 % of the stroke
-around it; then a hold of ``hold_s``. Metrics on the true x (decimated to 1 kHz point samples):
+for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, the blend runs;
+by default until the reading's startup error has settled within its noise,
+:func:`startup_settle_s`), then the loop closes (the cascade at rest at the bias) with its
+reference at the reading of that moment; ``triangle_periods`` periods of a ``triangle_hz``
+triangle over 10-90 % of the stroke around it, led by its slope over the loop's velocity
+constant (``ramp_feedforward``, :func:`velocity_constant_per_s`); then a hold of ``hold_s``. Metrics on the true x (decimated to 1 kHz point samples):
 triangle RMS error after the first period (in the true-position frame: the pinned reference plus
 the sensor's offset over the last 0.2 s of open loop, nothing subtracted; the mean is reported
-beside it as ``triangle_mean_m``), hold drift (mean of the last
+beside it as ``triangle_mean_m``; ``triangle_commanded_rms_m`` scores x's motion from its position
+at closing against the triangle alone, the sensor's offset aside), hold drift (mean of the last
 second minus mean of the second after 1 s of settling), hold noise (RMS about the 1 s running
 mean). The charge amplifier's parameters are the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`
 (the seeds give none for a stack); the estimator is identified on a simulated 700 s record of
@@ -55,6 +58,7 @@ __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "Se
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
 DECIMATE = 10                  # metrics on 1 kHz point samples of x
+OFFSET_WINDOW_S = 0.2          # the sensor's offset at closing: mean of (x - reading) over this much open loop
 
 
 def charge_channel_missing(plant):
@@ -348,7 +352,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         error scale (default: the gauge gain of its provenance).
     sensor : {"gauge", "charge", "fused"}
     settle_s : float, optional
-        Open loop before the loop closes, s (default: derived, :func:`startup_settle_s`).
+        Open loop before the loop closes, s (default: derived, :func:`startup_settle_s`, and at least the
+        :data:`OFFSET_WINDOW_S` the sensor's offset is taken over).
     stroke_m : float, optional
         The stroke the triangle's 10-90 % refers to (default: rest to 100 V, quasi-static).
     noise : bool
@@ -389,7 +394,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     settle = None
     if settle_s is None:
         settle = startup_settle_s(setup, controller, sensor, bias_v=bias_v, seed=seed)
-        settle_s = settle["settle_s"]
+        settle_s = max(settle["settle_s"], OFFSET_WINDOW_S)       # the offset's window is open loop too
     lp = _Loop(setup, controller, sensor, bias_v)
     sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
@@ -459,7 +464,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     # 0.2 s of the open loop (one noisy sample would put its noise into the score). A sensor error that
     # changes during the triangle (drift, scale, lag) stays in the error, as in the gauge scenarios.
     n_open = n_settle // dec
-    n_off = max(1, min(n_open, int(round(0.2 / dt)) // dec))
+    n_off = max(1, min(n_open, int(round(OFFSET_WINDOW_S / dt)) // dec))
     offset_m = float(np.mean(rec_open[n_open - n_off:n_open, 0] - rec_open[n_open - n_off:n_open, 1]))
     pin_m = float(ref_pin_counts) * sb.lsb_m
     e_tri = rec_x[per:nt] - (pin_m + offset_m + r_dec[per:nt])
