@@ -52,7 +52,12 @@ def test_fused_loop_holds_quieter_than_the_gauge_loop_without_its_drift(setup):
     charge = run_sensor_loop(setup, Controller.load(FUSED), "charge", seed=7, **SHORT)
     assert fused["hold_noise_rms_m"] < gauge["hold_noise_rms_m"] / 5
     assert abs(fused["hold_drift_m"]) < 3e-9
-    assert abs(fused["hold_drift_m"]) < abs(charge["hold_drift_m"])
+    # the charge estimate's own drift (bias current, leakage, the absorption the estimator misses: ~1 nm per
+    # 100 s here) needs a hold longer than the startup the loop now waits out (startup_settle_s) to show
+    long = dict(hold_s=300.0, triangle_hz=0.5, triangle_periods=2, seed=7, sweep=False)
+    fused_l = run_sensor_loop(setup, Controller.load(FUSED), "fused", **long)
+    charge_l = run_sensor_loop(setup, Controller.load(FUSED), "charge", **long)
+    assert abs(fused_l["hold_drift_m"]) < abs(charge_l["hold_drift_m"]) / 2
     assert fused["triangle_rms_m"] < gauge["triangle_rms_m"]
     # the quiet reading buys bandwidth: measured on x with 10 nm tones after the hold
     assert fused["bandwidth_hz"] > 1.2 * gauge["bandwidth_hz"]
