@@ -8,7 +8,8 @@ One compiled loop per servo period T (no Python per period), in this order:
    quarter and three quarters into the period, the amplifier and ADC clip, one Gaussian term of
    the gauge noise, the trim and the servo DAC's quantization; :func:`workbench.plant.gauge._bridge`
    and ``_quantize``), then firmware's conversion to metres (the serial's calibration,
-   :func:`workbench.plant.gauge.displacement_from_reading`);
+   :func:`workbench.plant.gauge.displacement_from_reading`, and by default eq. 27's curvature taken
+   out, :func:`workbench.plant.gauge.linearized_displacement`);
 3. the charge amplifier on the stack's terminals, streamed as
    :class:`workbench.selfsense.charge_amp.ChargeAmpStream` does it (leakage through R_FP, the
    op-amp's bias current, two-branch dielectric absorption, output and HV-monitor noise and
@@ -48,7 +49,7 @@ from ..errors import ChargeChannelError, WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
 from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
 from ..plant import kernels as K
-from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
+from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, bridge_curvature_per_m, demod_noise_sigma_v
 from ..selfsense.charge_amp import adc_convert, adc_lsb_v, charge_amp_arrays, charge_amp_step
 from ..selfsense.estimator import estimator_arrays, estimator_step
 
@@ -140,7 +141,7 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vmod, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits, cal = gp[6], gp[7], gp[8], gp[9], int(gp[10]), gp[11]
-    lsb_m = gp[12]
+    lsb_m, beta = gp[12], gp[13]
     ne = xe.shape[0]
     xn = np.empty(ne)
     for k in range(ref.shape[0]):
@@ -157,6 +158,8 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
         dem = 0.5 * demod * (v_p - v_n) + gn[k]
         reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
         gauge_m = reading * cal + TRIM_CENTER_M
+        if beta != 0.0:                 # the bridge's curvature taken out (linearized_displacement)
+            gauge_m -= beta * (gauge_m - TRIM_CENTER_M) ** 2
         # charge amplifier and its two ADCs (ChargeAmpStream.update), staged estimator (StreamingEstimator.update)
         v_t = out[5]
         v_out = adc_convert(charge_amp_step(cs, out[1], v_t, cp, ck, ca, cb0, cb1) + on[k], adc_v[0], adc_v[1])
@@ -203,7 +206,7 @@ class _Loop:
     """One sensor loop's compiled state and constants (plant, gauge chain, charge channel, E(z), the controller's
     fixed-point words), at rest with the command at ``bias_v``; :meth:`run` steps it over periods."""
 
-    def __init__(self, setup, controller, sensor, bias_v):
+    def __init__(self, setup, controller, sensor, bias_v, gauge_linearized=True):
         from dataclasses import replace
 
         import control
@@ -228,7 +231,7 @@ class _Loop:
         amp = setup.amp
         gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
                        g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
-                       g.calibration_m_per_v, sb.lsb_m])
+                       g.calibration_m_per_v, sb.lsb_m, bridge_curvature_per_m(g) if gauge_linearized else 0.0])
         r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
         camp = charge_amp_arrays(amp, dt)
         cs = np.zeros(3 + camp[1].size)
@@ -283,7 +286,7 @@ def velocity_constant_per_s(controller, sensor_block, plant):
     return float(kc[0] * sensor_block.v_per_m * quasi_static_stroke(plant.pzt) / 100.0)
 
 
-def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, seed=4):
+def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, seed=4, gauge_linearized=True):
     """The sensor's error in open loop at ``bias_v`` from t = 0 (integrator reset, blend started), per period.
 
     Returns (t (s), reading - true x without noise (m), RMS of the sensor's noise per period (m): the noisy
@@ -292,7 +295,7 @@ def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, se
     n = int(round(duration_s / controller.dt_s))
     rows = []
     for noise in (False, True):
-        lp = _Loop(setup, controller, sensor, bias_v)
+        lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized)
         rng = np.random.Generator(np.random.PCG64(seed))
         sig = lp.sigmas if noise else (0.0, 0.0, 0.0)
         rec = np.zeros((n, 5))
@@ -318,7 +321,7 @@ def settled_time_s(t_s, error_m, tolerance_m):
     return float(t_s[0] if bad.size == 0 else t_s[min(bad[-1] + 1, e.size - 1)])
 
 
-def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, seed=4):
+def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, seed=4, gauge_linearized=True):
     """When to close the loop after the open-loop start at ``bias_v``: the sensor has settled, s.
 
     At t = 0 the charge integrator is reset and the blend starts; the charge estimate's transients (the
@@ -334,13 +337,14 @@ def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, 
     dict
         ``settle_s`` (s), ``noise_rms_m`` (the tolerance, m), ``horizon_s``.
     """
-    t, e, sig = startup_error(setup, controller, sensor, bias_v=bias_v, duration_s=horizon_s, seed=seed)
+    t, e, sig = startup_error(setup, controller, sensor, bias_v=bias_v, duration_s=horizon_s, seed=seed,
+                              gauge_linearized=gauge_linearized)
     return {"settle_s": settled_time_s(t, e, sig), "noise_rms_m": sig, "horizon_s": float(horizon_s)}
 
 
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2,
                     hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True,
-                    ramp_feedforward=True):
+                    ramp_feedforward=True, gauge_linearized=True):
     """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
 
     Parameters
@@ -364,6 +368,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         Feed the sensor step the triangle plus its slope over the loop's velocity constant
         (:func:`velocity_constant_per_s`): a type-1 loop then has no ramp error to first order. Scored
         against the triangle itself. No effect when the controller has no integrator.
+    gauge_linearized : bool, default True
+        Firmware's conversion of the gauge reading to metres takes the bridge's curvature out
+        (:func:`workbench.plant.gauge.linearized_displacement`; eq. 27's, from the gauge's geometry and
+        gauge factor); False: the serial's linear calibration alone, as verify's gauge scenarios read it.
     sweep : bool, default True
         After the hold, the closed-loop response from the time domain as verify's ``sine_sweep`` takes
         it (:data:`.scenarios.SWEEP_FREQ_HZ`, tones of :data:`.scenarios.SWEEP_AMPLITUDE_M` about the
@@ -393,9 +401,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
                                      f"verify this controller with --sensor gauge")
     settle = None
     if settle_s is None:
-        settle = startup_settle_s(setup, controller, sensor, bias_v=bias_v, seed=seed)
+        settle = startup_settle_s(setup, controller, sensor, bias_v=bias_v, seed=seed,
+                                  gauge_linearized=gauge_linearized)
         settle_s = max(settle["settle_s"], OFFSET_WINDOW_S)       # the offset's window is open loop too
-    lp = _Loop(setup, controller, sensor, bias_v)
+    lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized)
     sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
     n_settle = int(round(settle_s / dt))
@@ -486,7 +495,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "triangle_mean_m": tri_mean,
             "triangle_commanded_rms_m": float(np.sqrt(np.mean(e_cmd ** 2))),
             "triangle_commanded_rms_percent_stroke": 100.0 * float(np.sqrt(np.mean(e_cmd ** 2))) / stroke,
-            "settle_s": float(n_settle * dt), "velocity_constant_per_s": kv, "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
+            "settle_s": float(n_settle * dt), "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
+            "velocity_constant_per_s": kv, "gauge_linearized": bool(gauge_linearized),
             "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
