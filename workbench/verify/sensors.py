@@ -477,8 +477,9 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     offset_m = float(np.mean(rec_open[n_open - n_off:n_open, 0] - rec_open[n_open - n_off:n_open, 1]))
     pin_m = float(ref_pin_counts) * sb.lsb_m
     e_tri = rec_x[per:nt] - (pin_m + offset_m + r_dec[per:nt])
-    # against the command alone: the motion from where x was at closing (the same 0.2 s) minus the reference
-    x_close = float(np.mean(rec_open[n_open - n_off:n_open, 0]))
+    # against the command alone: the motion from where x was when the loop closed (the last open-loop row:
+    # the true x has no noise to average, and it may still be creeping) minus the reference
+    x_close = float(rec_open[n_open - 1, 0])
     e_cmd = rec_x[per:nt] - (x_close + r_dec[per:nt])
     tri_mean = float(np.mean(e_tri)) if e_tri.size else float("nan")
     one = int(round(1.0 / dt)) // dec
