@@ -31,8 +31,8 @@ def sensor_lines(rows, figure=None):
     out = ["## Sensors side by side", "",
            f"The controller's fixed-point sensor step closing on each reading, on the nonlinear plant with the "
            f"charge amplifier's leakage, bias current and dielectric absorption, creep and the gauge noise all "
-           f"present. Open loop at 50 V until the reading's startup error has settled within its own noise "
-           f"(\"closes at\"), then {r0['triangle_hz']:g} Hz triangle over 10-90 % of the "
+           f"present. Open loop at 50 V until the reading's startup error has settled within its own noise, "
+           f"at least 1 s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle over 10-90 % of the "
            f"{r0['stroke_m'] * 1e6:.3g} um stroke (two periods, scored after the first), {lead}, then a "
            f"{hold:g} s hold; {lin}. Triangle RMS: the true x against the reference in the true-position frame "
            f"(the sensor's offset at closing added); \"commanded\": x's motion from where it was at closing "
