@@ -22,11 +22,12 @@ One compiled loop per servo period T (no Python per period), in this order:
 
 Scenario (as :func:`workbench.selfsense.fused_loop.closed_loop_run`): open loop at ``bias_v``
 for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, the blend runs;
-by default until the reading's startup error has settled within its noise,
-:func:`startup_settle_s`), then the loop closes (the cascade at rest at the bias) with its
+by default until the reading's startup error has settled within its noise and at least
+:data:`MIN_OPEN_LOOP_S`, :func:`startup_settle_s`), then the loop closes (the cascade at rest at the bias) with its
 reference at the reading of that moment; ``triangle_periods`` periods of a ``triangle_hz``
 triangle over 10-90 % of the stroke around it, led by its slope over the loop's velocity
-constant (``ramp_feedforward``, :func:`velocity_constant_per_s`); then a hold of ``hold_s``. Metrics on the true x (decimated to 1 kHz point samples):
+constant (``ramp_feedforward``, :func:`velocity_constant_per_s`); then a hold of ``hold_s``.
+Metrics on the true x (decimated to 1 kHz point samples):
 triangle RMS error after the first period (in the true-position frame: the pinned reference plus
 the sensor's offset over the last 0.2 s of open loop, nothing subtracted; the mean is reported
 beside it as ``triangle_mean_m``; ``triangle_commanded_rms_m`` scores x's motion from its position
