@@ -36,7 +36,8 @@ from scipy.optimize import brentq
 __all__ = ["GaugeParams", "arm_resistances", "bridge_output", "bridge_output_eq27", "bridge_gain",
            "bridge_gain_eq28_printed", "four_probe_measure", "four_probe_solve", "chain_gain",
            "gauge_run", "gauge_run_equivalent", "GaugeReading", "design_trim", "gauge_summary",
-           "displacement_from_reading", "TRIM_CENTER_M", "demod_noise_sigma_v"]
+           "displacement_from_reading", "TRIM_CENTER_M", "demod_noise_sigma_v", "bridge_curvature_per_m",
+           "linearized_displacement"]
 
 @dataclass(frozen=True)
 class GaugeParams:
@@ -296,6 +297,29 @@ def displacement_from_reading(demod_v, g, x_center_m=TRIM_CENTER_M):
     calibration, plus the displacement the trim maps to 0 V.
     """
     return (g.trim_scale * np.asarray(demod_v) + g.trim_bias_v) * g.calibration_m_per_v + x_center_m
+
+
+def bridge_curvature_per_m(g, x_center_m=TRIM_CENTER_M):
+    """beta = V''/(2 V') of eq. 27 at ``x_center_m``, 1/m: the bridge's quadratic term relative to its slope.
+
+    Eq. 27, V = A x / (B + C x) with B = 2 L^2 and C = k (L - W), gives V' = A B / (B + C x)^2 and
+    V'' = -2 A B C / (B + C x)^3, so beta = -C / (B + C x_c). A linear calibration at x_c then reads
+    x_c + u + beta u^2 for x = x_c + u (SN637: beta = -25 1/m, -1.4 nm at the ends of the 15 um stroke).
+    It depends on the gauge's geometry and gauge factor only, which firmware knows as it knows the slope.
+    """
+    L, W, k = g.rest_length_m, g.rest_width_m, g.gauge_factor
+    c = k * (L - W)
+    return -c / (2.0 * L * L + c * x_center_m)
+
+
+def linearized_displacement(x_lin_m, beta_per_m, x_center_m=TRIM_CENTER_M):
+    """The displacement a linear calibration's ``x_lin_m`` stands for, with eq. 27's curvature taken out, m.
+
+    x = x_lin - beta u^2 with u = x_lin - x_c (:func:`bridge_curvature_per_m`); what is left is of order
+    beta^2 u^3 (SN637: 1e-13 m at the ends of the stroke) and the arm imbalance's share of the curvature.
+    """
+    u = x_lin_m - x_center_m
+    return x_lin_m - beta_per_m * u * u
 
 
 def design_trim(g, x_center_m=TRIM_CENTER_M):

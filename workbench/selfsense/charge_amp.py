@@ -48,9 +48,11 @@ treats the gauge.
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numba import njit
 from scipy import signal
 
-__all__ = ["ChargeAmpParams", "ChargeRecord", "ChargeAmpStream", "measure", "relax_foh", "cumulative_integral"]
+__all__ = ["ChargeAmpParams", "ChargeRecord", "ChargeAmpStream", "measure", "relax_foh", "cumulative_integral",
+           "adc_convert", "adc_lsb_v", "charge_amp_arrays", "charge_amp_step"]
 
 
 @dataclass(frozen=True)
@@ -132,17 +134,71 @@ def relax_foh(u, tau_s, dt_s):
     return y[1:]
 
 
+def adc_lsb_v(bits, full_scale_v):
+    """The LSB of a bipolar ADC of ``bits`` over +/-``full_scale_v``, V; 0.0 for ``bits`` >= 60 (no quantization)."""
+    return 2.0 * full_scale_v / 2.0 ** int(bits) if int(bits) < 60 else 0.0
+
+
+@njit(cache=True)
+def adc_convert(v, lsb_v, full_scale_v):
+    """One ADC conversion of ``v`` (V): rounded to the LSB, ties to even (as an IEEE rint), then clipped to
+    +/-``full_scale_v``; ``lsb_v`` <= 0 leaves it unquantized. The one ADC of the charge channel: the
+    record (:func:`measure`), the stream (:class:`ChargeAmpStream`) and verify's compiled loop call it."""
+    if lsb_v > 0.0:
+        v = np.rint(v / lsb_v) * lsb_v
+    return min(max(v, -full_scale_v), full_scale_v)
+
+
+@njit(cache=True)
+def _adc_array(v, lsb_v, full_scale_v):
+    out = np.empty(v.size)
+    for i in range(v.size):
+        out[i] = adc_convert(v[i], lsb_v, full_scale_v)
+    return out
+
+
 def _measured(v, noise_rms, bits, full_scale, average, rng):
-    lsb = 2.0 * full_scale / 2.0 ** int(bits)
+    lsb = adc_lsb_v(bits, full_scale)
     if average > 1:
-        sig = np.sqrt(noise_rms ** 2 + (lsb ** 2 / 12.0 if bits < 60 else 0.0)) / np.sqrt(average)
+        sig = np.sqrt(noise_rms ** 2 + lsb ** 2 / 12.0) / np.sqrt(average)
         out = v + (rng.standard_normal(v.size) * sig if sig > 0 else 0.0)
+        lsb = 0.0                                   # one Gaussian term stands for the quantization
     else:
         out = v + (rng.standard_normal(v.size) * noise_rms if noise_rms > 0 else 0.0)
-        if bits < 60:
-            out = np.round(out / lsb) * lsb
     clipped = np.abs(out) > full_scale
-    return np.clip(out, -full_scale, full_scale), float(np.mean(clipped))
+    return _adc_array(np.asarray(out, float), lsb, float(full_scale)), float(np.mean(clipped))
+
+
+def charge_amp_arrays(amp, dt_s):
+    """The streamed charge amplifier's constants for :func:`charge_amp_step` at sample period ``dt_s``.
+
+    Returns (``cp`` = [dt, R_FP, i_bias, C_R, C_int], ``k`` absorption gains (F), ``a``, ``b0``, ``b1``: the
+    first-order-hold recursion of each absorption branch, :func:`relax_foh`'s)."""
+    taus = np.asarray(amp.da_time_constants_s, float)
+    a = np.exp(-dt_s / taus)
+    g = taus / dt_s * (1.0 - a)
+    cp = np.array([dt_s, amp.r_leak_ohm, amp.i_bias_a, amp.c_ref_f, amp.c_int_f], float)
+    return cp, np.asarray(amp.da_gains_f, float), a, g - a, 1.0 - g
+
+
+@njit(cache=True, error_model="numpy")
+def charge_amp_step(state, q_c, v_t_v, cp, k, a, b0, b1):
+    """One sample of the charge amplifier (module notes), its true output V_out before noise and ADC, V.
+
+    ``state`` = [t (s), V_in at the previous sample (V), leakage charge (C), one absorption state (V) per
+    branch], updated in place, zeros at rest; ``q_c`` and ``v_t_v``: the stack's terminal charge (C) and
+    voltage (V) at this sample; ``cp, k, a, b0, b1`` from :func:`charge_amp_arrays`. The one compiled home
+    of the circuit's recursion (:class:`ChargeAmpStream` and verify's sensor loop both step it)."""
+    dt = cp[0]
+    state[0] += dt
+    state[2] += 0.5 * (v_t_v + state[1]) / cp[1] * dt
+    q_da = 0.0
+    for j in range(k.shape[0]):
+        state[3 + j] = a[j] * state[3 + j] + b0[j] * state[1] + b1[j] * v_t_v
+        q_da += k[j] * state[3 + j]
+    state[1] = v_t_v
+    q_tot = q_c + state[2] + cp[2] * state[0] + q_da
+    return -(q_tot - cp[3] * v_t_v) / cp[4]
 
 
 def measure(traj, amp=ChargeAmpParams(), seed=0, average=1):
@@ -188,25 +244,18 @@ class ChargeAmpStream:
 
     def __init__(self, amp, dt_s, seed=0):
         self.amp, self.dt = amp, float(dt_s)
-        self.t = 0.0
-        self.v_prev = 0.0
-        self.q_leak = 0.0
-        self.a = np.exp(-self.dt / np.asarray(amp.da_time_constants_s, float))
-        g = np.asarray(amp.da_time_constants_s, float) / self.dt * (1.0 - self.a)
-        self.b1, self.b0 = 1.0 - g, g - self.a
-        self.y = np.zeros(len(amp.da_gains_f))
-        self.k = np.asarray(amp.da_gains_f, float)
+        self.arrays = charge_amp_arrays(amp, self.dt)
+        self.state = np.zeros(3 + len(amp.da_gains_f))
+        self.out_lsb_v = adc_lsb_v(amp.adc_bits, amp.adc_range_v)
+        self.in_lsb_v = adc_lsb_v(amp.vin_adc_bits, amp.vin_range_v)
         self.rng = np.random.default_rng(seed)
 
     def update(self, q_c, v_t_v):
         amp = self.amp
         v = float(v_t_v)
-        self.t += self.dt
-        self.q_leak += 0.5 * (v + self.v_prev) / amp.r_leak_ohm * self.dt
-        self.y = self.a * self.y + self.b0 * self.v_prev + self.b1 * v
-        self.v_prev = v
-        q = q_c + self.q_leak + amp.i_bias_a * self.t + float(np.dot(self.k, self.y))
-        v_out = -(q - amp.c_ref_f * v) / amp.c_int_f
-        v_out, _ = _measured(np.array([v_out]), amp.out_noise_v_rms, amp.adc_bits, amp.adc_range_v, 1, self.rng)
-        v_in, _ = _measured(np.array([v]), amp.vin_noise_v_rms, amp.vin_adc_bits, amp.vin_range_v, 1, self.rng)
-        return float(v_in[0]), float(v_out[0])
+        v_out = charge_amp_step(self.state, float(q_c), v, *self.arrays)
+        if amp.out_noise_v_rms > 0:
+            v_out += self.rng.standard_normal() * amp.out_noise_v_rms
+        v_in = v + (self.rng.standard_normal() * amp.vin_noise_v_rms if amp.vin_noise_v_rms > 0 else 0.0)
+        return (adc_convert(v_in, self.in_lsb_v, amp.vin_range_v),
+                adc_convert(v_out, self.out_lsb_v, amp.adc_range_v))

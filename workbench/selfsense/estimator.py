@@ -35,13 +35,14 @@ from dataclasses import dataclass, field
 
 import control
 import numpy as np
+from numba import njit
 
 from ..plant.hysteresis import play
 from .charge_amp import cumulative_integral, relax_foh
 
 __all__ = ["EstimatorParams", "ResidualCorrection", "static_estimate", "charge_estimate",
            "charge_transfer", "output_transfer", "dynamic_gains", "dynamic_estimator", "static_transfer",
-           "ss_inverse", "StreamingEstimator", "band_limited"]
+           "ss_inverse", "StreamingEstimator", "band_limited", "estimator_arrays", "estimator_step"]
 
 
 @dataclass(frozen=True)
@@ -195,36 +196,58 @@ def dynamic_estimator(g1, g2, g3):
     return ss_inverse(control.ss(g2) + g3) * control.ss(g1)
 
 
+def estimator_arrays(p, dt_s):
+    """The streamed estimator's constants for :func:`estimator_step` at sample period ``dt_s``.
+
+    Returns (``ep`` = [alpha (C/m), C_int (F), C_R (F), R_FP (Ohm; -1: none), i_bias (A), dt (s)], ``g``
+    the relaxation gains (m/V: the absorption's k_s / alpha, then the stage-4 creep gains), ``a``, ``b0``,
+    ``b1`` their first-order-hold recursions, ``r`` the play thresholds (V), ``w`` their weights (m/V))."""
+    c = p.correction or ResidualCorrection()
+    taus = np.array([p.da_time_constant_s, *c.creep_time_constants_s], float)
+    gains = np.array([p.da_gain_f / p.alpha_c_per_m, *c.creep_gains_m_per_v], float)
+    a = np.exp(-dt_s / taus)
+    g = taus / dt_s * (1.0 - a)
+    ep = np.array([p.alpha_c_per_m, p.c_int_f, p.c_ref_f, p.r_leak_ohm if np.isfinite(p.r_leak_ohm) else -1.0,
+                   p.i_bias_a, dt_s], float)
+    return (ep, gains, a, g - a, 1.0 - g, np.asarray(c.thresholds_v, float),
+            np.asarray(c.play_weights_m_per_v, float))
+
+
+@njit(cache=True, error_model="numpy")
+def estimator_step(state, z, v_in_v, v_out_v, ep, g, a, b0, b1, r, w):
+    """delta_s of :func:`static_estimate` at the next sample, m: one step of the same recursions, from rest.
+
+    ``state`` = [t (s), V_in at the previous sample (V), leakage charge (C), one relaxation state (V) per
+    gain], ``z`` the play states (V), both updated in place; the rest from :func:`estimator_arrays`. The
+    one compiled home of the streamed estimator (:class:`StreamingEstimator` and verify's sensor loop)."""
+    dt = ep[5]
+    state[0] += dt
+    if ep[3] > 0:
+        state[2] += 0.5 * (v_in_v + state[1]) / ep[3] * dt
+    corr = 0.0
+    for j in range(g.shape[0]):
+        state[3 + j] = a[j] * state[3 + j] + b0[j] * state[1] + b1[j] * v_in_v
+        corr += g[j] * state[3 + j]
+    state[1] = v_in_v
+    for j in range(r.shape[0]):
+        z[j] = max(v_in_v - r[j], min(v_in_v + r[j], z[j]))
+        corr += w[j] * z[j]
+    q = ep[2] * v_in_v - ep[1] * v_out_v - state[2] - ep[4] * state[0]
+    return q / ep[0] - corr
+
+
 class StreamingEstimator:
-    """:func:`static_estimate` one sample at a time, as firmware would run it (same recursions, from rest)."""
+    """:func:`static_estimate` one sample at a time, as firmware would run it (:func:`estimator_step`, from rest)."""
 
     def __init__(self, p, dt_s):
         self.p, self.dt = p, float(dt_s)
-        self.t = 0.0
-        self.v_prev = 0.0
-        self.q_leak = 0.0
-        c = p.correction or ResidualCorrection()
-        taus = np.array([p.da_time_constant_s, *c.creep_time_constants_s], float)
-        self.gains = np.array([p.da_gain_f / p.alpha_c_per_m, *c.creep_gains_m_per_v], float)
-        self.a = np.exp(-self.dt / taus)
-        g = taus / self.dt * (1.0 - self.a)
-        self.b1, self.b0 = 1.0 - g, g - self.a
-        self.y = np.zeros(taus.size)
-        self.r = np.asarray(c.thresholds_v, float)
-        self.w = np.asarray(c.play_weights_m_per_v, float)
-        self.z = np.zeros(self.r.size)
+        self.arrays = estimator_arrays(p, self.dt)
+        self.state = np.zeros(3 + self.arrays[1].size)
+        self.z = np.zeros(self.arrays[5].size)
 
     def update(self, v_in_v, v_out_v):
         """delta_s at the next sample, m."""
-        p, v = self.p, float(v_in_v)
-        self.t += self.dt
-        if np.isfinite(p.r_leak_ohm):
-            self.q_leak += 0.5 * (v + self.v_prev) / p.r_leak_ohm * self.dt
-        self.y = self.a * self.y + self.b0 * self.v_prev + self.b1 * v
-        self.v_prev = v
-        self.z = np.maximum(v - self.r, np.minimum(v + self.r, self.z))
-        q = p.c_ref_f * v - p.c_int_f * float(v_out_v) - self.q_leak - p.i_bias_a * self.t
-        return q / p.alpha_c_per_m - float(np.dot(self.gains, self.y)) - float(np.dot(self.w, self.z))
+        return estimator_step(self.state, self.z, float(v_in_v), float(v_out_v), *self.arrays)
 
 
 def band_limited(sys, dt_s):

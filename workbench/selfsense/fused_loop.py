@@ -11,7 +11,8 @@ complementary blend's fixed-point step, then the cascade with its output range a
 window), whose output from reading k is applied in period k + 1.
 
 Scenario (:func:`closed_loop_run`): open loop at ``bias_v`` for ``settle_s`` (the stack
-charges, the integrator was reset at t = 0), then the loop closes with its reference at the
+charges, the integrator was reset at t = 0; by default until the reading's startup error has
+settled, :func:`workbench.verify.sensors.startup_settle_s`), then the loop closes with its reference at the
 reading of that moment; a triangle of ``triangle_periods`` periods at ``triangle_hz`` spanning
 10-90 % of the stroke around it; then a hold of ``hold_s`` at the centre. Metrics on the true x:
 
@@ -41,7 +42,7 @@ def triangle_reference(t_s, amplitude_m, freq_hz):
 
 
 def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=None, stroke_m=15e-6,
-                    bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2, hold_s=10.0, seed=4,
+                    bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2, hold_s=10.0, seed=4,
                     progress=None):
     """Run one sensor's closed loop (see the module notes); returns metrics and the records.
 

@@ -22,22 +22,35 @@ def sensor_lines(rows, figure=None):
     if not rows:
         return []
     hold = rows[0]["hold_s"]
+    r0 = rows[0]
+    lead = (f"led by its slope over the loop's velocity constant ({r0['velocity_constant_per_s']:.4g} 1/s, "
+            f"the type-1 loop's ramp error fed forward)" if r0.get("velocity_constant_per_s") else
+            "(no ramp feedforward)")
+    lin = ("the gauge reading with eq. 27's curvature taken out" if r0.get("gauge_linearized") else
+           "the gauge reading on the serial's linear calibration")
     out = ["## Sensors side by side", "",
            f"The controller's fixed-point sensor step closing on each reading, on the nonlinear plant with the "
            f"charge amplifier's leakage, bias current and dielectric absorption, creep and the gauge noise all "
-           f"present. Open loop at 50 V for 1 s, then {rows[0]['triangle_hz']:g} Hz triangle over 10-90 % of the "
-           f"{rows[0]['stroke_m'] * 1e6:.3g} um stroke (two periods, scored after the first), then a {hold:g} s hold. "
+           f"present. Open loop at 50 V until the reading's startup error has settled within its own noise, "
+           f"at least 1 s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle over 10-90 % of the "
+           f"{r0['stroke_m'] * 1e6:.3g} um stroke (two periods, scored after the first), {lead}, then a "
+           f"{hold:g} s hold; {lin}. Triangle RMS: the true x against the reference in the true-position frame "
+           f"(the sensor's offset at closing added); \"commanded\": x's motion from where it was at closing "
+           f"against the triangle alone. "
            f"Bandwidth: -3 dB of the true x against the reference, measured after the hold with 10 nm tones "
            f"(5 Hz-2 kHz, as verify's sine sweep), beside the nominal linear loop's (ascending branch at 50 V). "
            f"Crossover and margins: that nominal loop on the sensor's path.", "",
-           "| sensor | bandwidth (measured / linear) | crossover | PM / GM | triangle RMS | hold drift | hold noise RMS |",
-           "|---|---|---|---|---|---|---|"]
+           "| sensor | bandwidth (measured / linear) | crossover | PM / GM | closes at | triangle RMS (commanded) "
+           "| hold drift | hold noise RMS |",
+           "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         name = TITLES[r["sensor"]] + (f" at {r['blend_crossover_hz']:.3g} Hz" if r.get("blend_crossover_hz") else "")
         out.append(f"| {name} | {_f(r.get('bandwidth_hz'), 1, '.0f')} / {_f(r.get('linear_bandwidth_hz'), 1, '.0f')} Hz | "
                    f"{_f(r.get('crossover_hz'), 1, '.0f')} Hz | "
                    f"{_f(r.get('phase_margin_deg'), 1, '.1f')} deg / {_f(r.get('gain_margin_db'), 1, '.1f')} dB | "
-                   f"{_f(r['triangle_rms_percent_stroke'], 1, '.3f')} % of stroke | "
+                   f"{_f(r.get('settle_s'), 1, '.2f')} s | "
+                   f"{_f(r['triangle_rms_percent_stroke'], 1, '.4f')} % "
+                   f"({_f(r.get('triangle_commanded_rms_percent_stroke'), 1, '.4f')} %) of stroke | "
                    f"{_f(r['hold_drift_m'], 1e9, '+.2f')} nm over {r['hold_s']:g} s | "
                    f"{_f(r['hold_noise_rms_m'], 1e9, '.2f')} nm |")
     why = [f"- {TITLES[r['sensor']]}: measured bandwidth n/a: {r['bandwidth_why']}" for r in rows

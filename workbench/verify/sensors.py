@@ -8,7 +8,8 @@ One compiled loop per servo period T (no Python per period), in this order:
    quarter and three quarters into the period, the amplifier and ADC clip, one Gaussian term of
    the gauge noise, the trim and the servo DAC's quantization; :func:`workbench.plant.gauge._bridge`
    and ``_quantize``), then firmware's conversion to metres (the serial's calibration,
-   :func:`workbench.plant.gauge.displacement_from_reading`);
+   :func:`workbench.plant.gauge.displacement_from_reading`, and by default eq. 27's curvature taken
+   out, :func:`workbench.plant.gauge.linearized_displacement`);
 3. the charge amplifier on the stack's terminals, streamed as
    :class:`workbench.selfsense.charge_amp.ChargeAmpStream` does it (leakage through R_FP, the
    op-amp's bias current, two-branch dielectric absorption, output and HV-monitor noise and
@@ -20,13 +21,17 @@ One compiled loop per servo period T (no Python per period), in this order:
    next period.
 
 Scenario (as :func:`workbench.selfsense.fused_loop.closed_loop_run`): open loop at ``bias_v``
-for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, the blend runs),
-then the loop closes (the cascade at rest at the bias) with its reference at the reading of that
-moment; ``triangle_periods`` periods of a ``triangle_hz`` triangle over 10-90 % of the stroke
-around it; then a hold of ``hold_s``. Metrics on the true x (decimated to 1 kHz point samples):
+for ``settle_s`` (the stack charges; the charge integrator was reset at t = 0, the blend runs;
+by default until the reading's startup error has settled within its noise and at least
+:data:`MIN_OPEN_LOOP_S`, :func:`startup_settle_s`), then the loop closes (the cascade at rest at the bias) with its
+reference at the reading of that moment; ``triangle_periods`` periods of a ``triangle_hz``
+triangle over 10-90 % of the stroke around it, led by its slope over the loop's velocity
+constant (``ramp_feedforward``, :func:`velocity_constant_per_s`); then a hold of ``hold_s``.
+Metrics on the true x (decimated to 1 kHz point samples):
 triangle RMS error after the first period (in the true-position frame: the pinned reference plus
 the sensor's offset over the last 0.2 s of open loop, nothing subtracted; the mean is reported
-beside it as ``triangle_mean_m``), hold drift (mean of the last
+beside it as ``triangle_mean_m``; ``triangle_commanded_rms_m`` scores x's motion from its position
+at closing against the triangle alone, the sensor's offset aside), hold drift (mean of the last
 second minus mean of the second after 1 s of settling), hold noise (RMS about the 1 s running
 mean). The charge amplifier's parameters are the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`
 (the seeds give none for a stack); the estimator is identified on a simulated 700 s record of
@@ -45,7 +50,9 @@ from ..errors import ChargeChannelError, WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
 from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
 from ..plant import kernels as K
-from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
+from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, bridge_curvature_per_m, demod_noise_sigma_v
+from ..selfsense.charge_amp import adc_convert, adc_lsb_v, charge_amp_arrays, charge_amp_step
+from ..selfsense.estimator import estimator_arrays, estimator_step
 
 __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
            "run_sensor_loop", "compare_sensors"]
@@ -53,6 +60,12 @@ __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "Se
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
 DECIMATE = 10                  # metrics on 1 kHz point samples of x
+OFFSET_WINDOW_S = 0.2          # the sensor's offset at closing: mean of (x - reading) over this much open loop
+# The scenario's earlier fixed closing time, kept as the floor of the derived one: the stack still creeps
+# fast after the 0 -> 50 V step, and a loop closed earlier centres the triangle lower, so its bottom asks
+# for negative volts (SN637 gauge design, 15.6 um stroke: 0.22 % of stroke closing at 0.2 s, 0.032 % at 1 s).
+# The plant's side of when to close is not derived here; the sensor's is (startup_settle_s).
+MIN_OPEN_LOOP_S = 1.0
 
 
 def charge_channel_missing(plant):
@@ -120,24 +133,21 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_
 
 
 @njit(cache=True, error_model="numpy")
-def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, cs, ep, eg, ea_, eb0, eb1, es, er, ew,
-                 ez, xa, xb, xc, xd, xe, kind, bk, bfrac, bkbits, scale, sbits, in_lim, fb, fa, fshift, ffrac, limw,
-                 cst, vm, io, dec, rec):
+def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, cs, adc_v, ep, eg, ea_, eb0, eb1, es,
+                 er, ew, ez, xa, xb, xc, xd, xe, kind, bk, bfrac, bkbits, scale, sbits, in_lim, fb, fa, fshift, ffrac,
+                 limw, cst, vm, io, dec, rec):
     """Periods of the sensor loop (module notes). ``io`` = [pending u (V), x_prev, blend y, decim count, row,
-    output LSB (V), last reading (counts), blend started]; ``cs`` charge-amp state [t, v_prev, q_leak] and DA states ``ck``-sized in ``cs[3:]``;
-    ``es`` estimator state [t, v_prev, q_leak]; ``ez`` play states; ``xe`` E(z) states. Every ``dec``-th
-    period a row of ``rec``: true x (m), the reading the cascade closed on (m), the gauge and charge counts
-    the sensor step received, and the output it computed (V)."""
+    output LSB (V), last reading (counts), blend started]; ``cs`` the charge amplifier's state and
+    ``cp, ck, ca, cb0, cb1`` its constants (:func:`~workbench.selfsense.charge_amp.charge_amp_step`);
+    ``adc_v`` = [V_out LSB, V_out range, V_in LSB, V_in range] (V); ``es``, ``ez`` the estimator's states and
+    ``ep .. ew`` its constants (:func:`~workbench.selfsense.estimator.estimator_step`); ``xe`` E(z) states.
+    Every ``dec``-th period a row of ``rec``: true x (m), the reading the cascade closed on (m), the gauge and
+    charge counts the sensor step received, and the output it computed (V)."""
     out = np.empty(K.N_OUT)
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vmod, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits, cal = gp[6], gp[7], gp[8], gp[9], int(gp[10]), gp[11]
-    dt = cp[0]
-    r_leak, i_bias, c_ref, c_int = cp[1], cp[2], cp[3], cp[4]
-    out_lsb, out_fs, in_lsb, in_fs = cp[5], cp[6], cp[7], cp[8]
-    e_alpha, e_cint, e_cref, e_rleak, e_ibias = ep[0], ep[1], ep[2], ep[3], ep[4]
-    lsb_m = gp[12]
-    nda = ck.shape[0]
+    lsb_m, beta = gp[12], gp[13]
     ne = xe.shape[0]
     xn = np.empty(ne)
     for k in range(ref.shape[0]):
@@ -154,34 +164,13 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
         dem = 0.5 * demod * (v_p - v_n) + gn[k]
         reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
         gauge_m = reading * cal + TRIM_CENTER_M
-        # charge amplifier (ChargeAmpStream.update)
-        q_c, v_t = out[1], out[5]
-        cs[0] += dt
-        cs[2] += 0.5 * (v_t + cs[1]) / r_leak * dt
-        q_da = 0.0
-        for j in range(nda):
-            cs[3 + j] = ca[j] * cs[3 + j] + cb0[j] * cs[1] + cb1[j] * v_t
-            q_da += ck[j] * cs[3 + j]
-        cs[1] = v_t
-        q_tot = q_c + cs[2] + i_bias * cs[0] + q_da
-        v_out = -(q_tot - c_ref * v_t) / c_int + on[k]
-        v_out = min(max(math.floor(v_out / out_lsb + 0.5) * out_lsb if out_lsb > 0 else v_out, -out_fs), out_fs)
-        v_in = v_t + vn[k]
-        v_in = min(max(math.floor(v_in / in_lsb + 0.5) * in_lsb if in_lsb > 0 else v_in, -in_fs), in_fs)
-        # staged estimator (StreamingEstimator.update)
-        es[0] += dt
-        if e_rleak > 0:
-            es[2] += 0.5 * (v_in + es[1]) / e_rleak * dt
-        corr = 0.0
-        for j in range(eg.shape[0]):
-            es[3 + j] = ea_[j] * es[3 + j] + eb0[j] * es[1] + eb1[j] * v_in
-            corr += eg[j] * es[3 + j]
-        es[1] = v_in
-        for j in range(er.shape[0]):
-            ez[j] = max(v_in - er[j], min(v_in + er[j], ez[j]))
-            corr += ew[j] * ez[j]
-        qe = e_cref * v_in - e_cint * v_out - es[2] - e_ibias * es[0]
-        d_s = qe / e_alpha - corr
+        if beta != 0.0:                 # the bridge's curvature taken out (linearized_displacement)
+            gauge_m -= beta * (gauge_m - TRIM_CENTER_M) ** 2
+        # charge amplifier and its two ADCs (ChargeAmpStream.update), staged estimator (StreamingEstimator.update)
+        v_t = out[5]
+        v_out = adc_convert(charge_amp_step(cs, out[1], v_t, cp, ck, ca, cb0, cb1) + on[k], adc_v[0], adc_v[1])
+        v_in = adc_convert(v_t + vn[k], adc_v[2], adc_v[3])
+        d_s = estimator_step(es, ez, v_in, v_out, ep, eg, ea_, eb0, eb1, er, ew)
         # dynamic estimator E(z)
         ch = xd * d_s
         for i in range(ne):
@@ -219,20 +208,149 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
                 io[4] = row + 1
 
 
-def _estimator_arrays(p, dt):
-    from ..selfsense.estimator import ResidualCorrection
-    c = p.correction or ResidualCorrection()
-    taus = np.array([p.da_time_constant_s, *c.creep_time_constants_s], float)
-    gains = np.array([p.da_gain_f / p.alpha_c_per_m, *c.creep_gains_m_per_v], float)
-    a = np.exp(-dt / taus)
-    g = taus / dt * (1.0 - a)
-    return (np.array([p.alpha_c_per_m, p.c_int_f, p.c_ref_f, p.r_leak_ohm if np.isfinite(p.r_leak_ohm) else -1.0,
-                      p.i_bias_a]), gains, a, g - a, 1.0 - g, np.asarray(c.thresholds_v, float),
-            np.asarray(c.play_weights_m_per_v, float))
+class _Loop:
+    """One sensor loop's compiled state and constants (plant, gauge chain, charge channel, E(z), the controller's
+    fixed-point words), at rest with the command at ``bias_v``; :meth:`run` steps it over periods."""
+
+    def __init__(self, setup, controller, sensor, bias_v, gauge_linearized=True):
+        from dataclasses import replace
+
+        import control
+
+        from ..plant.simulator import PZTSimulator
+        from ..selfsense.run import STAGES
+
+        plant = setup.plant
+        sb = controller.sensor
+        if sensor == "fused" and (sb is None or sb.kind != "fused"):
+            raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's "
+                                 f"crossover, which the controller's sensor block does not give; export it with "
+                                 f"Controller.with_sensor('fused', crossover_hz)")
+        if sb is None:
+            sb = controller.with_sensor(sensor).sensor
+        elif sb.kind != sensor:
+            sb = replace(sb, kind=sensor, crossover_hz=None, k=None) if sensor != "fused" else sb
+        fxp = controller.fixed
+        dt = controller.dt_s
+        g = plant.gauge
+        sim = PZTSimulator(plant.pzt, dt)
+        amp = setup.amp
+        gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
+                       g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
+                       g.calibration_m_per_v, sb.lsb_m, bridge_curvature_per_m(g) if gauge_linearized else 0.0])
+        r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
+        camp = charge_amp_arrays(amp, dt)
+        cs = np.zeros(3 + camp[1].size)
+        adc_v = np.array([adc_lsb_v(amp.adc_bits, amp.adc_range_v), amp.adc_range_v,
+                          adc_lsb_v(amp.vin_adc_bits, amp.vin_range_v), amp.vin_range_v])
+        est = estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
+        es = np.zeros(3 + est[1].size)
+        ez = np.zeros(est[5].size)
+        e_ss = control.ss(setup.e_d)
+        xa, xb, xc = (np.ascontiguousarray(np.asarray(v, float)) for v in (e_ss.A, e_ss.B[:, 0], e_ss.C[0]))
+        xd = float(np.asarray(e_ss.D)[0, 0])
+        xe = np.zeros(xa.shape[0])
+        if xa.shape[0] == 0:
+            xa, xb, xc, xe = np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0)
+        kind = KIND_CODE[sensor]
+        scale, sbits = sb.error_scale(fxp.input_frac_bits)
+        cst, u_w0 = initial_state(fxp, bias_v)
+        vm = np.array([u_w0], np.int64)
+        out_scale = 2.0 ** -fxp.output_frac_bits
+        x0 = float(plant.pzt.k_q2x_m_per_c * plant.pzt.hysteresis.output_at_rest())
+        io = np.array([float(bias_v), x0, 0.0, 0.0, 0.0, out_scale, 0.0, 0.0])
+        words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
+                 np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
+                 fxp.limit_words, cst, vm)
+        self.sb, self.dt, self.io, self.sim = sb, dt, io, sim
+        self.sigmas = (demod_noise_sigma_v(g), amp.out_noise_v_rms, amp.vin_noise_v_rms)
+        self._arrays = (gp, r0, *camp, cs, adc_v, *est[:5], es, *est[5:], ez, xa, xb, xc, xd, xe, *words)
+
+    def run(self, closed, refs, gn, on, vn, dec, rec):
+        """``refs.size`` periods (reference counts ``refs``; gauge, V_out and V_in noise per period, V), a row
+        of ``rec`` every ``dec`` periods (:func:`_sensor_loop`)."""
+        _sensor_loop(self.sim.m, self.sim.st, closed, refs, gn, on, vn, *self._arrays, self.io, dec, rec)
 
 
-def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, triangle_hz=0.1, triangle_periods=2,
-                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True):
+def velocity_constant_per_s(controller, sensor_block, plant):
+    """K_v = lim s L(s) of the loop on the controller's integrator, 1/s; None when it has none (type 0).
+
+    L = C(z) v_per_m P0: the controller's fixed-point transfer (V per firmware V of error), the sensor
+    block's error scale (firmware V per m of reading) and the plant's quasi-static gain P0 = stroke from
+    rest to 100 V over 100 V (m/V, :func:`workbench.verify.scenarios.stroke_m`). A type-1 loop tracks a
+    ramp of slope v with the error v / K_v; a reference led by v / K_v takes it out.
+    """
+    from .scenarios import stroke_m as quasi_static_stroke
+    c = controller.as_lti(quantized=controller.fixed is not None)
+    dt = controller.dt_s
+    kc = []
+    for f_hz in (1e-4, 1e-3):                           # |j w C| is flat at low frequency only with an integrator
+        w = 2.0 * np.pi * f_hz
+        kc.append(abs(1j * w * complex(c(np.exp(1j * w * dt)))))
+    if not (kc[0] > 0 and abs(kc[0] / kc[1] - 1.0) < 1e-3):
+        return None
+    return float(kc[0] * sensor_block.v_per_m * quasi_static_stroke(plant.pzt) / 100.0)
+
+
+def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, seed=4, gauge_linearized=True):
+    """The sensor's error in open loop at ``bias_v`` from t = 0 (integrator reset, blend started), per period.
+
+    Returns (t (s), reading - true x without noise (m), RMS of the sensor's noise per period (m): the noisy
+    reading minus the noise-free one over the second half, the same open loop, so x is the same in both).
+    """
+    n = int(round(duration_s / controller.dt_s))
+    rows = []
+    for noise in (False, True):
+        lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized)
+        rng = np.random.Generator(np.random.PCG64(seed))
+        sig = lp.sigmas if noise else (0.0, 0.0, 0.0)
+        rec = np.zeros((n, 5))
+        for start in range(0, n, CHUNK):
+            m = min(n, start + CHUNK) - start
+            gn, on, vn = (rng.standard_normal(m) * s_ if s_ > 0 else np.zeros(m) for s_ in sig)
+            lp.run(False, np.zeros(m, np.int64), gn, on, vn, 1, rec[start:start + m])
+            lp.io[4] = 0.0
+        rows.append(rec)
+    t = np.arange(1, n + 1) * controller.dt_s
+    # the noise's stationary RMS: the second half (the blend starts from one noisy difference, which decays)
+    return t, rows[0][:, 1] - rows[0][:, 0], float(np.std((rows[1][:, 1] - rows[0][:, 1])[n // 2:]))
+
+
+def settled_time_s(t_s, error_m, tolerance_m):
+    """The earliest time from which ``error_m`` stays within ``tolerance_m`` of its value then, s.
+
+    The first ``t_s[i]`` with max_j>=i |error_j - error_i| <= tolerance (the last sample when none earlier)."""
+    e = np.asarray(error_m, float)
+    hi = np.maximum.accumulate(e[::-1])[::-1]
+    lo = np.minimum.accumulate(e[::-1])[::-1]
+    bad = np.flatnonzero((hi - e > tolerance_m) | (e - lo > tolerance_m))
+    return float(t_s[0] if bad.size == 0 else t_s[min(bad[-1] + 1, e.size - 1)])
+
+
+def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, seed=4, gauge_linearized=True):
+    """When to close the loop after the open-loop start at ``bias_v``: the sensor has settled, s.
+
+    At t = 0 the charge integrator is reset and the blend starts; the charge estimate's transients (the
+    absorption and the stack's charging that the estimator models imperfectly) pass the blend's high side,
+    so the reading's error against the true x still moves for a while (~10 nm/s at 1 s on SN637). A loop
+    closed then carries that motion into the triangle. The loop closes when the error, noise-free, stays
+    within the reading's own noise RMS per period (what one reading cannot resolve) of its value at closing
+    for the rest of ``horizon_s`` (:func:`startup_error`, :func:`settled_time_s`). A gauge reading has no
+    transient: its settle time is the first period's.
+
+    Returns
+    -------
+    dict
+        ``settle_s`` (s), ``noise_rms_m`` (the tolerance, m), ``horizon_s``.
+    """
+    t, e, sig = startup_error(setup, controller, sensor, bias_v=bias_v, duration_s=horizon_s, seed=seed,
+                              gauge_linearized=gauge_linearized)
+    return {"settle_s": settled_time_s(t, e, sig), "noise_rms_m": sig, "horizon_s": float(horizon_s)}
+
+
+def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2,
+                    hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True,
+                    ramp_feedforward=True, gauge_linearized=True):
     """One sensor's closed loop with ``controller``'s fixed-point sensor step (module notes).
 
     Parameters
@@ -243,12 +361,24 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         With fixed-point words; its sensor block gives the blend for "fused" (required) and the
         error scale (default: the gauge gain of its provenance).
     sensor : {"gauge", "charge", "fused"}
+    settle_s : float, optional
+        Open loop before the loop closes, s (default: the sensor's settle time, :func:`startup_settle_s`,
+        and at least :data:`MIN_OPEN_LOOP_S` and the :data:`OFFSET_WINDOW_S` the sensor's offset is
+        taken over).
     stroke_m : float, optional
         The stroke the triangle's 10-90 % refers to (default: rest to 100 V, quasi-static).
     noise : bool
         Gauge noise and the charge amplifier's noise.
     decimate : int, default 10
         Periods per recorded row (1: every period, to replay the sensor step).
+    ramp_feedforward : bool, default True
+        Feed the sensor step the triangle plus its slope over the loop's velocity constant
+        (:func:`velocity_constant_per_s`): a type-1 loop then has no ramp error to first order. Scored
+        against the triangle itself. No effect when the controller has no integrator.
+    gauge_linearized : bool, default True
+        Firmware's conversion of the gauge reading to metres takes the bridge's curvature out
+        (:func:`workbench.plant.gauge.linearized_displacement`; eq. 27's, from the gauge's geometry and
+        gauge factor); False: the serial's linear calibration alone, as verify's gauge scenarios read it.
     sweep : bool, default True
         After the hold, the closed-loop response from the time domain as verify's ``sine_sweep`` takes
         it (:data:`.scenarios.SWEEP_FREQ_HZ`, tones of :data:`.scenarios.SWEEP_AMPLITUDE_M` about the
@@ -263,13 +393,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         ``_x_m``, ``_reading_m``, ``_reference_rel_m``, and what the sensor step received and computed
         (``_reference_counts``, ``_gauge_counts``, ``_charge_counts``, ``_u_v``).
     """
-    from dataclasses import replace
-
-    import control
-
-    from ..plant.simulator import PZTSimulator
     from ..selfsense.fused_loop import triangle_reference
-    from ..selfsense.run import STAGES
     from .scenarios import stroke_m as quasi_static_stroke
 
     if sensor not in SENSOR_KINDS:
@@ -282,70 +406,38 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         if why:
             raise ChargeChannelError(f"{plant.source}: no charge channel model for a {sensor} loop: {why}; "
                                      f"verify this controller with --sensor gauge")
-    sb = controller.sensor
-    if sensor == "fused" and (sb is None or sb.kind != "fused"):
-        raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's crossover, "
-                             f"which the controller's sensor block does not give; export it with "
-                             f"Controller.with_sensor('fused', crossover_hz)")
-    if sb is None:
-        sb = controller.with_sensor(sensor).sensor
-    elif sb.kind != sensor:
-        sb = replace(sb, kind=sensor, crossover_hz=None, k=None) if sensor != "fused" else sb
-    fxp = controller.fixed
-    dt = controller.dt_s
-    g = plant.gauge
+    settle = None
+    if settle_s is None:
+        settle = startup_settle_s(setup, controller, sensor, bias_v=bias_v, seed=seed,
+                                  gauge_linearized=gauge_linearized)
+        settle_s = max(settle["settle_s"], OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
+    lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized)
+    sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
     n_settle = int(round(settle_s / dt))
     n_tri = int(round(triangle_periods / triangle_hz / dt))
     n_hold = int(round(hold_s / dt))
     n = n_tri + n_hold
 
-    def r_rel(i0, i1):
-        """The reference about the reading at closing for periods i0..i1 - 1 after closing, m."""
-        i = np.arange(i0, i1)
+    kv = velocity_constant_per_s(controller, sb, plant) if ramp_feedforward else None
+
+    def r_at(i):
+        """The triangle about the reading at closing at periods ``i`` after closing, m."""
         return np.where(i < n_tri, triangle_reference((i + 1) * dt, 0.4 * stroke, triangle_hz), 0.0)
 
-    sim = PZTSimulator(plant.pzt, dt)
-    amp = setup.amp
-    gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain, g.adc_range_v,
-                   g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
-                   g.calibration_m_per_v, sb.lsb_m])
-    r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
-    taus = np.asarray(amp.da_time_constants_s, float)
-    ca = np.exp(-dt / taus)
-    cg = taus / dt * (1.0 - ca)
-    out_lsb = 2.0 * amp.adc_range_v / 2.0 ** int(amp.adc_bits) if amp.adc_bits < 60 else 0.0
-    in_lsb = 2.0 * amp.vin_range_v / 2.0 ** int(amp.vin_adc_bits) if amp.vin_adc_bits < 60 else 0.0
-    cp = np.array([dt, amp.r_leak_ohm, amp.i_bias_a, amp.c_ref_f, amp.c_int_f, out_lsb, amp.adc_range_v, in_lsb,
-                   amp.vin_range_v])
-    ck = np.asarray(amp.da_gains_f, float)
-    cs = np.zeros(3 + ck.size)
-    ep, eg, ea_, eb0, eb1, er, ew = _estimator_arrays(setup.ident.stage(STAGES[-1]), dt)
-    es = np.zeros(3 + eg.size)
-    ez = np.zeros(er.size)
-    e_ss = control.ss(setup.e_d)
-    xa, xb, xc = (np.ascontiguousarray(np.asarray(v, float)) for v in (e_ss.A, e_ss.B[:, 0], e_ss.C[0]))
-    xd = float(np.asarray(e_ss.D)[0, 0])
-    xe = np.zeros(xa.shape[0])
-    if xa.shape[0] == 0:
-        xa, xb, xc, xe = np.zeros((0, 0)), np.zeros(0), np.zeros(0), np.zeros(0)
-    kind = KIND_CODE[sensor]
-    scale, sbits = sb.error_scale(fxp.input_frac_bits)
-    cst, u_w0 = initial_state(fxp, bias_v)
-    vm = np.array([u_w0], np.int64)
-    out_scale = 2.0 ** -fxp.output_frac_bits
-    io = np.array([float(bias_v), float(plant.pzt.k_q2x_m_per_c * plant.pzt.hysteresis.output_at_rest()), 0.0, 0.0,
-                   0.0, out_scale, 0.0, 0.0])
+    def r_rel(i0, i1):
+        """The reference the sensor step receives for periods i0..i1 - 1 after closing, m: the triangle, plus
+        its slope over the loop's velocity constant when ``ramp_feedforward`` (a type-1 loop's ramp error)."""
+        i = np.arange(i0, i1)
+        r = r_at(i)
+        return r if not kv else r + (r_at(i + 1) - r) / dt / kv
+
+    io = lp.io
     rng = np.random.Generator(np.random.PCG64(seed))
-    sig_g = demod_noise_sigma_v(g) if noise else 0.0
-    sig_o = amp.out_noise_v_rms if noise else 0.0
-    sig_i = amp.vin_noise_v_rms if noise else 0.0
+    sig_g, sig_o, sig_i = lp.sigmas if noise else (0.0, 0.0, 0.0)
     dec = int(decimate)
     rec = np.zeros((n // dec, 5))
     rec_open = np.zeros((n_settle // dec + 1, 5))
-    words = (kind, np.int64(sb.k or 0), int(sb.frac_bits), int(sb.coef_bits), np.int64(scale), int(sbits),
-             np.int64(fxp.input_limit), fxp.b, fxp.a, fxp.b_shift.astype(np.int64), int(fxp.a_frac_bits),
-             fxp.limit_words, cst, vm)
     tones = _sweep_reference(dt) if sweep else None
     n_sw = 0 if tones is None else tones[0].size
     rec_sw = np.zeros((n_sw, 5))
@@ -372,8 +464,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
                 refs = ref_counts + np.round(tones[0][start:stop] / sb.lsb_m).astype(np.int64)
             else:
                 refs = np.zeros(m, np.int64)
-            _sensor_loop(sim.m, sim.st, closed, refs, gn, on, vn, gp, r0, cp, ck, ca, cg - ca, 1.0 - cg,
-                         cs, ep, eg, ea_, eb0, eb1, es, er, ew, ez, xa, xb, xc, xd, xe, *words, io, dec_, rr)
+            lp.run(closed, refs, gn, on, vn, dec_, rr)
             done += m
             if progress:
                 progress(f"sensor loop: {sensor}", done, total)
@@ -381,18 +472,22 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
     per = int(round(1.0 / triangle_hz / dt)) // dec
     nt = n_tri // dec
     idx = np.arange(rec_x.size) * dec + dec - 1          # the periods the rows were taken at
-    r_dec = r_rel(0, 0) if rec_x.size == 0 else np.where(idx < n_tri, triangle_reference((idx + 1) * dt,
-                                                                                        0.4 * stroke, triangle_hz), 0.0)
+    r_dec = r_at(idx)
+    r_fed = r_dec if not kv else r_dec + (r_at(idx + 1) - r_dec) / dt / kv
     # Scored in the true-position frame, nothing subtracted: the cascade holds its reading at the pinned
     # reference (the reading when the loop closed) plus the triangle; the true position it should then be
     # at is that plus the sensor's offset as known at closing, the mean of (x - reading) over the last
     # 0.2 s of the open loop (one noisy sample would put its noise into the score). A sensor error that
     # changes during the triangle (drift, scale, lag) stays in the error, as in the gauge scenarios.
     n_open = n_settle // dec
-    n_off = max(1, min(n_open, int(round(0.2 / dt)) // dec))
+    n_off = max(1, min(n_open, int(round(OFFSET_WINDOW_S / dt)) // dec))
     offset_m = float(np.mean(rec_open[n_open - n_off:n_open, 0] - rec_open[n_open - n_off:n_open, 1]))
     pin_m = float(ref_pin_counts) * sb.lsb_m
     e_tri = rec_x[per:nt] - (pin_m + offset_m + r_dec[per:nt])
+    # against the command alone: the motion from where x was when the loop closed (the last open-loop row:
+    # the true x has no noise to average, and it may still be creeping) minus the reference
+    x_close = float(rec_open[n_open - 1, 0])
+    e_cmd = rec_x[per:nt] - (x_close + r_dec[per:nt])
     tri_mean = float(np.mean(e_tri)) if e_tri.size else float("nan")
     one = int(round(1.0 / dt)) // dec
     h0 = nt + one
@@ -406,11 +501,15 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=1.0, tri
         bw = _sweep_bandwidth(tones, rec_sw[:, 0], dt)
     return {**bw, "sensor": sensor, "triangle_hz": float(triangle_hz), "triangle_rms_m": tri,
             "triangle_rms_percent_stroke": 100.0 * tri / stroke, "triangle_mean_m": tri_mean,
+            "triangle_commanded_rms_m": float(np.sqrt(np.mean(e_cmd ** 2))),
+            "triangle_commanded_rms_percent_stroke": 100.0 * float(np.sqrt(np.mean(e_cmd ** 2))) / stroke,
+            "settle_s": float(n_settle * dt), "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
+            "velocity_constant_per_s": kv, "gauge_linearized": bool(gauge_linearized),
             "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
             "_t_s": (idx + 1) * dt, "_x_m": rec_x, "_reading_m": rec[:, 1],
-            "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_dec / sb.lsb_m).astype(np.int64),
+            "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_fed / sb.lsb_m).astype(np.int64),
             "_gauge_counts": rec[:, 2].astype(np.int64), "_charge_counts": rec[:, 3].astype(np.int64),
             "_u_v": rec[:, 4], "_u0_v": float(bias_v), "_blend_state_at_closing": y_close}
 
