@@ -16,8 +16,9 @@ settled, :func:`workbench.verify.sensors.startup_settle_s`), then the loop close
 reading of that moment; a triangle of ``triangle_periods`` periods at ``triangle_hz`` spanning
 10-90 % of the stroke around it; then a hold of ``hold_s`` at the centre. Metrics on the true x:
 
-- triangle RMS error over the periods after the first, its mean removed (the reference is
-  relative to the reading at closing, so a constant offset is a choice of origin), % of stroke;
+- triangle RMS error over the periods after the first, in the true-position frame (the
+  reference plus the sensor's offset at closing, nothing subtracted; the mean reported beside
+  it), % of stroke, as :mod:`workbench.verify.sensors` scores it;
 - hold drift: mean true x over the last second of the hold minus over the first second
   after a 1 s settling, m;
 - hold noise: RMS of the true x about its 1 s running mean during the hold, m.
