@@ -173,6 +173,9 @@ def test_instron_runs(force_study):
         else:
             # the model's back EMF is within 12 % of the measured one (the seed's parameters; see README)
             assert s["model_back_emf_v"] == pytest.approx(r["back_emf_v"], rel=0.12)
+    # the simulated runs' swap flag is the one swap decision's
+    decided = {(d["serial"], d["run"]) for d in table1_swap_decision() if d["swap"]}
+    assert {(r["serial"], r["run"]) for r in ins["runs"] if r["suspected_swap"]} == decided
     # from the measured back EMF, the model's gain reads every R out run too compressive (C_p / T_em mismatch)
     assert all(r["measured_back_emf"]["error_fraction"] < 0 for r in ins["runs"] if "measured_back_emf" in r)
     # the repeat runs' spread: closed form of the best single gain's max error over the nine R out runs
@@ -213,6 +216,16 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     assert "## Table 1 R out runs held out" in (out / "force_report.md").read_text()
     ref = table1_held_out(root / TABLE1)
     assert data["instron"]["held_out"]["reported"]["loo"]["max_error_fraction"] == ref["reported"]["loo"]["max_error_fraction"]
+    # the held-out lines lead with self-sensing proper (the run's own back EMF), its verdict as the library gives it,
+    # and name the reported form as what it is
+    pure = ref["nested_pure_back_emf"]
+    verdict = "met" if ref["target_met_nested_pure_back_emf"] else "MISSED"
+    first = next(ln for ln in text.splitlines() if "held out" in ln and "Table 1" in ln)
+    assert f"pure back EMF) max {100 * pure['max_error_fraction']:.2f} % ({verdict})" in first
+    assert ref["reported_form_title"] in text and "back EMF through the gauge" not in text
+    report = (out / "force_report.md").read_text()
+    assert report.index("Force self-sensing from the run's own back EMF") < report.index("(reported)")
+    assert f"RMS {100 * pure['rms_error_fraction']:.2f} % **{verdict}**" in report.split("(reported)")[0]
 
 
 # ---- Table 1 peak force, held out (issue 16 item 2: within 5 %) ---------------------------------------------
