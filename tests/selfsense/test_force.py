@@ -13,8 +13,8 @@ from workbench.selfsense.charge_amp import ChargeAmpParams, cumulative_integral,
 from workbench.selfsense.charge_drift import identify_charge_drift, reversal_alpha
 from workbench.selfsense.command import main as selfsense_main
 from workbench.identify.transducer import identify_transducer, table1_swap_decision
-from workbench.selfsense.force import (FORCE_STAGE, estimate_force, force_step_errors, instron_from_table, run_force_study,
-                                       simulate_force_step)
+from workbench.selfsense.force import (FORCE_STAGE, estimate_force, force_step_errors, instron_from_table,
+                                       run_force_study, simulate_force_step)
 from workbench.selfsense.table1 import (TABLE1_FORM_TITLES, TABLE1_FORMS, TABLE1_FORMS_BACK_EMF_WITH_GAUGE,
                                         TABLE1_FORMS_PURE_BACK_EMF, instron_held_out, nested_held_out, table1_held_out,
                                         table1_spreads)

@@ -270,9 +270,9 @@ def plot_force(data, path):
     ax3.set_ylim(*span)
     ax3.set_aspect("equal")
     ax3.set_xlabel("Table 1 peak compression, N")
-    ax3.set_ylabel("self-sensed peak compression, N")
+    ax3.set_ylabel("estimated peak compression, N")
     ax3.set_title("Instron runs (seed 000 Table 1)")
-    ax3.legend(fontsize=7, loc="lower right")
+    ax3.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14))     # below: the points fill the axes
     for ax in (ax1, ax2, ax3):
         ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -136,8 +136,8 @@ def run_force(args):
                  f"any form incl. gauge only {100 * h['nested']['max_error_fraction']:.2f} % "
                  f"({met(h['target_met_nested'])}), loso {100 * h['nested_loso']['max_error_fraction']:.2f} % "
                  f"({met(h['target_met_nested_loso'])})")
-    lines.append(f"  Table 1 R out held out, {h['reported_form_title']} (form chosen on the same runs; reads no back "
-                 f"EMF of the run): max {100 * rep['loo']['max_error_fraction']:.1f} % loo ({met(h['target_met_loo'])}), "
+    lines.append(f"  Table 1 R out held out, {h['reported_form_title']}, form chosen on the same runs, reads no back "
+                 f"EMF of the run: max {100 * rep['loo']['max_error_fraction']:.1f} % loo ({met(h['target_met_loo'])}), "
                  f"{100 * rep['loso']['max_error_fraction']:.1f} % loso ({met(h['target_met_loso'])}); x from the "
                  f"displacement column: {100 * hd['reported']['loso']['max_error_fraction']:.1f} % loso")
     if args.out is not None:

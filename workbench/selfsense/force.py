@@ -51,8 +51,7 @@ __all__ = ["ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "F
            "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
-           "INSTRON_R_OUT_OHM", "TABLE1_FORMS", "TABLE1_FORM", "TABLE1_FORMS_READING_BACK_EMF", "TABLE1_SCHEMES",
-           "table1_swap_decision", "instron_held_out", "nested_held_out", "table1_spreads", "table1_held_out"]
+           "INSTRON_R_OUT_OHM", "FORCE_TARGET_STEP_FRACTION", "FORCE_TARGET_PEAK_FRACTION"]
 
 INSTRON_R_IN_OHM = 200.0        # seed 000 sec. 3.2 / Fig. 4: the 200 ohm load resistor across the leads
 INSTRON_R_OUT_OHM = 200e12      # seed 000 sec. 3.2: Keithley 617, 200 TOhm input impedance
@@ -275,7 +274,8 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
 
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
-    from ..identify.transducer import DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table, table1_swap_decision
+    from ..identify.transducer import (DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table,
+                                       table1_swap_decision)
     from .table1 import table1_held_out
     from ..plant.files import load_plant
     from .charge_drift import identify_charge_drift
