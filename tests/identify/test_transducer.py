@@ -202,6 +202,8 @@ def test_swapped_t_em_follows_the_one_swap_decision(tmp_path, table1):
     path.write_text("\n".join(lines) + "\n")
     assert [(d["serial"], d["run"]) for d in table1_swap_decision(path) if d["swap"]] == [("SN637", 2), ("SN618", 3)]
     edited = identify_transducer(path)
+    looks = [(f["serial"], f["run"]) for f in edited.runs_flagged if "look swapped" in f["reason"]]
+    assert looks == [("SN637", 2), ("SN618", 3)]
     assert edited.t_em_with_sn618_run3_swapped_n_per_v == pytest.approx(
         table1.t_em_with_sn618_run3_swapped_n_per_v, rel=1e-12)
     assert abs(edited.t_em_all_runs_as_printed_n_per_v / table1.t_em_all_runs_as_printed_n_per_v - 1) > 0.01

@@ -513,7 +513,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                 displacement_swapped_m = run.gauge_printed * displacement_scale
                 if displacement_swapped_m != 0.0:
                     swapped = _gauge_disagreement(gauge_swapped_v, displacement_swapped_m, cal)
-                    if swapped <= gauge_tolerance:
+                    # R out runs: as table1_swap_decision reads them (gauge and V/x); R in runs have no V/x
+                    if swapped <= gauge_tolerance and (run.config != "R_out" or (run.serial, run.run) in swapped_runs):
                         reason += (f"; with the gauge and displacement values exchanged "
                                    f"({gauge_swapped_v:.3f} V x {cal * 1e6:.3f} um/V = "
                                    f"{gauge_swapped_v * cal * 1e6:.3f} um against "
