@@ -185,3 +185,25 @@ def test_data_file_error_is_a_value_error(tmp_path):
 def test_bad_parameters(kwargs, error, match):
     with pytest.raises(error, match=match):
         identify_transducer(TABLE1, **kwargs)
+
+
+def test_swapped_t_em_follows_the_one_swap_decision(tmp_path, table1):
+    """The swapped-runs T_em reads table1_swap_decision, not a named run: SN637 R out run 2 printed with its gauge and
+    displacement exchanged is found and read back, so T_em with the swapped runs exchanged is the original table's
+    (eq. 6 on the same numbers), while the as-printed mean moves."""
+    from workbench.identify.transducer import table1_swap_decision
+    lines = []
+    for line in TABLE1.read_text().splitlines():
+        c = line.split(",")
+        if c[:3] == ["SN637", "2", "R_out"]:
+            c = c[:3] + [c[4], c[3]] + c[5:]
+        lines.append(",".join(c))
+    path = tmp_path / "t1.csv"
+    path.write_text("\n".join(lines) + "\n")
+    assert [(d["serial"], d["run"]) for d in table1_swap_decision(path) if d["swap"]] == [("SN637", 2), ("SN618", 3)]
+    edited = identify_transducer(path)
+    looks = [(f["serial"], f["run"]) for f in edited.runs_flagged if "look swapped" in f["reason"]]
+    assert looks == [("SN637", 2), ("SN618", 3)]
+    assert edited.t_em_with_sn618_run3_swapped_n_per_v == pytest.approx(
+        table1.t_em_with_sn618_run3_swapped_n_per_v, rel=1e-12)
+    assert abs(edited.t_em_all_runs_as_printed_n_per_v / table1.t_em_all_runs_as_printed_n_per_v - 1) > 0.01

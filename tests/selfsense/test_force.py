@@ -12,10 +12,12 @@ from workbench.plant.simulator import PZTSimulator
 from workbench.selfsense.charge_amp import ChargeAmpParams, cumulative_integral, relax_foh
 from workbench.selfsense.charge_drift import identify_charge_drift, reversal_alpha
 from workbench.selfsense.command import main as selfsense_main
-from workbench.identify.transducer import identify_transducer
-from workbench.selfsense.force import (FORCE_STAGE, TABLE1_FORMS, estimate_force, force_step_errors, instron_from_table,
-                                       instron_held_out, nested_held_out, run_force_study, simulate_force_step,
-                                       table1_held_out, table1_swap_decision)
+from workbench.identify.transducer import identify_transducer, table1_swap_decision
+from workbench.selfsense.force import (FORCE_STAGE, estimate_force, force_step_errors, instron_from_table,
+                                       run_force_study, simulate_force_step)
+from workbench.selfsense.table1 import (TABLE1_FORM_TITLES, TABLE1_FORMS, TABLE1_FORMS_BACK_EMF_WITH_GAUGE,
+                                        TABLE1_FORMS_PURE_BACK_EMF, instron_held_out, nested_held_out, table1_held_out,
+                                        table1_spreads)
 from workbench.selfsense.identify import identify, simulate_identification
 
 DT = 5e-4
@@ -171,6 +173,9 @@ def test_instron_runs(force_study):
         else:
             # the model's back EMF is within 12 % of the measured one (the seed's parameters; see README)
             assert s["model_back_emf_v"] == pytest.approx(r["back_emf_v"], rel=0.12)
+    # the simulated runs' swap flag is the one swap decision's
+    decided = {(d["serial"], d["run"]) for d in table1_swap_decision() if d["swap"]}
+    assert {(r["serial"], r["run"]) for r in ins["runs"] if r["suspected_swap"]} == decided
     # from the measured back EMF, the model's gain reads every R out run too compressive (C_p / T_em mismatch)
     assert all(r["measured_back_emf"]["error_fraction"] < 0 for r in ins["runs"] if "measured_back_emf" in r)
     # the repeat runs' spread: closed form of the best single gain's max error over the nine R out runs
@@ -211,6 +216,16 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     assert "## Table 1 R out runs held out" in (out / "force_report.md").read_text()
     ref = table1_held_out(root / TABLE1)
     assert data["instron"]["held_out"]["reported"]["loo"]["max_error_fraction"] == ref["reported"]["loo"]["max_error_fraction"]
+    # the held-out lines lead with self-sensing proper (the run's own back EMF), its verdict as the library gives it,
+    # and name the reported form as what it is
+    pure = ref["nested_pure_back_emf"]
+    verdict = "met" if ref["target_met_nested_pure_back_emf"] else "MISSED"
+    first = next(ln for ln in text.splitlines() if "held out" in ln and "Table 1" in ln)
+    assert f"pure back EMF) max {100 * pure['max_error_fraction']:.2f} % ({verdict})" in first
+    assert ref["reported_form_title"] in text and "back EMF through the gauge" not in text
+    report = (out / "force_report.md").read_text()
+    assert report.index("Force self-sensing from the run's own back EMF") < report.index("(reported)")
+    assert f"RMS {100 * pure['rms_error_fraction']:.2f} % **{verdict}**" in report.split("(reported)")[0]
 
 
 # ---- Table 1 peak force, held out (issue 16 item 2: within 5 %) ---------------------------------------------
@@ -314,13 +329,26 @@ def test_held_out_never_uses_the_runs_own_force(form, scheme):
     f, v, x, s = _synthetic_runs(rng)
     f = f * rng.uniform(0.9, 1.1, f.size)            # repeat-run scatter, so the gains depend on the forces
     base = instron_held_out(f, v, x, s, form=form, scheme=scheme)["estimate_n"]
-    nest = nested_held_out(f, v, x, s)["estimate_n"]
     for i in range(f.size):
         g = f.copy()
         g[i] *= rng.uniform(0.3, 3.0)
         assert instron_held_out(g, v, x, s, form=form, scheme=scheme)["estimate_n"][i] == pytest.approx(
             base[i], rel=1e-12, nan_ok=True)
-        assert nested_held_out(g, v, x, s)["estimate_n"][i] == pytest.approx(nest[i], rel=1e-12)
+
+
+def test_nested_loo_never_uses_the_runs_own_force():
+    """Form chosen without run i: perturbing run i's force (x 0.3 to x 3) changes neither its estimate nor the form
+    chosen for it."""
+    rng = np.random.default_rng(7)
+    f, v, x, s = _synthetic_runs(rng)
+    f = f * rng.uniform(0.9, 1.1, f.size)
+    base = nested_held_out(f, v, x, s)
+    for i in range(f.size):
+        g = f.copy()
+        g[i] *= rng.uniform(0.3, 3.0)
+        got = nested_held_out(g, v, x, s)
+        assert got["estimate_n"][i] == pytest.approx(base["estimate_n"][i], rel=1e-12)
+        assert got["chosen_form"][i] == base["chosen_form"][i]
 
 
 def test_nested_loso_never_uses_the_serials_forces():
@@ -353,9 +381,53 @@ def test_held_out_forms_by_hand(root):
                                                                                           rel=1e-12)
 
 
+def test_table1_pure_back_emf_is_scored_on_the_back_emf_alone(root):
+    """Self-sensing proper: the forms that read only the run's own back EMF, F = G V with G the mean F/V of the other
+    runs (or of the serial's other runs), written out by hand; the nested choice among them picks only them, and
+    its verdict is its max error against 5 %, whatever that is."""
+    h = table1_held_out(root / TABLE1)
+    f, v = (np.array([d[k] for d in h["runs"]]) for k in ("force_n", "back_emf_v"))
+    s = np.array([d["serial"] for d in h["runs"]])
+    n = f.size
+    est = {"back_emf": [np.mean(np.delete(f / v, i)) * v[i] for i in range(n)],
+           "back_emf_serial": [np.mean([f[j] / v[j] for j in range(n) if j != i and s[j] == s[i]]) * v[i]
+                               for i in range(n)]}
+    for form, e in est.items():
+        err = np.abs(np.array(e) - f) / np.abs(f)
+        assert h["forms"][form]["loo"]["max_error_fraction"] == pytest.approx(err.max(), rel=1e-12)
+    pure = h["nested_pure_back_emf"]
+    assert set(pure["chosen_form"]) <= set(TABLE1_FORMS_PURE_BACK_EMF)
+    assert set(h["nested_back_emf_with_gauge"]["chosen_form"]) <= set(TABLE1_FORMS_BACK_EMF_WITH_GAUGE)
+    assert h["target_met_nested_pure_back_emf"] == (pure["max_error_fraction"] <= 0.05)
+    # each nested estimate is one of its candidate forms' estimates on the run's training runs alone
+    for i, form in enumerate(pure["chosen_form"]):
+        assert pure["estimate_n"][i] == pytest.approx(est[form][i], rel=1e-12)
+    # the reported form reads no back EMF of the run it scores: the run's own V (x 0.5) leaves its estimate
+    # unchanged, while the pure back-EMF form follows it
+    assert "back EMF" in TABLE1_FORM_TITLES[h["reported_form"]] and "gauge only" in h["reported_form_title"]
+    x = np.array([d["x_gauge_m"] for d in h["runs"]])
+    for i in range(n):
+        w = v.copy()
+        w[i] *= 0.5
+        assert instron_held_out(f, w, x, s)["estimate_n"][i] == pytest.approx(h["reported"]["loo"]["estimate_n"][i],
+                                                                             rel=1e-12)
+        assert instron_held_out(f, w, x, s, form="back_emf")["estimate_n"][i] == pytest.approx(
+            0.5 * est["back_emf"][i], rel=1e-12)
+
+
+def test_table1_spreads_when_the_held_out_error_vanishes():
+    """A table the form fits exactly (held-out RMS 0): no new run exceeds the target (the division by the RMS must not
+    raise); NaN RMS (a run without an estimate) stays NaN."""
+    decided = [{"serial": "S", "force_n": -100.0 * k, "back_emf_v": 2.0 * k} for k in (1.0, 2.0)]
+    sp = table1_spreads(decided, {"rms_error_fraction": 0.0})
+    assert sp["exceed_target_fraction_normal"] == 0.0
+    assert sp["f_per_v_relative_std"]["S"] == 0.0
+    assert np.isnan(table1_spreads(decided, {"rms_error_fraction": np.nan})["exceed_target_fraction_normal"])
+
+
 def test_table1_peak_force_target(root):
     """Issue 16: peak force of the Table 1 R out runs within 5 %, each run on gains its force never entered; and
-    with the form chosen without the held-out run (nested)."""
+    with the form chosen without the held-out run (nested). These forms read the run's gauge."""
     h = table1_held_out(root / TABLE1)
     rep = h["reported"]
     assert rep["loo"]["max_error_fraction"] <= 0.05 and rep["loso"]["max_error_fraction"] <= 0.05
@@ -371,8 +443,21 @@ def test_table1_peak_force_target(root):
     assert h["spreads"]["loo"]["f_per_v_relative_std"]["SN629"] == pytest.approx(np.std(fv, ddof=1) / abs(fv.mean()))
 
 
-def test_table1_held_out_bad_arguments(sn637_creep):
+def test_table1_held_out_bad_arguments():
     f, v, x, s = _synthetic_runs(np.random.default_rng(1))
+    for fn in (instron_held_out, nested_held_out):
+        with pytest.raises(ValueError, match="nonzero back EMF"):
+            fn(f, v, np.where(np.arange(x.size) == 4, 0.0, x), s)
+        with pytest.raises(ValueError, match="one length"):
+            fn(f[:-1], v, x, s)
+        with pytest.raises(ValueError, match="at least 3 runs"):
+            fn(f[:2], v[:2], x[:2], s[:2])
+        with pytest.raises(ValueError, match="finite"):
+            fn(np.where(np.arange(f.size) == 1, np.nan, f), v, x, s)
+        with pytest.raises(ValueError, match="nonzero peak force"):
+            fn(np.where(np.arange(f.size) == 1, 0.0, f), v, x, s)
+        with pytest.raises(ValueError, match="loso"):
+            fn(f, v, x, s, scheme="kfold")
     with pytest.raises(ValueError, match="unknown Table 1 form"):
         instron_held_out(f, v, x, s, form="quadratic")
     with pytest.raises(ValueError, match="loso"):

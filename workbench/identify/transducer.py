@@ -43,8 +43,8 @@ import numpy as np
 from ..errors import DataFileError, UnitError
 from ..units import scale_of
 
-__all__ = ["TransducerResult", "identify_transducer", "DEFAULT_CALIBRATIONS_M_PER_V",
-           "SEED_T_EM_N_PER_V", "CONFIGS"]
+__all__ = ["TransducerResult", "identify_transducer", "table1_swap_decision", "DEFAULT_CALIBRATIONS_M_PER_V",
+           "SEED_T_EM_N_PER_V", "CONFIGS", "DEFAULT_TABLE1_PATH"]
 
 #: T_em the seed reports (seed 000 sec. 3.2), N/V = C/m.
 SEED_T_EM_N_PER_V = 46.71
@@ -56,9 +56,8 @@ DEFAULT_CALIBRATIONS_M_PER_V = MappingProxyType(
 #: Load-resistor configurations of Table 1: resistor across the leads, or leads open.
 CONFIGS = ("R_in", "R_out")
 
-# The run of Table 1 whose gauge and displacement values look exchanged in print (gauge -1.078 V,
-# displacement -0.336 um; 3.246 um/V x -0.336 V = -1.091 um is close to -1.078 um).
-_SUSPECTED_SWAP = ("SN618", 3, "R_out")
+#: Seed 000 Table 1 as shipped with the workbench.
+DEFAULT_TABLE1_PATH = Path(__file__).resolve().parents[2] / "plants" / "data" / "p888_51_instron_table1.csv"
 
 # Column name -> SI base unit its values must convert to (None: the column takes no unit).
 _COLUMNS = {"serial": None, "run": None, "config": None, "gauge_change": "V",
@@ -92,9 +91,9 @@ class TransducerResult:
     t_em_all_runs_as_printed_n_per_v : float
         Mean of eq. 6 over every ``R_out`` run as recorded, flagged or not, N/V.
     t_em_with_sn618_run3_swapped_n_per_v : float or None
-        As ``t_em_all_runs_as_printed_n_per_v`` but with the gauge and displacement values of
-        SN618 ``R_out`` run 3 exchanged (displacement -1.078 um in Table 1), N/V; None if the
-        file has no such run.
+        As ``t_em_all_runs_as_printed_n_per_v`` but with the gauge and displacement values
+        exchanged on the runs :func:`table1_swap_decision` reads as swapped (on Table 1 only
+        SN618 ``R_out`` run 3: displacement -1.078 um), N/V; None if it reads none swapped.
     t_em_with_r_in_stiffness_n_per_v : float or None
         Mean of eq. 6 over ``runs_used`` with k_p set to the ``R_in`` stiffness instead of the
         spec-sheet value, N/V; None without ``R_in`` runs.
@@ -333,6 +332,78 @@ def _eq6(stiffness_n_per_m, run, displacement_m=None):
     return (stiffness_n_per_m * x - run.force_n) / run.back_emf_v
 
 
+def _swap_decision(runs, gauge_scale, displacement_scale, calibrations_m_per_v, gauge_tolerance):
+    """:func:`table1_swap_decision` on runs already read by :func:`_read_table`."""
+    r_out = [r for r in runs if r.config == "R_out"]
+    out = []
+    for r in r_out:
+        cal = calibrations_m_per_v[r.serial]
+        x_printed = r.gauge_v * cal
+        x_swapped = r.displacement_printed * gauge_scale * cal
+        d_printed = _gauge_disagreement(r.gauge_v, r.displacement_m, cal) if r.displacement_m else np.inf
+        d_swapped = (_gauge_disagreement(r.displacement_printed * gauge_scale, r.gauge_printed * displacement_scale,
+                                         cal) if r.gauge_printed else np.inf)
+        others = [o.back_emf_v / (o.gauge_v * calibrations_m_per_v[o.serial]) for o in r_out
+                  if o.serial == r.serial and o is not r and o.gauge_v != 0.0]
+        k_others = float(np.mean(others)) if others else np.nan
+        k_printed = r.back_emf_v / x_printed if x_printed else np.inf
+        k_swapped = r.back_emf_v / x_swapped if x_swapped else np.inf
+        closer = bool(np.isfinite(k_others) and abs(k_swapped / k_others - 1.0) < abs(k_printed / k_others - 1.0))
+        swap = bool(d_printed > gauge_tolerance and d_swapped <= gauge_tolerance and closer)
+        out.append({"serial": r.serial, "run": r.run, "swap": swap,
+                    "gauge_disagreement_printed": float(d_printed), "gauge_disagreement_swapped": float(d_swapped),
+                    "v_per_x_printed_v_per_m": float(k_printed), "v_per_x_swapped_v_per_m": float(k_swapped),
+                    "v_per_x_others_v_per_m": k_others, "x_gauge_m": float(x_swapped if swap else x_printed),
+                    "displacement_m": float(r.gauge_printed * displacement_scale if swap else r.displacement_m),
+                    "force_n": r.force_n, "back_emf_v": r.back_emf_v})
+    return out
+
+
+def table1_swap_decision(path=None, *, calibrations_m_per_v=None, gauge_tolerance=0.05):
+    """Decide, per ``R_out`` run, whether its printed gauge change and displacement are exchanged.
+
+    The one home of this decision: :func:`identify_transducer` (its swapped-runs T_em),
+    :func:`workbench.selfsense.force.run_force_study` (the simulated runs' flag) and
+    :func:`workbench.selfsense.table1.table1_held_out` all read it from here.
+
+    Decided from the gauge calibration only, never from the force: a run is read swapped when
+    (1) as printed, gauge change x the serial's calibration disagrees with the printed
+    displacement by more than ``gauge_tolerance`` while exchanged they agree within it (seed 000
+    sec. 3.1), and (2) exchanged, its back EMF per gauge displacement V/x is closer to the mean
+    V/x of the same serial's other runs than as printed (the open-lead stack's V/x is a property
+    of the stack, C_p / T_em in the model).
+
+    Parameters
+    ----------
+    path : str or path-like, optional
+        Table 1 CSV (:func:`identify_transducer`'s format); default ``DEFAULT_TABLE1_PATH``.
+    calibrations_m_per_v : mapping of str to float, optional
+        Gauge calibration per serial, m/V; default seed 000 sec. 3.1.
+    gauge_tolerance : float, default 0.05
+        Largest relative gauge/displacement disagreement read as consistent (the transducer
+        check's tolerance).
+
+    Returns
+    -------
+    list of dict
+        One per ``R_out`` run, in file order: ``serial``, ``run``, ``swap`` (bool), and the
+        evidence: ``gauge_disagreement_printed`` and ``gauge_disagreement_swapped`` (fractions),
+        ``v_per_x_printed_v_per_m``, ``v_per_x_swapped_v_per_m``, ``v_per_x_others_v_per_m``
+        (mean over the serial's other runs as printed; NaN if it has none); and the run as decided:
+        ``x_gauge_m`` (gauge change x calibration, m), ``displacement_m`` (the displacement
+        column, m), ``force_n`` (N), ``back_emf_v`` (V).
+
+    Raises
+    ------
+    DataFileError
+        If the table is malformed (as :func:`identify_transducer`).
+    """
+    cals = DEFAULT_CALIBRATIONS_M_PER_V if calibrations_m_per_v is None else calibrations_m_per_v
+    _check_parameters(2.0e8, cals, gauge_tolerance, 0.2)
+    runs, gauge_scale, displacement_scale = _read_table(DEFAULT_TABLE1_PATH if path is None else Path(path), cals)
+    return _swap_decision(runs, gauge_scale, displacement_scale, cals, gauge_tolerance)
+
+
 def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=None,
                         gauge_tolerance=0.05, stiffness_tolerance=0.20,
                         working_capacitance_f=5.802e-6, hysteretic_capacitance_f=30.5e-6):
@@ -422,7 +493,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
     runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v)
 
     used, flagged, r_in, t_all, t_swapped = [], [], [], [], []
-    swap_found = False
+    swapped_runs = {(d["serial"], d["run"]) for d in _swap_decision(runs, gauge_scale, displacement_scale,
+                                                                    calibrations_m_per_v, gauge_tolerance) if d["swap"]}
     for run in runs:
         cal = calibrations_m_per_v[run.serial]
         reasons = []
@@ -441,7 +513,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                 displacement_swapped_m = run.gauge_printed * displacement_scale
                 if displacement_swapped_m != 0.0:
                     swapped = _gauge_disagreement(gauge_swapped_v, displacement_swapped_m, cal)
-                    if swapped <= gauge_tolerance:
+                    # R out runs: as table1_swap_decision reads them (gauge and V/x); R in runs have no V/x
+                    if swapped <= gauge_tolerance and (run.config != "R_out" or (run.serial, run.run) in swapped_runs):
                         reason += (f"; with the gauge and displacement values exchanged "
                                    f"({gauge_swapped_v:.3f} V x {cal * 1e6:.3f} um/V = "
                                    f"{gauge_swapped_v * cal * 1e6:.3f} um against "
@@ -465,8 +538,7 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
             elif run.displacement_m != 0.0:
                 t_em = _eq6(kp, run)
                 t_all.append(t_em)
-                if (run.serial, run.run, run.config) == _SUSPECTED_SWAP:
-                    swap_found = True
+                if (run.serial, run.run) in swapped_runs:
                     t_swapped.append(_eq6(kp, run, run.gauge_printed * displacement_scale))
                 else:
                     t_swapped.append(t_em)
@@ -516,7 +588,7 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
         stiffness_from_r_in_n_per_um=stiffness_r_in,
         r_in_runs=tuple(r_in),
         t_em_all_runs_as_printed_n_per_v=float(np.mean(t_all)),
-        t_em_with_sn618_run3_swapped_n_per_v=float(np.mean(t_swapped)) if swap_found else None,
+        t_em_with_sn618_run3_swapped_n_per_v=float(np.mean(t_swapped)) if swapped_runs else None,
         t_em_with_r_in_stiffness_n_per_v=t_em_r_in,
         stiffness_n_per_m=kp,
         source=str(path),

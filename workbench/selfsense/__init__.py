@@ -4,7 +4,8 @@
 (eqs. 2.5-2.9, 2.30) and dynamic (eqs. 2.42-2.48) estimators; :mod:`.identify` the
 identification of sec. 2.3.2 on a simulated record; :mod:`.run` the staged study behind
 `workbench selfsense` (:mod:`.command`); :mod:`.force` force and elongation from V_t and the
-charge (`--force`); :mod:`.sysid` K D(s) and H(s) identified from a step record (`--dynamics`);
+charge (`--force`); :mod:`.table1` the Table 1 peak forces held out; :mod:`.sysid` K D(s) and
+H(s) identified from a step record (`--dynamics`);
 :mod:`.fusion` the complementary gauge + charge blend and :mod:`.fused_loop` the three sensors'
 closed loops (`--fused`).
 """
@@ -14,8 +15,9 @@ from .estimator import (EstimatorParams, ResidualCorrection, StreamingEstimator,
                         dynamic_gains, static_estimate)
 from .fused_loop import closed_loop_run, run_fused_study
 from .fusion import Blend, choose_crossover, sensor_spectra
-from .force import (ForceEstimate, estimate_force, instron_held_out, nested_held_out, run_force_study, staged_charge,
-                    table1_held_out, table1_swap_decision)
+from ..identify.transducer import table1_swap_decision
+from .force import ForceEstimate, estimate_force, run_force_study, staged_charge
+from .table1 import instron_held_out, nested_held_out, table1_held_out
 from .identify import Identified, identify, simulate_identification
 from .sysid import IdentifiedDynamics, fit_relaxations, identify_dynamics, identified_estimator, run_dynamics_study
 

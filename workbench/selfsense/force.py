@@ -38,7 +38,6 @@ more here than for the displacement.
 """
 
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 from numba import njit
@@ -52,8 +51,7 @@ __all__ = ["ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "F
            "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
-           "INSTRON_R_OUT_OHM", "TABLE1_FORMS", "TABLE1_FORM", "TABLE1_FORMS_READING_BACK_EMF", "TABLE1_SCHEMES",
-           "table1_swap_decision", "instron_held_out", "nested_held_out", "table1_spreads", "table1_held_out"]
+           "INSTRON_R_OUT_OHM", "FORCE_TARGET_STEP_FRACTION", "FORCE_TARGET_PEAK_FRACTION"]
 
 INSTRON_R_IN_OHM = 200.0        # seed 000 sec. 3.2 / Fig. 4: the 200 ohm load resistor across the leads
 INSTRON_R_OUT_OHM = 200e12      # seed 000 sec. 3.2: Keithley 617, 200 TOhm input impedance
@@ -276,7 +274,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
 
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
-    from ..identify.transducer import DEFAULT_CALIBRATIONS_M_PER_V, _SUSPECTED_SWAP, _read_table
+    from ..identify.transducer import (DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table,
+                                       table1_swap_decision)
+    from .table1 import table1_held_out
     from ..plant.files import load_plant
     from .charge_drift import identify_charge_drift
     from .identify import identify, simulate_identification
@@ -289,8 +289,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     plant = load_plant(plant_path)
     pzt = plant.pzt
     if table_path is None:
-        table_path = Path(__file__).resolve().parents[2] / "plants" / "data" / "p888_51_instron_table1.csv"
+        table_path = DEFAULT_TABLE1_PATH
     runs, _, _ = _read_table(table_path, DEFAULT_CALIBRATIONS_M_PER_V)     # validated before any simulation
+    swapped = {(d["serial"], d["run"]) for d in table1_swap_decision(table_path) if d["swap"]}
     tick("identification record")
     idrec = simulate_identification(pzt, amp, hold_s=id_hold_s, seed=seed + 100, dt_s=dt_s)
     ident = identify(idrec, amp)
@@ -329,7 +330,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
         peak = float(np.mean(est.f_e_n[hold])) - tare
         row = {"serial": r.serial, "run": r.run, "config": r.config, "force_n": r.force_n,
                "displacement_m": r.displacement_m, "back_emf_v": r.back_emf_v,
-               "suspected_swap": (r.serial, r.run, r.config) == _SUSPECTED_SWAP,
+               "suspected_swap": r.config == "R_out" and (r.serial, r.run) in swapped,
                "simulated": {"peak_force_estimate_n": peak, "error_fraction": (peak - r.force_n) / abs(r.force_n),
                              "model_displacement_m": float(np.mean(srec.x_m[hold])),
                              "model_back_emf_v": float(np.mean(srec.v_in_true_v[hold]))}}
@@ -381,324 +382,3 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
                         "x_from_charge_m": pzt.k_q2x_m_per_c * estimate_force(
                             rec.t_s, rec.v_in_v, staged_charge(rec, ident, FORCE_STAGE, drift), pzt).q_c}}
     return data
-
-
-# ---- Table 1: the peak force of the measured R out runs, held out -------------------------------------
-#
-# The model's force per volt of back EMF (k_p C_pp / T_em) reads every R out run 8 % too compressive (the
-# seed's C_p / T_em disagree with the Instron runs), so the gains are identified on runs with a known load
-# (seed 002 eq. 2.32) and each run is scored on gains its own force never entered. Forms of the estimate
-# (each uses the held-out run's back EMF V and/or its gauge displacement x = gauge change x calibration,
-# never its force):
-
-TABLE1_FORMS = ("back_emf", "back_emf_serial", "gauge", "gauge_serial", "linear", "gauge_through_back_emf",
-                "back_emf_and_gauge_mean")
-TABLE1_FORM = "gauge_through_back_emf"     # the form reported (chosen on the same 9 runs: see table1_held_out)
-# the forms that read the held-out run's own back EMF (self-sensing); the others read only its strain gauge
-TABLE1_FORMS_READING_BACK_EMF = ("back_emf", "back_emf_serial", "linear", "back_emf_and_gauge_mean")
-TABLE1_SCHEMES = ("loo", "loso")
-
-
-def _table_path(path):
-    if path is None:
-        return Path(__file__).resolve().parents[2] / "plants" / "data" / "p888_51_instron_table1.csv"
-    return Path(path)
-
-
-def table1_swap_decision(path=None, *, calibrations_m_per_v=None, gauge_tolerance=0.05):
-    """Decide, per ``R_out`` run, whether its printed gauge change and displacement are exchanged.
-
-    Decided from the gauge calibration only, never from the force: a run is read swapped when
-    (1) as printed, gauge change x the serial's calibration disagrees with the printed
-    displacement by more than ``gauge_tolerance`` while exchanged they agree within it (seed 000
-    sec. 3.1), and (2) exchanged, its back EMF per gauge displacement V/x is closer to the mean
-    V/x of the same serial's other runs than as printed (the open-lead stack's V/x is a property
-    of the stack, C_p / T_em in the model).
-
-    Parameters
-    ----------
-    path : str or path-like, optional
-        Table 1 CSV (:func:`~workbench.identify.transducer.identify_transducer`'s format);
-        default ``plants/data/p888_51_instron_table1.csv``.
-    calibrations_m_per_v : mapping of str to float, optional
-        Gauge calibration per serial, m/V; default seed 000 sec. 3.1.
-    gauge_tolerance : float, default 0.05
-        Largest relative gauge/displacement disagreement read as consistent (the transducer
-        check's tolerance).
-
-    Returns
-    -------
-    list of dict
-        One per ``R_out`` run, in file order: ``serial``, ``run``, ``swap`` (bool), and the
-        evidence: ``gauge_disagreement_printed`` and ``gauge_disagreement_swapped`` (fractions),
-        ``v_per_x_printed_v_per_m``, ``v_per_x_swapped_v_per_m``, ``v_per_x_others_v_per_m``
-        (mean over the serial's other runs as printed; NaN if it has none); and the run as decided:
-        ``x_gauge_m`` (gauge change x calibration, m), ``displacement_m`` (the displacement
-        column, m), ``force_n`` (N), ``back_emf_v`` (V).
-
-    Raises
-    ------
-    DataFileError
-        If the table is malformed (as :func:`~workbench.identify.transducer.identify_transducer`).
-    """
-    from ..identify.transducer import DEFAULT_CALIBRATIONS_M_PER_V, _gauge_disagreement, _read_table
-    cals = DEFAULT_CALIBRATIONS_M_PER_V if calibrations_m_per_v is None else calibrations_m_per_v
-    runs, gauge_scale, disp_scale = _read_table(_table_path(path), cals)
-    r_out = [r for r in runs if r.config == "R_out"]
-    out = []
-    for r in r_out:
-        cal = cals[r.serial]
-        x_printed = r.gauge_v * cal
-        x_swapped = r.displacement_printed * gauge_scale * cal
-        d_printed = _gauge_disagreement(r.gauge_v, r.displacement_m, cal) if r.displacement_m else np.inf
-        d_swapped = (_gauge_disagreement(r.displacement_printed * gauge_scale, r.gauge_printed * disp_scale, cal)
-                     if r.gauge_printed else np.inf)
-        others = [o.back_emf_v / (o.gauge_v * cals[o.serial]) for o in r_out
-                  if o.serial == r.serial and o is not r and o.gauge_v != 0.0]
-        k_others = float(np.mean(others)) if others else np.nan
-        k_printed = r.back_emf_v / x_printed if x_printed else np.inf
-        k_swapped = r.back_emf_v / x_swapped if x_swapped else np.inf
-        closer = bool(np.isfinite(k_others) and abs(k_swapped / k_others - 1.0) < abs(k_printed / k_others - 1.0))
-        swap = bool(d_printed > gauge_tolerance and d_swapped <= gauge_tolerance and closer)
-        out.append({"serial": r.serial, "run": r.run, "swap": swap,
-                    "gauge_disagreement_printed": float(d_printed), "gauge_disagreement_swapped": float(d_swapped),
-                    "v_per_x_printed_v_per_m": float(k_printed), "v_per_x_swapped_v_per_m": float(k_swapped),
-                    "v_per_x_others_v_per_m": k_others, "x_gauge_m": float(x_swapped if swap else x_printed),
-                    "displacement_m": float(r.gauge_printed * disp_scale if swap else r.displacement_m),
-                    "force_n": r.force_n, "back_emf_v": r.back_emf_v})
-    return out
-
-
-def _form_estimate(form, f, v, x, serial, train, i):
-    """Peak force of run ``i`` by a form that needs no kappa_s, from the forces of ``train`` only; NaN if the form
-    lacks data (a per-serial gain with no run of the serial in ``train``)."""
-    train = np.asarray(train, int)
-    same = train[serial[train] == serial[i]]
-    if form == "back_emf":
-        return np.mean(f[train] / v[train]) * v[i]
-    if form == "back_emf_serial":
-        return np.mean(f[same] / v[same]) * v[i] if same.size else np.nan
-    if form == "gauge":
-        return np.mean(f[train] / x[train]) * x[i]
-    if form == "gauge_serial":
-        return np.mean(f[same] / x[same]) * x[i] if same.size else np.nan
-    if form == "linear":
-        coef = np.linalg.lstsq(np.column_stack([v[train], x[train]]), f[train], rcond=None)[0]
-        return float(coef @ np.array([v[i], x[i]]))
-    raise ValueError(f"unknown Table 1 form {form!r}; the forms are {', '.join(TABLE1_FORMS)}")
-
-
-def _kappa_form(form, f, v, x, serial, train, calib, i):
-    """The forms that read the back EMF through the gauge: G from ``train``'s forces, kappa_s = mean V/x over the runs
-    of ``calib`` of run i's serial other than i (back EMF and gauge only, no force). On the model's open-lead
-    stack V/x = -T_em / C_p (eq. 9 with q = 0) for every serial; kappa_s per serial absorbs each serial's
-    gauge calibration error."""
-    calib = np.asarray([j for j in calib if j != i and serial[j] == serial[i]], int)
-    if calib.size == 0:
-        return np.nan
-    g = np.mean(f[train] / v[train])
-    kappa = np.mean(v[calib] / x[calib])
-    if form == "gauge_through_back_emf":
-        return g * kappa * x[i]
-    return 0.5 * (g * v[i] + g * kappa * x[i])          # back_emf_and_gauge_mean
-
-
-def _estimate(form, f, v, x, serial, train, calib, i):
-    if i in set(np.asarray(train, int).tolist()):
-        raise ValueError(f"run {i} is in its own training set")
-    if form in ("gauge_through_back_emf", "back_emf_and_gauge_mean"):
-        return float(_kappa_form(form, f, v, x, serial, train, calib, i))
-    return float(_form_estimate(form, f, v, x, serial, train, i))
-
-
-def instron_held_out(force_n, back_emf_v, x_m, serial, *, form=TABLE1_FORM, scheme="loo"):
-    """Each run's peak force estimated from the other runs' forces, and its error.
-
-    Parameters
-    ----------
-    force_n, back_emf_v, x_m : array_like of float
-        Per ``R_out`` run: peak force, N (compression negative); back EMF, V; gauge
-        displacement at the peak, m.
-    serial : array_like of str
-        Serial of each run.
-    form : str, default ``"gauge_through_back_emf"``
-        One of ``TABLE1_FORMS``. ``gauge_through_back_emf``: F = G kappa_s x, G the mean F/V
-        of the training runs and kappa_s the mean V/x of the same serial's other runs (the back
-        EMF read through the gauge strain; the run's own V is not used). ``back_emf``: F = G V.
-        ``gauge``: F = K x. ``*_serial``: the gain of the same serial's training runs.
-        ``linear``: F = a V + b x by least squares. ``back_emf_and_gauge_mean``: the mean of
-        G V and G kappa_s x.
-    scheme : {"loo", "loso"}
-        ``loo``: the training runs are all others; ``loso``: the runs of the other serials
-        (the serial's own forces all withheld; its other runs' V/x still calibrate kappa_s).
-
-    Returns
-    -------
-    dict
-        ``estimate_n``, ``error_fraction`` (signed, (estimate - F)/|F|) per run; ``max_error_fraction``,
-        ``rms_error_fraction`` (NaN if a run has no estimate), ``form``, ``scheme``.
-    """
-    f, v, x = (np.asarray(a, float) for a in (force_n, back_emf_v, x_m))
-    s = np.asarray(serial)
-    if form not in TABLE1_FORMS:
-        raise ValueError(f"unknown Table 1 form {form!r}; the forms are {', '.join(TABLE1_FORMS)}")
-    if scheme not in TABLE1_SCHEMES:
-        raise ValueError(f"unknown scheme {scheme!r}; use 'loo' (leave one run out) or 'loso' (leave one serial out)")
-    if not (f.shape == v.shape == x.shape == s.shape and f.ndim == 1 and f.size >= 3):
-        raise ValueError("force, back EMF, displacement and serial must be 1-D of one length (at least 3 runs)")
-    if np.any(v == 0) or np.any(x == 0):
-        raise ValueError("every run needs a nonzero back EMF and gauge displacement (R out runs)")
-    n = f.size
-    est = np.empty(n)
-    for i in range(n):
-        train = [j for j in range(n) if j != i and (scheme == "loo" or s[j] != s[i])]
-        est[i] = _estimate(form, f, v, x, s, train, range(n), i)
-    err = (est - f) / np.abs(f)
-    return {"form": form, "scheme": scheme, "estimate_n": est.tolist(), "error_fraction": err.tolist(),
-            "max_error_fraction": float(np.max(np.abs(err))), "rms_error_fraction": float(np.sqrt(np.mean(err ** 2)))}
-
-
-def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, scheme="loo"):
-    """Each run held out with the form chosen without it: per outer fold, the form of least inner RMS error.
-
-    Parameters
-    ----------
-    force_n, back_emf_v, x_m, serial : array_like
-        As :func:`instron_held_out`.
-    forms : sequence of str, default ``TABLE1_FORMS``
-        The candidate forms.
-    scheme : {"loo", "loso"}
-        Outer and inner folds alike: ``loo`` holds out one run (the inner leave-one-out runs
-        on the other runs); ``loso`` holds out the run's serial's forces (the inner
-        leave-one-serial-out runs on the other serials' runs, and the estimate of the held-out
-        run uses its serial's other runs' V/x only, as :func:`instron_held_out` does).
-
-    Returns
-    -------
-    dict
-        ``estimate_n``, ``error_fraction``, ``chosen_form`` per run; ``max_error_fraction``,
-        ``rms_error_fraction``, ``scheme``.
-
-    Notes
-    -----
-    The held-out run's force, V and x never enter the choice: the inner folds' training and
-    kappa_s calibration runs are drawn from the outer training runs only. A form without an
-    estimate on some inner fold (a per-serial gain with no run of the serial left) is not a
-    candidate for that outer fold.
-    """
-    if scheme not in TABLE1_SCHEMES:
-        raise ValueError(f"unknown scheme {scheme!r}; use 'loo' (leave one run out) or 'loso' (leave one serial out)")
-    unknown = [fm for fm in forms if fm not in TABLE1_FORMS]
-    if unknown or not forms:
-        raise ValueError(f"unknown Table 1 form(s) {unknown}; the forms are {', '.join(TABLE1_FORMS)}")
-    f, v, x = (np.asarray(a, float) for a in (force_n, back_emf_v, x_m))
-    s = np.asarray(serial)
-    n = f.size
-    est, chosen = np.empty(n), []
-    for i in range(n):
-        rest = [j for j in range(n) if j != i and (scheme == "loo" or s[j] != s[i])]
-        score = {}
-        for form in forms:
-            e = [(_estimate(form, f, v, x, s, [k for k in rest if k != j and (scheme == "loo" or s[k] != s[j])],
-                            rest, j) - f[j]) / abs(f[j]) for j in rest]
-            if np.all(np.isfinite(e)):
-                score[form] = float(np.sqrt(np.mean(np.square(e))))
-        if not score:
-            raise ValueError(f"no form among {', '.join(forms)} can be scored under {scheme!r} without run {i}")
-        best = min(score, key=score.get)
-        chosen.append(best)
-        est[i] = _estimate(best, f, v, x, s, rest, range(n), i)
-    err = (est - f) / np.abs(f)
-    return {"scheme": scheme, "estimate_n": est.tolist(), "error_fraction": err.tolist(), "chosen_form": chosen,
-            "max_error_fraction": float(np.max(np.abs(err))), "rms_error_fraction": float(np.sqrt(np.mean(err ** 2)))}
-
-
-def table1_spreads(decided, held):
-    """The repeat runs' scatter and what it implies for a new run.
-
-    Parameters
-    ----------
-    decided : list of dict
-        :func:`table1_swap_decision`'s output.
-    held : dict
-        :func:`instron_held_out`'s output for the same runs.
-
-    Returns
-    -------
-    dict
-        ``f_per_v_relative_std`` and ``v_per_x_relative_std``: per serial, the sample standard
-        deviation (ddof = 1) of F/V and V/x over its runs relative to their mean;
-        ``pooled_f_per_v_relative_std``; ``held_out_rms_error_fraction``; and
-        ``exceed_target_fraction_normal``: the share of new runs whose error would exceed the 5 %
-        target if errors are normal with zero mean and the held-out RMS as standard deviation,
-        2 (1 - Phi(0.05 / RMS)).
-    """
-    from math import erf, sqrt
-    serials = sorted({d["serial"] for d in decided})
-    fv, vx = {}, {}
-    resid = []
-    for sn in serials:
-        rows = [d for d in decided if d["serial"] == sn]
-        a = np.array([d["force_n"] / d["back_emf_v"] for d in rows])
-        b = np.array([d["back_emf_v"] / d["x_gauge_m"] for d in rows])
-        fv[sn] = float(np.std(a, ddof=1) / abs(np.mean(a))) if a.size > 1 else np.nan
-        vx[sn] = float(np.std(b, ddof=1) / abs(np.mean(b))) if b.size > 1 else np.nan
-        resid.extend((a / np.mean(a) - 1.0).tolist())
-    dof = len(resid) - len(serials)
-    rms = held["rms_error_fraction"]
-    p = 2.0 * (1.0 - 0.5 * (1.0 + erf(FORCE_TARGET_PEAK_FRACTION / rms / sqrt(2.0))))
-    return {"f_per_v_relative_std": fv, "v_per_x_relative_std": vx,
-            "pooled_f_per_v_relative_std": float(np.sqrt(np.sum(np.square(resid)) / dof)) if dof > 0 else np.nan,
-            "held_out_rms_error_fraction": rms, "exceed_target_fraction_normal": float(p)}
-
-
-def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None):
-    """The Table 1 ``R_out`` runs' peak forces, each estimated on the others (module section notes).
-
-    Parameters
-    ----------
-    path : str or path-like, optional
-        Table 1 CSV; default ``plants/data/p888_51_instron_table1.csv``.
-    x_source : {"gauge", "displacement"}
-        The displacement each run is read with: gauge change x the serial's calibration
-        (default), or the printed displacement column. Either as decided by
-        :func:`table1_swap_decision`.
-    calibrations_m_per_v : mapping of str to float, optional
-        Gauge calibration per serial, m/V; default seed 000 sec. 3.1.
-
-    Returns
-    -------
-    dict
-        ``runs`` (the swap decision per run), ``forms`` ({form: {scheme: instron_held_out(...)}}),
-        ``reported`` (``TABLE1_FORM``'s ``loo`` and ``loso``), ``nested`` (:func:`nested_held_out`
-        over every form), ``nested_reading_back_emf`` (over ``TABLE1_FORMS_READING_BACK_EMF``) and
-        ``nested_loso`` (every form, leave one serial out),
-        ``spreads`` ({scheme: :func:`table1_spreads` of the reported form}), ``target_fraction``,
-        ``target_met_loo``, ``target_met_loso``, ``target_met_nested``,
-        ``target_met_nested_reading_back_emf``, ``target_met_nested_loso``, ``x_source``.
-
-    Notes
-    -----
-    The reported form was chosen among ``TABLE1_FORMS`` on the same nine runs it is scored on
-    (a selection on the scoring data); ``nested`` chooses it per held-out run without that run.
-    """
-    if x_source not in ("gauge", "displacement"):
-        raise ValueError(f"x_source must be 'gauge' or 'displacement', got {x_source!r}")
-    decided = table1_swap_decision(path, calibrations_m_per_v=calibrations_m_per_v)
-    f = np.array([d["force_n"] for d in decided])
-    v = np.array([d["back_emf_v"] for d in decided])
-    x = np.array([d["x_gauge_m" if x_source == "gauge" else "displacement_m"] for d in decided])
-    s = np.array([d["serial"] for d in decided])
-    forms = {form: {sch: instron_held_out(f, v, x, s, form=form, scheme=sch) for sch in TABLE1_SCHEMES}
-             for form in TABLE1_FORMS}
-    nested = nested_held_out(f, v, x, s)
-    nested_emf = nested_held_out(f, v, x, s, forms=TABLE1_FORMS_READING_BACK_EMF)
-    nested_loso = nested_held_out(f, v, x, s, scheme="loso")
-    rep = forms[TABLE1_FORM]
-    tgt = FORCE_TARGET_PEAK_FRACTION
-    ok = lambda h: bool(h["max_error_fraction"] <= tgt)    # noqa: E731 (NaN compares False: a missing estimate misses)
-    return {"x_source": x_source, "runs": decided, "forms": forms, "reported_form": TABLE1_FORM, "reported": rep,
-            "nested": nested, "nested_reading_back_emf": nested_emf, "nested_loso": nested_loso,
-            "spreads": {sch: table1_spreads(decided, rep[sch]) for sch in TABLE1_SCHEMES}, "target_fraction": tgt,
-            "target_met_loo": ok(rep["loo"]), "target_met_loso": ok(rep["loso"]), "target_met_nested": ok(nested),
-            "target_met_nested_reading_back_emf": ok(nested_emf), "target_met_nested_loso": ok(nested_loso)}
