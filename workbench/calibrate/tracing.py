@@ -78,6 +78,7 @@ from scipy.optimize import lsq_linear
 
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
+from .drift_holds import drift_in_holds, hold_spans
 from .effects import Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage, Resonance
 from .pi_fit import rms, turning_points
 
@@ -391,6 +392,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     infos["k_q2x"] = base.k_q2x_m_per_c
     infos["gauge_gain"] = base.gauge_gain_v_per_m if "gauge" in base.channels else None
     infos["duration_s"] = float(t[-1] - t[0])
+    # the drive's holds, where a sensor drift must show (drift_holds)
+    infos["holds"] = hold_spans(t, base.v_drive, min_hold_s=split.block_s)
     if "gauge" in base.channels and "displacement" in base.channels and base.gauge_gain_v_per_m is not None:
         m = base.channels["gauge"]
         line, x = _gauge_line(base)
@@ -607,6 +610,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         if tag in by and by[tag]["score"] <= row["score"]:
             continue
         by[tag] = row
+    _veto_drift_without_hold_motion(by, probs, extra, split, infos)
     rows = sorted(by.values(), key=lambda r: r["score"] if np.isfinite(r["score"]) else np.inf)
     winners = []
     for f in range(n_folds):
@@ -647,6 +651,28 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
+    """A drift passes no fold when the input's holds show none of its motion (:mod:`.drift_holds`).
+
+    The drift is refitted with the found effects on the development rows; its term and what it
+    is fitted to are compared within the holds. Each drift row gets ``holds`` (the check's dict).
+    """
+    spans = infos.get("holds")
+    if spans is None or not len(spans):
+        return
+    for tag, row in by.items():
+        if tag[0] != "drift":
+            continue
+        prob = probs[row["key"]]
+        g = _stacked(prob, extra[row["key"]], row)
+        corr, own, _ = prob.predict(g, split.dev_blocks)
+        target = prob.r * prob.scale - (corr - own)
+        chk = drift_in_holds(target, own, prob.rows_dev, spans, infos[row["channel"]]["noise_floor"])
+        row["holds"] = chk
+        if chk["shows"] is False:
+            row["passes"] = [False] * len(row["passes"])
 
 
 def _explained(row, f, befores, penalty):
