@@ -240,7 +240,8 @@ class _Problem:
                     G[b, k:k + m, -1] = G[b, -1, k:k + m] = XZ[:, k]
                     G[b, k:k + m, k:k + m] = X.T @ X
         lb = np.r_[self.lower_A, np.asarray(lower, float)]
-        return {"G": G, "lb": lb, "C": C, "norms": n[ok] if C.shape[1] else n, "ok": ok}
+        # the norms of the kept columns only (none kept: empty, so C * norms stays (n, 0))
+        return {"G": G, "lb": lb, "C": C, "norms": n[ok], "ok": ok}
 
     @staticmethod
     def solve(g, blocks):
