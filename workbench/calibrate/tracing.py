@@ -496,8 +496,8 @@ def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor
                    need, n_folds):
     """Two effects that split the folds between them: does each explain what the other cannot?
 
-    When the folds' winners are two effects A and B on one channel (together at least ``need``
-    folds), each is added to the model in turn and the folds are scored again: the other *survives* when it
+    When the folds' winners are two effects A and B on one channel, or two different effects on
+    the displacement and the gauge (together at least ``need`` folds), each is added to the model in turn and the folds are scored again: the other *survives* when it
     still passes every fold with a median ratio <= ``LATER_STAGE_RATIO`` (a later stage's
     rule). Both survive: both are in the record (a two-effect record), the better median
     first, the other follows as the next stage. One survives: it explains what the other only
@@ -513,9 +513,12 @@ def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor
     if len(vals) < 2 or int(counts[order[0]] + counts[order[1]]) < need:
         return None, count0, None
     pair = [tuple(str(vals[i]).split("|")) for i in order[:2]]
-    if any(p not in res["by"] for p in pair) or pair[0][1] != pair[1][1]:
-        # one channel only: across channels (a charge relaxation against the displacement's creep)
-        # the cross-channel rules decide, and a split between them is the record's doubt
+    if any(p not in res["by"] for p in pair) or (pair[0][1] != pair[1][1] and not _sensor_pair(pair)):
+        # one channel, or the displacement and the gauge with two different effects (each sensor's
+        # own model: what one explains cannot be the other's, as a drift of the displacement sensor
+        # and the stack's mode that the gauge shows); across the charge and a sensor (a charge
+        # relaxation against the displacement's creep) the cross-channel rules decide, and a split
+        # between them is the record's doubt
         return None, count0, None
     survives = {}
     for x, y in (pair, pair[::-1]):
@@ -573,6 +576,11 @@ def _creep_behind_a_displacement_effect(answer, count, note, res, cands, probs, 
     if creep_folds:
         return None, count, None
     return answer, count, note
+
+
+def _sensor_pair(pair):
+    """Two different effects, one on the displacement and one on the gauge."""
+    return {pair[0][1], pair[1][1]} == {"displacement", "gauge"} and pair[0][0] != pair[1][0]
 
 
 def _stacked(prob, extra_list, cand):
@@ -848,6 +856,7 @@ def _answer(first, stages, n_folds, need, base, probs, extra, split, infos, cand
         cand_out.append({"name": r["name"], "channel": r["channel"], "variant": r["variant"],
                          "score": r["score"], "n_params": r["n_params"], "ratios": r["ratios"],
                          "passes": int(sum(r["passes"])),
+                         **({"holds": r["holds"]} if "holds" in r else {}),
                          "error_before": {**chans[r["channel"]], "units": base.channels[r["channel"]].units}})
     counts = {}
     for w in winners:
