@@ -407,8 +407,8 @@ def test_drift_round_trip_through_the_updated_plant(sn637, tmp_path):
     again = load_plant(tmp_path / "p.toml")
     quiet = SensorNoise(0.0, 0.0, 0.0)
     x = rec.channels["displacement_m"]
-    rms = {name: float(np.sqrt(np.mean((simulate_record(p, t, v, noise=quiet)["displacement_m"] - x)[split.test]
-                                       ** 2))) for name, p in (("updated", again), ("true", plant), ("declared", sn637))}
+    rms = {name: float(np.sqrt(np.mean((simulate_record(p, t, v, noise=quiet)["displacement_m"] - x)[split.test] ** 2)))
+           for name, p in (("updated", again), ("true", plant), ("declared", sn637))}
     rate = again.additions.sensor_drift_rate_m_per_s
     print(f"\ndrift {truth} -> rate {rate:.4g} m/s, curvature {again.additions.sensor_drift_curvature_m_per_s2:.4g} "
           f"m/s^2; error_after {res['error_after']['rms']:.4g} m; simulated through the plant, test RMS: {rms} m")

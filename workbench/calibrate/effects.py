@@ -37,8 +37,8 @@ lowpass ``y_k = a y_{k-1} + (1 - a) u_k``, ``a = exp(-dt / tau)``, started at re
 * ``creep``: ``c (lowpass_tau(u) - u)``; 2 params (``c``, ``tau``); displacement and gauge.
 * ``dielectric_absorption``: ``k lowpass_tau(u)``; 2 params (``k``, ``tau``); charge.
 * ``leakage``: ``k int_{t_0}^t u dt`` (trapezoid); 1 param; charge.
-* ``resonance``: ``g (H(s) - 1) u``, ``H = w^2 / (s^2 + 2 zeta w s + w^2)``, first-order hold (the drive linear between samples), started at
-  rest at ``u_0``; 3 params (``g``, ``f_n``, ``zeta``); any channel.
+* ``resonance``: ``g (H(s) - 1) u``, ``H = w^2 / (s^2 + 2 zeta w s + w^2)``, first-order hold
+  (the drive linear between samples), started at rest at ``u_0``; 3 params (``g``, ``f_n``, ``zeta``); any channel.
 
 * **creep** -- one first-order relaxation with zero static gain: after a step ``Du`` the
   correction is ``-c Du exp(-t / tau)``, so with ``c > 0`` the output keeps creeping towards
@@ -609,11 +609,25 @@ def _foh_mode(f_hz, zeta, dt):
 
     The drive is taken as linear between samples (the triangle hold of
     ``scipy.signal.cont2discrete(..., method="foh")``, same coefficients), as the record's drive
-    is (a sampled smooth voltage, and the base model driven by it), not a staircase. A zero-order hold would excite the mode with
-    steps the record never had and put a half-sample lag into the column. Computed from one 4 x 4
-    matrix exponential of the augmented system (state, input, input slope), whose products stay
-    accurate for a mode far below the sample rate (``w dt`` down to 1e-5), where a closed form in
-    ``1 / (w dt)`` cancels. ``f_hz`` in Hz, ``dt`` in s; returns ``(b, a)`` with ``a[0] = 1``.
+    is (a sampled smooth voltage, and the base model driven by it), not a staircase. A zero-order
+    hold would excite the mode with steps the record never had and put a half-sample lag into
+    the column. Computed from one 4 x 4 matrix exponential of the augmented system (state,
+    input, input slope), whose products stay accurate for a mode far below the sample rate
+    (``w dt`` down to 1e-5), where a closed form in ``1 / (w dt)`` cancels.
+
+    Parameters
+    ----------
+    f_hz : float
+        Natural frequency (Hz).
+    zeta : float
+        Damping ratio (dimensionless).
+    dt : float
+        Sample period (s).
+
+    Returns
+    -------
+    b, a : ndarray
+        Numerator and denominator in ``z^-1`` (``a[0] = 1``), unit DC gain.
     """
     w = 2 * np.pi * float(f_hz)
     M = np.zeros((4, 4))
