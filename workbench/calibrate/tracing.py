@@ -501,8 +501,9 @@ def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor
     in turn and the folds are scored again: the other *survives* when it still passes every fold
     with a median ratio <= ``LATER_STAGE_RATIO`` (a later stage's rule). Both survive: both are
     in the record (a two-effect record), the better median first, the other follows as the next
-    stage. One survives: it explains what the other only imitates, it is named. Neither: two readings of one misfit (a rate-dependent phase lag is
-    read as creep, a mode or a delay alike), ``None`` (inconclusive).
+    stage. One survives: it explains what the other only imitates, it is named. Neither: two
+    readings of one misfit (a rate-dependent phase lag is read as creep, a mode or a delay
+    alike), ``None`` (inconclusive).
 
     Returns ``(answer, count, note)``; ``(None, count, None)`` when unresolved.
     """
