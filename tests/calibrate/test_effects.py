@@ -249,3 +249,30 @@ def test_a_split_resolved_reports_the_named_effects_own_folds(monkeypatch):
     answer, count, note = tracing._resolve_split(res, None, {}, None, {}, None, 0.0, 1.0, None, [], 0.0, None,
                                                  None, 4, 5)
     assert answer == a and count == 3 and "(3 and 2)" in note
+
+
+@pytest.mark.parametrize("n_cols", [1, 3, 7])
+def test_a_candidate_whose_columns_vanish_adds_nothing_and_does_not_crash(n_cols):
+    """A candidate whose columns are all zero on the development rows (a drift's powers on a
+    record cut to nothing, a relaxation of a channel that never moves) is dropped column by
+    column: its Gram matrices are the base's, its fold error equals the base's, and stacking
+    it (as a stage or a null reference does) keeps the shapes (it raised a broadcast error for
+    more than one column)."""
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.tracing import _Problem, _stacked
+    rng = np.random.default_rng(n_cols)
+    t = np.arange(5000) / 1e4
+    v = 50 + 40 * np.sin(2 * np.pi * 3 * t)
+    sp = make_split(t, v, "blocks")
+    A = np.column_stack([v, np.ones(t.size)])
+    r = 1e-9 * rng.standard_normal(t.size)
+    prob = _Problem(sp, np.ones(t.size, bool), A, [-np.inf, -np.inf], r, sp.train)
+    C = np.zeros((t.size, n_cols))
+    C[~sp.train] = 1.0                       # nonzero only on the test rows: vanishes where fitted
+    g = prob.grams(C, np.zeros(n_cols))
+    assert g["C"].shape == (t.size, 0) and g["norms"].shape == (0,)
+    tr, va = sp.folds[0]
+    assert prob.fold_rms(g, tr, va) == pytest.approx(prob.fold_rms(prob.base, tr, va), rel=1e-12)
+    cand = {"g": g}
+    gs = _stacked(prob, [], cand)
+    assert gs["G"].shape == prob.base["G"].shape
