@@ -93,6 +93,13 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             before = res["channels"][ch]["rms"]
             xs.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
         excess = max(xs)
+    # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
+    # effect named on it, else the base's) against a straight line of the drive fitted on the same rows
+    final = {ch: c["rms"] for ch, c in res["channels"].items()}
+    for s in res.get("stages", []):
+        final[s["channel"]] = s["error_after"]["rms"]
+    above_line = {ch: (err, base.channels[ch].line_rms_test) for ch, err in final.items()
+                  if ch in base.channels and err > base.channels[ch].line_rms_test}
     named = [s["effect"] for s in res.get("stages", [])]
     if not named:
         cls = "none"
@@ -104,7 +111,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     return {"effect": "+".join(effects) or "none", "rate_hz": rate_hz, "protocol": protocol, "size": size,
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "both": len(effects) > 1 and set(effects) <= set(named),
-            "trace_s": elapsed, "truth": truth, "fold_winners": res.get("fold_winners"),
+            "trace_s": elapsed, "truth": truth, "above_line": above_line, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
 
 
@@ -148,6 +155,7 @@ def summarize(rows):
         sel = [r for r in rows if r["effect"] == eff and (b == "-" or band(r["excess"]) == b)]
         n = len(sel)
         c = {k: sum(r["class"] == k for r in sel) for k in ("right", "none", "wrong")}
+        c["wrong"] += sum(r["class"] == "crash" for r in sel)     # a crash is no answer: counted wrong
         rat = [r["ratio"] for r in sel if r["class"] == "right"]
         lines.append(f"| {eff} | {b} | {n} | {c['right']} | {c['none']} | {c['wrong']} | "
                      f"{np.median(rat):.2f} |" if rat else
@@ -158,7 +166,9 @@ def summarize(rows):
     right_big = sum(r["class"] == "right" for r in big)
     halved = sum(r["class"] == "right" and r["ratio"] <= 0.5 for r in big)
     head = {"records": n, "wrong": wrong, "wrong_rate": wrong / max(n, 1), "big": len(big),
-            "right_big": right_big, "right_big_rate": right_big / max(len(big), 1), "halved_big": halved}
+            "right_big": right_big, "right_big_rate": right_big / max(len(big), 1), "halved_big": halved,
+            "above_line": sum(bool(r.get("above_line")) for r in rows),
+            "crashed": sum(r["class"] == "crash" for r in rows)}
     return "\n".join(lines), head
 
 
@@ -191,20 +201,30 @@ def main(argv=None):
     rows = []
     t0 = time.perf_counter()
     for j, (k, (e, rate, proto, size, seed)) in enumerate(todo):
-        r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None, split=a.split)
-        rows.append(r)
         eff = e if isinstance(e, str) else "+".join(e)
+        try:
+            r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None, split=a.split)
+        except Exception as exc:         # reported and counted, the run goes on
+            print(f"[#{k}] {eff} {rate / 1e3:.0f} kHz {proto} size x{size:.3f}: CRASH {type(exc).__name__}: {exc}",
+                  flush=True)
+            rows.append({"effect": eff, "excess": np.inf, "class": "crash", "ratio": 1.0, "named": [],
+                         "above_line": {}})
+            continue
+        rows.append(r)
         print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
               f"{proto:11s} "
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
-              f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)", flush=True)
+              f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
+              + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items()),
+              flush=True)
     table, head = summarize(rows)
     print()
     print(table)
     print()
     print(f"wrong effect named: {head['wrong']} of {head['records']} records ({100 * head['wrong_rate']:.1f} %); "
           f"right at size >= 3: {head['right_big']} of {head['big']} ({100 * head['right_big_rate']:.0f} %), "
-          f"halved: {head['halved_big']}")
+          f"halved: {head['halved_big']}; held-out error above a straight line's: {head['above_line']} records; "
+          f"crashed: {head['crashed']}")
     return rows
 
 

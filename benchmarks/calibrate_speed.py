@@ -47,8 +47,9 @@ def main(args):
     plant_file = ROOT / "plants" / "p888_51_sn637.toml"
     base = load_plant(plant_file)
     t, v = calibration_protocol()
-    exe = Path(sys.executable).with_name("workbench")
     env = {k: x for k, x in os.environ.items() if not k.endswith("_NUM_THREADS")}
+    # the checkout's own code (an installed `workbench` script may import another copy)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
     api = ("import sys; from workbench.calibrate.run import run_calibrate; "
            "d = run_calibrate(sys.argv[1], sys.argv[2], out_dir=sys.argv[3], blas_threads={}); "
            "print('effect', d['effect'])")
@@ -62,7 +63,8 @@ def main(args):
             plant, _ = plant_with_effect(base, effect, 100 + k)
             data = write_record(Path(tmp) / f"{effect}.csv", simulate_record(plant, t, v, seed=100 + k))
             for label, limit in modes:
-                cmd = [str(exe), "calibrate", str(data), "--plant", str(plant_file), "--out", str(Path(tmp) / effect)] \
+                cmd = [sys.executable, "-m", "workbench", "calibrate", str(data), "--plant", str(plant_file),
+                       "--out", str(Path(tmp) / effect)] \
                     if limit is None else [sys.executable, "-c", api.format(limit), str(data), str(plant_file),
                                            str(Path(tmp) / effect)]
                 out, wall, cpu = _timed(cmd, env)

@@ -351,3 +351,66 @@ def test_sensor_lead_is_found_signed_and_carried_by_the_plant(sn637, tmp_path, l
     print(f"simulated through the plant, test RMS: {rms} m")
     assert rms["updated"] <= 1.1 * res["error_after"]["rms"]
     assert rms["declared"] > 2.0 * rms["updated"]        # the lead is what the file adds
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_drift_plant_file_form_is_the_fitted_term(sn637, tmp_path, seed):
+    """The drift's plant-file form (rate and curvature from the record's start) is the fitted
+    polynomial in normalized time less its constant, to rounding: drawn coefficients, start time
+    and record length from 0.1 s to 1000 s."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.effects import Drift
+    from workbench.calibrate.plant_update import updated_plant_text
+    from workbench.plant.additions import drift
+    rng = np.random.default_rng(seed)
+    t0, span = rng.uniform(-5.0, 5.0), float(np.exp(rng.uniform(np.log(0.1), np.log(1000.0))))
+    c = rng.uniform(-400e-9, 400e-9, 3)
+    p = {"coefficients": list(c), "t0_s": t0, "t_end_s": t0 + span}
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    st = {"effect": "drift", "channel": "displacement", "parameters": p, "error_before": err, "error_after": err}
+    result = {**st, "stages": [st]}
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, SimpleNamespace(channels={}, v_drive=np.zeros(3)),
+                              result, Path("rec.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    add = load_plant(tmp_path / "p.toml").additions
+    t = np.linspace(t0, t0 + span, 1001)
+    fitted = Drift().term(t, None, p) - c[0]
+    np.testing.assert_allclose(drift(t, add.sensor_drift_rate_m_per_s, add.sensor_drift_curvature_m_per_s2), fitted,
+                               rtol=0, atol=1e-12 * np.max(np.abs(c)))
+
+
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-25: the drift is fitted jointly with the plays, which take "
+                   "part of its slope: rate 2.036e-8 m/s against the drawn 2.078e-8 (-2.0 %), curvature -3.79e-10 "
+                   "(drawn -3.78e-10); the updated plant leaves 5.09 nm on the test rows against error_after 1.88 nm "
+                   "(the true plant 1.00 nm, the declared 175 nm)")
+def test_drift_round_trip_through_the_updated_plant(sn637, tmp_path):
+    """Issue 13 item 6 for a drift: simulating the record through the updated plant (the declared
+    core plus the fitted drift) reproduces ``error_after`` within 10 % (noise-free simulation,
+    the record's test rows). A miss: the base's plays absorb part of a linear drift (the record
+    drives them up and down, but not symmetrically in time), so the file's rate is off by ~2 %,
+    which over the record is a few nm, above the 1.9 nm error_after of the joint model."""
+    from workbench.calibrate.plant_update import updated_plant_text
+    from workbench.calibrate.synthetic import SensorNoise
+    t, v = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0, 80.0, 40.0), chirp_s=1.0)
+    plant, truth = plant_with_effect(sn637, "drift", 6, duration_s=float(t[-1]))
+    r = simulate_record(plant, t, v, seed=6)
+    rec = Record(Path("drift.csv"), {}, r["time_s"], {k: r[k] for k in ("voltage_v", "current_a", "displacement_m",
+                                                                       "gauge_v")}, 1e-4)
+    split = make_split(rec.t_s, rec.channels["voltage_v"], "blocks")
+    base = fit_base(rec, sn637.pzt.series_resistance_ohm, train=split.train, test=split.test, pzt=plant.pzt,
+                    dac_range_v=plant.gauge.dac_range_v)
+    res = trace_effect(base, split=split)
+    assert (res["effect"], res["channel"]) == ("drift", "displacement"), res["fold_winners"]
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("drift.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    again = load_plant(tmp_path / "p.toml")
+    quiet = SensorNoise(0.0, 0.0, 0.0)
+    x = rec.channels["displacement_m"]
+    rms = {name: float(np.sqrt(np.mean((simulate_record(p, t, v, noise=quiet)["displacement_m"] - x)[split.test] ** 2)))
+           for name, p in (("updated", again), ("true", plant), ("declared", sn637))}
+    rate = again.additions.sensor_drift_rate_m_per_s
+    print(f"\ndrift {truth} -> rate {rate:.4g} m/s, curvature {again.additions.sensor_drift_curvature_m_per_s2:.4g} "
+          f"m/s^2; error_after {res['error_after']['rms']:.4g} m; simulated through the plant, test RMS: {rms} m")
+    assert rms["declared"] > 2.0 * rms["updated"]        # the drift is what the file adds
+    assert abs(rms["updated"] - res["error_after"]["rms"]) <= 0.1 * res["error_after"]["rms"]

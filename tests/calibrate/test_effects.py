@@ -141,15 +141,41 @@ def test_bad_mask_rejected():
         choose_effect(t, u, u, u, train_mask=np.ones(t.size, bool))
 
 
-def test_zoh_mode_matches_cont2discrete():
+def test_foh_mode_matches_cont2discrete():
+    """The mode's coefficients = scipy's triangle (first-order) hold, from a mode near Nyquist
+    down to one 1e5 times slower than the sample rate (w dt ~ 6e-6)."""
     from scipy import signal
-    from workbench.calibrate.effects import _zoh_mode
-    for f, z in [(80.0, 0.02), (5.0, 0.3), (190.0, 0.002)]:
+    from workbench.calibrate.effects import _foh_mode
+    for f, z, dt in [(80.0, 0.02, 1 / FS), (5.0, 0.3, 1 / FS), (190.0, 0.002, 1 / FS), (0.35 * FS, 0.05, 1 / FS),
+                     (1.0, 0.01, 1e-6)]:
         w = 2 * np.pi * f
-        b, a, _ = signal.cont2discrete(([w * w], [1.0, 2 * z * w, w * w]), 1 / FS, method="zoh")
-        b2, a2 = _zoh_mode(f, z, 1 / FS)
-        np.testing.assert_allclose(np.ravel(b), b2, atol=1e-12)
-        np.testing.assert_allclose(a, a2, atol=1e-12)
+        b, a, _ = signal.cont2discrete(([w * w], [1.0, 2 * z * w, w * w]), dt, method="foh")
+        b2, a2 = _foh_mode(f, z, dt)
+        # b is scaled to a's stored DC gain: a's rounding (1e-16) relative to sum(a) ~ (w dt)^2
+        wdt = w * dt
+        np.testing.assert_allclose(b2, np.ravel(b) / a[0], rtol=1e-9 + 4e-16 / wdt ** 2, atol=0)
+        np.testing.assert_allclose(a2, a / a[0], rtol=0, atol=1e-12)
+        # unit DC gain (the mode adds nothing to a held input)
+        assert abs(b2.sum() / a2.sum() - 1.0) < 1e-12
+
+
+@pytest.mark.parametrize("f_n, zeta, w0_dt", [(80.0, 0.02, 0.05), (900.0, 0.2, 0.1), (30.0, 0.005, 0.02)])
+def test_mode_column_follows_the_continuous_mode_on_a_sampled_sine(f_n, zeta, w0_dt):
+    """A sine below the mode, sampled: the column settles to (H(j w0) - 1) u of the continuous
+    mode, to O((w0 dt)^2) (a zero-order hold lags it by half a sample, an O(w0 dt) error)."""
+    f0 = 0.4 * f_n
+    dt = w0_dt / (2 * np.pi * f0)
+    t = np.arange(int(40 * zeta ** -1 / (2 * np.pi * f_n * dt) + 20 / (f0 * dt))) * dt
+    u = np.sin(2 * np.pi * f0 * t)
+    col = Resonance._column(u, f_n, zeta, dt)
+    s = 2j * np.pi * f0
+    w = 2 * np.pi * f_n
+    h = w * w / (s * s + 2 * zeta * w * s + w * w) - 1.0
+    exact = np.imag(h * np.exp(s * t))         # steady state of (H - 1) u
+    tail = slice(t.size - int(2 / (f0 * dt)), None)
+    err = np.max(np.abs(col[tail] - exact[tail]))
+    assert err <= 2 * w0_dt ** 2 * abs(h) + 1e-9, (err, abs(h))
+    assert err < 0.1 * w0_dt * abs(h)          # well inside a half-sample lag's error
 
 
 # ---- issue 13: splits in seconds, the periodic drift, the product-path effect classes
@@ -223,3 +249,30 @@ def test_a_split_resolved_reports_the_named_effects_own_folds(monkeypatch):
     answer, count, note = tracing._resolve_split(res, None, {}, None, {}, None, 0.0, 1.0, None, [], 0.0, None,
                                                  None, 4, 5)
     assert answer == a and count == 3 and "(3 and 2)" in note
+
+
+@pytest.mark.parametrize("n_cols", [1, 3, 7])
+def test_a_candidate_whose_columns_vanish_adds_nothing_and_does_not_crash(n_cols):
+    """A candidate whose columns are all zero on the development rows (a drift's powers on a
+    record cut to nothing, a relaxation of a channel that never moves) is dropped column by
+    column: its Gram matrices are the base's, its fold error equals the base's, and stacking
+    it (as a stage or a null reference does) keeps the shapes (it raised a broadcast error for
+    more than one column)."""
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.tracing import _Problem, _stacked
+    rng = np.random.default_rng(n_cols)
+    t = np.arange(5000) / 1e4
+    v = 50 + 40 * np.sin(2 * np.pi * 3 * t)
+    sp = make_split(t, v, "blocks")
+    A = np.column_stack([v, np.ones(t.size)])
+    r = 1e-9 * rng.standard_normal(t.size)
+    prob = _Problem(sp, np.ones(t.size, bool), A, [-np.inf, -np.inf], r, sp.train)
+    C = np.zeros((t.size, n_cols))
+    C[~sp.train] = 1.0                       # nonzero only on the test rows: vanishes where fitted
+    g = prob.grams(C, np.zeros(n_cols))
+    assert g["C"].shape == (t.size, 0) and g["norms"].shape == (0,)
+    tr, va = sp.folds[0]
+    assert prob.fold_rms(g, tr, va) == pytest.approx(prob.fold_rms(prob.base, tr, va), rel=1e-12)
+    cand = {"g": g}
+    gs = _stacked(prob, [], cand)
+    assert gs["G"].shape == prob.base["G"].shape

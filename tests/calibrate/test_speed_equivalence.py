@@ -18,7 +18,7 @@ import pytest
 
 from tests.conftest import PLANTS
 from workbench.calibrate import effects
-from workbench.calibrate.effects import Delay, Resonance, _zoh_mode, lowpass
+from workbench.calibrate.effects import Delay, Resonance, _foh_mode, lowpass
 from workbench.calibrate.kernels import lowpass_rows, mode_column_rows
 from workbench.calibrate.run import run_calibrate
 from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record, write_record
@@ -53,7 +53,7 @@ def test_mode_kernel_equals_scipy_filter(seed):
         f_n = float(np.exp(rng.uniform(np.log(1.0), np.log(0.4 * rate))))
         zeta = float(np.exp(rng.uniform(np.log(0.002), np.log(0.3))))
         ref = Resonance._column(u, f_n, zeta, dt)[rows]
-        fast = mode_column_rows(u, *_zoh_mode(f_n, zeta, dt), rows)
+        fast = mode_column_rows(u, *_foh_mode(f_n, zeta, dt), rows)
         np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-12 * np.max(np.abs(ref)))
 
 

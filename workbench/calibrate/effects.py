@@ -37,8 +37,8 @@ lowpass ``y_k = a y_{k-1} + (1 - a) u_k``, ``a = exp(-dt / tau)``, started at re
 * ``creep``: ``c (lowpass_tau(u) - u)``; 2 params (``c``, ``tau``); displacement and gauge.
 * ``dielectric_absorption``: ``k lowpass_tau(u)``; 2 params (``k``, ``tau``); charge.
 * ``leakage``: ``k int_{t_0}^t u dt`` (trapezoid); 1 param; charge.
-* ``resonance``: ``g (H(s) - 1) u``, ``H = w^2 / (s^2 + 2 zeta w s + w^2)``, ZOH, started at
-  rest at ``u_0``; 3 params (``g``, ``f_n``, ``zeta``); any channel.
+* ``resonance``: ``g (H(s) - 1) u``, ``H = w^2 / (s^2 + 2 zeta w s + w^2)``, first-order hold
+  (the drive linear between samples), started at rest at ``u_0``; 3 params (``g``, ``f_n``, ``zeta``); any channel.
 
 * **creep** -- one first-order relaxation with zero static gain: after a step ``Du`` the
   correction is ``-c Du exp(-t / tau)``, so with ``c > 0`` the output keeps creeping towards
@@ -76,7 +76,7 @@ rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none``
 import hashlib
 
 import numpy as np
-from scipy import signal
+from scipy import linalg, signal
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
@@ -604,19 +604,47 @@ class Leakage(Effect):
         return {**params, "gain_per_s": float(gains[0])}
 
 
-def _zoh_mode(f_hz, zeta, dt):
-    """ZOH discretization of ``w^2 / (s^2 + 2 zeta w s + w^2)`` (0 < zeta < 1), closed form.
+def _foh_mode(f_hz, zeta, dt):
+    """First-order-hold discretization of ``w^2 / (s^2 + 2 zeta w s + w^2)`` (0 < zeta < 1).
 
-    Same as ``scipy.signal.cont2discrete(..., method="zoh")`` without a matrix exponential.
+    The drive is taken as linear between samples (the triangle hold of
+    ``scipy.signal.cont2discrete(..., method="foh")``, same coefficients), as the record's drive
+    is (a sampled smooth voltage, and the base model driven by it), not a staircase. A zero-order
+    hold would excite the mode with steps the record never had and put a half-sample lag into
+    the column. Computed from one 4 x 4 matrix exponential of the augmented system (state,
+    input, input slope), whose products stay accurate for a mode far below the sample rate
+    (``w dt`` down to 1e-5), where a closed form in ``1 / (w dt)`` cancels.
+
+    Parameters
+    ----------
+    f_hz : float
+        Natural frequency (Hz).
+    zeta : float
+        Damping ratio (dimensionless).
+    dt : float
+        Sample period (s).
+
+    Returns
+    -------
+    b, a : ndarray
+        Numerator and denominator in ``z^-1`` (``a[0] = 1``), unit DC gain.
     """
     w = 2 * np.pi * float(f_hz)
-    sigma = zeta * w
-    wd = w * np.sqrt(1.0 - zeta * zeta)
-    r = np.exp(-sigma * dt)
-    c, s = np.cos(wd * dt), np.sin(wd * dt)
-    b1 = 1.0 - r * (c + sigma / wd * s)
-    b2 = r * r + r * (sigma / wd * s - c)
-    return np.array([0.0, b1, b2]), np.array([1.0, -2.0 * r * c, r * r])
+    M = np.zeros((4, 4))
+    M[0, 1] = dt
+    M[1, 0] = -w * w * dt
+    M[1, 1] = -2.0 * float(zeta) * w * dt
+    M[1, 2] = w * w * dt
+    M[2, 3] = 1.0
+    E = linalg.expm(M)
+    phi, g0, g1 = E[:2, :2], E[:2, 2], E[:2, 3]
+    gd = g0 - g1
+    # y = C adj(zI - Phi) (g1 z + g0 - g1) / det(zI - Phi), C = [1, 0]
+    b = np.array([g1[0], gd[0] - phi[1, 1] * g1[0] + phi[0, 1] * g1[1], -phi[1, 1] * gd[0] + phi[0, 1] * gd[1]])
+    a = np.array([1.0, -(phi[0, 0] + phi[1, 1]), phi[0, 0] * phi[1, 1] - phi[0, 1] * phi[1, 0]])
+    # unit DC gain in the stored floats: for a mode far below the rate, sum(a) ~ (w dt)^2 is
+    # resolved only to ~1e-16 / (w dt)^2 by a's rounding; b follows it, so a held input adds nothing
+    return b * (a.sum() / b.sum()), a
 
 
 class Resonance(Effect):
@@ -635,7 +663,7 @@ class Resonance(Effect):
 
     @staticmethod
     def _column(u, f_hz, zeta, dt):
-        b, a = _zoh_mode(f_hz, zeta, dt)
+        b, a = _foh_mode(f_hz, zeta, dt)
         v = u - u[0]
         return signal.lfilter(b, a, v) - v
 
@@ -687,7 +715,7 @@ class Resonance(Effect):
                               np.asarray(residual, float), np.asarray(train_mask, bool),
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
                               row_columns=lambda th, rows: mode_column_rows(
-                                  u, *_zoh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows),
+                                  u, *_foh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows),
                               plain_costs=memo)
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}

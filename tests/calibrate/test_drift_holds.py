@@ -1,0 +1,85 @@
+"""A sensor drift must show in the drive's holds (workbench/calibrate/drift_holds.py).
+
+Closed forms: a staircase's holds less their settling, the residual's gain on a drift's
+within-hold motion (1 when the residual carries the drift, 0 when it does not) and its standard
+error for white noise; slopes, noise, hold lengths and sample rates drawn over wide ranges.
+"""
+
+import numpy as np
+import pytest
+
+from workbench.calibrate.drift_holds import MAX_SE, MIN_GAIN, SETTLE_FRACTION, drift_in_holds, hold_spans
+
+
+def _staircase(rng, rate_hz):
+    """A ramp-and-hold staircase: (t, v, true hold spans (i, j))."""
+    # levels >= 10 V apart, ramps of 2-20 samples: every ramp step leaves the 1e-3 tolerance
+    levels = rng.permutation(np.arange(10.0, 100.0, 12.0))[:int(rng.integers(3, 8))]
+    hold_n = int(rng.integers(200, 3000))
+    ramp_n = int(rng.integers(2, 21))
+    v, spans, k, prev = [], [], 0, 0.0
+    for lv in levels:
+        v.extend(np.linspace(prev, lv, ramp_n, endpoint=False)[1:] if ramp_n > 1 else [])
+        k = len(v)
+        v.extend([lv] * hold_n)
+        spans.append((k, k + hold_n))
+        prev = lv
+    v = np.asarray(v)
+    return np.arange(v.size) / rate_hz, v, spans, hold_n / rate_hz
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_hold_spans_are_the_staircase_holds_less_their_settling(seed):
+    rng = np.random.default_rng(seed)
+    rate = float(np.exp(rng.uniform(np.log(100.0), np.log(1e6))))
+    t, v, spans, hold_s = _staircase(rng, rate)
+    got = hold_spans(t, v, min_hold_s=0.5 * hold_s)
+    assert len(got) == len(spans)
+    for (i, j), (a, b) in zip(got, spans):
+        assert j == b
+        assert i == a + np.ceil(SETTLE_FRACTION * (b - a))
+    assert hold_spans(t, np.sin(2 * np.pi * 3.0 * t / t[-1]), min_hold_s=0.5 * hold_s).shape == (0, 2)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_gain_is_one_with_the_drift_and_zero_without(seed):
+    """Residual = the drift's motion + white noise: gain 1 within 4 standard errors, ``shows``;
+    noise alone: gain 0 within 4 standard errors, not ``shows``; the standard error is
+    sigma / sqrt(sum of the centred term squared)."""
+    rng = np.random.default_rng(100 + seed)
+    rate = float(np.exp(rng.uniform(np.log(100.0), np.log(1e5))))
+    t, v, _, hold_s = _staircase(rng, rate)
+    sigma = float(np.exp(rng.uniform(np.log(1e-10), np.log(1e-8))))
+    span = t[-1] - t[0]
+    # a drift far above the noise over the holds: 30-3000 sigma over the record
+    excursion = sigma * float(np.exp(rng.uniform(np.log(30.0), np.log(3000.0))))
+    term = excursion * (0.7 * (t / span) + 0.3 * (t / span) ** 2) * rng.choice([-1.0, 1.0])
+    rows = rng.random(t.size) < 0.8
+    spans = hold_spans(t, v, min_hold_s=0.5 * hold_s)
+    den = sum(float(np.sum((term[i:j][rows[i:j]] - term[i:j][rows[i:j]].mean()) ** 2)) for i, j in spans)
+    se = sigma / np.sqrt(den)
+    if se > MAX_SE:
+        pytest.skip("this draw's drift moves too little within the holds to be judged")
+    noise = sigma * rng.standard_normal(t.size)
+    # a different level in every hold (the base's misfit there) does not count: levels are removed
+    levels = np.zeros(t.size)
+    for i, j in spans:
+        levels[i:j] = rng.normal(0.0, 100 * sigma)
+    with_drift = drift_in_holds(term + noise + levels, term, rows, spans, sigma)
+    assert with_drift["se"] == pytest.approx(se, rel=1e-9)
+    assert abs(with_drift["gain"] - 1.0) <= 4 * se + 1e-3 and with_drift["shows"] is True
+    without = drift_in_holds(noise + levels, term, rows, spans, sigma)
+    assert abs(without["gain"]) <= 4 * se and without["shows"] is False
+
+
+def test_the_holds_cannot_tell_when_the_drift_hardly_moves_within_them_or_there_are_none():
+    rng = np.random.default_rng(7)
+    t, v, _, hold_s = _staircase(rng, 1e4)
+    spans = hold_spans(t, v, min_hold_s=0.5 * hold_s)
+    sigma = 1e-9
+    tiny = 1e-4 * sigma * t / t[-1]          # far below the noise within any hold
+    out = drift_in_holds(sigma * rng.standard_normal(t.size), tiny, np.ones(t.size, bool), spans, sigma)
+    assert out["se"] > MAX_SE and out["shows"] is None
+    none = drift_in_holds(np.zeros(t.size), t, np.ones(t.size, bool), np.empty((0, 2), int), sigma)
+    assert none["holds"] == 0 and none["shows"] is None
+    assert 0.0 < MIN_GAIN < 1.0
