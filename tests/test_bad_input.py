@@ -125,6 +125,10 @@ def ws(tmp_path_factory):
     nan_sos["sos"][0][1] = "NaN"
     (bad / "ctrl_nan.json").write_text(json.dumps(nan_sos).replace('"NaN"', "NaN"), encoding="utf-8")
     (bad / "a_file").write_text("not a folder\n", encoding="utf-8")
+    # the outside pass (README "Bad input"): files as other tools save them
+    (bad / "bom.toml").write_bytes(b"\xef\xbb\xbf" + plant_text)                     # Notepad's "UTF-8 with BOM"
+    (bad / "bom.csv").write_bytes(b"\xef\xbb\xbftime[s],voltage[V],displacement[m]\n0,0,0\n0.001,1,1e-7\n")
+    (bad / "bom.json").write_bytes(b"\xef\xbb\xbf" + (ROOT / CTRL).read_bytes())
     return ws
 
 
@@ -361,6 +365,13 @@ CASES = [
     ("synth-effect-unknown", ["synth", PLANT, "--out", "{out}/r.csv", "--effect", "magic"], ["--effect"]),
     ("calibrate-split-unknown", ["calibrate", RECORD, "--plant", PLANT, "--split", "halves"], ["--split"]),
     ("gauge-no-plant", ["gauge"], ["plant"]),
+    # ---- the outside pass (README "Bad input"): cases its authors' suite did not have ----------------------
+    ("gauge-plant-bom", ["gauge", "bad/bom.toml"], ["bad/bom.toml", "line 1, column 1", "byte-order mark"]),
+    ("calibrate-record-bom", ["calibrate", "bad/bom.csv", "--plant", PLANT], ["bad/bom.csv", "byte-order mark"]),
+    ("verify-controller-bom", ["verify", CREEP, "--controller", "bad/bom.json"], ["bad/bom.json", "byte-order mark"]),
+    # a folder whose permission bits allow writing but where nothing can be created (a virtual file system)
+    ("gauge-json-proc", ["gauge", PLANT, "--json", "/proc/g.json"], ["--json /proc/g.json", "nothing can be written"]),
+    ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]
 
