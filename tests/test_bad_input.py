@@ -129,6 +129,11 @@ def ws(tmp_path_factory):
     (bad / "bom.toml").write_bytes(b"\xef\xbb\xbf" + plant_text)                     # Notepad's "UTF-8 with BOM"
     (bad / "bom.csv").write_bytes(b"\xef\xbb\xbftime[s],voltage[V],displacement[m]\n0,0,0\n0.001,1,1e-7\n")
     (bad / "bom.json").write_bytes(b"\xef\xbb\xbf" + (ROOT / CTRL).read_bytes())
+    # Table 1 read wrongly: forces in N labelled kN (T_em x 1000), every force 0 (T_em < 0)
+    (bad / "table_kn.csv").write_bytes(table.replace(b"force[N]", b"force[kN]"))
+    head, _, body = table.decode("utf-8").partition("back_emf[V]\n")
+    zero = [",".join(r.split(",")[:5] + ["0.0"] + r.split(",")[6:]) for r in body.splitlines()]
+    (bad / "table_zero_force.csv").write_text(head + "back_emf[V]\n" + "\n".join(zero) + "\n", encoding="utf-8")
     return ws
 
 
@@ -371,6 +376,13 @@ CASES = [
     ("verify-controller-bom", ["verify", CREEP, "--controller", "bad/bom.json"], ["bad/bom.json", "byte-order mark"]),
     # a folder whose permission bits allow writing but where nothing can be created (a virtual file system)
     ("gauge-json-proc", ["gauge", PLANT, "--json", "/proc/g.json"], ["--json /proc/g.json", "nothing can be written"]),
+    ("identify-table-kn", ["identify", "transducer", "bad/table_kn.csv"], ["bad/table_kn.csv", "T_em = 6.5",
+                                                                              "outside (0, 10000] N/V", "units"]),
+    ("identify-table-zero-force", ["identify", "transducer", "bad/table_zero_force.csv"],
+     ["bad/table_zero_force.csv", "outside (0, 10000] N/V"]),
+    ("identify-stiffness-1e30", ["identify", "transducer", TABLE, "--stiffness", "1e30N/m"],
+     ["--stiffness", "out of range (0, 1e+12] N/m"]),
+    ("verify-seed-negative", ["verify", CREEP, "--controller", CTRL, "--seed=-1"], ["--seed", "out of range"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]

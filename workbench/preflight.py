@@ -292,7 +292,10 @@ def _check_flags(args):
                                  f"stack's quasi-static stroke over the amplifier's {pzt.voltage_min_v:g}.."
                                  f"{pzt.voltage_max_v:g} V in {args.plant}")
     elif cmd == "identify":
-        _in_range("--stiffness", args.stiffness, "N/m", 0.0, math.inf, "a stiffness is positive", lo_open=True)
+        from .plant.files import _SCHEMA as plant_fields      # the plant file's range for k_p: one home
+        k_max = plant_fields["mechanics"]["stiffness_n_per_m"].hi
+        _in_range("--stiffness", args.stiffness, "N/m", 0.0, k_max, "a stiffness is positive, at most the plant "
+                  "file's stiffness_n_per_m range; e.g. 2e8 (200 N/um)", lo_open=True)
     elif cmd == "freefree":
         plant = _plant(args.plant)
         fs = plant.gauge.modulation_hz
@@ -319,6 +322,7 @@ def _check_flags(args):
         _in_range("--imbalance-tolerance", args.imbalance_tolerance, "ohm", 0.0, 10.0,
                   "per-arm bridge imbalance, the study schema's range; e.g. 0.4ohm")
     elif cmd == "verify":
+        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
         # the hold scores the settled loop after its first second: at least one more second
         _in_range("--hold", args.hold, "s", 2.0, math.inf, "the first second of the hold settles the loop and "
                   "is not scored; give at least 2s, e.g. 1000s")
