@@ -383,6 +383,15 @@ CASES = [
     ("identify-stiffness-1e30", ["identify", "transducer", TABLE, "--stiffness", "1e30N/m"],
      ["--stiffness", "out of range (0, 1e+12] N/m"]),
     ("verify-seed-negative", ["verify", CREEP, "--controller", CTRL, "--seed=-1"], ["--seed", "out of range"]),
+    # outputs onto a file the command reads by default (no argument names it, so nothing protected it)
+    ("demo-json-onto-its-plant", ["demo", "--out", "{out}", "--json", PLANT], [PLANT, "is the input file the demo reads"]),
+    ("sweep-table-onto-its-default-controller", ["sweep", STUDY, "--out", "{out}", "--table", "./" + CTRL],
+     ["--table", "is the input controller (the sweep's default)"]),
+    ("selfsense-json-onto-default-fused-controller",
+     ["selfsense", CREEP, "--fused", "--json", str(ROOT / "controllers" / "sn637_fused_loopshape.json")],
+     ["is the input --fused-controller (default)"]),
+    ("linearize-freq-points-2", ["linearize", PLANT, "--freq-points", "2", "--amplitudes", "1V"],
+     ["--freq-points", "out of range [3, 100000]"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]

@@ -90,6 +90,37 @@ def _files(args):
     return ins, out_files, out_dirs
 
 
+def _implicit_inputs(args):
+    """Files a command reads without an argument naming them (its defaults): (name, path) pairs.
+
+    They are not checked here (their command reports a missing one in its own words), but no output
+    may be one of them: ``demo --json plants/p888_51_sn637.toml``, ``sweep --table`` onto the
+    controller it runs, ``selfsense --json`` onto its default controller."""
+    cmd = args.command
+    found = []
+    if cmd == "demo":
+        from .demo import CREEP_PLANT, PLANTS, TABLE1
+        found += [("file the demo reads", Path(p)) for p in (*PLANTS, CREEP_PLANT, TABLE1)]
+    elif cmd == "sweep" and getattr(args, "controller", None) is None:
+        import tomllib
+        try:
+            data = tomllib.loads(Path(args.study).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            data = {}
+        name = data.get("export", {}).get("name") if isinstance(data.get("export"), dict) else None
+        if isinstance(name, str):
+            from .verify.sweep_job import default_controller_path
+            found.append(("controller (the sweep's default)", default_controller_path(args.study, name)))
+    elif cmd == "selfsense":
+        from .selfsense.fused_loop import FUSED_CONTROLLER
+        from .selfsense.run import DEFAULT_CONTROLLER
+        if getattr(args, "controller", None) is None:
+            found.append(("--controller (default)", DEFAULT_CONTROLLER))
+        if getattr(args, "fused_controller", None) is None:
+            found.append(("--fused-controller (default)", FUSED_CONTROLLER))
+    return found
+
+
 def _check_files(args):
     ins, out_files, out_dirs = _files(args)
     for name, path in ins:
@@ -98,6 +129,7 @@ def _check_files(args):
             _check_json(path, name)
         if path.suffix.lower() == ".csv":
             _check_csv_delimiter(path, name)
+    ins = ins + _implicit_inputs(args)
     for name, path in ins:
         if name == "--controller" and path.suffix.lower() in (".json", ".mat"):
             if args.command == "verify" and _mirror_pairing(args, path):
@@ -316,7 +348,9 @@ def _check_flags(args):
                   lo_open=True)
         if not args.freq_min < args.freq_max:
             raise FlagRangeError(f"--freq-min ({args.freq_min:g} Hz) must be below --freq-max ({args.freq_max:g} Hz)")
-        _in_range("--freq-points", args.freq_points, "points", 2, 100_000, "at least two frequencies")
+        from .linearize.weight import MIN_GRID_POINTS
+        _in_range("--freq-points", args.freq_points, "points", MIN_GRID_POINTS, 100_000,
+                  f"the uncertainty weight W_m is fitted over at least {MIN_GRID_POINTS} frequencies")
         _in_range("--cp-tolerance", args.cp_tolerance, "(fraction of C_p)", 0.0, 1.0, "e.g. 0.2 for +/-20 %",
                   hi_open=True)
         _in_range("--imbalance-tolerance", args.imbalance_tolerance, "ohm", 0.0, 10.0,
