@@ -392,6 +392,15 @@ CASES = [
      ["is the input --fused-controller (default)"]),
     ("linearize-freq-points-2", ["linearize", PLANT, "--freq-points", "2", "--amplitudes", "1V"],
      ["--freq-points", "out of range [3, 100000]"]),
+    # an empty path is the current folder: `--out "$OUT"` with OUT unset wrote the study into ./ (replacing
+    # ./controllers/sn637_loopshape.json and its .csv/.h/.mat)
+    ("study-out-empty", ["study", STUDY, "--out", ""], ["--out", "an empty path ''"]),
+    ("gauge-json-empty", ["gauge", PLANT, "--json", ""], ["--json", "an empty path ''"]),
+    ("synth-out-blank", ["synth", PLANT, "--out", " "], ["--out", "an empty path ' '"]),
+    ("gauge-plant-empty", ["gauge", ""], ["plant", "an empty path ''"]),
+    # a study value given by --set is checked like the file's, before the design work
+    ("study-set-export-name", ["study", STUDY, "--out", "{out}", "--set", "export.name=../x"],
+     ["[export.name]", "'../x'"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]

@@ -251,6 +251,14 @@ def _check_study_file(args):
     mirror = data.get("schema") == FSM_STUDY_SCHEMA      # its loader checks its own sections (study/mirror.py)
     if not mirror:
         _check_study_sections(path, data)
+    if getattr(args, "set", None) and not mirror:
+        # a study value given by --set is checked as if written in the file (study --set export.name=../x
+        # was found by the exporter after the design work)
+        from .study.overrides import parse_overrides, split_overrides
+        for key, value in split_overrides(parse_overrides(args.set))[1].items():
+            section, _, name = key.partition(".")
+            if isinstance(data.get(section, {}), dict):
+                data[section] = {**data.get(section, {}), name: value}
     export = data.get("export", {})
     if not isinstance(export, dict):
         return
