@@ -401,6 +401,13 @@ CASES = [
     # a study value given by --set is checked like the file's, before the design work
     ("study-set-export-name", ["study", STUDY, "--out", "{out}", "--set", "export.name=../x"],
      ["[export.name]", "'../x'"]),
+    # a free-free sine whose stroke is under the gauge noise (22 nm RMS in the plant file): C_p came out as
+    # -10.9 uF at 1 nV and +102 % at 100 mV, with exit 0
+    ("freefree-vpeak-1nv", ["freefree", PLANT, "--v-peak", "1nV"], ["--v-peak", "under the gauge noise 22 nm RMS"]),
+    ("freefree-vpeak-100mv", ["freefree", PLANT, "--v-peak", "100mV"], ["--v-peak", "out of range",
+                                                                      "under the gauge noise 22 nm RMS"]),
+    ("study-cache-dir-file", ["study", STUDY, "--out", "{out}", "--cache-dir", "bad/a_file"],
+     ["--cache-dir bad/a_file", "is a file"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]
@@ -575,3 +582,16 @@ def test_selfsense_size_bound_is_lifted_by_its_own_flag(monkeypatch):
     assert parse(["selfsense", CREEP, "--allow-long-run"]).force_size is True
     assert parse(["verify", CREEP, "--controller", CTRL, "--force"]).force_size is True
     assert preflight.size_flag("selfsense") == "--allow-long-run" and preflight.size_flag("verify") == "--force"
+
+
+def test_free_free_floor_is_the_voltage_whose_stroke_is_the_gauge_noise():
+    """The --v-peak floor is where the quasi-static stroke from rest reaches the gauge noise of the plant file."""
+    from workbench import preflight
+    from workbench.plant import load_plant
+    for name in ("p888_51_sn637", "p888_51_sn629", "p888_51_sn618"):
+        plant = load_plant(ROOT / "plants" / f"{name}.toml")
+        noise = plant.gauge.noise_rms_m
+        v_min = preflight._v_for_stroke(plant.pzt, noise)
+        assert 0 < v_min < plant.pzt.voltage_max_v
+        assert preflight._stroke_from_rest_m(plant.pzt, v_min) == pytest.approx(noise, rel=1e-9)
+        assert preflight._stroke_from_rest_m(plant.pzt, 0.99 * v_min) < noise

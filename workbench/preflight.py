@@ -148,6 +148,9 @@ def _check_files(args):
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:
         check_output_dir(path, name, inputs=ins)
+    if getattr(args, "cache_dir", None):
+        # a folder the run writes into but does not own (kept after a failure, so not an output to clean)
+        check_output_dir(Path(args.cache_dir), "--cache-dir", inputs=ins)
     outs = out_files + out_dirs
     for i, (name, path) in enumerate(outs):
         for other, p2 in outs[i + 1:]:
@@ -312,13 +315,29 @@ def _plant(path):
     return load_plant(path)
 
 
-def _stroke_range_m(pzt):
-    """Quasi-static displacement from rest at the amplifier's lowest and highest voltage, m."""
+def _stroke_from_rest_m(pzt, v):
+    """Quasi-static displacement from rest at the terminal voltage ``v`` (V), m."""
     import numpy as np
     op = pzt.terminal_operator().inverse()
-    lo = float(pzt.k_q2x_m_per_c * op(np.array([0.0, pzt.voltage_min_v]))[-1]) if pzt.voltage_min_v < 0 else 0.0
-    hi = float(pzt.k_q2x_m_per_c * op(np.array([0.0, pzt.voltage_max_v]))[-1])
+    return float(pzt.k_q2x_m_per_c * op(np.array([0.0, v]))[-1])
+
+
+def _stroke_range_m(pzt):
+    """Quasi-static displacement from rest at the amplifier's lowest and highest voltage, m."""
+    lo = _stroke_from_rest_m(pzt, pzt.voltage_min_v) if pzt.voltage_min_v < 0 else 0.0
+    hi = _stroke_from_rest_m(pzt, pzt.voltage_max_v)
     return min(lo, 0.0), hi
+
+
+def _v_for_stroke(pzt, x_m):
+    """The lowest positive voltage whose quasi-static stroke from rest reaches ``x_m`` (bisection), V."""
+    lo, hi = 0.0, pzt.voltage_max_v
+    if _stroke_from_rest_m(pzt, hi) <= x_m:
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _stroke_from_rest_m(pzt, mid) < x_m else (lo, mid)
+    return hi
 
 
 def _check_flags(args):
@@ -341,6 +360,15 @@ def _check_flags(args):
         fs = plant.gauge.modulation_hz
         _in_range("--v-peak", args.v_peak, "V", 0.0, plant.pzt.voltage_max_v,
                   f"the amplifier's highest output in {args.plant}", lo_open=True)
+        # a sine whose stroke is under the gauge noise cannot be read: eqs. 10-12 then return noise
+        # (--v-peak 1e-9V gave C_p = -10.9 uF, 100mV +102 %; the error scales as noise / stroke)
+        noise_m = plant.gauge.noise_rms_m
+        if _stroke_from_rest_m(plant.pzt, args.v_peak) < noise_m:
+            v_min = _v_for_stroke(plant.pzt, noise_m)
+            raise FlagRangeError(f"--v-peak {args.v_peak:g} V: out of range [{v_min:.3g}, {plant.pzt.voltage_max_v:g}] "
+                                 f"V: its stroke from rest, {_stroke_from_rest_m(plant.pzt, args.v_peak) * 1e9:.3g} nm, "
+                                 f"is under the gauge noise {noise_m * 1e9:.3g} nm RMS of {args.plant}, so the test "
+                                 f"cannot read the stack's motion; e.g. 100V")
         _in_range("--freq", args.freq, "Hz", 0.0, fs / 20, f"at least 20 gauge samples a period at the "
                   f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
     elif cmd == "linearize":
