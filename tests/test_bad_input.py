@@ -408,6 +408,9 @@ CASES = [
                                                                       "under the gauge noise 22 nm RMS"]),
     ("study-cache-dir-file", ["study", STUDY, "--out", "{out}", "--cache-dir", "bad/a_file"],
      ["--cache-dir bad/a_file", "is a file"]),
+    # a force step beyond the blocked force k_p x stroke (200 N/um x ~18 um: ~3.7 kN) ran, reporting a 5 m squeeze
+    ("selfsense-step-force-1e9", ["selfsense", CREEP, "--force", "--step-force", "1e9N"],
+     ["--step-force", "out of range", "blocked force"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]
