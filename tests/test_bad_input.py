@@ -21,6 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from workbench.cli import main
@@ -125,9 +126,16 @@ def ws(tmp_path_factory):
     nan_sos["sos"][0][1] = "NaN"
     (bad / "ctrl_nan.json").write_text(json.dumps(nan_sos).replace('"NaN"', "NaN"), encoding="utf-8")
     (bad / "a_file").write_text("not a folder\n", encoding="utf-8")
+    # a record of the plant, simulated (its displacement in m) and labelled displacement[um]: a 1e-6 unit slip
+    from workbench.plant import load_plant
+    pzt = load_plant(ROOT / PLANT).pzt
+    t = np.arange(2000) * 1e-3
+    v = 50.0 * (1.0 - np.cos(2 * np.pi * 2.0 * t))                    # 0..100 V from rest
+    x = pzt.quasi_static_x_m(v)
+    rows = "\n".join(f"{a:.4f},{b:.6f},{c:.6e}" for a, b, c in zip(t, v, x))
+    (bad / "um_label.csv").write_text(f"time[s],voltage[V],displacement[um]\n{rows}\n", encoding="utf-8")
     # the outside pass (README "Bad input"): files as other tools save them
     (bad / "bom.toml").write_bytes(b"\xef\xbb\xbf" + plant_text)                     # Notepad's "UTF-8 with BOM"
-    (bad / "bom.csv").write_bytes(b"\xef\xbb\xbftime[s],voltage[V],displacement[m]\n0,0,0\n0.001,1,1e-7\n")
     (bad / "bom.json").write_bytes(b"\xef\xbb\xbf" + (ROOT / CTRL).read_bytes())
     # Table 1 read wrongly: forces in N labelled kN (T_em x 1000), every force 0 (T_em < 0)
     (bad / "table_kn.csv").write_bytes(table.replace(b"force[N]", b"force[kN]"))
@@ -372,7 +380,6 @@ CASES = [
     ("gauge-no-plant", ["gauge"], ["plant"]),
     # ---- the outside pass (README "Bad input"): cases its authors' suite did not have ----------------------
     ("gauge-plant-bom", ["gauge", "bad/bom.toml"], ["bad/bom.toml", "line 1, column 1", "byte-order mark"]),
-    ("calibrate-record-bom", ["calibrate", "bad/bom.csv", "--plant", PLANT], ["bad/bom.csv", "byte-order mark"]),
     ("verify-controller-bom", ["verify", CREEP, "--controller", "bad/bom.json"], ["bad/bom.json", "byte-order mark"]),
     # a folder whose permission bits allow writing but where nothing can be created (a virtual file system)
     ("gauge-json-proc", ["gauge", PLANT, "--json", "/proc/g.json"], ["--json /proc/g.json", "nothing can be written"]),
@@ -411,6 +418,8 @@ CASES = [
     # a force step beyond the blocked force k_p x stroke (200 N/um x ~18 um: ~3.7 kN) ran, reporting a 5 m squeeze
     ("selfsense-step-force-1e9", ["selfsense", CREEP, "--force", "--step-force", "1e9N"],
      ["--step-force", "out of range", "blocked force"]),
+    ("calibrate-record-unit-slip", ["calibrate", "bad/um_label.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/um_label.csv", "1e-06 times", "unit slip", "displacement column's unit"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]

@@ -56,9 +56,9 @@ def check_text_file(path, what=""):
     except OSError as err:
         raise FileArgumentError(f"{_name(path, what)}: cannot be read ({err.strerror}); "
                                 f"check the file's permissions") from None
-    if data.startswith(b"\xef\xbb\xbf"):
+    if data.startswith(b"\xef\xbb\xbf") and path.suffix.lower() != ".csv":     # the CSV readers skip one
         raise FileArgumentError(f"{_name(path, what)}: line 1, column 1: starts with a byte-order mark (BOM, bytes "
-                                f"ef bb bf, as Windows editors save 'UTF-8 with BOM'), which the TOML, CSV and JSON "
+                                f"ef bb bf, as Windows editors save 'UTF-8 with BOM'), which the TOML and JSON "
                                 f"readers take as text; save the file as UTF-8 without BOM")
     if b"\x00" in data:
         line = data[: data.index(b"\x00")].count(b"\n") + 1

@@ -317,9 +317,7 @@ def _plant(path):
 
 def _stroke_from_rest_m(pzt, v):
     """Quasi-static displacement from rest at the terminal voltage ``v`` (V), m."""
-    import numpy as np
-    op = pzt.terminal_operator().inverse()
-    return float(pzt.k_q2x_m_per_c * op(np.array([0.0, v]))[-1])
+    return float(pzt.quasi_static_x_m([0.0, v])[-1])
 
 
 def _stroke_range_m(pzt):

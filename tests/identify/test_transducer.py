@@ -185,3 +185,14 @@ def test_data_file_error_is_a_value_error(tmp_path):
 def test_bad_parameters(kwargs, error, match):
     with pytest.raises(error, match=match):
         identify_transducer(TABLE1, **kwargs)
+
+
+def test_a_byte_order_mark_is_skipped(tmp_path):
+    """Excel's "CSV UTF-8" starts the file with a BOM: the table reads as without it (as calibrate's records do)."""
+    from workbench.identify.transducer import identify_transducer
+    src = Path(__file__).resolve().parents[2] / "plants" / "data" / "p888_51_instron_table1.csv"
+    bom = tmp_path / "table_bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + src.read_bytes())
+    with_bom, without = identify_transducer(bom).to_json(), identify_transducer(src).to_json()
+    assert with_bom.pop("source") != without.pop("source")           # the file each came from
+    assert with_bom == without

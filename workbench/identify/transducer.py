@@ -249,7 +249,8 @@ def _read_table(path, calibrations_m_per_v):
     columns = None
     runs = []
     seen = {}
-    with path.open(newline="", encoding="utf-8") as handle:
+    # utf-8-sig: an optional BOM, as Excel saves "CSV UTF-8" (calibrate's record reader skips it too)
+    with path.open(newline="", encoding="utf-8-sig") as handle:
         for lineno, text in enumerate(handle, start=1):
             if not text.strip() or text.lstrip().startswith("#"):
                 continue
