@@ -420,6 +420,9 @@ CASES = [
      ["--step-force", "out of range", "blocked force"]),
     ("calibrate-record-unit-slip", ["calibrate", "bad/um_label.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/um_label.csv", "1e-06 times", "unit slip", "displacement column's unit"]),
+    # python-control's reference loop at ~5600 steps/s: 1e12 steps ran unbounded (no estimate, no bound)
+    ("bench-reference-steps-1e12", ["bench", "--reference-steps", "1000000000000"],
+     ["--reference-steps 1000000000000", "estimated", "--force"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]

@@ -49,6 +49,16 @@ RUN_COSTS = {
     "linearize_point": (0.2, 1.0e4),
     # freefree: one gauge-rate sample of the simulated sine and its gauge reading
     "freefree_sample": (1.2e-6, 120.0),
+    # bench (time only; its memory hold measures the memory): one compiled step (timed 3 times), one
+    # python-control reference step, one closed-loop period (compiled, 3 times; the memory hold once), one
+    # python-control closed-loop period. One run of `bench --steps 100000 --reference-steps 300 --periods
+    # 100000 --reference-periods 300 --memory-periods 0` on the loaded 2-core machine (load ~6) measured
+    # 1.4e-7, 1.8e-4, 2.7e-7 and 3.7e-4 s, rounded up
+    "bench_step": (1.5e-7 * 3, 0.0),
+    "bench_reference_step": (2.0e-4, 0.0),
+    "bench_period": (3.0e-7 * 3, 0.0),
+    "bench_memory_period": (3.0e-7, 0.0),
+    "bench_reference_period": (4.0e-4, 0.0),
 }
 
 
@@ -464,7 +474,8 @@ def _controller_rate_hz(path, default):
 
 
 def estimate_run(args):
-    """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs."""
+    """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs (bytes None:
+    not estimated, as bench measures its own memory)."""
     cmd = args.command
     if cmd == "verify" and _is_mirror_file(args.plant):
         return None                 # the mirror's scenarios have a fixed size (tens of seconds of mirror time)
@@ -483,6 +494,14 @@ def estimate_run(args):
         s, b = RUN_COSTS["linearize_point"]
         return (f"--freq-points {args.freq_points} x {len(args.amplitudes)} amplitudes x {serials} serial(s)",
                 points * s, points * b)
+    if cmd == "bench":
+        periods = args.steps if args.periods is None else args.periods
+        ref_periods = args.reference_steps if args.reference_periods is None else args.reference_periods
+        parts = [(args.steps, "bench_step"), (args.reference_steps, "bench_reference_step"), (periods, "bench_period"),
+                 (ref_periods, "bench_reference_period"), (max(args.memory_periods, 0), "bench_memory_period")]
+        seconds = sum(n * RUN_COSTS[key][0] for n, key in parts)
+        return (f"--steps {args.steps} / --reference-steps {args.reference_steps} / --periods {periods} / "
+                f"--reference-periods {ref_periods} / --memory-periods {args.memory_periods}", seconds, None)
     if cmd == "freefree":
         fs = _plant(args.plant).gauge.modulation_hz
         n = args.cycles * fs / args.freq
@@ -498,15 +517,17 @@ def _check_size(args):
     what, seconds, nbytes = est
     force = getattr(args, "force_size", False)
     ram = _memory_bytes()
+    memory = "" if nbytes is None else f" and {_human_b(nbytes)} of memory"
+    nbytes = nbytes or 0.0
     if nbytes > ram:
         raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, more than "
                              f"this machine's {_human_b(ram)}; shorten the run")
     if seconds > MAX_SECONDS and not force:
-        raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, beyond the "
+        raise FlagRangeError(f"{what}: estimated {_human_s(seconds)}{memory}, beyond the "
                              f"{_human_s(MAX_SECONDS)} bound; shorten the run or give {size_flag(args.command)} to "
                              f"run it anyway")
     if seconds > 30.0:
-        print(f"workbench {args.command}: {what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory",
+        print(f"workbench {args.command}: {what}: estimated {_human_s(seconds)}{memory}",
               file=sys.stderr, flush=True)
 
 
@@ -518,7 +539,7 @@ def size_flag(command):
 
 def add_force_flags(sub):
     """Give the commands whose size a flag sets the run-size bound's override (:func:`size_flag`)."""
-    for name in ("verify", "selfsense", "linearize", "freefree"):
+    for name in ("verify", "selfsense", "linearize", "freefree", "bench"):
         p = sub.choices.get(name)
         if p is not None:
             p.add_argument(size_flag(name), dest="force_size", action="store_true",
