@@ -423,6 +423,9 @@ CASES = [
     # python-control's reference loop at ~5600 steps/s: 1e12 steps ran unbounded (no estimate, no bound)
     ("bench-reference-steps-1e12", ["bench", "--reference-steps", "1000000000000"],
      ["--reference-steps 1000000000000", "estimated", "--force"]),
+    # the table's format is its suffix: a .txt table failed after the whole sweep
+    ("sweep-table-txt", ["sweep", STUDY, "--out", "{out}", "--table", "{out}/t.txt"],
+     ["--table", "t.txt", "suffix must be one of .csv, .parquet"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]
