@@ -126,6 +126,8 @@ def ws(tmp_path_factory):
     nan_sos["sos"][0][1] = "NaN"
     (bad / "ctrl_nan.json").write_text(json.dumps(nan_sos).replace('"NaN"', "NaN"), encoding="utf-8")
     (bad / "a_file").write_text("not a folder\n", encoding="utf-8")
+    (bad / "ctrl_sos_text.json").write_text(json.dumps({**ctrl, "sos": [[str(c) for c in row] for row in ctrl["sos"]]}),
+                                            encoding="utf-8")
     # a record of the plant, simulated (its displacement in m) and labelled displacement[um]: a 1e-6 unit slip
     from workbench.plant import load_plant
     pzt = load_plant(ROOT / PLANT).pzt
@@ -426,6 +428,9 @@ CASES = [
     # the table's format is its suffix: a .txt table failed after the whole sweep
     ("sweep-table-txt", ["sweep", STUDY, "--out", "{out}", "--table", "{out}/t.txt"],
      ["--table", "t.txt", "suffix must be one of .csv, .parquet"]),
+    # sos cells written as text were read as numbers, while a text gain is refused
+    ("verify-controller-sos-text", ["verify", CREEP, "--controller", "bad/ctrl_sos_text.json"],
+     ["ctrl_sos_text.json", "[sos]", "of numbers", "without quotes"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]
