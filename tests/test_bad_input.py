@@ -21,6 +21,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from workbench.cli import main
@@ -125,6 +126,24 @@ def ws(tmp_path_factory):
     nan_sos["sos"][0][1] = "NaN"
     (bad / "ctrl_nan.json").write_text(json.dumps(nan_sos).replace('"NaN"', "NaN"), encoding="utf-8")
     (bad / "a_file").write_text("not a folder\n", encoding="utf-8")
+    (bad / "ctrl_sos_text.json").write_text(json.dumps({**ctrl, "sos": [[str(c) for c in row] for row in ctrl["sos"]]}),
+                                            encoding="utf-8")
+    # a record of the plant, simulated (its displacement in m) and labelled displacement[um]: a 1e-6 unit slip
+    from workbench.plant import load_plant
+    pzt = load_plant(ROOT / PLANT).pzt
+    t = np.arange(2000) * 1e-3
+    v = 50.0 * (1.0 - np.cos(2 * np.pi * 2.0 * t))                    # 0..100 V from rest
+    x = pzt.quasi_static_x_m(v)
+    rows = "\n".join(f"{a:.4f},{b:.6f},{c:.6e}" for a, b, c in zip(t, v, x))
+    (bad / "um_label.csv").write_text(f"time[s],voltage[V],displacement[um]\n{rows}\n", encoding="utf-8")
+    # the outside pass (README "Bad input"): files as other tools save them
+    (bad / "bom.toml").write_bytes(b"\xef\xbb\xbf" + plant_text)                     # Notepad's "UTF-8 with BOM"
+    (bad / "bom.json").write_bytes(b"\xef\xbb\xbf" + (ROOT / CTRL).read_bytes())
+    # Table 1 read wrongly: forces in N labelled kN (T_em x 1000), every force 0 (T_em < 0)
+    (bad / "table_kn.csv").write_bytes(table.replace(b"force[N]", b"force[kN]"))
+    head, _, body = table.decode("utf-8").partition("back_emf[V]\n")
+    zero = [",".join(r.split(",")[:5] + ["0.0"] + r.split(",")[6:]) for r in body.splitlines()]
+    (bad / "table_zero_force.csv").write_text(head + "back_emf[V]\n" + "\n".join(zero) + "\n", encoding="utf-8")
     return ws
 
 
@@ -361,6 +380,58 @@ CASES = [
     ("synth-effect-unknown", ["synth", PLANT, "--out", "{out}/r.csv", "--effect", "magic"], ["--effect"]),
     ("calibrate-split-unknown", ["calibrate", RECORD, "--plant", PLANT, "--split", "halves"], ["--split"]),
     ("gauge-no-plant", ["gauge"], ["plant"]),
+    # ---- the outside pass (README "Bad input"): cases its authors' suite did not have ----------------------
+    ("gauge-plant-bom", ["gauge", "bad/bom.toml"], ["bad/bom.toml", "line 1, column 1", "byte-order mark"]),
+    ("verify-controller-bom", ["verify", CREEP, "--controller", "bad/bom.json"], ["bad/bom.json", "byte-order mark"]),
+    # a folder whose permission bits allow writing but where nothing can be created (a virtual file system)
+    ("gauge-json-proc", ["gauge", PLANT, "--json", "/proc/g.json"], ["--json /proc/g.json", "nothing can be written"]),
+    ("identify-table-kn", ["identify", "transducer", "bad/table_kn.csv"], ["bad/table_kn.csv", "T_em = 6.5",
+                                                                              "outside (0, 10000] N/V", "units"]),
+    ("identify-table-zero-force", ["identify", "transducer", "bad/table_zero_force.csv"],
+     ["bad/table_zero_force.csv", "outside (0, 10000] N/V"]),
+    ("identify-stiffness-1e30", ["identify", "transducer", TABLE, "--stiffness", "1e30N/m"],
+     ["--stiffness", "out of range (0, 1e+12] N/m"]),
+    ("verify-seed-negative", ["verify", CREEP, "--controller", CTRL, "--seed=-1"], ["--seed", "out of range"]),
+    # outputs onto a file the command reads by default (no argument names it, so nothing protected it)
+    ("demo-json-onto-its-plant", ["demo", "--out", "{out}", "--json", PLANT], [PLANT, "is the input file the demo reads"]),
+    ("sweep-table-onto-its-default-controller", ["sweep", STUDY, "--out", "{out}", "--table", "./" + CTRL],
+     ["--table", "is the input controller (the sweep's default)"]),
+    ("selfsense-json-onto-default-fused-controller",
+     ["selfsense", CREEP, "--fused", "--json", str(ROOT / "controllers" / "sn637_fused_loopshape.json")],
+     ["is the input --fused-controller (default)"]),
+    ("linearize-freq-points-2", ["linearize", PLANT, "--freq-points", "2", "--amplitudes", "1V"],
+     ["--freq-points", "out of range [3, 100000]"]),
+    # an empty path is the current folder: `--out "$OUT"` with OUT unset wrote the study into ./ (replacing
+    # ./controllers/sn637_loopshape.json and its .csv/.h/.mat)
+    ("study-out-empty", ["study", STUDY, "--out", ""], ["--out", "an empty path ''"]),
+    ("gauge-json-empty", ["gauge", PLANT, "--json", ""], ["--json", "an empty path ''"]),
+    ("synth-out-blank", ["synth", PLANT, "--out", " "], ["--out", "an empty path ' '"]),
+    ("gauge-plant-empty", ["gauge", ""], ["plant", "an empty path ''"]),
+    # a study value given by --set is checked like the file's, before the design work
+    ("study-set-export-name", ["study", STUDY, "--out", "{out}", "--set", "export.name=../x"],
+     ["[export.name]", "'../x'"]),
+    # a free-free sine whose stroke is under the gauge noise (22 nm RMS in the plant file): C_p came out as
+    # -10.9 uF at 1 nV and +102 % at 100 mV, with exit 0
+    ("freefree-vpeak-1nv", ["freefree", PLANT, "--v-peak", "1nV"], ["--v-peak", "under the gauge noise 22 nm RMS"]),
+    ("freefree-vpeak-100mv", ["freefree", PLANT, "--v-peak", "100mV"], ["--v-peak", "out of range",
+                                                                      "under the gauge noise 22 nm RMS"]),
+    ("study-cache-dir-file", ["study", STUDY, "--out", "{out}", "--cache-dir", "bad/a_file"],
+     ["--cache-dir bad/a_file", "is a file"]),
+    # a force step beyond the blocked force k_p x stroke (200 N/um x ~18 um: ~3.7 kN) ran, reporting a 5 m squeeze
+    ("selfsense-step-force-1e9", ["selfsense", CREEP, "--force", "--step-force", "1e9N"],
+     ["--step-force", "out of range", "blocked force"]),
+    ("calibrate-record-unit-slip", ["calibrate", "bad/um_label.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/um_label.csv", "1e-06 times", "unit slip", "displacement column's unit"]),
+    # python-control's reference loop at ~5600 steps/s: 1e12 steps ran unbounded (no estimate, no bound)
+    ("bench-reference-steps-1e12", ["bench", "--reference-steps", "1000000000000"],
+     ["--reference-steps 1000000000000", "estimated", "--force"]),
+    # the table's format is its suffix: a .txt table failed after the whole sweep
+    ("sweep-table-txt", ["sweep", STUDY, "--out", "{out}", "--table", "{out}/t.txt"],
+     ["--table", "t.txt", "suffix must be one of .csv, .parquet"]),
+    # sos cells written as text were read as numbers, while a text gain is refused
+    ("verify-controller-sos-text", ["verify", CREEP, "--controller", "bad/ctrl_sos_text.json"],
+     ["ctrl_sos_text.json", "[sos]", "of numbers", "without quotes"]),
+    ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
 ]
 
@@ -534,3 +605,16 @@ def test_selfsense_size_bound_is_lifted_by_its_own_flag(monkeypatch):
     assert parse(["selfsense", CREEP, "--allow-long-run"]).force_size is True
     assert parse(["verify", CREEP, "--controller", CTRL, "--force"]).force_size is True
     assert preflight.size_flag("selfsense") == "--allow-long-run" and preflight.size_flag("verify") == "--force"
+
+
+def test_free_free_floor_is_the_voltage_whose_stroke_is_the_gauge_noise():
+    """The --v-peak floor is where the quasi-static stroke from rest reaches the gauge noise of the plant file."""
+    from workbench import preflight
+    from workbench.plant import load_plant
+    for name in ("p888_51_sn637", "p888_51_sn629", "p888_51_sn618"):
+        plant = load_plant(ROOT / "plants" / f"{name}.toml")
+        noise = plant.gauge.noise_rms_m
+        v_min = preflight._v_for_stroke(plant.pzt, noise)
+        assert 0 < v_min < plant.pzt.voltage_max_v
+        assert preflight._stroke_from_rest_m(plant.pzt, v_min) == pytest.approx(noise, rel=1e-9)
+        assert preflight._stroke_from_rest_m(plant.pzt, 0.99 * v_min) < noise

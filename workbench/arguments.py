@@ -10,7 +10,9 @@ import argparse
 from .errors import WorkbenchError
 from .units import parse_quantity
 
-__all__ = ["quantity", "emit"]
+__all__ = ["quantity", "emit", "path", "refuse_empty_paths"]
+
+from pathlib import Path
 
 
 def quantity(expected):
@@ -23,6 +25,25 @@ def quantity(expected):
             raise argparse.ArgumentTypeError(str(err)) from err
     parse.__name__ = f"quantity in {expected}"
     return parse
+
+
+def path(text):
+    """argparse type: a file or folder path, never empty. ``Path("")`` is the current folder, so
+    ``--out "$OUT"`` with ``OUT`` unset would write into it (a study then replaces ./controllers/*.json)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"an empty path {text!r}; give a file or folder name (an unset shell "
+                                         f"variable?)")
+    return Path(text)
+
+
+def refuse_empty_paths(parser):
+    """Give every ``type=Path`` argument of ``parser`` and its subcommands the :func:`path` type; returns it."""
+    for action in parser._actions:
+        if action.type is Path:
+            action.type = path
+        for sub in (action.choices.values() if isinstance(action, argparse._SubParsersAction) else ()):
+            refuse_empty_paths(sub)
+    return parser
 
 
 def emit(args, data, lines):

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from .errors import WorkbenchError
-from .arguments import emit, quantity
+from .arguments import emit, quantity, refuse_empty_paths
 
 __all__ = ["main"]
 
@@ -615,7 +615,7 @@ def build_parser():
 
     from .preflight import add_force_flags
     add_force_flags(sub)
-    return parser
+    return refuse_empty_paths(parser)      # an empty path is the current folder: refused (arguments.py)
 
 
 def main(argv=None):

@@ -121,8 +121,24 @@ def _number(src, key, value, *, positive=False, nonzero=False):
     return v
 
 
+def _cells(value):
+    """The leaves of nested lists/tuples."""
+    if isinstance(value, (list, tuple)):
+        for v in value:
+            yield from _cells(v)
+    else:
+        yield value
+
+
 def _array(src, key, value, shape_text, ndim, error=ControllerError):
     """``value`` as a finite float array of ``ndim`` dimensions, else ``error(src, key, message)``."""
+    # numbers only: numpy would read the text "0.5" (and true) as a number, while a text gain is refused
+    cells = value.ravel().tolist() if isinstance(value, np.ndarray) and value.dtype.kind not in "iuf" else (
+        [] if isinstance(value, np.ndarray) else _cells(value))
+    for cell in cells:
+        if isinstance(cell, bool) or not isinstance(cell, (int, float, np.integer, np.floating)):
+            raise error(src, key, f"must be {shape_text} of numbers; got {cell!r} in it (write the number "
+                                  f"without quotes)")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):

@@ -121,6 +121,9 @@ def read_toml(path, error, fix="check the path"):
         raise error(path, "file", f"cannot be read ({err.strerror or err}); {fix}") from None
     except UnicodeDecodeError as err:
         raise error(path, "file", f"is not UTF-8 text (byte {err.start}); save it as UTF-8 TOML") from None
+    if text.startswith("\ufeff"):       # a plant a study names is not seen by the preflight's file checks
+        raise error(path, "file", "line 1, column 1: starts with a byte-order mark (BOM, 'UTF-8 with BOM'); "
+                                  "save it as UTF-8 without BOM")
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:

@@ -56,6 +56,10 @@ def check_text_file(path, what=""):
     except OSError as err:
         raise FileArgumentError(f"{_name(path, what)}: cannot be read ({err.strerror}); "
                                 f"check the file's permissions") from None
+    if data.startswith(b"\xef\xbb\xbf") and path.suffix.lower() != ".csv":     # the CSV readers skip one
+        raise FileArgumentError(f"{_name(path, what)}: line 1, column 1: starts with a byte-order mark (BOM, bytes "
+                                f"ef bb bf, as Windows editors save 'UTF-8 with BOM'), which the TOML and JSON "
+                                f"readers take as text; save the file as UTF-8 without BOM")
     if b"\x00" in data:
         line = data[: data.index(b"\x00")].count(b"\n") + 1
         raise FileArgumentError(f"{_name(path, what)}: line {line}: a NUL byte: this is a binary file, not text; "
@@ -120,8 +124,22 @@ def _writable_parent(path, what):
             if not os.access(parent, os.W_OK | os.X_OK):
                 raise FileArgumentError(f"{_name(path, what)}: folder {parent} is not writable; "
                                         f"give a path in a writable folder")
+            _probe_write(parent, path, what)
             return parent
     return None
+
+
+def _probe_write(folder, path, what):
+    """Create and remove a file in ``folder``: permission bits say nothing of a read-only or virtual
+    file system (/proc, a read-only mount), where only trying tells (and root passes every access test)."""
+    import tempfile
+    try:
+        fd, tmp = tempfile.mkstemp(dir=folder, prefix=".workbench-probe.")
+    except OSError as err:
+        raise FileArgumentError(f"{_name(path, what)}: nothing can be written in folder {folder} "
+                                f"({err.strerror or err}); give a path in a writable folder") from None
+    os.close(fd)
+    os.unlink(tmp)
 
 
 def _not_an_input(path, what, inputs):
@@ -161,6 +179,7 @@ def check_output_dir(path, what="", *, inputs=()):
     if path.exists():
         if not os.access(path, os.W_OK | os.X_OK):
             raise FileArgumentError(f"{_name(path, what)}: folder is not writable; give a writable folder")
+        _probe_write(path, path, what)
     else:
         _writable_parent(path, what)
     return path

@@ -49,6 +49,16 @@ RUN_COSTS = {
     "linearize_point": (0.2, 1.0e4),
     # freefree: one gauge-rate sample of the simulated sine and its gauge reading
     "freefree_sample": (1.2e-6, 120.0),
+    # bench (time only; its memory hold measures the memory): one compiled step (timed 3 times), one
+    # python-control reference step, one closed-loop period (compiled, 3 times; the memory hold once), one
+    # python-control closed-loop period. One run of `bench --steps 100000 --reference-steps 300 --periods
+    # 100000 --reference-periods 300 --memory-periods 0` on the loaded 2-core machine (load ~6) measured
+    # 1.4e-7, 1.8e-4, 2.7e-7 and 3.7e-4 s, rounded up
+    "bench_step": (1.5e-7 * 3, 0.0),
+    "bench_reference_step": (2.0e-4, 0.0),
+    "bench_period": (3.0e-7 * 3, 0.0),
+    "bench_memory_period": (3.0e-7, 0.0),
+    "bench_reference_period": (4.0e-4, 0.0),
 }
 
 
@@ -90,6 +100,37 @@ def _files(args):
     return ins, out_files, out_dirs
 
 
+def _implicit_inputs(args):
+    """Files a command reads without an argument naming them (its defaults): (name, path) pairs.
+
+    They are not checked here (their command reports a missing one in its own words), but no output
+    may be one of them: ``demo --json plants/p888_51_sn637.toml``, ``sweep --table`` onto the
+    controller it runs, ``selfsense --json`` onto its default controller."""
+    cmd = args.command
+    found = []
+    if cmd == "demo":
+        from .demo import CREEP_PLANT, PLANTS, TABLE1
+        found += [("file the demo reads", Path(p)) for p in (*PLANTS, CREEP_PLANT, TABLE1)]
+    elif cmd == "sweep" and getattr(args, "controller", None) is None:
+        import tomllib
+        try:
+            data = tomllib.loads(Path(args.study).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            data = {}
+        name = data.get("export", {}).get("name") if isinstance(data.get("export"), dict) else None
+        if isinstance(name, str):
+            from .verify.sweep_job import default_controller_path
+            found.append(("controller (the sweep's default)", default_controller_path(args.study, name)))
+    elif cmd == "selfsense":
+        from .selfsense.fused_loop import FUSED_CONTROLLER
+        from .selfsense.run import DEFAULT_CONTROLLER
+        if getattr(args, "controller", None) is None:
+            found.append(("--controller (default)", DEFAULT_CONTROLLER))
+        if getattr(args, "fused_controller", None) is None:
+            found.append(("--fused-controller (default)", FUSED_CONTROLLER))
+    return found
+
+
 def _check_files(args):
     ins, out_files, out_dirs = _files(args)
     for name, path in ins:
@@ -98,6 +139,7 @@ def _check_files(args):
             _check_json(path, name)
         if path.suffix.lower() == ".csv":
             _check_csv_delimiter(path, name)
+    ins = ins + _implicit_inputs(args)
     for name, path in ins:
         if name == "--controller" and path.suffix.lower() in (".json", ".mat"):
             if args.command == "verify" and _mirror_pairing(args, path):
@@ -116,6 +158,9 @@ def _check_files(args):
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:
         check_output_dir(path, name, inputs=ins)
+    if getattr(args, "cache_dir", None):
+        # a folder the run writes into but does not own (kept after a failure, so not an output to clean)
+        check_output_dir(Path(args.cache_dir), "--cache-dir", inputs=ins)
     outs = out_files + out_dirs
     for i, (name, path) in enumerate(outs):
         for other, p2 in outs[i + 1:]:
@@ -219,6 +264,14 @@ def _check_study_file(args):
     mirror = data.get("schema") == FSM_STUDY_SCHEMA      # its loader checks its own sections (study/mirror.py)
     if not mirror:
         _check_study_sections(path, data)
+    if getattr(args, "set", None) and not mirror:
+        # a study value given by --set is checked as if written in the file (study --set export.name=../x
+        # was found by the exporter after the design work)
+        from .study.overrides import parse_overrides, split_overrides
+        for key, value in split_overrides(parse_overrides(args.set))[1].items():
+            section, _, name = key.partition(".")
+            if isinstance(data.get(section, {}), dict):
+                data[section] = {**data.get(section, {}), name: value}
     export = data.get("export", {})
     if not isinstance(export, dict):
         return
@@ -272,13 +325,27 @@ def _plant(path):
     return load_plant(path)
 
 
+def _stroke_from_rest_m(pzt, v):
+    """Quasi-static displacement from rest at the terminal voltage ``v`` (V), m."""
+    return float(pzt.quasi_static_x_m([0.0, v])[-1])
+
+
 def _stroke_range_m(pzt):
     """Quasi-static displacement from rest at the amplifier's lowest and highest voltage, m."""
-    import numpy as np
-    op = pzt.terminal_operator().inverse()
-    lo = float(pzt.k_q2x_m_per_c * op(np.array([0.0, pzt.voltage_min_v]))[-1]) if pzt.voltage_min_v < 0 else 0.0
-    hi = float(pzt.k_q2x_m_per_c * op(np.array([0.0, pzt.voltage_max_v]))[-1])
+    lo = _stroke_from_rest_m(pzt, pzt.voltage_min_v) if pzt.voltage_min_v < 0 else 0.0
+    hi = _stroke_from_rest_m(pzt, pzt.voltage_max_v)
     return min(lo, 0.0), hi
+
+
+def _v_for_stroke(pzt, x_m):
+    """The lowest positive voltage whose quasi-static stroke from rest reaches ``x_m`` (bisection), V."""
+    lo, hi = 0.0, pzt.voltage_max_v
+    if _stroke_from_rest_m(pzt, hi) <= x_m:
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _stroke_from_rest_m(pzt, mid) < x_m else (lo, mid)
+    return hi
 
 
 def _check_flags(args):
@@ -292,12 +359,24 @@ def _check_flags(args):
                                  f"stack's quasi-static stroke over the amplifier's {pzt.voltage_min_v:g}.."
                                  f"{pzt.voltage_max_v:g} V in {args.plant}")
     elif cmd == "identify":
-        _in_range("--stiffness", args.stiffness, "N/m", 0.0, math.inf, "a stiffness is positive", lo_open=True)
+        from .plant.files import _SCHEMA as plant_fields      # the plant file's range for k_p: one home
+        k_max = plant_fields["mechanics"]["stiffness_n_per_m"].hi
+        _in_range("--stiffness", args.stiffness, "N/m", 0.0, k_max, "a stiffness is positive, at most the plant "
+                  "file's stiffness_n_per_m range; e.g. 2e8 (200 N/um)", lo_open=True)
     elif cmd == "freefree":
         plant = _plant(args.plant)
         fs = plant.gauge.modulation_hz
         _in_range("--v-peak", args.v_peak, "V", 0.0, plant.pzt.voltage_max_v,
                   f"the amplifier's highest output in {args.plant}", lo_open=True)
+        # a sine whose stroke is under the gauge noise cannot be read: eqs. 10-12 then return noise
+        # (--v-peak 1e-9V gave C_p = -10.9 uF, 100mV +102 %; the error scales as noise / stroke)
+        noise_m = plant.gauge.noise_rms_m
+        if _stroke_from_rest_m(plant.pzt, args.v_peak) < noise_m:
+            v_min = _v_for_stroke(plant.pzt, noise_m)
+            raise FlagRangeError(f"--v-peak {args.v_peak:g} V: out of range [{v_min:.3g}, {plant.pzt.voltage_max_v:g}] "
+                                 f"V: its stroke from rest, {_stroke_from_rest_m(plant.pzt, args.v_peak) * 1e9:.3g} nm, "
+                                 f"is under the gauge noise {noise_m * 1e9:.3g} nm RMS of {args.plant}, so the test "
+                                 f"cannot read the stack's motion; e.g. 100V")
         _in_range("--freq", args.freq, "Hz", 0.0, fs / 20, f"at least 20 gauge samples a period at the "
                   f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
     elif cmd == "linearize":
@@ -313,12 +392,15 @@ def _check_flags(args):
                   lo_open=True)
         if not args.freq_min < args.freq_max:
             raise FlagRangeError(f"--freq-min ({args.freq_min:g} Hz) must be below --freq-max ({args.freq_max:g} Hz)")
-        _in_range("--freq-points", args.freq_points, "points", 2, 100_000, "at least two frequencies")
+        from .linearize.weight import MIN_GRID_POINTS
+        _in_range("--freq-points", args.freq_points, "points", MIN_GRID_POINTS, 100_000,
+                  f"the uncertainty weight W_m is fitted over at least {MIN_GRID_POINTS} frequencies")
         _in_range("--cp-tolerance", args.cp_tolerance, "(fraction of C_p)", 0.0, 1.0, "e.g. 0.2 for +/-20 %",
                   hi_open=True)
         _in_range("--imbalance-tolerance", args.imbalance_tolerance, "ohm", 0.0, 10.0,
                   "per-arm bridge imbalance, the study schema's range; e.g. 0.4ohm")
     elif cmd == "verify":
+        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
         # the hold scores the settled loop after its first second: at least one more second
         _in_range("--hold", args.hold, "s", 2.0, math.inf, "the first second of the hold settles the loop and "
                   "is not scored; give at least 2s, e.g. 1000s")
@@ -338,6 +420,16 @@ def _check_flags(args):
     elif cmd == "synth":
         _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
     elif cmd == "selfsense":
+        if getattr(args, "force", False) and getattr(args, "step_force", None) is not None:
+            # beyond the blocked force k_p x full stroke the step compresses the stack more than its stroke:
+            # outside the model (--step-force 1e9N ran and reported errors of a 5 m compression)
+            pzt = _plant(args.plant).pzt
+            f_block = pzt.stiffness_n_per_m * _stroke_range_m(pzt)[1]
+            _finite("--step-force", args.step_force, "N")
+            if not 0.0 < abs(args.step_force) <= f_block:
+                raise FlagRangeError(f"--step-force {args.step_force:g} N: out of range [-{f_block:.4g}, {f_block:.4g}] N "
+                                     f"and nonzero: the blocked force k_p x stroke = {pzt.stiffness_n_per_m:.3g} N/m x "
+                                     f"{_stroke_range_m(pzt)[1] * 1e6:.2f} um of {args.plant}; e.g. -100N (compression)")
         _in_range("--duration", args.duration, "s", 100.0, math.inf, "a few steps of 20-60 s; e.g. 1000s")
         if args.seed is not None:
             _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
@@ -382,7 +474,8 @@ def _controller_rate_hz(path, default):
 
 
 def estimate_run(args):
-    """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs."""
+    """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs (bytes None:
+    not estimated, as bench measures its own memory)."""
     cmd = args.command
     if cmd == "verify" and _is_mirror_file(args.plant):
         return None                 # the mirror's scenarios have a fixed size (tens of seconds of mirror time)
@@ -401,6 +494,14 @@ def estimate_run(args):
         s, b = RUN_COSTS["linearize_point"]
         return (f"--freq-points {args.freq_points} x {len(args.amplitudes)} amplitudes x {serials} serial(s)",
                 points * s, points * b)
+    if cmd == "bench":
+        periods = args.steps if args.periods is None else args.periods
+        ref_periods = args.reference_steps if args.reference_periods is None else args.reference_periods
+        parts = [(args.steps, "bench_step"), (args.reference_steps, "bench_reference_step"), (periods, "bench_period"),
+                 (ref_periods, "bench_reference_period"), (max(args.memory_periods, 0), "bench_memory_period")]
+        seconds = sum(n * RUN_COSTS[key][0] for n, key in parts)
+        return (f"--steps {args.steps} / --reference-steps {args.reference_steps} / --periods {periods} / "
+                f"--reference-periods {ref_periods} / --memory-periods {args.memory_periods}", seconds, None)
     if cmd == "freefree":
         fs = _plant(args.plant).gauge.modulation_hz
         n = args.cycles * fs / args.freq
@@ -416,15 +517,17 @@ def _check_size(args):
     what, seconds, nbytes = est
     force = getattr(args, "force_size", False)
     ram = _memory_bytes()
+    memory = "" if nbytes is None else f" and {_human_b(nbytes)} of memory"
+    nbytes = nbytes or 0.0
     if nbytes > ram:
         raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, more than "
                              f"this machine's {_human_b(ram)}; shorten the run")
     if seconds > MAX_SECONDS and not force:
-        raise FlagRangeError(f"{what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory, beyond the "
+        raise FlagRangeError(f"{what}: estimated {_human_s(seconds)}{memory}, beyond the "
                              f"{_human_s(MAX_SECONDS)} bound; shorten the run or give {size_flag(args.command)} to "
                              f"run it anyway")
     if seconds > 30.0:
-        print(f"workbench {args.command}: {what}: estimated {_human_s(seconds)} and {_human_b(nbytes)} of memory",
+        print(f"workbench {args.command}: {what}: estimated {_human_s(seconds)}{memory}",
               file=sys.stderr, flush=True)
 
 
@@ -436,7 +539,7 @@ def size_flag(command):
 
 def add_force_flags(sub):
     """Give the commands whose size a flag sets the run-size bound's override (:func:`size_flag`)."""
-    for name in ("verify", "selfsense", "linearize", "freefree"):
+    for name in ("verify", "selfsense", "linearize", "freefree", "bench"):
         p = sub.choices.get(name)
         if p is not None:
             p.add_argument(size_flag(name), dest="force_size", action="store_true",
@@ -493,6 +596,11 @@ def preflight(args):
         for name, path in out_files:
             check_output_file(path, name, inputs=extra)
         ins = ins + extra
+        if args.command == "sweep" and getattr(args, "table", None) is not None:
+            from .verify.sweep import _TABLE_SUFFIXES as suffixes      # the table writer's (one home)
+            if args.table.suffix.lower() not in suffixes:
+                raise FileArgumentError(f"--table {args.table}: the suffix must be one of {', '.join(suffixes)} (the "
+                                        f"table's format); e.g. {args.table.with_suffix('.csv')}")
     _check_flags(args)
     _check_size(args)
     outs = [p for _, p in out_files + out_dirs]

@@ -414,3 +414,23 @@ def test_drift_round_trip_through_the_updated_plant(sn637, tmp_path):
           f"m/s^2; error_after {res['error_after']['rms']:.4g} m; simulated through the plant, test RMS: {rms} m")
     assert rms["declared"] > 2.0 * rms["updated"]        # the drift is what the file adds
     assert abs(rms["updated"] - res["error_after"]["rms"]) <= 0.1 * res["error_after"]["rms"]
+
+
+@pytest.mark.parametrize("scale, refused", [(1.0, False), (0.5, False), (2.0, False),     # a stack off its model
+                                            (1e-3, True), (1e3, True), (1e-6, True)])   # an SI-prefix slip
+def test_displacement_unit_slip_is_refused_and_a_stack_off_its_model_is_not(sn637, scale, refused):
+    """The recorded stroke against the plant's quasi-static stroke over the recorded voltage: a factor of
+    1000 (one SI prefix) is refused naming the column's unit, a factor of 2 is a stack and is calibrated."""
+    from workbench.calibrate.run import _check_displacement_scale
+    from workbench.errors import DataFileError
+    for name in ("p888_51_sn637", "p888_51_sn629", "p888_51_sn618"):
+        pzt = load_plant(PLANTS / f"{name}.toml").pzt
+        t = np.arange(4000) * 1e-3
+        v = pzt.voltage_max_v / 2 * (1.0 - np.cos(2 * np.pi * 1.0 * t))      # rest to the amplifier's top
+        rec = Record(Path("r.csv"), {}, t, {"voltage_v": v, "displacement_m": scale * pzt.quasi_static_x_m(v)},
+                     1e-3, ())
+        if refused:
+            with pytest.raises(DataFileError, match="unit slip"):
+                _check_displacement_scale("r.csv", rec, pzt, name)
+        else:
+            _check_displacement_scale("r.csv", rec, pzt, name)

@@ -207,3 +207,14 @@ def test_swapped_t_em_follows_the_one_swap_decision(tmp_path, table1):
     assert edited.t_em_with_sn618_run3_swapped_n_per_v == pytest.approx(
         table1.t_em_with_sn618_run3_swapped_n_per_v, rel=1e-12)
     assert abs(edited.t_em_all_runs_as_printed_n_per_v / table1.t_em_all_runs_as_printed_n_per_v - 1) > 0.01
+
+
+def test_a_byte_order_mark_is_skipped(tmp_path):
+    """Excel's "CSV UTF-8" starts the file with a BOM: the table reads as without it (as calibrate's records do)."""
+    from workbench.identify.transducer import identify_transducer
+    src = Path(__file__).resolve().parents[2] / "plants" / "data" / "p888_51_instron_table1.csv"
+    bom = tmp_path / "table_bom.csv"
+    bom.write_bytes(b"\xef\xbb\xbf" + src.read_bytes())
+    with_bom, without = identify_transducer(bom).to_json(), identify_transducer(src).to_json()
+    assert with_bom.pop("source") != without.pop("source")           # the file each came from
+    assert with_bom == without

@@ -107,6 +107,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         if input_kind == "terminal":
             _check_range(data_path, ch["voltage_v"], plant.pzt.voltage_min_v, plant.pzt.voltage_max_v,
                          f"[electrical] voltage_min_v/voltage_max_v in {plant_path}")
+            _check_displacement_scale(data_path, record, plant.pzt, plant_path)
         pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
     if split is None:
         names = {"displacement_m": "displacement", "current_a": "charge", "gauge_v": "gauge"}
@@ -243,6 +244,32 @@ def _check_range(data_path, v, lo, hi, where):
                             f"data row {i + 1}), outside the plant's range {lo:g} .. {hi:g} V ({where}); "
                             f"calibrate against the plant of the stack that was driven, check the voltage "
                             f"column's unit, or write '# input: command' if the column is the amplifier's command")
+
+
+#: A recorded stroke this many times larger or smaller than the plant's is taken for a unit slip: the geometric
+#: middle between the same unit (ratio 1; a stack differs from its model by tens of %) and the next SI prefix
+#: (x 1000, e.g. metres written under displacement[um]).
+UNIT_SLIP_RATIO = 1000.0 ** 0.5
+
+
+def _check_displacement_scale(data_path, record, pzt, plant_path):
+    """The recorded displacement's span must be the plant's quasi-static stroke over the recorded voltage span
+    within :data:`UNIT_SLIP_RATIO` (a record in m under displacement[um] was calibrated, 'no effect', before)."""
+    x = record.channels.get("displacement_m")
+    if x is None:
+        return
+    v = record.channels["voltage_v"]
+    model = float(pzt.quasi_static_x_m([0.0, v.max()])[-1] - pzt.quasi_static_x_m([0.0, v.min()])[-1])
+    recorded = float(np.ptp(x))
+    if not model > 0:
+        return
+    ratio = recorded / model
+    if not 1.0 / UNIT_SLIP_RATIO <= ratio <= UNIT_SLIP_RATIO:
+        raise DataFileError(f"{data_path}: the displacement spans {recorded:.4g} m over the recorded "
+                            f"{v.min():.4g} .. {v.max():.4g} V, {ratio:.3g} times the {model:.4g} m the plant "
+                            f"{plant_path} strokes over that range (quasi-static); more than {UNIT_SLIP_RATIO:.3g} "
+                            f"times off is a unit slip, not a stack: check the displacement column's unit "
+                            f"(e.g. displacement[um] over values in m) or calibrate against the stack's plant")
 
 
 def _check_plant_text(text, path, kind):

@@ -41,6 +41,7 @@ from types import MappingProxyType
 import numpy as np
 
 from ..errors import DataFileError, UnitError
+from ..plant.files import _SCHEMA as PLANT_FIELDS   # the plant file's ranges (one home)
 from ..units import scale_of
 
 __all__ = ["TransducerResult", "identify_transducer", "table1_swap_decision", "DEFAULT_CALIBRATIONS_M_PER_V",
@@ -247,7 +248,8 @@ def _read_table(path, calibrations_m_per_v):
     columns = None
     runs = []
     seen = {}
-    with path.open(newline="", encoding="utf-8") as handle:
+    # utf-8-sig: an optional BOM, as Excel saves "CSV UTF-8" (calibrate's record reader skips it too)
+    with path.open(newline="", encoding="utf-8-sig") as handle:
         for lineno, text in enumerate(handle, start=1):
             if not text.strip() or text.lstrip().startswith("#"):
                 continue
@@ -559,6 +561,15 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
 
     t_used = np.array([u["t_em_n_per_v"] for u in used])
     t_em_mean = float(t_used.mean())
+    t_em_field = PLANT_FIELDS["electrical"]["transducer_constant_n_per_v"]
+    if not t_em_field.lo < t_em_mean <= t_em_field.hi:
+        # eq. 6 returns a number for any columns; one no plant file can hold is a table read wrongly
+        # (forces in kN labelled N, forces of 0, a sign flipped), not a transducer
+        raise DataFileError(f"{path}: eq. 6 over the {len(used)} R_out runs that pass the checks gives T_em = "
+                            f"{t_em_mean:.4g} N/V, outside ({t_em_field.lo:g}, {t_em_field.hi:g}] N/V, the range a "
+                            f"plant file accepts for transducer_constant_n_per_v (seed 000: 46.71 N/V); check the "
+                            f"force, displacement and back_emf columns' units and signs (compression negative) "
+                            f"and --stiffness ({kp:g} N/m)")
     k_short = kp + t_em_mean ** 2 / (working_capacitance_f + hysteretic_capacitance_f)
     for rec in r_in:
         run = rec.pop("_run")

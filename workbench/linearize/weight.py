@@ -50,10 +50,14 @@ class Coverage:
     covered: bool
 
 
+# the fewest frequencies the weight W_m is fitted over (the grid check below; linearize --freq-points too)
+MIN_GRID_POINTS = 3
+
+
 def _check_grid(freq_hz):
     f = np.asarray(freq_hz, dtype=float)
-    if f.ndim != 1 or f.size < 3:
-        raise ValueError(f"freq_hz must be a 1-D array of at least 3 points, got shape {f.shape}")
+    if f.ndim != 1 or f.size < MIN_GRID_POINTS:
+        raise ValueError(f"freq_hz must be a 1-D array of at least {MIN_GRID_POINTS} points, got shape {f.shape}")
     if not np.all(np.isfinite(f)) or np.any(f <= 0) or np.any(np.diff(f) <= 0):
         raise ValueError("freq_hz must be finite, positive and strictly increasing")
     return f

@@ -27,6 +27,7 @@ mode near the loop's crossover should be modelled with care (see README).
 
 from dataclasses import dataclass, field
 
+import numpy as np
 
 from .creep import CreepParams
 from .hysteresis import PrandtlIshlinskii
@@ -115,6 +116,22 @@ class PZTParams:
     def terminal_operator(self):
         """G = C_h^{-1} + (1/C_pp) I: terminal voltage as a PI operator of q_h."""
         return self.hysteresis.inverse().plus_linear(1.0 / self.c_pp_f)
+
+    def quasi_static_x_m(self, v_v):
+        """Displacement along a terminal-voltage sequence from rest, quasi-static, m.
+
+        Parameters
+        ----------
+        v_v : ndarray of float
+            Terminal voltage, V, starting from rest (its first sample at 0 V for a stack at rest).
+
+        Returns
+        -------
+        ndarray of float
+            x = k_q2x G^{-1}(v) (seed eq. 10 on the hysteretic branch), m; the series resistor, modes and
+            creep are left out (a slow drive).
+        """
+        return self.k_q2x_m_per_c * self.terminal_operator().inverse()(np.asarray(v_v, dtype=float))
 
     def with_resistance(self, resistance_ohm):
         from dataclasses import replace

@@ -61,8 +61,13 @@ def to_jsonable(obj):
 def _atomic(path, write):
     path = Path(path)
     _refuse_inputs(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    except OSError as err:
+        from ..paths import FileArgumentError
+        raise FileArgumentError(f"{path}: cannot be written ({err.strerror or err}); give a path in a writable "
+                                f"folder") from None
     os.close(fd)
     try:
         write(tmp)

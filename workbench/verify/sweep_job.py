@@ -130,12 +130,17 @@ def run_case(payload):
     return out
 
 
+def default_controller_path(study_file, export_name):
+    """The controller a sweep runs without ``--controller``: ``controllers/NAME.json`` beside the study's folder."""
+    return Path(study_file).parent.parent / "controllers" / f"{export_name}.json"
+
+
 def run_sweep(study_path, controller_path=None, out_dir=None, table=None, scheduler=None, workers=None,
               amplitudes_v=None, noise=False, progress=None, timeout_s=None):
     """Run the sweep of a study file; write the table (and sweep.json) into ``out_dir``; return a summary."""
     study = load_study(study_path)
     if controller_path is None:
-        controller_path = study.path.parent.parent / "controllers" / f"{study.export['name']}.json"
+        controller_path = default_controller_path(study.path, study.export["name"])
         if not controller_path.is_file():
             raise StudyDefinitionError(study.path, "export.name", f"no exported controller at {controller_path}; "
                                                                    f"give one with --controller")
