@@ -129,9 +129,9 @@ class MirrorRun:
         Tip, tilt (rad) and piston (m, about the operating point) references.
     tip_rad, tilt_rad, piston_m : ndarray
         The mirror's motion (piston about the operating point).
-    x_m, i_a, v_cmd_v, v_t_v, reading_v, v_p_v : ndarray, (samples, 3)
+    x_m, i_a, v_cmd_v, v_t_v, reading_v, v_p_v, q_c : ndarray, (samples, 3)
         Per stack: elongation, mean current, command, terminal voltage, gauge reading (firmware V),
-        the piezo voltage V_p (T V_p: the stack's force, the quantity the charge bridge estimates).
+        the piezo voltage V_p (T V_p: the stack's force, the quantity the charge bridge estimates), charge (C).
     bridge_v : ndarray, (samples, 3) or None
         Per stack: the charge bridge's reading (V), with an IFF-damped controller.
     """
@@ -147,6 +147,7 @@ class MirrorRun:
     v_t_v: np.ndarray
     reading_v: np.ndarray
     v_p_v: np.ndarray = None
+    q_c: np.ndarray = None
     bridge_v: np.ndarray = None
 
 
@@ -184,6 +185,8 @@ class MirrorLoop:
         tr = self.sim.run(np.tile(self.v0, (n, 1)))
         self.x_prev = tr.x_m[-1].copy()
         self.bridge_state, self.bridge_zero = _bridge_reset(self.bridge, tr.q_c[-1], tr.v_t_v[-1])
+        self.v_p_reset_v = tr.v_p_v[-1].copy()       # the stacks' V_p and q at the reset (the bridge reads changes)
+        self.q_reset_c, self.v_t_reset_v = tr.q_c[-1].copy(), tr.v_t_v[-1].copy()
         self.state = self.ctrl.reset(self.u0)
         self.iff_state = self.ctrl.reset_iff() if self.ctrl.iff is not None else _NO_IFF_STATE
         self.v_cmd = self.v0.copy()
@@ -199,7 +202,7 @@ class MirrorLoop:
         n = ref.shape[0]
         w = np.zeros((n, 3)) if external is None else np.ascontiguousarray(np.asarray(external, float))
         rw = self.ctrl.reference_words(ref)
-        out = np.empty((n, 6, 3))
+        out = np.empty((n, 7, 3))
         mir = np.empty((n, 3))
         noise = (self.rng.standard_normal((n, 3)) * self.sigma) if self.noise else np.zeros((n, 3))
         bnoise = (self.rng.standard_normal((n, 3)) * self.bridge[0][:, 1] if self.noise and self.ctrl.iff is not None
@@ -225,7 +228,7 @@ class MirrorLoop:
                 progress(k1, n)
         self.x_prev, self.v_cmd = io[:3].copy(), io[3:].copy()
         t = (np.arange(n) + 1) * ctrl.dt_s
-        names = ("x_m", "i_a", "v_cmd_v", "v_t_v", "reading_v", "v_p_v")
+        names = ("x_m", "i_a", "v_cmd_v", "v_t_v", "reading_v", "v_p_v", "q_c")
         return MirrorRun(t_s=t, ref=ref, tip_rad=mir[:, 0] - self.q0[0], tilt_rad=mir[:, 1] - self.q0[1],
                          piston_m=mir[:, 2] - self.q0[2], **{nm: out[:, i] for i, nm in enumerate(names)},
                          bridge_v=bout if ctrl.iff is not None else None)
@@ -252,7 +255,7 @@ class MirrorLoop:
             tr = sim.run(io[3:][None, :].copy(), external_n=w[k:k + 1])
             x = tr.x_m[0]
             _gauges(io[:3], x, self.gp, self.r0, noise[k], g)
-            out[k] = x, tr.i_a[0], io[3:], tr.v_t_v[0], g, tr.v_p_v[0]
+            out[k] = x, tr.i_a[0], io[3:], tr.v_t_v[0], g, tr.v_p_v[0], tr.q_c[0]
             mir[k] = tr.y[0, 6:9]
             io[:3] = x
             if ctrl.iff is not None:
@@ -353,6 +356,7 @@ def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, 
             out[k, 3, j] = rec_s[0, j, _VT]
             out[k, 4, j] = g[j]
             out[k, 5, j] = rec_s[0, j, _VP]
+            out[k, 6, j] = rec_s[0, j, _Q]
             io[j] = x[j]
             gw[j] = np.int64(np.rint(g[j] * gscale))
         for o in range(3):
