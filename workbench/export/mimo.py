@@ -170,7 +170,8 @@ class MimoController:
         The active-damping path: ``{"stack0": Controller, "stack1": ..., "stack2": ...}`` (bridge
         reading V in, stack V out) and ``"bridge"``: a dict of the analog bridge it was designed for
         (``reference_capacitance_f``, ``integrator_capacitance_f``, ``transducer_n_per_v``, ``gain_v_per_n``,
-        ``corner_hz``). None: no IFF.
+        ``corner_hz``, ``adc_range_v``, ``adc_bits``, ``out_noise_v_rms``; checked on load against the cascades'
+        gains). None: no IFF.
     """
 
     name: str
@@ -726,7 +727,7 @@ def _load_iff(src, data, fs, allow_unstable):
         v = _array(src, f"iff.bridge.{k}", br[k], "three positive numbers", 1, MimoControllerError)
         if v.shape != (3,) or np.any(v <= 0):
             raise MimoControllerError(src, f"iff.bridge.{k}", f"must be three positive numbers; got {br[k]!r}")
-    for k in ("integrator_capacitance_f", "corner_hz", "adc_range_v", "out_noise_v_rms"):
+    for k in ("integrator_capacitance_f", "corner_hz", "adc_range_v", "out_noise_v_rms", "gain_v_per_n"):
         v = br[k]
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
                 and (v >= 0 if k == "out_noise_v_rms" else v > 0)):
@@ -751,7 +752,23 @@ def _load_iff(src, data, fs, allow_unstable):
             raise MimoControllerError(src, f"iff.controllers.{k}.sample_rate_hz",
                                       f"{c.sample_rate_hz!r} must equal the controller's {fs!r}")
         out[k] = c
+    _check_iff_gains(src, out)
     return out
+
+
+def _check_iff_gains(src, iff):
+    """Each cascade's gain at Nyquist (z = -1: s -> infinity of the Tustin-sampled g s / (s + w_l)) must be the
+    bridge's -g T_j C_int / C_R,j (relative 1e-6), else the bridge numbers are not the ones it was designed for."""
+    br = iff["bridge"]
+    for j, k in enumerate(IFF_KEYS):
+        sos = np.asarray(iff[k].sos, float)
+        h = iff[k].gain * float(np.prod((sos[:, 0] - sos[:, 1] + sos[:, 2]) / (sos[:, 3] - sos[:, 4] + sos[:, 5])))
+        want = -br["gain_v_per_n"] * br["transducer_n_per_v"][j] * br["integrator_capacitance_f"] \
+            / br["reference_capacitance_f"][j]
+        if not abs(h - want) <= 1e-6 * abs(want):
+            raise MimoControllerError(src, f"iff.controllers.{k}",
+                                      f"its high-frequency gain {h:.6g} V/V is not the bridge's -g T C_int / C_R = "
+                                      f"{want:.6g} V/V: the iff.bridge numbers do not match the cascades; re-export")
 
 
 def _mirror_provenance(fsm):
