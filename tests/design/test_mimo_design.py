@@ -205,6 +205,11 @@ def test_design_margins_over_the_family(fsm, family, damping):
         assert abs(worst["phase_margin_deg"]["value"]) >= 45.0 - 0.5
         assert abs(worst["gain_margin_db"]["value"]) >= 6.0 - 0.1
         assert (d.notches[ax] is None) == damping
+    iff = d.summary()["iff"]
+    assert (iff is None) != damping
+    if damping:       # the record names the force estimate (gauge-fed or bridge) and, for the bridge, its C_R
+        assert iff["source"] == d.iff.source and iff["bridge_capacitance_f"] == (
+            None if d.iff.bridge_capacitance_f is None else list(d.iff.bridge_capacitance_f))
     for disk in (d.disk_in, d.disk_out):
         assert disk["alpha"] >= 0.4
         assert disk["member"] in family
