@@ -115,3 +115,14 @@ def test_closed_loop_dips_at_the_zero():
         assert inside[k - 1] and inside[k + 1], "the minimum lies on the band's edge: no dip at the zero"
         assert mag[np.abs(grid - f_z[a]).argmin()] < 1 / np.sqrt(2)
         assert 0 < bw[a] < f_z[a]
+
+
+def test_limit_command_bad_input_exits_2(capsys):
+    """A misspelt flag or a missing plant file: one line naming it, exit status 2, no traceback, no sweep."""
+    from workbench.design.mimo_sweep import main
+    for argv, named in ((["--limt"], "--limt"), (["no_such_mirror.toml", "--limit"], "no_such_mirror.toml")):
+        with pytest.raises(SystemExit) as ex:
+            main(argv)
+        assert ex.value.code == 2
+        err = capsys.readouterr().err
+        assert named in err and "Traceback" not in err

@@ -443,8 +443,9 @@ def mirror_angle_limit(fsm, member):
 
     A transmission zero of the plant stays a zero of every closed loop around it (output feedback,
     the IFF loop included, only adds the controller's poles as zeros), so |T| from the reference to
-    the mirror's angle dips to ~2 zeta_z at f_z, whatever the gauges' loop does: the angle's -3 dB
-    bandwidth stays below f_z. A sensor on the mirror changes what is measured, not the zero: only a
+    the mirror's angle has a notch at f_z, whatever the gauges' loop does, and the angle's -3 dB
+    bandwidth stays below f_z. The notch is shallower than the plant's 2 zeta_z where the closed loop
+    resonates next to it (0.31 of DC on the committed mirror's notch-only design). A sensor on the mirror changes what is measured, not the zero: only a
     change of the actuation (another input) or of the structure (f_rock, I_h, J) moves it.
 
     Parameters
