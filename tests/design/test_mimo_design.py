@@ -93,6 +93,23 @@ def test_bridge_iff_damps_as_the_gauge_fed_one(fsm, family):
     assert ib["zeta_min_damped"] > 2 * ib["zeta_min_open"]
 
 
+def test_charge_only_iff_is_the_charge_and_damps_less(fsm, family):
+    """``iff_source="charge"``: F_hat = T q / C_p, i.e. the gauge-fed estimate plus T^2 x / C_p (closed form, every
+    member); tuned, it damps the flexure modes, but less than the force estimate does (its electrical part
+    carries no force)."""
+    t = np.array([pz.transducer_constant_n_per_v for pz in fsm.stacks])
+    cp = np.array([pz.working_capacitance_f for pz in fsm.stacks])
+    for name, member in family.items():
+        fc = mimo.force_estimate(fsm, member, FREQ, "charge")
+        fg = mimo.force_estimate(fsm, member, FREQ, "charge+gauge")
+        x = mimo.member_responses(member, FREQ, mimo.X)
+        np.testing.assert_allclose(fc - fg, (t * t / cp)[None, :, None] * x, rtol=1e-9,
+                                   atol=1e-12 * np.abs(fc).max(), err_msg=name)
+    c, ic = mimo.tune_iff(fsm, family, source="charge")
+    g, ig = mimo.tune_iff(fsm, family, source="charge+gauge")
+    assert ic["zeta_min_open"] < ic["zeta_min_damped"] < ig["zeta_min_damped"]
+
+
 @pytest.mark.parametrize("seed", range(5))
 def test_loop_at_a_time_is_the_schur_complement(seed):
     """With the other loops closed, channel i's sensitivity 1 / (1 + l_i) is [(I + L)^-1]_ii."""
@@ -188,6 +205,11 @@ def test_design_margins_over_the_family(fsm, family, damping):
         assert abs(worst["phase_margin_deg"]["value"]) >= 45.0 - 0.5
         assert abs(worst["gain_margin_db"]["value"]) >= 6.0 - 0.1
         assert (d.notches[ax] is None) == damping
+    iff = d.summary()["iff"]
+    assert (iff is None) != damping
+    if damping:       # the record names the force estimate (gauge-fed or bridge) and, for the bridge, its C_R
+        assert iff["source"] == d.iff.source and iff["bridge_capacitance_f"] == (
+            None if d.iff.bridge_capacitance_f is None else list(d.iff.bridge_capacitance_f))
     for disk in (d.disk_in, d.disk_out):
         assert disk["alpha"] >= 0.4
         assert disk["member"] in family

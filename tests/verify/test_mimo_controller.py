@@ -182,6 +182,16 @@ def test_iff_json_round_trip_and_bad_keys(ctrl_iff, tmp_path, rng):
                          "iff.bridge.reference_capacitance_f"),
                         (lambda d: d["iff"]["controllers"].pop("stack1"), "iff.controllers.stack1"),
                         (lambda d: d["iff"]["controllers"]["stack0"]["sos"][0].__setitem__(5, 1.5),
+                         "iff.controllers.stack0"),
+                        (lambda d: d["iff"]["bridge"].__setitem__("corner_hz", True), "iff.bridge.corner_hz"),
+                        (lambda d: d["iff"]["bridge"].__setitem__("adc_range_v", float("inf")),
+                         "iff.bridge.adc_range_v"),
+                        (lambda d: d["iff"]["bridge"].__setitem__("adc_bits", 17.5), "iff.bridge.adc_bits"),
+                        (lambda d: d["iff"]["bridge"].__setitem__("out_noise_v_rms", -1e-6),
+                         "iff.bridge.out_noise_v_rms"),
+                        # bridge numbers that are not the cascades' (C_int doubled): -g T C_int / C_R off
+                        (lambda d: d["iff"]["bridge"].__setitem__(
+                            "integrator_capacitance_f", 2 * d["iff"]["bridge"]["integrator_capacitance_f"]),
                          "iff.controllers.stack0")):
         path = tmp_path / "bad.json"
         path.write_text(json.dumps(_corrupt(ctrl_iff.to_dict(), change)))

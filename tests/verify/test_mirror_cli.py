@@ -87,3 +87,10 @@ def test_mirror_study_file_faults_named_before_design(root, tmp_path, capsys, ol
     err = capsys.readouterr().err
     assert f"[{key}]" in err and text in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_study_damped_verdict_reads_the_unrounded_ratios():
+    """Issue 15's 2x on the damped / notch-only ratios themselves: 1.995 (printed "2.00") is missed."""
+    from workbench.study.mirror import damped_ratio_met
+    assert not damped_ratio_met([1.995, 3.0, 0.1]) and not damped_ratio_met([3.0, 1.9999999, 5.0])
+    assert damped_ratio_met([2.0, 2.0, 0.1])          # piston does not count

@@ -207,5 +207,11 @@ def test_the_charge_channel_has_one_adc_and_one_recursion():
         text = path.read_text()
         if rel not in homes:
             assert not re.search(r"q_leak|/ *c_int|2\.0 \*\* int\(.*(adc|vin)", text), rel
-    sensors = (src / "verify" / "sensors.py").read_text()
-    assert "charge_amp_step(" in sensors and "adc_convert(" in sensors and "estimator_step(" in sensors
+            # the copies verify/mirror.py once held: the amplifier over a per-stack table's C_int column, the
+            # ADC's rounding to a per-stack LSB, the LSB from a charge amplifier's bits
+            assert not re.search(r"\) */ *[a-z_]+\[[a-z_]+, *1\]|np\.rint\([^)]*/ *[a-z_]+\[[^]]*\]\) *\* *[a-z_]+\["
+                                 r"|2(\.0)? \*\* *(int\()?(amp|a_j|br|self\.amp)[^ ]*adc_bits", text), rel
+    for name in ("sensors.py", "mirror.py"):
+        text = (src / "verify" / name).read_text()
+        assert "charge_amp_step(" in text and "adc_convert(" in text, name
+    assert "estimator_step(" in (src / "verify" / "sensors.py").read_text()

@@ -418,8 +418,11 @@ class MimoDesign:
 
     def summary(self):
         """Plain dict of the headline numbers (per axis and simultaneous), worst members named."""
-        out = {"iff": None if self.iff is None else {"gain_v_per_n": self.iff.gain_v_per_n,
-                                                     "corner_hz": self.iff.corner_hz, **(self.iff_info or {})},
+        out = {"iff": None if self.iff is None else {
+                   "gain_v_per_n": self.iff.gain_v_per_n, "corner_hz": self.iff.corner_hz, "source": self.iff.source,
+                   "bridge_capacitance_f": (None if self.iff.bridge_capacitance_f is None
+                                            else [float(c) for c in self.iff.bridge_capacitance_f]),
+                   **(self.iff_info or {})},
                "axes": {}, "disk_in": self.disk_in, "disk_out": self.disk_out}
         for ax in AXIS_NAMES:
             w = self.lat[ax][1]

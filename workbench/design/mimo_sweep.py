@@ -42,7 +42,7 @@ from .mimo import AXIS_NAMES, MIMO_SPEC, axis_resonances_hz, default_freq_hz, de
 
 __all__ = ["scaled_mirror", "damping_sweep", "sweep_markdown", "DEFAULT_MODES_HZ",
            "rate_spec", "rate_sweep", "rate_markdown", "sensitivity_bandwidth_hz", "mirror_closed_loop",
-           "mirror_bandwidth_hz", "DEFAULT_RATES_HZ", "transmission_zeros", "mirror_angle_limit",
+           "mirror_bandwidth_hz", "DEFAULT_RATES_HZ", "transmission_zeros", "zero_output_directions", "mirror_angle_limit",
            "limit_markdown"]
 
 DEFAULT_RATES_HZ = (10e3, 20e3, 40e3)   # servo sample rates, Hz (space FSMs run 5-40 kHz)
@@ -364,23 +364,24 @@ def transmission_zeros(sys, inputs, outputs):
     Returns
     -------
     ndarray of complex
-        The finite generalized eigenvalues of the Rosenbrock pencil ([[A, B], [C, D]], [[I, 0], [0, 0]]),
-        rad/s, sorted by magnitude.
+        The finite generalized eigenvalues (|z| < 1e12) of the Rosenbrock pencil
+        ([[A, B], [C, D]], [[I, 0], [0, 0]]) by QZ, rad/s, sorted by magnitude.
 
     Raises
     ------
     ValueError
         Unequal numbers of inputs and outputs, or a label the model does not have.
+
+    Notes
+    -----
+    python-control 0.10.2's ``zeros()`` (slycot's AB08ND, which reduces the pencil first) gives the same
+    |z| on a plant member (3e-9 to 7e-7 relative on the mirror's nominal) but drifts on the same plant closed on its
+    gauges with a static gain, whose zeros are exactly the open loop's: 1.5e-8 / 2.5e-7 / 1.3e-5 relative at
+    loop gains 0.3 / 3 / 30, where this direct QZ gives the open loop's to the last bit
+    (``tests/design/test_mirror_limit.py::test_feedback_does_not_move_the_zeros``). Hence this QZ.
     """
     import scipy.linalg
-    if len(inputs) != len(outputs):
-        raise ValueError(f"transmission zeros need a square channel; got {len(inputs)} inputs, {len(outputs)} outputs")
-    try:
-        ii = [list(sys.input_labels).index(i) for i in inputs]
-        oo = [list(sys.output_labels).index(o) for o in outputs]
-    except ValueError as err:
-        raise ValueError(f"unknown channel label ({err}); inputs {list(sys.input_labels)}, "
-                         f"outputs {list(sys.output_labels)}") from err
+    ii, oo = _channel(sys, inputs, outputs)
     a, b, c, d = sys.A, sys.B[:, ii], sys.C[oo], sys.D[np.ix_(oo, ii)]
     n = a.shape[0]
     pencil = np.block([[a, b], [c, d]])
@@ -389,6 +390,44 @@ def transmission_zeros(sys, inputs, outputs):
     z = scipy.linalg.eigvals(pencil, mass)
     z = z[np.isfinite(z) & (np.abs(z) < 1e12)]
     return z[np.argsort(np.abs(z))]
+
+
+def _channel(sys, inputs, outputs):
+    if len(inputs) != len(outputs):
+        raise ValueError(f"transmission zeros need a square channel; got {len(inputs)} inputs, {len(outputs)} outputs")
+    try:
+        return ([list(sys.input_labels).index(i) for i in inputs], [list(sys.output_labels).index(o) for o in outputs])
+    except ValueError as err:
+        raise ValueError(f"unknown channel label ({err}); inputs {list(sys.input_labels)}, "
+                         f"outputs {list(sys.output_labels)}") from err
+
+
+def zero_output_directions(sys, inputs, outputs, zeros):
+    """Which output each transmission zero blocks: the output zero direction y (y^T G(z) = 0), per zero.
+
+    y is the output part of the left null vector of the Rosenbrock pencil [[A - z I, B], [C, D]] at z,
+    with the outputs scaled by their static gains' row norms (so rad and m compare): a zero of the tip
+    row alone has y = e_tip.
+
+    Returns
+    -------
+    ndarray, (len(zeros), len(outputs))
+        |y| per zero, normalized to a largest entry of 1 (the blocked output is its argmax).
+    """
+    ii, oo = _channel(sys, inputs, outputs)
+    a, b, c, d = sys.A, sys.B[:, ii], sys.C[oo], sys.D[np.ix_(oo, ii)]
+    n = a.shape[0]
+    zs = np.asarray(zeros, complex)
+    w_low = 1e-3 * (np.min(np.abs(zs)) if zs.size else 1.0)      # practically static, clear of any pole at 0
+    g0 = c @ np.linalg.solve(1j * w_low * np.eye(n) - a, b) + d
+    scale = np.linalg.norm(g0, axis=1)
+    scale[scale == 0] = 1.0
+    out = np.empty((zs.size, len(oo)))
+    for k, z in enumerate(zs):
+        u = np.linalg.svd(np.block([[a - z * np.eye(n), b], [c, d]]))[0]
+        y = np.abs(u[n:, -1]) * scale                               # y' = S y for outputs scaled by 1/S
+        out[k] = y / y.max()
+    return out
 
 
 def mirror_angle_limit(fsm, member):
@@ -404,8 +443,10 @@ def mirror_angle_limit(fsm, member):
 
     A transmission zero of the plant stays a zero of every closed loop around it (output feedback,
     the IFF loop included, only adds the controller's poles as zeros), so |T| from the reference to
-    the mirror's angle dips to ~2 zeta_z at f_z, whatever the gauges' loop does: the angle's -3 dB
-    bandwidth stays below f_z. Only another actuator or a sensor on the mirror moves it.
+    the mirror's angle has a notch at f_z, whatever the gauges' loop does, and the angle's -3 dB
+    bandwidth stays below f_z. The notch is shallower than the plant's 2 zeta_z where the closed loop
+    resonates next to it (0.31 of DC on the committed mirror's notch-only design). A sensor on the mirror changes what is measured, not the zero: only a
+    change of the actuation (another input) or of the structure (f_rock, I_h, J) moves it.
 
     Parameters
     ----------
@@ -417,16 +458,21 @@ def mirror_angle_limit(fsm, member):
     -------
     dict
         ``zeros_hz`` (|z| / 2 pi of every transmission zero v0..v2 -> tip/tilt/piston below 10 kHz,
-        one per conjugate pair), ``zeros_zeta``, ``closed_form_hz`` {"tip": .., "tilt": ..} and
-        ``cap_hz``: the lowest zero per axis (tip: about x, tilt: about y).
+        one per conjugate pair), ``zeros_zeta``, ``zeros_axis`` (the output each zero blocks, by its
+        output direction: :func:`zero_output_directions`), ``closed_form_hz`` {"tip": .., "tilt": ..} and
+        ``cap_hz``: the lowest zero the plant has on each axis (tip: about x, tilt: about y), nan if none,
+        whatever the closed form says (on a structure the formula does not describe they differ).
     """
-    z = transmission_zeros(member, ("v0", "v1", "v2"), ("tip_rad", "tilt_rad", "piston_m"))
+    chan = (("v0", "v1", "v2"), ("tip_rad", "tilt_rad", "piston_m"))
+    z = transmission_zeros(member, *chan)
     z = z[(z.imag >= 0) & (np.abs(z) < 2 * np.pi * 1e4)]
+    axis_of = [("tip", "tilt", "piston")[int(np.argmax(y))] for y in zero_output_directions(member, *chan, z)]
     ratio = np.sqrt(1.0 + fsm.inertia_kg_m2 / fsm.housing_inertia_kg_m2)
     closed = {"tip": fsm.rocking_freq_x_hz * ratio, "tilt": fsm.rocking_freq_y_hz * ratio}
     zhz = np.abs(z) / (2 * np.pi)
-    cap = {ax: float(zhz[np.argmin(np.abs(zhz - f))]) for ax, f in closed.items()}
-    return {"zeros_hz": zhz, "zeros_zeta": -z.real / np.abs(z), "closed_form_hz": closed, "cap_hz": cap}
+    cap = {ax: float(min((f for f, a in zip(zhz, axis_of) if a == ax), default=np.nan)) for ax in closed}
+    return {"zeros_hz": zhz, "zeros_zeta": -z.real / np.abs(z), "zeros_axis": axis_of, "closed_form_hz": closed,
+            "cap_hz": cap}
 
 
 def limit_markdown(fsm, limit, notch_mirror_bw_hz=None, ratio=2.0):
@@ -437,24 +483,44 @@ def limit_markdown(fsm, limit, notch_mirror_bw_hz=None, ratio=2.0):
              + (" notch-only mirror-angle BW Hz | 2x needs Hz | 2x feasible |" if notch_mirror_bw_hz is not None else ""),
              "|---|---|---|---|" + ("---|---|---|" if notch_mirror_bw_hz is not None else "")]
     for a, (ax, f_rock) in enumerate((("tip", fsm.rocking_freq_x_hz), ("tilt", fsm.rocking_freq_y_hz))):
-        k = int(np.argmin(np.abs(limit["zeros_hz"] - limit["cap_hz"][ax])))
-        row = (f"| {ax} | {f_rock:g} | {limit['closed_form_hz'][ax]:.2f} | {limit['cap_hz'][ax]:.2f} "
-               f"({100 * limit['zeros_zeta'][k]:.2f} %) |")
+        cap = limit["cap_hz"][ax]
+        if np.isfinite(cap):
+            k = int(np.argmin(np.abs(limit["zeros_hz"] - cap)))
+            cell = f"{cap:.2f} ({100 * limit['zeros_zeta'][k]:.2f} %)"
+        else:
+            cell = "none below 10 kHz"
+        row = f"| {ax} | {f_rock:g} | {limit['closed_form_hz'][ax]:.2f} | {cell} |"
         if notch_mirror_bw_hz is not None:
             need = ratio * notch_mirror_bw_hz[a]
-            row += f" {notch_mirror_bw_hz[a]:.0f} | {need:.0f} | {'yes' if need < limit['cap_hz'][ax] else 'no'} |"
+            row += f" {notch_mirror_bw_hz[a]:.0f} | {need:.0f} | {'no' if need >= cap else 'yes'} |"
         lines.append(row)
-    other = [f"{f:.1f}" for f in limit["zeros_hz"] if min(abs(f - c) for c in limit["cap_hz"].values()) > 1e-6 * f]
+    other = [f"{f:.1f}" for f in limit["zeros_hz"]
+             if all(not abs(f - c) <= 1e-6 * f for c in limit["cap_hz"].values())]
     lines += ["", "other transmission zeros below 10 kHz: " + (", ".join(other) + " Hz" if other else "none")]
     return "\n".join(lines)
 
 
 def main(argv=None):
+    """``python -m workbench.design.mimo_sweep [PLANT] [--limit | --rates [--bridge] | --hinf]``; bad input exits 2."""
+    import argparse
+    from ..errors import WorkbenchError
     from ..plant.mirror import load_mirror
-    args = sys.argv[1:] if argv is None else list(argv)
-    hinf = "--hinf" in args
-    paths = [a for a in args if not a.startswith("--")] or ["plants/fsm_p888_51.toml"]
-    fsm = load_mirror(paths[0])
+    ap = argparse.ArgumentParser(prog="python -m workbench.design.mimo_sweep",
+                                 description="The mirror's damping sweep (default), --limit table or --rates sweep.")
+    ap.add_argument("plant", nargs="?", default="plants/fsm_p888_51.toml", help="mirror plant file (TOML)")
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--limit", action="store_true", help="the mirror-angle zeros against their closed form")
+    mode.add_argument("--rates", action="store_true", help="the servo-rate sweep")
+    ap.add_argument("--bridge", action="store_true", help="with --rates: IFF from the charge bridge")
+    ap.add_argument("--hinf", action="store_true", help="add the H-infinity design to the damping sweep")
+    ns = ap.parse_args(sys.argv[1:] if argv is None else list(argv))
+    hinf = ns.hinf
+    args = [f"--{k}" for k in ("limit", "rates", "bridge") if getattr(ns, k)]
+    try:
+        fsm = load_mirror(ns.plant)
+    except (OSError, WorkbenchError, ValueError) as err:
+        print(f"error: {err}" if ns.plant in str(err) else f"error: {ns.plant}: {err}", file=sys.stderr)
+        raise SystemExit(2) from None
     if "--limit" in args:
         fam = mirror_family(fsm, branches=("ascending", "reversal"))
         lim = mirror_angle_limit(fsm, fam[nominal_name()])

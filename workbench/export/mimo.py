@@ -57,6 +57,7 @@ quantized (within half an LSB). :class:`MimoControllerError` names the file and 
 
 import hashlib
 import json
+import math
 import re
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -94,6 +95,14 @@ def _words_rows(mat, frac):
 
 
 @njit(cache=True)
+def _cascade(s, e, in_lim, B, A, BSH, n, frac, lim, vm, no_peak):
+    """One cascade's sample: the input word clamped to ``in_lim``, then
+    :func:`~workbench.export.fixed_point.fixed_step` (anti-windup on, no peak bookkeeping)."""
+    e = min(max(e, -in_lim), in_lim)
+    return fixed_step(s[:n], e, B[:n], A[:n], BSH[:n], frac, lim, vm, True, no_peak)
+
+
+@njit(cache=True)
 def iff_step(b, s, vm, dv, B, A, BSH, nsec, frac, lim, in_lim, dsh):
     """The per-stack IFF cascades (module docstring): bridge words ``b`` in, stack-word corrections ``dv`` out.
 
@@ -101,11 +110,9 @@ def iff_step(b, s, vm, dv, B, A, BSH, nsec, frac, lim, in_lim, dsh):
     :attr:`MimoController.iff_plan` (``dsh``: FD_j - FV).
     """
     one = np.int64(1)
+    no_peak = np.zeros((0, 3), np.int64)
     for j in range(3):
-        e = min(max(b[j], -in_lim[j]), in_lim[j])
-        n = nsec[j]
-        peak = np.zeros((n, 3), np.int64)
-        d = fixed_step(s[j, :n], e, B[j, :n], A[j, :n], BSH[j, :n], frac[j], lim[j], vm[j:j + 1], True, peak)
+        d = _cascade(s[j], b[j], in_lim[j], B[j], A[j], BSH[j], nsec[j], frac[j], lim[j], vm[j:j + 1], no_peak)
         dv[j] = (d + (one << (dsh[j] - 1))) >> dsh[j] if dsh[j] >= 1 else d << (-dsh[j])
 
 
@@ -121,14 +128,12 @@ def mimo_step(g, r, s, vm, out, dv, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, 
     top, bottom = np.int64(2 ** 31 - 1), np.int64(-2 ** 31)
     one = np.int64(1)
     u = np.empty(3, np.int64)
+    no_peak = np.zeros((0, 3), np.int64)
     for a in range(3):
         acc = oq[a, 0] * g[0] + oq[a, 1] * g[1] + oq[a, 2] * g[2]
         q = (acc + (one << (osh[a] - 1))) >> osh[a]
         e = min(max(r[a] - q, bottom), top)
-        e = min(max(e, -in_lim[a]), in_lim[a])
-        n = nsec[a]
-        peak = np.zeros((n, 3), np.int64)
-        u[a] = fixed_step(s[a, :n], e, B[a, :n], A[a, :n], BSH[a, :n], frac[a], lim[a], vm[a:a + 1], True, peak)
+        u[a] = _cascade(s[a], e, in_lim[a], B[a], A[a], BSH[a], nsec[a], frac[a], lim[a], vm[a:a + 1], no_peak)
     for j in range(3):
         acc = np.int64(0)
         for a in range(3):
@@ -165,7 +170,8 @@ class MimoController:
         The active-damping path: ``{"stack0": Controller, "stack1": ..., "stack2": ...}`` (bridge
         reading V in, stack V out) and ``"bridge"``: a dict of the analog bridge it was designed for
         (``reference_capacitance_f``, ``integrator_capacitance_f``, ``transducer_n_per_v``, ``gain_v_per_n``,
-        ``corner_hz``). None: no IFF.
+        ``corner_hz``, ``adc_range_v``, ``adc_bits``, ``out_noise_v_rms``; checked on load against the cascades'
+        gains). None: no IFF.
     """
 
     name: str
@@ -683,7 +689,7 @@ _C_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 _TOP_KEYS = ("schema", "name", "sample_rate_hz", "axes", "axis_units", "axis_scale", "gauge_to_axes",
              "axes_to_stacks", "stack_limits_v", "fixed_point", "controllers", "iff")
 _BRIDGE_KEYS = ("reference_capacitance_f", "integrator_capacitance_f", "transducer_n_per_v", "gain_v_per_n",
-                "corner_hz", "adc_range_v")
+                "corner_hz", "adc_range_v", "adc_bits", "out_noise_v_rms")
 
 
 def _iff_cascades(iff, fsm, dt_s, name, coeff_bits):
@@ -698,7 +704,8 @@ def _iff_cascades(iff, fsm, dt_s, name, coeff_bits):
     span = float(max(pz.voltage_max_v - pz.voltage_min_v for pz in fsm.stacks))
     out = {"bridge": {"reference_capacitance_f": cr.tolist(), "integrator_capacitance_f": float(amp.c_int_f),
                       "transducer_n_per_v": t.tolist(), "gain_v_per_n": float(iff.gain_v_per_n),
-                      "corner_hz": float(iff.corner_hz), "adc_range_v": float(amp.adc_range_v)}}
+                      "corner_hz": float(iff.corner_hz), "adc_range_v": float(amp.adc_range_v),
+                      "adc_bits": int(amp.adc_bits), "out_noise_v_rms": float(amp.out_noise_v_rms)}}
     for j, key in enumerate(IFF_KEYS):
         k = control.ss(base) * (-t[j] * amp.c_int_f / cr[j])  # d_j = -g s/(s + w_l) T C_int b_j / C_R
         out[key] = Controller.from_lti(k, dt_s=dt_s, output_limits_v=(-span, span), input_range_v=float(amp.adc_range_v),
@@ -720,9 +727,14 @@ def _load_iff(src, data, fs, allow_unstable):
         v = _array(src, f"iff.bridge.{k}", br[k], "three positive numbers", 1, MimoControllerError)
         if v.shape != (3,) or np.any(v <= 0):
             raise MimoControllerError(src, f"iff.bridge.{k}", f"must be three positive numbers; got {br[k]!r}")
-    for k in ("integrator_capacitance_f", "corner_hz", "adc_range_v"):
-        if not (isinstance(br[k], (int, float)) and br[k] > 0):
-            raise MimoControllerError(src, f"iff.bridge.{k}", f"must be a positive number; got {br[k]!r}")
+    for k in ("integrator_capacitance_f", "corner_hz", "adc_range_v", "out_noise_v_rms", "gain_v_per_n"):
+        v = br[k]
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                and (v >= 0 if k == "out_noise_v_rms" else v > 0)):
+            kind = "non-negative" if k == "out_noise_v_rms" else "positive"
+            raise MimoControllerError(src, f"iff.bridge.{k}", f"must be a finite {kind} number; got {v!r}")
+    if not (isinstance(br["adc_bits"], int) and not isinstance(br["adc_bits"], bool) and 1 <= br["adc_bits"] <= 64):
+        raise MimoControllerError(src, "iff.bridge.adc_bits", f"must be an integer 1..64; got {br['adc_bits']!r}")
     ctr = data.get("controllers")
     if not isinstance(ctr, dict):
         raise MimoControllerError(src, "iff.controllers", "must be a table {stack0, stack1, stack2}")
@@ -740,7 +752,23 @@ def _load_iff(src, data, fs, allow_unstable):
             raise MimoControllerError(src, f"iff.controllers.{k}.sample_rate_hz",
                                       f"{c.sample_rate_hz!r} must equal the controller's {fs!r}")
         out[k] = c
+    _check_iff_gains(src, out)
     return out
+
+
+def _check_iff_gains(src, iff):
+    """Each cascade's gain at Nyquist (z = -1: s -> infinity of the Tustin-sampled g s / (s + w_l)) must be the
+    bridge's -g T_j C_int / C_R,j (relative 1e-6), else the bridge numbers are not the ones it was designed for."""
+    br = iff["bridge"]
+    for j, k in enumerate(IFF_KEYS):
+        sos = np.asarray(iff[k].sos, float)
+        h = iff[k].gain * float(np.prod((sos[:, 0] - sos[:, 1] + sos[:, 2]) / (sos[:, 3] - sos[:, 4] + sos[:, 5])))
+        want = -br["gain_v_per_n"] * br["transducer_n_per_v"][j] * br["integrator_capacitance_f"] \
+            / br["reference_capacitance_f"][j]
+        if not abs(h - want) <= 1e-6 * abs(want):
+            raise MimoControllerError(src, f"iff.controllers.{k}",
+                                      f"its high-frequency gain {h:.6g} V/V is not the bridge's -g T C_int / C_R = "
+                                      f"{want:.6g} V/V: the iff.bridge numbers do not match the cascades; re-export")
 
 
 def _mirror_provenance(fsm):

@@ -16,11 +16,15 @@ for one stack:
 4. those are applied at the next period (one sample of compute delay).
 
 With an IFF-damped controller (:attr:`MimoController.iff`) each stack's charge bridge is read too:
-b_j = (C_R,j (V_t,j - V_t,j(0)) - (q_j - q_j(0))) / C_int plus the charge amplifier's output noise,
-quantized by its ADC (:class:`~workbench.selfsense.charge_amp.ChargeAmpParams`: 50 uV RMS, 18 bits over
-+/-10 V, clipped there), the integrator reset when the loop starts; C_R is the controller's (the nominal
-incremental C_h), so the verified mirror's unequal C_h make the bridge's force estimate imperfect, as on
-the bench.
+the charge amplifier of :mod:`workbench.selfsense.charge_amp` stepped once per period
+(:func:`~workbench.selfsense.charge_amp.charge_amp_step`: b_j = (C_R,j V_t,j - q_j - leakage through R_FP -
+bias current - dielectric absorption) / C_int), its integrator reset when the loop starts (the stack has
+sat at the operating point: absorption settled there), plus the amplifier's output noise, converted by its
+ADC (:func:`~workbench.selfsense.charge_amp.adc_convert`, clipped to the range). C_R, C_int, the ADC's range
+and bits and the noise are the controller JSON's ``iff.bridge`` (what the cascades were designed for); the
+parasitics (R_FP, bias current, absorption) are :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`'
+defaults. C_R is the nominal incremental C_h, so the verified mirror's unequal C_h make the bridge's force
+estimate imperfect. What this bridge leaves out of a bench: the C_h's drift with temperature and the cable.
 
 The plant is stepped one period per call from Python (``CoupledSimulator.run`` keeps its state
 between calls), about 0.1 ms of wall time per servo period: fine for the scenarios here (tens of
@@ -47,6 +51,8 @@ from ..design.step import rise_time, step_metrics
 from ..export.mimo import iff_step, mimo_step
 from ..plant.coupled import STACK_OUT_NAMES, coupled_run
 from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v
+from ..selfsense.charge_amp import (ChargeAmpParams, adc_convert, adc_lsb_v, charge_amp_arrays,
+                                    charge_amp_step)
 
 __all__ = ["MirrorLoop", "MirrorRun", "mirror_operating_point", "tip_range_rad", "mirror_scenarios",
            "verification_mirror", "run_mirror_verify", "check_pairing",
@@ -57,8 +63,9 @@ __all__ = ["MirrorLoop", "MirrorRun", "mirror_operating_point", "tip_range_rad",
 _KERNEL_ARGS = ("sc", "g_r", "g_w", "g_off", "c_cap", "c_dec", "c_off", "es", "zg", "qc", "ad", "b0", "b1", "hx", "hu",
                 "cy", "dy", "xi", "xi_tmp", "g_prev", "g_now", "u_now", "y", "h", "v", "fe", "w", "n_sub", "decimate",
                 "rec_s", "rec_y", "rec_xi")
-_FAST = tuple(inspect.signature(coupled_run.py_func).parameters) == _KERNEL_ARGS and STACK_OUT_NAMES[:3] == (
-    "x_m", "q_c", "i_a") and STACK_OUT_NAMES[5] == "v_t_v"
+# the kernel's per-stack record columns this module reads
+_X, _Q, _I, _VP, _VT = (STACK_OUT_NAMES.index(k) for k in ("x_m", "q_c", "i_a", "v_p_v", "v_t_v"))
+_FAST = tuple(inspect.signature(coupled_run.py_func).parameters) == _KERNEL_ARGS
 
 TARGETS = {"tip_rms_percent": 0.1, "tilt_coupling_rms_percent": 0.1}   # issue 15's floors, % of the tip range (RMS)
 
@@ -122,8 +129,9 @@ class MirrorRun:
         Tip, tilt (rad) and piston (m, about the operating point) references.
     tip_rad, tilt_rad, piston_m : ndarray
         The mirror's motion (piston about the operating point).
-    x_m, i_a, v_cmd_v, v_t_v, reading_v : ndarray, (samples, 3)
-        Per stack: elongation, mean current, command, terminal voltage, gauge reading (firmware V).
+    x_m, i_a, v_cmd_v, v_t_v, reading_v, v_p_v, q_c : ndarray, (samples, 3)
+        Per stack: elongation, mean current, command, terminal voltage, gauge reading (firmware V),
+        the piezo voltage V_p (T V_p: the stack's force, the quantity the charge bridge estimates), charge (C).
     bridge_v : ndarray, (samples, 3) or None
         Per stack: the charge bridge's reading (V), with an IFF-damped controller.
     """
@@ -138,6 +146,8 @@ class MirrorRun:
     v_cmd_v: np.ndarray
     v_t_v: np.ndarray
     reading_v: np.ndarray
+    v_p_v: np.ndarray = None
+    q_c: np.ndarray = None
     bridge_v: np.ndarray = None
 
 
@@ -174,7 +184,9 @@ class MirrorLoop:
         n = max(1, int(round(settle_s / self.ctrl.dt_s)))
         tr = self.sim.run(np.tile(self.v0, (n, 1)))
         self.x_prev = tr.x_m[-1].copy()
-        self.bridge_zero = np.concatenate([tr.q_c[-1], tr.v_t_v[-1]])      # the charge amplifiers' reset
+        self.bridge_state, self.bridge_zero = _bridge_reset(self.bridge, tr.q_c[-1], tr.v_t_v[-1])
+        self.v_p_reset_v = tr.v_p_v[-1].copy()       # the stacks' V_p and q at the reset (the bridge reads changes)
+        self.q_reset_c, self.v_t_reset_v = tr.q_c[-1].copy(), tr.v_t_v[-1].copy()
         self.state = self.ctrl.reset(self.u0)
         self.iff_state = self.ctrl.reset_iff() if self.ctrl.iff is not None else _NO_IFF_STATE
         self.v_cmd = self.v0.copy()
@@ -190,13 +202,13 @@ class MirrorLoop:
         n = ref.shape[0]
         w = np.zeros((n, 3)) if external is None else np.ascontiguousarray(np.asarray(external, float))
         rw = self.ctrl.reference_words(ref)
-        out = np.empty((n, 5, 3))
+        out = np.empty((n, 7, 3))
         mir = np.empty((n, 3))
         noise = (self.rng.standard_normal((n, 3)) * self.sigma) if self.noise else np.zeros((n, 3))
-        bnoise = (self.rng.standard_normal((n, 3)) * self.bridge[0][:, 3] if self.noise and self.ctrl.iff is not None
+        bnoise = (self.rng.standard_normal((n, 3)) * self.bridge[0][:, 1] if self.noise and self.ctrl.iff is not None
                   else np.zeros((n, 3)))
         ctrl = self.ctrl
-        bt, ifp = self.bridge[0], (ctrl.iff_plan if ctrl.iff is not None else _NO_IFF_PLAN)
+        ifp = ctrl.iff_plan if ctrl.iff is not None else _NO_IFF_PLAN
         si, vmi = self.iff_state
         bout = np.empty((n, 3))
         io = np.concatenate([self.x_prev, self.v_cmd])
@@ -207,8 +219,8 @@ class MirrorLoop:
             if kernel is not None:
                 _loop(*kernel, w[k0:k1], rw[k0:k1], noise[k0:k1], self.gp, self.r0, np.int64(ctrl.gauge_frac_bits),
                       float(2.0 ** -ctrl.stack_frac_bits), io, s, vm, out[k0:k1], mir[k0:k1],
-                      np.int64(ctrl.iff is not None), bt, self.bridge[1], self.bridge_zero, bnoise[k0:k1], si, vmi,
-                      bout[k0:k1], *ifp, *ctrl.plan)
+                      np.int64(ctrl.iff is not None), self.bridge_state, self.bridge_zero, *self.bridge, bnoise[k0:k1],
+                      si, vmi, bout[k0:k1], *ifp, *ctrl.plan)
             else:
                 self._run_python(w[k0:k1], rw[k0:k1], noise[k0:k1], io, s, vm, out[k0:k1], mir[k0:k1],
                                  bnoise[k0:k1], bout[k0:k1])
@@ -216,7 +228,7 @@ class MirrorLoop:
                 progress(k1, n)
         self.x_prev, self.v_cmd = io[:3].copy(), io[3:].copy()
         t = (np.arange(n) + 1) * ctrl.dt_s
-        names = ("x_m", "i_a", "v_cmd_v", "v_t_v", "reading_v")
+        names = ("x_m", "i_a", "v_cmd_v", "v_t_v", "reading_v", "v_p_v", "q_c")
         return MirrorRun(t_s=t, ref=ref, tip_rad=mir[:, 0] - self.q0[0], tilt_rad=mir[:, 1] - self.q0[1],
                          piston_m=mir[:, 2] - self.q0[2], **{nm: out[:, i] for i, nm in enumerate(names)},
                          bridge_v=bout if ctrl.iff is not None else None)
@@ -238,16 +250,18 @@ class MirrorLoop:
         g = np.empty(3)
         vw = np.empty(3, np.int64)
         dv = np.zeros(3, np.int64)
-        bt, bsc = self.bridge
+        bsc = self.bridge[-1]
         for k in range(w.shape[0]):
             tr = sim.run(io[3:][None, :].copy(), external_n=w[k:k + 1])
             x = tr.x_m[0]
             _gauges(io[:3], x, self.gp, self.r0, noise[k], g)
-            out[k] = x, tr.i_a[0], io[3:], tr.v_t_v[0], g
+            out[k] = x, tr.i_a[0], io[3:], tr.v_t_v[0], g, tr.v_p_v[0], tr.q_c[0]
             mir[k] = tr.y[0, 6:9]
             io[:3] = x
             if ctrl.iff is not None:
-                b = _bridge_reading(tr.q_c[0], tr.v_t_v[0], self.bridge_zero, bt, bnoise[k])
+                b = np.empty(3)
+                _bridge_reading(tr.q_c[0], tr.v_t_v[0], self.bridge_state, self.bridge_zero, *self.bridge[:-1],
+                                bnoise[k], b)
                 bout[k] = b
                 iff_step(np.rint(b * bsc).astype(np.int64), self.iff_state[0], self.iff_state[1], dv, *ctrl.iff_plan)
             mimo_step(np.rint(g * gscale).astype(np.int64), rw[k], s, vm, vw, dv, *ctrl.plan)
@@ -260,38 +274,59 @@ _NO_IFF_PLAN = (np.zeros((3, 1, 3), np.int64), np.zeros((3, 1, 2), np.int64), np
                 np.ones(3, np.int64))
 
 
-def _bridge_table(controller):
-    """((3, 6) per stack [C_R, C_int, ADC range, noise RMS, ADC LSB, 0], (3,) bridge word scale 2^FI_j)."""
-    from ..selfsense.charge_amp import ChargeAmpParams
-    amp = ChargeAmpParams()
-    t = np.zeros((3, 6))
-    t[:, 1], t[:, 2], t[:, 3] = amp.c_int_f, amp.adc_range_v, amp.out_noise_v_rms
-    t[:, 4] = 2 * amp.adc_range_v / 2 ** amp.adc_bits
-    if controller.iff is None:
-        return t, np.ones(3)
-    br = controller.iff["bridge"]
-    t[:, 0] = br["reference_capacitance_f"]
-    t[:, 1] = br["integrator_capacitance_f"]
-    t[:, 2] = br["adc_range_v"]
-    fi = np.array([controller.iff[k].fixed.input_frac_bits for k in ("stack0", "stack1", "stack2")], float)
-    return t, 2.0 ** fi
+def _bridge_table(controller, amp=ChargeAmpParams()):
+    """Each stack's charge amplifier as the loop steps it.
+
+    Returns ``(adc, cp, k, a, b0, b1, scale)``: ``adc`` (3, 3) per stack [ADC range V, output noise V RMS,
+    ADC LSB V]; ``cp`` (3, 5), ``k, a, b0, b1`` (3, branches):
+    :func:`~workbench.selfsense.charge_amp.charge_amp_arrays` per stack (C_R, C_int, the ADC and the noise
+    from the controller's ``iff.bridge``; R_FP, bias current and absorption from ``amp``); ``scale`` (3,):
+    the bridge word scale 2^FI_j. Without IFF: ``amp``'s numbers with C_R = 0 (unused).
+    """
+    dt = controller.dt_s
+    br = None if controller.iff is None else controller.iff["bridge"]
+    adc, rows = np.zeros((3, 3)), []
+    for j in range(3):
+        a_j = amp if br is None else dataclasses.replace(
+            amp, c_ref_f=float(br["reference_capacitance_f"][j]), c_int_f=float(br["integrator_capacitance_f"]),
+            adc_range_v=float(br["adc_range_v"]), adc_bits=int(br["adc_bits"]),
+            out_noise_v_rms=float(br["out_noise_v_rms"]))
+        adc[j] = a_j.adc_range_v, a_j.out_noise_v_rms, adc_lsb_v(a_j.adc_bits, a_j.adc_range_v)
+        rows.append(charge_amp_arrays(a_j, dt))
+    cp, k, a, b0, b1 = (np.array([r[i] for r in rows], float) for i in range(5))
+    if br is None:
+        return adc, cp, k, a, b0, b1, np.ones(3)
+    fi = np.array([controller.iff[key].fixed.input_frac_bits for key in ("stack0", "stack1", "stack2")], float)
+    return adc, cp, k, a, b0, b1, 2.0 ** fi
+
+
+def _bridge_reset(bridge, q0, vt0):
+    """The charge amplifiers' states at their reset, the stacks long at (q0, V_t0), and their outputs there, V.
+
+    The state is :func:`~workbench.selfsense.charge_amp.charge_amp_step`'s [t, V_in, leakage charge,
+    absorption states]: absorption settled at V_t0; the reset output is subtracted from every reading."""
+    _, cp, k, *_ = bridge
+    state = np.zeros((3, 3 + k.shape[1]))
+    state[:, 1] = vt0
+    state[:, 3:] = np.asarray(vt0)[:, None]
+    zero = -(np.asarray(q0) + k.sum(axis=1) * vt0 - cp[:, 3] * vt0) / cp[:, 4]
+    return state, zero
 
 
 @njit(cache=True)
-def _bridge_reading(q, vt, zero, bt, noise):
-    """Each stack's charge-bridge ADC reading, V: (C_R dV_t - dq) / C_int + noise, quantized, clipped to the range."""
-    out = np.empty(3)
-    for j in range(3):
-        b = (bt[j, 0] * (vt[j] - zero[3 + j]) - (q[j] - zero[j])) / bt[j, 1] + noise[j]
-        b = np.rint(b / bt[j, 4]) * bt[j, 4]
-        out[j] = min(max(b, -bt[j, 2]), bt[j, 2])
-    return out
+def _bridge_reading(q, vt, state, zero, adc, cp, k, a, b0, b1, noise, out):
+    """Each stack's charge-bridge ADC reading, V, into ``out``: one charge-amplifier step
+    (:func:`~workbench.selfsense.charge_amp.charge_amp_step`) less its reset output, plus the noise,
+    converted by :func:`~workbench.selfsense.charge_amp.adc_convert`."""
+    for j in range(q.shape[0]):
+        v = charge_amp_step(state[j], q[j], vt[j], cp[j], k[j], a[j], b0[j], b1[j]) - zero[j] + noise[j]
+        out[j] = adc_convert(v, adc[j, 2], adc[j, 0])
 
 
 @njit(cache=True)
 def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp, g_prev,
           g_now, u_now, y, h, n_sub, rec_s, rec_y, rec_xi, w, rw, noise, gp, r0, gf, fv, io, s, vm, out, mir,
-          has_iff, bt, bsc, bzero, bnoise, si, vmi, bout, iB, iA, iBSH, insec, ifrac, ilim, iin_lim, idsh,
+          has_iff, bstate, bzero, badc, bcp, bk, ba, bb0, bb1, bsc, bnoise, si, vmi, bout, iB, iA, iBSH, insec, ifrac, ilim, iin_lim, idsh,
           oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
     """Periods of the closed loop (module docstring): the coupled kernel one period at a time, the gauges, the
     charge bridges and IFF (``has_iff``), the MIMO step."""
@@ -304,6 +339,7 @@ def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, 
     dv = np.zeros(ns, np.int64)
     bw = np.empty(ns, np.int64)
     qv = np.empty(ns)
+    b = np.empty(ns)
     vt = np.empty(ns)
     gscale = 2.0 ** gf
     for k in range(w.shape[0]):
@@ -311,23 +347,25 @@ def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, 
             vrow[0, j] = io[3 + j]
         coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp,
                     g_prev, g_now, u_now, y, h, vrow, fe, w[k:k + 1], n_sub, 1, rec_s, rec_y, rec_xi)
-        x = rec_s[0, :, 0].copy()
+        x = rec_s[0, :, _X].copy()
         _gauges(io[:3], x, gp, r0, noise[k], g)
         for j in range(ns):
             out[k, 0, j] = x[j]
-            out[k, 1, j] = rec_s[0, j, 2]
+            out[k, 1, j] = rec_s[0, j, _I]
             out[k, 2, j] = io[3 + j]
-            out[k, 3, j] = rec_s[0, j, 5]
+            out[k, 3, j] = rec_s[0, j, _VT]
             out[k, 4, j] = g[j]
+            out[k, 5, j] = rec_s[0, j, _VP]
+            out[k, 6, j] = rec_s[0, j, _Q]
             io[j] = x[j]
             gw[j] = np.int64(np.rint(g[j] * gscale))
         for o in range(3):
             mir[k, o] = rec_y[0, 2 * ns + o]
         if has_iff:
             for j in range(ns):
-                qv[j] = rec_s[0, j, 1]
-                vt[j] = rec_s[0, j, 5]
-            b = _bridge_reading(qv, vt, bzero, bt, bnoise[k])
+                qv[j] = rec_s[0, j, _Q]
+                vt[j] = rec_s[0, j, _VT]
+            _bridge_reading(qv, vt, bstate, bzero, badc, bcp, bk, ba, bb0, bb1, bnoise[k], b)
             for j in range(ns):
                 bout[k, j] = b[j]
                 bw[j] = np.int64(np.rint(b[j] * bsc[j]))
