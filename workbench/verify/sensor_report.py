@@ -2,6 +2,8 @@
 
 import numpy as np
 
+from .sensors import MIN_OPEN_LOOP_S
+
 __all__ = ["sensor_lines", "plot_sensors"]
 
 TITLES = {"gauge": "gauge", "charge": "charge estimate", "fused": "fused (gauge + charge blend)"}
@@ -23,19 +25,21 @@ def sensor_lines(rows, figure=None):
         return []
     hold = rows[0]["hold_s"]
     r0 = rows[0]
-    lead = (f"led by its slope over the loop's velocity constant ({r0['velocity_constant_per_s']:.4g} 1/s, "
-            f"the type-1 loop's ramp error fed forward)" if r0.get("velocity_constant_per_s") else
-            "(no ramp feedforward)")
+    kvs = [f"{TITLES[r['sensor']]} {r['velocity_constant_per_s']:.4g} 1/s" for r in rows
+           if r.get("velocity_constant_per_s")]
+    lead = (f"led by its slope over each loop's velocity constant K_v ({', '.join(kvs)}; the type-1 loop's "
+            f"ramp error fed forward)" if kvs else "(no ramp feedforward)")
     lin = ("the gauge reading with eq. 27's curvature taken out" if r0.get("gauge_linearized") else
            "the gauge reading on the serial's linear calibration")
     out = ["## Sensors side by side", "",
            f"The controller's fixed-point sensor step closing on each reading, on the nonlinear plant with the "
            f"charge amplifier's leakage, bias current and dielectric absorption, creep and the gauge noise all "
-           f"present. Open loop at 50 V until the reading's startup error has settled within its own noise, "
-           f"at least 1 s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle over 10-90 % of the "
-           f"{r0['stroke_m'] * 1e6:.3g} um stroke (two periods, scored after the first), {lead}, then a "
-           f"{hold:g} s hold; {lin}. Triangle RMS: the true x against the reference in the true-position frame "
-           f"(the sensor's offset at closing added); \"commanded\": x's motion from where it was at closing "
+           f"present. Open loop at {r0['_u0_v']:g} V until the reading's startup error has settled within its own "
+           f"noise, at least {MIN_OPEN_LOOP_S:g} s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle spanning "
+           f"80 % of the {r0['stroke_m'] * 1e6:.4g} um quasi-static stroke about that point (two periods, scored after the first), {lead}, then a "
+           f"{hold:g} s hold; {lin}. The wait, the lead and the gauge linearization are added by this harness "
+           f"around the export, which carries none of them. Triangle RMS: the true x against the reference "
+           f"relative to the position at closing (the sensor's offset at closing, from the true x, added); \"commanded\": x's motion from where it was at closing "
            f"against the triangle alone. "
            f"Bandwidth: -3 dB of the true x against the reference, measured after the hold with 10 nm tones "
            f"(5 Hz-2 kHz, as verify's sine sweep), beside the nominal linear loop's (ascending branch at 50 V). "
@@ -97,7 +101,7 @@ def plot_sensors(rows, traces, path):
                       f"{r['hold_drift_m'] * 1e9:+.2f} nm")
     a1.axvspan(0, rows[0]["triangle_hz"] ** -1 + t[0], color="0.9", zorder=0, label="first period (not scored)")
     a1.set(xlabel="time after closing the loop (s)", ylabel="true x - reference (nm, mean removed)",
-           title=f"{rows[0]['triangle_hz']:g} Hz triangle, 10-90 % of stroke")
+           title=f"{rows[0]['triangle_hz']:g} Hz triangle, 80 % of stroke about the closing point")
     a2.set(xlabel="time into the hold (s)", ylabel="true x, 1 s running mean, from its start (nm)",
            title="hold: drift (noise RMS about the 1 s mean in the legend)")
     for a in (a1, a2):
