@@ -134,13 +134,35 @@ def test_settled_time_of_an_exponential_is_tau_log_amplitude_over_tolerance(amp_
     # e = A exp(-t / tau) decays monotonically to 0: it stays within tol of e(t) from then on exactly when
     # e(t) - e(end) <= tol, i.e. t = -tau ln(tol / A + exp(-T / tau)) for a horizon T
     from workbench.verify.sensors import settled_time_s
-    t_end = 12 * tau_s
+    t_end = 16 * tau_s                  # settled within the first half: the required settled stretch
     t = np.linspace(0.0, t_end, 200001)
     e = amp_m * np.exp(-t / tau_s)
     want = -tau_s * np.log(tol_m / amp_m + np.exp(-t_end / tau_s))
     assert settled_time_s(t, e, tol_m) == pytest.approx(want, abs=2 * (t[1] - t[0]))
     assert settled_time_s(t, -e, tol_m) == pytest.approx(want, abs=2 * (t[1] - t[0]))     # sign-blind
     assert settled_time_s(t, e, 2 * amp_m) == 0.0                                       # settled at once
+
+
+@pytest.mark.parametrize("rate_m_per_s, horizon_s", [(1e-12, 0.5), (3e-10, 10.0), (1e-8, 20.0), (4e-7, 200.0)])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_channel_that_drifts_linearly_is_not_settled(rate_m_per_s, horizon_s, sign):
+    """A pure linear drift e = v t over a horizon T stays within tol of e(t_i) from t_i exactly when
+    |v| (T - t_i) <= tol, i.e. t_i = T - tol / |v|: with the settled stretch required to last T / 2 it is
+    "not settled" (NaN) whenever tol / |v| < T / 2, however the horizon is chosen, and settles at T - tol/|v|
+    otherwise (four decades of v and T; tolerance from 1e-3 to 0.99 of the stretch and beyond)."""
+    from workbench.verify.sensors import settled_time_s
+    t = np.linspace(0.0, horizon_s, 100001)
+    dt = t[1] - t[0]
+    e = sign * rate_m_per_s * t + 3e-9
+    for frac in (1e-3, 0.1, 0.49):                          # tol / v as a fraction of T: never settles
+        tol = frac * horizon_s * rate_m_per_s
+        assert np.isnan(settled_time_s(t, e, tol))
+    for frac in (0.51, 0.8, 0.99):                          # settles, at T - tol / v
+        tol = frac * horizon_s * rate_m_per_s
+        assert settled_time_s(t, e, tol) == pytest.approx(horizon_s * (1 - frac), abs=2 * dt)
+    # the required stretch is what decides: with none, the drift "settles" near the end of the horizon
+    tol = 1e-3 * horizon_s * rate_m_per_s
+    assert settled_time_s(t, e, tol, min_settled_s=0.0) == pytest.approx(horizon_s * (1 - 1e-3), abs=2 * dt)
 
 
 def test_the_loop_closes_later_when_the_charge_estimate_moves_more(setup):

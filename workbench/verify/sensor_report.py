@@ -19,6 +19,13 @@ def _f(v, scale=1.0, fmt=".3g"):
     return format(v * scale, fmt)
 
 
+def _closes(r):
+    """The "closes at" cell: the settle time, or "not settled within H s" and where the loop closed instead."""
+    if r.get("settle_why"):
+        return f"{_f(r.get('settle_s'), 1, '.2f')} s (not settled within {r.get('settle_horizon_s', 10.0):g} s)"
+    return f"{_f(r.get('settle_s'), 1, '.2f')} s"
+
+
 def sensor_lines(rows, figure=None):
     """Markdown lines of the side-by-side table (``rows`` from :func:`workbench.verify.sensors.compare_sensors`)."""
     if not rows:
@@ -52,7 +59,7 @@ def sensor_lines(rows, figure=None):
         out.append(f"| {name} | {_f(r.get('bandwidth_hz'), 1, '.0f')} / {_f(r.get('linear_bandwidth_hz'), 1, '.0f')} Hz | "
                    f"{_f(r.get('crossover_hz'), 1, '.0f')} Hz | "
                    f"{_f(r.get('phase_margin_deg'), 1, '.1f')} deg / {_f(r.get('gain_margin_db'), 1, '.1f')} dB | "
-                   f"{_f(r.get('settle_s'), 1, '.2f')} s | "
+                   f"{_closes(r)} | "
                    f"{_f(r['triangle_rms_percent_stroke'], 1, '.4f')} % "
                    f"({_f(r.get('triangle_commanded_rms_percent_stroke'), 1, '.4f')} %) of stroke | "
                    f"{_f(r['hold_drift_m'], 1e9, '+.2f')} nm over {r['hold_s']:g} s | "

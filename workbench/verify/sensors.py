@@ -324,15 +324,37 @@ def startup_error(setup, controller, sensor, *, bias_v=50.0, duration_s=10.0, se
     return t, rows[0][:, 1] - rows[0][:, 0], float(np.std((rows[1][:, 1] - rows[0][:, 1])[n // 2:]))
 
 
-def settled_time_s(t_s, error_m, tolerance_m):
-    """The earliest time from which ``error_m`` stays within ``tolerance_m`` of its value then, s.
+def settled_time_s(t_s, error_m, tolerance_m, min_settled_s=None):
+    """The earliest time from which ``error_m`` stays within ``tolerance_m`` of its value then, s; NaN if never.
 
-    The first ``t_s[i]`` with max_j>=i |error_j - error_i| <= tolerance (the last sample when none earlier)."""
+    Parameters
+    ----------
+    t_s : array_like
+        Sample times, s (ascending).
+    error_m : array_like
+        The signal, m.
+    tolerance_m : float
+        How far it may move from its value at the settle time, m.
+    min_settled_s : float, optional
+        The settled stretch required: from the settle time to the end of the record at least this long, s
+        (default: half the record). Any signal looks settled over the last few samples of a finite record; a
+        channel that drifts for the whole record would otherwise "settle" at its end.
+
+    Returns
+    -------
+    float
+        The first ``t_s[i]`` with max_j>=i |error_j - error_i| <= tolerance, when ``t_s[-1] - t_s[i]`` is at
+        least ``min_settled_s``; NaN when no such time leaves that stretch (not settled within the record).
+    """
+    t = np.asarray(t_s, float)
     e = np.asarray(error_m, float)
+    if min_settled_s is None:
+        min_settled_s = 0.5 * (t[-1] - t[0])
     hi = np.maximum.accumulate(e[::-1])[::-1]
     lo = np.minimum.accumulate(e[::-1])[::-1]
     bad = np.flatnonzero((hi - e > tolerance_m) | (e - lo > tolerance_m))
-    return float(t_s[0] if bad.size == 0 else t_s[min(bad[-1] + 1, e.size - 1)])
+    t_set = float(t[0] if bad.size == 0 else t[min(bad[-1] + 1, e.size - 1)])
+    return t_set if t[-1] - t_set >= min_settled_s else float("nan")
 
 
 def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, seed=4, gauge_linearized=True):
@@ -346,14 +368,23 @@ def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, 
     for the rest of ``horizon_s`` (:func:`startup_error`, :func:`settled_time_s`). A gauge reading has no
     transient: its settle time is the first period's.
 
+    The settled stretch must last at least half the horizon (:func:`settled_time_s`); a reading that keeps
+    drifting (the charge estimate: bias current, leakage) is reported as not settled (``settle_s`` NaN with a
+    ``settle_why``) rather than settling at the end of the horizon.
+
     Returns
     -------
     dict
-        ``settle_s`` (s), ``noise_rms_m`` (the tolerance, m), ``horizon_s``.
+        ``settle_s`` (s, NaN when not settled within the horizon), ``settle_why`` (str or None),
+        ``noise_rms_m`` (the tolerance, m), ``horizon_s``.
     """
     t, e, sig = startup_error(setup, controller, sensor, bias_v=bias_v, duration_s=horizon_s, seed=seed,
                               gauge_linearized=gauge_linearized)
-    return {"settle_s": settled_time_s(t, e, sig), "noise_rms_m": sig, "horizon_s": float(horizon_s)}
+    ts = settled_time_s(t, e, sig, 0.5 * horizon_s)
+    why = None if np.isfinite(ts) else (f"not settled within {horizon_s:g} s (the reading's error against x moves "
+                                        f"more than its {sig * 1e9:.2g} nm noise in every {0.5 * horizon_s:g} s "
+                                        f"stretch)")
+    return {"settle_s": ts, "settle_why": why, "noise_rms_m": sig, "horizon_s": float(horizon_s)}
 
 
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2,
@@ -372,7 +403,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     settle_s : float, optional
         Open loop before the loop closes, s (default: the sensor's settle time, :func:`startup_settle_s`,
         and at least :data:`MIN_OPEN_LOOP_S` and the :data:`OFFSET_WINDOW_S` the sensor's offset is
-        taken over).
+        taken over; :data:`MIN_OPEN_LOOP_S` when the reading does not settle within the horizon, with
+        ``settle_why`` in the result).
     stroke_m : float, optional
         The stroke the triangle's 80 % and the percentages refer to (default: rest to 100 V, quasi-static,
         :func:`workbench.verify.scenarios.stroke_m`).
@@ -419,7 +451,9 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     if settle_s is None:
         settle = startup_settle_s(setup, controller, sensor, bias_v=bias_v, seed=seed,
                                   gauge_linearized=gauge_linearized)
-        settle_s = max(settle["settle_s"], OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
+        # a reading that never settles within the horizon closes at the floor (and says so: settle_why)
+        settle_s = max(settle["settle_s"] if np.isfinite(settle["settle_s"]) else 0.0, OFFSET_WINDOW_S,
+                       MIN_OPEN_LOOP_S)
     lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized)
     sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
@@ -513,6 +547,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
             "triangle_commanded_rms_m": float(np.sqrt(np.mean(e_cmd ** 2))),
             "triangle_commanded_rms_percent_stroke": 100.0 * float(np.sqrt(np.mean(e_cmd ** 2))) / stroke,
             "settle_s": float(n_settle * dt), "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
+            "settle_why": None if settle is None else settle["settle_why"],
+            "settle_horizon_s": None if settle is None else settle["horizon_s"],
             "velocity_constant_per_s": kv, "gauge_linearized": bool(gauge_linearized),
             "hold_s": float(hold_s), "hold_drift_m": drift,
             "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
