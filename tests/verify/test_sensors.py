@@ -179,6 +179,30 @@ def test_the_loop_closes_later_when_the_charge_estimate_moves_more(setup):
     assert more["settle_s"] > base["settle_s"] > c.dt_s
 
 
+def test_the_charge_estimate_alone_is_not_settled_and_closes_at_the_floor(setup):
+    """The charge estimate drifts (bias current, leakage): its startup error keeps moving by more than its
+    sub-nanometre noise, so it is "not settled" within the horizon (not the end of the horizon), and the
+    loop closes at MIN_OPEN_LOOP_S and says why."""
+    from workbench.verify.sensors import MIN_OPEN_LOOP_S, startup_settle_s
+    c = Controller.load(FUSED)
+    for h in (10.0, 20.0):
+        st = startup_settle_s(setup, c, "charge", horizon_s=h)
+        assert np.isnan(st["settle_s"]) and f"within {h:g} s" in st["settle_why"]
+    r = run_sensor_loop(setup, c, "charge", sweep=False, seed=3, **SHORT)
+    assert r["settle_s"] == pytest.approx(MIN_OPEN_LOOP_S) and r["settle_why"]
+
+
+def test_the_wait_does_not_depend_on_the_scored_noise_draw(setup):
+    """The settle tolerance is pooled over fixed draws, none the scored run's: two runs with different seeds
+    close at the same period; the tolerance is the reading's noise (~0.4 nm for the blend)."""
+    c = Controller.load(FUSED)
+    a = run_sensor_loop(setup, c, "fused", sweep=False, seed=1, **SHORT)
+    setup.__dict__.pop("_settle_cache", None)             # recomputed, not the cached value
+    b = run_sensor_loop(setup, c, "fused", sweep=False, seed=29, **SHORT)
+    assert a["settle_s"] == b["settle_s"] and a["settle_noise_rms_m"] == b["settle_noise_rms_m"]
+    assert a["triangle_rms_m"] != b["triangle_rms_m"]       # the draws themselves differ
+
+
 def test_velocity_constant_of_an_integrator_controller_is_its_gain_times_the_loops(tmp_path):
     # C(s) = k / s (Tustin): lim s C = k; the loop's K_v = k v_per_m P0 with P0 = quasi-static stroke / 100 V
     import control
