@@ -255,3 +255,45 @@ def test_the_charge_channel_has_one_adc_and_one_recursion():
             assert not re.search(r"q_leak|/ *c_int|2\.0 \*\* int\(.*(adc|vin)", text), rel
     sensors = (src / "verify" / "sensors.py").read_text()
     assert "charge_amp_step(" in sensors and "adc_convert(" in sensors and "estimator_step(" in sensors
+
+
+def test_the_loop_takes_the_bridge_curvature_out_with_the_right_sign(setup):
+    """Noise off, the gauge design on the gauge over a triangle spanning 80 % of the stroke: each reading is the
+    bridge at the period's midpoint (quarter- and three-quarter-period positions, demodulated), quantized by the
+    servo DAC. Against x at the midpoint, the reading on the linear calibration is x + beta u^2 (eq. 27,
+    u = x - x_c, ~1 nm at the ends) and the linearized one is x, each within half a DAC step plus 1 % of the
+    curvature (the arm imbalance's share); a curvature taken out with the wrong sign would leave 2 beta u^2."""
+    from workbench.plant.gauge import TRIM_CENTER_M, bridge_curvature_per_m
+    g = setup.plant.gauge
+    beta = bridge_curvature_per_m(g)
+    lsb = 2.0 * g.dac_range_v / 2.0 ** g.dac_bits * abs(g.calibration_m_per_v)
+    c = Controller.load(GAUGE)
+    for lin in (False, True):
+        r = run_sensor_loop(setup, c, "gauge", noise=False, settle_s=1.0, sweep=False, decimate=1,
+                            gauge_linearized=lin, **SHORT)
+        x_mid = 0.5 * (r["_x_m"][1:] + r["_x_m"][:-1])
+        curv = beta * (x_mid - TRIM_CENTER_M) ** 2
+        assert np.ptp(x_mid) > 0.75 * r["stroke_m"] and np.max(np.abs(curv)) > 4 * lsb
+        left = r["_reading_m"][1:] - x_mid - (0.0 if lin else curv)
+        assert np.max(np.abs(left)) <= 0.5 * lsb + 0.01 * np.max(np.abs(curv)) + 2e-12
+
+
+@pytest.mark.slow
+def test_the_fused_loop_meets_issue_16s_floors_with_the_harness_wait_lead_and_linearization():
+    """Issue 16's fused floors on the SN637 creep plant (700 s identification as `workbench selfsense`, all noise
+    and drift on): 0.1 Hz triangle <= 0.01 % of stroke RMS after the first period and |hold drift| <= 1 nm.
+    They hold with what the verify harness adds around the export (the startup wait, the v/K_v lead, the
+    linearized gauge); closed at 1 s with the other two the triangle is worse (the wait is load-bearing,
+    README: 0.0130 % at seed 0, a miss). `make test` runs one draw and a 20 s hold; WORKBENCH_FULL=1 three draws
+    and the issue's 1000 s hold."""
+    from workbench.verify.sensor_report import DRIFT_TARGET_M, TRIANGLE_TARGET_PERCENT
+    from ..conftest import FULL
+    c = Controller.load(FUSED)
+    st = sensor_setup(load_plant(CREEP), c)
+    hold = 1000.0 if FULL else 20.0
+    for seed in ((0, 3, 6) if FULL else (0,)):
+        r = run_sensor_loop(st, c, "fused", hold_s=hold, seed=seed, sweep=False)
+        assert r["triangle_rms_percent_stroke"] <= TRIANGLE_TARGET_PERCENT
+        assert abs(r["hold_drift_m"]) <= DRIFT_TARGET_M
+        early = run_sensor_loop(st, c, "fused", hold_s=3.0, seed=seed, sweep=False, settle_s=1.0)
+        assert early["triangle_rms_m"] > r["triangle_rms_m"]

@@ -58,12 +58,14 @@ from ..errors import ChargeChannelError, WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
 from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
 from ..plant import kernels as K
-from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, bridge_curvature_per_m, demod_noise_sigma_v
+from ..plant.gauge import (TRIM_CENTER_M, _bridge, _quantize, bridge_curvature_per_m, demod_noise_sigma_v,
+                            linearized_displacement)
 from ..selfsense.charge_amp import adc_convert, adc_lsb_v, charge_amp_arrays, charge_amp_step
 from ..selfsense.estimator import estimator_arrays, estimator_step
 
 __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
-           "run_sensor_loop", "compare_sensors"]
+           "run_sensor_loop", "compare_sensors", "startup_settle_s", "settled_time_s", "startup_error",
+           "velocity_constant_per_s", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
 
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
@@ -78,6 +80,11 @@ MIN_OPEN_LOOP_S = 1.0
 # none of them the scored run's: the closing time is then a property of the sensor and the controller, the
 # same for every scored draw (four draws put the RMS's own spread at ~1/sqrt(4 x 50000) of it).
 SETTLE_NOISE_DRAWS = 4
+# K_v probes: two frequencies a decade apart, far below any crossover (tens of Hz and up), where an integrator's
+# |j w C| is flat to within its other poles' and zeros' share ((f / f_c)^2, < 1e-6 here); a type-0 controller's
+# falls tenfold. KV_FLATNESS tells the two apart with room for the fixed-point coefficients' rounding.
+KV_PROBE_HZ = (1e-4, 1e-3)
+KV_FLATNESS = 1e-3
 SETTLE_NOISE_SEED = 16016
 
 
@@ -177,8 +184,8 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
         dem = 0.5 * demod * (v_p - v_n) + gn[k]
         reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
         gauge_m = reading * cal + TRIM_CENTER_M
-        if beta != 0.0:                 # the bridge's curvature taken out (linearized_displacement)
-            gauge_m -= beta * (gauge_m - TRIM_CENTER_M) ** 2
+        if beta != 0.0:                 # the bridge's curvature taken out
+            gauge_m = linearized_displacement(gauge_m, beta, TRIM_CENTER_M)
         # charge amplifier and its two ADCs (ChargeAmpStream.update), staged estimator (StreamingEstimator.update)
         v_t = out[5]
         v_out = adc_convert(charge_amp_step(cs, out[1], v_t, cp, ck, ca, cb0, cb1) + on[k], adc_v[0], adc_v[1])
@@ -292,15 +299,29 @@ def velocity_constant_per_s(controller, sensor_block, plant):
     block's error scale (firmware V per m of reading) and the plant's quasi-static gain P0 = stroke from
     rest to 100 V over 100 V (m/V, :func:`workbench.verify.scenarios.stroke_m`). A type-1 loop tracks a
     ramp of slope v with the error v / K_v; a reference led by v / K_v takes it out.
+
+    Parameters
+    ----------
+    controller : workbench.Controller
+        Its fixed-point transfer when it has fixed-point words, else the floating one.
+    sensor_block : workbench.export.sensor.SensorBlend
+        Gives ``v_per_m``, the error scale (firmware V per m).
+    plant : workbench.plant.Plant
+        Gives P0 (its PZT's quasi-static stroke over 100 V).
+
+    Returns
+    -------
+    float or None
+        K_v, 1/s; None when |j w C| is not flat between the :data:`KV_PROBE_HZ` probes (no integrator).
     """
     from .scenarios import stroke_m as quasi_static_stroke
     c = controller.as_lti(quantized=controller.fixed is not None)
     dt = controller.dt_s
     kc = []
-    for f_hz in (1e-4, 1e-3):                           # |j w C| is flat at low frequency only with an integrator
+    for f_hz in KV_PROBE_HZ:                            # |j w C| is flat at low frequency only with an integrator
         w = 2.0 * np.pi * f_hz
         kc.append(abs(1j * w * complex(c(np.exp(1j * w * dt)))))
-    if not (kc[0] > 0 and abs(kc[0] / kc[1] - 1.0) < 1e-3):
+    if not (kc[0] > 0 and abs(kc[0] / kc[1] - 1.0) < KV_FLATNESS):
         return None
     return float(kc[0] * sensor_block.v_per_m * quasi_static_stroke(plant.pzt) / 100.0)
 
