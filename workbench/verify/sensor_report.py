@@ -41,7 +41,7 @@ def sensor_lines(rows, figure=None):
     out = ["## Sensors side by side", "",
            f"The controller's fixed-point sensor step closing on each reading, on the nonlinear plant with the "
            f"charge amplifier's leakage, bias current and dielectric absorption, creep and the gauge noise all "
-           f"present. Open loop at {r0['_u0_v']:g} V until the reading's startup error has settled within its own "
+           f"present. Open loop at {r0['bias_v']:g} V until the reading's startup error has settled within its own "
            f"noise, at least {MIN_OPEN_LOOP_S:g} s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle spanning "
            f"80 % of the {r0['stroke_m'] * 1e6:.4g} um quasi-static stroke about that point (two periods, scored after the first), {lead}, then a "
            f"{hold:g} s hold; {lin}. The wait, the lead and the gauge linearization are added by this harness "

@@ -618,7 +618,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
             "settle_horizon_s": None if settle is None else settle["horizon_s"],
             "velocity_constant_per_s": kv, "gauge_linearized": bool(gauge_linearized),
             "hold_s": float(hold_s), "hold_drift_m": drift,
-            "hold_noise_rms_m": noise_rms, "stroke_m": stroke,
+            "hold_noise_rms_m": noise_rms, "stroke_m": stroke, "bias_v": float(bias_v),
             "blend_crossover_hz": sb.crossover_hz if sensor == "fused" else None,
             "_t_s": (idx + 1) * dt, "_x_m": rec_x, "_reading_m": rec[:, 1],
             "_reference_rel_m": r_dec, "_reference_counts": ref_counts + np.round(r_fed / sb.lsb_m).astype(np.int64),
