@@ -7,7 +7,7 @@ reading (``gauge_linearized``). This runs the committed fused export on the SN63
 identification, seed 0 noise, 20 s hold, no sweep) with each of them on and off, and prints the triangle RMS
 (% of the quasi-static stroke), the commanded RMS and the hold drift.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/fused_triangle_ablation.py [--seed N]
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=. .venv/bin/python benchmarks/fused_triangle_ablation.py [--seed N]
 """
 
 import argparse
