@@ -1,5 +1,7 @@
 """verify --sensor: the controller's fixed-point sensor step in the compiled loop with the charge channel."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -297,3 +299,47 @@ def test_the_fused_loop_meets_issue_16s_floors_with_the_harness_wait_lead_and_li
         assert abs(r["hold_drift_m"]) <= DRIFT_TARGET_M
         early = run_sensor_loop(st, c, "fused", hold_s=3.0, seed=seed, sweep=False, settle_s=1.0)
         assert early["triangle_rms_m"] > r["triangle_rms_m"]
+
+
+def test_the_export_carries_the_wait_the_lead_and_the_gauge_curvature(setup, tmp_path):
+    """with_firmware_startup puts the harness's three settings into the sensor block: they survive a write and
+    load (JSON, exact doubles), the header gets their macros and the gauge-metres helper (and compiles), a run
+    of the exported controller reads them and reproduces the harness run bit for bit, and an export without
+    them is unchanged byte for byte; a negative wait is refused with the key named."""
+    import json
+    import shutil
+    import subprocess
+    from workbench.errors import ControllerError
+    from workbench.plant.gauge import bridge_curvature_per_m
+    from workbench.verify.sensors import velocity_constant_per_s, with_firmware_startup
+    c = Controller.load(FUSED)
+    bare = c.write(tmp_path / "bare", "sn637_fused_loopshape")
+    assert Path(bare["json"]).read_bytes() == FUSED.read_bytes()
+    assert Path(bare["h"]).read_bytes() == FUSED.with_suffix(".h").read_bytes()
+    c2 = with_firmware_startup(setup, c)
+    sb = c2.sensor
+    assert sb.ref_lead_s == pytest.approx(1.0 / velocity_constant_per_s(c, c.sensor, setup.plant), rel=1e-12)
+    assert sb.gauge_curvature_per_m == bridge_curvature_per_m(setup.plant.gauge) < 0
+    files = c2.write(tmp_path / "carried", "fw")
+    back = Controller.load(files["json"]).sensor
+    assert (back.startup_wait_s, back.ref_lead_s, back.gauge_curvature_per_m) == \
+        (sb.startup_wait_s, sb.ref_lead_s, sb.gauge_curvature_per_m)
+    h = Path(files["h"]).read_text()
+    for macro in ("FW_STARTUP_WAIT_S", "FW_REF_LEAD_S", "FW_GAUGE_CURVATURE_PER_M", "fw_gauge_metres"):
+        assert macro in h
+    if shutil.which("gcc"):
+        src = tmp_path / "t.c"
+        src.write_text(f'#include "{files["h"]}"\nint main(void) {{ return fw_gauge_metres(7.5e-6) != 7.5e-6; }}\n')
+        subprocess.run(["gcc", "-std=c99", "-Wall", "-Werror", "-o", str(tmp_path / "t"), str(src), "-lm"],
+                       check=True)
+        assert subprocess.run([str(tmp_path / "t")]).returncode == 0
+    harness = run_sensor_loop(setup, c, "fused", seed=3, sweep=False, **SHORT)
+    carried = run_sensor_loop(setup, Controller.load(files["json"]), "fused", seed=3, sweep=False, **SHORT)
+    assert carried["settle_source"] == "controller" and harness["settle_source"] == "harness"
+    assert carried["settle_s"] == harness["settle_s"] == pytest.approx(sb.startup_wait_s, abs=c.dt_s)
+    assert np.array_equal(carried["_x_m"], harness["_x_m"]) and np.array_equal(carried["_u_v"], harness["_u_v"])
+    bad = json.loads(Path(files["json"]).read_text())
+    bad["sensor"]["startup_wait_s"] = -1.0
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(ControllerError, match="startup_wait_s"):
+        Controller.load(tmp_path / "bad.json")

@@ -65,7 +65,7 @@ from ..selfsense.estimator import estimator_arrays, estimator_step
 
 __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
            "run_sensor_loop", "compare_sensors", "startup_settle_s", "settled_time_s", "startup_error",
-           "velocity_constant_per_s", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
+           "velocity_constant_per_s", "firmware_startup", "with_firmware_startup", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
 
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
@@ -232,7 +232,7 @@ class _Loop:
     """One sensor loop's compiled state and constants (plant, gauge chain, charge channel, E(z), the controller's
     fixed-point words), at rest with the command at ``bias_v``; :meth:`run` steps it over periods."""
 
-    def __init__(self, setup, controller, sensor, bias_v, gauge_linearized=True):
+    def __init__(self, setup, controller, sensor, bias_v, gauge_linearized=True, beta_per_m=None):
         from dataclasses import replace
 
         import control
@@ -257,7 +257,8 @@ class _Loop:
         amp = setup.amp
         gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
                        g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v, g.dac_bits,
-                       g.calibration_m_per_v, sb.lsb_m, bridge_curvature_per_m(g) if gauge_linearized else 0.0])
+                       g.calibration_m_per_v, sb.lsb_m, (bridge_curvature_per_m(g) if beta_per_m is None else float(beta_per_m))
+                       if gauge_linearized else 0.0])
         r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
         camp = charge_amp_arrays(amp, dt)
         cs = np.zeros(3 + camp[1].size)
@@ -450,6 +451,49 @@ def startup_settle_s(setup, controller, sensor, *, bias_v=50.0, horizon_s=10.0, 
     return {"settle_s": ts, "settle_why": why, "noise_rms_m": sig, "horizon_s": float(horizon_s)}
 
 
+def firmware_startup(setup, controller, sensor, *, bias_v=50.0):
+    """The three settings firmware needs beyond the cascade and the blend, as the sensor block carries them.
+
+    Parameters
+    ----------
+    setup : SensorSetup
+    controller : workbench.Controller
+    sensor : {"gauge", "charge", "fused"}
+    bias_v : float
+        The open loop's voltage, V.
+
+    Returns
+    -------
+    dict
+        ``startup_wait_s`` (s: :func:`startup_settle_s`, at least :data:`MIN_OPEN_LOOP_S`; the floor when the
+        reading does not settle), ``ref_lead_s`` (1/K_v, s; 0 without an integrator) and
+        ``gauge_curvature_per_m`` (beta, 1/m, :func:`workbench.plant.gauge.bridge_curvature_per_m`).
+    """
+    from dataclasses import replace as _replace
+    bare = controller if controller.sensor is None else _replace(
+        controller, sensor=_replace(controller.sensor, startup_wait_s=None, ref_lead_s=None,
+                                    gauge_curvature_per_m=None))
+    st = startup_settle_s(setup, bare, sensor, bias_v=bias_v)
+    wait = max(st["settle_s"] if np.isfinite(st["settle_s"]) else 0.0, OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
+    sb = _Loop(setup, bare, sensor, bias_v).sb
+    kv = velocity_constant_per_s(bare, sb, setup.plant)
+    return {"startup_wait_s": float(wait), "ref_lead_s": 0.0 if not kv else 1.0 / kv,
+            "gauge_curvature_per_m": float(bridge_curvature_per_m(setup.plant.gauge))}
+
+
+def with_firmware_startup(setup, controller, *, bias_v=50.0):
+    """``controller`` with :func:`firmware_startup`'s settings in its sensor block (JSON, header macros).
+
+    The block's kind is the reading it closes on; :meth:`workbench.Controller.write` then exports them, and
+    :func:`run_sensor_loop` reads them back instead of computing them.
+    """
+    from dataclasses import replace as _replace
+    if controller.sensor is None:
+        raise WorkbenchError("the controller has no sensor block: give it one (Controller.with_sensor) first")
+    vals = firmware_startup(setup, controller, controller.sensor.kind, bias_v=bias_v)
+    return _replace(controller, sensor=_replace(controller.sensor, **vals))
+
+
 def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, triangle_hz=0.1, triangle_periods=2,
                     hold_s=100.0, stroke_m=None, noise=True, seed=4, progress=None, decimate=DECIMATE, sweep=True,
                     ramp_feedforward=True, gauge_linearized=True):
@@ -467,7 +511,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         Open loop before the loop closes, s (default: the sensor's settle time, :func:`startup_settle_s`,
         and at least :data:`MIN_OPEN_LOOP_S` and the :data:`OFFSET_WINDOW_S` the sensor's offset is
         taken over; :data:`MIN_OPEN_LOOP_S` when the reading does not settle within the horizon, with
-        ``settle_why`` in the result).
+        ``settle_why`` in the result). A controller whose sensor block carries ``startup_wait_s``,
+        ``ref_lead_s`` or ``gauge_curvature_per_m`` (:func:`with_firmware_startup`) is run with those: the
+        wait, the lead 1/K_v and the gauge curvature come from the export, not from this harness
+        (``settle_source`` says which).
     stroke_m : float, optional
         The stroke the triangle's 80 % and the percentages refer to (default: rest to 100 V, quasi-static,
         :func:`workbench.verify.scenarios.stroke_m`).
@@ -510,8 +557,15 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         if why:
             raise ChargeChannelError(f"{plant.source}: no charge channel model for a {sensor} loop: {why}; "
                                      f"verify this controller with --sensor gauge")
+    carried = controller.sensor if controller.sensor is not None else None
+    beta_c = None if carried is None else carried.gauge_curvature_per_m
     settle = None
-    if settle_s is None:
+    settle_source = "argument"
+    if settle_s is None and carried is not None and carried.startup_wait_s is not None and carried.kind == sensor:
+        settle_s = max(carried.startup_wait_s, OFFSET_WINDOW_S)     # firmware's own wait, from the export
+        settle_source = "controller"
+    elif settle_s is None:
+        settle_source = "harness"
         key = (id(controller), sensor, float(bias_v), bool(gauge_linearized))
         cache = setup.__dict__.setdefault("_settle_cache", {})   # no seed in the key: the wait does not use it
         if key not in cache:
@@ -521,7 +575,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         # a reading that never settles within the horizon closes at the floor (and says so: settle_why)
         settle_s = max(settle["settle_s"] if np.isfinite(settle["settle_s"]) else 0.0, OFFSET_WINDOW_S,
                        MIN_OPEN_LOOP_S)
-    lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized)
+    lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized, beta_c)
     sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)
     n_settle = int(round(settle_s / dt))
@@ -529,7 +583,10 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     n_hold = int(round(hold_s / dt))
     n = n_tri + n_hold
 
-    kv = velocity_constant_per_s(controller, sb, plant) if ramp_feedforward else None
+    if ramp_feedforward and carried is not None and carried.ref_lead_s is not None:
+        kv = 1.0 / carried.ref_lead_s if carried.ref_lead_s > 0 else None   # the export's lead
+    else:
+        kv = velocity_constant_per_s(controller, sb, plant) if ramp_feedforward else None
 
     def r_at(i):
         """The triangle about the reading at closing at periods ``i`` after closing, m."""
@@ -614,7 +671,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
             "triangle_commanded_rms_m": float(np.sqrt(np.mean(e_cmd ** 2))),
             "triangle_commanded_rms_percent_stroke": 100.0 * float(np.sqrt(np.mean(e_cmd ** 2))) / stroke,
             "settle_s": float(n_settle * dt), "settle_noise_rms_m": None if settle is None else settle["noise_rms_m"],
-            "settle_why": None if settle is None else settle["settle_why"],
+            "settle_why": None if settle is None else settle["settle_why"], "settle_source": settle_source,
             "settle_horizon_s": None if settle is None else settle["horizon_s"],
             "velocity_constant_per_s": kv, "gauge_linearized": bool(gauge_linearized),
             "hold_s": float(hold_s), "hold_drift_m": drift,
