@@ -312,10 +312,23 @@ def test_the_export_carries_the_wait_the_lead_and_the_gauge_curvature(setup, tmp
     from workbench.errors import ControllerError
     from workbench.plant.gauge import bridge_curvature_per_m
     from workbench.verify.sensors import velocity_constant_per_s, with_firmware_startup
-    c = Controller.load(FUSED)
-    bare = c.write(tmp_path / "bare", "sn637_fused_loopshape")
-    assert Path(bare["json"]).read_bytes() == FUSED.read_bytes()
-    assert Path(bare["h"]).read_bytes() == FUSED.with_suffix(".h").read_bytes()
+    from dataclasses import replace
+    committed = Controller.load(FUSED)                  # the committed export carries them (700 s identification)
+    assert committed.sensor.startup_wait_s >= 1.0
+    kept = committed.write(tmp_path / "kept", "sn637_fused_loopshape")
+    assert Path(kept["json"]).read_bytes() == FUSED.read_bytes()
+    assert Path(kept["h"]).read_bytes() == FUSED.with_suffix(".h").read_bytes()
+    c = replace(committed, sensor=replace(committed.sensor, startup_wait_s=None, ref_lead_s=None,
+                                          gauge_curvature_per_m=None))
+    bare = c.write(tmp_path / "bare", "sn637_fused_loopshape")    # without them: the export as before
+    want = json.loads(FUSED.read_text())
+    for key in ("startup_wait_s", "ref_lead_s", "gauge_curvature_per_m"):
+        want["sensor"].pop(key)
+    assert json.loads(Path(bare["json"]).read_text()) == want
+    h_bare, h_full = Path(bare["h"]).read_text(), FUSED.with_suffix(".h").read_text()
+    assert "STARTUP_WAIT_S" not in h_bare and "gauge_metres" not in h_bare
+    assert [ln for ln in h_full.splitlines() if ln not in h_bare.splitlines()][0].startswith("/* open loop")
+    assert len(h_full.splitlines()) - len(h_bare.splitlines()) == 12
     c2 = with_firmware_startup(setup, c)
     sb = c2.sensor
     assert sb.ref_lead_s == pytest.approx(1.0 / velocity_constant_per_s(c, c.sensor, setup.plant), rel=1e-12)
