@@ -83,7 +83,8 @@ def _report(data, figure):
               "point, RMS after the first period, relative to the position at closing (the sensor's offset at "
               "closing, from the true x, added; nothing else subtracted). The loop closes when the reading has "
               "settled (at least 1 s), the reference is led by v/K_v and the gauge reading linearized: the "
-              "simulation harness adds these three around the export, which does not carry them.",
+              "simulation computes these three (an export carries them with "
+              "workbench.verify.sensors.with_firmware_startup).",
               ""]
     if "targets_met" in data:
         tm = data["targets_met"]

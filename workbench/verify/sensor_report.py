@@ -38,14 +38,20 @@ def sensor_lines(rows, figure=None):
             f"ramp error fed forward)" if kvs else "(no ramp feedforward)")
     lin = ("the gauge reading with eq. 27's curvature taken out" if r0.get("gauge_linearized") else
            "the gauge reading on the serial's linear calibration")
+    src = {r["sensor"]: r.get("settle_source") for r in rows}
+    from_c = sorted(k for k, v in src.items() if v == "controller")
+    carried = (f"The wait, the lead and the gauge curvature of the {', '.join(TITLES[k] for k in from_c)} loop are "
+               f"the controller's own (its sensor block's startup_wait_s, ref_lead_s, gauge_curvature_per_m, in "
+               f"the JSON and the header); elsewhere this harness computes them." if from_c else
+               "The wait, the lead and the gauge linearization are computed by this harness around the export, "
+               "which carries none of them.")
     out = ["## Sensors side by side", "",
            f"The controller's fixed-point sensor step closing on each reading, on the nonlinear plant with the "
            f"charge amplifier's leakage, bias current and dielectric absorption, creep and the gauge noise all "
            f"present. Open loop at {r0['bias_v']:g} V until the reading's startup error has settled within its own "
            f"noise, at least {MIN_OPEN_LOOP_S:g} s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle spanning "
            f"80 % of the {r0['stroke_m'] * 1e6:.4g} um quasi-static stroke about that point (two periods, scored after the first), {lead}, then a "
-           f"{hold:g} s hold; {lin}. The wait, the lead and the gauge linearization are added by this harness "
-           f"around the export, which carries none of them. Triangle RMS: the true x against the reference "
+           f"{hold:g} s hold; {lin}. {carried} Triangle RMS: the true x against the reference "
            f"relative to the position at closing (the sensor's offset at closing, from the true x, added); \"commanded\": x's motion from where it was at closing "
            f"against the triangle alone. "
            f"Bandwidth: -3 dB of the true x against the reference, measured after the hold with 10 nm tones "

@@ -29,10 +29,11 @@ triangle spanning 80 % of the stroke about it (at 50 V on SN637: 7.8-87.8 % of t
 stroke), led by its slope over the loop's velocity constant (``ramp_feedforward``,
 :func:`velocity_constant_per_s`); then a hold of ``hold_s``.
 
-What the harness adds around the exported controller: the startup wait (computed here from a
-noise-free simulation against the true x), the reference's lead v/K_v and the gauge's curvature
-correction. The export (JSON, .mat, C header) carries none of the three; on the SN637 fused design
-the 0.01 % triangle floor is met only with all three (closed at 1 s with the other two: 0.0130 %,
+Three settings beyond the cascade and the blend: the startup wait (computed here from a noise-free
+simulation against the true x), the reference's lead v/K_v and the gauge's curvature correction. A
+controller whose sensor block carries them (:func:`with_firmware_startup`; JSON, .mat, header macros)
+runs with its own; otherwise this harness computes them. On the SN637 fused design the 0.01 % triangle
+floor is met only with all three (closed at 1 s with the other two: 0.0130 %,
 ``benchmarks/fused_triangle_ablation.py``).
 Metrics on the true x (decimated to 1 kHz point samples):
 triangle RMS error after the first period (relative to the position at closing: the pinned reference
