@@ -1,5 +1,7 @@
 """verify --sensor: the controller's fixed-point sensor step in the compiled loop with the charge channel."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -49,7 +51,6 @@ def test_fused_loop_holds_quieter_than_the_gauge_loop_without_its_drift(setup):
     bandwidth exceeds the gauge design's."""
     gauge = run_sensor_loop(setup, Controller.load(GAUGE), "gauge", seed=7, **SHORT)
     fused = run_sensor_loop(setup, Controller.load(FUSED), "fused", seed=7, **SHORT)
-    charge = run_sensor_loop(setup, Controller.load(FUSED), "charge", seed=7, **SHORT)
     assert fused["hold_noise_rms_m"] < gauge["hold_noise_rms_m"] / 5
     assert abs(fused["hold_drift_m"]) < 3e-9
     # the charge estimate's own drift (bias current, leakage, the absorption the estimator misses: ~1 nm per
@@ -134,13 +135,35 @@ def test_settled_time_of_an_exponential_is_tau_log_amplitude_over_tolerance(amp_
     # e = A exp(-t / tau) decays monotonically to 0: it stays within tol of e(t) from then on exactly when
     # e(t) - e(end) <= tol, i.e. t = -tau ln(tol / A + exp(-T / tau)) for a horizon T
     from workbench.verify.sensors import settled_time_s
-    t_end = 12 * tau_s
+    t_end = 16 * tau_s                  # settled within the first half: the required settled stretch
     t = np.linspace(0.0, t_end, 200001)
     e = amp_m * np.exp(-t / tau_s)
     want = -tau_s * np.log(tol_m / amp_m + np.exp(-t_end / tau_s))
     assert settled_time_s(t, e, tol_m) == pytest.approx(want, abs=2 * (t[1] - t[0]))
     assert settled_time_s(t, -e, tol_m) == pytest.approx(want, abs=2 * (t[1] - t[0]))     # sign-blind
     assert settled_time_s(t, e, 2 * amp_m) == 0.0                                       # settled at once
+
+
+@pytest.mark.parametrize("rate_m_per_s, horizon_s", [(1e-12, 0.5), (3e-10, 10.0), (1e-8, 20.0), (4e-7, 200.0)])
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_a_channel_that_drifts_linearly_is_not_settled(rate_m_per_s, horizon_s, sign):
+    """A pure linear drift e = v t over a horizon T stays within tol of e(t_i) from t_i exactly when
+    |v| (T - t_i) <= tol, i.e. t_i = T - tol / |v|: with the settled stretch required to last T / 2 it is
+    "not settled" (NaN) whenever tol / |v| < T / 2, however the horizon is chosen, and settles at T - tol/|v|
+    otherwise (four decades of v and T; tolerance from 1e-3 to 0.99 of the stretch and beyond)."""
+    from workbench.verify.sensors import settled_time_s
+    t = np.linspace(0.0, horizon_s, 100001)
+    dt = t[1] - t[0]
+    e = sign * rate_m_per_s * t + 3e-9
+    for frac in (1e-3, 0.1, 0.49):                          # tol / v as a fraction of T: never settles
+        tol = frac * horizon_s * rate_m_per_s
+        assert np.isnan(settled_time_s(t, e, tol))
+    for frac in (0.51, 0.8, 0.99):                          # settles, at T - tol / v
+        tol = frac * horizon_s * rate_m_per_s
+        assert settled_time_s(t, e, tol) == pytest.approx(horizon_s * (1 - frac), abs=2 * dt)
+    # the required stretch is what decides: with none, the drift "settles" near the end of the horizon
+    tol = 1e-3 * horizon_s * rate_m_per_s
+    assert settled_time_s(t, e, tol, min_settled_s=0.0) == pytest.approx(horizon_s * (1 - 1e-3), abs=2 * dt)
 
 
 def test_the_loop_closes_later_when_the_charge_estimate_moves_more(setup):
@@ -155,6 +178,30 @@ def test_the_loop_closes_later_when_the_charge_estimate_moves_more(setup):
     more = startup_settle_s(sensor_setup(load_plant(CREEP), c, amp=amp4, ident_hold_s=150.0), c, "fused")
     assert 0.05e-9 < base["noise_rms_m"] < 2e-9
     assert more["settle_s"] > base["settle_s"] > c.dt_s
+
+
+def test_the_charge_estimate_alone_is_not_settled_and_closes_at_the_floor(setup):
+    """The charge estimate drifts (bias current, leakage): its startup error keeps moving by more than its
+    sub-nanometre noise, so it is "not settled" within the horizon (not the end of the horizon), and the
+    loop closes at MIN_OPEN_LOOP_S and says why."""
+    from workbench.verify.sensors import MIN_OPEN_LOOP_S, startup_settle_s
+    c = Controller.load(FUSED)
+    for h in (10.0, 20.0):
+        st = startup_settle_s(setup, c, "charge", horizon_s=h)
+        assert np.isnan(st["settle_s"]) and f"within {h:g} s" in st["settle_why"]
+    r = run_sensor_loop(setup, c, "charge", sweep=False, seed=3, **SHORT)
+    assert r["settle_s"] == pytest.approx(MIN_OPEN_LOOP_S) and r["settle_why"]
+
+
+def test_the_wait_does_not_depend_on_the_scored_noise_draw(setup):
+    """The settle tolerance is pooled over fixed draws, none the scored run's: two runs with different seeds
+    close at the same period; the tolerance is the reading's noise (~0.4 nm for the blend)."""
+    c = Controller.load(FUSED)
+    a = run_sensor_loop(setup, c, "fused", sweep=False, seed=1, **SHORT)
+    setup.__dict__.pop("_settle_cache", None)             # recomputed, not the cached value
+    b = run_sensor_loop(setup, c, "fused", sweep=False, seed=29, **SHORT)
+    assert a["settle_s"] == b["settle_s"] and a["settle_noise_rms_m"] == b["settle_noise_rms_m"]
+    assert a["triangle_rms_m"] != b["triangle_rms_m"]       # the draws themselves differ
 
 
 def test_velocity_constant_of_an_integrator_controller_is_its_gain_times_the_loops(tmp_path):
@@ -215,3 +262,102 @@ def test_the_charge_channel_has_one_adc_and_one_recursion():
         text = (src / "verify" / name).read_text()
         assert "charge_amp_step(" in text and "adc_convert(" in text, name
     assert "estimator_step(" in (src / "verify" / "sensors.py").read_text()
+
+
+def test_the_loop_takes_the_bridge_curvature_out_with_the_right_sign(setup):
+    """Noise off, the gauge design on the gauge over a triangle spanning 80 % of the stroke: each reading is the
+    bridge at the period's midpoint (quarter- and three-quarter-period positions, demodulated), quantized by the
+    servo DAC. Against x at the midpoint, the reading on the linear calibration is x + beta u^2 (eq. 27,
+    u = x - x_c, ~1 nm at the ends) and the linearized one is x, each within half a DAC step plus 1 % of the
+    curvature (the arm imbalance's share); a curvature taken out with the wrong sign would leave 2 beta u^2."""
+    from workbench.plant.gauge import TRIM_CENTER_M, bridge_curvature_per_m
+    g = setup.plant.gauge
+    beta = bridge_curvature_per_m(g)
+    lsb = 2.0 * g.dac_range_v / 2.0 ** g.dac_bits * abs(g.calibration_m_per_v)
+    c = Controller.load(GAUGE)
+    for lin in (False, True):
+        r = run_sensor_loop(setup, c, "gauge", noise=False, settle_s=1.0, sweep=False, decimate=1,
+                            gauge_linearized=lin, **SHORT)
+        x_mid = 0.5 * (r["_x_m"][1:] + r["_x_m"][:-1])
+        curv = beta * (x_mid - TRIM_CENTER_M) ** 2
+        assert np.ptp(x_mid) > 0.75 * r["stroke_m"] and np.max(np.abs(curv)) > 4 * lsb
+        left = r["_reading_m"][1:] - x_mid - (0.0 if lin else curv)
+        assert np.max(np.abs(left)) <= 0.5 * lsb + 0.01 * np.max(np.abs(curv)) + 2e-12
+
+
+@pytest.mark.slow
+def test_the_fused_loop_meets_issue_16s_floors_with_the_harness_wait_lead_and_linearization():
+    """Issue 16's fused floors on the SN637 creep plant (700 s identification as `workbench selfsense`, all noise
+    and drift on): 0.1 Hz triangle <= 0.01 % of stroke RMS after the first period and |hold drift| <= 1 nm.
+    They hold with what the verify harness adds around the export (the startup wait, the v/K_v lead, the
+    linearized gauge); closed at 1 s with the other two the triangle is worse (the wait is load-bearing,
+    README: 0.0130 % at seed 0, a miss). `make test` runs one draw and a 20 s hold; WORKBENCH_FULL=1 three draws
+    and the issue's 1000 s hold."""
+    from workbench.verify.sensor_report import DRIFT_TARGET_M, TRIANGLE_TARGET_PERCENT
+    from ..conftest import FULL
+    c = Controller.load(FUSED)
+    st = sensor_setup(load_plant(CREEP), c)
+    hold = 1000.0 if FULL else 20.0
+    for seed in ((0, 3, 6) if FULL else (0,)):
+        r = run_sensor_loop(st, c, "fused", hold_s=hold, seed=seed, sweep=False)
+        assert r["triangle_rms_percent_stroke"] <= TRIANGLE_TARGET_PERCENT
+        assert abs(r["hold_drift_m"]) <= DRIFT_TARGET_M
+        early = run_sensor_loop(st, c, "fused", hold_s=3.0, seed=seed, sweep=False, settle_s=1.0)
+        assert early["triangle_rms_m"] > r["triangle_rms_m"]
+
+
+def test_the_export_carries_the_wait_the_lead_and_the_gauge_curvature(setup, tmp_path):
+    """with_firmware_startup puts the harness's three settings into the sensor block: they survive a write and
+    load (JSON, exact doubles), the header gets their macros and the gauge-metres helper (and compiles), a run
+    of the exported controller reads them and reproduces the harness run bit for bit, and an export without
+    them is unchanged byte for byte; a negative wait is refused with the key named."""
+    import json
+    import shutil
+    import subprocess
+    from workbench.errors import ControllerError
+    from workbench.plant.gauge import bridge_curvature_per_m
+    from workbench.verify.sensors import velocity_constant_per_s, with_firmware_startup
+    from dataclasses import replace
+    committed = Controller.load(FUSED)                  # the committed export carries them (700 s identification)
+    assert committed.sensor.startup_wait_s >= 1.0
+    kept = committed.write(tmp_path / "kept", "sn637_fused_loopshape")
+    assert Path(kept["json"]).read_bytes() == FUSED.read_bytes()
+    assert Path(kept["h"]).read_bytes() == FUSED.with_suffix(".h").read_bytes()
+    c = replace(committed, sensor=replace(committed.sensor, startup_wait_s=None, ref_lead_s=None,
+                                          gauge_curvature_per_m=None))
+    bare = c.write(tmp_path / "bare", "sn637_fused_loopshape")    # without them: the export as before
+    want = json.loads(FUSED.read_text())
+    for key in ("startup_wait_s", "ref_lead_s", "gauge_curvature_per_m"):
+        want["sensor"].pop(key)
+    assert json.loads(Path(bare["json"]).read_text()) == want
+    h_bare, h_full = Path(bare["h"]).read_text(), FUSED.with_suffix(".h").read_text()
+    assert "STARTUP_WAIT_S" not in h_bare and "gauge_metres" not in h_bare
+    assert [ln for ln in h_full.splitlines() if ln not in h_bare.splitlines()][0].startswith("/* open loop")
+    assert len(h_full.splitlines()) - len(h_bare.splitlines()) == 12
+    c2 = with_firmware_startup(setup, c)
+    sb = c2.sensor
+    assert sb.ref_lead_s == pytest.approx(1.0 / velocity_constant_per_s(c, c.sensor, setup.plant), rel=1e-12)
+    assert sb.gauge_curvature_per_m == bridge_curvature_per_m(setup.plant.gauge) < 0
+    files = c2.write(tmp_path / "carried", "fw")
+    back = Controller.load(files["json"]).sensor
+    assert (back.startup_wait_s, back.ref_lead_s, back.gauge_curvature_per_m) == \
+        (sb.startup_wait_s, sb.ref_lead_s, sb.gauge_curvature_per_m)
+    h = Path(files["h"]).read_text()
+    for macro in ("FW_STARTUP_WAIT_S", "FW_REF_LEAD_S", "FW_GAUGE_CURVATURE_PER_M", "fw_gauge_metres"):
+        assert macro in h
+    if shutil.which("gcc"):
+        src = tmp_path / "t.c"
+        src.write_text(f'#include "{files["h"]}"\nint main(void) {{ return fw_gauge_metres(7.5e-6) != 7.5e-6; }}\n')
+        subprocess.run(["gcc", "-std=c99", "-Wall", "-Werror", "-o", str(tmp_path / "t"), str(src), "-lm"],
+                       check=True)
+        assert subprocess.run([str(tmp_path / "t")]).returncode == 0
+    harness = run_sensor_loop(setup, c, "fused", seed=3, sweep=False, **SHORT)
+    carried = run_sensor_loop(setup, Controller.load(files["json"]), "fused", seed=3, sweep=False, **SHORT)
+    assert carried["settle_source"] == "controller" and harness["settle_source"] == "harness"
+    assert carried["settle_s"] == harness["settle_s"] == pytest.approx(sb.startup_wait_s, abs=c.dt_s)
+    assert np.array_equal(carried["_x_m"], harness["_x_m"]) and np.array_equal(carried["_u_v"], harness["_u_v"])
+    bad = json.loads(Path(files["json"]).read_text())
+    bad["sensor"]["startup_wait_s"] = -1.0
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    with pytest.raises(ControllerError, match="startup_wait_s"):
+        Controller.load(tmp_path / "bad.json")

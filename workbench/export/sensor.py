@@ -91,6 +91,10 @@ def blend_c(prefix, state_expr, g, c):
             f">> {up}_FRAC_BITS);\n")
 
 
+# firmware's startup and conversion settings the block may carry (SensorBlend attributes, JSON keys)
+STARTUP_FIELDS = ("startup_wait_s", "ref_lead_s", "gauge_curvature_per_m")
+
+
 @dataclass(frozen=True)
 class SensorBlend:
     """The sensor block of a :class:`workbench.controller.Controller` (see the module notes).
@@ -114,6 +118,15 @@ class SensorBlend:
     k : int or None
         The blend coefficient word round((1 - a) 2^K); None: computed from ``crossover_hz``. A given
         word must be that rounding (within one LSB).
+    startup_wait_s : float or None
+        Firmware's startup: open loop this long after the charge integrator's reset before the loop closes, s
+        (:func:`workbench.verify.sensors.startup_settle_s`). None: not carried (the harness computes it).
+    ref_lead_s : float or None
+        The reference generator's lead 1/K_v, s: the sensor step is fed r + (dr/dt) ref_lead_s
+        (:func:`workbench.verify.sensors.velocity_constant_per_s`). None: not carried; 0: no lead.
+    gauge_curvature_per_m : float or None
+        beta of firmware's gauge conversion x = x_lin - beta (x_lin - x_c)^2, 1/m
+        (:func:`workbench.plant.gauge.bridge_curvature_per_m`). None: not carried; 0: linear calibration.
     """
 
     kind: str
@@ -124,6 +137,9 @@ class SensorBlend:
     frac_bits: int = 12
     coef_bits: int = 24
     k: int | None = None
+    startup_wait_s: float | None = None
+    ref_lead_s: float | None = None
+    gauge_curvature_per_m: float | None = None
 
     def __post_init__(self):
         if self.kind not in SENSOR_KINDS:
@@ -133,6 +149,14 @@ class SensorBlend:
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
                     or not (math.isfinite(v) and v > 0):
                 raise ValueError(f"sensor {name} must be a positive finite number; got {v!r}")
+        for name, lo in (("startup_wait_s", 0.0), ("ref_lead_s", 0.0), ("gauge_curvature_per_m", None)):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(v) or (lo is not None and v < lo):
+                raise ValueError(f"sensor {name} must be a finite number{'' if lo is None else ' >= 0'}; got {v!r}")
+            object.__setattr__(self, name, float(v))
         if not (isinstance(self.frac_bits, (int, np.integer)) and 1 <= self.frac_bits <= 16):
             raise ValueError(f"sensor frac_bits must be an integer in 1..16; got {self.frac_bits!r}")
         if not (isinstance(self.coef_bits, (int, np.integer)) and 8 <= self.coef_bits <= 30):
@@ -204,6 +228,9 @@ class SensorBlend:
             out["crossover_hz"] = self.crossover_hz
             out["blend"] = {"k": self.k, "coef_bits": self.coef_bits, "frac_bits": self.frac_bits,
                             "pole": self.pole}
+        for name in STARTUP_FIELDS:                 # only when carried: older exports stay byte for byte
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
         return out
 
     @classmethod
@@ -221,7 +248,8 @@ class SensorBlend:
         sb = cls(kind=kind, crossover_hz=block.get("crossover_hz"), dt_s=dt_s, v_per_m=block["v_per_m"],
                  lsb_m=block.get("lsb_m", 1e-12), frac_bits=bl.get("frac_bits", 12) if kind == "fused" else 12,
                  coef_bits=bl.get("coef_bits", 24) if kind == "fused" else 24,
-                 k=bl.get("k") if kind == "fused" else None)
+                 k=bl.get("k") if kind == "fused" else None,
+                 **{name: block.get(name) for name in STARTUP_FIELDS})
         es = block.get("error_scale")
         if input_frac_bits is not None and es is not None:
             want = sb.error_scale(input_frac_bits)

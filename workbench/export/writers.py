@@ -279,6 +279,27 @@ static inline int32_t {name}_fixed_step({name}_fixed_state *st, int32_t e_q)
 """
 
 
+def _startup_c(name, sensor):
+    """Macros of firmware's startup and conversion settings the sensor block carries ("" when it carries none)."""
+    from ..plant.gauge import TRIM_CENTER_M
+    up = name.upper()
+    out = []
+    if sensor.startup_wait_s is not None:
+        out.append(f"/* open loop this long after the charge integrator's reset before {name}_sensor_reset, s */\n"
+                   f"#define {up}_STARTUP_WAIT_S {_double(sensor.startup_wait_s)}\n")
+    if sensor.ref_lead_s is not None:
+        out.append(f"/* reference lead 1/K_v, s: feed r + (dr/dt) * {up}_REF_LEAD_S (a type-1 loop's ramp error) */\n"
+                   f"#define {up}_REF_LEAD_S {_double(sensor.ref_lead_s)}\n")
+    if sensor.gauge_curvature_per_m is not None:
+        out.append(f"/* gauge metres: x = x_lin - beta (x_lin - x_c)^2, beta in 1/m, x_c in m (eq. 27's curvature) */\n"
+                   f"#define {up}_GAUGE_CURVATURE_PER_M {_double(sensor.gauge_curvature_per_m)}\n"
+                   f"#define {up}_GAUGE_CENTER_M {_double(TRIM_CENTER_M)}\n"
+                   f"static inline double {name}_gauge_metres(double x_lin_m)\n{{\n"
+                   f"    double u = x_lin_m - {up}_GAUGE_CENTER_M;\n"
+                   f"    return x_lin_m - {up}_GAUGE_CURVATURE_PER_M * u * u;\n}}\n")
+    return "".join(out)
+
+
 def _sensor_c(name, fxp, sensor):
     """The header's sensor step: blend (for "fused"), error scale, then {name}_fixed_step (module sensor)."""
     from .sensor import MAX_DIFF_COUNTS, blend_c
@@ -305,7 +326,7 @@ def _sensor_c(name, fxp, sensor):
 #define {up}_SENSOR_KIND "{kind}"
 #define {up}_ERROR_SCALE_Q INT64_C({s_q})
 #define {up}_ERROR_SCALE_BITS {s_bits}
-{blend_defs}
+{blend_defs}{_startup_c(name, sensor)}
 typedef struct {{ {name}_fixed_state c; int64_t y; }} {name}_sensor_state;
 
 /* At rest at output word u0_q; the blend state starts at the first gauge - charge difference (g0 - c0). */

@@ -312,8 +312,12 @@ def bridge_curvature_per_m(g, x_center_m=TRIM_CENTER_M):
     return -c / (2.0 * L * L + c * x_center_m)
 
 
+@njit(cache=True)
 def linearized_displacement(x_lin_m, beta_per_m, x_center_m=TRIM_CENTER_M):
     """The displacement a linear calibration's ``x_lin_m`` stands for, with eq. 27's curvature taken out, m.
+
+    Compiled: firmware's conversion in the compiled sensor loop (:mod:`workbench.verify.sensors`) calls it
+    per period, so the loop and this function are one home (scalar or array ``x_lin_m``).
 
     x = x_lin - beta u^2 with u = x_lin - x_c (:func:`bridge_curvature_per_m`); what is left is of order
     beta^2 u^3 (SN637: 1e-13 m at the ends of the stroke) and the arm imbalance's share of the curvature.

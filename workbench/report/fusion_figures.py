@@ -79,7 +79,12 @@ def _report(data, figure):
                      f"{r['triangle_rms_percent_stroke']:.4f} % of stroke | {r['hold_drift_m'] * NM:+.2f} nm over "
                      f"{r['hold_s']:.0f} s | {r['hold_noise_rms_m'] * NM:.2f} nm |")
     lines += ["", "Margins and crossover: the nominal loop at 50 V with each sensor's path (the fused one is "
-              "F_low L_gauge + F_high L_charge). Triangle: 10-90 % of stroke, after the first period, mean removed.",
+              "F_low L_gauge + F_high L_charge). Triangle: 80 % of the quasi-static stroke about the 50 V closing "
+              "point, RMS after the first period, relative to the position at closing (the sensor's offset at "
+              "closing, from the true x, added; nothing else subtracted). The loop closes when the reading has "
+              "settled (at least 1 s), the reference is led by v/K_v and the gauge reading linearized: the "
+              "simulation computes these three (an export carries them with "
+              "workbench.verify.sensors.with_firmware_startup).",
               ""]
     if "targets_met" in data:
         tm = data["targets_met"]

@@ -14,11 +14,12 @@ Scenario (:func:`closed_loop_run`): open loop at ``bias_v`` for ``settle_s`` (th
 charges, the integrator was reset at t = 0; by default until the reading's startup error has
 settled, :func:`workbench.verify.sensors.startup_settle_s`), then the loop closes with its reference at the
 reading of that moment; a triangle of ``triangle_periods`` periods at ``triangle_hz`` spanning
-10-90 % of the stroke around it; then a hold of ``hold_s`` at the centre. Metrics on the true x:
+80 % of the stroke about that point (at 50 V on SN637: 7.8-87.8 % of it); then a hold of ``hold_s`` at the centre. Metrics on the true x:
 
-- triangle RMS error over the periods after the first, in the true-position frame (the
-  reference plus the sensor's offset at closing, nothing subtracted; the mean reported beside
-  it), % of stroke, as :mod:`workbench.verify.sensors` scores it;
+- triangle RMS error over the periods after the first, relative to the position at closing (the
+  reference plus the sensor's offset at closing, taken from the true x; the mean reported beside
+  it), % of the quasi-static stroke (:func:`workbench.verify.scenarios.stroke_m`), as
+  :mod:`workbench.verify.sensors` scores it;
 - hold drift: mean true x over the last second of the hold minus over the first second
   after a 1 s settling, m;
 - hold noise: RMS of the true x about its 1 s running mean during the hold, m.
@@ -65,7 +66,7 @@ def closed_loop_run(plant, ident, amp, e_d, controller, sensor="fused", blend=No
         For ``sensor="fused"``: the crossover of the controller's sensor block (default: the block the
         controller already has).
     stroke_m : float
-        Stroke the triangle's 10-90 % refers to, m.
+        Stroke the triangle's 80 % and the percentages refer to, m.
     hold_s : float
         Hold after the triangle, s (>= 3 s: 1 s settling and two 1 s windows).
     """
@@ -134,6 +135,7 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     from .fusion import (Blend, choose_crossover, drift_record, fused_error_variance, fused_noise_rms_per_sample,
                          fused_psd, sensor_spectra)
     from .identify import identify, simulate_identification
+    from ..verify.scenarios import stroke_m as quasi_static_stroke
     from .run import DEFAULT_CONTROLLER, loop_analysis, noise_comparison
 
     amp = ChargeAmpParams() if amp is None else amp
@@ -150,7 +152,10 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     idrec = simulate_identification(plant.pzt, amp, hold_s=700.0, seed=seed + 100, dt_s=dt)
     ident = identify(idrec, amp)
     say("drift record")
-    t_d, e_d_m, stroke = drift_record(plant, amp, ident, duration_s=drift_duration_s, dt_s=dt, seed=seed)
+    t_d, e_d_m, _ = drift_record(plant, amp, ident, duration_s=drift_duration_s, dt_s=dt, seed=seed)
+    # one stroke for every percentage, as verify divides by: rest to 100 V, quasi-static (not the
+    # staircase's p-p, which includes its creep)
+    stroke = quasi_static_stroke(plant.pzt)
     say("noise")
     noise = noise_comparison(plant, ident, amp, seed=seed, dt_s=dt)
     spectra = sensor_spectra(noise["gauge_rms_m"], noise["self_rms_m"], dt, t_d, e_d_m)

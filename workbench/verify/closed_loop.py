@@ -459,6 +459,9 @@ class ClosedLoop:
             self._fshift = f.b_shift.astype(np.int64)
             self._ffrac, self._fin = int(f.a_frac_bits), int(f.input_limit)
             self._in_scale, self._out_scale = 2.0 ** f.input_frac_bits, 2.0 ** -f.output_frac_bits
+            # _loop forms the error word as rint(ref*s - code*(lsb*s)), and the C of benchmarks/closed_loop_vs_c.c
+            # the same: equal bit for bit to rint((ref - code*lsb)*s) only when s is a power of two (exact scaling)
+            assert math.frexp(self._in_scale)[0] == 0.5, f"in_scale {self._in_scale!r} is not a power of two"
             self._limw = f.limit_words.copy()
             if not anti_windup:
                 self._limw[2:] = (1 << 30, 1 << 40, 1 << 40)

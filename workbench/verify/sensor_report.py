@@ -2,6 +2,8 @@
 
 import numpy as np
 
+from .sensors import MIN_OPEN_LOOP_S
+
 __all__ = ["sensor_lines", "plot_sensors"]
 
 TITLES = {"gauge": "gauge", "charge": "charge estimate", "fused": "fused (gauge + charge blend)"}
@@ -17,25 +19,40 @@ def _f(v, scale=1.0, fmt=".3g"):
     return format(v * scale, fmt)
 
 
+def _closes(r):
+    """The "closes at" cell: the settle time, or "not settled within H s" and where the loop closed instead."""
+    if r.get("settle_why"):
+        return f"{_f(r.get('settle_s'), 1, '.2f')} s (not settled within {r.get('settle_horizon_s', 10.0):g} s)"
+    return f"{_f(r.get('settle_s'), 1, '.2f')} s"
+
+
 def sensor_lines(rows, figure=None):
     """Markdown lines of the side-by-side table (``rows`` from :func:`workbench.verify.sensors.compare_sensors`)."""
     if not rows:
         return []
     hold = rows[0]["hold_s"]
     r0 = rows[0]
-    lead = (f"led by its slope over the loop's velocity constant ({r0['velocity_constant_per_s']:.4g} 1/s, "
-            f"the type-1 loop's ramp error fed forward)" if r0.get("velocity_constant_per_s") else
-            "(no ramp feedforward)")
+    kvs = [f"{TITLES[r['sensor']]} {r['velocity_constant_per_s']:.4g} 1/s" for r in rows
+           if r.get("velocity_constant_per_s")]
+    lead = (f"led by its slope over each loop's velocity constant K_v ({', '.join(kvs)}; the type-1 loop's "
+            f"ramp error fed forward)" if kvs else "(no ramp feedforward)")
     lin = ("the gauge reading with eq. 27's curvature taken out" if r0.get("gauge_linearized") else
            "the gauge reading on the serial's linear calibration")
+    src = {r["sensor"]: r.get("settle_source") for r in rows}
+    from_c = sorted(k for k, v in src.items() if v == "controller")
+    carried = (f"The wait, the lead and the gauge curvature of the {', '.join(TITLES[k] for k in from_c)} loop are "
+               f"the controller's own (its sensor block's startup_wait_s, ref_lead_s, gauge_curvature_per_m, in "
+               f"the JSON and the header); elsewhere this harness computes them." if from_c else
+               "The wait, the lead and the gauge linearization are computed by this harness around the export, "
+               "which carries none of them.")
     out = ["## Sensors side by side", "",
            f"The controller's fixed-point sensor step closing on each reading, on the nonlinear plant with the "
            f"charge amplifier's leakage, bias current and dielectric absorption, creep and the gauge noise all "
-           f"present. Open loop at 50 V until the reading's startup error has settled within its own noise, "
-           f"at least 1 s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle over 10-90 % of the "
-           f"{r0['stroke_m'] * 1e6:.3g} um stroke (two periods, scored after the first), {lead}, then a "
-           f"{hold:g} s hold; {lin}. Triangle RMS: the true x against the reference in the true-position frame "
-           f"(the sensor's offset at closing added); \"commanded\": x's motion from where it was at closing "
+           f"present. Open loop at {r0['bias_v']:g} V until the reading's startup error has settled within its own "
+           f"noise, at least {MIN_OPEN_LOOP_S:g} s (\"closes at\"), then {r0['triangle_hz']:g} Hz triangle spanning "
+           f"80 % of the {r0['stroke_m'] * 1e6:.4g} um quasi-static stroke about that point (two periods, scored after the first), {lead}, then a "
+           f"{hold:g} s hold; {lin}. {carried} Triangle RMS: the true x against the reference "
+           f"relative to the position at closing (the sensor's offset at closing, from the true x, added); \"commanded\": x's motion from where it was at closing "
            f"against the triangle alone. "
            f"Bandwidth: -3 dB of the true x against the reference, measured after the hold with 10 nm tones "
            f"(5 Hz-2 kHz, as verify's sine sweep), beside the nominal linear loop's (ascending branch at 50 V). "
@@ -48,7 +65,7 @@ def sensor_lines(rows, figure=None):
         out.append(f"| {name} | {_f(r.get('bandwidth_hz'), 1, '.0f')} / {_f(r.get('linear_bandwidth_hz'), 1, '.0f')} Hz | "
                    f"{_f(r.get('crossover_hz'), 1, '.0f')} Hz | "
                    f"{_f(r.get('phase_margin_deg'), 1, '.1f')} deg / {_f(r.get('gain_margin_db'), 1, '.1f')} dB | "
-                   f"{_f(r.get('settle_s'), 1, '.2f')} s | "
+                   f"{_closes(r)} | "
                    f"{_f(r['triangle_rms_percent_stroke'], 1, '.4f')} % "
                    f"({_f(r.get('triangle_commanded_rms_percent_stroke'), 1, '.4f')} %) of stroke | "
                    f"{_f(r['hold_drift_m'], 1e9, '+.2f')} nm over {r['hold_s']:g} s | "
@@ -97,7 +114,7 @@ def plot_sensors(rows, traces, path):
                       f"{r['hold_drift_m'] * 1e9:+.2f} nm")
     a1.axvspan(0, rows[0]["triangle_hz"] ** -1 + t[0], color="0.9", zorder=0, label="first period (not scored)")
     a1.set(xlabel="time after closing the loop (s)", ylabel="true x - reference (nm, mean removed)",
-           title=f"{rows[0]['triangle_hz']:g} Hz triangle, 10-90 % of stroke")
+           title=f"{rows[0]['triangle_hz']:g} Hz triangle, 80 % of stroke about the closing point")
     a2.set(xlabel="time into the hold (s)", ylabel="true x, 1 s running mean, from its start (nm)",
            title="hold: drift (noise RMS about the 1 s mean in the legend)")
     for a in (a1, a2):
