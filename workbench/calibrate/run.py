@@ -305,8 +305,18 @@ def fastest_slew_v_per_s(pzt):
     return max(pzt.current_limit_source_a, pzt.current_limit_sink_a) * slope_v_per_c
 
 
-def _recorded_slew_v_per_s(v, dt_s, allowance_v):
-    """The fastest voltage change of a record over lags of 1, 4, 16, ... samples (each less ``allowance_v``), V/s."""
+def recorded_slew_v_per_s(record, resistance_ohm, pzt):
+    """The fastest voltage change of a record, V/s, over lags of 1, 4, 16, ... samples.
+
+    The monitor reads ``V_t + R i``: each lag's largest change is taken less ``2 R I_max`` (the resistor's
+    drop swinging from sink to source limit) and 6 sigmas of the voltage noise (from the median absolute
+    deviation of the sample-to-sample change), so a step of the drop or of the noise is no slew.
+    """
+    v, dt_s = record.channels["voltage_v"], record.sample_period_s
+    i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
+    dv = np.diff(v)
+    noise_v = 1.4826 * float(np.median(np.abs(dv - np.median(dv)))) / np.sqrt(2.0)
+    allowance_v = 2.0 * resistance_ohm * i_max + 6.0 * noise_v
     best, k = 0.0, 1
     while k <= max(1, v.size // 4):
         dv = float(np.max(np.abs(v[k:] - v[:-k]))) - allowance_v
@@ -318,18 +328,16 @@ def _recorded_slew_v_per_s(v, dt_s, allowance_v):
 def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm):
     """A time column off by 1000 (ms under time[s], s under time[ms]) is refused where the physics says so.
 
-    * The voltage cannot slew faster than :func:`fastest_slew_v_per_s`. The monitor reads ``V_t + R i``, so a
-      change of ``2 R I_max`` (the resistor's drop swinging from sink to source) and 6 noise sigmas are
-      allowed at any lag; a record more than :data:`UNIT_SLIP_RATIO` times faster is seconds under time[ms].
+    * The voltage cannot slew faster than :func:`fastest_slew_v_per_s`; a record slewing
+      (:func:`recorded_slew_v_per_s`) more than :data:`UNIT_SLIP_RATIO` times faster is seconds under
+      time[ms]. A record slewing under 1/32 of the limit read 1000 times faster passes this check.
     * With a current column, the charge ``sum(i) dt`` over the terminal voltage ``V - R i`` must be the
       plant's (the quasi-static charge ``G^-1(V_t)``) within :data:`UNIT_SLIP_RATIO`: the charge scales with
       the time unit, so 1000 times too much is ms under time[s] (or a current in mA under current[A]).
     """
     v, dt = record.channels["voltage_v"], record.sample_period_s
     i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
-    dv = np.diff(v)
-    noise_v = 1.4826 * float(np.median(np.abs(dv - np.median(dv)))) / np.sqrt(2.0)
-    recorded = _recorded_slew_v_per_s(v, dt, 2.0 * resistance_ohm * i_max + 6.0 * noise_v)
+    recorded = recorded_slew_v_per_s(record, resistance_ohm, pzt)
     fastest = fastest_slew_v_per_s(pzt)
     if fastest > 0 and recorded > UNIT_SLIP_RATIO * fastest:
         raise DataFileError(f"{data_path}: the voltage slews at {recorded:.4g} V/s, {recorded / fastest:.3g} times "
