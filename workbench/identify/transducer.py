@@ -242,8 +242,12 @@ def _read_header(path, lineno, cells):
     return columns
 
 
-def _read_table(path, calibrations_m_per_v):
-    """Read and validate the CSV; return the runs (SI) and the gauge/displacement scales."""
+def _read_table(path, calibrations_m_per_v, deferred=None):
+    """Read and validate the CSV; return the runs (SI) and the gauge/displacement scales.
+
+    A force no stack can carry (:func:`_check_force`) is refused at once, unless it would be possible in the
+    next SI unit down (x 1/1000: a column's unit slip) and ``deferred`` is a list: then its error is appended
+    there, for the caller to raise after its own whole-column diagnosis of units (T_em out of range)."""
     path = Path(path)
     columns = None
     runs = []
@@ -309,7 +313,7 @@ def _read_table(path, calibrations_m_per_v):
             seen[key] = lineno
             gauge, displacement = number("gauge_change"), number("displacement")
             _check_force(path, lineno, columns["force"][0] + 1, number("force") * columns["force"][1],
-                         displacement * columns["displacement"][1])
+                         displacement * columns["displacement"][1], deferred)
             runs.append(_Run(line=lineno, serial=serial, run=run, config=config,
                              gauge_v=gauge * columns["gauge_change"][1],
                              displacement_m=displacement * columns["displacement"][1],
@@ -331,15 +335,18 @@ def _read_table(path, calibrations_m_per_v):
 STIFFNESS_MAX_N_PER_M = PLANT_FIELDS["mechanics"]["stiffness_n_per_m"].hi
 
 
-def _check_force(path, lineno, column, force_n, displacement_m):
+def _check_force(path, lineno, column, force_n, displacement_m, deferred=None):
     """A force no stack could carry over the row's displacement is a bad cell (a glitch such as -1e300)."""
     bound_n = STIFFNESS_MAX_N_PER_M * abs(displacement_m)
     if displacement_m != 0.0 and abs(force_n) > bound_n:
-        raise DataFileError(f"{path}, line {lineno}, column {column} (force): {force_n:.4g} N over the row's "
+        error = DataFileError(f"{path}, line {lineno}, column {column} (force): {force_n:.4g} N over the row's "
                             f"displacement {displacement_m * 1e6:.4g} um is a stiffness |F/x| = "
                             f"{abs(force_n / displacement_m):.3g} N/m, beyond {STIFFNESS_MAX_N_PER_M:.3g} N/m, the "
                             f"stiffest stack a plant file holds (|F| <= {bound_n:.4g} N here): physically "
                             f"impossible; correct the cell (a logging glitch or the force column's unit)")
+        if deferred is None or abs(force_n) > 1000.0 * bound_n:
+            raise error
+        deferred.append(error)
 
 
 def _gauge_disagreement(gauge_v, displacement_m, calibration_m_per_v):
@@ -512,7 +519,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
     _check_parameters(stiffness_n_per_m, calibrations_m_per_v, gauge_tolerance,
                       stiffness_tolerance)
     kp = float(stiffness_n_per_m)
-    runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v)
+    impossible = []                 # force cells a column's unit slip would explain: after the T_em diagnosis
+    runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v, impossible)
 
     used, flagged, r_in, t_all, t_swapped = [], [], [], [], []
     swapped_runs = {(d["serial"], d["run"]) for d in _swap_decision(runs, gauge_scale, displacement_scale,
@@ -590,6 +598,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                             f"plant file accepts for transducer_constant_n_per_v (seed 000: 46.71 N/V); check the "
                             f"force, displacement and back_emf columns' units and signs (compression negative) "
                             f"and --stiffness ({kp:g} N/m)")
+    if impossible:
+        raise impossible[0]
     k_short = kp + t_em_mean ** 2 / (working_capacitance_f + hysteretic_capacitance_f)
     for rec in r_in:
         run = rec.pop("_run")
