@@ -136,6 +136,27 @@ def ws(tmp_path_factory):
     x = pzt.quasi_static_x_m(v)
     rows = "\n".join(f"{a:.4f},{b:.6f},{c:.6e}" for a, b, c in zip(t, v, x))
     (bad / "um_label.csv").write_text(f"time[s],voltage[V],displacement[um]\n{rows}\n", encoding="utf-8")
+    # issue 17's last four: a simulated record (1 kHz, a 2 Hz raised cosine 0-100 V: current-limited) with its time
+    # column 1000 times off either way, its last line cut mid-write; Table 1 with one force cell of -1e300
+    from workbench.calibrate.synthetic import simulate_record
+    plant = load_plant(ROOT / PLANT)
+    v_cmd = 50.0 * (1.0 - np.cos(2 * np.pi * 2.0 * t))
+    sim = simulate_record(plant, t, v_cmd, seed=3, gauge=False)
+    cells = [(f"{a:.6f}", f"{b:.6f}", f"{c:.6e}", f"{d:.6e}")
+             for a, b, c, d in zip(sim["time_s"], sim["voltage_v"], sim["current_a"], sim["displacement_m"])]
+    sim_rows = "\n".join(",".join(r) for r in cells)
+    (bad / "time_s_under_ms.csv").write_text(f"time[ms],voltage[V],current[A],displacement[m]\n{sim_rows}\n",
+                                             encoding="utf-8")
+    ms_rows = "\n".join(",".join((f"{float(r[0]) * 1e3:.3f}",) + r[1:]) for r in cells)
+    (bad / "time_ms_under_s.csv").write_text(f"time[s],voltage[V],current[A],displacement[m]\n{ms_rows}\n",
+                                             encoding="utf-8")
+    cut = ",".join(cells[-1][:3]) + "," + cells[-1][3].split(".")[0] + "."          # "...,-1.234567e-07" -> "...,-1."
+    (bad / "cut_last_line.csv").write_text("time[s],voltage[V],current[A],displacement[m]\n"
+                                           + "\n".join(",".join(r) for r in cells[:-1]) + "\n" + cut,
+                                           encoding="utf-8")
+    head_t, _, body_t = table.decode("utf-8").partition("back_emf[V]\n")
+    body_t = body_t.replace("SN637,2,R_in,-1.040,-3.200,-778.1,", "SN637,2,R_in,-1.040,-3.200,-1e300,")
+    (bad / "table_force_1e300.csv").write_text(head_t + "back_emf[V]\n" + body_t, encoding="utf-8")
     # the outside pass (README "Bad input"): files as other tools save them
     (bad / "bom.toml").write_bytes(b"\xef\xbb\xbf" + plant_text)                     # Notepad's "UTF-8 with BOM"
     (bad / "bom.json").write_bytes(b"\xef\xbb\xbf" + (ROOT / CTRL).read_bytes())
@@ -433,6 +454,20 @@ CASES = [
      ["ctrl_sos_text.json", "[sos]", "of numbers", "without quotes"]),
     ("freefree-out-proc", ["freefree", PLANT, "--out", "/proc/ff"], ["--out /proc/ff", "nothing can be written"]),
     ("verify-no-controller", ["verify", CREEP], ["--controller"]),
+    # ---- issue 17's last four (fuzz2) -----------------------------------------------------------------------
+    # synth writes a CSV whatever the name: a record under rec.toml was written as CSV
+    ("synth-out-toml", ["synth", PLANT, "--out", "{out}/rec.toml"], ["--out", "rec.toml", "suffix must be one of .csv"]),
+    # one force cell of -1e300 in an R_in row: the run was only flagged and T_em printed, exit 0
+    ("identify-table-force-1e300", ["identify", "transducer", "bad/table_force_1e300.csv"],
+     ["bad/table_force_1e300.csv", "line 12, column 6 (force)", "beyond 1e+12 N/m", "impossible"]),
+    # a time column 1000 times off: calibrate answered "no effect", exit 0
+    ("calibrate-record-time-s-under-ms", ["calibrate", "bad/time_s_under_ms.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/time_s_under_ms.csv", "current limit", "seconds under time[ms]", "time column's unit"]),
+    ("calibrate-record-time-ms-under-s", ["calibrate", "bad/time_ms_under_s.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/time_ms_under_s.csv", "charge", "ms under time[s]", "time column's unit"]),
+    # the last line cut mid-write ("...,-1.234567e-07" -> "...,-1."): read as -1 m
+    ("calibrate-record-cut-last-line", ["calibrate", "bad/cut_last_line.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/cut_last_line.csv", "line 2001, column 4 (displacement[m])", "no line end", "cut"]),
 ]
 
 # cases for another engineer's validator (issue 17 item 2: controllers; records): in the suite when they

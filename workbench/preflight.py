@@ -601,6 +601,11 @@ def preflight(args):
             if args.table.suffix.lower() not in suffixes:
                 raise FileArgumentError(f"--table {args.table}: the suffix must be one of {', '.join(suffixes)} (the "
                                         f"table's format); e.g. {args.table.with_suffix('.csv')}")
+    if args.command == "synth":
+        from .calibrate.synthetic import RECORD_SUFFIXES as suffixes    # the record writer's (one home)
+        if Path(args.out).suffix.lower() not in suffixes:
+            raise FileArgumentError(f"--out {args.out}: the suffix must be one of {', '.join(suffixes)} (synth writes "
+                                    f"a CSV record); e.g. {Path(args.out).with_suffix('.csv')}")
     _check_flags(args)
     _check_size(args)
     outs = [p for _, p in out_files + out_dirs]

@@ -237,3 +237,47 @@ def test_large_but_genuine_swings_are_kept(tmp_path):
             for k in range(N)]
     rec = read_record(_write(tmp_path, [HEADER] + rows))
     assert rec.channels["voltage_v"].max() == 100.0
+
+
+# ---- a last line cut while the file was written (issue 17: "0.35,1.2" cut to "0.35,1." read as 1.0) ----------
+
+def _cut(tmp_path, last_text, name="cut.csv"):
+    """The base record with its last line replaced by ``last_text`` and no line end after it."""
+    lines = _base()[:-1] + [last_text]
+    path = tmp_path / name
+    path.write_bytes("\n".join(lines).encode())
+    return path
+
+
+@pytest.mark.parametrize("field", [1, 2])                  # the voltage or the current cut after its point
+def test_a_last_number_cut_after_its_point_is_refused(tmp_path, field):
+    cells = _rows()[-1].split(",")
+    cells[field] = cells[field].split(".")[0] + "."
+    path = _cut(tmp_path, ",".join(cells[:field + 1]) + ("," + ",".join(cells[field + 1:]) if field < 2 else ""))
+    with pytest.raises(DataFileError, match=rf"line {FIRST + N - 1}, column {field + 1} .*no line end.*cut"):
+        read_record(path)
+
+
+def test_a_cut_in_a_fixed_width_column_is_refused(tmp_path):
+    # every current cell is written with 6 decimals (8 characters here); a cut one is shorter
+    cells = _rows()[-1].split(",")
+    cells[2] = cells[2][:-2]
+    assert re.fullmatch(r"\d\.\d{4}", cells[2])                         # still a number: a silent shortening
+    with pytest.raises(DataFileError, match=rf"line {FIRST + N - 1}, column 3 .*shorter than the 8 characters"):
+        read_record(_cut(tmp_path, ",".join(cells)))
+
+
+def test_a_cut_that_drops_a_field_is_refused(tmp_path):
+    cells = _rows()[-1].split(",")
+    with pytest.raises(DataFileError, match=rf"line {FIRST + N - 1}: 2 fields, the header .* has 3"):
+        read_record(_cut(tmp_path, ",".join(cells[:2])))
+
+
+def test_a_whole_last_line_without_its_end_is_read_with_a_notice(tmp_path):
+    whole = read_record(_write(tmp_path, _base(), name="whole.csv"))
+    assert not any("no line end" in n for n in whole.notices)
+    last = read_record(_cut(tmp_path, _rows()[-1]))
+    assert any(f"line {FIRST + N - 1}: the last line has no line end" in n for n in last.notices)
+    assert np.array_equal(last.t_s, whole.t_s)
+    for key in whole.channels:
+        assert np.array_equal(last.channels[key], whole.channels[key])

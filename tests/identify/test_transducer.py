@@ -218,3 +218,50 @@ def test_a_byte_order_mark_is_skipped(tmp_path):
     with_bom, without = identify_transducer(bom).to_json(), identify_transducer(src).to_json()
     assert with_bom.pop("source") != without.pop("source")           # the file each came from
     assert with_bom == without
+
+
+# ---- a force no stack can carry (issue 17: one cell of -1e300 ran, its R_in run only flagged) -----------------
+
+def _table_rows():
+    lines = TABLE1.read_text(encoding="utf-8").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("serial,")) + 1
+    return lines, start
+
+
+@pytest.mark.parametrize("glitch", ["-1e300", "1e300", "-5e7", "-1e20"])
+def test_an_impossible_force_cell_is_refused_naming_its_line(tmp_path, glitch):
+    # every row of Table 1 in turn, R_in and R_out: |F| beyond 1e12 N/m (the stiffest stack a plant file holds)
+    # times the row's displacement; the rows' displacements are 0.34-3.5 um, so 5e7 N is beyond every row's bound.
+    # A cell the next unit down would make possible (5e7 N: 5e4 N) may meet the T_em diagnosis of the columns'
+    # units first (an R_out row); every other is named by its line.
+    lines, start = _table_rows()
+    for k in range(start, len(lines)):
+        cells = lines[k].split(",")
+        cells[5] = glitch
+        path = tmp_path / f"glitch_{k}.csv"
+        path.write_text("\n".join(lines[:k] + [",".join(cells)] + lines[k + 1:]) + "\n", encoding="utf-8")
+        cell = rf"line {k + 1}, column 6 \(force\): .*beyond 1e\+12 N/m"
+        units = r"eq\. 6 over the \d+ R_out runs .* outside \(0, 10000\] N/V.*units"
+        named = cell if glitch != "-5e7" or cells[2] == "R_in" else rf"(?:{cell})|(?:{units})"
+        with pytest.raises(DataFileError, match=named):
+            identify_transducer(path)
+
+
+@pytest.mark.parametrize("scale", [1e-2, 1e-1, 10.0, 100.0])
+def test_forces_a_load_frame_can_apply_are_never_refused_as_impossible(tmp_path, scale):
+    # Table 1's forces x 0.01 .. x 100 (8 N .. 84 kN, past 20 times a P-888.51's ~3.7 kN blocked force): eq. 6
+    # may then give a T_em no plant holds (refused as such), never the impossible-cell refusal
+    lines, start = _table_rows()
+    rows = []
+    for line in lines[start:]:
+        cells = line.split(",")
+        cells[5] = f"{float(cells[5]) * scale:.6g}"
+        rows.append(",".join(cells))
+    path = tmp_path / "scaled.csv"
+    path.write_text("\n".join(lines[:start] + rows) + "\n", encoding="utf-8")
+    try:
+        res = identify_transducer(path)
+    except DataFileError as err:
+        assert "|F/x|" not in str(err) and "eq. 6" in str(err)
+    else:
+        assert res.t_em_n_per_v > 0

@@ -161,6 +161,7 @@ def read_record(path, min_samples=100, rel_jitter=1e-3):
             values *= scale
         values.flags.writeable = False
         arrays[QUANTITIES[name][1]] = values
+    _check_last_line(path, data, body, first + n_rows - 1, header, used, notices)
     t = arrays.pop("t_s")
     _check_time(path, t, first, columns["time"][0] + 1, rel_jitter)
     for name, (index, scale) in columns.items():
@@ -300,6 +301,46 @@ def _find_bad_cell(path, body, first, header, header_line, columns):
         return DataFileError(f"{path}, line {line}, column {index + 1} ({header[index].strip()}): "
                              f"{what}; write a finite number or cut the record before this line")
     return None
+
+
+#: Rows before the last one whose cells set the shortest way each column is written.
+_TAIL_ROWS = 1000
+# how a number cut mid-write ends: a bare point or an exponent without its digits ("1.", "1e", "1e-")
+_CUT_NUMBER = re.compile(r"(?:\.|[eE][-+]?)$")
+
+
+def _check_last_line(path, data, body, line, header, used, notices):
+    """A last line without its line end, in a file whose other lines have one, may be cut mid-write.
+
+    The field count is checked with every row (a cut that drops a field is refused there); a cut inside the
+    last number leaves a shorter number that still parses (``0.35,1.2`` cut to ``0.35,1.``). The last line
+    is refused when a used cell ends as a cut number does (a bare point, an exponent without digits, where
+    no row before ends so) or is shorter than a column written at one width on each of the
+    :data:`_TAIL_ROWS` rows before it (a fixed format such as ``%.6e``); otherwise a missing line end is a
+    notice. A cut that leaves a well-formed number in a variable-width column (``1.25`` cut to ``1.2``)
+    cannot be told from data.
+    """
+    if data.endswith((b"\n", b"\r")) or body.count(b"\n") < 1:
+        return                                                  # line-terminated, or a single data line
+    start = body.rfind(b"\n") + 1
+    last = next(csv.reader([body[start:].decode("utf-8")]))
+    tail = body[:start].rstrip(b"\r\n").split(b"\n")[-_TAIL_ROWS:]
+    rows = list(csv.reader(row.decode("utf-8") for row in tail))
+    for i in used:
+        cell = last[i].strip() if i < len(last) else ""
+        widths = [len(r[i].strip()) for r in rows if i < len(r)]
+        cut = _CUT_NUMBER.search(cell) is not None and not any(_CUT_NUMBER.search(r[i].strip()) for r in rows
+                                                                if i < len(r))
+        fixed = bool(widths) and min(widths) == max(widths)       # a fixed-width format: any shorter cell is cut
+        if cut or (fixed and len(cell) < min(widths)):
+            why = (f"{cell!r} ends as a cut number does" if cut else
+                   f"{cell!r} is shorter than the {min(widths)} characters the column has on each of the "
+                   f"{len(widths)} lines before it")
+            raise DataFileError(f"{path}, line {line}, column {i + 1} ({header[i].strip()}): the last line has no "
+                                f"line end and {why}: the file looks cut while it was written; delete the last "
+                                f"line or copy the whole file again")
+    notices.append(f"line {line}: the last line has no line end (every other line has one); check the file "
+                   f"was copied whole")
 
 
 def _check_time(path, t, first, column, rel_jitter):

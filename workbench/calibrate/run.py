@@ -78,6 +78,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     notes = list(record.notices)
     ch = record.channels
     input_kind = _input_kind(record, plant, kind, notes)
+    _note_sample_rate(record, notes)
     if kind == "generic_stack":
         if "displacement_m" not in ch:
             raise DataFileError(f"{data_path}: a generic stack is calibrated from voltage to displacement; "
@@ -108,6 +109,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             _check_range(data_path, ch["voltage_v"], plant.pzt.voltage_min_v, plant.pzt.voltage_max_v,
                          f"[electrical] voltage_min_v/voltage_max_v in {plant_path}")
             _check_displacement_scale(data_path, record, plant.pzt, plant_path)
+            _check_time_scale(data_path, record, plant.pzt, plant_path, resistance)
         pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
     if split is None:
         names = {"displacement_m": "displacement", "current_a": "charge", "gauge_v": "gauge"}
@@ -270,6 +272,98 @@ def _check_displacement_scale(data_path, record, pzt, plant_path):
                             f"{plant_path} strokes over that range (quasi-static); more than {UNIT_SLIP_RATIO:.3g} "
                             f"times off is a unit slip, not a stack: check the displacement column's unit "
                             f"(e.g. displacement[um] over values in m) or calibrate against the stack's plant")
+
+
+#: The sample rates records come at (issue 17: rigs from 100 Hz to 1 MHz), Hz. A time column implying a rate
+#: outside is suspicious (a notice naming the likely slip), never refused on its own: the physics decides.
+RECORD_RATES_HZ = (100.0, 1.0e6)
+
+
+def _note_sample_rate(record, notes):
+    """A notice when the time column implies a sample rate outside :data:`RECORD_RATES_HZ`."""
+    rate = 1.0 / record.sample_period_s
+    lo, hi = RECORD_RATES_HZ
+    if rate < lo:
+        notes.append(f"the time column implies {rate:.4g} Hz sampling, under the {lo:g} Hz of the slowest rig: "
+                     f"if the times are in ms, write time[ms] in the header")
+    elif rate > hi:
+        notes.append(f"the time column implies {rate:.4g} Hz sampling, over the {hi:g} Hz of the fastest rig: "
+                     f"if the times are in s, write time[s] in the header")
+
+
+def fastest_slew_v_per_s(pzt):
+    """The fastest terminal-voltage slew the plant's amplifier can drive, V/s.
+
+    The charge reaches the stack at most at the amplifier's current limit, ``max(source, sink)``, and the
+    terminal voltage is the PI operator ``G`` of that charge (:meth:`~workbench.plant.pzt.PZTParams.
+    terminal_operator`), whose steepest slope (V/C) is its largest partial sum of weights (the plays
+    switched on one by one): ``dV_t/dt <= I_max max_k sum_{j<=k} w_j``. Creep, leakage and absorption
+    branches only take current away.
+    """
+    g = pzt.terminal_operator()
+    slope_v_per_c = float(np.max(np.cumsum(g.weights)))
+    return max(pzt.current_limit_source_a, pzt.current_limit_sink_a) * slope_v_per_c
+
+
+def recorded_slew_v_per_s(record, resistance_ohm, pzt):
+    """The fastest voltage change of a record, V/s, over lags of 1, 4, 16, ... samples.
+
+    The monitor reads ``V_t + R i``: each lag's largest change is taken less ``2 R I_max`` (the resistor's
+    drop swinging from sink to source limit) and 6 sigmas of the voltage noise (from the median absolute
+    deviation of the sample-to-sample change), so a step of the drop or of the noise is no slew.
+    """
+    v, dt_s = record.channels["voltage_v"], record.sample_period_s
+    i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
+    dv = np.diff(v)
+    noise_v = 1.4826 * float(np.median(np.abs(dv - np.median(dv)))) / np.sqrt(2.0)
+    allowance_v = 2.0 * resistance_ohm * i_max + 6.0 * noise_v
+    best, k = 0.0, 1
+    while k <= max(1, v.size // 4):
+        dv = float(np.max(np.abs(v[k:] - v[:-k]))) - allowance_v
+        best = max(best, dv / (k * dt_s))
+        k *= 4
+    return best
+
+
+def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm):
+    """A time column off by 1000 (ms under time[s], s under time[ms]) is refused where the physics says so.
+
+    * The voltage cannot slew faster than :func:`fastest_slew_v_per_s`; a record slewing
+      (:func:`recorded_slew_v_per_s`) more than :data:`UNIT_SLIP_RATIO` times faster is seconds under
+      time[ms]. A record slewing under 1/32 of the limit read 1000 times faster passes this check.
+    * With a current column, the charge ``sum(i) dt`` over the terminal voltage ``V - R i`` must be the
+      plant's (the quasi-static charge ``G^-1(V_t)``) within :data:`UNIT_SLIP_RATIO`: the charge scales with
+      the time unit, so 1000 times too much is ms under time[s] (or a current in mA under current[A]).
+    """
+    v, dt = record.channels["voltage_v"], record.sample_period_s
+    i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
+    recorded = recorded_slew_v_per_s(record, resistance_ohm, pzt)
+    fastest = fastest_slew_v_per_s(pzt)
+    if fastest > 0 and recorded > UNIT_SLIP_RATIO * fastest:
+        raise DataFileError(f"{data_path}: the voltage slews at {recorded:.4g} V/s, {recorded / fastest:.3g} times "
+                            f"the {fastest:.4g} V/s the amplifier's {i_max * 1e3:.4g} mA current limit can drive "
+                            f"into the stack of {plant_path}: impossible, the time column is likely 1000 times too "
+                            f"small (seconds under time[ms], {1.0 / dt:.4g} Hz implied); check the time column's "
+                            f"unit (write time[s] over values in s)")
+    i = record.channels.get("current_a")
+    if i is None:
+        return
+    q = np.cumsum(i) * dt
+    v_t = v - resistance_ohm * i
+    stride = max(1, v.size // 200_000)            # the quasi-static charge needs no more points than its shape
+    q_model = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_t[::stride] - v_t[0]))
+    model, got = float(np.ptp(q_model)), float(np.ptp(q))
+    if not model > 0:
+        return
+    ratio = got / model
+    if not 1.0 / UNIT_SLIP_RATIO <= ratio <= UNIT_SLIP_RATIO:
+        slip = ("1000 times too large (ms under time[s])" if ratio > 1 else "1000 times too small (s under "
+                "time[ms])")
+        raise DataFileError(f"{data_path}: the current integrates to a charge span of {got:.4g} C over the terminal "
+                            f"voltage {v_t.min():.4g} .. {v_t.max():.4g} V, {ratio:.3g} times the {model:.4g} C the "
+                            f"plant {plant_path} holds over that range: more than {UNIT_SLIP_RATIO:.3g} times off, "
+                            f"the time column is likely {slip}, {1.0 / dt:.4g} Hz implied; check the time "
+                            f"column's unit (and the current's)")
 
 
 def _check_plant_text(text, path, kind):

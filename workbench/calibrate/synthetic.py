@@ -121,8 +121,20 @@ _CSV_COLUMNS = (("time_s", "time[s]"), ("voltage_v", "voltage[V]"), ("current_a"
                 ("displacement_m", "displacement[m]"), ("gauge_v", "gauge[V]"))
 
 
+RECORD_SUFFIXES = (".csv",)       # the only format write_record produces (the record reader's CSV)
+
+
 def write_record(path, record, metadata=None):
-    """Write a simulated record as the calibration's CSV (written whole or not at all)."""
+    """Write a simulated record as the calibration's CSV (written whole or not at all).
+
+    Raises
+    ------
+    ValueError
+        If the suffix of ``path`` is not one of ``RECORD_SUFFIXES`` (a CSV under a ``.toml`` name).
+    """
+    if Path(path).suffix.lower() not in RECORD_SUFFIXES:
+        raise ValueError(f"cannot write a record to {str(path)!r}: the suffix must be one of {RECORD_SUFFIXES} "
+                         f"(the record is a CSV), got {Path(path).suffix!r}")
     cols = [(k, h) for k, h in _CSV_COLUMNS if k in record]
     lines = [f"# {k}: {v}" for k, v in (metadata or {}).items()]
     lines.append(",".join(h for _, h in cols))

@@ -602,10 +602,10 @@ class MimoController:
                    + f"    for (int j = 0; j < 3; j++) d[j] = {up}_IFF_SHIFT[j] >= 1 ? (d[j] + ((int64_t)1 << "
                      f"({up}_IFF_SHIFT[j] - 1))) >> {up}_IFF_SHIFT[j] : d[j] * ((int64_t)1 << -{up}_IFF_SHIFT[j]);\n")
                   if has else "")
-        i_add = f" + d[j]" if has else ""
-        i_doc = (f"\n * IFF (active damping): bridge words b_q[3] (each stack's charge bridge, V, in its IFF cascade's "
-                 f"input format)\n * in; d[j] = STACK_iff_fixed_step(b_q[j]) shifted to stack words is added before "
-                 f"the clamp." if has else "")
+        i_add = " + d[j]" if has else ""
+        i_doc = ("\n * IFF (active damping): bridge words b_q[3] (each stack's charge bridge, V, in its IFF cascade's "
+                 "input format)\n * in; d[j] = STACK_iff_fixed_step(b_q[j]) shifted to stack words is added before "
+                 "the clamp." if has else "")
         return f"""\
 /* {name}.h: the mirror's MIMO controller "{name}", exported by workbench.export.mimo. Re-export rather than edit.
  *

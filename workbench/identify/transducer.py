@@ -242,8 +242,12 @@ def _read_header(path, lineno, cells):
     return columns
 
 
-def _read_table(path, calibrations_m_per_v):
-    """Read and validate the CSV; return the runs (SI) and the gauge/displacement scales."""
+def _read_table(path, calibrations_m_per_v, deferred=None):
+    """Read and validate the CSV; return the runs (SI) and the gauge/displacement scales.
+
+    A force no stack can carry (:func:`_check_force`) is refused at once, unless it would be possible in the
+    next SI unit down (x 1/1000: a column's unit slip) and ``deferred`` is a list: then its error is appended
+    there, for the caller to raise after its own whole-column diagnosis of units (T_em out of range)."""
     path = Path(path)
     columns = None
     runs = []
@@ -308,6 +312,8 @@ def _read_table(path, calibrations_m_per_v):
                                     f"repeats line {seen[key]}; give each run once")
             seen[key] = lineno
             gauge, displacement = number("gauge_change"), number("displacement")
+            _check_force(path, lineno, columns["force"][0] + 1, number("force") * columns["force"][1],
+                         displacement * columns["displacement"][1], deferred)
             runs.append(_Run(line=lineno, serial=serial, run=run, config=config,
                              gauge_v=gauge * columns["gauge_change"][1],
                              displacement_m=displacement * columns["displacement"][1],
@@ -321,6 +327,26 @@ def _read_table(path, calibrations_m_per_v):
         raise DataFileError(f"{path}: no data rows after the header (line {header_line}); "
                             f"add one row per run")
     return runs, columns["gauge_change"][1], columns["displacement"][1]
+
+
+#: The stiffest stack a plant file holds (``[mechanics] stiffness_n_per_m``'s bound), N/m: no run's force can
+#: exceed this times its displacement (the open-circuit stiffness k_p + T_em^2/C_p of a P-888.51, ~5.6e8 N/m,
+#: is 1/1800 of it; seed 000 Table 1 has |F/x| 2.2e8-2.5e9 N/m).
+STIFFNESS_MAX_N_PER_M = PLANT_FIELDS["mechanics"]["stiffness_n_per_m"].hi
+
+
+def _check_force(path, lineno, column, force_n, displacement_m, deferred=None):
+    """A force no stack could carry over the row's displacement is a bad cell (a glitch such as -1e300)."""
+    bound_n = STIFFNESS_MAX_N_PER_M * abs(displacement_m)
+    if displacement_m != 0.0 and abs(force_n) > bound_n:
+        error = DataFileError(f"{path}, line {lineno}, column {column} (force): {force_n:.4g} N over the row's "
+                            f"displacement {displacement_m * 1e6:.4g} um is a stiffness |F/x| = "
+                            f"{abs(force_n / displacement_m):.3g} N/m, beyond {STIFFNESS_MAX_N_PER_M:.3g} N/m, the "
+                            f"stiffest stack a plant file holds (|F| <= {bound_n:.4g} N here): physically "
+                            f"impossible; correct the cell (a logging glitch or the force column's unit)")
+        if deferred is None or abs(force_n) > 1000.0 * bound_n:
+            raise error
+        deferred.append(error)
 
 
 def _gauge_disagreement(gauge_v, displacement_m, calibration_m_per_v):
@@ -447,7 +473,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
     DataFileError
         If the file is malformed (no header, a missing, repeated or unknown column, a unit
         that is not a prefixed V, m or N, a row with the wrong number of fields, an empty,
-        non-numeric or non-finite value, an unknown serial or configuration, a repeated run),
+        non-numeric or non-finite value, a force beyond ``STIFFNESS_MAX_N_PER_M`` times the
+        row's displacement, an unknown serial or configuration, a repeated run),
         or if no ``R_out`` run passes the checks. The message names the file, the line and
         (where there is one) the column, and what is expected.
     TypeError
@@ -492,7 +519,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
     _check_parameters(stiffness_n_per_m, calibrations_m_per_v, gauge_tolerance,
                       stiffness_tolerance)
     kp = float(stiffness_n_per_m)
-    runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v)
+    impossible = []                 # force cells a column's unit slip would explain: after the T_em diagnosis
+    runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v, impossible)
 
     used, flagged, r_in, t_all, t_swapped = [], [], [], [], []
     swapped_runs = {(d["serial"], d["run"]) for d in _swap_decision(runs, gauge_scale, displacement_scale,
@@ -570,6 +598,8 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                             f"plant file accepts for transducer_constant_n_per_v (seed 000: 46.71 N/V); check the "
                             f"force, displacement and back_emf columns' units and signs (compression negative) "
                             f"and --stiffness ({kp:g} N/m)")
+    if impossible:
+        raise impossible[0]
     k_short = kp + t_em_mean ** 2 / (working_capacitance_f + hysteretic_capacitance_f)
     for rec in r_in:
         run = rec.pop("_run")

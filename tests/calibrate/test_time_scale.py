@@ -1,0 +1,100 @@
+"""A record's time column 1000 times off (issue 17): calibrate answered "no effect" with exit 0.
+
+Records are simulated by the project's simulator (``simulate_record``) at every rate rigs log at, 100 Hz to
+1 MHz, on the three P-888.51 plants, with drives drawn from slow sines to current-limited steps. The checks
+of ``calibrate.run`` must pass every one as recorded and refuse it with its time column rescaled by 1000
+either way, where the physics can tell (see each test).
+"""
+
+import dataclasses
+import importlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from workbench.calibrate.synthetic import simulate_record
+from workbench.errors import DataFileError
+from workbench.plant import load_plant
+
+run = importlib.import_module("workbench.calibrate.run")       # the module, not the package's function
+ROOT = Path(__file__).resolve().parents[2]
+SERIALS = ("sn637", "sn629", "sn618")
+RATES_HZ = (100.0, 1e3, 1e4, 1e5, 1e6)
+ROWS = 20_000
+
+
+def _record(rate_hz, drive, seed):
+    """A Record of a drawn plant and drive at ``rate_hz`` (ROWS samples), as read_record returns it."""
+    from workbench.calibrate.record import Record
+    rng = np.random.default_rng(seed)
+    plant = load_plant(ROOT / "plants" / f"p888_51_{SERIALS[seed % 3]}.toml")
+    t = np.arange(ROWS) / rate_hz
+    duration = t[-1]
+    peak = rng.uniform(15.0, plant.pzt.voltage_max_v)                  # above the command fraction: terminal
+    if drive == "sine":        # 1-20 raised-cosine cycles over the record, slow or current-limited
+        f = rng.uniform(1.0, 20.0) / duration
+        v = 0.5 * peak * (1.0 - np.cos(2 * np.pi * f * t))
+    else:                      # steps up and down: the amplifier at its current limit
+        v = np.where((t > 0.2 * duration) & (t < 0.6 * duration), peak, 0.0)
+    rec = simulate_record(plant, t, v, seed=seed, n_sub=2, gauge=False)
+    channels = {k: rec[k] for k in ("voltage_v", "current_a", "displacement_m")}
+    return plant, Record(Path("rec.csv"), {}, rec["time_s"], channels, float(np.mean(np.diff(rec["time_s"]))))
+
+
+def _check(plant, record):
+    run._check_time_scale("rec.csv", record, plant.pzt, "plant.toml", plant.pzt.series_resistance_ohm)
+
+
+def _rescaled(record, factor, current=True):
+    channels = dict(record.channels) if current else {k: v for k, v in record.channels.items() if k != "current_a"}
+    return dataclasses.replace(record, t_s=record.t_s * factor, sample_period_s=record.sample_period_s * factor,
+                               channels=channels)
+
+
+@pytest.mark.parametrize("drive", ["sine", "steps"])
+@pytest.mark.parametrize("rate_hz", RATES_HZ)
+def test_a_record_at_any_rig_rate_passes_and_its_slips_are_refused(rate_hz, drive):
+    for seed in range(3):
+        plant, record = _record(rate_hz, drive, seed + int(rate_hz) % 7)
+        _check(plant, record)                                            # as recorded: never refused
+        # the bound is a bound: no simulated record slews faster than the current limit through the stack
+        assert run.recorded_slew_v_per_s(record, plant.pzt.series_resistance_ohm, plant.pzt) <= \
+            run.fastest_slew_v_per_s(plant.pzt)
+        _check(plant, _rescaled(record, 1.0, current=False))
+        # ms under time[s]: the current integrates to 1000 times the plant's charge
+        with pytest.raises(DataFileError, match=r"1000 times too large \(ms under time\[s\]\)"):
+            _check(plant, _rescaled(record, 1e3))
+        # seconds under time[ms]: the charge is 1/1000 of the plant's, or the voltage slews beyond the amplifier
+        with pytest.raises(DataFileError, match=r"time\[ms\]"):
+            _check(plant, _rescaled(record, 1e-3))
+
+
+@pytest.mark.parametrize("rate_hz", RATES_HZ)
+def test_without_a_current_a_current_limited_record_read_1000_times_faster_is_refused(rate_hz):
+    # the voltage alone: a record whose amplifier reached its limit cannot slew 1000 times faster
+    plant, record = _record(rate_hz, "steps", 11)
+    fastest = run.fastest_slew_v_per_s(plant.pzt)
+    slew = run.recorded_slew_v_per_s(record, plant.pzt.series_resistance_ohm, plant.pzt)
+    assert slew > 0.1 * fastest                 # the step met the limit (the 2 mA source limit: 1/7 of the sink's)
+    with pytest.raises(DataFileError, match=r"seconds under time\[ms\]"):
+        _check(plant, _rescaled(record, 1e-3, current=False))
+
+
+def test_the_fastest_slew_is_the_current_limit_over_the_smallest_capacitance():
+    # with the plays switched on one by one G's slope only falls: its steepest is the first weight, the
+    # series of the hysteretic branch's initial capacitance and C_pp
+    for serial in SERIALS:
+        pzt = load_plant(ROOT / "plants" / f"p888_51_{serial}.toml").pzt
+        w = pzt.hysteresis.weights
+        c_first = 1.0 / (1.0 / w[0] + 1.0 / pzt.c_pp_f) if w[0] > 0 else pzt.c_pp_f
+        i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
+        assert run.fastest_slew_v_per_s(pzt) == pytest.approx(i_max / c_first, rel=1e-9)
+
+
+def test_the_sample_rate_notice_names_the_likely_slip():
+    plant, record = _record(1e4, "sine", 0)            # read as 10 Hz or 10 MHz: outside the rigs' 100 Hz-1 MHz
+    for factor, fragment in ((1e3, "write time[ms]"), (1e-3, "write time[s]"), (1.0, None)):
+        notes = []
+        run._note_sample_rate(_rescaled(record, factor), notes)
+        assert (notes == []) if fragment is None else (fragment in notes[0])
