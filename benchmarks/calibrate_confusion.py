@@ -79,10 +79,19 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     t0 = time.perf_counter()
     res = trace_effect(base, split=sp)
     elapsed = time.perf_counter() - t0
-    excess = np.inf
+    excess, xs, own = np.inf, [], []
     if effects:
         base0 = fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
-        xs = []
+
+        def size_of(rec_base, ch):
+            m0 = base0.channels.get(ch)
+            m = rec_base.channels.get(ch)
+            if m0 is None or m is None:
+                return 0.0
+            floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
+            before = float(np.sqrt(np.mean(m.residual[sp.test & m.valid] ** 2)))
+            return float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf
+
         for e in effects:
             ch = CHANNEL[e]
             m0 = base0.channels.get(ch)
@@ -93,6 +102,13 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             before = res["channels"][ch]["rms"]
             xs.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
         excess = max(xs)
+        if len(effects) > 1:
+            # each effect's own size: the record simulated with that effect alone (same draw, same
+            # noise), its base fit's test error against the effect-free one's
+            for e in effects:
+                p_e = plant_alone(plant0, effects, e, seed, float(t[-1]), size)
+                r_e = simulate_record(p_e, t, v, seed=seed)
+                own.append(size_of(fit_base(_record(r_e, 1.0 / rate_hz), R, **kw), CHANNEL[e]))
     named = [s["effect"] for s in res.get("stages", [])]
     if not named:
         cls = "none"
@@ -104,8 +120,25 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     return {"effect": "+".join(effects) or "none", "rate_hz": rate_hz, "protocol": protocol, "size": size,
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "both": len(effects) > 1 and set(effects) <= set(named),
+            "excesses": own or xs,
             "trace_s": elapsed, "truth": truth, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
+
+
+def plant_alone(plant0, effects, keep, seed, duration_s, size):
+    """The plant of a multi-effect draw with only ``keep`` applied (the same drawn values)."""
+    import dataclasses
+
+    from workbench.calibrate.synthetic import _draw
+    from workbench.plant.additions import Additions
+    rng = np.random.default_rng(seed)
+    pzt = dataclasses.replace(plant0.pzt, creep=None)
+    add = Additions()
+    for e in effects:
+        p2, a2, _ = _draw(e, rng, pzt, add, duration_s, float(size))
+        if e == keep:
+            pzt, add = p2, a2
+    return dataclasses.replace(plant0, pzt=pzt, additions=add)
 
 
 QUICK_ROWS = 20_000
