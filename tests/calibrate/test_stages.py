@@ -72,9 +72,13 @@ def test_joint_projection_removes_base_and_found_columns():
 PAIRS_DRAWN = 2 if not FULL else 4
 
 
-def _pair_rows(sn637, seed):
+@pytest.fixture(scope="module")
+def pair_rows(sn637):
+    """Two-effect records (creep + delay, leakage + absorption, drift + resonance), sizes drawn
+    log-uniform over the benchmark's 0.03x-30x, protocols drawn, 2 s at 10 kHz; each effect's
+    own size measured on the record simulated with it alone (same draw, same noise)."""
     cc = _bench()
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(2024)
     lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
     rows = []
     for pair in cc.PAIRS:
@@ -88,18 +92,24 @@ def _pair_rows(sn637, seed):
     return rows
 
 
-def test_two_effect_records_are_answered_with_both(sn637):
-    """Two-effect records (creep + delay, leakage + absorption, drift + resonance), sizes drawn
-    log-uniform 0.03x-30x (the benchmark's range), 2 s at 10 kHz: no effect the record lacks is
-    named at any stage, and where both effects stand >= 3x above the floor (each measured on the
-    record simulated with it alone) at least half of the records are answered with both."""
-    rows = _pair_rows(sn637, 2024)
+def test_two_effect_records_name_no_wrong_effect(pair_rows):
+    """No effect the record lacks is named at any stage (the issue's <= 2 %: none of these six),
+    and the draw reaches records whose two effects both stand >= 3x above the floor."""
+    rows = pair_rows
     assert not [r for r in rows if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in rows]
-    big = [r for r in rows if min(r["excesses"]) >= 3.0]
+    assert any(min(r["excesses"]) >= 3.0 for r in rows)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13 item 5 not met: of the drawn two-effect records with both "
+                   "effects >= 3x the floor, fewer than all are answered with both (README, Calibration)")
+def test_two_effect_records_are_answered_with_both(pair_rows):
+    """The issue's target: a record with two effects, both >= 3x above the floor, is answered
+    with both (``stages``)."""
+    big = [r for r in pair_rows if min(r["excesses"]) >= 3.0]
     both = [r for r in big if r["both"]]
-    print(f"\nboth named: {len(both)} of {len(big)} records with both >= 3x; {sum(r['both'] for r in rows)} of "
-          f"{len(rows)} in all")
-    assert len(both) >= 0.5 * len(big), [(r["effect"], np.round(r["excesses"], 1), r["named"]) for r in big]
+    print(f"\nboth named: {len(both)} of {len(big)} records with both >= 3x; "
+          f"{sum(r['both'] for r in pair_rows)} of {len(pair_rows)} in all")
+    assert len(both) == len(big), [(r["effect"], np.round(r["excesses"], 1), r["named"]) for r in big]
 
 
 def test_json_stages_of_a_two_effect_record(sn637, tmp_path):

@@ -89,8 +89,22 @@ def _joint_projection(prob, extra_k):
     return lambda X: X - E @ (ginv @ (E.T @ X))
 
 
+def _orthogonal(C, lower, extra_k, rows):
+    """``C``'s columns less their least-squares part in the found columns (on ``rows``); columns
+    left with under 1e-6 of their norm dropped. A rival of the found effect's own kind would
+    otherwise repeat its columns, and a Gram-matrix solve with repeated columns is not exact."""
+    C = np.atleast_2d(np.asarray(C, float).T).T
+    F = np.column_stack([X for X, _ in extra_k])
+    coef = np.linalg.lstsq(F[rows], C[rows], rcond=1e-10)[0]
+    R = C - F @ coef
+    keep = np.linalg.norm(R[rows], axis=0) > 1e-6 * np.linalg.norm(C[rows], axis=0)
+    return R[:, keep], list(np.asarray(lower, float).reshape(-1)[keep] if np.size(lower) == keep.size
+                            else np.full(int(keep.sum()), -np.inf))
+
+
 def _research(c, probs, extra, t, base):
-    """Candidate ``c`` searched again jointly with the base and the found effects' columns."""
+    """Candidate ``c`` searched again jointly with the base and the found effects' columns; its
+    columns are taken orthogonal to the found ones (what it adds beyond them)."""
     key = c["key"]
     prob = probs[key]
     if not extra[key]:
@@ -115,6 +129,10 @@ def _research(c, probs, extra, t, base):
             C, lower = e.columns(t, u, p, y_model=model)
         else:
             C, lower = e.term(t, u, p, y_model=model), [0.0]
+        # what it adds beyond the found columns (a rival of a found kind would repeat them)
+        C, lower = _orthogonal(C, lower, extra[key], prob.rows_dev)
+        if not C.shape[1]:
+            continue
         g = prob.grams(C, lower)
         gs = _tr._stacked(prob, extra[key], {"g": g})
         cost = prob.sse(gs, prob.solve(gs, dev), dev)[0]
