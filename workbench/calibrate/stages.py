@@ -18,10 +18,11 @@ the candidate to it.
 
 1. it wins at least ``need`` folds (4 of 5, as the first stage), and
 2. it beats its **rival**: the found effects' own kinds searched again on the leftover (a
-   second mode, a second delay, further relaxation branches). What a large first effect's
-   imperfect model leaves is structured and well above the noise floor; if the first effect's
-   own kind fits it as well as the candidate, the leftover is the first effect's misfit, not a
-   second effect. The candidate must leave less than the rival on at least ``need`` folds.
+   second mode, a second delay, a drift's periodic term; for creep, branches a quarter decade
+   off the found grid, driven by the model and by the drive voltage, together). What a large
+   first effect's imperfect model leaves is structured and well above the noise floor; if the
+   first effect's own kind fits it as well as the candidate, the leftover is the first effect's
+   misfit, not a second effect. The candidate must leave less than the rival on every fold.
 
 No threshold is typed in: the decision is the first stage's tests plus a comparison.
 
@@ -162,14 +163,36 @@ def _rivals(cands, probs, extra, found, t, base):
     out = []
     for c in cands:
         if (c["name"], c["channel"]) in found:
+            if c["name"] == "creep" and getattr(c["eff"], "taus_s", None) is not None:
+                # further branches: the found grid's a quarter decade on (its own are in the
+                # model), driven by the model and, a second reading of what drives creep (the
+                # plant's branches relax with the hysteretic voltage), by the drive voltage
+                eff = copy.deepcopy(c["eff"])
+                eff.taus_s = np.asarray(c["eff"].taus_s, float) * 10.0 ** 0.25
+                c = {**c, "eff": eff}
+                parts = [r for r in (_research(c, probs, extra, t, base),
+                                     _research({**c, "driver": "voltage", "u": base.v_drive}, probs, extra, t, base))
+                         if r is not None]
+                if parts:
+                    # one rival: both readings' branches together
+                    prob = probs[c["key"]]
+                    C = np.column_stack([r["g"]["C"] * r["g"]["norms"] for r in parts])
+                    lo = np.concatenate([r["g"]["lb"][prob.A.shape[1]:] for r in parts])
+                    out.append({**parts[0], "g": prob.grams(C, lo)})
+                continue
             r = _research(c, probs, extra, t, base)
             if r is not None:
                 out.append(r)
     return out
 
 
-def _beats_rivals(row, rivals, probs, extra, split, need):
-    """Does the candidate leave less than each rival of its problem on ``need`` folds?"""
+def _beats_rivals(row, rivals, probs, extra, split, need=None):
+    """Does the candidate leave less than each rival of its problem on every fold?
+
+    Every fold, not ``need``: a later stage claims what the found effect's own kind cannot
+    explain, and one fold where the found kind explains the leftover better is a fold where the
+    leftover may be its misfit (seen: a 25x creep's leftover on a 1 kHz sine record, fitted by
+    a 2.7 Hz, 15 %-damped 'mode' better on 4 folds, by more creep branches on the fifth)."""
     prob = probs[row["key"]]
     g = _tr._stacked(prob, extra[row["key"]], row)
     mine = [prob.fold_rms(g, tr, va) for tr, va in split.folds]
@@ -178,7 +201,7 @@ def _beats_rivals(row, rivals, probs, extra, split, need):
             continue
         gr = _tr._stacked(prob, extra[rv["key"]], rv)
         theirs = [prob.fold_rms(gr, tr, va) for tr, va in split.folds]
-        if sum(a < b for a, b in zip(mine, theirs)) < need:
+        if not all(a < b for a, b in zip(mine, theirs)):
             return False, rv["name"]
     return True, None
 
