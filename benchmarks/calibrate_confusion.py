@@ -82,16 +82,6 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     excess, xs, own = np.inf, [], []
     if effects:
         base0 = fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
-
-        def size_of(rec_base, ch):
-            m0 = base0.channels.get(ch)
-            m = rec_base.channels.get(ch)
-            if m0 is None or m is None:
-                return 0.0
-            floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
-            before = float(np.sqrt(np.mean(m.residual[sp.test & m.valid] ** 2)))
-            return float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf
-
         for e in effects:
             ch = CHANNEL[e]
             m0 = base0.channels.get(ch)
@@ -103,12 +93,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             xs.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
         excess = max(xs)
         if len(effects) > 1:
-            # each effect's own size: the record simulated with that effect alone (same draw, same
-            # noise), its base fit's test error against the effect-free one's
-            for e in effects:
-                p_e = plant_alone(plant0, effects, e, seed, float(t[-1]), size)
-                r_e = simulate_record(p_e, t, v, seed=seed)
-                own.append(size_of(fit_base(_record(r_e, 1.0 / rate_hz), R, **kw), CHANNEL[e]))
+            own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
     named = [s["effect"] for s in res.get("stages", [])]
     if not named:
         cls = "none"
@@ -123,6 +108,37 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             "excesses": own or xs,
             "trace_s": elapsed, "truth": truth, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
+
+
+def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split="blocks", base0=None, sp=None):
+    """Each effect's own size in a multi-effect record: the record simulated with that effect
+    alone (same draw, same noise), its base fit's test error on the effect's channel against the
+    effect-free record's, ``sqrt(before^2 - floor^2) / floor`` (the split and the fits' plant are
+    the multi-effect record's, as in :func:`evaluate`)."""
+    n_rows = n_rows or ROWS[rate_hz]
+    t, v = benchmark_protocol(protocol, rate_hz, n_rows)
+    plant, _ = plant_with_effect(plant0, effects, seed, duration_s=float(t[-1]), size=size)
+    clean, _ = plant_with_effect(plant0, "none", seed)
+    r0 = simulate_record(clean, t, v, seed=seed)
+    if sp is None:
+        sp = make_split(t, simulate_record(plant, t, v, seed=seed)["voltage_v"], split)
+    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    R = plant0.pzt.series_resistance_ohm
+    base0 = base0 or fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
+    out = []
+    for e in effects:
+        ch = CHANNEL[e]
+        p_e = plant_alone(plant0, effects, e, seed, float(t[-1]), size)
+        r_e = simulate_record(p_e, t, v, seed=seed)
+        m = fit_base(_record(r_e, 1.0 / rate_hz), R, **kw).channels.get(ch)
+        m0 = base0.channels.get(ch)
+        if m is None or m0 is None:
+            out.append(0.0)
+            continue
+        floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
+        before = float(np.sqrt(np.mean(m.residual[sp.test & m.valid] ** 2)))
+        out.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
+    return out
 
 
 def plant_alone(plant0, effects, keep, seed, duration_s, size):
@@ -230,7 +246,9 @@ def main(argv=None):
         print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
               f"{proto:11s} "
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
-              f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)", flush=True)
+              f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
+              + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']}" if "+" in eff else ""),
+              flush=True)
     table, head = summarize(rows)
     print()
     print(table)
@@ -238,6 +256,12 @@ def main(argv=None):
     print(f"wrong effect named: {head['wrong']} of {head['records']} records ({100 * head['wrong_rate']:.1f} %); "
           f"right at size >= 3: {head['right_big']} of {head['big']} ({100 * head['right_big_rate']:.0f} %), "
           f"halved: {head['halved_big']}")
+    pairs = [r for r in rows if "+" in r["effect"]]
+    if pairs:
+        big2 = [r for r in pairs if min(r["excesses"]) >= 3.0]
+        print(f"two-effect records answered with both: {sum(r['both'] for r in pairs)} of {len(pairs)}; "
+              f"with both effects >= 3x the floor (each on its own record): {sum(r['both'] for r in big2)} of "
+              f"{len(big2)}")
     return rows
 
 
