@@ -37,6 +37,10 @@ def _bench():
     ([("delay", "displacement")], ("resonance", "displacement"), True),
     ([("resonance", "displacement")], ("delay", "displacement"), True),
     ([("resonance", "gauge")], ("delay", "displacement"), False),
+    # the stack's creep or mode is in the gauge's model once found on the displacement
+    ([("resonance", "displacement")], ("resonance", "gauge"), True),
+    ([("creep", "displacement")], ("creep", "gauge"), True),
+    ([("resonance", "gauge")], ("resonance", "displacement"), False),
     # the pairs stay possible in both orders
     ([("leakage", "charge")], ("dielectric_absorption", "charge"), False),
     ([("dielectric_absorption", "charge")], ("leakage", "charge"), False),

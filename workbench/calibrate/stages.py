@@ -33,7 +33,9 @@ after creep, no ``dielectric_absorption`` or ``leakage`` (creep's relaxation is 
 too: seed 002's Q_DA and leakage do not move the stack, creep does, and what creep's columns
 leave in the charge is creep's) and no ``drift`` (a slow relaxation branch and a slow polynomial
 are two readings of one trend within a record); ``delay`` and ``resonance`` exclude each other on
-one channel (below the mode a mode's phase lag is a delay, and the reverse).
+one channel (below the mode a mode's phase lag is a delay, and the reverse); after the stack's
+creep or mode (found on the displacement), not the same effect on the gauge (its columns are
+already in the gauge's model: the gauge reads the same motion).
 """
 
 import copy
@@ -44,13 +46,12 @@ from . import tracing as _tr
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
-#: (found effect, found channel or None for any) -> effects (name, channel or None for the same
-#: channel / any) that cannot follow it (see the module notes)
+#: found effect -> what cannot follow it, in words (:func:`excluded` applies it; see the module notes)
 EXCLUSIONS = {
     "gauge_nonlinearity": "every effect on the gauge's own model",
-    "creep": "dielectric_absorption, leakage, drift",
+    "creep": "dielectric_absorption, leakage, drift; creep on the gauge after the displacement's",
     "delay": "resonance on the same channel",
-    "resonance": "delay on the same channel",
+    "resonance": "delay on the same channel; resonance on the gauge after the displacement's",
 }
 
 
@@ -75,6 +76,9 @@ def excluded(cand, found):
         if fname == "creep" and name in ("dielectric_absorption", "leakage", "drift"):
             return True
         if {fname, name} == {"delay", "resonance"} and fch == ch:
+            return True
+        if fname in ("creep", "resonance") and fch == "displacement" and name == fname and ch == "gauge":
+            # the stack's creep or mode is already in the gauge's model (it reads the same motion)
             return True
     return False
 
