@@ -37,6 +37,8 @@ def _bench():
     ([("delay", "displacement")], ("resonance", "displacement"), True),
     ([("resonance", "displacement")], ("delay", "displacement"), True),
     ([("resonance", "gauge")], ("delay", "displacement"), False),
+    # the stack's mode is in the gauge's model too: no gauge delay after it (seed 14 #99)
+    ([("resonance", "displacement")], ("delay", "gauge"), True),
     # the stack's creep or mode is in the gauge's model once found on the displacement
     ([("resonance", "displacement")], ("resonance", "gauge"), True),
     ([("creep", "displacement")], ("creep", "gauge"), True),

@@ -75,7 +75,9 @@ def excluded(cand, found):
             return True
         if fname == "creep" and name in ("dielectric_absorption", "leakage", "drift"):
             return True
-        if {fname, name} == {"delay", "resonance"} and fch == ch:
+        # the stack's mode found on the displacement is in the gauge's and the charge's models too
+        reads = {fch} | ({"gauge", "charge"} if (fname, fch) == ("resonance", "displacement") else set())
+        if {fname, name} == {"delay", "resonance"} and ch in reads:
             return True
         if fname in ("creep", "resonance") and fch == "displacement" and name == fname and ch == "gauge":
             # the stack's creep or mode is already in the gauge's model (it reads the same motion)
