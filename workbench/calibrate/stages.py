@@ -16,8 +16,9 @@ the candidate to it.
 
 **A later stage** is accepted when, on the re-scored folds,
 
-1. it wins every fold (the first stage needs ``need``, 4 of 5: at 4 of 5 a drift was named
-   after a sensor lead, the base model's own slow misfit), and
+1. it wins every fold, or ``need`` (4 of 5) when it already won a fold of the first stage (a
+   second effect the first one masked elsewhere; at 4 of 5 for any, a drift was named after a
+   sensor lead, the base model's own slow misfit), and
 2. it beats its **rival**: the found effects' own kinds searched again on the leftover (a
    second mode, a second delay, a drift's periodic term; for creep, branches a quarter decade
    off the found grid, driven by the model and by the drive voltage, together). What a large
@@ -213,15 +214,20 @@ def _beats_rivals(row, rivals, probs, extra, split, need=None):
     return True, None
 
 
-def _later_stage(ctx, extra, found, cands_override=None):
-    """Score a later stage: (answer or None, count, winners, res, note)."""
+def _later_stage(ctx, extra, found, cands_override=None, seen=()):
+    """Score a later stage: (answer or None, count, winners, res, note).
+
+    ``seen``: effects that won a fold of the first stage; such a one needs ``need`` folds, any
+    other every fold."""
     cands = cands_override if cands_override is not None else \
         _later_candidates(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
     res = _tr._score_stage(cands, ctx["probs"], ctx["nulls"], extra, ctx["split"], ctx["penalty"],
                            ctx["noise_factor"], ctx["infos"], found, ctx["min_share"])
     # every fold: a later stage claims a second effect in what the first leaves (at 4 of 5 a
     # drift was named after a sensor lead, the base model's own slow misfit: test_calibrate's lead)
-    answer, count, winners = _tr._consensus(res["winners"], len(ctx["split"].folds))
+    answer, count, winners = _tr._consensus(res["winners"], ctx["need"])
+    if answer not in (None, "none") and answer not in seen and count < len(ctx["split"].folds):
+        answer = None
     if answer in (None, "none"):
         return answer, count, winners, res, None
     rivals = _rivals(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
@@ -263,7 +269,7 @@ def resolve_split(res, ctx, extra, found):
             continue
         ex = _copy_extra(extra)
         _tr._absorb(res["by"][x], ex, ctx["probs"], ctx["base"], ctx["t"])
-        ans, _, _, _, _ = _later_stage(ctx, ex, found + [x])
+        ans, _, _, _, _ = _later_stage(ctx, ex, found + [x], seen=(y,))
         survives[y] = ans == y
     a, b = pair
     won = {pair[0]: int(counts[order[0]]), pair[1]: int(counts[order[1]])}
@@ -346,7 +352,8 @@ def run_stages(ctx, max_stages=3):
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
         if len(stages) >= max_stages:
             break
-        answer, count, _, res_k, note = _later_stage(ctx, extra, found)
+        seen = tuple(w for w in first["winners"] if not isinstance(w, str))
+        answer, count, _, res_k, note = _later_stage(ctx, extra, found, seen=seen)
         if note:
             notes.append(note)
         resolved = None
