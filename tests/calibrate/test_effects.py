@@ -219,6 +219,7 @@ def test_a_split_resolved_reports_the_named_effects_own_folds(monkeypatch):
     res = {"winners": [a, a, a, b, b], "by": {a: {"score": 0.3}, b: {"score": 0.4}}}
     monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
     # each, added to the model, leaves the other winning as a later stage
-    monkeypatch.setattr(stages, "_later_stage", lambda ctx, ex, found: (b if found[-1] == a else a, 5, [], {}, None))
+    monkeypatch.setattr(stages, "_later_stage",
+                        lambda ctx, ex, found, seen=(): (b if found[-1] == a else a, 5, [], {}, None))
     answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
     assert answer == a and count == 3 and "(3 and 2)" in note
