@@ -79,10 +79,9 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     t0 = time.perf_counter()
     res = trace_effect(base, split=sp)
     elapsed = time.perf_counter() - t0
-    excess = np.inf
+    excess, xs, own = np.inf, [], []
     if effects:
         base0 = fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
-        xs = []
         for e in effects:
             ch = CHANNEL[e]
             m0 = base0.channels.get(ch)
@@ -93,6 +92,8 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             before = res["channels"][ch]["rms"]
             xs.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
         excess = max(xs)
+        if len(effects) > 1:
+            own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
     # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
     # effect named on it, else the base's) against a straight line of the drive fitted on the same rows
     final = {ch: c["rms"] for ch, c in res["channels"].items()}
@@ -111,8 +112,56 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     return {"effect": "+".join(effects) or "none", "rate_hz": rate_hz, "protocol": protocol, "size": size,
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "both": len(effects) > 1 and set(effects) <= set(named),
+            "excesses": own or xs,
             "trace_s": elapsed, "truth": truth, "above_line": above_line, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
+
+
+def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split="blocks", base0=None, sp=None):
+    """Each effect's own size in a multi-effect record: the record simulated with that effect
+    alone (same draw, same noise), its base fit's test error on the effect's channel against the
+    effect-free record's, ``sqrt(before^2 - floor^2) / floor`` (the split and the fits' plant are
+    the multi-effect record's, as in :func:`evaluate`)."""
+    n_rows = n_rows or ROWS[rate_hz]
+    t, v = benchmark_protocol(protocol, rate_hz, n_rows)
+    plant, _ = plant_with_effect(plant0, effects, seed, duration_s=float(t[-1]), size=size)
+    clean, _ = plant_with_effect(plant0, "none", seed)
+    r0 = simulate_record(clean, t, v, seed=seed)
+    if sp is None:
+        sp = make_split(t, simulate_record(plant, t, v, seed=seed)["voltage_v"], split)
+    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    R = plant0.pzt.series_resistance_ohm
+    base0 = base0 or fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
+    out = []
+    for e in effects:
+        ch = CHANNEL[e]
+        p_e = plant_alone(plant0, effects, e, seed, float(t[-1]), size)
+        r_e = simulate_record(p_e, t, v, seed=seed)
+        m = fit_base(_record(r_e, 1.0 / rate_hz), R, **kw).channels.get(ch)
+        m0 = base0.channels.get(ch)
+        if m is None or m0 is None:
+            out.append(0.0)
+            continue
+        floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
+        before = float(np.sqrt(np.mean(m.residual[sp.test & m.valid] ** 2)))
+        out.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
+    return out
+
+
+def plant_alone(plant0, effects, keep, seed, duration_s, size):
+    """The plant of a multi-effect draw with only ``keep`` applied (the same drawn values)."""
+    import dataclasses
+
+    from workbench.calibrate.synthetic import _draw
+    from workbench.plant.additions import Additions
+    rng = np.random.default_rng(seed)
+    pzt = dataclasses.replace(plant0.pzt, creep=None)
+    add = Additions()
+    for e in effects:
+        p2, a2, _ = _draw(e, rng, pzt, add, duration_s, float(size))
+        if e == keep:
+            pzt, add = p2, a2
+    return dataclasses.replace(plant0, pzt=pzt, additions=add)
 
 
 QUICK_ROWS = 20_000
@@ -208,14 +257,15 @@ def main(argv=None):
             print(f"[#{k}] {eff} {rate / 1e3:.0f} kHz {proto} size x{size:.3f}: CRASH {type(exc).__name__}: {exc}",
                   flush=True)
             rows.append({"effect": eff, "excess": np.inf, "class": "crash", "ratio": 1.0, "named": [],
-                         "above_line": {}})
+                         "above_line": {}, "both": False, "excesses": [np.inf]})
             continue
         rows.append(r)
         print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
               f"{proto:11s} "
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
-              + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items()),
+              + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items())
+              + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']}" if "+" in eff else ""),
               flush=True)
     table, head = summarize(rows)
     print()
@@ -225,6 +275,12 @@ def main(argv=None):
           f"right at size >= 3: {head['right_big']} of {head['big']} ({100 * head['right_big_rate']:.0f} %), "
           f"halved: {head['halved_big']}; held-out error above a straight line's: {head['above_line']} records; "
           f"crashed: {head['crashed']}")
+    pairs = [r for r in rows if "+" in r["effect"]]
+    if pairs:
+        big2 = [r for r in pairs if min(r["excesses"]) >= 3.0]
+        print(f"two-effect records answered with both: {sum(r['both'] for r in pairs)} of {len(pairs)}; "
+              f"with both effects >= 3x the floor (each on its own record): {sum(r['both'] for r in big2)} of "
+              f"{len(big2)}")
     return rows
 
 

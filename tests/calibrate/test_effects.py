@@ -240,14 +240,14 @@ def test_creep_spectrum_and_gauge_bow_on_the_product_path():
 def test_a_split_resolved_reports_the_named_effects_own_folds(monkeypatch):
     """Two effects splitting five folds 3:2, each surviving the other: the named one (better median) is
     reported with its own 3 folds, not the pair's 5 (the agreement is fold consistency)."""
-    from workbench.calibrate import tracing
+    from workbench.calibrate import stages, tracing
     a, b = ("creep", "displacement"), ("delay", "displacement")
     res = {"winners": [a, a, a, b, b], "by": {a: {"score": 0.3}, b: {"score": 0.4}}}
     monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
-    monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: {
-        "by": {a: {"passes": [True] * 5, "score": 0.1}, b: {"passes": [True] * 5, "score": 0.1}}})
-    answer, count, note = tracing._resolve_split(res, None, {}, None, {}, None, 0.0, 1.0, None, [], 0.0, None,
-                                                 None, 4, 5)
+    # each, added to the model, leaves the other winning as a later stage
+    monkeypatch.setattr(stages, "_later_stage",
+                        lambda ctx, ex, found, seen=(): (b if found[-1] == a else a, 5, [], {}, None))
+    answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
     assert answer == a and count == 3 and "(3 and 2)" in note
 
 

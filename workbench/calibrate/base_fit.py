@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, split_by_cycles, turning_points
+from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, turning_points
 from .residual import charge_from_current
 
 __all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "CHANNEL_KEYS", "CHANNEL_UNITS"]

@@ -148,6 +148,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         "error_before": result["error_before"], "error_after": result["error_after"],
         "parameters": result["parameters"], "agreement": result["agreement"],
         "fold_winners": result["fold_winners"], "leading": result["leading"], "stages": result["stages"],
+        "stage_notes": result.get("stage_notes", []),
         "candidates": _json_candidates(result["candidates"]),
         "reason": result["reason"], "penalty": penalty,
         "split": split, "split_reason": split_reason, "block_s": sp.block_s, "n_folds": len(sp.folds),

@@ -53,20 +53,19 @@ on the displacement.
 **Confidence.** The effect is named when it wins at least ``agree`` of the folds (default
 4 of 5); ``none`` likewise; otherwise the answer is ``inconclusive`` with the leading
 candidates. ``agreement`` says how consistently (``"5 of 5"``). Two effects that split the
-folds between them are resolved by adding each in turn (:func:`_resolve_split`): the one
+folds between them are resolved by adding each in turn (:func:`.stages.resolve_split`): the one
 that still explains what the other leaves is real (both, in a two-effect record). The named effect is then
 refitted on all the development rows and ``error_before`` / ``error_after`` are measured on
 the **test** part, which took no part in the choice.
 
-**Stages.** After an effect is named its columns join the base model of its channel (and,
-for creep and a resonance of the stack, of the channels that read the stack's motion: the
-charge and the gauge), and the folds are scored again among the remaining candidates, until
-the answer is ``none`` or ``inconclusive`` (``max_stages``). A later stage must win every
-fold and bring the median validation ratio to ``LATER_STAGE_RATIO`` (0.5): a large first
-effect's imperfect model leaves a residual well above the noise floor, and without this the
-next stage names whatever fits that leftover. ``stages`` lists every effect
-found with its parameters, channel and test error; ``effect`` stays the first. Later stages
-reuse the nonlinear parameters searched against the base alone (not searched again).
+**Stages** (:mod:`.stages`). After an effect is named its columns join the base model of its
+channel (and, for creep and a resonance of the stack, of the channels that read the stack's
+motion: the charge and the gauge); the remaining candidates are searched again jointly with
+the base and the found effects and scored by the same per-fold tests. A later stage must win
+``agree`` folds and leave less than the found effects' own kinds searched again on the
+leftover; effects that can only explain another's leftover are excluded
+(:func:`.stages.excluded`). ``stages`` lists every effect found with its parameters, channel
+and test error; ``effect`` stays the first; ``stage_notes`` says why a later stage was refused.
 
 Known limitation: the nonlinear parameters are searched on all development rows, so a
 validation fold has seen them (1-3 numbers against thousands of rows); the linear gains and
@@ -85,11 +84,6 @@ from .pi_fit import rms, turning_points
 __all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
 
 SEARCH_ROWS = 50_000
-#: A later stage must halve what the earlier ones leave (median validation ratio; the issue's own
-#: standard for a right answer): a large first effect's imperfect model leaves a structured
-#: leftover that a drift or a delay fits to ~0.6-0.7 (seen after a 20x creep, a 13x gauge bow, a
-#: 30x leakage), which is not a second effect.
-LATER_STAGE_RATIO = 0.5
 MIN_SHARE = 0.3
 #: An absorption fitted slower than this many record lengths is leakage's term within the record
 #: (once leakage's line is taken it bends by under 1 % of itself over the record).
@@ -375,8 +369,6 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s)
     rng = np.random.default_rng(seed)
     dev_rows = split.train
-    test_blocks = split.test_blocks
-    dev_blocks = split.dev_blocks
 
     # ---- one linear problem per (channel, basis); the null reference per channel
     probs, infos = {}, {}
@@ -432,115 +424,23 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
             continue
         variant = "periodic" if getattr(eff, "periodic_hz", None) else None
         cands.append({"name": eff.name, "channel": ch, "key": key, "eff": eff, "params": p, "g": g, "u": u,
-                      "yhat": yhat, "n_params": int(eff.n_params), "variant": variant})
+                      "yhat": yhat, "n_params": int(eff.n_params), "variant": variant, "driver": driver})
     if progress:
         progress("effects", len(plan), len(plan))
 
-    # ---- stages
-    extra = {key: [] for key in probs}         # columns already found, per problem
-    found = []
-    stages = []
-    first = None
-    for stage in range(max_stages):
-        res = _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share)
-        answer, count, winners = _consensus(res["winners"], need if stage == 0 else n_folds)
-        if stage > 0 and answer not in (None, "none") and res["by"][answer]["score"] > LATER_STAGE_RATIO:
-            answer = None
-        resolved = None
-        if answer is None and stage == 0:
-            ans2, count2, resolved = _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor,
-                                                    infos, found, min_share, base, t, need, n_folds)
-            if ans2 is not None:
-                answer, count = ans2, count2
-        if stage == 0 and answer is not None and answer != "none" and answer[1] == "charge":
-            answer, count, resolved = _creep_behind_a_displacement_effect(
-                answer, count, resolved, res, cands, probs, nulls, extra, split, penalty, noise_factor, infos,
-                found, min_share, base, t, need)
-        if first is None:
-            first = {"res": res, "answer": answer, "count": count, "winners": winners}
-        if answer in (None, "none"):
-            break
-        c = res["by"][answer]
-        # test errors with the effect refitted on all development rows
-        key = c["key"]
-        prob = probs[key]
-        g_before = _stacked(prob, extra[key], None)
-        g_after = _stacked(prob, extra[key], c)
-        before = _test_errors(prob, g_before, dev_blocks, test_blocks)
-        corr, _, gains = prob.predict(g_after, dev_blocks)
-        after = _errors(((prob.r * prob.scale) - corr)[split.test & prob.valid])
-        k_c = c["g"]["C"].shape[1]
-        own_gains = gains[gains.size - k_c:] if k_c else np.zeros(0)
-        full = np.zeros(c["g"]["ok"].size)
-        full[c["g"]["ok"]] = own_gains
-        p = _with_gains(c["eff"], c["params"], full)
-        own = (c["g"]["C"] * c["g"]["norms"]) @ own_gains if k_c else np.zeros(t.size)
-        m = base.channels[c["channel"]]
-        units = m.units
-        stages.append({"effect": c["name"], "channel": c["channel"], "variant": c["variant"],
-                       "parameters": _jsonable(p), "agreement": f"{count} of {n_folds}",
-                       "error_before": {**before, "units": units}, "error_after": {**after, "units": units},
-                       "_term": own, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c,
-                       **({"resolved": resolved} if resolved else {})})
-        found.append(answer)
-        _absorb(c, extra, probs, base, t)
-    out = _answer(first, stages, n_folds, need, base, probs, extra, split, infos, cands, min_share)
+    # ---- stages (:mod:`.stages`)
+    from .stages import run_stages
+    ctx = {"cands": cands, "probs": probs, "nulls": nulls, "split": split, "penalty": penalty,
+           "noise_factor": noise_factor, "infos": infos, "min_share": min_share, "base": base, "t": t,
+           "need": need}
+    first, stages, stage_notes = run_stages(ctx, max_stages=max_stages)
+    out = _answer(first, stages, n_folds, need, base, probs, None, split, infos, cands, min_share)
+    out["stage_notes"] = stage_notes
     for ch in list(out["channels"]):
         key = (ch, "model")
         out["channels"][ch]["null_reference_rms"] = float(np.sqrt(np.median(first["res"]["null_gain"][key]))) \
             if key in first["res"]["null_gain"] else None
     return out
-
-
-def _resolve_split(res, cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share, base, t,
-                   need, n_folds):
-    """Two effects that split the folds between them: does each explain what the other cannot?
-
-    When the folds' winners are two effects A and B on one channel, or two different effects on
-    the displacement and the gauge (together at least ``need`` folds), each is added to the model
-    in turn and the folds are scored again: the other *survives* when it still passes every fold
-    with a median ratio <= ``LATER_STAGE_RATIO`` (a later stage's rule). Both survive: both are
-    in the record (a two-effect record), the better median first, the other follows as the next
-    stage. One survives: it explains what the other only imitates, it is named. Neither: two
-    readings of one misfit (a rate-dependent phase lag is read as creep, a mode or a delay
-    alike), ``None`` (inconclusive).
-
-    Returns ``(answer, count, note)``; ``(None, count, None)`` when unresolved.
-    """
-    labels = [w for w in res["winners"] if not isinstance(w, str) and w[0] != "undecided"]
-    vals, counts = np.unique([f"{w[0]}|{w[1]}" for w in labels], return_counts=True) if labels else ([], [])
-    order = np.argsort(counts)[::-1]
-    count0 = int(max(counts)) if len(counts) else 0
-    if len(vals) < 2 or int(counts[order[0]] + counts[order[1]]) < need:
-        return None, count0, None
-    pair = [tuple(str(vals[i]).split("|")) for i in order[:2]]
-    if any(p not in res["by"] for p in pair) or (pair[0][1] != pair[1][1] and not _sensor_pair(pair)):
-        # one channel, or the displacement and the gauge with two different effects (each sensor's
-        # own model: what one explains cannot be the other's, as a drift of the displacement sensor
-        # and the stack's mode that the gauge shows); across the charge and a sensor (a charge
-        # relaxation against the displacement's creep) the cross-channel rules decide, and a split
-        # between them is the record's doubt
-        return None, count0, None
-    survives = {}
-    for x, y in (pair, pair[::-1]):
-        ex = {k: list(v) for k, v in extra.items()}
-        _absorb(res["by"][x], ex, probs, base, t)
-        r2 = _score_stage(cands, probs, nulls, ex, split, penalty, noise_factor, infos, found + [x], min_share)
-        row = r2["by"].get(y)
-        survives[y] = bool(row is not None and all(row["passes"]) and row["score"] <= LATER_STAGE_RATIO)
-    a, b = pair
-    # the agreement reported is the named effect's own fold wins (the split is in the note), not the pair's
-    won = {pair[0]: int(counts[order[0]]), pair[1]: int(counts[order[1]])}
-    if survives[a] and survives[b]:
-        first = min(pair, key=lambda p: res["by"][p]["score"])
-        other = b if first == a else a
-        return first, won[first], (f"{first[0]} and {other[0]} split the folds ({won[first]} and {won[other]}); "
-                                   f"each explains what the other cannot (both are in the record)")
-    if survives[a] != survives[b]:
-        win, lose = (a, b) if survives[a] else (b, a)
-        return win, won[win], (f"{win[0]} and {lose[0]} split the folds ({won[win]} and {won[lose]}); {win[0]} "
-                               f"explains what {lose[0]} cannot, not the reverse")
-    return None, count0, None
 
 
 def _creep_behind_a_displacement_effect(answer, count, note, res, cands, probs, nulls, extra, split, penalty,

@@ -1,0 +1,143 @@
+"""Staged tracing (workbench/calibrate/stages.py; issue 13 item 5): two-effect records, exclusions,
+the joint re-search's projection, JSON ``stages``."""
+
+import importlib.util
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from tests.conftest import FULL
+from workbench.calibrate.stages import excluded
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("calibrate_confusion", ROOT / "benchmarks" / "calibrate_confusion.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.mark.parametrize("found, cand, out", [
+    # the bow is eq. 27's reading of x: the gauge model's leftover after it is the bow's
+    ([("gauge_nonlinearity", "gauge")], ("creep", "gauge"), True),
+    ([("gauge_nonlinearity", "gauge")], ("delay", "gauge"), True),
+    ([("gauge_nonlinearity", "gauge")], ("creep", "displacement"), False),
+    # creep's relaxation is in the charge too (it moves the stack); a slow branch and a slow
+    # polynomial are one trend
+    ([("creep", "displacement")], ("dielectric_absorption", "charge"), True),
+    ([("creep", "displacement")], ("leakage", "charge"), True),
+    ([("creep", "displacement")], ("drift", "displacement"), True),
+    ([("creep", "displacement")], ("delay", "displacement"), False),
+    # below the mode its phase lag is a delay, and the reverse, on one channel only
+    ([("delay", "displacement")], ("resonance", "displacement"), True),
+    ([("resonance", "displacement")], ("delay", "displacement"), True),
+    ([("resonance", "gauge")], ("delay", "displacement"), False),
+    # the stack's mode is in the gauge's model too: no gauge delay after it (seed 14 #99)
+    ([("resonance", "displacement")], ("delay", "gauge"), True),
+    # the stack's creep or mode is in the gauge's model once found on the displacement
+    ([("resonance", "displacement")], ("resonance", "gauge"), True),
+    ([("creep", "displacement")], ("creep", "gauge"), True),
+    ([("resonance", "gauge")], ("resonance", "displacement"), False),
+    # the issue's pairs stay possible in both orders
+    ([("leakage", "charge")], ("dielectric_absorption", "charge"), False),
+    ([("dielectric_absorption", "charge")], ("leakage", "charge"), False),
+    ([("drift", "displacement")], ("resonance", "displacement"), False),
+    ([("resonance", "displacement")], ("drift", "displacement"), False),
+    ([("delay", "displacement")], ("creep", "displacement"), False),
+])
+def test_exclusions(found, cand, out):
+    assert excluded(cand, found) is out
+
+
+def test_joint_projection_removes_base_and_found_columns():
+    """The joint re-search's projection leaves nothing of the base's or a found effect's columns
+    and keeps what is orthogonal to both (an idempotent orthogonal projector)."""
+    from workbench.calibrate.stages import _joint_projection
+    rng = np.random.default_rng(int(np.random.SeedSequence().entropy % (1 << 31)) if FULL else 3)
+    n, k, m = 400, int(rng.integers(2, 30)), int(rng.integers(1, 6))
+    search = rng.random(n) < 0.5
+    A = rng.normal(size=(n, k)) * 10.0 ** rng.uniform(-6, 6, k)
+    F = rng.normal(size=(n, m)) * 10.0 ** rng.uniform(-9, 3, m)
+    prob = SimpleNamespace(As=A[search], search=search, project=None)
+    P = _joint_projection(prob, [(F, [0.0] * m)])
+    X = rng.normal(size=(int(search.sum()), 3))
+    PX = P(X)
+    E = np.column_stack([A[search], F[search]])
+    Q, _ = np.linalg.qr(E / np.linalg.norm(E, axis=0))
+    assert np.abs(Q.T @ PX).max() < 1e-8 * np.abs(X).max()
+    assert np.allclose(P(PX), PX, atol=1e-10 * np.abs(X).max())
+    R = X - Q @ (Q.T @ X)                      # the part orthogonal to both is kept whole
+    assert np.allclose(PX, R, atol=1e-8 * np.abs(X).max())
+
+
+PAIRS_DRAWN = 2 if not FULL else 4
+
+
+@pytest.fixture(scope="module")
+def pair_rows(sn637):
+    """Two-effect records (creep + delay, leakage + absorption, drift + resonance), sizes drawn
+    log-uniform over the benchmark's 0.03x-30x, protocols drawn, 2 s at 10 kHz; each effect's
+    own size measured on the record simulated with it alone (same draw, same noise)."""
+    cc = _bench()
+    rng = np.random.default_rng(2024)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    rows = []
+    for pair in cc.PAIRS:
+        for _ in range(PAIRS_DRAWN):
+            size = float(np.exp(rng.uniform(lo, hi)))
+            proto = str(rng.choice(("calibration", "sine", "steps")))
+            r = cc.evaluate(sn637, pair, 1e4, proto, size, int(rng.integers(1 << 30)), n_rows=cc.QUICK_ROWS)
+            print(f"\n{r['effect']:30s} {proto:11s} size x{size:.3g} own sizes {np.round(r['excesses'], 2)} "
+                  f"-> stages {r['named']} {r['class']} both {r['both']}")
+            rows.append(r)
+    return rows
+
+
+def test_two_effect_records_name_no_wrong_effect(pair_rows):
+    """No effect the record lacks is named at any stage (the issue's <= 2 %: none of these six),
+    and the draw reaches records whose two effects both stand >= 3x above the floor."""
+    rows = pair_rows
+    assert not [r for r in rows if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in rows]
+    assert any(min(r["excesses"]) >= 3.0 for r in rows)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13 item 5 not met: of the drawn two-effect records with both "
+                   "effects >= 3x the floor, fewer than all are answered with both (README, Calibration)")
+def test_two_effect_records_are_answered_with_both(pair_rows):
+    """The issue's target: a record with two effects, both >= 3x above the floor, is answered
+    with both (``stages``)."""
+    big = [r for r in pair_rows if min(r["excesses"]) >= 3.0]
+    both = [r for r in big if r["both"]]
+    print(f"\nboth named: {len(both)} of {len(big)} records with both >= 3x; "
+          f"{sum(r['both'] for r in pair_rows)} of {len(pair_rows)} in all")
+    assert len(both) == len(big), [(r["effect"], np.round(r["excesses"], 1), r["named"]) for r in big]
+
+
+def test_json_stages_of_a_two_effect_record(sn637, tmp_path):
+    """``workbench calibrate`` on a record with creep and a long sensor delay (steps at 1 kHz):
+    the JSON's ``stages`` lists both, each with its channel, parameters, agreement and test
+    errors; ``effect`` is the first stage; each stage lowers what the earlier ones left."""
+    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record, write_record
+    from workbench.cli import main
+    t, v = benchmark_protocol("steps", 1e3, 10_000)
+    plant, truth = plant_with_effect(sn637, ("creep", "delay"), 508431090, duration_s=float(t[-1]), size=5.0)
+    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=508431090), {"serial": "SN637"})
+    assert main(["calibrate", str(data), "--plant", str(ROOT / "plants" / "p888_51_sn637.toml"),
+                 "--json", str(tmp_path / "r.json")]) == 0
+    res = json.loads((tmp_path / "r.json").read_text())
+    st = res["stages"]
+    assert {s["effect"] for s in st} == {"creep", "delay"}, (st, res["stage_notes"])
+    assert res["effect"] == st[0]["effect"] and res["channel"] == st[0]["channel"]
+    for s in st:
+        assert s["channel"] == "displacement"
+        assert set(s["error_after"]) == {"rms", "max", "units"} and s["error_after"]["units"] == "m"
+        assert s["error_after"]["rms"] < s["error_before"]["rms"]
+        assert s["agreement"].endswith("of 5") and int(s["agreement"].split()[0]) >= 4 or "resolved" in s
+    assert st[1]["error_before"]["rms"] == pytest.approx(st[0]["error_after"]["rms"], rel=1e-6)
+    d = next(s for s in st if s["effect"] == "delay")["parameters"]
+    assert d["delay_s"] == pytest.approx(truth["delay_s"], rel=0.3)
