@@ -618,3 +618,44 @@ def test_free_free_floor_is_the_voltage_whose_stroke_is_the_gauge_noise():
         assert 0 < v_min < plant.pzt.voltage_max_v
         assert preflight._stroke_from_rest_m(plant.pzt, v_min) == pytest.approx(noise, rel=1e-9)
         assert preflight._stroke_from_rest_m(plant.pzt, 0.99 * v_min) < noise
+
+
+# ---------------------------------------------------------------------------------------------
+# accepted input: legal records next to a validator's boundary must pass (review 3, item 17)
+
+def _sine_record_text(fs_hz=1e4, f_hz=10.0, n=2000, v_bias=50.0, v_amp=40.0, preamble=""):
+    """A quasi-static sine record of the calibrate format: time[s], voltage[V], displacement[m]."""
+    t = np.arange(n) / fs_hz
+    v = v_bias + v_amp * np.sin(2 * np.pi * f_hz * t)
+    x = 1e-7 * v                                   # 0.1 um/V, the order of SN637's gain
+    rows = "\n".join(f"{a:.9g},{b:.9g},{c:.9g}" for a, b, c in zip(t, v, x))
+    return preamble + "time[s],voltage[V],displacement[m]\n" + rows + "\n"
+
+
+def _preflight_calibrate(data, tmp_path):
+    from workbench.cli import build_parser
+    from workbench.preflight import preflight
+    args = build_parser().parse_args(["calibrate", str(data), "--plant", str(ROOT / PLANT),
+                                      "--out", str(tmp_path / "out")])
+    with preflight(args):
+        pass
+
+
+@pytest.mark.parametrize("suffix", [".txt", ".csv", ".dat"])
+def test_a_bom_record_is_accepted_whatever_its_suffix(suffix, tmp_path):
+    """The record reader skips a BOM (record.py), so the file check must not refuse one (review 3, bug 1)."""
+    from workbench.calibrate.record import read_record
+    path = tmp_path / f"rec{suffix}"
+    path.write_bytes(b"\xef\xbb\xbf" + _sine_record_text().encode("utf-8"))
+    _preflight_calibrate(path, tmp_path)
+    rec = read_record(path)
+    assert len(rec.t_s) == 2000
+
+
+def test_a_bom_toml_is_still_refused(tmp_path):
+    """The TOML reader takes a BOM as text: the refusal stays for .toml and .json."""
+    from workbench.paths import FileArgumentError, check_text_file
+    path = tmp_path / "plant.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + (ROOT / PLANT).read_bytes())
+    with pytest.raises(FileArgumentError, match="byte-order mark"):
+        check_text_file(path)
