@@ -41,6 +41,21 @@ def test_fast_slice_names_no_wrong_effect(sn637, seed):
     assert all(r["ratio"] < 1.0 for r in rows if r["class"] == "right")
 
 
+def test_a_crash_counts_as_wrong_in_the_headline_and_the_table():
+    """A crashed record is no answer: the headline's wrong count (the <= 2 % target) includes it,
+    as the per-effect table does (review 3, bug 4)."""
+    cc = _bench()
+    rows = [{"effect": "none", "excess": 0.0, "class": "crash", "ratio": 1.0, "named": [], "above_line": {}},
+            {"effect": "none", "excess": 0.0, "class": "none", "ratio": 1.0, "named": [], "above_line": {}},
+            {"effect": "creep", "excess": 5.0, "class": "wrong", "ratio": 1.0, "named": ["drift"],
+             "above_line": {}}]
+    table, head = cc.summarize(rows)
+    assert head["wrong"] == 2 and head["crashed"] == 1
+    assert head["wrong_rate"] == pytest.approx(2 / 3)
+    none_row = [ln for ln in table.splitlines() if ln.startswith("| none |")][0]
+    assert none_row.split("|")[6].strip() == "1"          # the crash in the table's wrong column
+
+
 def _traced(sn637, effects, rate_hz, protocol, size, seed):
     from workbench.calibrate.base_fit import fit_base
     from workbench.calibrate.splits import make_split
