@@ -78,7 +78,7 @@ from scipy.optimize import lsq_linear
 
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
-from .drift_holds import drift_in_holds, hold_spans
+from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
 from .effects import Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage, Resonance
 from .pi_fit import rms, turning_points
 
@@ -710,10 +710,12 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
     is fitted to are compared within the holds. Each drift row gets ``holds`` (the check's dict).
     """
     spans = infos.get("holds")
-    if spans is None or not len(spans):
-        return
     for tag, row in by.items():
         if tag[0] != "drift":
+            continue
+        if spans is None or not len(spans):     # the veto is off: say so in the candidate's JSON
+            row["holds"] = {"holds": 0, "gain": float("nan"), "se": float("inf"), "shows": None,
+                            "note": NO_HOLDS_NOTE}
             continue
         prob = probs[row["key"]]
         g = _stacked(prob, extra[row["key"]], row)
