@@ -124,3 +124,26 @@ def test_creeps_charge_behind_a_long_delay_is_not_named_absorption(sn637):
     base, res, truth = _traced(sn637, *_seed_case(15, 75))
     named = [s["effect"] for s in res["stages"]]
     assert not set(named) - {"creep", "delay"}, (named, res["fold_winners"])
+
+
+def test_creep_behind_a_displacement_effect_reports_its_fold_wins_not_its_passes(monkeypatch):
+    """The promotion branch of tracing._creep_behind_a_displacement_effect (review 3, bug 2): the
+    displacement effect named first passes 4 of 5 folds but won only 1 (the charge relaxation won
+    the rest); once it is in the model the displacement's creep wins 3 of 5. The agreement
+    reported must be its 1 fold win, the 4 passes only in the note."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate import tracing
+    tag = ("delay", "displacement")
+    charge = ("dielectric_absorption", "charge")
+    d = {"name": "delay", "channel": "displacement", "passes": [True, True, True, True, False], "score": 0.5}
+    res = {"rows": [d], "winners": [charge, charge, tag, charge, "none"]}
+    rescored = {"winners": [("creep", "displacement")] * 3 + ["none", "none"]}
+    monkeypatch.setattr(tracing, "_absorb", lambda *a, **k: None)
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: rescored)
+    split = SimpleNamespace(folds=[0] * 5)
+    answer, count, note = tracing._creep_behind_a_displacement_effect(
+        charge, 3, None, res, [], {}, [], {}, split, 0.02, 1.0, {}, [], 0.0, None, None, need=3)
+    assert answer == tag
+    assert count == sum(1 for w in res["winners"] if w == tag) == 1
+    assert "creep wins 3 of 5" in note and "passes 4 folds" in note

@@ -571,9 +571,11 @@ def _creep_behind_a_displacement_effect(answer, count, note, res, cands, probs, 
                       or (not isinstance(w, str) and w[0] == "undecided" and "creep" in w[1]))
     if 2 * creep_folds >= n_folds:
         tag = (d["name"], d["channel"])
-        return tag, int(sum(d["passes"])), (f"{answer[0]} on the charge is creep's charge: with the {d['name']} of the "
-                                            f"displacement in the model, the displacement's creep wins {creep_folds} "
-                                            f"of {n_folds} folds; the {d['name']} is named first")
+        # the agreement is d's own fold wins (review 3 bug 2), not the folds it passes; the promotion is the note's
+        wins = sum(1 for w in res["winners"] if tuple(w) == tag)
+        return tag, wins, (f"{answer[0]} on the charge is creep's charge: with the {d['name']} of the displacement "
+                           f"in the model, the displacement's creep wins {creep_folds} of {n_folds} folds; the "
+                           f"{d['name']} (passes {int(sum(d['passes']))} folds) is named first")
     if creep_folds:
         return None, count, None
     return answer, count, note
