@@ -338,14 +338,9 @@ def _stroke_range_m(pzt):
 
 
 def _v_for_stroke(pzt, x_m):
-    """The lowest positive voltage whose quasi-static stroke from rest reaches ``x_m`` (bisection), V."""
-    lo, hi = 0.0, pzt.voltage_max_v
-    if _stroke_from_rest_m(pzt, hi) <= x_m:
-        return hi
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _stroke_from_rest_m(pzt, mid) < x_m else (lo, mid)
-    return hi
+    """The lowest positive voltage whose quasi-static stroke from rest reaches ``x_m``, V (the library's)."""
+    from .identify.freefree import v_peak_floor_v
+    return v_peak_floor_v(pzt, x_m)
 
 
 def _check_flags(args):
@@ -366,17 +361,9 @@ def _check_flags(args):
     elif cmd == "freefree":
         plant = _plant(args.plant)
         fs = plant.gauge.modulation_hz
-        _in_range("--v-peak", args.v_peak, "V", 0.0, plant.pzt.voltage_max_v,
-                  f"the amplifier's highest output in {args.plant}", lo_open=True)
-        # a sine whose stroke is under the gauge noise cannot be read: eqs. 10-12 then return noise
-        # (--v-peak 1e-9V gave C_p = -10.9 uF, 100mV +102 %; the error scales as noise / stroke)
-        noise_m = plant.gauge.noise_rms_m
-        if _stroke_from_rest_m(plant.pzt, args.v_peak) < noise_m:
-            v_min = _v_for_stroke(plant.pzt, noise_m)
-            raise FlagRangeError(f"--v-peak {args.v_peak:g} V: out of range [{v_min:.3g}, {plant.pzt.voltage_max_v:g}] "
-                                 f"V: its stroke from rest, {_stroke_from_rest_m(plant.pzt, args.v_peak) * 1e9:.3g} nm, "
-                                 f"is under the gauge noise {noise_m * 1e9:.3g} nm RMS of {args.plant}, so the test "
-                                 f"cannot read the stack's motion; e.g. 100V")
+        from .identify.freefree import check_v_peak      # the library's check (one home)
+        _finite("--v-peak", args.v_peak, "V")
+        check_v_peak(plant, args.v_peak, name="--v-peak", where=str(args.plant))
         _in_range("--freq", args.freq, "Hz", 0.0, fs / 20, f"at least 20 gauge samples a period at the "
                   f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
     elif cmd == "linearize":
