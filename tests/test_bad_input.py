@@ -659,3 +659,25 @@ def test_a_bom_toml_is_still_refused(tmp_path):
     path.write_bytes(b"\xef\xbb\xbf" + (ROOT / PLANT).read_bytes())
     with pytest.raises(FileArgumentError, match="byte-order mark"):
         check_text_file(path)
+
+
+def test_step_force_compression_and_tension_are_bounded_apart():
+    """The force step's range lives in the library (review 3, items 9 and 11): a compressive preload step of the
+    blocked force or several times it is legal (the linear model holds), a tension beyond the 15 MPa preload share
+    of seed 000 is not (the ceramic breaks in tension); the numbers come from the plant file."""
+    from workbench.errors import FlagRangeError
+    from workbench.plant import load_plant
+    from workbench.selfsense.force import check_step_force, step_force_range_n
+    pzt = load_plant(ROOT / CREEP).pzt
+    lo, hi, f_block = step_force_range_n(pzt)
+    stroke = float(pzt.quasi_static_x_m([0.0, pzt.voltage_max_v])[-1])
+    assert f_block == pytest.approx(pzt.stiffness_n_per_m * stroke, rel=1e-12)
+    assert 3000.0 < f_block < 4500.0                      # seed 000: "a blocking force of up to 3600 Newtons"
+    assert hi < f_block < -lo
+    for ok in (-100.0, -f_block, -5 * f_block, lo, 100.0, hi):     # accepted: no error
+        check_step_force(pzt, ok)
+    for bad, why in ((1.01 * lo, "outside the linear model"), (1.01 * hi, "a tension"), (f_block, "a tension"),
+                     (1e9, "a tension"),
+                     (0.0, "nonzero"), (float("nan"), "nonzero")):
+        with pytest.raises(FlagRangeError, match=why):
+            check_step_force(pzt, bad, name="--step-force")

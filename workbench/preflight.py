@@ -408,15 +408,9 @@ def _check_flags(args):
         _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
     elif cmd == "selfsense":
         if getattr(args, "force", False) and getattr(args, "step_force", None) is not None:
-            # beyond the blocked force k_p x full stroke the step compresses the stack more than its stroke:
-            # outside the model (--step-force 1e9N ran and reported errors of a 5 m compression)
-            pzt = _plant(args.plant).pzt
-            f_block = pzt.stiffness_n_per_m * _stroke_range_m(pzt)[1]
-            _finite("--step-force", args.step_force, "N")
-            if not 0.0 < abs(args.step_force) <= f_block:
-                raise FlagRangeError(f"--step-force {args.step_force:g} N: out of range [-{f_block:.4g}, {f_block:.4g}] N "
-                                     f"and nonzero: the blocked force k_p x stroke = {pzt.stiffness_n_per_m:.3g} N/m x "
-                                     f"{_stroke_range_m(pzt)[1] * 1e6:.2f} um of {args.plant}; e.g. -100N (compression)")
+            # the library's check (--step-force 1e9N ran and reported errors of a 5 m compression)
+            from .selfsense.force import check_step_force
+            check_step_force(_plant(args.plant).pzt, args.step_force, name="--step-force", where=str(args.plant))
         _in_range("--duration", args.duration, "s", 100.0, math.inf, "a few steps of 20-60 s; e.g. 1000s")
         if args.seed is not None:
             _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
