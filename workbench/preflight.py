@@ -578,10 +578,8 @@ def preflight(args):
             check_output_file(path, name, inputs=extra)
         ins = ins + extra
         if args.command == "sweep" and getattr(args, "table", None) is not None:
-            from .verify.sweep import _TABLE_SUFFIXES as suffixes      # the table writer's (one home)
-            if args.table.suffix.lower() not in suffixes:
-                raise FileArgumentError(f"--table {args.table}: the suffix must be one of {', '.join(suffixes)} (the "
-                                        f"table's format); e.g. {args.table.with_suffix('.csv')}")
+            from .verify.sweep import check_table_path      # the library's check (one home)
+            check_table_path(args.table, name="--table")
     _check_flags(args)
     _check_size(args)
     outs = [p for _, p in out_files + out_dirs]
