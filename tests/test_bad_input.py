@@ -681,3 +681,17 @@ def test_step_force_compression_and_tension_are_bounded_apart():
                      (0.0, "nonzero"), (float("nan"), "nonzero")):
         with pytest.raises(FlagRangeError, match=why):
             check_step_force(pzt, bad, name="--step-force")
+
+
+def test_the_library_refuses_a_seed_numpy_cannot_take():
+    """verify() checks its seed itself (review 3, item 9); the CLI's --seed check is the same function."""
+    from workbench.errors import FlagRangeError
+    from workbench.fields import check_seed
+    from workbench.verify.run import verify
+    for ok in (0, 2, 2 ** 63 - 1, np.int64(5)):
+        check_seed(ok)                                        # accepted: no error
+    for bad in (-1, 2 ** 63, 1.5, True, "3"):
+        with pytest.raises(FlagRangeError, match="seed"):
+            check_seed(bad)
+    with pytest.raises(FlagRangeError, match="seed -1"):
+        verify(ROOT / CREEP, ROOT / CTRL, seed=-1)

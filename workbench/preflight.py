@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from .errors import FlagRangeError, StudyDefinitionError, WorkbenchError
+from .fields import check_seed
 from .paths import FileArgumentError, check_input_file, check_output_dir, check_output_file, is_inside, same_path
 
 __all__ = ["preflight", "add_force_flags", "estimate_run", "FlagRangeError", "MAX_SECONDS", "RUN_COSTS"]
@@ -387,7 +388,7 @@ def _check_flags(args):
         _in_range("--imbalance-tolerance", args.imbalance_tolerance, "ohm", 0.0, 10.0,
                   "per-arm bridge imbalance, the study schema's range; e.g. 0.4ohm")
     elif cmd == "verify":
-        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+        check_seed(args.seed, "--seed")
         # the hold scores the settled loop after its first second: at least one more second
         _in_range("--hold", args.hold, "s", 2.0, math.inf, "the first second of the hold settles the loop and "
                   "is not scored; give at least 2s, e.g. 1000s")
@@ -405,7 +406,7 @@ def _check_flags(args):
         _in_range("--train-cycles", args.train_cycles, "cycles", 0.0, 1e6, "input cycles that train, e.g. 3",
                   lo_open=True)
     elif cmd == "synth":
-        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+        check_seed(args.seed, "--seed")
     elif cmd == "selfsense":
         if getattr(args, "force", False) and getattr(args, "step_force", None) is not None:
             # the library's check (--step-force 1e9N ran and reported errors of a 5 m compression)
@@ -413,7 +414,7 @@ def _check_flags(args):
             check_step_force(_plant(args.plant).pzt, args.step_force, name="--step-force", where=str(args.plant))
         _in_range("--duration", args.duration, "s", 100.0, math.inf, "a few steps of 20-60 s; e.g. 1000s")
         if args.seed is not None:
-            _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+            check_seed(args.seed, "--seed")
     elif cmd == "bench":
         if args.memory_periods < 0:
             raise FlagRangeError(f"--memory-periods {args.memory_periods}: must be >= 0 (0 skips the memory check)")
