@@ -695,3 +695,53 @@ def test_the_library_refuses_a_seed_numpy_cannot_take():
             check_seed(bad)
     with pytest.raises(FlagRangeError, match="seed -1"):
         verify(ROOT / CREEP, ROOT / CTRL, seed=-1)
+
+
+def _accepted_record(tmp_path, name, t, v, x, preamble=""):
+    rows = "\n".join(f"{a:.12g},{b:.9g},{c:.9g}" for a, b, c in zip(t, v, x))
+    path = tmp_path / name
+    path.write_text(preamble + "time[s],voltage[V],displacement[m]\n" + rows + "\n", encoding="utf-8")
+    return path
+
+
+def _calibrate_checks(path, tmp_path):
+    """What calibrate checks before fitting: the file (preflight), the reader, the voltage range and the stroke."""
+    from workbench.calibrate.record import read_record
+    from workbench.calibrate.run import _check_displacement_scale, _check_range
+    from workbench.plant import load_plant
+    _preflight_calibrate(path, tmp_path)
+    rec = read_record(path)
+    pzt = load_plant(ROOT / PLANT).pzt
+    _check_range(path, rec.channels["voltage_v"], pzt.voltage_min_v, pzt.voltage_max_v, "test")
+    _check_displacement_scale(path, rec, pzt, PLANT)
+    return rec
+
+
+def test_legal_records_next_to_the_boundaries_are_accepted(tmp_path):
+    """Review 3 item 12/17: records a user may legally bring pass every check calibrate runs first:
+    the resistor out (R = 0), a 1 MHz record of a 200 kHz drive whose stroke is half the quasi-static one
+    (above the R C corner), a bipolar drive over the plant's whole range, a 1 V sine on a 50 V bias under
+    10 mV of voltage noise and the gauge's 22 nm of displacement noise."""
+    from workbench.plant import load_plant
+    pzt = load_plant(ROOT / PLANT).pzt
+    rng = np.random.default_rng(17)
+
+    def qs(v):
+        return pzt.quasi_static_x_m(np.r_[0.0, v])[1:]
+    cases = []
+    t = np.arange(2000) / 1e4
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 10.0 * t)
+    cases.append(("r0.csv", t, v, qs(v), "# series_resistor_ohm: 0\n"))
+    t = np.arange(4000) / 1e6
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 2e5 * t)
+    cases.append(("mhz.csv", t, v, 0.5 * qs(v), ""))
+    t = np.arange(2000) / 1e4
+    v = 0.5 * (pzt.voltage_min_v + pzt.voltage_max_v) + 0.5 * (pzt.voltage_max_v - pzt.voltage_min_v) * \
+        np.sin(2 * np.pi * 5.0 * t)
+    cases.append(("bipolar.csv", t, v, qs(v), ""))
+    v = 50.0 + 1.0 * np.sin(2 * np.pi * 5.0 * t) + 0.01 * rng.standard_normal(t.size)
+    cases.append(("small.csv", t, v, qs(v) + 22e-9 * rng.standard_normal(t.size), ""))
+    for name, t_, v_, x_, pre in cases:
+        rec = _calibrate_checks(_accepted_record(tmp_path, name, t_, v_, x_, pre), tmp_path)
+        assert len(rec.t_s) == t_.size
+    assert float(_calibrate_checks(tmp_path / "r0.csv", tmp_path).metadata["series_resistor_ohm"]) == 0.0
