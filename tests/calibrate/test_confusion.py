@@ -77,7 +77,19 @@ def test_a_large_leakage_does_not_choose_the_drive(sn637):
     the displacement shows no spurious delay (before: a 0.65 ms 'delay' stage)."""
     base, res, truth = _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
     assert base.voltage_source == "terminal voltage V - R i"
-    assert all(s["effect"] == "leakage" for s in res["stages"]), [s["effect"] for s in res["stages"]]
+    named = [s["effect"] for s in res["stages"]]
+    # the false-positive side, asserted by name (an empty answer must not pass by itself, review 3 item 14)
+    assert "delay" not in named and "dielectric_absorption" not in named, (named, res["fold_winners"])
+    assert all(s["effect"] == "leakage" for s in res["stages"]), named
+
+
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-25 (review 3 item 14): this 25x leakage is inconclusive "
+                                       "3 of 5, leakage winning 3 folds and 2 undecided against a slow absorption; "
+                                       "the leakage is not named")
+def test_a_large_leakage_is_named(sn637):
+    """The same 25x leakage record: the leakage itself should be named (the positive side)."""
+    base, res, truth = _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
+    assert [s["effect"] for s in res["stages"]] == ["leakage"], res["fold_winners"]
 
 
 def test_creep_and_a_long_delay_are_both_named(sn637):
@@ -89,10 +101,18 @@ def test_creep_and_a_long_delay_are_both_named(sn637):
     assert set(named) == {"creep", "delay"}, (named, res["fold_winners"])
 
 
+# Seed 15's records, pinned literally (effects, rate, protocol, size, seed) as drawn by
+# benchmarks/calibrate_confusion.py's cases(1, 15) on 2026-11-25, so a change to the benchmark's
+# draw order cannot silently swap them for other records (review 3 item 13).
+SEED15 = {11: (("drift", "resonance"), 1000.0, "calibration", 13.953172790562634, 350511676),
+          47: ("dielectric_absorption", 10000.0, "sine", 0.7447080106502547, 783069092),
+          75: (("creep", "delay"), 100000.0, "calibration", 3.1195924809887052, 1072630000)}
+
+
 def _seed_case(seed, index):
-    """The benchmark's record ``index`` (1-based) of ``seed``: (effects, rate, protocol, size, seed)."""
-    e, rate, proto, size, s = _bench().cases(1, seed)[index - 1]
-    return (e if isinstance(e, str) else tuple(e)), rate, proto, size, s
+    """Seed 15's record ``index`` (1-based): (effects, rate, protocol, size, seed), pinned."""
+    assert seed == 15
+    return SEED15[index]
 
 
 def test_a_mode_on_the_gauge_and_a_drift_of_the_displacement_are_both_named(sn637):
@@ -119,11 +139,16 @@ def test_a_slow_absorption_that_bends_on_every_fold_is_named(sn637):
 
 def test_creeps_charge_behind_a_long_delay_is_not_named_absorption(sn637):
     """Seed 15's record 75 (creep + a 2.25 ms delay, 100 kHz, 0.4 s): the delay hid the
-    displacement's creep, so its charge relaxation was named dielectric_absorption (wrong). With
-    the delay in the displacement's model the creep wins folds: no absorption is named."""
+    displacement's creep, so its charge relaxation was named dielectric_absorption (wrong). The
+    first scoring still gives the absorption at least 4 of 5 folds (enough to name it); with the
+    delay in the displacement's model the creep wins some but fewer than half of the folds, so
+    the rule answers ``inconclusive`` (its branch for that case): no absorption is named. The
+    promotion branch is covered by the unit test below."""
     base, res, truth = _traced(sn637, *_seed_case(15, 75))
     named = [s["effect"] for s in res["stages"]]
-    assert not set(named) - {"creep", "delay"}, (named, res["fold_winners"])
+    absorption_wins = sum(w == "dielectric_absorption on the charge" for w in res["fold_winners"])
+    assert absorption_wins >= 4, res["fold_winners"]             # the rule, not the scoring, withheld it
+    assert res["effect"] == "inconclusive" and named == [], (named, res["fold_winners"])
 
 
 def test_creep_behind_a_displacement_effect_reports_its_fold_wins_not_its_passes(monkeypatch):
