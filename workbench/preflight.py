@@ -235,8 +235,8 @@ _C_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
 def _check_study_sections(path, data):
-    from .study.spec import _SCHEMA
-    for section in _SCHEMA:
+    from .study.spec import STUDY_FIELDS
+    for section in STUDY_FIELDS:
         if not section or section not in data:
             continue
         value = data[section]
@@ -246,7 +246,7 @@ def _check_study_sections(path, data):
         if not isinstance(value, dict):
             raise StudyDefinitionError(path, section, f"is a value ({section} = {value!r}), not a section; "
                                                       f"write [{section}] with its keys on the lines below")
-    from .study.spec import _SCHEMA as schema
+    from .study.spec import STUDY_FIELDS as schema
     from .study.spec import OTHER_SECTIONS
     for key, value in data.items():
         if isinstance(value, dict) and key not in schema and key not in OTHER_SECTIONS:
@@ -355,7 +355,7 @@ def _check_flags(args):
                                  f"stack's quasi-static stroke over the amplifier's {pzt.voltage_min_v:g}.."
                                  f"{pzt.voltage_max_v:g} V in {args.plant}")
     elif cmd == "identify":
-        from .plant.files import _SCHEMA as plant_fields      # the plant file's range for k_p: one home
+        from .plant.files import PLANT_FIELDS as plant_fields      # the plant file's range for k_p: one home
         k_max = plant_fields["mechanics"]["stiffness_n_per_m"].hi
         _in_range("--stiffness", args.stiffness, "N/m", 0.0, k_max, "a stiffness is positive, at most the plant "
                   "file's stiffness_n_per_m range; e.g. 2e8 (200 N/um)", lo_open=True)
