@@ -172,3 +172,21 @@ def test_creep_behind_a_displacement_effect_reports_its_fold_wins_not_its_passes
     assert answer == tag
     assert count == sum(1 for w in res["winners"] if w == tag) == 1
     assert "creep wins 3 of 5" in note and "passes 4 folds" in note
+
+
+# Leakage-only records of the held-out seeds 17 and 18 (pinned as drawn by cases(1, seed)), sizes 2-15x,
+# 1/10/100 kHz, three protocols: the absorption's bend rule must not name absorption on any (review 3 item 14).
+LEAKAGE_17_18 = [("leakage", 1000.0, "steps", 2.3274258051873336, 299673796),
+                 ("leakage", 10000.0, "sine", 7.2478899527183085, 485639728),
+                 ("leakage", 10000.0, "steps", 15.487405966584307, 556913422),
+                 ("leakage", 100000.0, "sine", 5.790953900103864, 457695041),
+                 ("leakage", 1000.0, "sine", 2.267877476215541, 908609146),
+                 ("leakage", 10000.0, "sine", 4.056513810711598, 809162113)]
+
+
+@pytest.mark.parametrize("case", LEAKAGE_17_18, ids=[f"{c[1] / 1e3:g}kHz-{c[2]}-x{c[3]:.1f}" for c in LEAKAGE_17_18])
+def test_a_leakage_is_never_named_absorption(sn637, case):
+    base, res, truth = _traced(sn637, *case)
+    named = [s["effect"] for s in res["stages"]]
+    assert "dielectric_absorption" not in named, (named, res["fold_winners"])
+    assert not set(named) - {"leakage"}, (named, res["fold_winners"])
