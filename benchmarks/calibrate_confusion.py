@@ -40,7 +40,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from workbench.calibrate.base_fit import fit_base  # noqa: E402
+from workbench.calibrate.base_fit import LINE_MARGIN, fit_base  # noqa: E402
 from workbench.calibrate.record import Record  # noqa: E402
 from workbench.calibrate.splits import make_split  # noqa: E402
 from workbench.calibrate.synthetic import (EFFECTS, PROTOCOLS, benchmark_protocol, plant_with_effect,  # noqa: E402
@@ -101,6 +101,9 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
         final[s["channel"]] = s["error_after"]["rms"]
     above_line = {ch: (err, base.channels[ch].line_rms_test) for ch, err in final.items()
                   if ch in base.channels and err > base.channels[ch].line_rms_test}
+    # the tool's own warning bar (base_fit.LINE_MARGIN): not *clearly* better than the line
+    near_line = {ch: (err, base.channels[ch].line_rms_test) for ch, err in final.items()
+                 if ch in base.channels and err > LINE_MARGIN * base.channels[ch].line_rms_test}
     named = [s["effect"] for s in res.get("stages", [])]
     if not named:
         cls = "none"
@@ -113,7 +116,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "both": len(effects) > 1 and set(effects) <= set(named),
             "excesses": own or xs,
-            "trace_s": elapsed, "truth": truth, "above_line": above_line, "fold_winners": res.get("fold_winners"),
+            "trace_s": elapsed, "truth": truth, "above_line": above_line, "near_line": near_line, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
 
 
@@ -210,13 +213,14 @@ def summarize(rows):
                      f"{np.median(rat):.2f} |" if rat else
                      f"| {eff} | {b} | {n} | {c['right']} | {c['none']} | {c['wrong']} | - |")
     n = len(rows)
-    wrong = sum(r["class"] == "wrong" for r in rows)
+    wrong = sum(r["class"] in ("wrong", "crash") for r in rows)     # a crash is no answer: counted wrong
     big = [r for r in rows if r["effect"] != "none" and r["excess"] >= 3.0]
     right_big = sum(r["class"] == "right" for r in big)
     halved = sum(r["class"] == "right" and r["ratio"] <= 0.5 for r in big)
     head = {"records": n, "wrong": wrong, "wrong_rate": wrong / max(n, 1), "big": len(big),
             "right_big": right_big, "right_big_rate": right_big / max(len(big), 1), "halved_big": halved,
             "above_line": sum(bool(r.get("above_line")) for r in rows),
+            "near_line": sum(bool(r.get("near_line")) for r in rows),
             "crashed": sum(r["class"] == "crash" for r in rows)}
     return "\n".join(lines), head
 
@@ -257,7 +261,7 @@ def main(argv=None):
             print(f"[#{k}] {eff} {rate / 1e3:.0f} kHz {proto} size x{size:.3f}: CRASH {type(exc).__name__}: {exc}",
                   flush=True)
             rows.append({"effect": eff, "excess": np.inf, "class": "crash", "ratio": 1.0, "named": [],
-                         "above_line": {}, "both": False, "excesses": [np.inf]})
+                         "above_line": {}, "near_line": {}, "both": False, "excesses": [np.inf]})
             continue
         rows.append(r)
         print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
@@ -271,10 +275,11 @@ def main(argv=None):
     print()
     print(table)
     print()
-    print(f"wrong effect named: {head['wrong']} of {head['records']} records ({100 * head['wrong_rate']:.1f} %); "
+    print(f"wrong effect named or crashed: {head['wrong']} of {head['records']} records "
+          f"({100 * head['wrong_rate']:.1f} %; of them crashed: {head['crashed']}); "
           f"right at size >= 3: {head['right_big']} of {head['big']} ({100 * head['right_big_rate']:.0f} %), "
-          f"halved: {head['halved_big']}; held-out error above a straight line's: {head['above_line']} records; "
-          f"crashed: {head['crashed']}")
+          f"halved: {head['halved_big']}; held-out error above a straight line's: {head['above_line']} records, "
+          f"above {LINE_MARGIN:g}x the line (the tool's own warning): {head['near_line']} records")
     pairs = [r for r in rows if "+" in r["effect"]]
     if pairs:
         big2 = [r for r in pairs if min(r["excesses"]) >= 3.0]

@@ -653,3 +653,130 @@ def test_free_free_floor_is_the_voltage_whose_stroke_is_the_gauge_noise():
         assert 0 < v_min < plant.pzt.voltage_max_v
         assert preflight._stroke_from_rest_m(plant.pzt, v_min) == pytest.approx(noise, rel=1e-9)
         assert preflight._stroke_from_rest_m(plant.pzt, 0.99 * v_min) < noise
+
+
+# ---------------------------------------------------------------------------------------------
+# accepted input: legal records next to a validator's boundary must pass (review 3, item 17)
+
+def _sine_record_text(fs_hz=1e4, f_hz=10.0, n=2000, v_bias=50.0, v_amp=40.0, preamble=""):
+    """A quasi-static sine record of the calibrate format: time[s], voltage[V], displacement[m]."""
+    t = np.arange(n) / fs_hz
+    v = v_bias + v_amp * np.sin(2 * np.pi * f_hz * t)
+    x = 1e-7 * v                                   # 0.1 um/V, the order of SN637's gain
+    rows = "\n".join(f"{a:.9g},{b:.9g},{c:.9g}" for a, b, c in zip(t, v, x))
+    return preamble + "time[s],voltage[V],displacement[m]\n" + rows + "\n"
+
+
+def _preflight_calibrate(data, tmp_path):
+    from workbench.cli import build_parser
+    from workbench.preflight import preflight
+    args = build_parser().parse_args(["calibrate", str(data), "--plant", str(ROOT / PLANT),
+                                      "--out", str(tmp_path / "out")])
+    with preflight(args):
+        pass
+
+
+@pytest.mark.parametrize("suffix", [".txt", ".csv", ".dat"])
+def test_a_bom_record_is_accepted_whatever_its_suffix(suffix, tmp_path):
+    """The record reader skips a BOM (record.py), so the file check must not refuse one (review 3, bug 1)."""
+    from workbench.calibrate.record import read_record
+    path = tmp_path / f"rec{suffix}"
+    path.write_bytes(b"\xef\xbb\xbf" + _sine_record_text().encode("utf-8"))
+    _preflight_calibrate(path, tmp_path)
+    rec = read_record(path)
+    assert len(rec.t_s) == 2000
+
+
+def test_a_bom_toml_is_still_refused(tmp_path):
+    """The TOML reader takes a BOM as text: the refusal stays for .toml and .json."""
+    from workbench.paths import FileArgumentError, check_text_file
+    path = tmp_path / "plant.toml"
+    path.write_bytes(b"\xef\xbb\xbf" + (ROOT / PLANT).read_bytes())
+    with pytest.raises(FileArgumentError, match="byte-order mark"):
+        check_text_file(path)
+
+
+def test_step_force_compression_and_tension_are_bounded_apart():
+    """The force step's range lives in the library (review 3, items 9 and 11): a compressive preload step of the
+    blocked force or several times it is legal (the linear model holds), a tension beyond the 15 MPa preload share
+    of seed 000 is not (the ceramic breaks in tension); the numbers come from the plant file."""
+    from workbench.errors import FlagRangeError
+    from workbench.plant import load_plant
+    from workbench.selfsense.force import check_step_force, step_force_range_n
+    pzt = load_plant(ROOT / CREEP).pzt
+    lo, hi, f_block = step_force_range_n(pzt)
+    stroke = float(pzt.quasi_static_x_m([0.0, pzt.voltage_max_v])[-1])
+    assert f_block == pytest.approx(pzt.stiffness_n_per_m * stroke, rel=1e-12)
+    assert 3000.0 < f_block < 4500.0                      # seed 000: "a blocking force of up to 3600 Newtons"
+    assert hi < f_block < -lo
+    for ok in (-100.0, -f_block, -5 * f_block, lo, 100.0, hi):     # accepted: no error
+        check_step_force(pzt, ok)
+    for bad, why in ((1.01 * lo, "outside the linear model"), (1.01 * hi, "a tension"), (f_block, "a tension"),
+                     (1e9, "a tension"),
+                     (0.0, "nonzero"), (float("nan"), "nonzero")):
+        with pytest.raises(FlagRangeError, match=why):
+            check_step_force(pzt, bad, name="--step-force")
+
+
+def test_the_library_refuses_a_seed_numpy_cannot_take():
+    """verify() checks its seed itself (review 3, item 9); the CLI's --seed check is the same function."""
+    from workbench.errors import FlagRangeError
+    from workbench.fields import check_seed
+    from workbench.verify.run import verify
+    for ok in (0, 2, 2 ** 63 - 1, np.int64(5)):
+        check_seed(ok)                                        # accepted: no error
+    for bad in (-1, 2 ** 63, 1.5, True, "3"):
+        with pytest.raises(FlagRangeError, match="seed"):
+            check_seed(bad)
+    with pytest.raises(FlagRangeError, match="seed -1"):
+        verify(ROOT / CREEP, ROOT / CTRL, seed=-1)
+
+
+def _accepted_record(tmp_path, name, t, v, x, preamble=""):
+    rows = "\n".join(f"{a:.12g},{b:.9g},{c:.9g}" for a, b, c in zip(t, v, x))
+    path = tmp_path / name
+    path.write_text(preamble + "time[s],voltage[V],displacement[m]\n" + rows + "\n", encoding="utf-8")
+    return path
+
+
+def _calibrate_checks(path, tmp_path):
+    """What calibrate checks before fitting: the file (preflight), the reader, the voltage range and the stroke."""
+    from workbench.calibrate.record import read_record
+    from workbench.calibrate.run import _check_displacement_scale, _check_range
+    from workbench.plant import load_plant
+    _preflight_calibrate(path, tmp_path)
+    rec = read_record(path)
+    pzt = load_plant(ROOT / PLANT).pzt
+    _check_range(path, rec.channels["voltage_v"], pzt.voltage_min_v, pzt.voltage_max_v, "test")
+    _check_displacement_scale(path, rec, pzt, PLANT)
+    return rec
+
+
+def test_legal_records_next_to_the_boundaries_are_accepted(tmp_path):
+    """Review 3 item 12/17: records a user may legally bring pass every check calibrate runs first:
+    the resistor out (R = 0), a 1 MHz record of a 200 kHz drive whose stroke is half the quasi-static one
+    (above the R C corner), a bipolar drive over the plant's whole range, a 1 V sine on a 50 V bias under
+    10 mV of voltage noise and the gauge's 22 nm of displacement noise."""
+    from workbench.plant import load_plant
+    pzt = load_plant(ROOT / PLANT).pzt
+    rng = np.random.default_rng(17)
+
+    def qs(v):
+        return pzt.quasi_static_x_m(np.r_[0.0, v])[1:]
+    cases = []
+    t = np.arange(2000) / 1e4
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 10.0 * t)
+    cases.append(("r0.csv", t, v, qs(v), "# series_resistor_ohm: 0\n"))
+    t = np.arange(4000) / 1e6
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 2e5 * t)
+    cases.append(("mhz.csv", t, v, 0.5 * qs(v), ""))
+    t = np.arange(2000) / 1e4
+    v = 0.5 * (pzt.voltage_min_v + pzt.voltage_max_v) + 0.5 * (pzt.voltage_max_v - pzt.voltage_min_v) * \
+        np.sin(2 * np.pi * 5.0 * t)
+    cases.append(("bipolar.csv", t, v, qs(v), ""))
+    v = 50.0 + 1.0 * np.sin(2 * np.pi * 5.0 * t) + 0.01 * rng.standard_normal(t.size)
+    cases.append(("small.csv", t, v, qs(v) + 22e-9 * rng.standard_normal(t.size), ""))
+    for name, t_, v_, x_, pre in cases:
+        rec = _calibrate_checks(_accepted_record(tmp_path, name, t_, v_, x_, pre), tmp_path)
+        assert len(rec.t_s) == t_.size
+    assert float(_calibrate_checks(tmp_path / "r0.csv", tmp_path).metadata["series_resistor_ohm"]) == 0.0

@@ -406,3 +406,13 @@ def test_sensor_step_bit_for_bit_with_the_c_header(kind, fc_hz, seed, tmp_path):
     # and Controller.run_sensors (metres in) is the same step
     u_m, f_m = c.run_sensors(ref * sb.lsb_m, g * sb.lsb_m, ch * sb.lsb_m, u0_v=u0_v, y0=y0)
     np.testing.assert_array_equal(u_m, u_v)
+
+
+def test_a_mat_files_logical_or_complex_array_gets_matlab_advice():
+    """Review 3 item 21: the JSON advice ("without quotes") is wrong for a .mat array."""
+    from workbench.controller import ControllerError, _array
+    for bad in (np.array([True, False]), np.array([1.0 + 2.0j, 0.0])):
+        with pytest.raises(ControllerError, match="double array in MATLAB"):
+            _array("k.mat", "A", bad, "a vector", 1)
+    with pytest.raises(ControllerError, match="without quotes"):
+        _array("k.json", "A", [1.0, "0.5"], "a vector", 1)

@@ -6,13 +6,12 @@ parser, and both take their argparse types and output convention from here.
 """
 
 import argparse
+from pathlib import Path
 
 from .errors import WorkbenchError
 from .units import parse_quantity
 
 __all__ = ["quantity", "emit", "path", "refuse_empty_paths"]
-
-from pathlib import Path
 
 
 def quantity(expected):

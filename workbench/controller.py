@@ -137,8 +137,10 @@ def _array(src, key, value, shape_text, ndim, error=ControllerError):
         [] if isinstance(value, np.ndarray) else _cells(value))
     for cell in cells:
         if isinstance(cell, bool) or not isinstance(cell, (int, float, np.integer, np.floating)):
-            raise error(src, key, f"must be {shape_text} of numbers; got {cell!r} in it (write the number "
-                                  f"without quotes)")
+            fix = ("save it as a double array in MATLAB, not logical, complex or cell"
+                   if isinstance(value, np.ndarray) or str(src).lower().endswith(".mat")
+                   else "write the number without quotes")
+            raise error(src, key, f"must be {shape_text} of numbers; got {cell!r} in it ({fix})")
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Field", "check_value", "check_table", "read_toml"]
+__all__ = ["Field", "check_value", "check_table", "read_toml", "check_seed"]
 
 
 @dataclass(frozen=True)
@@ -22,6 +22,27 @@ class Field:
     lo_open: bool = False
     expect: str = ""
     required: bool = True
+
+
+def check_seed(seed, name="seed"):
+    """Refuse a random seed numpy cannot take: not an integer in ``[0, 2**63 - 1]``.
+
+    Parameters
+    ----------
+    seed : int
+    name : str
+        The parameter's name in the message (the CLI passes ``--seed``).
+
+    Raises
+    ------
+    FlagRangeError
+        Naming the parameter, the value and the range.
+    """
+    from .errors import FlagRangeError
+    ok = isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and 0 <= int(seed) <= 2 ** 63 - 1
+    if not ok:
+        raise FlagRangeError(f"{name} {seed}: out of range [0, {2 ** 63 - 1}]: numpy seeds are non-negative "
+                             f"integers; e.g. 0")
 
 
 def check_value(path, key, field, value, error):

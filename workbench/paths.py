@@ -48,6 +48,11 @@ def is_inside(path, folder):
     return p == f or f in p.parents
 
 
+# Only the TOML and JSON readers take a byte-order mark as text; the record and table
+# readers (.csv, .txt, .dat, ...) skip one, so a BOM there is legal input.
+BOM_REFUSED_SUFFIXES = (".toml", ".json")
+
+
 def check_text_file(path, what=""):
     """Refuse a text input that is binary or not UTF-8, naming the line and column of the first bad byte."""
     path = Path(path)
@@ -56,7 +61,7 @@ def check_text_file(path, what=""):
     except OSError as err:
         raise FileArgumentError(f"{_name(path, what)}: cannot be read ({err.strerror}); "
                                 f"check the file's permissions") from None
-    if data.startswith(b"\xef\xbb\xbf") and path.suffix.lower() != ".csv":     # the CSV readers skip one
+    if data.startswith(b"\xef\xbb\xbf") and path.suffix.lower() in BOM_REFUSED_SUFFIXES:
         raise FileArgumentError(f"{_name(path, what)}: line 1, column 1: starts with a byte-order mark (BOM, bytes "
                                 f"ef bb bf, as Windows editors save 'UTF-8 with BOM'), which the TOML and JSON "
                                 f"readers take as text; save the file as UTF-8 without BOM")

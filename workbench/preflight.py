@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 
 from .errors import FlagRangeError, StudyDefinitionError, WorkbenchError
+from .fields import check_seed
 from .paths import FileArgumentError, check_input_file, check_output_dir, check_output_file, is_inside, same_path
 
 __all__ = ["preflight", "add_force_flags", "estimate_run", "FlagRangeError", "MAX_SECONDS", "RUN_COSTS"]
@@ -234,8 +235,8 @@ _C_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
 def _check_study_sections(path, data):
-    from .study.spec import _SCHEMA
-    for section in _SCHEMA:
+    from .study.spec import STUDY_FIELDS
+    for section in STUDY_FIELDS:
         if not section or section not in data:
             continue
         value = data[section]
@@ -245,7 +246,7 @@ def _check_study_sections(path, data):
         if not isinstance(value, dict):
             raise StudyDefinitionError(path, section, f"is a value ({section} = {value!r}), not a section; "
                                                       f"write [{section}] with its keys on the lines below")
-    from .study.spec import _SCHEMA as schema
+    from .study.spec import STUDY_FIELDS as schema
     from .study.spec import OTHER_SECTIONS
     for key, value in data.items():
         if isinstance(value, dict) and key not in schema and key not in OTHER_SECTIONS:
@@ -338,14 +339,9 @@ def _stroke_range_m(pzt):
 
 
 def _v_for_stroke(pzt, x_m):
-    """The lowest positive voltage whose quasi-static stroke from rest reaches ``x_m`` (bisection), V."""
-    lo, hi = 0.0, pzt.voltage_max_v
-    if _stroke_from_rest_m(pzt, hi) <= x_m:
-        return hi
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if _stroke_from_rest_m(pzt, mid) < x_m else (lo, mid)
-    return hi
+    """The lowest positive voltage whose quasi-static stroke from rest reaches ``x_m``, V (the library's)."""
+    from .identify.freefree import v_peak_floor_v
+    return v_peak_floor_v(pzt, x_m)
 
 
 def _check_flags(args):
@@ -359,24 +355,16 @@ def _check_flags(args):
                                  f"stack's quasi-static stroke over the amplifier's {pzt.voltage_min_v:g}.."
                                  f"{pzt.voltage_max_v:g} V in {args.plant}")
     elif cmd == "identify":
-        from .plant.files import _SCHEMA as plant_fields      # the plant file's range for k_p: one home
+        from .plant.files import PLANT_FIELDS as plant_fields      # the plant file's range for k_p: one home
         k_max = plant_fields["mechanics"]["stiffness_n_per_m"].hi
         _in_range("--stiffness", args.stiffness, "N/m", 0.0, k_max, "a stiffness is positive, at most the plant "
                   "file's stiffness_n_per_m range; e.g. 2e8 (200 N/um)", lo_open=True)
     elif cmd == "freefree":
         plant = _plant(args.plant)
         fs = plant.gauge.modulation_hz
-        _in_range("--v-peak", args.v_peak, "V", 0.0, plant.pzt.voltage_max_v,
-                  f"the amplifier's highest output in {args.plant}", lo_open=True)
-        # a sine whose stroke is under the gauge noise cannot be read: eqs. 10-12 then return noise
-        # (--v-peak 1e-9V gave C_p = -10.9 uF, 100mV +102 %; the error scales as noise / stroke)
-        noise_m = plant.gauge.noise_rms_m
-        if _stroke_from_rest_m(plant.pzt, args.v_peak) < noise_m:
-            v_min = _v_for_stroke(plant.pzt, noise_m)
-            raise FlagRangeError(f"--v-peak {args.v_peak:g} V: out of range [{v_min:.3g}, {plant.pzt.voltage_max_v:g}] "
-                                 f"V: its stroke from rest, {_stroke_from_rest_m(plant.pzt, args.v_peak) * 1e9:.3g} nm, "
-                                 f"is under the gauge noise {noise_m * 1e9:.3g} nm RMS of {args.plant}, so the test "
-                                 f"cannot read the stack's motion; e.g. 100V")
+        from .identify.freefree import check_v_peak      # the library's check (one home)
+        _finite("--v-peak", args.v_peak, "V")
+        check_v_peak(plant, args.v_peak, name="--v-peak", where=str(args.plant))
         _in_range("--freq", args.freq, "Hz", 0.0, fs / 20, f"at least 20 gauge samples a period at the "
                   f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
     elif cmd == "linearize":
@@ -400,7 +388,7 @@ def _check_flags(args):
         _in_range("--imbalance-tolerance", args.imbalance_tolerance, "ohm", 0.0, 10.0,
                   "per-arm bridge imbalance, the study schema's range; e.g. 0.4ohm")
     elif cmd == "verify":
-        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+        check_seed(args.seed, "--seed")
         # the hold scores the settled loop after its first second: at least one more second
         _in_range("--hold", args.hold, "s", 2.0, math.inf, "the first second of the hold settles the loop and "
                   "is not scored; give at least 2s, e.g. 1000s")
@@ -418,21 +406,15 @@ def _check_flags(args):
         _in_range("--train-cycles", args.train_cycles, "cycles", 0.0, 1e6, "input cycles that train, e.g. 3",
                   lo_open=True)
     elif cmd == "synth":
-        _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+        check_seed(args.seed, "--seed")
     elif cmd == "selfsense":
         if getattr(args, "force", False) and getattr(args, "step_force", None) is not None:
-            # beyond the blocked force k_p x full stroke the step compresses the stack more than its stroke:
-            # outside the model (--step-force 1e9N ran and reported errors of a 5 m compression)
-            pzt = _plant(args.plant).pzt
-            f_block = pzt.stiffness_n_per_m * _stroke_range_m(pzt)[1]
-            _finite("--step-force", args.step_force, "N")
-            if not 0.0 < abs(args.step_force) <= f_block:
-                raise FlagRangeError(f"--step-force {args.step_force:g} N: out of range [-{f_block:.4g}, {f_block:.4g}] N "
-                                     f"and nonzero: the blocked force k_p x stroke = {pzt.stiffness_n_per_m:.3g} N/m x "
-                                     f"{_stroke_range_m(pzt)[1] * 1e6:.2f} um of {args.plant}; e.g. -100N (compression)")
+            # the library's check (--step-force 1e9N ran and reported errors of a 5 m compression)
+            from .selfsense.force import check_step_force
+            check_step_force(_plant(args.plant).pzt, args.step_force, name="--step-force", where=str(args.plant))
         _in_range("--duration", args.duration, "s", 100.0, math.inf, "a few steps of 20-60 s; e.g. 1000s")
         if args.seed is not None:
-            _in_range("--seed", args.seed, "", 0, 2 ** 63 - 1, "numpy seeds are non-negative integers")
+            check_seed(args.seed, "--seed")
     elif cmd == "bench":
         if args.memory_periods < 0:
             raise FlagRangeError(f"--memory-periods {args.memory_periods}: must be >= 0 (0 skips the memory check)")
@@ -597,10 +579,8 @@ def preflight(args):
             check_output_file(path, name, inputs=extra)
         ins = ins + extra
         if args.command == "sweep" and getattr(args, "table", None) is not None:
-            from .verify.sweep import _TABLE_SUFFIXES as suffixes      # the table writer's (one home)
-            if args.table.suffix.lower() not in suffixes:
-                raise FileArgumentError(f"--table {args.table}: the suffix must be one of {', '.join(suffixes)} (the "
-                                        f"table's format); e.g. {args.table.with_suffix('.csv')}")
+            from .verify.sweep import check_table_path      # the library's check (one home)
+            check_table_path(args.table, name="--table")
     if args.command == "synth":
         from .calibrate.synthetic import RECORD_SUFFIXES as suffixes    # the record writer's (one home)
         if Path(args.out).suffix.lower() not in suffixes:

@@ -41,6 +41,21 @@ def test_fast_slice_names_no_wrong_effect(sn637, seed):
     assert all(r["ratio"] < 1.0 for r in rows if r["class"] == "right")
 
 
+def test_a_crash_counts_as_wrong_in_the_headline_and_the_table():
+    """A crashed record is no answer: the headline's wrong count (the <= 2 % target) includes it,
+    as the per-effect table does (review 3, bug 4)."""
+    cc = _bench()
+    rows = [{"effect": "none", "excess": 0.0, "class": "crash", "ratio": 1.0, "named": [], "above_line": {}},
+            {"effect": "none", "excess": 0.0, "class": "none", "ratio": 1.0, "named": [], "above_line": {}},
+            {"effect": "creep", "excess": 5.0, "class": "wrong", "ratio": 1.0, "named": ["drift"],
+             "above_line": {}}]
+    table, head = cc.summarize(rows)
+    assert head["wrong"] == 2 and head["crashed"] == 1
+    assert head["wrong_rate"] == pytest.approx(2 / 3)
+    none_row = [ln for ln in table.splitlines() if ln.startswith("| none |")][0]
+    assert none_row.split("|")[6].strip() == "1"          # the crash in the table's wrong column
+
+
 def _traced(sn637, effects, rate_hz, protocol, size, seed):
     from workbench.calibrate.base_fit import fit_base
     from workbench.calibrate.splits import make_split
@@ -62,7 +77,19 @@ def test_a_large_leakage_does_not_choose_the_drive(sn637):
     the displacement shows no spurious delay (before: a 0.65 ms 'delay' stage)."""
     base, res, truth = _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
     assert base.voltage_source == "terminal voltage V - R i"
-    assert all(s["effect"] == "leakage" for s in res["stages"]), [s["effect"] for s in res["stages"]]
+    named = [s["effect"] for s in res["stages"]]
+    # the false-positive side, asserted by name (an empty answer must not pass by itself, review 3 item 14)
+    assert "delay" not in named and "dielectric_absorption" not in named, (named, res["fold_winners"])
+    assert all(s["effect"] == "leakage" for s in res["stages"]), named
+
+
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-25 (review 3 item 14): this 25x leakage is inconclusive "
+                                       "3 of 5, leakage winning 3 folds and 2 undecided against a slow absorption; "
+                                       "the leakage is not named")
+def test_a_large_leakage_is_named(sn637):
+    """The same 25x leakage record: the leakage itself should be named (the positive side)."""
+    base, res, truth = _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
+    assert [s["effect"] for s in res["stages"]] == ["leakage"], res["fold_winners"]
 
 
 def test_creep_and_a_long_delay_are_both_named(sn637):
@@ -74,10 +101,18 @@ def test_creep_and_a_long_delay_are_both_named(sn637):
     assert set(named) == {"creep", "delay"}, (named, res["fold_winners"])
 
 
+# Seed 15's records, pinned literally (effects, rate, protocol, size, seed) as drawn by
+# benchmarks/calibrate_confusion.py's cases(1, 15) on 2026-11-25, so a change to the benchmark's
+# draw order cannot silently swap them for other records (review 3 item 13).
+SEED15 = {11: (("drift", "resonance"), 1000.0, "calibration", 13.953172790562634, 350511676),
+          47: ("dielectric_absorption", 10000.0, "sine", 0.7447080106502547, 783069092),
+          75: (("creep", "delay"), 100000.0, "calibration", 3.1195924809887052, 1072630000)}
+
+
 def _seed_case(seed, index):
-    """The benchmark's record ``index`` (1-based) of ``seed``: (effects, rate, protocol, size, seed)."""
-    e, rate, proto, size, s = _bench().cases(1, seed)[index - 1]
-    return (e if isinstance(e, str) else tuple(e)), rate, proto, size, s
+    """Seed 15's record ``index`` (1-based): (effects, rate, protocol, size, seed), pinned."""
+    assert seed == 15
+    return SEED15[index]
 
 
 def test_a_mode_on_the_gauge_and_a_drift_of_the_displacement_are_both_named(sn637):
@@ -104,8 +139,54 @@ def test_a_slow_absorption_that_bends_on_every_fold_is_named(sn637):
 
 def test_creeps_charge_behind_a_long_delay_is_not_named_absorption(sn637):
     """Seed 15's record 75 (creep + a 2.25 ms delay, 100 kHz, 0.4 s): the delay hid the
-    displacement's creep, so its charge relaxation was named dielectric_absorption (wrong). With
-    the delay in the displacement's model the creep wins folds: no absorption is named."""
+    displacement's creep, so its charge relaxation was named dielectric_absorption (wrong). The
+    first scoring still gives the absorption at least 4 of 5 folds (enough to name it); with the
+    delay in the displacement's model the creep wins some but fewer than half of the folds, so
+    the rule answers ``inconclusive`` (its branch for that case): no absorption is named. The
+    promotion branch is covered by the unit test below."""
     base, res, truth = _traced(sn637, *_seed_case(15, 75))
     named = [s["effect"] for s in res["stages"]]
-    assert not set(named) - {"creep", "delay"}, (named, res["fold_winners"])
+    absorption_wins = sum(w == "dielectric_absorption on the charge" for w in res["fold_winners"])
+    assert absorption_wins >= 4, res["fold_winners"]             # the rule, not the scoring, withheld it
+    assert res["effect"] == "inconclusive" and named == [], (named, res["fold_winners"])
+
+
+def test_creep_behind_a_displacement_effect_reports_its_fold_wins_not_its_passes(monkeypatch):
+    """The promotion branch of tracing._creep_behind_a_displacement_effect (review 3, bug 2): the
+    displacement effect named first passes 4 of 5 folds but won only 1 (the charge relaxation won
+    the rest); once it is in the model the displacement's creep wins 3 of 5. The agreement
+    reported must be its 1 fold win, the 4 passes only in the note."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate import tracing
+    tag = ("delay", "displacement")
+    charge = ("dielectric_absorption", "charge")
+    d = {"name": "delay", "channel": "displacement", "passes": [True, True, True, True, False], "score": 0.5}
+    res = {"rows": [d], "winners": [charge, charge, tag, charge, "none"]}
+    rescored = {"winners": [("creep", "displacement")] * 3 + ["none", "none"]}
+    monkeypatch.setattr(tracing, "_absorb", lambda *a, **k: None)
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: rescored)
+    split = SimpleNamespace(folds=[0] * 5)
+    answer, count, note = tracing._creep_behind_a_displacement_effect(
+        charge, 3, None, res, [], {}, [], {}, split, 0.02, 1.0, {}, [], 0.0, None, None, need=3)
+    assert answer == tag
+    assert count == sum(1 for w in res["winners"] if w == tag) == 1
+    assert "creep wins 3 of 5" in note and "passes 4 folds" in note
+
+
+# Leakage-only records of the held-out seeds 17 and 18 (pinned as drawn by cases(1, seed)), sizes 2-15x,
+# 1/10/100 kHz, three protocols: the absorption's bend rule must not name absorption on any (review 3 item 14).
+LEAKAGE_17_18 = [("leakage", 1000.0, "steps", 2.3274258051873336, 299673796),
+                 ("leakage", 10000.0, "sine", 7.2478899527183085, 485639728),
+                 ("leakage", 10000.0, "steps", 15.487405966584307, 556913422),
+                 ("leakage", 100000.0, "sine", 5.790953900103864, 457695041),
+                 ("leakage", 1000.0, "sine", 2.267877476215541, 908609146),
+                 ("leakage", 10000.0, "sine", 4.056513810711598, 809162113)]
+
+
+@pytest.mark.parametrize("case", LEAKAGE_17_18, ids=[f"{c[1] / 1e3:g}kHz-{c[2]}-x{c[3]:.1f}" for c in LEAKAGE_17_18])
+def test_a_leakage_is_never_named_absorption(sn637, case):
+    base, res, truth = _traced(sn637, *case)
+    named = [s["effect"] for s in res["stages"]]
+    assert "dielectric_absorption" not in named, (named, res["fold_winners"])
+    assert not set(named) - {"leakage"}, (named, res["fold_winners"])

@@ -1,5 +1,7 @@
 """The simulated free-free test reproduces seed 000 sec. 3.3 on every serial."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -35,3 +37,24 @@ def test_hysteresis_fraction_of_a_known_loop():
     phi = 0.1
     frac = hysteresis_fraction(np.sin(t), np.sin(t - phi) + 2.0)
     assert frac == pytest.approx(2 * np.sin(phi) / (1 + 2.0), rel=1e-3)
+
+
+def test_the_library_refuses_a_peak_whose_stroke_is_under_the_gauge_noise():
+    """run_freefree itself (not only the CLI) refuses a v_peak below the stroke-equals-noise floor, naming
+    the parameter; just above the floor it is accepted (review 3, item 9)."""
+    from workbench.errors import FlagRangeError
+    from workbench.identify.freefree import check_v_peak, v_peak_floor_v
+    from workbench.plant import load_plant
+    root = Path(__file__).resolve().parents[2]
+    for name in ("p888_51_sn637", "p888_51_sn629", "p888_51_sn618"):
+        plant = load_plant(root / "plants" / f"{name}.toml")
+        floor = v_peak_floor_v(plant.pzt, plant.gauge.noise_rms_m)
+        stroke = float(plant.pzt.quasi_static_x_m([0.0, floor])[-1])
+        assert stroke == pytest.approx(plant.gauge.noise_rms_m, rel=1e-9)
+        check_v_peak(plant, 1.01 * floor)                              # accepted
+        check_v_peak(plant, plant.pzt.voltage_max_v)
+        for bad in (0.99 * floor, 1e-9, 0.0, -1.0, 1.01 * plant.pzt.voltage_max_v):
+            with pytest.raises(FlagRangeError, match="v_peak_v"):
+                check_v_peak(plant, bad)
+        with pytest.raises(FlagRangeError, match="under the gauge noise"):
+            run_freefree(plant, v_peak_v=0.5 * floor)

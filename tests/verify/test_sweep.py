@@ -317,3 +317,21 @@ def test_sweep_margins_are_the_study_familys_members(root):
     assert row["phase_margin_deg"] == pytest.approx(w["phase_margin_deg"]["value"], abs=1e-6)
     assert row["gain_margin_db"] == pytest.approx(w["gain_margin_db"]["value"], abs=1e-6)
     assert row["crossover_hz"] == pytest.approx(w["crossover_hz_min"]["value"], rel=1e-6)
+
+
+def test_run_sweep_refuses_a_table_suffix_before_running_any_case(tmp_path, monkeypatch):
+    """The library checks the table's format first (review 3, item 9): a .txt table used to fail in
+    write_table after every case ran. The accepted suffixes are write_table's own."""
+    from workbench.paths import FileArgumentError
+    from workbench.verify import sweep_job
+    from workbench.verify.sweep import TABLE_SUFFIXES, check_table_path
+
+    def no_cases(*a, **k):
+        raise AssertionError("a case ran before the table's suffix was checked")
+    monkeypatch.setattr(sweep_job, "run_cases", no_cases)
+    root = Path(__file__).resolve().parents[2]
+    for bad in ("t.txt", "t", "t.xlsx"):
+        with pytest.raises(FileArgumentError, match="suffix must be one of .csv, .parquet"):
+            sweep_job.run_sweep(root / "studies" / "sn637_servo.toml", table=tmp_path / bad)
+    for ok in TABLE_SUFFIXES + (".CSV",):
+        check_table_path(tmp_path / f"t{ok}")                 # accepted: no error

@@ -10,8 +10,9 @@ predicts within-hold slopes the record does not show.
 
 The check, on the development rows only (the test part takes no part in a choice):
 
-* **Holds**: maximal runs where the drive's spread stays within 1e-3 of its range
-  (:func:`~workbench.calibrate.residual._hold_spans`, as seed 001's creep per hold), lasting at
+* **Holds**: maximal runs where the drive's spread stays within ``1e-3`` of its range or within
+  the spread its own noise makes, whichever is larger (:func:`hold_tolerance_v`;
+  :func:`~workbench.calibrate.residual._hold_spans`, as seed 001's creep per hold), lasting at
   least ``min_hold_s``; the first fifth of each hold is skipped (the step's settling: the RC
   charge, a mode's ringing, the fastest creep).
 * In every hold the drift term ``d`` and the residual ``e`` (what the drift is fitted to) are
@@ -22,15 +23,19 @@ The check, on the development rows only (the test part takes no part in a choice
   them that ``k``'s standard error exceeds ``1 / 6``, a drift and none not 3 standard errors
   either side of ``1 / 2``); else ``True`` when ``k >= 1 / 2`` (the holds move as the drift
   says, within half of it), ``False`` otherwise. Creep of the stack after a step also moves a
-  hold, with the step's sign; the holds of a protocol step both ways, so it does not line up
-  with one slow drift.
+  hold, with the step's sign; the holds of a protocol step both ways, which was meant to keep
+  it from lining up with one slow drift, but seed 16's record defeated that argument (a 29x
+  creep was followed by a wrong drift stage with hold gain 1.08), and the settling skip is still
+  a fixed share of each hold, not derived from the record (review 3, item 7: open).
+* When there are no holds (or none informs), the check returns ``shows=None`` with a ``note``
+  saying the drift veto could not judge; the tracer copies it into the drift candidate's JSON.
 """
 
 import numpy as np
 
 from .residual import _hold_spans
 
-__all__ = ["hold_spans", "drift_in_holds", "SETTLE_FRACTION", "MAX_SE", "MIN_GAIN"]
+__all__ = ["hold_spans", "hold_tolerance_v", "drive_noise_rms_v", "drift_in_holds", "SETTLE_FRACTION", "MAX_SE", "MIN_GAIN"]
 
 #: Share of each hold skipped at its start (the step's settling).
 SETTLE_FRACTION = 0.2
@@ -38,9 +43,61 @@ SETTLE_FRACTION = 0.2
 MAX_SE = 1.0 / 6.0
 #: The residual must follow at least this share of the drift's within-hold motion.
 MIN_GAIN = 0.5
+#: Why the veto is off when the drive has no holds (reported in the drift candidate's JSON).
+NO_HOLDS_NOTE = "the drive has no holds: the drift veto could not judge (off for this record)"
 
 
-def hold_spans(t_s, v, min_hold_s):
+def drive_noise_rms_v(v):
+    """White-noise RMS of a drive (V), from its second differences.
+
+    The median absolute second difference of white noise of RMS ``sigma`` is
+    ``0.6745 sqrt(6) sigma``; second differences cancel a drive's slope, so a sine or a ramp
+    sampled well above its frequency leaves the estimate at the noise (a step is one outlier
+    that the median ignores).
+
+    Parameters
+    ----------
+    v : array_like
+        The drive (V).
+
+    Returns
+    -------
+    float
+        Noise RMS (V); 0 for fewer than 3 samples.
+    """
+    d2 = np.diff(np.asarray(v, float), 2)
+    if d2.size == 0:
+        return 0.0
+    return float(np.median(np.abs(d2 - np.median(d2))) / (0.6745 * np.sqrt(6.0)))
+
+
+def hold_tolerance_v(v, noise_rms_v=None):
+    """The spread (V) a hold of the drive may have: ``max(1e-3 ptp(v), 2 sigma (sqrt(2 ln N) + 1))``.
+
+    The second term is the spread white noise of RMS ``sigma`` reaches over the record's ``N``
+    samples (the expected maximum of ``N`` normal draws is below ``sigma sqrt(2 ln N)``, one more
+    ``sigma`` of margin, either side), so a hold is not broken by the voltage channel's noise.
+
+    Parameters
+    ----------
+    v : array_like
+        The drive (V).
+    noise_rms_v : float, optional
+        Its noise RMS (V); default :func:`drive_noise_rms_v`.
+
+    Returns
+    -------
+    float
+        Tolerance (V); 0 for an empty or constant drive.
+    """
+    v = np.asarray(v, float)
+    if v.size < 2:
+        return 0.0
+    sigma = drive_noise_rms_v(v) if noise_rms_v is None else float(noise_rms_v)
+    return max(1e-3 * float(np.ptp(v)), 2.0 * sigma * (np.sqrt(2.0 * np.log(v.size)) + 1.0))
+
+
+def hold_spans(t_s, v, min_hold_s, noise_rms_v=None):
     """Index spans ``(i, j)`` of the drive's holds, their settling skipped.
 
     Parameters
@@ -48,9 +105,11 @@ def hold_spans(t_s, v, min_hold_s):
     t_s : array_like
         Time (s), increasing.
     v : array_like
-        The drive (V); a hold keeps its spread within 1e-3 of the drive's peak-to-peak range.
+        The drive (V); a hold keeps its spread within :func:`hold_tolerance_v`.
     min_hold_s : float
         Shortest hold kept (s).
+    noise_rms_v : float, optional
+        The drive's noise RMS (V); default estimated from ``v`` (:func:`drive_noise_rms_v`).
 
     Returns
     -------
@@ -59,7 +118,7 @@ def hold_spans(t_s, v, min_hold_s):
     """
     t = np.asarray(t_s, float)
     v = np.asarray(v, float)
-    tol = 1e-3 * float(np.ptp(v)) if v.size else 0.0
+    tol = hold_tolerance_v(v, noise_rms_v)
     if not tol > 0:
         return np.empty((0, 2), dtype=np.int64)
     spans = _hold_spans(t, v, tol, float(min_hold_s))
@@ -87,7 +146,8 @@ def drift_in_holds(e, term, rows, spans, noise_rms):
     -------
     dict
         ``holds`` (holds used), ``gain`` (``k``), ``se`` (its standard error), ``shows``
-        (``True``, ``False`` or ``None`` when the holds cannot tell; see the module notes).
+        (``True``, ``False`` or ``None`` when the holds cannot tell; see the module notes), and
+        with ``shows=None`` a ``note`` saying why the drift veto could not judge.
     """
     e = np.asarray(e, float)
     d = np.asarray(term, float)
@@ -104,8 +164,14 @@ def drift_in_holds(e, term, rows, spans, noise_rms):
         den += float(dc @ dc)
         used += 1
     if used == 0 or not den > 0:
-        return {"holds": used, "gain": float("nan"), "se": float("inf"), "shows": None}
+        return {"holds": used, "gain": float("nan"), "se": float("inf"), "shows": None,
+                "note": NO_HOLDS_NOTE if used == 0 else "the drift term does not move within the holds: "
+                "the drift veto could not judge (off for this record)"}
     k = num / den
     se = float(noise_rms) / np.sqrt(den) if noise_rms > 0 else 0.0
     shows = None if se > MAX_SE else bool(k >= MIN_GAIN)
-    return {"holds": used, "gain": float(k), "se": float(se), "shows": shows}
+    out = {"holds": used, "gain": float(k), "se": float(se), "shows": shows}
+    if shows is None:
+        out["note"] = (f"the gain's standard error {se:.3g} exceeds {MAX_SE:.3g}: the drift veto could not judge "
+                       f"(off for this record)")
+    return out

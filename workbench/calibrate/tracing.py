@@ -77,7 +77,7 @@ from scipy.optimize import lsq_linear
 
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
-from .drift_holds import drift_in_holds, hold_spans
+from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
 from .effects import Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage, Resonance
 from .pi_fit import rms, turning_points
 
@@ -471,9 +471,11 @@ def _creep_behind_a_displacement_effect(answer, count, note, res, cands, probs, 
                       or (not isinstance(w, str) and w[0] == "undecided" and "creep" in w[1]))
     if 2 * creep_folds >= n_folds:
         tag = (d["name"], d["channel"])
-        return tag, int(sum(d["passes"])), (f"{answer[0]} on the charge is creep's charge: with the {d['name']} of the "
-                                            f"displacement in the model, the displacement's creep wins {creep_folds} "
-                                            f"of {n_folds} folds; the {d['name']} is named first")
+        # the agreement is d's own fold wins (review 3 bug 2), not the folds it passes; the promotion is the note's
+        wins = sum(1 for w in res["winners"] if tuple(w) == tag)
+        return tag, wins, (f"{answer[0]} on the charge is creep's charge: with the {d['name']} of the displacement "
+                           f"in the model, the displacement's creep wins {creep_folds} of {n_folds} folds; the "
+                           f"{d['name']} (passes {int(sum(d['passes']))} folds) is named first")
     if creep_folds:
         return None, count, None
     return answer, count, note
@@ -610,10 +612,12 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
     is fitted to are compared within the holds. Each drift row gets ``holds`` (the check's dict).
     """
     spans = infos.get("holds")
-    if spans is None or not len(spans):
-        return
     for tag, row in by.items():
         if tag[0] != "drift":
+            continue
+        if spans is None or not len(spans):     # the veto is off: say so in the candidate's JSON
+            row["holds"] = {"holds": 0, "gain": float("nan"), "se": float("inf"), "shows": None,
+                            "note": NO_HOLDS_NOTE}
             continue
         prob = probs[row["key"]]
         g = _stacked(prob, extra[row["key"]], row)

@@ -21,10 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import FlagRangeError
 from ..plant.gauge import displacement_from_reading, gauge_run_equivalent
 from ..plant.simulator import PZTSimulator
 
-__all__ = ["FreeFreeResult", "estimate_k_q2x", "estimate_cp", "hysteresis_fraction", "run_freefree",
+__all__ = ["check_v_peak", "v_peak_floor_v", "FreeFreeResult", "estimate_k_q2x", "estimate_cp", "hysteresis_fraction", "run_freefree",
            "v_h_from_measurements", "loop_secant"]
 
 
@@ -108,6 +109,64 @@ class FreeFreeResult:
         }
 
 
+def v_peak_floor_v(pzt, stroke_m):
+    """The lowest positive voltage whose quasi-static stroke from rest reaches ``stroke_m`` (bisection), V.
+
+    Parameters
+    ----------
+    pzt : PZTParams
+    stroke_m : float
+        Displacement from rest, m.
+
+    Returns
+    -------
+    float
+        Voltage, V; the amplifier's highest when even it does not reach ``stroke_m``.
+    """
+    def x(v):
+        return float(pzt.quasi_static_x_m([0.0, v])[-1])
+    lo, hi = 0.0, pzt.voltage_max_v
+    if x(hi) <= stroke_m:
+        return hi
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if x(mid) < stroke_m else (lo, mid)
+    return hi
+
+
+def check_v_peak(plant, v_peak_v, *, name="v_peak_v", where="the plant"):
+    """Refuse a free-free peak voltage outside ``(0, Vmax]`` or whose stroke is under the gauge noise.
+
+    A sine whose stroke from rest is under the gauge's noise RMS cannot be read: eqs. 10-12 then
+    return noise (1e-9 V gave C_p = -10.9 uF). The floor does not fall with more cycles: the C_p
+    error at a small peak is a bias, not noise (SN637, seeds 0-3: +22 to +25 % at 0.3 V and +78 to
+    +90 % at 0.1 V for 1, 2 and 8 cycles alike), so averaging does not lower it.
+
+    Parameters
+    ----------
+    plant : Plant
+    v_peak_v : float
+        Peak of the 0..v_peak sine, V.
+    name, where : str
+        The parameter's and the plant's names in the message (the CLI passes ``--v-peak`` and the file).
+
+    Raises
+    ------
+    FlagRangeError
+        Naming the parameter, the range and why.
+    """
+    vmax = plant.pzt.voltage_max_v
+    v = float(v_peak_v)
+    if not (0.0 < v <= vmax):
+        raise FlagRangeError(f"{name} {v:g} V: out of range (0, {vmax:g}] V: the amplifier's highest output in {where}")
+    noise_m = plant.gauge.noise_rms_m
+    stroke = float(plant.pzt.quasi_static_x_m([0.0, v])[-1])
+    if stroke < noise_m:
+        raise FlagRangeError(f"{name} {v:g} V: out of range [{v_peak_floor_v(plant.pzt, noise_m):.3g}, {vmax:g}] V: its "
+                             f"stroke from rest, {stroke * 1e9:.3g} nm, is under the gauge noise {noise_m * 1e9:.3g} nm "
+                             f"RMS of {where}, so the test cannot read the stack's motion; e.g. 100V")
+
+
 def run_freefree(plant, *, v_peak_v=100.0, freq_hz=0.1, cycles=2, sample_hz=None, resistor_in=False,
                  seed=0):
     """Simulate the free-free test on ``plant`` and apply eqs. 7-12 to the result.
@@ -128,8 +187,7 @@ def run_freefree(plant, *, v_peak_v=100.0, freq_hz=0.1, cycles=2, sample_hz=None
     seed : int
         Gauge noise seed.
     """
-    if not (0 < v_peak_v <= plant.pzt.voltage_max_v):
-        raise ValueError(f"v_peak_v must be in (0, {plant.pzt.voltage_max_v}] V; got {v_peak_v}")
+    check_v_peak(plant, v_peak_v)
     if not freq_hz > 0 or int(cycles) < 1:
         raise ValueError("freq_hz must be positive and cycles >= 1")
     fs = plant.gauge.modulation_hz if sample_hz is None else float(sample_hz)

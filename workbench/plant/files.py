@@ -22,7 +22,7 @@ from .hysteresis import PrandtlIshlinskii
 from .pzt import Mode, PZTParams
 from .structure import STRUCTURE_SCHEMA, structure_from_section
 
-__all__ = ["Plant", "load_plant", "SCHEMA_VERSION"]
+__all__ = ["Plant", "load_plant", "SCHEMA_VERSION", "PLANT_FIELDS"]
 
 SCHEMA_VERSION = "workbench.plant/1"
 
@@ -287,3 +287,7 @@ def load_plant(path, overrides=None):
 
 def _raise(path, key, message):
     raise PlantDefinitionError(path, key, message)
+
+
+#: The file's sections and their typed, range-checked fields (public name of the one schema).
+PLANT_FIELDS = _SCHEMA

@@ -42,12 +42,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numba import njit
 
+from ..errors import FlagRangeError
 from ..plant.hysteresis import pi_step
 from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, measure
 from .estimator import charge_estimate, static_estimate
 
-__all__ = ["ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
+__all__ = ["check_step_force", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
            "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
@@ -252,6 +253,54 @@ def force_step_errors(rec, f_true, ident, pzt, step_at_s, stages, drift=None):
     return out
 
 
+#: Tension the stack may take, as a share of its blocked force: seed 000 sec. 2, the P-888.51 (3600 N
+#: blocked) is "brittle and fractures easily in tension"; it is run under the recommended 15 MPa preload,
+#: 1500 N on its 10 x 10 mm section, so a tensile step beyond the preload puts the ceramic in tension.
+TENSION_SHARE_OF_BLOCKED = 1500.0 / 3600.0
+#: Compression, as a multiple of the blocked force, within which the linear model is taken as valid
+#: (review 3's choice, not a datasheet figure: 10 strokes of compression).
+COMPRESSION_MULTIPLE_OF_BLOCKED = 10.0
+
+
+def step_force_range_n(pzt):
+    """The legal force step (N, compression negative): ``(-10 F_block, 1500/3600 F_block)``.
+
+    ``F_block = k_p x`` the quasi-static stroke from rest at the amplifier's highest voltage
+    (SN637: 3666 N, seed 000: "up to 3600 N"). Compression is bounded by the linear model's
+    validity (:data:`COMPRESSION_MULTIPLE_OF_BLOCKED`), tension by the preload the stack runs
+    under (:data:`TENSION_SHARE_OF_BLOCKED`): much lower, as the ceramic breaks in tension.
+
+    Returns
+    -------
+    (float, float, float)
+        Most compressive step, most tensile step, blocked force; N.
+    """
+    f_block = float(pzt.stiffness_n_per_m * pzt.quasi_static_x_m([0.0, pzt.voltage_max_v])[-1])
+    return -COMPRESSION_MULTIPLE_OF_BLOCKED * f_block, TENSION_SHARE_OF_BLOCKED * f_block, f_block
+
+
+def check_step_force(pzt, step_n, *, name="step_n", where="the plant"):
+    """Refuse a force step that is zero, not finite, or outside :func:`step_force_range_n`.
+
+    Raises
+    ------
+    FlagRangeError
+        Naming the parameter, the range and which side (compression or tension) it breaks.
+    """
+    lo, hi, f_block = step_force_range_n(pzt)
+    f = float(step_n)
+    span = (f"out of range [{lo:.4g}, {hi:.4g}] N and nonzero (compression negative) for the blocked force "
+            f"{f_block:.4g} N of {where}")
+    if not np.isfinite(f) or f == 0.0:
+        raise FlagRangeError(f"{name} {f:g} N: {span}; e.g. -100N (compression)")
+    if f < lo:
+        raise FlagRangeError(f"{name} {f:g} N: {span}: a compression beyond {COMPRESSION_MULTIPLE_OF_BLOCKED:g}x the "
+                             f"blocked force is outside the linear model; e.g. -100N")
+    if f > hi:
+        raise FlagRangeError(f"{name} {f:g} N: {span}: a tension beyond the 15 MPa preload share "
+                             f"({hi:.4g} N) would break the brittle ceramic (seed 000); e.g. -100N (compression)")
+
+
 def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
                     bias_v=50.0, table_path=None, progress=None):
     """Force self-sensing on the plant: the simulated force step and the Table 1 Instron runs.
@@ -288,6 +337,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
 
     plant = load_plant(plant_path)
     pzt = plant.pzt
+    check_step_force(pzt, step_n, where=str(plant_path))
     if table_path is None:
         table_path = DEFAULT_TABLE1_PATH
     runs, _, _ = _read_table(table_path, DEFAULT_CALIBRATIONS_M_PER_V)     # validated before any simulation

@@ -13,7 +13,7 @@ from pathlib import Path
 from ..errors import StudyDefinitionError
 from ..fields import Field, check_table, check_value, read_toml
 
-__all__ = ["SCHEMA_VERSION", "StudySpec", "load_study"]
+__all__ = ["SCHEMA_VERSION", "StudySpec", "load_study", "STUDY_FIELDS"]
 
 SCHEMA_VERSION = "workbench.study/1"
 
@@ -172,3 +172,7 @@ def load_study(path, overrides=None):
                                                                "triangle_hz and triangle_rms_percent_stroke")
     return StudySpec(path=path, name=top["name"], plant=files[0], serials=tuple(files[1:]), family=fam,
                      targets=tg, loop_shape=ls, hinf=out["hinf"], export=ex, sensor=sensor)
+
+
+#: The file's sections and their typed, range-checked fields (public name of the one schema).
+STUDY_FIELDS = _SCHEMA

@@ -310,6 +310,8 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
     -------
     VerifyResult
     """
+    from ..fields import check_seed
+    check_seed(seed)                     # the library refuses what numpy cannot seed (not only the CLI)
     if not isinstance(plant, Plant):
         plant = load_plant(plant)
     if not isinstance(controller, Controller):

@@ -27,11 +27,34 @@ import numpy as np
 from ..errors import SweepError
 from ..report.output import write_bytes, write_text
 
-__all__ = ["Case", "SweepError", "grid", "run_cases", "worst", "write_table"]
+__all__ = ["Case", "SweepError", "TABLE_SUFFIXES", "check_table_path", "grid", "run_cases", "worst", "write_table"]
 
 _RESERVED = ("ok", "error")
 _ADDRESS = re.compile(r"tcp://(\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})")
-_TABLE_SUFFIXES = (".csv", ".parquet")
+#: The table's formats, by suffix (the one home: write_table and the CLI check read it).
+TABLE_SUFFIXES = (".csv", ".parquet")
+_TABLE_SUFFIXES = TABLE_SUFFIXES
+
+
+def check_table_path(path, name="table"):
+    """Refuse a table path whose suffix is not a format :func:`write_table` writes, before any case runs.
+
+    Parameters
+    ----------
+    path : path-like
+    name : str
+        The argument's name in the message (the CLI passes ``--table``).
+
+    Raises
+    ------
+    FileArgumentError
+        Naming the argument, the path and the suffixes.
+    """
+    from ..paths import FileArgumentError
+    path = Path(path)
+    if path.suffix.lower() not in TABLE_SUFFIXES:
+        raise FileArgumentError(f"{name} {path}: the suffix must be one of {', '.join(TABLE_SUFFIXES)} (the table's "
+                                f"format); e.g. {path.with_suffix('.csv')}")
 
 
 @dataclass(frozen=True)

@@ -138,6 +138,9 @@ def default_controller_path(study_file, export_name):
 def run_sweep(study_path, controller_path=None, out_dir=None, table=None, scheduler=None, workers=None,
               amplitudes_v=None, noise=False, progress=None, timeout_s=None):
     """Run the sweep of a study file; write the table (and sweep.json) into ``out_dir``; return a summary."""
+    if table is not None:
+        from .sweep import check_table_path
+        check_table_path(table)                     # before any case runs (a .txt table failed after the sweep)
     study = load_study(study_path)
     if controller_path is None:
         controller_path = default_controller_path(study.path, study.export["name"])
