@@ -109,7 +109,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             _check_range(data_path, ch["voltage_v"], plant.pzt.voltage_min_v, plant.pzt.voltage_max_v,
                          f"[electrical] voltage_min_v/voltage_max_v in {plant_path}")
             _check_displacement_scale(data_path, record, plant.pzt, plant_path)
-            _check_time_scale(data_path, record, plant.pzt, plant_path, resistance)
+            _check_time_scale(data_path, record, plant.pzt, plant_path, resistance, notes)
         pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
     if split is None:
         names = {"displacement_m": "displacement", "current_a": "charge", "gauge_v": "gauge"}
@@ -310,8 +310,9 @@ def recorded_slew_v_per_s(record, resistance_ohm, pzt):
     """The fastest voltage change of a record, V/s, over lags of 1, 4, 16, ... samples.
 
     The monitor reads ``V_t + R i``: each lag's largest change is taken less ``2 R I_max`` (the resistor's
-    drop swinging from sink to source limit) and 6 sigmas of the voltage noise (from the median absolute
-    deviation of the sample-to-sample change), so a step of the drop or of the noise is no slew.
+    drop swinging from the plant amplifier's sink to its source limit) and 6 sigmas of the voltage noise
+    (from the median absolute deviation of the sample-to-sample change), so a step of the drop or of the
+    noise is no slew.
     """
     v, dt_s = record.channels["voltage_v"], record.sample_period_s
     i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
@@ -326,45 +327,78 @@ def recorded_slew_v_per_s(record, resistance_ohm, pzt):
     return best
 
 
-def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm):
+def charge_scale(record, pzt, resistance_ohm):
+    """The recorded charge over the plant's, by least squares with the best constant current taken out.
+
+    The charge ``q = sum(i) dt`` is fitted as ``a q_model + b + c t``, ``q_model = G^-1(V_t - V_t[0])``
+    the plant's quasi-static charge over the terminal voltage ``V_t = V - R i``: the ``b + c t`` term
+    takes the current monitor's offset (and the mean leakage current) out, the way the base fit treats
+    leakage and offset, so they no longer grow with the record's length. ``a`` scales with the time unit:
+    1 as recorded, 1000 for ms under time[s], 1/1000 for s under time[ms].
+
+    Returns
+    -------
+    float or None
+        ``a`` (dimensionless), or None when the plant's charge is (nearly) a straight line in time over the
+        record (a ramp): then a constant current explains it as well and the time unit cannot be told.
+    """
+    v, i, t = record.channels["voltage_v"], record.channels["current_a"], record.t_s
+    dt = record.sample_period_s
+    stride = max(1, v.size // 200_000)            # the quasi-static charge needs no more points than its shape
+    q = (np.cumsum(i) * dt)[::stride]
+    v_t = (v - resistance_ohm * i)[::stride]
+    q_model = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_t - v_t[0]))
+    ts = (t[::stride] - t[0]) / max(float(t[-1] - t[0]), dt)      # 0..1: a well-conditioned basis
+    basis = np.column_stack([np.ones_like(ts), ts])
+    proj = basis @ np.linalg.lstsq(basis, q_model, rcond=None)[0]
+    shape = q_model - proj                        # the plant's charge that no constant current can mimic
+    span = float(np.ptp(q_model))
+    if not span > 0 or float(np.ptp(shape)) < 0.05 * span:
+        return None
+    q_d = q - basis @ np.linalg.lstsq(basis, q, rcond=None)[0]
+    return float(np.dot(q_d, shape) / np.dot(shape, shape))
+
+
+def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=None):
     """A time column off by 1000 (ms under time[s], s under time[ms]) is refused where the physics says so.
 
-    * The voltage cannot slew faster than :func:`fastest_slew_v_per_s`; a record slewing
-      (:func:`recorded_slew_v_per_s`) more than :data:`UNIT_SLIP_RATIO` times faster is seconds under
-      time[ms]. A record slewing under 1/32 of the limit read 1000 times faster passes this check.
-    * With a current column, the charge ``sum(i) dt`` over the terminal voltage ``V - R i`` must be the
-      plant's (the quasi-static charge ``G^-1(V_t)``) within :data:`UNIT_SLIP_RATIO`: the charge scales with
-      the time unit, so 1000 times too much is ms under time[s] (or a current in mA under current[A]).
+    * With a current column: the charge ``sum(i) dt``, with the best constant current taken out, must scale
+      to the plant's quasi-static charge ``G^-1(V_t)`` (:func:`charge_scale`) within :data:`UNIT_SLIP_RATIO`
+      either way. The charge scales with the time unit and does not depend on the amplifier: 1000 times too
+      much is likely ms under time[s] (or a current in mA under current[A]), 1000 times too little s under
+      time[ms]. A current offset or leakage is the constant current taken out.
+    * Without one, the voltage alone refutes no time unit: through a series resistor R > 0 a lab amplifier
+      can pass up to ``max(I_max, (V_max - V_min) / R)`` and its output steps by the whole range at once
+      (the drop across R), and with R = 0 nothing bounds the current. A record slewing
+      (:func:`recorded_slew_v_per_s`) more than :data:`UNIT_SLIP_RATIO` times faster than the plant file's
+      amplifier can drive (:func:`fastest_slew_v_per_s`) gets a notice naming the likely slip, appended to
+      ``notes``.
     """
     v, dt = record.channels["voltage_v"], record.sample_period_s
-    i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
-    recorded = recorded_slew_v_per_s(record, resistance_ohm, pzt)
-    fastest = fastest_slew_v_per_s(pzt)
-    if fastest > 0 and recorded > UNIT_SLIP_RATIO * fastest:
-        raise DataFileError(f"{data_path}: the voltage slews at {recorded:.4g} V/s, {recorded / fastest:.3g} times "
-                            f"the {fastest:.4g} V/s the amplifier's {i_max * 1e3:.4g} mA current limit can drive "
-                            f"into the stack of {plant_path}: impossible, the time column is likely 1000 times too "
-                            f"small (seconds under time[ms], {1.0 / dt:.4g} Hz implied); check the time column's "
-                            f"unit (write time[s] over values in s)")
     i = record.channels.get("current_a")
     if i is None:
+        i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
+        recorded = recorded_slew_v_per_s(record, resistance_ohm, pzt)
+        fastest = fastest_slew_v_per_s(pzt)
+        if notes is not None and fastest > 0 and recorded > UNIT_SLIP_RATIO * fastest:
+            lab_a = max(i_max, (pzt.voltage_max_v - pzt.voltage_min_v) / resistance_ohm) if resistance_ohm > 0 else 0.0
+            through = (f"a lab amplifier can pass up to {lab_a * 1e3:.4g}"
+                       f" mA through the {resistance_ohm:g} ohm resistor" if resistance_ohm > 0 else
+                       "with no series resistor nothing bounds a lab amplifier's current")
+            notes.append(f"the voltage slews at {recorded:.4g} V/s, {recorded / fastest:.3g} times the {fastest:.4g} "
+                         f"V/s the plant's {i_max * 1e3:.4g} mA amplifier can drive: if that amplifier drove the "
+                         f"record, the time column is likely 1000 times too small (seconds under time[ms], "
+                         f"{1.0 / dt:.4g} Hz implied); not refused, {through}")
         return
-    q = np.cumsum(i) * dt
+    a = charge_scale(record, pzt, resistance_ohm)
+    if a is None or 1.0 / UNIT_SLIP_RATIO <= abs(a) <= UNIT_SLIP_RATIO:
+        return
+    slip = "1000 times too large (ms under time[s])" if abs(a) > 1 else "1000 times too small (s under time[ms])"
     v_t = v - resistance_ohm * i
-    stride = max(1, v.size // 200_000)            # the quasi-static charge needs no more points than its shape
-    q_model = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_t[::stride] - v_t[0]))
-    model, got = float(np.ptp(q_model)), float(np.ptp(q))
-    if not model > 0:
-        return
-    ratio = got / model
-    if not 1.0 / UNIT_SLIP_RATIO <= ratio <= UNIT_SLIP_RATIO:
-        slip = ("1000 times too large (ms under time[s])" if ratio > 1 else "1000 times too small (s under "
-                "time[ms])")
-        raise DataFileError(f"{data_path}: the current integrates to a charge span of {got:.4g} C over the terminal "
-                            f"voltage {v_t.min():.4g} .. {v_t.max():.4g} V, {ratio:.3g} times the {model:.4g} C the "
-                            f"plant {plant_path} holds over that range: more than {UNIT_SLIP_RATIO:.3g} times off, "
-                            f"the time column is likely {slip}, {1.0 / dt:.4g} Hz implied; check the time "
-                            f"column's unit (and the current's)")
+    raise DataFileError(f"{data_path}: the current integrates (best constant current taken out) to {abs(a):.3g} "
+                        f"times the charge the plant {plant_path} holds over the terminal voltage {v_t.min():.4g} .. "
+                        f"{v_t.max():.4g} V: more than {UNIT_SLIP_RATIO:.3g} times off, the time column is likely "
+                        f"{slip}, {1.0 / dt:.4g} Hz implied; check the time column's unit (and the current's)")
 
 
 def _check_plant_text(text, path, kind):
