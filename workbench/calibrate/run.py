@@ -330,17 +330,18 @@ def recorded_slew_v_per_s(record, resistance_ohm, pzt):
 def charge_scale(record, pzt, resistance_ohm):
     """The recorded charge over the plant's, by least squares with the best constant current taken out.
 
-    The charge ``q = sum(i) dt`` is fitted as ``a q_model + b + c t``, ``q_model = G^-1(V_t - V_t[0])``
-    the plant's quasi-static charge over the terminal voltage ``V_t = V - R i``: the ``b + c t`` term
-    takes the current monitor's offset (and the mean leakage current) out, the way the base fit treats
-    leakage and offset, so they no longer grow with the record's length. ``a`` scales with the time unit:
+    The charge ``q = sum(i) dt`` is fitted as ``a q_model + b + c t + g int V_t dt``, ``q_model =
+    G^-1(V_t - V_t[0])`` the plant's quasi-static charge over the terminal voltage ``V_t = V - R i``: the
+    ``b + c t`` term takes the current monitor's offset out and ``g int V_t dt`` a leakage resistor's charge
+    (``g = 1/R_leak``), the way the base fit treats offset and leakage, so neither grows with the record's
+    length. ``a`` scales with the time unit:
     1 as recorded, 1000 for ms under time[s], 1/1000 for s under time[ms].
 
     Returns
     -------
     float or None
-        ``a`` (dimensionless), or None when the plant's charge is (nearly) a straight line in time over the
-        record (a ramp): then a constant current explains it as well and the time unit cannot be told.
+        ``a`` (dimensionless), or None when less than 5 % of the plant's charge span is left once a constant
+        current and a leakage are taken out (e.g. a ramp): then the time unit cannot be told.
     """
     v, i, t = record.channels["voltage_v"], record.channels["current_a"], record.t_s
     dt = record.sample_period_s
@@ -349,9 +350,11 @@ def charge_scale(record, pzt, resistance_ohm):
     v_t = (v - resistance_ohm * i)[::stride]
     q_model = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_t - v_t[0]))
     ts = (t[::stride] - t[0]) / max(float(t[-1] - t[0]), dt)      # 0..1: a well-conditioned basis
-    basis = np.column_stack([np.ones_like(ts), ts])
+    leak = np.cumsum(v - resistance_ohm * i)[::stride]            # a leakage resistor's charge, ~ int V_t dt
+    leak_span = float(np.ptp(leak))
+    basis = np.column_stack([np.ones_like(ts), ts] + ([leak / leak_span] if leak_span > 0 else []))
     proj = basis @ np.linalg.lstsq(basis, q_model, rcond=None)[0]
-    shape = q_model - proj                        # the plant's charge that no constant current can mimic
+    shape = q_model - proj                        # the plant's charge no offset or leakage can mimic
     span = float(np.ptp(q_model))
     if not span > 0 or float(np.ptp(shape)) < 0.05 * span:
         return None
