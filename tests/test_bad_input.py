@@ -462,9 +462,9 @@ CASES = [
      ["bad/table_force_1e300.csv", "line 12, column 6 (force)", "beyond 1e+12 N/m", "impossible"]),
     # a time column 1000 times off: calibrate answered "no effect", exit 0
     ("calibrate-record-time-s-under-ms", ["calibrate", "bad/time_s_under_ms.csv", "--plant", PLANT, "--out", "{out}"],
-     ["bad/time_s_under_ms.csv", "current limit", "seconds under time[ms]", "time column's unit"]),
+     ["bad/time_s_under_ms.csv", "charge", "likely 1000 times too small (s under time[ms])", "time column's unit"]),
     ("calibrate-record-time-ms-under-s", ["calibrate", "bad/time_ms_under_s.csv", "--plant", PLANT, "--out", "{out}"],
-     ["bad/time_ms_under_s.csv", "charge", "ms under time[s]", "time column's unit"]),
+     ["bad/time_ms_under_s.csv", "charge", "likely 1000 times too large (ms under time[s])", "time column's unit"]),
     # the last line cut mid-write ("...,-1.234567e-07" -> "...,-1."): read as -1 m
     ("calibrate-record-cut-last-line", ["calibrate", "bad/cut_last_line.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/cut_last_line.csv", "line 2001, column 4 (displacement[m])", "no line end", "cut"]),
