@@ -241,6 +241,21 @@ def _copy_extra(extra):
     return {k: list(v) for k, v in extra.items()}
 
 
+def _survives(y, ans, res_k, need):
+    """Is ``y`` accepted by the later stage scored with its partner in the model?
+
+    The stage's answer is ``y``; or, for creep or a mode on the gauge, the stage's answer is the
+    same effect on the displacement (the fold decision names the stack's effect the displacement's
+    when both pass: the gauge reads the same motion) and ``y``'s own row passes ``need`` folds.
+    """
+    if ans == y:
+        return True
+    if y[1] == "gauge" and y[0] in ("creep", "resonance") and ans == (y[0], "displacement"):
+        row = res_k["by"].get(y)
+        return bool(row is not None and sum(row["passes"]) >= need)
+    return False
+
+
 def resolve_split(res, ctx, extra, found):
     """Two effects that split the first stage's folds: does each explain what the other cannot?
 
@@ -273,8 +288,8 @@ def resolve_split(res, ctx, extra, found):
             continue
         ex = _copy_extra(extra)
         _tr._absorb(res["by"][x], ex, ctx["probs"], ctx["base"], ctx["t"])
-        ans, _, _, _, _ = _later_stage(ctx, ex, found + [x], seen=(y,))
-        survives[y] = ans == y
+        ans, _, _, res_k, _ = _later_stage(ctx, ex, found + [x], seen=(y,))
+        survives[y] = _survives(y, ans, res_k, ctx["need"])
     a, b = pair
     won = {pair[0]: int(counts[order[0]]), pair[1]: int(counts[order[1]])}
     if survives[a] and survives[b]:
