@@ -166,3 +166,33 @@ def test_a_gauge_mode_renamed_to_the_displacements_survives_on_its_own_passes(mo
     answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
     assert answer == d and count == 3
     assert ("both are in the record" in note) == both, note
+
+
+@pytest.mark.parametrize("promote", [True, False])
+def test_after_creep_behind_promotion_creep_not_the_relaxation_has_the_lower_bar(monkeypatch, promote):
+    """Absorption on the charge wins 4 of 5 first-stage folds, a delay the fifth. When the
+    creep-behind rule promotes the delay (the absorption is creep's own charge), the next stage's
+    lower bar (``need`` folds, for an effect that won a first-stage fold) goes to the displacement's
+    creep, not to the absorption it just ruled out (review 4 bug 5); without a promotion the
+    first stage's fold winners keep it."""
+    from workbench.calibrate import tracing
+    a, dl = ("dielectric_absorption", "charge"), ("delay", "displacement")
+    res = {"winners": [a, a, a, a, dl], "by": {a: {"score": 0.3}, dl: {"score": 0.2}}}
+    monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+    monkeypatch.setattr(tracing, "_creep_behind_a_displacement_effect",
+                        lambda answer, count, note, *args: (dl, 1, "promoted") if promote else (answer, count, note))
+    monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None: {"count": count})
+    got = {}
+
+    def later(ctx, extra, found, seen=()):
+        got["seen"] = seen
+        return None, 0, [], {"by": {}}, None
+
+    monkeypatch.setattr(stages, "_later_stage", later)
+    ctx = {k: None for k in ("cands", "nulls", "split", "penalty", "noise_factor", "infos", "min_share",
+                             "base", "t")}
+    ctx.update(probs={}, need=4)
+    first, st, notes = stages.run_stages(ctx)
+    assert first["answer"] == (dl if promote else a)
+    assert (a in got["seen"]) != promote and (("creep", "displacement") in got["seen"]) == promote

@@ -363,11 +363,21 @@ def run_stages(ctx, max_stages=3):
         ans2, count2, resolved = resolve_split(res, ctx, extra, found)
         if ans2 is not None:
             answer, count = ans2, count2
+    promoted = False
     if answer not in (None, "none") and answer[1] == "charge":
+        charge_answer = answer
         answer, count, resolved = _tr._creep_behind_a_displacement_effect(
             answer, count, resolved, res, ctx["cands"], probs, ctx["nulls"], extra, ctx["split"], ctx["penalty"],
             ctx["noise_factor"], ctx["infos"], found, ctx["min_share"], ctx["base"], ctx["t"], ctx["need"])
+        promoted = answer not in (None, "none") and answer != charge_answer
     first = {"res": res, "answer": answer, "count": count, "winners": winners}
+    # effects that won a fold of the first stage need ``need`` folds later, any other every fold;
+    # after the creep-behind promotion the charge relaxation that won the folds is creep's own
+    # charge (ruled out), and the displacement's creep is what won them (review 4 bug 5)
+    seen = tuple(w for w in winners if not isinstance(w, str))
+    if promoted:
+        seen = tuple(w for w in seen if not (w[1] == "charge" and w[0] in ("dielectric_absorption", "leakage"))) \
+            + (("creep", "displacement"),)
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
@@ -375,7 +385,6 @@ def run_stages(ctx, max_stages=3):
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
         if len(stages) >= max_stages:
             break
-        seen = tuple(w for w in first["winners"] if not isinstance(w, str))
         answer, count, _, res_k, note = _later_stage(ctx, extra, found, seen=seen)
         if note:
             notes.append(note)
