@@ -180,7 +180,7 @@ def test_after_creep_behind_promotion_creep_not_the_relaxation_has_the_lower_bar
     res = {"winners": [a, a, a, a, dl], "by": {a: {"score": 0.3}, dl: {"score": 0.2}}}
     monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
     monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
-    monkeypatch.setattr(tracing, "_creep_behind_a_displacement_effect",
+    monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect",
                         lambda answer, count, note, *args: (dl, 1, "promoted") if promote else (answer, count, note))
     monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None: {"count": count})
     got = {}
