@@ -205,7 +205,7 @@ def _rivals(cands, probs, extra, found, t, base):
     return out
 
 
-def _beats_rivals(row, rivals, probs, extra, split, need=None):
+def _beats_rivals(row, rivals, probs, extra, split):
     """Does the candidate leave less than each rival of its problem on every fold?
 
     Every fold, not ``need``: a later stage claims what the found effect's own kind cannot
@@ -225,13 +225,12 @@ def _beats_rivals(row, rivals, probs, extra, split, need=None):
     return True, None
 
 
-def _later_stage(ctx, extra, found, cands_override=None, seen=()):
+def _later_stage(ctx, extra, found, seen=()):
     """Score a later stage: (answer or None, count, winners, res, note).
 
     ``seen``: effects that won a fold of the first stage; such a one needs ``need`` folds, any
     other every fold."""
-    cands = cands_override if cands_override is not None else \
-        _later_candidates(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
+    cands = _later_candidates(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
     res = _tr._score_stage(cands, ctx["probs"], ctx["nulls"], extra, ctx["split"], ctx["penalty"],
                            ctx["noise_factor"], ctx["infos"], found, ctx["min_share"])
     # every fold: a later stage claims a second effect in what the first leaves (at 4 of 5 a
@@ -242,7 +241,7 @@ def _later_stage(ctx, extra, found, cands_override=None, seen=()):
     if answer in (None, "none"):
         return answer, count, winners, res, None
     rivals = _rivals(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
-    ok, who = _beats_rivals(res["by"][answer], rivals, ctx["probs"], extra, ctx["split"], ctx["need"])
+    ok, who = _beats_rivals(res["by"][answer], rivals, ctx["probs"], extra, ctx["split"])
     if not ok:
         return None, count, winners, res, f"{answer[0]} does not beat a second {who} on the leftover"
     return answer, count, winners, res, None
