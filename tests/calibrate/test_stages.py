@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import FULL
+from workbench.calibrate import stages
 from workbench.calibrate.stages import excluded
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -141,3 +142,57 @@ def test_json_stages_of_a_two_effect_record(sn637, tmp_path):
     assert st[1]["error_before"]["rms"] == pytest.approx(st[0]["error_after"]["rms"], rel=1e-6)
     d = next(s for s in st if s["effect"] == "delay")["parameters"]
     assert d["delay_s"] == pytest.approx(truth["delay_s"], rel=0.3)
+
+
+@pytest.mark.parametrize("gauge_passes, both", [([True] * 5, True), ([True] * 4 + [False], True),
+                                               ([True] * 3 + [False] * 2, False)])
+def test_a_gauge_mode_renamed_to_the_displacements_survives_on_its_own_passes(monkeypatch, gauge_passes, both):
+    """A displacement drift and the gauge's mode split the folds 3:2. With the drift in the model,
+    the fold decision names the mode the displacement's (the gauge reads the same motion), so the
+    later stage's answer is ("resonance", "displacement"): the gauge's mode survives when its own
+    row passes ``need`` (4 of 5) folds, and the note then says both are in the record; on 3 passes
+    the drift alone explains what the mode cannot (review 4 bug 1)."""
+    from workbench.calibrate import tracing
+    d, m = ("drift", "displacement"), ("resonance", "gauge")
+    res = {"winners": [d, d, d, m, m], "by": {d: {"score": 0.3}, m: {"score": 0.4}}}
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+
+    def later(ctx, ex, found, seen=()):
+        if found[-1] == d:      # the drift in the model: the mode is found, renamed to the displacement
+            return ("resonance", "displacement"), 5, [], {"by": {m: {"passes": gauge_passes}}}, None
+        return d, 5, [], {"by": {d: {"passes": [True] * 5}}}, None
+
+    monkeypatch.setattr(stages, "_later_stage", later)
+    answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
+    assert answer == d and count == 3
+    assert ("both are in the record" in note) == both, note
+
+
+@pytest.mark.parametrize("promote", [True, False])
+def test_after_creep_behind_promotion_creep_not_the_relaxation_has_the_lower_bar(monkeypatch, promote):
+    """Absorption on the charge wins 4 of 5 first-stage folds, a delay the fifth. When the
+    creep-behind rule promotes the delay (the absorption is creep's own charge), the next stage's
+    lower bar (``need`` folds, for an effect that won a first-stage fold) goes to the displacement's
+    creep, not to the absorption it just ruled out (review 4 bug 5); without a promotion the
+    first stage's fold winners keep it."""
+    from workbench.calibrate import tracing
+    a, dl = ("dielectric_absorption", "charge"), ("delay", "displacement")
+    res = {"winners": [a, a, a, a, dl], "by": {a: {"score": 0.3}, dl: {"score": 0.2}}}
+    monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+    monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect",
+                        lambda answer, count, note, *args: (dl, 1, "promoted") if promote else (answer, count, note))
+    monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None: {"count": count})
+    got = {}
+
+    def later(ctx, extra, found, seen=()):
+        got["seen"] = seen
+        return None, 0, [], {"by": {}}, None
+
+    monkeypatch.setattr(stages, "_later_stage", later)
+    ctx = {k: None for k in ("cands", "nulls", "split", "penalty", "noise_factor", "infos", "min_share",
+                             "base", "t")}
+    ctx.update(probs={}, need=4)
+    first, st, notes = stages.run_stages(ctx)
+    assert first["answer"] == (dl if promote else a)
+    assert (a in got["seen"]) != promote and (("creep", "displacement") in got["seen"]) == promote

@@ -443,49 +443,6 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     return out
 
 
-def _creep_behind_a_displacement_effect(answer, count, note, res, cands, probs, nulls, extra, split, penalty,
-                                        noise_factor, infos, found, min_share, base, t, need):
-    """A charge relaxation named while another effect dominates the displacement: is it creep?
-
-    Creep relaxes the charge and moves the stack; absorption and leakage move only the charge
-    (seed 002). The cross-channel rule (:func:`_stack_shows_it`) needs the displacement's creep
-    to pass a fold, which a larger effect of the displacement (a sensor delay, a mode) can hide.
-    When a displacement candidate passes ``need`` folds on its own, it is added to the
-    displacement's model and the folds are scored again: if the displacement's creep then wins
-    at least half of the folds (the cross-channel rule now sees it), the charge relaxation is
-    creep's own charge and the displacement effect is named first (the next stage looks again
-    for the rest); if it wins some fold but fewer, the record cannot tell (``None``:
-    inconclusive); else the answer stands. Returns ``(answer, count, note)``.
-    """
-    n_folds = len(split.folds)
-    disp = [r for r in res["rows"] if r["channel"] == "displacement" and r["name"] != "creep"
-            and sum(r["passes"]) >= need]
-    if not disp or ("creep", "displacement") in found:
-        return answer, count, note
-    d = min(disp, key=lambda r: r["score"])
-    ex = {k: list(v) for k, v in extra.items()}
-    _absorb(d, ex, probs, base, t)
-    r2 = _score_stage(cands, probs, nulls, ex, split, penalty, noise_factor, infos, found + [(d["name"], d["channel"])],
-                      min_share)
-    creep_folds = sum(1 for w in r2["winners"] if w == ("creep", "displacement")
-                      or (not isinstance(w, str) and w[0] == "undecided" and "creep" in w[1]))
-    if 2 * creep_folds >= n_folds:
-        tag = (d["name"], d["channel"])
-        # the agreement is d's own fold wins (review 3 bug 2), not the folds it passes; the promotion is the note's
-        wins = sum(1 for w in res["winners"] if tuple(w) == tag)
-        return tag, wins, (f"{answer[0]} on the charge is creep's charge: with the {d['name']} of the displacement "
-                           f"in the model, the displacement's creep wins {creep_folds} of {n_folds} folds; the "
-                           f"{d['name']} (passes {int(sum(d['passes']))} folds) is named first")
-    if creep_folds:
-        return None, count, None
-    return answer, count, note
-
-
-def _sensor_pair(pair):
-    """Two different effects, one on the displacement and one on the gauge."""
-    return {pair[0][1], pair[1][1]} == {"displacement", "gauge"} and pair[0][0] != pair[1][0]
-
-
 def _stacked(prob, extra_list, cand):
     """Gram matrices of the problem with the found effects' columns (and a candidate's) added."""
     cols, lows = [], []
