@@ -8,9 +8,20 @@ way should become an ``@example`` on the test.
 """
 
 import os
+
+# One BLAS thread per test process: `make test` runs one pytest-xdist worker per core, and
+# OpenBLAS's own threads on top of those oversubscribe the cores (the calibration tests' Gram
+# solves slowed several-fold). Set before numpy loads OpenBLAS, so child processes (CLI runs,
+# dask workers) inherit it; threadpoolctl covers a numpy already loaded by a plugin.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
 from pathlib import Path
 
 import numpy as np
+from threadpoolctl import threadpool_limits
+
+threadpool_limits(1)
 import pytest
 from hypothesis import settings
 
