@@ -102,7 +102,9 @@ def plot_sensors(rows, traces, path):
         n_tri = int(np.count_nonzero(ref)) and int(np.flatnonzero(ref)[-1]) + 1
         per = int(round(1.0 / r["triangle_hz"] / (t[1] - t[0])))
         e = x[:n_tri] - ref[:n_tri]
-        e = e - np.mean(e[per:n_tri])
+        # the scored frame (the pinned reference plus the sensor's offset at closing): the trace's
+        # relative reference differs from it by a constant, so its mean is set to the scored mean
+        e = e - np.mean(e[per:n_tri]) + r.get("triangle_mean_m", 0.0)
         lab = f"{TITLES[s]}: {r['triangle_rms_percent_stroke']:.3f} % RMS"
         a1.plot(t[:n_tri], e * 1e9, color=COLORS[s], lw=0.6, label=lab)
         one = max(1, per // 10)                       # 1 s of rows (the triangle's period is 10 s)
@@ -113,13 +115,13 @@ def plot_sensors(rows, traces, path):
                 label=f"{TITLES[s]}: noise {r['hold_noise_rms_m'] * 1e9:.2f} nm RMS, drift "
                       f"{r['hold_drift_m'] * 1e9:+.2f} nm")
     a1.axvspan(0, rows[0]["triangle_hz"] ** -1 + t[0], color="0.9", zorder=0, label="first period (not scored)")
-    a1.set(xlabel="time after closing the loop (s)", ylabel="true x - reference (nm, mean removed)",
+    a1.set(xlabel="time after closing the loop (s)", ylabel="true x - reference (nm, scored frame)",
            title=f"{rows[0]['triangle_hz']:g} Hz triangle, 80 % of stroke about the closing point")
     a2.set(xlabel="time into the hold (s)", ylabel="true x, 1 s running mean, from its start (nm)",
            title="hold: drift (noise RMS about the 1 s mean in the legend)")
     for a in (a1, a2):
         a.grid(True, alpha=0.3)
-        a.legend(fontsize=7, loc="upper right")
+        a.legend(fontsize=7, loc="best")
     fig.suptitle("The controller's fixed-point sensor step on each reading (nonlinear plant, all drifts, noise on)",
                  fontsize=10)
     fig.tight_layout()
