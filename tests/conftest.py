@@ -37,6 +37,15 @@ SERIALS = ("sn637", "sn629", "sn618")
 FULL = os.environ.get("WORKBENCH_FULL") == "1"
 
 
+def load_benchmark(name):
+    """A script of ``benchmarks/`` loaded as a module (its functions, not its ``main``)."""
+    import importlib.util
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
 @pytest.fixture(scope="session")
 def root():
     return ROOT

@@ -7,21 +7,15 @@ named that the record does not have, at any stage) is within the issue's 2 %; wi
 that is none. A ``none`` or ``inconclusive`` is not wrong. WORKBENCH_FULL=1 adds a second draw.
 """
 
-import importlib.util
-from pathlib import Path
 
 import pytest
 
-from tests.conftest import FULL
+from tests.conftest import FULL, load_benchmark
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("calibrate_confusion", ROOT / "benchmarks" / "calibrate_confusion.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("calibrate_confusion")
 
 
 @pytest.mark.parametrize("seed", (0, 1) if FULL else (0,))

@@ -1,7 +1,6 @@
 """Staged tracing (workbench/calibrate/stages.py; issue 13 item 5): two-effect records, exclusions,
 the joint re-search's projection, JSON ``stages``."""
 
-import importlib.util
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -9,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.conftest import FULL
+from tests.conftest import FULL, load_benchmark
 from workbench.calibrate import stages
 from workbench.calibrate.stages import excluded
 
@@ -17,10 +16,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def _bench():
-    spec = importlib.util.spec_from_file_location("calibrate_confusion", ROOT / "benchmarks" / "calibrate_confusion.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark("calibrate_confusion")
 
 
 @pytest.mark.parametrize("found, cand, out", [
