@@ -520,16 +520,7 @@ class MimoController:
                                                           "controllers")
         axes = {}
         for k in AXIS_KEYS:
-            if k not in ctr:
-                raise MimoControllerError(src, f"controllers.{k}", "is missing; re-export the controller")
-            try:
-                c = Controller.from_dict(ctr[k], source=f"{src} controllers.{k}", allow_unstable=allow_unstable)
-            except ControllerError as err:
-                raise MimoControllerError(src, f"controllers.{k}", str(err)) from None
-            if c.fixed is None:
-                raise MimoControllerError(src, f"controllers.{k}.fixed_point", "is missing: the MIMO step runs "
-                                                                                "the words; re-export")
-            axes[k] = c
+            axes[k] = _load_cascade(src, ctr, k, "controllers", allow_unstable)
         rates = {k: c.sample_rate_hz for k, c in axes.items()}
         fs = data.get("sample_rate_hz")
         if not isinstance(fs, (int, float)) or any(abs(r - fs) > 1e-9 * fs for r in rates.values()):
@@ -740,20 +731,28 @@ def _load_iff(src, data, fs, allow_unstable):
         raise MimoControllerError(src, "iff.controllers", "must be a table {stack0, stack1, stack2}")
     out = {"bridge": dict(br)}
     for k in IFF_KEYS:
-        if k not in ctr:
-            raise MimoControllerError(src, f"iff.controllers.{k}", "is missing; re-export the controller")
-        try:
-            c = Controller.from_dict(ctr[k], source=f"{src} iff.controllers.{k}", allow_unstable=allow_unstable)
-        except ControllerError as err:
-            raise MimoControllerError(src, f"iff.controllers.{k}", str(err)) from None
-        if c.fixed is None:
-            raise MimoControllerError(src, f"iff.controllers.{k}.fixed_point", "is missing; re-export")
+        c = _load_cascade(src, ctr, k, "iff.controllers", allow_unstable)
         if abs(c.sample_rate_hz - fs) > 1e-9 * fs:
             raise MimoControllerError(src, f"iff.controllers.{k}.sample_rate_hz",
                                       f"{c.sample_rate_hz!r} must equal the controller's {fs!r}")
         out[k] = c
     _check_iff_gains(src, out)
     return out
+
+
+def _load_cascade(src, table, key, where, allow_unstable):
+    """One exported single-channel controller of a MIMO file (``where.key``), loaded by the one
+    Controller loader and required to carry its fixed-point words (the MIMO step runs them)."""
+    if key not in table:
+        raise MimoControllerError(src, f"{where}.{key}", "is missing; re-export the controller")
+    try:
+        c = Controller.from_dict(table[key], source=f"{src} {where}.{key}", allow_unstable=allow_unstable)
+    except ControllerError as err:
+        raise MimoControllerError(src, f"{where}.{key}", str(err)) from None
+    if c.fixed is None:
+        raise MimoControllerError(src, f"{where}.{key}.fixed_point", "is missing: the MIMO step runs the words; "
+                                                                     "re-export")
+    return c
 
 
 def _check_iff_gains(src, iff):
