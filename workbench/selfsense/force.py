@@ -73,11 +73,10 @@ class ForceEstimate:
 
 
 @njit(cache=True, error_model="numpy")
-def _invert(q, r, w, z, cap, dec):
-    """V_h per sample: inverse PI of (q_k - sum a_j Q_j), creep branches updated with the new V_h."""
+def _invert(q, r, w, z, cap, dec, qc):
+    """V_h per sample: inverse PI of (q_k - sum a_j Q_j), creep branches (``qc``, updated) stepped with the new V_h."""
     n = q.shape[0]
     v_h = np.empty(n)
-    qc = np.zeros(cap.shape[0])
     for k in range(n):
         rhs = q[k]
         for j in range(cap.shape[0]):
@@ -89,7 +88,7 @@ def _invert(q, r, w, z, cap, dec):
     return v_h
 
 
-def estimate_force(t_s, v_t_v, q_c, pzt):
+def estimate_force(t_s, v_t_v, q_c, pzt, *, states_v=None, creep_charges_c=None):
     """Elongation and environmental force from the terminal voltage and charge (module notes, steps 1-4).
 
     Parameters
@@ -102,7 +101,13 @@ def estimate_force(t_s, v_t_v, q_c, pzt):
         Terminal charge since the reset, C (drift-compensated: :func:`staged_charge`).
     pzt : PZTParams
         The stack model (C_p, T_em, k_p, C_h, creep branches); its hysteresis initial states
-        are the state at the reset.
+        are the state at the reset unless ``states_v`` is given.
+    states_v : array_like of float, optional
+        C_h's play states at the reset, V (the memory an earlier test left: e.g.
+        :attr:`~.instron_sequence.SequenceRun.states_v`); default the plant's.
+    creep_charges_c : array_like of float, optional
+        The creep branches' charges at the reset, C; default 0. The charge at the reset is
+        C_h[states] + sum of these.
 
     Returns
     -------
@@ -124,9 +129,13 @@ def estimate_force(t_s, v_t_v, q_c, pzt):
     else:
         cap, dec = np.zeros(0), np.zeros(0)
     c_eff = float(np.sum((1.0 - dec) * cap))
-    inv = pzt.hysteresis.plus_linear(c_eff).inverse()     # exact: C_h + c_eff I is a PI operator
-    q0 = pzt.hysteresis.output_at_rest()
-    v_h = _invert(q + q0, inv.thresholds, inv.weights, inv.initial_states.copy(), cap, dec)
+    hyst = pzt.hysteresis if states_v is None else pzt.hysteresis.with_states(states_v)
+    qc0 = np.zeros(cap.size) if creep_charges_c is None else np.array(creep_charges_c, float)
+    if qc0.shape != cap.shape or not np.all(np.isfinite(qc0)):
+        raise ValueError(f"creep_charges_c needs {cap.size} finite charges (C), one per creep branch; got {qc0!r}")
+    inv = hyst.plus_linear(c_eff).inverse()     # exact: C_h + c_eff I is a PI operator
+    q0 = hyst.output_at_rest() + float(np.sum(qc0))
+    v_h = _invert(q + q0, inv.thresholds, inv.weights, inv.initial_states.copy(), cap, dec, qc0.copy())
     v_p = v - v_h
     t_em, k_p = pzt.transducer_constant_n_per_v, pzt.stiffness_n_per_m
     x = (q + q0 - pzt.working_capacitance_f * v_p) / t_em          # seed 000 eq. 9
