@@ -234,13 +234,14 @@ def read_open_lead_run(pzt, start, back_emf_v, peak_time_s, *, dt_s=0.01):
     Returns
     -------
     (float, float, float)
-        F_e (N, compression negative), elongation (m) and V_h - V_h,0 (V) at the peak.
+        F_e (N, compression negative), elongation (m) and V_h's change from before the run (V) at the peak.
     """
-    n = max(2, int(round(peak_time_s / dt_s)) + 1)
+    n = max(2, int(round(peak_time_s / dt_s)))       # samples dt, 2 dt, ..., peak_time_s after the start
     t = np.arange(1, n + 1) * dt_s
     est = estimate_force(t, np.linspace(0.0, float(back_emf_v), n), np.zeros(n), pzt, states_v=start.states_v,
                          creep_charges_c=start.creep_charges_c)
-    return float(est.f_e_n[-1]), float(est.x_m[-1]), float(est.v_h_v[-1] - est.v_h_v[0])
+    # C_h's r = 0 play holds the last V_h: the change is from the state before the run
+    return float(est.f_e_n[-1]), float(est.x_m[-1]), float(est.v_h_v[-1] - start.states_v[0])
 
 
 def table1_sequence_estimates(pzt, path=None, *, drain_s=TABLE1_SEQUENCE_DRAIN_S, dt_s=0.01):
