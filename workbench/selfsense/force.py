@@ -328,12 +328,16 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
        from its measured back EMF (q = 0: leads open after draining).
     4. The measured ``R out`` runs' peak forces held out (:func:`table1_held_out`), with each
        run's displacement from its gauge (``held_out``) and from the printed displacement
-       column (``held_out_displacement_column``).
+       column (``held_out_displacement_column``); among the forms, each run's back EMF read
+       through the hysteresis inverse with its serial's earlier runs' state carried
+       (:func:`~.instron_sequence.table1_sequence_estimates`; ``sequence``: per run the model's
+       read and V_h's change, and the run-order change of V/F, model against Table 1).
 
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
     from ..identify.transducer import (DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table,
                                        table1_swap_decision)
+    from .instron_sequence import TABLE1_SEQUENCE_DRAIN_S, table1_sequence_estimates
     from .table1 import table1_held_out
     from ..plant.files import load_plant
     from .charge_drift import identify_charge_drift
@@ -414,6 +418,16 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     best_gain_err = float((ratio.max() - ratio.min()) / (ratio.max() + ratio.min()))
     window = [float((1.0 - FORCE_TARGET_PEAK_FRACTION) * ratio.max()),
               float((1.0 + FORCE_TARGET_PEAK_FRACTION) * ratio.min())]
+    seq = table1_sequence_estimates(pzt, table_path)
+    u = [d["estimate_n"] for d in seq]
+    sequence = {"drain_s": TABLE1_SEQUENCE_DRAIN_S, "order": "per serial: R_in runs 1-3, then R_out runs 1-3 (assumed)",
+                "runs": seq, "run_order_v_per_f_change_1_to_2": {}}
+    for sn in dict.fromkeys(d["serial"] for d in seq):
+        rows = [d for d in seq if d["serial"] == sn]
+        if len(rows) >= 2:
+            sequence["run_order_v_per_f_change_1_to_2"][sn] = {
+                "measured": (rows[1]["back_emf_v"] / rows[1]["force_n"]) / (rows[0]["back_emf_v"] / rows[0]["force_n"]) - 1,
+                "model": rows[1]["simulated_back_emf_per_force_v_per_n"] / rows[0]["simulated_back_emf_per_force_v_per_n"] - 1}
     sim_err = [abs(row["simulated"]["error_fraction"]) for row in table]
     meas_err = [abs(row["measured_back_emf"]["error_fraction"]) for row in table if "measured_back_emf" in row]
     instron = {"table": str(table_path), "runs": table,
@@ -431,8 +445,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
                "measured_r_out_gain_window_for_target_n_per_v": window,
                "force_per_back_emf_model_n_per_v": float(pzt.stiffness_n_per_m * pzt.c_pp_f / pzt.transducer_constant_n_per_v),
                # the back EMF read through the gauge strain, each run on gains its force never entered
-               "held_out": table1_held_out(table_path),
-               "held_out_displacement_column": table1_held_out(table_path, x_source="displacement")}
+               "held_out": table1_held_out(table_path, model_estimate_n=u),
+               "held_out_displacement_column": table1_held_out(table_path, x_source="displacement", model_estimate_n=u),
+               "sequence": sequence}
     data = {"plant": str(plant_path), "identified": ident.as_dict(), "charge_drift": drift.as_dict(),
             "force_step": step, "instron": instron,
             "_arrays": {"t_s": rec.t_s, "f_true_n": f_true, "x_m": rec.x_m,
