@@ -8,7 +8,7 @@ import pytest
 
 from workbench.plant import load_plant
 from workbench.plant.simulator import PZTSimulator
-from workbench.selfsense.force import INSTRON_R_OUT_OHM, instron_force_profile
+from workbench.selfsense.force import INSTRON_R_OUT_OHM, estimate_force, instron_force_profile
 from workbench.selfsense.instron_sequence import read_open_lead_run, serial_sequence, table1_sequence_estimates
 from workbench.selfsense.table1 import (TABLE1_FORM_HYSTERESIS_INVERSE, instron_held_out, nested_held_out,
                                         table1_held_out)
@@ -127,3 +127,35 @@ def test_serial_sequence_bad_arguments():
         serial_sequence(PLANT, [("open", -800.0)])
     with pytest.raises(ValueError, match="dt_s"):
         serial_sequence(PLANT, [("R_out", -800.0)], dt_s=0.0)
+
+
+@pytest.mark.parametrize("draw", range(3))
+def test_inverse_with_carried_state_reads_a_library_simulated_run(draw):
+    """The library simulator (its own kernel) runs 1-3 shorted compressions through 200 ohm, then an open-lead
+    run: estimate_force started from C_h's play states after that history (the plays run over the recorded V_h)
+    and the charge left reads the force to round-off; started from the plant's rest state it is off by tens of N
+    (the remanent charge read as if it were load)."""
+    rng = np.random.default_rng(30 + draw)
+    dt = 1e-3
+
+    def sim(r):
+        return PZTSimulator(replace(PLANT, series_resistance_ohm=r, current_limit_source_a=1.0,
+                                    current_limit_sink_a=1.0), dt)
+
+    a, b = sim(200.0), sim(INSTRON_R_OUT_OHM)
+    v_h = []
+    for _ in range(int(rng.integers(1, 4))):
+        f = instron_force_profile(float(rng.uniform(-1500.0, -100.0)), dt)
+        tr = a.run(np.zeros(f.size), f_e_n=f)
+        v_h.append(tr.v_h_v)
+    q_left = tr.q_c[-1]
+    states = PLANT.hysteresis.final_states(np.concatenate(v_h))
+    b.st[:] = a.st
+    f = instron_force_profile(float(rng.uniform(-1500.0, -100.0)), dt)
+    tr = b.run(np.zeros(f.size), f_e_n=f)
+    t = np.arange(1, f.size + 1) * dt
+    est = estimate_force(t, tr.v_t_v, tr.q_c - q_left, PLANT, states_v=states)
+    assert np.max(np.abs(est.f_e_n - f)) < 1e-9 * np.max(np.abs(f))
+    np.testing.assert_allclose(est.v_p_v, tr.v_p_v, rtol=0, atol=1e-9)
+    rest = estimate_force(t, tr.v_t_v, tr.q_c, PLANT)
+    assert np.max(np.abs(rest.f_e_n - f)) > 10.0
