@@ -71,7 +71,7 @@ def test_run_order_sign_and_decay_from_creep():
     lowest and the deficit shrinks run by run (the sign Table 1 shows for SN637 and SN629). From rest, with no
     earlier shorted run, the branches are in equilibrium and nothing moves."""
     runs = [("R_in", -780.0)] * 3 + [("R_out", -800.0)] * 3
-    seq = serial_sequence(CREEP, runs, drain_s=0.0)[3:]
+    seq = serial_sequence(CREEP, runs, drain_s=1.0)[3:]
     dvh = [r.delta_v_h_v for r in seq]
     assert dvh[0] < dvh[1] < dvh[2] < 0.0
     per_n = [abs(r.back_emf_per_force_v_per_n) for r in seq]

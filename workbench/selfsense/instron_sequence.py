@@ -49,9 +49,11 @@ from .force import estimate_force, instron_force_profile
 __all__ = ["SequenceRun", "serial_sequence", "read_open_lead_run", "table1_sequence_estimates",
            "TABLE1_SEQUENCE_DRAIN_S"]
 
-#: drain before each run, s, for Table 1: 0 s, the bound most favourable to a run-order effect (the creep
-#: branches left by the previous run have had no time to relax). Seed 000 gives no timing.
-TABLE1_SEQUENCE_DRAIN_S = 0.0
+#: drain before each run, s, for Table 1 (assumed; seed 000 gives no timing, only "shorted and drained"): a short
+#: drain, near the bound most favourable to a run-order effect (the creep branches the previous run left have
+#: little time to relax: the first open-lead run's V_h falls by 0.086 V at 1 s, 0.113 V as the drain -> 0,
+#: 0.029 V at 10 s). With no drain at all the meter would start each run from what the last one left.
+TABLE1_SEQUENCE_DRAIN_S = 1.0
 
 
 def _inverse_weights(r, w):
@@ -121,7 +123,8 @@ def _segment(z, qc, q, shorted, f_term, r, w_h, w_open, r_open_inv, w_open_inv, 
 class SequenceRun:
     """One run of a serial's sequence, simulated (SI).
 
-    ``back_emf_v``: V_t at the run's largest |V_t| minus V_t before the run (0 after a drain);
+    ``back_emf_v``: V_t at the run's largest |V_t| (the meter's reading; V_t is 0 before the run after a
+    drain);
     ``delta_v_h_v``: V_h at that sample minus V_h before the run (0 for every history without creep);
     ``back_emf_per_force_v_per_n``: back_emf_v / peak_force_n; ``states_v``, ``creep_charges_c``,
     ``charge_c``: C_h's play states, the creep charges and the stack charge at the run's start
@@ -203,8 +206,8 @@ def serial_sequence(pzt, runs, *, drain_s=10.0, dt_s=0.01, rest_s=1.0, ramp_s=5.
         out = seg(config == "R_in", f)
         # the peak: largest |V_t| (R_in holds V_t = 0: its peak is the largest |F_e|)
         k = int(np.argmax(np.abs(out[:, 2]))) if config == "R_out" else int(np.argmax(np.abs(f)))
-        # the meter reads V_t from its value before the run (0 after the drain)
-        emf = float(out[k, 2] - last[2])
+        # the meter reads V_t itself (0 before the run after a drain; with no drain, what the last run left)
+        emf = float(out[k, 2])
         result.append(SequenceRun(config, float(peak_n), emf, float(out[k, 0] - last[0]),
                                   emf / float(peak_n), *start, float((k + 1) * dt_s)))
         last = out[-1]
@@ -225,7 +228,7 @@ def read_open_lead_run(pzt, start, back_emf_v, peak_time_s, *, dt_s=0.01):
     start : SequenceRun
         The run, for its state at the start (``states_v``, ``creep_charges_c``).
     back_emf_v : float
-        Measured peak back EMF, V.
+        Measured peak back EMF, V (V_t itself; 0 before the run after a drain).
     peak_time_s : float
         Time from the run's start to the peak, s.
     dt_s : float

@@ -29,8 +29,8 @@ import numpy as np
 from ..identify.transducer import table1_swap_decision
 from .force import FORCE_TARGET_PEAK_FRACTION
 
-__all__ = ["TABLE1_FORMS", "TABLE1_FORM", "TABLE1_FORMS_PURE_BACK_EMF", "TABLE1_FORM_HYSTERESIS_INVERSE", "TABLE1_FORMS_BACK_EMF_WITH_GAUGE",
-           "TABLE1_FORM_TITLES", "TABLE1_SCHEMES", "instron_held_out", "nested_held_out", "table1_spreads",
+__all__ = ["TABLE1_FORMS", "TABLE1_FORM", "TABLE1_FORMS_PURE_BACK_EMF", "TABLE1_FORM_HYSTERESIS_INVERSE",
+           "TABLE1_FORMS_BACK_EMF_WITH_GAUGE", "TABLE1_FORM_TITLES", "TABLE1_SCHEMES", "instron_held_out", "nested_held_out", "table1_spreads",
            "table1_held_out"]
 
 TABLE1_FORMS = ("back_emf", "back_emf_serial", "gauge", "gauge_serial", "linear", "gauge_through_back_emf",
