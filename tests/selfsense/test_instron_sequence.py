@@ -159,3 +159,22 @@ def test_inverse_with_carried_state_reads_a_library_simulated_run(draw):
     np.testing.assert_allclose(est.v_p_v, tr.v_p_v, rtol=0, atol=1e-9)
     rest = estimate_force(t, tr.v_t_v, tr.q_c, PLANT)
     assert np.max(np.abs(rest.f_e_n - f)) > 10.0
+
+
+def test_table1_sequence_estimates_read_no_r_out_force(tmp_path):
+    """Every R out run's printed force changed: the model's reads of Table 1 do not move (they use the R in runs'
+    forces for the history and each R out run's back EMF, nothing else of it)."""
+    from pathlib import Path
+    src = Path("plants/data/p888_51_instron_table1.csv").read_text().splitlines()
+    out = []
+    for line in src:
+        cells = line.split(",")
+        if len(cells) == 7 and cells[2] == "R_out":
+            cells[5] = f"{float(cells[5]) * 1.37:.1f}"
+        out.append(",".join(cells))
+    path = tmp_path / "t1.csv"
+    path.write_text("\n".join(out) + "\n")
+    a = table1_sequence_estimates(CREEP)
+    b = table1_sequence_estimates(CREEP, path)
+    assert [d["estimate_n"] for d in a] == [d["estimate_n"] for d in b]
+    assert [d["force_n"] for d in a] != [d["force_n"] for d in b]

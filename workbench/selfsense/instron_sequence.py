@@ -33,8 +33,8 @@ out of equilibrium. :func:`serial_sequence` measures that term, Delta V_h over e
 
 Note on the library simulator: :class:`~workbench.plant.simulator.PZTSimulator` feeds the creep
 branches' charge change to the terminal (q = q_h + Q_c changes with no current through R), which is
-immaterial at 80 ohm but, at 200 TOhm, moves the terminal charge (140 nC over a run after three
-``R_in`` runs in the creep plant) where the stack holds it. This module steps its own
+immaterial at 80 ohm but, at 200 TOhm, moves the terminal charge (up to 140 nC over a run after three
+``R_in`` runs in the creep plant, 10 s apart) where the stack holds it. This module steps its own
 charge-conserving form instead.
 """
 
@@ -54,16 +54,6 @@ __all__ = ["SequenceRun", "serial_sequence", "read_open_lead_run", "table1_seque
 #: little time to relax: the first open-lead run's V_h falls by 0.086 V at 1 s, 0.113 V as the drain -> 0,
 #: 0.029 V at 10 s). With no drain at all the meter would start each run from what the last one left.
 TABLE1_SEQUENCE_DRAIN_S = 1.0
-
-
-def _inverse_weights(r, w):
-    """Kuhnen's inverse thresholds and weights of the PI operator (r, w) (:meth:`PrandtlIshlinskii.inverse`)."""
-    big_w = np.cumsum(w)
-    r_inv = np.array([np.sum(w[: i + 1] * (r[i] - r[: i + 1])) for i in range(r.size)])
-    w_inv = np.empty_like(w)
-    w_inv[0] = 1.0 / w[0]
-    w_inv[1:] = -w[1:] / (big_w[1:] * big_w[:-1])
-    return r_inv, w_inv
 
 
 @njit(cache=True, error_model="numpy")
@@ -176,11 +166,10 @@ def serial_sequence(pzt, runs, *, drain_s=10.0, dt_s=0.01, rest_s=1.0, ramp_s=5.
         cap, dec = np.zeros(0), np.zeros(0)
     c_eff = float(np.sum((1.0 - dec) * cap))
     c_pp, k_f = pzt.c_pp_f, pzt.transducer_constant_n_per_v / pzt.stiffness_n_per_m
-    w_open, w_short = w_h.copy(), w_h.copy()
-    w_open[0] += c_eff
-    w_short[0] += c_eff + c_pp
-    ri_open, wi_open = _inverse_weights(r, w_open)
-    ri_short, wi_short = _inverse_weights(r, w_short)
+    p_open, p_short = h.plus_linear(c_eff), h.plus_linear(c_eff + c_pp)
+    w_open, w_short = p_open.weights, p_short.weights
+    inv_open, inv_short = p_open.inverse(), p_short.inverse()      # thresholds and weights (states rebuilt per step)
+    ri_open, wi_open, ri_short, wi_short = inv_open.thresholds, inv_open.weights, inv_short.thresholds, inv_short.weights
     z = h.initial_states.copy()
     qc = np.zeros(cap.size)
     q = float(w_h @ z)
