@@ -226,6 +226,18 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     report = (out / "force_report.md").read_text()
     assert report.index("Force self-sensing from the run's own back EMF") < report.index("(reported)")
     assert f"RMS {100 * pure['rms_error_fraction']:.2f} % **{verdict}**" in report.split("(reported)")[0]
+    # the back EMF through the hysteresis inverse, each serial's state carried: the line and report give the
+    # library's figures for the model estimates the JSON holds
+    from workbench.plant import load_plant
+    from workbench.selfsense.instron_sequence import table1_sequence_estimates
+    seq = table1_sequence_estimates(load_plant(root / "plants/p888_51_sn637_creep.toml").pzt, root / TABLE1)
+    assert [d["estimate_n"] for d in data["instron"]["sequence"]["runs"]] == [d["estimate_n"] for d in seq]
+    hi = table1_held_out(root / TABLE1, model_estimate_n=[d["estimate_n"] for d in seq])
+    hv = "met" if hi["target_met_nested_pure_back_emf_hysteresis_inverse"] else "MISSED"
+    n = hi["nested_pure_back_emf_hysteresis_inverse"]
+    line = next(ln for ln in text.splitlines() if "through the hysteresis inverse" in ln)
+    assert f"max {100 * n['max_error_fraction']:.2f} % RMS {100 * n['rms_error_fraction']:.2f} % ({hv})" in line
+    assert f"max {100 * n['max_error_fraction']:.2f} %, RMS {100 * n['rms_error_fraction']:.2f} % **{hv}**" in report
 
 
 # ---- Table 1 peak force, held out (issue 16 item 2: within 5 %) ---------------------------------------------

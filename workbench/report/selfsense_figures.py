@@ -340,6 +340,12 @@ def _table1_held_out_report(h, hd, yes):
              f"{pct(mixed['max_error_fraction'])} % **{yes(h['target_met_nested_back_emf_with_gauge'])}**. The forms "
              f"below that meet the target read the run's gauge; the one marked (reported) reads no back EMF of the run "
              f"at all ({h['reported_form_title']}).", ""]
+    if "nested_pure_back_emf_hysteresis_inverse" in h:
+        hi = h["nested_pure_back_emf_hysteresis_inverse"]
+        lines += [f"With the back EMF also read through the hysteresis inverse, each serial's earlier runs' state "
+                  f"carried (back_emf_hysteresis_inverse among the pure back-EMF forms, chosen without the run): max "
+                  f"{pct(hi['max_error_fraction'])} %, RMS {pct(hi['rms_error_fraction'])} % "
+                  f"**{yes(h['target_met_nested_pure_back_emf_hysteresis_inverse'])}**.", ""]
     for d in h["runs"]:
         if d["swap"]:
             lines.append(f"{d['serial']} run {d['run']} is read with its gauge and displacement exchanged, decided on the "

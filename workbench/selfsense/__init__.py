@@ -4,7 +4,8 @@
 (eqs. 2.5-2.9, 2.30) and dynamic (eqs. 2.42-2.48) estimators; :mod:`.identify` the
 identification of sec. 2.3.2 on a simulated record; :mod:`.run` the staged study behind
 `workbench selfsense` (:mod:`.command`); :mod:`.force` force and elongation from V_t and the
-charge (`--force`); :mod:`.table1` the Table 1 peak forces held out; :mod:`.sysid` K D(s) and
+charge (`--force`); :mod:`.table1` the Table 1 peak forces held out; :mod:`.instron_sequence` a
+serial's Instron runs in sequence, the stack's memory carried; :mod:`.sysid` K D(s) and
 H(s) identified from a step record (`--dynamics`);
 :mod:`.fusion` the complementary gauge + charge blend and :mod:`.fused_loop` the three sensors'
 closed loops (`--fused`).
@@ -32,3 +33,8 @@ __all__ = ["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure", "Est
 from .charge_drift import ChargeDrift, identify_charge_drift, reversal_alpha  # noqa: E402
 
 __all__ += ["ChargeDrift", "identify_charge_drift", "reversal_alpha"]
+
+# a serial's Instron runs in sequence, C_h's memory and the creep carried (:mod:`.instron_sequence`)
+from .instron_sequence import SequenceRun, read_open_lead_run, serial_sequence, table1_sequence_estimates  # noqa: E402
+
+__all__ += ["SequenceRun", "read_open_lead_run", "serial_sequence", "table1_sequence_estimates"]

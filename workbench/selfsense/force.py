@@ -73,11 +73,10 @@ class ForceEstimate:
 
 
 @njit(cache=True, error_model="numpy")
-def _invert(q, r, w, z, cap, dec):
-    """V_h per sample: inverse PI of (q_k - sum a_j Q_j), creep branches updated with the new V_h."""
+def _invert(q, r, w, z, cap, dec, qc):
+    """V_h per sample: inverse PI of (q_k - sum a_j Q_j), creep branches (``qc``, updated) stepped with the new V_h."""
     n = q.shape[0]
     v_h = np.empty(n)
-    qc = np.zeros(cap.shape[0])
     for k in range(n):
         rhs = q[k]
         for j in range(cap.shape[0]):
@@ -89,7 +88,7 @@ def _invert(q, r, w, z, cap, dec):
     return v_h
 
 
-def estimate_force(t_s, v_t_v, q_c, pzt):
+def estimate_force(t_s, v_t_v, q_c, pzt, *, states_v=None, creep_charges_c=None):
     """Elongation and environmental force from the terminal voltage and charge (module notes, steps 1-4).
 
     Parameters
@@ -102,7 +101,13 @@ def estimate_force(t_s, v_t_v, q_c, pzt):
         Terminal charge since the reset, C (drift-compensated: :func:`staged_charge`).
     pzt : PZTParams
         The stack model (C_p, T_em, k_p, C_h, creep branches); its hysteresis initial states
-        are the state at the reset.
+        are the state at the reset unless ``states_v`` is given.
+    states_v : array_like of float, optional
+        C_h's play states at the reset, V (the memory an earlier test left: e.g.
+        :attr:`~.instron_sequence.SequenceRun.states_v`); default the plant's.
+    creep_charges_c : array_like of float, optional
+        The creep branches' charges at the reset, C; default 0. The charge at the reset is
+        C_h[states] + sum of these.
 
     Returns
     -------
@@ -124,9 +129,13 @@ def estimate_force(t_s, v_t_v, q_c, pzt):
     else:
         cap, dec = np.zeros(0), np.zeros(0)
     c_eff = float(np.sum((1.0 - dec) * cap))
-    inv = pzt.hysteresis.plus_linear(c_eff).inverse()     # exact: C_h + c_eff I is a PI operator
-    q0 = pzt.hysteresis.output_at_rest()
-    v_h = _invert(q + q0, inv.thresholds, inv.weights, inv.initial_states.copy(), cap, dec)
+    hyst = pzt.hysteresis if states_v is None else pzt.hysteresis.with_states(states_v)
+    qc0 = np.zeros(cap.size) if creep_charges_c is None else np.array(creep_charges_c, float)
+    if qc0.shape != cap.shape or not np.all(np.isfinite(qc0)):
+        raise ValueError(f"creep_charges_c needs {cap.size} finite charges (C), one per creep branch; got {qc0!r}")
+    inv = hyst.plus_linear(c_eff).inverse()     # exact: C_h + c_eff I is a PI operator
+    q0 = hyst.output_at_rest() + float(np.sum(qc0))
+    v_h = _invert(q + q0, inv.thresholds, inv.weights, inv.initial_states.copy(), cap, dec, qc0.copy())
     v_p = v - v_h
     t_em, k_p = pzt.transducer_constant_n_per_v, pzt.stiffness_n_per_m
     x = (q + q0 - pzt.working_capacitance_f * v_p) / t_em          # seed 000 eq. 9
@@ -319,12 +328,16 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
        from its measured back EMF (q = 0: leads open after draining).
     4. The measured ``R out`` runs' peak forces held out (:func:`table1_held_out`), with each
        run's displacement from its gauge (``held_out``) and from the printed displacement
-       column (``held_out_displacement_column``).
+       column (``held_out_displacement_column``); among the forms, each run's back EMF read
+       through the hysteresis inverse with its serial's earlier runs' state carried
+       (:func:`~.instron_sequence.table1_sequence_estimates`; ``sequence``: per run the model's
+       read and V_h's change, and the run-order change of V/F, model against Table 1).
 
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
     from ..identify.transducer import (DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table,
                                        table1_swap_decision)
+    from .instron_sequence import TABLE1_SEQUENCE_DRAIN_S, table1_sequence_estimates
     from .table1 import table1_held_out
     from ..plant.files import load_plant
     from .charge_drift import identify_charge_drift
@@ -405,6 +418,16 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     best_gain_err = float((ratio.max() - ratio.min()) / (ratio.max() + ratio.min()))
     window = [float((1.0 - FORCE_TARGET_PEAK_FRACTION) * ratio.max()),
               float((1.0 + FORCE_TARGET_PEAK_FRACTION) * ratio.min())]
+    seq = table1_sequence_estimates(pzt, table_path)
+    u = [d["estimate_n"] for d in seq]
+    sequence = {"drain_s": TABLE1_SEQUENCE_DRAIN_S, "order": "per serial: R_in runs 1-3, then R_out runs 1-3 (assumed)",
+                "runs": seq, "run_order_v_per_f_change_1_to_2": {}}
+    for sn in dict.fromkeys(d["serial"] for d in seq):
+        rows = [d for d in seq if d["serial"] == sn]
+        if len(rows) >= 2:
+            sequence["run_order_v_per_f_change_1_to_2"][sn] = {
+                "measured": (rows[1]["back_emf_v"] / rows[1]["force_n"]) / (rows[0]["back_emf_v"] / rows[0]["force_n"]) - 1,
+                "model": rows[1]["simulated_back_emf_per_force_v_per_n"] / rows[0]["simulated_back_emf_per_force_v_per_n"] - 1}
     sim_err = [abs(row["simulated"]["error_fraction"]) for row in table]
     meas_err = [abs(row["measured_back_emf"]["error_fraction"]) for row in table if "measured_back_emf" in row]
     instron = {"table": str(table_path), "runs": table,
@@ -422,8 +445,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
                "measured_r_out_gain_window_for_target_n_per_v": window,
                "force_per_back_emf_model_n_per_v": float(pzt.stiffness_n_per_m * pzt.c_pp_f / pzt.transducer_constant_n_per_v),
                # the back EMF read through the gauge strain, each run on gains its force never entered
-               "held_out": table1_held_out(table_path),
-               "held_out_displacement_column": table1_held_out(table_path, x_source="displacement")}
+               "held_out": table1_held_out(table_path, model_estimate_n=u),
+               "held_out_displacement_column": table1_held_out(table_path, x_source="displacement", model_estimate_n=u),
+               "sequence": sequence}
     data = {"plant": str(plant_path), "identified": ident.as_dict(), "charge_drift": drift.as_dict(),
             "force_step": step, "instron": instron,
             "_arrays": {"t_s": rec.t_s, "f_true_n": f_true, "x_m": rec.x_m,

@@ -15,6 +15,11 @@ displacement x = gauge change x calibration, never its force), in three sets:
   other runs' back EMF (G = mean F/V of the training runs, kappa_s = mean V/x of the serial's
   other runs). It reads no back EMF of the scored run: it is not self-sensing.
 
+With the model's force estimate of each run given (``model_estimate_n``: the run's back EMF read
+through the hysteresis inverse with the serial's earlier runs' memory carried,
+:func:`~.instron_sequence.table1_sequence_estimates`), one more pure back-EMF form:
+``back_emf_hysteresis_inverse`` (F = G_h u, u the model estimate, G_h the mean F/u of the training runs).
+
 Which run of the table is read with gauge and displacement exchanged is decided once, in
 :func:`workbench.identify.transducer.table1_swap_decision`.
 """
@@ -24,8 +29,8 @@ import numpy as np
 from ..identify.transducer import table1_swap_decision
 from .force import FORCE_TARGET_PEAK_FRACTION
 
-__all__ = ["TABLE1_FORMS", "TABLE1_FORM", "TABLE1_FORMS_PURE_BACK_EMF", "TABLE1_FORMS_BACK_EMF_WITH_GAUGE",
-           "TABLE1_FORM_TITLES", "TABLE1_SCHEMES", "instron_held_out", "nested_held_out", "table1_spreads",
+__all__ = ["TABLE1_FORMS", "TABLE1_FORM", "TABLE1_FORMS_PURE_BACK_EMF", "TABLE1_FORM_HYSTERESIS_INVERSE",
+           "TABLE1_FORMS_BACK_EMF_WITH_GAUGE", "TABLE1_FORM_TITLES", "TABLE1_SCHEMES", "instron_held_out", "nested_held_out", "table1_spreads",
            "table1_held_out"]
 
 TABLE1_FORMS = ("back_emf", "back_emf_serial", "gauge", "gauge_serial", "linear", "gauge_through_back_emf",
@@ -35,6 +40,8 @@ TABLE1_FORM = "gauge_through_back_emf"     # the gauge-read form shown per run (
 TABLE1_FORMS_PURE_BACK_EMF = ("back_emf", "back_emf_serial")
 #: the forms that read the held-out run's own back EMF and its strain gauge
 TABLE1_FORMS_BACK_EMF_WITH_GAUGE = ("linear", "back_emf_and_gauge_mean")
+#: the back EMF read through the hysteresis inverse with the state carried (needs the model's estimate per run)
+TABLE1_FORM_HYSTERESIS_INVERSE = "back_emf_hysteresis_inverse"
 #: what each form is, for printed lines, reports and legends
 TABLE1_FORM_TITLES = {
     "back_emf": "back EMF x gain of the other runs (pure back EMF)",
@@ -43,17 +50,21 @@ TABLE1_FORM_TITLES = {
     "gauge_serial": "gauge x stiffness of the serial's other runs (gauge only)",
     "linear": "a V + b x fitted on the other runs (back EMF with gauge)",
     "gauge_through_back_emf": "gauge x gain calibrated on other runs' back EMF (gauge only)",
-    "back_emf_and_gauge_mean": "mean of back EMF x gain and gauge x back-EMF gain (back EMF with gauge)"}
+    "back_emf_and_gauge_mean": "mean of back EMF x gain and gauge x back-EMF gain (back EMF with gauge)",
+    TABLE1_FORM_HYSTERESIS_INVERSE: "back EMF through the hysteresis inverse, state carried, x gain of the other runs "
+                                    "(pure back EMF)"}
 TABLE1_SCHEMES = ("loo", "loso")
 
 
-def _form_estimate(form, f, v, x, serial, train, i):
+def _form_estimate(form, f, v, x, serial, train, i, u=None):
     """Peak force of run ``i`` by a form that needs no kappa_s, from the forces of ``train`` only; NaN if the form
     lacks data (a per-serial gain with no run of the serial in ``train``)."""
     train = np.asarray(train, int)
     same = train[serial[train] == serial[i]]
     if form == "back_emf":
         return np.mean(f[train] / v[train]) * v[i]
+    if form == TABLE1_FORM_HYSTERESIS_INVERSE:
+        return np.mean(f[train] / u[train]) * u[i]
     if form == "back_emf_serial":
         return np.mean(f[same] / v[same]) * v[i] if same.size else np.nan
     if form == "gauge":
@@ -81,12 +92,28 @@ def _kappa_form(form, f, v, x, serial, train, calib, i):
     return 0.5 * (g * v[i] + g * kappa * x[i])          # back_emf_and_gauge_mean
 
 
-def _estimate(form, f, v, x, serial, train, calib, i):
+def _estimate(form, f, v, x, serial, train, calib, i, u=None):
     if i in set(np.asarray(train, int).tolist()):
         raise ValueError(f"run {i} is in its own training set")
     if form in ("gauge_through_back_emf", "back_emf_and_gauge_mean"):
         return float(_kappa_form(form, f, v, x, serial, train, calib, i))
-    return float(_form_estimate(form, f, v, x, serial, train, i))
+    return float(_form_estimate(form, f, v, x, serial, train, i, u))
+
+
+def _check_model_estimate(forms, model_estimate_n, n):
+    """The model's estimate per run as floats (None if no form needs it), or ValueError."""
+    known = TABLE1_FORMS + ((TABLE1_FORM_HYSTERESIS_INVERSE,) if model_estimate_n is not None else ())
+    unknown = [fm for fm in forms if fm not in known]
+    if unknown or not forms:
+        hint = (f" ({TABLE1_FORM_HYSTERESIS_INVERSE!r} needs model_estimate_n)"
+                if TABLE1_FORM_HYSTERESIS_INVERSE in unknown else "")
+        raise ValueError(f"unknown Table 1 form(s) {unknown}{hint}; the forms are {', '.join(known)}")
+    if model_estimate_n is None:
+        return None
+    u = np.asarray(model_estimate_n, float)
+    if u.shape != (n,) or not np.all(np.isfinite(u)) or np.any(u == 0):
+        raise ValueError(f"model_estimate_n must be {n} finite nonzero forces (N), one per run")
+    return u
 
 
 def _check_runs(force_n, back_emf_v, x_m, serial, scheme):
@@ -106,7 +133,7 @@ def _check_runs(force_n, back_emf_v, x_m, serial, scheme):
     return f, v, x, s
 
 
-def instron_held_out(force_n, back_emf_v, x_m, serial, *, form=TABLE1_FORM, scheme="loo"):
+def instron_held_out(force_n, back_emf_v, x_m, serial, *, form=TABLE1_FORM, scheme="loo", model_estimate_n=None):
     """Each run's peak force estimated from the other runs' forces, and its error.
 
     Parameters
@@ -123,10 +150,14 @@ def instron_held_out(force_n, back_emf_v, x_m, serial, *, form=TABLE1_FORM, sche
         not used, so it is not self-sensing). ``back_emf``: F = G V.
         ``gauge``: F = K x. ``*_serial``: the gain of the same serial's training runs.
         ``linear``: F = a V + b x by least squares. ``back_emf_and_gauge_mean``: the mean of
-        G V and G kappa_s x.
+        G V and G kappa_s x. ``back_emf_hysteresis_inverse`` (with ``model_estimate_n``):
+        F = G_h u, G_h the mean F/u of the training runs.
     scheme : {"loo", "loso"}
         ``loo``: the training runs are all others; ``loso``: the runs of the other serials
         (the serial's own forces all withheld; its other runs' V/x still calibrate kappa_s).
+    model_estimate_n : array_like of float, optional
+        The model's force estimate u per run, N, made without any run's force
+        (:func:`~.instron_sequence.table1_sequence_estimates`).
 
     Returns
     -------
@@ -134,20 +165,19 @@ def instron_held_out(force_n, back_emf_v, x_m, serial, *, form=TABLE1_FORM, sche
         ``estimate_n``, ``error_fraction`` (signed, (estimate - F)/|F|) per run; ``max_error_fraction``,
         ``rms_error_fraction`` (NaN if a run has no estimate), ``form``, ``scheme``.
     """
-    if form not in TABLE1_FORMS:
-        raise ValueError(f"unknown Table 1 form {form!r}; the forms are {', '.join(TABLE1_FORMS)}")
     f, v, x, s = _check_runs(force_n, back_emf_v, x_m, serial, scheme)
+    u = _check_model_estimate((form,), model_estimate_n, f.size)
     n = f.size
     est = np.empty(n)
     for i in range(n):
         train = [j for j in range(n) if j != i and (scheme == "loo" or s[j] != s[i])]
-        est[i] = _estimate(form, f, v, x, s, train, range(n), i)
+        est[i] = _estimate(form, f, v, x, s, train, range(n), i, u)
     err = (est - f) / np.abs(f)
     return {"form": form, "scheme": scheme, "estimate_n": est.tolist(), "error_fraction": err.tolist(),
             "max_error_fraction": float(np.max(np.abs(err))), "rms_error_fraction": float(np.sqrt(np.mean(err ** 2)))}
 
 
-def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, scheme="loo"):
+def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, scheme="loo", model_estimate_n=None):
     """Each run held out with the form chosen without it: per outer fold, the form of least inner RMS error.
 
     Parameters
@@ -161,6 +191,8 @@ def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, sch
         on the other runs); ``loso`` holds out the run's serial's forces (the inner
         leave-one-serial-out runs on the other serials' runs, and the estimate of the held-out
         run uses its serial's other runs' V/x only, as :func:`instron_held_out` does).
+    model_estimate_n : array_like of float, optional
+        As :func:`instron_held_out` (needed by ``back_emf_hysteresis_inverse``).
 
     Returns
     -------
@@ -175,10 +207,8 @@ def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, sch
     estimate on some inner fold (a per-serial gain with no run of the serial left) is not a
     candidate for that outer fold.
     """
-    unknown = [fm for fm in forms if fm not in TABLE1_FORMS]
-    if unknown or not forms:
-        raise ValueError(f"unknown Table 1 form(s) {unknown}; the forms are {', '.join(TABLE1_FORMS)}")
     f, v, x, s = _check_runs(force_n, back_emf_v, x_m, serial, scheme)
+    u = _check_model_estimate(tuple(forms), model_estimate_n, f.size)
     n = f.size
     est, chosen = np.empty(n), []
     for i in range(n):
@@ -186,14 +216,14 @@ def nested_held_out(force_n, back_emf_v, x_m, serial, *, forms=TABLE1_FORMS, sch
         score = {}
         for form in forms:
             e = [(_estimate(form, f, v, x, s, [k for k in rest if k != j and (scheme == "loo" or s[k] != s[j])],
-                            rest, j) - f[j]) / abs(f[j]) for j in rest]
+                            rest, j, u) - f[j]) / abs(f[j]) for j in rest]
             if np.all(np.isfinite(e)):
                 score[form] = float(np.sqrt(np.mean(np.square(e))))
         if not score:
             raise ValueError(f"no form among {', '.join(forms)} can be scored under {scheme!r} without run {i}")
         best = min(score, key=score.get)
         chosen.append(best)
-        est[i] = _estimate(best, f, v, x, s, rest, range(n), i)
+        est[i] = _estimate(best, f, v, x, s, rest, range(n), i, u)
     err = (est - f) / np.abs(f)
     return {"scheme": scheme, "estimate_n": est.tolist(), "error_fraction": err.tolist(), "chosen_form": chosen,
             "max_error_fraction": float(np.max(np.abs(err))), "rms_error_fraction": float(np.sqrt(np.mean(err ** 2)))}
@@ -236,7 +266,7 @@ def table1_spreads(decided, held):
             "held_out_rms_error_fraction": rms, "exceed_target_fraction_normal": float(p)}
 
 
-def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None):
+def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None, model_estimate_n=None):
     """The Table 1 ``R_out`` runs' peak forces, each estimated on the others (module section notes).
 
     Parameters
@@ -249,6 +279,12 @@ def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None):
         :func:`~workbench.identify.transducer.table1_swap_decision`.
     calibrations_m_per_v : mapping of str to float, optional
         Gauge calibration per serial, m/V; default seed 000 sec. 3.1.
+    model_estimate_n : array_like of float, optional
+        Per ``R_out`` run in file order, the model's force estimate from its back EMF through the
+        hysteresis inverse with the state carried, N
+        (:func:`~.instron_sequence.table1_sequence_estimates`). When given, ``forms`` also holds
+        ``back_emf_hysteresis_inverse`` and ``nested_pure_back_emf_hysteresis_inverse`` is the
+        nested choice among the pure back-EMF forms and it.
 
     Returns
     -------
@@ -277,11 +313,16 @@ def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None):
     v = np.array([d["back_emf_v"] for d in decided])
     x = np.array([d["x_gauge_m" if x_source == "gauge" else "displacement_m"] for d in decided])
     s = np.array([d["serial"] for d in decided])
-    forms = {form: {sch: instron_held_out(f, v, x, s, form=form, scheme=sch) for sch in TABLE1_SCHEMES}
-             for form in TABLE1_FORMS}
+    u = model_estimate_n
+    all_forms = TABLE1_FORMS + ((TABLE1_FORM_HYSTERESIS_INVERSE,) if u is not None else ())
+    forms = {form: {sch: instron_held_out(f, v, x, s, form=form, scheme=sch, model_estimate_n=u)
+                    for sch in TABLE1_SCHEMES} for form in all_forms}
     nested = {"nested_pure_back_emf": nested_held_out(f, v, x, s, forms=TABLE1_FORMS_PURE_BACK_EMF),
               "nested_back_emf_with_gauge": nested_held_out(f, v, x, s, forms=TABLE1_FORMS_BACK_EMF_WITH_GAUGE),
               "nested": nested_held_out(f, v, x, s), "nested_loso": nested_held_out(f, v, x, s, scheme="loso")}
+    if u is not None:
+        nested["nested_pure_back_emf_hysteresis_inverse"] = nested_held_out(
+            f, v, x, s, forms=TABLE1_FORMS_PURE_BACK_EMF + (TABLE1_FORM_HYSTERESIS_INVERSE,), model_estimate_n=u)
     rep = forms[TABLE1_FORM]
     tgt = FORCE_TARGET_PEAK_FRACTION
     ok = lambda h: bool(h["max_error_fraction"] <= tgt)    # noqa: E731 (NaN compares False: a missing estimate misses)
