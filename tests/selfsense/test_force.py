@@ -236,7 +236,10 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     hv = "met" if hi["target_met_nested_pure_back_emf_hysteresis_inverse"] else "MISSED"
     n = hi["nested_pure_back_emf_hysteresis_inverse"]
     line = next(ln for ln in text.splitlines() if "through the hysteresis inverse" in ln)
-    assert f"max {100 * n['max_error_fraction']:.2f} % RMS {100 * n['rms_error_fraction']:.2f} % ({hv})" in line
+    assert f"max {100 * n['max_error_fraction']:.2f} % RMS {100 * n['rms_error_fraction']:.2f} % (without it" in line
+    assert f") ({hv}); V/F" in line
+    # beside it, the plain F = G V figures of the same library call (the new form is not an improvement by itself)
+    assert f"F = G V: {100 * hi['forms']['back_emf']['loo']['max_error_fraction']:.2f} %" in line
     assert f"max {100 * n['max_error_fraction']:.2f} %, RMS {100 * n['rms_error_fraction']:.2f} % **{hv}**" in report
 
 

@@ -141,10 +141,14 @@ def run_force(args):
         hl = h["forms"]["back_emf_hysteresis_inverse"]["loo"]
         order = ", ".join(f"{sn} {100 * c['measured']:+.1f} % (model {100 * c['model']:+.2f} %)"
                           for sn, c in sq["run_order_v_per_f_change_1_to_2"].items())
+        gl = h["forms"]["back_emf"]["loo"]
         lines.append(f"  Table 1 R out, back EMF through the hysteresis inverse, each serial's state carried (drain "
-                     f"{sq['drain_s']:g} s, R in runs first): loo max {100 * hl['max_error_fraction']:.2f} %, "
+                     f"{sq['drain_s']:g} s assumed, R in runs first): loo max {100 * hl['max_error_fraction']:.2f} % "
+                     f"(F = G V: {100 * gl['max_error_fraction']:.2f} %), "
                      f"nested among the pure back-EMF forms max {100 * hi['max_error_fraction']:.2f} % RMS "
-                     f"{100 * hi['rms_error_fraction']:.2f} % ({met(h['target_met_nested_pure_back_emf_hysteresis_inverse'])}); "
+                     f"{100 * hi['rms_error_fraction']:.2f} % (without it {100 * pure['max_error_fraction']:.2f} % RMS "
+                     f"{100 * pure['rms_error_fraction']:.2f} %) "
+                     f"({met(h['target_met_nested_pure_back_emf_hysteresis_inverse'])}); "
                      f"V/F run 1 -> 2: {order}")
     lines.append(f"  Table 1 R out held out, {h['reported_form_title']}, form chosen on the same runs, reads no back "
                  f"EMF of the run: max {100 * rep['loo']['max_error_fraction']:.1f} % loo ({met(h['target_met_loo'])}), "
