@@ -136,7 +136,7 @@ def test_header_with_iff_equals_python_step_bit_for_bit(ctrl_iff, tmp_path, rng)
         pytest.fail(f"the header does not compile:\n{done.stderr}")
     g, r = _records(ctrl, rng, 1500, 25000)
     b = _bridge_records(ctrl, rng, len(g))
-    st, ist = ctrl.reset(np.array([3.0, -2.0, 40.0])), ctrl.reset_iff()
+    st, ist = ctrl.reset(np.array([3.0, -2.0, 40.0])), ctrl.reset_iff(np.array([3.0, -2.0, 40.0]))
     u0_words = st[1].copy()
     gw, rw, bw = ctrl.gauge_words(g), ctrl.reference_words(r), ctrl.bridge_words(b)
     want = np.array([ctrl.step_words(st, gw[k], rw[k], bw[k], ist) for k in range(len(gw))])
@@ -155,9 +155,11 @@ def test_iff_path_is_the_designed_force_feedback(ctrl_iff, fsm, rng):
     from workbench.design.antiwindup import discretize
     ctrl = ctrl_iff
     n = 4000
-    g = 1e-3 * rng.standard_normal((n, 3))
-    r = 1e-3 * rng.standard_normal((n, 3)) * ctrl.axis_scale
-    b = 0.05 * rng.standard_normal((n, 3))                 # 50 mV of bridge reading ~ 1.5 N of force
+    # small enough that no command reaches its stack's current-limit window (R min(I) = 0.16 V about its RC
+    # model): there the step is linear
+    g = 2e-4 * rng.standard_normal((n, 3))
+    r = 2e-4 * rng.standard_normal((n, 3)) * ctrl.axis_scale
+    b = 2e-3 * rng.standard_normal((n, 3))                 # 2 mV of bridge reading: ~0.03 V RMS of correction
     v = ctrl.run(g, r, b_v=b)
     v0 = ctrl.run(g, r, b_v=np.zeros_like(b))
     br = ctrl.iff["bridge"]
@@ -266,3 +268,27 @@ def test_a_siso_controller_is_named_as_such(root, tmp_path):
     with pytest.raises(MimoControllerError, match=r"\[schema\].*SISO"):
         MimoController.load(root / "controllers" / "sn637_loopshape.json")
     assert MIMO_SCHEMA.startswith("workbench.mimo_controller/")
+
+
+def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, fsm, rng):
+    """With IFF the whole stack command (axes + IFF correction) leads the stack's RC model of it by at most
+    R min(I_source, I_sink) (each serial file's window, as the notch-only axes keep): replayed here in float
+    from the plant's R, current limits and largest capacitance, on records that drive the axes, the bridges
+    and the stacks to their clamps (the window is reached, so the bound is the clamp's, not the records')."""
+    from workbench.controller import plant_window
+    ctrl = ctrl_iff
+    g, r = _records(ctrl, rng, 3000, 5000)
+    b = _bridge_records(ctrl, rng, len(g))
+    u0 = np.array([3.0, -2.0, 40.0])
+    v = ctrl.run(g, r, u0_axes_v=u0, b_v=b)
+    lsb = 2.0 ** -ctrl.stack_frac_bits
+    for j, pl in enumerate(fsm.plants):
+        alpha, h_up, h_down = plant_window(pl, ctrl.dt_s)
+        h = min(h_up, h_down)
+        m = ctrl.stack_volts(ctrl.stack_words_at(ctrl.reset(u0)[1]))[j]
+        lead = np.empty(len(v))
+        for k in range(len(v)):
+            lead[k] = v[k, j] - m
+            m += alpha * lead[k]
+        assert np.abs(lead).max() <= h + 4 * lsb, j
+        assert np.abs(lead).max() >= 0.99 * h, j
