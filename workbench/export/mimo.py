@@ -406,7 +406,9 @@ class MimoController:
     def from_design(cls, design, fsm, *, name="fsm_controller", record=None, coeff_bits=32):
         """Export a :class:`~workbench.design.mimo.MimoDesign` for the mirror ``fsm``.
 
-        An IFF-damped design exports when its force estimate is the charge bridge (``iff_source="bridge"``):
+        An IFF-damped design exports when its force estimate is the charge bridge (``iff_source="bridge"``) and its
+        force-estimate noise fits each stack's current-window budget (:func:`~workbench.design.mimo.check_iff_noise`;
+        else :class:`ExportError`); its stacks' whole commands are held in their windows (:func:`stack_windows`).
         each stack's IFF becomes a cascade from the bridge reading (module docstring), designed for the
         charge amplifier :class:`~workbench.selfsense.charge_amp.ChargeAmpParams` (C_int, its ADC range)
         with C_R = the design's reference capacitance. The gauge-fed estimate (``"charge+gauge"``) does not
@@ -423,6 +425,14 @@ class MimoController:
                               f"the notch-only design (damping=False)")
         dec = design.decoupler
         dt = float(design.axes["tip"].controller_d.dt)
+        if design.iff is not None:
+            # the same current-window budget the design searched under (design.mimo.check_iff_noise)
+            from ..design.mimo import check_iff_noise
+            from ..errors import DesignError
+            try:
+                check_iff_noise(fsm, design.iff, dt)
+            except DesignError as err:
+                raise ExportError(f"{err}; re-design with design_mimo's noise budget on") from err
         inv = np.asarray(dec.in_v_per_q, float)
         scale = 1.0 / np.abs(inv).max(axis=0)
         g2a = np.asarray(dec.out_q_per_v, float) / scale[:, None]

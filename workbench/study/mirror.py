@@ -19,9 +19,10 @@ loop-shaping tuner takes it as ``max_noise_command_v = rho`` with ``noise_readin
 
 Active damping (opt-in, ``[design] iff = true``). The same family and spec (noise budget included) are
 also designed with integral force feedback from each stack's charge bridge
-(``design_mimo(..., damping=True, iff_source="bridge")``, high-pass at :data:`IFF_CORNER_RATIO` of the
-lowest flexure mode: the force estimate T (V_t - q / C_R) that the
-charge amplifier with its reference capacitor reads, no gauge in it) and exported beside the
+(``design_mimo(..., damping=True, iff_source="bridge")``, high-pass at
+:func:`~workbench.design.mimo.iff_corner_hz` of the lowest crossover searched: the force estimate
+T (V_t - q / C_R) that the charge amplifier with its reference capacitor reads, no gauge in it; with
+the noise budget, the IFF's own noise counts against it) and exported beside the
 notch-only controller as NAME_iff; the report sets the two designs side by side. Off by default: the
 damped export is only as good as its verification (README, mirror section).
 """
@@ -37,16 +38,9 @@ import numpy as np
 from ..errors import StudyDefinitionError
 from ..fields import Field, check_table, read_toml
 
-__all__ = ["FSM_STUDY_SCHEMA", "IFF_CORNER_RATIO", "is_mirror_study", "run_mirror_study", "noise_gain_bound"]
+__all__ = ["FSM_STUDY_SCHEMA", "is_mirror_study", "run_mirror_study", "noise_gain_bound"]
 
 FSM_STUDY_SCHEMA = "workbench.fsm_study/1"
-
-# the damped design's IFF high-pass corner, as a fraction of the lowest flexure mode (8.8 Hz on the committed
-# mirror). At design.mimo's 0.1 % (0.88 Hz) the closed loop keeps poles at 0.886 Hz: measured in the verified
-# loop, the 78 urad tilt the unequal C_h leave open loop is still being pulled in 0.1 s after the loop starts
-# (the 1 % tilt step then reads 41 % overshoot, 18 urad final error); at 1 % (poles at 9.8 Hz) the same step
-# overshoots 6 % and ends within 0.4 urad, and the triangle is unchanged (0.026 % vs 0.027 %). README, mirror section.
-IFF_CORNER_RATIO = 0.01
 
 _SCHEMA = {
     "": {"schema": Field("str", expect=f'the string "{FSM_STUDY_SCHEMA}"'),
@@ -161,7 +155,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
     damped = damped_paths = None
     if des_s.get("iff", False):
         damped = design_mimo(fsm, fam, damping=True, spec=lsspec, nominal=nom, iff_source="bridge",
-                             iff_corner_ratio=IFF_CORNER_RATIO, progress=lambda d, t: stage("damped design", d, t))
+                             progress=lambda d, t: stage("damped design", d, t))
         dctrl = MimoController.from_design(damped, fsm, name=f"{name}_iff",
                                            record={"study": str(path), "design": damped.summary(),
                                                    "noise_gain_bound": rho})
