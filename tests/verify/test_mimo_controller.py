@@ -212,6 +212,22 @@ def test_only_the_bridge_iff_exports(fsm):
         MimoController.from_design(design, fsm, name="mimo")
 
 
+def test_an_iff_over_the_current_window_budget_does_not_export(fsm):
+    """A bridge IFF whose force-estimate noise alone (gain x sigma_F, ~1 x through the high-pass and the RC lead)
+    is twice each stack's budget R min(I_source, I_sink) / 3 is refused by the export, naming the budget."""
+    import dataclasses
+    from types import SimpleNamespace
+    from workbench.design.mimo import force_noise_n
+    from workbench.export.sos import ExportError
+    design, _ = quick_design(fsm, iff=True)
+    b = min(p.pzt.series_resistance_ohm * min(p.pzt.current_limit_source_a, p.pzt.current_limit_sink_a) / 3
+            for p in fsm.plants)
+    g = 2 * b / float(np.min(force_noise_n(fsm, "bridge")))
+    loud = SimpleNamespace(**{**vars(design), "iff": dataclasses.replace(design.iff, gain_v_per_n=g)})
+    with pytest.raises(ExportError, match=r"noise budget R min\(I_source, I_sink\) / 3 = 53.3 mV.*use at most"):
+        MimoController.from_design(loud, fsm, name="mimo")
+
+
 def test_step_composes_the_float_matrices_and_cascades(ctrl, rng):
     """Small inputs (no clamp, no window): the words give In' K (r' - Out' g), K the axis cascades' own LTI,
     to within quantization; a transposed or swapped matrix would miss by the signal itself."""
