@@ -56,7 +56,7 @@ from ..selfsense.charge_amp import (ChargeAmpParams, adc_convert, adc_lsb_v, cha
 
 __all__ = ["MirrorLoop", "MirrorRun", "mirror_operating_point", "tip_range_rad", "mirror_scenarios",
            "verification_mirror", "run_mirror_verify", "check_pairing",
-           "run_mirror_scenarios", "TARGETS"]
+           "run_mirror_scenarios", "model_peak_current_a", "TARGETS"]
 
 # the coupled kernel's arguments this module's compiled loop passes (plant/coupled.py is being sped up on
 # another branch: if its signature changes, the loop falls back to one CoupledSimulator.run per period)
@@ -533,6 +533,31 @@ def _open_loop_creep(fsm, controller, run, info):
     return {"open_loop_piston_drift_nm": float((np.mean(p[-kw:]) - np.mean(p[:kw])) * 1e9)}
 
 
+def model_peak_current_a(controller, v_cmd_v, r_ohm):
+    """Largest |current| per stack (A, list of 3) the controller's own RC model predicts for the commands it sent.
+
+    Each stack's command v is replayed through the model its window keeps, m += alpha (v - m) (the
+    damped export's per-stack ``iff.stack_window`` alpha; else the axis windows' alpha, whose box every
+    stack's command shares), from the first command; the predicted current is (v - m) / R. The window
+    bounds it by min(I_source, I_sink); the simulated current differs where the stack's terminal voltage
+    leaves the model (hysteresis, a disturbance's back-EMF)."""
+    v = np.asarray(v_cmd_v, float)
+    if controller.iff is not None:
+        alpha = np.asarray(controller.iff["stack_window"]["alpha"], float)
+    else:
+        vm = controller.axes["tip"].voltage_model
+        if vm is None:
+            return [float("nan")] * v.shape[1]
+        alpha = np.full(v.shape[1], float(vm[0]))
+    m = v[0].copy()
+    peak = np.zeros(v.shape[1])
+    for k in range(v.shape[0]):
+        d = v[k] - m
+        peak = np.maximum(peak, np.abs(d))
+        m += alpha * d
+    return (peak / np.asarray(r_ohm, float)).tolist()
+
+
 def run_mirror_scenarios(fsm, controller, names=None, noise=True, seed=0, progress=None, **sizes):
     """Run the scenarios (each from the operating point) and score them; returns (metrics list, runs dict, targets)."""
     sc = mirror_scenarios(fsm, controller, **sizes)
@@ -546,6 +571,8 @@ def run_mirror_scenarios(fsm, controller, names=None, noise=True, seed=0, progre
         r = loop.run(ref, ext, progress=None if progress is None else (lambda d, t, nm=name: progress(nm, d, t)))
         runs[name] = r
         m = _metrics(name, r, info, span)
+        m["model_peak_current_ma"] = [1e3 * i for i in model_peak_current_a(
+            controller, r.v_cmd_v, [pz.series_resistance_ohm for pz in fsm.stacks])]
         if name == "piston_hold":
             m.update(_open_loop_creep(fsm, controller, r, info))
         metrics.append(m)
