@@ -12,6 +12,7 @@ studies/fsm_servo.toml as shipped, plus ``iff = true``. The plant's noise budget
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -102,7 +103,7 @@ def test_damped_bandwidth_ratio_is_reported(damped):
     data, _, _ = damped
     r = _ratios(data)
     print(f"damped / notch-only bandwidth: {', '.join(f'{k} {x:.2f}x' for k, x in r.items())}")
-    text = open(data["report"], encoding="utf-8").read()
+    text = Path(data["report"]).read_text(encoding="utf-8")
     assert ("2x target: **met**" in text) == damped_ratio_met([r["tip"], r["tilt"]])
 
 
