@@ -88,7 +88,7 @@ def test_damped_export_keeps_every_stack_in_its_current_window(damped):
             assert max(m["peak_current_ma"]) <= w, (m["scenario"], m["peak_current_ma"])
 
 
-@pytest.mark.xfail(strict=True, reason="the torque step rings the ~1 kHz tip mode: its back-EMF (V_p swings ~0.05 V "
+@pytest.mark.xfail(strict=True, reason="the torque step rings the ~1 kHz tip mode: its back-EMF (V_p moves up to ~0.03 V "
                                        "per period) adds to an IFF command at the window's edge, ~2.1 mA; the "
                                        "firmware's RC model does not see the mechanics (README, mirror section)")
 def test_damped_torque_step_current_inside_the_window(damped):

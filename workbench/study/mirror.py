@@ -220,7 +220,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
               "## Figures", "", md_image("MIMO Bode", figs["bode"], md), "", md_image("disk margins", figs["disk"], md),
               "", md_image("modes", figs["modes"], md), ""]
     if damped is not None:
-        lines += _damped_section(summ, damped, damped_paths, plant_path)
+        lines += _damped_section(summ, damped, damped_paths, plant_path, budgets)
     rows = [[lab, f"{fm:.1f}", f"{100 * z:.2f}"] for lab, fm, z in zip(labels, modes_hz, zeta)]
     lines += [f"Structural modes of the nominal member ({nname}: amplifiers in the loop, stacks at their slopes):", ""] + md_table(["mode", "Hz", "damping %"], rows)
     write_text(md, "\n".join(lines) + "\n")
@@ -236,7 +236,7 @@ def damped_ratio_met(ratios, floor=2.0):
     return bool(all(float(r) >= floor for r in list(ratios)[:2]))
 
 
-def _damped_section(summ, damped, paths, plant_path):
+def _damped_section(summ, damped, paths, plant_path, budgets_v):
     """Report lines: the IFF-damped design beside the notch-only one (worst members), and its export."""
     from ..design.mimo import AXIS_NAMES
     from ..report.markdown import md_table
@@ -255,7 +255,12 @@ def _damped_section(summ, damped, paths, plant_path):
             f"Integral force feedback per stack from its charge bridge (force estimate T (V_t - q / C_R), C_R = "
             f"the nominal incremental C_h): gain {i['gain_v_per_n']:.4g} V/N, high-pass {i['corner_hz']:.3g} Hz; "
             f"flexure damping {100 * i['zeta_min_open']:.2f} % -> {100 * i['zeta_min_damped']:.2f} % (nominal "
-            f"member). Same family and spec as above (noise budget included).", ""] + md_table(
+            f"member). Same family and spec as above (noise budget included). The high-pass is tan(10 deg) x the "
+            f"lowest crossover searched (design.mimo.iff_corner_hz), above the fastest drift the bridge reads "
+            f"({i['drift_hz']:.3g} Hz, {i['drift_source']}). The bridge noise through the IFF leads each stack's "
+            f"command by {_fmt_list(np.array(i['command_noise_v']) * 1e3, '.3g')} mV RMS against the current "
+            f"window's budget {_fmt_list(np.array(budgets_v) * 1e3, '.3g')} mV; the export holds each stack's whole "
+            f"command (axes + IFF) within R min(I_source, I_sink) of its RC model.", ""] + md_table(
         ["axis", "bandwidth notch only / damped, Hz (worst member)", "damped / notch only", "PM deg notch / damped",
          "GM dB notch / damped"], rows) + [
         "", f"Damped simultaneous alpha {alpha:.3f}. Issue 15's 2x target: "
