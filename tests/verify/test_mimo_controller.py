@@ -147,6 +147,15 @@ def test_header_with_iff_equals_python_step_bit_for_bit(ctrl_iff, tmp_path, rng)
     np.testing.assert_array_equal(got, want)
     lim = ctrl.stack_limit_words
     assert np.any(want == lim[:, 0]) and np.any(want == lim[:, 1]), "the records must reach the stack clamps"
+    # and the stack windows: some command reaches its model +/- R min(I) (the model replayed in float)
+    v = ctrl.stack_volts(want)
+    alpha, h = (np.array(ctrl.iff["stack_window"][k]) for k in ("alpha", "headroom_v"))
+    m = ctrl.stack_volts(ctrl.stack_words_at(ctrl.reset(np.array([3.0, -2.0, 40.0]))[1]))
+    reach = 0.0
+    for vk in v:
+        reach = max(reach, float(np.max(np.abs(vk - m) / h)))
+        m = m + alpha * (vk - m)
+    assert 0.99 <= reach <= 1.0 + 4 * 2.0 ** -ctrl.stack_frac_bits / h.min(), reach   # float replay of the words: 4 LSB
 
 
 def test_iff_path_is_the_designed_force_feedback(ctrl_iff, fsm, rng):
