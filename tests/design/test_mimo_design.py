@@ -225,3 +225,77 @@ def test_design_margins_over_the_family(fsm, family, damping):
         assert (mimo.closed_loop_poles(fsm, worst, scaled).real.max() < 0) == stable, db
     # the firmware's gauge gains: the design uses the nominal chains
     assert np.allclose(np.linalg.inv(d.decoupler.out_q_per_v) @ fsm.kinematics, np.diag(gauge_gains(fsm)[:, 0]))
+
+
+def test_iff_corner_is_derived_from_the_band_and_the_drifts(fsm, family, sn637_creep):
+    """The IFF high-pass corner (iff_corner_hz): tan(phase cost) x the lowest crossover searched; the doublet it
+    leaves in the damped plant, P / (1 + L0) (s + w_l) / (s + w_l / (1 + L0)), lags less than the phase cost at
+    that crossover for any IFF loop gain L0 (closed form) and on the mirror's own damped nominal (the damped
+    plant with the corner against the same IFF without a high-pass); the corner lies above the drifts the
+    bridge reads, and a band too low for them is refused naming the drift."""
+    from workbench.errors import DesignError
+    fc_min = mimo.MIMO_SPEC.fc_range_hz[0]
+    corner, info = mimo.iff_corner_hz(fsm, fc_min)
+    assert corner == pytest.approx(np.tan(np.radians(mimo.IFF_PHASE_COST_DEG)) * fc_min, rel=1e-12)
+    s = 2j * np.pi * fc_min
+    wl = 2 * np.pi * corner
+    for l0 in (0.1, 1.0, 3.0, 100.0, 1e6):
+        lag = -np.degrees(np.angle((s + wl) / (s + wl / (1 + l0))))
+        assert 0 < lag < mimo.IFF_PHASE_COST_DEG, l0
+    # the real plant: the tuned bridge IFF, with and without its high-pass (corner 1e-9 Hz: the DC loop)
+    nom = family[mimo.nominal_name()]
+    iff, _ = mimo.tune_iff(fsm, family, source="bridge")
+    assert iff.corner_hz == pytest.approx(corner)
+    f = np.array([fc_min, 2 * fc_min])
+    with_hp = mimo.damped_gauges(fsm, nom, f, iff)
+    no_hp = mimo.damped_gauges(fsm, nom, f, dataclasses.replace(iff, corner_hz=1e-9))
+    lag = -np.degrees(np.angle(np.einsum("fii->fi", with_hp) / np.einsum("fii->fi", no_hp)))
+    assert np.all(lag[0] > 0) and np.all(lag[0] < mimo.IFF_PHASE_COST_DEG), lag
+    assert np.all(lag[1] < lag[0])                     # the doublet's lag falls off above the corner
+    # drifts: the charge amplifier's fastest (dielectric absorption, 5 s); with creep branches, the fastest (0.1 s)
+    from workbench.selfsense.charge_amp import ChargeAmpParams
+    tau = min(min(ChargeAmpParams().da_time_constants_s), ChargeAmpParams().r_leak_ohm * ChargeAmpParams().c_int_f)
+    assert info["drift_hz"] == pytest.approx(1 / (2 * np.pi * tau)) and corner > 10 * info["drift_hz"]
+    crept = dataclasses.replace(fsm, plants=tuple(dataclasses.replace(p, pzt=dataclasses.replace(
+        p.pzt, creep=sn637_creep.pzt.creep)) for p in fsm.plants))
+    tau_c = float(np.min(sn637_creep.pzt.creep.time_constants_s))
+    assert mimo.iff_corner_hz(crept, fc_min)[1]["drift_hz"] == pytest.approx(1 / (2 * np.pi * tau_c))
+    low = 0.5 / (2 * np.pi * tau_c) / np.tan(np.radians(mimo.IFF_PHASE_COST_DEG))
+    with pytest.raises(DesignError, match="creep branch.*raise the lowest crossover"):
+        mimo.iff_corner_hz(crept, low)
+
+
+def _bridge_noise_n(fsm):
+    """Each bridge's force noise per reading, N: the charge amplifier's output noise and ADC LSB times T C_int / C_R."""
+    from workbench.selfsense.charge_amp import ChargeAmpParams
+    a = ChargeAmpParams()
+    sb = np.sqrt(a.out_noise_v_rms ** 2 + (2 * a.adc_range_v / 2 ** a.adc_bits) ** 2 / 12)
+    t = np.array([pz.transducer_constant_n_per_v for pz in fsm.stacks])
+    return t * a.c_int_f / np.array(mimo.bridge_capacitances_f(fsm)) * sb
+
+
+def test_iff_noise_is_held_to_the_current_window_budget(fsm, family):
+    """The IFF's force-estimate noise on each stack's command lead must fit R min(I_source, I_sink) / 3 (the
+    current window's noise budget, from the serial files): a bridge IFF gain twice the closed-form limit
+    B / sigma_F is refused naming the budget and the largest gain; the gauge-fed IFF (8 N of force noise) under
+    the budget gets its gain reduced below that limit."""
+    from workbench.errors import DesignError
+    b = np.array([p.pzt.series_resistance_ohm * min(p.pzt.current_limit_source_a, p.pzt.current_limit_sink_a) / 3
+                  for p in fsm.plants])
+    sf = _bridge_noise_n(fsm)
+    np.testing.assert_allclose(mimo.force_noise_n(fsm, "bridge"), sf, rtol=1e-6)
+    # white noise through the high-pass (|C| <= g) and the lead over the RC model (|H| <= 2 / (2 - alpha), at
+    # Nyquist): sigma = g sigma_F x (a weighted mean of |H C / g|^2 that is ~1 above both corners)
+    from workbench.controller import plant_window
+    alpha = np.array([plant_window(p, 1e-4)[0] for p in fsm.plants])
+    g_lim = float(np.min(b / sf))
+    iff = mimo.IFF(g_lim, 8.8, "bridge", mimo.bridge_capacitances_f(fsm))
+    ratio = mimo.iff_command_noise_v(fsm, iff, 1e-4) / (g_lim * sf)
+    assert np.all(ratio > 0.9) and np.all(ratio <= 2 / (2 - alpha)), ratio
+    with pytest.raises(DesignError, match=r"IFF gain .* V/N .* noise budget R min\(I_source, I_sink\) / 3 = 53.3 mV"
+                                          r".*use at most"):
+        mimo.tune_iff(fsm, family, source="bridge", gains=[2 * g_lim], noise_budget=True)
+    free, _ = mimo.tune_iff(fsm, family, source="charge+gauge")
+    held, _ = mimo.tune_iff(fsm, family, source="charge+gauge", noise_budget=True)
+    g_gauge = float(np.min(b / mimo.force_noise_n(fsm, "charge+gauge")))
+    assert abs(held.gain_v_per_n) <= g_gauge < abs(free.gain_v_per_n)

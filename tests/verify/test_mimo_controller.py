@@ -136,7 +136,7 @@ def test_header_with_iff_equals_python_step_bit_for_bit(ctrl_iff, tmp_path, rng)
         pytest.fail(f"the header does not compile:\n{done.stderr}")
     g, r = _records(ctrl, rng, 1500, 25000)
     b = _bridge_records(ctrl, rng, len(g))
-    st, ist = ctrl.reset(np.array([3.0, -2.0, 40.0])), ctrl.reset_iff()
+    st, ist = ctrl.reset(np.array([3.0, -2.0, 40.0])), ctrl.reset_iff(np.array([3.0, -2.0, 40.0]))
     u0_words = st[1].copy()
     gw, rw, bw = ctrl.gauge_words(g), ctrl.reference_words(r), ctrl.bridge_words(b)
     want = np.array([ctrl.step_words(st, gw[k], rw[k], bw[k], ist) for k in range(len(gw))])
@@ -147,6 +147,15 @@ def test_header_with_iff_equals_python_step_bit_for_bit(ctrl_iff, tmp_path, rng)
     np.testing.assert_array_equal(got, want)
     lim = ctrl.stack_limit_words
     assert np.any(want == lim[:, 0]) and np.any(want == lim[:, 1]), "the records must reach the stack clamps"
+    # and the stack windows: some command reaches its model +/- R min(I) (the model replayed in float)
+    v = ctrl.stack_volts(want)
+    alpha, h = (np.array(ctrl.iff["stack_window"][k]) for k in ("alpha", "headroom_v"))
+    m = ctrl.stack_volts(ctrl.stack_words_at(ctrl.reset(np.array([3.0, -2.0, 40.0]))[1]))
+    reach = 0.0
+    for vk in v:
+        reach = max(reach, float(np.max(np.abs(vk - m) / h)))
+        m = m + alpha * (vk - m)
+    assert 0.99 <= reach <= 1.0 + 4 * 2.0 ** -ctrl.stack_frac_bits / h.min(), reach   # float replay of the words: 4 LSB
 
 
 def test_iff_path_is_the_designed_force_feedback(ctrl_iff, fsm, rng):
@@ -155,9 +164,11 @@ def test_iff_path_is_the_designed_force_feedback(ctrl_iff, fsm, rng):
     from workbench.design.antiwindup import discretize
     ctrl = ctrl_iff
     n = 4000
-    g = 1e-3 * rng.standard_normal((n, 3))
-    r = 1e-3 * rng.standard_normal((n, 3)) * ctrl.axis_scale
-    b = 0.05 * rng.standard_normal((n, 3))                 # 50 mV of bridge reading ~ 1.5 N of force
+    # small enough that no command reaches its stack's current-limit window (R min(I) = 0.16 V about its RC
+    # model): there the step is linear
+    g = 2e-4 * rng.standard_normal((n, 3))
+    r = 2e-4 * rng.standard_normal((n, 3)) * ctrl.axis_scale
+    b = 2e-3 * rng.standard_normal((n, 3))                 # 2 mV of bridge reading: ~0.03 V RMS of correction
     v = ctrl.run(g, r, b_v=b)
     v0 = ctrl.run(g, r, b_v=np.zeros_like(b))
     br = ctrl.iff["bridge"]
@@ -208,6 +219,22 @@ def test_only_the_bridge_iff_exports(fsm):
     design = SimpleNamespace(**{**vars(design), "iff": IFF(0.08, 0.88, "charge+gauge")})
     with pytest.raises(ExportError, match="only the charge bridge"):
         MimoController.from_design(design, fsm, name="mimo")
+
+
+def test_an_iff_over_the_current_window_budget_does_not_export(fsm):
+    """A bridge IFF whose force-estimate noise alone (gain x sigma_F, ~1 x through the high-pass and the RC lead)
+    is twice each stack's budget R min(I_source, I_sink) / 3 is refused by the export, naming the budget."""
+    import dataclasses
+    from types import SimpleNamespace
+    from workbench.design.mimo import force_noise_n
+    from workbench.export.sos import ExportError
+    design, _ = quick_design(fsm, iff=True)
+    b = min(p.pzt.series_resistance_ohm * min(p.pzt.current_limit_source_a, p.pzt.current_limit_sink_a) / 3
+            for p in fsm.plants)
+    g = 2 * b / float(np.min(force_noise_n(fsm, "bridge")))
+    loud = SimpleNamespace(**{**vars(design), "iff": dataclasses.replace(design.iff, gain_v_per_n=g)})
+    with pytest.raises(ExportError, match=r"noise budget R min\(I_source, I_sink\) / 3 = 53.3 mV.*use at most"):
+        MimoController.from_design(loud, fsm, name="mimo")
 
 
 def test_step_composes_the_float_matrices_and_cascades(ctrl, rng):
@@ -266,3 +293,27 @@ def test_a_siso_controller_is_named_as_such(root, tmp_path):
     with pytest.raises(MimoControllerError, match=r"\[schema\].*SISO"):
         MimoController.load(root / "controllers" / "sn637_loopshape.json")
     assert MIMO_SCHEMA.startswith("workbench.mimo_controller/")
+
+
+def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, fsm, rng):
+    """With IFF the whole stack command (axes + IFF correction) leads the stack's RC model of it by at most
+    R min(I_source, I_sink) (each serial file's window, as the notch-only axes keep): replayed here in float
+    from the plant's R, current limits and largest capacitance, on records that drive the axes, the bridges
+    and the stacks to their clamps (the window is reached, so the bound is the clamp's, not the records')."""
+    from workbench.controller import plant_window
+    ctrl = ctrl_iff
+    g, r = _records(ctrl, rng, 3000, 5000)
+    b = _bridge_records(ctrl, rng, len(g))
+    u0 = np.array([3.0, -2.0, 40.0])
+    v = ctrl.run(g, r, u0_axes_v=u0, b_v=b)
+    lsb = 2.0 ** -ctrl.stack_frac_bits
+    for j, pl in enumerate(fsm.plants):
+        alpha, h_up, h_down = plant_window(pl, ctrl.dt_s)
+        h = min(h_up, h_down)
+        m = ctrl.stack_volts(ctrl.stack_words_at(ctrl.reset(u0)[1]))[j]
+        lead = np.empty(len(v))
+        for k in range(len(v)):
+            lead[k] = v[k, j] - m
+            m += alpha * lead[k]
+        assert np.abs(lead).max() <= h + 4 * lsb, j
+        assert np.abs(lead).max() >= 0.99 * h, j

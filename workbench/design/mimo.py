@@ -27,10 +27,12 @@ T x_dyn) / C_pp, x = x_dyn + r F, C_pp = C_p + T^2 r):
 
 and each stack's voltage gets v_j = v_outer,j - g s / (s + w_l) F_hat_j: the amplifier's R in series
 with the stack's capacitance integrates the command into charge, so a gain high-passed at w_l
-(0.1 % of the lowest flexure mode: no force loop at DC, and its shelf under the outer integrator)
-is integral force feedback. The gain g maximizes the smallest damping ratio of the flexure modes
+(:func:`iff_corner_hz`: no force loop at DC, where the bridge drifts; as high as the outer loop's
+phase allows) is integral force feedback. The gain g maximizes the smallest damping ratio of the flexure modes
 on the nominal member, with the firmware's two-sample loop delay (Pade) in the loop, among the
-gains whose sampled IFF loops keep PM/GM and that keep every small-signal member stable. The
+gains whose sampled IFF loops keep PM/GM and that keep every small-signal member stable (and, with a
+noise budget, whose force-estimate noise keeps each stack's command inside its current window:
+:func:`iff_command_noise_v`). The
 outer loops are then tuned on the damped family, without a notch. The force estimate above has the
 gauge in it (its noise reaches the drive x T^2 / C_p); ``iff_source="bridge"`` uses instead what the
 stack's charge amplifier with a reference capacitor C_R reads, F_hat = T (V_t - q / C_R) (the force
@@ -60,7 +62,8 @@ from .margins import family_margins, loop_margins, response
 from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
 __all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "bridge_capacitances_f", "IFF", "IFF_SOURCES", "iff_response",
-           "tune_iff", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "lowest_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
+           "tune_iff", "iff_corner_hz", "IFF_PHASE_COST_DEG", "force_noise_n", "iff_command_noise_v",
+           "check_iff_noise", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "lowest_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
            "design_mimo", "MIMO_SPEC", "default_freq_hz", "nominal_name", "AXIS_NAMES"]
 
 G = ["g0", "g1", "g2"]
@@ -221,6 +224,132 @@ def iff_response(iff, freq_hz, dt_s, delay_samples=1):
     return response(ctrl_d, freq_hz) * sampled_factor(freq_hz, dt_s, delay_samples)
 
 
+# the phase the IFF's low-frequency doublet may take from an outer loop at the lowest crossover searched, deg.
+# ASSUMED design choice (as the notch depth is). The tuner's margins see the doublet anyway (the damped
+# members carry it), so this only trades the crossover the outer loops can reach against the tail of the
+# doublet's slow pole (:func:`iff_corner_hz`).
+IFF_PHASE_COST_DEG = 10.0
+
+
+def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None):
+    """The IFF high-pass corner f_l, Hz: the one place it is derived (design, study and export take it from here).
+
+    Upper bound, the servo band. Between f_l and the amplifier's R C corner (~70 Hz) v -> F_hat is
+    flat, so an IFF with loop gain L0 there turns each axis plant into P / (1 + L0) (s + w_l) / (s +
+    w_l / (1 + L0)): a lag doublet whose phase at an outer crossover f_c is atan(f_l / f_c) - atan(f_l /
+    ((1 + L0) f_c)) < atan(f_l / f_c), whatever the gain. f_l = tan(``phase_cost_deg``) ``fc_min_hz``
+    keeps it under ``phase_cost_deg`` at the lowest crossover the outer loops may take (8.8 Hz for 10
+    deg at 50 Hz), and under less at any higher one. (The RC corner sits near these crossovers, so the
+    real lag differs from the doublet's; tests/design measures it on the damped nominal: under 10 deg.)
+    The corner is taken at that bound, as high as the band allows, because the doublet leaves a slow
+    closed-loop pole near w_l whose tail decays with 1 / (2 pi f_l): at 0.88 Hz (0.1 % of the lowest
+    flexure mode, session 9's first choice) the verified mirror still pulled its 78 urad open-loop tilt
+    in 0.1 s after the loop started (README, mirror section); at 8.8 Hz the tail lasts 18 ms.
+
+    Lower bound, the drifts. Besides the force, the charge bridge reads charges that drift: the charge
+    amplifier's leakage (R_FP C_int) and dielectric absorption
+    (:class:`~workbench.selfsense.charge_amp.ChargeAmpParams`), and each stack's creep branches if its
+    file has them. The corner must lie above the fastest of them, 1 / (2 pi tau_min), or the
+    high-pass passes them into the drive.
+
+    Returns
+    -------
+    corner_hz : float
+    info : dict
+        ``drift_hz`` (1 / (2 pi tau_min)) and ``drift_source``.
+
+    Raises
+    ------
+    DesignError
+        When the band's bound lies at or below the drift bound.
+    """
+    from ..selfsense.charge_amp import ChargeAmpParams
+    amp = ChargeAmpParams() if amp is None else amp
+    taus = {"the charge amplifier's R_FP C_int": amp.r_leak_ohm * amp.c_int_f}
+    for k, t in enumerate(amp.da_time_constants_s):
+        taus[f"the charge amplifier's dielectric absorption {k + 1}"] = float(t)
+    for j, pz in enumerate(fsm.stacks):
+        if pz.creep is not None:
+            taus[f"stack {j}'s fastest creep branch"] = float(np.min(pz.creep.time_constants_s))
+    src = min(taus, key=taus.get)
+    drift_hz = 1.0 / (2 * np.pi * taus[src])
+    corner = float(np.tan(np.radians(phase_cost_deg)) * fc_min_hz)
+    if not corner > drift_hz:
+        raise DesignError(f"the IFF high-pass corner tan({phase_cost_deg:g} deg) x {fc_min_hz:g} Hz = {corner:.3g} Hz "
+                          f"(the lowest crossover searched) lies below {drift_hz:.3g} Hz, the drift of {src} "
+                          f"(tau {taus[src]:.3g} s) the bridge reads: raise the lowest crossover (fc_range_hz) "
+                          f"above {drift_hz / np.tan(np.radians(phase_cost_deg)):.3g} Hz")
+    return corner, {"drift_hz": float(drift_hz), "drift_source": src}
+
+
+def force_noise_n(fsm, source, bridge_capacitance_f=None, amp=None):
+    """RMS noise of each stack's force estimate per reading, N (3,), from the sensors' noise in the plant files.
+
+    ``"bridge"``: the charge amplifier's output noise and ADC LSB (sqrt(n^2 + lsb^2 / 12)) times T C_int / C_R;
+    ``"charge"``: the same reading times T C_int / C_p (q = C_int b); ``"charge+gauge"``: that plus the gauge's
+    reading noise as elongation (sigma_g / K_g) times T^2 / C_p.
+    """
+    from ..plant.gauge import demod_noise_sigma_v
+    from ..selfsense.charge_amp import ChargeAmpParams, adc_lsb_v
+    amp = ChargeAmpParams() if amp is None else amp
+    t, cp = _force_consts(fsm)
+    sb = np.hypot(amp.out_noise_v_rms, adc_lsb_v(amp.adc_bits, amp.adc_range_v) / np.sqrt(12.0))
+    _gauge_weight(source)
+    if source == "bridge":
+        cr = np.asarray(bridge_capacitances_f(fsm) if bridge_capacitance_f is None else bridge_capacitance_f, float)
+        return t * amp.c_int_f / cr * sb
+    q = t * amp.c_int_f / cp * sb
+    if source == "charge":
+        return q
+    sg = np.array([demod_noise_sigma_v(p.gauge) * p.gauge.trim_scale for p in fsm.plants]) / gauge_gains(fsm)[:, 0]
+    return np.hypot(q, t * t / cp * sg)
+
+
+def iff_command_noise_v(fsm, iff, dt_s):
+    """RMS lead of each stack's command over its RC model from the IFF's force-estimate noise, V (3,).
+
+    White noise sigma_F (:func:`force_noise_n`) through the sampled IFF cascade C(z) and the lead
+    H = (1 - z^-1) / (1 - (1 - alpha) z^-1) of the command over the stack's model v <- v + alpha (u - v)
+    (alpha of its current-limit window, :func:`~workbench.controller.plant_window`): sigma^2 = sigma_F^2
+    (1/pi) int_0^pi |H C|^2 d theta, as the outer loops' noise budget is scored
+    (:func:`~workbench.design.loopshape.noise_command_rms_v`). The IFF loop's own sensitivity is left out
+    (it is ~1 where H C is largest, above the flexure modes).
+    """
+    from ..controller import plant_window
+    from .loopshape import _noise_grid, _noise_rms
+    f = _noise_grid(dt_s)
+    k = response(discretize(iff.tf(), dt_s, iff.corner_hz), f)
+    sf = force_noise_n(fsm, iff.source, iff.bridge_capacitance_f)
+    out = np.empty(3)
+    for j, pl in enumerate(fsm.plants):
+        w = plant_window(pl, dt_s)
+        out[j] = _noise_rms(k, 0.0, f, dt_s, sf[j], 1, None if w is None else w[0])
+    return out
+
+
+def check_iff_noise(fsm, iff, dt_s):
+    """Refuse an IFF whose force-estimate noise alone breaks a stack's current-window noise budget.
+
+    The budget is the outer loops': R min(I_source, I_sink) / 3 RMS of command lead per stack
+    (:func:`~workbench.design.budgets.plant_budgets`, from each serial file). Returns (lead V RMS (3,),
+    budgets V (3,); NaN without a series resistor). Raises :class:`DesignError` naming the stack, the
+    numbers and the largest gain that fits (the lead is proportional to the gain).
+    """
+    from .budgets import plant_budgets
+    lead = iff_command_noise_v(fsm, iff, dt_s)
+    b = np.array([np.nan if (v := plant_budgets(pl, dt_s)["noise_command_v"].value) is None else v
+                  for pl in fsm.plants], float)
+    over = np.flatnonzero(lead > b)
+    if over.size:
+        j = int(over[np.argmax(lead[over] / b[over])])
+        gmax = abs(iff.gain_v_per_n) * float(np.nanmin(b / lead))
+        raise DesignError(f"the IFF gain {iff.gain_v_per_n:.3g} V/N puts {1e3 * lead[j]:.3g} mV RMS of force-estimate "
+                          f"noise ({iff.source}) on stack {j}'s command lead over its RC model, over its current "
+                          f"window's noise budget R min(I_source, I_sink) / 3 = {1e3 * b[j]:.3g} mV "
+                          f"({fsm.plants[j].source}); use at most {gmax:.3g} V/N")
+    return lead, b
+
+
 def _iff_closed(fsm, member, iff, dt_s):
     """Continuous v_outer -> (x, F_hat) of ``member`` with IFF closed through a 2nd-order Pade of the 2-sample delay."""
     # q_j from the states (mirror_small_signal: the structure's states, then q_j / C_pp,j), not as
@@ -261,8 +390,8 @@ def _inner_ok(f, loop, pm_deg, gm_db):
     return True
 
 
-def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, corner_ratio=0.001,
-             pm_deg=45.0, gm_db=6.0, source="charge+gauge"):
+def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, corner_hz=None,
+             pm_deg=45.0, gm_db=6.0, source="charge+gauge", noise_budget=False):
     """IFF gain maximizing the smallest damping ratio of the target modes on the nominal member.
 
     Parameters
@@ -270,13 +399,17 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
     target_hz : sequence of float, optional
         The modes to damp: the nominal member's modes within 10 % of these frequencies (default:
         the axis resonances the gauges see, :func:`axis_resonances_hz`).
-    corner_ratio : float
-        High-pass corner w_l as a fraction of the lowest target mode.
+    corner_hz : float, optional
+        High-pass corner f_l, Hz (default :func:`iff_corner_hz` at the lowest crossover of
+        :data:`MIMO_SPEC`).
     pm_deg, gm_db : float
         Margins each stack's sampled IFF loop must keep on the nominal member (others open,
         and others closed).
     source : {"charge+gauge", "charge", "bridge"}
         The force estimate fed back (:func:`force_estimate`).
+    noise_budget : bool
+        Only gains that pass :func:`check_iff_noise` (each stack's current-window noise budget) count;
+        when ``gains`` are given and none passes it, its :class:`DesignError` names the largest that would.
 
     Only gains that keep those margins and every StateSpace member of ``family`` stable (Pade
     of the two-sample delay in the loop) count.
@@ -295,7 +428,7 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
     sel = np.any(np.abs(fp[:, None] / target_hz[None, :] - 1) < 0.1, axis=1)
     modes_hz = np.sort(fp[sel])
     band_hz = (0.9 * target_hz.min(), 1.1 * target_hz.max())
-    corner = corner_ratio * modes_hz.min()
+    corner = iff_corner_hz(fsm, MIMO_SPEC.fc_range_hz[0])[0] if corner_hz is None else float(corner_hz)
     cr = bridge_capacitances_f(fsm) if source == "bridge" else None
     zeta_open = float((-p.real[sel] / np.abs(p[sel])).min())
     if gains is None:
@@ -305,9 +438,15 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
         gains = np.concatenate([mags, -mags])
     f = default_freq_hz(dt_s)
     fh = force_estimate(fsm, nominal, f, source, cr)
-    best = None
+    best = refused = None
     for g in gains:
         iff = IFF(float(g), float(corner), source, cr)
+        if noise_budget:
+            try:
+                check_iff_noise(fsm, iff, dt_s)
+            except DesignError as err:
+                refused = refused or err
+                continue
         if not _inner_ok(f, iff_response(iff, f, dt_s)[:, None, None] * fh, pm_deg, gm_db):
             continue
         cl = _iff_closed(fsm, nominal, iff, dt_s)
@@ -316,6 +455,8 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
             continue
         if best is None or z.min() > best[1]:
             best = (iff, float(z.min()))
+    if best is None and refused is not None:
+        raise refused
     if best is None:
         raise ValueError("no IFF gain keeps the nominal member stable")
     iff, zmin = best
@@ -493,7 +634,7 @@ MIMO_SPEC = LoopShapeSpec(integral_ratios=(0.1, 0.25, 1.0))
 
 
 def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_depth_db=20.0,
-                nominal=None, progress=None, iff_source="charge+gauge", iff_corner_ratio=0.001):
+                nominal=None, progress=None, iff_source="charge+gauge"):
     """Kinematic decoupling + per-axis loop shaping, notch-only or with IFF damping (module docstring).
 
     Parameters
@@ -507,14 +648,27 @@ def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_
         Targets and shapes searched per axis (``notch`` is set here).
     iff_source : {"charge+gauge", "charge", "bridge"}
         With ``damping``: the force estimate the IFF feeds back (:func:`force_estimate`).
-    iff_corner_ratio : float
-        With ``damping``: the IFF high-pass corner as a fraction of the lowest flexure mode (:func:`tune_iff`).
+
+    With ``damping`` the IFF's high-pass corner is :func:`iff_corner_hz` at ``spec``'s lowest crossover; with a
+    noise budget in ``spec`` (``max_noise_command_v``) the IFF gain must pass :func:`check_iff_noise` and the
+    outer loops' budget is what the IFF's noise leaves of it, rho sqrt(1 - max_j (sigma_iff,j / B_j)^2), so
+    that each stack's command noise stays within R min(I_source, I_sink) / 3.
     """
     f = default_freq_hz(spec.dt_s) if freq_hz is None else np.asarray(freq_hz, float)
     nominal = family[nominal_name()] if nominal is None else nominal
     dec = kinematic_decoupler(fsm, nominal)
-    iff, iff_info = (tune_iff(fsm, family, nominal, spec.dt_s, corner_ratio=iff_corner_ratio, source=iff_source)
-                     if damping else (None, None))
+    iff, iff_info = None, None
+    if damping:
+        budget = spec.max_noise_command_v is not None
+        corner, cinfo = iff_corner_hz(fsm, spec.fc_range_hz[0])
+        iff, iff_info = tune_iff(fsm, family, nominal, spec.dt_s, corner_hz=corner, source=iff_source,
+                                 noise_budget=budget)
+        lead, b = check_iff_noise(fsm, iff, spec.dt_s) if budget else (iff_command_noise_v(fsm, iff, spec.dt_s), None)
+        iff_info = {**iff_info, **cinfo, "command_noise_v": lead.tolist()}
+        if budget:
+            share = float(np.sqrt(max(0.0, 1.0 - np.nanmax(lead / b) ** 2)))
+            spec = replace(spec, max_noise_command_v=spec.max_noise_command_v * share)
+            iff_info["outer_noise_share"] = share
     plants = {n: decoupled(dec, damped_gauges(fsm, m, f, iff, spec.dt_s, spec.delay_samples))
               for n, m in family.items()}
     if iff is None:

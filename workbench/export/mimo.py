@@ -39,6 +39,16 @@ stack's accumulator before the clamp: v_j = clamp(((acc_j + 2^(FA - FV - 1)) >> 
 D_j = (d_j + 2^(FD_j - FV - 1)) >> (FD_j - FV) (or d_j << (FV - FD_j) when FD_j <= FV). Without it the
 step and the header are the notch-only ones, unchanged.
 
+**Current-limit window, per stack (with IFF).** The IFF's correction is added after the axis windows,
+which bound only the outer loops' share of each stack's command; so with IFF the stack's whole command
+is held within the same window the notch-only design keeps: v_j within M_j +/- h_j, M_j += alpha_j (v_j -
+M_j) the stack's own RC model (alpha_j = 1 - exp(-T / (R_j C_j)), C_j its largest capacitance) of the
+command it was sent, h_j = R_j min(I_source,j, I_sink,j) (:func:`stack_windows`). In words: before the
+amplifier clamp, v_j = min(max(v_j, M_j - H_j), M_j + H_j) (H_j = floor(h_j 2^FV)), then M_j += ((v_j -
+M_j) ALPHA_Q_j + 2^29) >> 30 (alpha in Q1.30, as the cascades' windows); M_j starts at the stack word of
+the reset's axis outputs. Only the IFF's high-pass can push the sum past the axis box, and the clamp
+takes it back (a high-pass has no integrator to wind up). Without IFF none of this is in the step.
+
 **Current-limit window, per axis.** Each axis cascade carries the SISO cascade's own window
 (:mod:`workbench.export.fixed_point`): a model m_a += alpha (u_a - m_a) of its output and the
 output kept within m_a +/- h_a. With alpha the slowest stack's (1 - exp(-T / (R C)), C its
@@ -69,17 +79,19 @@ from numba import njit
 from ..controller import Controller, _array, plant_window
 from ..errors import ControllerError, MimoControllerError
 from ..report.output import write_text
-from .fixed_point import fixed_step, initial_state, quantize
+from .fixed_point import ALPHA_FRAC_BITS, fixed_step, initial_state, quantize
 from .sos import ExportError
 
 __all__ = ["MimoController", "MimoControllerError", "MIMO_SCHEMA", "AXIS_KEYS", "is_mimo_controller_file", "mimo_step",
-           "iff_step", "IFF_KEYS"]
+           "iff_step", "IFF_KEYS", "stack_windows"]
 
 MIMO_SCHEMA = "workbench.mimo_controller/1"
 AXIS_KEYS = ("tip", "tilt", "piston")
 AXIS_UNITS = ("rad", "rad", "m")
 IFF_KEYS = ("stack0", "stack1", "stack2")
 _COEF_TOP_BITS = 30          # matrix words: |word| < 2^30
+_AF = ALPHA_FRAC_BITS
+_NO_WINDOW = 2 ** 40         # an unreachable stack window, in stack words (|v| < 2^31)
 
 
 def _frac_for(max_abs, top_bits=_COEF_TOP_BITS):
@@ -117,13 +129,16 @@ def iff_step(b, s, vm, dv, B, A, BSH, nsec, frac, lim, in_lim, dsh):
 
 
 @njit(cache=True)
-def mimo_step(g, r, s, vm, out, dv, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
+def mimo_step(g, r, s, vm, out, dv, sm, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim, sw):
     """One sample of the MIMO fixed-point step (module docstring), bit for bit the header's NAME_fixed_step.
 
     ``g``, ``r``: gauge and reference words (int64, 3); ``s`` (3, n_max, 2) and ``vm`` (3,) the
     axis cascades' states and window models, updated in place; ``out`` receives the stack words;
-    ``dv`` (int64, 3): the IFF's corrections in stack words (:func:`iff_step`; zeros without IFF).
-    The rest is :attr:`MimoController.plan`. Each axis runs :func:`~workbench.export.fixed_point.fixed_step`.
+    ``dv`` (int64, 3): the IFF's corrections in stack words (:func:`iff_step`; zeros without IFF);
+    ``sm`` (int64, 3): the stacks' window models M_j, updated in place. The rest is
+    :attr:`MimoController.plan` (its last, ``sw`` (3, 3): per stack [alpha Q1.30, H up, H down] of the
+    stack window; without IFF an unreachable window). Each axis runs
+    :func:`~workbench.export.fixed_point.fixed_step`.
     """
     top, bottom = np.int64(2 ** 31 - 1), np.int64(-2 ** 31)
     one = np.int64(1)
@@ -139,7 +154,9 @@ def mimo_step(g, r, s, vm, out, dv, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, 
         for a in range(3):
             acc += (iq[j, a] * u[a]) >> ish[a]
         v = ((acc + (one << (vsh - 1))) >> vsh) + dv[j]
+        v = min(max(v, sm[j] - sw[j, 2]), sm[j] + sw[j, 1])
         out[j] = min(max(v, lw[j, 0]), lw[j, 1])
+        sm[j] += ((out[j] - sm[j]) * sw[j, 0] + (one << (_AF - 1))) >> _AF
 
 
 @dataclass(frozen=True, eq=False)
@@ -268,7 +285,28 @@ class MimoController:
         in_lim = np.array([f.input_limit for f in fx], np.int64)
         return (self.out_q, self.out_shift, self.in_q, self.in_shift,
                 np.int64(self.acc_frac_bits - self.stack_frac_bits), self.stack_limit_words,
-                B, A, BSH, nsec, frac, lim, in_lim)
+                B, A, BSH, nsec, frac, lim, in_lim, self.stack_window_words)
+
+    @property
+    def stack_window_words(self):
+        """int64 (3, 3): per stack [alpha in Q1.30, H up, H down in stack words] of the stack window (module
+        docstring); without IFF alpha = 1 and an unreachable window (the step is the notch-only one)."""
+        if self.iff is None:
+            return np.tile(np.array([1 << _AF, _NO_WINDOW, _NO_WINDOW], np.int64), (3, 1))
+        w = self.iff["stack_window"]
+        sc = 2.0 ** self.stack_frac_bits
+        return np.column_stack([np.rint(np.asarray(w["alpha"], float) * 2.0 ** _AF),
+                                np.floor(np.asarray(w["headroom_v"], float) * sc),
+                                np.floor(np.asarray(w["headroom_v"], float) * sc)]).astype(np.int64)
+
+    def stack_words_at(self, u_words):
+        """The step's stack words (before IFF and the stack window) of axis output words ``u_words``."""
+        iq, ish, vsh, lw = self.in_q, self.in_shift, self.acc_frac_bits - self.stack_frac_bits, self.stack_limit_words
+        out = np.empty(3, np.int64)
+        for j in range(3):
+            acc = sum((int(iq[j, a]) * int(u_words[a])) >> int(ish[a]) for a in range(3))
+            out[j] = min(max((acc + (1 << (vsh - 1))) >> vsh, int(lw[j, 0])), int(lw[j, 1]))
+        return out
 
     @cached_property
     def iff_plan(self):
@@ -297,12 +335,14 @@ class MimoController:
         fi = np.array([self.iff[k].fixed.input_frac_bits for k in IFF_KEYS], float)
         return np.clip(np.rint(np.asarray(b_v, float) * 2.0 ** fi), -2 ** 31, 2 ** 31 - 1).astype(np.int64)
 
-    def reset_iff(self):
-        """IFF cascades' state at rest (states (3, n_max, 2), models (3,), int64); None without IFF."""
+    def reset_iff(self, u0_axes_v=(0.0, 0.0, 0.0)):
+        """IFF state at rest with the axis cascades at ``u0_axes_v`` (as :meth:`reset`): the cascades' states
+        (3, n_max, 2), their models (3,) and the stack windows' models M_j (3,: the stack words of the axis
+        outputs), int64; None without IFF."""
         if self.iff is None:
             return None
         nmax = max(len(self.iff[k].fixed.b) for k in IFF_KEYS)
-        return np.zeros((3, nmax, 2), np.int64), np.zeros(3, np.int64)
+        return np.zeros((3, nmax, 2), np.int64), np.zeros(3, np.int64), self.stack_words_at(self.reset(u0_axes_v)[1])
 
     def reset(self, u0_axes_v=(0.0, 0.0, 0.0)):
         """State (cascade states (3, n_max, 2), window models (3,), int64) at rest at ``u0_axes_v`` (axis V), zero error."""
@@ -327,7 +367,10 @@ class MimoController:
         dv = np.zeros(3, np.int64)
         if self.iff is not None:
             iff_step(np.asarray(b_w, np.int64), iff_state[0], iff_state[1], dv, *self.iff_plan)
-        mimo_step(np.asarray(g_w, np.int64), np.asarray(r_w, np.int64), s, vm, out, dv, *self.plan)
+            sm = iff_state[2]
+        else:
+            sm = np.zeros(3, np.int64)
+        mimo_step(np.asarray(g_w, np.int64), np.asarray(r_w, np.int64), s, vm, out, dv, sm, *self.plan)
         return out
 
     def stack_volts(self, words):
@@ -352,7 +395,7 @@ class MimoController:
         if self.iff is not None and b_v is None:
             raise ValueError("this controller damps with IFF: give the bridge readings b_v (samples, 3), V")
         bw = None if self.iff is None else self.bridge_words(b_v)
-        st, ist = self.reset(u0_axes_v), self.reset_iff()
+        st, ist = self.reset(u0_axes_v), self.reset_iff(u0_axes_v)
         out = np.empty(gw.shape, np.int64)
         for k in range(gw.shape[0]):
             out[k] = self.step_words(st, gw[k], rw[k], None if bw is None else bw[k], ist)
@@ -363,7 +406,9 @@ class MimoController:
     def from_design(cls, design, fsm, *, name="fsm_controller", record=None, coeff_bits=32):
         """Export a :class:`~workbench.design.mimo.MimoDesign` for the mirror ``fsm``.
 
-        An IFF-damped design exports when its force estimate is the charge bridge (``iff_source="bridge"``):
+        An IFF-damped design exports when its force estimate is the charge bridge (``iff_source="bridge"``) and its
+        force-estimate noise fits each stack's current-window budget (:func:`~workbench.design.mimo.check_iff_noise`;
+        else :class:`ExportError`); its stacks' whole commands are held in their windows (:func:`stack_windows`).
         each stack's IFF becomes a cascade from the bridge reading (module docstring), designed for the
         charge amplifier :class:`~workbench.selfsense.charge_amp.ChargeAmpParams` (C_int, its ADC range)
         with C_R = the design's reference capacitance. The gauge-fed estimate (``"charge+gauge"``) does not
@@ -380,6 +425,14 @@ class MimoController:
                               f"the notch-only design (damping=False)")
         dec = design.decoupler
         dt = float(design.axes["tip"].controller_d.dt)
+        if design.iff is not None:
+            # the same current-window budget the design searched under (design.mimo.check_iff_noise)
+            from ..design.mimo import check_iff_noise
+            from ..errors import DesignError
+            try:
+                check_iff_noise(fsm, design.iff, dt)
+            except DesignError as err:
+                raise ExportError(f"{err}; re-design with design_mimo's noise budget on") from err
         inv = np.asarray(dec.in_v_per_q, float)
         scale = 1.0 / np.abs(inv).max(axis=0)
         g2a = np.asarray(dec.out_q_per_v, float) / scale[:, None]
@@ -426,7 +479,10 @@ class MimoController:
                                 record={**c.record, "anti_windup": aw}, max_pole_radius=fxp.max_pole_radius)
         dv = max(np.abs(lim).max(), 1e-9)
         rec = {"provenance": _mirror_provenance(fsm), **(record or {})}
-        iff = None if design.iff is None else _iff_cascades(design.iff, fsm, dt, name, coeff_bits)
+        iff = None
+        if design.iff is not None:
+            iff = _iff_cascades(design.iff, fsm, dt, name, coeff_bits)
+            iff["stack_window"] = stack_windows(fsm, dt)
         return cls(name=name, axes=axes, axis_scale=scale, gauge_to_axes=g2a, axes_to_stacks=a2s,
                    stack_limits_v=lim, gauge_frac_bits=_frac_for(dac.max(), 31),
                    stack_frac_bits=_frac_for(dv, 31), record=rec, iff=iff)
@@ -449,6 +505,7 @@ class MimoController:
                                         "cascades are controllers[axis], each with its axis current-limit window"},
                 "controllers": {k: c.to_dict() for k, c in self.axes.items()},
                 **({} if self.iff is None else {"iff": {"bridge": dict(self.iff["bridge"]),
+                                                        "stack_window": dict(self.iff["stack_window"]),
                                                         "controllers": {k: self.iff[k].to_dict() for k in IFF_KEYS},
                                                         "note": "stack j's command += this cascade's output; its input "
                                                                 "is the charge bridge's reading b_j = -(q_j - C_R V_t,j) "
@@ -583,10 +640,19 @@ class MimoController:
         has = self.iff is not None
         fi = [f"{name}_iff_{k}" for k in IFF_KEYS]
         i_inc = "".join(f'#include "{h}.h"\n' for h in fi) if has else ""
+        sw = self.stack_window_words
         i_def = (f"static const int {up}_IFF_SHIFT[3] = {{{', '.join(str(int(v)) for v in self.iff_shift)}}};\n"
+                 f"static const int64_t {up}_STACK_WINDOW_Q[3][3] = {{\n{arr(sw)}\n}};\n"
                  if has else "")
-        i_st = (f" {fi[0]}_fixed_state i0; {fi[1]}_fixed_state i1; {fi[2]}_fixed_state i2;" if has else "")
-        i_reset = ("".join(f"    {h}_fixed_reset(&st->i{j}, 0);\n" for j, h in enumerate(fi)) if has else "")
+        i_st = (f" {fi[0]}_fixed_state i0; {fi[1]}_fixed_state i1; {fi[2]}_fixed_state i2; int64_t m[3];"
+                if has else "")
+        i_reset = (("".join(f"    {h}_fixed_reset(&st->i{j}, 0);\n" for j, h in enumerate(fi))
+                    + f"    for (int j = 0; j < 3; j++) {{\n"
+                      f"        int64_t acc = 0;\n"
+                      f"        for (int a = 0; a < 3; a++) acc += ({up}_IN_Q[j][a] * (int64_t)u0_q[a]) >> {up}_IN_SHIFT[a];\n"
+                      f"        int64_t v = (acc + ((int64_t)1 << ({up}_V_SHIFT - 1))) >> {up}_V_SHIFT;\n"
+                      f"        st->m[j] = v < {up}_STACK_LIMITS_Q[j][0] ? {up}_STACK_LIMITS_Q[j][0] : "
+                      f"v > {up}_STACK_LIMITS_Q[j][1] ? {up}_STACK_LIMITS_Q[j][1] : v;\n    }}\n") if has else "")
         i_arg = ", const int32_t b_q[3]" if has else ""
         i_step = (("    int64_t d[3];\n" + "".join(f"    d[{j}] = {h}_fixed_step(&st->i{j}, b_q[{j}]);\n"
                                                   for j, h in enumerate(fi))
@@ -594,9 +660,15 @@ class MimoController:
                      f"({up}_IFF_SHIFT[j] - 1))) >> {up}_IFF_SHIFT[j] : d[j] * ((int64_t)1 << -{up}_IFF_SHIFT[j]);\n")
                   if has else "")
         i_add = " + d[j]" if has else ""
+        i_win = (f"        v = v < st->m[j] - {up}_STACK_WINDOW_Q[j][2] ? st->m[j] - {up}_STACK_WINDOW_Q[j][2] : "
+                 f"v > st->m[j] + {up}_STACK_WINDOW_Q[j][1] ? st->m[j] + {up}_STACK_WINDOW_Q[j][1] : v;\n" if has else "")
+        i_upd = (f"        st->m[j] += ((v - st->m[j]) * {up}_STACK_WINDOW_Q[j][0] + ((int64_t)1 << {ALPHA_FRAC_BITS - 1})) "
+                 f">> {ALPHA_FRAC_BITS};\n" if has else "")
         i_doc = ("\n * IFF (active damping): bridge words b_q[3] (each stack's charge bridge, V, in its IFF cascade's "
                  "input format)\n * in; d[j] = STACK_iff_fixed_step(b_q[j]) shifted to stack words is added before "
-                 "the clamp." if has else "")
+                 "the clamp,\n * and the sum is held within the stack's current-limit window: v[j] within m[j] +/- "
+                 "STACK_WINDOW_Q[j][1..2],\n * m[j] += ((v[j] - m[j]) STACK_WINDOW_Q[j][0] + 2^29) >> 30 (alpha Q1.30) "
+                 "after the amplifier clamp." if has else "")
         return f"""\
 /* {name}.h: the mirror's MIMO controller "{name}", exported by workbench.export.mimo. Re-export rather than edit.
  *
@@ -667,8 +739,8 @@ static inline void {name}_fixed_step({name}_fixed_state *st, const int32_t g_q[3
         int64_t acc = 0;
         for (int a = 0; a < 3; a++) acc += ({up}_IN_Q[j][a] * u[a]) >> {up}_IN_SHIFT[a];
         int64_t v = ((acc + ((int64_t)1 << ({up}_V_SHIFT - 1))) >> {up}_V_SHIFT){i_add};
-        v = v < {up}_STACK_LIMITS_Q[j][0] ? {up}_STACK_LIMITS_Q[j][0] : v > {up}_STACK_LIMITS_Q[j][1] ? {up}_STACK_LIMITS_Q[j][1] : v;
-        v_q[j] = (int32_t)v;
+{i_win}        v = v < {up}_STACK_LIMITS_Q[j][0] ? {up}_STACK_LIMITS_Q[j][0] : v > {up}_STACK_LIMITS_Q[j][1] ? {up}_STACK_LIMITS_Q[j][1] : v;
+{i_upd}        v_q[j] = (int32_t)v;
     }}
 }}
 
@@ -681,6 +753,19 @@ _TOP_KEYS = ("schema", "name", "sample_rate_hz", "axes", "axis_units", "axis_sca
              "axes_to_stacks", "stack_limits_v", "fixed_point", "controllers", "iff")
 _BRIDGE_KEYS = ("reference_capacitance_f", "integrator_capacitance_f", "transducer_n_per_v", "gain_v_per_n",
                 "corner_hz", "adc_range_v", "adc_bits", "out_noise_v_rms")
+
+
+def stack_windows(fsm, dt_s):
+    """Each stack's current-limit window for the damped step (module docstring): ``{"alpha": [3], "headroom_v": [3]}``.
+
+    alpha_j = 1 - exp(-T / (R_j C_j)) (C_j the stack's largest terminal capacitance) and h_j = R_j
+    min(I_source,j, I_sink,j), V: the symmetric window each stack keeps in the notch-only design (its
+    axes' box maps inside it), from :func:`workbench.controller.plant_window` of each serial file.
+    """
+    windows = [plant_window(pl, dt_s) for pl in fsm.plants]
+    if any(w is None for w in windows):
+        raise ExportError("a stack has no series resistor (R = 0): no current-limit window to build")
+    return {"alpha": [float(w[0]) for w in windows], "headroom_v": [float(min(w[1], w[2])) for w in windows]}
 
 
 def _iff_cascades(iff, fsm, dt_s, name, coeff_bits):
@@ -726,10 +811,19 @@ def _load_iff(src, data, fs, allow_unstable):
             raise MimoControllerError(src, f"iff.bridge.{k}", f"must be a finite {kind} number; got {v!r}")
     if not (isinstance(br["adc_bits"], int) and not isinstance(br["adc_bits"], bool) and 1 <= br["adc_bits"] <= 64):
         raise MimoControllerError(src, "iff.bridge.adc_bits", f"must be an integer 1..64; got {br['adc_bits']!r}")
+    sw = data.get("stack_window")
+    if not isinstance(sw, dict) or any(k not in sw for k in ("alpha", "headroom_v")):
+        raise MimoControllerError(src, "iff.stack_window", "needs alpha and headroom_v (each stack's current-limit "
+                                                           "window); re-export the controller")
+    for k, hi in (("alpha", 1.0), ("headroom_v", np.inf)):
+        v = _array(src, f"iff.stack_window.{k}", sw[k], "three positive numbers", 1, MimoControllerError)
+        if v.shape != (3,) or np.any(v <= 0) or np.any(v > hi):
+            raise MimoControllerError(src, f"iff.stack_window.{k}", f"must be three numbers in (0, {hi:g}]; "
+                                                                    f"got {sw[k]!r}")
     ctr = data.get("controllers")
     if not isinstance(ctr, dict):
         raise MimoControllerError(src, "iff.controllers", "must be a table {stack0, stack1, stack2}")
-    out = {"bridge": dict(br)}
+    out = {"bridge": dict(br), "stack_window": {k: [float(x) for x in sw[k]] for k in ("alpha", "headroom_v")}}
     for k in IFF_KEYS:
         c = _load_cascade(src, ctr, k, "iff.controllers", allow_unstable)
         if abs(c.sample_rate_hz - fs) > 1e-9 * fs:

@@ -19,9 +19,10 @@ loop-shaping tuner takes it as ``max_noise_command_v = rho`` with ``noise_readin
 
 Active damping (opt-in, ``[design] iff = true``). The same family and spec (noise budget included) are
 also designed with integral force feedback from each stack's charge bridge
-(``design_mimo(..., damping=True, iff_source="bridge")``, high-pass at :data:`IFF_CORNER_RATIO` of the
-lowest flexure mode: the force estimate T (V_t - q / C_R) that the
-charge amplifier with its reference capacitor reads, no gauge in it) and exported beside the
+(``design_mimo(..., damping=True, iff_source="bridge")``, high-pass at
+:func:`~workbench.design.mimo.iff_corner_hz` of the lowest crossover searched: the force estimate
+T (V_t - q / C_R) that the charge amplifier with its reference capacitor reads, no gauge in it; with
+the noise budget, the IFF's own noise counts against it) and exported beside the
 notch-only controller as NAME_iff; the report sets the two designs side by side. Off by default: the
 damped export is only as good as its verification (README, mirror section).
 """
@@ -37,16 +38,9 @@ import numpy as np
 from ..errors import StudyDefinitionError
 from ..fields import Field, check_table, read_toml
 
-__all__ = ["FSM_STUDY_SCHEMA", "IFF_CORNER_RATIO", "is_mirror_study", "run_mirror_study", "noise_gain_bound"]
+__all__ = ["FSM_STUDY_SCHEMA", "is_mirror_study", "run_mirror_study", "noise_gain_bound"]
 
 FSM_STUDY_SCHEMA = "workbench.fsm_study/1"
-
-# the damped design's IFF high-pass corner, as a fraction of the lowest flexure mode (8.8 Hz on the committed
-# mirror). At design.mimo's 0.1 % (0.88 Hz) the closed loop keeps poles at 0.886 Hz: measured in the verified
-# loop, the 78 urad tilt the unequal C_h leave open loop is still being pulled in 0.1 s after the loop starts
-# (the 1 % tilt step then reads 41 % overshoot, 18 urad final error); at 1 % (poles at 9.8 Hz) the same step
-# overshoots 6 % and ends within 0.4 urad, and the triangle is unchanged (0.026 % vs 0.027 %). README, mirror section.
-IFF_CORNER_RATIO = 0.01
 
 _SCHEMA = {
     "": {"schema": Field("str", expect=f'the string "{FSM_STUDY_SCHEMA}"'),
@@ -161,7 +155,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
     damped = damped_paths = None
     if des_s.get("iff", False):
         damped = design_mimo(fsm, fam, damping=True, spec=lsspec, nominal=nom, iff_source="bridge",
-                             iff_corner_ratio=IFF_CORNER_RATIO, progress=lambda d, t: stage("damped design", d, t))
+                             progress=lambda d, t: stage("damped design", d, t))
         dctrl = MimoController.from_design(damped, fsm, name=f"{name}_iff",
                                            record={"study": str(path), "design": damped.summary(),
                                                    "noise_gain_bound": rho})
@@ -226,7 +220,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
               "## Figures", "", md_image("MIMO Bode", figs["bode"], md), "", md_image("disk margins", figs["disk"], md),
               "", md_image("modes", figs["modes"], md), ""]
     if damped is not None:
-        lines += _damped_section(summ, damped, damped_paths, plant_path)
+        lines += _damped_section(summ, damped, damped_paths, plant_path, budgets)
     rows = [[lab, f"{fm:.1f}", f"{100 * z:.2f}"] for lab, fm, z in zip(labels, modes_hz, zeta)]
     lines += [f"Structural modes of the nominal member ({nname}: amplifiers in the loop, stacks at their slopes):", ""] + md_table(["mode", "Hz", "damping %"], rows)
     write_text(md, "\n".join(lines) + "\n")
@@ -242,7 +236,7 @@ def damped_ratio_met(ratios, floor=2.0):
     return bool(all(float(r) >= floor for r in list(ratios)[:2]))
 
 
-def _damped_section(summ, damped, paths, plant_path):
+def _damped_section(summ, damped, paths, plant_path, budgets_v):
     """Report lines: the IFF-damped design beside the notch-only one (worst members), and its export."""
     from ..design.mimo import AXIS_NAMES
     from ..report.markdown import md_table
@@ -261,7 +255,12 @@ def _damped_section(summ, damped, paths, plant_path):
             f"Integral force feedback per stack from its charge bridge (force estimate T (V_t - q / C_R), C_R = "
             f"the nominal incremental C_h): gain {i['gain_v_per_n']:.4g} V/N, high-pass {i['corner_hz']:.3g} Hz; "
             f"flexure damping {100 * i['zeta_min_open']:.2f} % -> {100 * i['zeta_min_damped']:.2f} % (nominal "
-            f"member). Same family and spec as above (noise budget included).", ""] + md_table(
+            f"member). Same family and spec as above (noise budget included). The high-pass is tan(10 deg) x the "
+            f"lowest crossover searched (design.mimo.iff_corner_hz), above the fastest drift the bridge reads "
+            f"({i['drift_hz']:.3g} Hz, {i['drift_source']}). The bridge noise through the IFF leads each stack's "
+            f"command by {_fmt_list(np.array(i['command_noise_v']) * 1e3, '.3g')} mV RMS against the current "
+            f"window's budget {_fmt_list(np.array(budgets_v) * 1e3, '.3g')} mV; the export holds each stack's whole "
+            f"command (axes + IFF) within R min(I_source, I_sink) of its RC model.", ""] + md_table(
         ["axis", "bandwidth notch only / damped, Hz (worst member)", "damped / notch only", "PM deg notch / damped",
          "GM dB notch / damped"], rows) + [
         "", f"Damped simultaneous alpha {alpha:.3f}. Issue 15's 2x target: "

@@ -56,7 +56,7 @@ from ..selfsense.charge_amp import (ChargeAmpParams, adc_convert, adc_lsb_v, cha
 
 __all__ = ["MirrorLoop", "MirrorRun", "mirror_operating_point", "tip_range_rad", "mirror_scenarios",
            "verification_mirror", "run_mirror_verify", "check_pairing",
-           "run_mirror_scenarios", "TARGETS"]
+           "run_mirror_scenarios", "model_peak_current_a", "TARGETS"]
 
 # the coupled kernel's arguments this module's compiled loop passes (plant/coupled.py is being sped up on
 # another branch: if its signature changes, the loop falls back to one CoupledSimulator.run per period)
@@ -188,7 +188,7 @@ class MirrorLoop:
         self.v_p_reset_v = tr.v_p_v[-1].copy()       # the stacks' V_p and q at the reset (the bridge reads changes)
         self.q_reset_c, self.v_t_reset_v = tr.q_c[-1].copy(), tr.v_t_v[-1].copy()
         self.state = self.ctrl.reset(self.u0)
-        self.iff_state = self.ctrl.reset_iff() if self.ctrl.iff is not None else _NO_IFF_STATE
+        self.iff_state = self.ctrl.reset_iff(self.u0) if self.ctrl.iff is not None else _no_iff_state()
         self.v_cmd = self.v0.copy()
 
     def run(self, ref, external=None, progress=None, chunk=20000):
@@ -209,7 +209,7 @@ class MirrorLoop:
                   else np.zeros((n, 3)))
         ctrl = self.ctrl
         ifp = ctrl.iff_plan if ctrl.iff is not None else _NO_IFF_PLAN
-        si, vmi = self.iff_state
+        si, vmi, smi = self.iff_state
         bout = np.empty((n, 3))
         io = np.concatenate([self.x_prev, self.v_cmd])
         s, vm = self.state
@@ -220,7 +220,7 @@ class MirrorLoop:
                 _loop(*kernel, w[k0:k1], rw[k0:k1], noise[k0:k1], self.gp, self.r0, np.int64(ctrl.gauge_frac_bits),
                       float(2.0 ** -ctrl.stack_frac_bits), io, s, vm, out[k0:k1], mir[k0:k1],
                       np.int64(ctrl.iff is not None), self.bridge_state, self.bridge_zero, *self.bridge, bnoise[k0:k1],
-                      si, vmi, bout[k0:k1], *ifp, *ctrl.plan)
+                      si, vmi, smi, bout[k0:k1], *ifp, *ctrl.plan)
             else:
                 self._run_python(w[k0:k1], rw[k0:k1], noise[k0:k1], io, s, vm, out[k0:k1], mir[k0:k1],
                                  bnoise[k0:k1], bout[k0:k1])
@@ -251,6 +251,7 @@ class MirrorLoop:
         vw = np.empty(3, np.int64)
         dv = np.zeros(3, np.int64)
         bsc = self.bridge[-1]
+        sm = self.iff_state[2]
         for k in range(w.shape[0]):
             tr = sim.run(io[3:][None, :].copy(), external_n=w[k:k + 1])
             x = tr.x_m[0]
@@ -264,11 +265,13 @@ class MirrorLoop:
                                 bnoise[k], b)
                 bout[k] = b
                 iff_step(np.rint(b * bsc).astype(np.int64), self.iff_state[0], self.iff_state[1], dv, *ctrl.iff_plan)
-            mimo_step(np.rint(g * gscale).astype(np.int64), rw[k], s, vm, vw, dv, *ctrl.plan)
+            mimo_step(np.rint(g * gscale).astype(np.int64), rw[k], s, vm, vw, dv, sm, *ctrl.plan)
             io[3:] = vw * fv
 
 
-_NO_IFF_STATE = (np.zeros((3, 1, 2), np.int64), np.zeros(3, np.int64))
+def _no_iff_state():
+    """Placeholders for the compiled loop's IFF state without IFF (cascade states, their models, stack models)."""
+    return np.zeros((3, 1, 2), np.int64), np.zeros(3, np.int64), np.zeros(3, np.int64)
 _NO_IFF_PLAN = (np.zeros((3, 1, 3), np.int64), np.zeros((3, 1, 2), np.int64), np.zeros((3, 1), np.int64),
                 np.ones(3, np.int64), np.full(3, 30, np.int64), np.zeros((3, 5), np.int64), np.zeros(3, np.int64),
                 np.ones(3, np.int64))
@@ -326,8 +329,8 @@ def _bridge_reading(q, vt, state, zero, adc, cp, k, a, b0, b1, noise, out):
 @njit(cache=True)
 def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp, g_prev,
           g_now, u_now, y, h, n_sub, rec_s, rec_y, rec_xi, w, rw, noise, gp, r0, gf, fv, io, s, vm, out, mir,
-          has_iff, bstate, bzero, badc, bcp, bk, ba, bb0, bb1, bsc, bnoise, si, vmi, bout, iB, iA, iBSH, insec, ifrac, ilim, iin_lim, idsh,
-          oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim):
+          has_iff, bstate, bzero, badc, bcp, bk, ba, bb0, bb1, bsc, bnoise, si, vmi, smi, bout, iB, iA, iBSH, insec, ifrac, ilim,
+          iin_lim, idsh, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim, sw):
     """Periods of the closed loop (module docstring): the coupled kernel one period at a time, the gauges, the
     charge bridges and IFF (``has_iff``), the MIMO step."""
     ns = 3
@@ -370,7 +373,7 @@ def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, 
                 bout[k, j] = b[j]
                 bw[j] = np.int64(np.rint(b[j] * bsc[j]))
             iff_step(bw, si, vmi, dv, iB, iA, iBSH, insec, ifrac, ilim, iin_lim, idsh)
-        mimo_step(gw, rw[k], s, vm, vw, dv, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim)
+        mimo_step(gw, rw[k], s, vm, vw, dv, smi, oq, osh, iq, ish, vsh, lw, B, A, BSH, nsec, frac, lim, in_lim, sw)
         for j in range(ns):
             io[3 + j] = vw[j] * fv
 
@@ -530,6 +533,31 @@ def _open_loop_creep(fsm, controller, run, info):
     return {"open_loop_piston_drift_nm": float((np.mean(p[-kw:]) - np.mean(p[:kw])) * 1e9)}
 
 
+def model_peak_current_a(controller, v_cmd_v, r_ohm):
+    """Largest |current| per stack (A, list of 3) the controller's own RC model predicts for the commands it sent.
+
+    Each stack's command v is replayed through the model its window keeps, m += alpha (v - m) (the
+    damped export's per-stack ``iff.stack_window`` alpha; else the axis windows' alpha, whose box every
+    stack's command shares), from the first command; the predicted current is (v - m) / R. The window
+    bounds it by min(I_source, I_sink); the simulated current differs where the stack's terminal voltage
+    leaves the model (hysteresis, a disturbance's back-EMF)."""
+    v = np.asarray(v_cmd_v, float)
+    if controller.iff is not None:
+        alpha = np.asarray(controller.iff["stack_window"]["alpha"], float)
+    else:
+        vm = controller.axes["tip"].voltage_model
+        if vm is None:
+            return [float("nan")] * v.shape[1]
+        alpha = np.full(v.shape[1], float(vm[0]))
+    m = v[0].copy()
+    peak = np.zeros(v.shape[1])
+    for k in range(v.shape[0]):
+        d = v[k] - m
+        peak = np.maximum(peak, np.abs(d))
+        m += alpha * d
+    return (peak / np.asarray(r_ohm, float)).tolist()
+
+
 def run_mirror_scenarios(fsm, controller, names=None, noise=True, seed=0, progress=None, **sizes):
     """Run the scenarios (each from the operating point) and score them; returns (metrics list, runs dict, targets)."""
     sc = mirror_scenarios(fsm, controller, **sizes)
@@ -543,6 +571,8 @@ def run_mirror_scenarios(fsm, controller, names=None, noise=True, seed=0, progre
         r = loop.run(ref, ext, progress=None if progress is None else (lambda d, t, nm=name: progress(nm, d, t)))
         runs[name] = r
         m = _metrics(name, r, info, span)
+        m["model_peak_current_ma"] = [1e3 * i for i in model_peak_current_a(
+            controller, r.v_cmd_v, [pz.series_resistance_ohm for pz in fsm.stacks])]
         if name == "piston_hold":
             m.update(_open_loop_creep(fsm, controller, r, info))
         metrics.append(m)
