@@ -140,6 +140,17 @@ class SensorModel:
                                             "k": fb.k, "header": "the controller's own NAME.h (NAME_sensor_step)"}}
         return out
 
+    def firmware_setup(self, plant):
+        """The :class:`workbench.verify.sensors.SensorSetup` of this sensor on ``plant`` (the nominal it was
+        simulated on): the study's own identified estimator, charge amplifier and E(z), so firmware's startup
+        settings (:func:`workbench.verify.sensors.with_firmware_startup`) come from the records the design used,
+        without identifying again. For "gauge" the plant alone (the gauge's settings need no charge channel)."""
+        from ..verify.sensors import SensorSetup
+        if self.kind == "gauge":
+            return SensorSetup(plant, None, None, None, {})
+        s = self._systems
+        return SensorSetup(plant, s["ident"], s["amp"], s["E_d"], {})
+
     def reading_noise_v(self):
         """RMS noise of one reading in the controller's input units (firmware V)."""
         return self.noise_m["reading"] * self.gauge_v_per_m
@@ -254,7 +265,7 @@ def _systems(plant, ident, amp):
     s = la["systems"]
     c_h = operating_point(plant.pzt, BIAS_V, "ascending").capacitance_f
     return {"E": s["E"], "E_d": s["E_d"], "sensor": s["sensor"],
-            "x_of_vpea": small_signal_model(plant.pzt, c_h)[0, 0]}
+            "x_of_vpea": small_signal_model(plant.pzt, c_h)[0, 0], "ident": ident, "amp": amp}
 
 
 def member_gain_ratio(name, family, k_nominal_v_per_m):
