@@ -169,12 +169,12 @@ class SensorModel:
 
 def _records(plant, seed, drift_record_s):
     """The expensive part (identification, noise, drift spectrum), the same calls as ``selfsense --fused``."""
-    from ..selfsense.charge_amp import ChargeAmpParams
+    from ..selfsense.charge_amp import charge_amp_params
     from ..selfsense.fusion import (choose_crossover, drift_record, fused_error_variance, fused_noise_rms_per_sample,
                                     sensor_spectra)
     from ..selfsense.identify import identify, simulate_identification
     from ..selfsense.run import noise_comparison
-    amp = ChargeAmpParams()
+    amp = charge_amp_params(plant)          # the plant file's [leakage] / [dielectric_absorption] when given
     dt = plant.gauge.period_s
     idrec = simulate_identification(plant.pzt, amp, hold_s=700.0, seed=seed + 100, dt_s=dt)
     ident = identify(idrec, amp)

@@ -43,7 +43,8 @@ beside it as ``triangle_mean_m``; ``triangle_commanded_rms_m`` scores x's motion
 at closing against the triangle alone, the sensor's offset aside), hold drift (mean of the last
 second minus mean of the second after 1 s of settling), hold noise (RMS about the 1 s running
 mean). The charge amplifier's parameters are the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`
-(the seeds give none for a stack); the estimator is identified on a simulated 700 s record of
+(the seeds give none for a stack) with the plant file's ``[leakage]`` and ``[dielectric_absorption]`` when it
+has them (:func:`~workbench.selfsense.charge_amp.charge_amp_params`); the estimator is identified on a simulated 700 s record of
 this plant (:func:`workbench.selfsense.identify.identify`), as ``workbench selfsense`` does.
 """
 
@@ -124,13 +125,13 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_
     with the controller's blend, when it has one).
     """
     from ..design.margins import loop_margins
-    from ..selfsense.charge_amp import ChargeAmpParams
+    from ..selfsense.charge_amp import charge_amp_params
     from ..selfsense.fused_loop import fused_loop_response
     from ..selfsense.fusion import Blend
     from ..selfsense.identify import identify, simulate_identification
     from ..selfsense.run import loop_analysis
     say = progress or (lambda *a: None)
-    amp = ChargeAmpParams() if amp is None else amp
+    amp = charge_amp_params(plant) if amp is None else amp
     dt = plant.gauge.period_s
     say("identification record")
     rec = simulate_identification(plant.pzt, amp, hold_s=float(ident_hold_s), seed=seed + 100, dt_s=dt)
