@@ -43,8 +43,9 @@ def _drive(rng, n, plant):
     return steps + walk, force
 
 
-def _loop_vs_reference(root, plant, monkeypatch, rng, form, n_sub, anti_windup, n):
-    ctrl = _controllers(root)[form]
+def _loop_vs_reference(root, plant, monkeypatch, rng, form, n_sub, anti_windup, n, beta_per_m=0.0):
+    from dataclasses import replace
+    ctrl = replace(_controllers(root)[form], gauge_curvature_per_m=beta_per_m)
     ref, force = _drive(rng, n, plant)
     runs = {}
     for name, loop in (("optimized", closed_loop._loop), ("reference", closed_loop._loop_reference)):
@@ -87,6 +88,16 @@ def test_the_optimized_loop_is_the_reference_formulation(root, sn637_creep, monk
     # steps, no division in the step, the bridge as two ratios of lines in x) against _loop_reference (the
     # loop as first written, per-step divisions and exp, run by the interpreter): the physics must not change
     _loop_vs_reference(root, sn637_creep, monkeypatch, rng, form, n_sub, anti_windup, 12_000)
+
+
+@pytest.mark.parametrize("form", ["fixed", "float"])
+def test_the_optimized_loop_linearizes_the_gauge_as_the_reference_formulation(root, sn637_creep, monkeypatch, rng,
+                                                                              form):
+    # a controller whose sensor block carries the bridge curvature: both loops convert each reading with
+    # plant.gauge.linearized_displacement (the sensor loop's conversion), the same readings and words
+    from workbench.plant.gauge import bridge_curvature_per_m
+    _loop_vs_reference(root, sn637_creep, monkeypatch, rng, form, 1, True, 12_000,
+                       bridge_curvature_per_m(sn637_creep.gauge))
 
 
 def test_the_optimized_loop_is_the_reference_formulation_over_1e5_periods(root, sn637_creep, monkeypatch, rng):

@@ -559,22 +559,26 @@ class Controller:
                                                                  "(the amplifier's range is taken) or add the key")
         if form is None:
             form = "fixed" if self.fixed is not None else "hanus" if self.hanus is not None else "float"
+        sb = self.sensor            # firmware's reference lead and gauge linearization, when its block carries them
+        fw = {"ref_lead_s": 0.0 if sb is None or sb.ref_lead_s is None else sb.ref_lead_s,
+              "gauge_curvature_per_m": 0.0 if sb is None or sb.gauge_curvature_per_m is None
+              else sb.gauge_curvature_per_m}
         if form == "fixed":
             if self.fixed is None:
                 raise ControllerError(self.source, "fixed_point", "is missing: there are no words to run; drop "
                                                                   "--form fixed or export the controller")
             return FirmwareController("fixed", self.dt_s, self.fixed.output_limits_v, self.fixed.voltage_model,
-                                      gain=self.gain, sos=np.array(self.sos), fixed=self.fixed)
+                                      gain=self.gain, sos=np.array(self.sos), fixed=self.fixed, **fw)
         if form == "hanus":
             if self.hanus is None:
                 raise ControllerError(self.source, "anti_windup", "has no Hanus realization (method 'hanus'); "
                                                                   "drop --form hanus")
             h = replace(self.hanus, output_limits_v=self.output_limits_v)
-            return FirmwareController("hanus", self.dt_s, self.output_limits_v, self.voltage_model, hanus=h)
+            return FirmwareController("hanus", self.dt_s, self.output_limits_v, self.voltage_model, hanus=h, **fw)
         if form != "float":
             raise ValueError(f"unknown controller form {form!r}; known: fixed, float, hanus")
         return FirmwareController("float", self.dt_s, self.output_limits_v, self.voltage_model, gain=self.gain,
-                                  sos=np.array(self.sos))
+                                  sos=np.array(self.sos), **fw)
 
     # ------------------------------------------------------------------ constructors
     @classmethod

@@ -166,5 +166,27 @@ def test_reduced_fused_study_doubles_the_gauge_crossover_on_every_member(fused, 
     assert exported.sensor.crossover_hz == pytest.approx(f["sensor"]["blend"]["crossover_hz"])
     header = (tmp_path / "f" / "controllers" / "sn637_loopshape.h").read_text()
     assert "sn637_loopshape_sensor_step" in header and str(exported.sensor.k) in header
-    assert Controller.load(tmp_path / "g" / "controllers" / "sn637_loopshape.json").sensor is None
     assert "Sensor" in (tmp_path / "f" / "report.md").read_text()
+    # both exports carry firmware's startup settings, derived on the study's plant: the lead 1/K_v of the
+    # exported words, eq. 27's curvature, a wait at least the floor (the gauge's the floor: nothing to settle)
+    from workbench.plant import load_plant
+    from workbench.plant.gauge import bridge_curvature_per_m
+    from workbench.verify.sensors import MIN_OPEN_LOOP_S, velocity_constant_per_s
+    plant = load_plant(root / SN637)
+    gauge_c = Controller.load(tmp_path / "g" / "controllers" / "sn637_loopshape.json")
+    for c, summary in ((gauge_c, g), (exported, f)):
+        sb = c.sensor
+        assert sb.ref_lead_s == pytest.approx(1.0 / velocity_constant_per_s(c, sb, plant), rel=1e-12)
+        assert sb.gauge_curvature_per_m == bridge_curvature_per_m(plant.gauge) < 0
+        assert summary["firmware_startup"]["ref_lead_s"] == sb.ref_lead_s
+    assert gauge_c.sensor_kind == "gauge" and gauge_c.sensor.startup_wait_s == MIN_OPEN_LOOP_S
+    assert exported.sensor.startup_wait_s >= MIN_OPEN_LOOP_S
+    # the fused wait is the harness's own derivation on the same records: the verify harness, identifying the
+    # estimator itself (sensor_setup, 700 s, the study's seed), finds the same settle time for the bare export
+    from dataclasses import replace
+    from workbench.verify.sensors import sensor_setup, with_firmware_startup
+    bare = replace(exported, sensor=replace(exported.sensor, startup_wait_s=None, ref_lead_s=None,
+                                            gauge_curvature_per_m=None))
+    again = with_firmware_startup(sensor_setup(plant, bare, seed=2), bare).sensor
+    assert (again.startup_wait_s, again.ref_lead_s, again.gauge_curvature_per_m) == (
+        exported.sensor.startup_wait_s, exported.sensor.ref_lead_s, exported.sensor.gauge_curvature_per_m)

@@ -126,3 +126,83 @@ def test_a_hanus_json_runs_the_same_loop_as_the_float_cascade(sn637_creep, data,
     steps = {form: run_scenario(sn637_creep, c, "large_step", noise=False)[0] for form, c in forms.items()}
     assert steps["float"]["settling_s"] < 0.3 and steps["float"]["overshoot_percent"] < 1.0
     assert not steps["hanus"]["settling_s"] < 0.5
+
+
+# ---------------------------------------------------------------- firmware's lead and gauge linearization
+# A controller's sensor block may carry the reference lead 1/K_v and the bridge curvature beta
+# (verify/sensors.py: firmware_startup); the gauge scenarios then run them as the sensor loop does.
+
+def _with_block(c, **fields):
+    from dataclasses import replace
+    c = c if c.sensor is not None else c.with_sensor("gauge")
+    return replace(c, sensor=replace(c.sensor, **fields))
+
+
+def test_a_block_with_no_lead_and_no_curvature_runs_as_the_bare_controller_bit_for_bit(root, sn637_creep):
+    from workbench.controller import Controller
+    c = Controller.load(root / "controllers" / "sn637_loopshape.json", plant=sn637_creep)
+    zero = _with_block(c, ref_lead_s=0.0, gauge_curvature_per_m=0.0)
+    assert c.sensor is None and zero.firmware().ref_lead_s == 0.0 == zero.firmware().gauge_curvature_per_m
+    for name in ("triangle_0p1hz", "small_step"):
+        a, ta = run_scenario(sn637_creep, c.firmware(), name, seed=4)
+        b, tb = run_scenario(sn637_creep, zero.firmware(), name, seed=4)
+        for key in ("x_m", "u_v", "i_a"):
+            np.testing.assert_array_equal(ta[key], tb[key], err_msg=f"{name} {key}")
+
+
+@pytest.mark.parametrize("path", ["sn637_loopshape.json", "sn637_fused_loopshape.json"])
+def test_the_lead_moves_the_type_1_loops_ramp_error_by_slope_times_lead(root, sn637_creep, path):
+    """Noise off, the 0.1 Hz triangle over 80 % of the stroke (slope v = 0.8 stroke 2 f). A type-1 loop lags a
+    ramp by v / K_v: half the difference of the mean error x - r on the rising and the falling ramps is
+    -v / K_v, and a reference led by L moves it by v L (closed form, any L). Two designs (K_v ~620 and
+    ~2460 1/s), leads 0.5-2 / K_v: the shift within 3 % of v L, and at L = 1/K_v the lag is gone to 10 %."""
+    from workbench.controller import Controller
+    from workbench.verify.sensors import velocity_constant_per_s
+    c = Controller.load(root / "controllers" / path, plant=sn637_creep)
+    c = c.with_sensor("gauge", v_per_m=None if c.sensor is None else c.sensor.v_per_m)
+    kv = velocity_constant_per_s(c, c.sensor, sn637_creep)
+
+    def lag(lead_s):
+        m, tr = run_scenario(sn637_creep, _with_block(c, ref_lead_s=lead_s).firmware(), "triangle_0p1hz",
+                             noise=False)
+        e, slope = (tr["x_m"] - tr["ref_m"])[tr["scored"]], np.gradient(tr["ref_m"])[tr["scored"]]
+        return 0.5 * (np.mean(e[slope > 0]) - np.mean(e[slope < 0])), 0.8 * m["stroke_m"] * 2 * 0.1
+
+    base, v = lag(0.0)
+    assert base == pytest.approx(-v / kv, rel=0.1)
+    for mult in (0.5, 1.0, 2.0):
+        led, _ = lag(mult / kv)
+        assert led - base == pytest.approx(v * mult / kv, rel=0.03), mult
+        if mult == 1.0:
+            assert abs(led) < 0.1 * v / kv
+
+
+def test_the_gauge_scenarios_take_the_bridge_curvature_out_with_the_right_sign(root, sn637_creep):
+    """Noise off, a 0.5 Hz triangle over 80 % of the stroke about mid-stroke: each reading is the bridge at
+    the period's midpoint, quantized by the servo DAC. In metres (firmware's calibration), the reading of a
+    controller without curvature is x + beta u^2 (eq. 27, u = x - x_c); with the block's beta it is x, each
+    within half a DAC step plus 1 % of the curvature (the arm imbalance's share). The sensor loop's test in
+    test_sensors.py holds the same for its conversion: the two harnesses read the gauge alike."""
+    from workbench.controller import Controller
+    from workbench.plant.gauge import TRIM_CENTER_M, bridge_curvature_per_m
+    from workbench.verify.scenarios import X_START_M, stroke_m
+    g = sn637_creep.gauge
+    beta = bridge_curvature_per_m(g)
+    cal = g.calibration_m_per_v
+    lsb = 2.0 * g.dac_range_v / 2.0 ** g.dac_bits * abs(cal)
+    c = Controller.load(root / "controllers" / "sn637_loopshape.json", plant=sn637_creep)
+    dt = c.dt_s
+    t = np.arange(int(round(2 / 0.5 / dt))) * dt
+    tri = X_START_M + 0.4 * stroke_m(sn637_creep.pzt) * (4 * np.abs((t * 0.5 + 0.25) % 1.0 - 0.5) - 1)
+    for lin in (False, True):
+        fw = (_with_block(c, gauge_curvature_per_m=beta) if lin else c).firmware()
+        assert fw.gauge_curvature_per_m == (beta if lin else 0.0)
+        cl = ClosedLoop(sn637_creep, fw, noise=False)
+        cl.reset(u0=50.0)
+        cl.run((np.full(int(1.0 / dt), tri[0]) - TRIM_CENTER_M) / cal)
+        r = cl.run((tri - TRIM_CENTER_M) / cal)
+        x_mid = 0.5 * (r.x_m[1:] + r.x_m[:-1])
+        curv = beta * (x_mid - TRIM_CENTER_M) ** 2
+        assert np.ptp(x_mid) > 0.75 * stroke_m(sn637_creep.pzt) and np.max(np.abs(curv)) > 3 * lsb
+        left = r.reading_v[1:] * cal + TRIM_CENTER_M - x_mid - (0.0 if lin else curv)
+        assert np.max(np.abs(left)) <= 0.5 * lsb + 0.01 * np.max(np.abs(curv)) + 2e-12

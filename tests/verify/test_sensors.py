@@ -361,3 +361,21 @@ def test_the_export_carries_the_wait_the_lead_and_the_gauge_curvature(setup, tmp
     (tmp_path / "bad.json").write_text(json.dumps(bad))
     with pytest.raises(ControllerError, match="startup_wait_s"):
         Controller.load(tmp_path / "bad.json")
+
+
+def test_the_gauge_needs_no_wait_of_its_own_and_its_settings_need_no_charge_channel(setup):
+    """The gauge chain keeps no state across periods: its simulated startup error settles at once (well within
+    the MIN_OPEN_LOOP_S floor), so firmware_startup gives the gauge the floor without simulating, from the plant
+    alone (a SensorSetup with no estimator: a plant without a charge channel gets its gauge settings too); the
+    lead and the curvature are those of the charge-channel setup."""
+    from workbench.verify.sensors import (MIN_OPEN_LOOP_S, SensorSetup, firmware_startup, startup_settle_s,
+                                          velocity_constant_per_s)
+    c = Controller.load(GAUGE)
+    st = startup_settle_s(setup, c, "gauge")
+    assert st["settle_s"] < 0.01 * MIN_OPEN_LOOP_S
+    plant_only = SensorSetup(setup.plant, None, None, None, {})
+    fw = firmware_startup(plant_only, c, "gauge")
+    assert fw["startup_wait_s"] == MIN_OPEN_LOOP_S
+    assert fw["ref_lead_s"] == pytest.approx(1.0 / velocity_constant_per_s(c, c.with_sensor("gauge").sensor,
+                                                                           setup.plant), rel=1e-12)
+    assert fw == firmware_startup(setup, c, "gauge")

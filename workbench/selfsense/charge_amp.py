@@ -20,7 +20,8 @@ V_in here is the stack's terminal voltage V_t (the seed's V_in: there the HV amp
 drives the cantilever directly, here the 80 ohm of seed 000 sits between them). The
 estimator reads it through an HV monitor ADC.
 
-Defaults (assumed; the seeds give none of them for a stack):
+Defaults (assumed; the seeds give none of them for a stack; a plant file's ``[leakage]`` and
+``[dielectric_absorption]`` sections replace the leakage and absorption ones, :func:`charge_amp_params`):
 
 - C_R = 10 uF: about the stack's secant capacitance (1.1 mC at 100 V in the SN637 model),
   so Q - C_R V_in is the hysteresis (~0.1 mC), creep and drift; C_int = 47 uF keeps that
@@ -51,7 +52,7 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
-__all__ = ["ChargeAmpParams", "ChargeRecord", "ChargeAmpStream", "measure", "relax_foh", "cumulative_integral",
+__all__ = ["ChargeAmpParams", "charge_amp_params", "ChargeRecord", "ChargeAmpStream", "measure", "relax_foh", "cumulative_integral",
            "adc_convert", "adc_lsb_v", "charge_amp_arrays", "charge_amp_step"]
 
 
@@ -89,6 +90,44 @@ class ChargeAmpParams:
     def ideal(self):
         """The same circuit with no noise and no quantization (for exactness checks)."""
         return replace(self, out_noise_v_rms=0.0, vin_noise_v_rms=0.0, adc_bits=64, vin_adc_bits=64)
+
+
+def charge_amp_params(plant, base=None):
+    """The charge channel of ``plant``: the assumed circuit with the stack's own leakage and absorption when the
+    plant file gives them.
+
+    Parameters
+    ----------
+    plant : workbench.plant.Plant
+        Its ``additions`` carry the file's optional ``[leakage] resistance_ohm`` (R_FP, ohm) and
+        ``[dielectric_absorption] gain_f`` / ``time_constant_s`` (k_s in F, tau in s: seed 002 eq. 2.9, one
+        relaxation), the sections :mod:`workbench.calibrate` fits.
+    base : ChargeAmpParams, optional
+        The rest of the circuit (default :class:`ChargeAmpParams`: C_int, C_R, bias current, noise and ADCs,
+        and the leakage and absorption used when the file has no such section).
+
+    Returns
+    -------
+    ChargeAmpParams
+        ``base`` with ``r_leak_ohm`` = the file's R_FP, and ``da_gains_f`` / ``da_time_constants_s`` = the
+        file's single relaxation (k_s,), (tau,) in place of the assumed two, each only when given. Without
+        the sections, ``base`` unchanged.
+    """
+    amp = ChargeAmpParams() if base is None else base
+    add = getattr(plant, "additions", None)
+    if add is None:
+        return amp
+    changes = {}
+    if add.leakage_resistance_ohm:
+        changes["r_leak_ohm"] = float(add.leakage_resistance_ohm)
+    if add.absorption_gain_f:
+        tau = add.absorption_time_constant_s
+        if not tau:
+            raise ValueError(f"{plant.source}: [dielectric_absorption] gives gain_f = {add.absorption_gain_f:g} F "
+                             f"without time_constant_s; add the absorption time constant in s, e.g. 2.0")
+        changes["da_gains_f"] = (float(add.absorption_gain_f),)
+        changes["da_time_constants_s"] = (float(tau),)
+    return replace(amp, **changes) if changes else amp
 
 
 @dataclass(frozen=True)

@@ -131,14 +131,13 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     from ..controller import Controller
     from ..plant.files import load_plant
     from .blend_fixed import FixedBlend
-    from .charge_amp import ChargeAmpParams
+    from .charge_amp import charge_amp_params
     from .fusion import (Blend, choose_crossover, drift_record, fused_error_variance, fused_noise_rms_per_sample,
                          fused_psd, sensor_spectra)
     from .identify import identify, simulate_identification
     from ..verify.scenarios import stroke_m as quasi_static_stroke
     from .run import DEFAULT_CONTROLLER, loop_analysis, noise_comparison
 
-    amp = ChargeAmpParams() if amp is None else amp
     gauge_controller = Path(DEFAULT_CONTROLLER if gauge_controller is None else gauge_controller)
     fused_controller = Path(FUSED_CONTROLLER if fused_controller is None else fused_controller)
     for pth in (gauge_controller, fused_controller):
@@ -147,6 +146,7 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
                                 f"controllers/sn637_loopshape.json and controllers/sn637_fused_loopshape.json")
     say = progress or (lambda stage: None)
     plant = load_plant(plant_path)
+    amp = charge_amp_params(plant) if amp is None else amp
     dt = plant.gauge.period_s
     say("identification record")
     idrec = simulate_identification(plant.pzt, amp, hold_s=700.0, seed=seed + 100, dt_s=dt)

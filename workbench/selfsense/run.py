@@ -23,7 +23,7 @@ from ..errors import DataFileError
 from ..plant.files import load_plant
 from ..plant.gauge import displacement_from_reading, gauge_run_equivalent
 from ..plant.simulator import PZTSimulator
-from .charge_amp import ChargeAmpParams, ChargeAmpStream, measure
+from .charge_amp import ChargeAmpStream, charge_amp_params, measure
 from .estimator import (StreamingEstimator, band_limited, charge_transfer, dynamic_estimator, dynamic_gains, output_transfer,
                         static_estimate, static_transfer)
 from .identify import identify, simulate_identification
@@ -252,12 +252,16 @@ def closed_loop_step(plant, ident, amp, e_d, controller_path=DEFAULT_CONTROLLER,
             "final_error_m": float(np.mean(dx[-200:]) - step_m), **metrics}
 
 
-def run_selfsense(plant_path, duration_s=1000.0, out_dir=None, amp=ChargeAmpParams(), seed=2,
+def run_selfsense(plant_path, duration_s=1000.0, out_dir=None, amp=None, seed=2,
                   controller_path=DEFAULT_CONTROLLER, dt_s=1e-4, eval_hz=1000.0, id_hold_s=700.0,
                   loop=True, progress=None):
-    """The staged study; returns the JSON dict (``stages`` first), writes figures when ``out_dir``."""
+    """The staged study; returns the JSON dict (``stages`` first), writes figures when ``out_dir``.
+
+    ``amp``: the charge channel (default :func:`~.charge_amp.charge_amp_params` of the plant: the assumed
+    circuit with the plant file's ``[leakage]`` / ``[dielectric_absorption]`` when given)."""
     plant_path = Path(plant_path)
     plant = load_plant(plant_path)
+    amp = charge_amp_params(plant) if amp is None else amp
     if not duration_s >= 100.0:
         raise ValueError(f"--duration must be at least 100 s (a few steps of 20-60 s); got {duration_s} s")
     if loop and not Path(controller_path).is_file():

@@ -326,11 +326,19 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     if sensor.kind != "gauge":
         record["sensor_model"] = sensor.record()        # how the charge estimate and the blend were derived
     ctrl = _replace_ctrl(ctrl, record=record)
-    if sensor.kind != "gauge":
-        # the controller's own sensor block: the blend and error scaling run inside its firmware step
-        # (NAME_sensor_step of its C header, bit for bit with Controller.run_sensors)
-        ctrl = ctrl.with_sensor(sensor.kind, sensor.blend.crossover_hz if sensor.kind == "fused" else None,
-                                v_per_m=ub.nominal_gauge_v_per_m)
+    # the controller's own sensor block: the blend and error scaling run inside its firmware step
+    # (NAME_sensor_step of its C header, bit for bit with Controller.run_sensors), with firmware's startup
+    # settings derived on this study's nominal plant and sensor records (verify/sensors.py: firmware_startup):
+    # the wait before closing, the reference's lead 1/K_v and the gauge bridge's curvature. The gauge study
+    # carries them too (its wait is the floor: the gauge chain has nothing to settle).
+    say("export: firmware startup", 0, 1)
+    from ..verify.sensors import with_firmware_startup
+    ctrl = ctrl.with_sensor(sensor.kind, sensor.blend.crossover_hz if sensor.kind == "fused" else None,
+                            v_per_m=ub.nominal_gauge_v_per_m)
+    ctrl = with_firmware_startup(sensor.firmware_setup(plant), ctrl, bias_v=fam_spec["bias_v"])
+    summary["firmware_startup"] = {k: getattr(ctrl.sensor, k) for k in ("startup_wait_s", "ref_lead_s",
+                                                                      "gauge_curvature_per_m")}
+    say("export: firmware startup", 1, 1)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
     summary["exported"] = {k: str(v) for k, v in paths.items()}
 

@@ -140,6 +140,17 @@ class SensorModel:
                                             "k": fb.k, "header": "the controller's own NAME.h (NAME_sensor_step)"}}
         return out
 
+    def firmware_setup(self, plant):
+        """The :class:`workbench.verify.sensors.SensorSetup` of this sensor on ``plant`` (the nominal it was
+        simulated on): the study's own identified estimator, charge amplifier and E(z), so firmware's startup
+        settings (:func:`workbench.verify.sensors.with_firmware_startup`) come from the records the design used,
+        without identifying again. For "gauge" the plant alone (the gauge's settings need no charge channel)."""
+        from ..verify.sensors import SensorSetup
+        if self.kind == "gauge":
+            return SensorSetup(plant, None, None, None, {})
+        s = self._systems
+        return SensorSetup(plant, s["ident"], s["amp"], s["E_d"], {})
+
     def reading_noise_v(self):
         """RMS noise of one reading in the controller's input units (firmware V)."""
         return self.noise_m["reading"] * self.gauge_v_per_m
@@ -158,12 +169,12 @@ class SensorModel:
 
 def _records(plant, seed, drift_record_s):
     """The expensive part (identification, noise, drift spectrum), the same calls as ``selfsense --fused``."""
-    from ..selfsense.charge_amp import ChargeAmpParams
+    from ..selfsense.charge_amp import charge_amp_params
     from ..selfsense.fusion import (choose_crossover, drift_record, fused_error_variance, fused_noise_rms_per_sample,
                                     sensor_spectra)
     from ..selfsense.identify import identify, simulate_identification
     from ..selfsense.run import noise_comparison
-    amp = ChargeAmpParams()
+    amp = charge_amp_params(plant)          # the plant file's [leakage] / [dielectric_absorption] when given
     dt = plant.gauge.period_s
     idrec = simulate_identification(plant.pzt, amp, hold_s=700.0, seed=seed + 100, dt_s=dt)
     ident = identify(idrec, amp)
@@ -254,7 +265,7 @@ def _systems(plant, ident, amp):
     s = la["systems"]
     c_h = operating_point(plant.pzt, BIAS_V, "ascending").capacitance_f
     return {"E": s["E"], "E_d": s["E_d"], "sensor": s["sensor"],
-            "x_of_vpea": small_signal_model(plant.pzt, c_h)[0, 0]}
+            "x_of_vpea": small_signal_model(plant.pzt, c_h)[0, 0], "ident": ident, "amp": amp}
 
 
 def member_gain_ratio(name, family, k_nominal_v_per_m):

@@ -12,7 +12,10 @@ Per servo period T (the gauge modulation period, 10 kHz), in this order:
    difference of the halves (x2), one Gaussian term for the gauge noise and the ADC
    quantization of the 80 conversions, then the firmware trim and the servo DAC's
    quantization (16 bits over +/-2.6 V). The 80 conversions are not simulated one by
-   one here (``gauge_run`` does that, and the tests tie the two together);
+   one here (``gauge_run`` does that, and the tests tie the two together). A controller whose
+   sensor block carries the bridge curvature (``gauge_curvature_per_m``) has each reading
+   linearized as firmware does (:func:`workbench.plant.gauge.linearized_displacement`, the
+   sensor loop's conversion of :mod:`workbench.verify.sensors`);
 3. the controller computes its output from the reading **sample by sample** as firmware
    does, in the form the JSON declares (:class:`FirmwareController`): the 32-bit
    fixed-point cascade bit for bit (:func:`workbench.export.fixed_point.fixed_step`, the
@@ -45,7 +48,7 @@ from ..design.antiwindup import HanusController, hanus_initial_state
 from ..export.fixed_point import FixedPointController, fixed_step, float_step, initial_state
 from ..export.sos import from_sos
 from ..plant import kernels as K
-from ..plant.gauge import _bridge, _quantize, demod_noise_sigma_v
+from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v, linearized_displacement
 from ..plant.simulator import PZTSimulator
 
 __all__ = ["FirmwareController", "controller_from_json", "ClosedLoopRun", "ClosedLoop", "CHUNK"]
@@ -62,7 +65,12 @@ class FirmwareController:
     ``form``: "fixed" (the JSON's fixed-point cascade, bit for bit), "float" (the float
     cascade ``gain``, ``sos``) or "hanus" (a state-space realization conditioned on its
     limited output). ``voltage_model``: (alpha, h_up, h_down) of the current-limit window
-    (:mod:`workbench.export.fixed_point`), or None.
+    (:mod:`workbench.export.fixed_point`), or None. ``ref_lead_s`` (s) and ``gauge_curvature_per_m``
+    (beta, 1/m): firmware's reference lead 1/K_v and the bridge curvature its gauge conversion takes out, from
+    the controller's sensor block (:func:`workbench.verify.sensors.firmware_startup`); 0 when it carries none
+    (the linear calibration and the reference as given, bit for bit as before). The ramp scenarios feed
+    r + (dr/dt) ``ref_lead_s``; every reading is linearized with ``gauge_curvature_per_m``
+    (:func:`workbench.plant.gauge.linearized_displacement`).
     """
 
     form: str
@@ -73,6 +81,8 @@ class FirmwareController:
     sos: np.ndarray | None = None
     fixed: FixedPointController | None = None
     hanus: HanusController | None = None
+    ref_lead_s: float = 0.0
+    gauge_curvature_per_m: float = 0.0
 
     def linear(self):
         """The discrete linear controller (no limits) as a python-control StateSpace."""
@@ -145,6 +155,7 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
     draw = sigma > 0.0
     L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
+    cal, beta = gp[11], gp[12]          # firmware's metres per firmware V and the curvature it takes out (0: none)
     # the bridge (eq. 26): each half's arms are linear in x, so each ratio is (n0 + n1 x) / (d0 + d1 x)
     kw = kgf * (W / L)
     r0a, r0b, r0c, r0d = r0[0], r0[1], r0[2], r0[3]
@@ -215,10 +226,17 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
         reading = min(max(k_dem * (vp - vn) + (trim_s * w + trim_b), -dac_fs), dac_top)
         code = math.floor(reading * inv_lsb + 0.5)
         reading = code * dac_lsb
+        if beta != 0.0:
+            # firmware's conversion to metres with eq. 27's curvature taken out, back in firmware V
+            reading = (linearized_displacement(reading * cal + TRIM_CENTER_M, beta, TRIM_CENTER_M)
+                       - TRIM_CENTER_M) / cal
         e = ref[k] - reading
         if form == 2:
             # the input word as FixedPointController.input_words makes it (round half even, clamp)
-            v = min(max(np.int64(np.rint(ref[k] * in_scale - code * lsb_in)), -f_in), f_in)
+            if beta != 0.0:
+                v = min(max(np.int64(np.rint(e * in_scale)), -f_in), f_in)
+            else:
+                v = min(max(np.int64(np.rint(ref[k] * in_scale - code * lsb_in)), -f_in), f_in)
             wlo, whi = vm_i[0] - h_dn_w, vm_i[0] + h_up_w
             u_w = fixed_step(cs_i, v, fb, fa, fshift, ffrac, limw, vm_i, aw, peak)
             if aw and ((u_w == wlo and wlo > lo_w) or (u_w == whi and whi < hi_w)):
@@ -296,6 +314,7 @@ def _loop_reference(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, 
     peak = np.zeros((fb.shape[0], 3), np.int64)
     L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
     demod, trim_s, trim_b, dac_fs, dac_bits = gp[6], gp[7], gp[8], gp[9], int(gp[10])
+    cal, beta = gp[11], gp[12]
     i_src, i_snk = m[K.I_SRC], m[K.I_SNK]
     pending = io[0]
     x_prev = io[1]
@@ -338,6 +357,9 @@ def _loop_reference(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, 
         vn = min(max(amp * _bridge(xt, L, W, kgf, r0, -vm), -adc_fs), adc_fs)
         dem = 0.5 * demod * (vp - vn) + (rng.standard_normal() * sigma if sigma > 0.0 else 0.0)
         reading = _quantize(trim_s * dem + trim_b, dac_fs, dac_bits)
+        if beta != 0.0:
+            reading = (linearized_displacement(reading * cal + TRIM_CENTER_M, beta, TRIM_CENTER_M)
+                       - TRIM_CENTER_M) / cal
         e = ref[k] - reading
         if form == 2:
             # the input word as FixedPointController.input_words makes it (round half even, clamp)
@@ -441,7 +463,7 @@ class ClosedLoop:
         self._rng = np.random.Generator(np.random.PCG64(seed))
         self._gp = np.array([g.rest_length_m, g.rest_width_m, g.gauge_factor, g.modulation_v, g.amplifier_gain,
                              g.adc_range_v, g.demodulation_gain, g.trim_scale, g.trim_bias_v, g.dac_range_v,
-                             g.dac_bits])
+                             g.dac_bits, g.calibration_m_per_v, controller.gauge_curvature_per_m])
         self._r0 = np.array([g.arm_nominal_ohm + dr for dr in g.imbalance_ohm])
         c = controller
         model = c.voltage_model if (anti_windup and c.voltage_model is not None) else (1.0, np.inf, np.inf)

@@ -3,7 +3,11 @@
 Every scenario starts the same way: the plant at rest, the controller at rest, the
 reference ramped over 1 s from the reading at rest to the scenario's start point and
 held for 1 s (the approach is not scored). References are displacements, converted to
-firmware volts with the serial's calibration and trim centre as firmware does.
+firmware volts with the serial's calibration and trim centre as firmware does. A controller
+whose sensor block carries firmware's reference lead (``ref_lead_s`` = 1/K_v) is fed the
+triangles led by their slope times it (scored against the triangle itself, as the sensor
+loop of :mod:`.sensors` does); one that carries the gauge curvature reads the gauge linearized
+(:mod:`.closed_loop`). Steps, holds and tones are fed as they are.
 """
 
 import control
@@ -142,7 +146,8 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
     dt = controller.dt_s
     cl = ClosedLoop(plant, controller, noise=noise, anti_windup=anti_windup, seed=seed)
     stroke = stroke_m(plant.pzt)
-    m = {"scenario": name, "anti_windup": anti_windup, "noise": noise, "stroke_m": stroke}
+    m = {"scenario": name, "anti_windup": anti_windup, "noise": noise, "stroke_m": stroke,
+         "ref_lead_s": float(controller.ref_lead_s), "gauge_curvature_per_m": float(controller.gauge_curvature_per_m)}
     _approach(cl, g, X_START_M, dt)
     if name in ("small_step", "large_step"):
         dx = 0.1e-6 if name == "small_step" else 5e-6
@@ -189,13 +194,18 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
         lo, hi = X_START_M - 0.4 * stroke, X_START_M + 0.4 * stroke
         periods = 2
         n = int(periods / f / dt)
-        t = np.arange(n) * dt
+        t = np.arange(n + 1) * dt
         tri = 2 * np.abs((t * f + 0.25) % 1.0 - 0.5)            # 0..1 triangle from mid-stroke, going down
-        ref = lo + (hi - lo) * tri
+        ref_next = lo + (hi - lo) * tri
+        ref = ref_next[:n]
+        # firmware's reference lead (the sensor block's ref_lead_s = 1/K_v, verify/sensors.py: the same
+        # forward slope): the loop is fed r + (dr/dt) lead and scored against r itself
+        lead = controller.ref_lead_s
+        fed = ref + (ref_next[1:] - ref) / dt * lead if lead > 0 else ref
         # start the triangle at its first value
         r0 = cl.run(_to_volts(np.full(int(0.5 / dt), ref[0]), g))
         dec = max(1, int(round(1.0 / (f * dt * 2000))))
-        r = cl.run(_to_volts(ref, g), decimate=dec)
+        r = cl.run(_to_volts(fed, g), decimate=dec)
         ref_d = ref[dec - 1::dec][: r.x_m.size]
         after = r.t_s - r0.t_s[-1] > 1.0 / f                      # after the first period
         err = r.x_m[after] - ref_d[after]

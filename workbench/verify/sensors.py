@@ -43,7 +43,8 @@ beside it as ``triangle_mean_m``; ``triangle_commanded_rms_m`` scores x's motion
 at closing against the triangle alone, the sensor's offset aside), hold drift (mean of the last
 second minus mean of the second after 1 s of settling), hold noise (RMS about the 1 s running
 mean). The charge amplifier's parameters are the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`
-(the seeds give none for a stack); the estimator is identified on a simulated 700 s record of
+(the seeds give none for a stack) with the plant file's ``[leakage]`` and ``[dielectric_absorption]`` when it
+has them (:func:`~workbench.selfsense.charge_amp.charge_amp_params`); the estimator is identified on a simulated 700 s record of
 this plant (:func:`workbench.selfsense.identify.identify`), as ``workbench selfsense`` does.
 """
 
@@ -66,7 +67,7 @@ from ..selfsense.estimator import estimator_arrays, estimator_step
 
 __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
            "run_sensor_loop", "compare_sensors", "startup_settle_s", "settled_time_s", "startup_error",
-           "velocity_constant_per_s", "firmware_startup", "with_firmware_startup", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
+           "velocity_constant_per_s", "loop_sensor_block", "firmware_startup", "with_firmware_startup", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
 
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
@@ -124,13 +125,13 @@ def sensor_setup(plant, controller, amp=None, seed=2, progress=None, ident_hold_
     with the controller's blend, when it has one).
     """
     from ..design.margins import loop_margins
-    from ..selfsense.charge_amp import ChargeAmpParams
+    from ..selfsense.charge_amp import charge_amp_params
     from ..selfsense.fused_loop import fused_loop_response
     from ..selfsense.fusion import Blend
     from ..selfsense.identify import identify, simulate_identification
     from ..selfsense.run import loop_analysis
     say = progress or (lambda *a: None)
-    amp = ChargeAmpParams() if amp is None else amp
+    amp = charge_amp_params(plant) if amp is None else amp
     dt = plant.gauge.period_s
     say("identification record")
     rec = simulate_identification(plant.pzt, amp, hold_s=float(ident_hold_s), seed=seed + 100, dt_s=dt)
@@ -229,28 +230,38 @@ def _sensor_loop(m, st, closed, ref, gn, on, vn, gp, r0, cp, ck, ca, cb0, cb1, c
                 io[4] = row + 1
 
 
+def loop_sensor_block(controller, sensor):
+    """The sensor block the loop on ``sensor`` runs ``controller`` with (a :class:`~workbench.export.sensor.SensorBlend`).
+
+    The controller's own block when its kind is ``sensor``; for another kind the same block re-aimed at that
+    reading (no blend); without a block, :meth:`workbench.Controller.with_sensor` (the provenance's gauge gain).
+    "fused" needs the controller's blend: WorkbenchError otherwise.
+    """
+    from dataclasses import replace
+    sb = controller.sensor
+    if sensor == "fused" and (sb is None or sb.kind != "fused"):
+        raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's "
+                             f"crossover, which the controller's sensor block does not give; export it with "
+                             f"Controller.with_sensor('fused', crossover_hz)")
+    if sb is None:
+        return controller.with_sensor(sensor).sensor
+    if sb.kind != sensor and sensor != "fused":
+        return replace(sb, kind=sensor, crossover_hz=None, k=None)
+    return sb
+
+
 class _Loop:
     """One sensor loop's compiled state and constants (plant, gauge chain, charge channel, E(z), the controller's
     fixed-point words), at rest with the command at ``bias_v``; :meth:`run` steps it over periods."""
 
     def __init__(self, setup, controller, sensor, bias_v, gauge_linearized=True, beta_per_m=None):
-        from dataclasses import replace
-
         import control
 
         from ..plant.simulator import PZTSimulator
         from ..selfsense.run import STAGES
 
         plant = setup.plant
-        sb = controller.sensor
-        if sensor == "fused" and (sb is None or sb.kind != "fused"):
-            raise WorkbenchError(f"{controller.source or controller.name}: --sensor fused needs the blend's "
-                                 f"crossover, which the controller's sensor block does not give; export it with "
-                                 f"Controller.with_sensor('fused', crossover_hz)")
-        if sb is None:
-            sb = controller.with_sensor(sensor).sensor
-        elif sb.kind != sensor:
-            sb = replace(sb, kind=sensor, crossover_hz=None, k=None) if sensor != "fused" else sb
+        sb = loop_sensor_block(controller, sensor)
         fxp = controller.fixed
         dt = controller.dt_s
         g = plant.gauge
@@ -458,6 +469,8 @@ def firmware_startup(setup, controller, sensor, *, bias_v=50.0):
     Parameters
     ----------
     setup : SensorSetup
+        The plant's charge channel (:func:`sensor_setup`, or built from a study's records); for "gauge" only its
+        ``plant`` is read (no simulation: see Notes).
     controller : workbench.Controller
     sensor : {"gauge", "charge", "fused"}
     bias_v : float
@@ -469,15 +482,25 @@ def firmware_startup(setup, controller, sensor, *, bias_v=50.0):
         ``startup_wait_s`` (s: :func:`startup_settle_s`, at least :data:`MIN_OPEN_LOOP_S`; the floor when the
         reading does not settle), ``ref_lead_s`` (1/K_v, s; 0 without an integrator) and
         ``gauge_curvature_per_m`` (beta, 1/m, :func:`workbench.plant.gauge.bridge_curvature_per_m`).
+
+    Notes
+    -----
+    The gauge chain keeps no state from one period to the next (the bridge read within the period, the
+    amplifier, the trim, the servo DAC): its error against x is what it is from the first reading, with no
+    integrator to reset and nothing to settle, so its own wait is 0 and the gauge's ``startup_wait_s`` is the
+    floors (:data:`MIN_OPEN_LOOP_S`: the plant's creep after the step to ``bias_v``, not the sensor). The
+    simulated settle of the gauge reading is within that floor (``tests/verify/test_sensors.py``).
     """
     from dataclasses import replace as _replace
     bare = controller if controller.sensor is None else _replace(
         controller, sensor=_replace(controller.sensor, startup_wait_s=None, ref_lead_s=None,
                                     gauge_curvature_per_m=None))
-    st = startup_settle_s(setup, bare, sensor, bias_v=bias_v)
-    wait = max(st["settle_s"] if np.isfinite(st["settle_s"]) else 0.0, OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
-    sb = _Loop(setup, bare, sensor, bias_v).sb
-    kv = velocity_constant_per_s(bare, sb, setup.plant)
+    settle = 0.0
+    if sensor != "gauge":
+        st = startup_settle_s(setup, bare, sensor, bias_v=bias_v)
+        settle = st["settle_s"] if np.isfinite(st["settle_s"]) else 0.0
+    wait = max(settle, OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
+    kv = velocity_constant_per_s(bare, loop_sensor_block(bare, sensor), setup.plant)
     return {"startup_wait_s": float(wait), "ref_lead_s": 0.0 if not kv else 1.0 / kv,
             "gauge_curvature_per_m": float(bridge_curvature_per_m(setup.plant.gauge))}
 
