@@ -54,7 +54,7 @@ from .files import load_plant
 from .hysteresis import PrandtlIshlinskii
 from .structure import modal_structure
 
-__all__ = ["FastSteeringMirror", "MirrorTrajectory", "load_mirror", "mirror_run", "FSM_SCHEMA_VERSION",
+__all__ = ["FastSteeringMirror", "MirrorTrajectory", "load_mirror", "mirror_stack_files", "mirror_run", "FSM_SCHEMA_VERSION",
            "AXES"]
 
 FSM_SCHEMA_VERSION = "workbench.fsm/1"
@@ -299,6 +299,22 @@ def mirror_run(sim, v_pea_v, external=None, decimate=1):
     return MirrorTrajectory(t_s=tr.t_s, tip_rad=tr.y[:, 2 * ns], tilt_rad=tr.y[:, 2 * ns + 1],
                             piston_m=tr.y[:, 2 * ns + 2], x_m=tr.x_m, q_c=tr.q_c, i_a=tr.i_a,
                             v_t_v=tr.v_t_v, coupled=tr)
+
+
+def mirror_stack_files(path):
+    """The stack plant files a mirror file names (``[stacks] files``, resolved against its folder): (key, Path)
+    pairs; [] when ``path`` is not a readable mirror file (its loader reports what is wrong)."""
+    import tomllib
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return []
+    stacks = doc.get("stacks") if doc.get("schema") == FSM_SCHEMA_VERSION else None
+    files = stacks.get("files") if isinstance(stacks, dict) else None
+    if not isinstance(files, list):
+        return []
+    return [(f"{path}: stacks.files[{j}]", path.parent / f) for j, f in enumerate(files) if isinstance(f, str)]
 
 
 def load_mirror(path):
