@@ -210,7 +210,9 @@ def _mirror_pairing(args, path):
     if not check_pairing(args.plant, path):
         return False
     from .export.mimo import MimoController
-    MimoController.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+    from .plant.mirror import load_mirror
+    ctrl = MimoController.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+    ctrl.check_mirror(load_mirror(args.plant))          # a damped export's windows and corner are the stacks'
     return True
 
 

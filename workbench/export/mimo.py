@@ -625,6 +625,48 @@ class MimoController:
                 from None
         return cls.from_dict(data, source=str(path), allow_unstable=allow_unstable)
 
+    def check_mirror(self, fsm):
+        """Refuse a damped export whose numbers are not those of ``fsm``'s stacks (:class:`MimoControllerError`).
+
+        The exporter writes ``iff.stack_window`` as :func:`stack_windows` of the mirror's serial files and the
+        IFF cascades as the Tustin high-pass prewarped at ``iff.bridge.corner_hz``, whose pole is
+        z_p = (1 - c) / (1 + c), c = tan(pi f_l T). A window off the stacks' (relative 1e-6: the exporter's
+        own numbers) would hold each command in a current window the stack does not have (alpha 0.5 for the
+        stacks' 0.10 lets the command lead the stack's RC response five times faster; headroom 1e300 V
+        holds nothing); a corner that is not the cascades' is a bridge the file does not describe.
+        Without IFF, or for a controller whose provenance names another mirror file (by SHA-256: verify warns
+        that it was exported for another mirror), nothing to check.
+        """
+        if self.iff is None:
+            return
+        sha = (self.record.get("provenance") or {}).get("plant_sha256")
+        if sha and fsm.source and Path(fsm.source).is_file() and \
+                sha != hashlib.sha256(Path(fsm.source).read_bytes()).hexdigest():
+            return
+        want = stack_windows(fsm, self.dt_s)
+        for k in ("alpha", "headroom_v"):
+            got = np.asarray(self.iff["stack_window"][k], float)
+            if not np.allclose(got, want[k], rtol=1e-6, atol=0):
+                raise MimoControllerError(self.source or self.name, f"iff.stack_window.{k}",
+                                          f"{got.tolist()} is not the current-limit window of the stacks of "
+                                          f"{fsm.source} ({[float(f'{v:.6g}') for v in want[k]]}: R, the largest "
+                                          f"capacitance and min(I_source, I_sink) of each serial file); re-export "
+                                          f"the controller for this mirror")
+        f_l = float(self.iff["bridge"]["corner_hz"])
+        if not f_l < 0.5 / self.dt_s:
+            raise MimoControllerError(self.source or self.name, "iff.bridge.corner_hz",
+                                      f"{f_l:g} Hz is not below the Nyquist frequency {0.5 / self.dt_s:g} Hz of the "
+                                      f"cascades; re-export the controller")
+        c = math.tan(math.pi * f_l * self.dt_s)
+        z_want = (1.0 - c) / (1.0 + c)
+        for k in IFF_KEYS:
+            poles = np.concatenate([np.roots(row[3:]) for row in np.asarray(self.iff[k].sos, float)])
+            if not np.any(np.abs(poles - z_want) <= 1e-6):
+                raise MimoControllerError(self.source or self.name, "iff.bridge.corner_hz",
+                                          f"{f_l:g} Hz puts the high-pass pole at z = {z_want:.6g}; the cascade "
+                                          f"iff.controllers.{k} has its poles at {np.round(poles, 6).tolist()}: the "
+                                          f"bridge numbers are not the cascades'; re-export the controller")
+
     # ------------------------------------------------------------------ C
     def header(self, name=None):
         """NAME.h: includes the three axis headers and runs the step of the module docstring."""
