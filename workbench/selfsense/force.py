@@ -48,7 +48,7 @@ from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, measure
 from .estimator import charge_estimate, static_estimate
 
-__all__ = ["check_step_force", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
+__all__ = ["check_step_force", "check_force_table", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
            "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
@@ -310,6 +310,28 @@ def check_step_force(pzt, step_n, *, name="step_n", where="the plant"):
                              f"({hi:.4g} N) would break the brittle ceramic (seed 000); e.g. -100N (compression)")
 
 
+def check_force_table(path, runs):
+    """Refuse a Table 1 the force study cannot score, before any simulation (:class:`DataFileError`).
+
+    Every ``R_out`` run is read from its back EMF (leads open: V_t is the back EMF), so each needs a nonzero one;
+    the held-out scores leave one run out of at least three (:func:`.table1.table1_held_out`); and the table's
+    columns must give a T_em in the plant files' range (:func:`workbench.identify.transducer.identify_transducer`,
+    whose diagnosis names a unit slip such as back_emf in mV labelled V).
+    """
+    from ..errors import DataFileError
+    from ..identify.transducer import identify_transducer
+    r_out = [r for r in runs if r.config == "R_out"]
+    for r in r_out:
+        if r.back_emf_v == 0.0:
+            raise DataFileError(f"{path}, line {r.line} (back_emf): {r.serial} run {r.run} R_out has a back EMF of "
+                                f"0 V; an R_out run (leads open) is read from its measured back EMF: write it, or "
+                                f"delete the row")
+    if len(r_out) < 3:
+        raise DataFileError(f"{path}: {len(r_out)} R_out run(s); the force study reads each from its back EMF and "
+                            f"scores it held out from the others: give at least 3 R_out rows")
+    identify_transducer(path)           # the table's units, by T_em (raises naming the file and the column)
+
+
 def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
                     bias_v=50.0, table_path=None, progress=None):
     """Force self-sensing on the plant: the simulated force step and the Table 1 Instron runs.
@@ -354,6 +376,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
     if table_path is None:
         table_path = DEFAULT_TABLE1_PATH
     runs, _, _ = _read_table(table_path, DEFAULT_CALIBRATIONS_M_PER_V)     # validated before any simulation
+    check_force_table(table_path, runs)
     swapped = {(d["serial"], d["run"]) for d in table1_swap_decision(table_path) if d["swap"]}
     tick("identification record")
     idrec = simulate_identification(pzt, amp, hold_s=id_hold_s, seed=seed + 100, dt_s=dt_s)
