@@ -692,6 +692,12 @@ class Controller:
         if not isinstance(data, dict):
             raise ControllerError(src, "", f"a controller JSON is an object {{sample_rate_hz, gain, sos, ...}}; "
                                            f"got {type(data).__name__}")
+        from .export.mimo import MIMO_SCHEMA
+        if data.get("schema") == MIMO_SCHEMA:
+            raise ControllerError(src, "schema", f"is a MIMO mirror controller ({MIMO_SCHEMA!r}: three axes, three "
+                                                 f"stacks); this needs a single-stack controller (sample_rate_hz, gain, "
+                                                 f"sos), e.g. controllers/sn637_loopshape.json; run the mirror with "
+                                                 f"`workbench verify plants/fsm_p888_51.toml --controller {src}`")
         if "sample_rate_hz" not in data:
             raise ControllerError(src, "sample_rate_hz", "is missing: the servo rate in Hz (e.g. 10000.0)")
         fs = _number(src, "sample_rate_hz", data["sample_rate_hz"], positive=True)

@@ -838,6 +838,12 @@ def _load_iff(src, data, fs, allow_unstable):
     """Validate the JSON's ``iff`` table (three stack cascades at the servo rate, the bridge's numbers)."""
     if not isinstance(data, dict):
         raise MimoControllerError(src, "iff", "must be a table {bridge, controllers}; re-export the controller")
+    for key, table, known in (("iff", data, ("bridge", "stack_window", "controllers", "note")),
+                              ("iff.bridge", data.get("bridge"), _BRIDGE_KEYS),
+                              ("iff.stack_window", data.get("stack_window"), ("alpha", "headroom_v"))):
+        unknown = [k for k in table if k not in known] if isinstance(table, dict) else []
+        if unknown:                 # a misspelt key would be dropped without a word
+            raise MimoControllerError(src, f"{key}.{unknown[0]}", f"unknown key; {key}'s keys are {', '.join(known)}")
     br = data.get("bridge")
     if not isinstance(br, dict) or any(k not in br for k in _BRIDGE_KEYS):
         raise MimoControllerError(src, "iff.bridge", f"needs {', '.join(_BRIDGE_KEYS)}; re-export the controller")
@@ -853,6 +859,11 @@ def _load_iff(src, data, fs, allow_unstable):
             raise MimoControllerError(src, f"iff.bridge.{k}", f"must be a finite {kind} number; got {v!r}")
     if not (isinstance(br["adc_bits"], int) and not isinstance(br["adc_bits"], bool) and 1 <= br["adc_bits"] <= 64):
         raise MimoControllerError(src, "iff.bridge.adc_bits", f"must be an integer 1..64; got {br['adc_bits']!r}")
+    if not br["out_noise_v_rms"] < br["adc_range_v"]:
+        # the bridge's output noise alone would fill the ADC's range: its reading would be noise
+        raise MimoControllerError(src, "iff.bridge.out_noise_v_rms", f"{br['out_noise_v_rms']:g} V RMS is not below the "
+                                                                     f"ADC range {br['adc_range_v']:g} V: the reading "
+                                                                     f"would be noise; re-export the controller")
     sw = data.get("stack_window")
     if not isinstance(sw, dict) or any(k not in sw for k in ("alpha", "headroom_v")):
         raise MimoControllerError(src, "iff.stack_window", "needs alpha and headroom_v (each stack's current-limit "
