@@ -329,6 +329,11 @@ def load_mirror(path):
     path = Path(path)
     doc = read_toml(path, PlantDefinitionError)
     known = ("stacks", "geometry", "mirror", "flexures", "housing")
+    if doc.get("schema") != FSM_SCHEMA_VERSION and isinstance(doc.get("electrical"), dict):
+        # a single-stack plant file where a mirror is wanted: say so, not "unknown section [electrical]"
+        raise PlantDefinitionError(path, "schema", f"is a single-stack plant file (it has [electrical]), not a "
+                                                   f"three-stack mirror ({FSM_SCHEMA_VERSION!r}); give a mirror "
+                                                   f"file such as plants/fsm_p888_51.toml, which names its stacks")
     for key, value in doc.items():
         if isinstance(value, (dict, list)) and key not in _SCHEMA:
             raise PlantDefinitionError(path, key, f"unknown section; known sections: {', '.join(known)}")
