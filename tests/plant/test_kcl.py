@@ -192,35 +192,62 @@ def _pre_fix_step(m, st, v_cmd, f_e, out):
     out[5] = v_h + v_p
 
 
+def _both(pz, v, dt):
+    a, b = PZTSimulator(pz, dt), PZTSimulator(pz, dt)
+    return _run(K.pzt_step, a.m, a.st, v, np.zeros_like(v)), _run(_pre_fix_step, b.m, b.st, v, np.zeros_like(v))
+
+
+def _creep_current_bound_a(pz, *v_h):
+    """sum_j C_j (V_h's range, rest included) / tau_j, A: no branch current exceeds C_j times V_h's swing over tau_j."""
+    cap, tau = pz.creep.capacitances_f, pz.creep.time_constants_s
+    return np.sum(cap / tau) * np.ptp(np.concatenate([*v_h, [0.0]]))
+
+
+def _c_big_f(pz):
+    """The largest incremental capacitance the terminal presents, F: C_h at its full slope and every branch, in
+    series with C_pp."""
+    return 1.0 / (1.0 / (pz.hysteresis.weights.sum() + pz.creep.capacitances_f.sum()) + 1.0 / pz.c_pp_f)
+
+
 def test_at_80_ohm_the_fix_moves_v_t_by_at_most_r_times_the_creep_current(sn637_creep):
-    # outside current-limited slews the two kernels differ in where the creep current's drop sits: the
-    # fixed one carries it through R (V_t = v - R i), the old one not. So |V_t - V_t,old| <= R I_creep,max,
-    # I_creep,max = sum_j C_j (V_h range) / tau_j (a branch's current is at most C_j times V_h's swing over
-    # its tau_j), and the charge differs by no more than that drop on the largest incremental capacitance
-    # the terminal presents (C_h at its full slope plus every branch, in series with C_pp)
+    # where the amplifier does not limit the current the two kernels differ in where the creep current's drop
+    # sits: the fixed one carries it through R (V_t = v - R i), the old one not. So |V_t - V_t,old| <= R I_creep,max
+    # and the charge differs by no more than that drop on the largest incremental capacitance the terminal presents.
+    # Drive: ramps slow enough that the current stays below the 2 mA source limit (30 uF x 20 V/s = 0.6 mA), holds
+    # where the branches creep, a 0.5 V 5 Hz sine, down to 40 V, a hold
     pz = dataclasses.replace(sn637_creep.pzt, modes=())
     dt = 1e-5
-    n = int(round(2.0 / dt))
+    n = int(round(1.0 / dt))
     t = np.arange(n) * dt
-    # a step to 60 V (a slew, left out of the comparison) and its creep, a 0.5 V 5 Hz sine there, a step to 40 V
-    v = np.concatenate([np.full(n, 60.0), 60.0 + 0.5 * np.sin(2 * np.pi * 5 * t), np.full(n, 40.0)])
-    a, b = PZTSimulator(pz, dt), PZTSimulator(pz, dt)
-    new = _run(K.pzt_step, a.m, a.st, v, np.zeros_like(v))
-    old = _run(_pre_fix_step, b.m, b.st, v, np.zeros_like(v))
-    cap, tau = pz.creep.capacitances_f, pz.creep.time_constants_s
-    v_h = np.concatenate([new[:, 3], old[:, 3], [0.0]])
-    i_creep = np.sum(cap / tau) * np.ptp(v_h)
-    c_big = 1.0 / (1.0 / (pz.hysteresis.weights.sum() + cap.sum()) + 1.0 / pz.c_pp_f)
+    v = np.concatenate([np.linspace(0.0, 60.0, 3 * n), np.full(n, 60.0), 60.0 + 0.5 * np.sin(2 * np.pi * 5 * t),
+                        np.linspace(60.0, 40.0, n), np.full(n, 40.0)])
+    new, old = _both(pz, v, dt)
     r = pz.series_resistance_ohm
-    # compared where neither is current-limited (|v - V_t| below R i_lim) for 10 RC times
-    gap = np.maximum(np.abs(v - new[:, 5]), np.abs(v - old[:, 5]))
-    limited = gap >= 0.99 * r * pz.current_limit_source_a
-    tau_rc = r * c_big
-    after = np.convolve(limited, np.ones(int(10 * tau_rc / dt) + 1), mode="full")[:v.size] == 0
-    assert after.mean() > 0.5
-    dvt = np.abs(new[:, 5] - old[:, 5])[after]
-    dq = np.abs(new[:, 1] - old[:, 1])[after]
-    assert dvt.max() <= r * i_creep, (dvt.max(), r * i_creep)
-    assert dq.max() <= c_big * r * i_creep, (dq.max(), c_big * r * i_creep)
-    # and the change is there: the old kernel's V_t stands above v by about the creep drop
-    assert dvt.max() > 0.01 * r * i_creep
+    assert np.max(np.abs(v - new[:, 5])) < r * pz.current_limit_source_a      # never current-limited
+    i_creep = _creep_current_bound_a(pz, new[:, 3], old[:, 3])
+    dvt = np.max(np.abs(new[:, 5] - old[:, 5]))
+    dq = np.max(np.abs(new[:, 1] - old[:, 1]))
+    assert dvt <= r * i_creep, (dvt, r * i_creep)
+    assert dq <= _c_big_f(pz) * r * i_creep, (dq, _c_big_f(pz) * r * i_creep)
+    # and the change is there (the bound is loose: every branch at V_h's whole swing): 0.87 mV against 14 mV
+    assert dvt > 0.01 * r * i_creep
+
+
+def test_at_80_ohm_through_a_current_limited_slew_the_fix_moves_q_by_the_creep_charge_the_limit_held_back(sn637_creep):
+    # at the current limit the old kernel's terminal current exceeded the limit by the creep current (the branches'
+    # charge bypassed R and so the amplifier): the charge differs by at most I_creep,max times the time spent at
+    # the limit, plus the R I_creep drop on the terminal's capacitance once the limit lets go
+    pz = dataclasses.replace(sn637_creep.pzt, modes=())
+    dt = 1e-5
+    v = np.concatenate([np.full(int(round(1.5 / dt)), 100.0), np.full(int(round(0.5 / dt)), 20.0)])
+    new, old = _both(pz, v, dt)
+    r = pz.series_resistance_ohm
+    limited = np.maximum(np.abs(v - new[:, 5]), np.abs(v - old[:, 5])) >= 0.99 * r * pz.current_limit_source_a
+    assert limited.sum() * dt > 0.3                                             # the slews
+    i_creep = _creep_current_bound_a(pz, new[:, 3], old[:, 3])
+    bound = i_creep * np.cumsum(limited) * dt + _c_big_f(pz) * r * i_creep
+    dq = np.abs(new[:, 1] - old[:, 1])
+    assert np.all(dq <= bound), np.max(dq / bound)
+    # past the slews V_t differs by the creep drop at most, as without the limit
+    calm = np.convolve(limited, np.ones(int(round(0.05 / dt))), mode="full")[:v.size] == 0
+    assert np.max(np.abs(new[calm, 5] - old[calm, 5])) <= r * i_creep
