@@ -33,8 +33,8 @@ charge moving at constant q can, which in the model is the creep branches relaxi
 out of equilibrium. :func:`serial_sequence` measures that term, Delta V_h over each open-lead run.
 
 Note on the library simulator: :class:`~workbench.plant.simulator.PZTSimulator` once fed the creep
-branches' charge change to the terminal with no current through R (up to 140 nC over a run after three
-``R_in`` runs in the creep plant, 10 s apart, at 200 TOhm), so this module stepped its own
+branches' charge change to the terminal with no current through R (+387 nC by the peak of an open-lead run after three
+``R_in`` runs in the creep plant, at 200 TOhm), so this module stepped its own
 charge-conserving form. The kernels now keep Kirchhoff's current law at the terminal
 (tests/plant/test_kcl.py) and step the creep branches as this module does (V_h at the step's start);
 the module keeps its stepper because its shorted runs are the quasi-static V_t = 0, and the simulator's
