@@ -329,15 +329,15 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     # the controller's own sensor block: the blend and error scaling run inside its firmware step
     # (NAME_sensor_step of its C header, bit for bit with Controller.run_sensors), with firmware's startup
     # settings derived on this study's nominal plant and sensor records (verify/sensors.py: firmware_startup):
-    # the wait before closing, the reference's lead 1/K_v and the gauge bridge's curvature. The gauge study
-    # carries them too (its wait is the floor: the gauge chain has nothing to settle).
+    # the wait before closing (the reading's own settle: the gauge's is one period), the velocity feedforward
+    # 1/K_v on ramps' planned slope and the gauge bridge's curvature. The gauge study carries them too.
     say("export: firmware startup", 0, 1)
+    from ..export.sensor import STARTUP_FIELDS
     from ..verify.sensors import with_firmware_startup
     ctrl = ctrl.with_sensor(sensor.kind, sensor.blend.crossover_hz if sensor.kind == "fused" else None,
                             v_per_m=ub.nominal_gauge_v_per_m)
     ctrl = with_firmware_startup(sensor.firmware_setup(plant), ctrl, bias_v=fam_spec["bias_v"])
-    summary["firmware_startup"] = {k: getattr(ctrl.sensor, k) for k in ("startup_wait_s", "ref_lead_s",
-                                                                      "gauge_curvature_per_m")}
+    summary["firmware_startup"] = {k: getattr(ctrl.sensor, k) for k in STARTUP_FIELDS}
     say("export: firmware startup", 1, 1)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
     summary["exported"] = {k: str(v) for k, v in paths.items()}
