@@ -338,6 +338,12 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
                             v_per_m=ub.nominal_gauge_v_per_m)
     ctrl = with_firmware_startup(sensor.firmware_setup(plant), ctrl, bias_v=fam_spec["bias_v"])
     summary["firmware_startup"] = {k: getattr(ctrl.sensor, k) for k in STARTUP_FIELDS}
+    if ls.tracking is not None and ls.tracking_loop is not None:
+        # the search ruled on the triangle without a lead (its constraint, unchanged); the export's velocity
+        # feedforward takes the ramp lag out: the prediction with it, |S_k (1 - D_k L L_k)| on the same harmonics
+        from ..design.loopshape import tracking_rms
+        lead = ctrl.sensor.ref_lead_s or 0.0
+        ls.tracking.update(rms_with_lead=tracking_rms(ls.tracking_loop, a_tr, f_tr, lead, dt), lead_s=lead)
     say("export: firmware startup", 1, 1)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
     summary["exported"] = {k: str(v) for k, v in paths.items()}

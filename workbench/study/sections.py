@@ -79,9 +79,16 @@ def _sensor_lines(summary):
     ls = summary.get("designs", {}).get("loop_shape", {})
     t = ls.get("tracking")
     if t:
-        lines += [f"Triangle tracking on the nominal loop: {100 * t['rms']:.3g} % of stroke RMS (limit "
-                  f"{100 * t['limit']:.3g} %, {t['harmonics']} odd harmonics); {len(t['ruled_out'])} shapes were "
-                  f"ruled out by it at their highest admissible crossover.", ""]
+        lines += [f"Triangle tracking on the nominal loop, fed the triangle as it is (no reference lead): "
+                  f"{100 * t['rms']:.3g} % of stroke RMS (limit {100 * t['limit']:.3g} %, {t['harmonics']} odd "
+                  f"harmonics, |S_k r_k|); {len(t['ruled_out'])} shapes were ruled out by it at their highest "
+                  f"admissible crossover. This is the search's constraint: it does not count the lead."]
+        if t.get("rms_with_lead") is not None:
+            lines += [f"With the velocity feedforward the export carries on the planned slope (ref_lead_s = "
+                      f"{t['lead_s'] * 1e3:.4g} ms = 1/K_v; r + v L fed on ramps), the same nominal loop predicts "
+                      f"{100 * t['rms_with_lead']:.3g} % of stroke RMS (|S_k (1 - D_k L L_k) r_k|, D_k the forward "
+                      f"difference (e^(j w_k T) - 1) / T)."]
+        lines += [""]
     return lines
 
 
