@@ -550,7 +550,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         ``settle_why`` in the result). A controller whose sensor block carries ``startup_wait_s``,
         ``ref_lead_s`` or ``gauge_curvature_per_m`` (:func:`with_firmware_startup`) is run with those: the
         wait, the lead 1/K_v and the gauge curvature come from the export, not from this harness
-        (``settle_source`` says which).
+        (``settle_source`` says which); the scenario's floors apply to a carried wait as to a computed one
+        (:func:`closing_time_s`: a gauge export's one-period wait closes at the 1 s floor).
     stroke_m : float, optional
         The stroke the triangle's 80 % and the percentages refer to (default: rest to 100 V, quasi-static,
         :func:`workbench.verify.scenarios.stroke_m`).
