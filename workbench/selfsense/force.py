@@ -45,7 +45,7 @@ from numba import njit
 from ..errors import FlagRangeError
 from ..plant.hysteresis import pi_step
 from ..plant.simulator import PZTSimulator
-from .charge_amp import ChargeAmpParams, measure
+from .charge_amp import ChargeAmpParams, charge_amp_params, measure
 from .estimator import charge_estimate, static_estimate
 
 __all__ = ["check_step_force", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
@@ -311,7 +311,7 @@ def check_step_force(pzt, step_n, *, name="step_n", where="the plant"):
                              f"({hi:.4g} N) would break the brittle ceramic (seed 000); e.g. -100N (compression)")
 
 
-def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
+def run_force_study(plant_path, amp=None, seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
                     bias_v=50.0, table_path=None, progress=None):
     """Force self-sensing on the plant: the simulated force step and the Table 1 Instron runs.
 
@@ -334,6 +334,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
        (:func:`~.instron_sequence.table1_sequence_estimates`; ``sequence``: per run the model's
        read and V_h's change, and the run-order change of V/F, model against Table 1).
 
+    ``amp``: the charge channel (default :func:`~.charge_amp.charge_amp_params` of the plant: the assumed
+    circuit with the plant file's ``[leakage]`` / ``[dielectric_absorption]`` when given).
+
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
     from ..identify.transducer import (DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table,
@@ -350,6 +353,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
             progress(stage)
 
     plant = load_plant(plant_path)
+    amp = charge_amp_params(plant) if amp is None else amp
     pzt = plant.pzt
     check_step_force(pzt, step_n, where=str(plant_path))
     if table_path is None:
