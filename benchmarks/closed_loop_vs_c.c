@@ -45,7 +45,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_u, kx_qh, kx_c, kx_f; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -60,8 +60,6 @@ static plant_consts plant_params(const double *m)
     p.r_isnk = r * m[I_SNK];
     p.k_f = t_em * inv_kp;
     p.k_x = t_em * inv_cpp * inv_kp;
-    p.kx_u = p.d_eff * p.k_x * p.b_tot;
-    p.kx_qh = p.d_eff * p.k_x * (1.0 - p.b_tot * inv_cpp);
     p.kx_c = p.d_eff * p.k_x;
     p.kx_f = p.d_eff * inv_kp;
     return p;
@@ -88,13 +86,21 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     const double dt = m[DT], r = m[R], inv_cpp = m[INV_C_PP];
     double v = clampd(v_cmd, m[V_MIN], m[V_MAX]);
     double qh = st[S_QH], u = st[S_U], qh_new, u_new;
-    double q_old = qh + st[S_QC];
+    double qc_old = st[S_QC];
+    double q_old = qh + qc_old;
     double f_term = f_e * p->k_f;
-    double u_target = v - (st[S_QC] - f_term) * inv_cpp;
+    /* the creep branches first at a held terminal charge (V_h at the step's start): KCL, as pzt_advance */
+    double v_h_old = u - qh * inv_cpp;
     const int nc = (int)m[N_C], o_cb = (int)m[O_CB], o_dec = (int)m[O_CDEC], o_qc = (int)m[OS_QC];
     double s_dec = 0.0;
-    for (int j = 0; j < nc; j++) s_dec += m[o_dec + j] * st[o_qc + j];
+    for (int j = 0; j < nc; j++) {
+        double qj = st[o_qc + j];
+        s_dec += m[o_dec + j] * qj;
+        st[o_qc + j] = m[o_dec + j] * qj + m[o_cb + j] * v_h_old;
+    }
+    double qc_new = s_dec + p->b_tot * v_h_old;
     if (m[QUASI_STATIC] > 0.5) {
+        double u_target = v - (qc_new - f_term) * inv_cpp;
         const int n = (int)m[N_Q], o_r = (int)m[O_RQ], o_w = (int)m[O_WQ], o_z = (int)m[OS_ZQ];
         double y = 0.0;
         for (int i = 0; i < n; i++) {
@@ -105,7 +111,8 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         qh_new = y;
         u_new = u_target;
     } else {
-        double du = u_target - u;
+        double du = v - (qc_old - f_term) * inv_cpp - u;
+        double dq = 0.0;
         if (du != 0.0) {
             if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */
                 st[S_FUP] = rc_factor(st[S_GUP], dt, r);
@@ -115,10 +122,12 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
                 st[S_PL] = st[S_PU] = NAN;
             }
             int rising = du > 0;
-            double dq = rc_charge(du, rising ? st[S_GUP] : st[S_GDN], rising ? st[S_FUP] : st[S_FDN], dt, r,
-                                  rising ? m[I_SRC] : m[I_SNK], rising ? m[INV_I_SRC] : m[INV_I_SNK],
-                                  rising ? p->r_isrc : p->r_isnk);
-            qh_new = qh + dq;
+            dq = rc_charge(du, rising ? st[S_GUP] : st[S_GDN], rising ? st[S_FUP] : st[S_FDN], dt, r,
+                           rising ? m[I_SRC] : m[I_SNK], rising ? m[INV_I_SRC] : m[INV_I_SNK],
+                           rising ? p->r_isrc : p->r_isnk);
+        }
+        qh_new = qh + (dq - (qc_new - qc_old));
+        if (qh_new != qh) {
             /* _pi_update_segment: the first play every step, the others when qh_new leaves their band */
             const int n = (int)m[N_G], o_r = (int)m[O_RG], o_w = (int)m[O_WG], o_z = (int)m[OS_ZG];
             const double r0 = m[o_r], w0 = m[o_w], lo0 = qh_new - r0, hi0 = qh_new + r0;
@@ -165,17 +174,13 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
             }
             u_new = y;
         } else {
-            qh_new = qh;
             u_new = u;
         }
     }
-    double v_h = u_new - qh_new * inv_cpp;
-    double qc_tot = s_dec + p->b_tot * v_h;
-    for (int j = 0; j < nc; j++) st[o_qc + j] = m[o_dec + j] * st[o_qc + j] + m[o_cb + j] * v_h;
-    double q = qh_new + qc_tot;
+    double q = qh_new + qc_new;
     st[S_QH] = qh_new;
     st[S_U] = u_new;
-    st[S_QC] = qc_tot;
+    st[S_QC] = qc_new;
     double qf = q - f_term;
     double x_qs = qf * p->k_x + f_e * m[INV_K_P];
     const int nm = (int)m[N_M];
@@ -190,9 +195,8 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
             x_part += m[o_cd + a] * acc;
         }
         for (int a = 0; a < nm; a++) st[o_x + a] = st[o_x + nm + a] + m[o_b + nm + a] * x_qs;
-        /* pzt_advance: x_qs's chain expanded, a sum over u_new, qh_new and the held terms */
-        x = ((p->kx_u * u_new + p->kx_qh * qh_new) + (p->kx_c * (s_dec - f_term) + p->kx_f * f_e))
-            + x_part;
+        /* pzt_advance: x_qs's chain expanded, a sum over qh_new and the held terms */
+        x = (p->kx_c * qh_new + (p->kx_c * (qc_new - f_term) + p->kx_f * f_e)) + x_part;
         st[o_x + 2 * nm] = x_qs;
     } else {
         x = x_qs;

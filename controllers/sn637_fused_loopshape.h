@@ -164,7 +164,8 @@ static inline int32_t sn637_fused_loopshape_fixed_step(sn637_fused_loopshape_fix
 #define SN637_FUSED_LOOPSHAPE_BLEND_MAX_DIFF INT64_C(67108863)
 /* open loop this long after the charge integrator's reset before sn637_fused_loopshape_sensor_reset, s */
 #define SN637_FUSED_LOOPSHAPE_STARTUP_WAIT_S 4.7076
-/* reference lead 1/K_v, s: feed r + (dr/dt) * SN637_FUSED_LOOPSHAPE_REF_LEAD_S (a type-1 loop's ramp error) */
+/* reference lead 1/K_v, s: velocity feedforward on the trajectory generator's planned slope v (ramps):
+   feed r + v * SN637_FUSED_LOOPSHAPE_REF_LEAD_S (a type-1 loop's ramp error v/K_v); not on steps or tones */
 #define SN637_FUSED_LOOPSHAPE_REF_LEAD_S 0.00040732160787023325
 /* gauge metres: x = x_lin - beta (x_lin - x_c)^2, beta in 1/m, x_c in m (eq. 27's curvature) */
 #define SN637_FUSED_LOOPSHAPE_GAUGE_CURVATURE_PER_M -25.303838931807693

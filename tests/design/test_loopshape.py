@@ -134,6 +134,40 @@ def test_triangle_tracking_of_a_pure_integrator_loop_closed_form(seed):
     assert np.sqrt(0.5 * np.sum(a ** 2)) == pytest.approx(span / np.sqrt(12), rel=1e-6)
 
 
+
+@pytest.mark.parametrize("seed", range(4))
+def test_triangle_tracking_with_the_lead_matches_the_sampled_loop_fed_r_plus_v_lead(seed):
+    """tracking_rms with lead L is |S_k (1 - D_k L L_k) r_k| on the harmonics: checked against the discrete
+    closed loop L(z) = K_v T / (z - 1) (1 - a) / (z - a) fed the triangle led on its planned slope
+    (verify's planned_slope_lead), steady state over the last period. Without a lead the same formula is the
+    old |S_k r_k|; with L = 1/K_v only the extra pole's share is left (much below the ramp lag v/K_v).
+    K_v, the pole and the triangle's frequency drawn wide."""
+    from workbench.design.loopshape import tracking_rms, triangle_harmonics
+    from workbench.verify.scenarios import planned_slope_lead
+    rng = np.random.default_rng(seed)
+    dt = 1e-3
+    f0 = float(rng.choice([0.5, 1.0, 2.0]))
+    kv = 10 ** rng.uniform(1.3, 2.0)                       # 20-100 1/s: ramp lag well resolved
+    a = rng.uniform(0.3, 0.8)                              # the extra pole, z = a
+    z = control.TransferFunction([1, 0], [1], dt)
+    loop = kv * dt / (z - 1) * (1 - a) / (z - a)
+    cl = control.feedback(loop, 1)
+    per = int(round(1 / (f0 * dt)))
+    n = 6 * per
+    t = np.arange(n + 1) * dt
+    span = 1.0
+    r_next = span * 2 * np.abs((t * f0 + 0.25) % 1.0 - 0.5)
+    f, amp = triangle_harmonics(f0, span, 0.5 / dt)
+    lz = np.array([complex(loop(np.exp(2j * np.pi * fk * dt))) for fk in f])
+    for lead in (0.0, 1.0 / kv, 0.5 / kv):
+        fed = planned_slope_lead(r_next, dt, lead)
+        y = control.forced_response(cl, T=t[:-1], U=fed).outputs
+        e = (r_next[:-1] - y)[-per:]
+        got = float(np.sqrt(np.mean((e - 0.0) ** 2)))
+        assert tracking_rms(lz, amp, f, lead, dt) == pytest.approx(got, rel=0.01), lead
+    assert tracking_rms(lz, amp, f, 1.0 / kv, dt) < 0.5 * tracking_rms(lz, amp)
+    assert tracking_rms(lz, amp) == tracking_rms(lz, amp, f, 0.0, dt)
+
 def test_the_search_honours_the_tracking_limit(family):
     """With a tracking limit below what the free design reaches, the chosen design meets it, every shape ruled
     out missed it on the nominal loop, and tightening it can only cost crossover."""

@@ -84,3 +84,31 @@ def test_the_verify_harness_reads_the_plants_leakage(tmp_path):
                       ident_hold_s=150.0)
     assert st.amp.r_leak_ohm == 2e8
     assert st.ident.r_leak_ohm == pytest.approx(2e8, rel=0.1)
+
+
+@pytest.mark.parametrize("study", ["force", "dynamics"])
+def test_the_force_and_dynamics_studies_identify_on_the_plant_files_channel(tmp_path, monkeypatch, study):
+    """selfsense --force and --dynamics build the same channel from the plant file as selfsense does: the
+    identification record they simulate first is made with the file's R_FP and single absorption branch
+    (caught at that first call, so no record is simulated)."""
+    import importlib
+    ident_mod = importlib.import_module("workbench.selfsense.identify")      # the module (the package shadows it)
+    from workbench.selfsense.force import run_force_study
+    from workbench.selfsense.sysid import run_dynamics_study
+    path = tmp_path / "leaky.toml"
+    path.write_text(CREEP.read_text() + "\n[leakage]\nresistance_ohm = 2e8\n"
+                    "[dielectric_absorption]\ngain_f = 1.5e-7\ntime_constant_s = 3.0\n")
+
+    class Seen(Exception):
+        pass
+
+    def catch(pzt, amp, **kw):
+        raise Seen(amp)
+
+    monkeypatch.setattr(ident_mod, "simulate_identification", catch)
+    run = run_force_study if study == "force" else run_dynamics_study
+    with pytest.raises(Seen) as got:
+        run(path)
+    amp = got.value.args[0]
+    assert amp == charge_amp_params(load_plant(path))
+    assert (amp.r_leak_ohm, amp.da_gains_f, amp.da_time_constants_s) == (2e8, (1.5e-7,), (3.0,))

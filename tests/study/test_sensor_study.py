@@ -168,7 +168,7 @@ def test_reduced_fused_study_doubles_the_gauge_crossover_on_every_member(fused, 
     assert "sn637_loopshape_sensor_step" in header and str(exported.sensor.k) in header
     assert "Sensor" in (tmp_path / "f" / "report.md").read_text()
     # both exports carry firmware's startup settings, derived on the study's plant: the lead 1/K_v of the
-    # exported words, eq. 27's curvature, a wait at least the floor (the gauge's the floor: nothing to settle)
+    # exported words, eq. 27's curvature, the reading's own wait (the fused one's above the harness floor)
     from workbench.plant import load_plant
     from workbench.plant.gauge import bridge_curvature_per_m
     from workbench.verify.sensors import MIN_OPEN_LOOP_S, velocity_constant_per_s
@@ -179,7 +179,8 @@ def test_reduced_fused_study_doubles_the_gauge_crossover_on_every_member(fused, 
         assert sb.ref_lead_s == pytest.approx(1.0 / velocity_constant_per_s(c, sb, plant), rel=1e-12)
         assert sb.gauge_curvature_per_m == bridge_curvature_per_m(plant.gauge) < 0
         assert summary["firmware_startup"]["ref_lead_s"] == sb.ref_lead_s
-    assert gauge_c.sensor_kind == "gauge" and gauge_c.sensor.startup_wait_s == MIN_OPEN_LOOP_S
+    # the gauge's wait is its reading's own settle, one period (no scenario floor exported)
+    assert gauge_c.sensor_kind == "gauge" and gauge_c.sensor.startup_wait_s == gauge_c.dt_s
     assert exported.sensor.startup_wait_s >= MIN_OPEN_LOOP_S
     # the fused wait is the harness's own derivation on the same records: the verify harness, identifying the
     # estimator itself (sensor_setup, 700 s, the study's seed), finds the same settle time for the bare export

@@ -206,3 +206,27 @@ def test_the_gauge_scenarios_take_the_bridge_curvature_out_with_the_right_sign(r
         assert np.ptp(x_mid) > 0.75 * stroke_m(sn637_creep.pzt) and np.max(np.abs(curv)) > 3 * lsb
         left = r.reading_v[1:] * cal + TRIM_CENTER_M - x_mid - (0.0 if lin else curv)
         assert np.max(np.abs(left)) <= 0.5 * lsb + 0.01 * np.max(np.abs(curv)) + 2e-12
+
+
+def test_the_lead_is_velocity_feedforward_on_planned_ramps_only(root, sn637_creep):
+    """The lead goes on the planned slope: on a ramp r_k = a + v k T the fed reference is r + v L exactly, on a
+    hold it is r. The steps are fed as given (a block carrying L = 1/K_v runs the small step bit for bit as the
+    bare controller, and its metrics carry no ref_lead_s); the triangles report the lead they were fed."""
+    from workbench.controller import Controller
+    from workbench.verify.scenarios import planned_slope_lead
+    from workbench.verify.sensors import velocity_constant_per_s
+    dt, lead = 1e-4, 1.5e-3
+    for v in (-3e-4, 2e-6, 0.16):                     # m/s, from slow creep-like ramps to the 1 Hz triangle's
+        r = 7e-6 + v * np.arange(101) * dt
+        np.testing.assert_allclose(planned_slope_lead(r, dt, lead), r[:-1] + v * lead, rtol=0, atol=1e-15)
+    hold = np.full(11, 3e-6)
+    np.testing.assert_array_equal(planned_slope_lead(hold, dt, lead), hold[:-1])
+    c = Controller.load(root / "controllers" / "sn637_loopshape.json", plant=sn637_creep)
+    led = _with_block(c, ref_lead_s=1.0 / velocity_constant_per_s(c, c.with_sensor("gauge").sensor, sn637_creep))
+    a, ta = run_scenario(sn637_creep, c.firmware(), "small_step", seed=4)
+    b, tb = run_scenario(sn637_creep, led.firmware(), "small_step", seed=4)
+    for key in ("x_m", "u_v", "i_a"):
+        np.testing.assert_array_equal(ta[key], tb[key], err_msg=key)
+    assert "ref_lead_s" not in b
+    m, _ = run_scenario(sn637_creep, led.firmware(), "triangle_1hz", noise=False)
+    assert m["ref_lead_s"] == led.sensor.ref_lead_s

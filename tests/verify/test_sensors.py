@@ -333,7 +333,9 @@ def test_the_export_carries_the_wait_the_lead_and_the_gauge_curvature(setup, tmp
     h_bare, h_full = Path(bare["h"]).read_text(), FUSED.with_suffix(".h").read_text()
     assert "STARTUP_WAIT_S" not in h_bare and "gauge_metres" not in h_bare
     assert [ln for ln in h_full.splitlines() if ln not in h_bare.splitlines()][0].startswith("/* open loop")
-    assert len(h_full.splitlines()) - len(h_bare.splitlines()) == 12
+    assert len(h_full.splitlines()) - len(h_bare.splitlines()) == 13
+    # the lead's macro says it is velocity feedforward on the planned slope of ramps, not a derivative of any r
+    assert "planned slope" in h_full and "not on steps or tones" in h_full
     c2 = with_firmware_startup(setup, c)
     sb = c2.sensor
     assert sb.ref_lead_s == pytest.approx(1.0 / velocity_constant_per_s(c, c.sensor, setup.plant), rel=1e-12)
@@ -364,18 +366,21 @@ def test_the_export_carries_the_wait_the_lead_and_the_gauge_curvature(setup, tmp
 
 
 def test_the_gauge_needs_no_wait_of_its_own_and_its_settings_need_no_charge_channel(setup):
-    """The gauge chain keeps no state across periods: its simulated startup error settles at once (well within
-    the MIN_OPEN_LOOP_S floor), so firmware_startup gives the gauge the floor without simulating, from the plant
-    alone (a SensorSetup with no estimator: a plant without a charge channel gets its gauge settings too); the
-    lead and the curvature are those of the charge-channel setup."""
-    from workbench.verify.sensors import (MIN_OPEN_LOOP_S, SensorSetup, firmware_startup, startup_settle_s,
-                                          velocity_constant_per_s)
+    """The gauge chain keeps no state across periods: its simulated startup error settles at its first reading,
+    one period, and firmware_startup gives the gauge exactly that (not the sensor loop's scenario floor, which
+    closing_time_s applies when that harness closes), without simulating, from the plant alone (a SensorSetup
+    with no estimator: a plant without a charge channel gets its gauge settings too); the lead and the
+    curvature are those of the charge-channel setup."""
+    from workbench.verify.sensors import (MIN_OPEN_LOOP_S, OFFSET_WINDOW_S, SensorSetup, closing_time_s,
+                                          firmware_startup, startup_settle_s, velocity_constant_per_s)
     c = Controller.load(GAUGE)
     st = startup_settle_s(setup, c, "gauge")
-    assert st["settle_s"] < 0.01 * MIN_OPEN_LOOP_S
     plant_only = SensorSetup(setup.plant, None, None, None, {})
     fw = firmware_startup(plant_only, c, "gauge")
-    assert fw["startup_wait_s"] == MIN_OPEN_LOOP_S
+    assert fw["startup_wait_s"] == st["settle_s"] == pytest.approx(c.dt_s, rel=1e-9)
+    assert closing_time_s(fw["startup_wait_s"]) == MIN_OPEN_LOOP_S > OFFSET_WINDOW_S
+    assert closing_time_s(None) == closing_time_s(float("nan")) == MIN_OPEN_LOOP_S
+    assert closing_time_s(4.7) == 4.7
     assert fw["ref_lead_s"] == pytest.approx(1.0 / velocity_constant_per_s(c, c.with_sensor("gauge").sensor,
                                                                            setup.plant), rel=1e-12)
     assert fw == firmware_startup(setup, c, "gauge")

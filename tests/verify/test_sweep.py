@@ -335,3 +335,31 @@ def test_run_sweep_refuses_a_table_suffix_before_running_any_case(tmp_path, monk
             sweep_job.run_sweep(root / "studies" / "sn637_servo.toml", table=tmp_path / bad)
     for ok in TABLE_SUFFIXES + (".CSV",):
         check_table_path(tmp_path / f"t{ok}")                 # accepted: no error
+
+
+def test_the_sweeps_triangle_is_fed_the_exports_lead(root, tmp_path):
+    """workbench sweep's 0.1 Hz triangle runs the export's velocity feedforward as verify's triangles do. Noise
+    off, a ramp of slope v lags a type-1 loop by v / K_v (a square wave of that height on the triangle: RMS
+    v / K_v); the export's lead L = 1/K_v takes it out, so the squared RMS errors differ by (v / K_v)^2 (the
+    hysteresis residual in quadrature beside it). v = 2 x span x 0.1 Hz."""
+    import json
+    from dataclasses import replace
+    from workbench.controller import Controller
+    from workbench.plant import load_plant
+    from workbench.verify.sensors import velocity_constant_per_s
+    from workbench.verify.sweep_job import run_case
+    plant_file = root / "plants" / "p888_51_sn637_creep.toml"
+    plant = load_plant(plant_file)
+    c = Controller.load(root / "controllers" / "sn637_loopshape.json", plant=plant).with_sensor("gauge")
+    kv = velocity_constant_per_s(c, c.sensor, plant)
+    led = replace(c, sensor=replace(c.sensor, ref_lead_s=1.0 / kv))
+    rows = {}
+    for name, ctrl in (("bare", c), ("led", led)):
+        path = ctrl.write(tmp_path / name, "c")["json"]
+        assert (json.loads(Path(path).read_text())["sensor"].get("ref_lead_s") is not None) == (name == "led")
+        rows[name] = run_case({"plant": str(plant_file), "cp_factor": 1.0, "amplitude_v": 3.0, "controller": str(path),
+                               "bias_v": 50.0, "noise": False, "freq_hz": (1.0, 4990.0, 20)})
+    v = 2 * rows["bare"]["triangle_span_m"] * 0.1
+    e0, e1 = rows["bare"]["triangle_error_rms_m"], rows["led"]["triangle_error_rms_m"]
+    assert e1 < e0
+    assert e0 ** 2 - e1 ** 2 == pytest.approx((v / kv) ** 2, rel=0.2)

@@ -91,6 +91,7 @@ class LoopShapeResult:
     searched: int = 0
     binding: dict = None              # the constraint that bound the crossover (see tune_loop_shape)
     tracking: dict = None             # the reference-tracking check (None without one): winner's RMS, shapes it ruled out
+    tracking_loop: np.ndarray = field(default=None, repr=False)   # the winner's nominal L at the harmonics
 
 
 def structured_controller(k, fc_hz, integral_ratio, lead_ratio, rolloff_ratio, rolloff_damping=0.6, notch=None,
@@ -225,14 +226,49 @@ def triangle_harmonics(freq_hz, span_fraction=0.8, f_max_hz=None, n_max=20001):
     return k * freq_hz, 4.0 * span_fraction / (np.pi ** 2 * k ** 2)
 
 
-def tracking_rms(loop, amplitudes):
+def tracking_rms(loop, amplitudes, freq_hz=None, lead_s=0.0, dt_s=None):
     """Steady-state RMS error of a reference with harmonics of peak ``amplitudes`` through S = 1 / (1 + L)
-    (``loop``: L at those harmonics): sqrt(sum |S_k r_k|^2 / 2).
+    (``loop``: L at those harmonics): sqrt(sum |S_k r_k|^2 / 2); with velocity feedforward ``lead_s``,
+    sqrt(sum |S_k (1 - D_k lead_s L_k) r_k|^2 / 2).
 
-    For a type-1 loop and a triangle this tends to ramp rate / K_v (the error is a square wave of
-    +/- r' / K_v) when every harmonic that matters lies well below the crossover.
+    Without a lead, for a type-1 loop and a triangle this tends to ramp rate / K_v (the error is a square
+    wave of +/- r' / K_v) when every harmonic that matters lies well below the crossover.
+
+    With the lead (the sensor block's ``ref_lead_s``: the loop is fed r + lead_s v, v the planned slope, the
+    forward difference (r_{k+1} - r_k) / T of :func:`workbench.verify.scenarios.planned_slope_lead`), the fed
+    reference is (1 + D lead_s) r with D(w) = (e^{j w T} - 1) / T (j w as T -> 0), so the error is
+    e = r - T_cl (1 + D lead_s) r = (S - D lead_s T_cl) r = S (1 - D lead_s L) r, since T_cl = S L. With
+    lead_s = 1/K_v and L ~ K_v / (j w) at the low harmonics, the bracket vanishes to first order: what is
+    left is L's departure from K_v / (j w) (its other poles and zeros, and the nominal loop's K_v against the
+    one the lead was taken from).
+
+    Parameters
+    ----------
+    loop : array_like of complex
+        L at the harmonics.
+    amplitudes : array_like
+        Peak amplitude of each harmonic (any unit: the RMS comes in it).
+    freq_hz : array_like, optional
+        The harmonics' frequencies, Hz (required with a lead).
+    lead_s : float, default 0
+        Velocity feedforward, s (0: none, the first form).
+    dt_s : float, optional
+        Sample time T of the forward difference, s (None: j w).
+
+    Returns
+    -------
+    float
+        The RMS error, in the unit of ``amplitudes``.
     """
-    e = np.abs(np.asarray(amplitudes) / (1.0 + np.asarray(loop)))
+    lo = np.asarray(loop)
+    bracket = 1.0
+    if lead_s:
+        if freq_hz is None:
+            raise ValueError("tracking_rms with a lead needs the harmonics' freq_hz")
+        jw = 2j * np.pi * np.asarray(freq_hz, float)
+        d = jw if dt_s is None else (np.exp(jw * dt_s) - 1.0) / dt_s
+        bracket = 1.0 - d * lead_s * lo
+    e = np.abs(np.asarray(amplitudes) * bracket / (1.0 + lo))
     return float(np.sqrt(0.5 * np.sum(e ** 2)))
 
 
@@ -418,4 +454,4 @@ def tune_loop_shape(freq_hz, members, nominal, spec=LoopShapeSpec(), progress=No
                                    "integral_order": sh[3],
                                    "fc_hz": fc_, "rms": e_} for sh, fc_, e_ in tracking_misses]}
     return LoopShapeResult(ctrl_c, ctrl_d, p, float(worst["crossover_hz_min"]["value"]), worst, rows, searched,
-                           best[3], tracking)
+                           best[3], tracking, l_tr if track else None)

@@ -119,11 +119,19 @@ class SensorBlend:
         The blend coefficient word round((1 - a) 2^K); None: computed from ``crossover_hz``. A given
         word must be that rounding (within one LSB).
     startup_wait_s : float or None
-        Firmware's startup: open loop this long after the charge integrator's reset before the loop closes, s
-        (:func:`workbench.verify.sensors.startup_settle_s`). None: not carried (the harness computes it).
+        Firmware's startup: open loop this long after the charge integrator's reset (for "gauge": after the
+        start) before the loop closes, s: the reading's own settle (:func:`workbench.verify.sensors.startup_settle_s`;
+        the gauge's is its first period). The harnesses' scenario floors (the plant's creep after the bias step,
+        :data:`workbench.verify.sensors.MIN_OPEN_LOOP_S`) are not part of it. None: not carried (the harness
+        computes it).
     ref_lead_s : float or None
-        The reference generator's lead 1/K_v, s: the sensor step is fed r + (dr/dt) ref_lead_s
-        (:func:`workbench.verify.sensors.velocity_constant_per_s`). None: not carried; 0: no lead.
+        Velocity feedforward 1/K_v, s, on the trajectory generator's planned slope: on a ramp of planned slope v
+        the sensor step is fed r + v ref_lead_s, which takes out a type-1 loop's ramp error v / K_v
+        (:func:`workbench.verify.sensors.velocity_constant_per_s`). Not a derivative of arbitrary references:
+        steps, holds and tones are fed as they are (a step's discrete dr/dt would be a one-sample pulse of
+        ref_lead_s / dt_s times its height). Neither the header's step nor
+        :meth:`workbench.Controller.run_sensors` applies it: the
+        reference generator does. None: not carried; 0: no lead.
     gauge_curvature_per_m : float or None
         beta of firmware's gauge conversion x = x_lin - beta (x_lin - x_c)^2, 1/m
         (:func:`workbench.plant.gauge.bridge_curvature_per_m`). None: not carried; 0: linear calibration.

@@ -285,11 +285,16 @@ def _startup_c(name, sensor):
     up = name.upper()
     out = []
     if sensor.startup_wait_s is not None:
-        out.append(f"/* open loop this long after the charge integrator's reset before {name}_sensor_reset, s */\n"
-                   f"#define {up}_STARTUP_WAIT_S {_double(sensor.startup_wait_s)}\n")
+        if sensor.kind == "gauge":      # no charge integrator: the gauge reading's own settle (its first period)
+            what = (f"/* open loop this long before {name}_sensor_reset, s: the gauge reading's settle (no state "
+                    f"across periods: its first reading) */\n")
+        else:
+            what = f"/* open loop this long after the charge integrator's reset before {name}_sensor_reset, s */\n"
+        out.append(f"{what}#define {up}_STARTUP_WAIT_S {_double(sensor.startup_wait_s)}\n")
     if sensor.ref_lead_s is not None:
-        out.append(f"/* reference lead 1/K_v, s: feed r + (dr/dt) * {up}_REF_LEAD_S (a type-1 loop's ramp error) */\n"
-                   f"#define {up}_REF_LEAD_S {_double(sensor.ref_lead_s)}\n")
+        out.append(f"/* reference lead 1/K_v, s: velocity feedforward on the trajectory generator's planned slope v "
+                   f"(ramps):\n   feed r + v * {up}_REF_LEAD_S (a type-1 loop's ramp error v/K_v); not on steps or "
+                   f"tones */\n#define {up}_REF_LEAD_S {_double(sensor.ref_lead_s)}\n")
     if sensor.gauge_curvature_per_m is not None:
         out.append(f"/* gauge metres: x = x_lin - beta (x_lin - x_c)^2, beta in 1/m, x_c in m (eq. 27's curvature) */\n"
                    f"#define {up}_GAUGE_CURVATURE_PER_M {_double(sensor.gauge_curvature_per_m)}\n"

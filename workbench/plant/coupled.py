@@ -26,9 +26,10 @@ explicitly instead went unstable at h f_mode = 0.07 (70 kHz mode, 1 us; stable a
 
 1. x_dyn at mid-step from the (stiffened) structure with g held at its last value (exact
    zero-order-hold half step);
-2. per stack, the electrical step of today's kernel on that x_dyn: R dq_h/dt = V - V_t on
-   G's local slope, exact through current-limited slews (open leads: q fixed, the creep
-   branches redistribute charge inside);
+2. per stack, the electrical step of today's kernel on that x_dyn: the creep branches relax at a
+   held terminal charge (C_h gives what they take, Kirchhoff's current law at the terminal as in
+   :mod:`workbench.plant.kernels`), then R dq/dt = V - V_t on G's local slope, exact through
+   current-limited slews (open leads: q fixed, the creep branches redistribute charge inside);
 3. the stiffened structure advanced over h with g linear between the two step ends
    (first-order hold, one matrix exponential).
 
@@ -155,30 +156,23 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 o1 = g_off[j + 1]
                 c0 = c_off[j]
                 c1 = c_off[j + 1]
-                q_old = qh + es[j, E_QC]
-                if sc[j, C_OPEN] > 0.5:
-                    # 2'. open leads: q fixed; creep branches exchange charge with C_h
-                    v_h = u - qh * inv_cpp
-                    dqc = 0.0
-                    qc_tot = 0.0
-                    for i in range(c0, c1):
-                        target = c_cap[i] * v_h
-                        qj = target + (qc[i] - target) * c_dec[i]
-                        dqc += qj - qc[i]
-                        qc[i] = qj
-                        qc_tot += qj
-                    if dqc != 0.0:
-                        qh_new = qh - dqc
-                        u_new = _pi_update_segment(zg, g_r, g_w, o0, o1, qh_new, es, j, h, sc[j, C_R])
-                    else:
-                        qh_new = qh
-                        u_new = u
-                    v_h = u_new - qh_new * inv_cpp
-                else:
-                    # 2. electrical step of today's kernel, force term from the structure
+                qc_old = es[j, E_QC]
+                q_old = qh + qc_old
+                # 2a. the creep branches relax toward C_j V_h (V_h at the sub-step's start, tau_j >> h) at a
+                # held terminal charge: C_h gives what they take (Kirchhoff's current law at the terminal)
+                v_h = u - qh * inv_cpp
+                qc_tot = 0.0
+                for i in range(c0, c1):
+                    target = c_cap[i] * v_h
+                    qj = target + (qc[i] - target) * c_dec[i]
+                    qc[i] = qj
+                    qc_tot += qj
+                dq = 0.0
+                if sc[j, C_OPEN] < 0.5:
+                    # 2b. the charge through R into the node (today's kernel), the branches held; open leads
+                    # (2b'): none, q is fixed
                     vc = min(max(v[k, j], sc[j, C_VMIN]), sc[j, C_VMAX])
-                    u_target = vc - (es[j, E_QC] - f_term) * inv_cpp
-                    du = u_target - u
+                    du = vc - (qc_old - f_term) * inv_cpp - u
                     if du != 0.0:
                         r = sc[j, C_R]
                         if du > 0:
@@ -187,18 +181,12 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                         else:
                             dq = rc_charge(du, es[j, E_GDN], es[j, E_FDN], h, r, sc[j, C_ISNK], sc[j, C_INVISNK],
                                            r * sc[j, C_ISNK])
-                        qh_new = qh + dq
-                        u_new = _pi_update_segment(zg, g_r, g_w, o0, o1, qh_new, es, j, h, r)
-                    else:
-                        qh_new = qh
-                        u_new = u
-                    v_h = u_new - qh_new * inv_cpp
-                    qc_tot = 0.0
-                    for i in range(c0, c1):
-                        target = c_cap[i] * v_h
-                        qj = target + (qc[i] - target) * c_dec[i]
-                        qc[i] = qj
-                        qc_tot += qj
+                qh_new = qh + (dq - (qc_tot - qc_old))
+                if qh_new != qh:
+                    u_new = _pi_update_segment(zg, g_r, g_w, o0, o1, qh_new, es, j, h, sc[j, C_R])
+                else:
+                    u_new = u
+                v_h = u_new - qh_new * inv_cpp
                 es[j, E_QH] = qh_new
                 es[j, E_U] = u_new
                 es[j, E_QC] = qc_tot

@@ -15,6 +15,16 @@ short dependency chain (capacitance and RC factor per capacitance segment, G's p
 the charge leaves their band, exact creep and mode steps, no division); :func:`pzt_step_reference`
 keeps the step as first written, the oracle the tests hold it to (1e-12 of the stroke).
 
+Kirchhoff's current law at the terminal (seed 000 Fig. 3, the creep branches across C_h as
+:mod:`workbench.plant.creep` describes them): the current through R feeds C_h and the creep branches
+together, R (dq_h/dt + sum_j dQ_j/dt) = v - V_t. So a step moves the branches' charge Q_j toward
+C_j V_h at a held terminal charge (q_h gives what they take: V_h falls as they charge), then moves
+the charge (v - V_t)/R carries through R; the terminal charge q = q_h + sum_j Q_j changes by that
+charge only. With the leads open (R = 2e14 ohm) q stays put while the branches relax. (Before this
+was fixed the branches' charge reached the terminal without passing R: immaterial at 80 ohm, where
+the loop corrects it within R C, but tens of uC of "held" charge moved at open leads;
+tests/plant/test_kcl.py.)
+
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
 """
@@ -232,8 +242,7 @@ def plant_params(m):
     step's fixed products are formed here: R i_lim per direction, T_em / k_p,
     T_em / (C_pp k_p), the creep branches' summed input coefficient and the modes'
     direct gain from the quasi-static displacement (D + C B1 of the first-order hold), and
-    the coefficients of x over G's output, the hysteretic charge, the held charge terms and
-    the force (D_eff k_x b_tot, D_eff k_x (1 - b_tot / C_pp), D_eff k_x, D_eff / k_p).
+    the coefficients of x over the charge and the force (D_eff k_x, D_eff / k_p).
     """
     r = m[R]
     t_em = m[T_EM]
@@ -258,16 +267,19 @@ def plant_params(m):
             n_c, o_cb, _index(m[O_CDEC]), _index(m[OS_QC]),
             n, _index(m[OS_XM]), _index(m[O_AD]), o_b, o_cd, d_eff,
             r * m[I_SRC], r * m[I_SNK], t_em * inv_kp, k_x, b_tot,
-            # x of a plant with modes as one sum over this step's G output and charge (pzt_advance)
-            d_eff * k_x * b_tot, d_eff * k_x * (1.0 - b_tot * inv_cpp), d_eff * k_x, d_eff * inv_kp)
+            # x of a plant with modes as one sum over this step's charges and force (pzt_advance)
+            d_eff * k_x, d_eff * inv_kp)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def pzt_advance(p, m, st, v_cmd, f_e):
     """Advance the PZT by one sub-step; return (x, q, i, V_h, V_p).
 
-    ``p`` is :func:`plant_params` of ``m``. Electrical part (dynamic form): with the creep
-    charge and force held, R dq_h/dt = u* - G[q_h]. On the local slope of G this is an RC
+    ``p`` is :func:`plant_params` of ``m``. Electrical part (dynamic form), split in two parts that each
+    keep Kirchhoff's current law at the terminal (the terminal charge moves only by the charge through
+    R): first the creep branches relax toward C_j V_h over the step (exact, V_h held at its start value),
+    taking their charge from C_h's node; then, with the creep charge and force held,
+    R dq_h/dt = u* - G[q_h] moves the charge through R into the node. On the local slope of G this is an RC
     relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
     (exactly), then relaxes exponentially for the rest of the step (:func:`rc_charge`). The
     slope is the one at the start of the step; G's slope only falls as more plays engage, so
@@ -281,42 +293,46 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot, kx_u, kx_qh, kx_c, kx_f) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
-    q_old = qh + st[S_QC]
+    qc_old = st[S_QC]
+    q_old = qh + qc_old
     f_term = f_e * k_f                       # T_em F_e / k_p, C
-    u_target = v - (st[S_QC] - f_term) * inv_cpp
-    # the creep branches' decayed charges (this step's V_h adds b_j V_h below)
+    # the creep branches first, exact, with V_h held at the step's start (tau_j >> dt): they take their
+    # charge from C_h's node, not from the terminal (KCL, see the module docstring)
+    v_h_old = u - qh * inv_cpp
     s_dec = 0.0
     for j in range(n_c):
-        s_dec += m[o_cdec + j] * st[o_qc + j]
+        qj = st[o_qc + j]
+        s_dec += m[o_cdec + j] * qj
+        st[o_qc + j] = m[o_cdec + j] * qj + m[o_cb + j] * v_h_old
+    qc_new = s_dec + b_tot * v_h_old
     if quasi_static:
-        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_target)
-        u_new = u_target
+        # R = 0: V_t = v at the step's end with the branches' new charge
+        u_new = v - (qc_new - f_term) * inv_cpp
+        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
     else:
-        du = u_target - u
+        # R moves dq into the node (branches held over the RC step); C_h keeps dq less what the branches took
+        du = v - (qc_old - f_term) * inv_cpp - u
+        dq = 0.0
         if du != 0.0:
             _check_segment(st, dt, r)
             rising = du > 0
             dq = rc_charge(du, st[S_GUP] if rising else st[S_GDN], st[S_FUP] if rising else st[S_FDN], dt, r,
                            i_src if rising else i_snk, inv_i_src if rising else inv_i_snk,
                            r_isrc if rising else r_isnk)
-            qh_new = qh + dq
+        qh_new = qh + (dq - (qc_new - qc_old))
+        if qh_new != qh:
             u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
         else:
-            qh_new = qh
             u_new = u
     v_h = u_new - qh_new * inv_cpp
-    # creep branches relax toward C_j V_h (tau_j >> dt: V_h held over the step), exact step
-    qc_tot = s_dec + b_tot * v_h
-    for j in range(n_c):
-        st[o_qc + j] = m[o_cdec + j] * st[o_qc + j] + m[o_cb + j] * v_h
-    q = qh_new + qc_tot
+    q = qh_new + qc_new
     st[S_QH] = qh_new
     st[S_U] = u_new
-    st[S_QC] = qc_tot
+    st[S_QC] = qc_new
     qf = q - f_term
     v_p = qf * inv_cpp
     x_qs = qf * k_x + f_e * inv_kp           # (F_e + T_em V_p) / k_p
@@ -335,10 +351,10 @@ def pzt_advance(p, m, st, v_cmd, f_e):
             x_part += m[o_cd + a] * acc
         for a in range(n):
             st[o_x + a] = st[o_x + n + a] + m[o_b + n + a] * x_qs
-        # x = D_eff x_qs + x_part with x_qs's chain (V_h, the creep charge, q, x_qs) expanded: a sum over
-        # this step's G output and charge and the held terms, two operations after u_new instead of nine
+        # x = D_eff x_qs + x_part with x_qs's chain (q, x_qs) expanded: this step's hysteretic charge and the
+        # held terms (the branches' new charge, the force), two operations after qh_new instead of five
         # (equal to rounding: the tests hold it to pzt_step_reference)
-        x = ((kx_u * u_new + kx_qh * qh_new) + (kx_c * (s_dec - f_term) + kx_f * f_e)) + x_part
+        x = (kx_c * qh_new + (kx_c * (qc_new - f_term) + kx_f * f_e)) + x_part
         st[o_x + n + n] = x_qs
     else:
         x = x_qs
@@ -370,13 +386,27 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
+    qc_old = st[S_QC]
+    q_old = qh + qc_old
     f_term = t_em * f_e * inv_kp              # T_em F_e / k_p, C
-    u_target = v - (st[S_QC] - f_term) * inv_cpp
+    # creep branches relax toward C_j V_h (tau_j >> dt: V_h held at the step's start), at a held terminal
+    # charge: C_h gives what they take
+    v_h_old = u - qh * inv_cpp
+    qc_new = 0.0
+    o_cc, o_cdec, o_qc = int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC])
+    for j in range(int(m[N_C])):
+        target = m[o_cc + j] * v_h_old
+        qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
+        st[o_qc + j] = qj
+        qc_new += qj
     if m[QUASI_STATIC] > 0.5:
+        u_target = v - (qc_new - f_term) * inv_cpp
         qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
         u_new = u_target
     else:
-        du = u_target - u
+        # then the charge through R into the node, the branches held
+        du = v - (qc_old - f_term) * inv_cpp - u
+        dq = 0.0
         if du != 0.0:
             if du > 0:
                 d = 1.0
@@ -404,7 +434,8 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
             if t_left > 0.0:
                 # RC relaxation on the local slope: tau = R C
                 dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
-            qh_new = qh + dq
+        qh_new = qh + (dq - (qc_new - qc_old))
+        if qh_new != qh:
             o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
             y = 0.0
             up = 0.0
@@ -433,22 +464,12 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
             st[S_FDT], st[S_FR] = dt, r
             u_new = y
         else:
-            qh_new = qh
             u_new = u
     v_h = u_new - qh_new * inv_cpp
-    # creep branches relax toward C_j V_h (tau_j >> dt: V_h held over the step)
-    qc_tot = 0.0
-    o_cc, o_cdec, o_qc = int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC])
-    for j in range(int(m[N_C])):
-        target = m[o_cc + j] * v_h
-        qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
-        st[o_qc + j] = qj
-        qc_tot += qj
-    q_old = qh + st[S_QC]
-    q = qh_new + qc_tot
+    q = qh_new + qc_new
     st[S_QH] = qh_new
     st[S_U] = u_new
-    st[S_QC] = qc_tot
+    st[S_QC] = qc_new
     v_p = (q - f_term) * inv_cpp
     x_qs = (f_e + t_em * v_p) * inv_kp
     n = int(m[N_M])

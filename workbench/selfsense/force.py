@@ -7,10 +7,10 @@ stack the model's own operators are used):
 1. **V_h** from the terminal charge q through the hysteretic capacitance and its creep
    branches. q = q_h + Q_c with q_h = C_h[V_h] (a PI operator) and each creep branch
    relaxing toward C_j V_h (tau_j Q_j' = C_j V_h - Q_j, stepped as the simulator steps it:
-   Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k, a_j = exp(-dt/tau_j)). Per sample
-   C_h[V_h] + c_eff V_h = q_k - sum_j a_j Q_j,k-1 with c_eff = sum_j (1 - a_j) C_j: the
-   left side is the PI operator C_h with a linear term added, so V_h is its exact inverse
-   (Kuhnen, :meth:`~workbench.plant.hysteresis.PrandtlIshlinskii.inverse`), no iteration.
+   Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k-1, a_j = exp(-dt/tau_j), V_h held at the step's
+   start; :mod:`workbench.plant.kernels`). Per sample C_h[V_h,k] = q_k - sum_j Q_j,k, so V_h is
+   the exact inverse of C_h (Kuhnen, :meth:`~workbench.plant.hysteresis.PrandtlIshlinskii.inverse`),
+   no iteration.
 2. **V_p** = V_t - V_h (the two capacitances in series carry the terminal voltage).
 3. **Elongation** from eq. 9: C_p V_p = q - T_em x, so x = (q - C_p V_p) / T_em.
 4. **Force** from eq. 5 (quasi-static spring): k_p x = F_e + T_em V_p, so F_e = k_p x - T_em V_p
@@ -45,7 +45,7 @@ from numba import njit
 from ..errors import FlagRangeError
 from ..plant.hysteresis import pi_step
 from ..plant.simulator import PZTSimulator
-from .charge_amp import ChargeAmpParams, measure
+from .charge_amp import ChargeAmpParams, charge_amp_params, measure
 from .estimator import charge_estimate, static_estimate
 
 __all__ = ["check_step_force", "check_force_table", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
@@ -73,17 +73,17 @@ class ForceEstimate:
 
 
 @njit(cache=True, error_model="numpy")
-def _invert(q, r, w, z, cap, dec, qc):
-    """V_h per sample: inverse PI of (q_k - sum a_j Q_j), creep branches (``qc``, updated) stepped with the new V_h."""
+def _invert(q, r, w, z, cap, dec, qc, vh):
+    """V_h per sample: inverse PI of (q_k - sum Q_j,k), the creep branches (``qc``, updated) stepped first with
+    the previous V_h (``vh`` at the reset)."""
     n = q.shape[0]
     v_h = np.empty(n)
     for k in range(n):
         rhs = q[k]
         for j in range(cap.shape[0]):
-            rhs -= dec[j] * qc[j]
-        vh = pi_step(z, r, w, rhs)
-        for j in range(cap.shape[0]):
             qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * vh
+            rhs -= qc[j]
+        vh = pi_step(z, r, w, rhs)
         v_h[k] = vh
     return v_h
 
@@ -128,14 +128,15 @@ def estimate_force(t_s, v_t_v, q_c, pzt, *, states_v=None, creep_charges_c=None)
         dec = np.exp(-dt / np.asarray(pzt.creep.time_constants_s, float))
     else:
         cap, dec = np.zeros(0), np.zeros(0)
-    c_eff = float(np.sum((1.0 - dec) * cap))
     hyst = pzt.hysteresis if states_v is None else pzt.hysteresis.with_states(states_v)
     qc0 = np.zeros(cap.size) if creep_charges_c is None else np.array(creep_charges_c, float)
     if qc0.shape != cap.shape or not np.all(np.isfinite(qc0)):
         raise ValueError(f"creep_charges_c needs {cap.size} finite charges (C), one per creep branch; got {qc0!r}")
-    inv = hyst.plus_linear(c_eff).inverse()     # exact: C_h + c_eff I is a PI operator
+    inv = hyst.inverse()                        # exact (Kuhnen)
     q0 = hyst.output_at_rest() + float(np.sum(qc0))
-    v_h = _invert(q + q0, inv.thresholds, inv.weights, inv.initial_states.copy(), cap, dec, qc0.copy())
+    # V_h at the reset: the threshold-0 play's state (it follows its input)
+    v_h = _invert(q + q0, inv.thresholds, inv.weights, inv.initial_states.copy(), cap, dec, qc0.copy(),
+                  float(hyst.initial_states[0]))
     v_p = v - v_h
     t_em, k_p = pzt.transducer_constant_n_per_v, pzt.stiffness_n_per_m
     x = (q + q0 - pzt.working_capacitance_f * v_p) / t_em          # seed 000 eq. 9
@@ -332,7 +333,7 @@ def check_force_table(path, runs):
     identify_transducer(path)           # the table's units, by T_em (raises naming the file and the column)
 
 
-def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
+def run_force_study(plant_path, amp=None, seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
                     bias_v=50.0, table_path=None, progress=None):
     """Force self-sensing on the plant: the simulated force step and the Table 1 Instron runs.
 
@@ -355,6 +356,9 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
        (:func:`~.instron_sequence.table1_sequence_estimates`; ``sequence``: per run the model's
        read and V_h's change, and the run-order change of V/F, model against Table 1).
 
+    ``amp``: the charge channel (default :func:`~.charge_amp.charge_amp_params` of the plant: the assumed
+    circuit with the plant file's ``[leakage]`` / ``[dielectric_absorption]`` when given).
+
     Returns the JSON-ready dict plus ``_arrays`` (records for the figure; drop before writing).
     """
     from ..identify.transducer import (DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table,
@@ -371,6 +375,7 @@ def run_force_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hol
             progress(stage)
 
     plant = load_plant(plant_path)
+    amp = charge_amp_params(plant) if amp is None else amp
     pzt = plant.pzt
     check_step_force(pzt, step_n, where=str(plant_path))
     if table_path is None:

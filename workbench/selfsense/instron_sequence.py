@@ -11,16 +11,17 @@ a gain times the back EMF?
 The model, quasi-static (the 200 ohm leads relax in R C ~ 3 ms against 5 s ramps; the 70 kHz
 mode is far above the load frame), charge-conserving, one step of ``dt_s``:
 
-- the creep branches (Kelvin-Voigt, across C_h): Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k,
-  a_j = exp(-dt / tau_j), as :mod:`workbench.plant.kernels` and :func:`.force.estimate_force` step them;
+- the creep branches (Kelvin-Voigt, across C_h): Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k-1,
+  a_j = exp(-dt / tau_j) (V_h held at the step's start), as :mod:`workbench.plant.kernels` and
+  :func:`.force.estimate_force` step them;
 - the stack charge q = C_h[V_h] + sum_j Q_j; V_p = (q - T_em F_e / k_p) / C_pp; V_t = V_h + V_p
   (seed 000 eqs. 5 and 9 with the spring eliminated);
 - leads **shorted** (``R_in``, and the drain before every run): V_t = 0, i.e.
-  (C_h + (c_eff + C_pp) I)[V_h] = T_em F_e / k_p - sum_j a_j Q_j,k-1;
-- leads **open** (``R_out``): q is held, i.e. (C_h + c_eff I)[V_h] = q - sum_j a_j Q_j,k-1.
+  (C_h + C_pp I)[V_h] = T_em F_e / k_p - sum_j Q_j,k;
+- leads **open** (``R_out``): q is held, i.e. C_h[V_h] = q - sum_j Q_j,k.
   The Keithley's 200 TOhm drains the stack in R C ~ 10^9 s: 10^-8 of the charge over a run.
 
-Both are PI operators in V_h with a linear term (c_eff = sum_j (1 - a_j) C_j), inverted exactly
+Both are PI operators in V_h (C_h, or C_h with C_pp added to its linear term), inverted exactly
 (Kuhnen) from C_h's current play states at every step, so the states stay one set.
 
 **What follows from the structure** (tests): with the leads open q is held, so C_h's output is
@@ -31,11 +32,14 @@ charge moving at constant q can, which in the model is the creep branches relaxi
 (a charge redistribution inside the stack, no terminal current) when an earlier run left them
 out of equilibrium. :func:`serial_sequence` measures that term, Delta V_h over each open-lead run.
 
-Note on the library simulator: :class:`~workbench.plant.simulator.PZTSimulator` feeds the creep
-branches' charge change to the terminal (q = q_h + Q_c changes with no current through R), which is
-immaterial at 80 ohm but, at 200 TOhm, moves the terminal charge (up to 140 nC over a run after three
-``R_in`` runs in the creep plant, 10 s apart) where the stack holds it. This module steps its own
-charge-conserving form instead.
+Note on the library simulator: :class:`~workbench.plant.simulator.PZTSimulator` once fed the creep
+branches' charge change to the terminal with no current through R (+387 nC by the peak of an open-lead run after three
+``R_in`` runs in the creep plant, at 200 TOhm), so this module stepped its own
+charge-conserving form. The kernels now keep Kirchhoff's current law at the terminal
+(tests/plant/test_kcl.py) and step the creep branches as this module does (V_h at the step's start);
+the module keeps its stepper because its shorted runs are the quasi-static V_t = 0, and the simulator's
+quasi-static form (R = 0) keeps G^-1's plays where its dynamic form (open leads) keeps G's, so one state
+cannot pass between the two.
 """
 
 from dataclasses import dataclass
@@ -81,26 +85,26 @@ def _segment(z, qc, q, shorted, f_term, r, w_h, w_open, r_open_inv, w_open_inv, 
     """Step one segment, leads shorted or open, over ``f_term`` = T_em F_e / k_p per sample (C).
 
     z (C_h's play states, V) and qc (creep charges, C) are updated in place; returns the stack
-    charge q at the end. ``w_open`` / ``w_short``: C_h's weights with c_eff / c_eff + C_pp added
-    to the r = 0 play, and their inverses' thresholds and weights. ``out`` rows: V_h, V_p, V_t, q.
+    charge q at the end. ``w_open`` / ``w_short``: C_h's weights / with C_pp added to the r = 0
+    play, and their inverses' thresholds and weights. ``out`` rows: V_h, V_p, V_t, q. The creep
+    branches step first with V_h at the step's start (the r = 0 play's state), as
+    :func:`workbench.plant.kernels.pzt_advance` steps them.
     """
     n_c = cap.shape[0]
     for k in range(f_term.shape[0]):
-        s_dec = 0.0
+        v_h0 = z[0]
+        s_qc = 0.0
         for j in range(n_c):
-            s_dec += dec[j] * qc[j]
+            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h0
+            s_qc += qc[j]
         if shorted:
-            v_h = _solve_v_h(z, r, w_short, r_short_inv, w_short_inv, f_term[k] - s_dec)
-        else:
-            v_h = _solve_v_h(z, r, w_open, r_open_inv, w_open_inv, q - s_dec)
-        for j in range(n_c):
-            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h
-        if shorted:
+            v_h = _solve_v_h(z, r, w_short, r_short_inv, w_short_inv, f_term[k] - s_qc)
             q = 0.0
             for i in range(z.shape[0]):
                 q += w_h[i] * z[i]
-            for j in range(n_c):
-                q += qc[j]
+            q += s_qc
+        else:
+            v_h = _solve_v_h(z, r, w_open, r_open_inv, w_open_inv, q - s_qc)
         v_p = (q - f_term[k]) / c_pp
         out[k, 0] = v_h
         out[k, 1] = v_p
@@ -164,9 +168,8 @@ def serial_sequence(pzt, runs, *, drain_s=10.0, dt_s=0.01, rest_s=1.0, ramp_s=5.
         dec = np.exp(-dt_s / np.asarray(pzt.creep.time_constants_s, float))
     else:
         cap, dec = np.zeros(0), np.zeros(0)
-    c_eff = float(np.sum((1.0 - dec) * cap))
     c_pp, k_f = pzt.c_pp_f, pzt.transducer_constant_n_per_v / pzt.stiffness_n_per_m
-    p_open, p_short = h.plus_linear(c_eff), h.plus_linear(c_eff + c_pp)
+    p_open, p_short = h, h.plus_linear(c_pp)
     w_open, w_short = p_open.weights, p_short.weights
     inv_open, inv_short = p_open.inverse(), p_short.inverse()      # thresholds and weights (states rebuilt per step)
     ri_open, wi_open, ri_short, wi_short = inv_open.thresholds, inv_open.weights, inv_short.thresholds, inv_short.weights

@@ -314,14 +314,18 @@ def compare_estimators(pzt, ident, dyn, amp=ChargeAmpParams(), duration_s=300.0,
 DYNAMICS_TARGET_RATIO = 1.2   # issue 16: the estimator from the identified D/H within 1.2x the model-derived one's error
 
 
-def run_dynamics_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_hold_s=700.0, step_hold_s=300.0,
+def run_dynamics_study(plant_path, amp=None, seed=2, dt_s=1e-4, id_hold_s=700.0, step_hold_s=300.0,
                        eval_s=300.0, progress=None):
     """Identify the static estimator (:mod:`.identify`), then K D(s) and H(s) from a step record, and compare the
     dynamic estimators from the model and from the identified dynamics on a staircase record neither saw.
 
+    ``amp``: the charge channel (default :func:`~.charge_amp.charge_amp_params` of the plant: the assumed
+    circuit with the plant file's ``[leakage]`` / ``[dielectric_absorption]`` when given).
+
     Returns the JSON-ready dict with ``_arrays`` (responses and records for the figure).
     """
     from ..plant.files import load_plant
+    from .charge_amp import charge_amp_params
     from .identify import identify, simulate_identification
 
     def tick(stage):
@@ -329,6 +333,7 @@ def run_dynamics_study(plant_path, amp=ChargeAmpParams(), seed=2, dt_s=1e-4, id_
             progress(stage)
 
     plant = load_plant(plant_path)
+    amp = charge_amp_params(plant) if amp is None else amp
     pzt = plant.pzt
     tick("identification record")
     ident = identify(simulate_identification(pzt, amp, hold_s=id_hold_s, seed=seed + 100, dt_s=dt_s), amp)

@@ -329,15 +329,21 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     # the controller's own sensor block: the blend and error scaling run inside its firmware step
     # (NAME_sensor_step of its C header, bit for bit with Controller.run_sensors), with firmware's startup
     # settings derived on this study's nominal plant and sensor records (verify/sensors.py: firmware_startup):
-    # the wait before closing, the reference's lead 1/K_v and the gauge bridge's curvature. The gauge study
-    # carries them too (its wait is the floor: the gauge chain has nothing to settle).
+    # the wait before closing (the reading's own settle: the gauge's is one period), the velocity feedforward
+    # 1/K_v on ramps' planned slope and the gauge bridge's curvature. The gauge study carries them too.
     say("export: firmware startup", 0, 1)
+    from ..export.sensor import STARTUP_FIELDS
     from ..verify.sensors import with_firmware_startup
     ctrl = ctrl.with_sensor(sensor.kind, sensor.blend.crossover_hz if sensor.kind == "fused" else None,
                             v_per_m=ub.nominal_gauge_v_per_m)
     ctrl = with_firmware_startup(sensor.firmware_setup(plant), ctrl, bias_v=fam_spec["bias_v"])
-    summary["firmware_startup"] = {k: getattr(ctrl.sensor, k) for k in ("startup_wait_s", "ref_lead_s",
-                                                                      "gauge_curvature_per_m")}
+    summary["firmware_startup"] = {k: getattr(ctrl.sensor, k) for k in STARTUP_FIELDS}
+    if ls.tracking is not None and ls.tracking_loop is not None:
+        # the search ruled on the triangle without a lead (its constraint, unchanged); the export's velocity
+        # feedforward takes the ramp lag out: the prediction with it, |S_k (1 - D_k L L_k)| on the same harmonics
+        from ..design.loopshape import tracking_rms
+        lead = ctrl.sensor.ref_lead_s or 0.0
+        ls.tracking.update(rms_with_lead=tracking_rms(ls.tracking_loop, a_tr, f_tr, lead, dt), lead_s=lead)
     say("export: firmware startup", 1, 1)
     paths = ctrl.write(out / spec.export["directory"], spec.export["name"])
     summary["exported"] = {k: str(v) for k, v in paths.items()}

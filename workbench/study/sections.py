@@ -79,9 +79,16 @@ def _sensor_lines(summary):
     ls = summary.get("designs", {}).get("loop_shape", {})
     t = ls.get("tracking")
     if t:
-        lines += [f"Triangle tracking on the nominal loop: {100 * t['rms']:.3g} % of stroke RMS (limit "
-                  f"{100 * t['limit']:.3g} %, {t['harmonics']} odd harmonics); {len(t['ruled_out'])} shapes were "
-                  f"ruled out by it at their highest admissible crossover.", ""]
+        lines += [f"Triangle tracking on the nominal loop, fed the triangle as it is (no reference lead): "
+                  f"{100 * t['rms']:.3g} % of stroke RMS (limit {100 * t['limit']:.3g} %, {t['harmonics']} odd "
+                  f"harmonics, |S_k r_k|); {len(t['ruled_out'])} shapes were ruled out by it at their highest "
+                  f"admissible crossover. This is the search's constraint: it does not count the lead."]
+        if t.get("rms_with_lead") is not None:
+            lines += [f"With the velocity feedforward the export carries on the planned slope (ref_lead_s = "
+                      f"{t['lead_s'] * 1e3:.4g} ms = 1/K_v; r + v L fed on ramps), the same nominal loop predicts "
+                      f"{100 * t['rms_with_lead']:.3g} % of stroke RMS (|S_k (1 - D_k L L_k) r_k|, D_k the forward "
+                      f"difference (e^(j w_k T) - 1) / T)."]
+        lines += [""]
     return lines
 
 
@@ -130,7 +137,26 @@ def _nominal_lines(summary):
 
 def study_lines(summary):
     """Markdown lines on budgets, the binding constraint and the nominal loop of a finished study."""
-    return _budget_lines(summary) + _sensor_lines(summary) + _binding_lines(summary) + _nominal_lines(summary)
+    return (_budget_lines(summary) + _sensor_lines(summary) + _startup_lines(summary) + _binding_lines(summary)
+            + _nominal_lines(summary))
+
+
+def _startup_lines(summary):
+    """The firmware startup settings the export carries (``firmware_startup``), one line each."""
+    fw = summary.get("firmware_startup")
+    if not fw:
+        return []
+    wait = fw.get("startup_wait_s")
+    lines = ["## Firmware startup (carried by the export)", ""]
+    lines.append("- wait before closing: " + ("none derived (the reading does not settle; verify closes at its "
+                                                  "floor)" if wait is None else
+                                                  f"{wait:.6g} s (the reading's own settle after the start; the "
+                                                  f"verify harness's 1 s creep floor is its scenario's, not exported)"))
+    lines.append(f"- reference lead `ref_lead_s` = {fw['ref_lead_s'] * 1e3:.5g} ms = 1/K_v: velocity feedforward "
+                 f"on the trajectory generator's planned slope (ramps: r + v L), not on steps or tones")
+    lines.append(f"- gauge curvature beta = {fw['gauge_curvature_per_m']:.6g} 1/m (firmware's gauge metres: "
+                 f"x = x_lin - beta (x_lin - x_c)^2)")
+    return lines + [""]
 
 
 def _fix_lines(summary):

@@ -68,9 +68,10 @@ class FirmwareController:
     (:mod:`workbench.export.fixed_point`), or None. ``ref_lead_s`` (s) and ``gauge_curvature_per_m``
     (beta, 1/m): firmware's reference lead 1/K_v and the bridge curvature its gauge conversion takes out, from
     the controller's sensor block (:func:`workbench.verify.sensors.firmware_startup`); 0 when it carries none
-    (the linear calibration and the reference as given, bit for bit as before). The ramp scenarios feed
-    r + (dr/dt) ``ref_lead_s``; every reading is linearized with ``gauge_curvature_per_m``
-    (:func:`workbench.plant.gauge.linearized_displacement`).
+    (the linear calibration and the reference as given, bit for bit as before). The ramp scenarios (the
+    triangles, and ``workbench sweep``'s triangle) feed r + v ``ref_lead_s`` with v the planned slope
+    (:func:`workbench.verify.scenarios.planned_slope_lead`); steps, holds and tones are fed as given. Every
+    reading is linearized with ``gauge_curvature_per_m`` (:func:`workbench.plant.gauge.linearized_displacement`).
     """
 
     form: str

@@ -6,8 +6,13 @@ held for 1 s (the approach is not scored). References are displacements, convert
 firmware volts with the serial's calibration and trim centre as firmware does. A controller
 whose sensor block carries firmware's reference lead (``ref_lead_s`` = 1/K_v) is fed the
 triangles led by their slope times it (scored against the triangle itself, as the sensor
-loop of :mod:`.sensors` does); one that carries the gauge curvature reads the gauge linearized
-(:mod:`.closed_loop`). Steps, holds and tones are fed as they are.
+loop of :mod:`.sensors` does: velocity feedforward on the planned slope, :func:`planned_slope_lead`); one
+that carries the gauge curvature reads the gauge linearized (:mod:`.closed_loop`). Steps, holds and tones are
+fed as they are, and only the triangles report ``ref_lead_s``. The loop closes on its first reading: a
+gauge export's ``startup_wait_s`` (one period, the gauge reading's own settle,
+:func:`workbench.verify.sensors.firmware_startup`) is run as exported. These scenarios start from rest at
+0 V with no step to a bias, so the sensor loop's scenario floor (:func:`workbench.verify.sensors.closing_time_s`:
+the plant's creep after the 0 -> 50 V step) has no counterpart here.
 """
 
 import control
@@ -18,7 +23,7 @@ from ..plant.gauge import TRIM_CENTER_M
 from ..plant.simulator import PZTSimulator
 from .closed_loop import ClosedLoop
 
-__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "linear_step_prediction", "nominal_loop_plant"]
+__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "planned_slope_lead", "linear_step_prediction", "nominal_loop_plant"]
 
 SCENARIOS = ("small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold", "force_step", "sine_sweep")
 SWEEP_FREQ_HZ = (5.0, 10.0, 20.0, 50.0, 100.0, 150.0, 200.0, 300.0, 500.0, 1000.0, 2000.0)
@@ -41,6 +46,30 @@ def _approach(cl, g, x_start, dt):
     x_rest = cl.plant.pzt.k_q2x_m_per_c * cl.plant.pzt.hysteresis.output_at_rest()
     ref = np.concatenate([np.linspace(x_rest, x_start, n), np.full(n, x_start)])
     return cl.run(_to_volts(ref, g))
+
+
+def planned_slope_lead(ref_next, dt, lead_s):
+    """The reference a trajectory generator feeds with velocity feedforward ``lead_s`` on its planned slope.
+
+    Parameters
+    ----------
+    ref_next : array_like
+        The planned trajectory at n + 1 periods, m (or firmware V): the last one gives the last slope.
+    dt : float
+        Period, s.
+    lead_s : float
+        The sensor block's ``ref_lead_s`` (1/K_v), s; 0: none.
+
+    Returns
+    -------
+    numpy.ndarray
+        n samples r_k + v_k lead_s with the planned slope v_k = (r_{k+1} - r_k) / dt (the forward slope, the
+        one :func:`workbench.verify.sensors.run_sensor_loop` feeds); r_k itself when ``lead_s`` is 0. For
+        planned ramps only (triangles): a step's difference would be a one-sample pulse of lead_s / dt times
+        its height.
+    """
+    r = np.asarray(ref_next, float)
+    return r[:-1] + (r[1:] - r[:-1]) / dt * lead_s if lead_s > 0 else r[:-1].copy()
 
 
 def _step_metrics(t, x, x0, x1, band=0.02):
@@ -147,7 +176,7 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
     cl = ClosedLoop(plant, controller, noise=noise, anti_windup=anti_windup, seed=seed)
     stroke = stroke_m(plant.pzt)
     m = {"scenario": name, "anti_windup": anti_windup, "noise": noise, "stroke_m": stroke,
-         "ref_lead_s": float(controller.ref_lead_s), "gauge_curvature_per_m": float(controller.gauge_curvature_per_m)}
+         "gauge_curvature_per_m": float(controller.gauge_curvature_per_m)}
     _approach(cl, g, X_START_M, dt)
     if name in ("small_step", "large_step"):
         dx = 0.1e-6 if name == "small_step" else 5e-6
@@ -198,10 +227,10 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
         tri = 2 * np.abs((t * f + 0.25) % 1.0 - 0.5)            # 0..1 triangle from mid-stroke, going down
         ref_next = lo + (hi - lo) * tri
         ref = ref_next[:n]
-        # firmware's reference lead (the sensor block's ref_lead_s = 1/K_v, verify/sensors.py: the same
-        # forward slope): the loop is fed r + (dr/dt) lead and scored against r itself
-        lead = controller.ref_lead_s
-        fed = ref + (ref_next[1:] - ref) / dt * lead if lead > 0 else ref
+        # firmware's velocity feedforward on the planned slope (the sensor block's ref_lead_s = 1/K_v): fed
+        # r + v lead, scored against r itself; reported on the ramp scenarios only (the others are fed as given)
+        fed = planned_slope_lead(ref_next, dt, controller.ref_lead_s)
+        m["ref_lead_s"] = float(controller.ref_lead_s)
         # start the triangle at its first value
         r0 = cl.run(_to_volts(np.full(int(0.5 / dt), ref[0]), g))
         dec = max(1, int(round(1.0 / (f * dt * 2000))))

@@ -42,7 +42,8 @@ def sensor_lines(rows, figure=None):
     from_c = sorted(k for k, v in src.items() if v == "controller")
     carried = (f"The wait, the lead and the gauge curvature of the {', '.join(TITLES[k] for k in from_c)} loop are "
                f"the controller's own (its sensor block's startup_wait_s, ref_lead_s, gauge_curvature_per_m, in "
-               f"the JSON and the header); elsewhere this harness computes them." if from_c else
+               f"the JSON and the header; the loop closes at that wait or the scenario's 1 s creep floor, whichever is "
+               f"later); elsewhere this harness computes them." if from_c else
                "The wait, the lead and the gauge linearization are computed by this harness around the export, "
                "which carries none of them.")
     out = ["## Sensors side by side", "",

@@ -58,7 +58,7 @@ from numba import njit
 from ..design.margins import closed_loop_bandwidth_hz
 from ..errors import ChargeChannelError, WorkbenchError
 from ..export.fixed_point import fixed_step, initial_state
-from ..export.sensor import KIND_CODE, SENSOR_KINDS, error_word, sensor_reading
+from ..export.sensor import KIND_CODE, SENSOR_KINDS, STARTUP_FIELDS, error_word, sensor_reading
 from ..plant import kernels as K
 from ..plant.gauge import (TRIM_CENTER_M, _bridge, _quantize, bridge_curvature_per_m, demod_noise_sigma_v,
                             linearized_displacement)
@@ -67,7 +67,7 @@ from ..selfsense.estimator import estimator_arrays, estimator_step
 
 __all__ = ["SENSOR_CHOICES", "ChargeChannelError", "charge_channel_missing", "SensorSetup", "sensor_setup",
            "run_sensor_loop", "compare_sensors", "startup_settle_s", "settled_time_s", "startup_error",
-           "velocity_constant_per_s", "loop_sensor_block", "firmware_startup", "with_firmware_startup", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
+           "velocity_constant_per_s", "loop_sensor_block", "firmware_startup", "closing_time_s", "with_firmware_startup", "MIN_OPEN_LOOP_S", "OFFSET_WINDOW_S", "SETTLE_NOISE_DRAWS", "SETTLE_NOISE_SEED"]
 
 SENSOR_CHOICES = (*SENSOR_KINDS, "all")
 CHUNK = 1 << 17
@@ -479,30 +479,42 @@ def firmware_startup(setup, controller, sensor, *, bias_v=50.0):
     Returns
     -------
     dict
-        ``startup_wait_s`` (s: :func:`startup_settle_s`, at least :data:`MIN_OPEN_LOOP_S`; the floor when the
-        reading does not settle), ``ref_lead_s`` (1/K_v, s; 0 without an integrator) and
+        ``startup_wait_s`` (s: the reading's own settle, :func:`startup_settle_s`; None when it does not settle
+        within the horizon: no wait derived, the harness then closes at its floor), ``ref_lead_s`` (1/K_v, s;
+        0 without an integrator: velocity feedforward on the planned slope of ramps, not on steps or tones) and
         ``gauge_curvature_per_m`` (beta, 1/m, :func:`workbench.plant.gauge.bridge_curvature_per_m`).
 
     Notes
     -----
-    The gauge chain keeps no state from one period to the next (the bridge read within the period, the
-    amplifier, the trim, the servo DAC): its error against x is what it is from the first reading, with no
-    integrator to reset and nothing to settle, so its own wait is 0 and the gauge's ``startup_wait_s`` is the
-    floors (:data:`MIN_OPEN_LOOP_S`: the plant's creep after the step to ``bias_v``, not the sensor). The
-    simulated settle of the gauge reading is within that floor (``tests/verify/test_sensors.py``).
+    The wait is the sensor's, not a scenario's: the harness's floors (:data:`MIN_OPEN_LOOP_S`, the plant's creep
+    after the step to ``bias_v``; :data:`OFFSET_WINDOW_S`) are applied by :func:`closing_time_s` when a harness
+    closes, not exported. The gauge chain keeps no state from one period to the next (the bridge read within
+    the period, the amplifier, the trim, the servo DAC): its reading is settled at its first reading, so the
+    gauge's wait is one period, ``controller.dt_s``, without simulating (only ``setup.plant`` is read: a plant
+    with no charge channel gets its gauge settings too); :func:`startup_settle_s` of the gauge reading finds that
+    same period (``tests/verify/test_sensors.py``). The gauge scenarios of :mod:`.scenarios` close on the first
+    reading: they run that wait as exported.
     """
     from dataclasses import replace as _replace
     bare = controller if controller.sensor is None else _replace(
-        controller, sensor=_replace(controller.sensor, startup_wait_s=None, ref_lead_s=None,
-                                    gauge_curvature_per_m=None))
-    settle = 0.0
-    if sensor != "gauge":
+        controller, sensor=_replace(controller.sensor, **dict.fromkeys(STARTUP_FIELDS)))
+    if sensor == "gauge":
+        wait = float(controller.dt_s)               # the first reading (no state across periods)
+    else:
         st = startup_settle_s(setup, bare, sensor, bias_v=bias_v)
-        settle = st["settle_s"] if np.isfinite(st["settle_s"]) else 0.0
-    wait = max(settle, OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
+        wait = float(st["settle_s"]) if np.isfinite(st["settle_s"]) else None
     kv = velocity_constant_per_s(bare, loop_sensor_block(bare, sensor), setup.plant)
-    return {"startup_wait_s": float(wait), "ref_lead_s": 0.0 if not kv else 1.0 / kv,
+    return {"startup_wait_s": wait, "ref_lead_s": 0.0 if not kv else 1.0 / kv,
             "gauge_curvature_per_m": float(bridge_curvature_per_m(setup.plant.gauge))}
+
+
+def closing_time_s(wait_s):
+    """When the sensor loop's scenario closes, s, for a reading whose own wait is ``wait_s`` (s; None or NaN:
+    not settled): the wait, and at least the scenario's floors :data:`MIN_OPEN_LOOP_S` (the plant's creep after
+    the 0 -> bias step) and :data:`OFFSET_WINDOW_S` (the open loop the sensor's offset is taken over).
+    One home for the carried and the harness-computed wait."""
+    w = 0.0 if wait_s is None or not np.isfinite(wait_s) else float(wait_s)
+    return max(w, OFFSET_WINDOW_S, MIN_OPEN_LOOP_S)
 
 
 def with_firmware_startup(setup, controller, *, bias_v=50.0):
@@ -538,7 +550,8 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
         ``settle_why`` in the result). A controller whose sensor block carries ``startup_wait_s``,
         ``ref_lead_s`` or ``gauge_curvature_per_m`` (:func:`with_firmware_startup`) is run with those: the
         wait, the lead 1/K_v and the gauge curvature come from the export, not from this harness
-        (``settle_source`` says which).
+        (``settle_source`` says which); the scenario's floors apply to a carried wait as to a computed one
+        (:func:`closing_time_s`: a gauge export's one-period wait closes at the 1 s floor).
     stroke_m : float, optional
         The stroke the triangle's 80 % and the percentages refer to (default: rest to 100 V, quasi-static,
         :func:`workbench.verify.scenarios.stroke_m`).
@@ -586,7 +599,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
     settle = None
     settle_source = "argument"
     if settle_s is None and carried is not None and carried.startup_wait_s is not None and carried.kind == sensor:
-        settle_s = max(carried.startup_wait_s, OFFSET_WINDOW_S)     # firmware's own wait, from the export
+        settle_s = closing_time_s(carried.startup_wait_s)     # firmware's own wait, from the export
         settle_source = "controller"
     elif settle_s is None:
         settle_source = "harness"
@@ -597,8 +610,7 @@ def run_sensor_loop(setup, controller, sensor, *, bias_v=50.0, settle_s=None, tr
                                                        gauge_linearized=gauge_linearized))
         settle = cache[key][1]
         # a reading that never settles within the horizon closes at the floor (and says so: settle_why)
-        settle_s = max(settle["settle_s"] if np.isfinite(settle["settle_s"]) else 0.0, OFFSET_WINDOW_S,
-                       MIN_OPEN_LOOP_S)
+        settle_s = closing_time_s(settle["settle_s"])
     lp = _Loop(setup, controller, sensor, bias_v, gauge_linearized, beta_c)
     sb, dt = lp.sb, lp.dt
     stroke = quasi_static_stroke(plant.pzt) if stroke_m is None else float(stroke_m)

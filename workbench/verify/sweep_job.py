@@ -15,7 +15,8 @@ One case is one plant (a serial of the study with its working capacitance scaled
   describing functions), so compare like with like: the table's ``members`` column says
   what each row covers;
 - **verification**: the compiled closed loop (the controller as firmware runs it) with
-  that plant: a 0.1 Hz triangle of +/- A volts' worth of stroke around mid-stroke
+  that plant: a 0.1 Hz triangle of +/- A volts' worth of stroke around mid-stroke, fed with the
+  export's velocity feedforward on its planned slope when the sensor block carries ``ref_lead_s``
   (tracking error RMS after the first period, % of the triangle's span) and a step of
   the same size (overshoot, settling, time at the current limit, residual oscillation).
   Without gauge noise by default: at 1 V a triangle spans ~0.3 um and the 22 nm gauge
@@ -66,7 +67,7 @@ def run_case(payload):
     from ..linearize.sampled import gauge_gain_v_per_m
     from ..plant import load_plant
     from .closed_loop import ClosedLoop, controller_from_json
-    from .scenarios import X_START_M, _oscillation, _step_metrics, _to_volts
+    from .scenarios import X_START_M, _oscillation, _step_metrics, _to_volts, planned_slope_lead
 
     plant = load_plant(payload["plant"])
     pzt = replace(plant.pzt, working_capacitance_f=plant.pzt.working_capacitance_f * payload["cp_factor"])
@@ -112,10 +113,12 @@ def run_case(payload):
     cl.run(_to_volts(np.concatenate([np.linspace(x_rest, X_START_M, n), np.full(n, X_START_M)]), g))
     fr = 0.1
     m = int(2 / fr / dt)
-    t = np.arange(m) * dt
-    tri = X_START_M + half_m * (2 * np.abs((t * fr + 0.25) % 1.0 - 0.5) * 2 - 1)
+    t = np.arange(m + 1) * dt
+    tri_next = X_START_M + half_m * (2 * np.abs((t * fr + 0.25) % 1.0 - 0.5) * 2 - 1)
+    tri = tri_next[:m]
     dec = 50
-    r = cl.run(_to_volts(tri, g), decimate=dec)
+    # fed with the export's velocity feedforward on the planned slope (ref_lead_s, 0: none), as verify's triangles
+    r = cl.run(_to_volts(planned_slope_lead(tri_next, dt, ctrl.ref_lead_s), g), decimate=dec)
     after = t[dec - 1::dec][: r.x_m.size] >= 1 / fr
     err = r.x_m[after] - tri[dec - 1::dec][: r.x_m.size][after]
     out.update(triangle_span_m=2 * half_m, triangle_error_rms_m=float(np.sqrt(np.mean(err ** 2))),
