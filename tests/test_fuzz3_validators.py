@@ -196,3 +196,25 @@ def test_the_iff_tables_refuse_unknown_keys_and_a_noise_over_the_adc_range(dampe
         with pytest.raises(MimoControllerError, match=rf"m.json: \[{key}\]"):
             MimoController.from_dict(bad, source="m.json")
     assert np.isfinite(data["iff"]["bridge"]["out_noise_v_rms"])
+
+
+def test_the_verify_run_size_counts_each_sensor_loop_and_the_carried_wait(root, monkeypatch):
+    """Each sensor loop runs the controller's startup_wait_s (when its block carries one for that sensor), the 20 s
+    triangle and the hold; the legal export passes, a wait whose trace outgrows the machine is refused."""
+    from workbench.cli import build_parser
+    from workbench.preflight import RUN_COSTS, estimate_run
+    monkeypatch.chdir(root)
+    parse = build_parser().parse_args
+    base = ["verify", "plants/p888_51_sn637_creep.toml", "--controller", "controllers/sn637_fused_loopshape.json",
+            "--hold", "3s"]
+    wait = Controller.load(root / "controllers" / "sn637_fused_loopshape.json").sensor.startup_wait_s
+    s_p, b_p = RUN_COSTS["verify_sensor_period"]
+    for sensors, n_loops in ((["--sensor", "fused"], 1), (["--sensor", "all"], 3)):
+        what, seconds, nbytes = estimate_run(parse(base + sensors))
+        fused_periods = (wait + 20.0 + 3.0) * 1e4
+        others = (n_loops - 1) * (1.0 + 20.0 + 3.0) * 1e4      # the harness's own wait: its 1 s floor
+        assert seconds == pytest.approx((fused_periods + others) * s_p, rel=1e-9)
+        assert nbytes == pytest.approx((fused_periods + others) * b_p, rel=1e-9)
+        assert "[sensor.startup_wait_s]" in what
+    what, seconds, _ = estimate_run(parse(base + ["--scenario", "small_step"]))
+    assert seconds == 0.0                                       # no hold, no sensor loop
