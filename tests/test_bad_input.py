@@ -595,6 +595,8 @@ FUZZ3 = [
      ["[sensor.gauge_curvature_per_m] 1e+06 1/m"]),
     ("bench-fused-curvature", ["bench", "--controller", "bad/f_curv_1e300.json", "--steps", "10"],
      ["[sensor.gauge_curvature_per_m] 1e+300"]),
+    ("sweep-fused-curvature", ["sweep", "studies/sn637_fused_servo.toml", "--controller", "bad/f_curv_1e300.json",
+                               "--out", "{out}"], ["bad/f_curv_1e300.json: [sensor.gauge_curvature_per_m] 1e+300"]),
     # a misspelt key dropped firmware's setting without a word (the harness computed its own wait)
     ("verify-fused-typo-key", ["verify", CREEP, "--controller", "bad/f_typo_key.json", *_VS],
      ["bad/f_typo_key.json: [sensor.startup_wait_ms] unknown key", "startup_wait_s"]),
@@ -664,6 +666,9 @@ FUZZ3 = [
     ("selfsense-force-json-onto-table1", ["selfsense", CREEP, "--force", "--json", str(ROOT / TABLE)],
      ["is the input Table 1 the --force study reads"]),
     ("selfsense-force-step-nan", ["selfsense", CREEP, "--force", "--step-force", "nan"], ["--step-force"]),
+    # a 1 pN step ran, reported as a "+0 N step" missing its target by 12 orders
+    ("selfsense-force-step-1pn", ["selfsense", CREEP, "--force", "--step-force", "1pN"],
+     ["--step-force 1e-12 N", "under 0.768 N", "one ADC step"]),
     ("selfsense-force-step-unit", ["selfsense", CREEP, "--force", "--step-force", "10kg"], ["--step-force", "'N'"]),
     ("selfsense-force-and-fused", ["selfsense", CREEP, "--force", "--fused"], ["give one of them"]),
     ("selfsense-force-out-under-file", ["selfsense", CREEP, "--force", "--out", "bad/a_file/x"], ["bad/a_file"]),

@@ -183,6 +183,15 @@ def _check_files(args):
             if args.command in ("verify", "selfsense", "bench") and plant_arg is not None:
                 # the sensor block's gauge curvature and reference lead, on the plant the loop closes on
                 ctrl.check_firmware_settings(_plant(plant_arg))
+            if args.command == "sweep" and ctrl.sensor is not None:
+                import tomllib
+                try:
+                    plants = [p for _, p in _study_inputs(args)]
+                except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+                    plants = []                       # the study's own check names the problem
+                for p in plants:                      # the sweep closes the loop on every serial of the study
+                    if p.is_file():
+                        ctrl.check_firmware_settings(_plant(p))
     for name, path in out_files:
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:
