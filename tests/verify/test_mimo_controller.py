@@ -59,9 +59,13 @@ MAIN_IFF_C = MAIN_C.replace("int32_t u0[3], g[3], r[3], v[3];", "int32_t u0[3], 
 
 
 @pytest.fixture(scope="module")
-def ctrl_iff(fsm):
-    design, _ = quick_design(fsm, iff=True)
-    return MimoController.from_design(design, fsm, name="mimo")
+def design_iff(fsm):
+    return quick_design(fsm, iff=True)[0]
+
+
+@pytest.fixture(scope="module")
+def ctrl_iff(fsm, design_iff):
+    return MimoController.from_design(design_iff, fsm, name="mimo")
 
 
 def _bridge_records(ctrl, rng, n):
@@ -198,6 +202,15 @@ def test_iff_json_round_trip_and_bad_keys(ctrl_iff, tmp_path, rng):
                         (lambda d: d["iff"]["bridge"].__setitem__("adc_range_v", float("inf")),
                          "iff.bridge.adc_range_v"),
                         (lambda d: d["iff"]["bridge"].__setitem__("adc_bits", 17.5), "iff.bridge.adc_bits"),
+                        # a headroom past the stack's range (its words would overflow int64 and the step
+                        # would clamp every stack to its bottom limit): refused on load
+                        (lambda d: d["iff"]["stack_window"].__setitem__("headroom_v", [1e15] * 3),
+                         "iff.stack_window.headroom_v"),
+                        (lambda d: d["iff"]["stack_window"].__setitem__(
+                            "headroom_v", [1.0, 1.0 + np.ptp(d["stack_limits_v"][1]), 1.0]),
+                         "iff.stack_window.headroom_v"),
+                        (lambda d: d["iff"]["stack_window"].__setitem__("alpha", [0.1, 0.1, 1.5]),
+                         "iff.stack_window.alpha"),
                         (lambda d: d["iff"]["bridge"].__setitem__("out_noise_v_rms", -1e-6),
                          "iff.bridge.out_noise_v_rms"),
                         # bridge numbers that are not the cascades' (C_int doubled): -g T C_int / C_R off
@@ -295,13 +308,34 @@ def test_a_siso_controller_is_named_as_such(root, tmp_path):
     assert MIMO_SCHEMA.startswith("workbench.mimo_controller/")
 
 
-def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, fsm, rng):
+def _unequal_stacks(fsm):
+    """The mirror with three different series resistors and current limits (R x 1, 1.7, 0.6; I_source x 1.3,
+    0.8, 1; I_sink x 1, 0.8, 1.5): every stack's alpha and R min(I_source, I_sink) differ, and in a different
+    order, so a swapped stack index or one stack's alpha used for all moves some stack's lead off its window."""
+    import dataclasses
+    plants = []
+    for pl, r, i_src, i_snk in zip(fsm.plants, (1.0, 1.7, 0.6), (1.3, 0.8, 1.0), (1.0, 0.8, 1.5)):
+        pz = pl.pzt
+        plants.append(dataclasses.replace(pl, pzt=dataclasses.replace(
+            pz, series_resistance_ohm=r * pz.series_resistance_ohm,
+            current_limit_source_a=i_src * pz.current_limit_source_a,
+            current_limit_sink_a=i_snk * pz.current_limit_sink_a)))
+    return dataclasses.replace(fsm, plants=tuple(plants))
+
+
+@pytest.mark.parametrize("unequal", [False, True])
+def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, design_iff, fsm, rng, unequal):
     """With IFF the whole stack command (axes + IFF correction) leads the stack's RC model of it by at most
     R min(I_source, I_sink) (each serial file's window, as the notch-only axes keep): replayed here in float
     from the plant's R, current limits and largest capacitance, on records that drive the axes, the bridges
     and the stacks to their clamps (the window is reached, so the bound is the clamp's, not the records')."""
     from workbench.controller import plant_window
     ctrl = ctrl_iff
+    if unequal:
+        fsm = _unequal_stacks(fsm)
+        ctrl = MimoController.from_design(design_iff, fsm, name="mimo")
+        w = [plant_window(pl, ctrl.dt_s) for pl in fsm.plants]
+        assert len({x[0] for x in w}) == 3 and len({min(x[1:]) for x in w}) == 3
     g, r = _records(ctrl, rng, 3000, 5000)
     b = _bridge_records(ctrl, rng, len(g))
     u0 = np.array([3.0, -2.0, 40.0])
