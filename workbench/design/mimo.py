@@ -335,7 +335,7 @@ def check_iff_noise(fsm, iff, dt_s):
     budgets V (3,); NaN without a series resistor). Raises :class:`DesignError` naming the stack, the
     numbers and the largest gain that fits (the lead is proportional to the gain).
     """
-    from .budgets import plant_budgets
+    from .budgets import NOISE_SIGMAS, plant_budgets
     lead = iff_command_noise_v(fsm, iff, dt_s)
     b = np.array([np.nan if (v := plant_budgets(pl, dt_s)["noise_command_v"].value) is None else v
                   for pl in fsm.plants], float)
@@ -345,7 +345,7 @@ def check_iff_noise(fsm, iff, dt_s):
         gmax = abs(iff.gain_v_per_n) * float(np.nanmin(b / lead))
         raise DesignError(f"the IFF gain {iff.gain_v_per_n:.3g} V/N puts {1e3 * lead[j]:.3g} mV RMS of force-estimate "
                           f"noise ({iff.source}) on stack {j}'s command lead over its RC model, over its current "
-                          f"window's noise budget R min(I_source, I_sink) / 3 = {1e3 * b[j]:.3g} mV "
+                          f"window's noise budget R min(I_source, I_sink) / {NOISE_SIGMAS:g} = {1e3 * b[j]:.3g} mV "
                           f"({fsm.plants[j].source}); use at most {gmax:.3g} V/N")
     return lead, b
 
@@ -409,7 +409,8 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
         The force estimate fed back (:func:`force_estimate`).
     noise_budget : bool
         Only gains that pass :func:`check_iff_noise` (each stack's current-window noise budget) count;
-        when ``gains`` are given and none passes it, its :class:`DesignError` names the largest that would.
+        when every gain tried breaks it, its :class:`DesignError` names the largest that would; when some
+        pass it but none of those keeps the margins, the :class:`DesignError` says so and cites the budget.
 
     Only gains that keep those margins and every StateSpace member of ``family`` stable (Pade
     of the two-sample delay in the loop) count.
@@ -439,6 +440,7 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
     f = default_freq_hz(dt_s)
     fh = force_estimate(fsm, nominal, f, source, cr)
     best = refused = None
+    n_refused = 0
     for g in gains:
         iff = IFF(float(g), float(corner), source, cr)
         if noise_budget:
@@ -446,6 +448,7 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
                 check_iff_noise(fsm, iff, dt_s)
             except DesignError as err:
                 refused = refused or err
+                n_refused += 1
                 continue
         if not _inner_ok(f, iff_response(iff, f, dt_s)[:, None, None] * fh, pm_deg, gm_db):
             continue
@@ -455,10 +458,14 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
             continue
         if best is None or z.min() > best[1]:
             best = (iff, float(z.min()))
-    if best is None and refused is not None:
-        raise refused
+    if best is None and refused is not None and n_refused == len(gains):
+        raise refused           # every gain broke the budget: its message names the largest that fits
     if best is None:
-        raise ValueError("no IFF gain keeps the nominal member stable")
+        why = (f"; the other {n_refused} broke the current window's noise budget (the first: {refused})"
+               if refused is not None else "")
+        raise DesignError(f"no IFF gain of the {len(gains) - n_refused} tried within the noise budget keeps the "
+                          f"nominal member stable with PM >= {pm_deg:g} deg and GM >= {gm_db:g} dB on every stack's "
+                          f"loop and damps the target modes{why}; try other gains or corner_hz")
     iff, zmin = best
     for name, m in family.items():
         if isinstance(m, control.StateSpace) and np.max(_iff_closed(fsm, m, iff, dt_s).poles().real) >= 0:
