@@ -531,12 +531,21 @@ def mimo_disk_margin(freq_hz, loop):
     n = loop.shape[1]
     mu = np.full(f.size, np.nan)
     sig = np.full(f.size, np.nan)
-    for k in range(f.size):
-        if not np.all(np.isfinite(loop[k])):
-            continue
-        m = np.linalg.inv(np.eye(n) + loop[k]) - 0.5 * np.eye(n)
-        sig[k] = np.linalg.svd(m, compute_uv=False)[0]
-        mu[k] = ab13md(np.asfortranarray(m), np.ones(n, int), np.full(n, 2, int))[0] if n > 1 else abs(m[0, 0])
+    ok = np.flatnonzero(np.all(np.isfinite(loop.reshape(f.size, -1)), axis=1))
+    m = np.linalg.inv(np.eye(n)[None] + loop[ok]) - 0.5 * np.eye(n)[None]
+    sig[ok] = np.linalg.svd(m, compute_uv=False)[:, 0]
+    # mu <= sigma_max (the D = I scaling is one AB13MD may take; its bound came out at most 1.7e-6 above
+    # sigma_max on the mirror's 48 design loops), so mu is only evaluated in decreasing order of sigma_max
+    # until sigma_max (x 1.001, the guard) falls below the largest mu found: the same maximum and frequency
+    # as evaluating every sample (checked on those loops), in a few AB13MD calls instead of ~1600
+    best = -np.inf
+    for i in np.argsort(-sig[ok], kind="stable"):
+        k = ok[i]
+        if sig[k] * 1.001 < best:
+            break
+        mk = m[i]
+        mu[k] = ab13md(np.asfortranarray(mk), np.ones(n, int), np.full(n, 2, int))[0] if n > 1 else abs(mk[0, 0])
+        best = max(best, mu[k])
     k = int(np.nanargmax(mu))
     a = 1.0 / mu[k]
     gm = 20 * np.log10((1 + a / 2) / (1 - a / 2)) if a < 2 else np.inf
