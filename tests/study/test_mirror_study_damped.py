@@ -67,6 +67,23 @@ def test_damped_design_meets_the_margin_floors(damped):
     assert d["iff"]["source"] == "bridge" and d["iff"]["zeta_min_damped"] > 2 * d["iff"]["zeta_min_open"]
 
 
+def test_iff_corner_clears_the_verified_mirrors_drift(damped, root):
+    """The corner against the drift of the mirror verify runs (every stack with the sn637 creep branches: the
+    fastest, 0.1 s, reads at 1/(2 pi tau) = 1.6 Hz): at least IFF_DRIFT_MARGIN above it, reported with the
+    high-pass's gain there, not only against the serial files (no creep: dielectric absorption)."""
+    from workbench.design.mimo import IFF_DRIFT_MARGIN
+    from workbench.plant.files import load_plant
+    from workbench.verify.mirror import VERIFY_CREEP_FILE
+    data, _, _ = damped
+    vd, corner = data["damped"]["verified_drift"], data["damped"]["design"]["iff"]["corner_hz"]
+    tau = float(np.min(load_plant(root / "plants" / VERIFY_CREEP_FILE).pzt.creep.time_constants_s))
+    assert vd["drift_hz"] == pytest.approx(1 / (2 * np.pi * tau), rel=1e-9) and "creep" in vd["drift_source"]
+    assert vd["drift_hz"] > data["damped"]["design"]["iff"]["drift_hz"]
+    assert vd["drift_margin"] == pytest.approx(corner / vd["drift_hz"]) and vd["drift_margin"] >= IFF_DRIFT_MARGIN
+    text = Path(data["report"]).read_text(encoding="utf-8")
+    assert f"corner {vd['drift_margin']:.3g}x above it" in text
+
+
 def test_damped_export_tracks_the_triangle(damped):
     """Issue 15's tip triangle (0.1 Hz, 10-90 % of the range) with unequal hysteresis, creep, gauge and bridge
     noise: tip error and tilt coupling <= 0.1 % of the range RMS."""

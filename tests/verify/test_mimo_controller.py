@@ -6,6 +6,7 @@ import os
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import control
 import numpy as np
@@ -353,3 +354,46 @@ def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, design_if
             m += alpha * lead[k]
         assert np.abs(lead).max() <= h + 4 * lsb, j
         assert np.abs(lead).max() >= 0.99 * h, j
+
+
+GOLDEN = Path(__file__).parent / "golden_notch_only"
+# sha256 of the stack words (little-endian int64, 13000 x 3) the pre-IFF exporter (commit 135d64e^1) produced
+# for _golden_records on its export of quick_design(fsm); the record reaches the top stack clamp
+GOLDEN_RUN_SHA256 = "102783092bf92d61cd3ed629825eebfaaa9bab8f7640d37d90572685fe683db5"
+
+
+def _golden_records(ctrl):
+    rng = np.random.default_rng(15)
+    n, held = 1000, 6000
+    g = np.concatenate([rng.uniform(-3.0, 3.0, (n, 3)), np.tile([2.6, -2.6, 2.6], (held, 1)),
+                        np.tile([-2.6, 2.6, -2.6], (held, 1))])
+    reach = 80.0 * ctrl.axis_scale
+    r = np.concatenate([rng.uniform(-1, 1, (n, 3)) * reach, np.tile(reach, (held, 1)), -np.tile(reach, (held, 1))])
+    return g, r
+
+
+def _run_sha(ctrl):
+    import hashlib
+    g, r = _golden_records(ctrl)
+    w = np.rint(ctrl.run(g, r, u0_axes_v=np.array([3.0, -2.0, 40.0])) * 2.0 ** ctrl.stack_frac_bits).astype("<i8")
+    assert np.any(w == ctrl.stack_limit_words[:, 1])
+    return hashlib.sha256(np.ascontiguousarray(w).tobytes()).hexdigest()
+
+
+def test_notch_only_export_is_the_pre_iff_one(ctrl, root, tmp_path):
+    """Golden: the notch-only export of quick_design (headers, JSON, the step's words on a record reaching the
+    stack clamp) is the one the exporter wrote before the IFF stack windows (files written by commit 135d64e^1,
+    tests/verify/golden_notch_only; plant paths made relative). The IFF work must leave it alone; a legitimate
+    change to the notch-only design or export must regenerate these files from a reviewed commit."""
+    paths = ctrl.write(tmp_path, "mimo")
+    for f in ("mimo.h", "mimo_tip.h", "mimo_tilt.h", "mimo_piston.h"):
+        assert paths[{"mimo.h": "h"}.get(f, f[5:].replace(".h", "_h"))].read_text() == (GOLDEN / f).read_text(), f
+    want = json.loads((GOLDEN / "mimo.json").read_text())
+    got = json.loads(paths["json"].read_text())
+    for d in (want, got):
+        prov = d["provenance"]
+        prov["plant_file"] = Path(prov["plant_file"]).name
+        prov["stack_files"] = [Path(p).name for p in prov["stack_files"]]
+    assert got == want
+    assert _run_sha(ctrl) == GOLDEN_RUN_SHA256
+    assert _run_sha(MimoController.load(GOLDEN / "mimo.json")) == GOLDEN_RUN_SHA256

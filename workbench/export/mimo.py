@@ -46,8 +46,14 @@ M_j) the stack's own RC model (alpha_j = 1 - exp(-T / (R_j C_j)), C_j its larges
 command it was sent, h_j = R_j min(I_source,j, I_sink,j) (:func:`stack_windows`). In words: before the
 amplifier clamp, v_j = min(max(v_j, M_j - H_j), M_j + H_j) (H_j = floor(h_j 2^FV)), then M_j += ((v_j -
 M_j) ALPHA_Q_j + 2^29) >> 30 (alpha in Q1.30, as the cascades' windows); M_j starts at the stack word of
-the reset's axis outputs. Only the IFF's high-pass can push the sum past the axis box, and the clamp
-takes it back (a high-pass has no integrator to wind up). Without IFF none of this is in the step.
+the reset's axis outputs. The stack clamp is fed back to nothing: the axis cascades are conditioned on
+their own box only, not on what this clamp removes. When the stacks' alphas are equal (as on the P-888.51
+serials) M_j is In' m (the axis models) plus a model of the IFF part (the models are linear, until the
+stack clamp cuts), and the axis box keeps the axes' share inside h_j, so what the clamp removes is mostly
+the IFF's high-pass correction, which has no integrator to wind up; with unequal alphas M_j and In' m differ and the clamp may also cut the axes' share. On the large
+tip step all three stack windows reach h_j and the clamp binds on the axes' share too; the verification shows
+no windup there (README, mirror section), but nothing in the step prevents it. Without IFF none of this is in
+the step.
 
 **Current-limit window, per axis.** Each axis cascade carries the SISO cascade's own window
 (:mod:`workbench.export.fixed_point`): a model m_a += alpha (u_a - m_a) of its output and the
