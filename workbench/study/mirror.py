@@ -287,7 +287,7 @@ def _damped_section(summ, damped, paths, plant_path, budgets_v, verified_drift=N
             f"command by {_fmt_list(np.array(i['command_noise_v']) * 1e3, '.3g')} mV RMS against the current "
             f"window's budget {_fmt_list(np.array(budgets_v) * 1e3, '.3g')} mV"
             + ("" if i.get("outer_noise_share") is None else
-               f"; the outer loops keep {i['outer_noise_share']:.4g} of it (RMS share; warned below "
+               f"; the outer loops keep {i['outer_noise_share']:.5f} of it (RMS share; warned below "
                f"{IFF_MIN_OUTER_NOISE_SHARE:.3f}, an equal split of its variance)"
                + ("" if not i.get("outer_noise_share_warning") else f". **Warning**: {i['outer_noise_share_warning']}"))
             + "; the export holds each stack's whole "
