@@ -290,8 +290,8 @@ def _damped_section(summ, damped, paths, plant_path, budgets_v, verified_drift=N
                f"; the outer loops keep {i['outer_noise_share']:.5f} of it (RMS share; warned below "
                f"{IFF_MIN_OUTER_NOISE_SHARE:.3f}, an equal split of its variance)"
                + ("" if not i.get("outer_noise_share_warning") else f". **Warning**: {i['outer_noise_share_warning']}"))
-            + "; the export holds each stack's whole "
-            f"command (axes + IFF) within R min(I_source, I_sink) of its RC model.", ""] + md_table(
+            + "; the export holds each stack's whole command (axes + IFF) within R min(I_source, I_sink) of its RC "
+              "model.", ""] + md_table(
         ["axis", "bandwidth notch only / damped, Hz (worst member)", "damped / notch only", "PM deg notch / damped",
          "GM dB notch / damped"], rows) + [
         "", f"Damped simultaneous alpha {alpha:.3f}. Issue 15's 2x target: "
