@@ -434,7 +434,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
            "noise_factor": noise_factor, "infos": infos, "min_share": min_share, "base": base, "t": t,
            "need": need}
     first, stages, stage_notes = run_stages(ctx, max_stages=max_stages)
-    out = _answer(first, stages, n_folds, need, base, probs, None, split, infos, cands, min_share)
+    out = _answer(first, stages, n_folds, need, base, probs, split, infos, min_share)
     out["stage_notes"] = stage_notes
     # a leakage named where the absorption's time constant came out beyond the record: say what
     # the record leaves open (:func:`.absorption_or_leakage.leakage_note`)
@@ -641,7 +641,7 @@ def _label(w):
     return f"undecided: {w[1]}" if w[0] == "undecided" else f"{w[0]} on the {w[1]}"
 
 
-def _answer(first, stages, n_folds, need, base, probs, extra, split, infos, cands, min_share):
+def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
     res = first["res"]
     rows = res["rows"]
     winners = first["winners"]
