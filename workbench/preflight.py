@@ -151,8 +151,8 @@ def _implicit_inputs(args):
         stacks = mirror_stack_files(m)
         found += stacks
         if stacks and cmd == "verify":
-            from .verify.mirror import MIRROR_CREEP_FILE
-            found.append((f"{m}: the creep plant beside it", m.parent / MIRROR_CREEP_FILE))
+            from .verify.mirror import VERIFY_CREEP_FILE
+            found.append((f"{m}: the creep plant beside it", m.parent / VERIFY_CREEP_FILE))
     return found
 
 

@@ -5,9 +5,11 @@ design meets are asserted (loop-at-a-time PM >= 40 deg / GM >= 6 dB, simultaneou
 triangle <= 0.1 % of the range RMS with tilt coupling <= 0.1 %, every stack's current inside the window
 R min(I_source, I_sink) that the notch-only design keeps), and the two it misses are documented as strict
 xfails: the 2x damped bandwidth (the housing's mirror-angle zeros and the plant's noise budget: README,
-mirror section) and the torque step's current, where the disturbance's back-EMF adds to a command at the
-window's edge. Reduced form (make test): crossovers searched over 50-70 Hz; full (WORKBENCH_FULL=1):
-studies/fsm_servo.toml as shipped, plus ``iff = true``. The plant's noise budget stays on in both.
+mirror section; full form only, the reduced form cannot reach it) and the torque step's sink current (~2.1 mA
+against the design's symmetric 2 mA window; inside the amplifier's 14 mA sink limit), where the disturbance's
+back-EMF adds to a command at the window's edge. Reduced form (make test): crossovers searched over 50-70 Hz
+(one loop-shape evaluation per shape instead of ~10); full (WORKBENCH_FULL=1): studies/fsm_servo.toml as
+shipped, plus ``iff = true``. The plant's noise budget stays on in both.
 """
 
 import json
@@ -22,6 +24,8 @@ from workbench.cli import main
 pytestmark = pytest.mark.slow
 
 FLOORS = {"phase_margin_deg": 40.0, "gain_margin_db": 6.0, "alpha": 0.4, "bandwidth_ratio": 2.0}
+FULL = os.environ.get("WORKBENCH_FULL") == "1"
+REDUCED_FC_HZ = (50.0, 70.0)        # the reduced form's crossover search (make test)
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +36,7 @@ def damped(root, tmp_path_factory):
     text = (root / "studies" / "fsm_servo.toml").read_text().replace(
         'plant = "../plants/fsm_p888_51.toml"', f'plant = "{plant.as_posix()}"')
     assert "\n[design]\n" in text
-    extra = "iff = true\n" + ("" if os.environ.get("WORKBENCH_FULL") == "1" else "fc_min_hz = 50.0\nfc_max_hz = 70.0\n")
+    extra = "iff = true\n" + ("" if FULL else "fc_min_hz = {:g}\nfc_max_hz = {:g}\n".format(*REDUCED_FC_HZ))
     text = text.replace("\n[design]\n", "\n[design]\n" + extra)
     study = tmp / "fsm_iff.toml"
     study.write_text(text)
@@ -51,16 +55,33 @@ def _ratios(data):
 def test_damped_design_meets_the_margin_floors(damped):
     """Loop-at-a-time PM/GM on every axis and member, simultaneous alpha at the stack inputs and axis outputs;
     the IFF high-pass at tan(10 deg) x the lowest crossover searched (design.mimo.iff_corner_hz)."""
-    from workbench.design.mimo import IFF_PHASE_COST_DEG
+    from workbench.design.mimo import IFF_PHASE_COST_DEG, MIMO_SPEC
     data, _, _ = damped
     d = data["damped"]["design"]
     for ax, a in d["axes"].items():
         assert a["phase_margin_deg"]["value"] >= FLOORS["phase_margin_deg"], ax
         assert a["gain_margin_db"]["value"] >= FLOORS["gain_margin_db"], ax
     assert min(d["disk_in"]["alpha"], d["disk_out"]["alpha"]) >= FLOORS["alpha"]
-    fc_min = 50.0            # both forms search from 50 Hz (studies/fsm_servo.toml: MIMO_SPEC's default)
+    fc_min = MIMO_SPEC.fc_range_hz[0] if FULL else REDUCED_FC_HZ[0]     # studies/fsm_servo.toml: MIMO_SPEC's
     assert d["iff"]["corner_hz"] == pytest.approx(np.tan(np.radians(IFF_PHASE_COST_DEG)) * fc_min, rel=1e-9)
     assert d["iff"]["source"] == "bridge" and d["iff"]["zeta_min_damped"] > 2 * d["iff"]["zeta_min_open"]
+
+
+def test_iff_corner_clears_the_verified_mirrors_drift(damped, root):
+    """The corner against the drift of the mirror verify runs (every stack with the sn637 creep branches: the
+    fastest, 0.1 s, reads at 1/(2 pi tau) = 1.6 Hz): at least IFF_DRIFT_MARGIN above it, reported with the
+    high-pass's gain there, not only against the serial files (no creep: dielectric absorption)."""
+    from workbench.design.mimo import IFF_DRIFT_MARGIN
+    from workbench.plant.files import load_plant
+    from workbench.verify.mirror import VERIFY_CREEP_FILE
+    data, _, _ = damped
+    vd, corner = data["damped"]["verified_drift"], data["damped"]["design"]["iff"]["corner_hz"]
+    tau = float(np.min(load_plant(root / "plants" / VERIFY_CREEP_FILE).pzt.creep.time_constants_s))
+    assert vd["drift_hz"] == pytest.approx(1 / (2 * np.pi * tau), rel=1e-9) and "creep" in vd["drift_source"]
+    assert vd["drift_hz"] > data["damped"]["design"]["iff"]["drift_hz"]
+    assert vd["drift_margin"] == pytest.approx(corner / vd["drift_hz"]) and vd["drift_margin"] >= IFF_DRIFT_MARGIN
+    text = Path(data["report"]).read_text(encoding="utf-8")
+    assert f"corner {vd['drift_margin']:.3g}x above it" in text
 
 
 def test_damped_export_tracks_the_triangle(damped):
@@ -89,9 +110,14 @@ def test_damped_export_keeps_every_stack_in_its_current_window(damped):
 
 
 @pytest.mark.xfail(strict=True, reason="the torque step rings the ~1 kHz tip mode: its back-EMF (V_p moves up to ~0.03 V "
-                                       "per period) adds to an IFF command at the window's edge, ~2.1 mA; the "
-                                       "firmware's RC model does not see the mechanics (README, mirror section)")
+                                       "per period) adds to an IFF command at the window's edge: a sink current "
+                                       "of ~2.1 mA, above the design's own symmetric window R min(I_source, I_sink) "
+                                       "(2 mA) and well inside the amplifier's 14 mA sink limit; the firmware's RC "
+                                       "model does not see the mechanics (README, mirror section)")
 def test_damped_torque_step_current_inside_the_window(damped):
+    """The design's symmetric window min(I_source, I_sink) on the simulated current of the torque step (a sink
+    current here): missed (xfail). The amplifier's own sink limit (14 mA) is not what is missed; the metrics
+    carry |i| only, so the source/sink limits are not asserted separately here."""
     _, v, fsm = damped
     m = next(m for m in v["metrics"] if m["scenario"] == "torque_step")
     assert max(m["peak_current_ma"]) <= _window_ma(fsm), m["peak_current_ma"]
@@ -107,6 +133,9 @@ def test_damped_bandwidth_ratio_is_reported(damped):
     assert ("2x target: **met**" in text) == damped_ratio_met([r["tip"], r["tilt"]])
 
 
+@pytest.mark.skipif(not FULL, reason="only the full form (WORKBENCH_FULL=1) can test the 2x floor: the reduced form "
+                                      "caps both crossovers at 70 Hz, so a damped bandwidth of 2x the notch-only "
+                                      "one (~130 Hz) is out of its reach whatever the damping does")
 @pytest.mark.xfail(strict=True, reason="issue 15's 2x floor is missed: the mirror-angle zeros at f_rock sqrt(1 + J/I_h) "
                                        "(440/545 Hz) cap the mirror's bandwidth, and with the IFF closed the plant's "
                                        "gain is ~3x lower under the same noise budget (README, mirror section)")

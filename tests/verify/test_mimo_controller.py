@@ -3,8 +3,10 @@ composition against the float design, validation on load."""
 
 import json
 import os
+import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import control
 import numpy as np
@@ -59,9 +61,13 @@ MAIN_IFF_C = MAIN_C.replace("int32_t u0[3], g[3], r[3], v[3];", "int32_t u0[3], 
 
 
 @pytest.fixture(scope="module")
-def ctrl_iff(fsm):
-    design, _ = quick_design(fsm, iff=True)
-    return MimoController.from_design(design, fsm, name="mimo")
+def design_iff(fsm):
+    return quick_design(fsm, iff=True)[0]
+
+
+@pytest.fixture(scope="module")
+def ctrl_iff(fsm, design_iff):
+    return MimoController.from_design(design_iff, fsm, name="mimo")
 
 
 def _bridge_records(ctrl, rng, n):
@@ -198,6 +204,15 @@ def test_iff_json_round_trip_and_bad_keys(ctrl_iff, tmp_path, rng):
                         (lambda d: d["iff"]["bridge"].__setitem__("adc_range_v", float("inf")),
                          "iff.bridge.adc_range_v"),
                         (lambda d: d["iff"]["bridge"].__setitem__("adc_bits", 17.5), "iff.bridge.adc_bits"),
+                        # a headroom past the stack's range (its words would overflow int64 and the step
+                        # would clamp every stack to its bottom limit): refused on load
+                        (lambda d: d["iff"]["stack_window"].__setitem__("headroom_v", [1e15] * 3),
+                         "iff.stack_window.headroom_v"),
+                        (lambda d: d["iff"]["stack_window"].__setitem__(
+                            "headroom_v", [1.0, 1.0 + np.ptp(d["stack_limits_v"][1]), 1.0]),
+                         "iff.stack_window.headroom_v"),
+                        (lambda d: d["iff"]["stack_window"].__setitem__("alpha", [0.1, 0.1, 1.5]),
+                         "iff.stack_window.alpha"),
                         (lambda d: d["iff"]["bridge"].__setitem__("out_noise_v_rms", -1e-6),
                          "iff.bridge.out_noise_v_rms"),
                         # bridge numbers that are not the cascades' (C_int doubled): -g T C_int / C_R off
@@ -233,7 +248,8 @@ def test_an_iff_over_the_current_window_budget_does_not_export(fsm):
             for p in fsm.plants)
     g = 2 * b / float(np.min(force_noise_n(fsm, "bridge")))
     loud = SimpleNamespace(**{**vars(design), "iff": dataclasses.replace(design.iff, gain_v_per_n=g)})
-    with pytest.raises(ExportError, match=r"noise budget R min\(I_source, I_sink\) / 3 = 53.3 mV.*use at most"):
+    with pytest.raises(ExportError, match=rf"noise budget R min\(I_source, I_sink\) / 3 = {re.escape(f'{1e3 * b:.3g}')} mV"
+                                          r".*use at most"):
         MimoController.from_design(loud, fsm, name="mimo")
 
 
@@ -295,13 +311,34 @@ def test_a_siso_controller_is_named_as_such(root, tmp_path):
     assert MIMO_SCHEMA.startswith("workbench.mimo_controller/")
 
 
-def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, fsm, rng):
+def _unequal_stacks(fsm):
+    """The mirror with three different series resistors and current limits (R x 1, 1.7, 0.6; I_source x 1.3,
+    0.8, 1; I_sink x 1, 0.8, 1.5): every stack's alpha and R min(I_source, I_sink) differ, and in a different
+    order, so a swapped stack index or one stack's alpha used for all moves some stack's lead off its window."""
+    import dataclasses
+    plants = []
+    for pl, r, i_src, i_snk in zip(fsm.plants, (1.0, 1.7, 0.6), (1.3, 0.8, 1.0), (1.0, 0.8, 1.5)):
+        pz = pl.pzt
+        plants.append(dataclasses.replace(pl, pzt=dataclasses.replace(
+            pz, series_resistance_ohm=r * pz.series_resistance_ohm,
+            current_limit_source_a=i_src * pz.current_limit_source_a,
+            current_limit_sink_a=i_snk * pz.current_limit_sink_a)))
+    return dataclasses.replace(fsm, plants=tuple(plants))
+
+
+@pytest.mark.parametrize("unequal", [False, True])
+def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, design_iff, fsm, rng, unequal):
     """With IFF the whole stack command (axes + IFF correction) leads the stack's RC model of it by at most
     R min(I_source, I_sink) (each serial file's window, as the notch-only axes keep): replayed here in float
     from the plant's R, current limits and largest capacitance, on records that drive the axes, the bridges
     and the stacks to their clamps (the window is reached, so the bound is the clamp's, not the records')."""
     from workbench.controller import plant_window
     ctrl = ctrl_iff
+    if unequal:
+        fsm = _unequal_stacks(fsm)
+        ctrl = MimoController.from_design(design_iff, fsm, name="mimo")
+        w = [plant_window(pl, ctrl.dt_s) for pl in fsm.plants]
+        assert len({x[0] for x in w}) == 3 and len({min(x[1:]) for x in w}) == 3
     g, r = _records(ctrl, rng, 3000, 5000)
     b = _bridge_records(ctrl, rng, len(g))
     u0 = np.array([3.0, -2.0, 40.0])
@@ -317,3 +354,46 @@ def test_damped_step_keeps_every_stack_in_its_current_window(ctrl_iff, fsm, rng)
             m += alpha * lead[k]
         assert np.abs(lead).max() <= h + 4 * lsb, j
         assert np.abs(lead).max() >= 0.99 * h, j
+
+
+GOLDEN = Path(__file__).parent / "golden_notch_only"
+# sha256 of the stack words (little-endian int64, 13000 x 3) the pre-IFF exporter (commit 135d64e^1) produced
+# for _golden_records on its export of quick_design(fsm); the record reaches the top stack clamp
+GOLDEN_RUN_SHA256 = "102783092bf92d61cd3ed629825eebfaaa9bab8f7640d37d90572685fe683db5"
+
+
+def _golden_records(ctrl):
+    rng = np.random.default_rng(15)
+    n, held = 1000, 6000
+    g = np.concatenate([rng.uniform(-3.0, 3.0, (n, 3)), np.tile([2.6, -2.6, 2.6], (held, 1)),
+                        np.tile([-2.6, 2.6, -2.6], (held, 1))])
+    reach = 80.0 * ctrl.axis_scale
+    r = np.concatenate([rng.uniform(-1, 1, (n, 3)) * reach, np.tile(reach, (held, 1)), -np.tile(reach, (held, 1))])
+    return g, r
+
+
+def _run_sha(ctrl):
+    import hashlib
+    g, r = _golden_records(ctrl)
+    w = np.rint(ctrl.run(g, r, u0_axes_v=np.array([3.0, -2.0, 40.0])) * 2.0 ** ctrl.stack_frac_bits).astype("<i8")
+    assert np.any(w == ctrl.stack_limit_words[:, 1])
+    return hashlib.sha256(np.ascontiguousarray(w).tobytes()).hexdigest()
+
+
+def test_notch_only_export_is_the_pre_iff_one(ctrl, root, tmp_path):
+    """Golden: the notch-only export of quick_design (headers, JSON, the step's words on a record reaching the
+    stack clamp) is the one the exporter wrote before the IFF stack windows (files written by commit 135d64e^1,
+    tests/verify/golden_notch_only; plant paths made relative). The IFF work must leave it alone; a legitimate
+    change to the notch-only design or export must regenerate these files from a reviewed commit."""
+    paths = ctrl.write(tmp_path, "mimo")
+    for f in ("mimo.h", "mimo_tip.h", "mimo_tilt.h", "mimo_piston.h"):
+        assert paths[{"mimo.h": "h"}.get(f, f[5:].replace(".h", "_h"))].read_text() == (GOLDEN / f).read_text(), f
+    want = json.loads((GOLDEN / "mimo.json").read_text())
+    got = json.loads(paths["json"].read_text())
+    for d in (want, got):
+        prov = d["provenance"]
+        prov["plant_file"] = Path(prov["plant_file"]).name
+        prov["stack_files"] = [Path(p).name for p in prov["stack_files"]]
+    assert got == want
+    assert _run_sha(ctrl) == GOLDEN_RUN_SHA256
+    assert _run_sha(MimoController.load(GOLDEN / "mimo.json")) == GOLDEN_RUN_SHA256

@@ -230,9 +230,17 @@ def _later_stage(ctx, extra, found, seen=()):
 
     ``seen``: effects that won a fold of the first stage; such a one needs ``need`` folds, any
     other every fold."""
-    cands = _later_candidates(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
-    res = _tr._score_stage(cands, ctx["probs"], ctx["nulls"], extra, ctx["split"], ctx["penalty"],
-                           ctx["noise_factor"], ctx["infos"], found, ctx["min_share"])
+    # the joint re-search and its scores depend only on the found effects (and so their columns):
+    # resolve_split scores each order of a pair and the stage loop the winner's again; one search
+    # each (review 4), checked against the found columns so a different model is never reused
+    cache = ctx.setdefault("later_cache", {})
+    key, sig = tuple(found), _extra_signature(extra)
+    if key not in cache or cache[key][0] != sig:
+        cands = _later_candidates(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
+        res = _tr._score_stage(cands, ctx["probs"], ctx["nulls"], extra, ctx["split"], ctx["penalty"],
+                               ctx["noise_factor"], ctx["infos"], found, ctx["min_share"])
+        cache[key] = (sig, res, {})
+    _, res, rivals_cache = cache[key]
     # every fold: a later stage claims a second effect in what the first leaves (at 4 of 5 a
     # drift was named after a sensor lead, the base model's own slow misfit: test_calibrate's lead)
     answer, count, winners = _tr._consensus(res["winners"], ctx["need"])
@@ -240,11 +248,18 @@ def _later_stage(ctx, extra, found, seen=()):
         answer = None
     if answer in (None, "none"):
         return answer, count, winners, res, None
-    rivals = _rivals(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
+    if "rivals" not in rivals_cache:
+        rivals_cache["rivals"] = _rivals(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
+    rivals = rivals_cache["rivals"]
     ok, who = _beats_rivals(res["by"][answer], rivals, ctx["probs"], extra, ctx["split"])
     if not ok:
         return None, count, winners, res, f"{answer[0]} does not beat a second {who} on the leftover"
     return answer, count, winners, res, None
+
+
+def _extra_signature(extra):
+    """The found effects' columns in brief (per problem: their count, shapes and sums)."""
+    return tuple((k, tuple((C.shape, float(np.sum(C))) for C, _ in v)) for k, v in sorted(extra.items()))
 
 
 def _copy_extra(extra):

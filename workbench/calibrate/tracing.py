@@ -45,7 +45,7 @@ creep passes the fold on the displacement with a validation ratio at most the sq
 the charge candidate's: the stack relaxes comparably; and when the charge term, turned into
 displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
 the stack could not have shown it, and the fold is undecided between the two; an absorption
-slower than half the record is told from leakage only by its bend, :func:`_absorption_or_leakage`),
+slower than half the record is told from leakage only by its bend, :mod:`.absorption_or_leakage`),
 and a
 mechanical effect seen on the gauge that the displacement shows too is the stack's, reported
 on the displacement.
@@ -75,6 +75,9 @@ the base are refitted per fold, and the test part is never seen.
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
+from .absorption_or_leakage import explained as _explained
+from .absorption_or_leakage import leakage_note
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
@@ -85,9 +88,6 @@ __all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
-#: An absorption fitted slower than this many record lengths is leakage's term within the record
-#: (once leakage's line is taken it bends by under 1 % of itself over the record).
-LEAKAGE_TAU_RECORDS = 10.0
 
 
 def _errors(e):
@@ -139,7 +139,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None):
         # polynomial always fits; a current monitor's offset is leakage-like, seed 002's i_bias)
         # an absorption may relax slower than the record lasts (seed 002: seconds; a record may
         # be a fraction of a second): its time constant is searched up to a hundred record
-        # lengths, and :func:`_absorption_or_leakage` decides against leakage
+        # lengths, and :mod:`.absorption_or_leakage` decides against leakage
         plan += [("charge", DielectricAbsorption(tau_max_fraction=100.0), "voltage"),
                  ("charge", Leakage(), "voltage")]
         if not has_x:
@@ -434,8 +434,16 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
            "noise_factor": noise_factor, "infos": infos, "min_share": min_share, "base": base, "t": t,
            "need": need}
     first, stages, stage_notes = run_stages(ctx, max_stages=max_stages)
-    out = _answer(first, stages, n_folds, need, base, probs, None, split, infos, cands, min_share)
+    out = _answer(first, stages, n_folds, need, base, probs, split, infos, min_share)
     out["stage_notes"] = stage_notes
+    # a leakage named where the absorption's time constant came out beyond the record: say what
+    # the record leaves open (:func:`.absorption_or_leakage.leakage_note`)
+    note = leakage_note(first["res"]["by"], first["res"]["befores"], penalty, infos["duration_s"])
+    for k, s in enumerate(out["stages"]):
+        if note and (s["effect"], s["channel"]) == ("leakage", "charge"):
+            s["note"] = note
+            if k == 0:
+                out["reason"] += f"; {note}"
     for ch in list(out["channels"]):
         key = (ch, "model")
         out["channels"][ch]["null_reference_rms"] = float(np.sqrt(np.median(first["res"]["null_gain"][key]))) \
@@ -586,13 +594,6 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
             row["passes"] = [False] * len(row["passes"])
 
 
-def _explained(row, f, befores, penalty):
-    """What a candidate explains on fold ``f``: ``sqrt(before^2 - after^2)``, channel units."""
-    b = befores[row["key"]][f]
-    a = _raw_rms(row, f, befores, penalty)
-    return float(np.sqrt(max(b * b - a * a, 0.0)))
-
-
 def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
     """Does the displacement show the charge's relaxation comparably (then it is creep)?
 
@@ -622,68 +623,6 @@ def _gauge_would_show(row, f, befores, infos, penalty):
     return _explained(row, f, befores, penalty) * abs(g) >= 3.0 * infos["gauge"]["noise_floor"]
 
 
-def _raw_rms(row, f, befores, penalty):
-    """A candidate's unpenalized validation RMS on fold ``f``."""
-    return befores[row["key"]][f] * row["ratios"][f] / (1 + penalty * row["n_params"])
-
-
-def _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share):
-    """Dielectric absorption or leakage on fold ``f`` (both charge terms driven by the voltage).
-
-    An absorption that has not settled within the record (``tau`` at least half its length) is
-    ``k / tau`` times the integral of V, less a curvature: leakage's term plus a correction. It is
-    named only when that curvature is seen -- what the absorption explains beyond leakage stands
-    above the channel's noise floor and is at least ``min_share`` of what leakage leaves (the
-    rule a later stage meets), or it stands above the noise floor on every validation fold
-    (:func:`_bend_on_every_fold`). Leakage is named when the absorption's best time constant is
-    ``LEAKAGE_TAU_RECORDS`` record lengths or more (no bend at all) and the record rules out
-    every absorption that settles within it: the fastest whose bend (``sqrt(3/5) / 12 x T / tau``
-    of its term over the record T, once leakage's line is taken) could hide in what leakage
-    leaves, ``tau >= sqrt(3/5) / 12 x T E / a`` (E what leakage explains, a what it leaves), is
-    at least T (a weak term leaves the time constant unknown). Otherwise ``None``: the record
-    cannot tell them apart (undecided).
-    """
-    da = tags.get(("dielectric_absorption", "charge"))
-    lk = tags.get(("leakage", "charge"))
-    if da is None or lk is None:
-        return best
-    if da["params"].get("tau_s", 0.0) < 0.5 * infos["duration_s"]:
-        return best
-    a_lk, a_da = _raw_rms(lk, f, befores, penalty), _raw_rms(da, f, befores, penalty)
-    beyond = a_lk * a_lk - a_da * a_da
-    if beyond > (noise_factor * infos["charge"]["noise_floor"]) ** 2 and beyond > min_share * a_lk * a_lk:
-        return da
-    if _bend_on_every_fold(da, lk, befores, infos, penalty, noise_factor):
-        return da
-    # how slow must an absorption be to hide its bend in what leakage leaves? Over a record of
-    # length T, k (1 - exp(-t / tau)) ~ k (t / tau - t^2 / (2 tau^2)); the leakage column takes
-    # the line, the bend left over has RMS sqrt(3/5) / 12 x T / tau of the line's (t^2 less its
-    # best line on [0, T]: T^2 / (6 sqrt 5); t: T / sqrt 3). Unseen when that is below a / E.
-    tau_bound = infos["duration_s"] * np.sqrt(0.6) / 12.0 * _explained(lk, f, befores, penalty) / max(a_lk, 1e-300)
-    if da["params"]["tau_s"] >= LEAKAGE_TAU_RECORDS * infos["duration_s"] and tau_bound >= infos["duration_s"]:
-        return lk
-    return None
-
-
-def _bend_on_every_fold(da, lk, befores, infos, penalty, noise_factor):
-    """The absorption's bend beyond leakage, seen on every validation fold alike.
-
-    Where leakage leaves mostly the base model's own misfit (several times the noise floor), an
-    absorption's bend is a small share of what is left, and ``min_share`` of it is out of reach
-    though the bend is there. The bend is then taken as seen when, on *every* fold, the
-    absorption leaves less than leakage by more than the channel's noise floor in quadrature
-    (``a_lk^2 - a_da^2 > (noise_factor floor)^2``): an extra time constant fitting the base's
-    misfit gains on some folds and loses on others (measured on leakage records of the
-    confusion benchmark: differences of 0.1-0.5 % of either sign), a bend gains on all.
-    """
-    floor2 = (noise_factor * infos["charge"]["noise_floor"]) ** 2
-    for f in range(len(da["ratios"])):
-        a_lk, a_da = _raw_rms(lk, f, befores, penalty), _raw_rms(da, f, befores, penalty)
-        if not a_lk * a_lk - a_da * a_da > floor2:
-            return False
-    return True
-
-
 def _consensus(winners, need):
     vals, counts = np.unique([w if isinstance(w, str) else f"{w[0]}|{w[1]}" for w in winners], return_counts=True)
     k = int(np.argmax(counts))
@@ -702,7 +641,7 @@ def _label(w):
     return f"undecided: {w[1]}" if w[0] == "undecided" else f"{w[0]} on the {w[1]}"
 
 
-def _answer(first, stages, n_folds, need, base, probs, extra, split, infos, cands, min_share):
+def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
     res = first["res"]
     rows = res["rows"]
     winners = first["winners"]

@@ -46,6 +46,7 @@ unstructured bound 1 / max_w sigma_max(S - I/2) <= alpha (:func:`mimo_disk_margi
 stack inputs (each amplifier's gain and phase) and at the axis outputs.
 """
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import control
@@ -62,7 +63,7 @@ from .margins import family_margins, loop_margins, response
 from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
 __all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "bridge_capacitances_f", "IFF", "IFF_SOURCES", "iff_response",
-           "tune_iff", "iff_corner_hz", "IFF_PHASE_COST_DEG", "force_noise_n", "iff_command_noise_v",
+           "tune_iff", "iff_corner_hz", "IFF_PHASE_COST_DEG", "IFF_DRIFT_MARGIN", "IFF_MIN_OUTER_NOISE_SHARE", "force_noise_n", "iff_command_noise_v",
            "check_iff_noise", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "lowest_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
            "design_mimo", "MIMO_SPEC", "default_freq_hz", "nominal_name", "AXIS_NAMES"]
 
@@ -230,8 +231,20 @@ def iff_response(iff, freq_hz, dt_s, delay_samples=1):
 # doublet's slow pole (:func:`iff_corner_hz`).
 IFF_PHASE_COST_DEG = 10.0
 
+# the factor by which the IFF corner must clear the fastest drift the bridge reads. ASSUMED design choice: a
+# first-order high-pass passes a drift at f_d with gain f_d / sqrt(f_d^2 + f_l^2), so at f_l >= 3 f_d at most
+# 1 / sqrt(10) = 32 % (-10 dB) of it reaches the IFF's command; with f_l barely above f_d ~70 % of it does, and
+# the drift is then fed back as if it were force.
+IFF_DRIFT_MARGIN = 3.0
 
-def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None):
+# the smallest share of each stack's noise budget (amplitude: the outer loops' rho is scaled by it) the IFF may
+# leave the outer loops before design_mimo warns. ASSUMED: 1/sqrt(2), an equal split of the budget's variance
+# between the two uncorrelated contributions (the IFF's bridge noise, the outer loops' gauge noise): below it
+# the damping loop takes more of the current window than the tracking loops the issue's floors are set on.
+IFF_MIN_OUTER_NOISE_SHARE = float(1.0 / np.sqrt(2.0))
+
+
+def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None, drift_margin=IFF_DRIFT_MARGIN):
     """The IFF high-pass corner f_l, Hz: the one place it is derived (design, study and export take it from here).
 
     Upper bound, the servo band. Between f_l and the amplifier's R C corner (~70 Hz) v -> F_hat is
@@ -249,14 +262,17 @@ def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None):
     Lower bound, the drifts. Besides the force, the charge bridge reads charges that drift: the charge
     amplifier's leakage (R_FP C_int) and dielectric absorption
     (:class:`~workbench.selfsense.charge_amp.ChargeAmpParams`), and each stack's creep branches if its
-    file has them. The corner must lie above the fastest of them, 1 / (2 pi tau_min), or the
-    high-pass passes them into the drive.
+    file has them. The corner must lie ``drift_margin`` (:data:`IFF_DRIFT_MARGIN`) times above the fastest of
+    them, 1 / (2 pi tau_min), or the high-pass passes them into the drive. Check it against the mirror the
+    verification runs (its creep branches: :func:`workbench.verify.mirror.verification_mirror`), as the
+    study does, not only against serial files without creep.
 
     Returns
     -------
     corner_hz : float
     info : dict
-        ``drift_hz`` (1 / (2 pi tau_min)) and ``drift_source``.
+        ``drift_hz`` (1 / (2 pi tau_min)), ``drift_source``, ``drift_margin`` (corner / drift_hz) and
+        ``drift_gain`` (the high-pass's gain at drift_hz, f_d / sqrt(f_d^2 + f_l^2)).
 
     Raises
     ------
@@ -274,12 +290,14 @@ def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None):
     src = min(taus, key=taus.get)
     drift_hz = 1.0 / (2 * np.pi * taus[src])
     corner = float(np.tan(np.radians(phase_cost_deg)) * fc_min_hz)
-    if not corner > drift_hz:
+    if not corner >= drift_margin * drift_hz:
         raise DesignError(f"the IFF high-pass corner tan({phase_cost_deg:g} deg) x {fc_min_hz:g} Hz = {corner:.3g} Hz "
-                          f"(the lowest crossover searched) lies below {drift_hz:.3g} Hz, the drift of {src} "
-                          f"(tau {taus[src]:.3g} s) the bridge reads: raise the lowest crossover (fc_range_hz) "
-                          f"above {drift_hz / np.tan(np.radians(phase_cost_deg)):.3g} Hz")
-    return corner, {"drift_hz": float(drift_hz), "drift_source": src}
+                          f"(the lowest crossover searched) lies below {drift_margin:g} x {drift_hz:.3g} Hz, the "
+                          f"drift of {src} (tau {taus[src]:.3g} s) the bridge reads: raise the lowest crossover "
+                          f"(fc_range_hz) to at least {drift_margin * drift_hz / np.tan(np.radians(phase_cost_deg)):.3g}"
+                          f" Hz")
+    return corner, {"drift_hz": float(drift_hz), "drift_source": src, "drift_margin": float(corner / drift_hz),
+                    "drift_gain": float(drift_hz / np.hypot(drift_hz, corner))}
 
 
 def force_noise_n(fsm, source, bridge_capacitance_f=None, amp=None):
@@ -335,7 +353,7 @@ def check_iff_noise(fsm, iff, dt_s):
     budgets V (3,); NaN without a series resistor). Raises :class:`DesignError` naming the stack, the
     numbers and the largest gain that fits (the lead is proportional to the gain).
     """
-    from .budgets import plant_budgets
+    from .budgets import NOISE_SIGMAS, plant_budgets
     lead = iff_command_noise_v(fsm, iff, dt_s)
     b = np.array([np.nan if (v := plant_budgets(pl, dt_s)["noise_command_v"].value) is None else v
                   for pl in fsm.plants], float)
@@ -345,7 +363,7 @@ def check_iff_noise(fsm, iff, dt_s):
         gmax = abs(iff.gain_v_per_n) * float(np.nanmin(b / lead))
         raise DesignError(f"the IFF gain {iff.gain_v_per_n:.3g} V/N puts {1e3 * lead[j]:.3g} mV RMS of force-estimate "
                           f"noise ({iff.source}) on stack {j}'s command lead over its RC model, over its current "
-                          f"window's noise budget R min(I_source, I_sink) / 3 = {1e3 * b[j]:.3g} mV "
+                          f"window's noise budget R min(I_source, I_sink) / {NOISE_SIGMAS:g} = {1e3 * b[j]:.3g} mV "
                           f"({fsm.plants[j].source}); use at most {gmax:.3g} V/N")
     return lead, b
 
@@ -409,7 +427,8 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
         The force estimate fed back (:func:`force_estimate`).
     noise_budget : bool
         Only gains that pass :func:`check_iff_noise` (each stack's current-window noise budget) count;
-        when ``gains`` are given and none passes it, its :class:`DesignError` names the largest that would.
+        when every gain tried breaks it, its :class:`DesignError` names the largest that would; when some
+        pass it but none of those keeps the margins, the :class:`DesignError` says so and cites the budget.
 
     Only gains that keep those margins and every StateSpace member of ``family`` stable (Pade
     of the two-sample delay in the loop) count.
@@ -439,6 +458,7 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
     f = default_freq_hz(dt_s)
     fh = force_estimate(fsm, nominal, f, source, cr)
     best = refused = None
+    n_refused = 0
     for g in gains:
         iff = IFF(float(g), float(corner), source, cr)
         if noise_budget:
@@ -446,6 +466,7 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
                 check_iff_noise(fsm, iff, dt_s)
             except DesignError as err:
                 refused = refused or err
+                n_refused += 1
                 continue
         if not _inner_ok(f, iff_response(iff, f, dt_s)[:, None, None] * fh, pm_deg, gm_db):
             continue
@@ -455,10 +476,14 @@ def tune_iff(fsm, family, nominal=None, dt_s=1e-4, gains=None, target_hz=None, c
             continue
         if best is None or z.min() > best[1]:
             best = (iff, float(z.min()))
-    if best is None and refused is not None:
-        raise refused
+    if best is None and refused is not None and n_refused == len(gains):
+        raise refused           # every gain broke the budget: its message names the largest that fits
     if best is None:
-        raise ValueError("no IFF gain keeps the nominal member stable")
+        why = (f"; the other {n_refused} broke the current window's noise budget (the first: {refused})"
+               if refused is not None else "")
+        raise DesignError(f"no IFF gain of the {len(gains) - n_refused} tried within the noise budget keeps the "
+                          f"nominal member stable with PM >= {pm_deg:g} deg and GM >= {gm_db:g} dB on every stack's "
+                          f"loop and damps the target modes{why}; try other gains or corner_hz")
     iff, zmin = best
     for name, m in family.items():
         if isinstance(m, control.StateSpace) and np.max(_iff_closed(fsm, m, iff, dt_s).poles().real) >= 0:
@@ -524,12 +549,21 @@ def mimo_disk_margin(freq_hz, loop):
     n = loop.shape[1]
     mu = np.full(f.size, np.nan)
     sig = np.full(f.size, np.nan)
-    for k in range(f.size):
-        if not np.all(np.isfinite(loop[k])):
-            continue
-        m = np.linalg.inv(np.eye(n) + loop[k]) - 0.5 * np.eye(n)
-        sig[k] = np.linalg.svd(m, compute_uv=False)[0]
-        mu[k] = ab13md(np.asfortranarray(m), np.ones(n, int), np.full(n, 2, int))[0] if n > 1 else abs(m[0, 0])
+    ok = np.flatnonzero(np.all(np.isfinite(loop.reshape(f.size, -1)), axis=1))
+    m = np.linalg.inv(np.eye(n)[None] + loop[ok]) - 0.5 * np.eye(n)[None]
+    sig[ok] = np.linalg.svd(m, compute_uv=False)[:, 0]
+    # mu <= sigma_max (the D = I scaling is one AB13MD may take; its bound came out at most 1.7e-6 above
+    # sigma_max on the mirror's 48 design loops), so mu is only evaluated in decreasing order of sigma_max
+    # until sigma_max (x 1.001, the guard) falls below the largest mu found: the same maximum and frequency
+    # as evaluating every sample (checked on those loops), in a few AB13MD calls instead of ~1600
+    best = -np.inf
+    for i in np.argsort(-sig[ok], kind="stable"):
+        k = ok[i]
+        if sig[k] * 1.001 < best:
+            break
+        mk = m[i]
+        mu[k] = ab13md(np.asfortranarray(mk), np.ones(n, int), np.full(n, 2, int))[0] if n > 1 else abs(mk[0, 0])
+        best = max(best, mu[k])
     k = int(np.nanargmax(mu))
     a = 1.0 / mu[k]
     gm = 20 * np.log10((1 + a / 2) / (1 - a / 2)) if a < 2 else np.inf
@@ -652,7 +686,10 @@ def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_
     With ``damping`` the IFF's high-pass corner is :func:`iff_corner_hz` at ``spec``'s lowest crossover; with a
     noise budget in ``spec`` (``max_noise_command_v``) the IFF gain must pass :func:`check_iff_noise` and the
     outer loops' budget is what the IFF's noise leaves of it, rho sqrt(1 - max_j (sigma_iff,j / B_j)^2), so
-    that each stack's command noise stays within R min(I_source, I_sink) / 3.
+    that each stack's command noise stays within R min(I_source, I_sink) / 3. That share is reported
+    (``iff_info["outer_noise_share"]``) and warned about (a ``UserWarning``, and
+    ``iff_info["outer_noise_share_warning"]``) below :data:`IFF_MIN_OUTER_NOISE_SHARE`: the IFF tuner takes
+    its gain first, so a noisy force estimate can leave the outer loops little (the gauge-fed estimate: 0.31).
     """
     f = default_freq_hz(spec.dt_s) if freq_hz is None else np.asarray(freq_hz, float)
     nominal = family[nominal_name()] if nominal is None else nominal
@@ -669,6 +706,14 @@ def design_mimo(fsm, family, damping=False, spec=MIMO_SPEC, freq_hz=None, notch_
             share = float(np.sqrt(max(0.0, 1.0 - np.nanmax(lead / b) ** 2)))
             spec = replace(spec, max_noise_command_v=spec.max_noise_command_v * share)
             iff_info["outer_noise_share"] = share
+            iff_info["outer_noise_share_warning"] = None
+            if share < IFF_MIN_OUTER_NOISE_SHARE:
+                msg = (f"the IFF ({iff_source}, {iff.gain_v_per_n:.3g} V/N) takes {np.nanmax(lead / b):.2f} of a stack's "
+                       f"noise budget (RMS): the outer loops keep {share:.2f} of it, less than "
+                       f"IFF_MIN_OUTER_NOISE_SHARE = {IFF_MIN_OUTER_NOISE_SHARE:.3f} (an equal split of its variance); "
+                       f"damping {100 * iff_info['zeta_min_open']:.2f} % -> {100 * iff_info['zeta_min_damped']:.2f} %")
+                iff_info["outer_noise_share_warning"] = msg
+                warnings.warn(msg, stacklevel=2)
     plants = {n: decoupled(dec, damped_gauges(fsm, m, f, iff, spec.dt_s, spec.delay_samples))
               for n, m in family.items()}
     if iff is None:

@@ -46,8 +46,14 @@ M_j) the stack's own RC model (alpha_j = 1 - exp(-T / (R_j C_j)), C_j its larges
 command it was sent, h_j = R_j min(I_source,j, I_sink,j) (:func:`stack_windows`). In words: before the
 amplifier clamp, v_j = min(max(v_j, M_j - H_j), M_j + H_j) (H_j = floor(h_j 2^FV)), then M_j += ((v_j -
 M_j) ALPHA_Q_j + 2^29) >> 30 (alpha in Q1.30, as the cascades' windows); M_j starts at the stack word of
-the reset's axis outputs. Only the IFF's high-pass can push the sum past the axis box, and the clamp
-takes it back (a high-pass has no integrator to wind up). Without IFF none of this is in the step.
+the reset's axis outputs. The stack clamp is fed back to nothing: the axis cascades are conditioned on
+their own box only, not on what this clamp removes. When the stacks' alphas are equal (as on the P-888.51
+serials) M_j is In' m (the axis models) plus a model of the IFF part (the models are linear, until the
+stack clamp cuts), and the axis box keeps the axes' share inside h_j, so what the clamp removes is mostly
+the IFF's high-pass correction, which has no integrator to wind up; with unequal alphas M_j and In' m differ and the clamp may also cut the axes' share. On the large
+tip step all three stack windows reach h_j and the clamp binds on the axes' share too; the verification shows
+no windup there (README, mirror section), but nothing in the step prevents it. Without IFF none of this is in
+the step.
 
 **Current-limit window, per axis.** Each axis cascade carries the SISO cascade's own window
 (:mod:`workbench.export.fixed_point`): a model m_a += alpha (u_a - m_a) of its output and the
@@ -594,7 +600,7 @@ class MimoController:
         if not (0 <= gf <= 31 and 0 <= vf <= 31):
             raise MimoControllerError(src, "fixed_point", f"fraction bits must lie in 0..31; got {gf}, {vf}")
         rec = {k: v for k, v in data.items() if k not in _TOP_KEYS}
-        iff = _load_iff(src, data.get("iff"), fs, allow_unstable) if "iff" in data else None
+        iff = _load_iff(src, data.get("iff"), fs, allow_unstable, lim) if "iff" in data else None
         out = cls(name=str(data.get("name") or "fsm_controller"), axes=axes, axis_scale=scale, gauge_to_axes=g2a,
                   axes_to_stacks=a2s, stack_limits_v=lim, gauge_frac_bits=gf, stack_frac_bits=vf, record=rec,
                   source=str(source), iff=iff)
@@ -834,8 +840,10 @@ def _iff_cascades(iff, fsm, dt_s, name, coeff_bits):
     return out
 
 
-def _load_iff(src, data, fs, allow_unstable):
-    """Validate the JSON's ``iff`` table (three stack cascades at the servo rate, the bridge's numbers)."""
+def _load_iff(src, data, fs, allow_unstable, stack_limits_v):
+    """Validate the JSON's ``iff`` table (three stack cascades at the servo rate, the bridge's numbers, the
+    stack windows: alpha in (0, 1], headroom in (0, hi - lo] of each stack's range ``stack_limits_v`` (3, 2) V,
+    a lead no command can exceed, which also keeps the headroom's words inside int64)."""
     if not isinstance(data, dict):
         raise MimoControllerError(src, "iff", "must be a table {bridge, controllers}; re-export the controller")
     for key, table, known in (("iff", data, ("bridge", "stack_window", "controllers", "note")),
@@ -868,11 +876,13 @@ def _load_iff(src, data, fs, allow_unstable):
     if not isinstance(sw, dict) or any(k not in sw for k in ("alpha", "headroom_v")):
         raise MimoControllerError(src, "iff.stack_window", "needs alpha and headroom_v (each stack's current-limit "
                                                            "window); re-export the controller")
-    for k, hi in (("alpha", 1.0), ("headroom_v", np.inf)):
+    span = np.asarray(stack_limits_v, float) @ np.array([-1.0, 1.0])
+    for k, hi in (("alpha", np.ones(3)), ("headroom_v", span)):
         v = _array(src, f"iff.stack_window.{k}", sw[k], "three positive numbers", 1, MimoControllerError)
         if v.shape != (3,) or np.any(v <= 0) or np.any(v > hi):
-            raise MimoControllerError(src, f"iff.stack_window.{k}", f"must be three numbers in (0, {hi:g}]; "
-                                                                    f"got {sw[k]!r}")
+            what = "1" if k == "alpha" else f"each stack's range hi - lo = {', '.join(f'{x:g}' for x in hi)} V"
+            raise MimoControllerError(src, f"iff.stack_window.{k}", f"must be three numbers in (0, {what}]; "
+                                                                    f"got {sw[k]!r}; re-export the controller")
     ctr = data.get("controllers")
     if not isinstance(ctr, dict):
         raise MimoControllerError(src, "iff.controllers", "must be a table {stack0, stack1, stack2}")

@@ -156,6 +156,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
     if des_s.get("iff", False):
         damped = design_mimo(fsm, fam, damping=True, spec=lsspec, nominal=nom, iff_source="bridge",
                              progress=lambda d, t: stage("damped design", d, t))
+        verified_drift = _verified_drift(fsm, plant_path, lsspec.fc_range_hz[0])
         dctrl = MimoController.from_design(damped, fsm, name=f"{name}_iff",
                                            record={"study": str(path), "design": damped.summary(),
                                                    "noise_gain_bound": rho})
@@ -177,7 +178,8 @@ def run_mirror_study(study_path, out_dir, progress=None):
             "modes_hz": list(map(float, modes_hz)), "mode_damping": list(map(float, zeta)),
             "exported": {k: str(v) for k, v in paths.items() if k in ("json", "h")},
             "damped": None if damped is None else {
-                "design": damped.summary(), "exported": {k: str(v) for k, v in damped_paths.items() if k in ("json", "h")}},
+                "design": damped.summary(), "verified_drift": verified_drift,
+                "exported": {k: str(v) for k, v in damped_paths.items() if k in ("json", "h")}},
             "figures": {k: str(v) for k, v in figs.items()},
             "axis_ranges_v": {k: list(c.output_limits_v) for k, c in ctrl.axes.items()},
             "axis_windows": {k: list(c.voltage_model) for k, c in ctrl.axes.items()}}
@@ -220,7 +222,7 @@ def run_mirror_study(study_path, out_dir, progress=None):
               "## Figures", "", md_image("MIMO Bode", figs["bode"], md), "", md_image("disk margins", figs["disk"], md),
               "", md_image("modes", figs["modes"], md), ""]
     if damped is not None:
-        lines += _damped_section(summ, damped, damped_paths, plant_path, budgets)
+        lines += _damped_section(summ, damped, damped_paths, plant_path, budgets, verified_drift)
     rows = [[lab, f"{fm:.1f}", f"{100 * z:.2f}"] for lab, fm, z in zip(labels, modes_hz, zeta)]
     lines += [f"Structural modes of the nominal member ({nname}: amplifiers in the loop, stacks at their slopes):", ""] + md_table(["mode", "Hz", "damping %"], rows)
     write_text(md, "\n".join(lines) + "\n")
@@ -236,9 +238,25 @@ def damped_ratio_met(ratios, floor=2.0):
     return bool(all(float(r) >= floor for r in list(ratios)[:2]))
 
 
-def _damped_section(summ, damped, paths, plant_path, budgets_v):
+def _verified_drift(fsm, plant_path, fc_min_hz):
+    """The IFF corner checked against the mirror ``workbench verify`` runs by default (every stack with the creep
+    branches of :data:`~workbench.verify.mirror.VERIFY_CREEP_FILE`, next to the mirror file): :func:`iff_corner_hz`'s
+    info dict plus ``creep_file``; refused (:class:`DesignError`) when the corner does not clear that drift by
+    :data:`~workbench.design.mimo.IFF_DRIFT_MARGIN`. None when that creep file is not there (verify would then need
+    ``creep_file``)."""
+    from ..design.mimo import iff_corner_hz
+    from ..plant.files import load_plant
+    from ..verify.mirror import VERIFY_CREEP_FILE, verification_mirror
+    creep = Path(plant_path).parent / VERIFY_CREEP_FILE
+    if not creep.is_file():
+        return None
+    _, info = iff_corner_hz(verification_mirror(fsm, (1.0, 1.0, 1.0), load_plant(creep)), fc_min_hz)
+    return {**info, "creep_file": str(creep)}
+
+
+def _damped_section(summ, damped, paths, plant_path, budgets_v, verified_drift=None):
     """Report lines: the IFF-damped design beside the notch-only one (worst members), and its export."""
-    from ..design.mimo import AXIS_NAMES
+    from ..design.mimo import AXIS_NAMES, IFF_DRIFT_MARGIN, IFF_MIN_OUTER_NOISE_SHARE
     from ..report.markdown import md_table
     ds = damped.summary()
     i = ds["iff"]
@@ -256,11 +274,24 @@ def _damped_section(summ, damped, paths, plant_path, budgets_v):
             f"the nominal incremental C_h): gain {i['gain_v_per_n']:.4g} V/N, high-pass {i['corner_hz']:.3g} Hz; "
             f"flexure damping {100 * i['zeta_min_open']:.2f} % -> {100 * i['zeta_min_damped']:.2f} % (nominal "
             f"member). Same family and spec as above (noise budget included). The high-pass is tan(10 deg) x the "
-            f"lowest crossover searched (design.mimo.iff_corner_hz), above the fastest drift the bridge reads "
-            f"({i['drift_hz']:.3g} Hz, {i['drift_source']}). The bridge noise through the IFF leads each stack's "
+            f"lowest crossover searched (design.mimo.iff_corner_hz), at least {IFF_DRIFT_MARGIN:g}x the fastest "
+            f"drift the bridge reads: in the serial files {i['drift_hz']:.3g} Hz ({i['drift_source']}; "
+            f"{i['drift_margin']:.3g}x)" + (
+                "; the verified mirror's creep file was not found, so it was not checked against verify's creep."
+                if verified_drift is None else
+                f"; on the mirror `workbench verify` runs (every stack with the creep of "
+                f"`{verified_drift['creep_file']}`) {verified_drift['drift_hz']:.3g} Hz ({verified_drift['drift_source']}): "
+                f"corner {verified_drift['drift_margin']:.3g}x above it, the high-pass passing "
+                f"{100 * verified_drift['drift_gain']:.0f} % of that drift.")
+            + f" The bridge noise through the IFF leads each stack's "
             f"command by {_fmt_list(np.array(i['command_noise_v']) * 1e3, '.3g')} mV RMS against the current "
-            f"window's budget {_fmt_list(np.array(budgets_v) * 1e3, '.3g')} mV; the export holds each stack's whole "
-            f"command (axes + IFF) within R min(I_source, I_sink) of its RC model.", ""] + md_table(
+            f"window's budget {_fmt_list(np.array(budgets_v) * 1e3, '.3g')} mV"
+            + ("" if i.get("outer_noise_share") is None else
+               f"; the outer loops keep {i['outer_noise_share']:.5f} of it (RMS share; warned below "
+               f"{IFF_MIN_OUTER_NOISE_SHARE:.3f}, an equal split of its variance)"
+               + ("" if not i.get("outer_noise_share_warning") else f". **Warning**: {i['outer_noise_share_warning']}"))
+            + "; the export holds each stack's whole command (axes + IFF) within R min(I_source, I_sink) of its RC "
+              "model.", ""] + md_table(
         ["axis", "bandwidth notch only / damped, Hz (worst member)", "damped / notch only", "PM deg notch / damped",
          "GM dB notch / damped"], rows) + [
         "", f"Damped simultaneous alpha {alpha:.3f}. Issue 15's 2x target: "

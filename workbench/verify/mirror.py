@@ -627,11 +627,12 @@ def check_pairing(plant_path, controller_path):
     return mirror
 
 
-MIRROR_CREEP_FILE = "p888_51_sn637_creep.toml"      # the creep stack beside the mirror file (run_mirror_verify)
+# the creep file (next to the mirror file) whose branches every stack gets in the verification (assumed)
+VERIFY_CREEP_FILE = "p888_51_sn637_creep.toml"
 
 
 def run_mirror_verify(plant_path, controller_path, out_dir=None, c_h_scales=(1.0, 0.85, 1.15),
-                      creep_file=MIRROR_CREEP_FILE, noise=True, seed=0, names=None, progress=None,
+                      creep_file=VERIFY_CREEP_FILE, noise=True, seed=0, names=None, progress=None,
                       **sizes):
     """``workbench verify plants/fsm_*.toml --controller NAME.json``: scenarios, figures, report.
 

@@ -1,0 +1,137 @@
+"""Dielectric absorption or leakage (workbench/calibrate/absorption_or_leakage.py).
+
+The closed form the rule rests on (an absorption's bend beyond leakage's line over a record),
+the rule's branches on constructed fold scores, and drawn records: leakage and absorption at
+10 kHz, 2 s, sizes log-uniform over the confusion benchmark's whole range, the absorption's time
+constant log-uniform from 1/20 to 20 record lengths. What the physics distinguishes must never
+be confused: a leakage (no bend at all) named absorption, an absorption that settles within half
+the record (its shape is in the record) named leakage, or any other effect named.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tests.conftest import FULL, load_benchmark
+from workbench.calibrate import absorption_or_leakage as al
+
+
+@pytest.mark.parametrize("records_per_tau", [0.02, 0.05, 0.1, 0.2])
+def test_the_bend_beyond_leakages_line_is_the_closed_form(records_per_tau):
+    """k (1 - exp(-t / tau)) on [0, T] less its best line (offset and slope, as the base's offset
+    and leakage's column take): RMS sqrt(3/5) / 12 x T / tau of the line's term, to first order."""
+    T, tau = 1.0, 1.0 / records_per_tau
+    t = np.linspace(0.0, T, 200_001)
+    y = 1.0 - np.exp(-t / tau)
+    A = np.column_stack([np.ones_like(t), t])
+    c = np.linalg.lstsq(A, y, rcond=None)[0]
+    bend = np.sqrt(np.mean((y - A @ c) ** 2))
+    line = abs(c[1]) * T / np.sqrt(3.0)
+    # the next order is relative T / tau smaller
+    assert bend / line == pytest.approx(al.BEND_PER_RECORD * T / tau, rel=records_per_tau)
+
+
+def _rows(tau_s, a_lk, a_da, E, n_folds=5):
+    """Constructed fold scores: leakage explains E and leaves a_lk, the absorption leaves a_da."""
+    b = float(np.hypot(E, a_lk))
+    key = ("charge", "model")
+    befores = {key: [b] * n_folds}
+    lk = {"name": "leakage", "channel": "charge", "key": key, "n_params": 1, "params": {},
+          "ratios": [a_lk * 1.02 / b] * n_folds}
+    da = {"name": "dielectric_absorption", "channel": "charge", "key": key, "n_params": 2,
+          "params": {"tau_s": tau_s}, "ratios": [a_da * 1.04 / b] * n_folds}
+    return lk, da, befores
+
+
+@pytest.mark.parametrize("T", [0.1, 2.0, 35.0])
+def test_the_rules_branches(T):
+    floor = 1.0
+    infos = {"duration_s": T, "charge": {"noise_floor": floor}}
+    need = al.SETTLED_RECORDS / (al.BEND_PER_RECORD)        # E / a at which tau_bound = T / 2
+
+    def decide(tau_s, a_lk, a_da, E):
+        lk, da, befores = _rows(tau_s, a_lk, a_da, E)
+        tags = {("leakage", "charge"): lk, ("dielectric_absorption", "charge"): da}
+        out = al.absorption_or_leakage(lk, tags, 0, befores, infos, 0.02, 1.0, 0.3)
+        return None if out is None else out["name"]
+
+    a = 10.0 * floor
+    # settled within half the record: the fold's ranking stands (here leakage ranked first)
+    assert decide(0.4 * T, a, a, 100 * a) == "leakage"
+    # a bend beyond the floor on every fold: absorption, whatever its time constant
+    assert decide(3.0 * T, a, np.sqrt(a * a - 4 * floor ** 2), 5 * a) == "dielectric_absorption"
+    assert decide(100.0 * T, a, 0.5 * a, 5 * a) == "dielectric_absorption"
+    # no bend, fitted slower than ten records, and the record rules out every absorption settling
+    # within half of it: leakage; just short of that: undecided
+    assert decide(al.LEAKAGE_TAU_RECORDS * T, a, a, 1.01 * need * a) == "leakage"
+    assert decide(al.LEAKAGE_TAU_RECORDS * T, a, a, 0.99 * need * a) is None
+    # no bend but a time constant within ten records: undecided
+    assert decide(0.99 * al.LEAKAGE_TAU_RECORDS * T, a, a, 100 * need * a) is None
+    lk, _, befores = _rows(1.0, a, a, 3.0 * a)
+    assert al.tau_bound_s(lk, 0, befores, 0.02, T) == pytest.approx(al.BEND_PER_RECORD * T * 3.0)
+
+
+def _draws(n, seed):
+    """(effect, protocol, size, tau over the record or None, seed) for ``n`` leakage and ``n``
+    absorption records: sizes log-uniform over the benchmark's range, tau from 1/20 to 20 records."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(seed)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for k in range(n):
+        proto = ("calibration", "sine", "steps")[k % 3]
+        for e in ("leakage", "dielectric_absorption"):
+            size = float(np.exp(rng.uniform(lo, hi)))
+            tau_records = float(np.exp(rng.uniform(np.log(0.05), np.log(20.0)))) if e != "leakage" else None
+            out.append((e, proto, size, tau_records, int(rng.integers(1 << 30))))
+    return out
+
+
+def _trace(sn637, effect, protocol, size, tau_records, seed):
+    from workbench.calibrate.base_fit import fit_base
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
+    from workbench.calibrate.tracing import trace_effect
+    cc = load_benchmark("calibrate_confusion")
+    rate = 1e4
+    t, v = benchmark_protocol(protocol, rate, cc.QUICK_ROWS)
+    T = float(t[-1] - t[0])
+    plant, truth = plant_with_effect(sn637, effect, seed, duration_s=float(t[-1]), size=size)
+    if tau_records is not None:
+        plant = dataclasses.replace(plant, additions=dataclasses.replace(
+            plant.additions, absorption_time_constant_s=tau_records * T))
+    r = simulate_record(plant, t, v, seed=seed)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    base = fit_base(cc._record(r, 1.0 / rate), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
+                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    return trace_effect(base, split=sp), T
+
+
+@pytest.mark.parametrize("seed", (0, 1) if FULL else (0,))
+def test_drawn_records_confuse_nothing_the_physics_tells_apart(sn637, seed):
+    """Leakage and absorption records drawn over the whole size range and time constants from
+    1/20 to 20 record lengths: a leakage is never named absorption, an absorption settling within
+    half the record never leakage, and nothing else is named. An absorption slower than that may
+    be named leakage (its bend below what the record resolves: the nested, simpler reading); such
+    records are printed, not asserted. A named leakage carries the note."""
+    wrong, unresolved, named = [], [], []
+    for e, proto, size, tau_records, s in _draws(6, seed):
+        res, T = _trace(sn637, e, proto, size, tau_records, s)
+        names = [st["effect"] for st in res["stages"]]
+        print(f"\n{e:22s} {proto:11s} x{size:7.3f} tau/T {tau_records if tau_records is None else round(tau_records, 2)}"
+              f" -> {names} {res['fold_winners']}")
+        named.append(names)
+        if set(names) - {"leakage", "dielectric_absorption"}:
+            wrong.append((e, proto, size, tau_records, names))
+        elif e == "leakage" and "dielectric_absorption" in names:
+            wrong.append((e, proto, size, tau_records, names))
+        elif e == "dielectric_absorption" and "leakage" in names:
+            (unresolved if tau_records >= al.SETTLED_RECORDS else wrong).append((e, proto, size, tau_records, names))
+        for st in res["stages"]:
+            if st["effect"] == "leakage" and st.get("note"):
+                assert "would look the same" in st["note"]
+    print(f"\nslow absorptions named leakage (unresolved by the record): {unresolved}")
+    assert not wrong, wrong
+    # the draws must reach the rule: some records named at all (not a test passed by silence)
+    assert sum(bool(n) for n in named) >= 3, named
