@@ -677,7 +677,8 @@ FUZZ3 = [
     ("identify-table-back-emf-mv", ["identify", "transducer", "bad/t_back_emf_mv.csv"],
      ["bad/t_back_emf_mv.csv", "outside (0, 10000] N/V"]),
     ("identify-table-r-in-only", ["identify", "transducer", "bad/t_r_in_only.csv"], ["bad/t_r_in_only.csv", "R_out"]),
-    ("identify-mirror-file", ["identify", "transducer", FSM], ["fsm_p888_51.toml"]),
+    ("identify-mirror-file", ["identify", "transducer", FSM], ["fsm_p888_51.toml: is a .toml file, not a Table 1"]),
+    ("identify-controller-file", ["identify", "transducer", "controllers/mimo.json"], ["is a .json file, not a Table 1"]),
 ]
 
 
