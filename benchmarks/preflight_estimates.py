@@ -62,6 +62,14 @@ def main():
     slope("freefree_sample", lambda c: run_freefree(plant, cycles=c, freq_hz=0.1), 2, 20, fs / 0.1)
     slope("verify_period", lambda h: run_verify(CREEP, CTRL, ("hold",), hold_s=h), 20.0, 400.0, 10_000.0)
     slope("selfsense_second", lambda d: run_selfsense(CREEP, duration_s=d, loop=False), 200.0, 1200.0, 1.0)
+    from workbench.controller import Controller
+    from workbench.verify.sensors import run_sensor_loop, sensor_setup
+    creep = load_plant(CREEP)
+    fused = Controller.load(ROOT / "controllers" / "sn637_fused_loopshape.json")
+    setup = sensor_setup(creep, fused)
+    # the open loop and the 20 s triangle are the same at both holds: the difference is the hold's periods
+    slope("verify_sensor_period", lambda h: run_sensor_loop(setup, fused, "fused", hold_s=h, sweep=False), 3.0, 60.0,
+          10_000.0)
     amps = (1.0, 10.0)
     slope("linearize_point",
           lambda n: run_linearize(PLANT, spec=FamilySpec(amplitudes_v=amps, freq_hz=tuple(np.geomspace(1, 2000, n)))),

@@ -35,6 +35,8 @@ CTRL = "controllers/sn637_loopshape.json"
 STUDY = "studies/sn637_servo.toml"
 TABLE = "plants/data/p888_51_instron_table1.csv"
 RECORD = "data/record.csv"
+FUSED = "controllers/sn637_fused_loopshape.json"
+FSM = "plants/fsm_p888_51.toml"
 
 
 def _study_text(replace=None, append=""):
@@ -165,7 +167,77 @@ def ws(tmp_path_factory):
     head, _, body = table.decode("utf-8").partition("back_emf[V]\n")
     zero = [",".join(r.split(",")[:5] + ["0.0"] + r.split(",")[6:]) for r in body.splitlines()]
     (bad / "table_zero_force.csv").write_text(head + "back_emf[V]\n" + "\n".join(zero) + "\n", encoding="utf-8")
+    _fuzz3_files(ws)
     return ws
+
+
+def _fuzz3_files(ws):
+    """The third outside pass's inputs (README "Bad input", fuzz3): sensor blocks, MIMO controllers, mirror studies."""
+    import copy
+    import importlib.util
+    bad = ws / "bad"
+    fused = json.loads((ROOT / FUSED).read_text(encoding="utf-8"))
+
+    def dump(name, data):
+        # NaN / Infinity written as JSON's extensions, as Python's json (and a careless script) writes them
+        (bad / name).write_text(json.dumps(data, indent=1), encoding="utf-8")
+
+    for name, key, value in (("wait_1e300", "startup_wait_s", 1e300), ("wait_1e9", "startup_wait_s", 1e9),
+                             ("wait_neg", "startup_wait_s", -1.0), ("wait_text", "startup_wait_s", "4.7"),
+                             ("wait_nan", "startup_wait_s", float("nan")), ("lead_1e3", "ref_lead_s", 1e3),
+                             ("lead_1e300", "ref_lead_s", 1e300), ("lead_inf", "ref_lead_s", float("inf")),
+                             ("curv_1e300", "gauge_curvature_per_m", 1e300), ("curv_m1e9", "gauge_curvature_per_m", -1e9),
+                             ("curv_1e6", "gauge_curvature_per_m", 1e6), ("curv_sign", "gauge_curvature_per_m", 25.3),
+                             ("typo_key", "startup_wait_ms", 4707.6), ("kind_case", "kind", "Fused")):
+        d = copy.deepcopy(fused)
+        d["sensor"][key] = value
+        dump(f"f_{name}.json", d)
+    d = copy.deepcopy(fused)
+    d["sensor"]["blend"]["kk"] = 1
+    dump("f_blend_typo.json", d)
+    # the mirror: a quick decoupled design (tests/verify/mirror_cases.py), notch-only and IFF-damped
+    from workbench.export.mimo import MimoController
+    from workbench.plant.mirror import load_mirror
+    spec = importlib.util.spec_from_file_location("mirror_cases", ROOT / "tests" / "verify" / "mirror_cases.py")
+    cases = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cases)
+    fsm = load_mirror(ws / FSM)
+    for name, iff in (("mimo", False), ("mimo_iff", True)):
+        design, _ = cases.quick_design(fsm, iff=iff)
+        MimoController.from_design(design, fsm, name=name).write(ws / "controllers", name)
+    m = json.loads((ws / "controllers" / "mimo_iff.json").read_text(encoding="utf-8"))
+    for name, change in (("alpha_off", lambda d: d["iff"]["stack_window"].__setitem__("alpha", [0.5] * 3)),
+                         ("alpha_one", lambda d: d["iff"]["stack_window"].__setitem__("alpha", [1.0] * 3)),
+                         ("head_1e300", lambda d: d["iff"]["stack_window"].__setitem__("headroom_v", [1e300] * 3)),
+                         ("head_tiny", lambda d: d["iff"]["stack_window"].__setitem__("headroom_v", [1e-30] * 3)),
+                         ("head_inf", lambda d: d["iff"]["stack_window"].__setitem__("headroom_v", [float("inf")] * 3)),
+                         ("alpha_two", lambda d: d["iff"]["stack_window"].__setitem__("alpha", [0.1, 0.1])),
+                         ("corner_1e300", lambda d: d["iff"]["bridge"].__setitem__("corner_hz", 1e300)),
+                         ("corner_off", lambda d: d["iff"]["bridge"].__setitem__("corner_hz", 88.0)),
+                         ("noise_1e300", lambda d: d["iff"]["bridge"].__setitem__("out_noise_v_rms", 1e300)),
+                         ("typo_key", lambda d: d["iff"].__setitem__("stack_windows", d["iff"]["stack_window"])),
+                         ("bridge_typo", lambda d: d["iff"]["bridge"].__setitem__("corner", 8.8)),
+                         ("iff_null", lambda d: d.__setitem__("iff", None)),
+                         ("sw_missing", lambda d: d["iff"].pop("stack_window"))):
+        d = copy.deepcopy(m)
+        change(d)
+        dump(f"m_{name}.json", d)
+    # Table 1 as the force study cannot read it (library cases: tests beside check_force_table); identify's view
+    table = (ROOT / TABLE).read_text(encoding="utf-8")
+    (bad / "t_back_emf_mv.csv").write_text(table.replace("back_emf[V]", "back_emf[mV]"), encoding="utf-8")
+    (bad / "t_r_in_only.csv").write_text("\n".join(r for r in table.splitlines() if "R_out" not in r) + "\n",
+                                         encoding="utf-8")
+    # a stack study given the mirror's design key; mirror studies with odd [design] values
+    (ws / "studies" / "stack_iff.toml").write_text(_study_text(append="\n[design]\niff = true\n"), encoding="utf-8")
+    fsm_study = (ROOT / "studies" / "fsm_servo.toml").read_text(encoding="utf-8")
+    for name, old, new in (("fsm_iff_text", "noise_budget = true", 'noise_budget = true\niff = "yes"'),
+                           ("fsm_iff_corner", "noise_budget = true", "noise_budget = true\niff = true\niff_corner_hz = 8.8"),
+                           ("fsm_fc_reversed", "noise_budget = true",
+                            "noise_budget = true\nfc_min_hz = 900.0\nfc_max_hz = 100.0"),
+                           ("fsm_plant_stack", 'plant = "../plants/fsm_p888_51.toml"',
+                            'plant = "../plants/p888_51_sn637.toml"')):
+        assert old in fsm_study, old
+        (ws / "studies" / f"{name}.toml").write_text(fsm_study.replace(old, new), encoding="utf-8")
 
 
 def _hashes(ws):
@@ -488,6 +560,127 @@ OTHERS = [
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
 ]
 
+# the third outside pass (fuzz3, README "Bad input"): the sensor block's startup fields, the MIMO controller's
+# iff block, mirror studies, selfsense --force, outputs onto files a mirror reads
+_VS = ["--sensor", "fused", "--hold", "3s", "--out", "{out}"]
+FUZZ3 = [
+    # ---- the sensor block (export/sensor.py, controller.py): NaN / negative / text / huge / misspelt ----------
+    # 1e300 s and 1e9 s of open loop: "Maximum allowed dimension exceeded" and a MemoryError traceback after ~35 s
+    ("verify-fused-wait-1e300", ["verify", CREEP, "--controller", "bad/f_wait_1e300.json", *_VS],
+     ["bad/f_wait_1e300.json: [sensor.startup_wait_s] 1e+300 s of open loop", "more than this machine"]),
+    ("verify-fused-wait-1e9", ["verify", CREEP, "--controller", "bad/f_wait_1e9.json", *_VS],
+     ["[sensor.startup_wait_s] 1e+09 s", "40 TB of memory"]),
+    ("verify-fused-wait-negative", ["verify", CREEP, "--controller", "bad/f_wait_neg.json", *_VS],
+     ["bad/f_wait_neg.json: [sensor.startup_wait_s]", ">= 0 s"]),
+    ("verify-fused-wait-text", ["verify", CREEP, "--controller", "bad/f_wait_text.json", *_VS],
+     ["[sensor.startup_wait_s] must be a number; got '4.7'"]),
+    ("verify-fused-wait-nan", ["verify", CREEP, "--controller", "bad/f_wait_nan.json", *_VS],
+     ["[sensor.startup_wait_s] must be a finite number"]),
+    # a lead of 1e3 s and 1e300 s and a curvature of +-1e6..1e300 1/m ran the loops on garbage references/readings
+    ("verify-fused-lead-1e3", ["verify", CREEP, "--controller", "bad/f_lead_1e3.json", *_VS],
+     ["bad/f_lead_1e3.json: [sensor.ref_lead_s] 1000 s", "1/K_v = 0.00040", "larger ramp error than no lead"]),
+    ("verify-fused-lead-1e300", ["verify", CREEP, "--controller", "bad/f_lead_1e300.json", *_VS],
+     ["[sensor.ref_lead_s] 1e+300 s"]),
+    ("verify-fused-lead-inf", ["verify", CREEP, "--controller", "bad/f_lead_inf.json", *_VS],
+     ["[sensor.ref_lead_s] must be a finite number"]),
+    ("verify-fused-curvature-1e300", ["verify", CREEP, "--controller", "bad/f_curv_1e300.json", *_VS],
+     ["bad/f_curv_1e300.json: [sensor.gauge_curvature_per_m] 1e+300 1/m", "curves by -25.3", "[-50.61, 0] 1/m"]),
+    ("verify-fused-curvature-m1e9", ["verify", CREEP, "--controller", "bad/f_curv_m1e9.json", *_VS],
+     ["[sensor.gauge_curvature_per_m] -1e+09 1/m"]),
+    ("verify-fused-curvature-sign", ["verify", CREEP, "--controller", "bad/f_curv_sign.json", *_VS],
+     ["[sensor.gauge_curvature_per_m] 25.3 1/m", "more than the linear calibration"]),
+    # the gauge scenarios read a carried curvature too (verify/closed_loop.py)
+    ("verify-fused-curvature-gauge-scenario", ["verify", CREEP, "--controller", "bad/f_curv_1e6.json",
+                                               "--scenario", "small_step", "--out", "{out}"],
+     ["[sensor.gauge_curvature_per_m] 1e+06 1/m"]),
+    ("bench-fused-curvature", ["bench", "--controller", "bad/f_curv_1e300.json", "--steps", "10"],
+     ["[sensor.gauge_curvature_per_m] 1e+300"]),
+    ("sweep-fused-curvature", ["sweep", "studies/sn637_fused_servo.toml", "--controller", "bad/f_curv_1e300.json",
+                               "--out", "{out}"], ["bad/f_curv_1e300.json: [sensor.gauge_curvature_per_m] 1e+300"]),
+    # a misspelt key dropped firmware's setting without a word (the harness computed its own wait)
+    ("verify-fused-typo-key", ["verify", CREEP, "--controller", "bad/f_typo_key.json", *_VS],
+     ["bad/f_typo_key.json: [sensor.startup_wait_ms] unknown key", "startup_wait_s"]),
+    ("verify-fused-blend-typo-key", ["verify", CREEP, "--controller", "bad/f_blend_typo.json", *_VS],
+     ["[sensor.blend.kk] unknown key"]),
+    ("verify-fused-kind-case", ["verify", CREEP, "--controller", "bad/f_kind_case.json", *_VS],
+     ["[sensor.kind] must be one of gauge, charge, fused; got 'Fused'"]),
+    # selfsense --fused read its --fused-controller only after ~30 s of identification
+    ("selfsense-fused-controller-lead-1e3", ["selfsense", CREEP, "--fused", "--fused-controller", "bad/f_lead_1e3.json",
+                                             "--hold", "3s"], ["bad/f_lead_1e3.json: [sensor.ref_lead_s] 1000 s"]),
+    ("selfsense-fused-controller-nan", ["selfsense", CREEP, "--fused", "--fused-controller", "bad/f_wait_nan.json",
+                                        "--hold", "3s"], ["bad/f_wait_nan.json: [sensor.startup_wait_s]"]),
+    ("selfsense-fused-controller-mimo", ["selfsense", CREEP, "--fused", "--fused-controller", "controllers/mimo.json",
+                                         "--hold", "3s"], ["controllers/mimo.json: [schema] is a MIMO mirror controller"]),
+    ("verify-fused-sensor-gauge-strict", ["verify", CREEP, "--controller", FUSED, "--sensor", "gauge", "--hold", "3s",
+                                          "--strict"], [FUSED, "--sensor gauge", "'fused'"]),
+    # ---- the MIMO controller's iff block (export/mimo.py) against the mirror it runs on -------------------------
+    # alpha 0.5 / 1, headroom 1e300 V / 1e-30 V and a 1e300 Hz or 88 Hz bridge corner: ran to exit 0
+    *[(f"verify-mirror-{name}", ["verify", FSM, "--controller", f"bad/m_{name}.json", "--out", "{out}"],
+       [f"bad/m_{name}.json: [{key}]", frag])
+      for name, key, frag in (("alpha_off", "iff.stack_window.alpha", "not the current-limit window of the stacks"),
+                              ("alpha_one", "iff.stack_window.alpha", "0.102146"),
+                              ("head_1e300", "iff.stack_window.headroom_v", "each stack's range"),
+                              ("head_tiny", "iff.stack_window.headroom_v", "re-export"),
+                              ("head_inf", "iff.stack_window.headroom_v", "finite"),
+                              ("alpha_two", "iff.stack_window.alpha", "three numbers"),
+                              ("corner_1e300", "iff.bridge.corner_hz", "Nyquist"),
+                              ("corner_off", "iff.bridge.corner_hz", "not the cascades'"),
+                              ("noise_1e300", "iff.bridge.out_noise_v_rms", "ADC range 10 V"),
+                              ("typo_key", "iff.stack_windows", "unknown key"),
+                              ("bridge_typo", "iff.bridge.corner", "unknown key"),
+                              ("iff_null", "iff", "must be a table"),
+                              ("sw_missing", "iff.stack_window", "needs alpha and headroom_v"))],
+    # a mirror controller where a single-stack one is needed, and the reverse
+    ("verify-stack-with-mimo", ["verify", CREEP, "--controller", "controllers/mimo.json", "--out", "{out}"],
+     ["controllers/mimo.json: [schema] is a MIMO mirror controller", "single-stack plant"]),
+    ("verify-mirror-with-fused", ["verify", FSM, "--controller", FUSED, "--out", "{out}"],
+     [FUSED, "[schema] is not a MIMO controller"]),
+    ("verify-mirror-with-an-iff-cascade", ["verify", FSM, "--controller", "controllers/mimo_iff_iff_stack0.json"],
+     ["mimo_iff_iff_stack0.json: [schema] is not a MIMO controller"]),
+    ("linearize-with-mimo", ["linearize", PLANT, "--controller", "controllers/mimo.json"],
+     ["controllers/mimo.json: [schema] is a MIMO mirror controller", "single-stack controller"]),
+    ("bench-with-mimo", ["bench", "--controller", "controllers/mimo.json"], ["[schema] is a MIMO mirror controller"]),
+    ("selfsense-with-mimo", ["selfsense", CREEP, "--controller", "controllers/mimo.json"],
+     ["[schema] is a MIMO mirror controller"]),
+    # ---- outputs onto files a mirror reads: its stack files and the creep file beside them ----------------------
+    ("verify-mirror-json-onto-a-stack-file", ["verify", FSM, "--controller", "controllers/mimo.json", "--json", PLANT],
+     [PLANT, "is the input plants/fsm_p888_51.toml: stacks.files[0]"]),
+    ("verify-mirror-json-onto-its-creep-file", ["verify", FSM, "--controller", "controllers/mimo.json", "--json", CREEP],
+     [CREEP, "the creep plant beside it"]),
+    ("study-mirror-json-onto-a-stack-file", ["study", "studies/fsm_servo.toml", "--out", "{out}", "--json",
+                                             "plants/p888_51_sn618.toml"], ["stacks.files[2]"]),
+    ("verify-mirror-out-under-file", ["verify", FSM, "--controller", "controllers/mimo.json", "--out", "bad/a_file/v"],
+     ["bad/a_file", "is a file"]),
+    # ---- mirror and stack studies ------------------------------------------------------------------------------
+    ("study-stack-design-iff", ["study", "studies/stack_iff.toml", "--out", "{out}"], ["stack_iff.toml", "[design]"]),
+    ("study-stack-set-design-iff", ["study", STUDY, "--out", "{out}", "--set", "design.iff=true"], ["design.iff"]),
+    ("study-mirror-iff-text", ["study", "studies/fsm_iff_text.toml", "--out", "{out}"],
+     ["fsm_iff_text.toml: [design.iff] got 'yes'"]),
+    ("study-mirror-iff-corner-key", ["study", "studies/fsm_iff_corner.toml", "--out", "{out}"],
+     ["fsm_iff_corner.toml", "iff_corner_hz"]),
+    ("study-mirror-fc-reversed", ["study", "studies/fsm_fc_reversed.toml", "--out", "{out}"],
+     ["fsm_fc_reversed.toml: [design.fc_min_hz]"]),
+    ("study-mirror-plant-is-a-stack", ["study", "studies/fsm_plant_stack.toml", "--out", "{out}"],
+     ["fsm_plant_stack.toml", "[plant]"]),
+    # ---- selfsense --force ---------------------------------------------------------------------------------------
+    ("selfsense-force-json-onto-table1", ["selfsense", CREEP, "--force", "--json", str(ROOT / TABLE)],
+     ["is the input Table 1 the --force study reads"]),
+    ("selfsense-force-step-nan", ["selfsense", CREEP, "--force", "--step-force", "nan"], ["--step-force"]),
+    # a 1 pN step ran, reported as a "+0 N step" missing its target by 12 orders
+    ("selfsense-force-step-1pn", ["selfsense", CREEP, "--force", "--step-force", "1pN"],
+     ["--step-force 1e-12 N", "under 0.768 N", "one ADC step"]),
+    ("selfsense-force-step-unit", ["selfsense", CREEP, "--force", "--step-force", "10kg"], ["--step-force", "'N'"]),
+    ("selfsense-force-and-fused", ["selfsense", CREEP, "--force", "--fused"], ["give one of them"]),
+    ("selfsense-force-out-under-file", ["selfsense", CREEP, "--force", "--out", "bad/a_file/x"], ["bad/a_file"]),
+    ("selfsense-force-mirror-file", ["selfsense", FSM, "--force"], ["fsm_p888_51.toml"]),
+    # ---- Table 1 read by identify (the force study's table checks: tests/selfsense/test_force_table.py) ----------
+    ("identify-table-back-emf-mv", ["identify", "transducer", "bad/t_back_emf_mv.csv"],
+     ["bad/t_back_emf_mv.csv", "outside (0, 10000] N/V"]),
+    ("identify-table-r-in-only", ["identify", "transducer", "bad/t_r_in_only.csv"], ["bad/t_r_in_only.csv", "R_out"]),
+    ("identify-mirror-file", ["identify", "transducer", FSM], ["fsm_p888_51.toml: is a .toml file, not a Table 1"]),
+    ("identify-controller-file", ["identify", "transducer", "controllers/mimo.json"], ["is a .json file, not a Table 1"]),
+]
+
 
 def _run(argv, ws, out, capsys, monkeypatch):
     monkeypatch.chdir(ws)
@@ -500,7 +693,8 @@ def _run(argv, ws, out, capsys, monkeypatch):
     return code, cap.err
 
 
-@pytest.mark.parametrize("argv, fragments", [c[1:] for c in CASES + OTHERS], ids=[c[0] for c in CASES + OTHERS])
+@pytest.mark.parametrize("argv, fragments", [c[1:] for c in CASES + OTHERS + FUZZ3],
+                         ids=[c[0] for c in CASES + OTHERS + FUZZ3])
 def test_bad_input(argv, fragments, ws, tmp_path, capsys, monkeypatch):
     out = tmp_path / "out"
     out.mkdir()
@@ -519,7 +713,7 @@ def test_bad_input(argv, fragments, ws, tmp_path, capsys, monkeypatch):
 
 def test_enough_cases():
     assert len(CASES) + len(OTHERS) >= 100
-    assert len({c[0] for c in CASES + OTHERS}) == len(CASES) + len(OTHERS)
+    assert len({c[0] for c in CASES + OTHERS + FUZZ3}) == len(CASES) + len(OTHERS) + len(FUZZ3)
 
 
 @pytest.mark.parametrize("argv, fragment", [

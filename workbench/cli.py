@@ -53,8 +53,10 @@ def cmd_identify_transducer(args):
     data = res.to_json()
     lines = [f"T_em = {data['t_em_n_per_v']:.2f} N/V over {len(data['runs_used'])} runs "
              f"(seed: {data.get('seed_t_em_n_per_v', 46.71)} N/V)",
-             f"stiffness from R-in runs: {data['stiffness_from_r_in_n_per_um']:.1f} N/um "
-             f"(k_p used: {args.stiffness / 1e6:g} N/um)"]
+             "stiffness from R-in runs: " + (f"{data['stiffness_from_r_in_n_per_um']:.1f} N/um"
+                                              if data["stiffness_from_r_in_n_per_um"] is not None else
+                                              "n/a (no R_in run in the table)")
+             + f" (k_p used: {args.stiffness / 1e6:g} N/um)"]
     for flag in data["runs_flagged"]:
         lines.append(f"  flagged {flag['serial']} run {flag['run']} {flag['config']}: {flag['reason']}")
     _emit(args, data, lines)

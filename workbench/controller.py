@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import ControllerError, ControllerMismatchError
 from .export.fixed_point import FixedPointController, quantize, run_fixed, run_float
-from .export.sensor import SENSOR_KINDS, SensorBlend, run_sensor
+from .export.sensor import SENSOR_KINDS, STARTUP_FIELDS, SensorBlend, run_sensor
 from .export.sos import ExportError, from_sos, to_sos
 
 __all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "X_GAUGE_M", "SensorBlend",
@@ -692,6 +692,12 @@ class Controller:
         if not isinstance(data, dict):
             raise ControllerError(src, "", f"a controller JSON is an object {{sample_rate_hz, gain, sos, ...}}; "
                                            f"got {type(data).__name__}")
+        from .export.mimo import MIMO_SCHEMA
+        if data.get("schema") == MIMO_SCHEMA:
+            raise ControllerError(src, "schema", f"is a MIMO mirror controller ({MIMO_SCHEMA!r}: three axes, three "
+                                                 f"stacks); this needs a single-stack controller (sample_rate_hz, gain, "
+                                                 f"sos), e.g. controllers/sn637_loopshape.json; run the mirror with "
+                                                 f"`workbench verify plants/fsm_p888_51.toml --controller {src}`")
         if "sample_rate_hz" not in data:
             raise ControllerError(src, "sample_rate_hz", "is missing: the servo rate in Hz (e.g. 10000.0)")
         fs = _number(src, "sample_rate_hz", data["sample_rate_hz"], positive=True)
@@ -851,6 +857,50 @@ class Controller:
         return write_controller(out_dir, name, rec, self._words(), sensor=self.sensor)
 
     # ------------------------------------------------------------------ against a plant
+    def check_firmware_settings(self, plant):
+        """Refuse sensor-block settings that would serve ``plant`` worse than carrying none.
+
+        The sensor block may carry firmware's gauge curvature beta and reference lead 1/K_v
+        (:class:`~workbench.export.sensor.SensorBlend`). On ``plant``:
+
+        - a reading x = x_c + u read linearly is off by beta_p u^2 (beta_p of eq. 27,
+          :func:`workbench.plant.gauge.bridge_curvature_per_m`); taking out beta leaves
+          (beta_p - beta) u^2, worse than the linear calibration when |beta_p - beta| > |beta_p|;
+        - a type-1 loop follows a ramp of slope v with the lag v / K_v (K_v of this controller on
+          this plant, :func:`workbench.verify.sensors.velocity_constant_per_s`); a lead lambda / K_v
+          leaves v (1 - lambda) / K_v, worse than no lead when lambda > 2.
+
+        A value within these bounds but not the plant's own (another serial) is a mismatch of
+        :meth:`compare_plant`, not an error.
+
+        Raises
+        ------
+        ControllerMismatchError
+            Naming the controller file, the key, the plant's value and the fix.
+        """
+        sb = self.sensor
+        if sb is None:
+            return
+        from .plant.gauge import bridge_curvature_per_m
+        beta = sb.gauge_curvature_per_m
+        if beta is not None and beta != 0.0:
+            bp = float(bridge_curvature_per_m(plant.gauge))
+            if not abs(bp - beta) <= abs(bp):
+                raise ControllerMismatchError(
+                    f"{self.source}: [sensor.gauge_curvature_per_m] {beta:.6g} 1/m: the bridge of {plant.source} "
+                    f"curves by {bp:.6g} 1/m (eq. 27); taking out {beta:.6g} leaves {bp - beta:.3g} 1/m, more than "
+                    f"the linear calibration's {bp:.3g} 1/m: give a value in [{min(0.0, 2 * bp):.4g}, "
+                    f"{max(0.0, 2 * bp):.4g}] 1/m ({bp:.6g} for this plant), 0 or drop the key")
+        lead = sb.ref_lead_s
+        if lead is not None and lead > 0.0 and self.fixed is not None:
+            from .verify.sensors import velocity_constant_per_s
+            kv = velocity_constant_per_s(self, sb, plant)
+            if kv is not None and lead * kv > 2.0:
+                raise ControllerMismatchError(
+                    f"{self.source}: [sensor.ref_lead_s] {lead:.6g} s is {lead * kv:.3g} times 1/K_v = {1 / kv:.6g} s "
+                    f"of this loop on {plant.source}: a lead over 2/K_v = {2 / kv:.6g} s leaves a larger ramp error "
+                    f"than no lead; give {1 / kv:.6g} s, 0 or drop the key")
+
     def compare_plant(self, plant):
         """Where this controller and ``plant`` disagree (the verify preflight).
 
@@ -930,6 +980,10 @@ class Controller:
         return out
 
 
+SENSOR_BLOCK_KEYS = ("kind", "description", "inputs", "v_per_m", "lsb_m", "error_scale", "crossover_hz", "blend",
+                     *STARTUP_FIELDS)        # the keys SensorBlend.as_dict writes
+
+
 def _sensor_from_block(src, data, fs, fxp):
     """The SensorBlend of a JSON ``sensor`` block (None without one), every value and word checked."""
     if data.get("sensor") is None:
@@ -943,9 +997,24 @@ def _sensor_from_block(src, data, fs, fxp):
     if block.get("kind") not in SENSOR_KINDS:
         raise ControllerError(src, "sensor.kind", f"must be one of {', '.join(SENSOR_KINDS)}; got "
                                                   f"{block.get('kind')!r}")
+    # a misspelt key (startup_wait_ms) would drop firmware's setting without a word: every key is known
+    unknown = [k for k in block if k not in SENSOR_BLOCK_KEYS]
+    if unknown:
+        raise ControllerError(src, f"sensor.{unknown[0]}", f"unknown key; the sensor block's keys are "
+                                                           f"{', '.join(SENSOR_BLOCK_KEYS)}")
+    if isinstance(block.get("blend"), dict):
+        unknown = [k for k in block["blend"] if k not in ("k", "coef_bits", "frac_bits", "pole")]
+        if unknown:
+            raise ControllerError(src, f"sensor.blend.{unknown[0]}", "unknown key; the blend's keys are k, coef_bits, "
+                                                                     "frac_bits, pole")
     for key in ("crossover_hz", "v_per_m", "lsb_m"):
         if block.get(key) is not None:
             _number(src, f"sensor.{key}", block[key], positive=True)
+    for key in STARTUP_FIELDS:                  # named at their key (SensorBlend checks the range)
+        if block.get(key) is not None:
+            v = _number(src, f"sensor.{key}", block[key])
+            if key != "gauge_curvature_per_m" and v < 0:
+                raise ControllerError(src, f"sensor.{key}", f"must be >= 0 s; got {v:g}")
     try:
         return SensorBlend.from_dict(block, 1.0 / fs, fxp.input_frac_bits)
     except KeyError as exc:

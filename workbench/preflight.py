@@ -42,6 +42,10 @@ RUN_COSTS = {
     # verify: one servo period of the closed-loop hold (traces decimated to 20000 points: no memory
     # per period; the other scenarios are fixed-size)
     "verify_period": (2.5e-7, 0.0),
+    # verify --sensor: one servo period of a sensor loop (the charge channel and the sensor step beside the
+    # plant; its traces keep 5 floats per 10 periods): 6.1e-7 s measured between a 3 s and a 60 s hold of
+    # the fused loop at load ~5 (benchmarks/preflight_estimates.py), rounded up
+    "verify_sensor_period": (1.0e-6, 4.0),
     # selfsense: one second of the 10 kHz staircase record through the stages (peak RSS 675 MB at
     # 400 s, 1356 MB at 3000 s: /usr/bin/time)
     "selfsense_second": (1.2e-2, 2.6e5),
@@ -90,6 +94,8 @@ def _files(args):
         add(ins, "plant", "--plant")
     add(ins, "serials", "--serials")
     add(ins, "controller", "--controller")
+    if getattr(args, "fused", False):
+        add(ins, "fused_controller", "--fused-controller")      # selfsense --fused runs it in closed loop
     add(ins, "targets_from", "--targets-from")
     if cmd == "synth":
         add(out_files, "out", "--out")
@@ -129,6 +135,24 @@ def _implicit_inputs(args):
             found.append(("--controller (default)", DEFAULT_CONTROLLER))
         if getattr(args, "fused_controller", None) is None:
             found.append(("--fused-controller (default)", FUSED_CONTROLLER))
+        if getattr(args, "force", False):
+            from .identify.transducer import DEFAULT_TABLE1_PATH
+            found.append(("Table 1 the --force study reads", DEFAULT_TABLE1_PATH))
+    # a mirror file's stack files (verify reads them, and its creep file beside them; a mirror study too)
+    from .plant.mirror import mirror_stack_files
+    mirrors = [Path(args.plant)] if cmd == "verify" and getattr(args, "plant", None) else []
+    if cmd == "study":
+        import tomllib
+        try:
+            mirrors += [p for _, p in _study_inputs(args)]
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            pass                                # the study's own check names the problem
+    for m in map(lambda p: Path(os.path.normpath(p)), mirrors):
+        stacks = mirror_stack_files(m)
+        found += stacks
+        if stacks and cmd == "verify":
+            from .verify.mirror import VERIFY_CREEP_FILE
+            found.append((f"{m}: the creep plant beside it", m.parent / VERIFY_CREEP_FILE))
     return found
 
 
@@ -142,7 +166,7 @@ def _check_files(args):
             _check_csv_delimiter(path, name)
     ins = ins + _implicit_inputs(args)
     for name, path in ins:
-        if name == "--controller" and path.suffix.lower() in (".json", ".mat"):
+        if name in ("--controller", "--fused-controller") and path.suffix.lower() in (".json", ".mat"):
             if args.command == "verify" and _mirror_pairing(args, path):
                 continue          # a three-stack mirror and its MIMO controller (validated there)
             # the one controller loader validates it now, not after minutes of linearization
@@ -155,6 +179,19 @@ def _check_files(args):
                         f"--controller {path}: [sample_rate_hz] {ctrl.sample_rate_hz:g} Hz differs from the servo "
                         f"rate {fs:g} Hz of {args.plant} (its gauge modulation): it cannot run on this plant; "
                         f"export the controller at {fs:g} Hz")
+            plant_arg = getattr(args, "plant", None)
+            if args.command in ("verify", "selfsense", "bench") and plant_arg is not None:
+                # the sensor block's gauge curvature and reference lead, on the plant the loop closes on
+                ctrl.check_firmware_settings(_plant(plant_arg))
+            if args.command == "sweep" and ctrl.sensor is not None:
+                import tomllib
+                try:
+                    plants = [p for _, p in _study_inputs(args)]
+                except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+                    plants = []                       # the study's own check names the problem
+                for p in plants:                      # the sweep closes the loop on every serial of the study
+                    if p.is_file():
+                        ctrl.check_firmware_settings(_plant(p))
     for name, path in out_files:
         check_output_file(path, name, inputs=ins)
     for name, path in out_dirs:
@@ -182,7 +219,9 @@ def _mirror_pairing(args, path):
     if not check_pairing(args.plant, path):
         return False
     from .export.mimo import MimoController
-    MimoController.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+    from .plant.mirror import load_mirror
+    ctrl = MimoController.load(path, allow_unstable=getattr(args, "allow_unstable", False))
+    ctrl.check_mirror(load_mirror(args.plant))          # a damped export's windows and corner are the stacks'
     return True
 
 
@@ -455,6 +494,32 @@ def _controller_rate_hz(path, default):
     return rate if math.isfinite(rate) and rate > 0 else default
 
 
+def _default_scenarios():
+    from .cli import _DEFAULT_SCENARIOS
+    return _DEFAULT_SCENARIOS
+
+
+def _verify_sensor_loops(args):
+    """The sensor loops verify will run (kinds) and the startup wait each takes from the controller, s."""
+    sensor = getattr(args, "sensor", None)
+    if sensor is None and getattr(args, "targets_from", None):
+        from .verify.run import load_verify_sensor
+        sensor = load_verify_sensor(args.targets_from)
+    if not sensor:
+        return [], {}
+    from .export.sensor import SENSOR_KINDS
+    kinds = list(SENSOR_KINDS) if sensor == "all" else [sensor]
+    wait = {}
+    try:
+        from .controller import Controller
+        sb = Controller.load(args.controller).sensor
+    except (WorkbenchError, ValueError, OSError):
+        sb = None                                     # the controller's own check names the problem
+    if sb is not None and sb.startup_wait_s is not None and sb.kind in kinds:
+        wait[sb.kind] = sb.startup_wait_s
+    return kinds, wait
+
+
 def estimate_run(args):
     """(what, seconds, bytes) of the part of the run a flag sizes, or None for fixed-size runs (bytes None:
     not estimated, as bench measures its own memory)."""
@@ -464,9 +529,24 @@ def estimate_run(args):
     if cmd == "verify":
         fs = _controller_rate_hz(args.controller, _plant(args.plant).gauge.modulation_hz)
         scenarios = [args.scenario] if isinstance(args.scenario, str) else args.scenario   # --scenario takes several
+        sensors, wait_s = _verify_sensor_loops(args)
+        if sensors and args.scenario is _default_scenarios():
+            scenarios = []                      # --sensor alone: the sensor loops only (cli.cmd_verify)
         periods = args.hold * fs if {"all", "hold"} & set(scenarios) else 0
         s, b = RUN_COSTS["verify_period"]
-        return f"--hold {args.hold:g} s ({periods:.3g} servo periods at {fs:g} Hz)", periods * s, periods * b
+        parts = [f"--hold {args.hold:g} s ({periods:.3g} servo periods at {fs:g} Hz)"] if periods else []
+        seconds, nbytes = periods * s, periods * b
+        if sensors:
+            # each sensor loop: open loop for the controller's startup_wait_s (when its block carries one for
+            # that sensor), the two-period 0.1 Hz triangle, then the --hold (verify/sensors.py run_sensor_loop)
+            s_p, b_p = RUN_COSTS["verify_sensor_period"]
+            n = sum((wait_s.get(k, 1.0) + 20.0 + args.hold) * fs for k in sensors)
+            parts.append(f"--sensor {' '.join(sensors)} with --hold {args.hold:g} s ({n:.3g} servo periods"
+                         + "".join(f"; {args.controller}: [sensor.startup_wait_s] {w:g} s of open loop"
+                                   for w in wait_s.values()) + ")")
+            seconds, nbytes = seconds + n * s_p, nbytes + n * b_p
+        what = " and ".join(parts) or f"--hold {args.hold:g} s (no hold scenario)"
+        return what, seconds, nbytes
     if cmd == "selfsense":
         s, b = RUN_COSTS["selfsense_second"]
         return f"--duration {args.duration:g} s", args.duration * s, args.duration * b

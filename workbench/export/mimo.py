@@ -631,6 +631,48 @@ class MimoController:
                 from None
         return cls.from_dict(data, source=str(path), allow_unstable=allow_unstable)
 
+    def check_mirror(self, fsm):
+        """Refuse a damped export whose numbers are not those of ``fsm``'s stacks (:class:`MimoControllerError`).
+
+        The exporter writes ``iff.stack_window`` as :func:`stack_windows` of the mirror's serial files and the
+        IFF cascades as the Tustin high-pass prewarped at ``iff.bridge.corner_hz``, whose pole is
+        z_p = (1 - c) / (1 + c), c = tan(pi f_l T). A window off the stacks' (relative 1e-6: the exporter's
+        own numbers) would hold each command in a current window the stack does not have (alpha 0.5 for the
+        stacks' 0.10 lets the command lead the stack's RC response five times faster; headroom 1e300 V
+        holds nothing); a corner that is not the cascades' is a bridge the file does not describe.
+        Without IFF, or for a controller whose provenance names another mirror file (by SHA-256: verify warns
+        that it was exported for another mirror), nothing to check.
+        """
+        if self.iff is None:
+            return
+        sha = (self.record.get("provenance") or {}).get("plant_sha256")
+        if sha and fsm.source and Path(fsm.source).is_file() and \
+                sha != hashlib.sha256(Path(fsm.source).read_bytes()).hexdigest():
+            return
+        want = stack_windows(fsm, self.dt_s)
+        for k in ("alpha", "headroom_v"):
+            got = np.asarray(self.iff["stack_window"][k], float)
+            if not np.allclose(got, want[k], rtol=1e-6, atol=0):
+                raise MimoControllerError(self.source or self.name, f"iff.stack_window.{k}",
+                                          f"{got.tolist()} is not the current-limit window of the stacks of "
+                                          f"{fsm.source} ({[float(f'{v:.6g}') for v in want[k]]}: R, the largest "
+                                          f"capacitance and min(I_source, I_sink) of each serial file); re-export "
+                                          f"the controller for this mirror")
+        f_l = float(self.iff["bridge"]["corner_hz"])
+        if not f_l < 0.5 / self.dt_s:
+            raise MimoControllerError(self.source or self.name, "iff.bridge.corner_hz",
+                                      f"{f_l:g} Hz is not below the Nyquist frequency {0.5 / self.dt_s:g} Hz of the "
+                                      f"cascades; re-export the controller")
+        c = math.tan(math.pi * f_l * self.dt_s)
+        z_want = (1.0 - c) / (1.0 + c)
+        for k in IFF_KEYS:
+            poles = np.concatenate([np.roots(row[3:]) for row in np.asarray(self.iff[k].sos, float)])
+            if not np.any(np.abs(poles - z_want) <= 1e-6):
+                raise MimoControllerError(self.source or self.name, "iff.bridge.corner_hz",
+                                          f"{f_l:g} Hz puts the high-pass pole at z = {z_want:.6g}; the cascade "
+                                          f"iff.controllers.{k} has its poles at {np.round(poles, 6).tolist()}: the "
+                                          f"bridge numbers are not the cascades'; re-export the controller")
+
     # ------------------------------------------------------------------ C
     def header(self, name=None):
         """NAME.h: includes the three axis headers and runs the step of the module docstring."""
@@ -804,6 +846,12 @@ def _load_iff(src, data, fs, allow_unstable, stack_limits_v):
     a lead no command can exceed, which also keeps the headroom's words inside int64)."""
     if not isinstance(data, dict):
         raise MimoControllerError(src, "iff", "must be a table {bridge, controllers}; re-export the controller")
+    for key, table, known in (("iff", data, ("bridge", "stack_window", "controllers", "note")),
+                              ("iff.bridge", data.get("bridge"), _BRIDGE_KEYS),
+                              ("iff.stack_window", data.get("stack_window"), ("alpha", "headroom_v"))):
+        unknown = [k for k in table if k not in known] if isinstance(table, dict) else []
+        if unknown:                 # a misspelt key would be dropped without a word
+            raise MimoControllerError(src, f"{key}.{unknown[0]}", f"unknown key; {key}'s keys are {', '.join(known)}")
     br = data.get("bridge")
     if not isinstance(br, dict) or any(k not in br for k in _BRIDGE_KEYS):
         raise MimoControllerError(src, "iff.bridge", f"needs {', '.join(_BRIDGE_KEYS)}; re-export the controller")
@@ -819,6 +867,11 @@ def _load_iff(src, data, fs, allow_unstable, stack_limits_v):
             raise MimoControllerError(src, f"iff.bridge.{k}", f"must be a finite {kind} number; got {v!r}")
     if not (isinstance(br["adc_bits"], int) and not isinstance(br["adc_bits"], bool) and 1 <= br["adc_bits"] <= 64):
         raise MimoControllerError(src, "iff.bridge.adc_bits", f"must be an integer 1..64; got {br['adc_bits']!r}")
+    if not br["out_noise_v_rms"] < br["adc_range_v"]:
+        # the bridge's output noise alone would fill the ADC's range: its reading would be noise
+        raise MimoControllerError(src, "iff.bridge.out_noise_v_rms", f"{br['out_noise_v_rms']:g} V RMS is not below the "
+                                                                     f"ADC range {br['adc_range_v']:g} V: the reading "
+                                                                     f"would be noise; re-export the controller")
     sw = data.get("stack_window")
     if not isinstance(sw, dict) or any(k not in sw for k in ("alpha", "headroom_v")):
         raise MimoControllerError(src, "iff.stack_window", "needs alpha and headroom_v (each stack's current-limit "

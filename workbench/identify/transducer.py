@@ -248,7 +248,12 @@ def _read_table(path, calibrations_m_per_v, deferred=None):
     A force no stack can carry (:func:`_check_force`) is refused at once, unless it would be possible in the
     next SI unit down (x 1/1000: a column's unit slip) and ``deferred`` is a list: then its error is appended
     there, for the caller to raise after its own whole-column diagnosis of units (T_em out of range)."""
-    path = Path(path)
+    from ..paths import check_input_file
+    path = check_input_file(Path(path), "Table 1", text=True)     # a folder, binary or not UTF-8: named here
+    if path.suffix.lower() in (".toml", ".json"):
+        # a plant, study or controller file given as the table: say so, not "cannot read header cell"
+        raise DataFileError(f"{path}: is a {path.suffix} file, not a Table 1 CSV; give the Instron table, e.g. "
+                            f"plants/data/p888_51_instron_table1.csv")
     columns = None
     runs = []
     seen = {}

@@ -180,6 +180,16 @@ def load_plant(path, overrides=None):
     """
     path = Path(path)
     doc = read_toml(path, PlantDefinitionError)
+    from .generic import GENERIC_SCHEMA
+    from .mirror import FSM_SCHEMA_VERSION
+    other = {FSM_SCHEMA_VERSION: "a three-stack mirror file (its stacks are the plant files it names; `workbench "
+                                "verify` and `workbench study` take it)",
+             GENERIC_SCHEMA: "a generic stack known only by V -> x (`workbench calibrate --plant` takes "
+                                          "it)"}.get(doc.get("schema"))
+    if other:
+        # not "[stacks] unknown section": say what the file is and which file this needs
+        raise PlantDefinitionError(path, "schema", f"is {other}; this needs a single-stack PZT plant file, e.g. "
+                                                   f"plants/p888_51_sn637.toml")
     for where, value in (overrides or {}).items():
         section, _, key = where.partition(".")
         if not isinstance(doc.get(section), dict):

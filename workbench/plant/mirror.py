@@ -54,7 +54,7 @@ from .files import load_plant
 from .hysteresis import PrandtlIshlinskii
 from .structure import modal_structure
 
-__all__ = ["FastSteeringMirror", "MirrorTrajectory", "load_mirror", "mirror_run", "FSM_SCHEMA_VERSION",
+__all__ = ["FastSteeringMirror", "MirrorTrajectory", "load_mirror", "mirror_stack_files", "mirror_run", "FSM_SCHEMA_VERSION",
            "AXES"]
 
 FSM_SCHEMA_VERSION = "workbench.fsm/1"
@@ -301,6 +301,22 @@ def mirror_run(sim, v_pea_v, external=None, decimate=1):
                             v_t_v=tr.v_t_v, coupled=tr)
 
 
+def mirror_stack_files(path):
+    """The stack plant files a mirror file names (``[stacks] files``, resolved against its folder): (key, Path)
+    pairs; [] when ``path`` is not a readable mirror file (its loader reports what is wrong)."""
+    import tomllib
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return []
+    stacks = doc.get("stacks") if doc.get("schema") == FSM_SCHEMA_VERSION else None
+    files = stacks.get("files") if isinstance(stacks, dict) else None
+    if not isinstance(files, list):
+        return []
+    return [(f"{path}: stacks.files[{j}]", path.parent / f) for j, f in enumerate(files) if isinstance(f, str)]
+
+
 def load_mirror(path):
     """Load and validate a mirror file (``plants/fsm_*.toml``).
 
@@ -313,6 +329,11 @@ def load_mirror(path):
     path = Path(path)
     doc = read_toml(path, PlantDefinitionError)
     known = ("stacks", "geometry", "mirror", "flexures", "housing")
+    if doc.get("schema") != FSM_SCHEMA_VERSION and isinstance(doc.get("electrical"), dict):
+        # a single-stack plant file where a mirror is wanted: say so, not "unknown section [electrical]"
+        raise PlantDefinitionError(path, "schema", f"is a single-stack plant file (it has [electrical]), not a "
+                                                   f"three-stack mirror ({FSM_SCHEMA_VERSION!r}); give a mirror "
+                                                   f"file such as plants/fsm_p888_51.toml, which names its stacks")
     for key, value in doc.items():
         if isinstance(value, (dict, list)) and key not in _SCHEMA:
             raise PlantDefinitionError(path, key, f"unknown section; known sections: {', '.join(known)}")

@@ -48,7 +48,7 @@ from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, charge_amp_params, measure
 from .estimator import charge_estimate, static_estimate
 
-__all__ = ["check_step_force", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
+__all__ = ["check_step_force", "check_force_table", "force_resolution_n", "step_force_range_n", "ForceEstimate", "estimate_force", "staged_charge", "FORCE_STAGE", "FORCE_STAGE_TITLE",
            "force_step_voltage", "simulate_force_step",
            "instron_force_profile", "simulate_instron_run", "instron_from_table", "force_step_errors", "run_force_study",
            "INSTRON_R_IN_OHM",
@@ -289,8 +289,23 @@ def step_force_range_n(pzt):
     return -COMPRESSION_MULTIPLE_OF_BLOCKED * f_block, TENSION_SHARE_OF_BLOCKED * f_block, f_block
 
 
-def check_step_force(pzt, step_n, *, name="step_n", where="the plant"):
-    """Refuse a force step that is zero, not finite, or outside :func:`step_force_range_n`.
+def force_resolution_n(pzt, amp=None):
+    """One ADC step of the charge amplifier read as force, N: k_p / T_em x C_int x LSB.
+
+    A force F on the stack at a held terminal voltage moves its charge by T_em F / k_p (Fig. 3:
+    x = F / k_p, q = T_em x); the amplifier reads q as V = q / C_int in steps of
+    :func:`~.charge_amp.adc_lsb_v` (SN637 with the default amplifier: 0.0154 N).
+    """
+    from .charge_amp import adc_lsb_v
+    amp = ChargeAmpParams() if amp is None else amp
+    return float(pzt.stiffness_n_per_m / pzt.transducer_constant_n_per_v * amp.c_int_f
+                 * adc_lsb_v(amp.adc_bits, amp.adc_range_v))
+
+
+def check_step_force(pzt, step_n, *, name="step_n", where="the plant", amp=None):
+    """Refuse a force step that is zero, not finite, outside :func:`step_force_range_n`, or so small that its
+    target (:data:`FORCE_TARGET_STEP_FRACTION` of it) is finer than one ADC step of the force reading
+    (:func:`force_resolution_n`: a 1 pN step was reported as a "+0 N step" missing its target by 1e12).
 
     Raises
     ------
@@ -309,6 +324,35 @@ def check_step_force(pzt, step_n, *, name="step_n", where="the plant"):
     if f > hi:
         raise FlagRangeError(f"{name} {f:g} N: {span}: a tension beyond the 15 MPa preload share "
                              f"({hi:.4g} N) would break the brittle ceramic (seed 000); e.g. -100N (compression)")
+    res = force_resolution_n(pzt, amp)
+    if abs(f) * FORCE_TARGET_STEP_FRACTION < res:
+        floor = res / FORCE_TARGET_STEP_FRACTION
+        raise FlagRangeError(f"{name} {f:g} N: under {floor:.3g} N in size, where the study's target "
+                             f"({100 * FORCE_TARGET_STEP_FRACTION:g} % of the step) is finer than one ADC step of the "
+                             f"charge amplifier read as force ({res:.3g} N = k_p / T_em C_int LSB, {where}); "
+                             f"e.g. -100N")
+
+
+def check_force_table(path, runs):
+    """Refuse a Table 1 the force study cannot score, before any simulation (:class:`DataFileError`).
+
+    Every ``R_out`` run is read from its back EMF (leads open: V_t is the back EMF), so each needs a nonzero one;
+    the held-out scores leave one run out of at least three (:func:`.table1.table1_held_out`); and the table's
+    columns must give a T_em in the plant files' range (:func:`workbench.identify.transducer.identify_transducer`,
+    whose diagnosis names a unit slip such as back_emf in mV labelled V).
+    """
+    from ..errors import DataFileError
+    from ..identify.transducer import identify_transducer
+    r_out = [r for r in runs if r.config == "R_out"]
+    for r in r_out:
+        if r.back_emf_v == 0.0:
+            raise DataFileError(f"{path}, line {r.line} (back_emf): {r.serial} run {r.run} R_out has a back EMF of "
+                                f"0 V; an R_out run (leads open) is read from its measured back EMF: write it, or "
+                                f"delete the row")
+    if len(r_out) < 3:
+        raise DataFileError(f"{path}: {len(r_out)} R_out run(s); the force study reads each from its back EMF and "
+                            f"scores it held out from the others: give at least 3 R_out rows")
+    identify_transducer(path)           # the table's units, by T_em (raises naming the file and the column)
 
 
 def run_force_study(plant_path, amp=None, seed=2, dt_s=1e-4, id_hold_s=700.0, step_n=-100.0,
@@ -355,10 +399,11 @@ def run_force_study(plant_path, amp=None, seed=2, dt_s=1e-4, id_hold_s=700.0, st
     plant = load_plant(plant_path)
     amp = charge_amp_params(plant) if amp is None else amp
     pzt = plant.pzt
-    check_step_force(pzt, step_n, where=str(plant_path))
+    check_step_force(pzt, step_n, where=str(plant_path), amp=amp)
     if table_path is None:
         table_path = DEFAULT_TABLE1_PATH
     runs, _, _ = _read_table(table_path, DEFAULT_CALIBRATIONS_M_PER_V)     # validated before any simulation
+    check_force_table(table_path, runs)
     swapped = {(d["serial"], d["run"]) for d in table1_swap_decision(table_path) if d["swap"]}
     tick("identification record")
     idrec = simulate_identification(pzt, amp, hold_s=id_hold_s, seed=seed + 100, dt_s=dt_s)

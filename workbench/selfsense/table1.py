@@ -308,6 +308,10 @@ def table1_held_out(path=None, *, x_source="gauge", calibrations_m_per_v=None, m
     """
     if x_source not in ("gauge", "displacement"):
         raise ValueError(f"x_source must be 'gauge' or 'displacement', got {x_source!r}")
+    from ..identify.transducer import DEFAULT_CALIBRATIONS_M_PER_V, DEFAULT_TABLE1_PATH, _read_table
+    from .force import check_force_table
+    table = DEFAULT_TABLE1_PATH if path is None else path          # a table no run can be scored on: named here
+    check_force_table(table, _read_table(table, calibrations_m_per_v or DEFAULT_CALIBRATIONS_M_PER_V)[0])
     decided = table1_swap_decision(path, calibrations_m_per_v=calibrations_m_per_v)
     f = np.array([d["force_n"] for d in decided])
     v = np.array([d["back_emf_v"] for d in decided])

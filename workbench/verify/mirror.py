@@ -660,6 +660,7 @@ def run_mirror_verify(plant_path, controller_path, out_dir=None, c_h_scales=(1.0
     from ..plant.mirror import load_mirror
     fsm0 = load_mirror(plant_path)
     ctrl = MimoController.load(controller_path)
+    ctrl.check_mirror(fsm0)                 # a damped export's stack windows and IFF corner are this mirror's
     creep_plant = None if creep_file is None else load_plant(Path(plant_path).parent / creep_file)
     fsm = verification_mirror(fsm0, c_h_scales, creep_plant)
     metrics, runs, targets = run_mirror_scenarios(fsm, ctrl, names=names, noise=noise, seed=seed,

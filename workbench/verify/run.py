@@ -331,6 +331,7 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
     for name, value in (targets or {}).items():
         limits[name] = _check_target_value(name, value, "targets")
     sensors = _check_sensors(sensor, plant, controller)
+    controller.check_firmware_settings(plant)       # a carried curvature or lead worse than none
     pre = controller.compare_plant(plant)
     notes = []
     other = [s_ for s_ in sensors if s_ != controller.sensor_kind]
