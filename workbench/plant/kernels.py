@@ -268,7 +268,9 @@ def plant_params(m):
             n, _index(m[OS_XM]), _index(m[O_AD]), o_b, o_cd, d_eff,
             r * m[I_SRC], r * m[I_SNK], t_em * inv_kp, k_x, b_tot,
             # x of a plant with modes as one sum over this step's charges and force (pzt_advance)
-            d_eff * k_x, d_eff * inv_kp)
+            d_eff * k_x, d_eff * inv_kp,
+            # the quasi-static creep step's semi-implicit factor k / (1 + b_tot k), k = 1 / C_pp (pzt_advance)
+            inv_cpp / (1.0 + b_tot * inv_cpp))
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -286,36 +288,57 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     the step never overshoots u* and creates no spurious reversal.
 
     The arithmetic is arranged for a short dependency chain per step (the physics is that of
-    :func:`pzt_advance_reference`, equal to ~1e-15 relative, the tests hold the two together):
+    :func:`pzt_step_reference`, equal to ~1e-15 relative, the tests hold the two together):
     the capacitance and its exp(-dt/(R C)) worked out once per capacitance segment, the play
     pass branch-free, the creep branches and the modes as their exact discrete steps with the
     parts that do not depend on this step's charge formed off the chain, no division.
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
     qc_old = st[S_QC]
     q_old = qh + qc_old
     f_term = f_e * k_f                       # T_em F_e / k_p, C
-    # the creep branches first, exact, with V_h held at the step's start (tau_j >> dt): they take their
-    # charge from C_h's node, not from the terminal (KCL, see the module docstring)
+    # the creep branches first, at a held terminal charge: they take their charge from C_h's node (KCL, see
+    # the module docstring). Semi-implicit: each branch steps exactly toward C_j V_h* (decay_j q_j + b_j V_h*),
+    # V_h* the node voltage at the step's end on the local slope k = dV_h/dq_h of the direction the branches
+    # move q_h, V_h* = V_h - k S with S = E / (1 + b_tot k) their summed charge and E the charge of the
+    # explicit step (V_h held). Stable for any dt and tau_j (the open-lead multiplier is d_j / (1 + b_j k),
+    # in (0, 1)); first order in dt, as the explicit step.
     v_h_old = u - qh * inv_cpp
-    s_dec = 0.0
-    for j in range(n_c):
-        qj = st[o_qc + j]
-        s_dec += m[o_cdec + j] * qj
-        st[o_qc + j] = m[o_cdec + j] * qj + m[o_cb + j] * v_h_old
-    qc_new = s_dec + b_tot * v_h_old
+    t_c = 0.0                                # the branches' charge over G's capacitance: G's fall, V
+    if n_c > 0:
+        s_dec = 0.0
+        for j in range(n_c):
+            s_dec += m[o_cdec + j] * st[o_qc + j]
+        e_c = (s_dec + b_tot * v_h_old) - qc_old
+        if quasi_static:
+            # V_t held: k = 1 / (C_pp + C_h) <= 1 / C_pp; any k at or above the slope is stable, first order
+            v_h_s = v_h_old - e_c * qs_k
+        else:
+            # k = 1 / C_h on the segment q_h moves along (falling when the branches charge): with G's
+            # capacitance C = 1 / (1/C_h + 1/C_pp), h = 1 - C / C_pp, k = h / C, S = E C / (C + b_tot h)
+            cap = st[S_GDN] if e_c > 0 else st[S_GUP]
+            h = 1.0 - cap * inv_cpp
+            t_c = e_c / (cap + b_tot * h)
+            v_h_s = v_h_old - t_c * h
+        for j in range(n_c):
+            st[o_qc + j] = m[o_cdec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s
+        qc_new = s_dec + b_tot * v_h_s
+    else:
+        qc_new = 0.0
     if quasi_static:
         # R = 0: V_t = v at the step's end with the branches' new charge
         u_new = v - (qc_new - f_term) * inv_cpp
         qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
     else:
-        # R moves dq into the node (branches held over the RC step); C_h keeps dq less what the branches took
-        du = v - (qc_old - f_term) * inv_cpp - u
+        # then R moves dq into the node over the gap left after the branches' step: G's output has fallen by
+        # their charge S on its local slope (S / C = t_c), so the gap is v - V_t after the creep step and V_t
+        # tends to v as R -> 0 (the quasi-static form). C_h keeps dq less what the branches took.
+        du = v - (qc_new - f_term) * inv_cpp - (u - t_c)
         dq = 0.0
         if du != 0.0:
             _check_segment(st, dt, r)
@@ -389,13 +412,30 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
     qc_old = st[S_QC]
     q_old = qh + qc_old
     f_term = t_em * f_e * inv_kp              # T_em F_e / k_p, C
-    # creep branches relax toward C_j V_h (tau_j >> dt: V_h held at the step's start), at a held terminal
-    # charge: C_h gives what they take
+    # creep branches relax toward C_j V_h* at a held terminal charge (C_h gives what they take), semi-implicit:
+    # V_h* = V_h - k S at the step's end on the local slope k, S = E / (1 + b_tot k) (pzt_advance)
     v_h_old = u - qh * inv_cpp
-    qc_new = 0.0
     o_cc, o_cdec, o_qc = int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC])
-    for j in range(int(m[N_C])):
+    n_c = int(m[N_C])
+    e_c = 0.0
+    b_tot = 0.0
+    for j in range(n_c):
         target = m[o_cc + j] * v_h_old
+        e_c += target + (st[o_qc + j] - target) * m[o_cdec + j] - st[o_qc + j]
+        b_tot += (1.0 - m[o_cdec + j]) * m[o_cc + j]
+    g_fall = 0.0                              # G's fall from the branches' charge, V
+    if m[QUASI_STATIC] > 0.5:
+        k = inv_cpp                           # V_t held: the slope is 1 / (C_pp + C_h) <= 1 / C_pp
+    else:
+        cap = st[S_GDN] if e_c > 0 else st[S_GUP]
+        k = 1.0 / cap - inv_cpp               # 1 / C_h on the segment q_h moves along
+    s_c = e_c / (1.0 + b_tot * k)
+    v_h_s = v_h_old - k * s_c
+    if m[QUASI_STATIC] <= 0.5:
+        g_fall = s_c / cap
+    qc_new = 0.0
+    for j in range(n_c):
+        target = m[o_cc + j] * v_h_s
         qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
         st[o_qc + j] = qj
         qc_new += qj
@@ -404,8 +444,8 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
         qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
         u_new = u_target
     else:
-        # then the charge through R into the node, the branches held
-        du = v - (qc_old - f_term) * inv_cpp - u
+        # then the charge through R into the node, over the gap after the branches' step
+        du = v - (qc_new - f_term) * inv_cpp - (u - g_fall)
         dq = 0.0
         if du != 0.0:
             if du > 0:
