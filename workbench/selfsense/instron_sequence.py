@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..plant.hysteresis import play_step
+from ..plant.hysteresis import pi_slope, play_step
 from .force import estimate_force, instron_force_profile
 
 __all__ = ["SequenceRun", "serial_sequence", "read_open_lead_run", "table1_sequence_estimates",
@@ -87,15 +87,33 @@ def _segment(z, qc, q, shorted, f_term, r, w_h, w_open, r_open_inv, w_open_inv, 
     z (C_h's play states, V) and qc (creep charges, C) are updated in place; returns the stack
     charge q at the end. ``w_open`` / ``w_short``: C_h's weights / with C_pp added to the r = 0
     play, and their inverses' thresholds and weights. ``out`` rows: V_h, V_p, V_t, q. The creep
-    branches step first with V_h at the step's start (the r = 0 play's state), as
-    :func:`workbench.plant.kernels.pzt_advance` steps them.
+    branches step first from V_h at the step's start (the r = 0 play's state), semi-implicit as
+    :func:`workbench.plant.kernels.pzt_advance` steps them: toward C_j V_h*, V_h* = V_h - k S on the
+    slope k = 1 / C_h of the segment V_h moves along (open leads) or k = 1 / C_pp (shorted: the quasi-static
+    form's bound on 1 / (C_pp + C_h)), S = E / (1 + b k) their charge, E that of the explicit step.
     """
     n_c = cap.shape[0]
+    b_tot = 0.0
+    for j in range(n_c):
+        b_tot += (1.0 - dec[j]) * cap[j]
     for k in range(f_term.shape[0]):
         v_h0 = z[0]
+        s_dec = 0.0
+        qc_old = 0.0
+        for j in range(n_c):
+            s_dec += dec[j] * qc[j]
+            qc_old += qc[j]
+        v_h_s = v_h0
+        if n_c > 0:
+            e_c = (s_dec + b_tot * v_h0) - qc_old
+            if shorted:
+                k_h = 1.0 / c_pp
+            else:
+                k_h = 1.0 / pi_slope(z, r, w_h, v_h0, -1 if e_c > 0 else 1)
+            v_h_s = v_h0 - k_h * (e_c / (1.0 + b_tot * k_h))
         s_qc = 0.0
         for j in range(n_c):
-            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h0
+            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h_s
             s_qc += qc[j]
         if shorted:
             v_h = _solve_v_h(z, r, w_short, r_short_inv, w_short_inv, f_term[k] - s_qc)
