@@ -28,8 +28,9 @@ explicitly instead went unstable at h f_mode = 0.07 (70 kHz mode, 1 us; stable a
    zero-order-hold half step);
 2. per stack, the electrical step of today's kernel on that x_dyn: the creep branches relax at a
    held terminal charge (C_h gives what they take, Kirchhoff's current law at the terminal as in
-   :mod:`workbench.plant.kernels`), then R dq/dt = V - V_t on G's local slope, exact through
-   current-limited slews (open leads: q fixed, the creep branches redistribute charge inside);
+   :mod:`workbench.plant.kernels`; semi-implicit on C_h's local slope, stable for any h), then
+   R dq/dt = V - V_t over the gap after them on G's local slope, exact through current-limited slews
+   (open leads: q fixed, the creep branches redistribute charge inside); first order in h with creep;
 3. the stiffened structure advanced over h with g linear between the two step ends
    (first-order hold, one matrix exponential).
 

@@ -12,18 +12,21 @@ and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the sa
 step, returning its outputs instead of writing an array), as :func:`pzt_run` and the
 closed loop do; :func:`pzt_step` is that pair in one call. The step's arithmetic is arranged for a
 short dependency chain (capacitance and RC factor per capacitance segment, G's plays run only when
-the charge leaves their band, exact creep and mode steps, no division); :func:`pzt_step_reference`
+the charge leaves their band, semi-implicit creep and exact mode steps, no division but the creep step's); :func:`pzt_step_reference`
 keeps the step as first written, the oracle the tests hold it to (1e-12 of the stroke).
 
 Kirchhoff's current law at the terminal (seed 000 Fig. 3, the creep branches across C_h as
 :mod:`workbench.plant.creep` describes them): the current through R feeds C_h and the creep branches
-together, R (dq_h/dt + sum_j dQ_j/dt) = v - V_t. So a step moves the branches' charge Q_j toward
-C_j V_h at a held terminal charge (q_h gives what they take: V_h falls as they charge), then moves
-the charge (v - V_t)/R carries through R; the terminal charge q = q_h + sum_j Q_j changes by that
-charge only. With the leads open (R = 2e14 ohm) q stays put while the branches relax. (Before this
-was fixed the branches' charge reached the terminal without passing R: immaterial at 80 ohm, where
-the loop corrects it within R C, but tens of uC of "held" charge moved at open leads;
-tests/plant/test_kcl.py.)
+together, R (dq_h/dt + sum_j dQ_j/dt) = v - V_t. A step splits this in two parts, each keeping the law (the
+terminal charge q = q_h + sum_j Q_j changes only by the charge through R): first the branches move toward
+C_j V_h at a held terminal charge (q_h gives what they take: V_h falls as they charge), semi-implicitly, i.e.
+toward C_j V_h* with V_h* the node voltage at the step's end on C_h's local slope, which is stable for any dt
+and tau_j; then R moves the charge (v - V_t)/R carries over the gap left after the branches' step. The split
+is first order in dt (as a whole the step is exact only without creep, on G's local slope). With the leads
+open (R = 2e14 ohm) q stays put while the branches relax. (Before this was fixed the branches' charge reached
+the terminal without passing R or the amplifier's current limit: small at 80 ohm while the amplifier is not
+limited, where the loop corrects it within R C, but 27.7 uC and 387 nm apart during a 2 mA slew and tens of
+uC of "held" charge moved at open leads; tests/plant/test_kcl.py, benchmarks/kcl_creep.py.)
 
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
@@ -279,10 +282,12 @@ def pzt_advance(p, m, st, v_cmd, f_e):
 
     ``p`` is :func:`plant_params` of ``m``. Electrical part (dynamic form), split in two parts that each
     keep Kirchhoff's current law at the terminal (the terminal charge moves only by the charge through
-    R): first the creep branches relax toward C_j V_h over the step (exact, V_h held at its start value),
-    taking their charge from C_h's node; then, with the creep charge and force held,
-    R dq_h/dt = u* - G[q_h] moves the charge through R into the node. On the local slope of G this is an RC
-    relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
+    R): first the creep branches relax toward C_j V_h*, taking their charge from C_h's node, with V_h* the
+    node voltage at the step's end on C_h's local slope (semi-implicit: the step of each branch is its exact
+    one for that held V_h*; stable for any dt and tau_j, first order in dt, as the whole split); then, with the
+    creep charge and force held, R dq_h/dt = u* - G[q_h] moves the charge through R into the node over the
+    gap after the branches' step (so V_t -> v as R -> 0, the quasi-static form). On the local slope of G this
+    is an RC relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
     (exactly), then relaxes exponentially for the rest of the step (:func:`rc_charge`). The
     slope is the one at the start of the step; G's slope only falls as more plays engage, so
     the step never overshoots u* and creates no spurious reversal.
@@ -290,8 +295,9 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     The arithmetic is arranged for a short dependency chain per step (the physics is that of
     :func:`pzt_step_reference`, equal to ~1e-15 relative, the tests hold the two together):
     the capacitance and its exp(-dt/(R C)) worked out once per capacitance segment, the play
-    pass branch-free, the creep branches and the modes as their exact discrete steps with the
-    parts that do not depend on this step's charge formed off the chain, no division.
+    pass branch-free, the creep branches and the modes as their discrete steps with the
+    parts that do not depend on this step's charge formed off the chain, no division but the
+    creep step's one (plants with creep, dynamic form: S = E C / (C + b_tot h)).
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,

@@ -7,8 +7,9 @@ stack the model's own operators are used):
 1. **V_h** from the terminal charge q through the hysteretic capacitance and its creep
    branches. q = q_h + Q_c with q_h = C_h[V_h] (a PI operator) and each creep branch
    relaxing toward C_j V_h (tau_j Q_j' = C_j V_h - Q_j, stepped as the simulator steps it:
-   Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k-1, a_j = exp(-dt/tau_j), V_h held at the step's
-   start; :mod:`workbench.plant.kernels`). Per sample C_h[V_h,k] = q_k - sum_j Q_j,k, so V_h is
+   Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h*, a_j = exp(-dt/tau_j), V_h* = V_h,k-1 - k S on C_h's
+   local slope k = dV_h/dq_h with S the branches' summed charge, semi-implicit and stable for any dt;
+   :mod:`workbench.plant.kernels`). Per sample C_h[V_h,k] = q_k - sum_j Q_j,k, so V_h is
    the exact inverse of C_h (Kuhnen, :meth:`~workbench.plant.hysteresis.PrandtlIshlinskii.inverse`),
    no iteration.
 2. **V_p** = V_t - V_h (the two capacitances in series carry the terminal voltage).

@@ -11,9 +11,10 @@ a gain times the back EMF?
 The model, quasi-static (the 200 ohm leads relax in R C ~ 3 ms against 5 s ramps; the 70 kHz
 mode is far above the load frame), charge-conserving, one step of ``dt_s``:
 
-- the creep branches (Kelvin-Voigt, across C_h): Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k-1,
-  a_j = exp(-dt / tau_j) (V_h held at the step's start), as :mod:`workbench.plant.kernels` and
-  :func:`.force.estimate_force` step them;
+- the creep branches (Kelvin-Voigt, across C_h): Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h*,
+  a_j = exp(-dt / tau_j), V_h* = V_h,k-1 - k S semi-implicit (S the branches' summed charge, k = 1 / C_h on
+  the segment V_h moves along with the leads open, 1 / C_pp shorted: stable for any dt), as
+  :mod:`workbench.plant.kernels` and :func:`.force.estimate_force` step them;
 - the stack charge q = C_h[V_h] + sum_j Q_j; V_p = (q - T_em F_e / k_p) / C_pp; V_t = V_h + V_p
   (seed 000 eqs. 5 and 9 with the spring eliminated);
 - leads **shorted** (``R_in``, and the drain before every run): V_t = 0, i.e.
@@ -36,7 +37,7 @@ Note on the library simulator: :class:`~workbench.plant.simulator.PZTSimulator` 
 branches' charge change to the terminal with no current through R (+387 nC by the peak of an open-lead run after three
 ``R_in`` runs in the creep plant, at 200 TOhm), so this module stepped its own
 charge-conserving form. The kernels now keep Kirchhoff's current law at the terminal
-(tests/plant/test_kcl.py) and step the creep branches as this module does (V_h at the step's start);
+(tests/plant/test_kcl.py) and step the creep branches as this module does (semi-implicit V_h*);
 the module keeps its stepper because its shorted runs are the quasi-static V_t = 0, and the simulator's
 quasi-static form (R = 0) keeps G^-1's plays where its dynamic form (open leads) keeps G's, so one state
 cannot pass between the two.
