@@ -93,7 +93,7 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     /* the creep branches first at a held terminal charge, semi-implicit on C_h's local slope: as pzt_advance */
     double v_h_old = u - qh * inv_cpp;
     const int nc = (int)m[N_C], o_cb = (int)m[O_CB], o_dec = (int)m[O_CDEC], o_qc = (int)m[OS_QC];
-    double t_c = 0.0, qc_new = 0.0;
+    double th_c = 0.0, qc_new = 0.0;
     if (nc > 0) {
         double s_dec = 0.0, v_h_s;
         for (int j = 0; j < nc; j++) s_dec += m[o_dec + j] * st[o_qc + j];
@@ -101,10 +101,12 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         if (m[QUASI_STATIC] > 0.5) {
             v_h_s = v_h_old - e_c * p->qs_k;
         } else {
-            double cap = e_c > 0 ? st[S_GDN] : st[S_GUP];
-            double h = 1.0 - cap * inv_cpp;
-            t_c = e_c / (cap + p->b_tot * h);
-            v_h_s = v_h_old - t_c * h;
+            double h_dn = 1.0 - st[S_GDN] * inv_cpp, h_up = 1.0 - st[S_GUP] * inv_cpp;
+            double a_dn = 1.0 / (st[S_GDN] + p->b_tot * h_dn), a_up = 1.0 / (st[S_GUP] + p->b_tot * h_up);
+            int falling = e_c > 0;
+            double t_c = e_c * (falling ? a_dn : a_up);
+            th_c = t_c * (falling ? h_dn : h_up);
+            v_h_s = v_h_old - th_c;
         }
         for (int j = 0; j < nc; j++) st[o_qc + j] = m[o_dec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s;
         qc_new = s_dec + p->b_tot * v_h_s;
@@ -121,7 +123,7 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         qh_new = y;
         u_new = u_target;
     } else {
-        double du = v - (qc_new - f_term) * inv_cpp - (u - t_c);   /* the gap after the branches' step */
+        double du = (v - (qc_old - f_term) * inv_cpp - u) + th_c;   /* the gap after the branches' step */
         double dq = 0.0;
         if (du != 0.0) {
             if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */

@@ -316,6 +316,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     # in (0, 1)); first order in dt, as the explicit step.
     v_h_old = u - qh * inv_cpp
     t_c = 0.0                                # the branches' charge over G's capacitance: G's fall, V
+    th_c = 0.0                               # V_t's drop from the branches' step, S / C_h, V
     if n_c > 0:
         s_dec = 0.0
         for j in range(n_c):
@@ -327,10 +328,15 @@ def pzt_advance(p, m, st, v_cmd, f_e):
         else:
             # k = 1 / C_h on the segment q_h moves along (falling when the branches charge): with G's
             # capacitance C = 1 / (1/C_h + 1/C_pp), h = 1 - C / C_pp, k = h / C, S = E C / (C + b_tot h)
-            cap = st[S_GDN] if e_c > 0 else st[S_GUP]
-            h = 1.0 - cap * inv_cpp
-            t_c = e_c / (cap + b_tot * h)
-            v_h_s = v_h_old - t_c * h
+            # (both directions' factors formed from the state alone: the divisions stay off the step's chain)
+            h_dn = 1.0 - st[S_GDN] * inv_cpp
+            h_up = 1.0 - st[S_GUP] * inv_cpp
+            a_dn = 1.0 / (st[S_GDN] + b_tot * h_dn)
+            a_up = 1.0 / (st[S_GUP] + b_tot * h_up)
+            falling = e_c > 0
+            t_c = e_c * (a_dn if falling else a_up)
+            th_c = t_c * (h_dn if falling else h_up)
+            v_h_s = v_h_old - th_c
         for j in range(n_c):
             st[o_qc + j] = m[o_cdec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s
         qc_new = s_dec + b_tot * v_h_s
@@ -344,7 +350,9 @@ def pzt_advance(p, m, st, v_cmd, f_e):
         # then R moves dq into the node over the gap left after the branches' step: G's output has fallen by
         # their charge S on its local slope (S / C = t_c), so the gap is v - V_t after the creep step and V_t
         # tends to v as R -> 0 (the quasi-static form). C_h keeps dq less what the branches took.
-        du = v - (qc_new - f_term) * inv_cpp - (u - t_c)
+        # (= v - (qc_new - f_term) / C_pp - (u - t_c): qc_new - qc_old = S = t_c C, and t_c (1 - C / C_pp) = th_c;
+        # formed from the step's start and the drop, off the branches' sum)
+        du = (v - (qc_old - f_term) * inv_cpp - u) + th_c
         dq = 0.0
         if du != 0.0:
             _check_segment(st, dt, r)
