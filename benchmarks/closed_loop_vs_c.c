@@ -45,7 +45,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k, k_h_min; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -55,6 +55,12 @@ static plant_consts plant_params(const double *m)
     p.b_tot = 0.0;
     for (int j = 0; j < n_c; j++) p.b_tot += m[o_cb + j];
     p.qs_k = inv_cpp / (1.0 + p.b_tot * inv_cpp);
+    {   /* G's smallest slope (least prefix sum of its weights) less 1 / C_pp: 1 / C_h's largest capacitance */
+        const int n_g = (int)m[N_G], o_wg = (int)m[O_WG];
+        double g_acc = 0.0, g_min = INFINITY;
+        for (int i = 0; i < n_g; i++) { g_acc += m[o_wg + i]; g_min = fmin(g_min, g_acc); }
+        p.k_h_min = g_min - inv_cpp;
+    }
     p.d_eff = n > 0 ? m[(int)m[O_DD]] : 1.0;
     for (int a = 0; a < n; a++) p.d_eff += m[o_cd + a] * m[o_b + n + a];
     p.r_isrc = r * m[I_SRC];
@@ -105,8 +111,8 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
             double a_dn = 1.0 / (st[S_GDN] + p->b_tot * h_dn), a_up = 1.0 / (st[S_GUP] + p->b_tot * h_up);
             int falling = e_c > 0;
             double t_c = e_c * (falling ? a_dn : a_up);
-            th_c = t_c * (falling ? h_dn : h_up);
-            v_h_s = v_h_old - th_c;
+            v_h_s = v_h_old - t_c * (falling ? h_dn : h_up);
+            th_c = t_c * (falling ? st[S_GDN] : st[S_GUP]) * p->k_h_min;   /* V_t's drop, never overstated */
         }
         for (int j = 0; j < nc; j++) st[o_qc + j] = m[o_dec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s;
         qc_new = s_dec + p->b_tot * v_h_s;

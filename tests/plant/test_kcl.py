@@ -355,3 +355,22 @@ def test_instron_200_ohm_sag_at_10_ms(sn637_creep):
     bound = 200.0 * i_fine + dqc / w0 * np.exp(-1e-2 / (200.0 * pz.c_pp_f))
     assert np.all(sag_fine > 1e-3)                  # a resolved sag (mV)
     assert np.all(np.abs(sag - sag_fine) <= bound), (sag, sag_fine, bound)
+
+
+@pytest.mark.parametrize("scale", [1.0, 30.0])
+@pytest.mark.parametrize("dt_s", [1e-2, 1e-3])
+def test_a_passive_stack_never_passes_its_command(sn637_creep, scale, dt_s):
+    # R, C_h and the creep branches are passive: fed through R from v in [10, 90] V, V_t stays in [min(0, 10), 90]
+    # (0 V at rest). The hysteretic C_h at dt >> R C with no current limit: the branches' charge crosses a reversal
+    # in one step; taking V_t's drop from it on the local slope overfilled by 0.18 V (4.5 V with 30x creep)
+    pz = dataclasses.replace(sn637_creep.pzt, current_limit_source_a=1e3, current_limit_sink_a=1e3,
+                             creep=dataclasses.replace(sn637_creep.pzt.creep,
+                                                       capacitances_f=sn637_creep.pzt.creep.capacitances_f * scale))
+    n = int(round(30.0 / dt_s))
+    t = np.arange(n) * dt_s
+    v = 50.0 + 40.0 * np.sign(np.sin(2 * np.pi * t / 10.0))
+    tr = PZTSimulator(pz, dt_s).run(v)
+    assert np.max(tr.v_t_v) <= 90.0 + 1e-12 * 90.0
+    assert np.min(tr.v_t_v) >= 0.0 - 1e-12 * 90.0
+    k = np.flatnonzero(tr.v_t_v > 10.0)[0]
+    assert np.min(tr.v_t_v[k:]) >= 10.0 - 1e-12 * 90.0

@@ -170,12 +170,20 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                     s_dec += c_dec[i] * qc[i]
                     b_tot += (1.0 - c_dec[i]) * c_cap[i]
                 e_c = (s_dec + b_tot * v_h) - qc_old
-                t_c = 0.0
+                g_fall = 0.0
                 if c1 > c0:
                     cap = es[j, E_GDN] if e_c > 0 else es[j, E_GUP]
                     hh = 1.0 - cap * inv_cpp
                     t_c = e_c / (cap + b_tot * hh)
                     v_h = v_h - t_c * hh
+                    # G's fall from the branches' charge t_c C on its smallest slope (never overstated, as
+                    # pzt_advance takes it)
+                    g_acc = 0.0
+                    g_min = np.inf
+                    for i in range(o0, o1):
+                        g_acc += g_w[i]
+                        g_min = min(g_min, g_acc)
+                    g_fall = t_c * cap * g_min
                 qc_tot = 0.0
                 for i in range(c0, c1):
                     qj = c_dec[i] * qc[i] + (1.0 - c_dec[i]) * c_cap[i] * v_h
@@ -184,9 +192,9 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 dq = 0.0
                 if sc[j, C_OPEN] < 0.5:
                     # 2b. the charge through R into the node (today's kernel) over the gap after the branches'
-                    # step (G's output fell by t_c); open leads (2b'): none, q is fixed
+                    # step (G's output fell by g_fall); open leads (2b'): none, q is fixed
                     vc = min(max(v[k, j], sc[j, C_VMIN]), sc[j, C_VMAX])
-                    du = vc - (qc_tot - f_term) * inv_cpp - (u - t_c)
+                    du = vc - (qc_tot - f_term) * inv_cpp - (u - g_fall)
                     if du != 0.0:
                         r = sc[j, C_R]
                         if du > 0:

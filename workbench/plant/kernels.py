@@ -263,6 +263,12 @@ def plant_params(m):
     for a in range(n):
         d_eff += m[o_cd + a] * m[o_b + n + a]
     k_x = t_em * inv_cpp * inv_kp
+    o_wg = _index(m[O_WG])
+    g_acc = 0.0
+    g_min = math.inf
+    for i in range(_index(m[N_G])):
+        g_acc += m[o_wg + i]
+        g_min = min(g_min, g_acc)
     return (r, m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], t_em, m[DT], m[QUASI_STATIC] > 0.5,
             m[INV_I_SRC], m[INV_I_SNK], inv_kp, inv_cpp, m[INV_DT],
             _index(m[N_G]), _index(m[O_RG]), _index(m[O_WG]), _index(m[OS_ZG]),
@@ -273,7 +279,10 @@ def plant_params(m):
             # x of a plant with modes as one sum over this step's charges and force (pzt_advance)
             d_eff * k_x, d_eff * inv_kp,
             # the quasi-static creep step's semi-implicit factor k / (1 + b_tot k), k = 1 / C_pp (pzt_advance)
-            inv_cpp / (1.0 + b_tot * inv_cpp))
+            inv_cpp / (1.0 + b_tot * inv_cpp),
+            # 1 / C_h's largest capacitance: G's smallest slope (its least prefix sum of weights, the slope after a
+            # long monotone move) less 1 / C_pp, the bound pzt_advance takes V_t's drop from the branches on
+            g_min - inv_cpp)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -301,7 +310,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k, k_h_min) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
@@ -335,8 +344,12 @@ def pzt_advance(p, m, st, v_cmd, f_e):
             a_up = 1.0 / (st[S_GUP] + b_tot * h_up)
             falling = e_c > 0
             t_c = e_c * (a_dn if falling else a_up)
-            th_c = t_c * (h_dn if falling else h_up)
-            v_h_s = v_h_old - th_c
+            v_h_s = v_h_old - t_c * (h_dn if falling else h_up)
+            # V_t's drop from the branches' charge S = t_c C for the RC step's gap, taken on C_h's largest
+            # capacitance: the local slope overstates it across a reversal (there C_h is at its smallest and grows
+            # as plays engage along the move) and the RC step then overfilled (V_t 0.18 V above a 90 V command at
+            # dt = 10 ms); this bound never overstates it (V_t stays at or below v), exact for a linear C_h
+            th_c = t_c * (st[S_GDN] if falling else st[S_GUP]) * k_h_min
         for j in range(n_c):
             st[o_qc + j] = m[o_cdec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s
         qc_new = s_dec + b_tot * v_h_s
@@ -347,9 +360,9 @@ def pzt_advance(p, m, st, v_cmd, f_e):
         u_new = v - (qc_new - f_term) * inv_cpp
         qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
     else:
-        # then R moves dq into the node over the gap left after the branches' step: G's output has fallen by
-        # their charge S on its local slope (S / C = t_c), so the gap is v - V_t after the creep step and V_t
-        # tends to v as R -> 0 (the quasi-static form). C_h keeps dq less what the branches took.
+        # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
+        # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
+        # miss. C_h keeps dq less what the branches took.
         # (= v - (qc_new - f_term) / C_pp - (u - t_c): qc_new - qc_old = S = t_c C, and t_c (1 - C / C_pp) = th_c;
         # formed from the step's start and the drop, off the branches' sum)
         du = (v - (qc_old - f_term) * inv_cpp - u) + th_c
@@ -446,7 +459,13 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
     s_c = e_c / (1.0 + b_tot * k)
     v_h_s = v_h_old - k * s_c
     if m[QUASI_STATIC] <= 0.5:
-        g_fall = s_c / cap
+        # G's fall from the branches' charge on its smallest slope (pzt_advance: never overstated)
+        g_acc = 0.0
+        g_min = math.inf
+        for i in range(int(m[N_G])):
+            g_acc += m[int(m[O_WG]) + i]
+            g_min = min(g_min, g_acc)
+        g_fall = s_c * g_min
     qc_new = 0.0
     for j in range(n_c):
         target = m[o_cc + j] * v_h_s
