@@ -45,7 +45,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k, k_h_min; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -54,6 +54,13 @@ static plant_consts plant_params(const double *m)
     const int n_c = (int)m[N_C], o_cb = (int)m[O_CB], n = (int)m[N_M], o_b = (int)m[O_BD], o_cd = (int)m[O_CD];
     p.b_tot = 0.0;
     for (int j = 0; j < n_c; j++) p.b_tot += m[o_cb + j];
+    p.qs_k = inv_cpp / (1.0 + p.b_tot * inv_cpp);
+    {   /* G's smallest slope (least prefix sum of its weights) less 1 / C_pp: 1 / C_h's largest capacitance */
+        const int n_g = (int)m[N_G], o_wg = (int)m[O_WG];
+        double g_acc = 0.0, g_min = INFINITY;
+        for (int i = 0; i < n_g; i++) { g_acc += m[o_wg + i]; g_min = fmin(g_min, g_acc); }
+        p.k_h_min = g_min - inv_cpp;
+    }
     p.d_eff = n > 0 ? m[(int)m[O_DD]] : 1.0;
     for (int a = 0; a < n; a++) p.d_eff += m[o_cd + a] * m[o_b + n + a];
     p.r_isrc = r * m[I_SRC];
@@ -89,16 +96,27 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     double qc_old = st[S_QC];
     double q_old = qh + qc_old;
     double f_term = f_e * p->k_f;
-    /* the creep branches first at a held terminal charge (V_h at the step's start): KCL, as pzt_advance */
+    /* the creep branches first at a held terminal charge, semi-implicit on C_h's local slope: as pzt_advance */
     double v_h_old = u - qh * inv_cpp;
     const int nc = (int)m[N_C], o_cb = (int)m[O_CB], o_dec = (int)m[O_CDEC], o_qc = (int)m[OS_QC];
-    double s_dec = 0.0;
-    for (int j = 0; j < nc; j++) {
-        double qj = st[o_qc + j];
-        s_dec += m[o_dec + j] * qj;
-        st[o_qc + j] = m[o_dec + j] * qj + m[o_cb + j] * v_h_old;
+    double th_c = 0.0, qc_new = 0.0;
+    if (nc > 0) {
+        double s_dec = 0.0, v_h_s;
+        for (int j = 0; j < nc; j++) s_dec += m[o_dec + j] * st[o_qc + j];
+        double e_c = (s_dec + p->b_tot * v_h_old) - qc_old;
+        if (m[QUASI_STATIC] > 0.5) {
+            v_h_s = v_h_old - e_c * p->qs_k;
+        } else {
+            double h_dn = 1.0 - st[S_GDN] * inv_cpp, h_up = 1.0 - st[S_GUP] * inv_cpp;
+            double a_dn = 1.0 / (st[S_GDN] + p->b_tot * h_dn), a_up = 1.0 / (st[S_GUP] + p->b_tot * h_up);
+            int falling = e_c > 0;
+            double t_c = e_c * (falling ? a_dn : a_up);
+            v_h_s = v_h_old - t_c * (falling ? h_dn : h_up);
+            th_c = t_c * (falling ? st[S_GDN] : st[S_GUP]) * p->k_h_min;   /* V_t's drop, never overstated */
+        }
+        for (int j = 0; j < nc; j++) st[o_qc + j] = m[o_dec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s;
+        qc_new = s_dec + p->b_tot * v_h_s;
     }
-    double qc_new = s_dec + p->b_tot * v_h_old;
     if (m[QUASI_STATIC] > 0.5) {
         double u_target = v - (qc_new - f_term) * inv_cpp;
         const int n = (int)m[N_Q], o_r = (int)m[O_RQ], o_w = (int)m[O_WQ], o_z = (int)m[OS_ZQ];
@@ -111,7 +129,7 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         qh_new = y;
         u_new = u_target;
     } else {
-        double du = v - (qc_old - f_term) * inv_cpp - u;
+        double du = (v - (qc_old - f_term) * inv_cpp - u) + th_c;   /* the gap after the branches' step */
         double dq = 0.0;
         if (du != 0.0) {
             if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */

@@ -324,3 +324,31 @@ def test_external_force_at_the_stack_end_is_f_e(pz):
     b = CoupledSimulator([pz], st, dt).run(v, external_n=f[:, None])
     assert np.abs(a.x_m - b.x_m).max() <= 1e-9 * np.abs(a.x_m).max()
     assert np.abs(a.i_a - b.i_a).max() <= 1e-9 * np.abs(a.i_a).max()
+
+
+@pytest.mark.parametrize("volts", [-30.0, 20.0, 100.0])
+def test_open_leads_with_creep_hold_the_charge(volts):
+    """Open leads with charged creep branches (C_h at rest, each branch at C_j times ``volts``): the branches
+    discharge into C_h inside the stack, the terminal charge stays put (the coupled kernel moves no charge through
+    open leads: to rounding), and V_h follows today's kernel at the Keithley's 2e14 ohm to its leak."""
+    from workbench.plant.coupled import E_QC, E_QH
+    from workbench.plant.kernels import OS_QC, S_QC
+    bare = dataclasses.replace(load_plant(SN637_CREEP).pzt, modes=())
+    dt, n = 1e-3, 5000
+    cs = CoupledSimulator([bare], spring(bare.stiffness_n_per_m), dt, terminations=["open"])
+    qj = bare.creep.capacitances_f * volts
+    cs.qc[:] = qj
+    cs.es[0, E_QC] = qj.sum()
+    q0 = cs.es[0, E_QH] + cs.es[0, E_QC]
+    ref = PZTSimulator(bare.with_resistance(2e14), dt)
+    o = int(ref.m[OS_QC])
+    ref.st[o:o + qj.size] = qj
+    ref.st[S_QC] = qj.sum()
+    got = cs.run(np.zeros(n))
+    tr = ref.run(np.zeros(n))
+    assert np.max(np.abs(got.q_c[:, 0] - q0)) <= 16 * np.finfo(float).eps * abs(q0)
+    v_h = got.v_h_v[:, 0]
+    assert np.ptp(v_h) > 0.05 * abs(volts)                 # the branches did move charge into C_h
+    # the 2e14 ohm lets a little charge out: V_h differs by at most that charge over C_h (>= w0), plus rounding
+    leak = np.abs(tr.q_c - q0) / bare.hysteresis.weights[0]
+    assert np.all(np.abs(v_h - tr.v_h_v) <= leak + 1e-12 * np.max(np.abs(tr.v_h_v)))

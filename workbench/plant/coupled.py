@@ -28,8 +28,9 @@ explicitly instead went unstable at h f_mode = 0.07 (70 kHz mode, 1 us; stable a
    zero-order-hold half step);
 2. per stack, the electrical step of today's kernel on that x_dyn: the creep branches relax at a
    held terminal charge (C_h gives what they take, Kirchhoff's current law at the terminal as in
-   :mod:`workbench.plant.kernels`), then R dq/dt = V - V_t on G's local slope, exact through
-   current-limited slews (open leads: q fixed, the creep branches redistribute charge inside);
+   :mod:`workbench.plant.kernels`; semi-implicit on C_h's local slope, stable for any h), then
+   R dq/dt = V - V_t over the gap after them on G's local slope, exact through current-limited slews
+   (open leads: q fixed, the creep branches redistribute charge inside); first order in h with creep;
 3. the stiffened structure advanced over h with g linear between the two step ends
    (first-order hold, one matrix exponential).
 
@@ -158,21 +159,42 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 c1 = c_off[j + 1]
                 qc_old = es[j, E_QC]
                 q_old = qh + qc_old
-                # 2a. the creep branches relax toward C_j V_h (V_h at the sub-step's start, tau_j >> h) at a
-                # held terminal charge: C_h gives what they take (Kirchhoff's current law at the terminal)
+                # 2a. the creep branches relax toward C_j V_h* at a held terminal charge: C_h gives what they
+                # take (Kirchhoff's current law at the terminal). Semi-implicit, as pzt_advance: V_h* = V_h - k S
+                # at the sub-step's end on C_h's local slope k (the segment q_h moves along), S = E / (1 + b k)
+                # the branches' charge, E that of the explicit step: stable for any h and tau_j
                 v_h = u - qh * inv_cpp
+                s_dec = 0.0
+                b_tot = 0.0
+                for i in range(c0, c1):
+                    s_dec += c_dec[i] * qc[i]
+                    b_tot += (1.0 - c_dec[i]) * c_cap[i]
+                e_c = (s_dec + b_tot * v_h) - qc_old
+                g_fall = 0.0
+                if c1 > c0:
+                    cap = es[j, E_GDN] if e_c > 0 else es[j, E_GUP]
+                    hh = 1.0 - cap * inv_cpp
+                    t_c = e_c / (cap + b_tot * hh)
+                    v_h = v_h - t_c * hh
+                    # G's fall from the branches' charge t_c C on its smallest slope (never overstated, as
+                    # pzt_advance takes it)
+                    g_acc = 0.0
+                    g_min = np.inf
+                    for i in range(o0, o1):
+                        g_acc += g_w[i]
+                        g_min = min(g_min, g_acc)
+                    g_fall = t_c * cap * g_min
                 qc_tot = 0.0
                 for i in range(c0, c1):
-                    target = c_cap[i] * v_h
-                    qj = target + (qc[i] - target) * c_dec[i]
+                    qj = c_dec[i] * qc[i] + (1.0 - c_dec[i]) * c_cap[i] * v_h
                     qc[i] = qj
                     qc_tot += qj
                 dq = 0.0
                 if sc[j, C_OPEN] < 0.5:
-                    # 2b. the charge through R into the node (today's kernel), the branches held; open leads
-                    # (2b'): none, q is fixed
+                    # 2b. the charge through R into the node (today's kernel) over the gap after the branches'
+                    # step (G's output fell by g_fall); open leads (2b'): none, q is fixed
                     vc = min(max(v[k, j], sc[j, C_VMIN]), sc[j, C_VMAX])
-                    du = vc - (qc_old - f_term) * inv_cpp - u
+                    du = vc - (qc_tot - f_term) * inv_cpp - (u - g_fall)
                     if du != 0.0:
                         r = sc[j, C_R]
                         if du > 0:

@@ -12,18 +12,21 @@ and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the sa
 step, returning its outputs instead of writing an array), as :func:`pzt_run` and the
 closed loop do; :func:`pzt_step` is that pair in one call. The step's arithmetic is arranged for a
 short dependency chain (capacitance and RC factor per capacitance segment, G's plays run only when
-the charge leaves their band, exact creep and mode steps, no division); :func:`pzt_step_reference`
+the charge leaves their band, semi-implicit creep and exact mode steps, no division but the creep step's); :func:`pzt_step_reference`
 keeps the step as first written, the oracle the tests hold it to (1e-12 of the stroke).
 
 Kirchhoff's current law at the terminal (seed 000 Fig. 3, the creep branches across C_h as
 :mod:`workbench.plant.creep` describes them): the current through R feeds C_h and the creep branches
-together, R (dq_h/dt + sum_j dQ_j/dt) = v - V_t. So a step moves the branches' charge Q_j toward
-C_j V_h at a held terminal charge (q_h gives what they take: V_h falls as they charge), then moves
-the charge (v - V_t)/R carries through R; the terminal charge q = q_h + sum_j Q_j changes by that
-charge only. With the leads open (R = 2e14 ohm) q stays put while the branches relax. (Before this
-was fixed the branches' charge reached the terminal without passing R: immaterial at 80 ohm, where
-the loop corrects it within R C, but tens of uC of "held" charge moved at open leads;
-tests/plant/test_kcl.py.)
+together, R (dq_h/dt + sum_j dQ_j/dt) = v - V_t. A step splits this in two parts, each keeping the law (the
+terminal charge q = q_h + sum_j Q_j changes only by the charge through R): first the branches move toward
+C_j V_h at a held terminal charge (q_h gives what they take: V_h falls as they charge), semi-implicitly, i.e.
+toward C_j V_h* with V_h* the node voltage at the step's end on C_h's local slope, which is stable for any dt
+and tau_j; then R moves the charge (v - V_t)/R carries over the gap left after the branches' step. The split
+is first order in dt (as a whole the step is exact only without creep, on G's local slope). With the leads
+open (R = 2e14 ohm) q stays put while the branches relax. (Before this was fixed the branches' charge reached
+the terminal without passing R or the amplifier's current limit: small at 80 ohm while the amplifier is not
+limited, where the loop corrects it within R C, but 27.7 uC and 387 nm apart during a 2 mA slew and tens of
+uC of "held" charge moved at open leads; tests/plant/test_kcl.py, benchmarks/kcl_creep.py.)
 
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
@@ -260,6 +263,12 @@ def plant_params(m):
     for a in range(n):
         d_eff += m[o_cd + a] * m[o_b + n + a]
     k_x = t_em * inv_cpp * inv_kp
+    o_wg = _index(m[O_WG])
+    g_acc = 0.0
+    g_min = math.inf
+    for i in range(_index(m[N_G])):
+        g_acc += m[o_wg + i]
+        g_min = min(g_min, g_acc)
     return (r, m[I_SRC], m[I_SNK], m[V_MIN], m[V_MAX], t_em, m[DT], m[QUASI_STATIC] > 0.5,
             m[INV_I_SRC], m[INV_I_SNK], inv_kp, inv_cpp, m[INV_DT],
             _index(m[N_G]), _index(m[O_RG]), _index(m[O_WG]), _index(m[OS_ZG]),
@@ -268,7 +277,12 @@ def plant_params(m):
             n, _index(m[OS_XM]), _index(m[O_AD]), o_b, o_cd, d_eff,
             r * m[I_SRC], r * m[I_SNK], t_em * inv_kp, k_x, b_tot,
             # x of a plant with modes as one sum over this step's charges and force (pzt_advance)
-            d_eff * k_x, d_eff * inv_kp)
+            d_eff * k_x, d_eff * inv_kp,
+            # the quasi-static creep step's semi-implicit factor k / (1 + b_tot k), k = 1 / C_pp (pzt_advance)
+            inv_cpp / (1.0 + b_tot * inv_cpp),
+            # 1 / C_h's largest capacitance: G's smallest slope (its least prefix sum of weights, the slope after a
+            # long monotone move) less 1 / C_pp, the bound pzt_advance takes V_t's drop from the branches on
+            g_min - inv_cpp)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -277,45 +291,81 @@ def pzt_advance(p, m, st, v_cmd, f_e):
 
     ``p`` is :func:`plant_params` of ``m``. Electrical part (dynamic form), split in two parts that each
     keep Kirchhoff's current law at the terminal (the terminal charge moves only by the charge through
-    R): first the creep branches relax toward C_j V_h over the step (exact, V_h held at its start value),
-    taking their charge from C_h's node; then, with the creep charge and force held,
-    R dq_h/dt = u* - G[q_h] moves the charge through R into the node. On the local slope of G this is an RC
-    relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
+    R): first the creep branches relax toward C_j V_h*, taking their charge from C_h's node, with V_h* the
+    node voltage at the step's end on C_h's local slope (semi-implicit: the step of each branch is its exact
+    one for that held V_h*; stable for any dt and tau_j, first order in dt, as the whole split); then, with the
+    creep charge and force held, R dq_h/dt = u* - G[q_h] moves the charge through R into the node over the
+    gap after the branches' step (so V_t -> v as R -> 0, the quasi-static form). On the local slope of G this
+    is an RC relaxation; while |u* - u|/R exceeds the current limit the charge moves at the limit
     (exactly), then relaxes exponentially for the rest of the step (:func:`rc_charge`). The
     slope is the one at the start of the step; G's slope only falls as more plays engage, so
     the step never overshoots u* and creates no spurious reversal.
 
     The arithmetic is arranged for a short dependency chain per step (the physics is that of
-    :func:`pzt_advance_reference`, equal to ~1e-15 relative, the tests hold the two together):
+    :func:`pzt_step_reference`, equal to ~1e-15 relative, the tests hold the two together):
     the capacitance and its exp(-dt/(R C)) worked out once per capacitance segment, the play
-    pass branch-free, the creep branches and the modes as their exact discrete steps with the
-    parts that do not depend on this step's charge formed off the chain, no division.
+    pass branch-free, the creep branches and the modes as their discrete steps with the
+    parts that do not depend on this step's charge formed off the chain, no division but the
+    creep step's one (plants with creep, dynamic form: S = E C / (C + b_tot h)).
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k, k_h_min) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
     qc_old = st[S_QC]
     q_old = qh + qc_old
     f_term = f_e * k_f                       # T_em F_e / k_p, C
-    # the creep branches first, exact, with V_h held at the step's start (tau_j >> dt): they take their
-    # charge from C_h's node, not from the terminal (KCL, see the module docstring)
+    # the creep branches first, at a held terminal charge: they take their charge from C_h's node (KCL, see
+    # the module docstring). Semi-implicit: each branch steps exactly toward C_j V_h* (decay_j q_j + b_j V_h*),
+    # V_h* the node voltage at the step's end on the local slope k = dV_h/dq_h of the direction the branches
+    # move q_h, V_h* = V_h - k S with S = E / (1 + b_tot k) their summed charge and E the charge of the
+    # explicit step (V_h held). Stable for any dt and tau_j (the open-lead multiplier is d_j / (1 + b_j k),
+    # in (0, 1)); first order in dt, as the explicit step.
     v_h_old = u - qh * inv_cpp
-    s_dec = 0.0
-    for j in range(n_c):
-        qj = st[o_qc + j]
-        s_dec += m[o_cdec + j] * qj
-        st[o_qc + j] = m[o_cdec + j] * qj + m[o_cb + j] * v_h_old
-    qc_new = s_dec + b_tot * v_h_old
+    t_c = 0.0                                # the branches' charge over G's capacitance: G's fall, V
+    th_c = 0.0                               # V_t's drop from the branches' step, S / C_h, V
+    if n_c > 0:
+        s_dec = 0.0
+        for j in range(n_c):
+            s_dec += m[o_cdec + j] * st[o_qc + j]
+        e_c = (s_dec + b_tot * v_h_old) - qc_old
+        if quasi_static:
+            # V_t held: k = 1 / (C_pp + C_h) <= 1 / C_pp; any k at or above the slope is stable, first order
+            v_h_s = v_h_old - e_c * qs_k
+        else:
+            # k = 1 / C_h on the segment q_h moves along (falling when the branches charge): with G's
+            # capacitance C = 1 / (1/C_h + 1/C_pp), h = 1 - C / C_pp, k = h / C, S = E C / (C + b_tot h)
+            # (both directions' factors formed from the state alone: the divisions stay off the step's chain)
+            h_dn = 1.0 - st[S_GDN] * inv_cpp
+            h_up = 1.0 - st[S_GUP] * inv_cpp
+            a_dn = 1.0 / (st[S_GDN] + b_tot * h_dn)
+            a_up = 1.0 / (st[S_GUP] + b_tot * h_up)
+            falling = e_c > 0
+            t_c = e_c * (a_dn if falling else a_up)
+            v_h_s = v_h_old - t_c * (h_dn if falling else h_up)
+            # V_t's drop from the branches' charge S = t_c C for the RC step's gap, taken on C_h's largest
+            # capacitance: the local slope overstates it across a reversal (there C_h is at its smallest and grows
+            # as plays engage along the move) and the RC step then overfilled (V_t 0.18 V above a 90 V command at
+            # dt = 10 ms); this bound never overstates it (V_t stays at or below v), exact for a linear C_h
+            th_c = t_c * (st[S_GDN] if falling else st[S_GUP]) * k_h_min
+        for j in range(n_c):
+            st[o_qc + j] = m[o_cdec + j] * st[o_qc + j] + m[o_cb + j] * v_h_s
+        qc_new = s_dec + b_tot * v_h_s
+    else:
+        qc_new = 0.0
     if quasi_static:
         # R = 0: V_t = v at the step's end with the branches' new charge
         u_new = v - (qc_new - f_term) * inv_cpp
         qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
     else:
-        # R moves dq into the node (branches held over the RC step); C_h keeps dq less what the branches took
-        du = v - (qc_old - f_term) * inv_cpp - u
+        # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
+        # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
+        # miss. C_h keeps dq less what the branches took.
+        # (= v - (qc_new - f_term) / C_pp - (u - t_c): qc_new - qc_old = S = t_c C, and t_c (1 - C / C_pp) = th_c;
+        # formed from the step's start and the drop, off the branches' sum)
+        du = (v - (qc_old - f_term) * inv_cpp - u) + th_c
         dq = 0.0
         if du != 0.0:
             _check_segment(st, dt, r)
@@ -389,13 +439,36 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
     qc_old = st[S_QC]
     q_old = qh + qc_old
     f_term = t_em * f_e * inv_kp              # T_em F_e / k_p, C
-    # creep branches relax toward C_j V_h (tau_j >> dt: V_h held at the step's start), at a held terminal
-    # charge: C_h gives what they take
+    # creep branches relax toward C_j V_h* at a held terminal charge (C_h gives what they take), semi-implicit:
+    # V_h* = V_h - k S at the step's end on the local slope k, S = E / (1 + b_tot k) (pzt_advance)
     v_h_old = u - qh * inv_cpp
-    qc_new = 0.0
     o_cc, o_cdec, o_qc = int(m[O_CC]), int(m[O_CDEC]), int(m[OS_QC])
-    for j in range(int(m[N_C])):
+    n_c = int(m[N_C])
+    e_c = 0.0
+    b_tot = 0.0
+    for j in range(n_c):
         target = m[o_cc + j] * v_h_old
+        e_c += target + (st[o_qc + j] - target) * m[o_cdec + j] - st[o_qc + j]
+        b_tot += (1.0 - m[o_cdec + j]) * m[o_cc + j]
+    g_fall = 0.0                              # G's fall from the branches' charge, V
+    if m[QUASI_STATIC] > 0.5:
+        k = inv_cpp                           # V_t held: the slope is 1 / (C_pp + C_h) <= 1 / C_pp
+    else:
+        cap = st[S_GDN] if e_c > 0 else st[S_GUP]
+        k = 1.0 / cap - inv_cpp               # 1 / C_h on the segment q_h moves along
+    s_c = e_c / (1.0 + b_tot * k)
+    v_h_s = v_h_old - k * s_c
+    if m[QUASI_STATIC] <= 0.5:
+        # G's fall from the branches' charge on its smallest slope (pzt_advance: never overstated)
+        g_acc = 0.0
+        g_min = math.inf
+        for i in range(int(m[N_G])):
+            g_acc += m[int(m[O_WG]) + i]
+            g_min = min(g_min, g_acc)
+        g_fall = s_c * g_min
+    qc_new = 0.0
+    for j in range(n_c):
+        target = m[o_cc + j] * v_h_s
         qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
         st[o_qc + j] = qj
         qc_new += qj
@@ -404,8 +477,8 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
         qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
         u_new = u_target
     else:
-        # then the charge through R into the node, the branches held
-        du = v - (qc_old - f_term) * inv_cpp - u
+        # then the charge through R into the node, over the gap after the branches' step
+        du = v - (qc_new - f_term) * inv_cpp - (u - g_fall)
         dq = 0.0
         if du != 0.0:
             if du > 0:

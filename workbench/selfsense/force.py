@@ -7,8 +7,9 @@ stack the model's own operators are used):
 1. **V_h** from the terminal charge q through the hysteretic capacitance and its creep
    branches. q = q_h + Q_c with q_h = C_h[V_h] (a PI operator) and each creep branch
    relaxing toward C_j V_h (tau_j Q_j' = C_j V_h - Q_j, stepped as the simulator steps it:
-   Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k-1, a_j = exp(-dt/tau_j), V_h held at the step's
-   start; :mod:`workbench.plant.kernels`). Per sample C_h[V_h,k] = q_k - sum_j Q_j,k, so V_h is
+   Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h*, a_j = exp(-dt/tau_j), V_h* = V_h,k-1 - k S on C_h's
+   local slope k = dV_h/dq_h with S the branches' summed charge, semi-implicit and stable for any dt;
+   :mod:`workbench.plant.kernels`). Per sample C_h[V_h,k] = q_k - sum_j Q_j,k, so V_h is
    the exact inverse of C_h (Kuhnen, :meth:`~workbench.plant.hysteresis.PrandtlIshlinskii.inverse`),
    no iteration.
 2. **V_p** = V_t - V_h (the two capacitances in series carry the terminal voltage).
@@ -43,7 +44,7 @@ import numpy as np
 from numba import njit
 
 from ..errors import FlagRangeError
-from ..plant.hysteresis import pi_step
+from ..plant.hysteresis import pi_slope, pi_step
 from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, charge_amp_params, measure
 from .estimator import charge_estimate, static_estimate
@@ -74,14 +75,29 @@ class ForceEstimate:
 
 @njit(cache=True, error_model="numpy")
 def _invert(q, r, w, z, cap, dec, qc, vh):
-    """V_h per sample: inverse PI of (q_k - sum Q_j,k), the creep branches (``qc``, updated) stepped first with
-    the previous V_h (``vh`` at the reset)."""
+    """V_h per sample: inverse PI of (q_k - sum Q_j,k), the creep branches (``qc``, updated) stepped first as
+    :func:`workbench.plant.kernels.pzt_advance` steps them (semi-implicit on C_h's local slope, from the previous
+    V_h: ``vh`` at the reset). ``z[0]``: the threshold-0 play's state, C_h's charge q_h."""
     n = q.shape[0]
+    n_c = cap.shape[0]
     v_h = np.empty(n)
     for k in range(n):
+        s_dec = 0.0
+        b_tot = 0.0
+        qc_old = 0.0
+        for j in range(n_c):
+            s_dec += dec[j] * qc[j]
+            b_tot += (1.0 - dec[j]) * cap[j]
+            qc_old += qc[j]
+        vh_s = vh
+        if n_c > 0:
+            e_c = (s_dec + b_tot * vh) - qc_old
+            # k = dV_h/dq_h on the segment q_h moves along (falling while the branches charge)
+            k_h = pi_slope(z, r, w, z[0], -1 if e_c > 0 else 1)
+            vh_s = vh - k_h * (e_c / (1.0 + b_tot * k_h))
         rhs = q[k]
-        for j in range(cap.shape[0]):
-            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * vh
+        for j in range(n_c):
+            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * vh_s
             rhs -= qc[j]
         vh = pi_step(z, r, w, rhs)
         v_h[k] = vh

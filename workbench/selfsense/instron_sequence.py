@@ -11,9 +11,10 @@ a gain times the back EMF?
 The model, quasi-static (the 200 ohm leads relax in R C ~ 3 ms against 5 s ramps; the 70 kHz
 mode is far above the load frame), charge-conserving, one step of ``dt_s``:
 
-- the creep branches (Kelvin-Voigt, across C_h): Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h,k-1,
-  a_j = exp(-dt / tau_j) (V_h held at the step's start), as :mod:`workbench.plant.kernels` and
-  :func:`.force.estimate_force` step them;
+- the creep branches (Kelvin-Voigt, across C_h): Q_j,k = a_j Q_j,k-1 + (1 - a_j) C_j V_h*,
+  a_j = exp(-dt / tau_j), V_h* = V_h,k-1 - k S semi-implicit (S the branches' summed charge, k = 1 / C_h on
+  the segment V_h moves along with the leads open, 1 / C_pp shorted: stable for any dt), as
+  :mod:`workbench.plant.kernels` and :func:`.force.estimate_force` step them;
 - the stack charge q = C_h[V_h] + sum_j Q_j; V_p = (q - T_em F_e / k_p) / C_pp; V_t = V_h + V_p
   (seed 000 eqs. 5 and 9 with the spring eliminated);
 - leads **shorted** (``R_in``, and the drain before every run): V_t = 0, i.e.
@@ -36,7 +37,7 @@ Note on the library simulator: :class:`~workbench.plant.simulator.PZTSimulator` 
 branches' charge change to the terminal with no current through R (+387 nC by the peak of an open-lead run after three
 ``R_in`` runs in the creep plant, at 200 TOhm), so this module stepped its own
 charge-conserving form. The kernels now keep Kirchhoff's current law at the terminal
-(tests/plant/test_kcl.py) and step the creep branches as this module does (V_h at the step's start);
+(tests/plant/test_kcl.py) and step the creep branches as this module does (semi-implicit V_h*);
 the module keeps its stepper because its shorted runs are the quasi-static V_t = 0, and the simulator's
 quasi-static form (R = 0) keeps G^-1's plays where its dynamic form (open leads) keeps G's, so one state
 cannot pass between the two.
@@ -47,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from ..plant.hysteresis import play_step
+from ..plant.hysteresis import pi_slope, play_step
 from .force import estimate_force, instron_force_profile
 
 __all__ = ["SequenceRun", "serial_sequence", "read_open_lead_run", "table1_sequence_estimates",
@@ -87,15 +88,33 @@ def _segment(z, qc, q, shorted, f_term, r, w_h, w_open, r_open_inv, w_open_inv, 
     z (C_h's play states, V) and qc (creep charges, C) are updated in place; returns the stack
     charge q at the end. ``w_open`` / ``w_short``: C_h's weights / with C_pp added to the r = 0
     play, and their inverses' thresholds and weights. ``out`` rows: V_h, V_p, V_t, q. The creep
-    branches step first with V_h at the step's start (the r = 0 play's state), as
-    :func:`workbench.plant.kernels.pzt_advance` steps them.
+    branches step first from V_h at the step's start (the r = 0 play's state), semi-implicit as
+    :func:`workbench.plant.kernels.pzt_advance` steps them: toward C_j V_h*, V_h* = V_h - k S on the
+    slope k = 1 / C_h of the segment V_h moves along (open leads) or k = 1 / C_pp (shorted: the quasi-static
+    form's bound on 1 / (C_pp + C_h)), S = E / (1 + b k) their charge, E that of the explicit step.
     """
     n_c = cap.shape[0]
+    b_tot = 0.0
+    for j in range(n_c):
+        b_tot += (1.0 - dec[j]) * cap[j]
     for k in range(f_term.shape[0]):
         v_h0 = z[0]
+        s_dec = 0.0
+        qc_old = 0.0
+        for j in range(n_c):
+            s_dec += dec[j] * qc[j]
+            qc_old += qc[j]
+        v_h_s = v_h0
+        if n_c > 0:
+            e_c = (s_dec + b_tot * v_h0) - qc_old
+            if shorted:
+                k_h = 1.0 / c_pp
+            else:
+                k_h = 1.0 / pi_slope(z, r, w_h, v_h0, -1 if e_c > 0 else 1)
+            v_h_s = v_h0 - k_h * (e_c / (1.0 + b_tot * k_h))
         s_qc = 0.0
         for j in range(n_c):
-            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h0
+            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h_s
             s_qc += qc[j]
         if shorted:
             v_h = _solve_v_h(z, r, w_short, r_short_inv, w_short_inv, f_term[k] - s_qc)
