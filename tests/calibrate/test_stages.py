@@ -196,3 +196,51 @@ def test_after_creep_behind_promotion_creep_not_the_relaxation_has_the_lower_bar
     first, st, notes = stages.run_stages(ctx)
     assert first["answer"] == (dl if promote else a)
     assert (a in got["seen"]) != promote and (("creep", "displacement") in got["seen"]) == promote
+
+
+@pytest.mark.parametrize("creep_folds, outcome", [(0, "stands"), (1, "inconclusive"), (2, "inconclusive"),
+                                                  (3, "promoted"), (5, "promoted")])
+def test_creep_behind_a_displacement_effect_each_branch(monkeypatch, creep_folds, outcome):
+    """The three branches of stages._creep_behind_a_displacement_effect (review of the KCL fix,
+    item 3): an absorption won the charge's folds while a delay passes 4 of 5 displacement folds.
+    With the delay in the model the folds are re-scored; the displacement's creep then wins
+    ``creep_folds`` of 5 (one of them as an ``undecided`` fold that includes creep, which counts).
+    At least half (3 of 5): the absorption is creep's charge and the delay is named first; some
+    fold but fewer than half: the record cannot tell, ``None`` (inconclusive); no fold: the
+    absorption stands. Deleting or inverting either test of creep_folds changes an outcome here."""
+    from workbench.calibrate import tracing
+    tag, charge, creep = ("delay", "displacement"), ("dielectric_absorption", "charge"), ("creep", "displacement")
+    d = {"name": "delay", "channel": "displacement", "passes": [True, True, True, True, False], "score": 0.5}
+    res = {"rows": [d], "winners": [charge, charge, charge, charge, tag]}
+    won = [creep] * creep_folds
+    if creep_folds >= 2:      # an undecided fold between creep and another effect counts for creep
+        won[-1] = ("undecided", "delay or creep")
+    rescored = {"winners": won + ["none"] * (5 - creep_folds)}
+    monkeypatch.setattr(tracing, "_absorb", lambda *a, **k: None)
+    monkeypatch.setattr(stages, "_later_candidates", lambda *a, **k: [])
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: rescored)
+    ctx = {"probs": {}, "split": SimpleNamespace(folds=[0] * 5), "need": 4, "base": None, "t": None,
+           "cands": [], "nulls": [], "penalty": 0.02, "noise_factor": 1.0, "infos": {}, "min_share": 0.0}
+    answer, count, note = stages._creep_behind_a_displacement_effect(charge, 4, "kept", res, ctx, {}, [])
+    if outcome == "promoted":
+        assert answer == tag and count == 1 and f"creep wins {creep_folds} of 5" in note
+    elif outcome == "inconclusive":
+        assert answer is None and count == 4 and note is None
+    else:
+        assert (answer, count, note) == (charge, 4, "kept")
+
+
+def test_creep_behind_rule_is_skipped_once_creep_is_found_or_no_displacement_effect_passes(monkeypatch):
+    """The rule's guards: with the displacement's creep already found, or no displacement effect
+    passing ``need`` folds, the answer stands and nothing is re-scored."""
+    from workbench.calibrate import tracing
+    charge = ("dielectric_absorption", "charge")
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: pytest.fail("re-scored"))
+    ctx = {"probs": {}, "split": SimpleNamespace(folds=[0] * 5), "need": 4, "base": None, "t": None}
+    d = {"name": "delay", "channel": "displacement", "passes": [True] * 4 + [False], "score": 0.5}
+    res = {"rows": [d], "winners": [charge] * 5}
+    assert stages._creep_behind_a_displacement_effect(charge, 5, "n", res, ctx, {}, [("creep", "displacement")]) \
+        == (charge, 5, "n")
+    d3 = {**d, "passes": [True] * 3 + [False] * 2}
+    assert stages._creep_behind_a_displacement_effect(charge, 5, "n", {**res, "rows": [d3]}, ctx, {}, []) \
+        == (charge, 5, "n")
