@@ -132,7 +132,8 @@ def test_creeps_charge_behind_a_long_delay_is_not_named_absorption(sn637):
     2026-11-26 the creep branches' charge reached the terminal without passing R, a charge relaxation
     the absorption term fitted in 4 of 5 folds, and this record exercised the rule that withholds an
     absorption behind a displacement effect; with the creep charge through R the absorption wins 2 of
-    5 folds and the delay 3, so no answer reaches 4 and the rule is not reached.)"""
+    5 folds and the delay 3, so no answer reaches 4 and the rule is not reached; its three branches
+    are unit-tested in test_stages.py, test_creep_behind_a_displacement_effect_each_branch.)"""
     base, res, truth = _traced(sn637, *_seed_case(15, 75))
     named = [s["effect"] for s in res["stages"]]
     assert "dielectric_absorption" not in named, (named, res["fold_winners"])

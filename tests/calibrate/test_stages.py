@@ -115,31 +115,79 @@ def test_two_effect_records_are_answered_with_both(pair_rows):
     assert len(both) == len(big), [(r["effect"], np.round(r["excesses"], 1), r["named"]) for r in big]
 
 
-@pytest.mark.xfail(strict=True, reason="measured 2026-11-26 after the plant kernel's KCL fix (creep charge through R "
-                                       "and the current limit): on this record (creep + an 8.4 ms delay, steps at 1 kHz) "
-                                       "only creep is named; the delay is missed (tests/calibrate/test_confusion.py, "
-                                       "test_creep_and_a_long_delay_are_both_named)")
-def test_json_stages_of_a_two_effect_record(sn637, tmp_path):
-    """``workbench calibrate`` on a record with creep and a long sensor delay (steps at 1 kHz):
-    the JSON's ``stages`` lists both, each with its channel, parameters, agreement and test
-    errors; ``effect`` is the first stage; each stage lowers what the earlier ones left."""
+def _calibrate_json(sn637, tmp_path, pair, size, seed):
+    """``workbench calibrate --json`` on a drawn two-effect record (1 kHz steps, 10 s); (JSON, truth)."""
     from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record, write_record
     from workbench.cli import main
     t, v = benchmark_protocol("steps", 1e3, 10_000)
-    plant, truth = plant_with_effect(sn637, ("creep", "delay"), 508431090, duration_s=float(t[-1]), size=5.0)
-    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=508431090), {"serial": "SN637"})
+    plant, truth = plant_with_effect(sn637, pair, seed, duration_s=float(t[-1]), size=size)
+    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=seed), {"serial": "SN637"})
     assert main(["calibrate", str(data), "--plant", str(ROOT / "plants" / "p888_51_sn637.toml"),
                  "--json", str(tmp_path / "r.json")]) == 0
-    res = json.loads((tmp_path / "r.json").read_text())
+    return json.loads((tmp_path / "r.json").read_text()), truth
+
+
+# The first two draws of np.random.default_rng(13) (the rule is test_json_draws_are_the_first_two;
+# the draw seed chosen before any record was traced): pair from the benchmark's PAIRS, size
+# log-uniform over its full SIZE_RANGE (0.03-30x), record seed; 1 kHz steps, 10 s, pinned literally.
+# Both name their two effects on today's code. Of draws 2-11 (measured 2026-11-26), the two creep +
+# delay records at 6.4x and 20.7x name creep only: the miss of the xfail below.
+JSON_DRAWS = [(("drift", "resonance"), 11.041518374660312, 928569338),
+              (("creep", "delay"), 0.18258300013731726, 870829743)]
+
+
+def test_json_draws_are_the_first_two():
+    """The pinned records are the first two draws of the rule above, not picked sizes."""
+    cc = _bench()
+    rng = np.random.default_rng(13)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    for pair, size, seed in JSON_DRAWS:
+        assert cc.PAIRS[int(rng.integers(len(cc.PAIRS)))] == pair
+        assert float(np.exp(rng.uniform(lo, hi))) == size and int(rng.integers(1 << 30)) == seed
+
+
+@pytest.mark.parametrize("pair, size, seed", JSON_DRAWS, ids=["drift+resonance", "creep+delay"])
+def test_json_stages_of_a_two_effect_record(sn637, tmp_path, pair, size, seed):
+    """``workbench calibrate`` on a drawn two-effect record: the JSON's ``stages`` lists both,
+    each with its channel, parameters, agreement and test errors; ``effect`` is the first stage;
+    each stage lowers what the earlier ones left on its channel, and starts from exactly that (the
+    last earlier stage's ``error_after`` on the channel, else the base fit's test error)."""
+    res, truth = _calibrate_json(sn637, tmp_path, pair, size, seed)
     st = res["stages"]
-    assert {s["effect"] for s in st} == {"creep", "delay"}, (st, res["stage_notes"])
+    assert {s["effect"] for s in st} == set(pair), (st, res["stage_notes"])
     assert res["effect"] == st[0]["effect"] and res["channel"] == st[0]["channel"]
-    for s in st:
-        assert s["channel"] == "displacement"
-        assert set(s["error_after"]) == {"rms", "max", "units"} and s["error_after"]["units"] == "m"
+    chans = res["base_fit"]["channels"]
+    for k, s in enumerate(st):
+        units = chans[s["channel"]]["units"]
+        assert set(s["error_after"]) == {"rms", "max", "units"} and s["error_after"]["units"] == units
+        assert s["error_before"]["units"] == units
         assert s["error_after"]["rms"] < s["error_before"]["rms"]
         assert s["agreement"].endswith("of 5") and int(s["agreement"].split()[0]) >= 4 or "resolved" in s
-    assert st[1]["error_before"]["rms"] == pytest.approx(st[0]["error_after"]["rms"], rel=1e-6)
+        assert isinstance(s["parameters"], dict) and s["parameters"]
+        earlier = [e for e in st[:k] if e["channel"] == s["channel"]]
+        start = earlier[-1]["error_after"]["rms"] if earlier else chans[s["channel"]]["rms"]
+        assert s["error_before"]["rms"] == pytest.approx(start, rel=1e-9)
+    by = {s["effect"]: s["parameters"] for s in st}
+    if "resonance" in by:
+        # within the record's frequency resolution, 1 / T (10 s)
+        assert abs(by["resonance"]["f_n_hz"] - truth["freq_hz"]) < 1.0 / 10.0
+    if "delay" in by:
+        # within one sample (1 ms at 1 kHz): this draw's delay is under a sample
+        assert abs(by["delay"]["delay_s"] - truth["delay_s"]) < 1e-3
+
+
+@pytest.mark.xfail(strict=True, reason="measured 2026-11-26 after the plant kernel's KCL fix (creep charge through R "
+                                       "and the current limit): on this record (creep + an 8.4 ms delay, steps at 1 kHz) "
+                                       "the folds split 3 creep / 2 delay, creep explains what delay cannot and not the "
+                                       "reverse (delay does not beat a second creep on the leftover): only creep is "
+                                       "named; the delay is missed")
+def test_creep_and_an_8ms_delay_are_both_named_in_the_json(sn637, tmp_path):
+    """The record with creep and a long sensor delay (8.4 ms, 5x, steps at 1 kHz): both are in the
+    JSON's ``stages``, the delay within 30 %. (The JSON's structure is checked on drawn records
+    that name two effects: test_json_stages_of_a_two_effect_record.)"""
+    res, truth = _calibrate_json(sn637, tmp_path, ("creep", "delay"), 5.0, 508431090)
+    st = res["stages"]
+    assert {s["effect"] for s in st} == {"creep", "delay"}, (st, res["stage_notes"])
     d = next(s for s in st if s["effect"] == "delay")["parameters"]
     assert d["delay_s"] == pytest.approx(truth["delay_s"], rel=0.3)
 
