@@ -487,6 +487,19 @@ def _test_errors(prob, g, dev_blocks, test_blocks):
     return _errors(((prob.r * prob.scale) - corr)[prob.split.test & prob.valid])
 
 
+def _fold_test(b, a, n_params, penalty, floor, null_gain, min_share):
+    """One fold's test of a term: ``(ratio, passes)``.
+
+    ``b``, ``a``: the fold's validation RMS without and with the term; it passes when its
+    penalized ratio ``a (1 + penalty n_params) / b`` is below 1 and the power it removes,
+    ``b^2 - a^2``, exceeds the channel's noise floor ``floor`` squared, the best random term's
+    (``null_gain``) and ``min_share`` of ``b^2``.
+    """
+    ratio = a * (1 + penalty * n_params) / b if b > 0 else np.inf
+    gain = b * b - a * a
+    return ratio, bool(ratio < 1.0 and gain > floor ** 2 and gain > null_gain and gain > min_share * b * b)
+
+
 def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share):
     """Per fold: base-alone and every candidate's validation RMS, the null reference, the winner."""
     n_folds = len(split.folds)
@@ -514,12 +527,8 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         ratios, passes = [], []
         floor = infos[c["channel"]]["noise_floor"]
         for f, (tr, va) in enumerate(split.folds):
-            b = befores[key][f]
-            a = prob.fold_rms(g, tr, va)
-            ratio = a * (1 + penalty * c["n_params"]) / b if b > 0 else np.inf
-            gain = b * b - a * a
-            ok = (ratio < 1.0 and gain > (noise_factor * floor) ** 2 and gain > null_gain[key][f]
-                  and gain > min_share * b * b)
+            ratio, ok = _fold_test(befores[key][f], prob.fold_rms(g, tr, va), c["n_params"], penalty,
+                                   noise_factor * floor, null_gain[key][f], min_share)
             ratios.append(float(ratio))
             passes.append(bool(ok))
         row = {**c, "ratios": ratios, "passes": passes, "score": float(np.median(ratios))}
