@@ -553,6 +553,10 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 winners.append(("undecided", "dielectric_absorption or leakage"))
                 continue
         cx = tags.get(("creep", "displacement"))
+        if (cx is None or not cx["passes"][f]) and ("creep", "gauge") in tags:
+            # the gauge reads the same stack: its creep is the stack's when a displacement-sensor
+            # effect (a long delay) hides the displacement's
+            cx = tags[("creep", "gauge")]
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage") \
                 and cx is not None and cx["passes"][f] and _stack_shows_it(best, cx, f, befores, infos, penalty):
             best = cx
@@ -604,7 +608,10 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
 
 
 def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
-    """Does the displacement show the charge's relaxation comparably (then it is creep)?
+    """Does the stack show the charge's relaxation comparably (then it is creep)?
+
+    ``creep_row``: the displacement's creep, or the gauge's (it reads the same stack) when a
+    displacement-sensor effect hides the displacement's.
 
     By ratios (the creep's validation ratio at most the square root of the charge term's), or in
     metres: the creep explains at least half of the charge term turned into displacement by
@@ -617,7 +624,14 @@ def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
     if not k:
         return False
     x_equiv = _explained(charge_row, f, befores, penalty) * abs(k)
-    return _explained(creep_row, f, befores, penalty) >= 0.5 * x_equiv
+    x_creep = _explained(creep_row, f, befores, penalty)
+    if creep_row["channel"] == "gauge":
+        # the gauge's creep in metres, by the gauge's gain against the recorded displacement
+        g = infos.get("gauge_gain")
+        if not g:
+            return False
+        x_creep = x_creep / abs(g)
+    return x_creep >= 0.5 * x_equiv
 
 
 def _gauge_would_show(row, f, befores, infos, penalty):
