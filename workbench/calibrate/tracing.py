@@ -42,7 +42,9 @@ The fold's winner is the passing candidate with the lowest penalized ratio (``no
 none passes), after two cross-channel rules: a relaxation in the charge that the displacement
 shows too is creep (seed 002: Q_DA and the leakage charge do not move the stack; "too" means
 creep passes the fold on the displacement with a validation ratio at most the square root of
-the charge candidate's: the stack relaxes comparably; and when the charge term, turned into
+the charge candidate's: the stack relaxes comparably; the gauge's creep stands in when the
+displacement's does not pass the fold, as the gauge reads the same stack and a displacement-sensor
+delay can hide the displacement's; and when the charge term, turned into
 displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
 the stack could not have shown it, and the fold is undecided between the two; an absorption
 slower than half the record is told from leakage only by its bend, :mod:`.absorption_or_leakage`),
