@@ -115,31 +115,79 @@ def test_two_effect_records_are_answered_with_both(pair_rows):
     assert len(both) == len(big), [(r["effect"], np.round(r["excesses"], 1), r["named"]) for r in big]
 
 
-@pytest.mark.xfail(strict=True, reason="measured 2026-11-26 after the plant kernel's KCL fix (creep charge through R "
-                                       "and the current limit): on this record (creep + an 8.4 ms delay, steps at 1 kHz) "
-                                       "only creep is named; the delay is missed (tests/calibrate/test_confusion.py, "
-                                       "test_creep_and_a_long_delay_are_both_named)")
-def test_json_stages_of_a_two_effect_record(sn637, tmp_path):
-    """``workbench calibrate`` on a record with creep and a long sensor delay (steps at 1 kHz):
-    the JSON's ``stages`` lists both, each with its channel, parameters, agreement and test
-    errors; ``effect`` is the first stage; each stage lowers what the earlier ones left."""
+def _calibrate_json(sn637, tmp_path, pair, size, seed):
+    """``workbench calibrate --json`` on a drawn two-effect record (1 kHz steps, 10 s); (JSON, truth)."""
     from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record, write_record
     from workbench.cli import main
     t, v = benchmark_protocol("steps", 1e3, 10_000)
-    plant, truth = plant_with_effect(sn637, ("creep", "delay"), 508431090, duration_s=float(t[-1]), size=5.0)
-    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=508431090), {"serial": "SN637"})
+    plant, truth = plant_with_effect(sn637, pair, seed, duration_s=float(t[-1]), size=size)
+    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=seed), {"serial": "SN637"})
     assert main(["calibrate", str(data), "--plant", str(ROOT / "plants" / "p888_51_sn637.toml"),
                  "--json", str(tmp_path / "r.json")]) == 0
-    res = json.loads((tmp_path / "r.json").read_text())
+    return json.loads((tmp_path / "r.json").read_text()), truth
+
+
+# The first two draws of np.random.default_rng(13) (the rule is test_json_draws_are_the_first_two;
+# the draw seed chosen before any record was traced): pair from the benchmark's PAIRS, size
+# log-uniform over its full SIZE_RANGE (0.03-30x), record seed; 1 kHz steps, 10 s, pinned literally.
+# Both name their two effects. Of draws 2-11 (measured 2026-11-26), the two creep + delay records
+# at 6.4x and 20.7x name creep only (creep wins every first-stage fold; the delay does not pass
+# every later fold): a miss, counted by test_two_effect_records_are_answered_with_both's xfail.
+JSON_DRAWS = [(("drift", "resonance"), 11.041518374660312, 928569338),
+              (("creep", "delay"), 0.18258300013731726, 870829743)]
+
+
+def test_json_draws_are_the_first_two():
+    """The pinned records are the first two draws of the rule above, not picked sizes."""
+    cc = _bench()
+    rng = np.random.default_rng(13)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    for pair, size, seed in JSON_DRAWS:
+        assert cc.PAIRS[int(rng.integers(len(cc.PAIRS)))] == pair
+        assert float(np.exp(rng.uniform(lo, hi))) == size and int(rng.integers(1 << 30)) == seed
+
+
+@pytest.mark.parametrize("pair, size, seed", JSON_DRAWS, ids=["drift+resonance", "creep+delay"])
+def test_json_stages_of_a_two_effect_record(sn637, tmp_path, pair, size, seed):
+    """``workbench calibrate`` on a drawn two-effect record: the JSON's ``stages`` lists both,
+    each with its channel, parameters, agreement and test errors; ``effect`` is the first stage;
+    each stage lowers what the earlier ones left on its channel, and starts from exactly that (the
+    last earlier stage's ``error_after`` on the channel, else the base fit's test error)."""
+    res, truth = _calibrate_json(sn637, tmp_path, pair, size, seed)
     st = res["stages"]
-    assert {s["effect"] for s in st} == {"creep", "delay"}, (st, res["stage_notes"])
+    assert {s["effect"] for s in st} == set(pair), (st, res["stage_notes"])
     assert res["effect"] == st[0]["effect"] and res["channel"] == st[0]["channel"]
-    for s in st:
-        assert s["channel"] == "displacement"
-        assert set(s["error_after"]) == {"rms", "max", "units"} and s["error_after"]["units"] == "m"
+    chans = res["base_fit"]["channels"]
+    for k, s in enumerate(st):
+        units = chans[s["channel"]]["units"]
+        assert set(s["error_after"]) == {"rms", "max", "units"} and s["error_after"]["units"] == units
+        assert s["error_before"]["units"] == units
         assert s["error_after"]["rms"] < s["error_before"]["rms"]
         assert s["agreement"].endswith("of 5") and int(s["agreement"].split()[0]) >= 4 or "resolved" in s
-    assert st[1]["error_before"]["rms"] == pytest.approx(st[0]["error_after"]["rms"], rel=1e-6)
+        assert isinstance(s["parameters"], dict) and s["parameters"]
+        earlier = [e for e in st[:k] if e["channel"] == s["channel"]]
+        start = earlier[-1]["error_after"]["rms"] if earlier else chans[s["channel"]]["rms"]
+        assert s["error_before"]["rms"] == pytest.approx(start, rel=1e-9)
+    by = {s["effect"]: s["parameters"] for s in st}
+    if "resonance" in by:
+        # within the record's frequency resolution, 1 / T (10 s)
+        assert abs(by["resonance"]["f_n_hz"] - truth["freq_hz"]) < 1.0 / 10.0
+    if "delay" in by:
+        # within one sample (1 ms at 1 kHz): this draw's delay is under a sample
+        assert abs(by["delay"]["delay_s"] - truth["delay_s"]) < 1e-3
+
+
+def test_creep_and_an_8ms_delay_are_both_named_in_the_json(sn637, tmp_path):
+    """The record with creep and a long sensor delay (8.4 ms, 5x, steps at 1 kHz): both are in the
+    JSON's ``stages``, the delay within 30 %. After the plant kernel's KCL fix the folds split
+    3 creep / 2 delay, and with creep in the model the delay wins 4 of 5 re-scored folds but left
+    5 % more than creep alone on the fifth; the rival (a second creep, changing what creep leaves
+    by 1e-6) then refused it for that fold (a strict xfail). A rival counts only on the folds it
+    explains (stages._beats_rivals), and both are named again. (The JSON's structure is checked
+    on drawn records: test_json_stages_of_a_two_effect_record.)"""
+    res, truth = _calibrate_json(sn637, tmp_path, ("creep", "delay"), 5.0, 508431090)
+    st = res["stages"]
+    assert {s["effect"] for s in st} == {"creep", "delay"}, (st, res["stage_notes"])
     d = next(s for s in st if s["effect"] == "delay")["parameters"]
     assert d["delay_s"] == pytest.approx(truth["delay_s"], rel=0.3)
 
@@ -196,3 +244,78 @@ def test_after_creep_behind_promotion_creep_not_the_relaxation_has_the_lower_bar
     first, st, notes = stages.run_stages(ctx)
     assert first["answer"] == (dl if promote else a)
     assert (a in got["seen"]) != promote and (("creep", "displacement") in got["seen"]) == promote
+
+
+@pytest.mark.parametrize("creep_folds, outcome", [(0, "stands"), (1, "inconclusive"), (2, "inconclusive"),
+                                                  (3, "promoted"), (5, "promoted")])
+def test_creep_behind_a_displacement_effect_each_branch(monkeypatch, creep_folds, outcome):
+    """The three branches of stages._creep_behind_a_displacement_effect (review of the KCL fix,
+    item 3): an absorption won the charge's folds while a delay passes 4 of 5 displacement folds.
+    With the delay in the model the folds are re-scored; the displacement's creep then wins
+    ``creep_folds`` of 5 (one of them as an ``undecided`` fold that includes creep, which counts).
+    At least half (3 of 5): the absorption is creep's charge and the delay is named first; some
+    fold but fewer than half: the record cannot tell, ``None`` (inconclusive); no fold: the
+    absorption stands. Deleting or inverting either test of creep_folds changes an outcome here."""
+    from workbench.calibrate import tracing
+    tag, charge, creep = ("delay", "displacement"), ("dielectric_absorption", "charge"), ("creep", "displacement")
+    d = {"name": "delay", "channel": "displacement", "passes": [True, True, True, True, False], "score": 0.5}
+    res = {"rows": [d], "winners": [charge, charge, charge, charge, tag]}
+    won = [creep] * creep_folds
+    if creep_folds >= 2:      # an undecided fold between creep and another effect counts for creep
+        won[-1] = ("undecided", "delay or creep")
+    rescored = {"winners": won + ["none"] * (5 - creep_folds)}
+    monkeypatch.setattr(tracing, "_absorb", lambda *a, **k: None)
+    monkeypatch.setattr(stages, "_later_candidates", lambda *a, **k: [])
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: rescored)
+    ctx = {"probs": {}, "split": SimpleNamespace(folds=[0] * 5), "need": 4, "base": None, "t": None,
+           "cands": [], "nulls": [], "penalty": 0.02, "noise_factor": 1.0, "infos": {}, "min_share": 0.0}
+    answer, count, note = stages._creep_behind_a_displacement_effect(charge, 4, "kept", res, ctx, {}, [])
+    if outcome == "promoted":
+        assert answer == tag and count == 1 and f"creep wins {creep_folds} of 5" in note
+    elif outcome == "inconclusive":
+        assert answer is None and count == 4 and note is None
+    else:
+        assert (answer, count, note) == (charge, 4, "kept")
+
+
+def test_creep_behind_rule_is_skipped_once_creep_is_found_or_no_displacement_effect_passes(monkeypatch):
+    """The rule's guards: with the displacement's creep already found, or no displacement effect
+    passing ``need`` folds, the answer stands and nothing is re-scored."""
+    from workbench.calibrate import tracing
+    charge = ("dielectric_absorption", "charge")
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: pytest.fail("re-scored"))
+    ctx = {"probs": {}, "split": SimpleNamespace(folds=[0] * 5), "need": 4, "base": None, "t": None}
+    d = {"name": "delay", "channel": "displacement", "passes": [True] * 4 + [False], "score": 0.5}
+    res = {"rows": [d], "winners": [charge] * 5}
+    assert stages._creep_behind_a_displacement_effect(charge, 5, "n", res, ctx, {}, [("creep", "displacement")]) \
+        == (charge, 5, "n")
+    d3 = {**d, "passes": [True] * 3 + [False] * 2}
+    assert stages._creep_behind_a_displacement_effect(charge, 5, "n", {**res, "rows": [d3]}, ctx, {}, []) \
+        == (charge, 5, "n")
+
+
+@pytest.mark.parametrize("rival_rms, beaten", [
+    # the rival (a second creep) changes what creep leaves by 1e-6 on every fold: it explains no fold,
+    # and the candidate, worse than creep alone on fold 2 only, is not refused for it
+    ([1.0 - 1e-6, 1.0 - 1e-6, 1.0 - 1e-6, 1.0 - 1e-6, 1.0 - 1e-6], True),
+    # the rival explains fold 2 (half of what creep leaves there): the candidate, worse there, is refused
+    ([1.0, 0.5, 1.0, 1.0, 1.0], False),
+    # the rival explains folds 1 and 3 but leaves more than the candidate on both: not refused
+    ([0.5, 1.0, 0.5, 1.0, 1.0], True),
+])
+def test_a_rival_counts_on_the_folds_it_explains(monkeypatch, rival_rms, beaten):
+    """stages._beats_rivals: the candidate must leave less than the rival on every fold where the
+    rival passes the stage's own fold test against the found effects alone (here: removes more
+    than the noise floor's power); folds the rival does not explain are left to the candidate's
+    own test. Found effects alone leave 1 on every fold, the candidate 0.3, and 1.05 on fold 2."""
+    from workbench.calibrate import tracing
+    table = {"cand": [0.3, 1.05, 0.3, 0.3, 0.3], "rival": rival_rms}
+    monkeypatch.setattr(tracing, "_stacked", lambda prob, extra, row: row["name"])
+    prob = SimpleNamespace(fold_rms=lambda g, tr, va: table[g][tr])
+    split = SimpleNamespace(folds=[(f, f) for f in range(5)])
+    res = {"befores": {"k": [1.0] * 5}, "null_gain": {"k": [0.0] * 5}}
+    ctx = {"noise_factor": 1.0, "infos": {"displacement": {"noise_floor": 0.01}}, "penalty": 0.0, "min_share": 0.0}
+    row = {"name": "cand", "key": "k", "channel": "displacement"}
+    rival = {"name": "rival", "key": "k", "n_params": 3}
+    ok, who = stages._beats_rivals(row, [rival], {"k": prob}, {"k": []}, split, res, ctx)
+    assert ok is beaten and who == (None if beaten else "rival")

@@ -42,7 +42,9 @@ The fold's winner is the passing candidate with the lowest penalized ratio (``no
 none passes), after two cross-channel rules: a relaxation in the charge that the displacement
 shows too is creep (seed 002: Q_DA and the leakage charge do not move the stack; "too" means
 creep passes the fold on the displacement with a validation ratio at most the square root of
-the charge candidate's: the stack relaxes comparably; and when the charge term, turned into
+the charge candidate's: the stack relaxes comparably; the gauge's creep stands in when the
+displacement's does not pass the fold, as the gauge reads the same stack and a displacement-sensor
+delay can hide the displacement's; and when the charge term, turned into
 displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
 the stack could not have shown it, and the fold is undecided between the two; an absorption
 slower than half the record is told from leakage only by its bend, :mod:`.absorption_or_leakage`),
@@ -487,6 +489,19 @@ def _test_errors(prob, g, dev_blocks, test_blocks):
     return _errors(((prob.r * prob.scale) - corr)[prob.split.test & prob.valid])
 
 
+def _fold_test(b, a, n_params, penalty, floor, null_gain, min_share):
+    """One fold's test of a term: ``(ratio, passes)``.
+
+    ``b``, ``a``: the fold's validation RMS without and with the term; it passes when its
+    penalized ratio ``a (1 + penalty n_params) / b`` is below 1 and the power it removes,
+    ``b^2 - a^2``, exceeds the channel's noise floor ``floor`` squared, the best random term's
+    (``null_gain``) and ``min_share`` of ``b^2``.
+    """
+    ratio = a * (1 + penalty * n_params) / b if b > 0 else np.inf
+    gain = b * b - a * a
+    return ratio, bool(ratio < 1.0 and gain > floor ** 2 and gain > null_gain and gain > min_share * b * b)
+
+
 def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share):
     """Per fold: base-alone and every candidate's validation RMS, the null reference, the winner."""
     n_folds = len(split.folds)
@@ -514,12 +529,8 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         ratios, passes = [], []
         floor = infos[c["channel"]]["noise_floor"]
         for f, (tr, va) in enumerate(split.folds):
-            b = befores[key][f]
-            a = prob.fold_rms(g, tr, va)
-            ratio = a * (1 + penalty * c["n_params"]) / b if b > 0 else np.inf
-            gain = b * b - a * a
-            ok = (ratio < 1.0 and gain > (noise_factor * floor) ** 2 and gain > null_gain[key][f]
-                  and gain > min_share * b * b)
+            ratio, ok = _fold_test(befores[key][f], prob.fold_rms(g, tr, va), c["n_params"], penalty,
+                                   noise_factor * floor, null_gain[key][f], min_share)
             ratios.append(float(ratio))
             passes.append(bool(ok))
         row = {**c, "ratios": ratios, "passes": passes, "score": float(np.median(ratios))}
@@ -544,6 +555,10 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 winners.append(("undecided", "dielectric_absorption or leakage"))
                 continue
         cx = tags.get(("creep", "displacement"))
+        if (cx is None or not cx["passes"][f]) and ("creep", "gauge") in tags:
+            # the gauge reads the same stack: its creep is the stack's when a displacement-sensor
+            # effect (a long delay) hides the displacement's
+            cx = tags[("creep", "gauge")]
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage") \
                 and cx is not None and cx["passes"][f] and _stack_shows_it(best, cx, f, befores, infos, penalty):
             best = cx
@@ -595,7 +610,10 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
 
 
 def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
-    """Does the displacement show the charge's relaxation comparably (then it is creep)?
+    """Does the stack show the charge's relaxation comparably (then it is creep)?
+
+    ``creep_row``: the displacement's creep, or the gauge's (it reads the same stack) when a
+    displacement-sensor effect hides the displacement's.
 
     By ratios (the creep's validation ratio at most the square root of the charge term's), or in
     metres: the creep explains at least half of the charge term turned into displacement by
@@ -608,7 +626,14 @@ def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
     if not k:
         return False
     x_equiv = _explained(charge_row, f, befores, penalty) * abs(k)
-    return _explained(creep_row, f, befores, penalty) >= 0.5 * x_equiv
+    x_creep = _explained(creep_row, f, befores, penalty)
+    if creep_row["channel"] == "gauge":
+        # the gauge's creep in metres, by the gauge's gain against the recorded displacement
+        g = infos.get("gauge_gain")
+        if not g:
+            return False
+        x_creep = x_creep / abs(g)
+    return x_creep >= 0.5 * x_equiv
 
 
 def _gauge_would_show(row, f, befores, infos, penalty):
