@@ -357,7 +357,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         ``parameters``, ``stages`` (one dict per effect found), ``candidates`` (``name``,
         ``channel``, ``score`` = median penalized validation ratio over the folds,
         ``passes``, ``error_before`` / ``error_after`` on the test rows), ``channels`` (each
-        channel's test error before, noise floor and null reference), ``reason``, and, for
+        channel's test error before, noise floor and null reference, and ``error_after`` at the end:
+        see :func:`_carry_to_channels`), ``reason``, and, for
         plotting, ``terms``: (channel, model without the first effect, its fitted term).
     """
     from .splits import make_split
@@ -473,7 +474,7 @@ def _carry_to_channels(out, stages, probs, base, split):
     for ch, c in out["channels"].items():
         key = (ch, "model")
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
-        carried = [s["effect"] for s in stages if s["channel"] == "displacement" and s["channel"] != ch
+        carried = [s["effect"] for s in stages if s["channel"] == "displacement"
                    and s["effect"] in ("creep", "resonance")]
         if ch in own or not carried or key not in probs or not extra[key]:
             continue
