@@ -47,3 +47,26 @@ def test_a_channel_the_base_cannot_beat_a_line_on_ends_below_the_line(sn637, ind
     end = _end_errors(res)
     for ch, err in end.items():
         assert np.isfinite(err) and err <= base.channels[ch].line_rms_test, (ch, err, base.channels[ch].line_rms_test)
+
+
+@pytest.mark.parametrize("draw", range(3))
+def test_the_ridge_grids_last_entry_is_the_straight_line_itself(draw):
+    """``ridge = inf`` (RIDGE_GRID's last entry) is the line of ``_line`` on the same rows, to the
+    bit: the base nests the line exactly, so a cross-validation that picks it cannot end above
+    it. Drawn: a hysteretic channel (PI weights, gain, offset, noise) of a random-walk drive."""
+    from workbench.calibrate import base_fit as bf
+    from workbench.calibrate.pi_fit import pi_thresholds, play_matrix
+    rng = np.random.default_rng(400 + draw)
+    n = 4000
+    v = np.cumsum(rng.normal(size=n)) * 10.0 ** rng.uniform(-1, 1)
+    r = pi_thresholds(v, 12, "quadratic")
+    P = play_matrix(v, r, np.zeros(r.size))
+    y = P @ rng.uniform(0, 1, r.size) * 10.0 ** rng.uniform(-9, 1) + rng.normal() \
+        + rng.normal(size=n) * 10.0 ** rng.uniform(-3, 0) * np.std(P[:, 0])
+    train = np.arange(n) < 3 * n // 4
+    valid = np.ones(n, bool)
+    assert bf.RIDGE_GRID[-1] == np.inf
+    m = bf._fit_channel("displacement", P, y, train, valid, r, np.zeros(r.size), ridge=np.inf)
+    slope, off, line_rms = bf._line(v, y, train, ~train)
+    assert np.all(m.weights[1:] == 0) and m.weights[0] == slope and m.offset == off
+    assert bf.rms(m.residual[~train]) == line_rms
