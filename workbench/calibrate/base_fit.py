@@ -47,8 +47,9 @@ REST_S, REST_TOL_REL = 0.02, 0.005
 #: "beyond" it (sampling alone puts a sine's held-out peaks a hair outside the trained ones).
 BEYOND_REL = 0.01
 #: Ridge strengths tried by the blocked cross-validation, relative to the Gram diagonal of the
-#: unit-RMS columns (0 = plain bounded least squares; the largest is the straight line).
-RIDGE_GRID = (0.0,) + tuple(10.0 ** np.arange(-8, 3))
+#: unit-RMS columns (0 = plain bounded least squares; ``inf`` is the straight line itself: the
+#: identity play and the offset alone).
+RIDGE_GRID = (0.0,) + tuple(10.0 ** np.arange(-8, 3)) + (np.inf,)
 #: Contiguous folds of the training rows for that cross-validation.
 RIDGE_FOLDS = 5
 #: The base is "clearly better" than a straight line when its held-out error is at most this
@@ -201,14 +202,29 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None):
         for lam in RIDGE_GRID:
             err = 0.0
             for Gf, hf, sf in folds:
-                w = _gram_solve(G - Gf + lam * (n - 0) * np.diag(pen), h - hf, lower)
+                w = _ridge_solve(G - Gf, h - hf, lower, pen, lam, n)
                 err += float(w @ Gf @ w - 2 * w @ hf + sf)
             cv.append(err)
         ridge = float(RIDGE_GRID[int(np.argmin(cv))])
-    p = _gram_solve(G + ridge * n * np.diag(pen), h, lower) / col * bscale
+    p = _ridge_solve(G, h, lower, pen, ridge, n) / col * bscale
     w = np.maximum(p[:-1], 0.0)
+    if np.isinf(ridge) and k and thresholds[0] == 0:
+        # the straight line of :func:`_line` on the same rows, to the last bit (its slope >= 0)
+        slope, off, _ = _line(P[:, 0], y, rows, rows)
+        if slope >= 0:
+            w, p = np.r_[slope, np.zeros(k - 1)], np.r_[slope, np.zeros(k - 1), off]
     yhat = P @ w + p[-1]
     return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0, ridge=ridge)
+
+
+def _ridge_solve(G, h, lower, pen, lam, n):
+    """The ridge-penalized bounded solve; ``lam = inf`` keeps only the unpenalized columns."""
+    if not np.isinf(lam):
+        return _gram_solve(G + lam * n * np.diag(pen), h, lower)
+    free = pen == 0
+    w = np.zeros(h.size)
+    w[free] = _gram_solve(G[np.ix_(free, free)], h[free], lower[free])
+    return w
 
 
 def _lagged(t, u, lag_s=0.0, delay_s=0.0):

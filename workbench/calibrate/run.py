@@ -166,7 +166,8 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "held_out_beyond_training_fraction": float(base.beyond_train.sum() / max(int(base.test.sum()), 1)),
             "dropped_thresholds_v": base.dropped_thresholds_v.tolist(),
             "line": {name: {"rms": m.line_rms_test, "base_rms": m.rms_test, "slope": m.line_slope,
-                            "offset": m.line_offset, "ridge": m.ridge, "units": m.units,
+                            "offset": m.line_offset, "ridge": m.ridge if np.isfinite(m.ridge) else "line",
+                            "units": m.units,
                             "base_clearly_better": m.clearly_better_than_line}
                      for name, m in base.channels.items()},
         },

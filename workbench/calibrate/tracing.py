@@ -359,7 +359,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         ``parameters``, ``stages`` (one dict per effect found), ``candidates`` (``name``,
         ``channel``, ``score`` = median penalized validation ratio over the folds,
         ``passes``, ``error_before`` / ``error_after`` on the test rows), ``channels`` (each
-        channel's test error before, noise floor and null reference), ``reason``, and, for
+        channel's test error before, noise floor and null reference, and ``error_after`` at the end:
+        see :func:`_carry_to_channels`), ``reason``, and, for
         plotting, ``terms``: (channel, model without the first effect, its fitted term).
     """
     from .splits import make_split
@@ -438,6 +439,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     first, stages, stage_notes = run_stages(ctx, max_stages=max_stages)
     out = _answer(first, stages, n_folds, need, base, probs, split, infos, min_share)
     out["stage_notes"] = stage_notes
+    _carry_to_channels(out, stages, probs, base, split)
     # a leakage named where the absorption's time constant came out beyond the record: say what
     # the record leaves open (:func:`.absorption_or_leakage.leakage_note`)
     note = leakage_note(first["res"]["by"], first["res"]["befores"], penalty, infos["duration_s"])
@@ -451,6 +453,46 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         out["channels"][ch]["null_reference_rms"] = float(np.sqrt(np.median(first["res"]["null_gain"][key]))) \
             if key in first["res"]["null_gain"] else None
     return out
+
+
+def _carry_to_channels(out, stages, probs, base, split):
+    """Each channel's test error at the end, with the found effects it reads carried into its model.
+
+    A channel's own stages end at the last one's ``error_after``. A channel that reads the stack's
+    motion without an effect named on it (the gauge, the charge) is refitted with the columns of
+    every effect found on the displacement that :func:`_absorb` carries to it (creep, a
+    resonance: the gauge reads the displacement, ringing and all), its gains free, on the
+    development rows. The carry is kept only when it lowers the channel's pooled validation
+    error over the split's folds (data the test part never enters); ``carried`` names what is
+    in, ``carry_refused`` what the folds turned down. ``error_after`` (``{rms, max, units}``
+    on the test rows) is written to every channel of ``out["channels"]``.
+    """
+    extra = {key: [] for key in probs}
+    for s in stages:
+        _absorb(s["_cand"], extra, probs, base, base.t)
+    own = {}
+    for s in stages:
+        own[s["channel"]] = s["error_after"]
+    for ch, c in out["channels"].items():
+        key = (ch, "model")
+        c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
+        carried = [s["effect"] for s in stages if s["channel"] == "displacement"
+                   and s["effect"] in ("creep", "resonance")]
+        if ch in own or not carried or key not in probs or not extra[key]:
+            continue
+        prob = probs[key]
+        g0, g1 = prob.base, _stacked(prob, extra[key], None)
+        sse = {}
+        for name, g in (("base", g0), ("carried", g1)):
+            tot = 0.0
+            for tr, va in split.folds:
+                tot += float(prob.fold_rms(g, tr, va)) ** 2 * max(prob.n_rows(va), 1)
+            sse[name] = tot
+        if sse["carried"] < sse["base"]:
+            c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks), "units": c["units"]}
+            c["carried"] = carried
+        else:
+            c["carry_refused"] = carried
 
 
 def _stacked(prob, extra_list, cand):
