@@ -458,7 +458,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
 def _carry_to_channels(out, stages, probs, base, split, ctx):
     """Each channel's test error at the end, with the found effects it reads carried into its model.
 
-    A channel's own stages end at the last one's ``error_after``. A channel that reads the stack's
+    A channel's own stages on its model of the drive end at the last one's ``error_after`` (a
+    gauge's bow, fitted against the recorded displacement, is not one). A channel that reads the stack's
     motion without an effect named on it (the gauge, the charge) is refitted with the columns of
     every effect found on the displacement that :func:`_absorb` carries to it (creep, a
     resonance: the gauge reads the displacement, ringing and all), its gains free, on the
@@ -475,7 +476,10 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         _absorb(s["_cand"], extra, probs, base, base.t)
     own = {}
     for s in stages:
-        own[s["channel"]] = s["error_after"]
+        # a stage on another problem of the channel (the gauge's bow, fitted to the gauge against
+        # the *recorded* displacement) is not the channel's model of the drive: not its end
+        if s["_cand"]["key"] == (s["channel"], "model"):
+            own[s["channel"]] = s["error_after"]
     for ch, c in out["channels"].items():
         key = (ch, "model")
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
