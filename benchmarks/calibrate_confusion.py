@@ -95,12 +95,11 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
         if len(effects) > 1:
             own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
     # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
-    # effect named on it, else the base's, with a displacement effect it reads carried into it when
-    # the validation folds keep the carry: tracing's ``error_after`` per channel) against a straight
-    # line of the drive fitted on the same rows
+    # effect named on its model of the drive, else the base's, with a displacement effect it reads
+    # carried into it when the validation folds keep the carry: tracing's ``error_after`` per
+    # channel; a gauge bow's stage, fitted against the recorded displacement, is not one) against
+    # a straight line of the drive fitted on the same rows
     final = {ch: c.get("error_after", c)["rms"] for ch, c in res["channels"].items()}
-    for s in res.get("stages", []):
-        final[s["channel"]] = s["error_after"]["rms"]
     above_line = {ch: (err, base.channels[ch].line_rms_test) for ch, err in final.items()
                   if ch in base.channels and err > base.channels[ch].line_rms_test}
     # the tool's own warning bar (base_fit.LINE_MARGIN): not *clearly* better than the line

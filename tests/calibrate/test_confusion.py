@@ -8,6 +8,7 @@ that is none. A ``none`` or ``inconclusive`` is not wrong. WORKBENCH_FULL=1 adds
 """
 
 
+import numpy as np
 import pytest
 
 from tests.conftest import FULL, load_benchmark
@@ -206,3 +207,30 @@ def test_creeps_charge_is_not_absorption_when_the_gauge_shows_the_creep(sn637, c
     named = [s["effect"] for s in res["stages"]]
     assert "creep" in named, (named, res["fold_winners"])
     assert not set(named) - {"creep", "delay"}, (named, res["fold_winners"])
+
+
+@pytest.mark.parametrize("draw", range(4))
+def test_the_gauges_creep_is_turned_into_metres_by_its_gain(draw):
+    """``_stack_shows_it`` with the gauge's creep: what the gauge explains (V) divided by its gain
+    (V/m) is metres, compared with the charge term as displacement (C x m/C). The ratio branch
+    is kept out (the gauge's ratio above the square root of the charge's), so the gain decides:
+    the gauge explaining 0.7x the charge's displacement is the stack's creep, 0.3x is not.
+    Multiplying by the gain, or leaving it out, calls both creep (gain >= 1e3 V/m). Drawn: the
+    gain (1e3..1e7 V/m, the sensor's range; 3.58e5 on the reference plant), k_q2x, the sizes."""
+    from workbench.calibrate.tracing import _stack_shows_it
+    rng = np.random.default_rng(700 + draw)
+    penalty, n = 0.02, 4
+    g = 10.0 ** rng.uniform(3, 7)                      # V/m
+    k = 10.0 ** rng.uniform(-2, 0)                     # m/C
+    b_q = 10.0 ** rng.uniform(-9, -6)                  # C, the charge fold's error before
+    e_q = b_q * np.sqrt(1 - 0.2 ** 2)                  # what the charge term explains (C)
+    charge = {"key": ("charge", "model"), "channel": "charge", "n_params": n,
+              "ratios": [0.2 * (1 + penalty * n)]}
+    for share, expect in ((0.7, True), (0.3, False)):
+        b_g = share * e_q * k * g / 0.6                # V: the gauge explains 0.6 b_g = share x_equiv g
+        gauge = {"key": ("gauge", "model"), "channel": "gauge", "n_params": n,
+                 "ratios": [0.8 * (1 + penalty * n)]}
+        assert gauge["ratios"][0] > np.sqrt(charge["ratios"][0])
+        befores = {("charge", "model"): [b_q], ("gauge", "model"): [b_g]}
+        infos = {"k_q2x": k, "gauge_gain": g}
+        assert _stack_shows_it(charge, gauge, 0, befores, infos, penalty) is expect, (share, g)

@@ -439,7 +439,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     first, stages, stage_notes = run_stages(ctx, max_stages=max_stages)
     out = _answer(first, stages, n_folds, need, base, probs, split, infos, min_share)
     out["stage_notes"] = stage_notes
-    _carry_to_channels(out, stages, probs, base, split)
+    _carry_to_channels(out, stages, probs, base, split, ctx)
     # a leakage named where the absorption's time constant came out beyond the record: say what
     # the record leaves open (:func:`.absorption_or_leakage.leakage_note`)
     note = leakage_note(first["res"]["by"], first["res"]["befores"], penalty, infos["duration_s"])
@@ -455,24 +455,31 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     return out
 
 
-def _carry_to_channels(out, stages, probs, base, split):
+def _carry_to_channels(out, stages, probs, base, split, ctx):
     """Each channel's test error at the end, with the found effects it reads carried into its model.
 
-    A channel's own stages end at the last one's ``error_after``. A channel that reads the stack's
+    A channel's own stages on its model of the drive end at the last one's ``error_after`` (a
+    gauge's bow, fitted against the recorded displacement, is not one). A channel that reads the stack's
     motion without an effect named on it (the gauge, the charge) is refitted with the columns of
     every effect found on the displacement that :func:`_absorb` carries to it (creep, a
     resonance: the gauge reads the displacement, ringing and all), its gains free, on the
-    development rows. The carry is kept only when it lowers the channel's pooled validation
-    error over the split's folds (data the test part never enters); ``carried`` names what is
-    in, ``carry_refused`` what the folds turned down. ``error_after`` (``{rms, max, units}``
-    on the test rows) is written to every channel of ``out["channels"]``.
+    development rows. The carry is a term like any candidate and passes the same test
+    (:func:`_fold_test` on ``ctx["need"]`` of the split's validation folds, data the test part
+    never enters): its parameters are the carried columns (the channel's free gains), against
+    the channel's noise floor, the best of the channel's random terms (``ctx["nulls"]``) and
+    ``min_share``. ``carried`` names what is in, ``carry_refused`` what the folds turned down.
+    ``error_after`` (``{rms, max, units}`` on the test rows) is written to every channel of
+    ``out["channels"]``.
     """
     extra = {key: [] for key in probs}
     for s in stages:
         _absorb(s["_cand"], extra, probs, base, base.t)
     own = {}
     for s in stages:
-        own[s["channel"]] = s["error_after"]
+        # a stage on another problem of the channel (the gauge's bow, fitted to the gauge against
+        # the *recorded* displacement) is not the channel's model of the drive: not its end
+        if s["_cand"]["key"] == (s["channel"], "model"):
+            own[s["channel"]] = s["error_after"]
     for ch, c in out["channels"].items():
         key = (ch, "model")
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
@@ -481,18 +488,28 @@ def _carry_to_channels(out, stages, probs, base, split):
         if ch in own or not carried or key not in probs or not extra[key]:
             continue
         prob = probs[key]
-        g0, g1 = prob.base, _stacked(prob, extra[key], None)
-        sse = {}
-        for name, g in (("base", g0), ("carried", g1)):
-            tot = 0.0
-            for tr, va in split.folds:
-                tot += float(prob.fold_rms(g, tr, va)) ** 2 * max(prob.n_rows(va), 1)
-            sse[name] = tot
-        if sse["carried"] < sse["base"]:
+        g1 = _stacked(prob, extra[key], None)
+        if _carry_passes(prob, g1, sum(C.shape[1] for C, _ in extra[key]), ctx["nulls"].get(key, ()),
+                         split, ctx, ctx["infos"][ch]["noise_floor"]):
             c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks), "units": c["units"]}
             c["carried"] = carried
         else:
             c["carry_refused"] = carried
+
+
+def _carry_passes(prob, g, n_params, nulls, split, ctx, floor):
+    """Does a carried term (Gram matrices ``g``, ``n_params`` free gains) pass ``ctx["need"]`` folds?
+
+    Per fold, :func:`_fold_test` of the channel's base against the base with the carried columns,
+    the null reference being the best of ``nulls`` (random terms' Gram matrices on the base).
+    """
+    passes = 0
+    for f, (tr, va) in enumerate(split.folds):
+        b = prob.fold_rms(prob.base, tr, va)
+        null = max([b * b - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
+        passes += _fold_test(b, prob.fold_rms(g, tr, va), n_params, ctx["penalty"],
+                             ctx["noise_factor"] * floor, null, ctx["min_share"])[1]
+    return passes >= ctx["need"]
 
 
 def _stacked(prob, extra_list, cand):
@@ -597,7 +614,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 winners.append(("undecided", "dielectric_absorption or leakage"))
                 continue
         cx = tags.get(("creep", "displacement"))
-        if (cx is None or not cx["passes"][f]) and ("creep", "gauge") in tags:
+        if cx is None and ("creep", "gauge") in tags:     # ``tags``: rows passing fold f only
             # the gauge reads the same stack: its creep is the stack's when a displacement-sensor
             # effect (a long delay) hides the displacement's
             cx = tags[("creep", "gauge")]
@@ -608,9 +625,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 and ("displacement", "model") in befores and infos.get("k_q2x"):
             # would the stack have shown it? the charge term as displacement (eq. 10) against the
             # displacement's noise floor: if it could hide there, creep is not excluded
-            b = befores[best["key"]][f]
-            a = b * best["ratios"][f] / (1 + penalty * best["n_params"])
-            x_equiv = np.sqrt(max(b * b - a * a, 0.0)) * abs(infos["k_q2x"])
+            x_equiv = _explained(best, f, befores, penalty) * abs(infos["k_q2x"])
             if x_equiv < 3.0 * infos["displacement"]["noise_floor"]:
                 winners.append(("undecided", f"{best['name']} or creep"))
                 continue
