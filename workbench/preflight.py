@@ -540,7 +540,8 @@ def estimate_run(args):
             # each sensor loop: open loop for the controller's startup_wait_s (when its block carries one for
             # that sensor), the two-period 0.1 Hz triangle, then the --hold (verify/sensors.py run_sensor_loop)
             s_p, b_p = RUN_COSTS["verify_sensor_period"]
-            n = sum((wait_s.get(k, 1.0) + 20.0 + args.hold) * fs for k in sensors)
+            from .verify.sensors import closing_time_s       # one home for when the sensor loop closes
+            n = sum((closing_time_s(wait_s.get(k)) + 20.0 + args.hold) * fs for k in sensors)
             parts.append(f"--sensor {' '.join(sensors)} with --hold {args.hold:g} s ({n:.3g} servo periods"
                          + "".join(f"; {args.controller}: [sensor.startup_wait_s] {w:g} s of open loop"
                                    for w in wait_s.values()) + ")")

@@ -134,6 +134,17 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
             es[j, E_FDN] = rc_factor(es[j, E_GDN], h, sc[j, C_R])
             es[j, E_FDT] = h
             es[j, E_FR] = sc[j, C_R]
+    # per stack, constant over the run: the creep branches' summed input coefficient b = sum (1 - d_i) C_i and
+    # G's smallest slope (the running sum of its weights' minimum)
+    b_stack = np.zeros(ns)
+    g_min_stack = np.full(ns, np.inf)
+    for j in range(ns):
+        for i in range(c_off[j], c_off[j + 1]):
+            b_stack[j] += (1.0 - c_dec[i]) * c_cap[i]
+        g_acc = 0.0
+        for i in range(g_off[j], g_off[j + 1]):
+            g_acc += g_w[i]
+            g_min_stack[j] = min(g_min_stack[j], g_acc)
     row = 0
     count = 0
     for k in range(v.shape[0]):
@@ -165,10 +176,9 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 # the branches' charge, E that of the explicit step: stable for any h and tau_j
                 v_h = u - qh * inv_cpp
                 s_dec = 0.0
-                b_tot = 0.0
+                b_tot = b_stack[j]
                 for i in range(c0, c1):
                     s_dec += c_dec[i] * qc[i]
-                    b_tot += (1.0 - c_dec[i]) * c_cap[i]
                 e_c = (s_dec + b_tot * v_h) - qc_old
                 g_fall = 0.0
                 if c1 > c0:
@@ -178,12 +188,7 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                     v_h = v_h - t_c * hh
                     # G's fall from the branches' charge t_c C on its smallest slope (never overstated, as
                     # pzt_advance takes it)
-                    g_acc = 0.0
-                    g_min = np.inf
-                    for i in range(o0, o1):
-                        g_acc += g_w[i]
-                        g_min = min(g_min, g_acc)
-                    g_fall = t_c * cap * g_min
+                    g_fall = t_c * cap * g_min_stack[j]
                 qc_tot = 0.0
                 for i in range(c0, c1):
                     qj = c_dec[i] * qc[i] + (1.0 - c_dec[i]) * c_cap[i] * v_h

@@ -13,7 +13,7 @@ step, returning its outputs instead of writing an array), as :func:`pzt_run` and
 closed loop do; :func:`pzt_step` is that pair in one call. The step's arithmetic is arranged for a
 short dependency chain (capacitance and RC factor per capacitance segment, G's plays run only when
 the charge leaves their band, semi-implicit creep and exact mode steps, no division but the creep step's); :func:`pzt_step_reference`
-keeps the step as first written, the oracle the tests hold it to (1e-12 of the stroke).
+keeps the same equations in their plainest form (per-step divisions and exp), the oracle the tests hold it to (1e-12 of the stroke).
 
 Kirchhoff's current law at the terminal (seed 000 Fig. 3, the creep branches across C_h as
 :mod:`workbench.plant.creep` describes them): the current through R feeds C_h and the creep branches
@@ -425,7 +425,7 @@ def pzt_step(m, st, v_cmd, f_e, out):
 
 @njit(cache=True, error_model="numpy")
 def pzt_step_reference(m, st, v_cmd, f_e, out):
-    """The step as first written (per-step divisions and exp, per-step formulae): the oracle of :func:`pzt_step`.
+    """The step's equations in their plainest form (per-step divisions and exp): the oracle of :func:`pzt_step`.
 
     Same effect on ``st`` and ``out`` as :func:`pzt_step` up to rounding (~1e-15 relative);
     it also keeps the capacitance segment entries of ``st`` current, so the two can be

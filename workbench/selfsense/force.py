@@ -81,13 +81,14 @@ def _invert(q, r, w, z, cap, dec, qc, vh):
     n = q.shape[0]
     n_c = cap.shape[0]
     v_h = np.empty(n)
+    b_tot = 0.0                                  # the branches' summed input coefficient, constant over the run
+    for j in range(n_c):
+        b_tot += (1.0 - dec[j]) * cap[j]
     for k in range(n):
         s_dec = 0.0
-        b_tot = 0.0
         qc_old = 0.0
         for j in range(n_c):
             s_dec += dec[j] * qc[j]
-            b_tot += (1.0 - dec[j]) * cap[j]
             qc_old += qc[j]
         vh_s = vh
         if n_c > 0:

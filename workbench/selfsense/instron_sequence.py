@@ -156,7 +156,7 @@ class SequenceRun:
     peak_time_s: float
 
 
-def serial_sequence(pzt, runs, *, drain_s=10.0, dt_s=0.01, rest_s=1.0, ramp_s=5.0, hold_s=2.0):
+def serial_sequence(pzt, runs, *, drain_s=TABLE1_SEQUENCE_DRAIN_S, dt_s=0.01, rest_s=1.0, ramp_s=5.0, hold_s=2.0):
     """Simulate a serial's Instron runs one after another, the stack's state carried (module notes).
 
     Parameters

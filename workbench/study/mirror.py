@@ -256,7 +256,7 @@ def _verified_drift(fsm, plant_path, fc_min_hz):
 
 def _damped_section(summ, damped, paths, plant_path, budgets_v, verified_drift=None):
     """Report lines: the IFF-damped design beside the notch-only one (worst members), and its export."""
-    from ..design.mimo import AXIS_NAMES, IFF_DRIFT_MARGIN, IFF_MIN_OUTER_NOISE_SHARE
+    from ..design.mimo import AXIS_NAMES, IFF_DRIFT_MARGIN, IFF_MIN_OUTER_NOISE_SHARE, IFF_PHASE_COST_DEG
     from ..report.markdown import md_table
     ds = damped.summary()
     i = ds["iff"]
@@ -273,7 +273,7 @@ def _damped_section(summ, damped, paths, plant_path, budgets_v, verified_drift=N
             f"Integral force feedback per stack from its charge bridge (force estimate T (V_t - q / C_R), C_R = "
             f"the nominal incremental C_h): gain {i['gain_v_per_n']:.4g} V/N, high-pass {i['corner_hz']:.3g} Hz; "
             f"flexure damping {100 * i['zeta_min_open']:.2f} % -> {100 * i['zeta_min_damped']:.2f} % (nominal "
-            f"member). Same family and spec as above (noise budget included). The high-pass is tan(10 deg) x the "
+            f"member). Same family and spec as above (noise budget included). The high-pass is tan({IFF_PHASE_COST_DEG:g} deg) x the "
             f"lowest crossover searched (design.mimo.iff_corner_hz), at least {IFF_DRIFT_MARGIN:g}x the fastest "
             f"drift the bridge reads: in the serial files {i['drift_hz']:.3g} Hz ({i['drift_source']}; "
             f"{i['drift_margin']:.3g}x)" + (

@@ -142,7 +142,7 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
     position, and the controller words identical, over runs that reach the output limits,
     the current limit and the window): the plant step of
     :func:`workbench.plant.kernels.pzt_advance` (capacitance and exp per capacitance
-    segment, exact creep and mode steps, no division) with its scalars and offsets read
+    segment, the semi-implicit creep step and exact mode steps, no division but the creep step's) with its scalars and offsets read
     once (:func:`workbench.plant.kernels.plant_params`), the gauge constants (bridge
     factors, 1/L, the DAC step and its reciprocal: the period's only divisions are the
     bridge's ratios) and the sub-steps that hold the quarter and three-quarter points

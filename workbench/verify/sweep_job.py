@@ -64,7 +64,6 @@ def run_case(payload):
     """Margins and closed-loop runs of one case (module docstring); a flat dict of metrics."""
     from ..linearize.limit_cycle import loop_responses
     from ..linearize.pzt_describing import pzt_describing_function
-    from ..linearize.sampled import gauge_gain_v_per_m
     from ..plant import load_plant
     from .closed_loop import ClosedLoop, controller_from_json
     from .scenarios import X_START_M, _oscillation, _step_metrics, _to_volts, planned_slope_lead
