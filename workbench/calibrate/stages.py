@@ -54,6 +54,7 @@ delay on the gauge or the charge.
 """
 
 import copy
+import hashlib
 
 import numpy as np
 
@@ -277,8 +278,10 @@ def _later_stage(ctx, extra, found, seen=()):
 
 
 def _extra_signature(extra):
-    """The found effects' columns in brief (per problem: their count, shapes and sums)."""
-    return tuple((k, tuple((C.shape, float(np.sum(C))) for C, _ in v)) for k, v in sorted(extra.items()))
+    """The found effects' columns, per problem: their shapes and a digest of their bytes (two different
+    column sets with equal sums must not share a cache entry)."""
+    return tuple((k, tuple((C.shape, hashlib.blake2b(np.ascontiguousarray(C).tobytes(), digest_size=16).digest())
+                           for C, _ in v)) for k, v in sorted(extra.items()))
 
 
 def _copy_extra(extra):
