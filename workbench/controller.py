@@ -32,7 +32,7 @@ import numpy as np
 
 from .errors import ControllerError, ControllerMismatchError
 from .export.fixed_point import FixedPointController, quantize, run_fixed, run_float
-from .export.sensor import SENSOR_KINDS, STARTUP_FIELDS, SensorBlend, run_sensor
+from .export.sensor import BLEND_KEYS, SENSOR_BLOCK_KEYS, SENSOR_KINDS, STARTUP_FIELDS, SensorBlend, run_sensor
 from .export.sos import ExportError, from_sos, to_sos
 
 __all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "X_GAUGE_M", "SensorBlend",
@@ -980,10 +980,6 @@ class Controller:
         return out
 
 
-SENSOR_BLOCK_KEYS = ("kind", "description", "inputs", "v_per_m", "lsb_m", "error_scale", "crossover_hz", "blend",
-                     *STARTUP_FIELDS)        # the keys SensorBlend.as_dict writes
-
-
 def _sensor_from_block(src, data, fs, fxp):
     """The SensorBlend of a JSON ``sensor`` block (None without one), every value and word checked."""
     if data.get("sensor") is None:
@@ -1003,10 +999,10 @@ def _sensor_from_block(src, data, fs, fxp):
         raise ControllerError(src, f"sensor.{unknown[0]}", f"unknown key; the sensor block's keys are "
                                                            f"{', '.join(SENSOR_BLOCK_KEYS)}")
     if isinstance(block.get("blend"), dict):
-        unknown = [k for k in block["blend"] if k not in ("k", "coef_bits", "frac_bits", "pole")]
+        unknown = [k for k in block["blend"] if k not in BLEND_KEYS]
         if unknown:
-            raise ControllerError(src, f"sensor.blend.{unknown[0]}", "unknown key; the blend's keys are k, coef_bits, "
-                                                                     "frac_bits, pole")
+            raise ControllerError(src, f"sensor.blend.{unknown[0]}", f"unknown key; the blend's keys are "
+                                                                     f"{', '.join(BLEND_KEYS)}")
     for key in ("crossover_hz", "v_per_m", "lsb_m"):
         if block.get(key) is not None:
             _number(src, f"sensor.{key}", block[key], positive=True)

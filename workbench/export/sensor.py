@@ -93,6 +93,10 @@ def blend_c(prefix, state_expr, g, c):
 
 # firmware's startup and conversion settings the block may carry (SensorBlend attributes, JSON keys)
 STARTUP_FIELDS = ("startup_wait_s", "ref_lead_s", "gauge_curvature_per_m")
+# every key SensorBlend.as_dict may write (the loader refuses any other), and those of its blend table
+SENSOR_BLOCK_KEYS = ("kind", "description", "inputs", "v_per_m", "lsb_m", "error_scale", "crossover_hz", "blend",
+                     *STARTUP_FIELDS)
+BLEND_KEYS = ("k", "coef_bits", "frac_bits", "pole")
 
 
 @dataclass(frozen=True)
@@ -234,8 +238,7 @@ class SensorBlend:
                "error_scale": {"q": s, "frac_bits": b}}
         if self.kind == "fused":
             out["crossover_hz"] = self.crossover_hz
-            out["blend"] = {"k": self.k, "coef_bits": self.coef_bits, "frac_bits": self.frac_bits,
-                            "pole": self.pole}
+            out["blend"] = {key: getattr(self, key) for key in BLEND_KEYS}
         for name in STARTUP_FIELDS:                 # only when carried: older exports stay byte for byte
             if getattr(self, name) is not None:
                 out[name] = getattr(self, name)
