@@ -343,3 +343,46 @@ def test_iff_share_of_the_noise_budget_is_reported_and_warned(fsm, family, sourc
     assert (len(msgs) == 1) == low and (d.iff_info["outer_noise_share_warning"] is not None) == low, msgs
     if low:
         assert f"keep {share:.2f}" in msgs[0] and source in msgs[0]
+
+
+@pytest.mark.parametrize("stack,tau_s", [(0, 0.5), (1, 2.0), (2, 50.0)])
+def test_iff_corner_reads_each_stacks_own_leakage(tmp_path, stack, tau_s):
+    """A stack file's ``[leakage]`` moves the IFF corner's drift bound by its own channel only: tau = R_FP C_int
+    of that stack (closed form), the fastest drift when under the assumed absorption's 5 s, named by its stack;
+    the other stacks keep the assumed channel; a band whose corner lies inside the margin of that drift is
+    refused naming the stack. The verified loop's bridge steps each stack with its own R_FP."""
+    import shutil
+    import tomllib
+    from workbench.errors import DesignError
+    from workbench.selfsense.charge_amp import ChargeAmpParams
+    from workbench.verify.mirror import _bridge_table
+    base = ChargeAmpParams()
+    r_ohm = tau_s / base.c_int_f
+    files = tomllib.loads(FSM.read_text())["stacks"]["files"]
+    shutil.copy(FSM, tmp_path / FSM.name)
+    for j, name in enumerate(files):
+        text = (FSM.parent / name).read_text()
+        if j == stack:
+            text += f"\n[leakage]\nresistance_ohm = {r_ohm!r}\n"
+        (tmp_path / name).write_text(text)
+    fsm = load_mirror(tmp_path / FSM.name)
+    amps = mimo.stack_charge_amps(fsm)
+    assert amps[stack].r_leak_ohm == r_ohm
+    assert all(a == base for j, a in enumerate(amps) if j != stack)
+    fc_min = mimo.MIMO_SPEC.fc_range_hz[0]
+    corner, info = mimo.iff_corner_hz(fsm, fc_min)
+    tau_min = min(tau_s, min(base.da_time_constants_s))
+    assert info["drift_hz"] == pytest.approx(1 / (2 * np.pi * tau_min), rel=1e-12)
+    if tau_s < min(base.da_time_constants_s):
+        assert info["drift_source"] == f"stack {stack}'s charge amplifier's R_FP C_int"
+        m = mimo.IFF_DRIFT_MARGIN
+        low = 0.5 * m / (2 * np.pi * tau_s) / np.tan(np.radians(mimo.IFF_PHASE_COST_DEG))
+        with pytest.raises(DesignError, match=rf"stack {stack}'s charge amplifier's R_FP C_int \(tau {tau_s:.3g} s\)"):
+            mimo.iff_corner_hz(fsm, low)
+    else:
+        assert "dielectric absorption" in info["drift_source"]
+
+    class _Ctrl:                                       # the loop's bridge table without IFF reads only dt_s
+        dt_s, iff = 1e-4, None
+    cp = _bridge_table(_Ctrl, amps)[1]
+    np.testing.assert_array_equal(cp[:, 1], [r_ohm if j == stack else base.r_leak_ohm for j in range(3)])

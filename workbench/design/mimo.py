@@ -63,7 +63,7 @@ from .margins import family_margins, loop_margins, response
 from .nominal import NOMINAL_BIAS_V, NOMINAL_BRANCH, SLOW_HZ, minimal
 
 __all__ = ["Decoupler", "kinematic_decoupler", "member_responses", "force_estimate", "bridge_capacitances_f", "IFF", "IFF_SOURCES", "iff_response",
-           "tune_iff", "iff_corner_hz", "IFF_PHASE_COST_DEG", "IFF_DRIFT_MARGIN", "IFF_MIN_OUTER_NOISE_SHARE", "force_noise_n", "iff_command_noise_v",
+           "tune_iff", "iff_corner_hz", "stack_charge_amps", "IFF_PHASE_COST_DEG", "IFF_DRIFT_MARGIN", "IFF_MIN_OUTER_NOISE_SHARE", "force_noise_n", "iff_command_noise_v",
            "check_iff_noise", "axis_resonances_hz", "damped_gauges", "decoupled", "mimo_disk_margin", "closed_loop_bandwidth_hz", "lowest_bandwidth_hz", "closed_loop_poles", "loop_at_a_time", "MimoDesign",
            "design_mimo", "MIMO_SPEC", "default_freq_hz", "nominal_name", "AXIS_NAMES"]
 
@@ -260,9 +260,10 @@ def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None, d
     in 0.1 s after the loop started (README, mirror section); at 8.8 Hz the tail lasts 18 ms.
 
     Lower bound, the drifts. Besides the force, the charge bridge reads charges that drift: the charge
-    amplifier's leakage (R_FP C_int) and dielectric absorption
-    (:class:`~workbench.selfsense.charge_amp.ChargeAmpParams`), and each stack's creep branches if its
-    file has them. The corner must lie ``drift_margin`` (:data:`IFF_DRIFT_MARGIN`) times above the fastest of
+    amplifier's leakage (R_FP C_int) and dielectric absorption, each stack's own channel
+    (:func:`stack_charge_amps`: its plant file's ``[leakage]`` and ``[dielectric_absorption]`` when given, else
+    the assumed :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`; ``amp`` for all three when passed),
+    and each stack's creep branches if its file has them. The corner must lie ``drift_margin`` (:data:`IFF_DRIFT_MARGIN`) times above the fastest of
     them, 1 / (2 pi tau_min), or the high-pass passes them into the drive. Check it against the mirror the
     verification runs (its creep branches: :func:`workbench.verify.mirror.verification_mirror`), as the
     study does, not only against serial files without creep.
@@ -279,11 +280,14 @@ def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None, d
     DesignError
         When the band's bound lies at or below the drift bound.
     """
-    from ..selfsense.charge_amp import ChargeAmpParams
-    amp = ChargeAmpParams() if amp is None else amp
-    taus = {"the charge amplifier's R_FP C_int": amp.r_leak_ohm * amp.c_int_f}
-    for k, t in enumerate(amp.da_time_constants_s):
-        taus[f"the charge amplifier's dielectric absorption {k + 1}"] = float(t)
+    amps = stack_charge_amps(fsm, amp)
+    shared = all(a == amps[0] for a in amps)
+    taus = {}
+    for j, a in enumerate(amps[:1] if shared else amps):
+        who = "the charge amplifier's" if shared else f"stack {j}'s charge amplifier's"
+        taus[f"{who} R_FP C_int"] = a.r_leak_ohm * a.c_int_f
+        for k, t in enumerate(a.da_time_constants_s):
+            taus[f"{who} dielectric absorption {k + 1}"] = float(t)
     for j, pz in enumerate(fsm.stacks):
         if pz.creep is not None:
             taus[f"stack {j}'s fastest creep branch"] = float(np.min(pz.creep.time_constants_s))
@@ -300,6 +304,17 @@ def iff_corner_hz(fsm, fc_min_hz, phase_cost_deg=IFF_PHASE_COST_DEG, amp=None, d
                     "drift_gain": float(drift_hz / np.hypot(drift_hz, corner))}
 
 
+def stack_charge_amps(fsm, amp=None):
+    """Each stack's charge channel, a list of three :class:`~workbench.selfsense.charge_amp.ChargeAmpParams`.
+
+    ``amp`` given: that one channel for all three stacks. Else :func:`~workbench.selfsense.charge_amp.charge_amp_params`
+    of each stack's own plant file (``fsm.plants[j]``): the assumed circuit with that file's ``[leakage]``
+    R_FP (ohm) and ``[dielectric_absorption]`` relaxation (F, s) when it gives them.
+    """
+    from ..selfsense.charge_amp import charge_amp_params
+    return [amp] * 3 if amp is not None else [charge_amp_params(pl) for pl in fsm.plants]
+
+
 def force_noise_n(fsm, source, bridge_capacitance_f=None, amp=None):
     """RMS noise of each stack's force estimate per reading, N (3,), from the sensors' noise in the plant files.
 
@@ -308,15 +323,16 @@ def force_noise_n(fsm, source, bridge_capacitance_f=None, amp=None):
     reading noise as elongation (sigma_g / K_g) times T^2 / C_p.
     """
     from ..plant.gauge import demod_noise_sigma_v
-    from ..selfsense.charge_amp import ChargeAmpParams, adc_lsb_v
-    amp = ChargeAmpParams() if amp is None else amp
+    from ..selfsense.charge_amp import adc_lsb_v
+    amps = stack_charge_amps(fsm, amp)
     t, cp = _force_consts(fsm)
-    sb = np.hypot(amp.out_noise_v_rms, adc_lsb_v(amp.adc_bits, amp.adc_range_v) / np.sqrt(12.0))
+    sb = np.array([np.hypot(a.out_noise_v_rms, adc_lsb_v(a.adc_bits, a.adc_range_v) / np.sqrt(12.0)) for a in amps])
+    c_int = np.array([a.c_int_f for a in amps])
     _gauge_weight(source)
     if source == "bridge":
         cr = np.asarray(bridge_capacitances_f(fsm) if bridge_capacitance_f is None else bridge_capacitance_f, float)
-        return t * amp.c_int_f / cr * sb
-    q = t * amp.c_int_f / cp * sb
+        return t * c_int / cr * sb
+    q = t * c_int / cp * sb
     if source == "charge":
         return q
     sg = np.array([demod_noise_sigma_v(p.gauge) * p.gauge.trim_scale for p in fsm.plants]) / gauge_gains(fsm)[:, 0]

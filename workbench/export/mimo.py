@@ -820,8 +820,13 @@ def _iff_cascades(iff, fsm, dt_s, name, coeff_bits):
     """The three IFF cascades of an exported design (bridge reading V -> stack V) and the bridge they assume."""
     import control
     from ..design.antiwindup import discretize
-    from ..selfsense.charge_amp import ChargeAmpParams
-    amp = ChargeAmpParams()
+    from ..design.mimo import stack_charge_amps
+    amps = stack_charge_amps(fsm)      # each stack's channel; the bridge's circuit (C_int, ADC, noise) is shared
+    amp = amps[0]
+    if any((a.c_int_f, a.adc_range_v, a.adc_bits, a.out_noise_v_rms)
+           != (amp.c_int_f, amp.adc_range_v, amp.adc_bits, amp.out_noise_v_rms) for a in amps):
+        raise ExportError("the stacks' charge amplifiers differ in C_int, ADC or noise; the exported bridge "
+                          "table holds one of each")
     t = np.array([pz.transducer_constant_n_per_v for pz in fsm.stacks])
     cr = np.asarray(iff.bridge_capacitance_f, float)
     base = discretize(iff.tf(), dt_s, iff.corner_hz)          # V per N, as design.mimo.iff_response

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from ..design.mimo import stack_charge_amps
 from ..design.step import rise_time, step_metrics
 from ..export.mimo import iff_step, mimo_step
 from ..plant.coupled import STACK_OUT_NAMES, coupled_run
@@ -177,7 +178,7 @@ class MirrorLoop:
         self.rng = np.random.default_rng(seed)
         self.v0, self.u0 = mirror_operating_point(fsm, controller)
         self.q0 = fsm.kinematics @ np.full(3, TRIM_CENTER_M)
-        self.bridge = _bridge_table(controller)
+        self.bridge = _bridge_table(controller, stack_charge_amps(fsm))
 
     def start(self, settle_s=0.3):
         """Drive the stacks open loop to the operating point for ``settle_s``, then reset the controller there."""
@@ -277,26 +278,29 @@ _NO_IFF_PLAN = (np.zeros((3, 1, 3), np.int64), np.zeros((3, 1, 2), np.int64), np
                 np.ones(3, np.int64))
 
 
-def _bridge_table(controller, amp=ChargeAmpParams()):
+def _bridge_table(controller, amps=(ChargeAmpParams(),) * 3):
     """Each stack's charge amplifier as the loop steps it.
 
     Returns ``(adc, cp, k, a, b0, b1, scale)``: ``adc`` (3, 3) per stack [ADC range V, output noise V RMS,
     ADC LSB V]; ``cp`` (3, 5), ``k, a, b0, b1`` (3, branches):
     :func:`~workbench.selfsense.charge_amp.charge_amp_arrays` per stack (C_R, C_int, the ADC and the noise
-    from the controller's ``iff.bridge``; R_FP, bias current and absorption from ``amp``); ``scale`` (3,):
-    the bridge word scale 2^FI_j. Without IFF: ``amp``'s numbers with C_R = 0 (unused).
+    from the controller's ``iff.bridge``; R_FP, bias current and absorption from ``amps[j]``, stack j's channel,
+    :func:`~workbench.design.mimo.stack_charge_amps`); absorption branches padded with k = 0 to the most any
+    stack has; ``scale`` (3,): the bridge word scale 2^FI_j. Without IFF: ``amps``' numbers (C_R unused).
     """
     dt = controller.dt_s
     br = None if controller.iff is None else controller.iff["bridge"]
     adc, rows = np.zeros((3, 3)), []
-    for j in range(3):
+    for j, amp in enumerate(amps):
         a_j = amp if br is None else dataclasses.replace(
             amp, c_ref_f=float(br["reference_capacitance_f"][j]), c_int_f=float(br["integrator_capacitance_f"]),
             adc_range_v=float(br["adc_range_v"]), adc_bits=int(br["adc_bits"]),
             out_noise_v_rms=float(br["out_noise_v_rms"]))
         adc[j] = a_j.adc_range_v, a_j.out_noise_v_rms, adc_lsb_v(a_j.adc_bits, a_j.adc_range_v)
         rows.append(charge_amp_arrays(a_j, dt))
-    cp, k, a, b0, b1 = (np.array([r[i] for r in rows], float) for i in range(5))
+    nb = max(r[1].size for r in rows)
+    cp = np.array([r[0] for r in rows], float)
+    k, a, b0, b1 = (np.array([np.pad(r[i], (0, nb - r[i].size)) for r in rows], float) for i in range(1, 5))
     if br is None:
         return adc, cp, k, a, b0, b1, np.ones(3)
     fi = np.array([controller.iff[key].fixed.input_frac_bits for key in ("stack0", "stack1", "stack2")], float)
