@@ -94,12 +94,9 @@ def _records(ctrl, rng, n, n_held):
     return g, r
 
 
-def test_header_step_equals_python_step_bit_for_bit(ctrl, tmp_path, rng):
-    cc = os.environ.get("CC") or shutil.which("gcc")
-    if cc is None:
-        pytest.skip("no gcc: the header cannot be compiled here")
-    ctrl.write(tmp_path, "mimo")
-    (tmp_path / "main.c").write_text(MAIN_C)
+def _compile_main(cc, tmp_path, source):
+    """Write ``source`` as main.c beside the headers in ``tmp_path`` and build ./main (UBSan when available)."""
+    (tmp_path / "main.c").write_text(source)
     base = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(tmp_path), "-o", str(tmp_path / "main"),
             str(tmp_path / "main.c")]
     for extra in (["-fsanitize=undefined", "-fno-sanitize-recover=all"], []):
@@ -108,6 +105,14 @@ def test_header_step_equals_python_step_bit_for_bit(ctrl, tmp_path, rng):
             break
     else:
         pytest.fail(f"the header does not compile:\n{done.stderr}")
+
+
+def test_header_step_equals_python_step_bit_for_bit(ctrl, tmp_path, rng):
+    cc = os.environ.get("CC") or shutil.which("gcc")
+    if cc is None:
+        pytest.skip("no gcc: the header cannot be compiled here")
+    ctrl.write(tmp_path, "mimo")
+    _compile_main(cc, tmp_path, MAIN_C)
     g, r = _records(ctrl, rng, 1500, 25000)
     u0_axes = np.array([3.0, -2.0, 40.0])                 # at rest at a bias (axis volts)
     st = ctrl.reset(u0_axes)
@@ -131,15 +136,7 @@ def test_header_with_iff_equals_python_step_bit_for_bit(ctrl_iff, tmp_path, rng)
     ctrl = ctrl_iff
     paths = ctrl.write(tmp_path, "mimo")
     assert "iff_stack2_h" in paths
-    (tmp_path / "main.c").write_text(MAIN_IFF_C)
-    base = [cc, "-std=c99", "-Wall", "-Wextra", "-Werror", "-O2", "-I", str(tmp_path), "-o", str(tmp_path / "main"),
-            str(tmp_path / "main.c")]
-    for extra in (["-fsanitize=undefined", "-fno-sanitize-recover=all"], []):
-        done = subprocess.run(base + extra, capture_output=True, text=True)
-        if done.returncode == 0:
-            break
-    else:
-        pytest.fail(f"the header does not compile:\n{done.stderr}")
+    _compile_main(cc, tmp_path, MAIN_IFF_C)
     g, r = _records(ctrl, rng, 1500, 25000)
     b = _bridge_records(ctrl, rng, len(g))
     st, ist = ctrl.reset(np.array([3.0, -2.0, 40.0])), ctrl.reset_iff(np.array([3.0, -2.0, 40.0]))
