@@ -131,7 +131,7 @@ def kernels(chained):
         return x + acc
 
     @njit(error_model="numpy")
-    def _gauge(x, gp, r0, zero):
+    def _gauge(x, gp, r0, out, zero):
         # the gauge chain of verify.closed_loop._loop at n_sub 1 (quarter and three-quarter points between x_{k-1}
         # and x_k), without the noise draw: bridge, amplifier and ADC clip, demodulation, trim, DAC quantization
         L, W, kgf, vm, amp, adc_fs = gp[0], gp[1], gp[2], gp[3], gp[4], gp[5]
@@ -161,6 +161,7 @@ def kernels(chained):
                          -adc_fs), adc_fs)
             reading = min(max(k_dem * (vp - vn) + trim_b, -dac_fs), dac_top)
             code = np.floor(reading * inv_lsb + 0.5)
+            out[k] = code
             acc += code
         return acc * dac_lsb
 
@@ -174,7 +175,7 @@ def kernels(chained):
         return acc
 
     @njit(error_model="numpy")
-    def _controller(code, ref, lsb_in, in_scale, f_in, cs, fb, fa, fshift, ffrac, limw, vm, out_scale, zero):
+    def _controller(code, ref, lsb_in, in_scale, f_in, cs, fb, fa, fshift, ffrac, limw, vm, out_scale, out, zero):
         peak = np.zeros((0, 3), np.int64)
         u = 0.0
         acc = 0.0
@@ -182,40 +183,59 @@ def kernels(chained):
             ck = code[k] + u * zero if chained else code[k]
             v = min(max(np.int64(np.rint(ref * in_scale - ck * lsb_in)), -f_in), f_in)
             u = fixed_step(cs, v, fb, fa, fshift, ffrac, limw, vm, True, peak) * out_scale
+            out[k] = u
             acc += u
         return acc
 
     return _plant, _gauge, _draw, _controller
 
 
+def recorded_hold(periods, plant=None, settle=SETTLE, **kw):
+    """The hold at decimate 1 after ``settle`` untimed periods: (ClosedLoop, its state after them as (plant state,
+    cascade words, voltage-model word, last x), the trace of the next ``periods``). ``kw``: ClosedLoop's."""
+    cl, ref = _loop_for(plant, **kw)
+    if settle:
+        cl.run(ref, periods=settle)
+    state = (cl.sim.st.copy(), cl._csi.copy(), cl._vmi.copy(), float(cl._io[1]))
+    return cl, ref, state, cl.run(ref, periods=periods)
+
+
 def pieces(periods, rounds, say=print):
     """ns per call of each piece alone, [free, chained less the chain's own multiply-add], best of ``rounds``."""
-    cl, ref = _loop_for()
-    cl.run(ref, periods=SETTLE)
-    st0, cs0, vm0 = cl.sim.st.copy(), cl._csi.copy(), cl._vmi.copy()
-    tr = cl.run(ref, periods=periods)               # the settled hold at decimate 1: the pieces' inputs
-    u, x = np.ascontiguousarray(tr.u_v), np.ascontiguousarray(tr.x_m)
+    from workbench.plant import load_plant
+
+    cl, ref, (st0, cs0, vm0, x0), tr = recorded_hold(periods)
+    u = np.ascontiguousarray(tr.u_v)
+    x = np.concatenate([[x0], tr.x_m])
     dac_lsb = 2.0 * cl._gp[9] / 2.0 ** cl._gp[10]
     code = np.rint(tr.reading_v / dac_lsb)
     lsb_in = dac_lsb * cl._in_scale
     rng = np.random.Generator(np.random.PCG64(1))
     m, st = cl.sim.m, st0.copy()
     cs, vm = cs0.copy(), vm0.copy()
+    out = np.empty(x.size)
+    # the same stack with neither creep nor mode: the least plant step the loop could take (G's plays, RC)
+    bare = load_plant(PLANT)
+    bare = dataclasses.replace(bare, pzt=dataclasses.replace(bare.pzt, creep=None, modes=()))
+    cl_b, _, (st_b0, _, _, _), tr_b = recorded_hold(periods, bare)
+    u_b, st_b = np.ascontiguousarray(tr_b.u_v), st_b0.copy()
 
     def reset():
         st[:] = st0
+        st_b[:] = st_b0
         cs[...] = cs0
         vm[...] = vm0
 
     def calls(ks):
         plant, gauge, draw, controller = ks
         return {
-            "plant step (pzt_advance: plays, RC, creep, mode)": lambda: plant(m, st, u, 0.0),
-            "gauge chain (bridge x2, clips, demod, trim, DAC)": lambda: gauge(x, cl._gp, cl._r0, 0.0),
+            "plant step (pzt_advance: 12 plays, RC, 5 creep branches, mode)": lambda: plant(m, st, u, 0.0),
+            "plant step, no creep, no mode (12 plays, RC)": lambda: plant(cl_b.sim.m, st_b, u_b, 0.0),
+            "gauge chain (bridge x2, clips, demod, trim, DAC)": lambda: gauge(x, cl._gp, cl._r0, out, 0.0),
             "noise draw (standard_normal; off the chain)": lambda: draw(rng, periods, cl.sigma_v, 0.0),
-            "controller (error word, fixed_step, window)": lambda: controller(
+            "controller (error word, 2-section fixed_step, window)": lambda: controller(
                 code, ref, lsb_in, cl._in_scale, cl._fin, cs, cl._fb, cl._fa, cl._fshift, cl._ffrac, cl._limw, vm,
-                cl._out_scale, 0.0),
+                cl._out_scale, out, 0.0),
         }
 
     free, chained = calls(kernels(False)), calls(kernels(True))
@@ -270,12 +290,16 @@ def main(argv=None):
     print("| piece | free | chained |\n|---|---|---|")
     for name, (f, ch) in pcs.items():
         print(f"| {name} | {f:.1f} | {ch:.1f} |")
-    on_chain = sum(v[1] for k, v in pcs.items() if "noise" not in k)
+    names = list(pcs)
+    on_chain = pcs[names[0]][1] + pcs[names[2]][1] + pcs[names[4]][1]
+    floor = pcs[names[1]][1] + pcs[names[2]][1] + pcs[names[4]][1]
     print(f"sum of the chained pieces on the period's chain (plant, gauge, controller): {on_chain:.1f} ns; "
-          f"the full loop {full[0]:.1f} ns (C {full[1] if full[1] is not None else float('nan'):.1f})")
+          f"the full loop {full[0]:.1f} ns (C {full[1] if full[1] is not None else float('nan'):.1f}); "
+          f"with the bare plant step (no creep, no mode): {floor:.1f} ns")
     print(f"load {load0} -> {load1}")
     if args.json:
         Path(args.json).write_text(json.dumps({"ablations_ns": abl, "pieces_ns": pcs, "chain_ns": chain_ns,
+                                               "sum_on_chain_ns": on_chain, "sum_bare_plant_ns": floor,
                                                "periods": n, "rounds": args.rounds, "load": [load0, load1]},
                                               indent=2) + "\n")
     return 0

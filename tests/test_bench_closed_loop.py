@@ -169,3 +169,33 @@ def test_the_loop_draws_one_standard_normal_a_period_from_its_generator(root, no
     if noise:
         fresh.standard_normal(n)
     assert cl._rng.bit_generator.state == fresh.bit_generator.state
+
+
+def test_the_breakdown_pieces_are_the_loops_own_computation(root):
+    # benchmarks/closed_loop_breakdown.py times the plant step, the gauge chain and the controller alone on
+    # inputs recorded from the loop: fed those inputs (here from rest: the 50 V slew held by the current-limit
+    # window, then the hold; noise off, as the gauge piece draws none), each piece gives the loop's own numbers
+    # exactly (the plant's final state, every DAC code, every output), free or chained (the chain adds y * 0.0)
+    spec = importlib.util.spec_from_file_location("closed_loop_breakdown", root / "benchmarks" / "closed_loop_breakdown.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    n = 6000
+    cl, ref, (st0, cs0, vm0, x0), tr = mod.recorded_hold(n, settle=0, noise=False)
+    assert tr.samples_rate_limited > 3000           # the window held the slew's commands (it keeps I below the limit)
+    dac_lsb = 2.0 * cl._gp[9] / 2.0 ** cl._gp[10]
+    code = np.rint(tr.reading_v / dac_lsb)
+    x = np.concatenate([[x0], tr.x_m])
+    for chained in (False, True):
+        plant, gauge, _, controller = mod.kernels(chained)
+        st = st0.copy()
+        plant(cl.sim.m, st, np.ascontiguousarray(tr.u_v), 0.0)
+        assert np.array_equal(st, cl.sim.st)
+        out = np.full(n + 1, np.nan)
+        gauge(x, cl._gp, cl._r0, out, 0.0)
+        assert np.array_equal(out[1:], code)
+        cs, vm = cs0.copy(), vm0.copy()
+        out[:] = np.nan
+        controller(code, ref, dac_lsb * cl._in_scale, cl._in_scale, cl._fin, cs, cl._fb, cl._fa, cl._fshift,
+                   cl._ffrac, cl._limw, vm, cl._out_scale, out, 0.0)
+        assert np.array_equal(out[:n - 1], tr.u_v[1:]) and out[n - 1] == cl.u
+        assert np.array_equal(cs, cl._csi) and vm[0] == cl._vmi[0]
