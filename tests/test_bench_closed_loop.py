@@ -17,7 +17,7 @@ from workbench.plant import kernels as K
 from workbench.verify import closed_loop
 from workbench.verify.closed_loop import CHUNK, ClosedLoop, controller_from_json
 
-from tests.conftest import FULL
+from tests.conftest import FULL, load_benchmark
 
 
 def _controllers(root):
@@ -171,14 +171,12 @@ def test_the_loop_draws_one_standard_normal_a_period_from_its_generator(root, no
     assert cl._rng.bit_generator.state == fresh.bit_generator.state
 
 
-def test_the_breakdown_pieces_are_the_loops_own_computation(root):
+def test_the_breakdown_pieces_are_the_loops_own_computation():
     # benchmarks/closed_loop_breakdown.py times the plant step, the gauge chain and the controller alone on
     # inputs recorded from the loop: fed those inputs (here from rest: the 50 V slew held by the current-limit
     # window, then the hold; noise off, as the gauge piece draws none), each piece gives the loop's own numbers
     # exactly (the plant's final state, every DAC code, every output), free or chained (the chain adds y * 0.0)
-    spec = importlib.util.spec_from_file_location("closed_loop_breakdown", root / "benchmarks" / "closed_loop_breakdown.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
+    mod = load_benchmark("closed_loop_breakdown")
     n = 6000
     cl, ref, (st0, cs0, vm0, x0), tr = mod.recorded_hold(n, settle=0, noise=False)
     assert tr.samples_rate_limited > 3000           # the window held the slew's commands (it keeps I below the limit)
