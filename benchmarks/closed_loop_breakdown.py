@@ -209,7 +209,24 @@ def recorded_hold(periods, plant=None, settle=SETTLE, **kw):
     return cl, ref, state, cl.run(ref, periods=periods)
 
 
-def pieces(periods, rounds, say=print):
+def c_pieces(lib):
+    """The C library's gauge and controller pieces (closed_loop_vs_c.c) as {"gauge": (free, chained), ...}."""
+    import ctypes
+    d, i = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
+    out = {}
+    for name, args in (("gauge", [d, ctypes.c_long, d, d, d, ctypes.c_double]),
+                       ("ctrl", [d, ctypes.c_long, ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_int64,
+                                 i, i, ctypes.c_double, d, ctypes.c_double])):
+        fs = []
+        for kind in ("free", "chained"):
+            f = getattr(lib, f"{name}_{kind}")
+            f.restype, f.argtypes = ctypes.c_double, args
+            fs.append(f)
+        out[name] = tuple(fs)
+    return out
+
+
+def pieces(periods, rounds, say=print, lib=None):
     """ns per call of each piece alone, [free, chained less the chain's own multiply-add], best of ``rounds``."""
     from workbench.plant import load_plant
 
@@ -248,6 +265,22 @@ def pieces(periods, rounds, say=print):
         }
 
     free, chained = calls(kernels(False)), calls(kernels(True))
+    if lib is not None:
+        import ctypes
+        cp = c_pieces(lib)
+        dp, ip = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
+
+        def c_calls(j):
+            g, c = cp["gauge"][j], cp["ctrl"][j]
+            return {
+                "C: gauge chain": lambda: g(x.ctypes.data_as(dp), x.size, cl._gp.ctypes.data_as(dp),
+                                            cl._r0.ctypes.data_as(dp), out.ctypes.data_as(dp), 0.0),
+                "C: controller (the header's step)": lambda: c(
+                    code.ctypes.data_as(dp), code.size, ref, lsb_in, cl._in_scale, cl._fin, cs.ctypes.data_as(ip),
+                    vm.ctypes.data_as(ip), cl._out_scale, out.ctypes.data_as(dp), 0.0),
+            }
+        free.update(c_calls(0))
+        chained.update(c_calls(1))
     _chain_only(u[:10], 0.0)                             # compile / load outside the timing
     for f in (*free.values(), *chained.values()):
         reset()
@@ -270,7 +303,6 @@ def pieces(periods, rounds, say=print):
 
 
 def main(argv=None):
-    build = _vs_c().build
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--periods", type=float, default=2e6)
     p.add_argument("--rounds", type=int, default=3)
@@ -281,11 +313,14 @@ def main(argv=None):
     cl, ref = _loop_for()
     cl.run(ref, periods=1000)                      # compile / load the loop's cache
     with tempfile.TemporaryDirectory() as tmp:
-        fn = build(cl, tmp)
+        vs_c = _vs_c()
+        fn = vs_c.build(cl, tmp)
         if fn is None:
-            print("no C compiler (gcc): the ablations run in the compiled loop only")
+            print("no C compiler (gcc): the ablations and pieces run in the compiled loop only")
         abl = ablations(n, args.rounds, fn)
-    pcs, chain_ns = pieces(n, args.rounds)
+        import ctypes
+        lib = None if fn is None else ctypes.CDLL(str(Path(tmp) / vs_c.LIB_NAME))
+        pcs, chain_ns = pieces(n, args.rounds, lib=lib)
     load1 = os.getloadavg()
     full = abl["full"]
     print(f"\nablations, CPU ns per period (best of {args.rounds} rounds of {n:.0e} periods; "
@@ -295,7 +330,8 @@ def main(argv=None):
         da = "" if name == "full" else f" ({a - full[0]:+.1f})"
         dc = "" if c is None else ("" if name == "full" else f" ({c - full[1]:+.1f})")
         print(f"| {name} | {a:.1f}{da} | {'-' if c is None else f'{c:.1f}'}{dc} |")
-    print(f"\npieces alone, compiled, ns per call (chained: less the chain's own {chain_ns:.1f} ns)")
+    print(f"\npieces alone, compiled (C: the same lines in closed_loop_vs_c.c), ns per call (chained: less the "
+          f"chain's own {chain_ns:.1f} ns)")
     print("| piece | free | chained |\n|---|---|---|")
     for name, (f, ch) in pcs.items():
         print(f"| {name} | {f:.1f} | {ch:.1f} |")
@@ -305,6 +341,9 @@ def main(argv=None):
     print(f"sum of the chained pieces on the period's chain (plant, gauge, controller): {on_chain:.1f} ns; "
           f"the full loop {full[0]:.1f} ns (C {full[1] if full[1] is not None else float('nan'):.1f}); "
           f"with the bare plant step (no creep, no mode): {floor:.1f} ns")
+    if "C: gauge chain" in pcs:
+        print(f"C's gauge chain and controller, chained: {pcs['C: gauge chain'][1] + pcs[names[-1]][1]:.1f} ns "
+              f"(compiled: {pcs[names[2]][1] + pcs[names[4]][1]:.1f} ns)")
     print(f"load {load0} -> {load1}")
     if args.json:
         Path(args.json).write_text(json.dumps({"ablations_ns": abl, "pieces_ns": pcs, "chain_ns": chain_ns,
