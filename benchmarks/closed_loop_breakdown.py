@@ -214,7 +214,8 @@ def c_pieces(lib):
     import ctypes
     d, i = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
     out = {}
-    for name, args in (("gauge", [d, ctypes.c_long, d, d, d, ctypes.c_double]),
+    for name, args in (("plant", [d, d, d, ctypes.c_long, ctypes.c_double]),
+                       ("gauge", [d, ctypes.c_long, d, d, d, ctypes.c_double]),
                        ("ctrl", [d, ctypes.c_long, ctypes.c_double, ctypes.c_double, ctypes.c_double, ctypes.c_int64,
                                  i, i, ctypes.c_double, d, ctypes.c_double])):
         fs = []
@@ -271,8 +272,12 @@ def pieces(periods, rounds, say=print, lib=None):
         dp, ip = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
 
         def c_calls(j):
-            g, c = cp["gauge"][j], cp["ctrl"][j]
+            pl, g, c = cp["plant"][j], cp["gauge"][j], cp["ctrl"][j]
             return {
+                "C: plant step": lambda: pl(m.ctypes.data_as(dp), st.ctypes.data_as(dp), u.ctypes.data_as(dp), u.size,
+                                            0.0),
+                "C: plant step, no creep, no mode": lambda: pl(cl_b.sim.m.ctypes.data_as(dp), st_b.ctypes.data_as(dp),
+                                                               u_b.ctypes.data_as(dp), u_b.size, 0.0),
                 "C: gauge chain": lambda: g(x.ctypes.data_as(dp), x.size, cl._gp.ctypes.data_as(dp),
                                             cl._r0.ctypes.data_as(dp), out.ctypes.data_as(dp), 0.0),
                 "C: controller (the header's step)": lambda: c(
@@ -342,8 +347,10 @@ def main(argv=None):
           f"the full loop {full[0]:.1f} ns (C {full[1] if full[1] is not None else float('nan'):.1f}); "
           f"with the bare plant step (no creep, no mode): {floor:.1f} ns")
     if "C: gauge chain" in pcs:
-        print(f"C's gauge chain and controller, chained: {pcs['C: gauge chain'][1] + pcs[names[-1]][1]:.1f} ns "
-              f"(compiled: {pcs[names[2]][1] + pcs[names[4]][1]:.1f} ns)")
+        c_sum = pcs["C: gauge chain"][1] + pcs["C: controller (the header's step)"][1]
+        print(f"C: the same sums {pcs['C: plant step'][1] + c_sum:.1f} ns and "
+              f"{pcs['C: plant step, no creep, no mode'][1] + c_sum:.1f} ns; gauge chain and controller alone "
+              f"{c_sum:.1f} ns (compiled: {pcs[names[2]][1] + pcs[names[4]][1]:.1f} ns)")
     print(f"load {load0} -> {load1}")
     if args.json:
         Path(args.json).write_text(json.dumps({"ablations_ns": abl, "pieces_ns": pcs, "chain_ns": chain_ns,

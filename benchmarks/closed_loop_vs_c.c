@@ -382,3 +382,18 @@ GAUGE_PIECE(gauge_chained, 1)
     }
 CTRL_PIECE(ctrl_free, 0)
 CTRL_PIECE(ctrl_chained, 1)
+
+/* The plant step alone over the commands u (V, no force): x of the last step plus the summed currents. */
+#define PLANT_PIECE(NAME, CHAIN)                                                                                    \
+    double NAME(const double *m, double *st, const double *u, long n, double zero)                               \
+    {                                                                                                               \
+        const plant_consts pc = plant_params(m);                                                                  \
+        double x = 0.0, acc = 0.0, i_a;                                                                           \
+        for (long k = 0; k < n; k++) {                                                                            \
+            x = pzt_step(m, st, &pc, CHAIN ? u[k] + x * zero : u[k], 0.0, &i_a);                                  \
+            acc += i_a;                                                                                           \
+        }                                                                                                         \
+        return x + acc;                                                                                           \
+    }
+PLANT_PIECE(plant_free, 0)
+PLANT_PIECE(plant_chained, 1)

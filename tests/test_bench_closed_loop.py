@@ -207,6 +207,10 @@ def test_the_breakdown_pieces_are_the_loops_own_computation(tmp_path):
     pieces = mod.c_pieces(ctypes.CDLL(str(tmp_path / vs_c.LIB_NAME)))
     dp, ip = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
     for j in (0, 1):
+        st = st0.copy()
+        u = np.ascontiguousarray(tr.u_v)
+        pieces["plant"][j](cl.sim.m.ctypes.data_as(dp), st.ctypes.data_as(dp), u.ctypes.data_as(dp), n, 0.0)
+        assert np.array_equal(st, cl.sim.st)
         out = np.full(n + 1, np.nan)
         pieces["gauge"][j](x.ctypes.data_as(dp), x.size, cl._gp.ctypes.data_as(dp), cl._r0.ctypes.data_as(dp),
                            out.ctypes.data_as(dp), 0.0)
