@@ -317,3 +317,83 @@ void cl_run(const double *m, double *st, long n_sub, long n, const double *ref, 
     vm[0] = c.v;
     io[0] = pending; io[1] = x_prev; io[2] = (double)count; io[3] = (double)row;
 }
+
+/* The pieces of cl_run alone, for benchmarks/closed_loop_breakdown.py (not used by the loop above): the gauge chain
+ * (n_sub 1: the points 1/4 and 3/4 between x[k-1] and x[k]; no noise) writing each period's DAC code, and the
+ * controller (error word, STEP) writing each output in V. CHAINED: each input waits on the last output through
+ * + y * zero (zero 0.0 at run time); the plain form reads the record only. */
+#define GAUGE_PIECE(NAME, CHAIN)                                                                                    \
+    double NAME(const double *x, long n, const double *gp, const double *r0, double *out, double zero)          \
+    {                                                                                                               \
+        const double L = gp[0], W = gp[1], kgf = gp[2], vmod = gp[3], amp = gp[4], adc_fs = gp[5];               \
+        const double demod = gp[6], trim_s = gp[7], trim_b = gp[8], dac_fs = gp[9];                              \
+        const double dac_lsb = 2.0 * dac_fs / ldexp(1.0, (int)gp[10]), inv_lsb = 1.0 / dac_lsb;                  \
+        const double dac_top = dac_fs - dac_lsb;                                                                  \
+        const double kw = kgf * (W / L), r0a = r0[0], r0b = r0[1], r0c = r0[2], r0d = r0[3];                     \
+        const double n10 = r0d - r0a, n11 = (r0d * kgf + r0a * kw) / L;                                           \
+        const double d10 = r0d + r0a, d11 = (r0d * kgf - r0a * kw) / L;                                           \
+        const double n20 = r0b - r0c, n21 = -(r0b * kw + r0c * kgf) / L;                                          \
+        const double d20 = r0b + r0c, d21 = (r0c * kgf - r0b * kw) / L;                                           \
+        const double k_br = amp * vmod, k_dem = trim_s * (0.5 * demod);                                          \
+        double xb = x[0], code = 0.0, acc = 0.0;                                                                  \
+        for (long k = 1; k < n; k++) {                                                                            \
+            double xj = CHAIN ? x[k] + code * zero : x[k];                                                        \
+            double xq = xb + (xj - xb) * 0.25, xt = xb + (xj - xb) * 0.75;                                        \
+            xb = xj;                                                                                              \
+            double vp = clampd(((n10 + n11 * xq) / (d10 + d11 * xq) - (n20 + n21 * xq) / (d20 + d21 * xq)) * k_br, \
+                               -adc_fs, adc_fs);                                                                  \
+            double vn = clampd(((n10 + n11 * xt) / (d10 + d11 * xt) - (n20 + n21 * xt) / (d20 + d21 * xt)) * -k_br,\
+                               -adc_fs, adc_fs);                                                                  \
+            double reading = clampd(k_dem * (vp - vn) + trim_b, -dac_fs, dac_top);                                \
+            code = floor(reading * inv_lsb + 0.5);                                                                \
+            out[k] = code;                                                                                        \
+            acc += code;                                                                                          \
+        }                                                                                                         \
+        return acc;                                                                                               \
+    }
+GAUGE_PIECE(gauge_free, 0)
+GAUGE_PIECE(gauge_chained, 1)
+
+#define CTRL_PIECE(NAME, CHAIN)                                                                                     \
+    double NAME(const double *code, long n, double ref, double lsb_in, double in_scale, int64_t in_lim,         \
+                int64_t *cs, int64_t *vm, double out_scale, double *out, double zero)                             \
+    {                                                                                                               \
+        STATE c;                                                                                                  \
+        for (int k = 0; k < N_SEC; k++) {                                                                         \
+            c.s[k][0] = (int32_t)cs[2 * k];                                                                       \
+            c.s[k][1] = (int32_t)cs[2 * k + 1];                                                                   \
+        }                                                                                                         \
+        c.v = (int32_t)vm[0];                                                                                     \
+        double u = 0.0, acc = 0.0;                                                                                \
+        for (long k = 0; k < n; k++) {                                                                            \
+            double ck = CHAIN ? code[k] + u * zero : code[k];                                                     \
+            double ew = rint(ref * in_scale - ck * lsb_in);                                                       \
+            int64_t v = ew > (double)in_lim ? in_lim : ew < -(double)in_lim ? -in_lim : (int64_t)ew;              \
+            u = (double)STEP(&c, (int32_t)v) * out_scale;                                                         \
+            out[k] = u;                                                                                           \
+            acc += u;                                                                                             \
+        }                                                                                                         \
+        for (int k = 0; k < N_SEC; k++) {                                                                         \
+            cs[2 * k] = c.s[k][0];                                                                                \
+            cs[2 * k + 1] = c.s[k][1];                                                                            \
+        }                                                                                                         \
+        vm[0] = c.v;                                                                                              \
+        return acc;                                                                                               \
+    }
+CTRL_PIECE(ctrl_free, 0)
+CTRL_PIECE(ctrl_chained, 1)
+
+/* The plant step alone over the commands u (V, no force): x of the last step plus the summed currents. */
+#define PLANT_PIECE(NAME, CHAIN)                                                                                    \
+    double NAME(const double *m, double *st, const double *u, long n, double zero)                               \
+    {                                                                                                               \
+        const plant_consts pc = plant_params(m);                                                                  \
+        double x = 0.0, acc = 0.0, i_a;                                                                           \
+        for (long k = 0; k < n; k++) {                                                                            \
+            x = pzt_step(m, st, &pc, CHAIN ? u[k] + x * zero : u[k], 0.0, &i_a);                                  \
+            acc += i_a;                                                                                           \
+        }                                                                                                         \
+        return x + acc;                                                                                           \
+    }
+PLANT_PIECE(plant_free, 0)
+PLANT_PIECE(plant_chained, 1)

@@ -48,6 +48,7 @@ CONTROLLER = ROOT / "controllers" / "sn637_loopshape.json"
 C_SOURCE = Path(__file__).with_suffix(".c")
 CFLAGS = ("-O2", "-march=native", "-ffp-contract=off")
 TARGET_RATIO = 3.0
+LIB_NAME = "closed_loop_c.so"          # the shared library build() leaves in its workdir (its pieces: closed_loop_breakdown)
 
 _d = ctypes.POINTER(ctypes.c_double)
 _i = ctypes.POINTER(ctypes.c_int64)
@@ -63,7 +64,7 @@ def build(cl, workdir, cflags=CFLAGS):
     name = "ctl"
     header = Path(workdir) / f"{name}.h"
     header.write_text(_header(name, cl.controller.fixed))
-    lib = Path(workdir) / "closed_loop_c.so"
+    lib = Path(workdir) / LIB_NAME
     npyrandom = Path(np.__file__).parent / "random" / "lib" / "libnpyrandom.a"
     done = subprocess.run([cc, *cflags, "-shared", "-fPIC", "-I", np.get_include(), "-include", str(header),
                            f"-DCTRL={name}", "-o", str(lib), str(C_SOURCE), str(npyrandom), "-lm"],

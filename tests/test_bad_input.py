@@ -215,6 +215,7 @@ def _fuzz3_files(ws):
                          ("corner_1e300", lambda d: d["iff"]["bridge"].__setitem__("corner_hz", 1e300)),
                          ("corner_off", lambda d: d["iff"]["bridge"].__setitem__("corner_hz", 88.0)),
                          ("noise_1e300", lambda d: d["iff"]["bridge"].__setitem__("out_noise_v_rms", 1e300)),
+                         ("adc_1e300", lambda d: d["iff"]["bridge"].__setitem__("adc_range_v", 1e300)),
                          ("typo_key", lambda d: d["iff"].__setitem__("stack_windows", d["iff"]["stack_window"])),
                          ("bridge_typo", lambda d: d["iff"]["bridge"].__setitem__("corner", 8.8)),
                          ("iff_null", lambda d: d.__setitem__("iff", None)),
@@ -626,6 +627,8 @@ FUZZ3 = [
                               ("corner_1e300", "iff.bridge.corner_hz", "Nyquist"),
                               ("corner_off", "iff.bridge.corner_hz", "not the cascades'"),
                               ("noise_1e300", "iff.bridge.out_noise_v_rms", "ADC range 10 V"),
+                              # issue 17's leftover: a range whose one step is above the bridge's largest reading
+                              ("adc_1e300", "iff.bridge.adc_range_v", "every sample would read 0"),
                               ("typo_key", "iff.stack_windows", "unknown key"),
                               ("bridge_typo", "iff.bridge.corner", "unknown key"),
                               ("iff_null", "iff", "must be a table"),

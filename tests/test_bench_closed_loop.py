@@ -17,7 +17,7 @@ from workbench.plant import kernels as K
 from workbench.verify import closed_loop
 from workbench.verify.closed_loop import CHUNK, ClosedLoop, controller_from_json
 
-from tests.conftest import FULL
+from tests.conftest import FULL, load_benchmark
 
 
 def _controllers(root):
@@ -169,3 +169,54 @@ def test_the_loop_draws_one_standard_normal_a_period_from_its_generator(root, no
     if noise:
         fresh.standard_normal(n)
     assert cl._rng.bit_generator.state == fresh.bit_generator.state
+
+
+def test_the_breakdown_pieces_are_the_loops_own_computation(tmp_path):
+    # benchmarks/closed_loop_breakdown.py times the plant step, the gauge chain and the controller alone on
+    # inputs recorded from the loop: fed those inputs (here from rest: the 50 V slew held by the current-limit
+    # window, then the hold; noise off, as the gauge piece draws none), each piece gives the loop's own numbers
+    # exactly (the plant's final state, every DAC code, every output), free or chained (the chain adds y * 0.0),
+    # and so do the C pieces beside the C loop
+    mod = load_benchmark("closed_loop_breakdown")
+    n = 6000
+    cl, ref, (st0, cs0, vm0, x0), tr = mod.recorded_hold(n, settle=0, noise=False)
+    assert tr.samples_rate_limited > 3000           # the window held the slew's commands (it keeps I below the limit)
+    dac_lsb = 2.0 * cl._gp[9] / 2.0 ** cl._gp[10]
+    code = np.rint(tr.reading_v / dac_lsb)
+    x = np.concatenate([[x0], tr.x_m])
+    for chained in (False, True):
+        plant, gauge, _, controller = mod.kernels(chained)
+        st = st0.copy()
+        plant(cl.sim.m, st, np.ascontiguousarray(tr.u_v), 0.0)
+        assert np.array_equal(st, cl.sim.st)
+        out = np.full(n + 1, np.nan)
+        gauge(x, cl._gp, cl._r0, out, 0.0)
+        assert np.array_equal(out[1:], code)
+        cs, vm = cs0.copy(), vm0.copy()
+        out[:] = np.nan
+        controller(code, ref, dac_lsb * cl._in_scale, cl._in_scale, cl._fin, cs, cl._fb, cl._fa, cl._fshift,
+                   cl._ffrac, cl._limw, vm, cl._out_scale, out, 0.0)
+        assert np.array_equal(out[:n - 1], tr.u_v[1:]) and out[n - 1] == cl.u
+        assert np.array_equal(cs, cl._csi) and vm[0] == cl._vmi[0]
+    if shutil.which("gcc") is None:
+        return
+    # the C pieces of benchmarks/closed_loop_vs_c.c, the same numbers
+    import ctypes
+    vs_c = load_benchmark("closed_loop_vs_c")
+    vs_c.build(cl, tmp_path)
+    pieces = mod.c_pieces(ctypes.CDLL(str(tmp_path / vs_c.LIB_NAME)))
+    dp, ip = ctypes.POINTER(ctypes.c_double), ctypes.POINTER(ctypes.c_int64)
+    for j in (0, 1):
+        st = st0.copy()
+        u = np.ascontiguousarray(tr.u_v)
+        pieces["plant"][j](cl.sim.m.ctypes.data_as(dp), st.ctypes.data_as(dp), u.ctypes.data_as(dp), n, 0.0)
+        assert np.array_equal(st, cl.sim.st)
+        out = np.full(n + 1, np.nan)
+        pieces["gauge"][j](x.ctypes.data_as(dp), x.size, cl._gp.ctypes.data_as(dp), cl._r0.ctypes.data_as(dp),
+                           out.ctypes.data_as(dp), 0.0)
+        assert np.array_equal(out[1:], code)
+        cs, vm = cs0.copy(), vm0.copy()
+        pieces["ctrl"][j](code.ctypes.data_as(dp), n, ref, dac_lsb * cl._in_scale, cl._in_scale, cl._fin,
+                          cs.ctypes.data_as(ip), vm.ctypes.data_as(ip), cl._out_scale, out.ctypes.data_as(dp), 0.0)
+        assert np.array_equal(out[:n - 1], tr.u_v[1:]) and out[n - 1] == cl.u
+        assert np.array_equal(cs, cl._csi) and vm[0] == cl._vmi[0]

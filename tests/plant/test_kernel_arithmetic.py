@@ -149,3 +149,27 @@ def test_a_coupled_state_copied_into_a_simulator_with_another_step_reforms_its_r
     v = 30.0 + 0.05 * np.sin(2 * np.pi * np.arange(400)[:, None] / 40 + np.arange(3))
     a, b = mirror_run(intact, v), mirror_run(copied, v)
     np.testing.assert_array_equal(a.coupled.x_m, b.coupled.x_m)
+
+
+@njit
+def _through_borrowed(a):
+    v = K.borrowed(a)
+    v[0] = 7.0
+    total = 0.0
+    for i in range(v.shape[0]):
+        total += v[i]
+    return total, v.shape[0]
+
+
+def test_a_borrowed_view_is_the_array_without_a_reference_count():
+    # the compiled loops take borrowed views of their arrays (no atomic count per step): the view writes
+    # through to the caller's array and has its shape; holding it neither keeps nor frees the array (the
+    # caller's reference count is what it was); interpreted, borrowed is the array itself
+    import sys
+    a = np.arange(5.0)
+    before = sys.getrefcount(a)
+    for _ in range(3):
+        total, n = _through_borrowed(a)
+    assert a[0] == 7.0 and total == 17.0 and n == 5
+    assert sys.getrefcount(a) == before
+    assert K.borrowed(a) is a

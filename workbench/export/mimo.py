@@ -877,11 +877,26 @@ def _load_iff(src, data, fs, allow_unstable, stack_limits_v):
         raise MimoControllerError(src, "iff.bridge.out_noise_v_rms", f"{br['out_noise_v_rms']:g} V RMS is not below the "
                                                                      f"ADC range {br['adc_range_v']:g} V: the reading "
                                                                      f"would be noise; re-export the controller")
+    span = np.asarray(stack_limits_v, float) @ np.array([-1.0, 1.0])
+    # the largest reading the bridge can give: a stack's blocked force over its whole range, T_j (hi - lo), read
+    # at C_R,j / (T_j C_int) V per N (force_noise_n's scale), i.e. C_R,j (hi - lo) / C_int; an ADC whose one step
+    # is above that reads every sample as 0 (the IFF acts on nothing). 18 bits over 10 V: 7.6e-5 V a step
+    s_max = float(np.min(np.asarray(br["reference_capacitance_f"], float) * span) / br["integrator_capacitance_f"])
+    from ..selfsense.charge_amp import adc_lsb_v
+    lsb = adc_lsb_v(br["adc_bits"], br["adc_range_v"])
+    if not lsb <= s_max:
+        hi = s_max * 2.0 ** (int(br["adc_bits"]) - 1)
+        raise MimoControllerError(src, "iff.bridge.adc_range_v", f"{br['adc_range_v']:g} V over {br['adc_bits']} bits "
+                                                                 f"is a step of {lsb:.3g} V, above the largest reading "
+                                                                 f"the bridge gives ({s_max:.3g} V: C_R (hi - lo) / "
+                                                                 f"C_int, a stack's blocked force over its range): "
+                                                                 f"every sample would read 0; give the ADC's full "
+                                                                 f"scale, at most {hi:.3g} V, or re-export the "
+                                                                 f"controller")
     sw = data.get("stack_window")
     if not isinstance(sw, dict) or any(k not in sw for k in ("alpha", "headroom_v")):
         raise MimoControllerError(src, "iff.stack_window", "needs alpha and headroom_v (each stack's current-limit "
                                                            "window); re-export the controller")
-    span = np.asarray(stack_limits_v, float) @ np.array([-1.0, 1.0])
     for k, hi in (("alpha", np.ones(3)), ("headroom_v", span)):
         v = _array(src, f"iff.stack_window.{k}", sw[k], "three positive numbers", 1, MimoControllerError)
         if v.shape != (3,) or np.any(v <= 0) or np.any(v > hi):
