@@ -43,14 +43,17 @@ leakage; a leakage explaining only 3-8x what it leaves stays undecided (README, 
 
 import numpy as np
 
-__all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_note", "tau_bound_s",
-           "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD"]
+__all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_note", "nested_consensus", "nested_note",
+           "tau_bound_s",
+           "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED"]
 
 #: An absorption fitted slower than this many record lengths is leakage's term within the record
 #: (once leakage's line is taken it bends by under 1 % of itself over the record).
 LEAKAGE_TAU_RECORDS = 10.0
 #: An absorption faster than this share of the record has settled within it (its own shape).
 SETTLED_RECORDS = 0.5
+#: The fold label of a fold the two readings explain alike (:func:`absorption_or_leakage` returned ``None``).
+UNDECIDED = ("undecided", "dielectric_absorption or leakage")
 #: The bend's RMS over a record ``T`` per unit ``T / tau``, relative to the term's line (small ``T / tau``).
 BEND_PER_RECORD = np.sqrt(3.0 / 5.0) / 12.0
 
@@ -151,3 +154,54 @@ def leakage_note(by, befores, penalty, duration_s):
     return (f"leakage is the simpler reading: a dielectric absorption slower than about {bound:.3g} s "
             f"({bound / duration_s:.2g} record lengths) would look the same over this {duration_s:.3g} s record "
             f"(its fitted time constant came out {da['params']['tau_s']:.3g} s)")
+
+
+def nested_consensus(winners, need):
+    """One of the nested pair named from decided folds, the other folds undecided between the two.
+
+    An undecided fold (``UNDECIDED``) is one the absorption and leakage explain alike: it votes
+    for neither, and it is *compatible* with both (each of the two readings explains the fold as
+    well as the other). The plain consensus (``need`` folds won outright) counts such a fold
+    against either answer, so a record whose decided folds all name leakage (or all name the
+    absorption) and whose other folds cannot tell the two apart was answered ``inconclusive``.
+
+    Here ``X`` (leakage or the absorption, on the charge) is named when
+
+    * ``X`` or undecided-between-the-two on at least ``need`` folds (a name's usual agreement);
+    * the other reading wins no fold outright (the decided folds are unanimous);
+    * ``X`` wins at least ``n_folds - need + 1`` folds outright: more decided folds than the
+      dissent the agreement rule tolerates (2 of 5 at 4 of 5), so one fold decided by chance
+      (the base's misfit on that fold) does not name it.
+
+    Parameters
+    ----------
+    winners : list
+        The first stage's fold winners (``"none"`` or ``(name, channel)``, ``UNDECIDED``).
+    need : int
+        Folds a name must win (``ceil(0.8 n_folds)``).
+
+    Returns
+    -------
+    tuple
+        ``((name, "charge"), decided, undecided)`` or ``(None, 0, 0)`` when the rule does not apply.
+    """
+    n = len(winners)
+    tags = [w if isinstance(w, str) else tuple(w) for w in winners]
+    und = sum(1 for w in tags if w == UNDECIDED)
+    if not und:
+        return None, 0, 0
+    for x, other in (("leakage", "dielectric_absorption"), ("dielectric_absorption", "leakage")):
+        won = sum(1 for w in tags if w == (x, "charge"))
+        rival = sum(1 for w in tags if w == (other, "charge"))
+        if rival == 0 and won + und >= need and won >= n - need + 1:
+            return (x, "charge"), won, und
+    return None, 0, 0
+
+
+def nested_note(answer, decided, undecided, n_folds):
+    """What a name from :func:`nested_consensus` leaves open (str)."""
+    other = "leakage" if answer[0] == "dielectric_absorption" else "a dielectric absorption"
+    return (f"{answer[0]} wins {decided} of {n_folds} validation folds outright and no fold names {other}; "
+            f"on the other {undecided} the two explain the charge alike (nested: leakage is the absorption "
+            f"with tau -> inf at fixed gain / tau), so the agreement is {decided} decided, "
+            f"{decided + undecided} of {n_folds} compatible")

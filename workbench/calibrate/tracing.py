@@ -79,6 +79,7 @@ from scipy.optimize import lsq_linear
 
 from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
 from .absorption_or_leakage import explained as _explained
+from .absorption_or_leakage import UNDECIDED as _UNDECIDED_DA_LK
 from .absorption_or_leakage import leakage_note
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
@@ -611,7 +612,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage"):
             best = _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share)
             if best is None:
-                winners.append(("undecided", "dielectric_absorption or leakage"))
+                winners.append(_UNDECIDED_DA_LK)
                 continue
         cx = tags.get(("creep", "displacement"))
         if cx is None and ("creep", "gauge") in tags:     # ``tags``: rows passing fold f only
@@ -771,6 +772,8 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
     s0 = stages[0]
     reason = (f"wins {s0['agreement']} validation folds (beats the base, the noise floor and a random term of "
               f"its size); errors on the test part")
+    if s0.get("resolved"):
+        reason += f"; {s0['resolved']}"
     c0 = s0["_cand"]
     out.update(effect=s0["effect"], channel=s0["channel"], agreement=s0["agreement"],
                error_before=s0["error_before"], error_after=s0["error_after"], parameters=s0["parameters"],
