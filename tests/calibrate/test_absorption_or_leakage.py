@@ -135,3 +135,117 @@ def test_drawn_records_confuse_nothing_the_physics_tells_apart(sn637, seed):
     assert not wrong, wrong
     # the draws must reach the rule: some records named at all (not a test passed by silence)
     assert sum(bool(n) for n in named) >= 3, named
+
+
+# ---- the nested pair over the folds, and the settled absorption measured (branch s11_calleak)
+
+L, D, U = ("leakage", "charge"), ("dielectric_absorption", "charge"), al.UNDECIDED
+
+
+@pytest.mark.parametrize("winners, need, named, decided", [
+    ([L, L, U, L, U], 4, L, 3),              # decided folds unanimous, the rest undecided
+    ([L, U, U, U, L], 4, L, 2),
+    ([D, U, U, D, U], 4, D, 2),              # the absorption alike
+    ([L, L, "none", U, U], 4, L, 2),         # one dissenting fold, as the plain consensus tolerates
+    ([L, U, U, U, U], 4, None, 0),           # one decided fold is no more than the tolerated dissent
+    ([L, U, U, U, D], 4, None, 0),           # the decided folds disagree
+    ([U, U, U, U, U], 4, None, 0),           # nothing decided: inconclusive
+    ([L, L, "none", "none", U], 4, None, 0), # three compatible folds of five
+    ([L, L] + [U] * 8, 8, None, 0),          # ten folds at 8 of 10: three must decide
+    ([L, L, L] + [U] * 7, 8, L, 3),
+])
+def test_nested_consensus_names_only_from_unanimous_decided_folds(winners, need, named, decided):
+    ans, k, und = al.nested_consensus(winners, need)
+    assert ans == named
+    if named is not None:
+        assert k == decided and und == sum(1 for w in winners if w == U)
+        note = al.nested_note(ans, k, und, len(winners))
+        assert f"{k} of {len(winners)}" in note and f"{k + und} of {len(winners)} compatible" in note
+
+
+@pytest.mark.parametrize("T", [0.4, 2.0, 10.0])
+def test_a_settled_absorption_ruled_out_on_the_fold_names_leakage(T):
+    """The measured ruling-out: the record-length absorption in leakage's place leaves more than
+    leakage by the candidate bar (noise floor squared and min_share of leakage's power) -> leakage
+    when the fitted absorption came out ten records or slower; just under the bar, or without the
+    measurement: undecided (the tau_bound estimate alone fails here: E / a = 3)."""
+    floor, share = 1.0, 0.3
+    infos = {"duration_s": T, "charge": {"noise_floor": floor}}
+    a = 10.0 * floor
+
+    def decide(tau_s, settled):
+        lk, da, befores = _rows(tau_s, a, a, 3.0 * a)
+        if settled is not None:
+            da["settled_rms"] = [settled] * 5
+        tags = {L: lk, D: da}
+        out = al.absorption_or_leakage(lk, tags, 0, befores, infos, 0.02, 1.0, share)
+        return None if out is None else out["name"]
+
+    for tau_records in (al.LEAKAGE_TAU_RECORDS, 30.0):
+        assert decide(tau_records * T, np.sqrt(1.01 * (1 + share)) * a) == "leakage"
+        assert decide(tau_records * T, np.sqrt(0.99 * (1 + share)) * a) is None
+        assert decide(tau_records * T, None) is None
+    # a fitted absorption between half the record and ten records stays undecided though the
+    # record-length one is ruled out (an 18x absorption of 0.4 s, seed 24 #80, was named leakage)
+    for tau_records in (0.6, 3.0, 0.99 * al.LEAKAGE_TAU_RECORDS):
+        assert decide(tau_records * T, np.sqrt(2.0 * (1 + share)) * a) is None
+    # the bar's other half: a loss above min_share but under the noise floor is no evidence
+    b = 0.1 * floor
+    lk, da, befores = _rows(3 * T, b, b, 3 * b)
+    da["settled_rms"] = [np.sqrt(b * b + 0.9 * floor ** 2)] * 5
+    assert al.absorption_or_leakage(lk, {L: lk, D: da}, 0, befores, infos, 0.02, 1.0, share) is None
+
+
+def _drawn_records(effects, n, seed):
+    """(effect, rate, protocol, size, seed): sizes log-uniform over the benchmark's whole range."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(seed)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for k in range(n):
+        for e in effects:
+            rate = (1e3, 1e4)[k % 2]
+            proto = ("calibration", "steps", "sine")[k % 3]
+            out.append((e, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    return out
+
+
+@pytest.mark.parametrize("effect", ["leakage", ("leakage", "dielectric_absorption")])
+def test_leakage_and_pairs_standing_3x_above_the_floor_are_named(sn637, effect):
+    """Leakage and leakage + absorption records at 1 and 10 kHz, three protocols, sizes over the
+    benchmark's whole range (0.03-30x; ``default_rng(1311)``/``(1312)`` fixed before any run):
+    every record whose effect stands >= 3x above the effect-free record's floor is named right
+    (leakage; for the pair either of its two, the first stage) with its test error halved, and
+    no record of any size is named an effect it does not have. On main before this branch the
+    leakages among them were ``inconclusive`` (the fitted absorption's time constant came out
+    3-9 record lengths, short of ten, and the tau_bound estimate under half a record)."""
+    cc = load_benchmark("calibrate_confusion")
+    seed = 1311 if effect == "leakage" else 1312
+    rows = []
+    for e, rate, proto, size, s in _drawn_records([effect], 8, seed):
+        r = cc.evaluate(sn637, e, rate, proto, size, s)
+        print(f"\n{r['effect']:32s} {rate:6.0f} {proto:11s} x{size:7.3f} excess {r['excess']:7.2f} -> {r['answer']} "
+              f"{r['agreement']} {r['named']} {r['class']} ratio {r['ratio']:.2f} {r['fold_winners']}")
+        rows.append(r)
+    assert not [r for r in rows if r["class"] == "wrong"]
+    big = [r for r in rows if r["excess"] >= 3.0]
+    assert len(big) >= 3, [round(r["excess"], 2) for r in rows]      # the draws reach the claim
+    missed = [(r["size"], r["excess"], r["answer"], r["fold_winners"]) for r in big
+              if r["class"] != "right" or r["ratio"] > 0.5]
+    assert not missed, missed
+
+
+# regression records (the confusion benchmark's seeds 27 and 28, the seeds this branch was tuned on):
+# answered inconclusive on main (decided folds unanimous, the rest undecided between the two)
+NESTED_27_28 = [("leakage", 1000.0, "calibration", 7.016543055638025, 999881126),            # 27 #4, 17x
+                ("leakage", 10000.0, "calibration", 19.342973875147397, 133463090),          # 28 #37, 7.6x
+                (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.41778799554157237, 782366254),  # 27 #65
+                (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.7085757336901202, 114342319)]   # 28 #65
+
+
+@pytest.mark.parametrize("case", NESTED_27_28, ids=["27-4", "28-37", "27-65", "28-65"])
+def test_decided_folds_with_the_rest_undecided_name_the_effect(sn637, case):
+    cc = load_benchmark("calibrate_confusion")
+    r = cc.evaluate(sn637, *case)
+    print(f"\n{r['effect']} excess {r['excess']:.2f} -> {r['answer']} {r['agreement']} {r['fold_winners']}")
+    assert r["class"] == "right" and r["ratio"] <= 0.5, (r["answer"], r["fold_winners"])

@@ -59,6 +59,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
+from .absorption_or_leakage import nested_consensus, nested_note
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
@@ -462,6 +463,12 @@ def run_stages(ctx, max_stages=3):
                            ctx["noise_factor"], ctx["infos"], found, ctx["min_share"])
     answer, count, winners = _tr._consensus(res["winners"], ctx["need"])
     resolved = None
+    if answer is None:
+        # leakage or the absorption decided on some folds, the rest undecided between the two
+        ans2, decided, undecided = nested_consensus(res["winners"], ctx["need"])
+        if ans2 is not None:
+            answer, count = ans2, decided
+            resolved = nested_note(ans2, decided, undecided, len(res["winners"]))
     if answer is None:
         ans2, count2, resolved = resolve_split(res, ctx, extra, found)
         if ans2 is not None:

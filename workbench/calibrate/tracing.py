@@ -79,7 +79,8 @@ from scipy.optimize import lsq_linear
 
 from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
 from .absorption_or_leakage import explained as _explained
-from .absorption_or_leakage import leakage_note
+from .absorption_or_leakage import UNDECIDED as _UNDECIDED_DA_LK
+from .absorption_or_leakage import leakage_note, settled_absorption_rms
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
@@ -388,6 +389,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     infos["k_q2x"] = base.k_q2x_m_per_c
     infos["gauge_gain"] = base.gauge_gain_v_per_m if "gauge" in base.channels else None
     infos["duration_s"] = float(t[-1] - t[0])
+    infos["t"] = t                  # (the settled-absorption test's column, :mod:`.absorption_or_leakage`)
     # the drive's holds, where a sensor drift must show (drift_holds)
     infos["holds"] = hold_spans(t, base.v_drive, min_hold_s=split.block_s)
     if "gauge" in base.channels and "displacement" in base.channels and base.gauge_gain_v_per_m is not None:
@@ -598,6 +600,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         by[tag] = row
     _veto_drift_without_hold_motion(by, probs, extra, split, infos)
+    settled_absorption_rms(by, probs, extra, split, infos)
     rows = sorted(by.values(), key=lambda r: r["score"] if np.isfinite(r["score"]) else np.inf)
     winners = []
     for f in range(n_folds):
@@ -611,7 +614,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage"):
             best = _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share)
             if best is None:
-                winners.append(("undecided", "dielectric_absorption or leakage"))
+                winners.append(_UNDECIDED_DA_LK)
                 continue
         cx = tags.get(("creep", "displacement"))
         if cx is None and ("creep", "gauge") in tags:     # ``tags``: rows passing fold f only
@@ -771,6 +774,8 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
     s0 = stages[0]
     reason = (f"wins {s0['agreement']} validation folds (beats the base, the noise floor and a random term of "
               f"its size); errors on the test part")
+    if s0.get("resolved"):
+        reason += f"; {s0['resolved']}"
     c0 = s0["_cand"]
     out.update(effect=s0["effect"], channel=s0["channel"], agreement=s0["agreement"],
                error_before=s0["error_before"], error_after=s0["error_after"], parameters=s0["parameters"],
