@@ -130,7 +130,7 @@ def kernels(chained):
     controller). Not cached (closures); each compiles in about a second."""
     @njit(error_model="numpy")
     def _plant(m, st, u, zero):
-        m, st = K.borrowed(m), K.borrowed(st)        # as _loop takes them: no reference count per step
+        m, st = K._borrowed(m), K._borrowed(st)        # as _loop takes them: no reference count per step
         p = K.plant_params(m)
         x = 0.0
         acc = 0.0
@@ -186,8 +186,8 @@ def kernels(chained):
 
     @njit(error_model="numpy")
     def _controller(code, ref, lsb_in, in_scale, f_in, cs, fb, fa, fshift, ffrac, limw, vm, out_scale, out, zero):
-        cs, fb, fa, fshift = K.borrowed(cs), K.borrowed(fb), K.borrowed(fa), K.borrowed(fshift)
-        limw, vm = K.borrowed(limw), K.borrowed(vm)
+        cs, fb, fa, fshift = K._borrowed(cs), K._borrowed(fb), K._borrowed(fa), K._borrowed(fshift)
+        limw, vm = K._borrowed(limw), K._borrowed(vm)
         peak = np.zeros((0, 3), np.int64)
         u = 0.0
         acc = 0.0

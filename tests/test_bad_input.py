@@ -628,7 +628,7 @@ FUZZ3 = [
                               ("corner_off", "iff.bridge.corner_hz", "not the cascades'"),
                               ("noise_1e300", "iff.bridge.out_noise_v_rms", "ADC range 10 V"),
                               # issue 17's leftover: a range whose one step is above the bridge's largest reading
-                              ("adc_1e300", "iff.bridge.adc_range_v", "every sample would read 0"),
+                              ("adc_1e300", "iff.bridge.adc_range_v", "the whole reading spans at most one step"),
                               ("typo_key", "iff.stack_windows", "unknown key"),
                               ("bridge_typo", "iff.bridge.corner", "unknown key"),
                               ("iff_null", "iff", "must be a table"),

@@ -153,7 +153,7 @@ def test_a_coupled_state_copied_into_a_simulator_with_another_step_reforms_its_r
 
 @njit
 def _through_borrowed(a):
-    v = K.borrowed(a)
+    v = K._borrowed(a)
     v[0] = 7.0
     total = 0.0
     for i in range(v.shape[0]):
@@ -172,4 +172,4 @@ def test_a_borrowed_view_is_the_array_without_a_reference_count():
         total, n = _through_borrowed(a)
     assert a[0] == 7.0 and total == 17.0 and n == 5
     assert sys.getrefcount(a) == before
-    assert K.borrowed(a) is a
+    assert K._borrowed(a) is a

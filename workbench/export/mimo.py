@@ -880,7 +880,8 @@ def _load_iff(src, data, fs, allow_unstable, stack_limits_v):
     span = np.asarray(stack_limits_v, float) @ np.array([-1.0, 1.0])
     # the largest reading the bridge can give: a stack's blocked force over its whole range, T_j (hi - lo), read
     # at C_R,j / (T_j C_int) V per N (force_noise_n's scale), i.e. C_R,j (hi - lo) / C_int; an ADC whose one step
-    # is above that reads every sample as 0 (the IFF acts on nothing). 18 bits over 10 V: 7.6e-5 V a step
+    # is above that resolves the bridge's whole reading in at most two codes (the IFF acts on a sign at best;
+    # rounding to nearest reads below half a step as 0). 18 bits over 10 V: 7.6e-5 V a step
     s_max = float(np.min(np.asarray(br["reference_capacitance_f"], float) * span) / br["integrator_capacitance_f"])
     from ..selfsense.charge_amp import adc_lsb_v
     lsb = adc_lsb_v(br["adc_bits"], br["adc_range_v"])
@@ -890,7 +891,8 @@ def _load_iff(src, data, fs, allow_unstable, stack_limits_v):
                                                                  f"is a step of {lsb:.3g} V, above the largest reading "
                                                                  f"the bridge gives ({s_max:.3g} V: C_R (hi - lo) / "
                                                                  f"C_int, a stack's blocked force over its range): "
-                                                                 f"every sample would read 0; give the ADC's full "
+                                                                 f"the whole reading spans at most one step; give "
+                                                                 f"the ADC's full "
                                                                  f"scale, at most {hi:.3g} V, or re-export the "
                                                                  f"controller")
     sw = data.get("stack_window")

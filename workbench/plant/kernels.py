@@ -6,7 +6,7 @@ vectors, the model ``m`` (parameters, operator tables, creep and mode matrices) 
 the state ``st``, so later stages (closed-loop verification) can call ``pzt_step``
 from their own compiled loops. Packing matters: numba reference-counts every array
 handed to a function, and with a dozen separate arrays that bookkeeping cost more
-than the physics (and a long loop takes :func:`borrowed` views of ``m`` and ``st`` once, so that the
+than the physics (and a long loop takes :func:`_borrowed` views of ``m`` and ``st`` once, so that the
 step inlined into it counts no reference at all). ``pzt_step.py_func`` is the same code run by the interpreter,
 which the benchmark hands to python-control. A long loop reads the model's scalars
 and offsets once with :func:`plant_params` and calls :func:`pzt_advance` (the same
@@ -41,7 +41,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 
 __all__ = ["pzt_step", "pzt_advance", "plant_params", "pzt_run", "pzt_step_reference", "rc_charge", "rc_factor",
-           "borrowed", "OUT_NAMES", "pack_model", "pack_state"]
+           "OUT_NAMES", "pack_model", "pack_state"]
 
 # scalars at the head of m (reciprocals too: divisions otherwise dominate a step)
 (R, I_SRC, I_SNK, V_MIN, V_MAX, T_EM, K_P, C_PP, DT, QUASI_STATIC,
@@ -78,7 +78,7 @@ def _index_compiled(x):
     return lambda x: np.uint64(x)
 
 
-def borrowed(arr):
+def _borrowed(arr):
     """``arr`` as a borrowed view for a compiled loop: the same data, no reference count; the array itself when interpreted.
 
     numba passes an array into a function it inlines (:func:`pzt_advance`, ``fixed_step``) as a new
@@ -88,6 +88,11 @@ def borrowed(arr):
     load after it: four to eight a servo period kept the closed loop's periods from overlapping at all.
     The view has a null meminfo (the runtime skips a null one without an atomic), so a long loop takes
     views of its arrays once, before the loop. Only while ``arr`` itself is alive (the caller's argument).
+
+    Private on purpose: the view must never leave the compiled function (returned, stored, boxed), nor
+    be taken of an array the function allocates. numba boxes it as the caller's array only when data,
+    shape and strides match; a returned slice of it becomes a NumPy array with no owner, which reads
+    freed memory once the caller's array is gone. Index it, or pass it to an inlined step; return scalars.
     """
     return arr
 
@@ -108,7 +113,7 @@ def _null_meminfo(typingctx, arr):
     return arr(arr), codegen
 
 
-@overload(borrowed, inline="always")
+@overload(_borrowed, inline="always")
 def _borrowed_compiled(arr):
     return lambda arr: _null_meminfo(arr)
 
@@ -615,7 +620,7 @@ def pzt_run(m, st, v, f, n_sub, decimate, rec):
     the recorded charge is the integral of the recorded current. Returns the peak
     source and sink currents seen at sub-step resolution.
     """
-    m, st = borrowed(m), borrowed(st)           # no reference count per step (see borrowed)
+    m, st = _borrowed(m), _borrowed(st)         # no reference count per step (see _borrowed)
     p = plant_params(m)
     i_max = 0.0
     i_min = 0.0

@@ -147,15 +147,15 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
     factors, 1/L, the DAC step and its reciprocal: the period's only divisions are the
     bridge's ratios) and the sub-steps that hold the quarter and three-quarter points
     worked out before the loop, the statistics kept in locals, nothing allocated per period, and no
-    reference count per period (the arrays the inlined steps take are :func:`workbench.plant.kernels.borrowed`
+    reference count per period (the arrays the inlined steps take are :func:`workbench.plant.kernels._borrowed`
     views, taken once).
     ``benchmarks/closed_loop_vs_c.c`` is this loop in C, bit for bit.
     """
     # borrowed views of the arrays handed to the inlined plant and controller steps: no atomic reference count
-    # per period (K.borrowed; 74.1 -> 69.4 ns a period on the bench's hold, the results bit for bit the same)
-    m, st, cs_i, vm_i = K.borrowed(m), K.borrowed(st), K.borrowed(cs_i), K.borrowed(vm_i)
-    fb, fa, fshift, limw = K.borrowed(fb), K.borrowed(fa), K.borrowed(fshift), K.borrowed(limw)
-    cs_f, sos, lim, vm_f = K.borrowed(cs_f), K.borrowed(sos), K.borrowed(lim), K.borrowed(vm_f)
+    # per period (K._borrowed; 74.1 -> 69.4 ns a period on the bench's hold, the results bit for bit the same)
+    m, st, cs_i, vm_i = K._borrowed(m), K._borrowed(st), K._borrowed(cs_i), K._borrowed(vm_i)
+    fb, fa, fshift, limw = K._borrowed(fb), K._borrowed(fa), K._borrowed(fshift), K._borrowed(limw)
+    cs_f, sos, lim, vm_f = K._borrowed(cs_f), K._borrowed(sos), K._borrowed(lim), K._borrowed(vm_f)
     p = K.plant_params(m)
     n = hx.shape[0]
     xn = np.empty(n)
