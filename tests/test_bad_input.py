@@ -121,6 +121,9 @@ def ws(tmp_path_factory):
     (bad / "ctrl_one_limit.json").write_text(json.dumps({**ctrl, "output_limits_v": [120.0]}), encoding="utf-8")
     (bad / "ctrl_limits_reversed.json").write_text(json.dumps({**ctrl, "output_limits_v": [120.0, -20.0]}),
                                                    encoding="utf-8")
+    huge = json.loads(json.dumps(ctrl))                           # clamp words beyond the firmware's int32
+    huge["fixed_point"]["output"]["limits_v"] = [-3e5, 3e5]
+    (bad / "ctrl_limit_words.json").write_text(json.dumps(huge), encoding="utf-8")
     unstable = json.loads(json.dumps(ctrl))
     unstable["sos"][0] = [1.0, 0.0, 0.0, 1.0, -1.5, 0.0]          # a pole at z = 1.5
     (bad / "ctrl_unstable.json").write_text(json.dumps(unstable), encoding="utf-8")
@@ -557,6 +560,10 @@ OTHERS = [
       for cmd, pre, post in (("verify", [CREEP], []), ("linearize", [PLANT], []), ("bench", [], []))
       for kind, key in (("rate0", "sample_rate_hz"), ("one_limit", "output_limits_v"),
                         ("limits_reversed", "output_limits_v"), ("unstable", "sos"), ("nan", "sos"))],
+    # fixed-point clamp limits of +/-3e5 V at the file's 22 fraction bits: words of 1.26e12, which ran (int64)
+    # while the C header's int32 clamp cannot hold them
+    ("verify-controller-limit-words", ["verify", CREEP, "--controller", "bad/ctrl_limit_words.json"],
+     ["ctrl_limit_words.json", "[fixed_point.output.limits_v]", "beyond int32", "within +/-512 V"]),
     ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
 ]
