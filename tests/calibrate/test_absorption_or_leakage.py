@@ -233,7 +233,7 @@ def test_the_leakage_note_says_what_ruled_the_settled_absorption_out():
     lk["leakage_folds"] = {0: "bound"}
     note = al.leakage_note(by, befores, 0.02, T)
     assert f"about {bound:.3g} s ({bound / T:.2g} record lengths)" in note
-    assert "search ceiling, 1e+03 s (100 record lengths)" in note and "fitted" not in note
+    assert "not a fit: the search ran to its ceiling, 1e+03 s = 100 record lengths" in note and "fitted" not in note
     lk["leakage_folds"] = {0: "bound", 3: "measured"}
     note = al.leakage_note(by, befores, 0.02, T)
     assert "about 10 s (1 record length)" in note
@@ -336,17 +336,32 @@ def test_leakage_and_pairs_standing_3x_above_the_floor_are_named(sn637, effect):
     assert not missed, missed
 
 
-# regression records (the confusion benchmark's seeds 27 and 28, the seeds this branch was tuned on):
-# answered inconclusive on main (decided folds unanimous, the rest undecided between the two)
-NESTED_27_28 = [("leakage", 1000.0, "calibration", 7.016543055638025, 999881126),            # 27 #4, 17x
-                ("leakage", 10000.0, "calibration", 19.342973875147397, 133463090),          # 28 #37, 7.6x
-                (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.41778799554157237, 782366254),  # 27 #65
-                (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.7085757336901202, 114342319)]   # 28 #65
+# regression records (the confusion benchmark's seeds 27 and 28, the seeds s11_calleak was tuned on),
+# answered inconclusive on main before s11_calleak. The two leakages are named by the plain vote
+# (leakage on 4 of 5 folds): the record-length absorption's measured ruling-out
+# (``settled_ruled_out``) decides their folds, not ``nested_consensus``.
+PLAIN_VOTE_27_28 = [("leakage", 1000.0, "calibration", 7.016543055638025, 999881126),     # 27 #4, 17x
+                    ("leakage", 10000.0, "calibration", 19.342973875147397, 133463090)]   # 28 #37, 7.6x
+# The two pairs (10 kHz steps, the absorption's tau 0.8-1.3 record lengths) were named by
+# ``nested_consensus`` from 2 decided folds (D U U D U); on one undecided fold leakage leaves 5-6 %
+# less than the absorption held out, so under the stricter rule (review of s11_calleak, finding 1)
+# they are inconclusive again: a miss, reported in the README, not asserted away.
+NESTED_PAIRS_27_28 = [(("leakage", "dielectric_absorption"), 10000.0, "steps", 0.41778799554157237, 782366254),
+                      (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.7085757336901202, 114342319)]
 
 
-@pytest.mark.parametrize("case", NESTED_27_28, ids=["27-4", "28-37", "27-65", "28-65"])
-def test_decided_folds_with_the_rest_undecided_name_the_effect(sn637, case):
+@pytest.mark.parametrize("case", PLAIN_VOTE_27_28, ids=["27-4", "28-37"])
+def test_leakages_whose_folds_the_settled_test_decides_are_named_by_the_plain_vote(sn637, case):
     cc = load_benchmark("calibrate_confusion")
     r = cc.evaluate(sn637, *case)
     print(f"\n{r['effect']} excess {r['excess']:.2f} -> {r['answer']} {r['agreement']} {r['fold_winners']}")
     assert r["class"] == "right" and r["ratio"] <= 0.5, (r["answer"], r["fold_winners"])
+    assert sum(w == "leakage on the charge" for w in r["fold_winners"]) >= 4, r["fold_winners"]
+
+
+@pytest.mark.parametrize("case", NESTED_PAIRS_27_28, ids=["27-65", "28-65"])
+def test_pairs_with_an_undecided_fold_leaning_leakage_name_nothing_wrong(sn637, case):
+    cc = load_benchmark("calibrate_confusion")
+    r = cc.evaluate(sn637, *case)
+    print(f"\n{r['effect']} excess {r['excess']:.2f} -> {r['answer']} {r['agreement']} {r['fold_winners']}")
+    assert r["class"] != "wrong", (r["answer"], r["fold_winners"])

@@ -247,8 +247,7 @@ def leakage_note(by, befores, penalty, duration_s):
     tau = da["params"]["tau_s"]
     ceiling = getattr(da.get("eff"), "tau_max_fraction", None)
     if ceiling is not None and tau >= 0.99 * ceiling * duration_s:
-        fitted = (f"the fit ran to its search ceiling, {tau:.3g} s ({ceiling:.3g} record lengths): no finite "
-                  f"time constant fits better")
+        fitted = f"not a fit: the search ran to its ceiling, {tau:.3g} s = {ceiling:.3g} record lengths"
     else:
         fitted = f"fitted {tau:.3g} s"
     return (f"leakage is the simpler reading: a dielectric absorption slower than about {bound:.3g} s "
@@ -343,7 +342,7 @@ def nested_note(answer, decided, undecided, n_folds):
     other = "leakage" if answer[0] == "dielectric_absorption" else "a dielectric absorption"
     neither = n_folds - decided - undecided
     lean = ", nor leaves leakage at least as good held out" if answer[0] == "dielectric_absorption" else ""
-    return (f"those {decided} folds are the decided ones; no fold names {other}{lean}; "
+    return (f"the {decided} folds it wins are the decided ones; no fold names {other}{lean}; "
             f"{undecided} fold{'' if undecided == 1 else 's'} cannot tell the two apart (nested: leakage is the "
             f"absorption with tau -> inf at fixed gain / tau)"
             + (f", {neither} name{'s' if neither == 1 else ''} neither" if neither else "")
