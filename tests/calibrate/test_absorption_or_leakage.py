@@ -365,3 +365,34 @@ def test_pairs_with_an_undecided_fold_leaning_leakage_name_nothing_wrong(sn637, 
     r = cc.evaluate(sn637, *case)
     print(f"\n{r['effect']} excess {r['excess']:.2f} -> {r['answer']} {r['agreement']} {r['fold_winners']}")
     assert r["class"] != "wrong", (r["answer"], r["fold_winners"])
+
+
+@pytest.mark.parametrize("winners, lean, named", [([L, U, U, U, L], 1, L), ([D, U, U, D, U], None, D),
+                                                  ([D, U, U, D, U], 4, None)])
+def test_the_stage_says_the_compatible_folds_beside_the_decided(monkeypatch, winners, lean, named):
+    """stages.run_stages: a name from decided folds carries ``agreement_compatible`` (decided +
+    undecided, what scripts compare with ``agree_needed``) beside its count of decided folds; an
+    undecided fold where leakage leaves less than the absorption held out (``lean``) blocks the
+    absorption there too (review finding 4, and finding 1 through the stage loop)."""
+    from workbench.calibrate import stages, tracing
+    lk, da, befores = _rows(3.0, 10.0, 9.99, 30.0)
+    b = befores[lk["key"]][0]
+    if lean is not None:
+        da["ratios"][lean] = 11.0 * 1.04 / b
+    res = {"winners": winners, "by": {L: lk, D: da}, "befores": befores}
+    monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+    monkeypatch.setattr(stages, "resolve_split", lambda *args: (None, 0, None))
+    monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect", lambda answer, count, note, *args:
+                        (answer, count, note))
+    monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None:
+                        {"count": count, "resolved": resolved})
+    monkeypatch.setattr(stages, "_later_stage", lambda *args, **kw: (None, 0, [], {"by": {}}, None))
+    ctx = {k: None for k in ("cands", "nulls", "split", "noise_factor", "infos", "min_share", "base", "t")}
+    ctx.update(probs={}, need=4, penalty=0.02)
+    first, st, _ = stages.run_stages(ctx)
+    if named is None:
+        assert first["answer"] is None and not st
+        return
+    assert first["answer"] == named and st[0]["count"] == 2 and st[0]["agreement_compatible"] == 5
+    assert "2 folds it wins are the decided ones" in st[0]["resolved"] and "3 folds cannot tell" in st[0]["resolved"]
