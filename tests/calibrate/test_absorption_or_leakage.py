@@ -142,25 +142,126 @@ def test_drawn_records_confuse_nothing_the_physics_tells_apart(sn637, seed):
 L, D, U = ("leakage", "charge"), ("dielectric_absorption", "charge"), al.UNDECIDED
 
 
-@pytest.mark.parametrize("winners, need, named, decided", [
-    ([L, L, U, L, U], 4, L, 3),              # decided folds unanimous, the rest undecided
-    ([L, U, U, U, L], 4, L, 2),
-    ([D, U, U, D, U], 4, D, 2),              # the absorption alike
-    ([L, L, "none", U, U], 4, L, 2),         # one dissenting fold, as the plain consensus tolerates
-    ([L, U, U, U, U], 4, None, 0),           # one decided fold is no more than the tolerated dissent
-    ([L, U, U, U, D], 4, None, 0),           # the decided folds disagree
-    ([U, U, U, U, U], 4, None, 0),           # nothing decided: inconclusive
-    ([L, L, "none", "none", U], 4, None, 0), # three compatible folds of five
-    ([L, L] + [U] * 8, 8, None, 0),          # ten folds at 8 of 10: three must decide
-    ([L, L, L] + [U] * 7, 8, L, 3),
+F5, T5 = [False] * 5, [True] * 5
+
+
+@pytest.mark.parametrize("winners, need, no_worse, named, decided", [
+    ([L, L, U, L, U], 4, F5, L, 3),              # decided folds unanimous, the rest undecided
+    ([L, U, U, U, L], 4, F5, L, 2),
+    ([L, U, U, U, L], 4, T5, L, 2),              # leakage no worse held out does not block leakage
+    ([D, U, U, D, U], 4, F5, D, 2),              # the absorption alike
+    ([D, U, U, D, U], 4, [False, True, False, False, False], None, 0),  # an undecided fold leans leakage
+    ([D, U, U, D, U], 4, [True, False, False, False, False], D, 2),     # ... a decided fold's flag is moot
+    ([L, L, "none", U, U], 4, F5, L, 2),         # one dissenting fold, as the plain consensus tolerates
+    ([L, U, U, U, U], 4, F5, None, 0),           # one decided fold is no more than the tolerated dissent
+    ([L, U, U, U, D], 4, F5, None, 0),           # the decided folds disagree
+    ([L, L, U, U, D], 4, F5, None, 0),           # ... even with two of one side (review finding 3)
+    ([D, D, U, U, L], 4, F5, None, 0),
+    ([U, U, U, U, U], 4, F5, None, 0),           # nothing decided: inconclusive
+    ([L, L, "none", "none", U], 4, F5, None, 0), # three compatible folds of five
+    ([L, U, U, U, U], 5, F5, None, 0),           # 5 of 5 asked: still two decided folds (finding 2)
+    ([L, L, U, U, U], 5, F5, L, 2),
+    ([L, L, "none", U, U], 5, F5, None, 0),      # 5 of 5 asked: no dissent tolerated
+    ([L, U, U, U], 4, [False] * 4, None, 0),     # four folds at 4 of 4: not one decided fold
+    ([L, L, U, U], 4, [False] * 4, L, 2),
+    ([D, D, U, U], 4, [False, False, True, False], None, 0),
+    ([L, L] + [U] * 8, 8, [False] * 10, None, 0),  # ten folds: three must decide
+    ([L, L, L] + [U] * 7, 8, [False] * 10, L, 3),
 ])
-def test_nested_consensus_names_only_from_unanimous_decided_folds(winners, need, named, decided):
-    ans, k, und = al.nested_consensus(winners, need)
+def test_nested_consensus_names_only_from_unanimous_decided_folds(winners, need, no_worse, named, decided):
+    ans, k, und = al.nested_consensus(winners, need, no_worse)
     assert ans == named
     if named is not None:
         assert k == decided and und == sum(1 for w in winners if w == U)
         note = al.nested_note(ans, k, und, len(winners))
-        assert f"{k} of {len(winners)}" in note and f"{k + und} of {len(winners)} compatible" in note
+        assert f"{k + und} of {len(winners)} folds compatible" in note and f"{k} decided" in note
+        assert f"{und} fold" in note
+        neither = len(winners) - k - und
+        assert (f"{neither} name" in note) == bool(neither)
+
+
+@pytest.mark.parametrize("n_folds", range(3, 13))
+def test_the_decided_folds_needed_do_not_fall_as_the_bar_rises(n_folds):
+    """More decided folds than the default agreement's tolerated dissent, never one, and the same
+    whatever agreement a user asks (review finding 2: ``n - need + 1`` fell to 1 at 5 of 5)."""
+    k = al.decided_needed(n_folds)
+    assert k >= 2 and k > n_folds - int(np.ceil(0.8 * n_folds))
+    L1 = [L] + [U] * (n_folds - 1)
+    for need in range(int(np.ceil(0.8 * n_folds)), n_folds + 1):
+        assert al.nested_consensus(L1, need, [False] * n_folds)[0] is None
+        Lk = [L] * k + [U] * (n_folds - k)
+        assert al.nested_consensus(Lk, need, [False] * n_folds)[0] == L
+
+
+@pytest.mark.parametrize("T", [0.4, 10.0])
+@pytest.mark.parametrize("tau_records", [0.6, 4.8, 9.5])
+def test_two_chance_folds_do_not_name_the_absorption(T, tau_records):
+    """Review finding 1: with the absorption fitted between half a record and ten (seed 24 #4, a
+    7.3x leakage, came out 4.8), leakage cannot win a fold outright; two folds where the absorption
+    bends into the base's misfit (0.8 of leakage's RMS) and three where leakage does better held
+    out (1.02) must not name the absorption; with the three a hair in the absorption's favour
+    (0.999, under the noise floor) the two decided folds do name it."""
+    floor, share, a, E = 1.0, 0.3, 10.0, 30.0
+    infos = {"duration_s": T, "charge": {"noise_floor": floor}}
+
+    def run(rest):
+        lk, da, befores = _rows(tau_records * T, a, a, E)
+        b = befores[lk["key"]][0]
+        da["ratios"] = [x * 1.04 / b for x in (0.8 * a, 0.8 * a, rest * a, rest * a, rest * a)]
+        tags = {L: lk, D: da}
+        w = []
+        for f in range(5):
+            best = lk if lk["ratios"][f] <= da["ratios"][f] else da
+            out = al.absorption_or_leakage(best, tags, f, befores, infos, 0.02, 1.0, share)
+            w.append(U if out is None else (out["name"], "charge"))
+        assert w == [D, D, U, U, U]                       # the guard is what is tested
+        return al.nested_consensus(w, 4, al.leakage_no_worse(tags, befores, 0.02))[0]
+
+    assert run(1.02) is None
+    assert run(0.999) == D
+
+
+def test_the_leakage_note_says_what_ruled_the_settled_absorption_out():
+    """The bound is the record length only when the measured test decided a leakage fold; a time
+    constant at the search's ceiling is said to be the ceiling; one record length is singular."""
+    T = 10.0
+    lk, da, befores = _rows(1000.0, 10.0, 10.0, 20.0)     # tau_bound: 0.13 records (BEND x E / a)
+    da["eff"] = dataclasses.make_dataclass("Eff", [("tau_max_fraction", float)])(100.0)
+    by = {L: lk, D: da}
+    bound = np.median([al.tau_bound_s(lk, f, befores, 0.02, T) for f in range(5)])
+    da["settled_rms"] = [20.0] * 5                        # computed, but no fold decided by it
+    lk["leakage_folds"] = {0: "bound"}
+    note = al.leakage_note(by, befores, 0.02, T)
+    assert f"about {bound:.3g} s ({bound / T:.2g} record lengths)" in note
+    assert "not a fit: the search ran to its ceiling, 1e+03 s = 100 record lengths" in note and "fitted" not in note
+    lk["leakage_folds"] = {0: "bound", 3: "measured"}
+    note = al.leakage_note(by, befores, 0.02, T)
+    assert "about 10 s (1 record length)" in note
+    da["params"]["tau_s"] = 120.0
+    assert "fitted 120 s" in al.leakage_note(by, befores, 0.02, T)
+
+
+def test_the_written_plants_leakage_section_says_the_time_constant_is_unidentified(sn637, tmp_path):
+    """Review finding 6: the note is a comment line of ``[leakage]``; the file loads back with the
+    leakage's resistance."""
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from tests.conftest import PLANTS
+    from workbench.calibrate.plant_update import updated_plant_text
+    from workbench.plant import load_plant
+    err = {"rms": 1e-7, "max": 3e-7, "units": "C"}
+    note = "leakage is the simpler reading: ... its time constant is what the record cannot identify (fitted 120 s)"
+    st = {"effect": "leakage", "channel": "charge", "parameters": {"gain_per_s": 1e-7}, "note": note,
+          "error_before": err, "error_after": err}
+    result = {"effect": "leakage", "channel": "charge", "parameters": st["parameters"], "error_before": err,
+              "error_after": err, "stages": [st]}
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, SimpleNamespace(channels={}), result,
+                              Path("rec.csv"))
+    section = text[text.index("[leakage]"):].splitlines()
+    assert section[1] == f"# {note}" and section[2].startswith("resistance_ohm = ")
+    (tmp_path / "p.toml").write_text(text)
+    assert load_plant(tmp_path / "p.toml").additions.leakage_resistance_ohm == pytest.approx(1e7)
 
 
 @pytest.mark.parametrize("T", [0.4, 2.0, 10.0])
@@ -235,17 +336,63 @@ def test_leakage_and_pairs_standing_3x_above_the_floor_are_named(sn637, effect):
     assert not missed, missed
 
 
-# regression records (the confusion benchmark's seeds 27 and 28, the seeds this branch was tuned on):
-# answered inconclusive on main (decided folds unanimous, the rest undecided between the two)
-NESTED_27_28 = [("leakage", 1000.0, "calibration", 7.016543055638025, 999881126),            # 27 #4, 17x
-                ("leakage", 10000.0, "calibration", 19.342973875147397, 133463090),          # 28 #37, 7.6x
-                (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.41778799554157237, 782366254),  # 27 #65
-                (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.7085757336901202, 114342319)]   # 28 #65
+# regression records (the confusion benchmark's seeds 27 and 28, the seeds s11_calleak was tuned on),
+# answered inconclusive on main before s11_calleak. The two leakages are named by the plain vote
+# (leakage on 4 of 5 folds): the record-length absorption's measured ruling-out
+# (``settled_ruled_out``) decides their folds, not ``nested_consensus``.
+PLAIN_VOTE_27_28 = [("leakage", 1000.0, "calibration", 7.016543055638025, 999881126),     # 27 #4, 17x
+                    ("leakage", 10000.0, "calibration", 19.342973875147397, 133463090)]   # 28 #37, 7.6x
+# The two pairs (10 kHz steps, the absorption's tau 0.8-1.3 record lengths) were named by
+# ``nested_consensus`` from 2 decided folds (D U U D U); on one undecided fold leakage leaves 5-6 %
+# less than the absorption held out, so under the stricter rule (review of s11_calleak, finding 1)
+# they are inconclusive again: a miss, reported in the README, not asserted away.
+NESTED_PAIRS_27_28 = [(("leakage", "dielectric_absorption"), 10000.0, "steps", 0.41778799554157237, 782366254),
+                      (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.7085757336901202, 114342319)]
 
 
-@pytest.mark.parametrize("case", NESTED_27_28, ids=["27-4", "28-37", "27-65", "28-65"])
-def test_decided_folds_with_the_rest_undecided_name_the_effect(sn637, case):
+@pytest.mark.parametrize("case", PLAIN_VOTE_27_28, ids=["27-4", "28-37"])
+def test_leakages_whose_folds_the_settled_test_decides_are_named_by_the_plain_vote(sn637, case):
     cc = load_benchmark("calibrate_confusion")
     r = cc.evaluate(sn637, *case)
     print(f"\n{r['effect']} excess {r['excess']:.2f} -> {r['answer']} {r['agreement']} {r['fold_winners']}")
     assert r["class"] == "right" and r["ratio"] <= 0.5, (r["answer"], r["fold_winners"])
+    assert sum(w == "leakage on the charge" for w in r["fold_winners"]) >= 4, r["fold_winners"]
+
+
+@pytest.mark.parametrize("case", NESTED_PAIRS_27_28, ids=["27-65", "28-65"])
+def test_pairs_with_an_undecided_fold_leaning_leakage_name_nothing_wrong(sn637, case):
+    cc = load_benchmark("calibrate_confusion")
+    r = cc.evaluate(sn637, *case)
+    print(f"\n{r['effect']} excess {r['excess']:.2f} -> {r['answer']} {r['agreement']} {r['fold_winners']}")
+    assert r["class"] != "wrong", (r["answer"], r["fold_winners"])
+
+
+@pytest.mark.parametrize("winners, lean, named", [([L, U, U, U, L], 1, L), ([D, U, U, D, U], None, D),
+                                                  ([D, U, U, D, U], 4, None)])
+def test_the_stage_says_the_compatible_folds_beside_the_decided(monkeypatch, winners, lean, named):
+    """stages.run_stages: a name from decided folds carries ``agreement_compatible`` (decided +
+    undecided, what scripts compare with ``agree_needed``) beside its count of decided folds; an
+    undecided fold where leakage leaves less than the absorption held out (``lean``) blocks the
+    absorption there too (review finding 4, and finding 1 through the stage loop)."""
+    from workbench.calibrate import stages, tracing
+    lk, da, befores = _rows(3.0, 10.0, 9.99, 30.0)
+    b = befores[lk["key"]][0]
+    if lean is not None:
+        da["ratios"][lean] = 11.0 * 1.04 / b
+    res = {"winners": winners, "by": {L: lk, D: da}, "befores": befores}
+    monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+    monkeypatch.setattr(stages, "resolve_split", lambda *args: (None, 0, None))
+    monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect", lambda answer, count, note, *args:
+                        (answer, count, note))
+    monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None:
+                        {"count": count, "resolved": resolved})
+    monkeypatch.setattr(stages, "_later_stage", lambda *args, **kw: (None, 0, [], {"by": {}}, None))
+    ctx = {k: None for k in ("cands", "nulls", "split", "noise_factor", "infos", "min_share", "base", "t")}
+    ctx.update(probs={}, need=4, penalty=0.02)
+    first, st, _ = stages.run_stages(ctx)
+    if named is None:
+        assert first["answer"] is None and not st
+        return
+    assert first["answer"] == named and st[0]["count"] == 2 and st[0]["agreement_compatible"] == 5
+    assert "2 folds it wins are the decided ones" in st[0]["resolved"] and "3 folds cannot tell" in st[0]["resolved"]

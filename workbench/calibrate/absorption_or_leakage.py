@@ -39,8 +39,11 @@ The decision on one validation fold (:func:`absorption_or_leakage`), when one of
 
 Over the folds (:func:`nested_consensus`, after the plain consensus finds no answer): an
 undecided fold is compatible with both readings, so one of the two is named when it wins at
-least ``n_folds - need + 1`` folds outright, the other none, and it or undecided fills ``need``
-folds; the stage's ``resolved`` note and the ``reason`` say how many folds decided it.
+least :func:`decided_needed` folds outright (2 of 5, whatever the agreement asked), the other
+none, and it or undecided fills ``need`` folds; the absorption only when leakage does not leave
+at most what it leaves held out on any undecided fold (:func:`leakage_no_worse`: with its time
+constant fitted between half a record and ten, leakage cannot win a fold outright). The stage's
+``resolved`` note, the ``reason`` and ``agreement_compatible`` say how many folds decided it.
 
 Not separable, left ``inconclusive``: folds all undecided (at 100 kHz, 0.4 s, a leakage, an
 absorption slower than the record and a pair of the two explain the charge alike, E/a ~ 4-7).
@@ -62,7 +65,8 @@ leakage; a leakage explaining only 3-8x what it leaves stays undecided (README, 
 
 import numpy as np
 
-__all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_note", "nested_consensus", "nested_note",
+__all__ = ["absorption_or_leakage", "bend_on_every_fold", "decided_needed", "leakage_no_worse", "leakage_note",
+           "nested_consensus", "nested_note", "DEFAULT_AGREE",
            "settled_absorption_rms", "settled_ruled_out", "tau_bound_s", "SETTLED_TEST_RECORDS",
            "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED"]
 
@@ -76,6 +80,8 @@ SETTLED_RECORDS = 0.5
 SETTLED_TEST_RECORDS = 1.0
 #: The fold label of a fold the two readings explain alike (:func:`absorption_or_leakage` returned ``None``).
 UNDECIDED = ("undecided", "dielectric_absorption or leakage")
+#: The default agreement's share of the folds (``ceil(0.8 n_folds)``, tracing's default ``agree``).
+DEFAULT_AGREE = 0.8
 #: The bend's RMS over a record ``T`` per unit ``T / tau``, relative to the term's line (small ``T / tau``).
 BEND_PER_RECORD = np.sqrt(3.0 / 5.0) / 12.0
 
@@ -139,10 +145,13 @@ def absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, 
         return da
     if bend_on_every_fold(da, lk, befores, infos, penalty, noise_factor):
         return da
-    if tau >= LEAKAGE_TAU_RECORDS * T and (tau_bound_s(lk, f, befores, penalty, T) >= SETTLED_RECORDS * T
-                                           or settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor,
-                                                                min_share)):
-        return lk
+    if tau >= LEAKAGE_TAU_RECORDS * T:
+        by_bound = tau_bound_s(lk, f, befores, penalty, T) >= SETTLED_RECORDS * T
+        by_test = settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share)
+        if by_bound or by_test:
+            # which line ruled the settled absorption out on this fold (:func:`leakage_note` says it)
+            lk.setdefault("leakage_folds", {})[f] = "measured" if by_test else "bound"
+            return lk
     return None
 
 
@@ -221,22 +230,60 @@ def leakage_note(by, befores, penalty, duration_s):
 
     ``by``: the first stage's candidate rows by ``(name, channel)``. ``None`` when the absorption
     was not a candidate or came out settling within the record (``SETTLED_RECORDS``). The bound
-    said is the larger of the record length (the absorption :func:`settled_ruled_out` tests) and
-    the folds' median :func:`tau_bound_s`; the absorption's time constant beyond it is the
-    parameter the record cannot identify.
+    said is the folds' median :func:`tau_bound_s`, raised to the record length (the absorption
+    :func:`settled_ruled_out` tests) only when that measured test held on a fold that decided
+    leakage (``lk["leakage_folds"]``, set by :func:`absorption_or_leakage`); the absorption's
+    time constant beyond it is the parameter the record cannot identify. A fitted time constant
+    at the search's ceiling (the absorption's ``tau_max_fraction`` record lengths) is said to be
+    the ceiling, not a fit.
     """
     da, lk = by.get(("dielectric_absorption", "charge")), by.get(("leakage", "charge"))
     if da is None or lk is None or da["params"].get("tau_s", 0.0) < SETTLED_RECORDS * duration_s:
         return None
     bound = float(np.median([tau_bound_s(lk, f, befores, penalty, duration_s) for f in range(len(lk["ratios"]))]))
-    if da.get("settled_rms") is not None:
+    if "measured" in lk.get("leakage_folds", {}).values():
         bound = max(bound, SETTLED_TEST_RECORDS * duration_s)
+    n_rec = f"{bound / duration_s:.2g}"
+    tau = da["params"]["tau_s"]
+    ceiling = getattr(da.get("eff"), "tau_max_fraction", None)
+    if ceiling is not None and tau >= 0.99 * ceiling * duration_s:
+        fitted = f"not a fit: the search ran to its ceiling, {tau:.3g} s = {ceiling:.3g} record lengths"
+    else:
+        fitted = f"fitted {tau:.3g} s"
     return (f"leakage is the simpler reading: a dielectric absorption slower than about {bound:.3g} s "
-            f"({bound / duration_s:.2g} record lengths) would look the same over this {duration_s:.3g} s record; "
-            f"its time constant is what the record cannot identify (fitted {da['params']['tau_s']:.3g} s)")
+            f"({n_rec} record length{'' if n_rec == '1' else 's'}) would look the same over this "
+            f"{duration_s:.3g} s record; its time constant is what the record cannot identify ({fitted})")
 
 
-def nested_consensus(winners, need):
+def leakage_no_worse(by, befores, penalty):
+    """Per fold: does leakage leave at most what the absorption leaves on held-out rows? (list of bool)
+
+    ``by``: the first stage's candidate rows by ``(name, channel)``; both must be candidates, else
+    every entry is ``False``. Compared unpenalized (:func:`raw_rms`), which already favours the
+    absorption's extra parameter, as does its time constant searched on all development rows
+    (every fold's validation rows among them): a fold where the nested, simpler leakage still does
+    at least as well held out gives the absorption's bend no support.
+    """
+    da, lk = by.get(("dielectric_absorption", "charge")), by.get(("leakage", "charge"))
+    if da is None or lk is None:
+        return [False] * len(next(iter(by.values()))["ratios"]) if by else []
+    return [bool(raw_rms(lk, f, befores, penalty) <= raw_rms(da, f, befores, penalty))
+            for f in range(len(lk["ratios"]))]
+
+
+def decided_needed(n_folds):
+    """The fewest decided folds :func:`nested_consensus` names from (int, >= 2).
+
+    More than the dissent the default agreement (``ceil(0.8 n_folds)``, :data:`DEFAULT_AGREE`)
+    tolerates, and never one fold: ``max(2, n_folds - ceil(0.8 n_folds) + 1)`` (2 of 3-5 folds,
+    3 of 10). It does not depend on the agreement a user asks for: a stricter bar must not let
+    fewer folds decide (review of s11_calleak, finding 2: ``n - need + 1`` named leakage from one
+    decided fold at 5 of 5).
+    """
+    return max(2, n_folds - int(np.ceil(DEFAULT_AGREE * n_folds)) + 1)
+
+
+def nested_consensus(winners, need, lk_no_worse):
     """One of the nested pair named from decided folds, the other folds undecided between the two.
 
     An undecided fold (``UNDECIDED``) is one the absorption and leakage explain alike: it votes
@@ -248,40 +295,55 @@ def nested_consensus(winners, need):
     Here ``X`` (leakage or the absorption, on the charge) is named when
 
     * ``X`` or undecided-between-the-two on at least ``need`` folds (a name's usual agreement);
-    * the other reading wins no fold outright (the decided folds are unanimous);
-    * ``X`` wins at least ``n_folds - need + 1`` folds outright: more decided folds than the
-      dissent the agreement rule tolerates (2 of 5 at 4 of 5), so one fold decided by chance
-      (the base's misfit on that fold) does not name it.
+    * the other reading wins no fold outright (the decided folds are unanimous), and, for the
+      absorption, leakage leaves no more than the absorption held out on no undecided fold
+      (``lk_no_worse``). Where the absorption's fitted time constant lies between
+      ``SETTLED_RECORDS`` and ``LEAKAGE_TAU_RECORDS`` record lengths :func:`absorption_or_leakage`
+      can return only the absorption or undecided, so "leakage wins no fold" would hold by
+      construction; a fold where the simpler reading does at least as well is its dissent;
+    * ``X`` wins at least :func:`decided_needed` folds outright (2 of 5), so one fold decided by
+      chance (the base's misfit on that fold) does not name it.
 
     Parameters
     ----------
     winners : list
         The first stage's fold winners (``"none"`` or ``(name, channel)``, ``UNDECIDED``).
     need : int
-        Folds a name must win (``ceil(0.8 n_folds)``).
+        Folds a name must win (``ceil(0.8 n_folds)`` by default).
+    lk_no_worse : sequence of bool
+        Per fold, leakage's held-out RMS at most the absorption's (:func:`leakage_no_worse`).
 
     Returns
     -------
     tuple
-        ``((name, "charge"), decided, undecided)`` or ``(None, 0, 0)`` when the rule does not apply.
+        ``((name, "charge"), decided, undecided)`` or ``(None, 0, 0)`` when the rule does not apply;
+        ``decided + undecided`` folds are compatible with the name.
     """
     n = len(winners)
     tags = [w if isinstance(w, str) else tuple(w) for w in winners]
     und = sum(1 for w in tags if w == UNDECIDED)
     if not und:
         return None, 0, 0
+    lean_lk = sum(1 for w, no_worse in zip(tags, lk_no_worse) if w == UNDECIDED and no_worse)
     for x, other in (("leakage", "dielectric_absorption"), ("dielectric_absorption", "leakage")):
         won = sum(1 for w in tags if w == (x, "charge"))
-        rival = sum(1 for w in tags if w == (other, "charge"))
-        if rival == 0 and won + und >= need and won >= n - need + 1:
+        rival = sum(1 for w in tags if w == (other, "charge")) + (lean_lk if x == "dielectric_absorption" else 0)
+        if rival == 0 and won + und >= need and won >= decided_needed(n):
             return (x, "charge"), won, und
     return None, 0, 0
 
 
 def nested_note(answer, decided, undecided, n_folds):
-    """What a name from :func:`nested_consensus` leaves open (str)."""
+    """What a name from :func:`nested_consensus` leaves open (str).
+
+    Follows the stage's "wins k of n validation folds" (the decided folds): says how the other
+    folds split, undecided between the two or naming neither.
+    """
     other = "leakage" if answer[0] == "dielectric_absorption" else "a dielectric absorption"
-    return (f"{answer[0]} wins {decided} of {n_folds} validation folds outright and no fold names {other}; "
-            f"on the other {undecided} the two explain the charge alike (nested: leakage is the absorption "
-            f"with tau -> inf at fixed gain / tau), so the agreement is {decided} decided, "
-            f"{decided + undecided} of {n_folds} compatible")
+    neither = n_folds - decided - undecided
+    lean = ", nor leaves leakage at least as good held out" if answer[0] == "dielectric_absorption" else ""
+    return (f"the {decided} folds it wins are the decided ones; no fold names {other}{lean}; "
+            f"{undecided} fold{'' if undecided == 1 else 's'} cannot tell the two apart (nested: leakage is the "
+            f"absorption with tau -> inf at fixed gain / tau)"
+            + (f", {neither} name{'s' if neither == 1 else ''} neither" if neither else "")
+            + f": {decided + undecided} of {n_folds} folds compatible with {answer[0]}, {decided} decided")

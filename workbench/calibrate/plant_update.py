@@ -66,7 +66,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path):
     blocks = []
     sensor = {}
     for st in stages:
-        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor)
+        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"))
         if block:
             blocks.append(block)
         elif st["effect"] not in ("delay", "drift") or st["channel"] != "displacement":
@@ -85,11 +85,17 @@ def updated_plant_text(plant_path, plant, base, result, data_path):
     return out
 
 
-def _block(effect, ch, p, base, src, sensor):
-    """The plant-file lines of one effect (a displacement sensor's go into ``sensor``)."""
+def _block(effect, ch, p, base, src, sensor, note=None):
+    """The plant-file lines of one effect (a displacement sensor's go into ``sensor``).
+
+    ``note``: the stage's note (a named leakage's: the absorption time constant the record cannot
+    identify, :func:`~workbench.calibrate.absorption_or_leakage.leakage_note`), written as a
+    comment line in the effect's section.
+    """
     block = []
     if effect == "leakage" and p.get("gain_per_s", 0) > 0:
-        block = ["[leakage]", f"resistance_ohm = {_fmt(1.0 / p['gain_per_s'])}   # ohm; {src} (leakage fit)"]
+        block = ["[leakage]", *([f"# {' '.join(note.split())}"] if note else []),
+                 f"resistance_ohm = {_fmt(1.0 / p['gain_per_s'])}   # ohm; {src} (leakage fit)"]
     elif effect == "dielectric_absorption" and p.get("gain", 0) > 0:
         block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
                  f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]

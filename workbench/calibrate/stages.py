@@ -59,7 +59,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .absorption_or_leakage import nested_consensus, nested_note
+from .absorption_or_leakage import leakage_no_worse, nested_consensus, nested_note
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
@@ -462,13 +462,15 @@ def run_stages(ctx, max_stages=3):
     res = _tr._score_stage(ctx["cands"], probs, ctx["nulls"], extra, ctx["split"], ctx["penalty"],
                            ctx["noise_factor"], ctx["infos"], found, ctx["min_share"])
     answer, count, winners = _tr._consensus(res["winners"], ctx["need"])
-    resolved = None
+    resolved, compatible = None, None
     if answer is None:
         # leakage or the absorption decided on some folds, the rest undecided between the two
-        ans2, decided, undecided = nested_consensus(res["winners"], ctx["need"])
+        ans2, decided, undecided = nested_consensus(res["winners"], ctx["need"],
+                                                    leakage_no_worse(res["by"], res["befores"], ctx["penalty"]))
         if ans2 is not None:
             answer, count = ans2, decided
             resolved = nested_note(ans2, decided, undecided, len(res["winners"]))
+            compatible = (resolved, decided + undecided)
     if answer is None:
         ans2, count2, resolved = resolve_split(res, ctx, extra, found)
         if ans2 is not None:
@@ -490,6 +492,10 @@ def run_stages(ctx, max_stages=3):
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
+        if compatible is not None and compatible[0] == resolved and not stages[1:]:
+            # the folds compatible with a name from decided folds (decided + undecided): what
+            # scripts compare with ``agree_needed``, beside ``agreement`` (the decided folds)
+            stages[-1]["agreement_compatible"] = compatible[1]
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
         if len(stages) >= max_stages:
