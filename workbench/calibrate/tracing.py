@@ -104,22 +104,26 @@ def excitation_period_s(t, v):
     return float(2.0 * np.median(np.diff(np.asarray(t)[tp])))
 
 
-def candidate_plan(channels, t=None, v=None, tau_min_s=None):
+def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     """(channel, effect, driver) triples for the recorded ``channels`` (see the module notes).
 
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
     range come from the record: creep branches half a decade apart from ``tau_min_s``
     (default the block length, ``max(50 dt, duration / 100)``: faster branches would mimic a
-    latency) to a hundred record lengths; delays up to ``max(30 dt, duration / 200, period / 4)``
-    (``period`` the excitation period); a drift's slow periodic term from
-    twice the record's length down to four excitation periods (at most ten per record).
+    latency) to a hundred record lengths; delays up to ``max(30 dt, duration / 4)``; a drift's
+    slow periodic term from twice the record's length down to four excitation periods (at most
+    ten per record). With ``basis`` (the base's columns of the drive) the delay's model is
+    refitted at each trial delay (:class:`~workbench.calibrate.effects.Delay`).
     """
     dt = float((t[-1] - t[0]) / (t.size - 1)) if t is not None else 1e-4
     dur = float(t[-1] - t[0]) if t is not None else 35.0
     period = excitation_period_s(t, v) if v is not None else dur / 10
-    # a latency up to a quarter of the excitation period (longer reads as the period's other
-    # half), at least 30 samples and dur / 200
-    max_delay = max(30.0, dur / 200.0 / dt, 0.25 * period / dt)
+    # a latency up to a quarter of the record (at least three quarters of it then compare the
+    # output with the delayed drive), at least 30 samples. (It was a quarter of the excitation
+    # period, "longer reads as the period's other half": true of a pure sine and a model shifted
+    # as fitted, not of a decaying sine, steps or a chirp with the drive model refitted per
+    # delay; a 40 ms lag on a 0.4 s record of 64 ms sines was out of reach.)
+    max_delay = max(30.0, 0.25 * dur / dt)
     slow = (0.5 / dur, max(1.0 / dur, min(0.25 / period, 10.0 / dur)))
     tau_min_s = tau_min_s if tau_min_s is not None else max(50 * dt, dur / 100.0)
     # to a hundred record lengths: a branch far slower than the record still charges during it
@@ -134,7 +138,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None):
     has_x = "displacement" in channels
     if "displacement" in channels:
         plan += [("displacement", CreepSpectrum(), "model"), ("displacement", Resonance(), "model"),
-                 ("displacement", Delay(max_delay=max_delay), "model"), ("displacement", Drift(), "time"),
+                 ("displacement", Delay(max_delay=max_delay, basis=basis), "model"), ("displacement", Drift(), "time"),
                  ("displacement", Drift(periodic_hz=slow), "time")]
     if "charge" in channels:
         # (no drift on the charge: the integrated current's own noise is a random walk a slow
@@ -148,7 +152,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None):
             plan.append(("charge", CreepSpectrum(), "model"))
     if "gauge" in channels:
         plan += [("gauge", CreepSpectrum(), "model"), ("gauge", Resonance(), "model"),
-                 ("gauge", Delay(max_delay=max_delay), "model"), ("gauge", Drift(), "time"),
+                 ("gauge", Delay(max_delay=max_delay, basis=basis), "model"), ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
@@ -369,7 +373,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         split = make_split(t, base.v_drive, "blocks")
     n_folds = len(split.folds)
     need = int(np.ceil(0.8 * n_folds)) if agree is None else int(agree)
-    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s)
+    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=base.basis)
     rng = np.random.default_rng(seed)
     dev_rows = split.train
 
