@@ -724,7 +724,11 @@ def _foh_mode(f_hz, zeta, dt):
     return b * (a.sum() / b.sum()), a
 
 
-MODE_CYCLES_PER_RECORD = 4.0     # a mode's frequency floor: cycles it rings over the record
+#: a mode's frequency floor, in cycles over the record: the slow periodic term of a drift (a
+#: temperature cycle, :func:`~workbench.calibrate.tracing.candidate_plan`) reaches up to this many
+#: cycles, a mode starts there (below it, a heavily damped slow "mode" mimics a creep branch: a
+#: 3.8 Hz, zeta 0.3 mode split the folds of a 2 s creep record with creep at 4 cycles per record)
+SLOW_CYCLES_PER_RECORD = 10.0
 
 
 class Resonance(Effect):
@@ -749,9 +753,9 @@ class Resonance(Effect):
 
     def _range(self, t):
         dt = _dt(t)
-        # a mode that rings at least four cycles over the record (it was twenty: 50 Hz on a 0.4 s
-        # record, above the 27-50 Hz modes of a stack under a heavy load, which then went unseen)
-        f_lo = self.f_min_hz if self.f_min_hz is not None else max(1.0, MODE_CYCLES_PER_RECORD / (t[-1] - t[0]))
+        # a mode rings at least SLOW_CYCLES_PER_RECORD cycles over the record (it was twenty: 50 Hz
+        # on a 0.4 s record, above the 27-50 Hz modes of a heavily loaded stack, then unseen)
+        f_lo = self.f_min_hz if self.f_min_hz is not None else max(1.0, SLOW_CYCLES_PER_RECORD / (t[-1] - t[0]))
         return np.log(f_lo), np.log(self.f_max_fraction / dt)
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
