@@ -330,8 +330,9 @@ class Delay(Effect):
         delay (``basis(t - d dt)`` and ``y_model(t - d dt)``, least squares on the search
         rows): a model fitted to a record whose sensor lags by more than a few samples is
         itself wrong (fitted to the lagged output as if it were not lagged), and its shifted
-        copy is then not the lagged motion; the refit removes that bias. The term is then
-        ``model_d - y_model`` (``params["refit"]`` True), the model kept on the instance.
+        copy is then not the lagged motion; the refit removes that bias. The term is then the
+        refitted model shifted, ``m_d(t - d dt) - m_d(t)`` (``params["refit"]`` True; kept on
+        the instance); the change of its weights from the base is left to the base's columns.
     """
 
     name = "delay"
@@ -413,7 +414,10 @@ class Delay(Effect):
         all_rows = np.arange(Z.shape[0], dtype=float)
         Zr = self._rows_shifted(Z, rows, d)
         c = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
-        return d, self._rows_shifted(Z, all_rows, d) @ c
+        # the refitted model, shifted: its weights' change from the base is left to the base's
+        # own columns (refitted per fold), the column is the latency alone
+        model = Z @ c
+        return d, self._rows_shifted(model[:, None], all_rows, d)[:, 0] - model
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         if y_model is None:
@@ -427,11 +431,11 @@ class Delay(Effect):
             key = _data_key(e, ym, mask)
             memo = self.__dict__.setdefault("_memo", {})
             if memo.get("key") != key:
-                d, model = self._fit_refit(t, e + ym, ym, mask)
+                d, col = self._fit_refit(t, e + ym, ym, mask)
                 memo.clear()
-                memo.update(key=key, d=d, model=model)
+                memo.update(key=key, d=d, col=col)
             d = memo["d"]
-            self._models[d] = memo["model"]
+            self._models[d] = memo["col"]
             return {"delay_samples": d, "delay_s": d * _dt(t), "refit": True}
         # a log grid of delays of either sign from half a sample to the bound (the bound is in
         # samples of this record, set from seconds by the caller), then a bounded refinement
@@ -452,9 +456,9 @@ class Delay(Effect):
     def term(self, t, u, params, y_model=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
-        model = self._models.get(params["delay_samples"]) if params.get("refit") else None
-        if model is not None and model.size == np.size(y_model):
-            return model - np.asarray(y_model, float)
+        col = self._models.get(params["delay_samples"]) if params.get("refit") else None
+        if col is not None and col.size == np.size(y_model):
+            return col
         return self._shifted(t, y_model, params["delay_samples"])
 
     def _fingerprint(self, report, t, u, residual):
