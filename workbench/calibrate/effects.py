@@ -73,6 +73,7 @@ levels, a bipolar segment) separates them.
 rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none`` rule.
 """
 
+import copy
 import hashlib
 
 import numpy as np
@@ -343,6 +344,14 @@ class Delay(Effect):
         self.max_delay = float(max_delay)
         self.basis = None if basis is None else np.asarray(basis, float)
         self._models = {}
+        self._memo = {}
+
+    def __deepcopy__(self, memo):
+        # the drive's columns and the search's memo are shared (read-only; the stages copy an
+        # effect per search variant, and a copy of the record's columns each time cost seconds)
+        new = copy.copy(self)
+        new._models = dict(self._models)
+        return new
 
     @staticmethod
     def _shifted(t, y_model, d):
@@ -392,12 +401,13 @@ class Delay(Effect):
         ``y_model``, all delayed by ``d``, on the mask's rows."""
         Z = np.column_stack([self.basis, y_model])
         rows = np.flatnonzero(mask)
-        # the grid on at most 10,000 of the rows (every k-th), the refinement on all of them
-        coarse = rows[:: max(1, int(np.ceil(rows.size / 10_000)))]
+        # the grid on at most 2,000 of the rows (every k-th), the refinement on at most 10,000
+        coarse = rows[:: max(1, int(np.ceil(rows.size / 2_000)))]
+        fine = rows[:: max(1, int(np.ceil(rows.size / 10_000)))]
 
         def cost(d, r):
             Zd = self._rows_shifted(Z, r, d)
-            c = np.linalg.lstsq(Zd, y[r], rcond=1e-10)[0]
+            c = linalg.lstsq(Zd, y[r], cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
             return float(np.sum((y[r] - Zd @ c) ** 2))
 
         grid = self._grid()
@@ -408,9 +418,9 @@ class Delay(Effect):
         if lo < 0 < hi:
             lo, hi = (lo, -0.25) if grid[k] < 0 else (0.25, hi)
         from scipy.optimize import minimize_scalar
-        sol = minimize_scalar(lambda d: cost(d, rows), bounds=(lo, hi), method="bounded",
+        sol = minimize_scalar(lambda d: cost(d, fine), bounds=(lo, hi), method="bounded",
                               options={"xatol": 0.05, "maxiter": 40})
-        d = float(sol.x) if sol.fun <= cost(float(grid[k]), rows) else float(grid[k])
+        d = float(sol.x) if sol.fun <= cost(float(grid[k]), fine) else float(grid[k])
         all_rows = np.arange(Z.shape[0], dtype=float)
         Zr = self._rows_shifted(Z, rows, d)
         c = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
@@ -429,7 +439,7 @@ class Delay(Effect):
             # the same search with and without the base's projection (the refit contains the
             # base's columns): searched once per data
             key = _data_key(e, ym, mask)
-            memo = self.__dict__.setdefault("_memo", {})
+            memo = self._memo                                  # shared by the copies
             if memo.get("key") != key:
                 d, col = self._fit_refit(t, e + ym, ym, mask)
                 memo.clear()
