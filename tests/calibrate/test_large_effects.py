@@ -106,7 +106,8 @@ def test_a_low_mode_on_a_steps_record_is_named_and_not_above_the_line(sn637, fre
     cc = load_benchmark("calibrate_confusion")
     t, v = benchmark_protocol("steps", 1e5, cc.ROWS[1e5])
     plant, truth = plant_with_effect(sn637, "resonance", seed, duration_s=float(t[-1]))
-    plant = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, modes=(Mode(freq_hz, truth["damping_ratio"]),)))
+    mode = Mode(freq_hz, truth["damping_ratio"])
+    plant = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, modes=(mode,)))
     r = simulate_record(plant, t, v, seed=seed)
     sp = make_split(t, r["voltage_v"], "blocks")
     base = fit_base(cc._record(r, 1e-5), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
