@@ -73,6 +73,7 @@ levels, a bipolar segment) separates them.
 rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none`` rule.
 """
 
+import copy
 import hashlib
 
 import numpy as np
@@ -318,14 +319,39 @@ class Drift(Effect):
 
 
 class Delay(Effect):
-    """Latency of ``d`` samples: ``y_model(t - d dt) - y_model(t)``; needs ``y_model``."""
+    """Latency of ``d`` samples: ``y_model(t - d dt) - y_model(t)``; needs ``y_model``.
+
+    Parameters
+    ----------
+    max_delay : float
+        Bound on ``|d|`` (samples).
+    basis : ndarray, optional
+        ``(n, k)`` columns of the channel's model of the drive (the base's plays and offset).
+        With it, the delayed model is the drive model **refitted** to the record at each trial
+        delay (``basis(t - d dt)`` and ``y_model(t - d dt)``, least squares on the search
+        rows): a model fitted to a record whose sensor lags by more than a few samples is
+        itself wrong (fitted to the lagged output as if it were not lagged), and its shifted
+        copy is then not the lagged motion; the refit removes that bias. The term is then the
+        refitted model shifted, ``m_d(t - d dt) - m_d(t)`` (``params["refit"]`` True; kept on
+        the instance); the change of its weights from the base is left to the base's columns.
+    """
 
     name = "delay"
     n_params = 1
     nonlinear = True
 
-    def __init__(self, max_delay=20):
+    def __init__(self, max_delay=20, basis=None):
         self.max_delay = float(max_delay)
+        self.basis = None if basis is None else np.asarray(basis, float)
+        self._models = {}
+        self._memo = {}
+
+    def __deepcopy__(self, memo):
+        # the drive's columns and the search's memo are shared (read-only; the stages copy an
+        # effect per search variant, and a copy of the record's columns each time cost seconds)
+        new = copy.copy(self)
+        new._models = dict(self._models)
+        return new
 
     @staticmethod
     def _shifted(t, y_model, d):
@@ -353,15 +379,77 @@ class Delay(Effect):
         """The slow reference of :meth:`_residual_fn` (the whole record shifted, then the rows)."""
         return lambda d: _rows(e - Delay._shifted(t, y_model, d), mask, project)
 
+    def _grid(self):
+        """Delays of either sign, log-spaced from half a sample to the bound (at most 27 % apart)."""
+        top = max(self.max_delay, 1.0)
+        n = max(36, int(np.ceil(np.log(top / 0.5) / np.log(1.27))) + 1)
+        mags = np.geomspace(0.5, top, n)
+        return np.r_[-mags[::-1], mags]
+
+    @staticmethod
+    def _rows_shifted(Z, rows, d):
+        """``Z(t - d dt)`` at ``rows`` (linear interpolation on the uniform grid, ends held)."""
+        n = Z.shape[0]
+        s = np.clip(rows - d, 0.0, n - 1.0)
+        i0 = np.floor(s).astype(np.int64)
+        f = (s - i0)[:, None]
+        i1 = np.minimum(i0 + 1, n - 1)
+        return Z[i0] * (1.0 - f) + Z[i1] * f
+
+    def _fit_refit(self, t, y, y_model, mask):
+        """The refitted search: cost(d) = least squares of ``y`` on the drive model's columns and
+        ``y_model``, all delayed by ``d``, on the mask's rows."""
+        Z = np.column_stack([self.basis, y_model])
+        rows = np.flatnonzero(mask)
+        # the grid on at most 2,000 of the rows (every k-th), the refinement on at most 10,000
+        coarse = rows[:: max(1, int(np.ceil(rows.size / 2_000)))]
+        fine = rows[:: max(1, int(np.ceil(rows.size / 10_000)))]
+
+        def cost(d, r):
+            Zd = self._rows_shifted(Z, r, d)
+            c = linalg.lstsq(Zd, y[r], cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
+            return float(np.sum((y[r] - Zd @ c) ** 2))
+
+        grid = self._grid()
+        costs = np.array([cost(d, coarse) for d in grid])
+        k = int(np.argmin(costs))
+        lo = float(grid[k - 1]) if k > 0 else -self.max_delay
+        hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
+        if lo < 0 < hi:
+            lo, hi = (lo, -0.25) if grid[k] < 0 else (0.25, hi)
+        from scipy.optimize import minimize_scalar
+        sol = minimize_scalar(lambda d: cost(d, fine), bounds=(lo, hi), method="bounded",
+                              options={"xatol": 0.05, "maxiter": 40})
+        d = float(sol.x) if sol.fun <= cost(float(grid[k]), fine) else float(grid[k])
+        all_rows = np.arange(Z.shape[0], dtype=float)
+        Zr = self._rows_shifted(Z, rows, d)
+        c = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
+        # the refitted model, shifted: its weights' change from the base is left to the base's
+        # own columns (refitted per fold), the column is the latency alone
+        model = Z @ c
+        return d, self._rows_shifted(model[:, None], all_rows, d)[:, 0] - model
+
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
         mask = np.asarray(train_mask, bool)
         e = np.asarray(residual, float)
+        if self.basis is not None and self.basis.shape[0] == e.size:
+            ym = np.asarray(y_model, float)
+            # the same search with and without the base's projection (the refit contains the
+            # base's columns): searched once per data
+            key = _data_key(e, ym, mask)
+            memo = self._memo                                  # shared by the copies
+            if memo.get("key") != key:
+                d, col = self._fit_refit(t, e + ym, ym, mask)
+                memo.clear()
+                memo.update(key=key, d=d, col=col)
+            d = memo["d"]
+            self._models[d] = memo["col"]
+            return {"delay_samples": d, "delay_s": d * _dt(t), "refit": True}
         # a log grid of delays of either sign from half a sample to the bound (the bound is in
         # samples of this record, set from seconds by the caller), then a bounded refinement
-        mags = np.geomspace(0.5, max(self.max_delay, 1.0), 36)
-        grid = np.r_[-mags[::-1], mags]
+        grid = self._grid()
         res = self._residual_fn(t, e, y_model, mask, project)
         cost = lambda d: float(np.sum(res(d) ** 2))  # noqa: E731
         costs = [cost(d) for d in grid]
@@ -378,6 +466,9 @@ class Delay(Effect):
     def term(self, t, u, params, y_model=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
+        col = self._models.get(params["delay_samples"]) if params.get("refit") else None
+        if col is not None and col.size == np.size(y_model):
+            return col
         return self._shifted(t, y_model, params["delay_samples"])
 
     def _fingerprint(self, report, t, u, residual):
@@ -647,6 +738,13 @@ def _foh_mode(f_hz, zeta, dt):
     return b * (a.sum() / b.sum()), a
 
 
+#: a mode's frequency floor, in cycles over the record: the slow periodic term of a drift (a
+#: temperature cycle, :func:`~workbench.calibrate.tracing.candidate_plan`) reaches up to this many
+#: cycles, a mode starts there (below it, a heavily damped slow "mode" mimics a creep branch: a
+#: 3.8 Hz, zeta 0.3 mode split the folds of a 2 s creep record with creep at 4 cycles per record)
+SLOW_CYCLES_PER_RECORD = 10.0
+
+
 class Resonance(Effect):
     """A lightly damped mode with unit DC gain the base model lacks: ``g (H(s) - 1) u``."""
 
@@ -669,7 +767,9 @@ class Resonance(Effect):
 
     def _range(self, t):
         dt = _dt(t)
-        f_lo = self.f_min_hz if self.f_min_hz is not None else max(1.0, 20.0 / (t[-1] - t[0]))
+        # a mode rings at least SLOW_CYCLES_PER_RECORD cycles over the record (it was twenty: 50 Hz
+        # on a 0.4 s record, above the 27-50 Hz modes of a heavily loaded stack, then unseen)
+        f_lo = self.f_min_hz if self.f_min_hz is not None else max(1.0, SLOW_CYCLES_PER_RECORD / (t[-1] - t[0]))
         return np.log(f_lo), np.log(self.f_max_fraction / dt)
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
