@@ -543,7 +543,8 @@ CASES = [
      ["bad/time_ms_under_s.csv", "charge", "likely 1000 times too large (ms under time[s])", "time column's unit"]),
     # the last line cut mid-write ("...,-1.234567e-07" -> "...,-1."): read as -1 m
     ("calibrate-record-current-convention", ["calibrate", "bad/current_word.csv", "--plant", PLANT, "--out", "{out}"],
-     ["bad/current_word.csv, line 1", "current 'integrating' is not one of sampled, averaged", "'# current: averaged'"]),
+     ["bad/current_word.csv, line 1", "current 'integrating' is not one of sampled, averaged",
+      "'# current: averaged'"]),
     ("calibrate-record-cut-last-line", ["calibrate", "bad/cut_last_line.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/cut_last_line.csv", "line 2001, column 4 (displacement[m])", "no line end", "cut"]),
 ]
