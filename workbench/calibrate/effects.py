@@ -394,12 +394,53 @@ class Delay(Effect):
         i0 = np.floor(s).astype(np.int64)
         f = (s - i0)[:, None]
         i1 = np.minimum(i0 + 1, n - 1)
-        return Z[i0] * (1.0 - f) + Z[i1] * f
+        # (in-place products: the same arithmetic as Z[i0] * (1 - f) + Z[i1] * f,
+        # bit for bit, in half the time)
+        a = Z[i0]
+        b = Z[i1]
+        a *= 1.0 - f
+        b *= f
+        a += b
+        return a
+
+    @classmethod
+    def _grid_cost_batch(cls, Z, y, rows, grid, chunk=16):
+        """cost(d) of :meth:`_fit_refit` at every delay of ``grid`` on ``rows``, batched.
+
+        Each delay's least squares by the normal equations of unit-RMS columns, solved by a
+        batched eigendecomposition (directions with eigenvalues under 1e-13 of the largest
+        dropped: the delayed ``y_model`` is exactly a combination of the delayed basis when
+        it is the base's own model), the residual formed explicitly (no cancellation). The
+        columns' condition number after the scaling is ~1e4 on protocol records, so the
+        costs equal the QR solve's to ~1e-8 relative: the grid's minimum is the same. One
+        pass over all delays instead of one LAPACK call each (issue 13: the grid's ~100
+        ``lstsq`` calls were ~3/4 of the delay's search).
+        """
+        n = np.sqrt(np.mean(Z[rows] ** 2, axis=0))
+        inv = 1.0 / np.where(n > 0, n, 1.0)
+        yr = y[rows]
+        out = np.empty(len(grid))
+        for i in range(0, len(grid), chunk):
+            ds = np.asarray(grid[i: i + chunk], float)
+            X = np.stack([cls._rows_shifted(Z, rows, d) for d in ds]) * inv     # (m, r, k)
+            G = np.matmul(X.transpose(0, 2, 1), X)
+            b = np.matmul(X.transpose(0, 2, 1), yr)                           # (m, k)
+            w, V = np.linalg.eigh(G)
+            keep = w > 1e-13 * w[:, -1:]
+            a = np.einsum("mkj,mk->mj", V, b)
+            a = np.where(keep, a / np.where(keep, w, 1.0), 0.0)
+            c = np.einsum("mkj,mj->mk", V, a)
+            r = yr[None, :] - np.einsum("mrk,mk->mr", X, c)
+            out[i: i + len(ds)] = np.sum(r * r, axis=1)
+        return out
 
     def _fit_refit(self, t, y, y_model, mask):
         """The refitted search: cost(d) = least squares of ``y`` on the drive model's columns and
         ``y_model``, all delayed by ``d``, on the mask's rows."""
-        Z = np.column_stack([self.basis, y_model])
+        Z0 = np.column_stack([self.basis, y_model])
+        # a C-ordered copy for the search, which gathers rows (a row gather from the base's
+        # Fortran-ordered columns costs ~5x more); the same values
+        Z = np.ascontiguousarray(Z0)
         rows = np.flatnonzero(mask)
         # the grid on at most 2,000 of the rows (every k-th), the refinement on at most 10,000
         coarse = rows[:: max(1, int(np.ceil(rows.size / 2_000)))]
@@ -411,7 +452,7 @@ class Delay(Effect):
             return float(np.sum((y[r] - Zd @ c) ** 2))
 
         grid = self._grid()
-        costs = np.array([cost(d, coarse) for d in grid])
+        costs = self._grid_cost_batch(Z, y, coarse, grid)
         k = int(np.argmin(costs))
         lo = float(grid[k - 1]) if k > 0 else -self.max_delay
         hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
@@ -426,7 +467,7 @@ class Delay(Effect):
         c = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
         # the refitted model, shifted: its weights' change from the base is left to the base's
         # own columns (refitted per fold), the column is the latency alone
-        model = Z @ c
+        model = Z0 @ c                  # (Z0: the product's summation order as before the copy)
         return d, self._rows_shifted(model[:, None], all_rows, d)[:, 0] - model
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
