@@ -137,3 +137,92 @@ def test_calibration_json_equals_the_reference_code(sn637, tmp_path, monkeypatch
     ref = json.loads(json.dumps(run_calibrate(data, plant_file), default=str))
     assert fast["effect"] == ref["effect"] and Path(fast["record"]) == Path(ref["record"])
     _compare(fast, ref)
+
+
+def _refit_cost_reference(Z, y, rows, d):
+    """The refitted delay's cost at one delay: the rows shifted by the formula, then the least
+    squares minimum by SVD of unit-RMS columns (rcond 1e-13), and as first written (LAPACK's
+    QR, gelsy, cond 1e-10 on the raw columns)."""
+    from scipy import linalg
+    n = Z.shape[0]
+    s = np.clip(rows - d, 0.0, n - 1.0)
+    i0 = np.floor(s).astype(np.int64)
+    f = (s - i0)[:, None]
+    Zd = Z[i0] * (1.0 - f) + Z[np.minimum(i0 + 1, n - 1)] * f
+    rms = np.sqrt(np.mean(Zd * Zd, axis=0))
+    Zn = Zd / np.where(rms > 0, rms, 1.0)
+    c = np.linalg.lstsq(Zn, y[rows], rcond=1e-13)[0]
+    cq = linalg.lstsq(Zd, y[rows], cond=1e-10, lapack_driver="gelsy")[0]
+    return float(np.sum((y[rows] - Zn @ c) ** 2)), float(np.sum((y[rows] - Zd @ cq) ** 2)), Zd
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_refit_delay_grid_costs_equal_the_per_delay_least_squares(seed):
+    """``Delay._grid_cost_batch`` (normal equations of unit-RMS columns, batched) = the least
+    squares minimum per delay (SVD), to 1e-7 of the cost, and picks the grid minimum the
+    per-delay QR of the code before picked; with the model column an exact combination of the
+    basis (the first stage: rank-deficient) and not (a later stage's model), columns of scales
+    1e-6-50 as on protocol records, delays of both signs up to a quarter of the record.
+    ``_rows_shifted`` equals the formula bit for bit. (The QR with cond 1e-10 on the raw
+    columns is not scale-free: on seed 1 it drops a 1e-6-scale column and its cost is 3e-4
+    above the minimum; the batch is scale-free.)"""
+    rng = np.random.default_rng(seed)
+    n, k = int(rng.integers(3_000, 20_000)), int(rng.integers(4, 25))
+    u = np.cumsum(rng.standard_normal(n))
+    thr = np.quantile(u, np.linspace(0.05, 0.95, k - 1))
+    B = np.column_stack([np.maximum(u - r, 0.0) for r in thr] + [np.ones(n)])
+    B *= 10.0 ** rng.uniform(-6, 1.7, k)
+    ym = B @ rng.uniform(0.1, 1.0, k)
+    if seed % 2:
+        ym = ym + 0.01 * np.std(ym) * np.sin(np.linspace(0, 40, n) ** 1.3)
+    Z = np.ascontiguousarray(np.column_stack([B, ym]))
+    d_true = rng.uniform(0.5, 0.25 * n) * rng.choice([-1, 1])
+    y = Delay._rows_shifted(ym[:, None], np.arange(n, dtype=float), d_true)[:, 0] \
+        + 1e-3 * np.std(ym) * rng.standard_normal(n)
+    rows = np.flatnonzero(rng.random(n) < 0.3)[::3]
+    eff = Delay(max_delay=0.25 * n, basis=B)
+    grid = eff._grid()
+    fast = Delay._grid_cost_batch(Z, y, rows, grid)
+    ref, qr = [], []
+    for d in grid:
+        c, cq, Zd = _refit_cost_reference(Z, y, rows, d)
+        ref.append(c)
+        qr.append(cq)
+        assert np.array_equal(Delay._rows_shifted(Z, rows, d), Zd)
+    np.testing.assert_allclose(fast, ref, rtol=1e-7, atol=1e-12 * float(np.sum(y[rows] ** 2)))
+    assert int(np.argmin(fast)) == int(np.argmin(qr))
+
+
+def test_researched_resonance_shares_the_plain_grid_costs(monkeypatch):
+    """The later stage's two searches of a resonance (with the found columns projected out,
+    then plain) share the plain grid's costs, as the first stage does: the plain search's
+    answer equals a search of its own, and its grid is not filtered a second time."""
+    import copy
+    rng = np.random.default_rng(3)
+    n, dt = 20_000, 1e-4
+    t = np.arange(n) * dt
+    u = _input(rng, n)
+    e = 0.3 * Resonance._column(u, 180.0, 0.02, dt) + 1e-8 * rng.standard_normal(n)
+    mask = rng.random(n) < 0.3
+    P = np.column_stack([u, np.ones(n)])[mask]
+    Q = np.linalg.qr(P)[0]
+    project = lambda X: X - Q @ (Q.T @ X)  # noqa: E731
+    ref = Resonance().fit(t, u, e, mask, project=None)
+    eff = Resonance()
+    eff.__dict__.setdefault("_grid_costs", {})
+    calls = {"n": 0}
+    kernel = effects.mode_column_rows
+
+    def counted(*a, **k):
+        calls["n"] += 1
+        return kernel(*a, **k)
+    monkeypatch.setattr(effects, "mode_column_rows", counted)
+    memo = eff.__dict__["_grid_costs"]
+    first = copy.deepcopy(eff, {id(memo): memo})
+    first.fit(t, u, e, mask, project=project)
+    n_first = calls["n"]
+    second = copy.deepcopy(eff, {id(memo): memo})
+    assert second._grid_costs is memo
+    got = second.fit(t, u, e, mask, project=None)
+    assert got == ref
+    assert calls["n"] - n_first < 0.5 * n_first      # the refinement only, no grid

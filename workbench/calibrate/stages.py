@@ -143,8 +143,13 @@ def _research(c, probs, extra, t, base):
     best = None
     modes = (project, None) if getattr(eff, "nonlinear", False) else (project,)
     dev = prob.split.dev_blocks
+    # the two searches' copies share the effect's memo of the plain search's grid costs (a
+    # resonance's, :func:`~.effects._varpro`'s ``plain_costs``, keyed by the data): the search
+    # with the projection leaves them, the plain one takes them instead of filtering its ~500
+    # grid columns again, as in the first stage (same numbers; ~0.7 s per channel at 355,000 rows)
+    memo = eff.__dict__.get("_grid_costs")
     for proj in modes:
-        e = copy.deepcopy(eff)
+        e = copy.deepcopy(eff, {id(memo): memo} if isinstance(memo, dict) else None)
         try:
             p = e.fit(t, u, y - model, prob.search, y_model=model, project=proj)
         except ValueError:
