@@ -155,6 +155,9 @@ def ws(tmp_path_factory):
     ms_rows = "\n".join(",".join((f"{float(r[0]) * 1e3:.3f}",) + r[1:]) for r in cells)
     (bad / "time_ms_under_s.csv").write_text(f"time[s],voltage[V],current[A],displacement[m]\n{ms_rows}\n",
                                              encoding="utf-8")
+    # a current convention misspelled (issue 13): '# current:' is sampled or averaged
+    (bad / "current_word.csv").write_text(f"# current: integrating\ntime[s],voltage[V],current[A],displacement[m]\n"
+                                          f"{sim_rows}\n", encoding="utf-8")
     cut = ",".join(cells[-1][:3]) + "," + cells[-1][3].split(".")[0] + "."          # "...,-1.234567e-07" -> "...,-1."
     (bad / "cut_last_line.csv").write_text("time[s],voltage[V],current[A],displacement[m]\n"
                                            + "\n".join(",".join(r) for r in cells[:-1]) + "\n" + cut,
@@ -542,6 +545,9 @@ CASES = [
     ("calibrate-record-time-ms-under-s", ["calibrate", "bad/time_ms_under_s.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/time_ms_under_s.csv", "charge", "likely 1000 times too large (ms under time[s])", "time column's unit"]),
     # the last line cut mid-write ("...,-1.234567e-07" -> "...,-1."): read as -1 m
+    ("calibrate-record-current-convention", ["calibrate", "bad/current_word.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/current_word.csv, line 1", "current 'integrating' is not one of sampled, averaged",
+      "'# current: averaged'"]),
     ("calibrate-record-cut-last-line", ["calibrate", "bad/cut_last_line.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/cut_last_line.csv", "line 2001, column 4 (displacement[m])", "no line end", "cut"]),
 ]

@@ -102,6 +102,9 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
                  "--json", str(tmp_path / "r.json")]) == 0
     res = json.loads((tmp_path / "r.json").read_text())
     assert res["effect"] == "leakage" and res["channel"] == "charge"
+    # the simulated record declares its current convention and the run says which it used (issue 13)
+    assert data.read_text().startswith("# serial: SN637\n# current: averaged\n")
+    assert res["base_fit"]["current"] == "averaged"
     for key in ("error_before", "error_after"):
         assert set(res[key]) == {"rms", "max", "units"} and res[key]["units"] == "C"
     assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]
@@ -116,6 +119,7 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     assert reloaded.pzt.working_capacitance_f == sn637.pzt.working_capacitance_f
     assert np.array_equal(reloaded.pzt.hysteresis.weights, sn637.pzt.hysteresis.weights)
     assert (out / "report.md").read_text().count("leakage") >= 2
+    assert "integrated as **averaged** samples" in (out / "report.md").read_text()
     # which split and why (issue 13 item 3): blocks, though slow candidates are present
     assert res["split"] == "blocks" and "slow candidates" in res["split_reason"]
     assert f"blocks split: {res['split_reason']}" in (out / "report.md").read_text()

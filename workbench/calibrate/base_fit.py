@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, turning_points
-from .residual import charge_from_current
+from .residual import record_charge
 
 __all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "CHANNEL_KEYS", "CHANNEL_UNITS"]
 
@@ -112,6 +112,7 @@ class BaseFit:
     train_range_v: tuple | None = None    # (lo, hi) of the drive over the training rows
     beyond_train: np.ndarray = None   # held-out rows whose drive leaves ``train_range_v``
     dropped_thresholds_v: np.ndarray = None   # plays never excited in the training rows (left out)
+    current_kind: str | None = None   # the charge integrated from a current: "sampled" or "averaged" (# current:)
 
 
 from .splits import holdout_mask  # noqa: E402,F401  (moved to splits.py; re-exported for callers)
@@ -294,10 +295,17 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         raise ValueError(f"input_kind must be 'terminal' or 'command', got {input_kind!r}")
     notes, warnings = [], []
     outputs = {}
-    if "charge_c" in ch:
-        outputs["charge"] = ch["charge_c"]
-    elif "current_a" in ch:
-        outputs["charge"] = charge_from_current(t, ch["current_a"])
+    charge = record_charge(record)
+    current_kind = None
+    if charge is not None:
+        outputs["charge"] = charge
+        if "charge_c" not in ch:
+            current_kind = record.current_kind
+            notes.append(f"the charge is the recorded current integrated as {current_kind} "
+                         + ("(each sample the mean over the interval ending at it: running sum i dt)"
+                            if current_kind == "averaged" else
+                            "(each sample the instantaneous current: trapezoid; write '# current: averaged' "
+                            "in the record if the monitor averages over the sample interval)"))
     if "displacement_m" in ch:
         outputs["displacement"] = ch["displacement_m"]
     if "gauge_v" in ch:
@@ -410,7 +418,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     fit = BaseFit(t=t, v_drive=vd, voltage_source=label, train=train, channels=models, starts_from_rest=from_rest,
                   basis=np.column_stack([P, np.ones(t.size)]), notes=notes + [f"warning: {w}" for w in warnings],
                   test=test, warnings=warnings, input_kind=input_kind, command_map=command_map,
-                  train_range_v=(lo, hi), beyond_train=beyond, dropped_thresholds_v=r_all[~keep])
+                  train_range_v=(lo, hi), beyond_train=beyond, dropped_thresholds_v=r_all[~keep],
+                  current_kind=current_kind)
     if "charge" in outputs and "displacement" in outputs:
         q = outputs["charge"] - outputs["charge"][0]
         x = outputs["displacement"]

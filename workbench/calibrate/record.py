@@ -11,9 +11,12 @@ Format (UTF-8, an optional BOM, LF or CRLF line ends)::
 
 Leading ``#`` lines are metadata, ``# key: value``. Known keys (``serial``, a string,
 ``series_resistor_ohm``, a resistance >= 0, ``80`` or ``80 ohm``, where ``0`` means the resistor is
-out and the terminal voltage is the recorded one, seed 000's free-free test, and ``input``,
+out and the terminal voltage is the recorded one, seed 000's free-free test; ``input``,
 ``terminal`` or ``command``: the voltage column is the stack's terminal voltage or the command to
-its amplifier, of unknown gain, offset and lag) override the plant file for this record; other keys
+its amplifier, of unknown gain, offset and lag; and ``current``, ``sampled`` (the default: the
+instantaneous current at each sample time, integrated by the trapezoid) or ``averaged`` (each sample the
+mean current over the interval ending at it, as an integrating ADC and the project's simulator log:
+integrated by the running sum ``i dt``)) override the plant file for this record; other keys
 are kept with their values as written (strings). The first other line is
 the header: names from :data:`QUANTITIES` with the unit in brackets, any SI prefix, in any order;
 columns with other names are ignored with a notice. Time and voltage are required, and at least one
@@ -44,7 +47,8 @@ import pandas as pd
 from ..errors import DataFileError, UnitError
 from ..units import parse_quantity, scale_of
 
-__all__ = ["Record", "read_record", "QUANTITIES", "OUTPUTS", "METADATA_KEYS", "INPUT_KINDS", "GLITCH_SPANS"]
+__all__ = ["Record", "read_record", "QUANTITIES", "OUTPUTS", "METADATA_KEYS", "INPUT_KINDS", "CURRENT_KINDS",
+           "DEFAULT_CURRENT", "GLITCH_SPANS"]
 
 #: Header name -> (SI unit, key in Record.channels; time goes to Record.t_s).
 QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("A", "current_a"),
@@ -53,9 +57,16 @@ QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("
 #: Measured responses; a record needs at least one of them.
 OUTPUTS = ("current", "charge", "displacement", "gauge")
 #: Metadata keys with a meaning (they override the plant file); other keys are kept as strings.
-METADATA_KEYS = ("serial", "series_resistor_ohm", "input")
+METADATA_KEYS = ("serial", "series_resistor_ohm", "input", "current")
 #: Values of ``# input:``: the voltage column is the stack's terminal voltage or its amplifier's command.
 INPUT_KINDS = ("terminal", "command")
+#: Values of ``# current:``: each current sample is the instantaneous current at its time (``sampled``, an
+#: ordinary ADC: the charge is the trapezoid) or the mean over the interval ending at it (``averaged``, an
+#: integrating ADC or the project's simulator: the running sum ``i dt`` is exact). See
+#: :func:`~workbench.calibrate.residual.charge_from_current`.
+CURRENT_KINDS = ("sampled", "averaged")
+#: The convention of a record that does not say.
+DEFAULT_CURRENT = "sampled"
 #: A cell this many bulk spans (the range without the 0.1 % extreme cells) outside the bulk is a glitch, not
 #: physics: no stack, amplifier or sensor moves 100 times its own range for one sample.
 GLITCH_SPANS = 100.0
@@ -88,6 +99,11 @@ class Record:
     def n(self):
         """Number of samples."""
         return int(self.t_s.size)
+
+    @property
+    def current_kind(self):
+        """What each current sample is: the ``# current:`` header, else :data:`DEFAULT_CURRENT`."""
+        return self.metadata.get("current", DEFAULT_CURRENT)
 
     def has(self, name):
         """True if the record holds ``name``, a channel key (``"current_a"``) or a quantity (``"current"``)."""
@@ -218,6 +234,14 @@ def _metadata_value(where, key, value):
             raise DataFileError(f"{where}: series_resistor_ohm must be a resistance >= 0 (0: the resistor "
                                 f"is out), got {value!r}; write e.g. '# series_resistor_ohm: 80'")
         return ohm
+    if key == "current":
+        kind = value.strip().lower()
+        if kind not in CURRENT_KINDS:
+            raise DataFileError(f"{where}: current {value!r} is not one of {', '.join(CURRENT_KINDS)}; write "
+                                f"'# current: sampled' (the instantaneous current at each sample time, the "
+                                f"default) or '# current: averaged' (each sample the mean over the interval "
+                                f"ending at it, an integrating ADC)")
+        return kind
     if key == "input":
         kind = value.strip().lower()
         if kind not in INPUT_KINDS:

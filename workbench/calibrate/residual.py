@@ -64,8 +64,10 @@ from numba import njit
 from scipy import fft, signal, stats
 from scipy.integrate import cumulative_trapezoid
 
+from .record import CURRENT_KINDS
+
 __all__ = ["ResidualReport", "analyze_residual", "analyze_record", "charge_from_current",
-           "fit_percent", "CHANNEL_UNITS"]
+           "record_charge", "fit_percent", "CHANNEL_UNITS"]
 
 #: Record channel key -> SI unit of the channels a residual is usually analysed for.
 CHANNEL_UNITS = {"displacement_m": "m", "charge_c": "C", "gauge_v": "V", "current_a": "A",
@@ -421,15 +423,57 @@ def analyze_residual(t_s, u, y_meas, y_model, max_lag=50, confidence=0.99, hold_
         sample_period_s=float(1.0 / fs))
 
 
-def charge_from_current(t_s, i_a, q0=0.0):
-    """Charge in C from a current record in A: ``q0 + cumulative trapezoid of i over t``.
+def charge_from_current(t_s, i_a, q0=0.0, current="sampled"):
+    """Charge in C from a current record in A, by the record's current convention.
 
-    The first sample is ``q0``; time may be uneven but must increase strictly.
+    Parameters
+    ----------
+    t_s : array_like
+        Sample times, s; may be uneven but must increase strictly.
+    i_a : array_like
+        The recorded current, A.
+    q0 : float
+        The charge at the first sample, C (an integrated charge has no absolute zero).
+    current : {"sampled", "averaged"}
+        What each current sample is (the record's ``# current:`` header,
+        :data:`~workbench.calibrate.record.CURRENT_KINDS`):
+
+        * ``"sampled"`` -- the instantaneous current at the sample time (a monitor sampled by an
+          ordinary ADC): ``q`` is the cumulative trapezoid, ``q_k = q_{k-1} + (i_{k-1} + i_k)
+          (t_k - t_{k-1}) / 2``;
+        * ``"averaged"`` -- the mean current over the interval ENDING at the sample (an
+          integrating ADC, or the project's simulator, ``plant.kernels.pzt_run``): the running
+          sum ``q_k = q_{k-1} + i_k (t_k - t_{k-1})`` is exact. Trapezoid on such a record lags
+          the charge by ``(i_k - i_{k-1}) dt / 2`` per step, half a sample.
+
+    Returns
+    -------
+    ndarray
+        The charge at each sample, C; the first is ``q0``.
     """
     if not _is_real(q0) or not np.isfinite(q0):
         raise ValueError(f"q0 must be a finite number, got {q0!r}")
+    if current not in CURRENT_KINDS:
+        raise ValueError(f"current must be one of {', '.join(CURRENT_KINDS)}, got {current!r}")
     t, (i,) = _series(t_s, (i_a,), ("i_a",), 2, uniform=False)
+    if current == "averaged":
+        q = np.empty_like(i)
+        q[0] = 0.0
+        np.cumsum(i[1:] * np.diff(t), out=q[1:])
+        return q + float(q0)
     return cumulative_trapezoid(i, t, initial=0.0) + float(q0)
+
+
+def record_charge(record, q0=0.0):
+    """The record's charge in C: its ``charge_c`` channel, else its current integrated by
+    :func:`charge_from_current` under the record's ``# current:`` convention (default
+    ``"sampled"``) starting at ``q0``; None when the record has neither."""
+    if "charge_c" in record.channels:
+        return record.channels["charge_c"]
+    if "current_a" not in record.channels:
+        return None
+    return charge_from_current(record.t_s, record.channels["current_a"], q0=q0,
+                               current=record.current_kind)
 
 
 def analyze_record(record, predicted, **kwargs):
@@ -438,8 +482,8 @@ def analyze_record(record, predicted, **kwargs):
     ``predicted`` maps channel keys (``displacement_m``, ``charge_c``, ``gauge_v``, ...) to the
     model's prediction over the record. The input is the record's ``voltage_v``. A ``charge_c``
     prediction is compared with the record's charge, or, when it has none, with its current
-    integrated by :func:`charge_from_current` starting at the prediction's first value (the
-    integrated charge has no absolute zero). Other keyword arguments go to
+    integrated by :func:`record_charge` (the record's ``# current:`` convention) starting at the
+    prediction's first value (the integrated charge has no absolute zero). Other keyword arguments go to
     :func:`analyze_residual`; returns ``{key: ResidualReport}``.
     """
     out = {}
@@ -447,8 +491,7 @@ def analyze_record(record, predicted, **kwargs):
         if key in record.channels:
             y = record.channels[key]
         elif key == "charge_c" and "current_a" in record.channels:
-            y = charge_from_current(record.t_s, record.channels["current_a"],
-                                    q0=float(np.asarray(y_model, dtype=float)[0]))
+            y = record_charge(record, q0=float(np.asarray(y_model, dtype=float)[0]))
         else:
             raise ValueError(f"the record has no {key!r} channel"
                              + (" and no current to integrate" if key == "charge_c" else "")

@@ -23,6 +23,7 @@ from .base_fit import fit_base
 from .creep_holds import fit_holds
 from .plant_update import updated_plant_text
 from .record import read_record
+from .residual import charge_from_current
 from .splits import default_split, make_split
 from .tracing import candidate_plan, trace_effect
 
@@ -162,6 +163,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "n_plays": int(base.channels[next(iter(base.channels))].thresholds_v.size),
             "notes": base.notes,
             "warnings": base.warnings, "input": base.input_kind, "command_map": base.command_map,
+            "current": base.current_kind,
             "train_range_v": list(base.train_range_v),
             "held_out_beyond_training_fraction": float(base.beyond_train.sum() / max(int(base.test.sum()), 1)),
             "dropped_thresholds_v": base.dropped_thresholds_v.tolist(),
@@ -331,7 +333,8 @@ def recorded_slew_v_per_s(record, resistance_ohm, pzt):
 def charge_scale(record, pzt, resistance_ohm):
     """The recorded charge over the plant's, by least squares with the best constant current taken out.
 
-    The charge ``q = sum(i) dt`` is fitted as ``a q_model + b + c t + g int V_t dt``, ``q_model =
+    The charge ``q`` (the current integrated by :func:`~workbench.calibrate.residual.charge_from_current`
+    under the record's ``# current:`` convention) is fitted as ``a q_model + b + c t + g int V_t dt``, ``q_model =
     G^-1(V_t - V_t[0])`` the plant's quasi-static charge over the terminal voltage ``V_t = V - R i``: the
     ``b + c t`` term takes the current monitor's offset out and ``g int V_t dt`` a leakage resistor's charge
     (``g = 1/R_leak``), the way the base fit treats offset and leakage, so neither grows with the record's
@@ -347,7 +350,7 @@ def charge_scale(record, pzt, resistance_ohm):
     v, i, t = record.channels["voltage_v"], record.channels["current_a"], record.t_s
     dt = record.sample_period_s
     stride = max(1, v.size // 200_000)            # the quasi-static charge needs no more points than its shape
-    q = (np.cumsum(i) * dt)[::stride]
+    q = charge_from_current(t, i, current=record.current_kind)[::stride]
     v_t = (v - resistance_ohm * i)[::stride]
     q_model = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_t - v_t[0]))
     ts = (t[::stride] - t[0]) / max(float(t[-1] - t[0]), dt)      # 0..1: a well-conditioned basis

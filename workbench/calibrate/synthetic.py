@@ -9,7 +9,9 @@ trim, DAC) and adds sensor noise. The columns are what a lab would log:
 * ``voltage`` -- the amplifier's OUTPUT as its monitor reads it, ``V_t + R i``: while the
   amplifier is current-limited this lags the command;
 * ``current`` -- the terminal current (the core model's plus the leakage and absorption
-  currents);
+  currents), each sample the MEAN over the interval ending at it, ``i_k = (q_k - q_{k-1}) / dt``
+  (as ``plant.kernels.pzt_run`` logs it): :data:`CURRENT_KIND`, which :func:`write_record` declares
+  as ``# current: averaged`` so the calibration integrates it exactly (running sum ``i dt``);
 * ``displacement`` -- an external displacement sensor (capacitive or interferometric);
 * ``gauge`` -- the firmware's DAC output, V.
 
@@ -32,7 +34,12 @@ from ..plant.pzt import Mode
 from ..plant.simulator import PZTSimulator
 from ..report.output import write_text
 
-__all__ = ["SensorNoise", "simulate_record", "write_record", "plant_with_effect", "EFFECTS", "EFFECT_RANGES"]
+__all__ = ["SensorNoise", "simulate_record", "write_record", "plant_with_effect", "EFFECTS", "EFFECT_RANGES",
+           "CURRENT_KIND"]
+
+#: What the simulated current column is (a record's ``# current:``): the mean over the interval ending at
+#: each sample, so the running sum ``i dt`` is the simulator's charge to float rounding.
+CURRENT_KIND = "averaged"
 
 EFFECTS = ("creep", "dielectric_absorption", "leakage", "resonance", "delay", "drift", "gauge_nonlinearity")
 
@@ -127,6 +134,10 @@ RECORD_SUFFIXES = (".csv",)       # the only format write_record produces (the r
 def write_record(path, record, metadata=None):
     """Write a simulated record as the calibration's CSV (written whole or not at all).
 
+    ``metadata`` items are written as ``# key: value`` lines; a record with a current column is
+    declared ``# current: averaged`` (:data:`CURRENT_KIND`, what :func:`simulate_record` logs) unless
+    ``metadata`` says otherwise.
+
     Raises
     ------
     ValueError
@@ -136,7 +147,10 @@ def write_record(path, record, metadata=None):
         raise ValueError(f"cannot write a record to {str(path)!r}: the suffix must be one of {RECORD_SUFFIXES} "
                          f"(the record is a CSV), got {Path(path).suffix!r}")
     cols = [(k, h) for k, h in _CSV_COLUMNS if k in record]
-    lines = [f"# {k}: {v}" for k, v in (metadata or {}).items()]
+    metadata = dict(metadata or {})
+    if "current_a" in record:
+        metadata.setdefault("current", CURRENT_KIND)
+    lines = [f"# {k}: {v}" for k, v in metadata.items()]
     lines.append(",".join(h for _, h in cols))
     data = np.column_stack([record[k] for k, _ in cols])
     body = "\n".join(",".join(f"{v:.10g}" for v in row) for row in data)

@@ -150,7 +150,11 @@ def _base_section(base):
     lines = ["## Base fit", "",
              f"Each recorded channel is fitted as a Prandtl-Ishlinskii operator of the driving voltage plus an "
              f"offset (non-negative weights, training rows only). Driving voltage: **{base.voltage_source}**. "
-             f"Starts from rest: **{'yes' if base.starts_from_rest else 'no'}**. Training rows "
+             f"Starts from rest: **{'yes' if base.starts_from_rest else 'no'}**. "
+             + (f"Charge: the current integrated as **{base.current_kind}** samples "
+                f"({'running sum i dt' if base.current_kind == 'averaged' else 'trapezoid'}; the record's "
+                f"'# current:'). " if base.current_kind else "")
+             + f"Training rows "
              f"{100 * float(np.mean(base.train)):.0f} %, held out {100 * float(np.mean(test)):.0f} % "
              f"({'blocks through the whole record' if np.any(test[: test.size // 2]) else 'the record after the training cycles'}).", ""]
     lines += _table(("channel", "span (peak-to-peak)", "held-out RMS", "held-out max", "fit (%)", "held-out rows"),
