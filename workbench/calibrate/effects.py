@@ -519,6 +519,62 @@ class Delay(Effect):
         d = float(sol.x[0]) if 2 * sol.cost <= min(costs) else d0
         return {"delay_samples": d, "delay_s": d * _dt(t)}
 
+    def fold_columns(self, t, y, y_model, params, rows_list, lower):
+        """The refitted delay's column with the model's weights fitted on each of ``rows_list``.
+
+        The delay ``d`` is searched on the development rows (as a relaxation's time constant);
+        the model it shifts has ~``k`` weights, which a fold may fit only on its own training
+        rows (issue 13: fitted on all development rows, they had seen every fold's validation
+        rows, and the fold's score counted one parameter). Per row set: ``m = y_model + basis
+        delta`` with ``delta`` fitted to ``y(t) - y_model(t - d dt)`` on ``basis(t - d dt)`` at
+        those rows, bounded like the base's own corrections (``delta >= lower``: the plays'
+        weights stay >= 0; :func:`~workbench.calibrate.base_fit._gram_solve`, the base's bounded
+        least squares); the column is ``m(t - d dt) - m(t)``.
+
+        Parameters
+        ----------
+        t : ndarray
+            Times (s), uniform.
+        y : ndarray
+            The channel's record (channel units).
+        y_model : ndarray
+            The model the delay shifts (channel units).
+        params : dict
+            :meth:`fit`'s result (``delay_samples``).
+        rows_list : list of ndarray
+            Row indices per fit (e.g. each fold's training search rows).
+        lower : ndarray
+            ``(k,)`` lower bounds of the basis weights' corrections (``-w0`` for the plays,
+            ``-inf`` for the offset; channel units per column unit).
+
+        Returns
+        -------
+        list of ndarray
+            One ``(n,)`` column per row set (channel units).
+        """
+        from .base_fit import _gram_solve
+        if self.basis is None or self.basis.shape[0] != np.size(y_model):
+            col = self._shifted(t, y_model, params["delay_samples"])
+            return [col for _ in rows_list]
+        d = float(params["delay_samples"])
+        Bc = _c_ordered(self.basis)
+        ym = np.asarray(y_model, float)
+        y = np.asarray(y, float)
+        lower = np.asarray(lower, float)
+        all_rows = np.arange(ym.size, dtype=float)
+        out = []
+        for rows in rows_list:
+            rows = np.asarray(rows)
+            X = self._rows_shifted(Bc, rows, d)
+            r = y[rows] - self._rows_shifted(ym[:, None], rows, d)[:, 0]
+            nrm = np.sqrt(np.mean(X * X, axis=0)) if rows.size else np.ones(X.shape[1])
+            nrm = np.where(nrm > 0, nrm, 1.0)
+            Xs = X / nrm
+            delta = _gram_solve(Xs.T @ Xs, Xs.T @ r, lower * nrm) / nrm
+            m = ym + self.basis @ delta
+            out.append(self._rows_shifted(m[:, None], all_rows, d)[:, 0] - m)
+        return out
+
     def term(self, t, u, params, y_model=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")

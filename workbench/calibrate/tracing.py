@@ -318,6 +318,36 @@ def _candidate_columns(eff, t, u, y, yhat, prob):
     return best[1], best[2]
 
 
+def _base_lower(base, ch):
+    """The base's bounds on its weights' corrections for channel ``ch`` (``-w0`` on the plays)."""
+    m = base.channels[ch]
+    nonneg = np.r_[np.ones(base.basis.shape[1] - 1, bool), False]
+    w0 = np.r_[m.weights, m.offset]
+    if w0.size != base.basis.shape[1]:
+        w0 = np.zeros(base.basis.shape[1])
+    return np.where(nonneg, -w0, -np.inf)
+
+
+def _fold_grams(eff, p, t, y, yhat, prob, lower):
+    """Per fold, the Gram matrices of an effect whose column has weights of its own fitted to
+    the record (the refitted delay): fitted on that fold's training search rows only, so the
+    fold's validation rows never shape it (issue 13). None for an effect without them."""
+    if not hasattr(eff, "fold_columns") or getattr(eff, "basis", None) is None or not p.get("refit"):
+        return None
+    rows = [np.flatnonzero(prob.search & prob.split.rows(tr)) for tr, _ in prob.split.folds]
+    return [prob.grams(C, [0.0]) for C in eff.fold_columns(t, y, yhat, p, rows, lower)]
+
+
+def _cand_grams(prob, extra_list, cand, n_folds):
+    """The stacked Gram matrices a candidate is scored with on each fold (its per-fold columns
+    where it has them, :func:`_fold_grams`)."""
+    fg = cand.get("fold_g")
+    if fg is None:
+        g = _stacked(prob, extra_list, cand)
+        return [g] * n_folds
+    return [_stacked(prob, extra_list, {"g": gf}) for gf in fg]
+
+
 def _with_gains(eff, p, gains):
     if hasattr(eff, "columns"):
         return eff.with_gains(p, gains)
@@ -437,8 +467,10 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         except ValueError:
             continue
         variant = "periodic" if getattr(eff, "periodic_hz", None) else None
+        fold_g = _fold_grams(eff, p, t, m.y, yhat, prob, _base_lower(base, ch)) if key[1] == "model" else None
         cands.append({"name": eff.name, "channel": ch, "key": key, "eff": eff, "params": p, "g": g, "u": u,
-                      "yhat": yhat, "n_params": int(eff.n_params), "variant": variant, "driver": driver})
+                      "yhat": yhat, "n_params": int(eff.n_params), "variant": variant, "driver": driver,
+                      "fold_g": fold_g})
     if progress:
         progress("effects", len(plan), len(plan))
 
@@ -595,11 +627,11 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         key = c["key"]
         prob = probs[key]
-        g = _stacked(prob, extra[key], c)
+        gf = _cand_grams(prob, extra[key], c, n_folds)
         ratios, passes = [], []
         floor = infos[c["channel"]]["noise_floor"]
         for f, (tr, va) in enumerate(split.folds):
-            ratio, ok = _fold_test(befores[key][f], prob.fold_rms(g, tr, va), c["n_params"], penalty,
+            ratio, ok = _fold_test(befores[key][f], prob.fold_rms(gf[f], tr, va), c["n_params"], penalty,
                                    noise_factor * floor, null_gain[key][f], min_share)
             ratios.append(float(ratio))
             passes.append(bool(ok))
