@@ -72,3 +72,28 @@ def test_a_fold_prediction_ignores_its_validation_rows(sn637, proto, effect, rat
         moved_shipped.append(np.max(np.abs(prob_bad.predict(g_old, tr)[0][val] - shipped)) / scale)
     # the test has teeth: the old scoring's prediction on the validation rows depends on them
     assert max(moved_shipped) > 1e-3, moved_shipped
+
+
+def test_the_refitted_column_is_kept_for_its_own_model_only():
+    """``term`` returns the refitted column only for the ``y_model`` it was fitted with; asked
+    for another model of the same size it is that model shifted (closed form: linear
+    interpolation at ``t - d dt``), not the cached column (issue 13, finding 5)."""
+    from workbench.calibrate.effects import Delay
+    from workbench.calibrate.pi_fit import pi_thresholds, play_matrix
+    rng = np.random.default_rng(5)
+    n = 4000
+    t = np.arange(n) * 1e-4
+    v = 50 + 40 * np.exp(-t / 0.3) * np.sin(2 * np.pi * 7.0 * t) + 10 * np.sign(np.sin(2 * np.pi * 2.1 * t))
+    r = pi_thresholds(v, 8, "quadratic")
+    B = np.column_stack([play_matrix(v, r, np.zeros(r.size)), np.ones(n)])
+    w = rng.uniform(0.5, 1.5, B.shape[1])
+    y = np.interp(t - 37 * 1e-4, t, B @ w) + 1e-3 * rng.standard_normal(n)
+    ym = B @ w
+    eff = Delay(max_delay=n / 4, basis=B)
+    p = eff.fit(t, ym, y - ym, np.ones(n, bool), y_model=ym)
+    assert p["refit"]
+    own = eff.term(t, ym, p, y_model=ym)
+    other = 0.5 * ym + 3.0
+    got = eff.term(t, other, p, y_model=other)
+    np.testing.assert_allclose(got, Delay._shifted(t, other, p["delay_samples"]), rtol=0, atol=1e-12)
+    assert np.max(np.abs(got - own)) > 0.1 * np.std(own)

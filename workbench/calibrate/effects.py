@@ -501,7 +501,9 @@ class Delay(Effect):
                 memo.clear()
                 memo.update(key=key, d=d, col=col)
             d = memo["d"]
-            self._models[d] = memo["col"]
+            # the column is the model fitted to this y_model: kept under the delay and y_model
+            # (a term asked for another model is that model shifted, not this column)
+            self._models[(d, _data_key(ym))] = memo["col"]
             return {"delay_samples": d, "delay_s": d * _dt(t), "refit": True}
         # a log grid of delays of either sign from half a sample to the bound (the bound is in
         # samples of this record, set from seconds by the caller), then a bounded refinement
@@ -578,8 +580,10 @@ class Delay(Effect):
     def term(self, t, u, params, y_model=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
-        col = self._models.get(params["delay_samples"]) if params.get("refit") else None
-        if col is not None and col.size == np.size(y_model):
+        col = None
+        if params.get("refit") and self._models:
+            col = self._models.get((params["delay_samples"], _data_key(np.asarray(y_model, float))))
+        if col is not None:
             return col
         return self._shifted(t, y_model, params["delay_samples"])
 
