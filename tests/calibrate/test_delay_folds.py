@@ -97,3 +97,19 @@ def test_the_refitted_column_is_kept_for_its_own_model_only():
     got = eff.term(t, other, p, y_model=other)
     np.testing.assert_allclose(got, Delay._shifted(t, other, p["delay_samples"]), rtol=0, atol=1e-12)
     assert np.max(np.abs(got - own)) > 0.1 * np.std(own)
+
+
+def test_a_refused_creep_does_not_name_an_unjudged_charge_absorption():
+    """When the charge refuses a displacement creep, the next passing row takes the fold only if
+    no cross-channel rule would judge it: a charge absorption (which the stack rule may just have
+    turned into that creep) or a gauge mode answers undecided; a drift is named (finding 4)."""
+    def row(name, ch):
+        return {"name": name, "channel": ch}
+    creep = row("creep", "displacement")
+    for name in ("dielectric_absorption", "leakage"):
+        got = T._after_creep_refused([creep, row(name, "charge"), row("drift", "displacement")])
+        assert got == ("undecided", f"{name} or creep")
+    assert T._after_creep_refused([creep, row("resonance", "gauge")]) == ("undecided", "resonance or creep")
+    drift = row("drift", "displacement")
+    assert T._after_creep_refused([creep, row("creep", "gauge"), drift]) is drift
+    assert T._after_creep_refused([creep])[0] == "undecided"

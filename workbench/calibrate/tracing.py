@@ -682,11 +682,9 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             # creep moves charge (x = k_q2x q, eq. 10): a displacement relaxation the charge would
             # show >= 3x above its noise floor but does not is not the stack's; the next passing
             # candidate (a sensor drift) takes the fold
-            rest = [r for r in ok if (r["name"], r["channel"]) not in (("creep", "displacement"), ("creep", "gauge"))]
-            if rest:
-                best = rest[0]
-            else:
-                winners.append(("undecided", "creep or a displacement-sensor effect"))
+            best = _after_creep_refused(ok)
+            if isinstance(best, tuple):
+                winners.append(best)
                 continue
         if (best["name"], best["channel"]) == ("creep", "displacement") and ("creep", "gauge") not in tags \
                 and _gauge_would_show(best, f, befores, infos, penalty):
@@ -696,6 +694,27 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+def _after_creep_refused(ok):
+    """The fold's answer when the charge refuses a displacement creep: the next passing row, or an
+    ``("undecided", what)`` label.
+
+    ``ok``: the fold's passing rows, best first. The next row takes the fold only when no
+    cross-channel rule of :func:`_score_stage` would judge it: a charge absorption or leakage
+    (judged against creep by the stack, ``_stack_shows_it``, and the ``x_equiv`` rule: the creep
+    may have been that absorption promoted, now ruled out) or a gauge creep or mode (the
+    displacement's kind) is not named unjudged: the fold is undecided between it and creep
+    (issue 13, finding 4).
+    """
+    rest = [r for r in ok if (r["name"], r["channel"]) not in (("creep", "displacement"), ("creep", "gauge"))]
+    if not rest:
+        return ("undecided", "creep or a displacement-sensor effect")
+    nxt = rest[0]
+    if (nxt["channel"] == "charge" and nxt["name"] in ("dielectric_absorption", "leakage")) \
+            or (nxt["channel"] == "gauge" and nxt["name"] in ("creep", "resonance")):
+        return ("undecided", f"{nxt['name']} or creep")
+    return nxt
 
 
 def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
