@@ -113,3 +113,29 @@ def test_a_refused_creep_does_not_name_an_unjudged_charge_absorption():
     drift = row("drift", "displacement")
     assert T._after_creep_refused([creep, row("creep", "gauge"), drift]) is drift
     assert T._after_creep_refused([creep])[0] == "undecided"
+
+
+@pytest.mark.parametrize("lead", [6.0, 17.0])
+def test_leads_are_bounded_apart_from_lags_and_found_within_it(lead):
+    """The plan bounds a lead (output logged ahead of the drive) by a quarter of the excitation
+    period, a lag by a quarter of the record (finding 2): the search's grid spans
+    ``[-max_lead, max_delay]`` with ``max_lead < max_delay``; a lead inside its bound is found
+    (closed form: the refitted model is exact at the true shift, so the search lands on it)."""
+    from workbench.calibrate.effects import Delay
+    from workbench.calibrate.pi_fit import pi_thresholds, play_matrix
+    rng = np.random.default_rng(int(lead))
+    n = 6000
+    t = np.arange(n) * 1e-4
+    v = 50 + 40 * np.exp(-t / 0.4) * np.sin(2 * np.pi * 20.0 * t) + 10 * np.sign(np.sin(2 * np.pi * 1.7 * t + 0.3))
+    plan = T.candidate_plan({"displacement": None}, t, v, basis=np.zeros((n, 1)))
+    (eff,) = [e for _, e, _ in plan if e.name == "delay"]
+    assert eff.max_lead < eff.max_delay
+    g = eff._grid()
+    assert g.min() == pytest.approx(-eff.max_lead) and g.max() == pytest.approx(eff.max_delay)
+    r = pi_thresholds(v, 10, "quadratic")
+    B = np.column_stack([play_matrix(v, r, np.zeros(r.size)), np.ones(n)])
+    y = np.interp(t + lead * 1e-4, t, B @ rng.uniform(0.5, 1.5, B.shape[1])) + 1e-4 * rng.standard_normal(n)
+    ym = B @ np.linalg.lstsq(B, y, rcond=None)[0]
+    d = Delay(max_delay=eff.max_delay, basis=B, max_lead=eff.max_lead)
+    p = d.fit(t, ym, y - ym, np.ones(n, bool), y_model=ym)
+    assert p["delay_samples"] == pytest.approx(-lead, rel=0.02)

@@ -335,7 +335,10 @@ class Delay(Effect):
     Parameters
     ----------
     max_delay : float
-        Bound on ``|d|`` (samples).
+        Bound on a lag ``d > 0`` (samples).
+    max_lead : float, optional
+        Bound on a lead ``-d`` (samples; default ``max_delay``). A channel logged ahead of
+        the drive is a logging skew, small; the caller bounds it tighter than a lag.
     basis : ndarray, optional
         ``(n, k)`` columns of the channel's model of the drive (the base's plays and offset).
         With it, the delayed model is the drive model **refitted** to the record at each trial
@@ -351,8 +354,9 @@ class Delay(Effect):
     n_params = 1
     nonlinear = True
 
-    def __init__(self, max_delay=20, basis=None):
+    def __init__(self, max_delay=20, basis=None, max_lead=None):
         self.max_delay = float(max_delay)
+        self.max_lead = self.max_delay if max_lead is None else min(float(max_lead), self.max_delay)
         self.basis = None if basis is None else np.asarray(basis, float)
         self._models = {}
         self._memo = {}
@@ -391,11 +395,15 @@ class Delay(Effect):
         return lambda d: _rows(e - Delay._shifted(t, y_model, d), mask, project)
 
     def _grid(self):
-        """Delays of either sign, log-spaced from half a sample to the bound (at most 27 % apart)."""
+        """Delays of either sign, log-spaced from half a sample to the bounds (at most 27 % apart;
+        leads up to ``max_lead``, lags up to ``max_delay``)."""
         top = max(self.max_delay, 1.0)
         n = max(36, int(np.ceil(np.log(top / 0.5) / np.log(1.27))) + 1)
         mags = np.geomspace(0.5, top, n)
-        return np.r_[-mags[::-1], mags]
+        # the same points on both sides up to the lead's bound (and the bound itself)
+        lead = mags[mags < max(self.max_lead, 1.0)]
+        lead = np.r_[lead, max(self.max_lead, 1.0)] if self.max_lead < top else mags
+        return np.r_[-lead[::-1], mags]
 
     @staticmethod
     def _rows_shifted(Z, rows, d):
@@ -469,7 +477,7 @@ class Delay(Effect):
         grid = self._grid()
         costs = self._grid_cost_batch((Bc, ym), y, coarse, grid)
         k = int(np.argmin(costs))
-        lo = float(grid[k - 1]) if k > 0 else -self.max_delay
+        lo = float(grid[k - 1]) if k > 0 else -self.max_lead
         hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
         if lo < 0 < hi:
             lo, hi = (lo, -0.25) if grid[k] < 0 else (0.25, hi)
@@ -513,7 +521,7 @@ class Delay(Effect):
         costs = [cost(d) for d in grid]
         k = int(np.argmin(costs))
         d0 = float(grid[k])
-        lo = float(grid[k - 1]) if k > 0 else -self.max_delay
+        lo = float(grid[k - 1]) if k > 0 else -self.max_lead
         hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
         if lo < 0 < hi:
             lo, hi = (lo, -0.25) if d0 < 0 else (0.25, hi)

@@ -112,7 +112,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
     range come from the record: creep branches half a decade apart from ``tau_min_s``
     (default the block length, ``max(50 dt, duration / 100)``: faster branches would mimic a
-    latency) to a hundred record lengths; delays up to ``max(30 dt, duration / 4)``; a drift's
+    latency) to a hundred record lengths; lags up to ``max(30 dt, duration / 4)``, leads up to a
+    quarter of the excitation period (``max(30 dt, duration / 200)`` at least); a drift's
     slow periodic term from twice the record's length down to four excitation periods (at most
     ten per record). With ``basis`` (the base's columns of the drive) the delay's model is
     refitted at each trial delay (:class:`~workbench.calibrate.effects.Delay`).
@@ -126,6 +127,10 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     # as fitted, not of a decaying sine, steps or a chirp with the drive model refitted per
     # delay; a 40 ms lag on a 0.4 s record of 64 ms sines was out of reach.)
     max_delay = max(30.0, 0.25 * dur / dt)
+    # a lead (the output logged ahead of the drive) is a skew between channels, small: bounded
+    # as all delays were before (a quarter of the excitation period, at least 30 samples and
+    # dur/200), never a quarter of the record (issue 13, finding 2)
+    max_lead = min(max_delay, max(30.0, dur / 200.0 / dt, 0.25 * period / dt))
     slow = (0.5 / dur, max(1.0 / dur, min(0.25 / period, SLOW_CYCLES_PER_RECORD / dur)))
     tau_min_s = tau_min_s if tau_min_s is not None else max(50 * dt, dur / 100.0)
     # to a hundred record lengths: a branch far slower than the record still charges during it
@@ -140,7 +145,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     has_x = "displacement" in channels
     if "displacement" in channels:
         plan += [("displacement", CreepSpectrum(), "model"), ("displacement", Resonance(), "model"),
-                 ("displacement", Delay(max_delay=max_delay, basis=basis), "model"),
+                 ("displacement", Delay(max_delay=max_delay, basis=basis, max_lead=max_lead), "model"),
                  ("displacement", Drift(), "time"),
                  ("displacement", Drift(periodic_hz=slow), "time")]
     if "charge" in channels:
@@ -155,7 +160,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
             plan.append(("charge", CreepSpectrum(), "model"))
     if "gauge" in channels:
         plan += [("gauge", CreepSpectrum(), "model"), ("gauge", Resonance(), "model"),
-                 ("gauge", Delay(max_delay=max_delay, basis=basis), "model"), ("gauge", Drift(), "time"),
+                 ("gauge", Delay(max_delay=max_delay, basis=basis, max_lead=max_lead), "model"), ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
