@@ -139,3 +139,25 @@ def test_leads_are_bounded_apart_from_lags_and_found_within_it(lead):
     d = Delay(max_delay=eff.max_delay, basis=B, max_lead=eff.max_lead)
     p = d.fit(t, ym, y - ym, np.ones(n, bool), y_model=ym)
     assert p["delay_samples"] == pytest.approx(-lead, rel=0.02)
+
+
+NONE_DRAWS = [(proto, rate, int(RNG.integers(1 << 30)))
+              for proto in ("sine", "steps", "calibration") for rate in (1e3, 1e4, 1e5)]
+
+
+@pytest.mark.parametrize("proto, rate, seed", NONE_DRAWS)
+def test_an_effect_free_record_is_not_named_delay(sn637, proto, rate, seed):
+    """Records with no effect (the benchmark's ``none``: the plant's own hysteresis and noise), every
+    protocol at every benchmark rate: no stage names a delay (finding 8; a latency searched over a
+    quarter of the record with ~26 refitted weights is the candidate most able to fit noise)."""
+    from workbench.calibrate.tracing import trace_effect
+    cc = load_benchmark("calibrate_confusion")
+    t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
+    plant, _ = plant_with_effect(sn637, "none", seed, duration_s=float(t[-1]), size=1.0)
+    r = simulate_record(plant, t, v, seed=seed)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    base = fit_base(cc._record(r, 1.0 / rate), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
+                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    res = trace_effect(base, split=sp)
+    named = [res["effect"]] + [st["effect"] for st in res["stages"]]
+    assert "delay" not in named, (named, res.get("fold_winners"))
