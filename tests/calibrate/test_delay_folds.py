@@ -66,7 +66,6 @@ def test_a_fold_prediction_ignores_its_validation_rows(sn637, proto, effect, rat
         # the shipped column (weights on all development rows, the fold only the gain) moves
         dl_old = type(dl)(max_delay=dl.max_delay, basis=dl.basis)
         p_old = dl_old.fit(t, m.yhat, y_bad - m.yhat, search, y_model=m.yhat)
-        p_old = {**p_old, "delay_samples": p["delay_samples"]} if p_old["delay_samples"] != p["delay_samples"] else p_old
         g_old = prob_bad.grams(dl_old.term(t, m.yhat, p_old, y_model=m.yhat), [0.0])
         shipped = prob.predict(g, tr)[0][val]
         moved_shipped.append(np.max(np.abs(prob_bad.predict(g_old, tr)[0][val] - shipped)) / scale)

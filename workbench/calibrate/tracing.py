@@ -160,7 +160,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
             plan.append(("charge", CreepSpectrum(), "model"))
     if "gauge" in channels:
         plan += [("gauge", CreepSpectrum(), "model"), ("gauge", Resonance(), "model"),
-                 ("gauge", Delay(max_delay=max_delay, basis=basis, max_lead=max_lead), "model"), ("gauge", Drift(), "time"),
+                 ("gauge", Delay(max_delay=max_delay, basis=basis, max_lead=max_lead), "model"),
+                 ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
