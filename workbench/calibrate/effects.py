@@ -335,7 +335,10 @@ class Delay(Effect):
     Parameters
     ----------
     max_delay : float
-        Bound on ``|d|`` (samples).
+        Bound on a lag ``d > 0`` (samples).
+    max_lead : float, optional
+        Bound on a lead ``-d`` (samples; default ``max_delay``). A channel logged ahead of
+        the drive is a logging skew, small; the caller bounds it tighter than a lag.
     basis : ndarray, optional
         ``(n, k)`` columns of the channel's model of the drive (the base's plays and offset).
         With it, the delayed model is the drive model **refitted** to the record at each trial
@@ -351,8 +354,9 @@ class Delay(Effect):
     n_params = 1
     nonlinear = True
 
-    def __init__(self, max_delay=20, basis=None):
+    def __init__(self, max_delay=20, basis=None, max_lead=None):
         self.max_delay = float(max_delay)
+        self.max_lead = self.max_delay if max_lead is None else min(float(max_lead), self.max_delay)
         self.basis = None if basis is None else np.asarray(basis, float)
         self._models = {}
         self._memo = {}
@@ -391,11 +395,15 @@ class Delay(Effect):
         return lambda d: _rows(e - Delay._shifted(t, y_model, d), mask, project)
 
     def _grid(self):
-        """Delays of either sign, log-spaced from half a sample to the bound (at most 27 % apart)."""
+        """Delays of either sign, log-spaced from half a sample to the bounds (at most 27 % apart;
+        leads up to ``max_lead``, lags up to ``max_delay``)."""
         top = max(self.max_delay, 1.0)
         n = max(36, int(np.ceil(np.log(top / 0.5) / np.log(1.27))) + 1)
         mags = np.geomspace(0.5, top, n)
-        return np.r_[-mags[::-1], mags]
+        # the same points on both sides up to the lead's bound (and the bound itself)
+        lead = mags[mags < max(self.max_lead, 1.0)]
+        lead = np.r_[lead, max(self.max_lead, 1.0)] if self.max_lead < top else mags
+        return np.r_[-lead[::-1], mags]
 
     @staticmethod
     def _rows_shifted(Z, rows, d):
@@ -469,7 +477,7 @@ class Delay(Effect):
         grid = self._grid()
         costs = self._grid_cost_batch((Bc, ym), y, coarse, grid)
         k = int(np.argmin(costs))
-        lo = float(grid[k - 1]) if k > 0 else -self.max_delay
+        lo = float(grid[k - 1]) if k > 0 else -self.max_lead
         hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
         if lo < 0 < hi:
             lo, hi = (lo, -0.25) if grid[k] < 0 else (0.25, hi)
@@ -501,7 +509,9 @@ class Delay(Effect):
                 memo.clear()
                 memo.update(key=key, d=d, col=col)
             d = memo["d"]
-            self._models[d] = memo["col"]
+            # the column is the model fitted to this y_model: kept under the delay and y_model
+            # (a term asked for another model is that model shifted, not this column)
+            self._models[(d, _data_key(ym))] = memo["col"]
             return {"delay_samples": d, "delay_s": d * _dt(t), "refit": True}
         # a log grid of delays of either sign from half a sample to the bound (the bound is in
         # samples of this record, set from seconds by the caller), then a bounded refinement
@@ -511,7 +521,7 @@ class Delay(Effect):
         costs = [cost(d) for d in grid]
         k = int(np.argmin(costs))
         d0 = float(grid[k])
-        lo = float(grid[k - 1]) if k > 0 else -self.max_delay
+        lo = float(grid[k - 1]) if k > 0 else -self.max_lead
         hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
         if lo < 0 < hi:
             lo, hi = (lo, -0.25) if d0 < 0 else (0.25, hi)
@@ -519,11 +529,69 @@ class Delay(Effect):
         d = float(sol.x[0]) if 2 * sol.cost <= min(costs) else d0
         return {"delay_samples": d, "delay_s": d * _dt(t)}
 
+    def fold_columns(self, t, y, y_model, params, rows_list, lower):
+        """The refitted delay's column with the model's weights fitted on each of ``rows_list``.
+
+        The delay ``d`` is searched on the development rows (as a relaxation's time constant);
+        the model it shifts has ~``k`` weights, which a fold may fit only on its own training
+        rows (issue 13: fitted on all development rows, they had seen every fold's validation
+        rows, and the fold's score counted one parameter). Per row set: ``m = y_model + basis
+        delta`` with ``delta`` fitted to ``y(t) - y_model(t - d dt)`` on ``basis(t - d dt)`` at
+        those rows, bounded like the base's own corrections (``delta >= lower``: the plays'
+        weights stay >= 0; :func:`~workbench.calibrate.base_fit._gram_solve`, the base's bounded
+        least squares); the column is ``m(t - d dt) - m(t)``.
+
+        Parameters
+        ----------
+        t : ndarray
+            Times (s), uniform.
+        y : ndarray
+            The channel's record (channel units).
+        y_model : ndarray
+            The model the delay shifts (channel units).
+        params : dict
+            :meth:`fit`'s result (``delay_samples``).
+        rows_list : list of ndarray
+            Row indices per fit (e.g. each fold's training search rows).
+        lower : ndarray
+            ``(k,)`` lower bounds of the basis weights' corrections (``-w0`` for the plays,
+            ``-inf`` for the offset; channel units per column unit).
+
+        Returns
+        -------
+        list of ndarray
+            One ``(n,)`` column per row set (channel units).
+        """
+        from .base_fit import _gram_solve
+        if self.basis is None or self.basis.shape[0] != np.size(y_model):
+            col = self._shifted(t, y_model, params["delay_samples"])
+            return [col for _ in rows_list]
+        d = float(params["delay_samples"])
+        Bc = _c_ordered(self.basis)
+        ym = np.asarray(y_model, float)
+        y = np.asarray(y, float)
+        lower = np.asarray(lower, float)
+        all_rows = np.arange(ym.size, dtype=float)
+        out = []
+        for rows in rows_list:
+            rows = np.asarray(rows)
+            X = self._rows_shifted(Bc, rows, d)
+            r = y[rows] - self._rows_shifted(ym[:, None], rows, d)[:, 0]
+            nrm = np.sqrt(np.mean(X * X, axis=0)) if rows.size else np.ones(X.shape[1])
+            nrm = np.where(nrm > 0, nrm, 1.0)
+            Xs = X / nrm
+            delta = _gram_solve(Xs.T @ Xs, Xs.T @ r, lower * nrm) / nrm
+            m = ym + self.basis @ delta
+            out.append(self._rows_shifted(m[:, None], all_rows, d)[:, 0] - m)
+        return out
+
     def term(self, t, u, params, y_model=None):
         if y_model is None:
             raise ValueError("delay needs y_model (the base model's prediction)")
-        col = self._models.get(params["delay_samples"]) if params.get("refit") else None
-        if col is not None and col.size == np.size(y_model):
+        col = None
+        if params.get("refit") and self._models:
+            col = self._models.get((params["delay_samples"], _data_key(np.asarray(y_model, float))))
+        if col is not None:
             return col
         return self._shifted(t, y_model, params["delay_samples"])
 

@@ -170,8 +170,10 @@ def _research(c, probs, extra, t, base):
     if best is None:
         return None
     _, e, p, g = best
+    fold_g = _tr._fold_grams(e, p, t, y, model, prob, _tr._base_lower(base, c["channel"])) \
+        if key[1] == "model" else None
     return {**c, "eff": e, "params": p, "g": g, "u": u, "yhat": model, "n_params": int(e.n_params),
-            "researched": True}
+            "researched": True, "fold_g": fold_g}
 
 
 def _later_candidates(cands, probs, extra, found, t, base):
@@ -236,14 +238,14 @@ def _beats_rivals(row, rivals, probs, extra, split, res, ctx):
     """
     key = row["key"]
     prob = probs[key]
-    g = _tr._stacked(prob, extra[key], row)
-    mine = [prob.fold_rms(g, tr, va) for tr, va in split.folds]
+    gf = _tr._cand_grams(prob, extra[key], row, len(split.folds))
+    mine = [prob.fold_rms(gf[f], tr, va) for f, (tr, va) in enumerate(split.folds)]
     floor = ctx["noise_factor"] * ctx["infos"][row["channel"]]["noise_floor"]
     for rv in rivals:
         if rv["key"] != key:
             continue
-        gr = _tr._stacked(prob, extra[key], rv)
-        theirs = [prob.fold_rms(gr, tr, va) for tr, va in split.folds]
+        gr = _tr._cand_grams(prob, extra[key], rv, len(split.folds))
+        theirs = [prob.fold_rms(gr[f], tr, va) for f, (tr, va) in enumerate(split.folds)]
         explains = [_tr._fold_test(res["befores"][key][f], theirs[f], rv["n_params"], ctx["penalty"], floor,
                                    res["null_gain"][key][f], ctx["min_share"])[1] for f in range(len(theirs))]
         if not all(a < b for a, b, e in zip(mine, theirs, explains) if e):

@@ -112,7 +112,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
     range come from the record: creep branches half a decade apart from ``tau_min_s``
     (default the block length, ``max(50 dt, duration / 100)``: faster branches would mimic a
-    latency) to a hundred record lengths; delays up to ``max(30 dt, duration / 4)``; a drift's
+    latency) to a hundred record lengths; lags up to ``max(30 dt, duration / 4)``, leads up to a
+    quarter of the excitation period (``max(30 dt, duration / 200)`` at least); a drift's
     slow periodic term from twice the record's length down to four excitation periods (at most
     ten per record). With ``basis`` (the base's columns of the drive) the delay's model is
     refitted at each trial delay (:class:`~workbench.calibrate.effects.Delay`).
@@ -126,6 +127,10 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     # as fitted, not of a decaying sine, steps or a chirp with the drive model refitted per
     # delay; a 40 ms lag on a 0.4 s record of 64 ms sines was out of reach.)
     max_delay = max(30.0, 0.25 * dur / dt)
+    # a lead (the output logged ahead of the drive) is a skew between channels, small: bounded
+    # as all delays were before (a quarter of the excitation period, at least 30 samples and
+    # dur/200), never a quarter of the record (issue 13, finding 2)
+    max_lead = min(max_delay, max(30.0, dur / 200.0 / dt, 0.25 * period / dt))
     slow = (0.5 / dur, max(1.0 / dur, min(0.25 / period, SLOW_CYCLES_PER_RECORD / dur)))
     tau_min_s = tau_min_s if tau_min_s is not None else max(50 * dt, dur / 100.0)
     # to a hundred record lengths: a branch far slower than the record still charges during it
@@ -140,7 +145,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     has_x = "displacement" in channels
     if "displacement" in channels:
         plan += [("displacement", CreepSpectrum(), "model"), ("displacement", Resonance(), "model"),
-                 ("displacement", Delay(max_delay=max_delay, basis=basis), "model"),
+                 ("displacement", Delay(max_delay=max_delay, basis=basis, max_lead=max_lead), "model"),
                  ("displacement", Drift(), "time"),
                  ("displacement", Drift(periodic_hz=slow), "time")]
     if "charge" in channels:
@@ -155,7 +160,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
             plan.append(("charge", CreepSpectrum(), "model"))
     if "gauge" in channels:
         plan += [("gauge", CreepSpectrum(), "model"), ("gauge", Resonance(), "model"),
-                 ("gauge", Delay(max_delay=max_delay, basis=basis), "model"), ("gauge", Drift(), "time"),
+                 ("gauge", Delay(max_delay=max_delay, basis=basis, max_lead=max_lead), "model"),
+                 ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
@@ -318,6 +324,36 @@ def _candidate_columns(eff, t, u, y, yhat, prob):
     return best[1], best[2]
 
 
+def _base_lower(base, ch):
+    """The base's bounds on its weights' corrections for channel ``ch`` (``-w0`` on the plays)."""
+    m = base.channels[ch]
+    nonneg = np.r_[np.ones(base.basis.shape[1] - 1, bool), False]
+    w0 = np.r_[m.weights, m.offset]
+    if w0.size != base.basis.shape[1]:
+        w0 = np.zeros(base.basis.shape[1])
+    return np.where(nonneg, -w0, -np.inf)
+
+
+def _fold_grams(eff, p, t, y, yhat, prob, lower):
+    """Per fold, the Gram matrices of an effect whose column has weights of its own fitted to
+    the record (the refitted delay): fitted on that fold's training search rows only, so the
+    fold's validation rows never shape it (issue 13). None for an effect without them."""
+    if not hasattr(eff, "fold_columns") or getattr(eff, "basis", None) is None or not p.get("refit"):
+        return None
+    rows = [np.flatnonzero(prob.search & prob.split.rows(tr)) for tr, _ in prob.split.folds]
+    return [prob.grams(C, [0.0]) for C in eff.fold_columns(t, y, yhat, p, rows, lower)]
+
+
+def _cand_grams(prob, extra_list, cand, n_folds):
+    """The stacked Gram matrices a candidate is scored with on each fold (its per-fold columns
+    where it has them, :func:`_fold_grams`)."""
+    fg = cand.get("fold_g")
+    if fg is None:
+        g = _stacked(prob, extra_list, cand)
+        return [g] * n_folds
+    return [_stacked(prob, extra_list, {"g": gf}) for gf in fg]
+
+
 def _with_gains(eff, p, gains):
     if hasattr(eff, "columns"):
         return eff.with_gains(p, gains)
@@ -437,8 +473,10 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         except ValueError:
             continue
         variant = "periodic" if getattr(eff, "periodic_hz", None) else None
+        fold_g = _fold_grams(eff, p, t, m.y, yhat, prob, _base_lower(base, ch)) if key[1] == "model" else None
         cands.append({"name": eff.name, "channel": ch, "key": key, "eff": eff, "params": p, "g": g, "u": u,
-                      "yhat": yhat, "n_params": int(eff.n_params), "variant": variant, "driver": driver})
+                      "yhat": yhat, "n_params": int(eff.n_params), "variant": variant, "driver": driver,
+                      "fold_g": fold_g})
     if progress:
         progress("effects", len(plan), len(plan))
 
@@ -595,11 +633,11 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         key = c["key"]
         prob = probs[key]
-        g = _stacked(prob, extra[key], c)
+        gf = _cand_grams(prob, extra[key], c, n_folds)
         ratios, passes = [], []
         floor = infos[c["channel"]]["noise_floor"]
         for f, (tr, va) in enumerate(split.folds):
-            ratio, ok = _fold_test(befores[key][f], prob.fold_rms(g, tr, va), c["n_params"], penalty,
+            ratio, ok = _fold_test(befores[key][f], prob.fold_rms(gf[f], tr, va), c["n_params"], penalty,
                                    noise_factor * floor, null_gain[key][f], min_share)
             ratios.append(float(ratio))
             passes.append(bool(ok))
@@ -650,11 +688,9 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             # creep moves charge (x = k_q2x q, eq. 10): a displacement relaxation the charge would
             # show >= 3x above its noise floor but does not is not the stack's; the next passing
             # candidate (a sensor drift) takes the fold
-            rest = [r for r in ok if (r["name"], r["channel"]) not in (("creep", "displacement"), ("creep", "gauge"))]
-            if rest:
-                best = rest[0]
-            else:
-                winners.append(("undecided", "creep or a displacement-sensor effect"))
+            best = _after_creep_refused(ok)
+            if isinstance(best, tuple):
+                winners.append(best)
                 continue
         if (best["name"], best["channel"]) == ("creep", "displacement") and ("creep", "gauge") not in tags \
                 and _gauge_would_show(best, f, befores, infos, penalty):
@@ -664,6 +700,27 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+def _after_creep_refused(ok):
+    """The fold's answer when the charge refuses a displacement creep: the next passing row, or an
+    ``("undecided", what)`` label.
+
+    ``ok``: the fold's passing rows, best first. The next row takes the fold only when no
+    cross-channel rule of :func:`_score_stage` would judge it: a charge absorption or leakage
+    (judged against creep by the stack, ``_stack_shows_it``, and the ``x_equiv`` rule: the creep
+    may have been that absorption promoted, now ruled out) or a gauge creep or mode (the
+    displacement's kind) is not named unjudged: the fold is undecided between it and creep
+    (issue 13, finding 4).
+    """
+    rest = [r for r in ok if (r["name"], r["channel"]) not in (("creep", "displacement"), ("creep", "gauge"))]
+    if not rest:
+        return ("undecided", "creep or a displacement-sensor effect")
+    nxt = rest[0]
+    if (nxt["channel"] == "charge" and nxt["name"] in ("dielectric_absorption", "leakage")) \
+            or (nxt["channel"] == "gauge" and nxt["name"] in ("creep", "resonance")):
+        return ("undecided", f"{nxt['name']} or creep")
+    return nxt
 
 
 def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
