@@ -135,8 +135,9 @@ def test_creeps_charge_behind_a_long_delay_is_not_named_absorption(sn637):
     absorption behind a displacement effect; with the creep charge through R the absorption wins 2 of
     5 folds and the delay 3, so no answer reaches 4 and the rule is not reached; its three branches
     are unit-tested in test_stages.py, test_creep_behind_a_displacement_effect_each_branch.) With the
-    delay's model refitted per trial delay (branch s11_calbig) the delay wins every fold and the
-    creep follows as the second stage: both of the record's effects, nothing else."""
+    delay's model refitted per trial delay (branch s11_calbig) the delay won every fold and the
+    creep followed as the second stage (measured there). Asserted is what must hold either way: no
+    absorption, nothing outside the record's two effects, and a first answer of delay or none."""
     base, res, truth = _traced(sn637, *_seed_case(15, 75))
     named = [s["effect"] for s in res["stages"]]
     assert "dielectric_absorption" not in named, (named, res["fold_winners"])

@@ -151,11 +151,7 @@ def test_json_draws_are_the_first_two():
 # draw named creep only: stage 1 is creep on every fold, so the delay, not "seen" in stage 1, needs every later
 # fold (run_stages) and won 4 of 5 (a strict xfail). With the delay's weights refitted on each fold's training
 # rows (s11_delayfold, issue 13 finding 1) it wins 5 of 5 and both are named: the mark is gone.
-_JSON_MARKS = [(), ()]
-
-
-@pytest.mark.parametrize("pair, size, seed", [pytest.param(*d, marks=m) for d, m in zip(JSON_DRAWS, _JSON_MARKS)],
-                         ids=["drift+resonance", "creep+delay"])
+@pytest.mark.parametrize("pair, size, seed", JSON_DRAWS, ids=["drift+resonance", "creep+delay"])
 def test_json_stages_of_a_two_effect_record(sn637, tmp_path, pair, size, seed):
     """``workbench calibrate`` on a drawn two-effect record: the JSON's ``stages`` lists both,
     each with its channel, parameters, agreement and test errors; ``effect`` is the first stage;
