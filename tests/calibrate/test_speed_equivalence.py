@@ -226,3 +226,20 @@ def test_researched_resonance_shares_the_plain_grid_costs(monkeypatch):
     got = second.fit(t, u, e, mask, project=None)
     assert got == ref
     assert calls["n"] - n_first < 0.5 * n_first      # the refinement only, no grid
+
+
+def test_the_c_ordered_copy_lives_only_as_long_as_its_basis():
+    """effects._c_ordered keeps one C-ordered copy of a record's columns (tens of MB) while that
+    record's basis lives, and drops it with the basis; a C-ordered basis is its own copy."""
+    import gc
+
+    from workbench.calibrate import effects as E
+
+    basis = np.asfortranarray(np.random.default_rng(0).normal(size=(1000, 7)))
+    c = E._c_ordered(basis)
+    assert c.flags.c_contiguous and np.array_equal(c, basis) and E._c_ordered(basis) is c
+    del c, basis
+    gc.collect()
+    assert not E._C_BASIS
+    own = np.zeros((10, 3))
+    assert E._c_ordered(own) is own and not E._C_BASIS

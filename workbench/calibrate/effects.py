@@ -75,6 +75,7 @@ rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none``
 
 import copy
 import hashlib
+import weakref
 
 import numpy as np
 from scipy import linalg, signal
@@ -318,15 +319,22 @@ class Drift(Effect):
         return 1.0 if report.independent else 0.5
 
 
-_C_BASIS = [None, None]
+_C_BASIS = {}     # id(basis) -> (weak reference to it, its C-ordered copy): one entry
 
 
 def _c_ordered(basis):
-    """``basis`` in C order, the last basis's copy kept (one entry: the record's columns are
-    tens of MB)."""
-    if _C_BASIS[0] is not basis:
-        _C_BASIS[:] = [basis, np.ascontiguousarray(basis)]
-    return _C_BASIS[1]
+    """``basis`` in C order, the last basis's copy kept while that basis lives (one entry: the
+    record's columns are tens of MB, and a copy held past its record would pin them after the
+    calibration returns)."""
+    if basis.flags.c_contiguous:
+        return basis
+    key = id(basis)
+    hit = _C_BASIS.get(key)
+    if hit is None or hit[0]() is not basis:
+        _C_BASIS.clear()
+        hit = _C_BASIS[key] = (weakref.ref(basis, lambda _r, k=key: _C_BASIS.pop(k, None)),
+                               np.ascontiguousarray(basis))
+    return hit[1]
 
 
 class Delay(Effect):
