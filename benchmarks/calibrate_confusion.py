@@ -63,20 +63,31 @@ def _record(r, dt):
                   {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, dt)
 
 
+def simulated_base(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks"):
+    """One benchmark record simulated, split and base-fitted, as :func:`evaluate` does.
+
+    ``effect``: a name, a tuple of names or ``"none"``. Returns ``t``, the split, the base fit,
+    the plant with the effect, its truth dict and the simulated record."""
+    t, v = benchmark_protocol(protocol, rate_hz, n_rows or ROWS[rate_hz])
+    plant, truth = plant_with_effect(plant0, effect, seed, duration_s=float(t[-1]), size=size)
+    r = simulate_record(plant, t, v, seed=seed)
+    sp = make_split(t, r["voltage_v"], split)
+    base = fit_base(_record(r, 1.0 / rate_hz), plant0.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
+                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    return t, sp, base, plant, truth, r
+
+
 def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks"):
     """Simulate one record, calibrate it (``split``: see :mod:`workbench.calibrate.splits`), classify
     the answer; returns a dict."""
-    n_rows = n_rows or ROWS[rate_hz]
-    t, v = benchmark_protocol(protocol, rate_hz, n_rows)
     effects = () if effect == "none" else ((effect,) if isinstance(effect, str) else tuple(effect))
-    plant, truth = plant_with_effect(plant0, effects or "none", seed, duration_s=float(t[-1]), size=size)
+    t, sp, base, plant, truth, r = simulated_base(plant0, effects or "none", rate_hz, protocol, size, seed,
+                                                  n_rows, split)
     clean, _ = plant_with_effect(plant0, "none", seed)
-    r = simulate_record(plant, t, v, seed=seed)
+    _, v = benchmark_protocol(protocol, rate_hz, n_rows or ROWS[rate_hz])     # the same drive, without the effect
     r0 = simulate_record(clean, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], split)
     kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
     R = plant0.pzt.series_resistance_ohm
-    base = fit_base(_record(r, 1.0 / rate_hz), R, **kw)
     t0 = time.perf_counter()
     res = trace_effect(base, split=sp)
     elapsed = time.perf_counter() - t0

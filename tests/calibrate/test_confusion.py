@@ -52,17 +52,8 @@ def test_a_crash_counts_as_wrong_in_the_headline_and_the_table():
 
 
 def _traced(sn637, effects, rate_hz, protocol, size, seed):
-    from workbench.calibrate.base_fit import fit_base
-    from workbench.calibrate.splits import make_split
-    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
     from workbench.calibrate.tracing import trace_effect
-    cc = _bench()
-    t, v = benchmark_protocol(protocol, rate_hz, cc.ROWS[rate_hz])
-    plant, truth = plant_with_effect(sn637, effects, seed, duration_s=float(t[-1]), size=size)
-    r = simulate_record(plant, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], "blocks")
-    base = fit_base(cc._record(r, 1.0 / rate_hz), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
-                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    _, sp, base, _, truth, _ = _bench().simulated_base(sn637, effects, rate_hz, protocol, size, seed)
     return base, trace_effect(base, split=sp), truth
 
 

@@ -18,9 +18,6 @@ import pytest
 
 from tests.conftest import load_benchmark
 from workbench.calibrate import tracing as T
-from workbench.calibrate.base_fit import fit_base
-from workbench.calibrate.splits import make_split
-from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
 
 RNG = np.random.default_rng(1313)
 DRAWS = [(proto, str(RNG.choice(["delay", "creep"])), float(RNG.choice([1000.0, 10000.0])),
@@ -29,13 +26,7 @@ DRAWS = [(proto, str(RNG.choice(["delay", "creep"])), float(RNG.choice([1000.0, 
 
 
 def _problem(plant0, proto, effect, rate, size, seed):
-    cc = load_benchmark("calibrate_confusion")
-    t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
-    plant, _ = plant_with_effect(plant0, effect, seed, duration_s=float(t[-1]), size=size)
-    r = simulate_record(plant, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], "blocks")
-    base = fit_base(cc._record(r, 1.0 / rate), plant0.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
-                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    t, sp, base, _, _, _ = load_benchmark("calibrate_confusion").simulated_base(plant0, effect, rate, proto, size, seed)
     m = base.channels["displacement"]
     lower = T._base_lower(base, "displacement")
     search = T._search_rows(sp.train & m.valid)
@@ -150,13 +141,7 @@ def test_an_effect_free_record_is_not_named_delay(sn637, proto, rate, seed):
     protocol at every benchmark rate: no stage names a delay (finding 8; a latency searched over a
     quarter of the record with ~26 refitted weights is the candidate most able to fit noise)."""
     from workbench.calibrate.tracing import trace_effect
-    cc = load_benchmark("calibrate_confusion")
-    t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
-    plant, _ = plant_with_effect(sn637, "none", seed, duration_s=float(t[-1]), size=1.0)
-    r = simulate_record(plant, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], "blocks")
-    base = fit_base(cc._record(r, 1.0 / rate), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
-                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    _, sp, base, _, _, _ = load_benchmark("calibrate_confusion").simulated_base(sn637, "none", rate, proto, 1.0, seed)
     res = trace_effect(base, split=sp)
     named = [res["effect"]] + [st["effect"] for st in res["stages"]]
     assert "delay" not in named, (named, res.get("fold_winners"))

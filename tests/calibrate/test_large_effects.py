@@ -35,13 +35,8 @@ UNIT_DRAWS = [(float(RNG.uniform(0.02, 0.25)), int(RNG.integers(1 << 30))) for _
 
 
 def _trace(plant0, effect, rate, proto, size, seed):
-    cc = load_benchmark("calibrate_confusion")
-    t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
-    plant, truth = plant_with_effect(plant0, effect, seed, duration_s=float(t[-1]), size=size)
-    r = simulate_record(plant, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], "blocks")
-    base = fit_base(cc._record(r, 1.0 / rate), plant0.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
-                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    t, sp, base, _, truth, _ = load_benchmark("calibrate_confusion").simulated_base(plant0, effect, rate, proto,
+                                                                                    size, seed)
     return base, trace_effect(base, split=sp), truth, t
 
 

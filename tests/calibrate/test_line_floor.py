@@ -17,9 +17,6 @@ import numpy as np
 import pytest
 
 from tests.conftest import load_benchmark
-from workbench.calibrate.base_fit import fit_base
-from workbench.calibrate.splits import make_split
-from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
 from workbench.calibrate.tracing import trace_effect
 
 
@@ -34,12 +31,7 @@ def test_a_channel_the_base_cannot_beat_a_line_on_ends_below_the_line(sn637, ind
     cc = load_benchmark("calibrate_confusion")
     e, rate, proto, size, seed = cc.cases(seed=23)[index - 1]
     assert rate == 1e5 and "resonance" in (e if isinstance(e, tuple) else (e,))
-    t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
-    plant, _ = plant_with_effect(sn637, e, seed, duration_s=float(t[-1]), size=size)
-    r = simulate_record(plant, t, v, seed=seed)
-    sp = make_split(t, r["voltage_v"], "blocks")
-    base = fit_base(cc._record(r, 1.0 / rate), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
-                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    t, sp, base, _, _, _ = cc.simulated_base(sn637, e, rate, proto, size, seed)
     g = base.channels["gauge"]
     # the case: the base alone is above the line on the gauge's test rows
     assert g.rms_test > g.line_rms_test
@@ -124,12 +116,7 @@ def test_the_floor_holds_on_drawn_records_the_carry_applies_to(sn637):
     for e in effects:
         proto = PROTOCOLS[int(rng.integers(len(PROTOCOLS)))]
         size, seed = float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))
-        t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
-        plant, _ = plant_with_effect(sn637, e, seed, duration_s=float(t[-1]), size=size)
-        r = simulate_record(plant, t, v, seed=seed)
-        sp = make_split(t, r["voltage_v"], "blocks")
-        base = fit_base(cc._record(r, 1.0 / rate), sn637.pzt.series_resistance_ohm, train=sp.train,
-                        test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+        _, sp, base, _, _, _ = cc.simulated_base(sn637, e, rate, proto, size, seed)
         res = trace_effect(base, split=sp)
         for ch, err in _end_errors(res).items():
             warned = any(f"on the {ch} channel" in w for w in base.warnings)
