@@ -15,7 +15,9 @@ error: how far the effect stands above what the effect-free record leaves.
 Answer classes: **right** (the first effect named is one the record has), **none**
 (``none`` or ``inconclusive``), **wrong** (an effect named that the record does not have, at
 any stage). Printed: the confusion per effect and size band, the error ratio
-``error_after / error_before`` of the right answers, the wrong-effect rate and the right rate
+``error_after / error_before`` of the right answers (the calibration's: on the first effect's
+channel, after every effect found there; a two-effect record's first stage alone is printed as
+``first``), the wrong-effect rate and the right rate
 at sizes >= 3 (the issue's targets: wrong <= 2 %, right >= 90 % with ratio <= 0.5).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/calibrate_confusion.py [--per-cell N] [--seed S] [--quick]
@@ -125,9 +127,10 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     else:
         cls = "right"
     ratio = res["error_after"]["rms"] / res["error_before"]["rms"] if named else 1.0
+    first = res["stages"][0]["error_after"]["rms"] / res["error_before"]["rms"] if named else 1.0
     return {"effect": "+".join(effects) or "none", "rate_hz": rate_hz, "protocol": protocol, "size": size,
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
-            "class": cls, "ratio": ratio, "both": len(effects) > 1 and set(effects) <= set(named),
+            "class": cls, "ratio": ratio, "ratio_first": first, "both": len(effects) > 1 and set(effects) <= set(named),
             "excesses": own or xs,
             "trace_s": elapsed, "truth": truth, "above_line": above_line, "near_line": near_line, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
@@ -282,7 +285,8 @@ def main(argv=None):
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
               + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items())
-              + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']}" if "+" in eff else ""),
+              + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']} first {r['ratio_first']:.2f}"
+                 if "+" in eff else ""),
               flush=True)
     table, head = summarize(rows)
     print()

@@ -382,13 +382,18 @@ def cmd_calibrate(args):
     data = run_calibrate(args.data, args.plant, out_dir=args.out, split=args.split, train_cycles=args.train_cycles,
                          max_ratio=args.max_ratio, progress=lambda stage, d, t: _progress_bar(stage, d, t))
     eb, ea = data["error_before"], data["error_after"]
+    stages = data["stages"]
+    first = stages[0]["error_after"] if stages else ea
     lines = [f"{args.data} against {args.plant}: effect {data['effect']} on the {data['channel']} channel "
              f"({data['agreement']} validation folds)",
-             f"  test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
-             f"{ea['max']:.4g} {eb['units']}  ({data['reason']})"]
-    for st in data["stages"][1:]:
+             f"  test RMS {eb['rms']:.4g} -> {first['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
+             f"{first['max']:.4g} {eb['units']}  ({data['reason']})"]
+    for st in stages[1:]:
         lines.append(f"  then {st['effect']} on the {st['channel']} ({st['agreement']}): test RMS "
                      f"{st['error_before']['rms']:.4g} -> {st['error_after']['rms']:.4g} {st['error_before']['units']}")
+    if len(stages) > 1:
+        lines.append(f"  the {data['channel']} after every effect found: test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} "
+                     f"{eb['units']}, max {eb['max']:.4g} -> {ea['max']:.4g} {eb['units']}")
     for c in data["candidates"][:6]:
         lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}, passes {c['passes']} folds")
     lines += [f"  warning: {w}" for w in data["base_fit"].get("warnings", [])]

@@ -61,7 +61,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path):
     names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
     header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
               f"# test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
-              f"{ea['max']:.4g}; first effect). The declared values below are unchanged; the sections of the "
+              f"{ea['max']:.4g}; on the first effect's channel, after every effect found there). The declared values below are unchanged; the sections of the "
               f"effects are new."]
     blocks = []
     sensor = {}

@@ -398,7 +398,9 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     dict
         ``effect`` (the first stage's name, ``"none"`` or ``"inconclusive"``), ``channel``,
         ``agreement`` (``"k of n"``), ``fold_winners``, ``leading`` (for ``inconclusive``),
-        ``error_before`` / ``error_after`` (``{rms, max, units}`` on the test rows),
+        ``error_before`` / ``error_after`` (``{rms, max, units}`` on the test rows of the first
+        effect's channel: before any effect, and after every effect found on it, as the calibrated
+        plant leaves it; each stage's own figures are in ``stages``),
         ``parameters``, ``stages`` (one dict per effect found), ``candidates`` (``name``,
         ``channel``, ``score`` = median penalized validation ratio over the folds,
         ``passes``, ``error_before`` / ``error_after`` on the test rows), ``channels`` (each
@@ -888,8 +890,13 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
     if s0.get("resolved"):
         reason += f"; {s0['resolved']}"
     c0 = s0["_cand"]
+    # the calibration's error after, on the first effect's channel: after every effect found there
+    # (each stage starts from the last one's fit; every stage's own figures stay in ``stages``), the
+    # error the calibrated plant leaves on the test rows; a stage on another problem of the channel
+    # (the gauge's bow against the recorded displacement) does not enter the channel's model
+    same = [s for s in stages if s["channel"] == s0["channel"] and s["_cand"]["key"] == c0["key"]]
     out.update(effect=s0["effect"], channel=s0["channel"], agreement=s0["agreement"],
-               error_before=s0["error_before"], error_after=s0["error_after"], parameters=s0["parameters"],
+               error_before=s0["error_before"], error_after=same[-1]["error_after"], parameters=s0["parameters"],
                reason=reason, leading=[],
                stages=[{k: v for k, v in s.items() if not k.startswith("_")} for s in stages],
                terms={"channel": c0["channel"], "base": s0["_base"], "term": s0["_term"]},

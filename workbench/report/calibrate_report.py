@@ -174,14 +174,14 @@ def _base_section(base):
 
 
 def _error_table(base, result):
-    """Held-out error per channel before and after; only the answer's channel changes."""
+    """Held-out error per channel before and after every effect found (the calibrated plant's)."""
     ch = result.get("channel")
     eff = result.get("effect", "none")
     rows = []
     note = []
     for name, err in (result.get("channels") or {}).items():
         before = err
-        after = err
+        after = err.get("error_after", err) if eff not in ("none", "inconclusive") else err
         if eff not in ("none", "inconclusive") and name == ch:
             before, after = result.get("error_before", err), result.get("error_after", err)
             if _finite(err.get("rms")) and _finite(before.get("rms")) and \
@@ -194,7 +194,9 @@ def _error_table(base, result):
         scale = si_scale(unit, max(abs(float(before.get("max", 0) or 0)), abs(float(after.get("max", 0) or 0))))
         ratio = (float(after["rms"]) / float(before["rms"]) if _finite(after.get("rms")) and _finite(before.get("rms"))
                  and float(before["rms"]) > 0 else float("nan"))
-        changed = eff not in ("none", "inconclusive") and name == ch
+        changed = eff not in ("none", "inconclusive") and (
+            name == ch or not (_finite(after.get("rms")) and _finite(before.get("rms"))
+                               and float(after["rms"]) == float(before["rms"])))
         rows.append((f"**{name}**" if changed else name, _num(float(before["rms"]) * scale[0]),
                      _num(float(before["max"]) * scale[0]), _num(float(after["rms"]) * scale[0]),
                      _num(float(after["max"]) * scale[0]), scale[1],
