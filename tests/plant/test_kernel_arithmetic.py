@@ -19,19 +19,10 @@ from workbench.plant.hysteresis import pi_slope
 from workbench.plant.mirror import load_mirror, mirror_run
 
 from tests.compiled_loops import fresh_llvm, refcounts_in_loops
+from tests.plant.step_runs import run_steps
 
 PLANTS = ("p888_51_sn637.toml", "p888_51_sn637_creep.toml", "p888_51_sn618.toml", "p888_51_sn629.toml",
           "p888_51_sn637_on_flexure.toml")
-
-
-@njit  # not cached: numba's cache would keep the kernel compiled into it after kernels.py changes
-def _run(step, m, st, v, f):
-    out = np.empty(K.N_OUT)
-    rec = np.empty((v.size, K.N_OUT))
-    for k in range(v.size):
-        step(m, st, v[k], f[k], out)
-        rec[k] = out
-    return rec
 
 
 def _drive(rng, n, pz):
@@ -55,8 +46,8 @@ def test_the_fast_step_is_the_reference_step(root, rng, plant_file, dt_s):
     n = 20_000
     v, f = _drive(rng, n, pz)
     a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
     scale = np.max(np.abs(ref), axis=0)
     err = np.max(np.abs(fast - ref), axis=0)
     x, q, i, v_h, v_p, v_t = range(K.N_OUT)
@@ -82,8 +73,8 @@ def test_the_fast_quasi_static_step_is_the_reference_step(sn637_creep, rng, dt_s
     pz = sn637_creep.pzt.with_resistance(0.0)
     v, f = _drive(rng, 20_000, pz)
     a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
     assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
 
 
@@ -93,8 +84,8 @@ def test_the_two_steps_can_share_a_state(sn637_creep, rng):
     pz = sn637_creep.pzt
     v, f = _drive(rng, 4000, pz)
     a, b = PZTSimulator(pz, 1e-5), PZTSimulator(pz, 1e-5)
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    mixed = np.vstack([_run(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500], f[k:k + 500])
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    mixed = np.vstack([run_steps(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500], f[k:k + 500])
                        for k in range(0, 4000, 500)])
     assert np.max(np.abs(mixed[:, 0] - fast[:, 0])) <= 1e-12 * np.max(np.abs(fast[:, 0]))
 
@@ -128,8 +119,8 @@ def test_a_state_copied_into_a_model_with_another_step_is_stepped_as_the_referen
     a, b = PZTSimulator(pz, 2.5e-6), PZTSimulator(pz, 2.5e-6)
     a.st[:] = settle.st
     b.st[:] = settle.st
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
     assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
 
 
@@ -215,3 +206,18 @@ def test_pzt_run_takes_no_reference_count_or_atomic_inside_its_loops(sn637_creep
     ir = fresh_llvm(K.pzt_run, K.pzt_run.signatures[0], error_model="numpy")
     n_blocks, n_cyclic, hits = refcounts_in_loops(ir, "7pzt_runB")
     assert n_cyclic > 10 and hits == []
+
+
+@pytest.mark.parametrize("plant_file", ["p888_51_sn637_creep.toml", "p888_51_sn629.toml"])
+def test_the_shared_step_runner_is_pzt_run_step_for_step(root, plant_file, rng):
+    # tests/plant/step_runs.run_steps (the plant tests' one runner) drives pzt_step as pzt_run drives
+    # pzt_advance: with one sub-step the two give the same rows bit for bit over a drive past both limits
+    pz = load_plant(root / "plants" / plant_file).pzt
+    dt = 10 ** rng.uniform(-6, -3)
+    v, f = _drive(rng, 3000, pz)
+    a, b = PZTSimulator(pz, dt), PZTSimulator(pz, dt)
+    rows = run_steps(K.pzt_step, a.m, a.st, v, f)
+    tr = b.run(v, f)
+    for col, got in zip(K.OUT_NAMES, (tr.x_m, tr.q_c, tr.i_a, tr.v_h_v, tr.v_p_v, tr.v_t_v)):
+        np.testing.assert_array_equal(rows[:, K.OUT_NAMES.index(col)], got, err_msg=col)
+    np.testing.assert_array_equal(a.st, b.st)
