@@ -7,6 +7,7 @@ runs per iteration of any loop runs in those blocks.
 """
 
 import re
+import types
 
 import numba
 
@@ -15,13 +16,18 @@ _TARGET = re.compile(r'label %(?:"([^"]+)"|([-\w.$]+))')
 _REFCOUNT = ("@NRT_incref", "@NRT_decref", "atomicrmw", "cmpxchg")
 
 
-def fresh_llvm(dispatcher, signature, **options):
+def fresh_llvm(dispatcher, signature, globals_=None, **options):
     """The final LLVM IR of ``dispatcher``'s Python function compiled anew for ``signature``.
 
     A new dispatcher without a cache: numba refuses to show the code of a specialization it loaded
-    from its on-disk cache (it warns and returns an empty text).
+    from its on-disk cache (it warns and returns an empty text). ``globals_``: names of the function's
+    module replaced for this compilation (``{"_borrowed": a_plain_view}``), the module itself untouched.
     """
-    fresh = numba.njit(**options)(dispatcher.py_func)
+    func = dispatcher.py_func
+    if globals_:
+        func = types.FunctionType(func.__code__, {**func.__globals__, **globals_}, func.__name__,
+                                  func.__defaults__, func.__closure__)
+    fresh = numba.njit(**options)(func)
     fresh.compile(signature)
     return fresh.inspect_llvm(signature)
 

@@ -158,10 +158,9 @@ def test_a_borrowed_view_is_the_array_without_a_reference_count():
     # the compiled loops take borrowed views of their arrays (no atomic count per step): the view writes
     # through to the caller's array and has its shape; holding it neither keeps nor frees the array (the
     # caller's reference count is what it was); interpreted, borrowed is the array itself.
-    # No test can tell the view from the plain array inside pzt_run or closed_loop._loop: with numba 0.68.1
-    # both compile to the same machine code (numba's reference-count pruning already drops the per-step
-    # pair; README "s12_tidy"). What the speed rests on, no reference count or atomic inside any loop of
-    # either, is asserted below and in tests/test_bench_closed_loop.py.
+    # What the view is for, no reference count or atomic inside the loops of pzt_run and closed_loop._loop, is
+    # asserted on their compiled code below and in tests/test_bench_closed_loop.py; with the view replaced by a
+    # plain one (arr[:]) the check fails (test_a_plain_view_in_pzt_run_would_count_every_step).
     import sys
     a = np.arange(5.0)
     before = sys.getrefcount(a)
@@ -221,3 +220,17 @@ def test_the_shared_step_runner_is_pzt_run_step_for_step(root, plant_file, rng):
     for col, got in zip(K.OUT_NAMES, (tr.x_m, tr.q_c, tr.i_a, tr.v_h_v, tr.v_p_v, tr.v_t_v)):
         np.testing.assert_array_equal(rows[:, K.OUT_NAMES.index(col)], got, err_msg=col)
     np.testing.assert_array_equal(a.st, b.st)
+
+
+@njit(inline="always")
+def _plain_view(arr):
+    return arr[:]
+
+
+def test_a_plain_view_in_pzt_run_would_count_every_step(sn637_creep):
+    # the check above can fail on pzt_run itself: with _borrowed replaced by a plain view (arr[:]: a new reference
+    # to the same data) numba counts a reference at every inlined step (NRT_incref/decref inside the loops)
+    PZTSimulator(sn637_creep.pzt, 1e-6).run(np.full(10, 1.0))
+    ir = fresh_llvm(K.pzt_run, K.pzt_run.signatures[0], {"_borrowed": _plain_view}, error_model="numpy")
+    n_blocks, n_cyclic, hits = refcounts_in_loops(ir, "7pzt_runB")
+    assert any("@NRT_incref" in h for h in hits) and any("@NRT_decref" in h for h in hits)
