@@ -124,6 +124,9 @@ def ws(tmp_path_factory):
     huge = json.loads(json.dumps(ctrl))                           # clamp words beyond the firmware's int32
     huge["fixed_point"]["output"]["limits_v"] = [-3e5, 3e5]
     (bad / "ctrl_limit_words.json").write_text(json.dumps(huge), encoding="utf-8")
+    wide_in = json.loads(json.dumps(ctrl))                        # an input clamp word beyond int32
+    wide_in["fixed_point"]["input"]["range_v"] = 1e6
+    (bad / "ctrl_input_words.json").write_text(json.dumps(wide_in), encoding="utf-8")
     unstable = json.loads(json.dumps(ctrl))
     unstable["sos"][0] = [1.0, 0.0, 0.0, 1.0, -1.5, 0.0]          # a pole at z = 1.5
     (bad / "ctrl_unstable.json").write_text(json.dumps(unstable), encoding="utf-8")
@@ -570,6 +573,9 @@ OTHERS = [
     # while the C header's int32 clamp cannot hold them
     ("verify-controller-limit-words", ["verify", CREEP, "--controller", "bad/ctrl_limit_words.json"],
      ["ctrl_limit_words.json", "[fixed_point.output.limits_v]", "beyond int32", "within +/-512 V"]),
+    # the input clamp +/-1e6 V at the file's input fraction bits: a word beyond int32 (the header's INT32_C)
+    ("verify-controller-input-words", ["verify", CREEP, "--controller", "bad/ctrl_input_words.json"],
+     ["ctrl_input_words.json", "[fixed_point.input.range_v]", "beyond int32", "give a range within"]),
     ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
 ]

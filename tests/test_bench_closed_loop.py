@@ -17,6 +17,7 @@ from workbench.plant import kernels as K
 from workbench.verify import closed_loop
 from workbench.verify.closed_loop import CHUNK, ClosedLoop, controller_from_json
 
+from tests.compiled_loops import fresh_llvm, refcounts_in_loops
 from tests.conftest import FULL, load_benchmark
 
 
@@ -220,3 +221,16 @@ def test_the_breakdown_pieces_are_the_loops_own_computation(tmp_path):
                           cs.ctypes.data_as(ip), vm.ctypes.data_as(ip), cl._out_scale, out.ctypes.data_as(dp), 0.0)
         assert np.array_equal(out[:n - 1], tr.u_v[1:]) and out[n - 1] == cl.u
         assert np.array_equal(cs, cl._csi) and vm[0] == cl._vmi[0]
+
+
+def test_the_closed_loop_takes_no_reference_count_or_atomic_per_period(root, sn637_creep):
+    # numba passes an array to an inlined step as a new reference unless its pruning drops the pair; a locked
+    # increment per period is a full barrier that kept the periods from overlapping (README, the breakdown).
+    # No NRT_incref/NRT_decref call or atomic in any block on a cycle of _loop (the period loop and every loop
+    # inside it); the control that such a count is found: tests/plant/test_kernel_arithmetic.py
+    cl = ClosedLoop(sn637_creep, _controllers(root)["fixed"], noise=True, seed=3)
+    cl.reset(u0=50.0)
+    cl.run(np.zeros(50))
+    ir = fresh_llvm(closed_loop._loop, closed_loop._loop.signatures[0], error_model="numpy")
+    n_blocks, n_cyclic, hits = refcounts_in_loops(ir, "closed_loop5_loopB")
+    assert n_cyclic > 100 and hits == []

@@ -416,3 +416,39 @@ def test_a_mat_files_logical_or_complex_array_gets_matlab_advice():
             _array("k.mat", "A", bad, "a vector", 1)
     with pytest.raises(ControllerError, match="without quotes"):
         _array("k.json", "A", [1.0, "0.5"], "a vector", 1)
+
+
+@pytest.mark.parametrize("frac_bits", [0, 7, 22, 29, 31])
+def test_clamp_words_beyond_int32_are_refused_by_the_object_itself(ctrl, frac_bits):
+    """The input and output clamp words are int32 in the firmware (INT32_C in the header): the object refuses
+    any clamp whose word passes 2^31 - 1, whether built through the API or read from a file, and accepts the
+    largest one that fits (its word exactly 2^31 - 1)."""
+    fxp = ctrl.fixed
+    top = 2 ** 31 - 1
+    edge_v = top / 2.0 ** frac_bits                          # the largest clamp whose word fits
+    over_v = 2.0 ** 31 / 2.0 ** frac_bits                    # one LSB more: the word 2^31
+    ok = replace(fxp, input_frac_bits=frac_bits, input_range_v=edge_v)
+    assert ok.input_limit == top
+    with pytest.raises(ControllerError, match=r"\[fixed_point\.input\.range_v\].*beyond int32.*give a range"):
+        replace(fxp, input_frac_bits=frac_bits, input_range_v=over_v)
+    sig = fxp.signal_frac_bits.copy()
+    sig[-1] = frac_bits
+    ok = replace(fxp, signal_frac_bits=sig, output_limits_v=(-edge_v, edge_v))
+    assert ok.output_limits == (-top, top) and ok.limit_words[1] == top
+    for lim in ((-over_v, 0.0), (0.0, over_v)):
+        with pytest.raises(ControllerError, match=r"\[fixed_point\.output\.limits_v\].*beyond int32.*give limits"):
+            replace(fxp, signal_frac_bits=sig.copy(), output_limits_v=lim)
+
+
+@pytest.mark.parametrize("field, value, key", [
+    ("input", {"range_v": 1e6}, "fixed_point.input.range_v"),
+    ("output", {"limits_v": [-3e5, 3e5]}, "fixed_point.output.limits_v")])
+def test_clamp_words_beyond_int32_in_a_file_name_the_file_and_field(data, tmp_path, field, value, key):
+    bad = copy.deepcopy(data)
+    bad["fixed_point"][field].update(value)
+    path = tmp_path / "wide.json"
+    path.write_text(json.dumps(bad), encoding="utf-8")
+    with pytest.raises(ControllerError) as info:
+        Controller.load(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: [{key}]") and "beyond int32" in msg and "\n" not in msg

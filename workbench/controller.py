@@ -257,15 +257,10 @@ def _fixed_from_block(src, data, gain, sos, dt):
                                    f_max_hz=f_max, coeff_bits=coeff_bits, b=b, a=a, b_frac_bits=b_frac,
                                    signal_frac_bits=sig, input_frac_bits=in_frac, integrator=integ,
                                    max_pole_radius=0.0, error_db=err_db, error_deg=err_deg, voltage_model=model)
+    except ControllerError as exc:     # the object's own checks (the clamp words): the field it names, this file
+        raise ControllerError(src, exc.key, exc.detail) from None
     except ValueError as exc:
         raise ControllerError(src, key, str(exc)) from None
-    if max(abs(w) for w in fxp.output_limits) >= 2 ** 31:
-        # the clamp words are int32 in the C header (and the no-window headroom, 2^40, must lie beyond them)
-        top = (2 ** 31 - 1) / 2.0 ** fxp.output_frac_bits
-        raise ControllerError(src, f"{key}.output.limits_v", f"{list(lim)} V at {fxp.output_frac_bits} fraction "
-                                                             f"bits are words beyond int32 (the firmware's clamp); "
-                                                             f"give limits within +/-{top:.6g} V or re-export the "
-                                                             f"controller")
     return fxp
 
 

@@ -58,7 +58,7 @@ class ControllerError(DataFileError):
     """A controller file or object is not a valid controller: names the file, the key and the fix."""
 
     def __init__(self, source, key, message):
-        self.source, self.key = str(source or "<controller>"), key
+        self.source, self.key, self.detail = str(source or "<controller>"), key, message
         super().__init__(f"{self.source}: [{key}] {message}" if key else f"{self.source}: {message}")
 
 

@@ -21,30 +21,10 @@ from workbench.plant import PZTSimulator
 from workbench.plant import kernels as K
 from workbench.plant.hysteresis import PrandtlIshlinskii, pi_slope, pi_step
 
+from tests.plant.step_runs import run_steps, run_steps_with_creep_charge
+
 R_OPEN_OHM = 2e14          # seed 000 sec. 3.2: the Keithley 617's input resistance, leads open (R_out)
 EPS = np.finfo(float).eps
-
-
-@njit  # not cached: numba's cache would keep the kernel compiled into it after kernels.py changes
-def _run(step, m, st, v, f):
-    out = np.empty(K.N_OUT)
-    rec = np.empty((v.size, K.N_OUT))
-    for k in range(v.size):
-        step(m, st, v[k], f[k], out)
-        rec[k] = out
-    return rec
-
-
-@njit
-def _run_qc(step, m, st, v, f):
-    """:func:`_run` with the creep branches' summed charge after each step as a seventh column."""
-    out = np.empty(K.N_OUT)
-    rec = np.empty((v.size, K.N_OUT + 1))
-    for k in range(v.size):
-        step(m, st, v[k], f[k], out)
-        rec[k, :K.N_OUT] = out
-        rec[k, K.N_OUT] = st[K.S_QC]
-    return rec
 
 
 def _open(sim):
@@ -155,7 +135,7 @@ def test_every_step_the_terminal_charge_moves_by_the_charge_through_r(sn637_cree
     v_start = sim.st[K.S_U] - sim.st[K.S_QH] / pz.c_pp_f + (sim.st[K.S_QH] + sim.st[K.S_QC]) / pz.c_pp_f
     q_start = sim.st[K.S_QH] + sim.st[K.S_QC]
     qc_start = sim.st[K.S_QC]
-    rec = _run_qc(getattr(K, step), sim.m, sim.st, v, np.zeros_like(v))
+    rec = run_steps_with_creep_charge(getattr(K, step), sim.m, sim.st, v, np.zeros_like(v))
     q = np.concatenate([[q_start], rec[:, 1]])
     v_t = np.concatenate([[v_start], rec[:, 5]])
     drop = np.abs(np.diff(np.concatenate([[qc_start], rec[:, K.N_OUT]]))) / w0
@@ -211,7 +191,7 @@ def _pre_fix_step(m, st, v_cmd, f_e, out):
 
 def _both(pz, v, dt):
     a, b = PZTSimulator(pz, dt), PZTSimulator(pz, dt)
-    return _run(K.pzt_step, a.m, a.st, v, np.zeros_like(v)), _run(_pre_fix_step, b.m, b.st, v, np.zeros_like(v))
+    return run_steps(K.pzt_step, a.m, a.st, v, np.zeros_like(v)), run_steps(_pre_fix_step, b.m, b.st, v, np.zeros_like(v))
 
 
 def _creep_current_bound_a(pz, *v_h):
@@ -324,7 +304,7 @@ def test_dynamic_form_tends_to_the_quasi_static_one(sn637_creep, dt_s):
     r = 1e-3
     v = np.concatenate([np.linspace(0, 100, int(round(0.5 / dt_s))), np.full(int(round(2.0 / dt_s)), 100.0)])
     sim = PZTSimulator(pz.with_resistance(r), dt_s)
-    rec = _run_qc(K.pzt_step, sim.m, sim.st, v, np.zeros_like(v))
+    rec = run_steps_with_creep_charge(K.pzt_step, sim.m, sim.st, v, np.zeros_like(v))
     qs = PZTSimulator(pz.with_resistance(0.0), dt_s).run(v)
     dqc = np.abs(np.diff(np.concatenate([[0.0], rec[:, K.N_OUT]])))
     c_max = pz.c_pp_f                               # G's capacitance (C_h C_pp / (C_h + C_pp)) < C_pp
@@ -346,7 +326,7 @@ def test_instron_200_ohm_sag_at_10_ms(sn637_creep):
     for dt_s in (1e-5, 1e-2):
         v = np.concatenate([np.linspace(0, 100, int(round(0.5 / dt_s))), np.full(int(round(2.0 / dt_s)), 100.0)])
         sim = PZTSimulator(pz, dt_s)
-        rec = _run_qc(K.pzt_step, sim.m, sim.st, v, np.zeros_like(v))
+        rec = run_steps_with_creep_charge(K.pzt_step, sim.m, sim.st, v, np.zeros_like(v))
         ks = [int(round(t / dt_s)) - 1 for t in (0.6, 1.0, 2.5)]
         dqc = np.diff(np.concatenate([[0.0], rec[:, K.N_OUT]]))
         out[dt_s] = (100.0 - rec[ks, 5], np.abs(dqc[ks]), np.abs(rec[ks, 2]))

@@ -18,18 +18,11 @@ from workbench.plant.coupled import C_R, E_FDN, E_FDT, E_FUP, E_GDN, E_GUP, E_QH
 from workbench.plant.hysteresis import pi_slope
 from workbench.plant.mirror import load_mirror, mirror_run
 
+from tests.compiled_loops import fresh_llvm, refcounts_in_loops
+from tests.plant.step_runs import run_steps
+
 PLANTS = ("p888_51_sn637.toml", "p888_51_sn637_creep.toml", "p888_51_sn618.toml", "p888_51_sn629.toml",
           "p888_51_sn637_on_flexure.toml")
-
-
-@njit  # not cached: numba's cache would keep the kernel compiled into it after kernels.py changes
-def _run(step, m, st, v, f):
-    out = np.empty(K.N_OUT)
-    rec = np.empty((v.size, K.N_OUT))
-    for k in range(v.size):
-        step(m, st, v[k], f[k], out)
-        rec[k] = out
-    return rec
 
 
 def _drive(rng, n, pz):
@@ -53,8 +46,8 @@ def test_the_fast_step_is_the_reference_step(root, rng, plant_file, dt_s):
     n = 20_000
     v, f = _drive(rng, n, pz)
     a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
     scale = np.max(np.abs(ref), axis=0)
     err = np.max(np.abs(fast - ref), axis=0)
     x, q, i, v_h, v_p, v_t = range(K.N_OUT)
@@ -80,8 +73,8 @@ def test_the_fast_quasi_static_step_is_the_reference_step(sn637_creep, rng, dt_s
     pz = sn637_creep.pzt.with_resistance(0.0)
     v, f = _drive(rng, 20_000, pz)
     a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
     assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
 
 
@@ -91,8 +84,8 @@ def test_the_two_steps_can_share_a_state(sn637_creep, rng):
     pz = sn637_creep.pzt
     v, f = _drive(rng, 4000, pz)
     a, b = PZTSimulator(pz, 1e-5), PZTSimulator(pz, 1e-5)
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    mixed = np.vstack([_run(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500], f[k:k + 500])
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    mixed = np.vstack([run_steps(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500], f[k:k + 500])
                        for k in range(0, 4000, 500)])
     assert np.max(np.abs(mixed[:, 0] - fast[:, 0])) <= 1e-12 * np.max(np.abs(fast[:, 0]))
 
@@ -126,8 +119,8 @@ def test_a_state_copied_into_a_model_with_another_step_is_stepped_as_the_referen
     a, b = PZTSimulator(pz, 2.5e-6), PZTSimulator(pz, 2.5e-6)
     a.st[:] = settle.st
     b.st[:] = settle.st
-    fast = _run(K.pzt_step, a.m, a.st, v, f)
-    ref = _run(K.pzt_step_reference, b.m, b.st, v, f)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
     assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
 
 
@@ -164,7 +157,10 @@ def _through_borrowed(a):
 def test_a_borrowed_view_is_the_array_without_a_reference_count():
     # the compiled loops take borrowed views of their arrays (no atomic count per step): the view writes
     # through to the caller's array and has its shape; holding it neither keeps nor frees the array (the
-    # caller's reference count is what it was); interpreted, borrowed is the array itself
+    # caller's reference count is what it was); interpreted, borrowed is the array itself.
+    # What the view is for, no reference count or atomic inside the loops of pzt_run and closed_loop._loop, is
+    # asserted on their compiled code below and in tests/test_bench_closed_loop.py; with the view replaced by a
+    # plain one (arr[:]) the check fails (test_a_plain_view_in_pzt_run_would_count_every_step).
     import sys
     a = np.arange(5.0)
     before = sys.getrefcount(a)
@@ -173,3 +169,68 @@ def test_a_borrowed_view_is_the_array_without_a_reference_count():
     assert a[0] == 7.0 and total == 17.0 and n == 5
     assert sys.getrefcount(a) == before
     assert K._borrowed(a) is a
+
+
+@njit
+def _array_per_iteration(a, n):
+    t = 0.0
+    for i in range(n):
+        b = np.empty(2)                 # allocated and freed (NRT_decref) every iteration
+        b[0], b[1] = a[i % a.size], t
+        t += b[0] * b[1] + 1.0
+    return t
+
+
+@njit
+def _reference_per_iteration(a, n):
+    held = []
+    for _ in range(n):
+        held.append(a)                  # one more reference to a (NRT_incref) every iteration
+    return len(held)
+
+
+@pytest.mark.parametrize("func", [_array_per_iteration, _reference_per_iteration])
+def test_the_loop_check_finds_a_reference_count_taken_every_iteration(func):
+    # the control for the check below: a loop that does take a count per iteration is found
+    func(np.ones(3), 4)
+    ir = fresh_llvm(func, func.signatures[0])
+    n_blocks, n_cyclic, hits = refcounts_in_loops(ir, func.__name__)
+    assert 0 < n_cyclic < n_blocks and hits
+
+
+def test_pzt_run_takes_no_reference_count_or_atomic_inside_its_loops(sn637_creep):
+    # a locked increment is a full barrier: one per step would serialize the steps (README, the breakdown)
+    sim = PZTSimulator(sn637_creep.pzt, 1e-6)
+    sim.run(np.full(10, 1.0))
+    ir = fresh_llvm(K.pzt_run, K.pzt_run.signatures[0], error_model="numpy")
+    n_blocks, n_cyclic, hits = refcounts_in_loops(ir, "7pzt_runB")
+    assert n_cyclic > 10 and hits == []
+
+
+@pytest.mark.parametrize("plant_file", ["p888_51_sn637_creep.toml", "p888_51_sn629.toml"])
+def test_the_shared_step_runner_is_pzt_run_step_for_step(root, plant_file, rng):
+    # tests/plant/step_runs.run_steps (the plant tests' one runner) drives pzt_step as pzt_run drives
+    # pzt_advance: with one sub-step the two give the same rows bit for bit over a drive past both limits
+    pz = load_plant(root / "plants" / plant_file).pzt
+    dt = 10 ** rng.uniform(-6, -3)
+    v, f = _drive(rng, 3000, pz)
+    a, b = PZTSimulator(pz, dt), PZTSimulator(pz, dt)
+    rows = run_steps(K.pzt_step, a.m, a.st, v, f)
+    tr = b.run(v, f)
+    for col, got in zip(K.OUT_NAMES, (tr.x_m, tr.q_c, tr.i_a, tr.v_h_v, tr.v_p_v, tr.v_t_v)):
+        np.testing.assert_array_equal(rows[:, K.OUT_NAMES.index(col)], got, err_msg=col)
+    np.testing.assert_array_equal(a.st, b.st)
+
+
+@njit(inline="always")
+def _plain_view(arr):
+    return arr[:]
+
+
+def test_a_plain_view_in_pzt_run_would_count_every_step(sn637_creep):
+    # the check above can fail on pzt_run itself: with _borrowed replaced by a plain view (arr[:]: a new reference
+    # to the same data) numba counts a reference at every inlined step (NRT_incref/decref inside the loops)
+    PZTSimulator(sn637_creep.pzt, 1e-6).run(np.full(10, 1.0))
+    ir = fresh_llvm(K.pzt_run, K.pzt_run.signatures[0], {"_borrowed": _plain_view}, error_model="numpy")
+    n_blocks, n_cyclic, hits = refcounts_in_loops(ir, "7pzt_runB")
+    assert any("@NRT_incref" in h for h in hits) and any("@NRT_decref" in h for h in hits)

@@ -230,3 +230,48 @@ def test_the_lead_is_velocity_feedforward_on_planned_ramps_only(root, sn637_cree
     assert "ref_lead_s" not in b
     m, _ = run_scenario(sn637_creep, led.firmware(), "triangle_1hz", noise=False)
     assert m["ref_lead_s"] == led.sensor.ref_lead_s
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_triangle_reference_is_the_closed_form_triangle(seed):
+    # drawn spans (firmware volts or metres), frequencies and servo periods over the range a user may bring
+    from workbench.verify.scenarios import triangle_reference
+    rng = np.random.default_rng(seed)
+    lo = rng.uniform(-1e-5, 1e-5)
+    hi = lo + 10 ** rng.uniform(-9, -4)
+    f = 10 ** rng.uniform(-1, 1)
+    dt = 10 ** rng.uniform(-5, -3.5)
+    periods = int(rng.integers(1, 4))
+    t, r = triangle_reference(lo, hi, f, periods, dt)
+    n = int(periods / f / dt)
+    assert t.shape == r.shape == (n + 1,) and t[0] == 0.0 and np.all(np.diff(t) > 0)
+    tol = 1e-12 * (abs(lo) + abs(hi))
+    assert r[0] == pytest.approx((lo + hi) / 2, abs=tol)                      # mid-span first
+    assert r.min() >= lo - tol and r.max() <= hi + tol
+    # the closed form: distance from mid-span falls with slope 2 (hi - lo) f, ends at 1/(4f), 3/(4f)
+    phase = (t * f) % 1.0
+    first = (phase < 0.25) & (t < 1 / f)
+    np.testing.assert_allclose(r[first], (lo + hi) / 2 - 2 * (hi - lo) * f * t[first], atol=tol + 1e-9 * (hi - lo))
+    rising = (phase > 0.25) & (phase < 0.75)
+    np.testing.assert_allclose(r[rising], lo + 2 * (hi - lo) * (phase[rising] - 0.25), atol=tol + 1e-9 * (hi - lo))
+
+
+def test_the_sweeps_triangle_is_verifys(root, monkeypatch):
+    # one home: workbench sweep's closed-loop triangle is scenarios.triangle_reference over the case's span at 0.1 Hz
+    from workbench.verify import scenarios
+    from workbench.verify.sweep_job import run_case
+    calls = []
+    real = scenarios.triangle_reference
+
+    def spy(*args):
+        calls.append(args)
+        return real(*args)
+
+    monkeypatch.setattr(scenarios, "triangle_reference", spy)
+    row = run_case({"plant": str(root / "plants" / "p888_51_sn637.toml"), "cp_factor": 1.0, "amplitude_v": 2.0,
+                    "controller": str(root / "controllers" / "sn637_loopshape.json"), "bias_v": 50.0,
+                    "noise": False, "freq_hz": (1.0, 4990.0, 10)})
+    assert len(calls) == 1
+    lo, hi, f, periods, dt = calls[0]
+    assert f == 0.1 and periods == 2 and hi - lo == pytest.approx(row["triangle_span_m"], rel=1e-12)
+    assert (lo + hi) / 2 == pytest.approx(scenarios.X_START_M, rel=1e-12)

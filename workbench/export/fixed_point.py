@@ -67,6 +67,7 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
+from ..errors import ControllerError
 from .sos import ExportError
 
 __all__ = ["FixedPointController", "quantize", "run_float", "run_fixed", "fixed_point_peaks",
@@ -146,6 +147,36 @@ class FixedPointController:
             raise ValueError(f"inconsistent section arrays: shapes {shapes} for {n} sections")
         for arr in (self.sos, self.b, self.a, self.b_frac_bits, self.signal_frac_bits, self.integrator):
             arr.flags.writeable = False
+        self._check_clamp_words()
+
+    def _check_clamp_words(self):
+        """The input and output clamps as words fit the firmware's int32 (the C header's ``INT32_C``).
+
+        The one home of this check: a controller built through the API or read from a file
+        (``Controller.load`` calls it through this constructor). Raises :class:`ControllerError`
+        naming the file's field (``fixed_point.input.range_v`` / ``fixed_point.output.limits_v``).
+        The output words must also lie inside the no-window headroom (2^40) of ``limit_words``.
+        """
+        top_word = 2 ** 31 - 1
+        in_scale = 2.0 ** self.input_frac_bits
+        if not (np.isfinite(self.input_range_v) and self.input_range_v > 0):
+            raise ControllerError(None, "fixed_point.input.range_v",
+                                  f"must be a finite number of volts > 0; got {self.input_range_v}")
+        if self.input_range_v * in_scale >= 2 ** 31:
+            raise ControllerError(None, "fixed_point.input.range_v",
+                                  f"+/-{self.input_range_v:g} V at {self.input_frac_bits} fraction bits is a word "
+                                  f"beyond int32 (the firmware's input clamp); give a range within "
+                                  f"+/-{top_word / in_scale:.6g} V or re-export the controller")
+        lo, hi = self.output_limits_v
+        out_scale = 2.0 ** self.output_frac_bits
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+            raise ControllerError(None, "fixed_point.output.limits_v",
+                                  f"must be two finite numbers of volts, lo < hi; got {[lo, hi]}")
+        if max(abs(lo), abs(hi)) * out_scale >= 2 ** 31:
+            raise ControllerError(None, "fixed_point.output.limits_v",
+                                  f"{[lo, hi]} V at {self.output_frac_bits} fraction bits are words beyond int32 "
+                                  f"(the firmware's clamp); give limits within +/-{top_word / out_scale:.6g} V or "
+                                  f"re-export the controller")
 
     @property
     def a_frac_bits(self):

@@ -52,7 +52,7 @@ import numpy as np
 import scipy.linalg
 from numba import njit
 
-from .kernels import rc_charge, rc_factor
+from .kernels import creep_branch_update, creep_explicit_charge, rc_charge, rc_factor
 from .structure import Structure, mode_filter
 
 __all__ = ["CoupledSimulator", "CoupledTrajectory", "coupled_run", "STACK_OUT_NAMES"]
@@ -136,11 +136,12 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
             es[j, E_FR] = sc[j, C_R]
     # per stack, constant over the run: the creep branches' summed input coefficient b = sum (1 - d_i) C_i and
     # G's smallest slope (the running sum of its weights' minimum)
+    c_b = (1.0 - c_dec) * c_cap                 # each branch's input coefficient b_i = (1 - d_i) C_i, F
     b_stack = np.zeros(ns)
     g_min_stack = np.full(ns, np.inf)
     for j in range(ns):
         for i in range(c_off[j], c_off[j + 1]):
-            b_stack[j] += (1.0 - c_dec[i]) * c_cap[i]
+            b_stack[j] += c_b[i]
         g_acc = 0.0
         for i in range(g_off[j], g_off[j + 1]):
             g_acc += g_w[i]
@@ -174,12 +175,13 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                 # take (Kirchhoff's current law at the terminal). Semi-implicit, as pzt_advance: V_h* = V_h - k S
                 # at the sub-step's end on C_h's local slope k (the segment q_h moves along), S = E / (1 + b k)
                 # the branches' charge, E that of the explicit step: stable for any h and tau_j
+                # (the branches' sums and update: kernels.creep_explicit_charge / creep_branch_update, one home; V_h*
+                # written here on G's capacitance C with one division, S = E C / (C + b h): pzt_advance forms the two
+                # directions' reciprocals off its chain instead, the same physics rounded otherwise)
                 v_h = u - qh * inv_cpp
-                s_dec = 0.0
                 b_tot = b_stack[j]
-                for i in range(c0, c1):
-                    s_dec += c_dec[i] * qc[i]
-                e_c = (s_dec + b_tot * v_h) - qc_old
+                n_cj = c1 - c0
+                _, e_c = creep_explicit_charge(c_dec, c0, qc, c0, n_cj, b_tot, v_h, qc_old)
                 g_fall = 0.0
                 if c1 > c0:
                     cap = es[j, E_GDN] if e_c > 0 else es[j, E_GUP]
@@ -189,11 +191,10 @@ def coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc,
                     # G's fall from the branches' charge t_c C on its smallest slope (never overstated, as
                     # pzt_advance takes it)
                     g_fall = t_c * cap * g_min_stack[j]
+                creep_branch_update(c_dec, c0, c_b, c0, qc, c0, n_cj, v_h)
                 qc_tot = 0.0
                 for i in range(c0, c1):
-                    qj = c_dec[i] * qc[i] + (1.0 - c_dec[i]) * c_cap[i] * v_h
-                    qc[i] = qj
-                    qc_tot += qj
+                    qc_tot += qc[i]
                 dq = 0.0
                 if sc[j, C_OPEN] < 0.5:
                     # 2b. the charge through R into the node (today's kernel) over the gap after the branches'

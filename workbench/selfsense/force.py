@@ -45,6 +45,7 @@ from numba import njit
 
 from ..errors import FlagRangeError
 from ..plant.hysteresis import pi_slope, pi_step
+from ..plant.kernels import creep_branch_update, creep_explicit_charge, creep_node_voltage
 from ..plant.simulator import PZTSimulator
 from .charge_amp import ChargeAmpParams, charge_amp_params, measure
 from .estimator import charge_estimate, static_estimate
@@ -81,24 +82,23 @@ def _invert(q, r, w, z, cap, dec, qc, vh):
     n = q.shape[0]
     n_c = cap.shape[0]
     v_h = np.empty(n)
-    b_tot = 0.0                                  # the branches' summed input coefficient, constant over the run
+    b = (1.0 - dec) * cap                        # the branches' input coefficients b_j = (1 - d_j) C_j, F
+    b_tot = 0.0                                  # their sum, constant over the run
     for j in range(n_c):
-        b_tot += (1.0 - dec[j]) * cap[j]
+        b_tot += b[j]
     for k in range(n):
-        s_dec = 0.0
         qc_old = 0.0
         for j in range(n_c):
-            s_dec += dec[j] * qc[j]
             qc_old += qc[j]
         vh_s = vh
         if n_c > 0:
-            e_c = (s_dec + b_tot * vh) - qc_old
+            _, e_c = creep_explicit_charge(dec, 0, qc, 0, n_c, b_tot, vh, qc_old)
             # k = dV_h/dq_h on the segment q_h moves along (falling while the branches charge)
             k_h = pi_slope(z, r, w, z[0], -1 if e_c > 0 else 1)
-            vh_s = vh - k_h * (e_c / (1.0 + b_tot * k_h))
+            vh_s = creep_node_voltage(vh, e_c, b_tot, k_h)
+        creep_branch_update(dec, 0, b, 0, qc, 0, n_c, vh_s)
         rhs = q[k]
         for j in range(n_c):
-            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * vh_s
             rhs -= qc[j]
         vh = pi_step(z, r, w, rhs)
         v_h[k] = vh

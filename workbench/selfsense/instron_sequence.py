@@ -49,6 +49,7 @@ import numpy as np
 from numba import njit
 
 from ..plant.hysteresis import pi_slope, play_step
+from ..plant.kernels import creep_branch_update, creep_explicit_charge, creep_node_voltage
 from .force import estimate_force, instron_force_profile
 
 __all__ = ["SequenceRun", "serial_sequence", "read_open_lead_run", "table1_sequence_estimates",
@@ -94,27 +95,26 @@ def _segment(z, qc, q, shorted, f_term, r, w_h, w_open, r_open_inv, w_open_inv, 
     form's bound on 1 / (C_pp + C_h)), S = E / (1 + b k) their charge, E that of the explicit step.
     """
     n_c = cap.shape[0]
+    b = (1.0 - dec) * cap                        # the branches' input coefficients b_j = (1 - d_j) C_j, F
     b_tot = 0.0
     for j in range(n_c):
-        b_tot += (1.0 - dec[j]) * cap[j]
+        b_tot += b[j]
     for k in range(f_term.shape[0]):
         v_h0 = z[0]
-        s_dec = 0.0
         qc_old = 0.0
         for j in range(n_c):
-            s_dec += dec[j] * qc[j]
             qc_old += qc[j]
         v_h_s = v_h0
         if n_c > 0:
-            e_c = (s_dec + b_tot * v_h0) - qc_old
+            _, e_c = creep_explicit_charge(dec, 0, qc, 0, n_c, b_tot, v_h0, qc_old)
             if shorted:
                 k_h = 1.0 / c_pp
             else:
                 k_h = 1.0 / pi_slope(z, r, w_h, v_h0, -1 if e_c > 0 else 1)
-            v_h_s = v_h0 - k_h * (e_c / (1.0 + b_tot * k_h))
+            v_h_s = creep_node_voltage(v_h0, e_c, b_tot, k_h)
+        creep_branch_update(dec, 0, b, 0, qc, 0, n_c, v_h_s)
         s_qc = 0.0
         for j in range(n_c):
-            qc[j] = dec[j] * qc[j] + (1.0 - dec[j]) * cap[j] * v_h_s
             s_qc += qc[j]
         if shorted:
             v_h = _solve_v_h(z, r, w_short, r_short_inv, w_short_inv, f_term[k] - s_qc)

@@ -152,7 +152,8 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
     ``benchmarks/closed_loop_vs_c.c`` is this loop in C, bit for bit.
     """
     # borrowed views of the arrays handed to the inlined plant and controller steps: no atomic reference count
-    # per period (K._borrowed; 74.1 -> 69.4 ns a period on the bench's hold, the results bit for bit the same)
+    # per period (K._borrowed: the same machine code as the arguments themselves on numba 0.68.1; a plain view or
+    # a copy here puts 10 reference counts in the loop, benchmarks/borrowed_codegen.py; tested on the compiled loop)
     m, st, cs_i, vm_i = K._borrowed(m), K._borrowed(st), K._borrowed(cs_i), K._borrowed(vm_i)
     fb, fa, fshift, limw = K._borrowed(fb), K._borrowed(fa), K._borrowed(fshift), K._borrowed(limw)
     cs_f, sos, lim, vm_f = K._borrowed(cs_f), K._borrowed(sos), K._borrowed(lim), K._borrowed(vm_f)

@@ -23,7 +23,7 @@ from ..plant.gauge import TRIM_CENTER_M
 from ..plant.simulator import PZTSimulator
 from .closed_loop import ClosedLoop
 
-__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "planned_slope_lead", "linear_step_prediction", "nominal_loop_plant"]
+__all__ = ["SCENARIOS", "run_scenario", "stroke_m", "planned_slope_lead", "triangle_reference", "linear_step_prediction", "nominal_loop_plant"]
 
 SCENARIOS = ("small_step", "large_step", "triangle_0p1hz", "triangle_1hz", "hold", "force_step", "sine_sweep")
 SWEEP_FREQ_HZ = (5.0, 10.0, 20.0, 50.0, 100.0, 150.0, 200.0, 300.0, 500.0, 1000.0, 2000.0)
@@ -46,6 +46,33 @@ def _approach(cl, g, x_start, dt):
     x_rest = cl.plant.pzt.k_q2x_m_per_c * cl.plant.pzt.hysteresis.output_at_rest()
     ref = np.concatenate([np.linspace(x_rest, x_start, n), np.full(n, x_start)])
     return cl.run(_to_volts(ref, g))
+
+
+def triangle_reference(lo_m, hi_m, freq_hz, periods, dt_s):
+    """The closed-loop triangle both ``verify`` and ``sweep`` run: mid-span first, going down, then lo, hi, ...
+
+    Parameters
+    ----------
+    lo_m, hi_m : float
+        The triangle's ends, m (or firmware V).
+    freq_hz : float
+        Its frequency, Hz.
+    periods : float
+        How many periods, n = int(periods / freq_hz / dt_s) samples.
+    dt_s : float
+        Servo period, s.
+
+    Returns
+    -------
+    t_s, ref_next : numpy.ndarray
+        n + 1 sample times (s, from 0) and the triangle at them: the planned trajectory
+        :func:`planned_slope_lead` takes (its last sample gives the last slope); ``ref_next[:n]`` is the reference
+        scored. At t = 0 it is mid-span, at 1/(4 f) lo, at 3/(4 f) hi; slope 2 (hi - lo) f.
+    """
+    n = int(periods / freq_hz / dt_s)
+    t = np.arange(n + 1) * dt_s
+    tri = 2 * np.abs((t * freq_hz + 0.25) % 1.0 - 0.5)            # 0..1 from mid-span, going down
+    return t, lo_m + (hi_m - lo_m) * tri
 
 
 def planned_slope_lead(ref_next, dt, lead_s):
@@ -221,12 +248,8 @@ def run_scenario(plant, controller, name, hold_s=1000.0, anti_windup=True, noise
     elif name.startswith("triangle"):
         f = 0.1 if name == "triangle_0p1hz" else 1.0
         lo, hi = X_START_M - 0.4 * stroke, X_START_M + 0.4 * stroke
-        periods = 2
-        n = int(periods / f / dt)
-        t = np.arange(n + 1) * dt
-        tri = 2 * np.abs((t * f + 0.25) % 1.0 - 0.5)            # 0..1 triangle from mid-stroke, going down
-        ref_next = lo + (hi - lo) * tri
-        ref = ref_next[:n]
+        _, ref_next = triangle_reference(lo, hi, f, 2, dt)     # two periods from mid-stroke, going down
+        ref = ref_next[:-1]
         # firmware's velocity feedforward on the planned slope (the sensor block's ref_lead_s = 1/K_v): fed
         # r + v lead, scored against r itself; reported on the ramp scenarios only (the others are fed as given)
         fed = planned_slope_lead(ref_next, dt, controller.ref_lead_s)

@@ -66,7 +66,7 @@ def run_case(payload):
     from ..linearize.pzt_describing import pzt_describing_function
     from ..plant import load_plant
     from .closed_loop import ClosedLoop, controller_from_json
-    from .scenarios import X_START_M, _oscillation, _step_metrics, _to_volts, planned_slope_lead
+    from .scenarios import X_START_M, _oscillation, _step_metrics, _to_volts, planned_slope_lead, triangle_reference
 
     plant = load_plant(payload["plant"])
     pzt = replace(plant.pzt, working_capacitance_f=plant.pzt.working_capacitance_f * payload["cp_factor"])
@@ -111,10 +111,8 @@ def run_case(payload):
     x_rest = pzt.k_q2x_m_per_c * pzt.hysteresis.output_at_rest()
     cl.run(_to_volts(np.concatenate([np.linspace(x_rest, X_START_M, n), np.full(n, X_START_M)]), g))
     fr = 0.1
-    m = int(2 / fr / dt)
-    t = np.arange(m + 1) * dt
-    tri_next = X_START_M + half_m * (2 * np.abs((t * fr + 0.25) % 1.0 - 0.5) * 2 - 1)
-    tri = tri_next[:m]
+    t, tri_next = triangle_reference(X_START_M - half_m, X_START_M + half_m, fr, 2, dt)   # verify's triangle
+    tri = tri_next[:-1]
     dec = 50
     # fed with the export's velocity feedforward on the planned slope (ref_lead_s, 0: none), as verify's triangles
     r = cl.run(_to_volts(planned_slope_lead(tri_next, dt, ctrl.ref_lead_s), g), decimate=dec)
