@@ -572,10 +572,10 @@ OTHERS = [
     # fixed-point clamp limits of +/-3e5 V at the file's 22 fraction bits: words of 1.26e12, which ran (int64)
     # while the C header's int32 clamp cannot hold them
     ("verify-controller-limit-words", ["verify", CREEP, "--controller", "bad/ctrl_limit_words.json"],
-     ["ctrl_limit_words.json", "[fixed_point.output.limits_v]", "beyond int32", "within +/-512 V"]),
+     ["ctrl_limit_words.json", "[fixed_point.output.limits_v]", "outside +/-(2^31 - 1)", "below 512.0 V"]),
     # the input clamp +/-1e6 V at the file's input fraction bits: a word beyond int32 (the header's INT32_C)
     ("verify-controller-input-words", ["verify", CREEP, "--controller", "bad/ctrl_input_words.json"],
-     ["ctrl_input_words.json", "[fixed_point.input.range_v]", "beyond int32", "give a range within"]),
+     ["ctrl_input_words.json", "[fixed_point.input.range_v]", "outside +/-(2^31 - 1)", "give a range below"]),
     ("calibrate-record-header-only", ["calibrate", "bad/header_only.csv", "--plant", PLANT], ["header_only.csv"]),
     ("calibrate-record-empty", ["calibrate", "bad/empty.csv", "--plant", PLANT], ["empty.csv"]),
 ]

@@ -429,14 +429,14 @@ def test_clamp_words_beyond_int32_are_refused_by_the_object_itself(ctrl, frac_bi
     over_v = 2.0 ** 31 / 2.0 ** frac_bits                    # one LSB more: the word 2^31
     ok = replace(fxp, input_frac_bits=frac_bits, input_range_v=edge_v)
     assert ok.input_limit == top
-    with pytest.raises(ControllerError, match=r"\[fixed_point\.input\.range_v\].*beyond int32.*give a range"):
+    with pytest.raises(ControllerError, match=r"\[fixed_point\.input\.range_v\].*outside \+/-\(2\^31 - 1\).*give a range below"):
         replace(fxp, input_frac_bits=frac_bits, input_range_v=over_v)
     sig = fxp.signal_frac_bits.copy()
     sig[-1] = frac_bits
     ok = replace(fxp, signal_frac_bits=sig, output_limits_v=(-edge_v, edge_v))
     assert ok.output_limits == (-top, top) and ok.limit_words[1] == top
     for lim in ((-over_v, 0.0), (0.0, over_v)):
-        with pytest.raises(ControllerError, match=r"\[fixed_point\.output\.limits_v\].*beyond int32.*give limits"):
+        with pytest.raises(ControllerError, match=r"\[fixed_point\.output\.limits_v\].*outside \+/-\(2\^31 - 1\).*give limits of magnitude below"):
             replace(fxp, signal_frac_bits=sig.copy(), output_limits_v=lim)
 
 
@@ -451,4 +451,27 @@ def test_clamp_words_beyond_int32_in_a_file_name_the_file_and_field(data, tmp_pa
     with pytest.raises(ControllerError) as info:
         Controller.load(path)
     msg = str(info.value)
-    assert msg.startswith(f"{path}: [{key}]") and "beyond int32" in msg and "\n" not in msg
+    assert msg.startswith(f"{path}: [{key}]") and "outside +/-(2^31 - 1)" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("frac_bits", [0, 7, 29, 31])
+def test_the_clamp_messages_fix_is_accepted(ctrl, frac_bits):
+    """The bound the message gives is the refused word's: a clamp just below it loads (the advice
+    does not name a value that is itself refused, as '+/-4 V' for a refused 4 V once did)."""
+    import re
+    fxp = ctrl.fixed
+    over_v = 2.0 ** 31 / 2.0 ** frac_bits
+    with pytest.raises(ControllerError) as info:
+        replace(fxp, input_frac_bits=frac_bits, input_range_v=over_v)
+    bound = float(re.search(r"give a range below (\S+) V", str(info.value)).group(1))
+    assert bound == over_v                                   # exact: a power of two
+    ok = replace(fxp, input_frac_bits=frac_bits, input_range_v=np.nextafter(min(bound, over_v), 0.0))
+    assert ok.input_limit <= 2 ** 31 - 1
+
+
+@pytest.mark.parametrize("frac_bits", [-1, 32, 1100, -2000, 2.5])
+def test_input_fraction_bits_outside_int32_are_refused(ctrl, frac_bits):
+    """An input word's fraction bits outside 0..31 cannot be an int32 format (1100 raised an
+    OverflowError traceback from 2.0 ** 1100; -2000 made the scale 0 and passed the clamp check)."""
+    with pytest.raises(ControllerError, match=r"\[fixed_point\.input\.frac_bits\].*0\.\.31"):
+        replace(ctrl.fixed, input_frac_bits=frac_bits)

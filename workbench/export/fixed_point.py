@@ -157,16 +157,20 @@ class FixedPointController:
         naming the file's field (``fixed_point.input.range_v`` / ``fixed_point.output.limits_v``).
         The output words must also lie inside the no-window headroom (2^40) of ``limit_words``.
         """
-        top_word = 2 ** 31 - 1
-        in_scale = 2.0 ** self.input_frac_bits
+        fb = self.input_frac_bits
+        if isinstance(fb, bool) or not isinstance(fb, (int, np.integer)) or not 0 <= fb <= 31:
+            raise ControllerError(None, "fixed_point.input.frac_bits",
+                                  f"must be an integer number of fraction bits in 0..31 (an int32 input word); "
+                                  f"got {fb!r}")
+        in_scale = 2.0 ** fb
         if not (np.isfinite(self.input_range_v) and self.input_range_v > 0):
             raise ControllerError(None, "fixed_point.input.range_v",
                                   f"must be a finite number of volts > 0; got {self.input_range_v}")
         if self.input_range_v * in_scale >= 2 ** 31:
             raise ControllerError(None, "fixed_point.input.range_v",
-                                  f"+/-{self.input_range_v:g} V at {self.input_frac_bits} fraction bits is a word "
-                                  f"beyond int32 (the firmware's input clamp); give a range within "
-                                  f"+/-{top_word / in_scale:.6g} V or re-export the controller")
+                                  f"+/-{self.input_range_v!r} V at {fb} fraction bits is a word outside "
+                                  f"+/-(2^31 - 1) (int32, the firmware's input clamp); give a range below "
+                                  f"{2 ** 31 / in_scale!r} V or re-export the controller")
         lo, hi = self.output_limits_v
         out_scale = 2.0 ** self.output_frac_bits
         if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
@@ -174,9 +178,9 @@ class FixedPointController:
                                   f"must be two finite numbers of volts, lo < hi; got {[lo, hi]}")
         if max(abs(lo), abs(hi)) * out_scale >= 2 ** 31:
             raise ControllerError(None, "fixed_point.output.limits_v",
-                                  f"{[lo, hi]} V at {self.output_frac_bits} fraction bits are words beyond int32 "
-                                  f"(the firmware's clamp); give limits within +/-{top_word / out_scale:.6g} V or "
-                                  f"re-export the controller")
+                                  f"{[lo, hi]} V at {self.output_frac_bits} fraction bits are words outside "
+                                  f"+/-(2^31 - 1) (int32, the firmware's clamp); give limits of magnitude below "
+                                  f"{2 ** 31 / out_scale!r} V or re-export the controller")
 
     @property
     def a_frac_bits(self):

@@ -94,12 +94,12 @@ def _borrowed(arr):
     shape and strides match; a returned slice of it becomes a NumPy array with no owner, which reads
     freed memory once the caller's array is gone. Index it, or pass it to an inlined step; return scalars.
 
-    Measured with numba 0.68.1 / llvmlite 0.50 (2026-11-26, ``benchmarks/borrowed_codegen.py``): in ``pzt_run``
-    and ``verify.closed_loop._loop`` every array taken this way is the function's own argument, which numba
-    already holds as a borrowed reference, so ``_borrowed(a)`` and ``a`` itself compile to the same machine code.
-    What the view rules out is a new reference in its place: with a plain view ``a[:]``, an inlined identity
-    or a copy, 10 NRT_incref/NRT_decref calls sit inside each function's loops. Tests check the compiled loops
-    hold none (``tests/compiled_loops.py``).
+    Measured with numba 0.68.1 / llvmlite 0.50 (2026-11-26, ``PYTHONPATH=. python benchmarks/borrowed_codegen.py``):
+    as written, ``pzt_run`` and ``verify.closed_loop._loop`` hold no reference count on a cycle of their
+    control-flow graphs; with the arrays themselves in place of the views (an inlined identity), a plain view
+    ``a[:]`` or a copy, 10 NRT_incref/NRT_decref calls sit inside each function's loops (numba increfs an
+    array handed to an inlined step; a null meminfo it skips). Tests check the compiled loops hold none
+    (``tests/compiled_loops.py``).
     """
     return arr
 

@@ -152,8 +152,8 @@ def _loop(m, st, n_sub, ref, force, rng, sigma, gp, r0, form, ha, hb, hc, hd, hx
     ``benchmarks/closed_loop_vs_c.c`` is this loop in C, bit for bit.
     """
     # borrowed views of the arrays handed to the inlined plant and controller steps: no atomic reference count
-    # per period (K._borrowed: the same machine code as the arguments themselves on numba 0.68.1; a plain view or
-    # a copy here puts 10 reference counts in the loop, benchmarks/borrowed_codegen.py; tested on the compiled loop)
+    # per period (K._borrowed; the arrays themselves, a plain view or a copy here put 10 reference counts in the
+    # loop on numba 0.68.1, benchmarks/borrowed_codegen.py; tested on the compiled loop)
     m, st, cs_i, vm_i = K._borrowed(m), K._borrowed(st), K._borrowed(cs_i), K._borrowed(vm_i)
     fb, fa, fshift, limw = K._borrowed(fb), K._borrowed(fa), K._borrowed(fshift), K._borrowed(limw)
     cs_f, sos, lim, vm_f = K._borrowed(cs_f), K._borrowed(sos), K._borrowed(lim), K._borrowed(vm_f)
