@@ -285,6 +285,51 @@ def _later_stage(ctx, extra, found, seen=()):
     return answer, count, winners, res, None
 
 
+#: effects of the displacement sensor, not of the stack: the gauge, which reads the stack, never sees them
+SENSOR_EFFECTS = ("delay", "drift")
+
+
+def _gauge_reads_corrected(ctx, term_m, extra):
+    """The gauge's line problem against the displacement with a found sensor effect taken out.
+
+    The gauge bow (eq. 27) is the gauge's reading of the stack's motion ``x``, fitted against the
+    *recorded* displacement (:func:`~workbench.calibrate.tracing._gauge_line`). A sensor delay or
+    drift of the displacement is in that record and not in the stack's motion, so the gauge fitted
+    against the raw record carries the sensor effect (``-gain x term``: a lagging or drifting
+    record's difference from the stack) and a later bow fits part of it (a 721x drift named
+    drift, then a gauge bow; a creep + 21 ms delay's bow fitted against the lagging record). Once
+    the displacement's sensor effect is found, the line problem, its null reference and the bow's
+    search are rebuilt against ``x - term_m`` (``term_m``: the found effect's fitted term on the
+    displacement, m). Nothing changes when an effect was already found on the line problem.
+    """
+    key = ("gauge", "line")
+    probs, base, t = ctx["probs"], ctx["base"], ctx["t"]
+    if key not in probs or extra.get(key):
+        return
+    old = probs[key]
+    m = base.channels["gauge"]
+    x = base.channels["displacement"].y - np.asarray(term_m, float)
+    line = base.gauge_offset_v + base.gauge_gain_v_per_m * x
+    prob = _tr._Problem(old.split, old.valid, np.column_stack([np.ones(t.size), x]), [-np.inf, -np.inf],
+                        m.y - line, old.search)
+    probs[key] = prob
+    ctx.pop("later_cache", None)          # later stages scored against the old line are stale
+    rng = np.random.default_rng(len(ctx["nulls"][key]))
+    e_dev = np.where(prob.rows_dev, prob.r, 0.0)
+    ctx["nulls"][key] = [prob.grams(_tr._phase_randomized(e_dev, rng), [-np.inf]) for _ in ctx["nulls"][key]]
+    cands = []
+    for c in ctx["cands"]:
+        if c["key"] == key:
+            eff = copy.deepcopy(c["eff"])
+            try:
+                p, g = _tr._candidate_columns(eff, t, x, m.y, line, prob)
+            except ValueError:
+                continue
+            c = {**c, "eff": eff, "params": p, "g": g, "u": x, "yhat": line}
+        cands.append(c)
+    ctx["cands"] = cands
+
+
 def _extra_signature(extra):
     """The found effects' columns, per problem: their shapes and a digest of their bytes (two different
     column sets with equal sums must not share a cache entry)."""
@@ -505,6 +550,8 @@ def run_stages(ctx, max_stages=3):
             stages[-1]["agreement_compatible"] = compatible[1]
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
+        if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS:
+            _gauge_reads_corrected(ctx, stages[-1]["_term"], extra)
         if len(stages) >= max_stages:
             break
         answer, count, _, res_k, note = _later_stage(ctx, extra, found, seen=seen)
