@@ -59,7 +59,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .absorption_or_leakage import leakage_no_worse, nested_consensus, nested_note
+from .absorption_or_leakage import decided_needed, leakage_no_worse, nested_consensus, nested_note
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
@@ -356,6 +356,65 @@ def _survives(y, ans, res_k, need):
     return False
 
 
+#: effects of the stack's motion, which the gauge and the displacement sensor both read
+STACK_EFFECTS = ("creep", "resonance")
+
+
+def stack_effect_on_both_sensors(res, need):
+    """The stack's creep or mode winning folds on the gauge and on the displacement: one effect.
+
+    The gauge and the displacement sensor read the same motion; the fold decision reports the
+    stack's effect on the displacement when the displacement's row passes the fold too
+    (:func:`~workbench.calibrate.tracing._score_stage`). A displacement-sensor effect (a large
+    drift, a delay) can hide the displacement's on some folds, where the gauge's wins alone
+    (drift + a 140 Hz mode at 100 kHz: the gauge's mode 3 folds, the displacement's 2): the
+    record shows one effect of the stack on every fold, answered ``inconclusive`` when counted as
+    two. When the two views together win ``need`` folds, the effect is named on the channel whose
+    row has the lower median validation ratio (the clearer view; the other sensor's view follows
+    as a later stage if it still explains what the found effects leave).
+
+    Returns ``(answer, count, note)``; ``(None, 0, None)`` when the rule does not apply.
+    """
+    tags = [tuple(w) for w in res["winners"] if not isinstance(w, str)]
+    for name in STACK_EFFECTS:
+        views = [(name, "gauge"), (name, "displacement")]
+        won = {v: tags.count(v) for v in views}
+        if not all(won.values()) or sum(won.values()) < need or not all(v in res["by"] for v in views):
+            continue
+        best = min(views, key=lambda v: res["by"][v]["score"])
+        n = len(res["winners"])
+        return best, sum(won.values()), (f"the stack's {name}: the gauge's wins {won[views[0]]} and the "
+                                         f"displacement's {won[views[1]]} of {n} folds (one motion, read by both; "
+                                         f"named on the {best[1]}, the lower median ratio)")
+    return None, 0, None
+
+
+def creep_decided_rest_undecided(res, need):
+    """The displacement's creep named from decided folds, the other folds undecided between creep
+    and a charge relaxation.
+
+    A fold is ``undecided: <relaxation> or creep`` when the charge cannot tell creep's charge from
+    an absorption's or leakage's (the stack could hide it, or the charge refused the creep the
+    displacement shows, :func:`~workbench.calibrate.tracing._after_creep_refused`): such a fold is
+    compatible with creep, and counted against it by the plain consensus (a 15x creep with a 26 ms
+    sensor delay at 1 kHz: creep 3 folds, undecided 2). As for the nested absorption and leakage
+    (:func:`~workbench.calibrate.absorption_or_leakage.nested_consensus`), creep is named when it
+    wins at least :func:`~workbench.calibrate.absorption_or_leakage.decided_needed` folds
+    outright, no fold names anything else, and its displacement row passes ``need`` folds (the
+    stack's relaxation is on the displacement, not only on the decided folds).
+
+    Returns ``(("creep", "displacement"), decided, undecided)`` or ``(None, 0, 0)``.
+    """
+    w = res["winners"]
+    tag = ("creep", "displacement")
+    decided = sum(1 for x in w if not isinstance(x, str) and tuple(x) == tag)
+    und = sum(1 for x in w if not isinstance(x, str) and x[0] == "undecided" and "creep" in x[1])
+    row = res["by"].get(tag)
+    if row is None or decided + und != len(w) or decided < decided_needed(len(w)) or sum(row["passes"]) < need:
+        return None, 0, 0
+    return tag, decided, und
+
+
 def resolve_split(res, ctx, extra, found):
     """Two effects that split the first stage's folds: does each explain what the other cannot?
 
@@ -367,7 +426,11 @@ def resolve_split(res, ctx, extra, found):
 
     Returns ``(answer, count, note)``; ``(None, count, None)`` when unresolved.
     """
-    labels = [w for w in res["winners"] if not isinstance(w, str) and w[0] != "undecided"]
+    # a fold undecided between a charge relaxation and creep counts for the displacement's creep
+    # here (the charge's cross-channel rules left it open; the pair's test below decides)
+    creep = ("creep", "displacement") if ("creep", "displacement") in res["by"] else None
+    labels = [creep if (w[0] == "undecided" and "creep" in w[1]) else w for w in res["winners"]
+              if not isinstance(w, str) and (w[0] != "undecided" or (creep and "creep" in w[1]))]
     vals, counts = np.unique([f"{w[0]}|{w[1]}" for w in labels], return_counts=True) if labels else ([], [])
     order = np.argsort(counts)[::-1]
     count0 = int(max(counts)) if len(counts) else 0
@@ -523,6 +586,16 @@ def run_stages(ctx, max_stages=3):
             answer, count = ans2, decided
             resolved = nested_note(ans2, decided, undecided, len(res["winners"]))
             compatible = (resolved, decided + undecided)
+    if answer is None:
+        ans2, count2, note2 = stack_effect_on_both_sensors(res, ctx["need"])
+        if ans2 is None:
+            ans2, count2, und = creep_decided_rest_undecided(res, ctx["need"])
+            if ans2 is not None:
+                note2 = (f"creep wins {count2} of {len(res['winners'])} folds and the other {und} are undecided "
+                         f"between a charge relaxation and creep")
+                compatible = (note2, count2 + und)
+        if ans2 is not None:
+            answer, count, resolved = ans2, count2, note2
     if answer is None:
         ans2, count2, resolved = resolve_split(res, ctx, extra, found)
         if ans2 is not None:
