@@ -389,6 +389,12 @@ def stack_effect_on_both_sensors(res, need):
     return None, 0, None
 
 
+def _charge_or_creep(w):
+    """Is fold winner ``w`` undecided between a charge relaxation and creep?"""
+    return (not isinstance(w, str) and w[0] == "undecided"
+            and w[1] in ("dielectric_absorption or creep", "leakage or creep"))
+
+
 def creep_decided_rest_undecided(res, need):
     """The displacement's creep named from decided folds, the other folds undecided between creep
     and a charge relaxation.
@@ -408,7 +414,7 @@ def creep_decided_rest_undecided(res, need):
     w = res["winners"]
     tag = ("creep", "displacement")
     decided = sum(1 for x in w if not isinstance(x, str) and tuple(x) == tag)
-    und = sum(1 for x in w if not isinstance(x, str) and x[0] == "undecided" and "creep" in x[1])
+    und = sum(1 for x in w if _charge_or_creep(x))
     row = res["by"].get(tag)
     if row is None or decided + und != len(w) or decided < decided_needed(len(w)) or sum(row["passes"]) < need:
         return None, 0, 0
@@ -429,8 +435,8 @@ def resolve_split(res, ctx, extra, found):
     # a fold undecided between a charge relaxation and creep counts for the displacement's creep
     # here (the charge's cross-channel rules left it open; the pair's test below decides)
     creep = ("creep", "displacement") if ("creep", "displacement") in res["by"] else None
-    labels = [creep if (w[0] == "undecided" and "creep" in w[1]) else w for w in res["winners"]
-              if not isinstance(w, str) and (w[0] != "undecided" or (creep and "creep" in w[1]))]
+    labels = [creep if _charge_or_creep(w) else w for w in res["winners"]
+              if not isinstance(w, str) and (w[0] != "undecided" or (creep and _charge_or_creep(w)))]
     vals, counts = np.unique([f"{w[0]}|{w[1]}" for w in labels], return_counts=True) if labels else ([], [])
     order = np.argsort(counts)[::-1]
     count0 = int(max(counts)) if len(counts) else 0
