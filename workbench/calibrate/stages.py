@@ -629,7 +629,7 @@ def run_stages(ctx, max_stages=3):
             stages[-1]["agreement_compatible"] = compatible[1]
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
-        if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS:
+        if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS and stages[-1].get("_term") is not None:
             _gauge_reads_corrected(ctx, stages[-1]["_term"], extra)
         if len(stages) >= max_stages:
             break
