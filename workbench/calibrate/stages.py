@@ -35,6 +35,17 @@ different effects on the displacement and the gauge (:func:`_sensor_pair`), shar
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both
 are in the record; one: it is named; neither: inconclusive.
 
+**One stack effect, two views** (:func:`stack_effect_on_both_sensors`): the stack's creep or
+mode winning folds on the gauge and on the displacement (a displacement-sensor drift hides the
+displacement's on some) is one effect when the two together win ``need`` folds. **Creep decided,
+the rest undecided** (:func:`creep_decided_rest_undecided`): creep named from decided folds when
+every other fold is undecided between creep and a charge relaxation (as the nested absorption /
+leakage rule).
+
+**The gauge after a sensor effect** (:func:`_gauge_reads_corrected`): after a displacement
+``delay`` or ``drift`` the gauge's bow is searched against the displacement with that term taken
+out (the gauge reads the stack, not the sensor).
+
 **Creep behind a displacement effect** (:func:`_creep_behind_a_displacement_effect`): a charge
 relaxation named while a displacement effect passes ``need`` folds is re-scored with that effect
 in the model (joint re-search); if the displacement's creep then wins half the folds, the

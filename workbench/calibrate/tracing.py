@@ -45,8 +45,9 @@ creep passes the fold on the displacement with a validation ratio at most the sq
 the charge candidate's: the stack relaxes comparably; the gauge's creep stands in when the
 displacement's does not pass the fold, as the gauge reads the same stack and a displacement-sensor
 delay can hide the displacement's; and when the charge term, turned into
-displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
-the stack could not have shown it, and the fold is undecided between the two; an absorption
+displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor
+(in a later stage after a displacement effect, or below what the found effects leave there:
+:func:`_stack_could_hide`), the stack could not have shown it, and the fold is undecided between the two; an absorption
 slower than half the record is told from leakage only by its bend, :mod:`.absorption_or_leakage`),
 and a
 mechanical effect seen on the gauge that the displacement shows too is the stack's, reported
