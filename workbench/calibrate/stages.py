@@ -35,6 +35,17 @@ different effects on the displacement and the gauge (:func:`_sensor_pair`), shar
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both
 are in the record; one: it is named; neither: inconclusive.
 
+**One stack effect, two views** (:func:`stack_effect_on_both_sensors`): the stack's creep or
+mode winning folds on the gauge and on the displacement (a displacement-sensor drift hides the
+displacement's on some) is one effect when the two together win ``need`` folds. **Creep decided,
+the rest undecided** (:func:`creep_decided_rest_undecided`): creep named from decided folds when
+every other fold is undecided between creep and a charge relaxation (as the nested absorption /
+leakage rule).
+
+**The gauge after a sensor effect** (:func:`_gauge_reads_corrected`): after a displacement
+``delay`` or ``drift`` the gauge's bow is searched against the displacement with that term taken
+out (the gauge reads the stack, not the sensor).
+
 **Creep behind a displacement effect** (:func:`_creep_behind_a_displacement_effect`): a charge
 relaxation named while a displacement effect passes ``need`` folds is re-scored with that effect
 in the model (joint re-search); if the displacement's creep then wins half the folds, the
@@ -59,7 +70,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .absorption_or_leakage import leakage_no_worse, nested_consensus, nested_note
+from .absorption_or_leakage import decided_needed, leakage_no_worse, nested_consensus, nested_note
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
@@ -285,6 +296,51 @@ def _later_stage(ctx, extra, found, seen=()):
     return answer, count, winners, res, None
 
 
+#: effects of the displacement sensor, not of the stack: the gauge, which reads the stack, never sees them
+SENSOR_EFFECTS = ("delay", "drift")
+
+
+def _gauge_reads_corrected(ctx, term_m, extra):
+    """The gauge's line problem against the displacement with a found sensor effect taken out.
+
+    The gauge bow (eq. 27) is the gauge's reading of the stack's motion ``x``, fitted against the
+    *recorded* displacement (:func:`~workbench.calibrate.tracing._gauge_line`). A sensor delay or
+    drift of the displacement is in that record and not in the stack's motion, so the gauge fitted
+    against the raw record carries the sensor effect (``-gain x term``: a lagging or drifting
+    record's difference from the stack) and a later bow fits part of it (a 721x drift named
+    drift, then a gauge bow; a creep + 21 ms delay's bow fitted against the lagging record). Once
+    the displacement's sensor effect is found, the line problem, its null reference and the bow's
+    search are rebuilt against ``x - term_m`` (``term_m``: the found effect's fitted term on the
+    displacement, m). Nothing changes when an effect was already found on the line problem.
+    """
+    key = ("gauge", "line")
+    probs, base, t = ctx["probs"], ctx["base"], ctx["t"]
+    if key not in probs or extra.get(key):
+        return
+    old = probs[key]
+    m = base.channels["gauge"]
+    x = base.channels["displacement"].y - np.asarray(term_m, float)
+    line = base.gauge_offset_v + base.gauge_gain_v_per_m * x
+    prob = _tr._Problem(old.split, old.valid, np.column_stack([np.ones(t.size), x]), [-np.inf, -np.inf],
+                        m.y - line, old.search)
+    probs[key] = prob
+    ctx.pop("later_cache", None)          # later stages scored against the old line are stale
+    rng = np.random.default_rng(len(ctx["nulls"][key]))
+    e_dev = np.where(prob.rows_dev, prob.r, 0.0)
+    ctx["nulls"][key] = [prob.grams(_tr._phase_randomized(e_dev, rng), [-np.inf]) for _ in ctx["nulls"][key]]
+    cands = []
+    for c in ctx["cands"]:
+        if c["key"] == key:
+            eff = copy.deepcopy(c["eff"])
+            try:
+                p, g = _tr._candidate_columns(eff, t, x, m.y, line, prob)
+            except ValueError:
+                continue
+            c = {**c, "eff": eff, "params": p, "g": g, "u": x, "yhat": line}
+        cands.append(c)
+    ctx["cands"] = cands
+
+
 def _extra_signature(extra):
     """The found effects' columns, per problem: their shapes and a digest of their bytes (two different
     column sets with equal sums must not share a cache entry)."""
@@ -311,6 +367,71 @@ def _survives(y, ans, res_k, need):
     return False
 
 
+#: effects of the stack's motion, which the gauge and the displacement sensor both read
+STACK_EFFECTS = ("creep", "resonance")
+
+
+def stack_effect_on_both_sensors(res, need):
+    """The stack's creep or mode winning folds on the gauge and on the displacement: one effect.
+
+    The gauge and the displacement sensor read the same motion; the fold decision reports the
+    stack's effect on the displacement when the displacement's row passes the fold too
+    (:func:`~workbench.calibrate.tracing._score_stage`). A displacement-sensor effect (a large
+    drift, a delay) can hide the displacement's on some folds, where the gauge's wins alone
+    (drift + a 140 Hz mode at 100 kHz: the gauge's mode 3 folds, the displacement's 2): the
+    record shows one effect of the stack on every fold, answered ``inconclusive`` when counted as
+    two. When the two views together win ``need`` folds, the effect is named on the channel whose
+    row has the lower median validation ratio (the clearer view; the other sensor's view follows
+    as a later stage if it still explains what the found effects leave).
+
+    Returns ``(answer, count, note)``; ``(None, 0, None)`` when the rule does not apply.
+    """
+    tags = [tuple(w) for w in res["winners"] if not isinstance(w, str)]
+    for name in STACK_EFFECTS:
+        views = [(name, "gauge"), (name, "displacement")]
+        won = {v: tags.count(v) for v in views}
+        if not all(won.values()) or sum(won.values()) < need or not all(v in res["by"] for v in views):
+            continue
+        best = min(views, key=lambda v: res["by"][v]["score"])
+        n = len(res["winners"])
+        return best, sum(won.values()), (f"the stack's {name}: the gauge's wins {won[views[0]]} and the "
+                                         f"displacement's {won[views[1]]} of {n} folds (one motion, read by both; "
+                                         f"named on the {best[1]}, the lower median ratio)")
+    return None, 0, None
+
+
+def _charge_or_creep(w):
+    """Is fold winner ``w`` undecided between a charge relaxation and creep?"""
+    return (not isinstance(w, str) and w[0] == "undecided"
+            and w[1] in ("dielectric_absorption or creep", "leakage or creep"))
+
+
+def creep_decided_rest_undecided(res, need):
+    """The displacement's creep named from decided folds, the other folds undecided between creep
+    and a charge relaxation.
+
+    A fold is ``undecided: <relaxation> or creep`` when the charge cannot tell creep's charge from
+    an absorption's or leakage's (the stack could hide it, or the charge refused the creep the
+    displacement shows, :func:`~workbench.calibrate.tracing._after_creep_refused`): such a fold is
+    compatible with creep, and counted against it by the plain consensus (a 15x creep with a 26 ms
+    sensor delay at 1 kHz: creep 3 folds, undecided 2). As for the nested absorption and leakage
+    (:func:`~workbench.calibrate.absorption_or_leakage.nested_consensus`), creep is named when it
+    wins at least :func:`~workbench.calibrate.absorption_or_leakage.decided_needed` folds
+    outright, no fold names anything else, and its displacement row passes ``need`` folds (the
+    stack's relaxation is on the displacement, not only on the decided folds).
+
+    Returns ``(("creep", "displacement"), decided, undecided)`` or ``(None, 0, 0)``.
+    """
+    w = res["winners"]
+    tag = ("creep", "displacement")
+    decided = sum(1 for x in w if not isinstance(x, str) and tuple(x) == tag)
+    und = sum(1 for x in w if _charge_or_creep(x))
+    row = res["by"].get(tag)
+    if row is None or decided + und != len(w) or decided < decided_needed(len(w)) or sum(row["passes"]) < need:
+        return None, 0, 0
+    return tag, decided, und
+
+
 def resolve_split(res, ctx, extra, found):
     """Two effects that split the first stage's folds: does each explain what the other cannot?
 
@@ -322,7 +443,11 @@ def resolve_split(res, ctx, extra, found):
 
     Returns ``(answer, count, note)``; ``(None, count, None)`` when unresolved.
     """
-    labels = [w for w in res["winners"] if not isinstance(w, str) and w[0] != "undecided"]
+    # a fold undecided between a charge relaxation and creep counts for the displacement's creep
+    # here (the charge's cross-channel rules left it open; the pair's test below decides)
+    creep = ("creep", "displacement") if ("creep", "displacement") in res["by"] else None
+    labels = [creep if _charge_or_creep(w) else w for w in res["winners"]
+              if not isinstance(w, str) and (w[0] != "undecided" or (creep and _charge_or_creep(w)))]
     vals, counts = np.unique([f"{w[0]}|{w[1]}" for w in labels], return_counts=True) if labels else ([], [])
     order = np.argsort(counts)[::-1]
     count0 = int(max(counts)) if len(counts) else 0
@@ -479,6 +604,16 @@ def run_stages(ctx, max_stages=3):
             resolved = nested_note(ans2, decided, undecided, len(res["winners"]))
             compatible = (resolved, decided + undecided)
     if answer is None:
+        ans2, count2, note2 = stack_effect_on_both_sensors(res, ctx["need"])
+        if ans2 is None:
+            ans2, count2, und = creep_decided_rest_undecided(res, ctx["need"])
+            if ans2 is not None:
+                note2 = (f"creep wins {count2} of {len(res['winners'])} folds and the other {und} are undecided "
+                         f"between a charge relaxation and creep")
+                compatible = (note2, count2 + und)
+        if ans2 is not None:
+            answer, count, resolved = ans2, count2, note2
+    if answer is None:
         ans2, count2, resolved = resolve_split(res, ctx, extra, found)
         if ans2 is not None:
             answer, count = ans2, count2
@@ -505,6 +640,8 @@ def run_stages(ctx, max_stages=3):
             stages[-1]["agreement_compatible"] = compatible[1]
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
+        if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS and stages[-1].get("_term") is not None:
+            _gauge_reads_corrected(ctx, stages[-1]["_term"], extra)
         if len(stages) >= max_stages:
             break
         answer, count, _, res_k, note = _later_stage(ctx, extra, found, seen=seen)

@@ -45,8 +45,9 @@ creep passes the fold on the displacement with a validation ratio at most the sq
 the charge candidate's: the stack relaxes comparably; the gauge's creep stands in when the
 displacement's does not pass the fold, as the gauge reads the same stack and a displacement-sensor
 delay can hide the displacement's; and when the charge term, turned into
-displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor,
-the stack could not have shown it, and the fold is undecided between the two; an absorption
+displacement by eq. 10's k_q2x, would stand below three times the displacement's noise floor
+(in a later stage after a displacement effect, or below what the found effects leave there:
+:func:`_stack_could_hide`), the stack could not have shown it, and the fold is undecided between the two; an absorption
 slower than half the record is told from leakage only by its bend, :mod:`.absorption_or_leakage`),
 and a
 mechanical effect seen on the gauge that the displacement shows too is the stack's, reported
@@ -679,7 +680,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             # would the stack have shown it? the charge term as displacement (eq. 10) against the
             # displacement's noise floor: if it could hide there, creep is not excluded
             x_equiv = _explained(best, f, befores, penalty) * abs(infos["k_q2x"])
-            if x_equiv < 3.0 * infos["displacement"]["noise_floor"]:
+            if x_equiv < _stack_could_hide(f, befores, infos, found):
                 winners.append(("undecided", f"{best['name']} or creep"))
                 continue
         elif best["channel"] == "gauge" and best["name"] in ("creep", "resonance") \
@@ -774,6 +775,23 @@ def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
             return False
         x_creep = x_creep / abs(g)
     return x_creep >= 0.5 * x_equiv
+
+
+def _stack_could_hide(f, befores, infos, found):
+    """The displacement (m) a stack's motion could stand at on fold ``f`` and not be seen.
+
+    Three times the displacement's noise floor; in a later stage after an effect of the
+    displacement, also what the found effects leave unexplained above that floor
+    (``sqrt(before^2 - floor^2)``): a sensor delay's imperfect model leaves a structured misfit
+    (a creep + 39 ms delay on a 0.4 s steps record: 14-26 nm after the delay, 1 nm floor) in which
+    creep's motion of the charge relaxation's size (13 nm by eq. 10) hides, so the creep columns
+    pass no fold and the relaxation would be named absorption.
+    """
+    floor = infos["displacement"]["noise_floor"]
+    if not any(ch == "displacement" for _, ch in found):
+        return 3.0 * floor
+    b = befores[("displacement", "model")][f]
+    return max(3.0 * floor, float(np.sqrt(max(b * b - floor * floor, 0.0))))
 
 
 def _gauge_would_show(row, f, befores, infos, penalty):
