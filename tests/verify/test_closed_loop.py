@@ -254,6 +254,11 @@ def test_triangle_reference_is_the_closed_form_triangle(seed):
     np.testing.assert_allclose(r[first], (lo + hi) / 2 - 2 * (hi - lo) * f * t[first], atol=tol + 1e-9 * (hi - lo))
     rising = (phase > 0.25) & (phase < 0.75)
     np.testing.assert_allclose(r[rising], lo + 2 * (hi - lo) * (phase[rising] - 0.25), atol=tol + 1e-9 * (hi - lo))
+    falling = phase > 0.75                                   # from hi back to mid-span, every period
+    np.testing.assert_allclose(r[falling], hi - 2 * (hi - lo) * (phase[falling] - 0.75), atol=tol + 1e-9 * (hi - lo))
+    later = (phase < 0.25) & (t >= 1 / f)                     # the periods after the first start at mid-span too
+    np.testing.assert_allclose(r[later], (lo + hi) / 2 - 2 * (hi - lo) * f * (t[later] % (1 / f)),
+                               atol=tol + 1e-8 * (hi - lo))
 
 
 def test_the_sweeps_triangle_is_verifys(root, monkeypatch):
