@@ -82,7 +82,7 @@ from scipy import linalg, signal
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
-from .kernels import lowpass_rows, mode_column_rows
+from .kernels import lowpass_rows, mode_column_rows, mode_columns_rows
 from .pi_fit import rms
 from .residual import analyze_residual
 
@@ -149,7 +149,8 @@ def _data_key(*arrays):
     return h.hexdigest()
 
 
-def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None):
+def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
+            row_columns_many=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -159,6 +160,9 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     evaluates the grid's costs without it from the same columns and leaves them there; a later
     search on the same data and grid without ``project`` takes them instead of computing every
     grid column again (the caller clears the dict when the data change).
+    ``row_columns_many(thetas, rows)``, optional (with ``row_columns``, one column per theta):
+    the columns of several grid points at once, row ``j`` equal to ``row_columns(thetas[j], rows)``
+    to the last bit (a compiled filter runs :data:`GRID_BATCH` of them in one pass).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -175,6 +179,17 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
             X = X if project is None else project(X)
         return _lstsq(X, y)[1]
 
+    def grid_columns():
+        """Each grid point's columns at ``rows``, as ``res`` shapes them (before any projection)."""
+        if row_columns_many is None:
+            for g in grid:
+                yield np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
+            return
+        for i in range(0, len(grid), GRID_BATCH):
+            block = row_columns_many([np.atleast_1d(np.asarray(g, dtype=float)) for g in grid[i:i + GRID_BATCH]], rows)
+            for col in block:
+                yield np.atleast_2d(np.asarray(col, dtype=float).T).T
+
     share = plain_costs is not None and rows is not None
     grid_key = _data_key(np.asarray(grid, dtype=float)) if share else None
     if share and project is None and plain_costs.get("grid") == grid_key:
@@ -185,11 +200,13 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
         y_plain = _rows(e, mask, None)
         y_plain = y_plain / (float(np.sqrt(np.mean(y_plain * y_plain))) or 1.0)
         costs, plain = [], []
-        for g in grid:
-            X = np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
+        for X in grid_columns():
             plain.append(float(np.sum(_lstsq(X, y_plain)[1] ** 2)))
             costs.append(float(np.sum(_lstsq(project(X), y)[1] ** 2)))
         plain_costs.update(grid=grid_key, costs=plain)
+    elif rows is not None:
+        # res(g) for every grid point, the columns filtered GRID_BATCH at a time
+        costs = [float(np.sum(_lstsq(X if project is None else project(X), y)[1] ** 2)) for X in grid_columns()]
     else:
         costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
@@ -319,6 +336,7 @@ class Drift(Effect):
         return 1.0 if report.independent else 0.5
 
 
+GRID_BATCH = 32    # grid points whose columns one pass of a compiled filter computes (_varpro)
 _C_BASIS = {}     # id(basis) -> (weak reference to it, its C-ordered copy): one entry
 
 
@@ -948,7 +966,9 @@ class Resonance(Effect):
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
                               row_columns=lambda th, rows: mode_column_rows(
                                   u, *_foh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows),
-                              plain_costs=memo)
+                              plain_costs=memo,
+                              row_columns_many=lambda ths, rows: mode_columns_rows(
+                                  u, [_foh_mode(np.exp(th[0]), np.exp(th[1]), dt) for th in ths], rows))
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}
 
