@@ -59,16 +59,16 @@ def test_mode_kernel_equals_scipy_filter(seed):
 
 @pytest.mark.parametrize("seed", range(5))
 def test_batched_mode_kernel_equals_one_filter_at_a_time(seed):
-    """Several biquads in one pass (the grid search's form) = each filter alone, bit for bit, for
-    modes over the whole search range at 100 Hz .. 1 MHz, batches of 1 to 40 filters, rows
-    from a few to all (and none)."""
+    """Several biquads in one pass (the grid search's and the Jacobian's form) = each filter
+    alone, bit for bit, for modes over the whole search range at 100 Hz .. 1 MHz, batches of 1,
+    2 (the pair kernel) and up to 40 filters, rows from a few to all (and none)."""
     rng = np.random.default_rng(400 + seed)
     rate = RATES_HZ[seed % len(RATES_HZ)]
     n = int(rng.integers(2_000, 40_000))
     dt = 1.0 / rate
     u = _input(rng, n)
-    for rows in (_rows(rng, n), np.arange(n), np.array([n - 1]), np.zeros(0, np.int64)):
-        k = int(rng.integers(1, 41))
+    for rows, k in ((_rows(rng, n), 1), (_rows(rng, n), 2), (_rows(rng, n), int(rng.integers(3, 41))),
+                    (np.arange(n), int(rng.integers(1, 41))), (np.array([n - 1]), 2), (np.zeros(0, np.int64), 3)):
         filters = [_foh_mode(float(np.exp(rng.uniform(0.0, np.log(0.4 * rate)))),
                              float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))), dt) for _ in range(k)]
         many = mode_columns_rows(u, filters, rows)

@@ -74,6 +74,7 @@ rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none``
 """
 
 import copy
+import inspect
 import hashlib
 import weakref
 
@@ -171,13 +172,28 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     y = y / y_scale
     rows = None if row_columns is None else np.flatnonzero(mask)
 
+    ready = {}              # columns filtered ahead, by theta's bytes (the Jacobian's points)
+
     def res(theta):
         if rows is None:
             X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
         else:
-            X = np.atleast_2d(np.asarray(row_columns(theta, rows), dtype=float).T).T
+            col = ready.pop(np.asarray(theta, dtype=float).tobytes(), None)
+            X = np.atleast_2d(np.asarray(row_columns(theta, rows) if col is None else col, dtype=float).T).T
             X = X if project is None else project(X)
         return _lstsq(X, y)[1]
+
+    def jacobian_map(fun, points):
+        """least_squares' map over its finite-difference points: their columns filtered in one
+        pass (``row_columns_many``), then ``fun`` at each point as before, in order."""
+        points = list(points)
+        if row_columns_many is not None and rows is not None and points:
+            thetas = [np.atleast_1d(np.asarray(x, dtype=float)) for x in points]
+            ready.clear()
+            ready.update((th.tobytes(), col) for th, col in zip(thetas, row_columns_many(thetas, rows)))
+        out = [fun(x) for x in points]
+        ready.clear()
+        return out
 
     def grid_columns():
         """Each grid point's columns at ``rows``, as ``res`` shapes them (before any projection)."""
@@ -214,7 +230,7 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     # refine from the best few grid points: a light mode's valleys are narrow and several
     for k in np.argsort(costs)[:starts]:
         x0 = np.clip(np.atleast_1d(np.asarray(grid[int(k)], dtype=float)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60)
+        sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60, **_MAP_KW(jacobian_map))
         if 2 * sol.cost < best_cost:
             theta, best_cost = sol.x, 2 * sol.cost
     beta, _ = _lstsq(_rows(np.atleast_2d(columns(theta).T).T, mask, project), y)
@@ -336,6 +352,9 @@ class Drift(Effect):
         return 1.0 if report.independent else 0.5
 
 
+# least_squares takes a map for its finite-difference points from scipy 1.16 (``workers``)
+_MAP_KW = ((lambda m: {"workers": m}) if "workers" in inspect.signature(least_squares).parameters
+           else (lambda m: {}))
 GRID_BATCH = 32    # grid points whose columns one pass of a compiled filter computes (_varpro)
 _C_BASIS = {}     # id(basis) -> (weak reference to it, its C-ordered copy): one entry
 

@@ -77,6 +77,31 @@ def _biquads_minus_input(u, coef, rows):
     return out
 
 
+@njit(cache=True)
+def _biquad_pair_minus_input(u, c, d, rows):
+    # two filters (coefficients c, d: b0 b1 b2 a1 a2) with their state in registers: the
+    # least-squares Jacobian's two columns in the time of about one
+    out = np.empty((2, rows.size))
+    u0 = u[0]
+    p0 = p1 = q0 = q1 = 0.0
+    k = 0
+    n_rows = rows.size
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = u[i] - u0
+        y = p0 + c[0] * x
+        p0 = p1 + x * c[1] - y * c[3]
+        p1 = x * c[2] - y * c[4]
+        w = q0 + d[0] * x
+        q0 = q1 + x * d[1] - w * d[3]
+        q1 = x * d[2] - w * d[4]
+        if k < n_rows and rows[k] == i:
+            out[0, k] = y - x
+            out[1, k] = w - x
+            k += 1
+    return out
+
+
 def mode_columns_rows(u, filters, rows):
     """:func:`mode_column_rows` for several filters at once: row ``j`` of the ``(len(filters),
     rows.size)`` result is ``mode_column_rows(u, *filters[j], rows)``, equal to the last bit.
@@ -92,7 +117,13 @@ def mode_columns_rows(u, filters, rows):
     """
     coef = np.array([[float(b[0]), float(b[1]), float(b[2]), float(a[1]), float(a[2])] for b, a in filters],
                     dtype=float).reshape(-1, 5)
-    return _biquads_minus_input(np.ascontiguousarray(u, dtype=float), coef, np.ascontiguousarray(rows, dtype=np.int64))
+    u = np.ascontiguousarray(u, dtype=float)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    if coef.shape[0] == 1:
+        return _biquad_minus_input(u, *coef[0], rows)[None, :]
+    if coef.shape[0] == 2:
+        return _biquad_pair_minus_input(u, coef[0], coef[1], rows)
+    return _biquads_minus_input(u, coef, rows)
 
 
 @njit(cache=True)
