@@ -189,6 +189,38 @@ def test_calibration_json_equals_the_reference_code(sn637, tmp_path, monkeypatch
     _compare(fast, ref)
 
 
+def test_a_repeated_search_answer_is_not_scored_twice(sn637, tmp_path, monkeypatch):
+    """When a candidate's two searches (projected and plain) return the same parameters (the
+    delay's memo), its columns and Gram matrices are built once: the calibration's JSON equals
+    the one that builds them for both searches, exactly, on a delay record (effect, stages,
+    every score and parameter)."""
+    from workbench.calibrate import tracing
+    t, v = benchmark_protocol("calibration", 10_000.0, 20_000)
+    plant, _ = plant_with_effect(sn637, "delay", 5, duration_s=float(t[-1] - t[0]))
+    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=5))
+    plant_file = PLANTS / "p888_51_sn637.toml"
+    seen = []
+    same = tracing._same_params
+    monkeypatch.setattr(tracing, "_same_params", lambda a, b: seen.append(same(a, b)) or seen[-1])
+    fast = json.loads(json.dumps(run_calibrate(data, plant_file), default=str))
+    assert any(seen)                        # the skip was taken
+    monkeypatch.setattr(tracing, "_same_params", lambda a, b: False)
+    ref = json.loads(json.dumps(run_calibrate(data, plant_file), default=str))
+    fast.pop("elapsed_s", None), ref.pop("elapsed_s", None)
+    assert Path(fast.pop("record")) == Path(ref.pop("record"))
+    assert fast == ref
+
+
+def test_same_params_compares_values_bit_for_bit():
+    from workbench.calibrate.tracing import _same_params
+    a = {"delay_s": 1e-4, "taus_s": np.array([1e-3, 1e-2]), "refit": True}
+    assert _same_params(a, {"delay_s": 1e-4, "taus_s": np.array([1e-3, 1e-2]), "refit": True})
+    assert not _same_params(a, {**a, "delay_s": np.nextafter(1e-4, 1.0)})
+    assert not _same_params(a, {**a, "taus_s": np.array([1e-3, 1e-2, 1e-1])})
+    assert not _same_params(a, {**a, "refit": False})
+    assert not _same_params(a, {"delay_s": 1e-4})
+
+
 def _refit_cost_reference(Z, y, rows, d):
     """The refitted delay's cost at one delay: the rows shifted by the formula, then the least
     squares minimum by SVD of unit-RMS columns (rcond 1e-13), and as first written (LAPACK's
