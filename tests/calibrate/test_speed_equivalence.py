@@ -19,7 +19,7 @@ import pytest
 from tests.conftest import PLANTS
 from workbench.calibrate import effects
 from workbench.calibrate.effects import Delay, Resonance, _foh_mode, lowpass
-from workbench.calibrate.kernels import lowpass_rows, mode_column_rows
+from workbench.calibrate.kernels import lowpass_rows, mode_column_rows, mode_columns_rows
 from workbench.calibrate.run import run_calibrate
 from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record, write_record
 
@@ -55,6 +55,56 @@ def test_mode_kernel_equals_scipy_filter(seed):
         ref = Resonance._column(u, f_n, zeta, dt)[rows]
         fast = mode_column_rows(u, *_foh_mode(f_n, zeta, dt), rows)
         np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-12 * np.max(np.abs(ref)))
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_batched_mode_kernel_equals_one_filter_at_a_time(seed):
+    """Several biquads in one pass (the grid search's and the Jacobian's form) = each filter
+    alone, bit for bit, for modes over the whole search range at 100 Hz .. 1 MHz, batches of 1,
+    2 (the pair kernel) and up to 40 filters, rows from a few to all (and none)."""
+    rng = np.random.default_rng(400 + seed)
+    rate = RATES_HZ[seed % len(RATES_HZ)]
+    n = int(rng.integers(2_000, 40_000))
+    dt = 1.0 / rate
+    u = _input(rng, n)
+    for rows, k in ((_rows(rng, n), 1), (_rows(rng, n), 2), (_rows(rng, n), int(rng.integers(3, 41))),
+                    (np.arange(n), int(rng.integers(1, 41))), (np.array([n - 1]), 2), (np.zeros(0, np.int64), 3)):
+        filters = [_foh_mode(float(np.exp(rng.uniform(0.0, np.log(0.4 * rate)))),
+                             float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))), dt) for _ in range(k)]
+        many = mode_columns_rows(u, filters, rows)
+        assert many.shape == (k, rows.size)
+        for j, (b, a) in enumerate(filters):
+            assert np.array_equal(many[j], mode_column_rows(u, b, a, rows))
+
+
+@pytest.mark.parametrize("project_kind", ("none", "projected", "shared"))
+def test_resonance_search_with_batched_grid_equals_one_column_at_a_time(monkeypatch, project_kind):
+    """A resonance's search whose grid columns are filtered in batches returns the numbers of the
+    search that filters one grid point at a time (plain, with a projection, and the pair of
+    searches sharing the plain grid's costs)."""
+    import copy
+    rng = np.random.default_rng(11)
+    n, dt = 30_000, 1e-4
+    t = np.arange(n) * dt
+    u = _input(rng, n)
+    e = 0.3 * Resonance._column(u, 240.0, 0.03, dt) + 1e-8 * rng.standard_normal(n)
+    mask = rng.random(n) < 0.4
+    Q = np.linalg.qr(np.column_stack([u, np.ones(n)])[mask])[0]
+    project = None if project_kind == "none" else (lambda X: X - Q @ (Q.T @ X))
+
+    def run():
+        eff = Resonance()
+        if project_kind != "shared":
+            return eff.fit(t, u, e, mask, project=project)
+        memo = eff.__dict__.setdefault("_grid_costs", {})
+        first = copy.deepcopy(eff, {id(memo): memo})
+        second = copy.deepcopy(eff, {id(memo): memo})
+        return first.fit(t, u, e, mask, project=project), second.fit(t, u, e, mask, project=None)
+
+    fast = run()
+    varpro = effects._varpro
+    monkeypatch.setattr(effects, "_varpro", lambda *a, row_columns_many=None, **k: varpro(*a, **k))
+    assert run() == fast
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -139,6 +189,38 @@ def test_calibration_json_equals_the_reference_code(sn637, tmp_path, monkeypatch
     _compare(fast, ref)
 
 
+def test_a_repeated_search_answer_is_not_scored_twice(sn637, tmp_path, monkeypatch):
+    """When a candidate's two searches (projected and plain) return the same parameters (the
+    delay's memo), its columns and Gram matrices are built once: the calibration's JSON equals
+    the one that builds them for both searches, exactly, on a delay record (effect, stages,
+    every score and parameter)."""
+    from workbench.calibrate import tracing
+    t, v = benchmark_protocol("calibration", 10_000.0, 20_000)
+    plant, _ = plant_with_effect(sn637, "delay", 5, duration_s=float(t[-1] - t[0]))
+    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=5))
+    plant_file = PLANTS / "p888_51_sn637.toml"
+    seen = []
+    same = tracing._same_params
+    monkeypatch.setattr(tracing, "_same_params", lambda a, b: seen.append(same(a, b)) or seen[-1])
+    fast = json.loads(json.dumps(run_calibrate(data, plant_file), default=str))
+    assert any(seen)                        # the skip was taken
+    monkeypatch.setattr(tracing, "_same_params", lambda a, b: False)
+    ref = json.loads(json.dumps(run_calibrate(data, plant_file), default=str))
+    fast.pop("elapsed_s", None), ref.pop("elapsed_s", None)
+    assert Path(fast.pop("record")) == Path(ref.pop("record"))
+    assert fast == ref
+
+
+def test_same_params_compares_values_bit_for_bit():
+    from workbench.calibrate.tracing import _same_params
+    a = {"delay_s": 1e-4, "taus_s": np.array([1e-3, 1e-2]), "refit": True}
+    assert _same_params(a, {"delay_s": 1e-4, "taus_s": np.array([1e-3, 1e-2]), "refit": True})
+    assert not _same_params(a, {**a, "delay_s": np.nextafter(1e-4, 1.0)})
+    assert not _same_params(a, {**a, "taus_s": np.array([1e-3, 1e-2, 1e-1])})
+    assert not _same_params(a, {**a, "refit": False})
+    assert not _same_params(a, {"delay_s": 1e-4})
+
+
 def _refit_cost_reference(Z, y, rows, d):
     """The refitted delay's cost at one delay: the rows shifted by the formula, then the least
     squares minimum by SVD of unit-RMS columns (rcond 1e-13), and as first written (LAPACK's
@@ -211,12 +293,17 @@ def test_researched_resonance_shares_the_plain_grid_costs(monkeypatch):
     eff = Resonance()
     eff.__dict__.setdefault("_grid_costs", {})
     calls = {"n": 0}
-    kernel = effects.mode_column_rows
+    kernel, kernel_many = effects.mode_column_rows, effects.mode_columns_rows
 
     def counted(*a, **k):
         calls["n"] += 1
         return kernel(*a, **k)
+
+    def counted_many(u, filters, rows):          # the grid's columns, filtered in batches
+        calls["n"] += len(filters)
+        return kernel_many(u, filters, rows)
     monkeypatch.setattr(effects, "mode_column_rows", counted)
+    monkeypatch.setattr(effects, "mode_columns_rows", counted_many)
     memo = eff.__dict__["_grid_costs"]
     first = copy.deepcopy(eff, {id(memo): memo})
     first.fit(t, u, e, mask, project=project)

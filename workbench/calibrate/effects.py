@@ -74,6 +74,7 @@ rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none``
 """
 
 import copy
+import inspect
 import hashlib
 import weakref
 
@@ -82,7 +83,7 @@ from scipy import linalg, signal
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
-from .kernels import lowpass_rows, mode_column_rows
+from .kernels import lowpass_rows, mode_column_rows, mode_columns_rows
 from .pi_fit import rms
 from .residual import analyze_residual
 
@@ -149,7 +150,8 @@ def _data_key(*arrays):
     return h.hexdigest()
 
 
-def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None):
+def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
+            row_columns_many=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -159,6 +161,9 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     evaluates the grid's costs without it from the same columns and leaves them there; a later
     search on the same data and grid without ``project`` takes them instead of computing every
     grid column again (the caller clears the dict when the data change).
+    ``row_columns_many(thetas, rows)``, optional (with ``row_columns``, one column per theta):
+    the columns of several grid points at once, row ``j`` equal to ``row_columns(thetas[j], rows)``
+    to the last bit (a compiled filter runs :data:`GRID_BATCH` of them in one pass).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -167,13 +172,39 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     y = y / y_scale
     rows = None if row_columns is None else np.flatnonzero(mask)
 
+    ready = {}              # columns filtered ahead, by theta's bytes (the Jacobian's points)
+
     def res(theta):
         if rows is None:
             X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
         else:
-            X = np.atleast_2d(np.asarray(row_columns(theta, rows), dtype=float).T).T
+            col = ready.pop(np.asarray(theta, dtype=float).tobytes(), None)
+            X = np.atleast_2d(np.asarray(row_columns(theta, rows) if col is None else col, dtype=float).T).T
             X = X if project is None else project(X)
         return _lstsq(X, y)[1]
+
+    def jacobian_map(fun, points):
+        """least_squares' map over its finite-difference points: their columns filtered in one
+        pass (``row_columns_many``), then ``fun`` at each point as before, in order."""
+        points = list(points)
+        if row_columns_many is not None and rows is not None and points:
+            thetas = [np.atleast_1d(np.asarray(x, dtype=float)) for x in points]
+            ready.clear()
+            ready.update((th.tobytes(), col) for th, col in zip(thetas, row_columns_many(thetas, rows)))
+        out = [fun(x) for x in points]
+        ready.clear()
+        return out
+
+    def grid_columns():
+        """Each grid point's columns at ``rows``, as ``res`` shapes them (before any projection)."""
+        if row_columns_many is None:
+            for g in grid:
+                yield np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
+            return
+        for i in range(0, len(grid), GRID_BATCH):
+            block = row_columns_many([np.atleast_1d(np.asarray(g, dtype=float)) for g in grid[i:i + GRID_BATCH]], rows)
+            for col in block:
+                yield np.atleast_2d(np.asarray(col, dtype=float).T).T
 
     share = plain_costs is not None and rows is not None
     grid_key = _data_key(np.asarray(grid, dtype=float)) if share else None
@@ -185,11 +216,13 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
         y_plain = _rows(e, mask, None)
         y_plain = y_plain / (float(np.sqrt(np.mean(y_plain * y_plain))) or 1.0)
         costs, plain = [], []
-        for g in grid:
-            X = np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
+        for X in grid_columns():
             plain.append(float(np.sum(_lstsq(X, y_plain)[1] ** 2)))
             costs.append(float(np.sum(_lstsq(project(X), y)[1] ** 2)))
         plain_costs.update(grid=grid_key, costs=plain)
+    elif rows is not None:
+        # res(g) for every grid point, the columns filtered GRID_BATCH at a time
+        costs = [float(np.sum(_lstsq(X if project is None else project(X), y)[1] ** 2)) for X in grid_columns()]
     else:
         costs = [float(np.sum(res(np.atleast_1d(g)) ** 2)) for g in grid]
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
@@ -197,7 +230,7 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     # refine from the best few grid points: a light mode's valleys are narrow and several
     for k in np.argsort(costs)[:starts]:
         x0 = np.clip(np.atleast_1d(np.asarray(grid[int(k)], dtype=float)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
-        sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60)
+        sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60, **_MAP_KW(jacobian_map))
         if 2 * sol.cost < best_cost:
             theta, best_cost = sol.x, 2 * sol.cost
     beta, _ = _lstsq(_rows(np.atleast_2d(columns(theta).T).T, mask, project), y)
@@ -319,6 +352,10 @@ class Drift(Effect):
         return 1.0 if report.independent else 0.5
 
 
+# least_squares takes a map for its finite-difference points from scipy 1.16 (``workers``)
+_MAP_KW = ((lambda m: {"workers": m}) if "workers" in inspect.signature(least_squares).parameters
+           else (lambda m: {}))
+GRID_BATCH = 32    # grid points whose columns one pass of a compiled filter computes (_varpro)
 _C_BASIS = {}     # id(basis) -> (weak reference to it, its C-ordered copy): one entry
 
 
@@ -948,7 +985,9 @@ class Resonance(Effect):
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
                               row_columns=lambda th, rows: mode_column_rows(
                                   u, *_foh_mode(np.exp(th[0]), np.exp(th[1]), dt), rows),
-                              plain_costs=memo)
+                              plain_costs=memo,
+                              row_columns_many=lambda ths, rows: mode_columns_rows(
+                                  u, [_foh_mode(np.exp(th[0]), np.exp(th[1]), dt) for th in ths], rows))
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])),
                 "zeta": float(np.exp(theta[1]))}
 

@@ -13,7 +13,7 @@ within 1e-12 (``tests/calibrate/test_speed_equivalence.py``).
 import numpy as np
 from numba import njit
 
-__all__ = ["mode_column_rows", "lowpass_rows"]
+__all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows"]
 
 
 @njit(cache=True)
@@ -43,6 +43,87 @@ def mode_column_rows(u, b, a, rows):
     a = np.asarray(a, float)
     return _biquad_minus_input(np.ascontiguousarray(u, dtype=float), float(b[0]), float(b[1]), float(b[2]),
                                float(a[1]), float(a[2]), np.ascontiguousarray(rows, dtype=np.int64))
+
+
+@njit(cache=True)
+def _biquads_minus_input(u, coef, rows):
+    # the recursion of _biquad_minus_input for several filters in one pass over the record: the
+    # same operations in the same order per filter (bit-equal), but independent filters' steps
+    # overlap instead of each waiting for its own previous sample (the loop is latency-bound)
+    n_f = coef.shape[0]
+    n_rows = rows.size
+    out = np.empty((n_f, n_rows))
+    b0 = coef[:, 0].copy()
+    b1 = coef[:, 1].copy()
+    b2 = coef[:, 2].copy()
+    a1 = coef[:, 3].copy()
+    a2 = coef[:, 4].copy()
+    z0 = np.zeros(n_f)
+    z1 = np.zeros(n_f)
+    u0 = u[0]
+    k = 0
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = u[i] - u0
+        hit = k < n_rows and rows[k] == i
+        for j in range(n_f):
+            y = z0[j] + b0[j] * x
+            z0[j] = z1[j] + x * b1[j] - y * a1[j]
+            z1[j] = x * b2[j] - y * a2[j]
+            if hit:
+                out[j, k] = y - x
+        if hit:
+            k += 1
+    return out
+
+
+@njit(cache=True)
+def _biquad_pair_minus_input(u, c, d, rows):
+    # two filters (coefficients c, d: b0 b1 b2 a1 a2) with their state in registers: the
+    # least-squares Jacobian's two columns in the time of about one
+    out = np.empty((2, rows.size))
+    u0 = u[0]
+    p0 = p1 = q0 = q1 = 0.0
+    k = 0
+    n_rows = rows.size
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = u[i] - u0
+        y = p0 + c[0] * x
+        p0 = p1 + x * c[1] - y * c[3]
+        p1 = x * c[2] - y * c[4]
+        w = q0 + d[0] * x
+        q0 = q1 + x * d[1] - w * d[3]
+        q1 = x * d[2] - w * d[4]
+        if k < n_rows and rows[k] == i:
+            out[0, k] = y - x
+            out[1, k] = w - x
+            k += 1
+    return out
+
+
+def mode_columns_rows(u, filters, rows):
+    """:func:`mode_column_rows` for several filters at once: row ``j`` of the ``(len(filters),
+    rows.size)`` result is ``mode_column_rows(u, *filters[j], rows)``, equal to the last bit.
+
+    Parameters
+    ----------
+    u : ndarray
+        The drive (any unit), one value per sample.
+    filters : sequence of (b, a)
+        Second-order sections (``a[0] = 1``), as :func:`~workbench.calibrate.effects._foh_mode` gives.
+    rows : ndarray of int
+        Sorted row indices.
+    """
+    coef = np.array([[float(b[0]), float(b[1]), float(b[2]), float(a[1]), float(a[2])] for b, a in filters],
+                    dtype=float).reshape(-1, 5)
+    u = np.ascontiguousarray(u, dtype=float)
+    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    if coef.shape[0] == 1:
+        return _biquad_minus_input(u, *coef[0], rows)[None, :]
+    if coef.shape[0] == 2:
+        return _biquad_pair_minus_input(u, coef[0], coef[1], rows)
+    return _biquads_minus_input(u, coef, rows)
 
 
 @njit(cache=True)

@@ -302,6 +302,13 @@ def _search_rows(dev):
     return m
 
 
+def _same_params(a, b):
+    """Are two parameter dicts equal, value for value (arrays element for element, bit for bit)?"""
+    return a.keys() == b.keys() and all(
+        np.asarray(a[k]).shape == np.asarray(b[k]).shape and
+        np.asarray(a[k]).tobytes() == np.asarray(b[k]).tobytes() for k in a)
+
+
 def _candidate_columns(eff, t, u, y, yhat, prob):
     """Search the effect's nonlinear parameters; its columns and bounds over the whole record.
 
@@ -313,6 +320,8 @@ def _candidate_columns(eff, t, u, y, yhat, prob):
     modes = (prob.project, None) if getattr(eff, "nonlinear", False) else (prob.project,)
     for project in modes:
         p = eff.fit(t, u, y - yhat, prob.search, y_model=yhat, project=project)
+        if best is not None and _same_params(p, best[1]):
+            continue            # both searches found the same (a memo's answer): same columns, same cost
         if hasattr(eff, "columns"):
             C, lower = eff.columns(t, u, p, y_model=yhat)
         else:

@@ -29,7 +29,6 @@ participation at each stack's two ends, static stiffness), :func:`load_state_spa
 from dataclasses import dataclass
 from pathlib import Path
 
-import control
 import numpy as np
 
 from ..errors import DataFileError, PlantDefinitionError
@@ -122,6 +121,7 @@ class Structure:
         inputs = [f"F_stack{j}" for j in range(ns)] + [f"F_ext{k}" for k in range(self.n_external)]
         outputs = ([f"x_stack{j}" for j in range(ns)] + [f"xdot_stack{j}" for j in range(ns)]
                    + list(self.output_names))
+        import control          # (on first use: python-control costs ~1.5 s to import)
         return control.ss(self.a, self.b, self.c, self.d, inputs=inputs, outputs=outputs)
 
     def static_compliance_m_per_n(self):
@@ -178,6 +178,7 @@ def mode_filter(stiffness_n_per_m, modes):
     """
     if not modes:
         return spring(stiffness_n_per_m)
+    import control
     k = float(stiffness_n_per_m)
     sys = control.tf([1.0 / k], [1.0])
     for md in modes:

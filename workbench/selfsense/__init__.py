@@ -11,30 +11,56 @@ H(s) identified from a step record (`--dynamics`);
 closed loops (`--fused`).
 """
 
-from .charge_amp import ChargeAmpParams, ChargeAmpStream, ChargeRecord, measure
-from .estimator import (EstimatorParams, ResidualCorrection, StreamingEstimator, band_limited, dynamic_estimator,
-                        dynamic_gains, static_estimate)
-from .fused_loop import closed_loop_run, run_fused_study
-from .fusion import Blend, choose_crossover, sensor_spectra
-from ..identify.transducer import table1_swap_decision
-from .force import ForceEstimate, estimate_force, run_force_study, staged_charge
-from .table1 import instron_held_out, nested_held_out, table1_held_out
-from .identify import Identified, identify, simulate_identification
-from .sysid import IdentifiedDynamics, fit_relaxations, identify_dynamics, identified_estimator, run_dynamics_study
+import importlib
+import sys
+import types
 
-__all__ = ["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure", "EstimatorParams", "ResidualCorrection",
-           "StreamingEstimator", "band_limited", "static_estimate", "dynamic_gains", "dynamic_estimator",
-           "Identified", "identify", "simulate_identification", "ForceEstimate", "estimate_force", "staged_charge",
-           "run_force_study", "table1_held_out", "table1_swap_decision", "instron_held_out", "nested_held_out",
-           "IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
-           "run_dynamics_study", "Blend", "sensor_spectra", "choose_crossover", "closed_loop_run", "run_fused_study"]
+# name -> module (relative to this package) that is its home. Imported on first use: the
+# estimators import python-control (~1.5 s), which `workbench calibrate` and every other
+# command that only builds the CLI's parser (`workbench selfsense`'s options) never need.
+_API = {
+    **dict.fromkeys(["ChargeAmpParams", "ChargeAmpStream", "ChargeRecord", "measure"], "charge_amp"),
+    **dict.fromkeys(["EstimatorParams", "ResidualCorrection", "StreamingEstimator", "band_limited",
+                     "dynamic_estimator", "dynamic_gains", "static_estimate"], "estimator"),
+    **dict.fromkeys(["closed_loop_run", "run_fused_study"], "fused_loop"),
+    **dict.fromkeys(["Blend", "choose_crossover", "sensor_spectra"], "fusion"),
+    "table1_swap_decision": "..identify.transducer",
+    **dict.fromkeys(["ForceEstimate", "estimate_force", "run_force_study", "staged_charge"], "force"),
+    **dict.fromkeys(["instron_held_out", "nested_held_out", "table1_held_out"], "table1"),
+    **dict.fromkeys(["Identified", "identify", "simulate_identification"], "identify"),
+    **dict.fromkeys(["IdentifiedDynamics", "fit_relaxations", "identify_dynamics", "identified_estimator",
+                     "run_dynamics_study"], "sysid"),
+    # the force path's charge, identified in coulombs (:mod:`.charge_drift`)
+    **dict.fromkeys(["ChargeDrift", "identify_charge_drift", "reversal_alpha"], "charge_drift"),
+    # a serial's Instron runs in sequence, C_h's memory and the creep carried (:mod:`.instron_sequence`)
+    **dict.fromkeys(["SequenceRun", "read_open_lead_run", "serial_sequence", "table1_sequence_estimates"],
+                    "instron_sequence"),
+}
 
-# the force path's charge, identified in coulombs (:mod:`.charge_drift`)
-from .charge_drift import ChargeDrift, identify_charge_drift, reversal_alpha  # noqa: E402
+__all__ = list(_API)
 
-__all__ += ["ChargeDrift", "identify_charge_drift", "reversal_alpha"]
 
-# a serial's Instron runs in sequence, C_h's memory and the creep carried (:mod:`.instron_sequence`)
-from .instron_sequence import SequenceRun, read_open_lead_run, serial_sequence, table1_sequence_estimates  # noqa: E402
+def __getattr__(name):
+    home = _API.get(name)
+    if home is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(home if home.startswith("..") else f".{home}", __name__), name)
+    globals()[name] = value
+    return value
 
-__all__ += ["SequenceRun", "read_open_lead_run", "serial_sequence", "table1_sequence_estimates"]
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
+
+
+class _Package(types.ModuleType):
+    """``selfsense.identify`` is the function (as when this package imported it eagerly), not the
+    submodule of that name that the import system would bind here once it is imported."""
+
+    def __setattr__(self, name, value):
+        if name == "identify" and isinstance(value, types.ModuleType):
+            value = value.identify
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package

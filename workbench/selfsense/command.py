@@ -16,7 +16,7 @@ __all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused", "main"
 
 def add_parser(sub):
     """Register `selfsense` on an argparse sub-parsers object."""
-    from .run import DEFAULT_CONTROLLER
+    from .defaults import DEFAULT_CONTROLLER
     p = sub.add_parser("selfsense", help="displacement from the stack's own charge (seed 002), staged errors",
                        description="Self-sensing as seed 002 builds it, for a stack: a charge amplifier "
                                    "(integrator, reference capacitor, bias current, leakage resistance, "

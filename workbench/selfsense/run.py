@@ -34,7 +34,7 @@ __all__ = ["STAGES", "staircase_voltage", "run_selfsense", "stage_errors", "loop
 STAGES = ("uncompensated", "leakage_bias", "dielectric_absorption", "hysteresis_creep")
 STAGE_TITLES = {"uncompensated": "uncompensated (alpha only)", "leakage_bias": "+ leakage and bias current",
                 "dielectric_absorption": "+ dielectric absorption", "hysteresis_creep": "+ hysteresis and creep"}
-DEFAULT_CONTROLLER = Path(__file__).resolve().parents[2] / "controllers" / "sn637_loopshape.json"
+from .defaults import DEFAULT_CONTROLLER  # noqa: E402  (its home: the CLI reads it without this module)
 MINREAL_RANK_TOL = 1e-7   # slycot tb01pd relative rank tolerance for the estimator's minimal realization (see loop_analysis)
 
 
