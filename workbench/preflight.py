@@ -130,7 +130,7 @@ def _implicit_inputs(args):
             found.append(("controller (the sweep's default)", default_controller_path(args.study, name)))
     elif cmd == "selfsense":
         from .selfsense.fused_loop import FUSED_CONTROLLER
-        from .selfsense.run import DEFAULT_CONTROLLER
+        from .selfsense.defaults import DEFAULT_CONTROLLER
         if getattr(args, "controller", None) is None:
             found.append(("--controller (default)", DEFAULT_CONTROLLER))
         if getattr(args, "fused_controller", None) is None:

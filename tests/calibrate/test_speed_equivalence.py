@@ -330,3 +330,25 @@ def test_the_c_ordered_copy_lives_only_as_long_as_its_basis():
     assert not E._C_BASIS
     own = np.zeros((10, 3))
     assert E._c_ordered(own) is own and not E._C_BASIS
+
+
+@pytest.mark.parametrize("n_rows", [1, 1000, 50_000, 131_072, 355_000, 1_000_000, 10_000_000])
+def test_a_grid_pass_holds_at_most_32_mb_of_columns(n_rows):
+    """The batched filter's pass: at most GRID_BATCH columns, at most 32 MB of them, at least one."""
+    from workbench.calibrate.effects import GRID_BATCH, _grid_batch
+    k = _grid_batch(n_rows)
+    assert 1 <= k <= GRID_BATCH
+    assert k == 1 or k * 8 * n_rows <= 1 << 25
+    assert k == GRID_BATCH or (k + 1) * 8 * n_rows > 1 << 25      # no smaller than it needs to be
+
+
+def test_same_params_only_for_equal_numeric_values():
+    """The shortcut's equality: bit for bit and dtype for dtype; anything else is 'not the same'."""
+    from workbench.calibrate import tracing
+    same = tracing._same_params
+    assert same({"tau_s": 0.1, "w": np.array([1.0, 2.0])}, {"tau_s": 0.1, "w": np.array([1.0, 2.0])})
+    assert not same({"tau_s": 0.1}, {"tau_s": np.nextafter(0.1, 1.0)})
+    assert not same({"tau_s": 0.0}, {"tau_s": -0.0})
+    assert not same({"n": np.int32(97)}, {"n": "a"})                 # equal bytes, other dtype
+    assert not same({"w": [[1.0], [1.0, 2.0]]}, {"w": [[1.0], [1.0, 2.0]]})     # ragged: not judged
+    assert not same({"a": 1.0}, {"b": 1.0})

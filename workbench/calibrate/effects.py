@@ -201,8 +201,9 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
             for g in grid:
                 yield np.atleast_2d(np.asarray(row_columns(np.atleast_1d(g), rows), dtype=float).T).T
             return
-        for i in range(0, len(grid), GRID_BATCH):
-            block = row_columns_many([np.atleast_1d(np.asarray(g, dtype=float)) for g in grid[i:i + GRID_BATCH]], rows)
+        step = _grid_batch(rows.size)
+        for i in range(0, len(grid), step):
+            block = row_columns_many([np.atleast_1d(np.asarray(g, dtype=float)) for g in grid[i:i + step]], rows)
             for col in block:
                 yield np.atleast_2d(np.asarray(col, dtype=float).T).T
 
@@ -356,6 +357,12 @@ class Drift(Effect):
 _MAP_KW = ((lambda m: {"workers": m}) if "workers" in inspect.signature(least_squares).parameters
            else (lambda m: {}))
 GRID_BATCH = 32    # grid points whose columns one pass of a compiled filter computes (_varpro)
+GRID_BATCH_BYTES = 1 << 25    # at most 32 MB of columns per pass (a full 1M-row record: 4 columns a pass)
+
+
+def _grid_batch(n_rows):
+    """Grid points per compiled pass: :data:`GRID_BATCH`, fewer when their columns would pass 32 MB."""
+    return int(min(GRID_BATCH, max(1, GRID_BATCH_BYTES // (8 * max(int(n_rows), 1)))))
 _C_BASIS = {}     # id(basis) -> (weak reference to it, its C-ordered copy): one entry
 
 

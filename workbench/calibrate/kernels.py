@@ -7,7 +7,8 @@ temporaries and the boolean gather. The arithmetic is the one of ``scipy.signal.
 direct form II transposed (``y = z_0 + b_0 x``, ``z_0 = z_1 + b_1 x - a_1 y``,
 ``z_1 = b_2 x - a_2 y``, in that order, no fused multiply-add), so the values are those of
 the reference forms to the last bit on the machines we measured; the tests compare them
-within 1e-12 (``tests/calibrate/test_speed_equivalence.py``).
+bit for bit (``tests/calibrate/test_speed_equivalence.py``). ``rows`` must be strictly increasing
+(``numpy.flatnonzero`` of a mask, as every caller passes): other rows leave output unwritten.
 """
 
 import numpy as np

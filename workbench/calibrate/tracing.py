@@ -303,10 +303,20 @@ def _search_rows(dev):
 
 
 def _same_params(a, b):
-    """Are two parameter dicts equal, value for value (arrays element for element, bit for bit)?"""
-    return a.keys() == b.keys() and all(
-        np.asarray(a[k]).shape == np.asarray(b[k]).shape and
-        np.asarray(a[k]).tobytes() == np.asarray(b[k]).tobytes() for k in a)
+    """Are two parameter dicts equal, value for value (arrays element for element, bit for bit)?
+
+    Values that are not numeric arrays (ragged lists, objects) are never judged equal: the
+    columns are then built for both, as without the shortcut."""
+    if a.keys() != b.keys():
+        return False
+    try:
+        for k in a:
+            x, y = np.asarray(a[k]), np.asarray(b[k])
+            if x.dtype.kind not in "biuf" or x.dtype != y.dtype or x.shape != y.shape or x.tobytes() != y.tobytes():
+                return False
+    except (ValueError, TypeError):
+        return False
+    return True
 
 
 def _candidate_columns(eff, t, u, y, yhat, prob):
