@@ -25,7 +25,11 @@ import re
 
 import numpy as np
 
-__all__ = ["updated_plant_text"]
+__all__ = ["updated_plant_text", "updated_plant_error", "ROUND_TRIP_TOLERANCE"]
+
+#: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
+#: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
+ROUND_TRIP_TOLERANCE = 0.10
 
 _REPLACED = ("leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity", "creep")
 
@@ -127,3 +131,63 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     elif effect == "gauge_nonlinearity":
         block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
     return block
+
+
+_SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "current_a"}
+
+
+def updated_plant_error(plant, base, channel, test, train=None, current="averaged"):
+    """Held-out error of the record's drive simulated through ``plant`` (the updated plant file).
+
+    The drive is the base fit's, the terminal voltage ``V_t = V - R i`` (``base.v_drive``), applied
+    to the plant with its series resistor taken out (the quasi-static electrical form): the fitted
+    model and the plant file then see one input, and the amplifier (its current limit, the monitor's
+    averaging, which a recorded ``V`` cannot give back as a command) is left out. The simulation is
+    noise-free (no sensor noise, no gauge-chain noise): the error is the record's noise plus what the
+    plant file gets wrong, on the rows of the fitted model's ``error_after``.
+
+    Parameters
+    ----------
+    plant : workbench.plant.files.Plant
+        The updated plant, loaded back from its file.
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit: its times ``t``, drive ``v_drive`` (V) and the channel's recorded ``y`` and
+        ``valid`` rows.
+    channel : {"displacement", "gauge", "charge"}
+        The channel compared (the first effect's); the charge is the simulated current
+        integrated under the record's ``current`` convention.
+    test : ndarray of bool
+        The held-out (test) rows.
+    train : ndarray of bool, optional
+        The development rows: the constant the plant file cannot carry (a sensor's zero, the
+        charge's start) is the mean difference over these rows, as the fitted model's offset is
+        fitted there; None: no constant is taken out.
+    current : {"averaged", "sampled"}
+        The record's current convention (charge channel only).
+
+    Returns
+    -------
+    dict or None
+        ``{rms, max, units}`` on ``test & valid`` (channel units: m, C or V); None for a channel
+        the simulator does not log or a drive that is an amplifier command (unknown gain and lag).
+    """
+    import dataclasses
+
+    from .residual import charge_from_current
+    from .synthetic import SensorNoise, simulate_record
+    if channel not in _SIM_KEY or channel not in base.channels or base.input_kind != "terminal":
+        return None
+    m = base.channels[channel]
+    t = np.asarray(base.t, float)
+    quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
+    sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
+                          gauge=channel == "gauge", gauge_noise=False)
+    y = sim[_SIM_KEY[channel]]
+    if channel == "charge":
+        y = charge_from_current(t, y, current=current)
+    e = y - m.y
+    if train is not None and np.any(train & m.valid):
+        e = e - float(np.mean(e[train & m.valid]))
+    e = e[test & m.valid]
+    return {"rms": float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan"),
+            "max": float(np.max(np.abs(e))) if e.size else float("nan"), "units": m.units}

@@ -78,8 +78,13 @@ class SensorNoise:
     voltage_v: float = 2e-3            # amplifier monitor
 
 
-def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True):
+def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True, gauge_noise=True):
     """Simulate a record of ``plant`` driven by ``v_cmd`` sampled at ``t_s``.
+
+    ``noise`` is the logged channels' white noise; the gauge's is its chain's own (demodulator
+    noise and ADC quantization, :func:`~workbench.plant.gauge.gauge_run_equivalent`), switched off
+    by ``gauge_noise=False``: a noise-free simulation (a round trip through a calibrated plant)
+    passes ``SensorNoise(0, 0, 0)`` and ``gauge_noise=False``.
 
     Returns
     -------
@@ -120,7 +125,8 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
         x_g = tr.x_m
         if add.gauge_nonlinearity_per_m:
             x_g = gauge_bow(x_g, add.gauge_nonlinearity_per_m, x_ref_m=0.0)
-        out["gauge_v"] = gauge_run_equivalent(x_g, plant.gauge, seed=int(rng.integers(2**31))).dac_v
+        out["gauge_v"] = gauge_run_equivalent(x_g, plant.gauge, seed=int(rng.integers(2**31)),
+                                              noise=bool(gauge_noise)).dac_v
     return out
 
 
