@@ -133,6 +133,11 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     return block
 
 
+#: The recorded drive is replayed interpolated linearly onto this many points per sample
+#: (:func:`~workbench.calibrate.synthetic.simulate_record`'s ``upsample``): the tracing's models take the
+#: drive linear between samples (``calibrate/effects.py``), the simulator holds each command.
+REPLAY_UPSAMPLE = 8
+
 _SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "current_a"}
 
 
@@ -181,7 +186,7 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     t = np.asarray(base.t, float)
     quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
     sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
-                          gauge=channel == "gauge", gauge_noise=False)
+                          gauge=channel == "gauge", gauge_noise=False, upsample=REPLAY_UPSAMPLE)
     y = sim[_SIM_KEY[channel]]
     if channel == "charge":
         y = charge_from_current(t, y, current=current)

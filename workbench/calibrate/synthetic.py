@@ -78,13 +78,18 @@ class SensorNoise:
     voltage_v: float = 2e-3            # amplifier monitor
 
 
-def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True, gauge_noise=True):
+def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True, gauge_noise=True,
+                    upsample=1):
     """Simulate a record of ``plant`` driven by ``v_cmd`` sampled at ``t_s``.
 
     ``noise`` is the logged channels' white noise; the gauge's is its chain's own (demodulator
     noise and ADC quantization, :func:`~workbench.plant.gauge.gauge_run_equivalent`), switched off
     by ``gauge_noise=False``: a noise-free simulation (a round trip through a calibrated plant)
-    passes ``SensorNoise(0, 0, 0)`` and ``gauge_noise=False``.
+    passes ``SensorNoise(0, 0, 0)`` and ``gauge_noise=False``. ``upsample``: the command is
+    interpolated linearly onto ``upsample`` points per sample (each held for ``n_sub`` sub-steps)
+    and the stack's trajectories taken back at the samples: a sampled *terminal* voltage driving a
+    plant without its series resistor (a recorded drive replayed) ramps between samples instead of
+    stepping, which a mode near the sample rate tells apart.
 
     Returns
     -------
@@ -94,8 +99,15 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
     """
     t = np.asarray(t_s, float)
     dt = float(np.mean(np.diff(t)))
-    sim = PZTSimulator(plant.pzt, dt, n_sub=n_sub)
-    tr = sim.run(np.asarray(v_cmd, float))
+    up = max(1, int(upsample))
+    sim = PZTSimulator(plant.pzt, dt / up, n_sub=n_sub)
+    v_cmd = np.asarray(v_cmd, float)
+    if up > 1:
+        tf = t[0] + np.arange((t.size - 1) * up + 1) * (dt / up)
+        tr = sim.run(np.interp(tf, t, v_cmd))
+        tr = dataclasses.replace(tr, **{k: getattr(tr, k)[::up] for k in ("q_c", "v_t_v", "x_m", "i_a")})
+    else:
+        tr = sim.run(v_cmd)
     add = plant.additions
     rng = np.random.default_rng(seed)
     r = plant.pzt.series_resistance_ohm
