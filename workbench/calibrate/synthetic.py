@@ -103,9 +103,9 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
     sim = PZTSimulator(plant.pzt, dt / up, n_sub=n_sub)
     v_cmd = np.asarray(v_cmd, float)
     if up > 1:
-        tf = t[0] + np.arange((t.size - 1) * up + 1) * (dt / up)
-        tr = sim.run(np.interp(tf, t, v_cmd))
-        tr = dataclasses.replace(tr, **{k: getattr(tr, k)[::up] for k in ("q_c", "v_t_v", "x_m", "i_a")})
+        # fine step j ends at t0 + (j - up + 1) dt / up: every up-th (the kept one) ends on a sample
+        tf = t[0] + (np.arange(t.size * up) - (up - 1)) * (dt / up)
+        tr = sim.run(np.interp(tf, t, v_cmd), decimate=up)
     else:
         tr = sim.run(v_cmd)
     add = plant.additions
