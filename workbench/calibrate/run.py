@@ -6,7 +6,9 @@ stack, told apart by ``plant.generic.plant_kind``); the record's ``series_resist
 model of every recorded channel (``base_fit``); fit every candidate effect and name the one
 the plant lacks (``tracing``); fit seed 001's creep law per hold (``creep_holds``); write the
 figures, the report, the JSON and the updated plant file (the input files are never touched;
-every output is written whole or not at all).
+every output is written whole or not at all). The updated plant is loaded back and the record's drive
+replayed through it (``plant_update.updated_plant_error``, issue 13 item 6): its test error is in the
+JSON and the file's header beside the fitted model's, with a warning beyond 10 %.
 """
 
 import dataclasses
