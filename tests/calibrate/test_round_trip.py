@@ -17,7 +17,7 @@ import pytest
 from tests.conftest import load_benchmark
 from workbench.calibrate.plant_update import (ROUND_TRIP_TOLERANCE, round_trip_warning, updated_plant_error,
                                               updated_plant_text)
-from workbench.calibrate.synthetic import SensorNoise, benchmark_protocol, plant_with_effect, simulate_record
+from workbench.calibrate.synthetic import SensorNoise, benchmark_protocol, simulate_record
 from workbench.calibrate.tracing import trace_effect
 from workbench.plant import load_plant
 
