@@ -10,8 +10,9 @@ it came from. Mapping of the tracing's parameters to plant-file sections
 * ``creep`` (displacement channel): the spectrum's gains ``c_j`` are fractions of the
   quasi-static displacement; a Kelvin-Voigt branch across C_h takes up ``C_j V_h`` and so adds
   ``C_j / C_sec`` of the displacement, ``C_sec`` the hysteretic capacitance's large-signal secant
-  (charge span over voltage span of the base fit), hence ``C_j = c_j C_sec`` -- an
-  approximation (V_h is not recorded), stated in the file;
+  (charge span over voltage span of the base fit), over the core's instant response, while ``c_j``
+  is a fraction of the base's settled one (``(1 - sum c)`` times instant), hence
+  ``C_j = c_j C_sec / (1 - sum c)`` -- an approximation (V_h is not recorded), stated in the file;
 * ``resonance``: an added ``[[mechanics.modes]]`` entry;
 * ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
 * ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
@@ -25,7 +26,11 @@ import re
 
 import numpy as np
 
-__all__ = ["updated_plant_text"]
+__all__ = ["updated_plant_text", "updated_plant_error", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+
+#: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
+#: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
+ROUND_TRIP_TOLERANCE = 0.10
 
 _REPLACED = ("leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity", "creep")
 
@@ -45,11 +50,13 @@ def _fmt(x):
     return repr(float(x))
 
 
-def updated_plant_text(plant_path, plant, base, result, data_path):
+def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=None):
     """TOML text of the declared plant plus every effect found (see the module notes).
 
     Every stage of ``result["stages"]`` is written (the first is ``result["effect"]``); a
     delay and a drift of the displacement sensor share one ``[displacement_sensor]`` section.
+    ``plant_error``: this file's own simulated test error (:func:`updated_plant_error`,
+    ``{rms, max, units}``), stated in the header beside the fitted model's.
     """
     text = plant_path.read_text(encoding="utf-8")
     src = f"workbench calibrate on {data_path.name}"
@@ -60,9 +67,14 @@ def updated_plant_text(plant_path, plant, base, result, data_path):
     eb, ea = result["error_before"], result["error_after"]
     names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
     header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
-              f"# test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
-              f"{ea['max']:.4g}; on the first effect's channel, after every effect found there). The declared values below are unchanged; the sections of the "
-              f"effects are new."]
+              f"# the fitted model (its base refitted on the record, every effect found on the first effect's "
+              f"channel) leaves a test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
+              f"{ea['max']:.4g}).",
+              *([f"# This file (the declared core and the sections below), the record's drive simulated through it, "
+                 f"leaves a test RMS of {plant_error['rms']:.4g} {plant_error['units']} (max "
+                 f"{plant_error['max']:.4g})."] if plant_error else
+                ["# This file's own simulated error on the record was not measured."]),
+              "# The declared values below are unchanged; the sections of the effects are new."]
     blocks = []
     sensor = {}
     for st in stages:
@@ -103,9 +115,19 @@ def _block(effect, ch, p, base, src, sensor, note=None):
         q = base.channels["charge"].yhat
         c_sec = float(np.ptp(q) / max(np.ptp(base.v_drive), 1e-12))
         gains, taus = np.asarray(p["gains"]), np.asarray(p["taus_s"])
+        # the spectrum's c_j are fractions of the base's *settled* displacement (the fit reads
+        # u (1 - sum c) + sum c_j lowpass_j(u): the instant response is (1 - sum c) u); a branch's
+        # C_j / C_sec is a fraction of the core's *instant* one: c_j / (1 - sum c). A sum >= 1 (branches
+        # slower than the record standing in for a gain) has no such reading: c_j is kept, and said.
+        total = float(gains.sum())
+        rescaled = total < 1.0
+        if rescaled:
+            gains = gains / (1.0 - total)
         keep = gains > 0
         if keep.any():
-            block = ["[creep]", f"# C_j = c_j x C_sec, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
+            how = (f"c_j / (1 - sum c) x C_sec, sum c = {total:.4g}" if rescaled else
+                   f"c_j x C_sec (sum c = {total:.4g} >= 1: not rescaled to the instant response)")
+            block = ["[creep]", f"# C_j = {how}, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
                                 f"(an approximation: V_h is not recorded)",
                      f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
                      f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
@@ -127,3 +149,103 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     elif effect == "gauge_nonlinearity":
         block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
     return block
+
+
+#: The recorded drive is replayed interpolated linearly onto this many points per sample
+#: (:func:`~workbench.calibrate.synthetic.simulate_record`'s ``upsample``): the tracing's models take the
+#: drive linear between samples (``calibrate/effects.py``), the simulator holds each command.
+REPLAY_UPSAMPLE = 8
+
+_SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "current_a"}
+
+
+def updated_plant_error(plant, base, channel, test, train=None, current="averaged"):
+    """Held-out error of the record's drive simulated through ``plant`` (the updated plant file).
+
+    The drive is the base fit's, the terminal voltage ``V_t = V - R i`` (``base.v_drive``), applied
+    to the plant with its series resistor taken out (the quasi-static electrical form): the fitted
+    model and the plant file then see one input, and the amplifier (its current limit, the monitor's
+    averaging, which a recorded ``V`` cannot give back as a command) is left out. The simulation is
+    noise-free (no sensor noise, no gauge-chain noise): the error is the record's noise plus what the
+    plant file gets wrong, on the rows of the fitted model's ``error_after``.
+
+    Parameters
+    ----------
+    plant : workbench.plant.files.Plant
+        The updated plant, loaded back from its file.
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit: its times ``t``, drive ``v_drive`` (V) and the channel's recorded ``y`` and
+        ``valid`` rows.
+    channel : {"displacement", "gauge", "charge"}
+        The channel compared (the first effect's); the charge is the simulated current
+        integrated under the record's ``current`` convention.
+    test : ndarray of bool
+        The held-out (test) rows.
+    train : ndarray of bool, optional
+        The development rows: the constant the plant file cannot carry (a sensor's zero, the
+        charge's start) is the mean difference over these rows, as the fitted model's offset is
+        fitted there; None: no constant is taken out.
+    current : {"averaged", "sampled"}
+        The record's current convention (charge channel only).
+
+    Returns
+    -------
+    dict or None
+        ``{rms, max, units}`` on ``test & valid`` (channel units: m, C or V); None for a channel
+        the simulator does not log or a drive that is an amplifier command (unknown gain and lag).
+    """
+    import dataclasses
+
+    from .residual import charge_from_current
+    from .synthetic import SensorNoise, simulate_record
+    if channel not in _SIM_KEY or channel not in base.channels or base.input_kind != "terminal":
+        return None
+    m = base.channels[channel]
+    t = np.asarray(base.t, float)
+    quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
+    sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
+                          gauge=channel == "gauge", gauge_noise=False, upsample=REPLAY_UPSAMPLE)
+    y = sim[_SIM_KEY[channel]]
+    if channel == "charge":
+        y = charge_from_current(t, y, current=current)
+    e = y - m.y
+    if train is not None and np.any(train & m.valid):
+        e = e - float(np.mean(e[train & m.valid]))
+    e = e[test & m.valid]
+    return {"rms": float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan"),
+            "max": float(np.max(np.abs(e))) if e.size else float("nan"), "units": m.units}
+
+
+def round_trip_warning(error_after, plant_error, stages, tolerance=None):
+    """The warning when the plant file's simulated test error and the fitted model's differ.
+
+    Parameters
+    ----------
+    error_after, plant_error : dict
+        ``{rms, max, units}``: the fitted model's ``error_after`` and :func:`updated_plant_error`.
+    stages : list of dict
+        The calibration's stages (effect, channel, parameters).
+    tolerance : float, optional
+        Relative difference allowed (default :data:`ROUND_TRIP_TOLERANCE`).
+
+    Returns
+    -------
+    str or None
+        One line naming both errors and the reason, or None within the tolerance.
+    """
+    tol = ROUND_TRIP_TOLERANCE if tolerance is None else float(tolerance)
+    if not plant_error or not error_after or not error_after["rms"] > 0:
+        return None
+    a, b, u = error_after["rms"], plant_error["rms"], error_after["units"]
+    if abs(b - a) <= tol * a:
+        return None
+    found = ", ".join(f"{s['effect']} ({s['channel']})" for s in stages) or "no effect"
+    if b > a:
+        why = ("the file keeps the declared core (its PI weights and gains) while the effects were fitted jointly with "
+               "a base refitted on the record, which also takes up what no stage named; an effect without a "
+               "plant-file form (a resonance's gain other than 1, a drift's periodic term, an effect on the gauge or "
+               "the charge's drift or delay) is in the JSON only")
+    else:
+        why = "the declared core fits this record better than the base fit's model of the drive"
+    return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u} against "
+            f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")

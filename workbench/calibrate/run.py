@@ -6,7 +6,9 @@ stack, told apart by ``plant.generic.plant_kind``); the record's ``series_resist
 model of every recorded channel (``base_fit``); fit every candidate effect and name the one
 the plant lacks (``tracing``); fit seed 001's creep law per hold (``creep_holds``); write the
 figures, the report, the JSON and the updated plant file (the input files are never touched;
-every output is written whole or not at all).
+every output is written whole or not at all). The updated plant is loaded back and the record's drive
+replayed through it (``plant_update.updated_plant_error``, issue 13 item 6): its test error is in the
+JSON and the file's header beside the fitted model's, with a warning beyond 10 %.
 """
 
 import dataclasses
@@ -21,7 +23,7 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import updated_plant_text
+from .plant_update import round_trip_warning, updated_plant_error, updated_plant_text
 from .record import read_record
 from .residual import charge_from_current
 from .splits import default_split, make_split
@@ -176,12 +178,26 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         "creep_holds": [{k: (None if isinstance(x, float) and not np.isfinite(x) else x) for k, x in h.items()}
                         for h in holds],
     }
+    text, data["updated_plant_error"] = None, None
+    if kind == "pzt":
+        # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
+        text = updated_plant_text(plant_path, plant, base, result, data_path)
+        err = None
+        if result["stages"]:
+            again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
+            err = updated_plant_error(again, base, result["channel"], test, train=train,
+                                      current=base.current_kind or "averaged")
+        data["updated_plant_error"] = err
+        warn = round_trip_warning(result["error_after"], err, result["stages"])
+        if warn:
+            data["base_fit"]["warnings"].append(warn)
+        text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         stem = plant_path.stem + "_calibrated.toml"
         if kind == "pzt":
-            text = updated_plant_text(plant_path, plant, base, result, data_path)
+            pass
         else:
             m = base.channels["displacement"]
             stack = plant.with_calibration(thresholds_v=tuple(m.thresholds_v), weights_m_per_v=tuple(m.weights),
@@ -410,12 +426,12 @@ def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=
 
 def _check_plant_text(text, path, kind):
     """Load the updated plant from a scratch copy before it is written: never hand back a file
-    the workbench itself would reject."""
+    the workbench itself would reject. Returns the plant loaded back."""
     import tempfile
     with tempfile.TemporaryDirectory() as tmp:
         p = Path(tmp) / path.name
         p.write_text(text, encoding="utf-8")
         try:
-            load_plant(p) if kind == "pzt" else load_generic_stack(p)
+            return load_plant(p) if kind == "pzt" else load_generic_stack(p)
         except PlantDefinitionError as err:       # a bug here, not the user's
             raise WorkbenchError(f"internal: the updated plant would not load ({err})") from err

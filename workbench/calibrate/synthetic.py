@@ -78,8 +78,18 @@ class SensorNoise:
     voltage_v: float = 2e-3            # amplifier monitor
 
 
-def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True):
+def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True, gauge_noise=True,
+                    upsample=1):
     """Simulate a record of ``plant`` driven by ``v_cmd`` sampled at ``t_s``.
+
+    ``noise`` is the logged channels' white noise; the gauge's is its chain's own (demodulator
+    noise and ADC quantization, :func:`~workbench.plant.gauge.gauge_run_equivalent`), switched off
+    by ``gauge_noise=False``: a noise-free simulation (a round trip through a calibrated plant)
+    passes ``SensorNoise(0, 0, 0)`` and ``gauge_noise=False``. ``upsample``: the command is
+    interpolated linearly onto ``upsample`` points per sample (each held for ``n_sub`` sub-steps)
+    and the stack's trajectories taken back at the samples: a sampled *terminal* voltage driving a
+    plant without its series resistor (a recorded drive replayed) ramps between samples instead of
+    stepping, which a mode near the sample rate tells apart.
 
     Returns
     -------
@@ -89,8 +99,15 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
     """
     t = np.asarray(t_s, float)
     dt = float(np.mean(np.diff(t)))
-    sim = PZTSimulator(plant.pzt, dt, n_sub=n_sub)
-    tr = sim.run(np.asarray(v_cmd, float))
+    up = max(1, int(upsample))
+    sim = PZTSimulator(plant.pzt, dt / up, n_sub=n_sub)
+    v_cmd = np.asarray(v_cmd, float)
+    if up > 1:
+        # fine step j ends at t0 + (j - up + 1) dt / up: every up-th (the kept one) ends on a sample
+        tf = t[0] + (np.arange(t.size * up) - (up - 1)) * (dt / up)
+        tr = sim.run(np.interp(tf, t, v_cmd), decimate=up)
+    else:
+        tr = sim.run(v_cmd)
     add = plant.additions
     rng = np.random.default_rng(seed)
     r = plant.pzt.series_resistance_ohm
@@ -120,7 +137,8 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
         x_g = tr.x_m
         if add.gauge_nonlinearity_per_m:
             x_g = gauge_bow(x_g, add.gauge_nonlinearity_per_m, x_ref_m=0.0)
-        out["gauge_v"] = gauge_run_equivalent(x_g, plant.gauge, seed=int(rng.integers(2**31))).dac_v
+        out["gauge_v"] = gauge_run_equivalent(x_g, plant.gauge, seed=int(rng.integers(2**31)),
+                                              noise=bool(gauge_noise)).dac_v
     return out
 
 

@@ -1,0 +1,86 @@
+"""The updated plant's round trip over the confusion benchmark's two-effect records (issue 13, item 6).
+
+Each pair record of a seed (``calibrate_confusion.cases``: creep + delay, leakage + dielectric
+absorption, drift + resonance, at 1, 10 and 100 kHz under three protocols) is calibrated as
+``workbench calibrate`` does; the updated plant file is written, loaded back and the record's drive
+replayed through it (``workbench.calibrate.plant_update.updated_plant_error``), as through the plant
+that made the record. Printed per record: the stages found, the fitted model's ``error_after`` and
+both replays' test RMS over it; then, per pair and for sizes >= 3x, how many are within 10 % of
+``error_after``, how many at most 10 % above it, the median and worst ratio.
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/calibrate_round_trip.py --seed 24 [--effects creep+delay ...]
+"""
+
+import argparse
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+import calibrate_confusion as cc  # noqa: E402
+from workbench.calibrate.plant_update import updated_plant_error, updated_plant_text  # noqa: E402
+from workbench.calibrate.tracing import trace_effect  # noqa: E402
+from workbench.plant import load_plant  # noqa: E402
+
+
+def round_trip(plant0, plant_path, effect, rate, proto, size, seed):
+    """(result, fitted error_after, the updated plant's replay, the true plant's replay) of one record."""
+    t, sp, base, plant, truth, r = cc.simulated_base(plant0, effect, rate, proto, size, seed)
+    res = trace_effect(base, split=sp)
+    if not res["stages"]:
+        return res, None, None, None
+    with tempfile.TemporaryDirectory() as tmp:
+        p = Path(tmp) / "p.toml"
+        p.write_text(updated_plant_text(plant_path, plant0, base, res, Path("record.csv")), encoding="utf-8")
+        again = load_plant(p)
+    ch = res["channel"]
+    return (res, res["error_after"]["rms"], updated_plant_error(again, base, ch, sp.test, train=sp.train)["rms"],
+            updated_plant_error(plant, base, ch, sp.test, train=sp.train)["rms"])
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seed", type=int, nargs="+", default=[24])
+    ap.add_argument("--effects", nargs="*", default=None, help="only these pairs, e.g. creep+delay")
+    a = ap.parse_args(argv)
+    plant_path = ROOT / "plants" / "p888_51_sn637.toml"
+    plant0 = load_plant(plant_path)
+    rows = []
+    for seed in a.seed:
+        for k, (e, rate, proto, size, s) in enumerate(cc.cases(seed=seed)):
+            if isinstance(e, str) or (a.effects and "+".join(e) not in a.effects):
+                continue
+            res, ea, upd, true = round_trip(plant0, plant_path, e, rate, proto, size, s)
+            stages = ", ".join(f"{x['effect']}/{x['channel']}" for x in res["stages"]) or res["effect"]
+            line = f"{seed} #{k + 1} {'+'.join(e)} {rate:g} Hz {proto} {size:.3g}x: {stages}"
+            if ea:
+                line += (f"; error_after {ea:.4g}, updated plant {upd:.4g} ({upd / ea:.2f}x), "
+                         f"true plant {true:.4g} ({true / ea:.2f}x)")
+                rows.append(("+".join(e), size, upd / ea, true / ea))
+            print(line, flush=True)
+    print("| pair | records with a stage | updated plant: within 10 % / at most +10 % / all, median, worst "
+          "| true plant: the same |")
+    print("|---|---|---|---|")
+    for pair in sorted({r[0] for r in rows}) + [None]:
+        for big in (False, True):
+            sel = [r for r in rows if (pair is None or r[0] == pair) and (not big or r[1] >= 3.0)]
+            if not sel:
+                continue
+            cells = []
+            for j in (2, 3):
+                x = np.array([r[j] for r in sel])
+                cells.append(f"{int(np.sum(np.abs(x - 1) <= 0.1))} / {int(np.sum(x <= 1.1))} / {x.size}, "
+                             f"median {np.median(x):.2f}x, worst {x.max():.2f}x")
+            print(f"| {pair or 'all'}{' (>= 3x)' if big else ''} | {len(sel)} | {cells[0]} | {cells[1]} |")
+
+
+if __name__ == "__main__":
+    main()
