@@ -72,7 +72,26 @@ def test_a_large_drift_and_mode_are_named_not_inconclusive(sn637, proto, size, s
     29 #77, 32 #77). Named, and only these two effects."""
     _, res, truth = _trace(sn637, ("drift", "resonance"), 1e5, proto, size, seed)
     named = [s["effect"] for s in res["stages"]]
-    assert named and set(named) <= {"drift", "resonance"}, (res["effect"], named, res.get("fold_winners"))
+    assert sorted(named) == ["drift", "resonance"], (res["effect"], named, res.get("fold_winners"))
+
+
+# drift + a mode at 100 kHz on both protocols that show it, sizes log-uniform over 3-9x (a 3x span:
+# the drift hides the displacement's mode at the first stage at the band's small end, where the
+# double naming was seen, 3.3-3.9x; above ~10x the displacement's own mode wins); own stream, fixed
+# before any run (the draws above are unchanged)
+_RNG_ONE = np.random.default_rng(1314)
+ONE_MODE_DRAWS = [(proto, float(np.exp(_RNG_ONE.uniform(np.log(3.0), np.log(9.0)))), int(_RNG_ONE.integers(1 << 30)))
+                  for proto in ("sine", "calibration", "sine", "calibration")]
+
+
+@pytest.mark.parametrize("proto, size, seed", ONE_MODE_DRAWS)
+def test_the_stacks_mode_is_named_once(sn637, proto, size, seed):
+    """The gauge and the displacement read one motion: the stack's mode (or creep) is one effect and
+    no effect is named twice (main: resonance on the gauge, drift, resonance on the displacement,
+    seeds 28 #88, 29 #77, 32 #77)."""
+    _, res, truth = _trace(sn637, ("drift", "resonance"), 1e5, proto, size, seed)
+    named = [s["effect"] for s in res["stages"]]
+    assert len(named) == len(set(named)), ([(s["effect"], s["channel"]) for s in res["stages"]], truth)
 
 
 @pytest.mark.parametrize("seed, index, want", [(30, 73, ["drift"]), (30, 97, ["delay"])])
@@ -97,6 +116,25 @@ def test_a_gauge_row_beside_a_pinned_one_is_not_valid(n, start, width):
     assert np.array_equal(ok, ~bad)
 
 
+@pytest.mark.parametrize("n, bow", [(400, -0.3), (1000, 0.05), (257, 0.6)])
+def test_without_a_dac_range_only_the_peak_rows_are_left_out(n, bow):
+    """No DAC range declared: the 'rail' is the record's own peak, where a bow is largest; its
+    neighbours are readings and stay valid (s12_later dropped them too). With the range declared,
+    the same reading pinned at it loses its neighbours as well."""
+    x = np.sin(np.linspace(0.0, 4 * np.pi, n, endpoint=False) + 0.3)
+    g = 2.0 * x / (1.0 + bow * x)
+    ok = _gauge_valid(g, None)
+    peak = np.abs(g) >= 0.998 * np.abs(g).max()
+    assert peak.any() and np.array_equal(ok, ~peak)
+    from workbench.calibrate.base_fit import _gauge_pinned
+    pinned, beside = _gauge_pinned(g, None)
+    assert np.array_equal(pinned, peak) and not beside.any()
+    lim = float(np.abs(g).max())
+    pinned, beside = _gauge_pinned(np.clip(g, -lim, lim), lim)
+    assert beside.any() and not (pinned & beside).any()
+    assert np.array_equal(_gauge_valid(g, lim), ~(pinned | beside))
+
+
 def _res(winners, scores):
     by = {k: {"score": v, "passes": [True] * len(winners)} for k, v in scores.items()}
     return {"winners": winners, "by": by}
@@ -107,10 +145,15 @@ def test_the_stacks_effect_on_both_sensors_is_one_effect(name):
     """3 folds on the gauge and 2 on the displacement: named (need 4) on the lower median ratio."""
     g, x = (name, "gauge"), (name, "displacement")
     res = _res([g, x, g, g, x], {g: 0.43, x: 0.90})
-    ans, count, note = st.stack_effect_on_both_sensors(res, 4)
-    assert (ans, count) == (g, 5) and note
-    res = _res([g, x, g, g, x], {g: 0.9, x: 0.5})
-    assert st.stack_effect_on_both_sensors(res, 4)[0] == x
+    # named on the displacement when its row passes need folds (the plant file's form), whatever
+    # the medians; agreement is the named view's own wins, the compatible folds both views'
+    ans, count, note, both = st.stack_effect_on_both_sensors(res, 4)
+    assert (ans, count, both) == (x, 2, 5) and note
+    res["by"][x]["passes"] = [True, True, False, True, True]
+    assert st.stack_effect_on_both_sensors(res, 4)[:2] == (x, 2)
+    # the displacement's row passes fewer than need folds: the gauge's, with its own 3 wins
+    res["by"][x]["passes"] = [False, True, False, False, True]
+    assert st.stack_effect_on_both_sensors(res, 4)[:2] == (g, 3)
     # together under need, or a different effect on the other sensor: not this rule
     assert st.stack_effect_on_both_sensors(_res([g, x, g, "none", "none"], {g: 0.4, x: 0.9}), 4)[0] is None
     assert st.stack_effect_on_both_sensors(_res([g, g, g, ("drift", "displacement")] * 1 + [g],
@@ -132,6 +175,38 @@ def test_creep_decided_with_the_rest_undecided_between_creep_and_a_charge_relaxa
     res = _res([c, u, u, c, c], {c: 0.5})
     res["by"][c]["passes"] = [True, False, False, True, True]
     assert st.creep_decided_rest_undecided(res, 4)[0] is None
+    # a row passing need but not every fold: a majority of the folds decided (3 of 5), not 2
+    res = _res([u, c, u, c, u], {c: 0.5})
+    res["by"][c]["passes"] = [True, True, False, True, True]
+    assert st.creep_decided_rest_undecided(res, 4)[0] is None
+    res = _res([u, c, c, c, u], {c: 0.5})
+    res["by"][c]["passes"] = [False, True, True, True, True]
+    assert st.creep_decided_rest_undecided(res, 4) == (c, 3, 2)
+
+
+# creep-free records with a charge relaxation and a displacement effect, sizes log-uniform 5-30x,
+# 100 kHz (where the rule's records were), both protocols; own stream fixed before any run
+_RNG_NC = np.random.default_rng(1316)
+NO_CREEP_DRAWS = [(effect, proto, float(np.exp(_RNG_NC.uniform(np.log(5.0), np.log(30.0)))),
+                   int(_RNG_NC.integers(1 << 30)))
+                  for effect in (("dielectric_absorption", "delay"), ("drift", "dielectric_absorption"))
+                  for proto in ("steps", "sine")]
+
+
+@pytest.mark.parametrize("effect, proto, size, seed", NO_CREEP_DRAWS)
+def test_a_charge_relaxation_beside_a_displacement_effect_is_never_named_creep(sn637, effect, proto, size, seed):
+    """No creep in the plant: creep is never named (by creep_decided_rest_undecided or any rule)."""
+    _, res, truth = _trace(sn637, effect, 1e5, proto, size, seed)
+    named = [(s["effect"], s["channel"], s.get("resolved")) for s in res["stages"]]
+    assert "creep" not in [s["effect"] for s in res["stages"]], (named, res.get("fold_winners"), truth)
+
+
+@pytest.mark.parametrize("name", ["resonance", "creep"])
+def test_the_stacks_effect_found_on_one_sensor_is_not_a_candidate_on_the_other(name):
+    """Symmetric: after the displacement's creep or mode, not the gauge's, and the reverse."""
+    g, x = (name, "gauge"), (name, "displacement")
+    assert st.excluded(g, [x]) and st.excluded(x, [g])
+    assert not st.excluded(x, [("drift", "displacement")]) and not st.excluded(g, [("delay", "displacement")])
 
 
 @pytest.mark.parametrize("floor, before", [(1e-9, 20e-9), (1e-9, 2e-9), (3e-9, 5e-9)])
@@ -143,3 +218,29 @@ def test_what_the_stack_could_hide_after_a_displacement_effect(floor, before):
     assert tr._stack_could_hide(0, befores, infos, [("resonance", "gauge")]) == pytest.approx(3 * floor)
     want = max(3 * floor, np.sqrt(before ** 2 - floor ** 2))
     assert tr._stack_could_hide(0, befores, infos, [("delay", "displacement")]) == pytest.approx(want)
+
+
+def test_the_gauge_line_rebuilt_after_a_sensor_effect_reads_the_displacement_less_the_term(sn637):
+    """After a displacement drift or delay the gauge's line problem targets
+    gauge - (offset + gain (x - term)) (eq. 27's line on the stack's motion, the sensor's term taken
+    out), its unknowns are corrections to that line (columns 1 and x - term), and its null
+    reference is rebuilt (same count) from trace_effect's seed."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1315)
+    size, seed = float(np.exp(rng.uniform(np.log(3.0), np.log(30.0)))), int(rng.integers(1 << 30))
+    t, sp, base, _, _, _ = cc.simulated_base(sn637, "drift", 1e3, "sine", size, seed, n_rows=4000)
+    m, x0 = base.channels["gauge"], base.channels["displacement"].y
+    line0, _ = tr._gauge_line(base)
+    key = ("gauge", "line")
+    old = tr._Problem(sp, m.valid, np.column_stack([np.ones(t.size), x0]), [-np.inf, -np.inf], m.y - line0,
+                      tr._search_rows(sp.train & m.valid))
+    # any term of the displacement's size: a slow ramp with a bend, drawn
+    term = rng.uniform(0.05, 0.5) * np.ptp(x0) * ((t - t[0]) / np.ptp(t)) ** rng.uniform(1.0, 3.0)
+    ctx = {"probs": {key: old}, "base": base, "t": t, "cands": [], "seed": 0,
+           "nulls": {key: [None, None, None]}}
+    st._gauge_reads_corrected(ctx, term, {key: []})
+    prob = ctx["probs"][key]
+    want = m.y - (base.gauge_offset_v + base.gauge_gain_v_per_m * (x0 - term))
+    np.testing.assert_allclose(prob.r * prob.scale, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+    assert not np.allclose(prob.r * prob.scale, old.r * old.scale)
+    assert len(ctx["nulls"][key]) == 3

@@ -246,23 +246,46 @@ def excitation_period_s(t, u):
     return 2.0 * float(np.median(np.diff(t[tp]))) if tp.size >= 3 else float("nan")
 
 
-def _gauge_valid(g, dac_range_v=None):
-    """Rows where the gauge is not pinned at its DAC rails (a clipped reading says nothing), nor
-    next to a pinned row.
+def _gauge_pinned(g, dac_range_v=None):
+    """The gauge's rows pinned at its rails, and the rows beside a pinned one: ``(pinned, beside)``.
 
+    Pinned: ``|g|`` within 0.2 % of the DAC range ``dac_range_v`` (V), or of the record's own peak
+    when no range is declared. Beside: a row next to a pinned one, only with a declared DAC range.
     A row's reading is the chain's mean over its sample interval (the demodulator averages each
-    half modulation period): a row beside a pinned one was taken while the signal crossed the
+    half modulation period): a row beside a rail-pinned one was taken while the signal crossed the
     rail, so part of its interval was clipped and its mean is neither the rail nor the reading.
     (Seen: a 41x gauge bow whose reading swings from one rail to the other at the top of a 1 kHz
     sine's stroke left one such row among the test rows, 7.5 V off the line; its bow,
-    extrapolated there, made the test error rise, 0.33 -> 0.36 V.)
+    extrapolated there, made the test error rise, 0.33 -> 0.36 V.) Without a declared range the
+    "rail" is the record's own peak, where a bow is largest: its neighbours are readings, kept.
+
+    Parameters
+    ----------
+    g : ndarray
+        The gauge's reading, V.
+    dac_range_v : float, optional
+        The DAC's range (V, symmetric); ``None`` or 0: not declared.
+
+    Returns
+    -------
+    pinned, beside : ndarray of bool
+        Disjoint masks.
     """
+    g = np.asarray(g, float)
     lim = dac_range_v if dac_range_v else max(abs(g.max()), abs(g.min()))
     pinned = np.abs(g) >= 0.998 * lim
     near = pinned.copy()
-    near[1:] |= pinned[:-1]
-    near[:-1] |= pinned[1:]
-    return ~near
+    if dac_range_v:
+        near[1:] |= pinned[:-1]
+        near[:-1] |= pinned[1:]
+    return pinned, near & ~pinned
+
+
+def _gauge_valid(g, dac_range_v=None):
+    """Rows where the gauge is neither pinned at its rails nor, with a declared DAC range
+    ``dac_range_v`` (V), beside a pinned row (:func:`_gauge_pinned`)."""
+    pinned, beside = _gauge_pinned(g, dac_range_v)
+    return ~(pinned | beside)
 
 
 def _line(v, y, rows, test):
@@ -327,6 +350,14 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         raise ValueError("the record has no output channel (charge, current, displacement or gauge)")
     valid = {name: (_gauge_valid(y, dac_range_v) if name == "gauge" else np.ones(y.size, bool))
              for name, y in outputs.items()}
+    if "gauge" in outputs:
+        pinned, beside = _gauge_pinned(outputs["gauge"], dac_range_v)
+        n_p, n_b = int((test & pinned).sum()), int((test & beside).sum())
+        if n_p or n_b:
+            rail = (f"the DAC range +/-{dac_range_v:.4g} V" if dac_range_v
+                    else "the record's own peak (no DAC range declared)")
+            notes.append(f"the gauge: {n_p} of {int(test.sum())} test rows pinned at {rail} and {n_b} beside a "
+                         f"pinned row are left out of its fit and its test error")
     for name in list(outputs):
         if int((train & valid[name]).sum()) < 100:
             notes.append(f"the {name} channel has {int((train & valid[name]).sum())} usable training rows "

@@ -175,9 +175,21 @@ def noise_floor(e):
     return float(np.median(np.abs(d - np.median(d))) / (0.6745 * np.sqrt(2.0))) if d.size else 0.0
 
 
-def _gauge_line(base):
-    x = base.channels["displacement"].y
+def _gauge_line(base, x=None):
+    """The gauge's straight line on the displacement ``x`` (m; default: the recorded one): ``(line V, x)``."""
+    x = base.channels["displacement"].y if x is None else x
     return base.gauge_offset_v + base.gauge_gain_v_per_m * x, x
+
+
+#: the charge relaxations a fold may leave undecided against creep, and their fold labels
+#: (:func:`_undecided_or_creep`; :func:`~workbench.calibrate.stages._charge_or_creep` reads them)
+CHARGE_RELAXATIONS = ("dielectric_absorption", "leakage")
+CHARGE_OR_CREEP = tuple(f"{n} or creep" for n in CHARGE_RELAXATIONS)
+
+
+def _undecided_or_creep(name):
+    """The fold label of a fold undecided between effect ``name`` and creep."""
+    return ("undecided", f"{name} or creep")
 
 
 class _Problem:
@@ -506,7 +518,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     from .stages import run_stages
     ctx = {"cands": cands, "probs": probs, "nulls": nulls, "split": split, "penalty": penalty,
            "noise_factor": noise_factor, "infos": infos, "min_share": min_share, "base": base, "t": t,
-           "need": need}
+           "need": need, "seed": seed}
     first, stages, stage_notes = run_stages(ctx, max_stages=max_stages)
     out = _answer(first, stages, n_folds, need, base, probs, split, infos, min_share)
     out["stage_notes"] = stage_notes
@@ -700,7 +712,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             # displacement's noise floor: if it could hide there, creep is not excluded
             x_equiv = _explained(best, f, befores, penalty) * abs(infos["k_q2x"])
             if x_equiv < _stack_could_hide(f, befores, infos, found):
-                winners.append(("undecided", f"{best['name']} or creep"))
+                winners.append(_undecided_or_creep(best["name"]))
                 continue
         elif best["channel"] == "gauge" and best["name"] in ("creep", "resonance") \
                 and (best["name"], "displacement") in tags:
@@ -741,7 +753,7 @@ def _after_creep_refused(ok):
     nxt = rest[0]
     if (nxt["channel"] == "charge" and nxt["name"] in ("dielectric_absorption", "leakage")) \
             or (nxt["channel"] == "gauge" and nxt["name"] in ("creep", "resonance")):
-        return ("undecided", f"{nxt['name']} or creep")
+        return _undecided_or_creep(nxt["name"])
     return nxt
 
 
