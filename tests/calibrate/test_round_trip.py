@@ -129,3 +129,25 @@ def test_two_effect_round_trip_reproduces_error_after(sn637, tmp_path, effect, r
     assert res["stages"], res["reason"]
     ea = res["error_after"]["rms"]
     assert abs(err["rms"] - ea) <= ROUND_TRIP_TOLERANCE * ea
+
+
+@pytest.mark.parametrize("channel", ["displacement", "gauge"])
+def test_a_mode_named_on_either_sensor_is_the_stacks_mode_in_the_file(sn637, tmp_path, channel):
+    """A resonance named on the gauge (where a drifting displacement sensor hid it: fixlater's rule)
+    is the stack's mechanical mode, the gauge reading the stack's strain: the file carries it as a
+    ``[[mechanics.modes]]`` entry, loaded back with its frequency and damping, and says nothing of
+    'no plant-file form' (before: no mode was written for it)."""
+    from types import SimpleNamespace
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m" if channel == "displacement" else "V"}
+    st = {"effect": "resonance", "channel": channel, "parameters": {"f_n_hz": 195.6, "zeta": 0.0142},
+          "error_before": err, "error_after": err}
+    result = {"effect": "resonance", "channel": channel, "parameters": st["parameters"], "error_before": err,
+              "error_after": err, "stages": [st]}
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, SimpleNamespace(channels={}), result,
+                              Path("rec.csv"))
+    assert "no plant-file form" not in text and text.count("[[mechanics.modes]]") >= 1
+    (tmp_path / "p.toml").write_text(text)
+    modes = load_plant(tmp_path / "p.toml").pzt.modes
+    before = load_plant(PLANTS / "p888_51_sn637.toml").pzt.modes
+    assert len(modes) == len(before) + 1
+    assert any(m.freq_hz == pytest.approx(195.6) and m.damping_ratio == pytest.approx(0.0142) for m in modes)

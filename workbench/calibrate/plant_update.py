@@ -17,8 +17,9 @@ it came from. Mapping of the tracing's parameters to plant-file sections
 * ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
 * ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
 
-An effect with no plant-file form (drift or delay of the gauge or the charge, a resonance seen
-only on the gauge) is recorded in the header comment only.
+An effect with no plant-file form (drift or delay of the gauge or the charge) is recorded in the
+header comment only. A resonance named on the gauge is the stack's mode (the gauge reads the stack's
+strain) and is written as one, like the displacement's.
 """
 
 import datetime
@@ -131,8 +132,11 @@ def _block(effect, ch, p, base, src, sensor, note=None):
                                 f"(an approximation: V_h is not recorded)",
                      f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
                      f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
-    elif effect == "resonance" and ch == "displacement":
-        block = ["[[mechanics.modes]]", f"freq_hz = {_fmt(p['f_n_hz'])}   # Hz; {src} (resonance fit)",
+    elif effect == "resonance" and ch in ("displacement", "gauge"):
+        # the stack's mode: the gauge reads the stack's own strain (eq. 27), so a mode named on the gauge
+        # (where a drift of the displacement sensor hid it) is the same mechanical mode, written once
+        seen = " on the gauge, which reads the stack's motion" if ch == "gauge" else ""
+        block = ["[[mechanics.modes]]", f"freq_hz = {_fmt(p['f_n_hz'])}   # Hz; {src} (resonance fit{seen})",
                  f"damping_ratio = {_fmt(min(max(p['zeta'], 1e-6), 1.0))}   # {src}"]
     elif effect == "delay" and ch == "displacement":
         # signed: > 0 the sensor lags the drive, < 0 it leads (an acquisition timing offset)
