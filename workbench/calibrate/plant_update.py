@@ -7,12 +7,11 @@ it came from. Mapping of the tracing's parameters to plant-file sections
 
 * ``leakage``: ``gain_per_s`` is charge per volt-second, ``1 / R_FP``;
 * ``dielectric_absorption``: ``gain`` is ``k_s`` (C/V), ``tau_s`` the time constant;
-* ``creep`` (displacement channel): the spectrum's gains ``c_j`` are fractions of the
-  quasi-static displacement; a Kelvin-Voigt branch across C_h takes up ``C_j V_h`` and so adds
-  ``C_j / C_sec`` of the displacement, ``C_sec`` the hysteretic capacitance's large-signal secant
-  (charge span over voltage span of the base fit), over the core's instant response, while ``c_j``
-  is a fraction of the base's settled one (``(1 - sum c)`` times instant), hence
-  ``C_j = c_j C_sec / (1 - sum c)`` -- an approximation (V_h is not recorded), stated in the file;
+* ``creep`` (displacement channel): Kelvin-Voigt branches across the declared core's C_h whose
+  settled/instant ratio is the spectrum's ``1 / (1 - sum c)`` and whose time constants at a held
+  terminal voltage are the fitted ones (:func:`creep_branches`); C_h from the declared core's terminal
+  secant over the record's voltage span (no charge channel needed). Above the ceiling
+  ``1 + C_pp / C_h`` no section is written, and the header says why;
 * ``resonance``: an added ``[[mechanics.modes]]`` entry;
 * ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
 * ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
@@ -27,7 +26,7 @@ import re
 
 import numpy as np
 
-__all__ = ["updated_plant_text", "updated_plant_error", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["updated_plant_text", "creep_branches", "updated_plant_error", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -79,9 +78,11 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     blocks = []
     sensor = {}
     for st in stages:
-        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"))
+        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant)
         if block:
             blocks.append(block)
+        elif st["effect"] == "creep" and st["channel"] == "displacement":
+            header.append(f"# The creep found on the displacement is not written: {sensor.pop('creep_note', '')}")
         elif st["effect"] not in ("delay", "drift") or st["channel"] != "displacement":
             header.append(f"# The {st['effect']} found on the {st['channel']} channel has no plant-file form; its "
                           f"parameters are in the calibration JSON.")
@@ -98,7 +99,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     return out
 
 
-def _block(effect, ch, p, base, src, sensor, note=None):
+def _block(effect, ch, p, base, src, sensor, note=None, plant=None):
     """The plant-file lines of one effect (a displacement sensor's go into ``sensor``).
 
     ``note``: the stage's note (a named leakage's: the absorption time constant the record cannot
@@ -112,26 +113,14 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     elif effect == "dielectric_absorption" and p.get("gain", 0) > 0:
         block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
                  f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]
-    elif effect == "creep" and ch == "displacement" and "charge" in base.channels:
-        q = base.channels["charge"].yhat
-        c_sec = float(np.ptp(q) / max(np.ptp(base.v_drive), 1e-12))
-        gains, taus = np.asarray(p["gains"]), np.asarray(p["taus_s"])
-        # the spectrum's c_j are fractions of the base's *settled* displacement (the fit reads
-        # u (1 - sum c) + sum c_j lowpass_j(u): the instant response is (1 - sum c) u); a branch's
-        # C_j / C_sec is a fraction of the core's *instant* one: c_j / (1 - sum c). A sum >= 1 (branches
-        # slower than the record standing in for a gain) has no such reading: c_j is kept, and said.
-        total = float(gains.sum())
-        rescaled = total < 1.0
-        if rescaled:
-            gains = gains / (1.0 - total)
-        keep = gains > 0
-        if keep.any():
-            how = (f"c_j / (1 - sum c) x C_sec, sum c = {total:.4g}" if rescaled else
-                   f"c_j x C_sec (sum c = {total:.4g} >= 1: not rescaled to the instant response)")
-            block = ["[creep]", f"# C_j = {how}, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
-                                f"(an approximation: V_h is not recorded)",
-                     f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
-                     f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
+    elif effect == "creep" and ch == "displacement":
+        w = creep_branches(p["gains"], p["taus_s"], *_terminal_secant(base, plant))
+        if w["capacitances_f"] is None:
+            sensor["creep_note"] = w["reason"]
+        else:
+            block = ["[creep]", f"# {w['how']}",
+                     f"time_constants_s = [{', '.join(_fmt(x) for x in w['time_constants_s'])}]   # s; {src}",
+                     f"capacitances_f = [{', '.join(_fmt(x) for x in w['capacitances_f'])}]   # F; {src}"]
     elif effect == "resonance" and ch in ("displacement", "gauge"):
         # the stack's mode: the gauge reads the stack's own strain (eq. 27), so a mode named on the gauge
         # (where a drift of the displacement sensor hid it) is the same mechanical mode, written once
@@ -153,6 +142,92 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     elif effect == "gauge_nonlinearity":
         block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
     return block
+
+
+def _terminal_secant(base, plant):
+    """(C_s, C_pp, where, C_r): the declared core's terminal secant over the record's voltage span, F.
+
+    ``C_s`` = span of ``G^-1[V]`` over span of ``V`` (``G`` the core's terminal operator, the record's drive
+    ``base.v_drive`` from rest): the series of C_h and C_pp the file's core gives the written branches. The
+    declared core's, not the base fit's charge: the file carries the declared core, and the simulated
+    settled/instant ratio is set by its C_h; it needs no charge channel. ``C_r``: C_h's reversal slope
+    (the threshold-0 play's weight), F.
+    """
+    v = np.asarray(base.v_drive, float)
+    q = plant.pzt.terminal_operator().inverse()(v)
+    span = float(np.ptp(v))
+    c_s = float(np.ptp(q)) / span if span > 0 else float("nan")
+    where = f"the declared core's terminal secant over the record's {span:.4g} V span"
+    return c_s, float(plant.pzt.c_pp_f), where, float(plant.pzt.hysteresis.weights[0])
+
+
+def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_rev_f=None):
+    """Kelvin-Voigt branches across C_h whose step response is the fitted creep spectrum's.
+
+    The displacement is proportional to the terminal charge ``q = q_h + sum Q_j`` (``V_t = V_h + q/C_pp``,
+    the branches across C_h, :mod:`workbench.plant.creep`). With ``V_t`` held and C_h linear, the instant
+    charge is ``C_h C_pp / (C_h + C_pp) V``, the settled one ``(C_h + C_S) C_pp / (C_h + C_S + C_pp) V``
+    (``C_S = sum C_j``). The spectrum ``u (1 - sum c) + sum c_j lowpass_j(u)`` has settled over instant
+    ``1 / (1 - sum c) = 1 + A``, hence ``C_S = A C_h (C_h + C_pp) / (C_pp - A C_h)``, shared in proportion to
+    ``c_j``; ``C_h = (1/C_s - 1/C_pp)^-1`` from the terminal secant ``C_s``. A branch alone relaxes at a held
+    ``V_t`` with ``tau_j (C_h + C_pp) / (C_j + C_h + C_pp)`` (``tau_j = R_j C_j`` the file's), so the file's
+    ``tau_j`` is the fitted one times ``(C_j + C_h + C_pp) / (C_h + C_pp)``. C_h is not linear: the
+    branches, charging, pull ``V_h`` back (a reversal), where C_h's slope is its reversal slope ``C_r``
+    (the threshold-0 play's weight), not the secant that set the instant response; with ``C_r`` the
+    settled charge gives ``C_S = A C_h (C_r + C_pp) / (C_pp - A C_h)`` and the factor
+    ``(C_j + C_r + C_pp) / (C_r + C_pp)`` (``C_r = C_h``: the linear forms above).
+
+    Parameters
+    ----------
+    gains, taus_s : array_like of float
+        The fitted spectrum's ``c_j`` (fractions of the settled displacement) and time constants, s.
+    c_s_f, c_pp_f : float
+        Terminal secant ``C_s`` and ``C_pp``, F.
+    c_rev_f : float, optional
+        C_h's reversal slope ``C_r``, F (default: C_h, linear).
+    where : str
+        Where ``C_s`` came from (said in the file).
+
+    Returns
+    -------
+    dict
+        ``capacitances_f``, ``time_constants_s`` (ndarrays; None when no ``[creep]`` section can represent
+        the spectrum: ``sum c >= 1``, ``C_s >= C_pp`` or above the ceiling ``A C_h >= C_pp``), ``c_h_f``,
+        ``ratio`` (settled / instant), ``how`` (the file's comment) and ``reason`` (why none).
+    """
+    g, tau = np.asarray(gains, float), np.asarray(taus_s, float)
+    keep = g > 0
+    total = float(g[keep].sum())
+    out = {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "reason": None, "how": None,
+           "ratio": 1.0 / (1.0 - total) if total < 1.0 else float("inf")}
+    if not keep.any():
+        out["reason"] = "the spectrum has no positive gain"
+        return out
+    if total >= 1.0:
+        out["reason"] = (f"sum c = {total:.4g} >= 1 (branches slower than the record standing in for a gain): no "
+                         f"settled/instant ratio a [creep] section can carry")
+        return out
+    if not (np.isfinite(c_s_f) and 0 < c_s_f < c_pp_f):
+        out["reason"] = f"the terminal secant {c_s_f:.4g} F is not below C_pp {c_pp_f:.4g} F: no C_h to put branches across"
+        return out
+    c_h = 1.0 / (1.0 / c_s_f - 1.0 / c_pp_f)
+    a = total / (1.0 - total)
+    out["c_h_f"] = c_h
+    if a * c_h >= c_pp_f:
+        ceil = 1.0 + c_pp_f / c_h
+        out["reason"] = (f"settled/instant {1 + a:.4g} is at or above the ceiling 1 + C_pp/C_h = {ceil:.4g} that branches "
+                         f"across C_h can give (C_h {c_h:.4g} F, C_pp {c_pp_f:.4g} F)")
+        return out
+    c_r = c_h if c_rev_f is None else float(c_rev_f)
+    c_sum = a * c_h * (c_r + c_pp_f) / (c_pp_f - a * c_h)
+    c_j = c_sum * g[keep] / total
+    out["capacitances_f"] = c_j
+    out["time_constants_s"] = tau[keep] * (c_j + c_r + c_pp_f) / (c_r + c_pp_f)
+    out["how"] = (f"C_j from settled/instant 1/(1 - sum c) = {1 + a:.4g} (sum c = {total:.4g}) across C_h = {c_h:.4g} F "
+                  f"(C_h = (1/C_s - 1/C_pp)^-1, C_s = {c_s_f:.4g} F {where}, C_pp = {c_pp_f:.4g} F, C_h's reversal slope "
+                  f"C_r = {c_r:.4g} F); tau_j the fitted time constants x (C_j + C_r + C_pp)/(C_r + C_pp), so each "
+                  f"branch relaxes at a held V_t with the fitted one (the branches taken one at a time: an approximation)")
+    return out
 
 
 #: The recorded drive is replayed interpolated linearly onto this many points per sample
