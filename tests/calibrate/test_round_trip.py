@@ -180,3 +180,69 @@ def test_a_mode_named_on_either_sensor_is_the_stacks_mode_in_the_file(sn637, tmp
     before = load_plant(PLANTS / "p888_51_sn637.toml").pzt.modes
     assert len(modes) == len(before) + 1
     assert any(m.freq_hz == pytest.approx(195.6) and m.damping_ratio == pytest.approx(0.0142) for m in modes)
+
+
+def _replay_base(plant, t, v, channel, y):
+    return SimpleNamespace(t=t, v_drive=v, input_kind="terminal",
+                           channels={channel: SimpleNamespace(y=y, valid=np.ones(t.size, bool),
+                                                              units={"charge": "C"}.get(channel, "m"))})
+
+
+@pytest.mark.parametrize("current", ["averaged", "sampled"])
+def test_charge_replay_is_the_simulated_charge_whatever_the_records_convention(sn637, current):
+    """The simulator logs a per-sample mean current; the replay's charge is the simulated charge itself, so
+    a noise-free record of the plant's own charge replayed through that plant leaves nothing (to rounding)
+    under either convention of the record. Integrating the simulated current as "sampled" (the record's
+    convention) lagged it half a sample: on a 3 Hz, 40 V sine at 1 kHz that left 5e-3 of the charge's span at most."""
+    import dataclasses as dc
+    from workbench.calibrate.plant_update import replay_upsample
+    t = np.arange(4000) / 1e3
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
+    quasi = dc.replace(sn637, pzt=dc.replace(sn637.pzt, series_resistance_ohm=0.0))
+    q = simulate_record(quasi, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False,
+                        upsample=replay_upsample(quasi, 1e3))["q_true_c"]
+    base = _replay_base(sn637, t, v, "charge", q + 3e-6)       # an integrated charge has no absolute zero
+    train = t < 2.0
+    err = updated_plant_error(sn637, base, "charge", ~train, train=train, current=current)
+    assert err["units"] == "C" and err["max"] <= 1e-9 * np.ptp(q)
+
+
+def test_replay_memory_is_the_records_not_the_upsampled_commands(sn637):
+    """The replay upsamples the drive 8x at 10 kHz (the 70 kHz mode): its peak memory (tracemalloc) per
+    record sample stays below 16 float columns (measured 2026-11-26: 96 B a sample at 2^19 samples) and falls
+    with the length (the fine command is simulated in chunks; was 272 B a sample at every length: 8 x 3 fine
+    columns), so a 35.5 s record at 1 MHz no longer needs ~10 GB."""
+    import tracemalloc
+    per = []
+    for n in (1 << 15, 1 << 19):
+        t = np.arange(n) / 1e4
+        v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
+        base = _replay_base(sn637, t, v, "displacement", np.zeros(n))
+        tracemalloc.start()
+        try:
+            updated_plant_error(sn637, base, "displacement", np.ones(n, bool))
+            per.append(tracemalloc.get_traced_memory()[1] / n)
+        finally:
+            tracemalloc.stop()
+    assert per[1] < 16 * 8 and per[1] < 0.6 * per[0], per
+
+
+def test_replay_upsample_follows_the_highest_mode(sn637):
+    """8 fine steps a period of the 70 kHz mode: 8 points a sample at 1-10 kHz, 6 at 100 kHz, none at 1 MHz
+    (the record already resolves it); a plant without modes: none."""
+    import dataclasses as dc
+    from workbench.calibrate.plant_update import replay_upsample
+    assert [replay_upsample(sn637, r) for r in (1e3, 1e4, 1e5, 1e6)] == [8, 8, 6, 1]
+    assert replay_upsample(dc.replace(sn637, pzt=dc.replace(sn637.pzt, modes=())), 1e4) == 1
+
+
+def test_chunked_replay_is_the_whole_one(sn637, monkeypatch):
+    """The simulator keeps its state between calls: the upsampled record simulated in chunks of an odd
+    length (777 samples) is bit for bit the one simulated whole."""
+    import workbench.calibrate.synthetic as syn
+    t = np.arange(5000) / 1e4
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
+    whole = simulate_record(sn637, t, v, upsample=8)
+    monkeypatch.setattr(syn, "REPLAY_CHUNK", 777)
+    parts = simulate_record(sn637, t, v, upsample=8)
+    assert all(np.array_equal(whole[k], parts[k]) for k in whole)

@@ -26,7 +26,7 @@ import re
 
 import numpy as np
 
-__all__ = ["updated_plant_text", "creep_branches", "updated_plant_error", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -230,12 +230,32 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
     return out
 
 
-#: The recorded drive is replayed interpolated linearly onto this many points per sample
+#: The recorded drive is replayed interpolated linearly onto up to this many points per sample
 #: (:func:`~workbench.calibrate.synthetic.simulate_record`'s ``upsample``): the tracing's models take the
-#: drive linear between samples (``calibrate/effects.py``), the simulator holds each command.
+#: drive linear between samples (``calibrate/effects.py``), the simulator holds each command; a mode near
+#: the sample rate tells the two apart (:func:`replay_upsample`).
 REPLAY_UPSAMPLE = 8
 
-_SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "current_a"}
+#: The fine steps per period of the plant's highest mode the replay asks for (:func:`replay_upsample`):
+#: at 10 kHz and the 70 kHz mode of ``p888_51_sn637`` the full :data:`REPLAY_UPSAMPLE`, at 1 MHz none.
+REPLAY_STEPS_PER_MODE_PERIOD = 8
+
+
+def replay_upsample(plant, rate_hz):
+    """Points per sample of the replay: enough fine steps for the plant's highest mode, at most 8.
+
+    ``ceil(8 f_max / rate)`` clipped to ``1..REPLAY_UPSAMPLE`` (``f_max`` the highest
+    ``[[mechanics.modes]]`` frequency, Hz; none: 1): a record sampled well above its modes gains
+    nothing from ramps between samples, and a 1 MHz record is replayed at its own rate.
+    """
+    modes = getattr(plant.pzt, "modes", ()) or ()
+    f_max = max((float(m.freq_hz) for m in modes), default=0.0)
+    if not (f_max > 0 and rate_hz > 0):
+        return 1
+    return int(min(REPLAY_UPSAMPLE, max(1, np.ceil(REPLAY_STEPS_PER_MODE_PERIOD * f_max / rate_hz))))
+
+
+_SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "q_true_c"}
 
 
 def updated_plant_error(plant, base, channel, test, train=None, current="averaged"):
@@ -245,7 +265,8 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     to the plant with its series resistor taken out (the quasi-static electrical form): the fitted
     model and the plant file then see one input, and the amplifier (its current limit, the monitor's
     averaging, which a recorded ``V`` cannot give back as a command) is left out. The simulation is
-    noise-free (no sensor noise, no gauge-chain noise): the error is the record's noise plus what the
+    noise-free (no sensor noise, no gauge-chain noise), in chunks (memory bounded whatever the record's
+    length), at :func:`replay_upsample` points per sample: the error is the record's noise plus what the
     plant file gets wrong, on the rows of the fitted model's ``error_after``.
 
     Parameters
@@ -256,8 +277,7 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
         The base fit: its times ``t``, drive ``v_drive`` (V) and the channel's recorded ``y`` and
         ``valid`` rows.
     channel : {"displacement", "gauge", "charge"}
-        The channel compared (the first effect's); the charge is the simulated current
-        integrated under the record's ``current`` convention.
+        The channel compared (the first effect's); the charge is the simulated terminal charge.
     test : ndarray of bool
         The held-out (test) rows.
     train : ndarray of bool, optional
@@ -265,7 +285,8 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
         charge's start) is the mean difference over these rows, as the fitted model's offset is
         fitted there; None: no constant is taken out.
     current : {"averaged", "sampled"}
-        The record's current convention (charge channel only).
+        The record's current convention: unused (the record's charge is the base's, integrated under
+        it; the replay's is the simulated charge itself), kept for the callers.
 
     Returns
     -------
@@ -275,19 +296,18 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     """
     import dataclasses
 
-    from .residual import charge_from_current
     from .synthetic import SensorNoise, simulate_record
     if channel not in _SIM_KEY or channel not in base.channels or base.input_kind != "terminal":
         return None
     m = base.channels[channel]
     t = np.asarray(base.t, float)
     quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
+    rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0
     sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
-                          gauge=channel == "gauge", gauge_noise=False, upsample=REPLAY_UPSAMPLE)
-    y = sim[_SIM_KEY[channel]]
-    if channel == "charge":
-        y = charge_from_current(t, y, current=current)
-    e = y - m.y
+                          gauge=channel == "gauge", gauge_noise=False, upsample=replay_upsample(quasi, rate))
+    # the charge: the simulated one itself (the simulator's current is a per-sample mean, whatever the
+    # record's convention; integrating it as "sampled" lagged half a sample); its start is the offset
+    e = sim[_SIM_KEY[channel]] - m.y
     if train is not None and np.any(train & m.valid):
         e = e - float(np.mean(e[train & m.valid]))
     e = e[test & m.valid]
