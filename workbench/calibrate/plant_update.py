@@ -26,7 +26,7 @@ import re
 
 import numpy as np
 
-__all__ = ["updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -315,8 +315,46 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
             "max": float(np.max(np.abs(e))) if e.size else float("nan"), "units": m.units}
 
 
-def round_trip_warning(error_after, plant_error, stages, tolerance=None):
-    """The warning when the plant file's simulated test error and the fitted model's differ.
+def plant_file_gaps(stages, base, plant):
+    """What of the calibration the updated plant file cannot carry, one phrase a gap.
+
+    Parameters
+    ----------
+    stages : list of dict
+        The calibration's stages (effect, channel, parameters).
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit (its drive sets the creep write-out's C_h, :func:`creep_branches`).
+    plant : workbench.plant.files.Plant
+        The declared plant.
+
+    Returns
+    -------
+    list of str
+        A stage not written (no plant-file form, or creep beyond what branches across C_h carry), a
+        resonance's gain other than 1 (the file's modes have unit DC gain), a drift's slow periodic term.
+    """
+    gaps = []
+    for st in stages:
+        eff, ch, p = st["effect"], st["channel"], st.get("parameters") or {}
+        if eff == "creep" and ch == "displacement":
+            sec = _terminal_secant(base, plant)
+            w = creep_branches(p["gains"], p["taus_s"], *sec[:3], c_rev_f=sec[3])
+            if w["capacitances_f"] is None:
+                gaps.append(f"the creep was not written ({w['reason']})")
+        elif eff == "resonance" and ch in ("displacement", "gauge"):
+            g = float(p.get("gain", 1.0))
+            if abs(g - 1.0) > 0.01:
+                gaps.append(f"the resonance's gain {g:.4g} (the file's modes have unit gain)")
+        elif eff == "drift" and ch == "displacement":
+            if p.get("period_s"):
+                gaps.append("the drift's slow periodic term (JSON only)")
+        elif eff in ("delay", "drift", "creep") and ch != "displacement":
+            gaps.append(f"the {eff} on the {ch} (no plant-file form, JSON only)")
+    return gaps
+
+
+def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()):
+    """The warning when the plant file's simulated test error exceeds the fitted model's.
 
     Parameters
     ----------
@@ -326,25 +364,68 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None):
         The calibration's stages (effect, channel, parameters).
     tolerance : float, optional
         Relative difference allowed (default :data:`ROUND_TRIP_TOLERANCE`).
+    gaps : sequence of str
+        :func:`plant_file_gaps`: the causes that apply, named beside the declared core.
 
     Returns
     -------
     str or None
-        One line naming both errors and the reason, or None within the tolerance.
+        One line naming both errors and the causes that apply; None within the tolerance, and None
+        when the file does better (:func:`round_trip_note` says that).
     """
     tol = ROUND_TRIP_TOLERANCE if tolerance is None else float(tolerance)
     if not plant_error or not error_after or not error_after["rms"] > 0:
         return None
     a, b, u = error_after["rms"], plant_error["rms"], error_after["units"]
-    if abs(b - a) <= tol * a:
+    if b <= (1.0 + tol) * a:
         return None
     found = ", ".join(f"{s['effect']} ({s['channel']})" for s in stages) or "no effect"
-    if b > a:
-        why = ("the file keeps the declared core (its PI weights and gains) while the effects were fitted jointly with "
-               "a base refitted on the record, which also takes up what no stage named; an effect without a "
-               "plant-file form (a resonance's gain other than 1, a drift's periodic term, an effect on the gauge or "
-               "the charge's drift or delay) is in the JSON only")
-    else:
-        why = "the declared core fits this record better than the base fit's model of the drive"
+    why = "; ".join([*gaps, "the file keeps the declared core (its PI weights and gains) while the fitted model's "
+                            "base was refitted on the record, taking up what no stage named"])
     return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u} against "
             f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")
+
+
+def round_trip_note(error_after, plant_error, tolerance=None):
+    """The note when the plant file's simulated test error is below the fitted model's beyond the tolerance.
+
+    Returns
+    -------
+    str or None
+        One line (a note, not a warning: the file is the better model of this record); None otherwise.
+    """
+    tol = ROUND_TRIP_TOLERANCE if tolerance is None else float(tolerance)
+    if not plant_error or not error_after or not error_after["rms"] > 0:
+        return None
+    a, b, u = error_after["rms"], plant_error["rms"], error_after["units"]
+    if b >= (1.0 - tol) * a:
+        return None
+    return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u}, below "
+            f"the fitted model's {a:.4g} {u} ({b / a:.2f}x): the declared core fits this record better than the "
+            f"base refitted on it")
+
+
+def updated_plant_error_reason(kind, result, base, channel):
+    """Why ``updated_plant_error`` is null (None when it is measured).
+
+    Parameters
+    ----------
+    kind : {"pzt", "generic_stack"}
+        The plant file's kind.
+    result : dict
+        The calibration's result (its ``stages``).
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit (its ``input_kind`` and channels).
+    channel : str or None
+        The first effect's channel.
+    """
+    if kind != "pzt":
+        return "a generic stack's plant file has no simulator: no replay"
+    if not result.get("stages"):
+        return "no effect found: the file is the declared plant"
+    if base.input_kind != "terminal":
+        return ("the voltage is an amplifier command (unknown gain and lag): the record's terminal voltage, which "
+                "the replay drives, is not recorded")
+    if channel not in _SIM_KEY or channel not in base.channels:
+        return f"the {channel} channel is not one the simulator logs"
+    return None
