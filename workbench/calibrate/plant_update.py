@@ -168,14 +168,18 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
     the branches across C_h, :mod:`workbench.plant.creep`). With ``V_t`` held and C_h linear, the instant
     charge is ``C_h C_pp / (C_h + C_pp) V``, the settled one ``(C_h + C_S) C_pp / (C_h + C_S + C_pp) V``
     (``C_S = sum C_j``). The spectrum ``u (1 - sum c) + sum c_j lowpass_j(u)`` has settled over instant
-    ``1 / (1 - sum c) = 1 + A``, hence ``C_S = A C_h (C_h + C_pp) / (C_pp - A C_h)``, shared in proportion to
-    ``c_j``; ``C_h = (1/C_s - 1/C_pp)^-1`` from the terminal secant ``C_s``. A branch alone relaxes at a held
+    ``1 / (1 - sum c) = 1 + A``, hence ``C_S = A C_h (C_h + C_pp) / (C_pp - A C_h)``; ``C_h = (1/C_s - 1/C_pp)^-1``
+    from the terminal secant ``C_s``. The map is not linear (it diverges at the ceiling ``A C_h = C_pp``), so
+    ``C_S`` is not shared in proportion to ``c_j``: in order of time constant, when branch k settles the faster
+    ones have (each across C_h, adding to its capacitance) and the slower have not moved, and the spectrum
+    reads ``1 + A_k``, ``A_k = sum_{j<=k} c_j / (1 - sum c)``: ``C_k = C_S(A_k) - C_S(A_{k-1})``, and branch k
+    relaxes with ``tau_k (C_h' + C_pp) / (C_k + C_h' + C_pp)``, ``C_h' = C_h + C_S(A_{k-1})``. A branch alone relaxes at a held
     ``V_t`` with ``tau_j (C_h + C_pp) / (C_j + C_h + C_pp)`` (``tau_j = R_j C_j`` the file's), so the file's
-    ``tau_j`` is the fitted one times ``(C_j + C_h + C_pp) / (C_h + C_pp)``. C_h is not linear: the
+    ``tau_k`` is the fitted one times ``(C_k + C_h' + C_pp) / (C_h' + C_pp)``. C_h is not linear: the
     branches, charging, pull ``V_h`` back (a reversal), where C_h's slope is its reversal slope ``C_r``
     (the threshold-0 play's weight), not the secant that set the instant response; with ``C_r`` the
-    settled charge gives ``C_S = A C_h (C_r + C_pp) / (C_pp - A C_h)`` and the factor
-    ``(C_j + C_r + C_pp) / (C_r + C_pp)`` (``C_r = C_h``: the linear forms above).
+    settled charge gives ``C_S(A) = A C_h (C_r + C_pp) / (C_pp - A C_h)`` and the factor
+    ``(C_k + C_r' + C_pp) / (C_r' + C_pp)``, ``C_r' = C_r + C_S(A_{k-1})`` (``C_r = C_h``: the linear forms).
 
     Parameters
     ----------
@@ -219,14 +223,25 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
                          f"across C_h can give (C_h {c_h:.4g} F, C_pp {c_pp_f:.4g} F)")
         return out
     c_r = c_h if c_rev_f is None else float(c_rev_f)
-    c_sum = a * c_h * (c_r + c_pp_f) / (c_pp_f - a * c_h)
-    c_j = c_sum * g[keep] / total
-    out["capacitances_f"] = c_j
-    out["time_constants_s"] = tau[keep] * (c_j + c_r + c_pp_f) / (c_r + c_pp_f)
+
+    def settled(a_k):      # the branches' summed capacitance giving settled/instant 1 + a_k
+        return a_k * c_h * (c_r + c_pp_f) / (c_pp_f - a_k * c_h)
+    # in order of time constant: when branch k settles the faster ones have (across C_h, adding to its
+    # capacitance) and the slower ones have not moved; the spectrum there reads 1 + sum_{j<=k} c_j / (1 - sum c)
+    order = np.argsort(tau[keep])
+    gk, tk = g[keep][order], tau[keep][order]
+    cum = np.cumsum(gk) / (1.0 - total)
+    c_cum = np.array([settled(x) for x in cum])
+    before = np.concatenate([[0.0], c_cum[:-1]])
+    c_j = c_cum - before
+    ok = c_j > 1e-9 * c_cum[-1]        # a gain lost in the rounding of the sums (1e-19 of a fit) is no branch
+    out["capacitances_f"] = c_j[ok]
+    out["time_constants_s"] = (tk * (c_j + c_r + before + c_pp_f) / (c_r + before + c_pp_f))[ok]
     out["how"] = (f"C_j from settled/instant 1/(1 - sum c) = {1 + a:.4g} (sum c = {total:.4g}) across C_h = {c_h:.4g} F "
                   f"(C_h = (1/C_s - 1/C_pp)^-1, C_s = {c_s_f:.4g} F {where}, C_pp = {c_pp_f:.4g} F, C_h's reversal slope "
-                  f"C_r = {c_r:.4g} F); tau_j the fitted time constants x (C_j + C_r + C_pp)/(C_r + C_pp), so each "
-                  f"branch relaxes at a held V_t with the fitted one (the branches taken one at a time: an approximation)")
+                  f"C_r = {c_r:.4g} F); in order of time constant C_k = C_S(A_k) - C_S(A_(k-1)), tau_k the fitted one x "
+                  f"(C_k + C_r' + C_pp)/(C_r' + C_pp), C_r' = C_r + C_S(A_(k-1)): each branch settles with the faster "
+                  f"ones settled and the slower unmoved (an approximation: time constants a decade apart)")
     return out
 
 
