@@ -291,13 +291,16 @@ def test_replay_memory_is_the_records_not_the_upsampled_commands(sn637):
     assert per[1] < 16 * 8 and per[1] < 0.6 * per[0], per
 
 
-def test_replay_upsample_follows_the_highest_mode(sn637):
-    """8 fine steps a period of the 70 kHz mode: 8 points a sample at 1-10 kHz, 6 at 100 kHz, none at 1 MHz
-    (the record already resolves it); a plant without modes: none."""
+def test_replay_upsample_follows_the_record_and_the_highest_mode(sn637):
+    """A fine step of at most 12.5 us (the held command's half-step lag) and 8 a period of the 70 kHz mode:
+    8 points a sample at 1-10 kHz, 6 at 100 kHz, none at 1 MHz; a plant whose only mode is at 200 Hz still
+    gets 8 at 1-10 kHz (the lag), none at 100 kHz and above."""
     import dataclasses as dc
     from workbench.calibrate.plant_update import replay_upsample
+    from workbench.plant.pzt import Mode
     assert [replay_upsample(sn637, r) for r in (1e3, 1e4, 1e5, 1e6)] == [8, 8, 6, 1]
-    assert replay_upsample(dc.replace(sn637, pzt=dc.replace(sn637.pzt, modes=())), 1e4) == 1
+    low = dc.replace(sn637, pzt=dc.replace(sn637.pzt, modes=(Mode(200.0, 0.01),)))
+    assert [replay_upsample(low, r) for r in (1e3, 1e4, 1e5, 1e6)] == [8, 8, 1, 1]
 
 
 def test_chunked_replay_is_the_whole_one(sn637, monkeypatch):

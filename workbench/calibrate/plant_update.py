@@ -251,23 +251,32 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
 #: the sample rate tells the two apart (:func:`replay_upsample`).
 REPLAY_UPSAMPLE = 8
 
-#: The fine steps per period of the plant's highest mode the replay asks for (:func:`replay_upsample`):
-#: at 10 kHz and the 70 kHz mode of ``p888_51_sn637`` the full :data:`REPLAY_UPSAMPLE`, at 1 MHz none.
+#: The fine steps per period of the plant's highest mode the replay asks for (:func:`replay_upsample`).
 REPLAY_STEPS_PER_MODE_PERIOD = 8
+
+#: The longest fine step of the replay, s: a command held over a step lags the linear drive by half of it;
+#: 12.5 us is 8 points a sample at 10 kHz, where the plant that made the record leaves the sensor's noise
+#: (``tests/calibrate/test_round_trip.py``). Derived from the modes alone, a plant whose only mode is a
+#: 200 Hz one was replayed at 1-2 points a sample at 1-10 kHz, and the plant that made the record left up
+#: to 2.8x more (seeds 24-25, measured 2026-11-26).
+REPLAY_FINE_STEP_S = 12.5e-6
 
 
 def replay_upsample(plant, rate_hz):
-    """Points per sample of the replay: enough fine steps for the plant's highest mode, at most 8.
+    """Points per sample of the replay, at most :data:`REPLAY_UPSAMPLE`.
 
-    ``ceil(8 f_max / rate)`` clipped to ``1..REPLAY_UPSAMPLE`` (``f_max`` the highest
-    ``[[mechanics.modes]]`` frequency, Hz; none: 1): a record sampled well above its modes gains
-    nothing from ramps between samples, and a 1 MHz record is replayed at its own rate.
+    The larger of ``ceil(1 / (rate REPLAY_FINE_STEP_S))`` (the held command's half-step lag) and
+    ``ceil(8 f_max / rate)`` (8 fine steps a period of the highest ``[[mechanics.modes]]`` frequency
+    ``f_max``, Hz), clipped to ``1..REPLAY_UPSAMPLE``: 8 at 1-10 kHz, 6 at 100 kHz with the 70 kHz mode of
+    ``p888_51_sn637``, none at 1 MHz (the record's own step is 1 us).
     """
+    if not rate_hz > 0:
+        return REPLAY_UPSAMPLE
     modes = getattr(plant.pzt, "modes", ()) or ()
     f_max = max((float(m.freq_hz) for m in modes), default=0.0)
-    if not (f_max > 0 and rate_hz > 0):
-        return 1
-    return int(min(REPLAY_UPSAMPLE, max(1, np.ceil(REPLAY_STEPS_PER_MODE_PERIOD * f_max / rate_hz))))
+    need = max(np.ceil(1.0 / (rate_hz * REPLAY_FINE_STEP_S) - 1e-9),
+               np.ceil(REPLAY_STEPS_PER_MODE_PERIOD * f_max / rate_hz - 1e-9))
+    return int(min(REPLAY_UPSAMPLE, max(1, need)))
 
 
 _SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "q_true_c"}
