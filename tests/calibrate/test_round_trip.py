@@ -8,6 +8,7 @@ The issue's round trip on drawn two-effect records (sizes 3-30x, log-uniform, ``
 before any run) is a strict xfail where it is a miss, with the measured reason.
 """
 
+import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -15,8 +16,9 @@ import numpy as np
 import pytest
 
 from tests.conftest import load_benchmark
-from workbench.calibrate.plant_update import (ROUND_TRIP_TOLERANCE, round_trip_warning, updated_plant_error,
-                                              updated_plant_text)
+from workbench.calibrate.plant_update import (ROUND_TRIP_TOLERANCE, _terminal_secant, creep_branches, plant_file_gaps,
+                                              round_trip_note, round_trip_warning, updated_plant_error,
+                                              updated_plant_error_reason, updated_plant_text)
 from workbench.calibrate.synthetic import SensorNoise, benchmark_protocol, simulate_record
 from workbench.calibrate.tracing import trace_effect
 from workbench.plant import load_plant
@@ -61,40 +63,130 @@ def test_gauge_noise_switch(sn637):
     assert not np.array_equal(c, d)
 
 
-@pytest.mark.parametrize("gains", [[0.05, 0.1], [0.3, 0.0, 0.2], [0.6, 0.7]])
-def test_creep_is_written_as_fractions_of_the_instant_response(sn637, tmp_path, gains):
-    """The spectrum reads ``u (1 - sum c) + sum c_j lowpass_j(u)``: settled ``u``, instant ``(1 - sum c) u``.
-    A branch's ``C_j / C_sec`` is creep over the instant response: ``c_j / (1 - sum c)``; a sum >= 1 has
-    no such reading and is written as ``c_j C_sec``."""
-    rng = np.random.default_rng(len(gains))
-    v = rng.uniform(0, 100, 500)
-    q = v * 1.1e-5
-    base = SimpleNamespace(channels={"charge": SimpleNamespace(yhat=q)}, v_drive=v)
-    taus = [0.1 * 10 ** k for k in range(len(gains))]
+def _creep_file(sn637, tmp_path, gains, taus, v):
+    """The updated plant of a creep found on a displacement-only record (no charge channel)."""
     st = {"effect": "creep", "channel": "displacement", "parameters": {"gains": gains, "taus_s": taus},
           "error_before": {"rms": 1.0, "max": 1.0, "units": "m"}, "error_after": {"rms": 0.5, "max": 0.5, "units": "m"}}
-    res = {"effect": "creep", "channel": "displacement", "stages": [st], "error_before": st["error_before"],
-           "error_after": st["error_after"], "parameters": st["parameters"]}
-    (tmp_path / "p.toml").write_text(updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res,
-                                                        Path("rec.csv")))
-    creep = load_plant(tmp_path / "p.toml").pzt.creep
-    g = np.asarray(gains)
-    c_sec = np.ptp(q) / np.ptp(v)
-    want = g[g > 0] * c_sec / ((1.0 - g.sum()) if g.sum() < 1 else 1.0)
-    np.testing.assert_allclose(creep.capacitances_f, want, rtol=1e-12)
-    np.testing.assert_allclose(creep.time_constants_s, np.asarray(taus)[g > 0], rtol=1e-12)
+    res = dict(st, stages=[st])
+    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, SimpleNamespace(channels={}, v_drive=v), res,
+                              Path("rec.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    return text, load_plant(tmp_path / "p.toml")
 
 
-@pytest.mark.parametrize("ratio, warned", [(1.0, False), (1.0 + 0.99 * ROUND_TRIP_TOLERANCE, False),
-                                           (1.0 - 0.99 * ROUND_TRIP_TOLERANCE, False),
-                                           (1.0 + 1.01 * ROUND_TRIP_TOLERANCE, True), (0.4, True), (6.0, True)])
-def test_round_trip_warning_beyond_the_tolerance(ratio, warned):
+@pytest.mark.parametrize("gains, taus, v0", [([0.05], [0.02], 100.0), ([0.1, 0.15], [0.01, 0.1], 60.0),
+                                             ([0.3], [0.05], 120.0)])
+def test_written_creep_steps_to_the_fitted_ratio_and_time_constant(sn637, tmp_path, gains, taus, v0):
+    """The spectrum ``u (1 - sum c) + sum c_j lowpass_j(u)`` settles at ``1 / (1 - sum c)`` of its instant
+    response, and a single branch is 1 - 1/e of the way at its fitted ``tau``. The written file (no charge
+    channel: C_h from the declared core), simulated on a step and hold, must do the same: settled over
+    the declared core's own response within 3 % (measured 2026-11-26: -0.2 %, -1.8 %, -2.4 %: C_h not
+    linear) and 1 - 1/e reached within 20 % of ``tau`` (measured +4 %, -14 %). The former write-out
+    (c_j / (1 - sum c) x the terminal secant) was 4-7x off in the creep share."""
+    rate = 1e4
+    t = np.arange(int((12 * max(taus) + 0.01) * rate)) / rate
+    v = np.where(t >= 0.005, v0, 0.0)
+    text, again = _creep_file(sn637, tmp_path, gains, taus, v)
+    assert "[creep]" in text
+
+    def x(pl):
+        q = dataclasses.replace(pl, pzt=dataclasses.replace(pl.pzt, series_resistance_ohm=0.0))
+        return simulate_record(q, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False)["displacement_m"]
+    core, crept = x(sn637), x(again)
+    assert crept[-1] / core[-1] == pytest.approx(1.0 / (1.0 - sum(gains)), rel=0.03)
+    if len(gains) == 1:
+        k = np.searchsorted(t, 0.005 + taus[0])
+        frac = (crept[k] - core[k]) / (crept[-1] - core[-1])
+        assert -taus[0] / np.log(1.0 - frac) == pytest.approx(taus[0], rel=0.20)
+
+
+def test_written_creep_settles_branch_by_branch(sn637, tmp_path):
+    """Time constants far apart (2 ms, 0.5 s; c = 0.1, 0.2): 25 ms after the step the fast branch has
+    settled and the slow one moved 5 %: the spectrum reads 1 + (0.1 + 0.2 (1 - exp(-0.05))) / 0.7 = 1.157 of
+    the instant response, 1 / 0.7 settled. The branches are sized in order of time constant (the map from
+    ratio to capacitance is not linear near the ceiling); measured 2026-11-26: 1.143 (-1.2 %), 1.396 (-2.3 %).
+    Shared in proportion to c_j the fast branch would take a third of the total, ~1.30 at 25 ms."""
+    rate = 1e4
+    t = np.arange(int(6.0 * rate)) / rate
+    v = np.where(t >= 0.005, 100.0, 0.0)
+    _, again = _creep_file(sn637, tmp_path, [0.1, 0.2], [0.002, 0.5], v)
+
+    def x(pl):
+        q = dataclasses.replace(pl, pzt=dataclasses.replace(pl.pzt, series_resistance_ohm=0.0))
+        return simulate_record(q, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False)["displacement_m"]
+    core, crept = x(sn637), x(again)
+    k = np.searchsorted(t, 0.030)
+    assert crept[k] / core[k] == pytest.approx(1.0 + (0.1 + 0.2 * (1.0 - np.exp(-0.05))) / 0.7, rel=0.03)
+    assert crept[-1] / core[-1] == pytest.approx(1.0 / 0.7, rel=0.03)
+
+
+def test_creep_above_the_ceiling_is_not_written(sn637, tmp_path):
+    """Branches across C_h cannot take the settled response beyond ``1 + C_pp / C_h`` of the instant one
+    (C_S -> infinity); a spectrum above it (and one with ``sum c >= 1``) gets no ``[creep]``, the header says why."""
+    v = np.linspace(0.0, 100.0, 200)
+    c_s, c_pp, _, _ = _terminal_secant(SimpleNamespace(v_drive=v), sn637)
+    ceil = 1.0 + c_pp / (1.0 / (1.0 / c_s - 1.0 / c_pp))
+    for total in (1.0 - 1.0 / (ceil * 1.05), 1.2):
+        text, again = _creep_file(sn637, tmp_path, [total], [0.1], v)
+        assert "\n[creep]\n" not in text and "creep found on the displacement is not written" in text
+        assert again.pzt.creep is None
+    ok = creep_branches([1.0 - 1.0 / (ceil * 0.95)], [0.1], c_s, c_pp)
+    assert ok["capacitances_f"] is not None
+
+
+@pytest.mark.parametrize("ratio, warned, noted", [(1.0, False, False), (1.0 + 0.99 * ROUND_TRIP_TOLERANCE, False, False),
+                                                  (1.0 - 0.99 * ROUND_TRIP_TOLERANCE, False, False),
+                                                  (1.0 + 1.01 * ROUND_TRIP_TOLERANCE, True, False), (0.4, False, True),
+                                                  (6.0, True, False)])
+def test_round_trip_warning_beyond_the_tolerance(ratio, warned, noted):
+    """Above 1 + 10 %: a warning; below 1 - 10 % the file does better than the fitted model: a note, not a
+    warning; within: neither."""
     ea = {"rms": 2.0e-9, "max": 9e-9, "units": "m"}
     pe = {"rms": ratio * 2.0e-9, "max": 9e-9, "units": "m"}
     w = round_trip_warning(ea, pe, [{"effect": "delay", "channel": "displacement"}])
-    assert (w is not None) == warned
+    n = round_trip_note(ea, pe)
+    assert (w is not None, n is not None) == (warned, noted)
     if warned:
         assert f"{ratio * 2.0e-9:.4g} m" in w and "2e-09 m" in w and ("declared core" in w)
+    if noted:
+        assert f"{ratio * 2.0e-9:.4g} m" in n and "better" in n
+
+
+def test_the_warning_names_only_the_causes_that_apply(sn637):
+    """A delay on the displacement has a plant-file form, a unit-gain mode too: only the declared core is
+    named. A resonance of gain 0.8, a drift's periodic term, a gauge's delay and a creep beyond the ceiling
+    are each named when found, and not otherwise."""
+    v = np.linspace(0.0, 100.0, 200)
+    base = SimpleNamespace(channels={}, v_drive=v)
+    ea, pe = {"rms": 1e-9, "max": 3e-9, "units": "m"}, {"rms": 3e-9, "max": 9e-9, "units": "m"}
+    plain = [{"effect": "delay", "channel": "displacement", "parameters": {"delay_s": 1e-4}},
+             {"effect": "resonance", "channel": "gauge", "parameters": {"f_n_hz": 200.0, "zeta": 0.02, "gain": 1.0}}]
+    gaps = plant_file_gaps(plain, base, sn637)
+    assert gaps == []
+    w = round_trip_warning(ea, pe, plain, gaps=gaps)
+    assert "declared core" in w and "gain 1" not in w and "periodic" not in w and "creep" not in w
+    each = {"gain 0.8": {"effect": "resonance", "channel": "displacement",
+                         "parameters": {"f_n_hz": 200.0, "zeta": 0.02, "gain": 0.8}},
+            "periodic term": {"effect": "drift", "channel": "displacement",
+                              "parameters": {"coefficients": [0, 1e-9], "t0_s": 0.0, "t_end_s": 1.0, "period_s": 0.5}},
+            "delay on the gauge": {"effect": "delay", "channel": "gauge", "parameters": {"delay_s": 1e-4}},
+            "creep was not written": {"effect": "creep", "channel": "displacement",
+                                      "parameters": {"gains": [0.9], "taus_s": [0.1]}}}
+    for phrase, st in each.items():
+        gaps = plant_file_gaps([st], base, sn637)
+        w = round_trip_warning(ea, pe, [st], gaps=gaps)
+        assert phrase in w and all(other not in w for other in each if other != phrase), (phrase, w)
+
+
+def test_updated_plant_error_reason():
+    """A null ``updated_plant_error`` says why: a generic stack, no effect, an amplifier command."""
+    res = {"stages": [{"effect": "delay", "channel": "displacement"}]}
+    term = SimpleNamespace(input_kind="terminal", channels={"displacement": None})
+    assert updated_plant_error_reason("pzt", res, term, "displacement") is None
+    assert "generic stack" in updated_plant_error_reason("generic_stack", res, term, "displacement")
+    assert "no effect" in updated_plant_error_reason("pzt", {"stages": []}, term, None)
+    cmd = SimpleNamespace(input_kind="command", channels={"displacement": None})
+    assert "amplifier command" in updated_plant_error_reason("pzt", res, cmd, "displacement")
 
 
 def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
@@ -112,11 +204,12 @@ def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
     return res, err
 
 
-CREEP_MISS = ("measured 2026-11-26: a creep+delay record at 1 kHz (28x, 18.6x) is answered creep alone; the updated "
-              "plant leaves 6.5e-7 / 3.75e-7 m on the test rows against error_after 1.48e-7 / 2.78e-8 m (4.4x / 13.5x; the "
-              "plant that made the record 1.5 nm). The file keeps the declared core: the spectrum's branches slower than "
-              "the record and its fast share were fitted against the refitted base (c_j / (1 - sum c) x C_sec is an "
-              "approximation, V_h is not recorded), and the unnamed delay is taken up by the base, not the file")
+CREEP_MISS = ("measured 2026-11-26 (s12_rtfix): a creep+delay record at 1 kHz (28x, 18.6x) is answered creep alone; the "
+              "fitted spectra (sum c = 1.57; sum c = 0.667, settled/instant 3.0) have branches of 1000 s on a 10 s record "
+              "standing in for a gain, beyond what branches across the declared C_h can carry (ceiling 1 + C_pp/C_h = 1.55): "
+              "no [creep] is written, and the file (declared core) leaves 8.95e-7 / 7.55e-7 m on the test rows against "
+              "error_after 1.48e-7 / 2.78e-8 m (6x / 27x; the plant that made the record 1.5 nm; with the former, 4-6x "
+              "too weak write-out: 6.5e-7 / 3.75e-7). The unnamed delay is taken up by the base, not the file")
 
 
 @pytest.mark.parametrize("effect, rate, proto, size, seed", [
@@ -151,3 +244,72 @@ def test_a_mode_named_on_either_sensor_is_the_stacks_mode_in_the_file(sn637, tmp
     before = load_plant(PLANTS / "p888_51_sn637.toml").pzt.modes
     assert len(modes) == len(before) + 1
     assert any(m.freq_hz == pytest.approx(195.6) and m.damping_ratio == pytest.approx(0.0142) for m in modes)
+
+
+def _replay_base(plant, t, v, channel, y):
+    return SimpleNamespace(t=t, v_drive=v, input_kind="terminal",
+                           channels={channel: SimpleNamespace(y=y, valid=np.ones(t.size, bool),
+                                                              units={"charge": "C"}.get(channel, "m"))})
+
+
+@pytest.mark.parametrize("current", ["averaged", "sampled"])
+def test_charge_replay_is_the_simulated_charge_whatever_the_records_convention(sn637, current):
+    """The simulator logs a per-sample mean current; the replay's charge is the simulated charge itself, so
+    a noise-free record of the plant's own charge replayed through that plant leaves nothing (to rounding)
+    under either convention of the record. Integrating the simulated current as "sampled" (the record's
+    convention) lagged it half a sample: on a 3 Hz, 40 V sine at 1 kHz that left 5e-3 of the charge's span at most."""
+    import dataclasses as dc
+    from workbench.calibrate.plant_update import replay_upsample
+    t = np.arange(4000) / 1e3
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
+    quasi = dc.replace(sn637, pzt=dc.replace(sn637.pzt, series_resistance_ohm=0.0))
+    q = simulate_record(quasi, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False,
+                        upsample=replay_upsample(quasi, 1e3))["q_true_c"]
+    base = _replay_base(sn637, t, v, "charge", q + 3e-6)       # an integrated charge has no absolute zero
+    train = t < 2.0
+    err = updated_plant_error(sn637, base, "charge", ~train, train=train, current=current)
+    assert err["units"] == "C" and err["max"] <= 1e-9 * np.ptp(q)
+
+
+def test_replay_memory_is_the_records_not_the_upsampled_commands(sn637):
+    """The replay upsamples the drive 8x at 10 kHz (the 70 kHz mode): its peak memory (tracemalloc) per
+    record sample stays below 16 float columns (measured 2026-11-26: 96 B a sample at 2^19 samples) and falls
+    with the length (the fine command is simulated in chunks; was 272 B a sample at every length: 8 x 3 fine
+    columns), so a 35.5 s record at 1 MHz no longer needs ~10 GB."""
+    import tracemalloc
+    per = []
+    for n in (1 << 15, 1 << 19):
+        t = np.arange(n) / 1e4
+        v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
+        base = _replay_base(sn637, t, v, "displacement", np.zeros(n))
+        tracemalloc.start()
+        try:
+            updated_plant_error(sn637, base, "displacement", np.ones(n, bool))
+            per.append(tracemalloc.get_traced_memory()[1] / n)
+        finally:
+            tracemalloc.stop()
+    assert per[1] < 16 * 8 and per[1] < 0.6 * per[0], per
+
+
+def test_replay_upsample_follows_the_record_and_the_highest_mode(sn637):
+    """A fine step of at most 12.5 us (the held command's half-step lag) and 8 a period of the 70 kHz mode:
+    8 points a sample at 1-10 kHz, 6 at 100 kHz, none at 1 MHz; a plant whose only mode is at 200 Hz still
+    gets 8 at 1-10 kHz (the lag), none at 100 kHz and above."""
+    import dataclasses as dc
+    from workbench.calibrate.plant_update import replay_upsample
+    from workbench.plant.pzt import Mode
+    assert [replay_upsample(sn637, r) for r in (1e3, 1e4, 1e5, 1e6)] == [8, 8, 6, 1]
+    low = dc.replace(sn637, pzt=dc.replace(sn637.pzt, modes=(Mode(200.0, 0.01),)))
+    assert [replay_upsample(low, r) for r in (1e3, 1e4, 1e5, 1e6)] == [8, 8, 1, 1]
+
+
+def test_chunked_replay_is_the_whole_one(sn637, monkeypatch):
+    """The simulator keeps its state between calls: the upsampled record simulated in chunks of an odd
+    length (777 samples) is bit for bit the one simulated whole."""
+    import workbench.calibrate.synthetic as syn
+    t = np.arange(5000) / 1e4
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
+    whole = simulate_record(sn637, t, v, upsample=8)
+    monkeypatch.setattr(syn, "REPLAY_CHUNK", 777)
+    parts = simulate_record(sn637, t, v, upsample=8)
+    assert all(np.array_equal(whole[k], parts[k]) for k in whole)

@@ -7,12 +7,11 @@ it came from. Mapping of the tracing's parameters to plant-file sections
 
 * ``leakage``: ``gain_per_s`` is charge per volt-second, ``1 / R_FP``;
 * ``dielectric_absorption``: ``gain`` is ``k_s`` (C/V), ``tau_s`` the time constant;
-* ``creep`` (displacement channel): the spectrum's gains ``c_j`` are fractions of the
-  quasi-static displacement; a Kelvin-Voigt branch across C_h takes up ``C_j V_h`` and so adds
-  ``C_j / C_sec`` of the displacement, ``C_sec`` the hysteretic capacitance's large-signal secant
-  (charge span over voltage span of the base fit), over the core's instant response, while ``c_j``
-  is a fraction of the base's settled one (``(1 - sum c)`` times instant), hence
-  ``C_j = c_j C_sec / (1 - sum c)`` -- an approximation (V_h is not recorded), stated in the file;
+* ``creep`` (displacement channel): Kelvin-Voigt branches across the declared core's C_h whose
+  settled/instant ratio is the spectrum's ``1 / (1 - sum c)`` and whose time constants at a held
+  terminal voltage are the fitted ones (:func:`creep_branches`); C_h from the declared core's terminal
+  secant over the record's voltage span (no charge channel needed). Above the ceiling
+  ``1 + C_pp / C_h`` no section is written, and the header says why;
 * ``resonance``: an added ``[[mechanics.modes]]`` entry;
 * ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
 * ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
@@ -27,7 +26,7 @@ import re
 
 import numpy as np
 
-__all__ = ["updated_plant_text", "updated_plant_error", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -79,9 +78,11 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     blocks = []
     sensor = {}
     for st in stages:
-        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"))
+        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant)
         if block:
             blocks.append(block)
+        elif st["effect"] == "creep" and st["channel"] == "displacement":
+            header.append(f"# The creep found on the displacement is not written: {sensor.pop('creep_note', '')}")
         elif st["effect"] not in ("delay", "drift") or st["channel"] != "displacement":
             header.append(f"# The {st['effect']} found on the {st['channel']} channel has no plant-file form; its "
                           f"parameters are in the calibration JSON.")
@@ -98,7 +99,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     return out
 
 
-def _block(effect, ch, p, base, src, sensor, note=None):
+def _block(effect, ch, p, base, src, sensor, note=None, plant=None):
     """The plant-file lines of one effect (a displacement sensor's go into ``sensor``).
 
     ``note``: the stage's note (a named leakage's: the absorption time constant the record cannot
@@ -112,26 +113,14 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     elif effect == "dielectric_absorption" and p.get("gain", 0) > 0:
         block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
                  f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]
-    elif effect == "creep" and ch == "displacement" and "charge" in base.channels:
-        q = base.channels["charge"].yhat
-        c_sec = float(np.ptp(q) / max(np.ptp(base.v_drive), 1e-12))
-        gains, taus = np.asarray(p["gains"]), np.asarray(p["taus_s"])
-        # the spectrum's c_j are fractions of the base's *settled* displacement (the fit reads
-        # u (1 - sum c) + sum c_j lowpass_j(u): the instant response is (1 - sum c) u); a branch's
-        # C_j / C_sec is a fraction of the core's *instant* one: c_j / (1 - sum c). A sum >= 1 (branches
-        # slower than the record standing in for a gain) has no such reading: c_j is kept, and said.
-        total = float(gains.sum())
-        rescaled = total < 1.0
-        if rescaled:
-            gains = gains / (1.0 - total)
-        keep = gains > 0
-        if keep.any():
-            how = (f"c_j / (1 - sum c) x C_sec, sum c = {total:.4g}" if rescaled else
-                   f"c_j x C_sec (sum c = {total:.4g} >= 1: not rescaled to the instant response)")
-            block = ["[creep]", f"# C_j = {how}, C_sec = {c_sec:.4g} F the large-signal secant of the base fit "
-                                f"(an approximation: V_h is not recorded)",
-                     f"time_constants_s = [{', '.join(_fmt(x) for x in taus[keep])}]   # s; {src}",
-                     f"capacitances_f = [{', '.join(_fmt(x) for x in gains[keep] * c_sec)}]   # F; {src}"]
+    elif effect == "creep" and ch == "displacement":
+        w = creep_branches(p["gains"], p["taus_s"], *_terminal_secant(base, plant))
+        if w["capacitances_f"] is None:
+            sensor["creep_note"] = w["reason"]
+        else:
+            block = ["[creep]", f"# {w['how']}",
+                     f"time_constants_s = [{', '.join(_fmt(x) for x in w['time_constants_s'])}]   # s; {src}",
+                     f"capacitances_f = [{', '.join(_fmt(x) for x in w['capacitances_f'])}]   # F; {src}"]
     elif effect == "resonance" and ch in ("displacement", "gauge"):
         # the stack's mode: the gauge reads the stack's own strain (eq. 27), so a mode named on the gauge
         # (where a drift of the displacement sensor hid it) is the same mechanical mode, written once
@@ -155,12 +144,142 @@ def _block(effect, ch, p, base, src, sensor, note=None):
     return block
 
 
-#: The recorded drive is replayed interpolated linearly onto this many points per sample
+def _terminal_secant(base, plant):
+    """(C_s, C_pp, where, C_r): the declared core's terminal secant over the record's voltage span, F.
+
+    ``C_s`` = span of ``G^-1[V]`` over span of ``V`` (``G`` the core's terminal operator, the record's drive
+    ``base.v_drive`` from rest): the series of C_h and C_pp the file's core gives the written branches. The
+    declared core's, not the base fit's charge: the file carries the declared core, and the simulated
+    settled/instant ratio is set by its C_h; it needs no charge channel. ``C_r``: C_h's reversal slope
+    (the threshold-0 play's weight), F.
+    """
+    v = np.asarray(base.v_drive, float)
+    q = plant.pzt.terminal_operator().inverse()(v)
+    span = float(np.ptp(v))
+    c_s = float(np.ptp(q)) / span if span > 0 else float("nan")
+    where = f"the declared core's terminal secant over the record's {span:.4g} V span"
+    return c_s, float(plant.pzt.c_pp_f), where, float(plant.pzt.hysteresis.weights[0])
+
+
+def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_rev_f=None):
+    """Kelvin-Voigt branches across C_h whose step response is the fitted creep spectrum's.
+
+    The displacement is proportional to the terminal charge ``q = q_h + sum Q_j`` (``V_t = V_h + q/C_pp``,
+    the branches across C_h, :mod:`workbench.plant.creep`). With ``V_t`` held and C_h linear, the instant
+    charge is ``C_h C_pp / (C_h + C_pp) V``, the settled one ``(C_h + C_S) C_pp / (C_h + C_S + C_pp) V``
+    (``C_S = sum C_j``). The spectrum ``u (1 - sum c) + sum c_j lowpass_j(u)`` has settled over instant
+    ``1 / (1 - sum c) = 1 + A``, hence ``C_S = A C_h (C_h + C_pp) / (C_pp - A C_h)``; ``C_h = (1/C_s - 1/C_pp)^-1``
+    from the terminal secant ``C_s``. The map is not linear (it diverges at the ceiling ``A C_h = C_pp``), so
+    ``C_S`` is not shared in proportion to ``c_j``: in order of time constant, when branch k settles the faster
+    ones have (each across C_h, adding to its capacitance) and the slower have not moved, and the spectrum
+    reads ``1 + A_k``, ``A_k = sum_{j<=k} c_j / (1 - sum c)``: ``C_k = C_S(A_k) - C_S(A_{k-1})``, and branch k
+    relaxes with ``tau_k (C_h' + C_pp) / (C_k + C_h' + C_pp)``, ``C_h' = C_h + C_S(A_{k-1})``. A branch alone relaxes at a held
+    ``V_t`` with ``tau_j (C_h + C_pp) / (C_j + C_h + C_pp)`` (``tau_j = R_j C_j`` the file's), so the file's
+    ``tau_k`` is the fitted one times ``(C_k + C_h' + C_pp) / (C_h' + C_pp)``. C_h is not linear: the
+    branches, charging, pull ``V_h`` back (a reversal), where C_h's slope is its reversal slope ``C_r``
+    (the threshold-0 play's weight), not the secant that set the instant response; with ``C_r`` the
+    settled charge gives ``C_S(A) = A C_h (C_r + C_pp) / (C_pp - A C_h)`` and the factor
+    ``(C_k + C_r' + C_pp) / (C_r' + C_pp)``, ``C_r' = C_r + C_S(A_{k-1})`` (``C_r = C_h``: the linear forms).
+
+    Parameters
+    ----------
+    gains, taus_s : array_like of float
+        The fitted spectrum's ``c_j`` (fractions of the settled displacement) and time constants, s.
+    c_s_f, c_pp_f : float
+        Terminal secant ``C_s`` and ``C_pp``, F.
+    c_rev_f : float, optional
+        C_h's reversal slope ``C_r``, F (default: C_h, linear).
+    where : str
+        Where ``C_s`` came from (said in the file).
+
+    Returns
+    -------
+    dict
+        ``capacitances_f``, ``time_constants_s`` (ndarrays; None when no ``[creep]`` section can represent
+        the spectrum: ``sum c >= 1``, ``C_s >= C_pp`` or above the ceiling ``A C_h >= C_pp``), ``c_h_f``,
+        ``ratio`` (settled / instant), ``how`` (the file's comment) and ``reason`` (why none).
+    """
+    g, tau = np.asarray(gains, float), np.asarray(taus_s, float)
+    keep = g > 0
+    total = float(g[keep].sum())
+    out = {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "reason": None, "how": None,
+           "ratio": 1.0 / (1.0 - total) if total < 1.0 else float("inf")}
+    if not keep.any():
+        out["reason"] = "the spectrum has no positive gain"
+        return out
+    if total >= 1.0:
+        out["reason"] = (f"sum c = {total:.4g} >= 1 (branches slower than the record standing in for a gain): no "
+                         f"settled/instant ratio a [creep] section can carry")
+        return out
+    if not (np.isfinite(c_s_f) and 0 < c_s_f < c_pp_f):
+        out["reason"] = f"the terminal secant {c_s_f:.4g} F is not below C_pp {c_pp_f:.4g} F: no C_h to put branches across"
+        return out
+    c_h = 1.0 / (1.0 / c_s_f - 1.0 / c_pp_f)
+    a = total / (1.0 - total)
+    out["c_h_f"] = c_h
+    if a * c_h >= c_pp_f:
+        ceil = 1.0 + c_pp_f / c_h
+        out["reason"] = (f"settled/instant {1 + a:.4g} is at or above the ceiling 1 + C_pp/C_h = {ceil:.4g} that branches "
+                         f"across C_h can give (C_h {c_h:.4g} F, C_pp {c_pp_f:.4g} F)")
+        return out
+    c_r = c_h if c_rev_f is None else float(c_rev_f)
+
+    def settled(a_k):      # the branches' summed capacitance giving settled/instant 1 + a_k
+        return a_k * c_h * (c_r + c_pp_f) / (c_pp_f - a_k * c_h)
+    # in order of time constant: when branch k settles the faster ones have (across C_h, adding to its
+    # capacitance) and the slower ones have not moved; the spectrum there reads 1 + sum_{j<=k} c_j / (1 - sum c)
+    order = np.argsort(tau[keep])
+    gk, tk = g[keep][order], tau[keep][order]
+    cum = np.cumsum(gk) / (1.0 - total)
+    c_cum = np.array([settled(x) for x in cum])
+    before = np.concatenate([[0.0], c_cum[:-1]])
+    c_j = c_cum - before
+    ok = c_j > 1e-9 * c_cum[-1]        # a gain lost in the rounding of the sums (1e-19 of a fit) is no branch
+    out["capacitances_f"] = c_j[ok]
+    out["time_constants_s"] = (tk * (c_j + c_r + before + c_pp_f) / (c_r + before + c_pp_f))[ok]
+    out["how"] = (f"C_j from settled/instant 1/(1 - sum c) = {1 + a:.4g} (sum c = {total:.4g}) across C_h = {c_h:.4g} F "
+                  f"(C_h = (1/C_s - 1/C_pp)^-1, C_s = {c_s_f:.4g} F {where}, C_pp = {c_pp_f:.4g} F, C_h's reversal slope "
+                  f"C_r = {c_r:.4g} F); in order of time constant C_k = C_S(A_k) - C_S(A_(k-1)), tau_k the fitted one x "
+                  f"(C_k + C_r' + C_pp)/(C_r' + C_pp), C_r' = C_r + C_S(A_(k-1)): each branch settles with the faster "
+                  f"ones settled and the slower unmoved (an approximation: time constants a decade apart)")
+    return out
+
+
+#: The recorded drive is replayed interpolated linearly onto up to this many points per sample
 #: (:func:`~workbench.calibrate.synthetic.simulate_record`'s ``upsample``): the tracing's models take the
-#: drive linear between samples (``calibrate/effects.py``), the simulator holds each command.
+#: drive linear between samples (``calibrate/effects.py``), the simulator holds each command; a mode near
+#: the sample rate tells the two apart (:func:`replay_upsample`).
 REPLAY_UPSAMPLE = 8
 
-_SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "current_a"}
+#: The fine steps per period of the plant's highest mode the replay asks for (:func:`replay_upsample`).
+REPLAY_STEPS_PER_MODE_PERIOD = 8
+
+#: The longest fine step of the replay, s: a command held over a step lags the linear drive by half of it;
+#: 12.5 us is 8 points a sample at 10 kHz, where the plant that made the record leaves the sensor's noise
+#: (``tests/calibrate/test_round_trip.py``). Derived from the modes alone, a plant whose only mode is a
+#: 200 Hz one was replayed at 1-2 points a sample at 1-10 kHz, and the plant that made the record left up
+#: to 2.8x more (seeds 24-25, measured 2026-11-26).
+REPLAY_FINE_STEP_S = 12.5e-6
+
+
+def replay_upsample(plant, rate_hz):
+    """Points per sample of the replay, at most :data:`REPLAY_UPSAMPLE`.
+
+    The larger of ``ceil(1 / (rate REPLAY_FINE_STEP_S))`` (the held command's half-step lag) and
+    ``ceil(8 f_max / rate)`` (8 fine steps a period of the highest ``[[mechanics.modes]]`` frequency
+    ``f_max``, Hz), clipped to ``1..REPLAY_UPSAMPLE``: 8 at 1-10 kHz, 6 at 100 kHz with the 70 kHz mode of
+    ``p888_51_sn637``, none at 1 MHz (the record's own step is 1 us).
+    """
+    if not rate_hz > 0:
+        return REPLAY_UPSAMPLE
+    modes = getattr(plant.pzt, "modes", ()) or ()
+    f_max = max((float(m.freq_hz) for m in modes), default=0.0)
+    need = max(np.ceil(1.0 / (rate_hz * REPLAY_FINE_STEP_S) - 1e-9),
+               np.ceil(REPLAY_STEPS_PER_MODE_PERIOD * f_max / rate_hz - 1e-9))
+    return int(min(REPLAY_UPSAMPLE, max(1, need)))
+
+
+_SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "q_true_c"}
 
 
 def updated_plant_error(plant, base, channel, test, train=None, current="averaged"):
@@ -170,7 +289,8 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     to the plant with its series resistor taken out (the quasi-static electrical form): the fitted
     model and the plant file then see one input, and the amplifier (its current limit, the monitor's
     averaging, which a recorded ``V`` cannot give back as a command) is left out. The simulation is
-    noise-free (no sensor noise, no gauge-chain noise): the error is the record's noise plus what the
+    noise-free (no sensor noise, no gauge-chain noise), in chunks (memory bounded whatever the record's
+    length), at :func:`replay_upsample` points per sample: the error is the record's noise plus what the
     plant file gets wrong, on the rows of the fitted model's ``error_after``.
 
     Parameters
@@ -181,8 +301,7 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
         The base fit: its times ``t``, drive ``v_drive`` (V) and the channel's recorded ``y`` and
         ``valid`` rows.
     channel : {"displacement", "gauge", "charge"}
-        The channel compared (the first effect's); the charge is the simulated current
-        integrated under the record's ``current`` convention.
+        The channel compared (the first effect's); the charge is the simulated terminal charge.
     test : ndarray of bool
         The held-out (test) rows.
     train : ndarray of bool, optional
@@ -190,7 +309,8 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
         charge's start) is the mean difference over these rows, as the fitted model's offset is
         fitted there; None: no constant is taken out.
     current : {"averaged", "sampled"}
-        The record's current convention (charge channel only).
+        The record's current convention: unused (the record's charge is the base's, integrated under
+        it; the replay's is the simulated charge itself), kept for the callers.
 
     Returns
     -------
@@ -200,19 +320,18 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     """
     import dataclasses
 
-    from .residual import charge_from_current
     from .synthetic import SensorNoise, simulate_record
     if channel not in _SIM_KEY or channel not in base.channels or base.input_kind != "terminal":
         return None
     m = base.channels[channel]
     t = np.asarray(base.t, float)
     quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
+    rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0
     sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
-                          gauge=channel == "gauge", gauge_noise=False, upsample=REPLAY_UPSAMPLE)
-    y = sim[_SIM_KEY[channel]]
-    if channel == "charge":
-        y = charge_from_current(t, y, current=current)
-    e = y - m.y
+                          gauge=channel == "gauge", gauge_noise=False, upsample=replay_upsample(quasi, rate))
+    # the charge: the simulated one itself (the simulator's current is a per-sample mean, whatever the
+    # record's convention; integrating it as "sampled" lagged half a sample); its start is the offset
+    e = sim[_SIM_KEY[channel]] - m.y
     if train is not None and np.any(train & m.valid):
         e = e - float(np.mean(e[train & m.valid]))
     e = e[test & m.valid]
@@ -220,8 +339,46 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
             "max": float(np.max(np.abs(e))) if e.size else float("nan"), "units": m.units}
 
 
-def round_trip_warning(error_after, plant_error, stages, tolerance=None):
-    """The warning when the plant file's simulated test error and the fitted model's differ.
+def plant_file_gaps(stages, base, plant):
+    """What of the calibration the updated plant file cannot carry, one phrase a gap.
+
+    Parameters
+    ----------
+    stages : list of dict
+        The calibration's stages (effect, channel, parameters).
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit (its drive sets the creep write-out's C_h, :func:`creep_branches`).
+    plant : workbench.plant.files.Plant
+        The declared plant.
+
+    Returns
+    -------
+    list of str
+        A stage not written (no plant-file form, or creep beyond what branches across C_h carry), a
+        resonance's gain other than 1 (the file's modes have unit DC gain), a drift's slow periodic term.
+    """
+    gaps = []
+    for st in stages:
+        eff, ch, p = st["effect"], st["channel"], st.get("parameters") or {}
+        if eff == "creep" and ch == "displacement":
+            sec = _terminal_secant(base, plant)
+            w = creep_branches(p["gains"], p["taus_s"], *sec[:3], c_rev_f=sec[3])
+            if w["capacitances_f"] is None:
+                gaps.append(f"the creep was not written ({w['reason']})")
+        elif eff == "resonance" and ch in ("displacement", "gauge"):
+            g = float(p.get("gain", 1.0))
+            if abs(g - 1.0) > 0.01:
+                gaps.append(f"the resonance's gain {g:.4g} (the file's modes have unit gain)")
+        elif eff == "drift" and ch == "displacement":
+            if p.get("period_s"):
+                gaps.append("the drift's slow periodic term (JSON only)")
+        elif eff in ("delay", "drift", "creep") and ch != "displacement":
+            gaps.append(f"the {eff} on the {ch} (no plant-file form, JSON only)")
+    return gaps
+
+
+def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()):
+    """The warning when the plant file's simulated test error exceeds the fitted model's.
 
     Parameters
     ----------
@@ -231,25 +388,68 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None):
         The calibration's stages (effect, channel, parameters).
     tolerance : float, optional
         Relative difference allowed (default :data:`ROUND_TRIP_TOLERANCE`).
+    gaps : sequence of str
+        :func:`plant_file_gaps`: the causes that apply, named beside the declared core.
 
     Returns
     -------
     str or None
-        One line naming both errors and the reason, or None within the tolerance.
+        One line naming both errors and the causes that apply; None within the tolerance, and None
+        when the file does better (:func:`round_trip_note` says that).
     """
     tol = ROUND_TRIP_TOLERANCE if tolerance is None else float(tolerance)
     if not plant_error or not error_after or not error_after["rms"] > 0:
         return None
     a, b, u = error_after["rms"], plant_error["rms"], error_after["units"]
-    if abs(b - a) <= tol * a:
+    if b <= (1.0 + tol) * a:
         return None
     found = ", ".join(f"{s['effect']} ({s['channel']})" for s in stages) or "no effect"
-    if b > a:
-        why = ("the file keeps the declared core (its PI weights and gains) while the effects were fitted jointly with "
-               "a base refitted on the record, which also takes up what no stage named; an effect without a "
-               "plant-file form (a resonance's gain other than 1, a drift's periodic term, an effect on the gauge or "
-               "the charge's drift or delay) is in the JSON only")
-    else:
-        why = "the declared core fits this record better than the base fit's model of the drive"
+    why = "; ".join([*gaps, "the file keeps the declared core (its PI weights and gains) while the fitted model's "
+                            "base was refitted on the record, taking up what no stage named"])
     return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u} against "
             f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")
+
+
+def round_trip_note(error_after, plant_error, tolerance=None):
+    """The note when the plant file's simulated test error is below the fitted model's beyond the tolerance.
+
+    Returns
+    -------
+    str or None
+        One line (a note, not a warning: the file is the better model of this record); None otherwise.
+    """
+    tol = ROUND_TRIP_TOLERANCE if tolerance is None else float(tolerance)
+    if not plant_error or not error_after or not error_after["rms"] > 0:
+        return None
+    a, b, u = error_after["rms"], plant_error["rms"], error_after["units"]
+    if b >= (1.0 - tol) * a:
+        return None
+    return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u}, below "
+            f"the fitted model's {a:.4g} {u} ({b / a:.2f}x): the declared core fits this record better than the "
+            f"base refitted on it")
+
+
+def updated_plant_error_reason(kind, result, base, channel):
+    """Why ``updated_plant_error`` is null (None when it is measured).
+
+    Parameters
+    ----------
+    kind : {"pzt", "generic_stack"}
+        The plant file's kind.
+    result : dict
+        The calibration's result (its ``stages``).
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit (its ``input_kind`` and channels).
+    channel : str or None
+        The first effect's channel.
+    """
+    if kind != "pzt":
+        return "a generic stack's plant file has no simulator: no replay"
+    if not result.get("stages"):
+        return "no effect found: the file is the declared plant"
+    if base.input_kind != "terminal":
+        return ("the voltage is an amplifier command (unknown gain and lag): the record's terminal voltage, which "
+                "the replay drives, is not recorded")
+    if channel not in _SIM_KEY or channel not in base.channels:
+        return f"the {channel} channel is not one the simulator logs"
+    return None

@@ -23,7 +23,8 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import round_trip_warning, updated_plant_error, updated_plant_text
+from .plant_update import (plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
+                           updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
 from .splits import default_split, make_split
@@ -179,18 +180,25 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
                         for h in holds],
     }
     text, data["updated_plant_error"] = None, None
+    data["updated_plant_error_reason"] = updated_plant_error_reason(kind, result, base, result["channel"])
+    data["updated_plant_gaps"] = []
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
         text = updated_plant_text(plant_path, plant, base, result, data_path)
         err = None
-        if result["stages"]:
+        if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
             err = updated_plant_error(again, base, result["channel"], test, train=train,
                                       current=base.current_kind or "averaged")
         data["updated_plant_error"] = err
-        warn = round_trip_warning(result["error_after"], err, result["stages"])
+        gaps = plant_file_gaps(result["stages"], base, plant)
+        data["updated_plant_gaps"] = gaps
+        warn = round_trip_warning(result["error_after"], err, result["stages"], gaps=gaps)
         if warn:
             data["base_fit"]["warnings"].append(warn)
+        note = round_trip_note(result["error_after"], err)
+        if note:
+            data["base_fit"]["notes"].append(note)
         text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err)
     if out_dir is not None:
         out = Path(out_dir)

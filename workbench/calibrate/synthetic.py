@@ -24,6 +24,7 @@ each effect stands above the sensors' noise on the calibration protocol; they ar
 import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -78,6 +79,11 @@ class SensorNoise:
     voltage_v: float = 2e-3            # amplifier monitor
 
 
+#: Samples simulated per call when the command is upsampled (:func:`simulate_record`): the fine command
+#: of one chunk is ``upsample x REPLAY_CHUNK`` rows, whatever the record's length.
+REPLAY_CHUNK = 1 << 15
+
+
 def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True, gauge_noise=True,
                     upsample=1):
     """Simulate a record of ``plant`` driven by ``v_cmd`` sampled at ``t_s``.
@@ -95,7 +101,8 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
     -------
     dict of ndarray
         ``time_s``, ``voltage_v``, ``current_a``, ``displacement_m``, ``gauge_v`` (SI) and the
-        noise-free truths ``x_true_m`` (the stack) and ``v_t_v`` (terminal voltage).
+        noise-free truths ``x_true_m`` (the stack), ``v_t_v`` (terminal voltage) and ``q_true_c`` (the
+        terminal charge with the additions' charges, C: the charge the logged current averages).
     """
     t = np.asarray(t_s, float)
     dt = float(np.mean(np.diff(t)))
@@ -103,9 +110,17 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
     sim = PZTSimulator(plant.pzt, dt / up, n_sub=n_sub)
     v_cmd = np.asarray(v_cmd, float)
     if up > 1:
-        # fine step j ends at t0 + (j - up + 1) dt / up: every up-th (the kept one) ends on a sample
-        tf = t[0] + (np.arange(t.size * up) - (up - 1)) * (dt / up)
-        tr = sim.run(np.interp(tf, t, v_cmd), decimate=up)
+        # fine step j ends at t0 + (j - up + 1) dt / up: every up-th (the kept one) ends on a sample.
+        # In chunks of REPLAY_CHUNK samples (the simulator keeps its state between calls): the fine
+        # command is never held whole (a 35.5 s record at 1 MHz would need up x 3 columns of 8 B a row)
+        parts = []
+        for a in range(0, t.size, REPLAY_CHUNK):
+            b = min(a + REPLAY_CHUNK, t.size)
+            tf = t[0] + (np.arange(a * up, b * up) - (up - 1)) * (dt / up)
+            parts.append(sim.run(np.interp(tf, t, v_cmd), decimate=up))
+            del tf
+        tr = SimpleNamespace(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in ("x_m", "q_c", "i_a", "v_t_v")})
+        del parts
     else:
         tr = sim.run(v_cmd)
     add = plant.additions
@@ -132,6 +147,7 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
         "displacement_m": x_sensor + noise.displacement_m * rng.standard_normal(t.size),
         "x_true_m": tr.x_m,
         "v_t_v": tr.v_t_v,
+        "q_true_c": q,
     }
     if gauge:
         x_g = tr.x_m
