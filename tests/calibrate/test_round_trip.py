@@ -313,3 +313,15 @@ def test_chunked_replay_is_the_whole_one(sn637, monkeypatch):
     monkeypatch.setattr(syn, "REPLAY_CHUNK", 777)
     parts = simulate_record(sn637, t, v, upsample=8)
     assert all(np.array_equal(whole[k], parts[k]) for k in whole)
+
+
+def test_no_creep_is_written_from_an_amplifier_command(sn637):
+    """An amplifier-command record's drive is in command volts: the declared core's C_h read over it
+    would size the branches from the wrong voltage, so the creep is a gap, not a [creep] section
+    (review of the session: it was written whenever sum c stayed under the ceiling)."""
+    v = np.linspace(0.0, 3.6, 2001)                              # a 0-3.6 V command
+    st = {"effect": "creep", "channel": "displacement", "parameters": {"gains": [0.02, 0.01], "taus_s": [0.1, 1.0]}}
+    terminal = plant_file_gaps([st], SimpleNamespace(v_drive=v * 30.0, input_kind="terminal"), sn637)
+    command = plant_file_gaps([st], SimpleNamespace(v_drive=v, input_kind="command"), sn637)
+    assert not any("creep" in g for g in terminal)
+    assert any("creep was not written" in g and "amplifier command" in g for g in command)

@@ -114,7 +114,7 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None):
         block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
                  f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]
     elif effect == "creep" and ch == "displacement":
-        w = creep_branches(p["gains"], p["taus_s"], *_terminal_secant(base, plant))
+        w = _creep_write_out(p, base, plant)
         if w["capacitances_f"] is None:
             sensor["creep_note"] = w["reason"]
         else:
@@ -159,6 +159,18 @@ def _terminal_secant(base, plant):
     c_s = float(np.ptp(q)) / span if span > 0 else float("nan")
     where = f"the declared core's terminal secant over the record's {span:.4g} V span"
     return c_s, float(plant.pzt.c_pp_f), where, float(plant.pzt.hysteresis.weights[0])
+
+
+def _creep_write_out(p, base, plant):
+    """:func:`creep_branches` of a creep stage's spectrum, C_h from the declared core over the record's
+    terminal voltage; none for an amplifier-command record (its drive is in command volts, not the
+    stack's: the declared core's secant over it would be meaningless)."""
+    if getattr(base, "input_kind", "terminal") != "terminal":
+        return {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "how": None,
+                "reason": "the record's input is an amplifier command: the declared core's C_h is not "
+                          "read over command volts"}
+    sec = _terminal_secant(base, plant)
+    return creep_branches(p["gains"], p["taus_s"], *sec[:3], c_rev_f=sec[3])
 
 
 def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_rev_f=None):
@@ -361,8 +373,7 @@ def plant_file_gaps(stages, base, plant):
     for st in stages:
         eff, ch, p = st["effect"], st["channel"], st.get("parameters") or {}
         if eff == "creep" and ch == "displacement":
-            sec = _terminal_secant(base, plant)
-            w = creep_branches(p["gains"], p["taus_s"], *sec[:3], c_rev_f=sec[3])
+            w = _creep_write_out(p, base, plant)
             if w["capacitances_f"] is None:
                 gaps.append(f"the creep was not written ({w['reason']})")
         elif eff == "resonance" and ch in ("displacement", "gauge"):

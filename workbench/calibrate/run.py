@@ -204,9 +204,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         stem = plant_path.stem + "_calibrated.toml"
-        if kind == "pzt":
-            pass
-        else:
+        if kind != "pzt":
             m = base.channels["displacement"]
             stack = plant.with_calibration(thresholds_v=tuple(m.thresholds_v), weights_m_per_v=tuple(m.weights),
                                            offset_m=m.offset, initial_states_v=tuple(m.initial_states_v))

@@ -941,7 +941,8 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
     c0 = s0["_cand"]
     # the calibration's error after, on the first effect's channel: after every effect found there
     # (each stage starts from the last one's fit; every stage's own figures stay in ``stages``), the
-    # error the calibrated plant leaves on the test rows; a stage on another problem of the channel
+    # error the fitted model leaves on the test rows (the plant file's own: ``updated_plant_error``,
+    # plant_update); a stage on another problem of the channel
     # (the gauge's bow against the recorded displacement) does not enter the channel's model
     same = [s for s in stages if s["channel"] == s0["channel"] and s["_cand"]["key"] == c0["key"]]
     out.update(effect=s0["effect"], channel=s0["channel"], agreement=s0["agreement"],
