@@ -77,20 +77,26 @@ def test_batched_mode_kernel_equals_one_filter_at_a_time(seed):
             assert np.array_equal(many[j], mode_column_rows(u, b, a, rows))
 
 
+def _mode_record(seed, n, f_hz, zeta, frac, dt=1e-4):
+    """A drawn drive with a mode's response (0.3 of it) and 1e-8 noise at 10 kHz; the search rows
+    (``frac`` of them) and the projection off the drive and an offset on those rows."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    u = _input(rng, n)
+    e = 0.3 * Resonance._column(u, f_hz, zeta, dt) + 1e-8 * rng.standard_normal(n)
+    mask = rng.random(n) < frac
+    Q = np.linalg.qr(np.column_stack([u, np.ones(n)])[mask])[0]
+    return t, u, e, mask, (lambda X: X - Q @ (Q.T @ X))
+
+
 @pytest.mark.parametrize("project_kind", ("none", "projected", "shared"))
 def test_resonance_search_with_batched_grid_equals_one_column_at_a_time(monkeypatch, project_kind):
     """A resonance's search whose grid columns are filtered in batches returns the numbers of the
     search that filters one grid point at a time (plain, with a projection, and the pair of
     searches sharing the plain grid's costs)."""
     import copy
-    rng = np.random.default_rng(11)
-    n, dt = 30_000, 1e-4
-    t = np.arange(n) * dt
-    u = _input(rng, n)
-    e = 0.3 * Resonance._column(u, 240.0, 0.03, dt) + 1e-8 * rng.standard_normal(n)
-    mask = rng.random(n) < 0.4
-    Q = np.linalg.qr(np.column_stack([u, np.ones(n)])[mask])[0]
-    project = None if project_kind == "none" else (lambda X: X - Q @ (Q.T @ X))
+    t, u, e, mask, proj = _mode_record(11, 30_000, 240.0, 0.03, 0.4)
+    project = None if project_kind == "none" else proj
 
     def run():
         eff = Resonance()
@@ -280,15 +286,7 @@ def test_researched_resonance_shares_the_plain_grid_costs(monkeypatch):
     then plain) share the plain grid's costs, as the first stage does: the plain search's
     answer equals a search of its own, and its grid is not filtered a second time."""
     import copy
-    rng = np.random.default_rng(3)
-    n, dt = 20_000, 1e-4
-    t = np.arange(n) * dt
-    u = _input(rng, n)
-    e = 0.3 * Resonance._column(u, 180.0, 0.02, dt) + 1e-8 * rng.standard_normal(n)
-    mask = rng.random(n) < 0.3
-    P = np.column_stack([u, np.ones(n)])[mask]
-    Q = np.linalg.qr(P)[0]
-    project = lambda X: X - Q @ (Q.T @ X)  # noqa: E731
+    t, u, e, mask, project = _mode_record(3, 20_000, 180.0, 0.02, 0.3)
     ref = Resonance().fit(t, u, e, mask, project=None)
     eff = Resonance()
     eff.__dict__.setdefault("_grid_costs", {})
