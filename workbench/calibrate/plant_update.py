@@ -26,13 +26,13 @@ import re
 
 import numpy as np
 
-__all__ = ["plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
 ROUND_TRIP_TOLERANCE = 0.10
 
-_REPLACED = ("leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity", "creep")
+_REPLACED = ("leakage", "dielectric_absorption", "displacement_sensor", "gauge_nonlinearity", "creep", "hysteresis")
 
 
 def _drop_sections(text, names):
@@ -65,20 +65,42 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
                                         "error_after": result["error_after"]}]
                                       if result.get("effect") not in (None, "none", "inconclusive") else [])
     eb, ea = result["error_before"], result["error_after"]
+    core = core_for(plant, base, result)
+    if core["hysteresis"] is not None:
+        stages = _joint_stages(stages, result.get("core_fit"))
     names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
     header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
               f"# the fitted model (its base refitted on the record, every effect found on the first effect's "
               f"channel) leaves a test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} {eb['units']} (max {eb['max']:.4g} -> "
               f"{ea['max']:.4g}).",
-              *([f"# This file (the declared core and the sections below), the record's drive simulated through it, "
+              *([f"# This file (the core and the sections below), the record's drive simulated through it, "
                  f"leaves a test RMS of {plant_error['rms']:.4g} {plant_error['units']} (max "
                  f"{plant_error['max']:.4g})."] if plant_error else
-                ["# This file's own simulated error on the record was not measured."]),
-              "# The declared values below are unchanged; the sections of the effects are new."]
+                ["# This file's own simulated error on the record was not measured."])]
+    if core["hysteresis"] is not None:
+        lo, hi = core["range_v"]
+        header.append(f"# [hysteresis] (C_h) is the fitted model's core, refitted on the record's {core['channel']} over "
+                      f"V_t {lo:.4g} .. {hi:.4g} V (beyond it: extrapolated at its last loading slope); C_p, T_em, "
+                      f"k_p (so C_pp and k_q2x), the electrical limits, the modes and the gauge stay declared; the "
+                      f"sections of the effects are new.")
+    elif stages and result.get("core_fit") is not None:
+        header.append(f"# The declared core is kept: the record's core is not written ({core['reason']}). The other "
+                      f"declared values below are unchanged; the sections of the effects are new.")
+    else:
+        header.append("# The declared values below are unchanged; the sections of the effects are new.")
     blocks = []
+    if core["hysteresis"] is not None:
+        h = core["hysteresis"]
+        blocks.append(["[hysteresis]", f"# {core['how']}",
+                       f"thresholds_v = [{', '.join(_fmt(x) for x in h.thresholds)}]   # V (of V_h); {src}",
+                       f"weights_f = [{', '.join(_fmt(x) for x in h.weights)}]   # F; {src}",
+                       f"initial_states_v = [{', '.join(_fmt(x) for x in h.initial_states)}]   # V; {src}"
+                       + (" (from rest)" if getattr(base, "starts_from_rest", False) else
+                          " (reached monotonically from 0 V, as the base fit's plays)")])
     sensor = {}
     for st in stages:
-        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant)
+        block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant,
+                       core if core["hysteresis"] is not None and core["channel"] == st["channel"] else None)
         if block:
             blocks.append(block)
         elif st["effect"] == "creep" and st["channel"] == "displacement":
@@ -99,7 +121,47 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     return out
 
 
-def _block(effect, ch, p, base, src, sensor, note=None, plant=None):
+#: The shares of a creep's branches tried, largest first, when branches across the refitted C_h cannot carry
+#: them all (:func:`core_for`); 0: no [creep], the core the fitted model's settled response.
+CREEP_SHARES = (1.0, 0.8, 0.6, 0.4, 0.2, 0.0)
+
+
+def core_for(plant, base, result):
+    """:func:`~workbench.calibrate.core_refit.refitted_core` of a calibration's result (its ``core_fit``).
+
+    With a creep on the core's channel (the displacement), the largest share of its branches (of
+    :data:`CREEP_SHARES`) that branches across the refitted C_h can carry (below the ceiling
+    ``1 + C_pp / C_h``, :func:`creep_branches`): the core is the fitted model's response less that share's
+    instant part, so its settled response is the fitted model's whatever the share.
+    """
+    from .core_refit import refitted_core
+    cf = result.get("core_fit")
+    creep = [st for st in (cf or {}).get("stages", ()) if st["effect"] == "creep" and st["channel"] == "displacement"]
+    if not cf or cf["channel"] != "displacement" or not creep:
+        return refitted_core(plant, base, cf)
+    for share in CREEP_SHARES:
+        core = refitted_core(plant, base, cf, creep_scale=share)
+        if core["hysteresis"] is None:
+            return core
+        if share == 0.0 or _creep_write_out(creep[0]["parameters"], base, plant, core)["capacitances_f"] is not None:
+            return core
+    return core
+
+
+def _joint_stages(stages, core_fit):
+    """The stages with the parameters of the first channel's last joint fit (``core_fit["stages"]``, in order)."""
+    if not core_fit:
+        return stages
+    joint = list(core_fit.get("stages", ()))
+    out = []
+    for st in stages:
+        if joint and (st["effect"], st["channel"]) == (joint[0]["effect"], joint[0]["channel"]):
+            st = {**st, "parameters": joint.pop(0)["parameters"]}
+        out.append(st)
+    return out
+
+
+def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None):
     """The plant-file lines of one effect (a displacement sensor's go into ``sensor``).
 
     ``note``: the stage's note (a named leakage's: the absorption time constant the record cannot
@@ -114,7 +176,7 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None):
         block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
                  f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]
     elif effect == "creep" and ch == "displacement":
-        w = _creep_write_out(p, base, plant)
+        w = _creep_write_out(p, base, plant, core)
         if w["capacitances_f"] is None:
             sensor["creep_note"] = w["reason"]
         else:
@@ -161,19 +223,83 @@ def _terminal_secant(base, plant):
     return c_s, float(plant.pzt.c_pp_f), where, float(plant.pzt.hysteresis.weights[0])
 
 
-def _creep_write_out(p, base, plant):
-    """:func:`creep_branches` of a creep stage's spectrum, C_h from the declared core over the record's
-    terminal voltage; none for an amplifier-command record (its drive is in command volts, not the
-    stack's: the declared core's secant over it would be meaningless)."""
+#: Creep branches slower than the record (tau > its duration T) are identified only by their rate c/tau
+#: (their settled share is nearly collinear with the plays): "rate" writes them at tau = T with c T/tau (the
+#: same initial rate), "out" leaves them out of the [creep] section (their instant share stays in the core).
+SLOW_BRANCHES = "rate"
+
+
+def _creep_fractions(p, base, core, slow=None):
+    """A creep stage's spectrum as fractions of the refitted core's instant response (:mod:`.core_refit`).
+
+    The spectrum's columns are ``c_j (lowpass_j(u0) - u0)``, ``u0`` the base-alone prediction; the file's core
+    is the instant response ``I`` (less the branches within the record): branch j adds ``c_j u0`` when settled,
+    ``a_j = c_j span(u0) / span(I)`` of it (spans over the development rows). Branches slower than the record
+    as :data:`SLOW_BRANCHES` says (their ``-c_j u0`` is in the core; their rate ``c_j / tau_j`` is written or not).
+
+    Returns
+    -------
+    gains, taus_s : ndarray
+        Fractions of the instant response and time constants, s (slow ones merged at the record's length).
+    note : str
+        What was done with the slow branches.
+    """
+    slow = SLOW_BRANCHES if slow is None else slow
+    m = base.channels[core["channel"]]
+    rows = np.asarray(base.train, bool)
+    inst = np.asarray(base.basis, float)[:, :-1] @ core["instant"]
+    span_i = float(np.ptp(inst[rows]))
+    ratio = float(np.ptp(np.asarray(m.yhat, float)[rows])) / span_i if span_i > 0 else float("inf")
+    g = np.maximum(np.asarray(p["gains"], float), 0.0) * ratio * float(core.get("creep_scale", 1.0))
+    tau = np.asarray(p["taus_s"], float).copy()
+    dur = float(base.t[-1] - base.t[0])
+    late = (tau > dur) & (g > 0)
+    note = "no branch slower than the record"
+    if late.any():
+        if slow == "rate":
+            note = (f"{int(late.sum())} branches slower than the record ({dur:.4g} s) written as one at tau = {dur:.4g} s "
+                    f"with a = sum a_j T/tau_j (the same initial rate; their settled share is not identified)")
+            rate_sum = float(np.sum(g[late] * dur / tau[late]))
+            g, tau = np.r_[g[~late], rate_sum], np.r_[tau[~late], dur]
+        else:
+            note = (f"{int(late.sum())} branches slower than the record ({dur:.4g} s) left out (their rate is not "
+                    f"carried; their instant share is in the core)")
+            g, tau = g[~late], tau[~late]
+    return g, tau, note
+
+
+def _creep_write_out(p, base, plant, core=None):
+    """:func:`creep_branches` of a creep stage's spectrum.
+
+    With a refitted core (``core["hysteresis"]``, :func:`~workbench.calibrate.core_refit.refitted_core`): the
+    branches across the refitted C_h, as fractions of its instant response (:func:`_creep_fractions`).
+    Without: C_h from the declared core over the record's terminal voltage. None for an amplifier-command
+    record (its drive is in command volts, not the stack's: a secant over it would be meaningless)."""
     if getattr(base, "input_kind", "terminal") != "terminal":
         return {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "how": None,
                 "reason": "the record's input is an amplifier command: the declared core's C_h is not "
                           "read over command volts"}
+    if core is not None and core.get("hysteresis") is not None:
+        import dataclasses
+        if core.get("creep_scale", 1.0) == 0.0:
+            return {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "how": None,
+                    "reason": "branches across the refitted C_h cannot carry even a fifth of its share (at or above the "
+                              "ceiling 1 + C_pp/C_h): the core is the fitted model's settled response, no branches"}
+        refit = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=core["hysteresis"]))
+        sec = _terminal_secant(base, refit)
+        g, tau, note = _creep_fractions(p, base, core)
+        out = creep_branches(g, tau, sec[0], sec[1], "the refitted core's terminal secant over the record's span",
+                             c_rev_f=sec[3], of_instant=True)
+        if out["how"]:
+            share = core.get("creep_scale", 1.0)
+            out["how"] += f"; {note}" + ("" if share == 1.0 else
+                                         f"; {share:.0%} of the fitted branches (all of them: above the ceiling)")
+        return out
     sec = _terminal_secant(base, plant)
     return creep_branches(p["gains"], p["taus_s"], *sec[:3], c_rev_f=sec[3])
 
 
-def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_rev_f=None):
+def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_rev_f=None, of_instant=False):
     """Kelvin-Voigt branches across C_h whose step response is the fitted creep spectrum's.
 
     The displacement is proportional to the terminal charge ``q = q_h + sum Q_j`` (``V_t = V_h + q/C_pp``,
@@ -203,6 +329,9 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
         C_h's reversal slope ``C_r``, F (default: C_h, linear).
     where : str
         Where ``C_s`` came from (said in the file).
+    of_instant : bool
+        ``gains`` are fractions of the INSTANT response (the refitted core's, :mod:`.core_refit`): the
+        settled/instant ratio is ``1 + sum gains`` and branch k reads ``A_k = sum_{j<=k} gains_j``.
 
     Returns
     -------
@@ -214,12 +343,13 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
     g, tau = np.asarray(gains, float), np.asarray(taus_s, float)
     keep = g > 0
     total = float(g[keep].sum())
+    share = 1.0 if of_instant else 1.0 - total       # the instant response over the settled one's scale
     out = {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "reason": None, "how": None,
-           "ratio": 1.0 / (1.0 - total) if total < 1.0 else float("inf")}
+           "ratio": (1.0 + total) if of_instant else (1.0 / (1.0 - total) if total < 1.0 else float("inf"))}
     if not keep.any():
         out["reason"] = "the spectrum has no positive gain"
         return out
-    if total >= 1.0:
+    if total >= 1.0 and not of_instant:
         out["reason"] = (f"sum c = {total:.4g} >= 1 (branches slower than the record standing in for a gain): no "
                          f"settled/instant ratio a [creep] section can carry")
         return out
@@ -227,7 +357,7 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
         out["reason"] = f"the terminal secant {c_s_f:.4g} F is not below C_pp {c_pp_f:.4g} F: no C_h to put branches across"
         return out
     c_h = 1.0 / (1.0 / c_s_f - 1.0 / c_pp_f)
-    a = total / (1.0 - total)
+    a = total / share
     out["c_h_f"] = c_h
     if a * c_h >= c_pp_f:
         ceil = 1.0 + c_pp_f / c_h
@@ -242,14 +372,15 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
     # capacitance) and the slower ones have not moved; the spectrum there reads 1 + sum_{j<=k} c_j / (1 - sum c)
     order = np.argsort(tau[keep])
     gk, tk = g[keep][order], tau[keep][order]
-    cum = np.cumsum(gk) / (1.0 - total)
+    cum = np.cumsum(gk) / share
     c_cum = np.array([settled(x) for x in cum])
     before = np.concatenate([[0.0], c_cum[:-1]])
     c_j = c_cum - before
     ok = c_j > 1e-9 * c_cum[-1]        # a gain lost in the rounding of the sums (1e-19 of a fit) is no branch
     out["capacitances_f"] = c_j[ok]
     out["time_constants_s"] = (tk * (c_j + c_r + before + c_pp_f) / (c_r + before + c_pp_f))[ok]
-    out["how"] = (f"C_j from settled/instant 1/(1 - sum c) = {1 + a:.4g} (sum c = {total:.4g}) across C_h = {c_h:.4g} F "
+    out["how"] = (f"C_j from settled/instant " + ("1 + sum a" if of_instant else "1/(1 - sum c)")
+                  + f" = {1 + a:.4g} (sum {'a' if of_instant else 'c'} = {total:.4g}) across C_h = {c_h:.4g} F "
                   f"(C_h = (1/C_s - 1/C_pp)^-1, C_s = {c_s_f:.4g} F {where}, C_pp = {c_pp_f:.4g} F, C_h's reversal slope "
                   f"C_r = {c_r:.4g} F); in order of time constant C_k = C_S(A_k) - C_S(A_(k-1)), tau_k the fitted one x "
                   f"(C_k + C_r' + C_pp)/(C_r' + C_pp), C_r' = C_r + C_S(A_(k-1)): each branch settles with the faster "
@@ -351,7 +482,7 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
             "max": float(np.max(np.abs(e))) if e.size else float("nan"), "units": m.units}
 
 
-def plant_file_gaps(stages, base, plant):
+def plant_file_gaps(stages, base, plant, core=None):
     """What of the calibration the updated plant file cannot carry, one phrase a gap.
 
     Parameters
@@ -362,18 +493,24 @@ def plant_file_gaps(stages, base, plant):
         The base fit (its drive sets the creep write-out's C_h, :func:`creep_branches`).
     plant : workbench.plant.files.Plant
         The declared plant.
+    core : dict, optional
+        :func:`core_for` (the refitted core): its reason when it is not written is a gap; with it the
+        creep is sized against it.
 
     Returns
     -------
     list of str
-        A stage not written (no plant-file form, or creep beyond what branches across C_h carry), a
+        The refitted core not written (the declared core kept), a stage not written (no plant-file form, or creep beyond what branches across C_h carry), a
         resonance's gain other than 1 (the file's modes have unit DC gain), a drift's slow periodic term.
     """
     gaps = []
+    written = core is not None and core.get("hysteresis") is not None
+    if core is not None and not written and stages:
+        gaps.append(f"the record's core is not written, the declared core is kept ({core['reason']})")
     for st in stages:
         eff, ch, p = st["effect"], st["channel"], st.get("parameters") or {}
         if eff == "creep" and ch == "displacement":
-            w = _creep_write_out(p, base, plant)
+            w = _creep_write_out(p, base, plant, core if written and core["channel"] == ch else None)
             if w["capacitances_f"] is None:
                 gaps.append(f"the creep was not written ({w['reason']})")
         elif eff == "resonance" and ch in ("displacement", "gauge"):
@@ -388,7 +525,7 @@ def plant_file_gaps(stages, base, plant):
     return gaps
 
 
-def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()):
+def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=(), core_written=False):
     """The warning when the plant file's simulated test error exceeds the fitted model's.
 
     Parameters
@@ -401,6 +538,9 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()
         Relative difference allowed (default :data:`ROUND_TRIP_TOLERANCE`).
     gaps : sequence of str
         :func:`plant_file_gaps`: the causes that apply, named beside the declared core.
+    core_written : bool
+        The file carries the refitted core (:func:`core_for`): the last cause named is then what the
+        file's forms cannot copy of the fitted model, not the declared core.
 
     Returns
     -------
@@ -415,8 +555,12 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()
     if b <= (1.0 + tol) * a:
         return None
     found = ", ".join(f"{s['effect']} ({s['channel']})" for s in stages) or "no effect"
-    why = "; ".join([*gaps, "the file keeps the declared core (its PI weights and gains) while the fitted model's "
-                            "base was refitted on the record, taking up what no stage named"])
+    last = ("the fitted model's effects act on its base-alone prediction, the file's on the refitted core's "
+            "charge (and its stages' forms are approximations: creep branches across a hysteretic C_h)"
+            if core_written else
+            "the file keeps the declared core (its PI weights and gains) while the fitted model's "
+            "base was refitted on the record, taking up what no stage named")
+    why = "; ".join([*gaps, last])
     return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u} against "
             f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")
 

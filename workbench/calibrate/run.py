@@ -23,7 +23,7 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import (plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
+from .plant_update import (core_for, plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
                            updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
@@ -191,9 +191,11 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             err = updated_plant_error(again, base, result["channel"], test, train=train,
                                       current=base.current_kind or "averaged")
         data["updated_plant_error"] = err
-        gaps = plant_file_gaps(result["stages"], base, plant)
+        core = core_for(plant, base, result)
+        gaps = plant_file_gaps(result["stages"], base, plant, core=core)
         data["updated_plant_gaps"] = gaps
-        warn = round_trip_warning(result["error_after"], err, result["stages"], gaps=gaps)
+        warn = round_trip_warning(result["error_after"], err, result["stages"], gaps=gaps,
+                                  core_written=core["hysteresis"] is not None)
         if warn:
             data["base_fit"]["warnings"].append(warn)
         note = round_trip_note(result["error_after"], err)

@@ -591,10 +591,13 @@ def _stage_entry(c, count, ctx, extra, resolved=None):
     own = (c["g"]["C"] * c["g"]["norms"]) @ own_gains if k_c else np.zeros(t.size)
     m = base.channels[c["channel"]]
     units = m.units
+    # the base columns' weights of this stage's joint fit (plays, then the offset): the refitted core
+    base_w = (np.r_[m.weights, m.offset] + prob.base_correction(g_after, split.dev_blocks)
+              if key[1] == "model" and m.weights.size + 1 == prob.col_keep.size else None)
     return {"effect": c["name"], "channel": c["channel"], "variant": c["variant"],
             "parameters": _tr._jsonable(p), "agreement": f"{count} of {len(split.folds)}",
             "error_before": {**before, "units": units}, "error_after": {**after, "units": units},
-            "_term": own, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c,
+            "_term": own, "_base_weights": base_w, "_joint_gains": gains, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c,
             **({"resolved": resolved} if resolved else {})}
 
 

@@ -210,6 +210,7 @@ class _Problem:
         del Ad
         keep = norms > 1e-12 * max(norms.max(), 1e-300)
         self.A = A[:, keep] / norms[keep]
+        self.col_keep, self.col_norms = keep, norms[keep]   # which base columns ``A`` keeps, their norms
         self.scale = rms(r[self.rows_dev]) or 1.0
         # unknowns are corrections in units of the scaled columns and the scaled target
         self.lower_A = np.asarray(lower_A, float)[keep] * norms[keep] / self.scale
@@ -304,6 +305,17 @@ class _Problem:
         if g["C"].shape[1]:
             gains[g["ok"]] = w[k:] / g["norms"]
         return (base_part + extra) * self.scale, extra * self.scale, gains * self.scale
+
+    def base_correction(self, g, blocks):
+        """The joint fit's change of the base columns' weights, in channel units per column unit.
+
+        The unknowns are corrections to the base model's solution in units of the scaled columns and the
+        scaled target: column ``j`` of the basis changes by ``w_j scale / norm_j`` (dropped columns by 0).
+        """
+        w = self.solve(g, blocks)
+        out = np.zeros(self.col_keep.size)
+        out[self.col_keep] = w[: self.A.shape[1]] * self.scale / self.col_norms
+        return out
 
 
 def _search_rows(dev):
@@ -950,8 +962,39 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
                reason=reason, leading=[],
                stages=[{k: v for k, v in s.items() if not k.startswith("_")} for s in stages],
                terms={"channel": c0["channel"], "base": s0["_base"], "term": s0["_term"]},
-               stage_terms=[{"channel": s["channel"], "effect": s["effect"], "term": s["_term"]} for s in stages])
+               stage_terms=[{"channel": s["channel"], "effect": s["effect"], "term": s["_term"]} for s in stages],
+               core_fit=_core_fit(same, base))
     return out
+
+
+def _core_fit(same, base):
+    """The fitted model of the first effect's channel as the plant file needs it (``plant_update``).
+
+    ``weights`` / ``offset``: the base columns' weights of the last stage's joint fit there (the base
+    REFITTED with every effect found on the channel; plays >= 0, the thresholds ``base.channels[ch]``'s);
+    ``stages``: each of those stages' parameters with its gains from that same joint fit (a later stage
+    refits the earlier ones' gains). None when the joint weights are not at hand.
+    """
+    last = same[-1]
+    w = last.get("_base_weights")
+    if w is None:
+        return None
+    gains = np.asarray(last["_joint_gains"], float)
+    params, at = [], 0
+    for s in same:
+        c = s["_cand"]
+        n = int(np.count_nonzero(c["g"]["ok"]))
+        full = np.zeros(c["g"]["ok"].size)
+        full[c["g"]["ok"]] = gains[at:at + n]
+        at += n
+        params.append(_jsonable(_with_gains(c["eff"], c["params"], full)))
+    if at != gains.size:       # the columns are not the same-channel stages' alone: keep each stage's own
+        params = [s["parameters"] for s in same]
+    ch = last["channel"]
+    return {"channel": ch, "weights": np.asarray(w[:-1], float), "offset": float(w[-1]),
+            "thresholds_v": np.asarray(base.channels[ch].thresholds_v, float),
+            "initial_states_v": np.asarray(base.channels[ch].initial_states_v, float),
+            "stages": [{"effect": s["effect"], "channel": s["channel"], "parameters": p} for s, p in zip(same, params)]}
 
 
 def _jsonable(p):
