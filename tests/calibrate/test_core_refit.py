@@ -1,0 +1,107 @@
+"""The refitted core (``calibrate/core_refit.py``): the fitted model's PI of the terminal voltage as C_h.
+
+Closed forms asserted: a PI with non-negative weights composed with its inverse is the identity (to
+rounding); C_h from ``hysteresis_from_terminal_pi`` in series with C_pp, driven by V_t through the plant's
+own simulator (R out, no creep, no mode), gives back the terminal PI's charge (to rounding); a terminal PI
+with a loading slope at or above C_pp has no C_h (refused with the figures); the declared core's own terminal
+map gives back the declared C_h. Drawn PIs (hypothesis, derandomized by the ``ci`` profile) span thresholds
+0.01-200 V, weights 1e-9-1e-5 F (some zero), starts from rest and not.
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from workbench.calibrate.core_refit import hysteresis_from_terminal_pi, instant_weights
+from workbench.calibrate.synthetic import SensorNoise, simulate_record
+from workbench.plant.hysteresis import PrandtlIshlinskii
+
+
+def _pi(draw_r, draw_w, v0):
+    """A PI of V_t: thresholds from 0, weights >= 0 (first > 0), states as a monotonic approach to ``v0``."""
+    r = np.r_[0.0, np.cumsum(draw_r)]
+    w = np.asarray(draw_w, float)
+    z = np.sign(v0) * np.maximum(0.0, abs(v0) - r)
+    return PrandtlIshlinskii(r, w, z)
+
+
+pis = st.integers(2, 12).flatmap(lambda n: st.tuples(
+    st.lists(st.floats(0.01, 20.0), min_size=n - 1, max_size=n - 1),
+    st.lists(st.one_of(st.just(0.0), st.floats(1e-9, 1e-6)), min_size=n - 1, max_size=n - 1),
+    st.floats(1e-7, 1e-5), st.sampled_from([0.0, 0.0, 35.0, -12.0]), st.integers(0, 2 ** 31 - 1)))
+
+
+@settings(max_examples=40)
+@given(pis)
+def test_a_pi_composed_with_its_inverse_is_the_identity(draw):
+    dr, dw, w0, v0, seed = draw
+    pi = _pi(dr, [w0, *dw], v0)
+    rng = np.random.default_rng(seed)
+    v = v0 + np.cumsum(rng.normal(0.0, 10.0, 400))
+    q = pi(v)
+    back = pi.inverse()(q)
+    assert np.max(np.abs(back - v)) <= 1e-9 * (1.0 + np.max(np.abs(v)))
+
+
+@settings(max_examples=25)
+@given(pis)
+def test_written_c_h_in_series_with_c_pp_gives_back_the_terminal_pi(sn637, draw):
+    """q = Pi(V_t) -> C_h; the plant's simulator (R out, no creep, no mode) driven by V_t from rest gives
+    x = k_q2x Pi(V_t) to rounding. C_pp the declared one; the drawn weights kept below it."""
+    dr, dw, w0, _, seed = draw
+    c_pp = sn637.pzt.c_pp_f
+    pi = _pi(dr, [w0, *dw], 0.0)
+    if pi.weights.sum() >= 0.9 * c_pp:
+        pi = PrandtlIshlinskii(pi.thresholds, pi.weights * 0.9 * c_pp / pi.weights.sum(), pi.initial_states)
+    ch = hysteresis_from_terminal_pi(pi, c_pp)
+    assert np.all(ch.weights >= 0) and ch.thresholds[0] == 0 and np.all(np.diff(ch.thresholds) > 0)
+    pzt = dataclasses.replace(sn637.pzt, series_resistance_ohm=0.0, hysteresis=ch, modes=(), creep=None)
+    plant = dataclasses.replace(sn637, pzt=pzt)
+    rng = np.random.default_rng(seed)
+    t = np.arange(600) / 1e3
+    v = np.clip(np.cumsum(rng.normal(0.0, 4.0, t.size)) * np.minimum(1.0, t / 0.05), -20.0, 120.0)
+    v[0] = 0.0
+    x = simulate_record(plant, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False)["x_true_m"]
+    expect = pzt.k_q2x_m_per_c * pi(v)
+    assert np.max(np.abs(x - expect)) <= 1e-9 * np.ptp(expect)      # measured 5e-16 on one draw
+
+
+def test_the_declared_core_gives_back_its_c_h(sn637):
+    """The declared core's terminal map ``G^-1`` (q of V_t) gives back the declared C_h: weights and
+    thresholds to rounding."""
+    pzt = sn637.pzt
+    ch = hysteresis_from_terminal_pi(pzt.terminal_operator().inverse(), pzt.c_pp_f)
+    assert np.allclose(ch.weights, pzt.hysteresis.weights, rtol=1e-9, atol=1e-12 * pzt.hysteresis.weights.max())
+    assert np.allclose(ch.thresholds, pzt.hysteresis.thresholds, rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("top", [1.0, 1.5])
+def test_a_loading_slope_at_or_above_c_pp_has_no_c_h(sn637, top):
+    """The partial sums of C_h's weights are ``1 / (1/W_i - 1/C_pp)``: at ``W_i >= C_pp`` there is none."""
+    c_pp = sn637.pzt.c_pp_f
+    pi = PrandtlIshlinskii(np.array([0.0, 5.0]), np.array([0.5, top - 0.5]) * c_pp, np.zeros(2))
+    with pytest.raises(ValueError, match="not below C_pp"):
+        hysteresis_from_terminal_pi(pi, c_pp)
+
+
+def test_instant_weights_exact_when_non_negative_refitted_otherwise():
+    """``joint - c base`` is returned as is when it has no negative weight; otherwise the non-negative
+    refit over the plays (offset free) misfits the instant response by no more than the clipped difference
+    does (a feasible point of the same bounded least squares), and by something (the response is no PI
+    with non-negative weights)."""
+    t = np.linspace(0.0, 1.0, 2000)
+    v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t) * t
+    r = np.array([0.0, 2.0, 8.0])
+    from workbench.calibrate.pi_fit import play_matrix
+    P = play_matrix(v, r, np.zeros(3))
+    basis = np.column_stack([P, np.ones(t.size)])
+    w, mis = instant_weights(basis, np.ones(t.size, bool), [3.0, 2.0, 1.0], [1.0, 1.0, 1.0], 0.5)
+    assert mis == 0.0 and np.allclose(w, [2.5, 1.5, 0.5])
+    w, mis = instant_weights(basis, np.ones(t.size, bool), [3.0, 0.2, 1.0], [1.0, 1.0, 1.0], 0.5)
+    target = P @ (np.array([3.0, 0.2, 1.0]) - 0.5)
+    e = P @ np.array([2.5, 0.0, 0.5]) - target
+    clipped = np.sqrt(np.mean((e - e.mean()) ** 2)) / np.ptp(target)
+    assert np.all(w >= 0) and 0.0 < mis <= clipped * (1 + 1e-9)
