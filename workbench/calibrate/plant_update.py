@@ -100,7 +100,8 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     sensor = {}
     for st in stages:
         block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant,
-                       core if core["hysteresis"] is not None and core["channel"] == st["channel"] else None)
+                       core if core["hysteresis"] is not None and core["channel"] == st["channel"] else None,
+                       result.get("core_fit"))
         if block:
             blocks.append(block)
         elif st["effect"] == "creep" and st["channel"] == "displacement":
@@ -161,7 +162,7 @@ def _joint_stages(stages, core_fit):
     return out
 
 
-def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None):
+def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None, core_fit=None):
     """The plant-file lines of one effect (a displacement sensor's go into ``sensor``).
 
     ``note``: the stage's note (a named leakage's: the absorption time constant the record cannot
@@ -176,7 +177,7 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None):
         block = ["[dielectric_absorption]", f"gain_f = {_fmt(p['gain'])}   # F (k_s); {src}",
                  f"time_constant_s = {_fmt(p['tau_s'])}   # s; {src}"]
     elif effect == "creep" and ch == "displacement":
-        w = _creep_write_out(p, base, plant, core)
+        w = _creep_write_out(p, base, plant, core, refine=True, core_fit=core_fit)
         if w["capacitances_f"] is None:
             sensor["creep_note"] = w["reason"]
         else:
@@ -268,7 +269,7 @@ def _creep_fractions(p, base, core, slow=None):
     return g, tau, note
 
 
-def _creep_write_out(p, base, plant, core=None):
+def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
     """:func:`creep_branches` of a creep stage's spectrum.
 
     With a refitted core (``core["hysteresis"]``, :func:`~workbench.calibrate.core_refit.refitted_core`): the
@@ -290,6 +291,15 @@ def _creep_write_out(p, base, plant, core=None):
         g, tau, note = _creep_fractions(p, base, core)
         out = creep_branches(g, tau, sec[0], sec[1], "the refitted core's terminal secant over the record's span",
                              c_rev_f=sec[3], of_instant=True)
+        if refine and out["capacitances_f"] is not None and core_fit is not None:
+            from .core_refit import creep_target, refine_branches
+            target = creep_target(base, core_fit, core, p)
+            caps, taus, before, after = refine_branches(refit, base, target, out["capacitances_f"],
+                                                        out["time_constants_s"], base.train)
+            out["capacitances_f"], out["time_constants_s"] = caps, taus
+            out["how"] += (f"; then C_j and tau_j refitted by simulating this core with the branches on the record's "
+                           f"development rows against the fitted model's creep: misfit {100 * before:.3g} % -> "
+                           f"{100 * after:.3g} % of its RMS")
         if out["how"]:
             share = core.get("creep_scale", 1.0)
             out["how"] += f"; {note}" + ("" if share == 1.0 else
