@@ -26,24 +26,30 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import calibrate_confusion as cc  # noqa: E402
-from workbench.calibrate.plant_update import updated_plant_error, updated_plant_text  # noqa: E402
+from workbench.calibrate.plant_update import choose_core, updated_plant_error, updated_plant_text  # noqa: E402
 from workbench.calibrate.tracing import trace_effect  # noqa: E402
 from workbench.plant import load_plant  # noqa: E402
 
 
 def round_trip(plant0, plant_path, effect, rate, proto, size, seed):
-    """(result, fitted error_after, the updated plant's replay, the true plant's replay) of one record."""
+    """(result, fitted error_after, the updated plant's replay, the true plant's replay, its core) of one record.
+
+    The updated plant's core is the refitted or the declared one, whichever replays the development rows
+    closer (``plant_update.choose_core``, as ``workbench calibrate`` does)."""
     t, sp, base, plant, truth, r = cc.simulated_base(plant0, effect, rate, proto, size, seed)
     res = trace_effect(base, split=sp)
     if not res["stages"]:
-        return res, None, None, None
-    with tempfile.TemporaryDirectory() as tmp:
-        p = Path(tmp) / "p.toml"
-        p.write_text(updated_plant_text(plant_path, plant0, base, res, Path("record.csv")), encoding="utf-8")
-        again = load_plant(p)
+        return res, None, None, None, None
+    core, _, err = choose_core(plant_path, plant0, base, res, Path("record.csv"), sp.train, test=sp.test)
     ch = res["channel"]
-    return (res, res["error_after"]["rms"], updated_plant_error(again, base, ch, sp.test, train=sp.train)["rms"],
-            updated_plant_error(plant, base, ch, sp.test, train=sp.train)["rms"])
+    if err is None:
+        with tempfile.TemporaryDirectory() as tmp:
+            p = Path(tmp) / "p.toml"
+            p.write_text(updated_plant_text(plant_path, plant0, base, res, Path("record.csv"), core=core),
+                         encoding="utf-8")
+            err = updated_plant_error(load_plant(p), base, ch, sp.test, train=sp.train)
+    return (res, res["error_after"]["rms"], err["rms"], updated_plant_error(plant, base, ch, sp.test, train=sp.train)["rms"],
+            "refitted" if core["hysteresis"] is not None else "declared")
 
 
 def main(argv=None):
@@ -58,11 +64,11 @@ def main(argv=None):
         for k, (e, rate, proto, size, s) in enumerate(cc.cases(seed=seed)):
             if isinstance(e, str) or (a.effects and "+".join(e) not in a.effects):
                 continue
-            res, ea, upd, true = round_trip(plant0, plant_path, e, rate, proto, size, s)
+            res, ea, upd, true, which = round_trip(plant0, plant_path, e, rate, proto, size, s)
             stages = ", ".join(f"{x['effect']}/{x['channel']}" for x in res["stages"]) or res["effect"]
             line = f"{seed} #{k + 1} {'+'.join(e)} {rate:g} Hz {proto} {size:.3g}x: {stages}"
             if ea:
-                line += (f"; error_after {ea:.4g}, updated plant {upd:.4g} ({upd / ea:.2f}x), "
+                line += (f"; error_after {ea:.4g}, updated plant ({which} core) {upd:.4g} ({upd / ea:.2f}x), "
                          f"true plant {true:.4g} ({true / ea:.2f}x)")
                 rows.append(("+".join(e), size, upd / ea, true / ea))
             print(line, flush=True)

@@ -23,7 +23,7 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import (core_for, plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
+from .plant_update import (choose_core, plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
                            updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
@@ -184,14 +184,17 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     data["updated_plant_gaps"] = []
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
-        text = updated_plant_text(plant_path, plant, base, result, data_path)
-        err = None
+        # the refitted core or the declared one, by the replay on the development rows (choose_core)
+        core, _, err = choose_core(plant_path, plant, base, result, data_path, train, test=test)
+        text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
-            err = updated_plant_error(again, base, result["channel"], test, train=train,
-                                      current=base.current_kind or "averaged")
+            if err is None:
+                err = updated_plant_error(again, base, result["channel"], test, train=train,
+                                          current=base.current_kind or "averaged")
+        else:
+            err = None
         data["updated_plant_error"] = err
-        core = core_for(plant, base, result)
         gaps = plant_file_gaps(result["stages"], base, plant, core=core)
         data["updated_plant_gaps"] = gaps
         warn = round_trip_warning(result["error_after"], err, result["stages"], gaps=gaps,
@@ -201,7 +204,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         note = round_trip_note(result["error_after"], err)
         if note:
             data["base_fit"]["notes"].append(note)
-        text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err)
+        text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err, core=core)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
