@@ -105,3 +105,33 @@ def test_instant_weights_exact_when_non_negative_refitted_otherwise():
     e = P @ np.array([2.5, 0.0, 0.5]) - target
     clipped = np.sqrt(np.mean((e - e.mean()) ** 2)) / np.ptp(target)
     assert np.all(w >= 0) and 0.0 < mis <= clipped * (1 + 1e-9)
+
+
+@pytest.mark.parametrize("channel", ["displacement", "charge"])
+def test_a_fit_of_the_declared_core_gives_back_the_declared_c_h(sn637, channel):
+    """The fitted model of a record of the declared core, exact (its joint plays are the declared terminal
+    map's, in the channel's units: x = k_q2x q, or q), is written as the declared C_h (weights and thresholds
+    to rounding), with the record's V_t range in the file's comment; the gauge is refused with its reason."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.core_refit import refitted_core
+    pzt = sn637.pzt
+    pi = pzt.terminal_operator().inverse()
+    per_c = pzt.k_q2x_m_per_c if channel == "displacement" else 1.0
+    t = np.arange(2000) / 1e3
+    v = 50.0 - 50.0 * np.cos(2 * np.pi * t)
+    from workbench.calibrate.pi_fit import play_matrix
+    basis = np.column_stack([play_matrix(v, pi.thresholds, np.zeros(pi.size)), np.ones(t.size)])
+    w = pi.weights * per_c
+    m = SimpleNamespace(weights=w, yhat=basis[:, :-1] @ w, units="m")
+    base = SimpleNamespace(t=t, v_drive=v, basis=basis, train=np.ones(t.size, bool), input_kind="terminal",
+                           train_range_v=(0.0, 100.0), channels={channel: m, "gauge": m})
+    fit = {"channel": channel, "weights": w, "offset": 0.0, "thresholds_v": pi.thresholds,
+           "initial_states_v": np.zeros(pi.size), "stages": []}
+    core = refitted_core(sn637, base, fit)
+    h = core["hysteresis"]
+    assert np.allclose(h.weights, pzt.hysteresis.weights, rtol=1e-9, atol=1e-12 * pzt.hysteresis.weights.max())
+    assert np.allclose(h.thresholds, pzt.hysteresis.thresholds, rtol=1e-9, atol=1e-9)
+    assert "0 .. 100 V" in core["how"] and core["capped"] == 0.0
+    gauge = refitted_core(sn637, base, {**fit, "channel": "gauge"})
+    assert gauge["hysteresis"] is None and "gauge" in gauge["reason"]
