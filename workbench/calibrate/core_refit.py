@@ -38,6 +38,10 @@ from ..plant.hysteresis import PrandtlIshlinskii
 
 __all__ = ["hysteresis_from_terminal_pi", "instant_weights", "refitted_core", "CAP_OF_C_PP"]
 
+#: The instant core's reversal slope (the threshold-0 play's weight) is at least this fraction of its
+#: weights' sum (:func:`instant_weights`); the base fit can leave it 0, and a PI without one has no C_h.
+REVERSAL_FLOOR = 0.01
+
 #: A fitted loading slope at or above C_pp has no C_h; it is capped at this fraction of C_pp
 #: (:func:`refitted_core`; the file says by how much).
 CAP_OF_C_PP = 0.99
@@ -85,11 +89,13 @@ def hysteresis_from_terminal_pi(terminal_pi, c_pp_f):
 
 
 def instant_weights(basis, rows, joint_w, base_w, creep_share):
-    """The fitted model's instant response as a PI with non-negative weights.
+    """The fitted model's instant response as a PI with non-negative weights and a reversal slope.
 
     The instant response ``P (joint_w - creep_share base_w)`` (``P`` the plays) is refitted by bounded least
     squares with weights >= 0 and a free offset over ``rows`` (the difference can have negative weights: the
-    joint fit's plays are not the base-alone's).
+    joint fit's plays are not the base-alone's), the threshold-0 play's weight at least
+    :data:`REVERSAL_FLOOR` of the sum (a PI without a reversal slope has no inverse: no C_h gives it;
+    the base fit leaves it at 0 on some records).
 
     Parameters
     ----------
@@ -116,13 +122,14 @@ def instant_weights(basis, rows, joint_w, base_w, creep_share):
     k = P.shape[1] - 1
     target = P[:, :k] @ (np.asarray(joint_w, float) - float(creep_share) * np.asarray(base_w, float))
     direct = np.asarray(joint_w, float) - float(creep_share) * np.asarray(base_w, float)
-    if np.all(direct >= 0):
+    floor = REVERSAL_FLOOR * float(np.sum(np.maximum(direct, 0.0)))
+    if np.all(direct >= 0) and direct[0] >= floor:
         return direct, 0.0
     A, b = P[rows], target[rows]
     col = np.sqrt(np.mean(A * A, axis=0))
     col[col == 0] = 1.0
     R, c = small_problem(A / col, b)
-    lb = np.r_[np.zeros(k), -np.inf]
+    lb = np.r_[floor * col[0], np.zeros(k - 1), -np.inf]
     x = lsq_linear(R, c, bounds=(lb, np.full(k + 1, np.inf)), method="bvls", tol=1e-12).x / col
     w = np.maximum(x[:k], 0.0)
     res = A @ np.r_[w, x[k]] - b
