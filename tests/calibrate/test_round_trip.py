@@ -5,7 +5,8 @@ test RMS is the record's noise plus what the file gets wrong. Facts asserted: th
 made the record it leaves the sensor's noise; the gauge chain's own noise is switched off when asked;
 a creep spectrum is written as fractions of the instant response; the warning fires beyond 10 % only.
 The issue's round trip on drawn two-effect records (sizes 3-30x, log-uniform, ``default_rng`` fixed
-before any run) is a strict xfail where it is a miss, with the measured reason.
+before any run), the file written as ``workbench calibrate`` writes it (the refitted or the declared core,
+``choose_core``), is a strict xfail where it is a miss, with the measured reason.
 """
 
 import dataclasses

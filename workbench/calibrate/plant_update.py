@@ -1,17 +1,25 @@
-"""The updated plant file: the declared plant with the effect calibration found.
+"""The updated plant file: the plant with the core refitted on the record and the effects calibration found.
 
 The declared file's text is kept line for line (its sources and comments stay true); the
 section of the found effect is replaced or appended, with every value commented with the record
-it came from. Mapping of the tracing's parameters to plant-file sections
+it came from. **The core** (session 13): ``[hysteresis]`` is replaced by the fitted model's own core,
+its joint plays inverted through the declared C_pp into C_h (:mod:`.core_refit`, :func:`core_for`), so
+the file is the fitted model wherever the effects' forms can copy it; C_p, T_em, k_p, the limits, modes
+and gauge stay declared. Where the record's core cannot be a C_h (a loading slope at or above C_pp past
+the cap, an amplifier command, the gauge channel) or the declared core replays the development rows
+closer (:func:`choose_core`: a mode's gain other than 1, creep the branches cannot carry), the declared
+core is kept and the header says why. Mapping of the tracing's parameters to plant-file sections
 (``workbench.plant.additions`` and the core's ``[creep]`` / ``[[mechanics.modes]]``):
 
 * ``leakage``: ``gain_per_s`` is charge per volt-second, ``1 / R_FP``;
 * ``dielectric_absorption``: ``gain`` is ``k_s`` (C/V), ``tau_s`` the time constant;
-* ``creep`` (displacement channel): Kelvin-Voigt branches across the declared core's C_h whose
-  settled/instant ratio is the spectrum's ``1 / (1 - sum c)`` and whose time constants at a held
-  terminal voltage are the fitted ones (:func:`creep_branches`); C_h from the declared core's terminal
+* ``creep`` (displacement channel): Kelvin-Voigt branches across the core's C_h whose
+  settled/instant ratio is the spectrum's and whose time constants at a held terminal voltage are the
+  fitted ones (:func:`creep_branches`); with the refitted core, sized as fractions of its instant
+  response and then refitted by simulation to the fitted model's creep
+  (:func:`~workbench.calibrate.core_refit.refine_branches`); without, C_h from the declared core's terminal
   secant over the record's voltage span (no charge channel needed). Above the ceiling
-  ``1 + C_pp / C_h`` no section is written, and the header says why;
+  ``1 + C_pp / C_h`` a smaller share (or no section) is written, and the header says why;
 * ``resonance``: an added ``[[mechanics.modes]]`` entry;
 * ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
 * ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
@@ -653,8 +661,8 @@ def round_trip_note(error_after, plant_error, tolerance=None):
     if b >= (1.0 - tol) * a:
         return None
     return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u}, below "
-            f"the fitted model's {a:.4g} {u} ({b / a:.2f}x): the declared core fits this record better than the "
-            f"base refitted on it")
+            f"the fitted model's {a:.4g} {u} ({b / a:.2f}x): the file (its core as its header says) fits this record "
+            f"better than the fitted model")
 
 
 def updated_plant_error_reason(kind, result, base, channel):
