@@ -211,7 +211,7 @@ def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
 CREEP_MISS = ("measured 2026-11-26 (s13_rtcore): a creep+delay record at 1 kHz sine (18.6x) is answered creep alone "
               "(sum c = 0.667 with a branch slower than the record); the file carries the refitted core (the fitted "
               "model's plays less the creep's instant share) and Kelvin-Voigt branches across it refitted by simulation "
-              "to the fitted model's creep part (its RMS 4.3e-6 m), which they copy to 8.7e-8 m: branches across a "
+              "to the fitted model's creep part (RMS 2.8e-6 m), which they copy to 8.7e-8 m: branches across a "
               "hysteretic C_h do not relax as the spectrum's lowpass of the base's output does. The file leaves "
               "7.85e-8 m against error_after 2.78e-8 m (2.8x; was 27x with the declared core; the plant that made the "
               "record 1.6e-9 m)")
