@@ -239,12 +239,13 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     unit = {"displacement": "x = k_q2x q, k_q2x declared", "charge": "q itself"}[ch]
     out["how"] = (f"C_h refitted on the record's {ch} channel ({unit}) over V_t {lo:.4g} .. {hi:.4g} V: the fitted "
                   f"model's plays (the base refitted jointly with every effect found there"
-                  + (f", less the creep's sum c = {total:.4g} ({slow:.4g} of branches slower than the record) times the base's own: its instant "
-                     f"response, refitted with weights >= 0 to {100 * misfit:.2g} % of its span" if creep else "")
-                  + f")" + (f", its top loading slope capped at {CAP_OF_C_PP:g} C_pp ({100 * capped:.2g} % of the weights taken "
-                         f"from the highest plays)" if capped else "")
-                  + f"; inverted in closed form (Kuhnen) through the declared C_pp; beyond that range it continues "
-                  f"at its last loading slope (extrapolated, every play moving)")
+                  + (f", less the creep's sum c = {total:.4g} ({slow:.4g} of branches slower than the record) times "
+                     f"the base's own: its instant response, refitted with weights >= 0 and a reversal slope to "
+                     f"{100 * misfit:.2g} % of its span" if creep or misfit else "")
+                  + ")" + (f", its top loading slope capped at {CAP_OF_C_PP:g} C_pp ({100 * capped:.2g} % of the weights "
+                           f"taken from the highest plays)" if capped else "")
+                  + "; inverted in closed form (Kuhnen) through the declared C_pp; beyond that range it continues "
+                  "at its last loading slope (extrapolated, every play moving)")
     return out
 
 

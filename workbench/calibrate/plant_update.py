@@ -450,7 +450,7 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
     ok = c_j > 1e-9 * c_cum[-1]        # a gain lost in the rounding of the sums (1e-19 of a fit) is no branch
     out["capacitances_f"] = c_j[ok]
     out["time_constants_s"] = (tk * (c_j + c_r + before + c_pp_f) / (c_r + before + c_pp_f))[ok]
-    out["how"] = (f"C_j from settled/instant " + ("1 + sum a" if of_instant else "1/(1 - sum c)")
+    out["how"] = ("C_j from settled/instant " + ("1 + sum a" if of_instant else "1/(1 - sum c)")
                   + f" = {1 + a:.4g} (sum {'a' if of_instant else 'c'} = {total:.4g}) across C_h = {c_h:.4g} F "
                   f"(C_h = (1/C_s - 1/C_pp)^-1, C_s = {c_s_f:.4g} F {where}, C_pp = {c_pp_f:.4g} F, C_h's reversal slope "
                   f"C_r = {c_r:.4g} F); in order of time constant C_k = C_S(A_k) - C_S(A_(k-1)), tau_k the fitted one x "
