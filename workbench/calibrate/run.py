@@ -182,10 +182,15 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     text, data["updated_plant_error"] = None, None
     data["updated_plant_error_reason"] = updated_plant_error_reason(kind, result, base, result["channel"])
     data["updated_plant_gaps"] = []
+    data["updated_plant_core"] = None          # pzt: which core the file carries (choose_core)
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
         # the refitted core or the declared one, by the replay on the development rows (choose_core)
-        core, _, err = choose_core(plant_path, plant, base, result, data_path, train, test=test)
+        core, dev, err = choose_core(plant_path, plant, base, result, data_path, train, test=test)
+        data["updated_plant_core"] = {
+            "core": "refitted" if core["hysteresis"] is not None else "declared", "channel": core["channel"],
+            "range_v": list(core["range_v"]) if core["range_v"] else None, "reason": core["reason"],
+            "development_rms": dev}
         text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
