@@ -594,6 +594,9 @@ def plant_file_gaps(stages, base, plant, core=None):
             w = _creep_write_out(p, base, plant, core if written and core["channel"] == ch else None)
             if w["capacitances_f"] is None:
                 gaps.append(f"the creep was not written ({w['reason']})")
+            elif written and core["channel"] == ch and core.get("creep_scale", 1.0) < 1.0:
+                gaps.append(f"only {core['creep_scale']:.0%} of the creep's branches within the record were written "
+                            f"(branches across C_h cannot carry them all: the ceiling 1 + C_pp/C_h)")
         elif eff == "resonance" and ch in ("displacement", "gauge"):
             g = float(p.get("gain", 1.0))
             if abs(g - 1.0) > 0.01:
