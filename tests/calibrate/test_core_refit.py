@@ -159,3 +159,24 @@ def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, tau
     c, tau, before, after = refine_branches(sn637, base, target, caps * start, np.asarray(taus_s) * start,
                                             np.ones(t.size, bool), max_nfev=60)
     assert before > 0.05 and after < 0.01, (before, after, c / caps, tau)
+
+
+@given(st.lists(st.floats(0.0, 0.3), min_size=1, max_size=5), st.floats(2e-6, 3e-5), st.floats(0.2, 1.0))
+@settings(max_examples=40)
+def test_branches_from_fractions_of_the_instant_response_are_the_settled_forms(gains, c_s_rel, c_r_rel):
+    """Fractions ``c_j`` of the settled response are ``a_j = c_j / (1 - sum c)`` of the instant one: both
+    forms of ``creep_branches`` give the same branches (or refuse alike)."""
+    from workbench.calibrate.plant_update import creep_branches
+    c_pp = 1.671e-5
+    g = np.asarray(gains)
+    if g.sum() >= 0.95:
+        return
+    taus = np.geomspace(0.01, 10.0, g.size)
+    c_s = min(c_s_rel, 0.9 * c_pp)
+    c_h = 1.0 / (1.0 / c_s - 1.0 / c_pp)
+    a = creep_branches(g, taus, c_s, c_pp, c_rev_f=c_r_rel * c_h)
+    b = creep_branches(g / (1.0 - g.sum()), taus, c_s, c_pp, c_rev_f=c_r_rel * c_h, of_instant=True)
+    assert (a["capacitances_f"] is None) == (b["capacitances_f"] is None)
+    if a["capacitances_f"] is not None:
+        np.testing.assert_allclose(b["capacitances_f"], a["capacitances_f"], rtol=1e-9)
+        np.testing.assert_allclose(b["time_constants_s"], a["time_constants_s"], rtol=1e-9)
