@@ -74,7 +74,8 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .absorption_or_leakage import decided_needed, leakage_no_worse, nested_consensus, nested_note
+from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
+                                    nested_consensus, nested_note, refitted_absorption_stage)
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
@@ -204,7 +205,10 @@ def _later_candidates(cands, probs, extra, found, t, base):
         tag = (c["name"], c["channel"])
         if tag in found or excluded(tag, found):
             continue
-        r = _research(c, probs, extra, t, base)
+        # leakage beside a found absorption: scored with the absorption's time constant refitted with it
+        r = leakage_beside_absorption(c, cands, probs, extra, t, base, _research) if tag == LEAKAGE else None
+        if r is None:
+            r = _research(c, probs, extra, t, base)
         if r is not None:
             out.append(r)
     return out
@@ -594,7 +598,7 @@ def _stage_entry(c, count, ctx, extra, resolved=None):
     return {"effect": c["name"], "channel": c["channel"], "variant": c["variant"],
             "parameters": _tr._jsonable(p), "agreement": f"{count} of {len(split.folds)}",
             "error_before": {**before, "units": units}, "error_after": {**after, "units": units},
-            "_term": own, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c,
+            "_term": own, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c, "_gains": full,
             **({"resolved": resolved} if resolved else {})}
 
 
@@ -669,6 +673,8 @@ def run_stages(ctx, max_stages=3):
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
+        if c.get("replaces") is not None:
+            refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
         if compatible is not None and compatible[0] == resolved and not stages[1:]:
             # the folds compatible with a name from decided folds (decided + undecided): what
             # scripts compare with ``agree_needed``, beside ``agreement`` (the decided folds)

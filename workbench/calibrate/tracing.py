@@ -595,9 +595,25 @@ def _carry_passes(prob, g, n_params, nulls, split, ctx, floor):
     return passes >= ctx["need"]
 
 
+class FoundColumns(tuple):
+    """A found effect's ``(columns, lower bounds)`` in a problem's ``extra`` list, with its
+    ``(name, channel)`` ``tag`` (a candidate that refits a found effect names it in ``replaces``)."""
+
+    def __new__(cls, C, lower, tag):
+        obj = super().__new__(cls, (C, lower))
+        obj.tag = tag
+        return obj
+
+
 def _stacked(prob, extra_list, cand):
-    """Gram matrices of the problem with the found effects' columns (and a candidate's) added."""
+    """Gram matrices of the problem with the found effects' columns (and a candidate's) added.
+
+    A candidate with ``replaces`` (a found effect's tag) takes that effect's columns' place: they
+    are left out (:func:`~workbench.calibrate.absorption_or_leakage.leakage_beside_absorption`)."""
     cols, lows = [], []
+    gone = cand.get("replaces") if cand is not None else None
+    if gone is not None:
+        extra_list = [x for x in extra_list if getattr(x, "tag", None) != gone]
     for C, lo in extra_list:
         cols.append(C)
         lows.extend(lo)
@@ -615,7 +631,10 @@ def _absorb(c, extra, probs, base, t):
     g = c["g"]
     C = g["C"] * g["norms"]
     lo = g["lb"][probs[c["key"]].A.shape[1]:]
-    extra[c["key"]].append((C, list(lo)))
+    if c.get("replaces") is not None:
+        # its columns take the refitted effect's place (a new list: copies of ``extra`` keep theirs)
+        extra[c["key"]] = [x for x in extra[c["key"]] if getattr(x, "tag", None) != c["replaces"]]
+    extra[c["key"]].append(FoundColumns(C, list(lo), (c["name"], c["channel"])))
     if c["channel"] == "displacement" and c["name"] in ("creep", "resonance"):
         for other in ("charge", "gauge"):
             key = (other, "model")
