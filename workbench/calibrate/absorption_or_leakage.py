@@ -410,7 +410,7 @@ def leakage_beside_absorption(c, cands, probs, extra, t, base, research):
     if r is None:
         return None
     tau = float(r["params"]["tau_s"])
-    if not tau < SETTLED_RECORDS * float(t[-1] - t[0]):
+    if not tau < SETTLED_TEST_RECORDS * float(t[-1] - t[0]):
         return None
     C_da, lo_da = r["eff"].columns(t, r["u"], r["params"])
     C = np.column_stack([C_lk, np.asarray(C_da, float).reshape(t.size, -1)])
