@@ -52,6 +52,19 @@ slow absorptions leakage, and carrying the absorption (it contains leakage's lim
 undecided leakages absorption: on the confusion benchmark's seeds 26-28 (the leakage,
 absorption and pair records, 81) the latter named 6 leakages absorption.
 
+**Both** (:func:`leakage_beside_absorption`, session 13): a record with a leak *and* an
+absorption. The absorption fitted alone takes a compromise time constant, longer than its own, its
+``k / tau`` slope standing in for leakage's line, and leakage's column taken orthogonal to it then
+found nothing left (the pair was answered with the absorption alone: 1 of 17 on seeds 33-38). Once
+the absorption is found, the later stage's leakage candidate is the joint model: leakage's line
+(``g >= 0``) with the absorption's time constant searched again beside it, in the found
+absorption's place, scored against the absorption alone (its time constant free) on every fold by
+the stage's bars and against a second absorption (the stage's rival). It is offered only when the
+refitted absorption settles within the record's length (``SETTLED_TEST_RECORDS``): slower, the
+absorption alone matches a pair's ``int V`` and ``int int V`` terms (``k' / tau' = k / tau + g``,
+``k' / tau'^2 = k / tau^2``) and the two are one reading over the record; between half a record and
+one the folds decide.
+
 ``tau_bound``: an absorption of time constant ``tau`` explaining ``E`` (what leakage explains)
 leaves a bend of ``sqrt(3/5) / 12 x T / tau x E``; it hides in what leakage leaves, ``a``, when
 that is below ``a``: ``tau >= tau_bound = sqrt(3/5) / 12 x T x E / a``.

@@ -30,6 +30,11 @@ the candidate to it.
 
 No threshold is typed in: the decision is the first stage's tests plus a comparison.
 
+**Leakage beside a found absorption** is scored as the joint model, the absorption's time constant
+refitted with leakage's line in the found absorption's place
+(:func:`~workbench.calibrate.absorption_or_leakage.leakage_beside_absorption`); named, the
+absorption's stage carries the refitted parameters.
+
 **A split first stage** (:func:`resolve_split`): when two effects on one channel, or two
 different effects on the displacement and the gauge (:func:`_sensor_pair`), share at least
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both

@@ -526,6 +526,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     # a leakage named where the absorption's time constant came out beyond the record: say what
     # the record leaves open (:func:`.absorption_or_leakage.leakage_note`)
     note = leakage_note(first["res"]["by"], first["res"]["befores"], penalty, infos["duration_s"])
+    if any((s["effect"], s["channel"]) == ("dielectric_absorption", "charge") for s in out["stages"]):
+        note = None         # the absorption is named beside it: its time constant is a stage's, not open
     for k, s in enumerate(out["stages"]):
         if note and (s["effect"], s["channel"]) == ("leakage", "charge"):
             s["note"] = note
