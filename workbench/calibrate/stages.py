@@ -303,7 +303,10 @@ def _later_stage(ctx, extra, found, seen=()):
     # every fold: a later stage claims a second effect in what the first leaves (at 4 of 5 a
     # drift was named after a sensor lead, the base model's own slow misfit: test_calibrate's lead)
     answer, count, winners = _tr._consensus(res["winners"], ctx["need"])
-    if answer not in (None, "none") and answer not in seen and count < len(ctx["split"].folds):
+    if answer not in (None, "none") and answer not in seen and count < len(ctx["split"].folds) \
+            and res["by"][answer].get("replaces") is None:
+        # (a candidate refitting a found effect, the joint leakage beside the absorption, is that
+        # channel's nested comparison, not a second effect in the leftover: the agreement rule)
         answer = None
     if answer in (None, "none"):
         return answer, count, winners, res, None
