@@ -396,3 +396,139 @@ def test_the_stage_says_the_compatible_folds_beside_the_decided(monkeypatch, win
         return
     assert first["answer"] == named and st[0]["count"] == 2 and st[0]["agreement_compatible"] == 5
     assert "2 folds it wins are the decided ones" in st[0]["resolved"] and "3 folds cannot tell" in st[0]["resolved"]
+
+
+# ---- leakage beside a found absorption: the joint model (session 13, issue 13 item 5)
+
+def test_a_refitting_candidate_takes_the_found_columns_place():
+    """tracing._stacked leaves out the found effect a candidate ``replaces``; tracing._absorb puts
+    the candidate's columns in its place (copies of the found list keep theirs)."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate import tracing
+    rng = np.random.default_rng(5)
+    n = 64
+    a, b, c = (rng.normal(size=(n, 1)) for _ in range(3))
+    seen = []
+    prob = SimpleNamespace(base="base", A=np.zeros((n, 2)),
+                           grams=lambda C, lows: seen.append((np.asarray(C).copy(), list(lows))) or {"C": C})
+    found = [tracing.FoundColumns(a, [0.0], al.ABSORPTION), tracing.FoundColumns(b, [-np.inf], ("resonance", "x"))]
+    cand = {"g": {"C": c, "norms": np.ones(1), "lb": np.r_[0.0, 0.0, 0.0]}, "replaces": al.ABSORPTION}
+    tracing._stacked(prob, found, cand)
+    assert np.array_equal(seen[-1][0], np.column_stack([b, c])) and seen[-1][1] == [-np.inf, 0.0]
+    tracing._stacked(prob, found, {**cand, "replaces": None})
+    assert np.array_equal(seen[-1][0], np.column_stack([a, b, c]))
+    key = ("charge", "model")
+    extra = {key: list(found)}
+    kept = {k: list(v) for k, v in extra.items()}
+    tracing._absorb({**cand, "key": key, "name": "leakage", "channel": "charge"}, extra, {key: prob}, None, None)
+    assert [x.tag for x in extra[key]] == [("resonance", "x"), al.LEAKAGE]
+    assert [x.tag for x in kept[key]] == [al.ABSORPTION, ("resonance", "x")]
+
+
+def test_the_absorption_stage_carries_what_was_refitted_beside_the_leakage():
+    da = {"effect": "dielectric_absorption", "channel": "charge", "parameters": {"gain": 5.8e-6, "tau_s": 2.0}}
+    lk = {"effect": "leakage", "channel": "charge", "parameters": {"gain_per_s": 2.9e-7},
+          "_cand": {"refit": {"tau_s": 1.23}}, "_gains": np.array([2.9e-7, 3.6e-6])}
+    al.refitted_absorption_stage([da, lk])
+    assert da["parameters"] == {"gain": 3.6e-6, "tau_s": 1.23}
+    assert "alone 2 s" in da["refitted"]
+
+
+PAIR = ("leakage", "dielectric_absorption")
+N_PAIR_DRAWS = 20 if not FULL else 40
+
+
+def _pair_trace(sn637, effect, rate, proto, size, seed):
+    """One benchmark record traced as ``workbench calibrate`` does; (result, truth, T, own sizes)."""
+    from workbench.calibrate.tracing import trace_effect
+    cc = load_benchmark("calibrate_confusion")
+    t, sp, base, plant, truth, r = cc.simulated_base(sn637, effect, rate, proto, size, seed)
+    res = trace_effect(base, split=sp)
+    effects = (effect,) if isinstance(effect, str) else effect
+    own = cc.own_sizes(sn637, effects, rate, proto, size, seed, sp=sp)
+    return res, truth, float(t[-1] - t[0]), own
+
+
+@pytest.fixture(scope="module")
+def drawn_pairs(sn637):
+    """Leakage + absorption records: rate (1, 10, 100 kHz) and protocol drawn, the size
+    log-uniform over the benchmark's whole 0.03-30x, the absorption's tau and gain and the
+    leakage's resistance from ``EFFECT_RANGES`` (tau 0.5-5 s); ``default_rng(1313)`` fixed before
+    any record was traced."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1313)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    rows = []
+    for _ in range(N_PAIR_DRAWS):
+        rate = float(rng.choice(cc.RATES_HZ))
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        size = float(np.exp(rng.uniform(lo, hi)))
+        seed = int(rng.integers(1 << 30))
+        res, truth, T, own = _pair_trace(sn637, PAIR, rate, proto, size, seed)
+        st = {s["effect"]: s["parameters"] for s in res["stages"]}
+        print(f"\n{rate:7.0f} {proto:11s} x{size:7.3f} tau/T {truth['time_constant_s'] / T:6.2f} own {np.round(own, 2)}"
+              f" -> {list(st)} {res['fold_winners']}")
+        rows.append({"res": res, "truth": truth, "T": T, "own": own, "named": list(st), "params": st})
+    return rows
+
+
+def test_drawn_pairs_name_nothing_the_record_lacks(drawn_pairs):
+    assert not [r["named"] for r in drawn_pairs if set(r["named"]) - set(PAIR)]
+
+
+def _separable(rows):
+    """The pairs whose two effects each stand >= 3x above the floor and whose absorption settles
+    within half the record (its shape a line cannot give)."""
+    return [r for r in rows if min(r["own"]) >= 3.0 and r["truth"]["time_constant_s"] < al.SETTLED_RECORDS * r["T"]]
+
+
+def test_pairs_answered_with_both_recover_the_drawn_truth(drawn_pairs):
+    """Where both are named, the absorption's refitted tau and k and the leakage's R are the drawn
+    ones to 10 % (seed 24 #10 of the confusion benchmark: 0.5 %, 0.4 %, 0.05 %), and the draws
+    reach such records among the separable ones."""
+    both = [r for r in drawn_pairs if set(r["named"]) == set(PAIR)]
+    assert [r for r in both if r in _separable(drawn_pairs)], "the draws reach no separable pair named with both"
+    for r in both:
+        p, tr = r["params"], r["truth"]
+        assert p["dielectric_absorption"]["tau_s"] == pytest.approx(tr["time_constant_s"], rel=0.1)
+        assert p["dielectric_absorption"]["gain"] == pytest.approx(tr["gain_f"], rel=0.1)
+        assert 1.0 / p["leakage"]["gain_per_s"] == pytest.approx(tr["resistance_ohm"], rel=0.1)
+
+
+@pytest.mark.xfail(strict=True, reason="measured 3 of 4 separable pairs of default_rng(1313)'s 20 draws named with "
+                   "both: a 10 kHz sine record (leakage 3.1x, absorption 10.7x, tau 0.34 T) is answered with the "
+                   "absorption alone (the joint model leaves 0-10 % less than the absorption alone on the folds, "
+                   "under min_share: README, session 13)")
+def test_drawn_pairs_whose_absorption_settles_are_answered_with_both(drawn_pairs):
+    """A leakage and an absorption that settles within half the record, both >= 3x above the
+    floor: both named (issue 13 item 5)."""
+    sep = _separable(drawn_pairs)
+    assert sep
+    missed = [(r["own"], r["named"]) for r in sep if set(r["named"]) != set(PAIR)]
+    assert not missed, missed
+
+
+@pytest.mark.parametrize("effect", [
+    pytest.param("dielectric_absorption", marks=pytest.mark.xfail(strict=True, reason=(
+        "measured 1 of 6 drawn absorption records named absorption + leakage: 1 kHz steps, x4.30, 702x its "
+        "floor, tau 1.10 s of a 10 s record; the joint (tau 1.064 s, g 1.08e-8 S) leaves 0.65-0.82 of what "
+        "the absorption alone leaves (5-6x the noise floor) on all 5 folds, and a second absorption settling "
+        "within T/2 in the line's place does worse (tried, not kept): README, session 13"))),
+    "leakage"])
+def test_a_single_charge_effect_never_gets_the_other_named_beside_it(sn637, effect):
+    """Absorption records (tau 0.5-5 s from ``EFFECT_RANGES``) and leakage records, rate and
+    protocol drawn, sizes over the whole 0.03-30x (``default_rng(1314)``/``(1315)`` fixed before any
+    run): no stage names the other of the two (nor anything else)."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1314 if effect == "leakage" else 1315)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for _ in range(6 if not FULL else 18):
+        rate = float(rng.choice(cc.RATES_HZ))
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        r = cc.evaluate(sn637, effect, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30)))
+        print(f"\n{effect} {rate:7.0f} {proto:11s} x{r['size']:7.3f} excess {r['excess']:7.2f} -> {r['named']}")
+        out.append(r)
+    assert not [(r["rate_hz"], r["protocol"], r["size"], r["named"]) for r in out if r["class"] == "wrong"]
+    assert any(r["named"] for r in out)        # the draws reach named records

@@ -52,6 +52,19 @@ slow absorptions leakage, and carrying the absorption (it contains leakage's lim
 undecided leakages absorption: on the confusion benchmark's seeds 26-28 (the leakage,
 absorption and pair records, 81) the latter named 6 leakages absorption.
 
+**Both** (:func:`leakage_beside_absorption`, session 13): a record with a leak *and* an
+absorption. The absorption fitted alone takes a compromise time constant, longer than its own, its
+``k / tau`` slope standing in for leakage's line, and leakage's column taken orthogonal to it then
+found nothing left (the pair was answered with the absorption alone: 1 of 17 on seeds 33-38). Once
+the absorption is found, the later stage's leakage candidate is the joint model: leakage's line
+(``g >= 0``) with the absorption's time constant searched again beside it, in the found
+absorption's place, scored against the absorption alone (its time constant free) on every fold by
+the stage's bars and against a second absorption (the stage's rival). It is offered only when the
+refitted absorption settles within the record's length (``SETTLED_TEST_RECORDS``): slower, the
+absorption alone matches a pair's ``int V`` and ``int int V`` terms (``k' / tau' = k / tau + g``,
+``k' / tau'^2 = k / tau^2``) and the two are one reading over the record; between half a record and
+one the folds decide.
+
 ``tau_bound``: an absorption of time constant ``tau`` explaining ``E`` (what leakage explains)
 leaves a bend of ``sqrt(3/5) / 12 x T / tau x E``; it hides in what leakage leaves, ``a``, when
 that is below ``a``: ``tau >= tau_bound = sqrt(3/5) / 12 x T x E / a``.
@@ -63,9 +76,12 @@ seed 17's slice (1 of 3; chosen there) and on the held-out seed 21 (3 of 3), and
 leakage; a leakage explaining only 3-8x what it leaves stays undecided (README, *Calibration*).
 """
 
+import copy
+
 import numpy as np
 
-__all__ = ["absorption_or_leakage", "bend_on_every_fold", "decided_needed", "leakage_no_worse", "leakage_note",
+__all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_beside_absorption", "refitted_absorption_stage",
+           "LEAKAGE", "ABSORPTION", "decided_needed", "leakage_no_worse", "leakage_note",
            "nested_consensus", "nested_note", "DEFAULT_AGREE",
            "settled_absorption_rms", "settled_ruled_out", "tau_bound_s", "SETTLED_TEST_RECORDS",
            "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED"]
@@ -78,6 +94,8 @@ SETTLED_RECORDS = 0.5
 #: The absorption the record must rule out before leakage is named: time constant the record's length
 #: (63 % settled at its end; any faster one bends more, see :func:`settled_ruled_out`).
 SETTLED_TEST_RECORDS = 1.0
+#: The two candidates' tags, ``(name, channel)``.
+LEAKAGE, ABSORPTION = ("leakage", "charge"), ("dielectric_absorption", "charge")
 #: The fold label of a fold the two readings explain alike (:func:`absorption_or_leakage` returned ``None``).
 UNDECIDED = ("undecided", "dielectric_absorption or leakage")
 #: The default agreement's share of the folds (``ceil(0.8 n_folds)``, tracing's default ``agree``).
@@ -347,3 +365,91 @@ def nested_note(answer, decided, undecided, n_folds):
             f"absorption with tau -> inf at fixed gain / tau)"
             + (f", {neither} name{'s' if neither == 1 else ''} neither" if neither else "")
             + f": {decided + undecided} of {n_folds} folds compatible with {answer[0]}, {decided} decided")
+
+
+def leakage_beside_absorption(c, cands, probs, extra, t, base, research):
+    """The later stage's leakage candidate once an absorption is found: the two fitted jointly.
+
+    An absorption fitted alone to a record with both effects takes a compromise time constant
+    (longer than its own: its ``k / tau`` slope stands in for leakage's line), and leakage's
+    column, taken orthogonal to that absorption, then finds nothing left ("the absorption takes
+    the leak"). Here the candidate is the **joint** model, leakage's column (``g >= 0``) with
+    the absorption's time constant searched again beside it (:func:`~.stages._research`, the
+    absorption's own search: against the base and the other found effects, over its whole range),
+    which *replaces* the found absorption's columns (``replaces``; gains ``>= 0``). The stage's
+    fold test then compares it with the found absorption alone (its time constant free, fitted
+    on the development rows) by the bars every candidate clears (noise floor, null reference,
+    ``min_share``, its agreement) and the stage's rival (a second absorption on what the first
+    leaves): leakage is named where the joint model explains what the absorption alone cannot.
+
+    Only an absorption that **settles within the record** shows a shape a line cannot give: when
+    the refitted time constant comes out ``SETTLED_RECORDS`` of the record or slower, a slow
+    absorption and a leak are one reading over the record (the module notes: the absorption's
+    ``k / tau`` and ``k / tau^2`` terms absorb leakage's line), and ``None`` is returned (the
+    caller searches leakage as any later candidate, orthogonal to the found absorption).
+
+    Parameters
+    ----------
+    c : dict
+        The first stage's leakage candidate (charge channel).
+    cands : list of dict
+        The first stage's candidates (the absorption's among them: its effect, driver and range).
+    probs, extra : dict
+        The linear problems and the found effects' columns per problem (:func:`~.tracing._absorb`).
+    t : ndarray of float
+        Sample times, s.
+    base : BaseFit
+        The base fit.
+    research : callable
+        :func:`~workbench.calibrate.stages._research` (the joint re-search).
+
+    Returns
+    -------
+    dict or None
+        The candidate row (``g``: leakage's and the refitted absorption's columns; ``n_params``
+        2, leakage's gain and the moved time constant; ``refit``: the absorption's ``tau_s``),
+        or ``None`` when no absorption was found on the charge or the refit does not settle.
+    """
+    key = c["key"]
+    mine = [x for x in extra.get(key, ()) if getattr(x, "tag", None) == ABSORPTION]
+    da = next((d for d in cands if (d["name"], d["channel"]) == ABSORPTION and d["key"] == key), None)
+    if not mine or da is None:
+        return None
+    C_lk, lo_lk = c["eff"].columns(t, c["u"], c["params"])
+    C_lk = np.asarray(C_lk, float).reshape(t.size, -1)
+    rest = [x for x in extra[key] if getattr(x, "tag", None) != ABSORPTION]
+    ex = {**extra, key: rest + [(C_lk, [float(x) for x in np.atleast_1d(lo_lk)])]}
+    r = research(da, probs, ex, t, base)
+    if r is None:
+        return None
+    tau = float(r["params"]["tau_s"])
+    if not tau < SETTLED_TEST_RECORDS * float(t[-1] - t[0]):
+        return None
+    C_da, lo_da = r["eff"].columns(t, r["u"], r["params"])
+    C = np.column_stack([C_lk, np.asarray(C_da, float).reshape(t.size, -1)])
+    lower = [float(x) for x in np.atleast_1d(lo_lk)] + [float(x) for x in np.atleast_1d(lo_da)]
+    g = probs[key].grams(C, lower)
+    if g["C"].shape[1] != C.shape[1]:
+        return None
+    return {**c, "eff": copy.deepcopy(c["eff"]), "g": g, "n_params": 2, "researched": True, "fold_g": None,
+            "replaces": ABSORPTION, "refit": {"tau_s": tau}}
+
+
+def refitted_absorption_stage(stages):
+    """The found absorption's stage after a leakage named beside it (:func:`leakage_beside_absorption`).
+
+    The last stage is the leakage; its candidate's columns are leakage's and the absorption's at
+    the refitted time constant, its gains (``_gains``) in that order. The absorption's stage then
+    carries the refitted ``gain`` (F) and ``tau_s`` (s), what the calibrated model holds, and
+    says so in ``refitted`` (the time constant it was named with alone).
+    """
+    lk = stages[-1]
+    refit, gains = lk["_cand"].get("refit"), lk.get("_gains")
+    if refit is None or gains is None or len(gains) < 2:
+        return
+    for st in stages[:-1]:
+        if (st["effect"], st["channel"]) == ABSORPTION:
+            alone = st["parameters"].get("tau_s")
+            st["parameters"] = {**st["parameters"], "gain": float(gains[1]), "tau_s": refit["tau_s"]}
+            st["refitted"] = (f"refitted beside the leakage: tau {refit['tau_s']:.3g} s "
+                              f"(alone {alone:.3g} s, its k / tau standing in for leakage's line)")

@@ -30,6 +30,11 @@ the candidate to it.
 
 No threshold is typed in: the decision is the first stage's tests plus a comparison.
 
+**Leakage beside a found absorption** is scored as the joint model, the absorption's time constant
+refitted with leakage's line in the found absorption's place
+(:func:`~workbench.calibrate.absorption_or_leakage.leakage_beside_absorption`); named, the
+absorption's stage carries the refitted parameters.
+
 **A split first stage** (:func:`resolve_split`): when two effects on one channel, or two
 different effects on the displacement and the gauge (:func:`_sensor_pair`), share at least
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both
@@ -74,7 +79,8 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .absorption_or_leakage import decided_needed, leakage_no_worse, nested_consensus, nested_note
+from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
+                                    nested_consensus, nested_note, refitted_absorption_stage)
 
 __all__ = ["run_stages", "excluded", "EXCLUSIONS"]
 
@@ -204,7 +210,10 @@ def _later_candidates(cands, probs, extra, found, t, base):
         tag = (c["name"], c["channel"])
         if tag in found or excluded(tag, found):
             continue
-        r = _research(c, probs, extra, t, base)
+        # leakage beside a found absorption: scored with the absorption's time constant refitted with it
+        r = leakage_beside_absorption(c, cands, probs, extra, t, base, _research) if tag == LEAKAGE else None
+        if r is None:
+            r = _research(c, probs, extra, t, base)
         if r is not None:
             out.append(r)
     return out
@@ -294,7 +303,10 @@ def _later_stage(ctx, extra, found, seen=()):
     # every fold: a later stage claims a second effect in what the first leaves (at 4 of 5 a
     # drift was named after a sensor lead, the base model's own slow misfit: test_calibrate's lead)
     answer, count, winners = _tr._consensus(res["winners"], ctx["need"])
-    if answer not in (None, "none") and answer not in seen and count < len(ctx["split"].folds):
+    if answer not in (None, "none") and answer not in seen and count < len(ctx["split"].folds) \
+            and res["by"][answer].get("replaces") is None:
+        # (a candidate refitting a found effect, the joint leakage beside the absorption, is that
+        # channel's nested comparison, not a second effect in the leftover: the agreement rule)
         answer = None
     if answer in (None, "none"):
         return answer, count, winners, res, None
@@ -597,7 +609,7 @@ def _stage_entry(c, count, ctx, extra, resolved=None):
     return {"effect": c["name"], "channel": c["channel"], "variant": c["variant"],
             "parameters": _tr._jsonable(p), "agreement": f"{count} of {len(split.folds)}",
             "error_before": {**before, "units": units}, "error_after": {**after, "units": units},
-            "_term": own, "_base_weights": base_w, "_joint_gains": gains, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c,
+            "_term": own, "_base_weights": base_w, "_joint_gains": gains, "_base": m.y - prob.r * prob.scale + corr - own, "_cand": c, "_gains": full,
             **({"resolved": resolved} if resolved else {})}
 
 
@@ -672,6 +684,8 @@ def run_stages(ctx, max_stages=3):
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
+        if c.get("replaces") is not None:
+            refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
         if compatible is not None and compatible[0] == resolved and not stages[1:]:
             # the folds compatible with a name from decided folds (decided + undecided): what
             # scripts compare with ``agree_needed``, beside ``agreement`` (the decided folds)

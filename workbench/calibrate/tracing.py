@@ -538,6 +538,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     # a leakage named where the absorption's time constant came out beyond the record: say what
     # the record leaves open (:func:`.absorption_or_leakage.leakage_note`)
     note = leakage_note(first["res"]["by"], first["res"]["befores"], penalty, infos["duration_s"])
+    if any((s["effect"], s["channel"]) == ("dielectric_absorption", "charge") for s in out["stages"]):
+        note = None         # the absorption is named beside it: its time constant is a stage's, not open
     for k, s in enumerate(out["stages"]):
         if note and (s["effect"], s["channel"]) == ("leakage", "charge"):
             s["note"] = note
@@ -607,9 +609,25 @@ def _carry_passes(prob, g, n_params, nulls, split, ctx, floor):
     return passes >= ctx["need"]
 
 
+class FoundColumns(tuple):
+    """A found effect's ``(columns, lower bounds)`` in a problem's ``extra`` list, with its
+    ``(name, channel)`` ``tag`` (a candidate that refits a found effect names it in ``replaces``)."""
+
+    def __new__(cls, C, lower, tag):
+        obj = super().__new__(cls, (C, lower))
+        obj.tag = tag
+        return obj
+
+
 def _stacked(prob, extra_list, cand):
-    """Gram matrices of the problem with the found effects' columns (and a candidate's) added."""
+    """Gram matrices of the problem with the found effects' columns (and a candidate's) added.
+
+    A candidate with ``replaces`` (a found effect's tag) takes that effect's columns' place: they
+    are left out (:func:`~workbench.calibrate.absorption_or_leakage.leakage_beside_absorption`)."""
     cols, lows = [], []
+    gone = cand.get("replaces") if cand is not None else None
+    if gone is not None:
+        extra_list = [x for x in extra_list if getattr(x, "tag", None) != gone]
     for C, lo in extra_list:
         cols.append(C)
         lows.extend(lo)
@@ -627,7 +645,10 @@ def _absorb(c, extra, probs, base, t):
     g = c["g"]
     C = g["C"] * g["norms"]
     lo = g["lb"][probs[c["key"]].A.shape[1]:]
-    extra[c["key"]].append((C, list(lo)))
+    if c.get("replaces") is not None:
+        # its columns take the refitted effect's place (a new list: copies of ``extra`` keep theirs)
+        extra[c["key"]] = [x for x in extra[c["key"]] if getattr(x, "tag", None) != c["replaces"]]
+    extra[c["key"]].append(FoundColumns(C, list(lo), (c["name"], c["channel"])))
     if c["channel"] == "displacement" and c["name"] in ("creep", "resonance"):
         for other in ("charge", "gauge"):
             key = (other, "model")
