@@ -333,12 +333,12 @@ def test_a_rival_counts_on_the_folds_it_explains(monkeypatch, rival_rms, beaten)
     assert ok is beaten and who == (None if beaten else "rival")
 
 
-def _later(monkeypatch, winners, passes, seen=(), n=5):
+def _later(monkeypatch, winners, passes, seen=(), n=5, first=("delay", "displacement")):
     """stages._later_stage on a scored later stage (the delay found first): fold ``winners`` and
     each row's fold ``passes`` ({tag: [bool] * n}); rivals beaten."""
     by = {tag: {"passes": p, "score": 0.5, "name": tag[0], "channel": tag[1]} for tag, p in passes.items()}
     res = {"winners": winners, "by": by, "rows": list(by.values())}
-    found = [("delay", "displacement")]
+    found = [first]
     ctx = {"need": int(np.ceil(0.8 * n)), "split": SimpleNamespace(folds=[0] * n), "probs": {},
            "later_cache": {tuple(found): (stages._extra_signature({}), res, {"rivals": []})}}
     monkeypatch.setattr(stages, "_beats_rivals", lambda *a, **k: (True, None))
@@ -379,6 +379,17 @@ def test_a_later_stage_counts_the_stacks_creep_on_every_fold_it_explains(monkeyp
     assert (got if got not in (None, "none") else None) == answer
 
 
+def test_a_charge_relaxations_fold_counts_for_creep_only_behind_a_sensor_effect(monkeypatch):
+    """The charge's fold is read as creep's only after a displacement-sensor effect (the first stage
+    judged it against a displacement model without that effect); after the charge's absorption, a
+    leakage fold where the stack's creep passes stays the leakage's (a leakage + absorption record)."""
+    lk = ("leakage", "charge")
+    winners, passes = [CD, CD, lk, CD, CD], {CD: [True] * 5, lk: [True] * 5}
+    assert _later(monkeypatch, winners, passes)[0] == CD
+    got = _later(monkeypatch, winners, passes, first=DA)[0]
+    assert got in (None, "none")
+
+
 @pytest.mark.parametrize("joint", [True, False])
 def test_a_split_whose_minority_survives_only_after_the_majority(monkeypatch, joint):
     """A sensor delay wins 3 first-stage folds, creep 2 (26 #64's shape). With the delay in the model
@@ -401,3 +412,57 @@ def test_a_split_whose_minority_survives_only_after_the_majority(monkeypatch, jo
         assert answer == dl and count == 3 and "both are in the record" in note
     else:
         assert answer is None and count == 3 and note is None
+
+
+# Session 13 (creep + sensor delay): records drawn with np.random.default_rng(1313), chosen before any
+# record was traced: rate from the benchmark's 1, 10 and 100 kHz (its row counts: 10 s, 2 s, 0.4 s),
+# protocol, size log-uniform over the full 0.03-30x (the delay 0.01-60 ms, the creep's branches
+# 0.01-42 uF), record seed. Pairs first, then the single-effect guards (creep alone, delay alone).
+CD_DRAWN = 3 if not FULL else 9
+
+
+def _cd_draws():
+    cc = _bench()
+    rng = np.random.default_rng(1313)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for eff in [("creep", "delay")] * CD_DRAWN + ["creep", "delay"] * CD_DRAWN:
+        rate = float(cc.RATES_HZ[int(rng.integers(len(cc.RATES_HZ)))])
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        out.append((eff, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cd_rows(sn637):
+    cc = _bench()
+    rows = []
+    for eff, rate, proto, size, seed in _cd_draws():
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
+              f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
+              f"above the line {r['above_line']}")
+        rows.append(r)
+    return rows
+
+
+def test_creep_and_delay_records_name_nothing_else_and_stay_below_the_line(cd_rows):
+    """The single-effect guards of the drawn records: a creep record never gets a delay named, a
+    delay record never creep (nor any pair record an effect it lacks), and no record ends with a
+    held-out error above a straight line's (issue 13's floors)."""
+    assert not [r for r in cd_rows if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in cd_rows]
+    assert not [r for r in cd_rows if r["above_line"]], [(r["effect"], r["above_line"]) for r in cd_rows]
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13 item 5 not met on the drawn creep + delay records: the 10 kHz "
+                   "calibration draw (9.2x creep, 11.4x delay, 1.6 ms) is inconclusive, its first-stage folds "
+                   "split five ways (creep on the gauge, on the displacement, undecided with the charge's "
+                   "absorption, the absorption, the delay); the 1 kHz steps draw (16.6x, 11.9x) names both "
+                   "(session 13, README)")
+def test_creep_and_delay_records_are_answered_with_both(cd_rows):
+    """Issue 13 item 5 on the drawn creep + delay records: each whose two effects both stand >= 3x
+    above the floor (each on its own record) is answered with both."""
+    big = [r for r in cd_rows if "+" in r["effect"] and min(r["excesses"]) >= 3.0]
+    print(f"\nboth named: {sum(r['both'] for r in big)} of {len(big)} creep + delay records with both >= 3x")
+    assert all(r["both"] for r in big), [(r["rate_hz"], r["protocol"], np.round(r["excesses"], 1), r["named"])
+                                         for r in big]

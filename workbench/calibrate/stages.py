@@ -305,7 +305,10 @@ def _later_stage(ctx, extra, found, seen=()):
         # found first at 10 kHz, the displacement's creep re-searched behind the refitted delay won
         # 3 folds and the gauge's (which reads the stack, not the sensor) 2. (Creep only: a mode's
         # two views at a later stage were not measured in session 13.)
-        w2 = _creep_compatible(res)
+        # (the charge's folds only behind a displacement-sensor effect: the first stage judged them
+        # against a displacement model without it; after a charge relaxation a leakage's fold stays)
+        sensor_first = any(f[1] == "displacement" and f[0] in SENSOR_EFFECTS for f in found)
+        w2 = _creep_compatible(res) if sensor_first else _creep_compatible(res, charge=False)
         a2, c2, _ = _tr._consensus(w2, ctx["need"])
         if a2 not in (None, "none") and a2[0] == "creep" and (answer is None or a2 == answer):
             answer, folds_for = a2, c2
@@ -372,7 +375,7 @@ def _gauge_reads_corrected(ctx, term_m, extra):
     ctx["cands"] = cands
 
 
-def _creep_compatible(res):
+def _creep_compatible(res, charge=True):
     """A later stage's fold winners with a charge relaxation's fold, where the stack's creep
     passes the fold test too, read as that creep (the displacement's view when it passes, else
     the gauge's).
@@ -384,10 +387,12 @@ def _creep_compatible(res):
     explains the displacement's (or the gauge's) leftover is compatible with creep, as an
     ``undecided: <relaxation> or creep`` fold is (seen: creep + an 8 ms sensor delay at 100 kHz
     steps, the delay first; the charge's absorption then won the one fold of five where creep
-    also passed on both sensors)."""
+    also passed on both sensors). ``charge=False``: the winners unchanged (no displacement-sensor effect
+    found: :func:`_later_stage`)."""
     out = []
     for f, w in enumerate(res["winners"]):
-        if not isinstance(w, str) and (_charge_or_creep(w) or (w[1] == "charge" and w[0] in _tr.CHARGE_RELAXATIONS)):
+        if charge and not isinstance(w, str) and (_charge_or_creep(w)
+                                                  or (w[1] == "charge" and w[0] in _tr.CHARGE_RELAXATIONS)):
             views = [v for v in (("creep", "displacement"), ("creep", "gauge"))
                      if v in res["by"] and res["by"][v]["passes"][f]]
             if views:
