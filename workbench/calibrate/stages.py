@@ -28,12 +28,20 @@ the candidate to it.
    where the rival passes the stage's fold test against the found effects alone (where it does
    not, the found kind explains none of the leftover and the candidate's own test decides).
 
+**The stack's creep at a later stage** (:func:`_creep_compatible`, :func:`_seen_views`): its folds
+are the displacement's and the gauge's (one motion, read by both, as in the first stage) and,
+behind a displacement-sensor effect, the folds a charge relaxation wins while the stack's creep
+passes them (creep relaxes the charge too); a first-stage fold undecided between a charge
+relaxation and creep, or won by the gauge's creep, is creep seen (``need`` folds).
+
 No threshold is typed in: the decision is the first stage's tests plus a comparison.
 
 **A split first stage** (:func:`resolve_split`): when two effects on one channel, or two
 different effects on the displacement and the gauge (:func:`_sensor_pair`), share at least
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both
-are in the record; one: it is named; neither: inconclusive.
+are in the record; one: it is named (when it won fewer folds than the other, only if the two
+together beat it alone, :func:`_joint_beats_alone`: then both, the majority's first); neither:
+inconclusive.
 
 **One stack effect, two views** (:func:`stack_effect_on_both_sensors`): the stack's creep or
 mode winning folds on the gauge and on the displacement (a displacement-sensor drift hides the
