@@ -466,3 +466,16 @@ def test_creep_and_delay_records_are_answered_with_both(cd_rows):
     print(f"\nboth named: {sum(r['both'] for r in big)} of {len(big)} creep + delay records with both >= 3x")
     assert all(r["both"] for r in big), [(r["rate_hz"], r["protocol"], np.round(r["excesses"], 1), r["named"])
                                          for r in big]
+
+
+def test_a_later_stage_named_from_compatible_folds_says_how_many(monkeypatch):
+    """The JSON's ``agreement`` is the named view's own wins (3 of 5 here); the later stage keeps the
+    folds compatible with the name (both sensors' creep: 5) for ``agreement_compatible``."""
+    monkeypatch.setattr(stages, "_beats_rivals", lambda *a, **k: (True, None))
+    by = {CD: {"passes": [True] * 5}, CG: {"passes": [True] * 5}}
+    res = {"winners": [CD, CD, CG, CD, CG], "by": by, "rows": list(by.values())}
+    found = [("delay", "displacement")]
+    ctx = {"need": 4, "split": SimpleNamespace(folds=[0] * 5), "probs": {},
+           "later_cache": {tuple(found): (stages._extra_signature({}), res, {"rivals": []})}}
+    answer, count, _, res_k, _ = stages._later_stage(ctx, {}, found)
+    assert answer == CD and count == 3 and res_k["compatible_folds"] == {CD: 5}

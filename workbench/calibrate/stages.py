@@ -329,6 +329,10 @@ def _later_stage(ctx, extra, found, seen=()):
         answer = None
     if answer in (None, "none"):
         return answer, count, winners, res, None
+    if folds_for != count:
+        # the folds compatible with the name (``agreement_compatible`` of its JSON entry), beside
+        # the named view's own wins (``agreement``)
+        res.setdefault("compatible_folds", {})[answer] = int(folds_for)
     if "rivals" not in rivals_cache:
         rivals_cache["rivals"] = _rivals(ctx["cands"], ctx["probs"], extra, found, ctx["t"], ctx["base"])
     rivals = rivals_cache["rivals"]
@@ -788,10 +792,12 @@ def run_stages(ctx, max_stages=3):
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
-        if compatible is not None and compatible[0] == resolved and not stages[1:]:
-            # the folds compatible with a name from decided folds (decided + undecided): what
+        if compatible is not None and compatible[0] == resolved:
+            # the folds compatible with a name from decided folds (decided + undecided; at a later
+            # stage the stack's creep on both sensors and the charge's compatible folds): what
             # scripts compare with ``agree_needed``, beside ``agreement`` (the decided folds)
             stages[-1]["agreement_compatible"] = compatible[1]
+        compatible = None           # (each stage's own: the later stage sets its next)
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
         if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS and stages[-1].get("_term") is not None:
@@ -803,4 +809,6 @@ def run_stages(ctx, max_stages=3):
             notes.append(note)
         resolved = None
         c = res_k["by"].get(answer) if answer not in (None, "none") else None
+        if c is not None and answer in res_k.get("compatible_folds", {}):
+            compatible = (None, res_k["compatible_folds"][answer])
     return first, stages, notes
