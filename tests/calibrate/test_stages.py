@@ -331,3 +331,151 @@ def test_a_rival_counts_on_the_folds_it_explains(monkeypatch, rival_rms, beaten)
     rival = {"name": "rival", "key": "k", "n_params": 3}
     ok, who = stages._beats_rivals(row, [rival], {"k": prob}, {"k": []}, split, res, ctx)
     assert ok is beaten and who == (None if beaten else "rival")
+
+
+def _later(monkeypatch, winners, passes, seen=(), n=5, first=("delay", "displacement")):
+    """stages._later_stage on a scored later stage (the delay found first): fold ``winners`` and
+    each row's fold ``passes`` ({tag: [bool] * n}); rivals beaten."""
+    by = {tag: {"passes": p, "score": 0.5, "name": tag[0], "channel": tag[1]} for tag, p in passes.items()}
+    res = {"winners": winners, "by": by, "rows": list(by.values())}
+    found = [first]
+    ctx = {"need": int(np.ceil(0.8 * n)), "split": SimpleNamespace(folds=[0] * n), "probs": {},
+           "later_cache": {tuple(found): (stages._extra_signature({}), res, {"rivals": []})}}
+    monkeypatch.setattr(stages, "_beats_rivals", lambda *a, **k: (True, None))
+    return stages._later_stage(ctx, {}, found, seen=seen)[:2]
+
+
+CD, CG = ("creep", "displacement"), ("creep", "gauge")
+DA, DLY_G = ("dielectric_absorption", "charge"), ("delay", "gauge")
+
+
+@pytest.mark.parametrize("winners, passes, seen, answer", [
+    # the stack's creep won 3 folds on the displacement and 2 on the gauge behind a 25 ms sensor delay
+    # (25 #64): one motion on every fold, named on the displacement (its row passes 4 folds)
+    ([CD, CD, CG, CD, CG], {CD: [True, True, False, True, True], CG: [True] * 5}, (), CD),
+    # ... on the gauge when the displacement's row passes fewer than ``need`` (the plant file's form needs it)
+    ([CD, CD, CG, CD, CG], {CD: [True, True, False, True, False], CG: [True] * 5}, (), CG),
+    # one fold neither view wins: not every fold, and creep won no first-stage fold
+    ([CD, CD, CG, CD, "none"], {CD: [True] * 4 + [False], CG: [True] * 5}, (), None),
+    # ... but it did (a fold undecided between the charge's absorption and creep): ``need`` folds
+    ([CD, CD, CG, CD, "none"], {CD: [True] * 4 + [False], CG: [True] * 5},
+     (("undecided", "dielectric_absorption or creep"),), CD),
+    # the gauge's creep seen in the first stage is the stack's: the displacement's needs ``need`` folds
+    ([CD, CD, CD, CD, "none"], {CD: [True] * 4 + [False]}, (CG,), CD),
+    # the charge's absorption won a fold where the stack's creep passes too: compatible with creep
+    ([CD, CD, DA, CD, CD], {CD: [True] * 5, DA: [True] * 5}, (), CD),
+    # ... not where neither view of the stack's creep passes it (27 #42)
+    ([CD, CD, DA, CD, CD], {CD: [True, True, False, True, True], CG: [False] * 5, DA: [True] * 5}, (), None),
+    # a gauge effect that is not creep does not join the displacement's creep
+    ([CD, CD, DLY_G, CD, CD], {CD: [True] * 5, DLY_G: [True] * 5}, (), None),
+])
+def test_a_later_stage_counts_the_stacks_creep_on_every_fold_it_explains(monkeypatch, winners, passes, seen, answer):
+    """stages._later_stage after a sensor delay: the stack's creep is one effect read by both sensors
+    and relaxes the charge too (seed 002), so its folds are the displacement's, the gauge's and the
+    folds a charge relaxation wins while the stack's creep passes them; the bar stays every fold, or
+    ``need`` for an effect a first-stage fold chose (creep on either sensor or undecided with a charge
+    relaxation). Deleting either reading changes an outcome here."""
+    got, _ = _later(monkeypatch, winners, passes, seen)
+    assert (got if got not in (None, "none") else None) == answer
+
+
+def test_a_charge_relaxations_fold_counts_for_creep_only_behind_a_sensor_effect(monkeypatch):
+    """The charge's fold is read as creep's only after a displacement-sensor effect (the first stage
+    judged it against a displacement model without that effect); after the charge's absorption, a
+    leakage fold where the stack's creep passes stays the leakage's (a leakage + absorption record)."""
+    lk = ("leakage", "charge")
+    winners, passes = [CD, CD, lk, CD, CD], {CD: [True] * 5, lk: [True] * 5}
+    assert _later(monkeypatch, winners, passes)[0] == CD
+    got = _later(monkeypatch, winners, passes, first=DA)[0]
+    assert got in (None, "none")
+
+
+@pytest.mark.parametrize("joint", [True, False])
+def test_a_split_whose_minority_survives_only_after_the_majority(monkeypatch, joint):
+    """A sensor delay wins 3 first-stage folds, creep 2 (26 #64's shape). With the delay in the model
+    creep is accepted; with creep in the model the delay is refused (a creep branch of tau ~ d mimics
+    it: -tau du/dt against -d dy/dt). The survivor won fewer folds, so it is not named alone (the
+    session-12 rule); when the two together beat creep alone on ``need`` folds
+    (stages._joint_beats_alone) both are named, the majority's delay first; otherwise inconclusive."""
+    from workbench.calibrate import tracing
+    dl = ("delay", "displacement")
+    res = {"winners": [dl, dl, dl, CD, CD], "by": {dl: {"score": 0.3}, CD: {"score": 0.4}}}
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+
+    def later(ctx, ex, found, seen=()):
+        return (CD, 5, [], {"by": {}}, None) if found[-1] == dl else (None, 2, [], {"by": {}}, None)
+
+    monkeypatch.setattr(stages, "_later_stage", later)
+    monkeypatch.setattr(stages, "_joint_beats_alone", lambda x, y, *a: (x, y) == (dl, CD) and joint)
+    answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
+    if joint:
+        assert answer == dl and count == 3 and "both are in the record" in note
+    else:
+        assert answer is None and count == 3 and note is None
+
+
+# Session 13 (creep + sensor delay): records drawn with np.random.default_rng(1313), chosen before any
+# record was traced: rate from the benchmark's 1, 10 and 100 kHz (its row counts: 10 s, 2 s, 0.4 s),
+# protocol, size log-uniform over the full 0.03-30x (the delay 0.01-60 ms, the creep's branches
+# 0.01-42 uF), record seed. Pairs first, then the single-effect guards (creep alone, delay alone).
+CD_DRAWN = 3 if not FULL else 9
+
+
+def _cd_draws():
+    cc = _bench()
+    rng = np.random.default_rng(1313)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for eff in [("creep", "delay")] * CD_DRAWN + ["creep", "delay"] * CD_DRAWN:
+        rate = float(cc.RATES_HZ[int(rng.integers(len(cc.RATES_HZ)))])
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        out.append((eff, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cd_rows(sn637):
+    cc = _bench()
+    rows = []
+    for eff, rate, proto, size, seed in _cd_draws():
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
+              f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
+              f"above the line {r['above_line']}")
+        rows.append(r)
+    return rows
+
+
+def test_creep_and_delay_records_name_nothing_else_and_stay_below_the_line(cd_rows):
+    """The single-effect guards of the drawn records: a creep record never gets a delay named, a
+    delay record never creep (nor any pair record an effect it lacks), and no record ends with a
+    held-out error above a straight line's (issue 13's floors)."""
+    assert not [r for r in cd_rows if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in cd_rows]
+    assert not [r for r in cd_rows if r["above_line"]], [(r["effect"], r["above_line"]) for r in cd_rows]
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13 item 5 not met on the drawn creep + delay records: the 10 kHz "
+                   "calibration draw (9.2x creep, 11.4x delay, 1.6 ms) is inconclusive, its first-stage folds "
+                   "split five ways (creep on the gauge, on the displacement, undecided with the charge's "
+                   "absorption, the absorption, the delay); the 1 kHz steps draw (16.6x, 11.9x) names both "
+                   "(session 13, README)")
+def test_creep_and_delay_records_are_answered_with_both(cd_rows):
+    """Issue 13 item 5 on the drawn creep + delay records: each whose two effects both stand >= 3x
+    above the floor (each on its own record) is answered with both."""
+    big = [r for r in cd_rows if "+" in r["effect"] and min(r["excesses"]) >= 3.0]
+    print(f"\nboth named: {sum(r['both'] for r in big)} of {len(big)} creep + delay records with both >= 3x")
+    assert all(r["both"] for r in big), [(r["rate_hz"], r["protocol"], np.round(r["excesses"], 1), r["named"])
+                                         for r in big]
+
+
+def test_a_later_stage_named_from_compatible_folds_says_how_many(monkeypatch):
+    """The JSON's ``agreement`` is the named view's own wins (3 of 5 here); the later stage keeps the
+    folds compatible with the name (both sensors' creep: 5) for ``agreement_compatible``."""
+    monkeypatch.setattr(stages, "_beats_rivals", lambda *a, **k: (True, None))
+    by = {CD: {"passes": [True] * 5}, CG: {"passes": [True] * 5}}
+    res = {"winners": [CD, CD, CG, CD, CG], "by": by, "rows": list(by.values())}
+    found = [("delay", "displacement")]
+    ctx = {"need": 4, "split": SimpleNamespace(folds=[0] * 5), "probs": {},
+           "later_cache": {tuple(found): (stages._extra_signature({}), res, {"rivals": []})}}
+    answer, count, _, res_k, _ = stages._later_stage(ctx, {}, found)
+    assert answer == CD and count == 3 and res_k["compatible_folds"] == {CD: 5}
