@@ -324,13 +324,18 @@ def _later_stage(ctx, extra, found, seen=()):
         # two views at a later stage were not measured in session 13.)
         # (the charge's folds only behind a displacement-sensor effect: the first stage judged them
         # against a displacement model without it; after a charge relaxation a leakage's fold stays)
-        sensor_first = any(f[1] == "displacement" and f[0] in SENSOR_EFFECTS for f in found)
-        w2 = _creep_compatible(res) if sensor_first else _creep_compatible(res, charge=False)
-        a2, c2, _ = _tr._consensus(w2, ctx["need"])
-        if a2 not in (None, "none") and a2[0] == "creep" and (answer is None or a2 == answer):
-            answer, folds_for = a2, c2
-            count = sum(1 for w in res["winners"] if not isinstance(w, str) and tuple(w) == a2)
-        ans2, own, _, both = stack_effect_on_both_sensors({**res, "winners": w2}, ctx["need"])
+        # (review of d0cfbc6: after the charge's own relaxation too -- [drift, absorption] -- a leakage's
+        # fold was read as creep's, and creep named at 2 of 5)
+        charge_folds = (any(f[1] == "displacement" and f[0] in SENSOR_EFFECTS for f in found)
+                        and not any(f[1] == "charge" and f[0] in _tr.CHARGE_RELAXATIONS for f in found))
+        w2 = res["winners"]
+        if charge_folds:
+            w2 = _creep_compatible(res)
+            a2, c2, _ = _tr._consensus(w2, ctx["need"])
+            if a2 not in (None, "none") and a2[0] == "creep" and (answer is None or a2 == answer):
+                answer, folds_for = a2, c2
+                count = sum(1 for w in res["winners"] if not isinstance(w, str) and tuple(w) == a2)
+        ans2, _, _, both = stack_effect_on_both_sensors({**res, "winners": w2}, ctx["need"])
         if ans2 is not None and ans2[0] == "creep" and (answer is None or ans2 == answer):
             answer, folds_for = ans2, both
             count = sum(1 for w in res["winners"] if not isinstance(w, str) and tuple(w) == ans2)
@@ -399,7 +404,7 @@ def _gauge_reads_corrected(ctx, term_m, extra):
     ctx["cands"] = cands
 
 
-def _creep_compatible(res, charge=True):
+def _creep_compatible(res):
     """A later stage's fold winners with a charge relaxation's fold, where the stack's creep
     passes the fold test too, read as that creep (the displacement's view when it passes, else
     the gauge's).
@@ -411,12 +416,12 @@ def _creep_compatible(res, charge=True):
     explains the displacement's (or the gauge's) leftover is compatible with creep, as an
     ``undecided: <relaxation> or creep`` fold is (seen: creep + an 8 ms sensor delay at 100 kHz
     steps, the delay first; the charge's absorption then won the one fold of five where creep
-    also passed on both sensors). ``charge=False``: the winners unchanged (no displacement-sensor effect
-    found: :func:`_later_stage`)."""
+    also passed on both sensors). :func:`_later_stage` reads the charge's folds so only behind a
+    displacement-sensor effect and before any charge relaxation."""
     out = []
     for f, w in enumerate(res["winners"]):
-        if charge and not isinstance(w, str) and (_charge_or_creep(w)
-                                                  or (w[1] == "charge" and w[0] in _tr.CHARGE_RELAXATIONS)):
+        if not isinstance(w, str) and (_charge_or_creep(w)
+                                       or (w[1] == "charge" and w[0] in _tr.CHARGE_RELAXATIONS)):
             views = [v for v in (("creep", "displacement"), ("creep", "gauge"))
                      if v in res["by"] and res["by"][v]["passes"][f]]
             if views:
