@@ -435,6 +435,44 @@ def test_the_absorption_stage_carries_what_was_refitted_beside_the_leakage():
     assert "alone 2 s" in da["refitted"]
 
 
+
+def test_the_core_fit_takes_each_stage_from_the_last_joint_fit_with_a_replaced_absorption():
+    """tracing._core_fit (the plant file's fitted model): with the leakage refitting the found
+    absorption in its place, the last joint fit's columns are the leakage's, the refitted
+    absorption's and any later stage's; the replaced absorption has none of its own there (its
+    parameters are the refit's). Counted as its own column, the leakage took the absorption's
+    gain, the third stage the leakage's, and a one-column third stage found none left (a crash)."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate import tracing
+    from workbench.calibrate.effects import DielectricAbsorption, Leakage
+
+    class Third:
+        columns = None
+
+        @staticmethod
+        def with_gains(p, gains):
+            return {**p, "gain": float(gains[0])}
+
+    def cand(eff, n, **kw):
+        return {"eff": eff, "params": {}, "g": {"ok": np.ones(n, bool)}, **kw}
+
+    da_refit = {"gain": 3.6e-6, "tau_s": 1.23}
+    joint = np.array([2.9e-7, 3.6e-6, 7.0e-9])          # leakage, the refitted absorption, the third stage
+    same = [{"effect": "dielectric_absorption", "channel": "charge", "parameters": da_refit,
+             "_cand": cand(DielectricAbsorption(), 1)},
+            {"effect": "leakage", "channel": "charge", "parameters": {"gain_per_s": 2.8e-7},
+             "_cand": cand(Leakage(), 2, replaces=al.ABSORPTION)},
+            {"effect": "third", "channel": "charge", "parameters": {"gain": 6.0e-9}, "_cand": cand(Third(), 1),
+             "_base_weights": np.r_[1.0, 2.0, 0.5], "_joint_gains": joint}]
+    base = SimpleNamespace(channels={"charge": SimpleNamespace(thresholds_v=np.zeros(2),
+                                                               initial_states_v=np.zeros(2))})
+    cf = tracing._core_fit(same, base)
+    got = {s["effect"]: s["parameters"] for s in cf["stages"]}
+    assert got["dielectric_absorption"] == da_refit
+    assert got["leakage"]["gain_per_s"] == joint[0] and got["third"]["gain"] == joint[2]
+    assert list(cf["weights"]) == [1.0, 2.0] and cf["offset"] == 0.5
+
 PAIR = ("leakage", "dielectric_absorption")
 N_PAIR_DRAWS = 20 if not FULL else 40
 
