@@ -1001,9 +1001,16 @@ def _core_fit(same, base):
     if w is None:
         return None
     gains = np.asarray(last["_joint_gains"], float)
+    # a stage a later one refitted in its place (``replaces``: the absorption beside the leakage)
+    # has no columns of its own in the last joint fit; its parameters are the refit's
+    # (:func:`.absorption_or_leakage.refitted_absorption_stage`, from those same gains)
+    gone = {s["_cand"].get("replaces") for s in same} - {None}
     params, at = [], 0
     for s in same:
         c = s["_cand"]
+        if (s["effect"], s["channel"]) in gone:
+            params.append(s["parameters"])
+            continue
         n = int(np.count_nonzero(c["g"]["ok"]))
         full = np.zeros(c["g"]["ok"].size)
         full[c["g"]["ok"]] = gains[at:at + n]
