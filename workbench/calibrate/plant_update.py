@@ -103,9 +103,10 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
         blocks.append(["[hysteresis]", f"# {core['how']}",
                        f"thresholds_v = [{', '.join(_fmt(x) for x in h.thresholds)}]   # V (of V_h); {src}",
                        f"weights_f = [{', '.join(_fmt(x) for x in h.weights)}]   # F; {src}",
-                       f"initial_states_v = [{', '.join(_fmt(x) for x in h.initial_states)}]   # V; {src}"
-                       + (" (from rest)" if getattr(base, "starts_from_rest", False) else
-                          " (reached monotonically from 0 V, as the base fit's plays)")])
+                       f"initial_states_v = [{', '.join(_fmt(x) for x in h.initial_states)}]   # V; at rest"
+                       + ("" if getattr(base, "starts_from_rest", False) else
+                          f" (the record starts at {float(base.v_drive[0]):.4g} V, reached monotonically from 0 V as "
+                          f"the base fit's plays are)")])
     sensor = {}
     for st in stages:
         block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant,
@@ -584,10 +585,15 @@ def plant_file_gaps(stages, base, plant, core=None):
         The refitted core not written (the declared core kept), a stage not written (no plant-file form, or creep beyond what branches across C_h carry), a
         resonance's gain other than 1 (the file's modes have unit DC gain), a drift's slow periodic term.
     """
+    from .core_refit import CAP_OF_C_PP, CAPPED_GAP
     gaps = []
     written = core is not None and core.get("hysteresis") is not None
     if core is not None and not written and stages:
         gaps.append(f"the record's core is not written, the declared core is kept ({core['reason']})")
+    if written and float(core.get("capped", 0.0)) > CAPPED_GAP:
+        gaps.append(f"the record's loading slope is beyond any C_h in series with the declared C_pp: "
+                    f"{100 * core['capped']:.3g} % of the core's weights capped at {CAP_OF_C_PP:g} C_pp (the declared "
+                    f"C_pp or k_q2x do not fit the record: check the stack's capacitance and stroke)")
     for st in stages:
         eff, ch, p = st["effect"], st["channel"], st.get("parameters") or {}
         if eff == "creep" and ch == "displacement":

@@ -190,7 +190,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         data["updated_plant_core"] = {
             "core": "refitted" if core["hysteresis"] is not None else "declared", "channel": core["channel"],
             "range_v": list(core["range_v"]) if core["range_v"] else None, "reason": core["reason"],
-            "development_rms": dev}
+            "capped": float(core.get("capped", 0.0)), "development_rms": dev}
         text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
