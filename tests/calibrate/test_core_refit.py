@@ -142,7 +142,8 @@ def test_a_fit_of_the_declared_core_gives_back_the_declared_c_h(sn637, channel):
 def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, taus_s, start, monkeypatch):
     """The creep part of the declared core with known Kelvin-Voigt branches (C_j a fraction of C_pp, tau_j),
     simulated on a 0.5 Hz sine and holds, is the target; started from branches ``start`` x off in C_j and
-    tau_j (C_j above: their sum bounds the refit's, the settled ratio the spectrum says), the refit's misfit falls below 1 % of the target's RMS (the true branches leave 0), within its
+    tau_j (C_j above the truth's: with ``HOLD_CAPACITANCE`` their sum bounds the refit's), the refit's
+    misfit falls below 1 % of the target's RMS (the true branches leave 0), within its
     budget of simulations: ``1.5 REFINE_NFEV`` evaluations, two forward-difference Jacobians (``2 n`` each),
     the bare core, the start and the end (a Jacobian by differences at every iteration: 73 simulations on the 3-branch case here, 240 on the 35 s benchmark record)."""
     from types import SimpleNamespace
@@ -230,14 +231,16 @@ def test_a_record_beyond_the_declared_c_pp_is_capped_and_said(sn637, stroke):
 
 @pytest.mark.parametrize("caps_rel, taus_s, c_start", [((0.1, 0.3), (0.05, 60.0), 0.5), ((0.4,), (300.0,), 1.0),
                                                        ((0.05, 0.1, 0.3), (0.02, 0.5, 30.0), 0.8)])
-def test_branch_refit_settles_no_further_than_the_spectrum_says(sn637, caps_rel, taus_s, c_start):
+def test_branch_refit_settles_no_further_than_the_spectrum_says(sn637, caps_rel, taus_s, c_start, monkeypatch):
     """A creep with branches slower than the 8 s record (the target) and a closed-form start whose summed C_j
     (the settled ratio the spectrum says, 1 + sum a) is ``c_start`` of the truth's and whose slow branch is at
-    the record's length (its rate form): the refit's tau_j stay within max(start, T) and its summed C_j within
-    the start's, so on a 3000 s step-and-hold (every branch settled) the file settles no further than the
-    start's branches do (the settled ratio grows with the summed capacitance alone)."""
+    the record's length (its rate form): the refit's tau_j stay within max(start, T) (always); with the summed
+    C_j held (``HOLD_CAPACITANCE``) it is within the start's, and on a 3000 s step-and-hold (every branch
+    settled) the file settles no further than the start's branches do (the settled ratio grows with the
+    summed capacitance alone). The hold is off by default (its cost on the records: README, session 13)."""
     from types import SimpleNamespace
 
+    from workbench.calibrate import core_refit
     from workbench.calibrate.core_refit import refine_branches
     from workbench.plant.creep import CreepParams
     t = np.arange(8000) / 1e3
@@ -251,6 +254,11 @@ def test_branch_refit_settles_no_further_than_the_spectrum_says(sn637, caps_rel,
     target = x(CreepParams(np.asarray(taus_s), caps)) - x(None)
     dur = float(t[-1] - t[0])
     caps0, taus0 = caps * c_start, np.minimum(np.asarray(taus_s), dur)
+    _, tau, before, after = refine_branches(sn637, SimpleNamespace(t=t, v_drive=v), target, caps0, taus0,
+                                            np.ones(t.size, bool))
+    assert after <= before
+    assert np.all(tau <= np.maximum(np.sort(taus0), dur) * (1 + 1e-9)), (tau, taus0)
+    monkeypatch.setattr(core_refit, "HOLD_CAPACITANCE", True)
     c, tau, before, after = refine_branches(sn637, SimpleNamespace(t=t, v_drive=v), target, caps0, taus0,
                                             np.ones(t.size, bool))
     assert after <= before
