@@ -126,7 +126,7 @@ def test_a_fit_of_the_declared_core_gives_back_the_declared_c_h(sn637, channel):
     m = SimpleNamespace(weights=w, yhat=basis[:, :-1] @ w, units="m")
     base = SimpleNamespace(t=t, v_drive=v, basis=basis, train=np.ones(t.size, bool), input_kind="terminal",
                            train_range_v=(0.0, 100.0), channels={channel: m, "gauge": m})
-    fit = {"channel": channel, "weights": w, "offset": 0.0, "thresholds_v": pi.thresholds,
+    fit = {"channel": channel, "weights": w, "thresholds_v": pi.thresholds,
            "initial_states_v": np.zeros(pi.size), "stages": []}
     core = refitted_core(sn637, base, fit)
     h = core["hysteresis"]

@@ -152,7 +152,7 @@ def creep_within_record(params, duration_s):
     return float(np.sum(g[np.asarray(params["taus_s"], float) <= duration_s]))
 
 
-def _charge_per_unit(channel, plant, base):
+def _charge_per_unit(channel, plant):
     """Channel units per coulomb of the terminal charge, or (None, reason)."""
     k = float(plant.pzt.k_q2x_m_per_c)
     if channel == "charge":
@@ -189,11 +189,11 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     dict
         ``hysteresis`` (PrandtlIshlinskii or None), ``reason`` (why None), ``channel``, ``range_v`` (the
         training rows' ``V_t`` range), ``instant`` (the channel's instant weights, its units per V),
-        ``creep_total`` (sum c of a creep stage's branches within the record, 0 without), ``clipped`` (the
-        instant refit's misfit over its span) and ``how`` (the file's comment).
+        ``creep_scale``, ``capped`` (the share of the instant weights taken by the cap at
+        :data:`CAP_OF_C_PP` C_pp, 0 without) and ``how`` (the file's comment).
     """
     out = {"hysteresis": None, "reason": None, "channel": None, "range_v": None, "instant": None,
-           "creep_total": 0.0, "clipped": 0.0, "how": None, "creep_scale": float(creep_scale), "capped": 0.0}
+           "how": None, "creep_scale": float(creep_scale), "capped": 0.0}
     if not core_fit:
         out["reason"] = "the fitted model's joint weights are not at hand"
         return out
@@ -202,7 +202,7 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     if getattr(base, "input_kind", "terminal") != "terminal":
         out["reason"] = "the record's input is an amplifier command (its volts are not the stack's terminal volts)"
         return out
-    per_c, why = _charge_per_unit(ch, plant, base)
+    per_c, why = _charge_per_unit(ch, plant)
     if per_c is None:
         out["reason"] = why
         return out
@@ -211,15 +211,15 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     dur = float(base.t[-1] - base.t[0])
     within = float(sum(creep_within_record(s["parameters"], dur) for s in creep))
     slow = float(sum(np.sum(np.maximum(np.asarray(s["parameters"]["gains"], float), 0.0)) for s in creep)) - within
-    total = slow + float(creep_scale) * within
+    # the share carried applies to every branch: the core keeps (1 - share) of the slow ones' -c u0 as of the
+    # others', and plant_update._creep_fractions writes share of their rate
+    total = float(creep_scale) * (slow + within)
+    slow = float(creep_scale) * slow
     w, misfit = instant_weights(base.basis, np.asarray(base.train, bool), core_fit["weights"], m.weights, total)
-    out.update(creep_total=total, clipped=misfit, instant=w)
+    out["instant"] = w
     lo, hi = base.train_range_v if base.train_range_v is not None else (float(np.min(base.v_drive)),
                                                                          float(np.max(base.v_drive)))
     out["range_v"] = (float(lo), float(hi))
-    if not per_c > 0:
-        out["reason"] = f"the {ch} channel's gain per coulomb is {per_c:.4g}, not positive"
-        return out
     # the top loading slope at or above C_pp (the highest plays move only at the record's peaks: their weights
     # are the least determined) is capped at CAP_OF_C_PP C_pp, taken from the highest plays first
     wq = w / per_c
@@ -252,7 +252,8 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     out["how"] = (f"C_h refitted on the record's {ch} channel ({unit}) over V_t {lo:.4g} .. {hi:.4g} V: the fitted "
                   f"model's plays (the base refitted jointly with every effect found there"
                   + (f", less the creep's sum c = {total:.4g} ({slow:.4g} of branches slower than the record) times "
-                     f"the base's own: its instant response, refitted with weights >= 0 and a reversal slope to "
+                     f"the base's own: its instant response, refitted with weights >= 0 and a reversal slope of at least "
+                     f"{100 * REVERSAL_FLOOR:g} % of the weights' sum to "
                      f"{100 * misfit:.2g} % of its span" if creep or misfit else "")
                   + ")" + (f", its top loading slope capped at {CAP_OF_C_PP:g} C_pp ({100 * capped:.2g} % of the weights "
                            f"taken from the highest plays)" if capped else "")
@@ -388,7 +389,7 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None):
                         max_nfev=max(1, nfev // 2))
     z = np.asarray(sol.x, float).copy()
     over = float(np.sum(np.exp(z[:n]))) / c_sum
-    if HOLD_CAPACITANCE and over > 1.0:          # the summed capacitance held to the closed form's (each branch scaled alike)
+    if HOLD_CAPACITANCE and over > 1.0:      # the sum held to the closed form's (each branch scaled alike)
         z[:n] -= np.log(over)
     fun = resid(z)
     before = float(np.sqrt(np.mean(r0 * r0)))

@@ -34,7 +34,7 @@ import re
 
 import numpy as np
 
-__all__ = ["choose_core", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["written_stages", "choose_core", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -75,8 +75,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
                                       if result.get("effect") not in (None, "none", "inconclusive") else [])
     eb, ea = result["error_before"], result["error_after"]
     core = core_for(plant, base, result) if core is None else core
-    if core["hysteresis"] is not None:
-        stages = _joint_stages(stages, result.get("core_fit"))
+    stages = written_stages(stages, result, core)
     names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
     header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
               f"# the fitted model (its base refitted on the record, every effect found on the first effect's "
@@ -135,7 +134,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
 def declared_core(reason):
     """A :func:`core_for` result that keeps the declared core, for ``reason``."""
     return {"hysteresis": None, "reason": reason, "channel": None, "range_v": None, "instant": None,
-            "creep_total": 0.0, "clipped": 0.0, "how": None, "creep_scale": 1.0, "capped": 0.0}
+            "how": None, "creep_scale": 1.0, "capped": 0.0}
 
 
 def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
@@ -207,6 +206,12 @@ def core_for(plant, base, result):
         if share == 0.0 or _creep_write_out(creep[0]["parameters"], base, plant, core)["capacitances_f"] is not None:
             return core
     return core
+
+
+def written_stages(stages, result, core):
+    """The stages as the file writes them: with the refitted core, the first channel's joint parameters
+    (:func:`_joint_stages`, the fit the core comes from); with the declared core, the stages' own."""
+    return _joint_stages(stages, result.get("core_fit")) if core.get("hysteresis") is not None else stages
 
 
 def _joint_stages(stages, core_fit):
