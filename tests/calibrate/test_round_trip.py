@@ -330,3 +330,31 @@ def test_no_creep_is_written_from_an_amplifier_command(sn637):
     command = plant_file_gaps([st], SimpleNamespace(v_drive=v, input_kind="command"), sn637)
     assert not any("creep" in g for g in terminal)
     assert any("creep was not written" in g and "amplifier command" in g for g in command)
+
+
+def test_choose_core_takes_no_part_of_the_test_rows(sn637):
+    """The core's choice, its branches and the development rows' replay errors are the same when the record's
+    test rows are changed (noise and a step of 100x the sensor's noise there, a drawn creep+delay record):
+    ``choose_core`` scores on the development rows alone; only its test error moves."""
+    import copy
+    cc = load_benchmark("calibrate_confusion")
+    d = next(d for d in DRAWS if d[0] == ("creep", "delay") and d[1:3] != (1e3, "sine"))
+    t, sp, base, plant, truth, r = cc.simulated_base(sn637, *d)
+    res = trace_effect(base, split=sp)
+    ch = res["channel"] or "displacement"
+    out = []
+    for pert in (0.0, 1e-7):
+        b = copy.deepcopy(base)
+        m = b.channels[ch]
+        rng = np.random.default_rng(0)
+        m.y[sp.test] = m.y[sp.test] + pert * (1.0 + rng.standard_normal(int(sp.test.sum())))
+        core, dev, err = choose_core(PLANTS / "p888_51_sn637.toml", sn637, b, res, Path("rec.csv"), sp.train,
+                                     test=sp.test)
+        out.append((core, dev, err))
+    (a, da, ea), (c, dc, ec) = out
+    assert (a["hysteresis"] is None) == (c["hysteresis"] is None) and da == dc
+    if a["hysteresis"] is not None:
+        np.testing.assert_array_equal(a["hysteresis"].weights, c["hysteresis"].weights)
+        for x, y in zip(a.get("refined_branches", ())[:2], c.get("refined_branches", ())[:2]):
+            np.testing.assert_array_equal(x, y)
+    assert ea is not None and ec["rms"] > ea["rms"]
