@@ -214,7 +214,7 @@ CREEP_MISS = ("measured 2026-11-26 (s13_rtcore): a creep+delay record at 1 kHz s
               "to the fitted model's creep part (RMS 2.8e-6 m), which they copy to 8.7e-8 m: branches across a "
               "hysteretic C_h do not relax as the spectrum's lowpass of the base's output does. The file leaves "
               "7.85e-8 m against error_after 2.78e-8 m (2.8x; was 27x with the declared core; the plant that made the "
-              "record 1.6e-9 m)")
+              "record 1.6e-9 m); s13_rtfix (the refit's tau_j within the record's length, the cheaper refit): 8.71e-8 m, 3.1x")
 
 
 @pytest.mark.parametrize("effect, rate, proto, size, seed", [
