@@ -124,9 +124,7 @@ def instant_weights(basis, rows, joint_w, base_w, creep_share):
     misfit : float
         RMS of the refit's residual over the span of the instant response (0: exact).
     """
-    from scipy.optimize import lsq_linear
-
-    from .base_fit import small_problem
+    from .base_fit import _gram_solve
     P = np.asarray(basis, float)
     k = P.shape[1] - 1
     target = P[:, :k] @ (np.asarray(joint_w, float) - float(creep_share) * np.asarray(base_w, float))
@@ -137,9 +135,9 @@ def instant_weights(basis, rows, joint_w, base_w, creep_share):
     A, b = P[rows], target[rows]
     col = np.sqrt(np.mean(A * A, axis=0))
     col[col == 0] = 1.0
-    R, c = small_problem(A / col, b)
+    As = A / col
     lb = np.r_[floor * col[0], np.zeros(k - 1), -np.inf]
-    x = lsq_linear(R, c, bounds=(lb, np.full(k + 1, np.inf)), method="bvls", tol=1e-12).x / col
+    x = _gram_solve(As.T @ As, As.T @ b, lb) / col      # the base fit's own bounded solve
     w = np.maximum(x[:k], 0.0)
     res = A @ np.r_[w, x[k]] - b
     span = float(np.ptp(b))
