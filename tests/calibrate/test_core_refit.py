@@ -126,7 +126,7 @@ def test_a_fit_of_the_declared_core_gives_back_the_declared_c_h(sn637, channel):
     m = SimpleNamespace(weights=w, yhat=basis[:, :-1] @ w, units="m")
     base = SimpleNamespace(t=t, v_drive=v, basis=basis, train=np.ones(t.size, bool), input_kind="terminal",
                            train_range_v=(0.0, 100.0), channels={channel: m, "gauge": m})
-    fit = {"channel": channel, "weights": w, "offset": 0.0, "thresholds_v": pi.thresholds,
+    fit = {"channel": channel, "weights": w, "thresholds_v": pi.thresholds,
            "initial_states_v": np.zeros(pi.size), "stages": []}
     core = refitted_core(sn637, base, fit)
     h = core["hysteresis"]
@@ -137,14 +137,22 @@ def test_a_fit_of_the_declared_core_gives_back_the_declared_c_h(sn637, channel):
     assert gauge["hysteresis"] is None and "gauge" in gauge["reason"]
 
 
-@pytest.mark.parametrize("caps_rel, taus_s, start", [((0.05,), (0.3,), 2.0), ((0.3, 0.1), (0.05, 1.5), 0.5)])
-def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, taus_s, start):
+@pytest.mark.parametrize("caps_rel, taus_s, start", [((0.05,), (0.3,), (2.0, 2.0)), ((0.3, 0.1), (0.05, 1.5), (1.3, 0.5)),
+                                                     ((0.2, 0.1, 0.05), (0.02, 0.4, 3.0), (1.5, 1.5))])
+def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, taus_s, start, monkeypatch):
     """The creep part of the declared core with known Kelvin-Voigt branches (C_j a fraction of C_pp, tau_j),
     simulated on a 0.5 Hz sine and holds, is the target; started from branches ``start`` x off in C_j and
-    tau_j, the refit's misfit falls below 1 % of the target's RMS (the true branches leave 0)."""
+    tau_j (C_j above the truth's: with ``HOLD_CAPACITANCE`` their sum bounds the refit's), the refit's
+    misfit falls below 1 % of the target's RMS (the true branches leave 0), within its
+    budget of simulations: ``1.5 REFINE_NFEV`` evaluations, two forward-difference Jacobians (``2 n`` each),
+    the bare core, the start and the end (a Jacobian by differences at every iteration: 73 simulations on the 3-branch case here, 240 on the 35 s benchmark record)."""
     from types import SimpleNamespace
 
+    from workbench.calibrate import core_refit, synthetic
     from workbench.calibrate.core_refit import refine_branches
+    calls = []
+    real = synthetic.simulate_record
+    monkeypatch.setattr(synthetic, "simulate_record", lambda *a, **k: calls.append(1) or real(*a, **k))
     from workbench.plant.creep import CreepParams
     t = np.arange(8000) / 1e3
     v = np.where(t < 4.0, 50.0 - 50.0 * np.cos(np.pi * t), np.where(t < 6.0, 80.0, 30.0))
@@ -156,9 +164,10 @@ def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, tau
         return simulate_record(p, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False, gauge_noise=False)["x_true_m"]
     target = x(CreepParams(np.asarray(taus_s), caps)) - x(None)
     base = SimpleNamespace(t=t, v_drive=v)
-    c, tau, before, after = refine_branches(sn637, base, target, caps * start, np.asarray(taus_s) * start,
-                                            np.ones(t.size, bool), max_nfev=60)
+    c, tau, before, after = refine_branches(sn637, base, target, caps * start[0], np.asarray(taus_s) * start[1],
+                                            np.ones(t.size, bool))
     assert before > 0.05 and after < 0.01, (before, after, c / caps, tau)
+    assert len(calls) <= 1.5 * core_refit.REFINE_NFEV + 4 * len(caps) + 3, len(calls)
 
 
 @given(st.lists(st.floats(0.0, 0.3), min_size=1, max_size=5), st.floats(2e-6, 3e-5), st.floats(0.2, 1.0))
@@ -180,3 +189,117 @@ def test_branches_from_fractions_of_the_instant_response_are_the_settled_forms(g
     if a["capacitances_f"] is not None:
         np.testing.assert_allclose(b["capacitances_f"], a["capacitances_f"], rtol=1e-9)
         np.testing.assert_allclose(b["time_constants_s"], a["time_constants_s"], rtol=1e-9)
+
+
+@pytest.mark.parametrize("stroke", [1.0, 1.005, 1.3, 2.0, 5.0])
+def test_a_record_beyond_the_declared_c_pp_is_capped_and_said(sn637, stroke):
+    """A record of a stack with ``stroke`` x the declared one's displacement (its loading slopes ``stroke W_i``):
+    the top slope ``stroke W`` above ``CAP_OF_C_PP C_pp`` is capped, taking ``1 - CAP C_pp / (stroke W)`` of the
+    weights (closed form); beyond ``CAPPED_GAP`` the file's gaps name it (the declared C_pp / k_q2x do not fit).
+    With the reversal slope alone beyond the cap (5x: the cap takes the plays above it only) no C_h is written,
+    and that is the gap."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.core_refit import CAP_OF_C_PP, CAPPED_GAP, refitted_core
+    from workbench.calibrate.pi_fit import play_matrix
+    from workbench.calibrate.plant_update import plant_file_gaps
+    pzt = sn637.pzt
+    pi = pzt.terminal_operator().inverse()
+    w = pi.weights * pzt.k_q2x_m_per_c * stroke
+    t = np.arange(2000) / 1e3
+    v = 50.0 - 50.0 * np.cos(2 * np.pi * t)
+    basis = np.column_stack([play_matrix(v, pi.thresholds, np.zeros(pi.size)), np.ones(t.size)])
+    m = SimpleNamespace(weights=w, yhat=basis[:, :-1] @ w, units="m")
+    base = SimpleNamespace(t=t, v_drive=v, basis=basis, train=np.ones(t.size, bool), input_kind="terminal",
+                           train_range_v=(0.0, 100.0), channels={"displacement": m})
+    fit = {"channel": "displacement", "weights": w, "thresholds_v": pi.thresholds,
+           "initial_states_v": np.zeros(pi.size), "stages": []}
+    core = refitted_core(sn637, base, fit)
+    top = stroke * float(pi.weights.sum())
+    expect = max(0.0, 1.0 - CAP_OF_C_PP * pzt.c_pp_f / top)
+    gaps = plant_file_gaps([{"effect": "delay", "channel": "displacement", "parameters": {}}], base, sn637,
+                           core=core)
+    if stroke * pi.weights[0] >= CAP_OF_C_PP * pzt.c_pp_f:
+        # the reversal slope alone is beyond C_pp (the cap takes the plays above it only): no C_h, said
+        assert core["hysteresis"] is None and "C_pp" in core["reason"]
+        assert any("not written" in g for g in gaps)
+        return
+    assert core["hysteresis"] is not None
+    assert core["capped"] == pytest.approx(expect, abs=1e-9)
+    assert any("capped" in g and "C_pp" in g for g in gaps) == (expect > CAPPED_GAP), (expect, gaps)
+
+
+@pytest.mark.parametrize("caps_rel, taus_s, c_start", [((0.1, 0.3), (0.05, 60.0), 0.5), ((0.4,), (300.0,), 1.0),
+                                                       ((0.05, 0.1, 0.3), (0.02, 0.5, 30.0), 0.8)])
+def test_branch_refit_settles_no_further_than_the_spectrum_says(sn637, caps_rel, taus_s, c_start, monkeypatch):
+    """A creep with branches slower than the 8 s record (the target) and a closed-form start whose summed C_j
+    (the settled ratio the spectrum says, 1 + sum a) is ``c_start`` of the truth's and whose slow branch is at
+    the record's length (its rate form): the refit's tau_j stay within max(start, T) (always); with the summed
+    C_j held (``HOLD_CAPACITANCE``) it is within the start's, and on a 3000 s step-and-hold (every branch
+    settled) the file settles no further than the start's branches do (the settled ratio grows with the
+    summed capacitance alone). The hold is off by default (its cost on the records: README, session 13)."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate import core_refit
+    from workbench.calibrate.core_refit import refine_branches
+    from workbench.plant.creep import CreepParams
+    t = np.arange(8000) / 1e3
+    v = np.where(t < 4.0, 50.0 - 50.0 * np.cos(np.pi * t), np.where(t < 6.0, 80.0, 30.0))
+    caps = np.asarray(caps_rel) * sn637.pzt.c_pp_f
+    quasi = dataclasses.replace(sn637.pzt, series_resistance_ohm=0.0, modes=())
+
+    def x(creep, tt=t, vv=v):
+        p = dataclasses.replace(sn637, pzt=dataclasses.replace(quasi, creep=creep))
+        return simulate_record(p, tt, vv, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False, gauge_noise=False)["x_true_m"]
+    target = x(CreepParams(np.asarray(taus_s), caps)) - x(None)
+    dur = float(t[-1] - t[0])
+    caps0, taus0 = caps * c_start, np.minimum(np.asarray(taus_s), dur)
+    _, tau, before, after = refine_branches(sn637, SimpleNamespace(t=t, v_drive=v), target, caps0, taus0,
+                                            np.ones(t.size, bool))
+    assert after <= before
+    assert np.all(tau <= np.maximum(np.sort(taus0), dur) * (1 + 1e-9)), (tau, taus0)
+    monkeypatch.setattr(core_refit, "HOLD_CAPACITANCE", True)
+    c, tau, before, after = refine_branches(sn637, SimpleNamespace(t=t, v_drive=v), target, caps0, taus0,
+                                            np.ones(t.size, bool))
+    assert after <= before
+    assert np.all(tau <= np.maximum(np.sort(taus0), dur) * (1 + 1e-9)), (tau, taus0)
+    assert c.sum() <= caps0.sum() * (1 + 1e-9), (c.sum(), caps0.sum())
+    ts = np.arange(0.0, 3000.0, 0.05)
+    vs = np.where(ts > 0.1, 50.0, 0.0)
+    i0, i1 = np.searchsorted(ts, 0.2), ts.size - 1
+
+    def settle(cc, tt):
+        xs = x(CreepParams(np.asarray(tt), np.asarray(cc)), ts, vs)
+        return xs[i1] / xs[i0]
+    assert settle(c, tau) <= settle(caps0, taus0) * (1 + 1e-6)
+
+
+@pytest.mark.parametrize("v0", [40.0, -5.0, 90.0])
+def test_a_record_not_from_rest_writes_the_rest_state_and_replays_from_rest(sn637, v0):
+    """A record starting at ``v0`` (its plays, as the base fit's, reached monotonically from 0 V): the written
+    C_h starts at rest (zero play states: the loaded plant sits uncharged at 0 V), and the plant from rest,
+    driven by the record's drive through the simulator (its first sample a monotonic approach to ``v0``),
+    gives back the fitted model ``k_q2x Pi(V_t)`` with the start states to rounding."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.core_refit import refitted_core
+    from workbench.calibrate.pi_fit import play_matrix
+    pzt = sn637.pzt
+    pi = pzt.terminal_operator().inverse()
+    z0 = np.sign(v0) * np.maximum(0.0, abs(v0) - pi.thresholds)
+    t = np.arange(2000) / 1e3
+    v = v0 + 15.0 * np.sin(2 * np.pi * t) * np.minimum(1.0, t)        # within the stack's -20 .. 120 V
+    basis = np.column_stack([play_matrix(v, pi.thresholds, z0), np.ones(t.size)])
+    w = pi.weights * pzt.k_q2x_m_per_c
+    m = SimpleNamespace(weights=w, yhat=basis[:, :-1] @ w, units="m")
+    base = SimpleNamespace(t=t, v_drive=v, basis=basis, train=np.ones(t.size, bool), input_kind="terminal",
+                           train_range_v=(float(v.min()), float(v.max())), channels={"displacement": m})
+    fit = {"channel": "displacement", "weights": w, "thresholds_v": pi.thresholds, "initial_states_v": z0,
+           "stages": []}
+    h = refitted_core(sn637, base, fit)["hysteresis"]
+    assert np.all(h.initial_states == 0.0), h.initial_states
+    quasi = dataclasses.replace(pzt, series_resistance_ohm=0.0, modes=(), creep=None, hysteresis=h)
+    x = simulate_record(dataclasses.replace(sn637, pzt=quasi), t, v, noise=SensorNoise(0.0, 0.0, 0.0),
+                        gauge=False, gauge_noise=False)["x_true_m"]
+    expect = pzt.k_q2x_m_per_c * PrandtlIshlinskii(pi.thresholds, pi.weights, z0)(v)
+    assert np.max(np.abs(x - expect)) <= 1e-9 * np.ptp(expect), np.max(np.abs(x - expect)) / np.ptp(expect)

@@ -34,7 +34,7 @@ import re
 
 import numpy as np
 
-__all__ = ["choose_core", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["written_stages", "choose_core", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -75,8 +75,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
                                       if result.get("effect") not in (None, "none", "inconclusive") else [])
     eb, ea = result["error_before"], result["error_after"]
     core = core_for(plant, base, result) if core is None else core
-    if core["hysteresis"] is not None:
-        stages = _joint_stages(stages, result.get("core_fit"))
+    stages = written_stages(stages, result, core)
     names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
     header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
               f"# the fitted model (its base refitted on the record, every effect found on the first effect's "
@@ -103,9 +102,10 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
         blocks.append(["[hysteresis]", f"# {core['how']}",
                        f"thresholds_v = [{', '.join(_fmt(x) for x in h.thresholds)}]   # V (of V_h); {src}",
                        f"weights_f = [{', '.join(_fmt(x) for x in h.weights)}]   # F; {src}",
-                       f"initial_states_v = [{', '.join(_fmt(x) for x in h.initial_states)}]   # V; {src}"
-                       + (" (from rest)" if getattr(base, "starts_from_rest", False) else
-                          " (reached monotonically from 0 V, as the base fit's plays)")])
+                       f"initial_states_v = [{', '.join(_fmt(x) for x in h.initial_states)}]   # V; at rest"
+                       + ("" if getattr(base, "starts_from_rest", False) else
+                          f" (the record starts at {float(base.v_drive[0]):.4g} V, reached monotonically from 0 V as "
+                          f"the base fit's plays are)")])
     sensor = {}
     for st in stages:
         block = _block(st["effect"], st["channel"], st["parameters"], base, src, sensor, st.get("note"), plant,
@@ -134,7 +134,7 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
 def declared_core(reason):
     """A :func:`core_for` result that keeps the declared core, for ``reason``."""
     return {"hysteresis": None, "reason": reason, "channel": None, "range_v": None, "instant": None,
-            "creep_total": 0.0, "clipped": 0.0, "how": None, "creep_scale": 1.0, "capped": 0.0}
+            "how": None, "creep_scale": 1.0, "capped": 0.0}
 
 
 def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
@@ -206,6 +206,12 @@ def core_for(plant, base, result):
         if share == 0.0 or _creep_write_out(creep[0]["parameters"], base, plant, core)["capacitances_f"] is not None:
             return core
     return core
+
+
+def written_stages(stages, result, core):
+    """The stages as the file writes them: with the refitted core, the first channel's joint parameters
+    (:func:`_joint_stages`, the fit the core comes from); with the declared core, the stages' own."""
+    return _joint_stages(stages, result.get("core_fit")) if core.get("hysteresis") is not None else stages
 
 
 def _joint_stages(stages, core_fit):
@@ -584,10 +590,15 @@ def plant_file_gaps(stages, base, plant, core=None):
         The refitted core not written (the declared core kept), a stage not written (no plant-file form, or creep beyond what branches across C_h carry), a
         resonance's gain other than 1 (the file's modes have unit DC gain), a drift's slow periodic term.
     """
+    from .core_refit import CAP_OF_C_PP, CAPPED_GAP
     gaps = []
     written = core is not None and core.get("hysteresis") is not None
     if core is not None and not written and stages:
         gaps.append(f"the record's core is not written, the declared core is kept ({core['reason']})")
+    if written and float(core.get("capped", 0.0)) > CAPPED_GAP:
+        gaps.append(f"the record's loading slope is beyond any C_h in series with the declared C_pp: "
+                    f"{100 * core['capped']:.3g} % of the core's weights capped at {CAP_OF_C_PP:g} C_pp (the declared "
+                    f"C_pp or k_q2x do not fit the record: check the stack's capacitance and stroke)")
     for st in stages:
         eff, ch, p = st["effect"], st["channel"], st.get("parameters") or {}
         if eff == "creep" and ch == "displacement":

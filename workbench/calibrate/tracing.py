@@ -991,8 +991,9 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
 def _core_fit(same, base):
     """The fitted model of the first effect's channel as the plant file needs it (``plant_update``).
 
-    ``weights`` / ``offset``: the base columns' weights of the last stage's joint fit there (the base
-    REFITTED with every effect found on the channel; plays >= 0, the thresholds ``base.channels[ch]``'s);
+    ``weights``: the play weights of the last stage's joint fit there (the base REFITTED with every effect
+    found on the channel; plays >= 0, the thresholds ``base.channels[ch]``'s; its offset, a sensor's zero, is
+    no part of a plant file);
     ``stages``: each of those stages' parameters with its gains from that same joint fit (a later stage
     refits the earlier ones' gains). None when the joint weights are not at hand.
     """
@@ -1019,7 +1020,7 @@ def _core_fit(same, base):
     if at != gains.size:       # the columns are not the same-channel stages' alone: keep each stage's own
         params = [s["parameters"] for s in same]
     ch = last["channel"]
-    return {"channel": ch, "weights": np.asarray(w[:-1], float), "offset": float(w[-1]),
+    return {"channel": ch, "weights": np.asarray(w[:-1], float),
             "thresholds_v": np.asarray(base.channels[ch].thresholds_v, float),
             "initial_states_v": np.asarray(base.channels[ch].initial_states_v, float),
             "stages": [{"effect": s["effect"], "channel": s["channel"], "parameters": p} for s, p in zip(same, params)]}
