@@ -166,7 +166,9 @@ def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, tau
     base = SimpleNamespace(t=t, v_drive=v)
     c, tau, before, after = refine_branches(sn637, base, target, caps * start[0], np.asarray(taus_s) * start[1],
                                             np.ones(t.size, bool))
-    assert before > 0.05 and after < 0.01, (before, after, c / caps, tau)
+    # the branches that made the target are in reach: the refit recovers them to far below the start's misfit
+    # (a Broyden update of the wrong sign stopped at 1e-3-1e-7 within the same budget: review of 9611620)
+    assert before > 0.05 and after < 1e-6, (before, after, c / caps, tau)
     assert len(calls) <= 1.5 * core_refit.REFINE_NFEV + 4 * len(caps) + 3, len(calls)
 
 

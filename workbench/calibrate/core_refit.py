@@ -232,7 +232,6 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
             excess -= take
             if excess <= 0:
                 break
-    out["capped"] = capped
     w = wq * per_c
     out["instant"] = w
     try:
@@ -242,6 +241,7 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     except ValueError as err:
         out["reason"] = str(err)
         return out
+    out["capped"] = capped          # (only for a core written: review of 9611620, a declared core said 0.405)
     # the file's C_h starts at rest (zero play states), whatever the record's start: a plant file loaded for
     # design sits uncharged at 0 V. The record's start state is the monotonic approach from 0 V (the base
     # fit's plays), which the simulator's first sample, a step from rest to V_t(0), reaches again
@@ -348,10 +348,11 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None):
     caps0, taus0 = np.asarray(caps_f, float), np.asarray(taus_s, float)
     z0 = np.r_[np.log(caps0), np.log(taus0)]
     c_pp = float(plant.pzt.c_pp_f)
-    # bounds: C_j up to the closed form's sum (the settled/instant ratio the spectrum says, 1 + sum a, is
+    # bounds: C_j up to the closed form's sum with HOLD_CAPACITANCE (the settled/instant ratio the spectrum says, 1 + sum a, is
     # that sum's: more is a settled response the record never showed), tau_j within a decade of the closed
     # form and not beyond the record's length T unless the closed form is (a branch slower than the record is
-    # its rate: plant_update.SLOW_BRANCHES); the sum is held to the closed form's after the fit
+    # its rate: plant_update.SLOW_BRANCHES); with HOLD_CAPACITANCE (off) the sum is held to the closed form's
+    # after the fit, else C_j reach 100 C_pp
     dur = float(t[-1] - t[0])
     c_sum = float(np.sum(caps0))
     lo = np.r_[np.full(n, np.log(1e-6 * c_pp)), np.log(taus0) - np.log(10.0)]
