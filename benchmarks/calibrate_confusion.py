@@ -93,7 +93,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     t0 = time.perf_counter()
     res = trace_effect(base, split=sp)
     elapsed = time.perf_counter() - t0
-    excess, xs, own = np.inf, [], []
+    excess, xs, own, beyond = np.inf, [], [], []
     if effects:
         base0 = fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
         for e in effects:
@@ -108,6 +108,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
         excess = max(xs)
         if len(effects) > 1:
             own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
+            beyond = beyond_sizes(base, base0, effects, sp)
     # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
     # effect named on its model of the drive, else the base's, with a displacement effect it reads
     # carried into it when the validation folds keep the carry: tracing's ``error_after`` per
@@ -131,7 +132,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     return {"effect": "+".join(effects) or "none", "rate_hz": rate_hz, "protocol": protocol, "size": size,
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "ratio_first": first, "both": len(effects) > 1 and set(effects) <= set(named),
-            "excesses": own or xs,
+            "excesses": own or xs, "beyond": beyond,
             "trace_s": elapsed, "truth": truth, "above_line": above_line, "near_line": near_line, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
 
@@ -165,6 +166,67 @@ def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split
         before = float(np.sqrt(np.mean(m.residual[sp.test & m.valid] ** 2)))
         out.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
     return out
+
+
+def beyond_sizes(base, base0, effects, sp):
+    """Each effect of a multi-effect record's size **beyond the others**: what the record's
+    base leaves on the effect's channel once each OTHER effect is fitted alone (:func:`_left_by`;
+    the least of them), against the effect-free record's floor, ``sqrt(left^2 - floor^2) / floor``.
+
+    An effect that stands >= 3x beyond the others is one a tracing that stopped at them would
+    leave >= 3x above the floor: both effects of a pair >= 3x beyond each other are what "the
+    record is answered with both" can be asked of. Where one effect's form explains the other's
+    on this record (an absorption relaxing over the record's length reads as a leakage's ramp),
+    no tracing of these forms can tell them apart. A diagnostic printed beside the target (which
+    counts every pair whose own sizes are >= 3x)."""
+    out = []
+    for e in effects:
+        ch = CHANNEL[e]
+        m0 = base0.channels.get(ch)
+        if ch not in base.channels or m0 is None:
+            out.append(0.0)
+            continue
+        floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
+        left = min(_left_by(base, ch, o, sp) for o in effects if o != e)
+        out.append(float(np.sqrt(max(left ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
+    return out
+
+
+def _left_by(base, ch, other, sp):
+    """Test RMS on ``ch`` of ``base``'s record once the effect ``other`` is fitted (every
+    variant the tracing tries on ``ch``; the least is kept), jointly with the base's columns:
+    its own search and signs as the tracing's, on the training rows, the plays' corrections
+    bounded as the base's. ``inf`` when ``other`` has no candidate on ``ch``."""
+    from workbench.calibrate.base_fit import _gram_solve
+    from workbench.calibrate.tracing import _base_lower, candidate_plan
+    m = base.channels[ch]
+    t = np.asarray(base.t, float)
+    train, test = sp.train & m.valid, sp.test & m.valid
+    lower_b = _base_lower(base, ch)
+    best = np.inf
+    for c, eff, driver in candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis=base.basis):
+        if c != ch or eff.name != other:
+            continue
+        u = {"model": m.yhat, "voltage": base.v_drive, "time": t}[driver]
+        e = m.y - m.yhat
+        try:
+            p = eff.fit(t, u, e, train, y_model=m.yhat)
+        except ValueError:
+            continue
+        if hasattr(eff, "columns"):
+            C, lower = eff.columns(t, u, p, y_model=m.yhat)
+        else:
+            C, lower = eff.term(t, u, p, y_model=m.yhat), [0.0]
+        C = np.asarray(C, float).reshape(t.size, -1)
+        A = np.column_stack([base.basis, C])
+        lo = np.r_[lower_b, np.broadcast_to(np.asarray(lower, float), C.shape[1])]
+        scale = np.sqrt(np.mean(A[train] ** 2, axis=0))
+        scale[scale == 0] = 1.0
+        An = A[train] / scale
+        w = _gram_solve(An.T @ An, An.T @ e[train], lo * scale)     # the base's bounded solve
+        r = e - (A / scale) @ w
+        best = min(best, float(np.sqrt(np.mean(r[test] ** 2))))
+    return best
 
 
 def plant_alone(plant0, effects, keep, seed, duration_s, size):
@@ -286,6 +348,7 @@ def main(argv=None):
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
               + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items())
               + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']} first {r['ratio_first']:.2f}"
+                 f" beyond the other {np.round(r['beyond'], 2).tolist()}"
                  if "+" in eff else ""),
               flush=True)
     table, head = summarize(rows)
@@ -303,6 +366,10 @@ def main(argv=None):
         print(f"two-effect records answered with both: {sum(r['both'] for r in pairs)} of {len(pairs)}; "
               f"with both effects >= 3x the floor (each on its own record): {sum(r['both'] for r in big2)} of "
               f"{len(big2)}")
+        sep = [r for r in big2 if r.get("beyond") and min(r["beyond"]) >= 3.0]
+        print(f"  of them, both >= 3x beyond the other (the pair told apart on its record): "
+              f"{sum(r['both'] for r in sep)} of {len(sep)}; the rest, one explained by the other's form: "
+              f"{sum(r['both'] for r in big2 if r not in sep)} of {len(big2) - len(sep)}")
     return rows
 
 
