@@ -169,16 +169,16 @@ def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split
 
 
 def beyond_sizes(base, base0, effects, sp):
-    """Each effect of a multi-effect record's size **beyond the others**: what the record's
-    base leaves on the effect's channel once each OTHER effect is fitted alone (:func:`_left_by`;
-    the least of them), against the effect-free record's floor, ``sqrt(left^2 - floor^2) / floor``.
+    """Each effect of a multi-effect record's size **beyond the others**: how much less the
+    record's base leaves on the effect's channel with every effect fitted than with the others
+    only (:func:`_left_by`), against the effect-free record's floor,
+    ``sqrt(left_others^2 - left_all^2) / floor``.
 
-    An effect that stands >= 3x beyond the others is one a tracing that stopped at them would
-    leave >= 3x above the floor: both effects of a pair >= 3x beyond each other are what "the
-    record is answered with both" can be asked of. Where one effect's form explains the other's
-    on this record (an absorption relaxing over the record's length reads as a leakage's ramp),
-    no tracing of these forms can tell them apart. A diagnostic printed beside the target (which
-    counts every pair whose own sizes are >= 3x)."""
+    It is what the effect adds, on this record, to a model that already holds the others: the
+    size a tracing's later stage sees. Where one effect's form explains the other's on the
+    record (an absorption relaxing over the record's length reads as a leakage's ramp) it is
+    small, and no tracing of these forms can tell the two apart. A diagnostic printed beside the
+    target (which counts every pair whose own sizes are >= 3x)."""
     out = []
     for e in effects:
         ch = CHANNEL[e]
@@ -187,46 +187,73 @@ def beyond_sizes(base, base0, effects, sp):
             out.append(0.0)
             continue
         floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
-        left = min(_left_by(base, ch, o, sp) for o in effects if o != e)
-        out.append(float(np.sqrt(max(left ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
+        others = [o for o in effects if o != e]
+        left_o = _left_by(base, ch, others, sp)
+        left_all = _left_by(base, ch, list(effects), sp)
+        out.append(float(np.sqrt(max(left_o ** 2 - left_all ** 2, 0.0)) / floor) if floor > 0 else np.inf)
     return out
 
 
-def _left_by(base, ch, other, sp):
-    """Test RMS on ``ch`` of ``base``'s record once the effect ``other`` is fitted (every
-    variant the tracing tries on ``ch``; the least is kept), jointly with the base's columns:
-    its own search and signs as the tracing's, on the training rows, the plays' corrections
-    bounded as the base's. ``inf`` when ``other`` has no candidate on ``ch``."""
+def _left_by(base, ch, names, sp, rounds=2):
+    """Test RMS on ``ch`` of ``base``'s record with the effects ``names`` fitted, jointly with the
+    base's columns: each effect searched as the tracing searches a candidate
+    (``tracing._candidate_columns``: with and without the base's columns projected out, on the
+    development rows), alternated ``rounds`` times (each searched on what the others leave),
+    then one bounded least squares of every column with the base's (the plays' corrections
+    bounded as the base's). Where an effect has variants on ``ch`` (drift: polynomial, periodic)
+    the combination with the least development RMS is kept. ``inf`` when an effect has no
+    candidate on ``ch``."""
+    import itertools
+
     from workbench.calibrate.base_fit import _gram_solve
-    from workbench.calibrate.tracing import _base_lower, candidate_plan
+    from workbench.calibrate.tracing import _base_lower, _candidate_columns, _Problem, _search_rows, candidate_plan
     m = base.channels[ch]
     t = np.asarray(base.t, float)
-    train, test = sp.train & m.valid, sp.test & m.valid
+    dev, test = sp.train & m.valid, sp.test & m.valid
     lower_b = _base_lower(base, ch)
-    best = np.inf
-    for c, eff, driver in candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis=base.basis):
-        if c != ch or eff.name != other:
-            continue
-        u = {"model": m.yhat, "voltage": base.v_drive, "time": t}[driver]
-        e = m.y - m.yhat
+    if not names:
+        return float(np.sqrt(np.mean(m.residual[test] ** 2)))
+    prob = _Problem(sp, m.valid, base.basis, lower_b, m.y - m.yhat, _search_rows(dev))
+    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis=base.basis)
+    variants = [[(eff, {"model": m.yhat, "voltage": base.v_drive, "time": t}[driver])
+                 for c, eff, driver in plan if c == ch and eff.name == n] for n in names]
+    if not all(variants):
+        return np.inf
+    e0 = m.y - m.yhat
+    best = (np.inf, np.inf)
+    for combo in itertools.product(*variants):
+        terms = [np.zeros(t.size) for _ in combo]
+        cols = [None] * len(combo)
         try:
-            p = eff.fit(t, u, e, train, y_model=m.yhat)
+            for _ in range(rounds if len(combo) > 1 else 1):
+                for k, (eff, u) in enumerate(combo):
+                    others = sum(terms[i] for i in range(len(combo)) if i != k)
+                    p, _ = _candidate_columns(eff, t, u, m.y - others, m.yhat, prob)
+                    if hasattr(eff, "columns"):
+                        C, lower = eff.columns(t, u, p, y_model=m.yhat)
+                    else:
+                        C, lower = eff.term(t, u, p, y_model=m.yhat), [0.0]
+                    C = np.asarray(C, float).reshape(t.size, -1)
+                    cols[k] = (C, np.broadcast_to(np.asarray(lower, float), C.shape[1]))
+                    A = np.column_stack([base.basis] + [c[0] for c in cols if c is not None])
+                    lo = np.concatenate([lower_b] + [c[1] for c in cols if c is not None])
+                    scale = np.sqrt(np.mean(A[dev] ** 2, axis=0))
+                    scale[scale == 0] = 1.0
+                    An = A[dev] / scale
+                    w = _gram_solve(An.T @ An, An.T @ e0[dev], lo * scale) / scale    # the base's bounded solve
+                    at = base.basis.shape[1]
+                    for i, c in enumerate(cols):
+                        if c is not None:
+                            terms[i] = c[0] @ w[at:at + c[0].shape[1]]
+                            at += c[0].shape[1]
+                    fit = A @ w
         except ValueError:
             continue
-        if hasattr(eff, "columns"):
-            C, lower = eff.columns(t, u, p, y_model=m.yhat)
-        else:
-            C, lower = eff.term(t, u, p, y_model=m.yhat), [0.0]
-        C = np.asarray(C, float).reshape(t.size, -1)
-        A = np.column_stack([base.basis, C])
-        lo = np.r_[lower_b, np.broadcast_to(np.asarray(lower, float), C.shape[1])]
-        scale = np.sqrt(np.mean(A[train] ** 2, axis=0))
-        scale[scale == 0] = 1.0
-        An = A[train] / scale
-        w = _gram_solve(An.T @ An, An.T @ e[train], lo * scale)     # the base's bounded solve
-        r = e - (A / scale) @ w
-        best = min(best, float(np.sqrt(np.mean(r[test] ** 2))))
-    return best
+        r = e0 - fit
+        d, te = float(np.sqrt(np.mean(r[dev] ** 2))), float(np.sqrt(np.mean(r[test] ** 2)))
+        if d < best[0]:
+            best = (d, te)
+    return best[1]
 
 
 def plant_alone(plant0, effects, keep, seed, duration_s, size):
