@@ -198,10 +198,11 @@ def _left_by(base, ch, names, sp, rounds=2):
     """Test RMS on ``ch`` of ``base``'s record with the effects ``names`` fitted, jointly with the
     base's columns: each effect searched as the tracing searches a candidate
     (``tracing._candidate_columns``: with and without the base's columns projected out, on the
-    development rows), alternated ``rounds`` times (each searched on what the others leave),
-    then one bounded least squares of every column with the base's (the plays' corrections
-    bounded as the base's). Where an effect has variants on ``ch`` (drift: polynomial, periodic)
-    the combination with the least development RMS is kept. ``inf`` when an effect has no
+    development rows), alternated ``rounds`` times in every order (each searched on what the
+    others leave), each time one bounded least squares of every column with the base's (the
+    plays' corrections bounded as the base's). Of every joint fit (every order, round and variant
+    of an effect on ``ch``: drift's polynomial and periodic) the one with the least development
+    RMS is kept: the first round of the order that starts with an effect nests that effect alone. ``inf`` when an effect has no
     candidate on ``ch``."""
     import itertools
 
@@ -221,12 +222,15 @@ def _left_by(base, ch, names, sp, rounds=2):
         return np.inf
     e0 = m.y - m.yhat
     best = (np.inf, np.inf)
-    for combo in itertools.product(*variants):
+    n = len(names)
+    orders = list(itertools.permutations(range(n))) if n > 1 else [(0,)]
+    for combo, order in itertools.product(itertools.product(*variants), orders):
         terms = [np.zeros(t.size) for _ in combo]
         cols = [None] * len(combo)
         try:
-            for _ in range(rounds if len(combo) > 1 else 1):
-                for k, (eff, u) in enumerate(combo):
+            for _ in range(rounds if n > 1 else 1):
+                for k in order:
+                    eff, u = combo[k]
                     others = sum(terms[i] for i in range(len(combo)) if i != k)
                     p, _ = _candidate_columns(eff, t, u, m.y - others, m.yhat, prob)
                     if hasattr(eff, "columns"):
@@ -246,13 +250,13 @@ def _left_by(base, ch, names, sp, rounds=2):
                         if c is not None:
                             terms[i] = c[0] @ w[at:at + c[0].shape[1]]
                             at += c[0].shape[1]
-                    fit = A @ w
+                    if all(c is not None for c in cols):      # every effect in: a candidate answer
+                        r = e0 - A @ w
+                        d = float(np.sqrt(np.mean(r[dev] ** 2)))
+                        if d < best[0]:
+                            best = (d, float(np.sqrt(np.mean(r[test] ** 2))))
         except ValueError:
             continue
-        r = e0 - fit
-        d, te = float(np.sqrt(np.mean(r[dev] ** 2))), float(np.sqrt(np.mean(r[test] ** 2)))
-        if d < best[0]:
-            best = (d, te)
     return best[1]
 
 
