@@ -93,7 +93,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     t0 = time.perf_counter()
     res = trace_effect(base, split=sp)
     elapsed = time.perf_counter() - t0
-    excess, xs, own = np.inf, [], []
+    excess, xs, own, beyond = np.inf, [], [], []
     if effects:
         base0 = fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
         for e in effects:
@@ -108,6 +108,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
         excess = max(xs)
         if len(effects) > 1:
             own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
+            beyond = beyond_sizes(base, base0, effects, sp)
     # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
     # effect named on its model of the drive, else the base's, with a displacement effect it reads
     # carried into it when the validation folds keep the carry: tracing's ``error_after`` per
@@ -131,7 +132,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     return {"effect": "+".join(effects) or "none", "rate_hz": rate_hz, "protocol": protocol, "size": size,
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "ratio_first": first, "both": len(effects) > 1 and set(effects) <= set(named),
-            "excesses": own or xs,
+            "excesses": own or xs, "beyond": beyond,
             "trace_s": elapsed, "truth": truth, "above_line": above_line, "near_line": near_line, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
 
@@ -165,6 +166,98 @@ def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split
         before = float(np.sqrt(np.mean(m.residual[sp.test & m.valid] ** 2)))
         out.append(float(np.sqrt(max(before ** 2 - floor ** 2, 0.0)) / floor) if floor > 0 else np.inf)
     return out
+
+
+def beyond_sizes(base, base0, effects, sp):
+    """Each effect of a multi-effect record's size **beyond the others**: how much less the
+    record's base leaves on the effect's channel with every effect fitted than with the others
+    only (:func:`_left_by`), against the effect-free record's floor,
+    ``sqrt(left_others^2 - left_all^2) / floor``.
+
+    It is what the effect adds, on this record, to a model that already holds the others: the
+    size a tracing's later stage sees. Where one effect's form explains the other's on the
+    record (an absorption relaxing over the record's length reads as a leakage's ramp) it is
+    small, and no tracing of these forms can tell the two apart. A diagnostic printed beside the
+    target (which counts every pair whose own sizes are >= 3x)."""
+    out = []
+    for e in effects:
+        ch = CHANNEL[e]
+        m0 = base0.channels.get(ch)
+        if ch not in base.channels or m0 is None:
+            out.append(0.0)
+            continue
+        floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
+        others = [o for o in effects if o != e]
+        left_o = _left_by(base, ch, others, sp)
+        left_all = _left_by(base, ch, list(effects), sp)
+        out.append(float(np.sqrt(max(left_o ** 2 - left_all ** 2, 0.0)) / floor) if floor > 0 else np.inf)
+    return out
+
+
+def _left_by(base, ch, names, sp, rounds=2):
+    """Test RMS on ``ch`` of ``base``'s record with the effects ``names`` fitted, jointly with the
+    base's columns: each effect searched as the tracing searches a candidate
+    (``tracing._candidate_columns``: with and without the base's columns projected out, on the
+    development rows), alternated ``rounds`` times in every order (each searched on what the
+    others leave), each time one bounded least squares of every column with the base's (the
+    plays' corrections bounded as the base's). Of every joint fit (every order, round and variant
+    of an effect on ``ch``: drift's polynomial and periodic) the one with the least development
+    RMS is kept: the first round of the order that starts with an effect nests that effect alone. ``inf`` when an effect has no
+    candidate on ``ch``."""
+    import itertools
+
+    from workbench.calibrate.base_fit import _gram_solve
+    from workbench.calibrate.tracing import _base_lower, _candidate_columns, _Problem, _search_rows, candidate_plan
+    m = base.channels[ch]
+    t = np.asarray(base.t, float)
+    dev, test = sp.train & m.valid, sp.test & m.valid
+    lower_b = _base_lower(base, ch)
+    if not names:
+        return float(np.sqrt(np.mean(m.residual[test] ** 2)))
+    prob = _Problem(sp, m.valid, base.basis, lower_b, m.y - m.yhat, _search_rows(dev))
+    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis=base.basis)
+    variants = [[(eff, {"model": m.yhat, "voltage": base.v_drive, "time": t}[driver])
+                 for c, eff, driver in plan if c == ch and eff.name == n] for n in names]
+    if not all(variants):
+        return np.inf
+    e0 = m.y - m.yhat
+    best = (np.inf, np.inf)
+    n = len(names)
+    orders = list(itertools.permutations(range(n))) if n > 1 else [(0,)]
+    for combo, order in itertools.product(itertools.product(*variants), orders):
+        terms = [np.zeros(t.size) for _ in combo]
+        cols = [None] * len(combo)
+        try:
+            for _ in range(rounds if n > 1 else 1):
+                for k in order:
+                    eff, u = combo[k]
+                    others = sum(terms[i] for i in range(len(combo)) if i != k)
+                    p, _ = _candidate_columns(eff, t, u, m.y - others, m.yhat, prob)
+                    if hasattr(eff, "columns"):
+                        C, lower = eff.columns(t, u, p, y_model=m.yhat)
+                    else:
+                        C, lower = eff.term(t, u, p, y_model=m.yhat), [0.0]
+                    C = np.asarray(C, float).reshape(t.size, -1)
+                    cols[k] = (C, np.broadcast_to(np.asarray(lower, float), C.shape[1]))
+                    A = np.column_stack([base.basis] + [c[0] for c in cols if c is not None])
+                    lo = np.concatenate([lower_b] + [c[1] for c in cols if c is not None])
+                    scale = np.sqrt(np.mean(A[dev] ** 2, axis=0))
+                    scale[scale == 0] = 1.0
+                    An = A[dev] / scale
+                    w = _gram_solve(An.T @ An, An.T @ e0[dev], lo * scale) / scale    # the base's bounded solve
+                    at = base.basis.shape[1]
+                    for i, c in enumerate(cols):
+                        if c is not None:
+                            terms[i] = c[0] @ w[at:at + c[0].shape[1]]
+                            at += c[0].shape[1]
+                    if all(c is not None for c in cols):      # every effect in: a candidate answer
+                        r = e0 - A @ w
+                        d = float(np.sqrt(np.mean(r[dev] ** 2)))
+                        if d < best[0]:
+                            best = (d, float(np.sqrt(np.mean(r[test] ** 2))))
+        except ValueError:
+            continue
+    return best[1]
 
 
 def plant_alone(plant0, effects, keep, seed, duration_s, size):
@@ -286,6 +379,7 @@ def main(argv=None):
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
               + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items())
               + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']} first {r['ratio_first']:.2f}"
+                 f" beyond the other {np.round(r['beyond'], 2).tolist()}"
                  if "+" in eff else ""),
               flush=True)
     table, head = summarize(rows)
@@ -303,6 +397,10 @@ def main(argv=None):
         print(f"two-effect records answered with both: {sum(r['both'] for r in pairs)} of {len(pairs)}; "
               f"with both effects >= 3x the floor (each on its own record): {sum(r['both'] for r in big2)} of "
               f"{len(big2)}")
+        sep = [r for r in big2 if r.get("beyond") and min(r["beyond"]) >= 3.0]
+        print(f"  of them, both >= 3x beyond the other (the pair told apart on its record): "
+              f"{sum(r['both'] for r in sep)} of {len(sep)}; the rest, one explained by the other's form: "
+              f"{sum(r['both'] for r in big2 if r not in sep)} of {len(big2) - len(sep)}")
     return rows
 
 
