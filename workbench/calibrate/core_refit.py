@@ -414,9 +414,12 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
     return caps[order], taus[order], before, after
 
 
-#: Alternations of :func:`joint_core_and_branches` (the core's weights with the branches held, then the
-#: branches with the core held). Measured on seeds 24-25 creep+delay (session 14): see README.
-JOINT_ROUNDS = 2
+
+def _lowpass_from_rest(u, tau, dt):
+    """First-order lowpass of ``u`` from 0 (a Kelvin-Voigt branch's charge per farad, uncharged at the start)."""
+    from scipy import signal
+    a = float(np.exp(-dt / tau))
+    return signal.lfilter([1.0 - a], [1.0, -a], np.asarray(u, float))
 
 
 def _sensor_view(t, x, delay_s):
@@ -424,137 +427,83 @@ def _sensor_view(t, x, delay_s):
     return x if not delay_s else np.interp(t - delay_s, t, x)
 
 
-def joint_core_and_branches(plant, base, core, caps_f, taus_s, rows, delay_s=0.0, sensor_offset=None,
-                            rounds=None):
-    """The core's C_h and the Kelvin-Voigt branches across it, fitted together to the record.
+def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None):
+    """C_h and Kelvin-Voigt branches across it, fitted together to the record's displacement (one linear fit).
 
-    Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes is the fitted model's INSTANT
-    response ``Pi_j - (sum c) Pi_b``, the creep spectrum's split of the record into a core and a lowpass of
-    the base's output. Branches across a C_h relax toward ``C_j V_h``, not toward a lowpass of the output,
-    and across that instant core no branches copy the spectrum's creep: on seeds 24-25 the branch refit
-    (:func:`refine_branches`) stops at 22-37 % of the creep's RMS whatever the number of branches and their
-    time constants, 3.9-6.6x ``error_after``; across the declared core (the one that made those records)
-    branches fitted to the record leave 0.3x. The instant response is the core of a plant WITHOUT creep; with
-    branches, the core is what the branches leave.
+    Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes with creep is the fitted model's
+    INSTANT response ``Pi_j - (sum c) Pi_b``, the creep spectrum's split of the record into plays and a lowpass
+    of the base's output ``u0``. Branches across a C_h relax toward ``C_j V_h``, not toward ``c_j u0``, and
+    across that instant core no branches copy the spectrum's creep: on seeds 24-25 the branch refit
+    (:func:`refine_branches`) stopped at 22-37 % of the creep's RMS whatever the number of branches and
+    their time constants (fitted to the record itself instead of the spectrum's creep: the same), 3.9-6.6x
+    ``error_after``; across the declared core (the one that made those simulated records) branches fitted
+    to the record left 0.3x. The core must be fitted WITH the branches.
 
-    Alternates: (1) the branches held, their contribution ``d = x(core + branches) - x(core)`` simulated
-    (every k-th sample, as :func:`refine_branches`), the terminal PI's weights refitted by bounded least
-    squares (:func:`_pi_weights`) to the record less ``d`` (both through the file's sensor delay) on the
-    development ``rows``, the offset free; inverted to C_h (:func:`hysteresis_from_terminal_pi`, the cap as
-    :func:`refitted_core`); (2) the core held, the branches refitted (:func:`refine_branches`) to the record
-    less the core.
+    With the series resistor out the plant is ``V_t = V_h + q / C_pp``, ``q = C_h(V_h) + sum Q_j``,
+    ``tau_j dQ_j/dt = C_j V_h - Q_j`` (uncharged at rest), ``x = k_q2x q`` (:mod:`workbench.plant.pzt`,
+    :mod:`workbench.plant.creep`). The record gives ``q`` (its displacement with the file's sensor delay
+    and drift undone, the base fit's offset out), hence ``V_h = V_t - q / C_pp``; then
+    ``q = sum_i w_i play_i(V_h) + sum_j C_j lowpass_j(V_h)`` is LINEAR in C_h's weights ``w_i`` and the
+    branches' ``C_j`` at fixed time constants: one non-negative least-squares fit (an equation-error fit;
+    the record's noise enters ``V_h`` divided by ``k_q2x C_pp``: 1 nm is ~10 mV). Time constants half a
+    decade apart from 10 samples to the record's length ``T`` (a branch slower than the record is
+    identified by its rate only: the one at ``T`` carries it); C_h's thresholds the base's plays', scaled to
+    the span of ``V_h``; play states from a monotonic approach from 0 V, as the base's.
 
     Parameters
     ----------
     plant : workbench.plant.files.Plant
-        The declared plant (C_pp, k_q2x).
+        The declared plant (``C_pp``, ``k_q2x``).
     base : workbench.calibrate.base_fit.BaseFit
-        The base fit (its plays of the record's ``V_t``: ``basis``; the displacement's ``y`` and ``valid``).
-    core : dict
-        :func:`refitted_core`'s, displacement channel, with a C_h.
-    caps_f, taus_s : array_like
-        Start branches (F, s).
+        The base fit (``t``, ``v_drive``; the displacement's ``y``, ``valid``, ``offset``, ``thresholds_v``).
     rows : ndarray of bool
-        The development rows (the test rows take no part).
+        The development rows (the fit's rows; the test rows take no part).
     delay_s : float
-        The file's displacement-sensor delay, s.
+        The file's displacement-sensor delay, s (undone on the record).
     sensor_offset : ndarray, optional
-        Other terms the file adds to the displacement (its sensor drift), m, every sample.
-    rounds : int, optional
-        Alternations (default :data:`JOINT_ROUNDS`).
+        The file's sensor drift, m, every sample (taken off the record).
 
     Returns
     -------
     dict or None
-        ``hysteresis`` (C_h), ``instant`` (terminal weights, m/V), ``capped``, ``caps_f``, ``taus_s``,
-        ``before`` / ``after`` (RMS of the record's dev-rows misfit, m, with the start core and branches and
-        at the end). None when a refitted terminal PI has no C_h.
+        ``hysteresis`` (C_h: thresholds in V_h, V; weights, F), ``caps_f``, ``taus_s`` (the branches with
+        ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m). None when
+        the fit leaves no positive reversal slope (no C_h).
     """
-    import dataclasses
+    from scipy.optimize import nnls
 
-    from ..plant.creep import CreepParams
-    from .synthetic import SensorNoise, simulate_record
+    from .pi_fit import play_matrix
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)
-    P = np.asarray(base.basis, float)[:, :-1]
-    Pd = np.column_stack([_sensor_view(t, P[:, j], delay_s) for j in range(P.shape[1])])
-    y = np.where(m.valid, np.asarray(m.y, float), 0.0)
+    dt = float(np.mean(np.diff(t)))
+    ok = np.asarray(m.valid, bool) & np.isfinite(m.y)
+    y = np.interp(t, t[ok], np.asarray(m.y, float)[ok])
     if sensor_offset is not None:
         y = y - np.asarray(sensor_offset, float)
-    fit_rows = np.asarray(rows, bool) & np.asarray(m.valid, bool)
-    per_c = float(plant.pzt.k_q2x_m_per_c)
-    c_pp = float(plant.pzt.c_pp_f)
-    k = max(1, int(np.ceil(t.size / REFINE_SAMPLES)))
-    td, vd = t[::k], np.asarray(base.v_drive, float)[::k]
-    quiet = SensorNoise(0.0, 0.0, 0.0)
-
-    def plant_with(ch_op, creep=None):
-        return dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=ch_op, creep=creep,
-                                                                  series_resistance_ohm=0.0, modes=()))
-
-    def branches_part(ch_op, caps, taus):
-        x1 = simulate_record(plant_with(ch_op, CreepParams(taus, caps)), td, vd, noise=quiet, gauge=False,
-                             gauge_noise=False)["x_true_m"]
-        x0 = simulate_record(plant_with(ch_op), td, vd, noise=quiet, gauge=False, gauge_noise=False)["x_true_m"]
-        return _sensor_view(t, np.interp(t, td, x1 - x0), delay_s)
-
-    def misfit(w, d):
-        r = (y - Pd @ w - d)[fit_rows]
-        return float(np.sqrt(np.mean((r - r.mean()) ** 2)))
-
-    w = np.asarray(core["instant"], float).copy()
-    ch_op, capped = core["hysteresis"], core.get("capped", 0.0)
-    caps, taus = np.asarray(caps_f, float), np.asarray(taus_s, float)
-    d = branches_part(ch_op, caps, taus)
-    before = misfit(w, d)
-    best = (before, ch_op, w, capped, caps, taus)
-    for _ in range(JOINT_ROUNDS if rounds is None else rounds):
-        # the branches with the core's best (linear) response to them, then the core's weights (bounded)
-        caps, taus, _, _ = refine_branches(plant_with(ch_op), base, y, caps, taus, fit_rows, columns=Pd)
-        d = branches_part(ch_op, caps, taus)
-        w_new = _pi_weights(Pd, y - d, fit_rows)
-        wq = w_new / per_c
-        cap = CAP_OF_C_PP * c_pp
-        capped_new = 0.0
-        if wq.sum() > cap:
-            excess = float(wq.sum() - cap)
-            capped_new = excess / float(wq.sum())
-            for i in range(wq.size - 1, 0, -1):
-                take = min(wq[i], excess)
-                wq[i] -= take
-                excess -= take
-                if excess <= 0:
-                    break
-        try:
-            pi = PrandtlIshlinskii(np.asarray(m.thresholds_v, float), wq, np.asarray(m.initial_states_v, float),
-                                   check_invertible=False)
-            op = hysteresis_from_terminal_pi(pi, c_pp)
-        except ValueError:
-            break
-        ch_op, w, capped = PrandtlIshlinskii(op.thresholds, op.weights, np.zeros(op.size)), wq * per_c, capped_new
-        d = branches_part(ch_op, caps, taus)
-        f = misfit(w, d)
-        if f < best[0]:
-            best = (f, ch_op, w, capped, caps, taus)
-    f, ch_op, w, capped, caps, taus = best
-    return {"hysteresis": ch_op, "instant": w, "capped": capped, "caps_f": caps, "taus_s": taus,
-            "before": before, "after": f}
-
-
-def _pi_weights(P, y, rows):
-    """Play weights >= 0 (the reversal slope at least :data:`REVERSAL_FLOOR` of their sum) and a free
-    offset fitted to ``y`` on ``rows`` by the base fit's bounded solve; returns the weights."""
-    from .base_fit import _gram_solve
-    k = P.shape[1]
-    A = np.column_stack([P[rows], np.ones(int(np.count_nonzero(rows)))])
-    b = np.asarray(y, float)[rows]
-    col = np.sqrt(np.mean(A * A, axis=0))
-    col[col == 0] = 1.0
-    As = A / col
-    x = _gram_solve(As.T @ As, As.T @ b, np.r_[np.zeros(k), -np.inf]) / col
-    w = np.maximum(x[:k], 0.0)
-    floor = REVERSAL_FLOOR * float(w.sum())
-    if w[0] < floor:
-        lb = np.r_[floor * col[0], np.zeros(k - 1), -np.inf]
-        w = np.maximum((_gram_solve(As.T @ As, As.T @ b, lb) / col)[:k], 0.0)
-    return w
+    x = _sensor_view(t, y, -float(delay_s)) - float(m.offset)
+    k, c_pp = float(plant.pzt.k_q2x_m_per_c), float(plant.pzt.c_pp_f)
+    q = x / k
+    vt = np.asarray(base.v_drive, float)
+    vh = vt - q / c_pp
+    rt = np.asarray(m.thresholds_v, float)
+    r = rt * (float(np.ptp(vh)) / float(np.ptp(vt)))
+    z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
+    P = play_matrix(vh, r, z0)
+    dur = float(t[-1] - t[0])
+    taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(dur), 0.5)
+    taus = taus if taus.size and dur < 10 ** 0.25 * taus[-1] else np.r_[taus, dur]
+    L = np.column_stack([_lowpass_from_rest(vh, tau, dt) for tau in taus])
+    fit = np.asarray(rows, bool) & ok
+    n = int(np.count_nonzero(fit))
+    # a free offset of the charge as two non-negative columns (+1, -1)
+    A = np.column_stack([P[fit], L[fit], np.ones(n), -np.ones(n)])
+    sc = np.sqrt(np.mean(A * A, axis=0))
+    sc[sc == 0] = 1.0
+    coef = nnls(A / sc, q[fit])[0] / sc
+    w, c = coef[:r.size], coef[r.size:r.size + taus.size]
+    if not w[0] > 0:
+        return None
+    res = q[fit] - A @ coef
+    keep = c > 1e-9 * max(float(c.sum()), 1e-300)
+    return {"hysteresis": PrandtlIshlinskii(r, w, np.zeros(r.size)), "caps_f": c[keep], "taus_s": taus[keep],
+            "residual_m": float(np.sqrt(np.mean(res * res))) * k}

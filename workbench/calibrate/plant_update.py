@@ -189,10 +189,12 @@ CREEP_SHARES = (1.0, 0.8, 0.6, 0.4, 0.2, 0.0)
 def core_for(plant, base, result):
     """:func:`~workbench.calibrate.core_refit.refitted_core` of a calibration's result (its ``core_fit``).
 
-    With a creep on the core's channel (the displacement), the largest share of its branches (of
-    :data:`CREEP_SHARES`) that branches across the refitted C_h can carry (below the ceiling
-    ``1 + C_pp / C_h``, :func:`creep_branches`): the core is the fitted model's response less that share's
-    instant part, so its settled response is the fitted model's whatever the share.
+    With a creep on the core's channel (the displacement) the core and the creep's branches are fitted
+    together to the record (:func:`_core_with_branches`, :data:`JOINT_CORE`); failing that (or with
+    ``JOINT_CORE`` off), the largest share of its branches (of :data:`CREEP_SHARES`) that branches across
+    the refitted instant C_h can carry (below the ceiling ``1 + C_pp / C_h``, :func:`creep_branches`): the
+    core is the fitted model's response less that share's instant part, so its settled response is the
+    fitted model's whatever the share.
     """
     from .core_refit import refitted_core
     cf = result.get("core_fit")
@@ -203,17 +205,18 @@ def core_for(plant, base, result):
         core = refitted_core(plant, base, cf, creep_scale=share)
         if core["hysteresis"] is None:
             return core
-        if share == 0.0:
+        if share == 1.0 and JOINT_CORE:
+            joint = _core_with_branches(plant, base, result, core)
+            if joint is not None:
+                return joint
+        if share == 0.0 or _creep_write_out(creep[0]["parameters"], base, plant, core)["capacitances_f"] is not None:
             return core
-        start = _creep_write_out(creep[0]["parameters"], base, plant, core)
-        if start["capacitances_f"] is not None:
-            return _joint_core(plant, base, result, core, start) if JOINT_CORE else core
     return core
 
 
-#: Fit the written core and the creep branches across it together to the record (session 14,
-#: :func:`~workbench.calibrate.core_refit.joint_core_and_branches`); False: the instant core and the branches
-#: refitted to the spectrum's creep (session 13), measured 3.9-6.6x error_after on seeds 24-25.
+#: Fit the written core and the creep's branches across it together to the record (session 14,
+#: :func:`~workbench.calibrate.core_refit.direct_core_and_branches`); False: the fitted model's instant core
+#: with branches refitted to the spectrum's creep (session 13), 3.9-6.6x error_after on seeds 24-25.
 JOINT_CORE = True
 
 
@@ -236,25 +239,25 @@ def _sensor_terms(stages, base):
     return delay, drift
 
 
-def _joint_core(plant, base, result, core, start):
-    """``core`` with its C_h and creep branches fitted together to the record's development rows
-    (:func:`~workbench.calibrate.core_refit.joint_core_and_branches`) from the closed-form branches ``start``;
-    the core unchanged when the joint fit does not lower the development rows' misfit."""
-    from .core_refit import JOINT_ROUNDS, joint_core_and_branches
+def _core_with_branches(plant, base, result, core):
+    """``core`` (:func:`~workbench.calibrate.core_refit.refitted_core`'s) with C_h and the creep's branches
+    fitted together to the record's development rows through the file's sensor delay and drift
+    (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`); None when that fit has no C_h."""
+    from .core_refit import direct_core_and_branches
     delay, drift = _sensor_terms(written_stages(result.get("stages") or [], result, core), base)
-    j = joint_core_and_branches(plant, base, core, start["capacitances_f"], start["time_constants_s"],
-                                np.asarray(base.train, bool), delay_s=delay, sensor_offset=drift)
-    if j is None or not j["after"] < j["before"]:
-        return core
+    j = direct_core_and_branches(plant, base, np.asarray(base.train, bool), delay_s=delay, sensor_offset=drift)
+    if j is None or not len(j["caps_f"]):
+        return None
+    lo, hi = core["range_v"]
     out = dict(core)
-    out.update(hysteresis=j["hysteresis"], instant=j["instant"], capped=j["capped"], joint=True,
-               refined_branches=(j["caps_f"], j["taus_s"], j["before"], j["after"]))
-    out["how"] = (core["how"] + f"; then this core's weights and the creep branches across it fitted together to the "
-                  f"record's displacement on the development rows (the branches by simulation with the core's best "
-                  f"linear response to them, then the core's weights with the branches held, "
-                  f"{JOINT_ROUNDS} rounds, "
-                  f"through the file's sensor delay {1e3 * delay:.4g} ms): RMS misfit {j['before']:.4g} -> "
-                  f"{j['after']:.4g} m")
+    out.update(hysteresis=j["hysteresis"], joint=True, refined_branches=(j["caps_f"], j["taus_s"], j["residual_m"]))
+    out["how"] = (f"C_h and the creep's Kelvin-Voigt branches across it fitted together to the record's displacement "
+                  f"over V_t {lo:.4g} .. {hi:.4g} V (development rows; the sensor's delay {1e3 * delay:.4g} ms"
+                  + (" and drift" if drift is not None else "") + " undone, the base fit's offset out): the record's "
+                  "charge q = x / k_q2x (k_q2x declared) gives V_h = V_t - q / C_pp, and q = C_h(V_h) + sum C_j "
+                  "lowpass_j(V_h) is linear in C_h's weights and the C_j (non-negative least squares; time constants "
+                  f"half a decade apart up to the record's length); residual {j['residual_m']:.4g} m RMS; thresholds "
+                  "in V_h; beyond that range it continues at its last loading slope (extrapolated, every play moving)")
     return out
 
 
@@ -401,6 +404,12 @@ def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
             return {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "how": None,
                     "reason": "branches across the refitted C_h cannot carry even a fifth of its share (at or above the "
                               "ceiling 1 + C_pp/C_h): the core is the fitted model's settled response, no branches"}
+        if core.get("joint"):          # C_h and the branches fitted together (core_for): nothing to size
+            caps, taus, resid = core["refined_branches"]
+            return {"capacitances_f": np.asarray(caps, float), "time_constants_s": np.asarray(taus, float),
+                    "c_h_f": None, "reason": None, "ratio": None,
+                    "how": (f"C_j and tau_j fitted together with C_h (see [hysteresis]) to the record's displacement; "
+                            f"residual {resid:.4g} m RMS on the development rows")}
         refit = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=core["hysteresis"]))
         sec = _terminal_secant(base, refit)
         g, tau, note = _creep_fractions(p, base, core)
@@ -414,14 +423,9 @@ def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
                                                            out["time_constants_s"], base.train)
             caps, taus, before, after = core["refined_branches"]
             out["capacitances_f"], out["time_constants_s"] = caps, taus
-            if core.get("joint"):
-                out["how"] = ("C_j and tau_j fitted together with the core's C_h to the record's displacement on the "
-                              f"development rows (see [hysteresis]): RMS misfit {before:.4g} -> {after:.4g} m, from "
-                              f"closed-form branches ({out['how']})")
-            else:
-                out["how"] += (f"; then C_j and tau_j refitted by simulating this core with the branches on the record's "
-                               f"development rows against the fitted model's creep: misfit {100 * before:.3g} % -> "
-                               f"{100 * after:.3g} % of its RMS")
+            out["how"] += (f"; then C_j and tau_j refitted by simulating this core with the branches on the record's "
+                           f"development rows against the fitted model's creep: misfit {100 * before:.3g} % -> "
+                           f"{100 * after:.3g} % of its RMS")
         if out["how"]:
             share = core.get("creep_scale", 1.0)
             out["how"] += f"; {note}" + ("" if share == 1.0 else
