@@ -415,6 +415,13 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
 
 
 
+#: The direct fit's slowest branch, in record lengths: a branch slower than the record is seen by its rate
+#: only (its charge a ramp within the record), so its C_j and tau_j trade; up to 10 T the fit's grid
+#: follows a slow branch's curvature within the record (drawn records, 1401: a 16 s branch in a 10 s record
+#: left 15 % of the creep with the grid stopped at T).
+SLOWEST_BRANCH = 10.0
+
+
 def _lowpass_from_rest(u, tau, dt):
     """First-order lowpass of ``u`` from 0 (a Kelvin-Voigt branch's charge per farad, uncharged at the start)."""
     from scipy import signal
@@ -441,13 +448,14 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None)
 
     With the series resistor out the plant is ``V_t = V_h + q / C_pp``, ``q = C_h(V_h) + sum Q_j``,
     ``tau_j dQ_j/dt = C_j V_h - Q_j`` (uncharged at rest), ``x = k_q2x q`` (:mod:`workbench.plant.pzt`,
-    :mod:`workbench.plant.creep`). The record gives ``q`` (its displacement with the file's sensor delay
-    and drift undone, the base fit's offset out), hence ``V_h = V_t - q / C_pp``; then
+    :mod:`workbench.plant.creep`). The record gives ``q`` (its displacement with the file's sensor drift
+    and the base fit's offset out), hence ``V_h = V_t - q / C_pp``; then
     ``q = sum_i w_i play_i(V_h) + sum_j C_j lowpass_j(V_h)`` is LINEAR in C_h's weights ``w_i`` and the
     branches' ``C_j`` at fixed time constants: one non-negative least-squares fit (an equation-error fit;
-    the record's noise enters ``V_h`` divided by ``k_q2x C_pp``: 1 nm is ~10 mV). Time constants half a
-    decade apart from 10 samples to the record's length ``T`` (a branch slower than the record is
-    identified by its rate only: the one at ``T`` carries it); C_h's thresholds the base's plays', scaled to
+    the record's noise enters ``V_h`` divided by ``k_q2x C_pp``), in the sensor's time (``V_t`` delayed as
+    the record's motion is). Time constants half a
+    decade apart from 10 samples to :data:`SLOWEST_BRANCH` record lengths (a branch slower than the record
+    is identified by its rate: which of the slow ones carries it is the fit's); C_h's thresholds the base's plays', scaled to
     the span of ``V_h``; play states from a monotonic approach from 0 V, as the base's.
 
     Parameters
@@ -467,8 +475,9 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None)
     -------
     dict or None
         ``hysteresis`` (C_h: thresholds in V_h, V; weights, F), ``caps_f``, ``taus_s`` (the branches with
-        ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m). None when
-        the fit leaves no positive reversal slope (no C_h).
+        ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m). C_h's
+        reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum. None when the record
+        gives no C_h (no positive weight).
     """
     from scipy.optimize import nnls
 
@@ -480,26 +489,37 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None)
     y = np.interp(t, t[ok], np.asarray(m.y, float)[ok])
     if sensor_offset is not None:
         y = y - np.asarray(sensor_offset, float)
-    x = _sensor_view(t, y, -float(delay_s)) - float(m.offset)
+    y = y - float(m.offset)
     k, c_pp = float(plant.pzt.k_q2x_m_per_c), float(plant.pzt.c_pp_f)
-    q = x / k
+    # V_h as the sensor sees it: the record's charge y / k is q(t - delay), interpolated between samples as
+    # the sensor's delay is (linear); V_t(t - delay) interpolated alike, so their difference is V_h(t - delay)
+    # blended with the same weights. (Undoing the delay on y instead smears a step's sample and puts V_h
+    # past both its ends there, which sets every play's state after it: drawn records with a fractional
+    # delay left 100x the residual of an integer one.) Plays and lowpasses are time-invariant: the columns
+    # of the delayed V_h are the delayed columns.
     vt = np.asarray(base.v_drive, float)
-    vh = vt - q / c_pp
+    vh = _sensor_view(t, vt, float(delay_s)) - y / (k * c_pp)
     rt = np.asarray(m.thresholds_v, float)
     r = rt * (float(np.ptp(vh)) / float(np.ptp(vt)))
     z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
-    P = play_matrix(vh, r, z0)
     dur = float(t[-1] - t[0])
-    taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(dur), 0.5)
-    taus = taus if taus.size and dur < 10 ** 0.25 * taus[-1] else np.r_[taus, dur]
-    L = np.column_stack([_lowpass_from_rest(vh, tau, dt) for tau in taus])
+    taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(SLOWEST_BRANCH * dur) + 1e-9, 0.5)
     fit = np.asarray(rows, bool) & ok
     n = int(np.count_nonzero(fit))
+    cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
+    X = np.column_stack(cols)
     # a free offset of the charge as two non-negative columns (+1, -1)
-    A = np.column_stack([P[fit], L[fit], np.ones(n), -np.ones(n)])
+    A = np.column_stack([X[fit], np.ones(n), -np.ones(n)])
+    q = y / k
     sc = np.sqrt(np.mean(A * A, axis=0))
     sc[sc == 0] = 1.0
     coef = nnls(A / sc, q[fit])[0] / sc
+    floor = REVERSAL_FLOOR * float(np.sum(coef[:r.size]))
+    if coef[0] < floor:
+        # C_h's reversal slope (the threshold-0 play, V_h itself) at least REVERSAL_FLOOR of the weights' sum,
+        # as instant_weights: w_0 = floor + a non-negative rest
+        coef = nnls(A / sc, q[fit] - floor * A[:, 0])[0] / sc
+        coef[0] += floor
     w, c = coef[:r.size], coef[r.size:r.size + taus.size]
     if not w[0] > 0:
         return None
