@@ -423,10 +423,14 @@ SLOWEST_BRANCH = 10.0
 
 
 def _lowpass_from_rest(u, tau, dt):
-    """First-order lowpass of ``u`` from 0 (a Kelvin-Voigt branch's charge per farad, uncharged at the start)."""
+    """First-order lowpass of ``u`` from 0 (a Kelvin-Voigt branch's charge per farad, uncharged at the start),
+    exact for ``u`` linear between samples (the replay's drive, ``plant_update.updated_plant_error``):
+    ``y_k = a y_(k-1) + b0 u_k + b1 u_(k-1)``, ``a = exp(-dt/tau)``, ``b0 = 1 - tau (1 - a) / dt``,
+    ``b1 = tau (1 - a) / dt - a`` (``u_(-1) = 0``: from rest, as the simulator's first step)."""
     from scipy import signal
     a = float(np.exp(-dt / tau))
-    return signal.lfilter([1.0 - a], [1.0, -a], np.asarray(u, float))
+    g = float(-np.expm1(-dt / tau)) * tau / dt
+    return signal.lfilter([1.0 - g, g - a], [1.0, -a], np.asarray(u, float))
 
 
 def _sensor_view(t, x, delay_s):
@@ -434,7 +438,7 @@ def _sensor_view(t, x, delay_s):
     return x if not delay_s else np.interp(t - delay_s, t, x)
 
 
-def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None):
+def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None):
     """C_h and Kelvin-Voigt branches across it, fitted together to the record's displacement (one linear fit).
 
     Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes with creep is the fitted model's
@@ -453,10 +457,9 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None)
     ``q = sum_i w_i play_i(V_h) + sum_j C_j lowpass_j(V_h)`` is LINEAR in C_h's weights ``w_i`` and the
     branches' ``C_j`` at fixed time constants: one non-negative least-squares fit (an equation-error fit;
     the record's noise enters ``V_h`` divided by ``k_q2x C_pp``), in the sensor's time (``V_t`` delayed as
-    the record's motion is). Time constants half a
-    decade apart from 10 samples to :data:`SLOWEST_BRANCH` record lengths (a branch slower than the record
-    is identified by its rate: which of the slow ones carries it is the fit's); C_h's thresholds the base's plays', scaled to
-    the span of ``V_h``; play states from a monotonic approach from 0 V, as the base's.
+    the record's motion is). Time constants half a decade apart from 10 samples to :data:`SLOWEST_BRANCH`
+    record lengths (a branch slower than the record is identified by its rate: which of the slow ones
+    carries it is the fit's); play states from a monotonic approach from 0 V, as the base's.
 
     Parameters
     ----------
@@ -470,6 +473,9 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None)
         The file's displacement-sensor delay, s (undone on the record).
     sensor_offset : ndarray, optional
         The file's sensor drift, m, every sample (taken off the record).
+    thresholds_v : array_like, optional
+        C_h's thresholds in V_h, V (``plant_update`` passes the refitted instant core's: the base's plays
+        inverted in closed form); default the base's, scaled to the span of ``V_h``.
 
     Returns
     -------
@@ -499,8 +505,11 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None)
     # of the delayed V_h are the delayed columns.
     vt = np.asarray(base.v_drive, float)
     vh = _sensor_view(t, vt, float(delay_s)) - y / (k * c_pp)
-    rt = np.asarray(m.thresholds_v, float)
-    r = rt * (float(np.ptp(vh)) / float(np.ptp(vt)))
+    if thresholds_v is None:
+        rt = np.asarray(m.thresholds_v, float)
+        r = rt * (float(np.ptp(vh)) / float(np.ptp(vt)))
+    else:
+        r = np.asarray(thresholds_v, float)
     z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
     dur = float(t[-1] - t[0])
     taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(SLOWEST_BRANCH * dur) + 1e-9, 0.5)

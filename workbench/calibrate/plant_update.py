@@ -239,18 +239,59 @@ def _sensor_terms(stages, base):
     return delay, drift
 
 
+#: The sensor delay written beside jointly fitted core and branches is searched within this factor of the
+#: named delay stage's (:func:`_delay_with_branches`).
+DELAY_SEARCH_FACTOR = 2.0
+
+
+def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None):
+    """The sensor delay, s, at which C_h and the branches fitted together
+    (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
+    development ``rows``, searched (bounded, golden section) between the named delay stage's ``delay_s`` over
+    and times :data:`DELAY_SEARCH_FACTOR`.
+
+    Why: the delay stage's term is ``g (u0(t - d) - u0(t))`` with its gain ``g`` free (``scale``), a delay of
+    about ``g d`` where ``u0`` is smooth; the file's ``[displacement_sensor]`` delays the whole motion by one
+    ``delay_s`` (measured, seed 24 #31, 1 kHz steps: stage 0.34 ms at scale 0.79, drawn 0.24 ms; the file with
+    the stage's 0.34 ms left 1.5x error_after, the error on the fast transitions).
+    """
+    from scipy.optimize import minimize_scalar
+
+    from .core_refit import direct_core_and_branches
+    dt = float(np.mean(np.diff(np.asarray(base.t, float))))
+    lo, hi = sorted((delay_s / DELAY_SEARCH_FACTOR, delay_s * DELAY_SEARCH_FACTOR))
+
+    def cost(d):
+        j = direct_core_and_branches(plant, base, rows, delay_s=d, sensor_offset=drift, thresholds_v=thresholds_v)
+        return float("inf") if j is None else j["residual_m"]
+    sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * dt, "maxiter": 16})
+    return float(sol.x) if sol.fun < cost(delay_s) else float(delay_s)
+
+
 def _core_with_branches(plant, base, result, core):
     """``core`` (:func:`~workbench.calibrate.core_refit.refitted_core`'s) with C_h and the creep's branches
     fitted together to the record's development rows through the file's sensor delay and drift
     (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`); None when that fit has no C_h."""
     from .core_refit import direct_core_and_branches
-    delay, drift = _sensor_terms(written_stages(result.get("stages") or [], result, core), base)
-    j = direct_core_and_branches(plant, base, np.asarray(base.train, bool), delay_s=delay, sensor_offset=drift)
+    stages = written_stages(result.get("stages") or [], result, core)
+    delay, drift = _sensor_terms(stages, base)
+    rows = np.asarray(base.train, bool)
+    named = any(st["effect"] == "delay" and st["channel"] == "displacement" for st in stages)
+    stage_delay = delay
+    # C_h's thresholds: the refitted instant core's, the base's plays inverted in closed form into V_h (Kuhnen):
+    # measured against the base's V_t thresholds scaled to V_h's span, seeds 24 #31, 25 #20, 24 #64: 1.37x,
+    # 1.15x, 1.05x -> 0.45x, 0.85x, 0.85x error_after
+    th = core["hysteresis"].thresholds
+    if named and delay:
+        delay = _delay_with_branches(plant, base, rows, delay, drift, th)
+    j = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th)
     if j is None or not len(j["caps_f"]):
         return None
     lo, hi = core["range_v"]
     out = dict(core)
     out.update(hysteresis=j["hysteresis"], joint=True, refined_branches=(j["caps_f"], j["taus_s"], j["residual_m"]))
+    if named and delay != stage_delay:
+        out["delay_s"] = (delay, stage_delay)
     out["how"] = (f"C_h and the creep's Kelvin-Voigt branches across it fitted together to the record's displacement "
                   f"over V_t {lo:.4g} .. {hi:.4g} V (development rows; the sensor's delay {1e3 * delay:.4g} ms"
                   + (" and drift" if drift is not None else "") + " undone, the base fit's offset out): the record's "
@@ -264,7 +305,14 @@ def _core_with_branches(plant, base, result, core):
 def written_stages(stages, result, core):
     """The stages as the file writes them: with the refitted core, the first channel's joint parameters
     (:func:`_joint_stages`, the fit the core comes from); with the declared core, the stages' own."""
-    return _joint_stages(stages, result.get("core_fit")) if core.get("hysteresis") is not None else stages
+    if core.get("hysteresis") is None:
+        return stages
+    out = _joint_stages(stages, result.get("core_fit"))
+    if core.get("delay_s"):         # searched with the core and branches fitted together (_delay_with_branches)
+        d, named = core["delay_s"]
+        out = [{**st, "parameters": {**st["parameters"], "delay_s": d, "delay_named_s": named}}
+               if st["effect"] == "delay" and st["channel"] == "displacement" else st for st in out]
+    return out
 
 
 def _joint_stages(stages, core_fit):
@@ -311,6 +359,9 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None, c
     elif effect == "delay" and ch == "displacement":
         # signed: > 0 the sensor lags the drive, < 0 it leads (an acquisition timing offset)
         lead = " (negative: the sensor leads the drive)" if p["delay_s"] < 0 else ""
+        if "delay_named_s" in p:
+            lead += (f" (searched with the core and the creep's branches fitted together; the delay stage named "
+                     f"{p['delay_named_s']:.6g} s with its gain free)")
         sensor["delay"] = f"delay_s = {_fmt(p['delay_s'])}   # s; {src}{lead}"
     elif effect == "drift" and ch == "displacement":
         c = np.asarray(p["coefficients"], float)
