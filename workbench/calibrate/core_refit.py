@@ -485,8 +485,6 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
         reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum. None when the record
         gives no C_h (no positive weight).
     """
-    from scipy.optimize import nnls
-
     from .pi_fit import play_matrix
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)
@@ -517,18 +515,23 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     n = int(np.count_nonzero(fit))
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
     X = np.column_stack(cols)
-    # a free offset of the charge as two non-negative columns (+1, -1)
-    A = np.column_stack([X[fit], np.ones(n), -np.ones(n)])
+    # weights and C_j >= 0, the charge's offset free, C_h's reversal slope (the threshold-0 play, V_h itself) at
+    # least REVERSAL_FLOOR of the weights' sum (as instant_weights): the base fit's bounded solve on the Gram
+    # matrix of the unit-RMS columns (a few dozen columns; lsq on the rows cost 0.4 s a solve at 355,000 rows)
+    from .base_fit import _gram_solve
+    A = np.column_stack([X[fit], np.ones(n)])
     q = y / k
-    sc = np.sqrt(np.mean(A * A, axis=0))
+    sc = np.sqrt(np.einsum("ij,ij->j", A, A) / n)
     sc[sc == 0] = 1.0
-    coef = nnls(A / sc, q[fit])[0] / sc
-    floor = REVERSAL_FLOOR * float(np.sum(coef[:r.size]))
+    As = A / sc
+    G, h = As.T @ As, As.T @ q[fit]
+    lower = np.r_[np.zeros(A.shape[1] - 1), -np.inf]
+    coef = _gram_solve(G, h, lower) / sc
+    floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
     if coef[0] < floor:
-        # C_h's reversal slope (the threshold-0 play, V_h itself) at least REVERSAL_FLOOR of the weights' sum,
-        # as instant_weights: w_0 = floor + a non-negative rest
-        coef = nnls(A / sc, q[fit] - floor * A[:, 0])[0] / sc
-        coef[0] += floor
+        lower[0] = floor * sc[0]
+        coef = _gram_solve(G, h, lower) / sc
+    coef[:-1] = np.maximum(coef[:-1], 0.0)
     w, c = coef[:r.size], coef[r.size:r.size + taus.size]
     if not w[0] > 0:
         return None
