@@ -422,6 +422,10 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
 SLOWEST_BRANCH = 10.0
 
 
+#: Ridge of the direct fit's normal equations, relative to its unit-RMS columns (:func:`direct_core_and_branches`).
+DIRECT_RIDGE = 1e-9
+
+
 def _lowpass_from_rest(u, tau, dt):
     """First-order lowpass of ``u`` from 0 (a Kelvin-Voigt branch's charge per farad, uncharged at the start),
     exact for ``u`` linear between samples (the replay's drive, ``plant_update.updated_plant_error``):
@@ -515,23 +519,32 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     n = int(np.count_nonzero(fit))
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
     X = np.column_stack(cols)
-    # weights and C_j >= 0, the charge's offset free, C_h's reversal slope (the threshold-0 play, V_h itself) at
-    # least REVERSAL_FLOOR of the weights' sum (as instant_weights): the base fit's bounded solve on the Gram
-    # matrix of the unit-RMS columns (a few dozen columns; lsq on the rows cost 0.4 s a solve at 355,000 rows)
+    # weights and C_j >= 0, the charge's offset free (every column and q centred on the fit's rows), C_h's
+    # reversal slope (the threshold-0 play, V_h itself) at least REVERSAL_FLOOR of the weights' sum (as
+    # instant_weights): the base fit's bounded solve on the Gram matrix of the centred unit-RMS columns (a few
+    # dozen; nnls on the rows cost 0.4 s a solve at 355,000 rows). Centred, a play that moves once and then
+    # holds is its own small column, not a near copy of the offset's (uncentred, the solve traded the two at
+    # 4e7 and a 28x creep record came out at 4e4 m); the ridge (DIRECT_RIDGE) keeps a play that never moves
+    # on the rows (a zero column) at zero.
     from .base_fit import _gram_solve
-    A = np.column_stack([X[fit], np.ones(n)])
     q = y / k
-    sc = np.sqrt(np.einsum("ij,ij->j", A, A) / n)
+    Xf = X[fit]
+    mu = Xf.mean(axis=0)
+    Xc = Xf - mu
+    qc = q[fit] - q[fit].mean()
+    sc = np.sqrt(np.einsum("ij,ij->j", Xc, Xc) / n)
     sc[sc == 0] = 1.0
-    As = A / sc
-    G, h = As.T @ As, As.T @ q[fit]
-    lower = np.r_[np.zeros(A.shape[1] - 1), -np.inf]
+    As = Xc / sc
+    G, h = As.T @ As + DIRECT_RIDGE * np.eye(X.shape[1]), As.T @ qc
+    lower = np.zeros(X.shape[1])
     coef = _gram_solve(G, h, lower) / sc
     floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
     if coef[0] < floor:
         lower[0] = floor * sc[0]
         coef = _gram_solve(G, h, lower) / sc
-    coef[:-1] = np.maximum(coef[:-1], 0.0)
+    coef = np.maximum(coef, 0.0)
+    coef = np.r_[coef, q[fit].mean() - mu @ coef]
+    A = np.column_stack([Xf, np.ones(n)])
     w, c = coef[:r.size], coef[r.size:r.size + taus.size]
     if not w[0] > 0:
         return None
