@@ -13,11 +13,14 @@ core is kept and the header says why. Mapping of the tracing's parameters to pla
 
 * ``leakage``: ``gain_per_s`` is charge per volt-second, ``1 / R_FP``;
 * ``dielectric_absorption``: ``gain`` is ``k_s`` (C/V), ``tau_s`` the time constant;
-* ``creep`` (displacement channel): Kelvin-Voigt branches across the core's C_h whose
-  settled/instant ratio is the spectrum's and whose time constants at a held terminal voltage are the
-  fitted ones (:func:`creep_branches`); with the refitted core, sized as fractions of its instant
-  response and then refitted by simulation to the fitted model's creep
-  (:func:`~workbench.calibrate.core_refit.refine_branches`); without, C_h from the declared core's terminal
+* ``creep`` (displacement channel): Kelvin-Voigt branches across the core's C_h. With the refitted core
+  (session 14), C_h and the branches are fitted together to the record's displacement
+  (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`: ``V_h = V_t - q / C_pp`` from the
+  record, ``q`` linear in C_h's play weights and the ``C_j``; the sensor's delay searched with them,
+  :func:`_delay_with_branches`); failing that, branches whose settled/instant ratio is the spectrum's and
+  whose time constants at a held terminal voltage are the fitted ones (:func:`creep_branches`), sized as
+  fractions of the instant response and refitted by simulation to the fitted model's creep
+  (:func:`~workbench.calibrate.core_refit.refine_branches`); with the declared core, C_h from its terminal
   secant over the record's voltage span (no charge channel needed). Above the ceiling
   ``1 + C_pp / C_h`` a smaller share (or no section) is written, and the header says why;
 * ``resonance``: an added ``[[mechanics.modes]]`` entry;
