@@ -311,7 +311,7 @@ def test_a_record_not_from_rest_writes_the_rest_state_and_replays_from_rest(sn63
 def _creep_record(sn637, rng, rate_hz, taus, caps, delay_s, thresholds=None):
     """A noise-free record of Kelvin-Voigt branches across the declared C_h (R out, no mode, from rest): sine
     and two holds, seen through a sensor delayed by ``delay_s`` with a zero; the fit's rows alternate 0.5 s
-    blocks. Returns (base, train, replay) with ``replay(ch, caps, taus)`` the sensor's view of a file's C_h
+    blocks; the motion off those rows (``yhat``, which the fit's V_h reads there) the record's own. Returns (base, train, replay) with ``replay(ch, caps, taus)`` the sensor's view of a file's C_h
     and branches and ``creep`` the branches' share of the motion."""
     from types import SimpleNamespace
 
@@ -337,7 +337,9 @@ def _creep_record(sn637, rng, rate_hz, taus, caps, delay_s, thresholds=None):
         vh = v - truth / (sn637.pzt.k_q2x_m_per_c * sn637.pzt.c_pp_f)
         thresholds = quasi.hysteresis.thresholds * np.ptp(v) / np.ptp(vh)
     y = np.interp(t - delay_s, t, truth) + zero
-    m = SimpleNamespace(y=y, valid=np.ones(t.size, bool), offset=zero, thresholds_v=thresholds)
+    # the model of the motion that stands in for the record off the fit's rows (the fitted model's, in use):
+    # here the record itself, the motion known there; the fit's columns on its own rows are the record's
+    m = SimpleNamespace(y=y, yhat=y, valid=np.ones(t.size, bool), offset=zero, thresholds_v=thresholds)
     base = SimpleNamespace(t=t, v_drive=v, channels={"displacement": m})
     train = (np.floor(t / 0.5) % 2) == 0
 

@@ -442,7 +442,7 @@ def _sensor_view(t, x, delay_s):
     return x if not delay_s else np.interp(t - delay_s, t, x)
 
 
-def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None):
+def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None, model=None):
     """C_h and Kelvin-Voigt branches across it, fitted together to the record's displacement (one linear fit).
 
     Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes with creep is the fitted model's
@@ -470,13 +470,18 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     plant : workbench.plant.files.Plant
         The declared plant (``C_pp``, ``k_q2x``).
     base : workbench.calibrate.base_fit.BaseFit
-        The base fit (``t``, ``v_drive``; the displacement's ``y``, ``valid``, ``offset``, ``thresholds_v``).
+        The base fit (``t``, ``v_drive``; the displacement's ``y``, ``valid``, ``offset``, ``thresholds_v`` and
+        ``yhat``).
     rows : ndarray of bool
-        The development rows (the fit's rows; the test rows take no part).
+        The development rows (the fit's rows; the test rows take no part, not even through ``V_h``'s history).
     delay_s : float
         The file's displacement-sensor delay, s (undone on the record).
     sensor_offset : ndarray, optional
         The file's sensor drift, m, every sample (taken off the record).
+    model : ndarray, optional
+        A model of the displacement fitted on ``rows`` alone, m, every sample: it stands in for the record off
+        ``rows`` in ``V_h``'s history (default the base's ``yhat``; ``plant_update`` passes the fitted model's
+        core, creep and delay terms).
     thresholds_v : array_like, optional
         C_h's thresholds in V_h, V (``plant_update`` passes the refitted instant core's: the base's plays
         inverted in closed form); default the base's, scaled to the span of ``V_h``.
@@ -494,7 +499,13 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     t = np.asarray(base.t, float)
     dt = float(np.mean(np.diff(t)))
     ok = np.asarray(m.valid, bool) & np.isfinite(m.y)
-    y = np.interp(t, t[ok], np.asarray(m.y, float)[ok])
+    fit = np.asarray(rows, bool) & ok
+    # V_h runs over the whole record (the plays' and branches' states carry its history), but only the fit's
+    # rows may enter it: elsewhere (the test rows, invalid samples) the record's motion is replaced by a model
+    # of it fitted on the development rows (``model``: the fitted model; its misfit moves V_h by that over
+    # k_q2x C_pp, a large factor: the base alone, creep left out, moved it by volts and spoilt the fit)
+    stand_in = np.asarray(m.yhat if model is None else model, float)
+    y = np.where(fit, np.asarray(m.y, float), stand_in)
     if sensor_offset is not None:
         y = y - np.asarray(sensor_offset, float)
     y = y - float(m.offset)
@@ -515,7 +526,6 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
     dur = float(t[-1] - t[0])
     taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(SLOWEST_BRANCH * dur) + 1e-9, 0.5)
-    fit = np.asarray(rows, bool) & ok
     n = int(np.count_nonzero(fit))
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
     X = np.column_stack(cols)

@@ -247,7 +247,7 @@ def _sensor_terms(stages, base):
 DELAY_SEARCH_FACTOR = 2.0
 
 
-def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None):
+def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, model=None):
     """The sensor delay, s, at which C_h and the branches fitted together
     (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
     development ``rows``, searched (bounded, golden section) between the named delay stage's ``delay_s`` over
@@ -265,10 +265,33 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None):
     lo, hi = sorted((delay_s / DELAY_SEARCH_FACTOR, delay_s * DELAY_SEARCH_FACTOR))
 
     def cost(d):
-        j = direct_core_and_branches(plant, base, rows, delay_s=d, sensor_offset=drift, thresholds_v=thresholds_v)
+        j = direct_core_and_branches(plant, base, rows, delay_s=d, sensor_offset=drift, thresholds_v=thresholds_v,
+                                     model=model)
         return float("inf") if j is None else j["residual_m"]
     sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * dt, "maxiter": 16})
     return float(sol.x) if sol.fun < cost(delay_s) else float(delay_s)
+
+
+def _fitted_motion(base, core_fit, rows):
+    """The fitted model's displacement, m, every sample, from its joint fit (``core_fit``: plays, creep spectrum,
+    delay with its gain; fitted on the development rows), its offset fitted on ``rows``: what stands in for
+    the record off the development rows in :func:`~workbench.calibrate.core_refit.direct_core_and_branches`."""
+    from .effects import lowpass
+    m = base.channels["displacement"]
+    t = np.asarray(base.t, float)
+    dt = float(np.mean(np.diff(t)))
+    u0 = np.asarray(m.yhat, float)
+    x = np.asarray(base.basis, float)[:, :-1] @ np.asarray(core_fit["weights"], float)
+    for st in core_fit.get("stages", ()):
+        p = st["parameters"]
+        if st["effect"] == "creep":
+            for c, tau in zip(p["gains"], p["taus_s"]):
+                if c > 0:
+                    x = x + c * (lowpass(u0, tau, dt) - u0)
+        elif st["effect"] == "delay":
+            x = x + float(p.get("scale", 1.0)) * (np.interp(t - float(p["delay_s"]), t, u0) - u0)
+    ok = np.asarray(rows, bool) & np.asarray(m.valid, bool) & np.isfinite(m.y)
+    return x + float(np.mean(np.asarray(m.y, float)[ok] - x[ok]))
 
 
 def _core_with_branches(plant, base, result, core):
@@ -285,9 +308,10 @@ def _core_with_branches(plant, base, result, core):
     # measured against the base's V_t thresholds scaled to V_h's span, seeds 24 #31, 25 #20, 24 #64: 1.37x,
     # 1.15x, 1.05x -> 0.45x, 0.85x, 0.85x error_after
     th = core["hysteresis"].thresholds
+    model = _fitted_motion(base, result.get("core_fit"), rows)
     if named and delay:
-        delay = _delay_with_branches(plant, base, rows, delay, drift, th)
-    j = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th)
+        delay = _delay_with_branches(plant, base, rows, delay, drift, th, model)
+    j = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th, model=model)
     if j is None or not len(j["caps_f"]):
         return None
     lo, hi = core["range_v"]
