@@ -210,23 +210,13 @@ def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
 
 CREEP_MISS = ("measured 2026-11-26 (s14_rtcreep): a creep+delay record at 1 kHz sine (18.6x, drawn delay 5.8 ms) is "
               "answered creep alone; the file's C_h and Kelvin-Voigt branches are fitted together to the record "
-              "(core_refit.direct_core_and_branches) and replay it to 1.43e-8 m, HALF error_after (2.78e-8 m: the fitted "
+              "(core_refit.direct_core_and_branches) and replay it to 1.37e-8 m, HALF error_after (2.78e-8 m: the fitted "
               "model, the spectrum's lowpass of the base's output, is the poorer form; the plant that made the record "
               "1.6e-9 m): outside 10 % below. Session 13's file (the fitted model's instant core, branches refitted to "
               "the spectrum's creep) left 8.7e-8 m, 3.1x.")
-CREEP_DELAY_UNNAMED = ("measured 2026-11-26 (s14_rtcreep): a creep+delay record at 1 kHz calibration (28x, drawn delay "
-                       "42 ms = 42 samples) is answered creep alone: no file carries the unnamed delay, the fitted "
-                       "model leaves 1.48e-7 m, 100x the plant that made the record (1.5e-9 m). The file with C_h and "
-                       "branches fitted together leaves 1.85e-7 m (1.25x; on the development rows it is the closer "
-                       "of the two forms, 2.85e-7 against 2.96e-7 m); session 13's instant-core file left 1.38e-7 "
-                       "(0.93x).")
-
-
 def _creep_mark(d):
     if d[:3] == (("creep", "delay"), 1e3, "sine"):
         return [pytest.mark.xfail(strict=True, reason=CREEP_MISS)]
-    if d[:3] == (("creep", "delay"), 1e3, "calibration"):
-        return [pytest.mark.xfail(strict=True, reason=CREEP_DELAY_UNNAMED)]
     return []
 
 
