@@ -326,7 +326,8 @@ def _core_with_branches(plant, base, result, core):
     if named and delay:
         delay = _delay_with_branches(plant, base, rows, delay, drift, th, model)
     j = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th, model=model)
-    if j is None or not len(j["caps_f"]):
+    if j is None or not len(j["caps_f"]) or not (np.all(np.isfinite(j["hysteresis"].weights))
+                                                  and np.all(np.isfinite(j["caps_f"]))):
         return None
     lo, hi = core["range_v"]
     out = dict(core)
