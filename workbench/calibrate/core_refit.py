@@ -38,7 +38,8 @@ import numpy as np
 
 from ..plant.hysteresis import PrandtlIshlinskii
 
-__all__ = ["hysteresis_from_terminal_pi", "instant_weights", "refitted_core", "CAP_OF_C_PP", "CAPPED_GAP"]
+__all__ = ["hysteresis_from_terminal_pi", "instant_weights", "refitted_core", "direct_core_and_branches", "CAP_OF_C_PP",
+           "CAPPED_GAP"]
 
 #: The instant core's reversal slope (the threshold-0 play's weight) is at least this fraction of its
 #: weights' sum (:func:`instant_weights`); the base fit can leave it 0, and a PI without one has no C_h.
@@ -297,7 +298,7 @@ def creep_target(base, core_fit, core, params):
     return out
 
 
-def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, columns=None):
+def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None):
     """Kelvin-Voigt branches across the file's C_h fitted to the fitted model's creep part by simulation.
 
     The plant (its refitted core, R out, no mode) is simulated on the record's drive (every k-th sample, at
@@ -305,11 +306,6 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
     (:func:`creep_target`) on the development ``rows`` (a constant free: the replay takes out a sensor's
     zero) by least squares over ``log C_j`` and ``log tau_j`` from the closed-form sizes ``caps_f``,
     ``taus_s`` (``plant_update.creep_branches``).
-
-    ``columns`` (optional, ``(n, m)`` every sample): linear terms fitted with the branches at every
-    evaluation (variable projection: the residual is taken orthogonal to them on the simulated rows); the
-    core's own plays, so that the branches are fitted with the core's best response to them
-    (:func:`joint_core_and_branches`).
 
     Returns
     -------
@@ -329,16 +325,7 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
     td, vd = t[::k], np.asarray(base.v_drive, float)[::k]
     rd = np.asarray(rows, bool)[::k]
     y = np.asarray(target, float)[::k][rd]
-    if columns is None:
-        def proj(x):
-            return x - x.mean()
-    else:
-        A = np.column_stack([np.asarray(columns, float)[::k][rd], np.ones(int(rd.sum()))])
-        Q = np.linalg.qr(A / np.maximum(np.sqrt(np.mean(A * A, axis=0)), 1e-300))[0]
-
-        def proj(x):
-            return x - Q @ (Q.T @ x)
-    y = proj(y)
+    y = y - y.mean()
     scale = float(np.sqrt(np.mean(y * y))) or 1.0
     pzt = dataclasses.replace(plant.pzt, series_resistance_ohm=0.0, modes=(), creep=None)
     quiet = SensorNoise(0.0, 0.0, 0.0)
@@ -357,7 +344,7 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
             caps, taus = np.exp(z[:n]), np.exp(z[n:])
             order = np.argsort(taus)
             d = (sim(CreepParams(taus[order], caps[order])) - x0)[rd]
-            cache[key] = (proj(d) - y) / scale
+            cache[key] = (d - d.mean() - y) / scale
         return cache[key]
     caps0, taus0 = np.asarray(caps_f, float), np.asarray(taus_s, float)
     z0 = np.r_[np.log(caps0), np.log(taus0)]
@@ -412,7 +399,6 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None, co
     after = min(after, before)
     order = np.argsort(taus)          # the closed form's, scaled by its factors, need not be in order
     return caps[order], taus[order], before, after
-
 
 
 #: The direct fit's slowest branch, in record lengths: a branch slower than the record is seen by its rate
