@@ -38,7 +38,8 @@ import numpy as np
 
 from ..plant.hysteresis import PrandtlIshlinskii
 
-__all__ = ["hysteresis_from_terminal_pi", "instant_weights", "refitted_core", "CAP_OF_C_PP", "CAPPED_GAP"]
+__all__ = ["hysteresis_from_terminal_pi", "instant_weights", "refitted_core", "direct_core_and_branches", "CAP_OF_C_PP",
+           "CAPPED_GAP"]
 
 #: The instant core's reversal slope (the threshold-0 play's weight) is at least this fraction of its
 #: weights' sum (:func:`instant_weights`); the base fit can leave it 0, and a PI without one has no C_h.
@@ -398,3 +399,167 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None):
     after = min(after, before)
     order = np.argsort(taus)          # the closed form's, scaled by its factors, need not be in order
     return caps[order], taus[order], before, after
+
+
+#: The direct fit's slowest branch, in record lengths: a branch slower than the record is seen by its rate
+#: only (its charge a ramp within the record), so its C_j and tau_j trade; up to 10 T the fit's grid
+#: follows a slow branch's curvature within the record (drawn records, 1401: a 16 s branch in a 10 s record
+#: left 15 % of the creep with the grid stopped at T).
+SLOWEST_BRANCH = 10.0
+
+
+#: A branch of the direct fit is at most this many C_pp (:func:`direct_core_and_branches`; the synthetic records'
+#: largest is 2.5 C_pp of the P-888.51's; the plant file takes at most 1 mF).
+BRANCH_CAP_OF_C_PP = 10.0
+
+#: Ridge of the direct fit's normal equations, relative to its unit-RMS columns (:func:`direct_core_and_branches`).
+DIRECT_RIDGE = 1e-9
+
+
+def _lowpass_from_rest(u, tau, dt):
+    """First-order lowpass of ``u`` from 0 (a Kelvin-Voigt branch's charge per farad, uncharged at the start),
+    exact for ``u`` linear between samples (the replay's drive, ``plant_update.updated_plant_error``):
+    ``y_k = a y_(k-1) + b0 u_k + b1 u_(k-1)``, ``a = exp(-dt/tau)``, ``b0 = 1 - tau (1 - a) / dt``,
+    ``b1 = tau (1 - a) / dt - a`` (``u_(-1) = 0``: from rest, as the simulator's first step)."""
+    from scipy import signal
+    a = float(np.exp(-dt / tau))
+    g = float(-np.expm1(-dt / tau)) * tau / dt
+    return signal.lfilter([1.0 - g, g - a], [1.0, -a], np.asarray(u, float))
+
+
+def _sensor_view(t, x, delay_s):
+    """``x(t - delay)`` by linear interpolation (the plant file's ``[displacement_sensor]`` delay)."""
+    return x if not delay_s else np.interp(t - delay_s, t, x)
+
+
+def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None, model=None):
+    """C_h and Kelvin-Voigt branches across it, fitted together to the record's displacement (one linear fit).
+
+    Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes with creep is the fitted model's
+    INSTANT response ``Pi_j - (sum c) Pi_b``, the creep spectrum's split of the record into plays and a lowpass
+    of the base's output ``u0``. Branches across a C_h relax toward ``C_j V_h``, not toward ``c_j u0``, and
+    across that instant core no branches copy the spectrum's creep: on seeds 24-25 the branch refit
+    (:func:`refine_branches`) stopped at 22-37 % of the creep's RMS whatever the number of branches and
+    their time constants (fitted to the record itself instead of the spectrum's creep: the same), 3.9-6.6x
+    ``error_after``; across the declared core (the one that made those simulated records) branches fitted
+    to the record left 0.3x. The core must be fitted WITH the branches.
+
+    With the series resistor out the plant is ``V_t = V_h + q / C_pp``, ``q = C_h(V_h) + sum Q_j``,
+    ``tau_j dQ_j/dt = C_j V_h - Q_j`` (uncharged at rest), ``x = k_q2x q`` (:mod:`workbench.plant.pzt`,
+    :mod:`workbench.plant.creep`). The record gives ``q`` (its displacement with the file's sensor drift
+    and the base fit's offset out), hence ``V_h = V_t - q / C_pp``; then
+    ``q = sum_i w_i play_i(V_h) + sum_j C_j lowpass_j(V_h)`` is LINEAR in C_h's weights ``w_i`` and the
+    branches' ``C_j`` at fixed time constants: one non-negative least-squares fit (an equation-error fit;
+    the record's noise enters ``V_h`` divided by ``k_q2x C_pp``), in the sensor's time (``V_t`` delayed as
+    the record's motion is). Time constants half a decade apart from 10 samples to :data:`SLOWEST_BRANCH`
+    record lengths (a branch slower than the record is identified by its rate: which of the slow ones
+    carries it is the fit's); play states from a monotonic approach from 0 V, as the base's.
+
+    Parameters
+    ----------
+    plant : workbench.plant.files.Plant
+        The declared plant (``C_pp``, ``k_q2x``).
+    base : workbench.calibrate.base_fit.BaseFit
+        The base fit (``t``, ``v_drive``; the displacement's ``y``, ``valid``, ``offset``, ``thresholds_v`` and
+        ``yhat``).
+    rows : ndarray of bool
+        The development rows (the fit's rows; the test rows take no part, not even through ``V_h``'s history).
+    delay_s : float
+        The file's displacement-sensor delay, s (undone on the record).
+    sensor_offset : ndarray, optional
+        The file's sensor drift, m, every sample (taken off the record).
+    model : ndarray, optional
+        A model of the displacement fitted on ``rows`` alone, m, every sample: it stands in for the record off
+        ``rows`` in ``V_h``'s history (default the base's ``yhat``; ``plant_update`` passes the fitted model's
+        core, creep and delay terms).
+    thresholds_v : array_like, optional
+        C_h's thresholds in V_h, V (``plant_update`` passes the refitted instant core's: the base's plays
+        inverted in closed form); default the base's, scaled to the span of ``V_h``.
+
+    Returns
+    -------
+    dict or None
+        ``hysteresis`` (C_h: thresholds in V_h, V; weights, F), ``caps_f``, ``taus_s`` (the branches with
+        ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m). C_h's
+        reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum. None when the record
+        gives no C_h (no positive weight).
+    """
+    from .pi_fit import play_matrix
+    m = base.channels["displacement"]
+    t = np.asarray(base.t, float)
+    dt = float(np.mean(np.diff(t)))
+    ok = np.asarray(m.valid, bool) & np.isfinite(m.y)
+    fit = np.asarray(rows, bool) & ok
+    # V_h runs over the whole record (the plays' and branches' states carry its history), but only the fit's
+    # rows may enter it: elsewhere (the test rows, invalid samples) the record's motion is replaced by a model
+    # of it fitted on the development rows (``model``: the fitted model; its misfit moves V_h by that over
+    # k_q2x C_pp, a large factor: the base alone, creep left out, moved it by volts and spoilt the fit)
+    stand_in = np.asarray(m.yhat if model is None else model, float)
+    y = np.where(fit, np.asarray(m.y, float), stand_in)
+    if sensor_offset is not None:
+        y = y - np.asarray(sensor_offset, float)
+    y = y - float(m.offset)
+    k, c_pp = float(plant.pzt.k_q2x_m_per_c), float(plant.pzt.c_pp_f)
+    # V_h as the sensor sees it: the record's charge y / k is q(t - delay), interpolated between samples as
+    # the sensor's delay is (linear); V_t(t - delay) interpolated alike, so their difference is V_h(t - delay)
+    # blended with the same weights. (Undoing the delay on y instead smears a step's sample and puts V_h
+    # past both its ends there, which sets every play's state after it: drawn records with a fractional
+    # delay left 100x the residual of an integer one.) Plays and lowpasses are time-invariant: the columns
+    # of the delayed V_h are the delayed columns.
+    vt = np.asarray(base.v_drive, float)
+    vh = _sensor_view(t, vt, float(delay_s)) - y / (k * c_pp)
+    if thresholds_v is None:
+        rt = np.asarray(m.thresholds_v, float)
+        r = rt * (float(np.ptp(vh)) / float(np.ptp(vt)))
+    else:
+        r = np.asarray(thresholds_v, float)
+    z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
+    dur = float(t[-1] - t[0])
+    taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(SLOWEST_BRANCH * dur) + 1e-9, 0.5)
+    n = int(np.count_nonzero(fit))
+    cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
+    X = np.column_stack(cols)
+    # weights and C_j >= 0, the charge's offset free (every column and q centred on the fit's rows), C_h's
+    # reversal slope (the threshold-0 play, V_h itself) at least REVERSAL_FLOOR of the weights' sum (as
+    # instant_weights): the base fit's bounded solve on the Gram matrix of the centred unit-RMS columns (a few
+    # dozen; nnls on the rows cost 0.4 s a solve at 355,000 rows). Centred, a play that moves once and then
+    # holds is its own small column, not a near copy of the offset's (uncentred, the solve traded the two at
+    # 4e7 and a 28x creep record came out at 4e4 m); the ridge (DIRECT_RIDGE) keeps a play that never moves
+    # on the rows (a zero column) at zero.
+    from .base_fit import _gram_solve
+    q = y / k
+    Xf = X[fit]
+    mu = Xf.mean(axis=0)
+    Xc = Xf - mu
+    qc = q[fit] - q[fit].mean()
+    sc = np.sqrt(np.einsum("ij,ij->j", Xc, Xc) / n)
+    sc[sc == 0] = 1.0
+    As = Xc / sc
+    G, h = As.T @ As + DIRECT_RIDGE * np.eye(X.shape[1]), As.T @ qc
+    use = np.ones(X.shape[1], bool)
+    cap = BRANCH_CAP_OF_C_PP * c_pp
+    while True:
+        lower = np.zeros(X.shape[1])
+        idx = np.flatnonzero(use)
+        coef = np.zeros(X.shape[1])
+        coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
+        floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
+        if coef[0] < floor:
+            lower[0] = floor * sc[0]
+            coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
+        # a branch beyond the cap is a slow column the centring left small, traded against the others (seed 25
+        # #31: 12627 F at 10 record lengths): the slowest such column is dropped and the fit made again
+        over = np.flatnonzero(coef[r.size:] > cap)
+        if not over.size:
+            break
+        use[r.size + over.max()] = False
+    coef = np.maximum(coef, 0.0)
+    coef = np.r_[coef, q[fit].mean() - mu @ coef]
+    A = np.column_stack([Xf, np.ones(n)])
+    w, c = coef[:r.size], coef[r.size:r.size + taus.size]
+    if not w[0] > 0:
+        return None
+    res = q[fit] - A @ coef
+    keep = c > 1e-9 * max(float(c.sum()), 1e-300)
+    return {"hysteresis": PrandtlIshlinskii(r, w, np.zeros(r.size)), "caps_f": c[keep], "taus_s": taus[keep],
+            "residual_m": float(np.sqrt(np.mean(res * res))) * k}

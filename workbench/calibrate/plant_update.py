@@ -13,11 +13,14 @@ core is kept and the header says why. Mapping of the tracing's parameters to pla
 
 * ``leakage``: ``gain_per_s`` is charge per volt-second, ``1 / R_FP``;
 * ``dielectric_absorption``: ``gain`` is ``k_s`` (C/V), ``tau_s`` the time constant;
-* ``creep`` (displacement channel): Kelvin-Voigt branches across the core's C_h whose
-  settled/instant ratio is the spectrum's and whose time constants at a held terminal voltage are the
-  fitted ones (:func:`creep_branches`); with the refitted core, sized as fractions of its instant
-  response and then refitted by simulation to the fitted model's creep
-  (:func:`~workbench.calibrate.core_refit.refine_branches`); without, C_h from the declared core's terminal
+* ``creep`` (displacement channel): Kelvin-Voigt branches across the core's C_h. With the refitted core
+  (session 14), C_h and the branches are fitted together to the record's displacement
+  (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`: ``V_h = V_t - q / C_pp`` from the
+  record, ``q`` linear in C_h's play weights and the ``C_j``; the sensor's delay searched with them,
+  :func:`_delay_with_branches`); failing that, branches whose settled/instant ratio is the spectrum's and
+  whose time constants at a held terminal voltage are the fitted ones (:func:`creep_branches`), sized as
+  fractions of the instant response and refitted by simulation to the fitted model's creep
+  (:func:`~workbench.calibrate.core_refit.refine_branches`); with the declared core, C_h from its terminal
   secant over the record's voltage span (no charge channel needed). Above the ceiling
   ``1 + C_pp / C_h`` a smaller share (or no section) is written, and the header says why;
 * ``resonance``: an added ``[[mechanics.modes]]`` entry;
@@ -189,10 +192,12 @@ CREEP_SHARES = (1.0, 0.8, 0.6, 0.4, 0.2, 0.0)
 def core_for(plant, base, result):
     """:func:`~workbench.calibrate.core_refit.refitted_core` of a calibration's result (its ``core_fit``).
 
-    With a creep on the core's channel (the displacement), the largest share of its branches (of
-    :data:`CREEP_SHARES`) that branches across the refitted C_h can carry (below the ceiling
-    ``1 + C_pp / C_h``, :func:`creep_branches`): the core is the fitted model's response less that share's
-    instant part, so its settled response is the fitted model's whatever the share.
+    With a creep on the core's channel (the displacement) the core and the creep's branches are fitted
+    together to the record (:func:`_core_with_branches`, :data:`JOINT_CORE`); failing that (or with
+    ``JOINT_CORE`` off), the largest share of its branches (of :data:`CREEP_SHARES`) that branches across
+    the refitted instant C_h can carry (below the ceiling ``1 + C_pp / C_h``, :func:`creep_branches`): the
+    core is the fitted model's response less that share's instant part, so its settled response is the
+    fitted model's whatever the share.
     """
     from .core_refit import refitted_core
     cf = result.get("core_fit")
@@ -203,15 +208,153 @@ def core_for(plant, base, result):
         core = refitted_core(plant, base, cf, creep_scale=share)
         if core["hysteresis"] is None:
             return core
+        if share == 1.0 and JOINT_CORE:
+            joint = _core_with_branches(plant, base, result, core)
+            if joint is not None:
+                return joint
         if share == 0.0 or _creep_write_out(creep[0]["parameters"], base, plant, core)["capacitances_f"] is not None:
             return core
     return core
 
 
+#: Fit the written core and the creep's branches across it together to the record (session 14,
+#: :func:`~workbench.calibrate.core_refit.direct_core_and_branches`); False: the fitted model's instant core
+#: with branches refitted to the spectrum's creep (session 13), 3.9-6.6x error_after on seeds 24-25.
+JOINT_CORE = True
+
+
+def _sensor_terms(stages, base):
+    """(delay_s, drift) the file's ``[displacement_sensor]`` adds to the displacement: the delay, s, and the
+    drift, m at every sample (None without), from the stages written (as :func:`_block` writes them)."""
+    delay, drift = 0.0, None
+    t = np.asarray(base.t, float)
+    for st in stages:
+        if st["channel"] != "displacement":
+            continue
+        p = st["parameters"]
+        if st["effect"] == "delay":
+            delay = float(p["delay_s"])
+        elif st["effect"] == "drift":
+            from ..plant.additions import drift as drift_of
+            c = np.asarray(p["coefficients"], float)
+            span = p["t_end_s"] - p["t0_s"]
+            drift = drift_of(t, c[1] / span if c.size > 1 else 0.0, c[2] / span ** 2 if c.size > 2 else 0.0)
+    return delay, drift
+
+
+#: The sensor delay written beside jointly fitted core and branches is searched within this factor of the
+#: named delay stage's (:func:`_delay_with_branches`).
+DELAY_SEARCH_FACTOR = 2.0
+
+
+def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, model=None):
+    """The sensor delay, s, at which C_h and the branches fitted together
+    (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
+    development ``rows``, searched (bounded, golden section) between the named delay stage's ``delay_s`` over
+    and times :data:`DELAY_SEARCH_FACTOR`.
+
+    Why: the delay stage's term is ``g (u0(t - d) - u0(t))`` with its gain ``g`` free (``scale``), a delay of
+    about ``g d`` where ``u0`` is smooth; the file's ``[displacement_sensor]`` delays the whole motion by one
+    ``delay_s`` (measured, seed 24 #31, 1 kHz steps: stage 0.34 ms at scale 0.79, drawn 0.24 ms; the file with
+    the stage's 0.34 ms left 1.5x error_after, the error on the fast transitions).
+    """
+    from scipy.optimize import minimize_scalar
+
+    from .core_refit import direct_core_and_branches
+    dt = float(np.mean(np.diff(np.asarray(base.t, float))))
+    lo, hi = sorted((delay_s / DELAY_SEARCH_FACTOR, delay_s * DELAY_SEARCH_FACTOR))
+
+    def cost(d):
+        j = direct_core_and_branches(plant, base, rows, delay_s=d, sensor_offset=drift, thresholds_v=thresholds_v,
+                                     model=model)
+        return float("inf") if j is None else j["residual_m"]
+    sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * dt, "maxiter": 16})
+    return float(sol.x) if sol.fun < cost(delay_s) else float(delay_s)
+
+
+def _fitted_motion(base, core_fit, rows):
+    """A model of the displacement fitted on the development ``rows``, m, every sample: what stands in for the
+    record off those rows in :func:`~workbench.calibrate.core_refit.direct_core_and_branches`.
+
+    The fitted model's joint fit (``core_fit``: plays and creep spectrum on the base's ``u0``) with its delay
+    as a gain on the shifted ``u0`` (the stage's term is the REFITTED model shifted, not at hand here) or as
+    a shift of the whole motion, or the base alone (``u0``): whichever is closest to the record on ``rows``
+    (each with its offset fitted there). Measured, seed 29 #75 (100 kHz, a 130-sample delay whose joint gain
+    came out 15.3): the gain form alone stood in 10x worse and the written file left 21x error_after."""
+    from .effects import lowpass
+    m = base.channels["displacement"]
+    t = np.asarray(base.t, float)
+    dt = float(np.mean(np.diff(t)))
+    u0 = np.asarray(m.yhat, float)
+    x = np.asarray(base.basis, float)[:, :-1] @ np.asarray(core_fit["weights"], float)
+    gain, shift = np.zeros(t.size), 0.0
+    for st in core_fit.get("stages", ()):
+        p = st["parameters"]
+        if st["effect"] == "creep":
+            for c, tau in zip(p["gains"], p["taus_s"]):
+                if c > 0:
+                    x = x + c * (lowpass(u0, tau, dt) - u0)
+        elif st["effect"] == "delay":
+            shift = float(p["delay_s"])
+            gain = float(p.get("scale", 1.0)) * (np.interp(t - shift, t, u0) - u0)
+    ok = np.asarray(rows, bool) & np.asarray(m.valid, bool) & np.isfinite(m.y)
+    y = np.asarray(m.y, float)
+    best = None
+    for cand in (x + gain, np.interp(t - shift, t, x), u0):
+        off = float(np.mean(y[ok] - cand[ok]))
+        err = float(np.sqrt(np.mean((y[ok] - cand[ok] - off) ** 2)))
+        if best is None or err < best[0]:
+            best = (err, cand + off)
+    return best[1]
+
+
+def _core_with_branches(plant, base, result, core):
+    """``core`` (:func:`~workbench.calibrate.core_refit.refitted_core`'s) with C_h and the creep's branches
+    fitted together to the record's development rows through the file's sensor delay and drift
+    (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`); None when that fit has no C_h."""
+    from .core_refit import direct_core_and_branches
+    stages = written_stages(result.get("stages") or [], result, core)
+    delay, drift = _sensor_terms(stages, base)
+    rows = np.asarray(base.train, bool)
+    named = any(st["effect"] == "delay" and st["channel"] == "displacement" for st in stages)
+    stage_delay = delay
+    # C_h's thresholds: the refitted instant core's, the base's plays inverted in closed form into V_h (Kuhnen):
+    # measured against the base's V_t thresholds scaled to V_h's span, seeds 24 #31, 25 #20, 24 #64: 1.37x,
+    # 1.15x, 1.05x -> 0.45x, 0.85x, 0.85x error_after
+    th = core["hysteresis"].thresholds
+    model = _fitted_motion(base, result.get("core_fit"), rows)
+    if named and delay:
+        delay = _delay_with_branches(plant, base, rows, delay, drift, th, model)
+    j = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th, model=model)
+    if j is None or not len(j["caps_f"]) or not (np.all(np.isfinite(j["hysteresis"].weights))
+                                                  and np.all(np.isfinite(j["caps_f"]))):
+        return None
+    lo, hi = core["range_v"]
+    out = dict(core)
+    out.update(hysteresis=j["hysteresis"], joint=True, refined_branches=(j["caps_f"], j["taus_s"], j["residual_m"]))
+    if named and delay != stage_delay:
+        out["delay_s"] = (delay, stage_delay)
+    out["how"] = (f"C_h and the creep's Kelvin-Voigt branches across it fitted together to the record's displacement "
+                  f"over V_t {lo:.4g} .. {hi:.4g} V (development rows; the sensor's delay {1e3 * delay:.4g} ms"
+                  + (" and drift" if drift is not None else "") + " undone, the base fit's offset out): the record's "
+                  "charge q = x / k_q2x (k_q2x declared) gives V_h = V_t - q / C_pp, and q = C_h(V_h) + sum C_j "
+                  "lowpass_j(V_h) is linear in C_h's weights and the C_j (non-negative least squares; time constants "
+                  f"half a decade apart up to the record's length); residual {j['residual_m']:.4g} m RMS; thresholds "
+                  "in V_h; beyond that range it continues at its last loading slope (extrapolated, every play moving)")
+    return out
+
+
 def written_stages(stages, result, core):
     """The stages as the file writes them: with the refitted core, the first channel's joint parameters
     (:func:`_joint_stages`, the fit the core comes from); with the declared core, the stages' own."""
-    return _joint_stages(stages, result.get("core_fit")) if core.get("hysteresis") is not None else stages
+    if core.get("hysteresis") is None:
+        return stages
+    out = _joint_stages(stages, result.get("core_fit"))
+    if core.get("delay_s"):         # searched with the core and branches fitted together (_delay_with_branches)
+        d, named = core["delay_s"]
+        out = [{**st, "parameters": {**st["parameters"], "delay_s": d, "delay_named_s": named}}
+               if st["effect"] == "delay" and st["channel"] == "displacement" else st for st in out]
+    return out
 
 
 def _joint_stages(stages, core_fit):
@@ -258,6 +401,9 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None, c
     elif effect == "delay" and ch == "displacement":
         # signed: > 0 the sensor lags the drive, < 0 it leads (an acquisition timing offset)
         lead = " (negative: the sensor leads the drive)" if p["delay_s"] < 0 else ""
+        if "delay_named_s" in p:
+            lead += (f" (searched with the core and the creep's branches fitted together; the delay stage named "
+                     f"{p['delay_named_s']:.6g} s with its gain free)")
         sensor["delay"] = f"delay_s = {_fmt(p['delay_s'])}   # s; {src}{lead}"
     elif effect == "drift" and ch == "displacement":
         c = np.asarray(p["coefficients"], float)
@@ -351,6 +497,12 @@ def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
             return {"capacitances_f": None, "time_constants_s": None, "c_h_f": None, "how": None,
                     "reason": "branches across the refitted C_h cannot carry even a fifth of its share (at or above the "
                               "ceiling 1 + C_pp/C_h): the core is the fitted model's settled response, no branches"}
+        if core.get("joint"):          # C_h and the branches fitted together (core_for): nothing to size
+            caps, taus, resid = core["refined_branches"]
+            return {"capacitances_f": np.asarray(caps, float), "time_constants_s": np.asarray(taus, float),
+                    "c_h_f": None, "reason": None, "ratio": None,
+                    "how": (f"C_j and tau_j fitted together with C_h (see [hysteresis]) to the record's displacement; "
+                            f"residual {resid:.4g} m RMS on the development rows")}
         refit = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=core["hysteresis"]))
         sec = _terminal_secant(base, refit)
         g, tau, note = _creep_fractions(p, base, core)
