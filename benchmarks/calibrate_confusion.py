@@ -45,8 +45,8 @@ sys.path.insert(0, str(ROOT))
 from workbench.calibrate.base_fit import LINE_MARGIN, fit_base  # noqa: E402
 from workbench.calibrate.record import Record  # noqa: E402
 from workbench.calibrate.splits import make_split  # noqa: E402
-from workbench.calibrate.synthetic import (CURRENT_KIND, EFFECTS, PROTOCOLS, benchmark_protocol,  # noqa: E402
-                                           plant_with_effect, simulate_record)
+from workbench.calibrate.synthetic import (CURRENT_KIND, EFFECTS, GAUGE_KIND, PROTOCOLS,  # noqa: E402
+                                           benchmark_protocol, plant_with_effect, simulate_record)
 from workbench.calibrate.tracing import trace_effect  # noqa: E402
 
 RATES_HZ = (1e3, 1e4, 1e5)
@@ -60,8 +60,9 @@ CHANNEL = {"creep": "displacement", "dielectric_absorption": "charge", "leakage"
 
 
 def _record(r, dt):
-    # the simulator logs each sample's mean current over its interval: declared, integrated exactly
-    return Record(Path("synthetic.csv"), {"current": CURRENT_KIND}, r["time_s"],
+    # the simulator logs each sample's mean current over its interval: declared, integrated exactly;
+    # its gauge row is the chain's mean over the interval: declared, the base's gauge model the same mean
+    return Record(Path("synthetic.csv"), {"current": CURRENT_KIND, "gauge": GAUGE_KIND}, r["time_s"],
                   {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, dt)
 
 
