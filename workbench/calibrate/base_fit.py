@@ -126,7 +126,10 @@ class BaseFit:
     def channel_basis(self, name):
         """The columns channel ``name``'s model spans: :attr:`basis`, interval-averaged for an averaged gauge."""
         m = self.channels[name]
-        return interval_mean(self.basis) if m.sampling == "averaged" else self.basis
+        if m.sampling != "averaged":
+            return self.basis
+        # before the first row the plays hold their initial states (and the offset its 1)
+        return interval_mean(self.basis, np.r_[np.asarray(m.initial_states_v, float), 1.0])
 
 
 from .splits import holdout_mask  # noqa: E402,F401  (moved to splits.py; re-exported for callers)
