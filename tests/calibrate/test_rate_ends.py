@@ -176,3 +176,20 @@ def test_drawn_end_records_name_no_wrong_effect_and_stay_below_the_line(sn637, c
           f"ratio {r['ratio']:.2f} folds {r['fold_winners']}")
     assert r["class"] != "wrong", (r["named"], r["fold_winners"])
     assert not r["above_line"], r["above_line"]
+
+
+def test_an_averaged_gauges_straight_line_is_of_the_drives_interval_mean(sn637):
+    """The straight line an averaged gauge is judged against is the line of the drive as the chain
+    reads it (its interval mean): the base's own ridge-limit line (``ridge = inf``: the identity play
+    and the offset) is then that line to the last bit, so a base that falls back to the line is never
+    'above' it (seen: a 1 MHz steps record whose gauge base was the line, 0.00896 V against a point
+    line 1e-7 lower)."""
+    from workbench.calibrate.base_fit import _fit_channel, rms
+    b, sp = _base(sn637, "averaged", rate_hz=1e6, n=20_000, seed=5)
+    m = b.channels["gauge"]
+    P = b.channel_basis("gauge")[:, :-1]
+    line = _fit_channel("gauge", P, m.y, sp.train, m.valid, m.thresholds_v, m.initial_states_v, ridge=np.inf,
+                        sampling="averaged")
+    tst = sp.test & m.valid
+    assert rms(line.residual[tst]) == m.line_rms_test
+    assert line.weights[0] == m.line_slope and line.offset == m.line_offset

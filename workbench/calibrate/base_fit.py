@@ -79,7 +79,8 @@ class ChannelModel:
     ridge: float = 0.0                # the ridge chosen by cross-validation on the training rows (relative)
     rms_test: float = float("nan")    # held-out RMS of the base, channel units
     line_rms_test: float = float("nan")   # held-out RMS of a straight line of the drive fitted on training rows
-    line_slope: float = float("nan")      # that line: y = line_slope * v_drive + line_offset
+    line_slope: float = float("nan")      # that line: y = line_slope * v_drive + line_offset (an averaged gauge: of
+    #                                       v_drive's interval mean, :func:`interval_mean`)
     line_offset: float = float("nan")
     sampling: str = "sampled"         # "averaged": the model is the interval mean of the plays (:func:`interval_mean`)
 
@@ -509,7 +510,10 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             m = _fit_channel(name, P, y, train, valid[name], r, z0)
         rows, tst = train & valid[name], test & valid[name]
         m.rms_test = rms(m.residual[tst])
-        m.line_slope, m.line_offset, m.line_rms_test = _line(vd, y, rows, tst)
+        # the straight line of the drive as the channel reads it: an averaged gauge's line is of the
+        # drive's interval mean (the identity play's, so the base reduced to a line is this line)
+        v_line = interval_mean(vd, z0[0] if r.size and r[0] == 0 else vd[0]) if m.sampling == "averaged" else vd
+        m.line_slope, m.line_offset, m.line_rms_test = _line(v_line, y, rows, tst)
         models[name] = m
         if tst.any() and not m.clearly_better_than_line:
             warnings.append(f"the base's held-out error on the {name} channel ({m.rms_test:.4g} {m.units}) is not "
