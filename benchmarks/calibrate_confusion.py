@@ -2,7 +2,8 @@
 
 Records from the project's simulator (``workbench.calibrate.synthetic``): every effect of the
 library, drawn with a size multiplier log-uniform over ``SIZE_RANGE`` (from well below the
-noise floor to large), at 1, 10 and 100 kHz, under three protocols (the calibration protocol
+noise floor to large), at 1, 10 and 100 kHz (and, with ``--rates 100 1e6``, the ends of the rate range: 100 Hz and
+1 MHz, not in the default run), under three protocols (the calibration protocol
 scaled to the record, sine-only, steps-only), plus two-effect records (creep + sensor delay,
 leakage + dielectric absorption, drift + resonance) and effect-free ones. Each record is
 calibrated as ``workbench calibrate`` does (blocks split, base fit, staged tracing).
@@ -45,12 +46,21 @@ sys.path.insert(0, str(ROOT))
 from workbench.calibrate.base_fit import LINE_MARGIN, fit_base  # noqa: E402
 from workbench.calibrate.record import Record  # noqa: E402
 from workbench.calibrate.splits import make_split  # noqa: E402
-from workbench.calibrate.synthetic import (CURRENT_KIND, EFFECTS, PROTOCOLS, benchmark_protocol,  # noqa: E402
-                                           plant_with_effect, simulate_record)
+from workbench.calibrate.synthetic import (CURRENT_KIND, EFFECTS, GAUGE_KIND, PROTOCOLS,  # noqa: E402
+                                           benchmark_protocol, plant_with_effect, simulate_record)
 from workbench.calibrate.tracing import trace_effect  # noqa: E402
 
 RATES_HZ = (1e3, 1e4, 1e5)
-ROWS = {1e3: 10_000, 1e4: 20_000, 1e5: 40_000}      # 10 s, 2 s, 0.4 s records
+#: The ends of issue 13's rate range, run only when ``--rates`` names them (the default run's figures are
+#: the issue's record): their records are drawn from their own streams, numbered after the default run's.
+END_RATES_HZ = (1e2, 1e6)
+#: Rows per record. The protocols are scaled to the record (``benchmark_protocol``), so every length holds
+#: the same excitation cycles (three calibration sines, six sines, eight steps). 100 Hz: 40 s, the
+#: calibration protocol's length (35.5 s), the chirp to 30 Hz (0.3 x the rate), and the slowest drawn
+#: effects (creep branches to 1000 s, absorptions to 5 s) as long as on the protocol; 1 MHz: 0.1 s
+#: (100,000 rows: 2.5x a 100 kHz record's, ~2 s of tracing each where 0.4 s would be 400,000 rows, more
+#: than the 355,000-row protocol record's 20 s budget, for every one of ~24 records a seed).
+ROWS = {1e2: 4_000, 1e3: 10_000, 1e4: 20_000, 1e5: 40_000, 1e6: 100_000}   # 40 s, 10 s, 2 s, 0.4 s, 0.1 s
 PAIRS = (("creep", "delay"), ("leakage", "dielectric_absorption"), ("drift", "resonance"))
 SIZE_RANGE = (0.03, 30.0)
 BANDS = ((0.0, 1.0, "< 1"), (1.0, 3.0, "1-3"), (3.0, np.inf, ">= 3"))
@@ -60,8 +70,9 @@ CHANNEL = {"creep": "displacement", "dielectric_absorption": "charge", "leakage"
 
 
 def _record(r, dt):
-    # the simulator logs each sample's mean current over its interval: declared, integrated exactly
-    return Record(Path("synthetic.csv"), {"current": CURRENT_KIND}, r["time_s"],
+    # the simulator logs each sample's mean current over its interval: declared, integrated exactly;
+    # its gauge row is the chain's mean over the interval: declared, the base's gauge model the same mean
+    return Record(Path("synthetic.csv"), {"current": CURRENT_KIND, "gauge": GAUGE_KIND}, r["time_s"],
                   {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, dt)
 
 
@@ -279,11 +290,13 @@ def plant_alone(plant0, effects, keep, seed, duration_s, size):
 QUICK_ROWS = 20_000
 
 
-def cases(per_cell=1, seed=0, quick=False):
+def cases(per_cell=1, seed=0, quick=False, ends=False):
     """(effect, rate, protocol, size, seed) tuples of the benchmark (or of its fast slice).
 
     The fast slice: the effect-free record and one draw of every effect, sizes from the full
-    range, at 10 kHz on the calibration protocol (``QUICK_ROWS`` rows: 2 s).
+    range, at 10 kHz on the calibration protocol (``QUICK_ROWS`` rows: 2 s). ``ends``: the
+    records at :data:`END_RATES_HZ` follow the default ones, each rate's from its own stream
+    (``default_rng([seed, rate])``), so the default run's records and numbers are unchanged.
     """
     rng = np.random.default_rng(seed)
     out = []
@@ -292,11 +305,14 @@ def cases(per_cell=1, seed=0, quick=False):
         for e in ("none",) + EFFECTS:
             out.append((e, 1e4, "calibration", float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
         return out
-    for rate in RATES_HZ:
+    streams = [(rate, rng) for rate in RATES_HZ]
+    if ends:
+        streams += [(rate, np.random.default_rng([seed, int(rate)])) for rate in END_RATES_HZ]
+    for rate, g in streams:
         for proto in PROTOCOLS:
             for e in ("none",) + EFFECTS + PAIRS:
                 for _ in range(per_cell):
-                    out.append((e, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+                    out.append((e, rate, proto, float(np.exp(g.uniform(lo, hi))), int(g.integers(1 << 30))))
     return out
 
 
@@ -339,7 +355,9 @@ def main(argv=None):
     ap.add_argument("--per-cell", type=int, default=1, help="records per (effect, rate, protocol) cell")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="the fast slice make test runs")
-    ap.add_argument("--rates", type=float, nargs="*", default=None, help="only these rates (Hz)")
+    ap.add_argument("--rates", type=float, nargs="*", default=None,
+                    help=f"only these rates (Hz): default {', '.join(f'{r:g}' for r in RATES_HZ)}; the ends "
+                         f"{', '.join(f'{r:g}' for r in END_RATES_HZ)} only when named here")
     ap.add_argument("--effects", nargs="*", default=None,
                     help="only these effects (a pair as 'creep+delay'; 'none' for the effect-free records)")
     ap.add_argument("--protocols", nargs="*", default=None, help="only these protocols")
@@ -350,7 +368,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     from workbench.plant import load_plant
     plant0 = load_plant(ROOT / "plants" / "p888_51_sn637.toml")
-    todo = cases(a.per_cell, a.seed, a.quick)
+    todo = cases(a.per_cell, a.seed, a.quick, ends=bool(a.rates) and any(r in END_RATES_HZ for r in a.rates))
     todo = [(k + 1, c) for k, c in enumerate(todo)]
     if a.rates:
         todo = [(k, c) for k, c in todo if c[1] in a.rates]
@@ -367,13 +385,13 @@ def main(argv=None):
         try:
             r = evaluate(plant0, e, rate, proto, size, seed, n_rows=QUICK_ROWS if a.quick else None, split=a.split)
         except Exception as exc:         # reported and counted, the run goes on
-            print(f"[#{k}] {eff} {rate / 1e3:.0f} kHz {proto} size x{size:.3f}: CRASH {type(exc).__name__}: {exc}",
+            print(f"[#{k}] {eff} {rate / 1e3:.4g} kHz {proto} size x{size:.3f}: CRASH {type(exc).__name__}: {exc}",
                   flush=True)
             rows.append({"effect": eff, "excess": np.inf, "class": "crash", "ratio": 1.0, "named": [],
                          "above_line": {}, "near_line": {}, "both": False, "excesses": [np.inf]})
             continue
         rows.append(r)
-        print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.0f} kHz "
+        print(f"[#{k} {j + 1}/{len(todo)} {time.perf_counter() - t0:.0f} s] {eff:32s} {rate / 1e3:5.4g} kHz "
               f"{proto:11s} "
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"

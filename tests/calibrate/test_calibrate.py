@@ -105,6 +105,8 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     # the simulated record declares its current convention and the run says which it used (issue 13)
     assert data.read_text().startswith("# serial: SN637\n# current: averaged\n")
     assert res["base_fit"]["current"] == "averaged"
+    # and its gauge's: each row the chain's mean over its interval (session 14)
+    assert "\n# gauge: averaged\n" in data.read_text()[:200] and res["base_fit"]["gauge"] == "averaged"
     for key in ("error_before", "error_after"):
         assert set(res[key]) == {"rms", "max", "units"} and res[key]["units"] == "C"
     assert res["error_after"]["rms"] <= 0.5 * res["error_before"]["rms"]

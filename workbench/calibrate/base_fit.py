@@ -13,6 +13,12 @@ bounded least squares (:func:`~workbench.calibrate.pi_fit.fit_pi`) on the traini
 * ``charge`` (from the integrated current), ``displacement``, and ``gauge`` each get their own
   weights, so an effect in one channel (leakage in the charge, a drifting sensor) does not leak
   into another's model: comparing the channels is what traces an effect to its physics;
+* a gauge declared ``averaged`` (``# gauge: averaged``: each reading the chain's mean over the
+  interval ending at it, as the project's simulator logs it) gets the same mean of its model,
+  each play column averaged over the interval (:func:`interval_mean`, exact for the chain's
+  linear interpolation between samples): the reading lags the motion by half a sample, which is
+  the sampling, not an effect (a 100 Hz steps record had a 0.5-sample delay named on the gauge);
+  a ``sampled`` gauge (the default) keeps the point model;
 * the electromechanical gains of eqs. 10-12 -- ``k_q2x`` by eq. 11 from the recorded charge and
   displacement, and ``C_p`` by eq. 12 with the plant's ``T_em`` and ``k_p`` -- and the gauge's
   gain and offset against the recorded displacement (the line the linear gauge model is) are
@@ -36,7 +42,8 @@ import numpy as np
 from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, turning_points
 from .residual import record_charge
 
-__all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "CHANNEL_KEYS", "CHANNEL_UNITS"]
+__all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "interval_mean", "CHANNEL_KEYS",
+           "CHANNEL_UNITS"]
 
 CHANNEL_KEYS = {"displacement": "displacement_m", "charge": "charge_c", "gauge": "gauge_v"}
 CHANNEL_UNITS = {"displacement": "m", "charge": "C", "gauge": "V"}
@@ -72,8 +79,10 @@ class ChannelModel:
     ridge: float = 0.0                # the ridge chosen by cross-validation on the training rows (relative)
     rms_test: float = float("nan")    # held-out RMS of the base, channel units
     line_rms_test: float = float("nan")   # held-out RMS of a straight line of the drive fitted on training rows
-    line_slope: float = float("nan")      # that line: y = line_slope * v_drive + line_offset
+    line_slope: float = float("nan")      # that line: y = line_slope * v_drive + line_offset (an averaged gauge: of
+    #                                       v_drive's interval mean, :func:`interval_mean`)
     line_offset: float = float("nan")
+    sampling: str = "sampled"         # "averaged": the model is the interval mean of the plays (:func:`interval_mean`)
 
     @property
     def clearly_better_than_line(self):
@@ -113,9 +122,47 @@ class BaseFit:
     beyond_train: np.ndarray = None   # held-out rows whose drive leaves ``train_range_v``
     dropped_thresholds_v: np.ndarray = None   # plays never excited in the training rows (left out)
     current_kind: str | None = None   # the charge integrated from a current: "sampled" or "averaged" (# current:)
+    gauge_kind: str | None = None     # the gauge's readings: "sampled" or "averaged" (# gauge:); None: no gauge
+
+    def channel_basis(self, name):
+        """The columns channel ``name``'s model spans: :attr:`basis`, interval-averaged for an averaged gauge."""
+        m = self.channels[name]
+        if m.sampling != "averaged":
+            return self.basis
+        # before the first row the plays hold their initial states (and the offset its 1)
+        return interval_mean(self.basis, np.r_[np.asarray(m.initial_states_v, float), 1.0])
 
 
 from .splits import holdout_mask  # noqa: E402,F401  (moved to splits.py; re-exported for callers)
+
+
+def interval_mean(x, x_before=None):
+    """Each sample's mean over the interval ending at it, of ``x`` interpolated linearly between
+    samples: ``(x_{k-1} + x_k) / 2`` (the gauge chain's reading, :func:`~workbench.plant.gauge.gauge_run`:
+    the bridge averaged over a period, the displacement interpolated linearly within it; exact for a
+    linear bridge).
+
+    A ramp comes out delayed by exactly half a sample; a sampled sine of frequency ``f`` with gain
+    ``cos(pi f dt)`` and a lag of exactly ``dt / 2`` (the continuous signal's interval mean has the
+    gain ``sinc(f dt)``: the same to first order in ``f dt``, within ``(pi f dt)^2 / 3``).
+
+    Parameters
+    ----------
+    x : ndarray
+        ``(n,)`` or ``(n, k)`` samples, uniform in time (any units; columns averaged each).
+    x_before : float or ndarray, optional
+        The value before the first sample (default: ``x[0]``, held).
+
+    Returns
+    -------
+    ndarray
+        Same shape as ``x``, same units.
+    """
+    x = np.asarray(x, float)
+    prev = np.empty_like(x)
+    prev[1:] = x[:-1]
+    prev[0] = x[0] if x_before is None else x_before
+    return 0.5 * (prev + x)
 
 
 def _rest_window_s(t):
@@ -174,7 +221,7 @@ def _gram_solve(G, h, lower):
     return lsq_linear(R, c, bounds=(lower, np.full(lower.size, np.inf)), method="bvls", tol=1e-12).x
 
 
-def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None):
+def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling="sampled"):
     """Non-negative play weights and a free offset by bounded, ridge-regularized least squares.
 
     Columns are scaled to unit RMS on the fitting rows. The ridge penalizes every play but the
@@ -182,7 +229,8 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None):
     ``w_0 V + c``: the path runs from the free PI to the line. Its strength is chosen from
     :data:`RIDGE_GRID` by blocked cross-validation over :data:`RIDGE_FOLDS` contiguous stretches
     of the fitting rows (plays run over the whole record; only the scored rows differ), unless
-    ``ridge`` is given.
+    ``ridge`` is given. ``sampling="averaged"``: ``P`` is already the plays' interval mean
+    (:func:`interval_mean`); recorded on the model.
     """
     rows = train & valid
     n = int(rows.sum())
@@ -215,7 +263,7 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None):
         if slope >= 0:
             w, p = np.r_[slope, np.zeros(k - 1)], np.r_[slope, np.zeros(k - 1), off]
     yhat = P @ w + p[-1]
-    return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0, ridge=ridge)
+    return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0, ridge=ridge, sampling=sampling)
 
 
 def _ridge_solve(G, h, lower, pen, lam, n):
@@ -296,7 +344,7 @@ def _line(v, y, rows, test):
 
 
 def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic", pzt=None, dac_range_v=None,
-             test=None, input_kind=None):
+             test=None, input_kind=None, gauge_kind=None):
     """Fit the base model of every recorded output channel (see the module notes).
 
     Parameters
@@ -320,6 +368,11 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         delay (seconds, searched up to a quarter of the excitation period); the lag or delay is
         fitted on the training rows; gain and offset are absorbed by the play weights and
         thresholds (the model runs in command volts), see ``command_map``.
+    gauge_kind : {"sampled", "averaged"}, optional
+        What each gauge reading is (default: the record's ``# gauge:``, else ``"sampled"``):
+        ``"averaged"``, the chain's mean over the interval ending at it, makes the gauge's model
+        the same mean of its plays (:func:`interval_mean`, half a sample of lag); ``"sampled"``
+        keeps the point model.
     """
     t = record.t_s
     ch = record.channels
@@ -329,6 +382,9 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     input_kind = input_kind or record.metadata.get("input", "terminal")
     if input_kind not in ("terminal", "command"):
         raise ValueError(f"input_kind must be 'terminal' or 'command', got {input_kind!r}")
+    gauge_kind = gauge_kind or getattr(record, "gauge_kind", "sampled")
+    if gauge_kind not in ("sampled", "averaged"):
+        raise ValueError(f"gauge_kind must be 'sampled' or 'averaged', got {gauge_kind!r}")
     notes, warnings = [], []
     outputs = {}
     charge = record_charge(record)
@@ -442,11 +498,22 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
                      f"{', '.join(f'{x:.4g}' for x in r_all[~keep])} V) and are left out; the training input's "
                      f"range does not reach them")
     models = {}
+    averaged = gauge_kind == "averaged" and "gauge" in outputs
+    if averaged:
+        notes.append("the gauge's readings are each the chain's mean over the interval ending at them (# gauge: "
+                     "averaged): its model is the same mean of the plays, half a sample behind the motion")
     for name, y in outputs.items():
-        m = _fit_channel(name, P, y, train, valid[name], r, z0)
+        if name == "gauge" and averaged:
+            # the plays before the first row hold their initial states (the record's drive before it)
+            m = _fit_channel(name, interval_mean(P, z0), y, train, valid[name], r, z0, sampling="averaged")
+        else:
+            m = _fit_channel(name, P, y, train, valid[name], r, z0)
         rows, tst = train & valid[name], test & valid[name]
         m.rms_test = rms(m.residual[tst])
-        m.line_slope, m.line_offset, m.line_rms_test = _line(vd, y, rows, tst)
+        # the straight line of the drive as the channel reads it: an averaged gauge's line is of the
+        # drive's interval mean (the identity play's, so the base reduced to a line is this line)
+        v_line = interval_mean(vd, z0[0] if r.size and r[0] == 0 else vd[0]) if m.sampling == "averaged" else vd
+        m.line_slope, m.line_offset, m.line_rms_test = _line(v_line, y, rows, tst)
         models[name] = m
         if tst.any() and not m.clearly_better_than_line:
             warnings.append(f"the base's held-out error on the {name} channel ({m.rms_test:.4g} {m.units}) is not "
@@ -463,7 +530,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
                   basis=np.column_stack([P, np.ones(t.size)]), notes=notes + [f"warning: {w}" for w in warnings],
                   test=test, warnings=warnings, input_kind=input_kind, command_map=command_map,
                   train_range_v=(lo, hi), beyond_train=beyond, dropped_thresholds_v=r_all[~keep],
-                  current_kind=current_kind)
+                  current_kind=current_kind, gauge_kind=gauge_kind if "gauge" in outputs else None)
     if "charge" in outputs and "displacement" in outputs:
         q = outputs["charge"] - outputs["charge"][0]
         x = outputs["displacement"]
@@ -479,7 +546,9 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             fit.working_capacitance_f = float((tem - tem * tem * k) / (kp * k))     # eq. 12
     if "gauge" in outputs and "displacement" in outputs:
         rows = train & valid["gauge"]
-        b, a = np.polyfit(outputs["displacement"][rows], outputs["gauge"][rows], 1)
+        # an averaged gauge reads the motion's interval mean: its line is against that mean
+        x_g = interval_mean(outputs["displacement"]) if averaged else outputs["displacement"]
+        b, a = np.polyfit(x_g[rows], outputs["gauge"][rows], 1)
         fit.gauge_gain_v_per_m, fit.gauge_offset_v = float(b), float(a)
     return fit
 

@@ -16,7 +16,11 @@ out and the terminal voltage is the recorded one, seed 000's free-free test; ``i
 its amplifier, of unknown gain, offset and lag; and ``current``, ``sampled`` (the default: the
 instantaneous current at each sample time, integrated by the trapezoid) or ``averaged`` (each sample the
 mean current over the interval ending at it, as an integrating ADC and the project's simulator log:
-integrated by the running sum ``i dt``)) override the plant file for this record; other keys
+integrated by the running sum ``i dt``); and ``gauge``, ``sampled`` (the default: each gauge reading the
+displacement at its sample time, the base's gauge model as before) or ``averaged`` (each reading the gauge
+chain's mean over the interval ending at it, as the project's simulator logs it: the base's gauge model is
+the same mean of its prediction, :func:`~workbench.calibrate.base_fit.interval_mean`, a half-sample lag))
+override the plant file for this record; other keys
 are kept with their values as written (strings). The first other line is
 the header: names from :data:`QUANTITIES` with the unit in brackets, any SI prefix, in any order;
 columns with other names are ignored with a notice. Time and voltage are required, and at least one
@@ -48,7 +52,7 @@ from ..errors import DataFileError, UnitError
 from ..units import parse_quantity, scale_of
 
 __all__ = ["Record", "read_record", "QUANTITIES", "OUTPUTS", "METADATA_KEYS", "INPUT_KINDS", "CURRENT_KINDS",
-           "DEFAULT_CURRENT", "GLITCH_SPANS"]
+           "DEFAULT_CURRENT", "GLITCH_SPANS", "GAUGE_KINDS", "DEFAULT_GAUGE"]
 
 #: Header name -> (SI unit, key in Record.channels; time goes to Record.t_s).
 QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("A", "current_a"),
@@ -57,7 +61,7 @@ QUANTITIES = {"time": ("s", "t_s"), "voltage": ("V", "voltage_v"), "current": ("
 #: Measured responses; a record needs at least one of them.
 OUTPUTS = ("current", "charge", "displacement", "gauge")
 #: Metadata keys with a meaning (they override the plant file); other keys are kept as strings.
-METADATA_KEYS = ("serial", "series_resistor_ohm", "input", "current")
+METADATA_KEYS = ("serial", "series_resistor_ohm", "input", "current", "gauge")
 #: Values of ``# input:``: the voltage column is the stack's terminal voltage or its amplifier's command.
 INPUT_KINDS = ("terminal", "command")
 #: Values of ``# current:``: each current sample is the instantaneous current at its time (``sampled``, an
@@ -67,6 +71,12 @@ INPUT_KINDS = ("terminal", "command")
 CURRENT_KINDS = ("sampled", "averaged")
 #: The convention of a record that does not say.
 DEFAULT_CURRENT = "sampled"
+#: Values of ``# gauge:``: each gauge reading is the displacement's reading at its time (``sampled``) or the
+#: chain's mean over the interval ending at it (``averaged``: a demodulator whose averaging period is the
+#: sample period, as the project's simulator logs it, ``synthetic.GAUGE_KIND``): a half-sample lag.
+GAUGE_KINDS = ("sampled", "averaged")
+#: The gauge convention of a record that does not say (the base's gauge model before it could be declared).
+DEFAULT_GAUGE = "sampled"
 #: A cell this many bulk spans (the range without the 0.1 % extreme cells) outside the bulk is a glitch, not
 #: physics: no stack, amplifier or sensor moves 100 times its own range for one sample.
 GLITCH_SPANS = 100.0
@@ -104,6 +114,11 @@ class Record:
     def current_kind(self):
         """What each current sample is: the ``# current:`` header, else :data:`DEFAULT_CURRENT`."""
         return self.metadata.get("current", DEFAULT_CURRENT)
+
+    @property
+    def gauge_kind(self):
+        """What each gauge reading is: the ``# gauge:`` header, else :data:`DEFAULT_GAUGE`."""
+        return self.metadata.get("gauge", DEFAULT_GAUGE)
 
     def has(self, name):
         """True if the record holds ``name``, a channel key (``"current_a"``) or a quantity (``"current"``)."""
@@ -241,6 +256,13 @@ def _metadata_value(where, key, value):
                                 f"'# current: sampled' (the instantaneous current at each sample time, the "
                                 f"default) or '# current: averaged' (each sample the mean over the interval "
                                 f"ending at it, an integrating ADC)")
+        return kind
+    if key == "gauge":
+        kind = value.strip().lower()
+        if kind not in GAUGE_KINDS:
+            raise DataFileError(f"{where}: gauge {value!r} is not one of {', '.join(GAUGE_KINDS)}; write "
+                                f"'# gauge: sampled' (each reading taken at its sample time, the default) or "
+                                f"'# gauge: averaged' (each reading the chain's mean over the interval ending at it)")
         return kind
     if key == "input":
         kind = value.strip().lower()

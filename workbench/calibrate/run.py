@@ -166,7 +166,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "n_plays": int(base.channels[next(iter(base.channels))].thresholds_v.size),
             "notes": base.notes,
             "warnings": base.warnings, "input": base.input_kind, "command_map": base.command_map,
-            "current": base.current_kind,
+            "current": base.current_kind, "gauge": base.gauge_kind,
             "train_range_v": list(base.train_range_v),
             "held_out_beyond_training_fraction": float(base.beyond_train.sum() / max(int(base.test.sum()), 1)),
             "dropped_thresholds_v": base.dropped_thresholds_v.tolist(),

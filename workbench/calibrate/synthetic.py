@@ -13,7 +13,10 @@ trim, DAC) and adds sensor noise. The columns are what a lab would log:
   (as ``plant.kernels.pzt_run`` logs it): :data:`CURRENT_KIND`, which :func:`write_record` declares
   as ``# current: averaged`` so the calibration integrates it exactly (running sum ``i dt``);
 * ``displacement`` -- an external displacement sensor (capacitive or interferometric);
-* ``gauge`` -- the firmware's DAC output, V.
+* ``gauge`` -- the firmware's DAC output, V: each row one period of the chain, whose bridge is
+  averaged over the interval ending at the row (the displacement interpolated linearly within it):
+  :data:`GAUGE_KIND`, which :func:`write_record` declares as ``# gauge: averaged`` so the base's gauge
+  model carries the same half-sample mean (``base_fit.interval_mean``).
 
 :func:`plant_with_effect` draws one effect with randomized, physically plausible values into a
 copy of a plant: the test-bed for the calibration's effect tracing. The ranges are chosen so
@@ -36,11 +39,15 @@ from ..plant.simulator import PZTSimulator
 from ..report.output import write_text
 
 __all__ = ["SensorNoise", "simulate_record", "write_record", "plant_with_effect", "EFFECTS", "EFFECT_RANGES",
-           "CURRENT_KIND"]
+           "CURRENT_KIND", "GAUGE_KIND"]
 
 #: What the simulated current column is (a record's ``# current:``): the mean over the interval ending at
 #: each sample, so the running sum ``i dt`` is the simulator's charge to float rounding.
 CURRENT_KIND = "averaged"
+#: What the simulated gauge column is (a record's ``# gauge:``): each row the chain's mean over the interval
+#: ending at it (``gauge_run_equivalent`` runs one modulation period per sample, the displacement interpolated
+#: linearly within it: ``(x_{k-1} + x_k) / 2`` for a linear bridge), half a sample behind the motion.
+GAUGE_KIND = "averaged"
 
 EFFECTS = ("creep", "dielectric_absorption", "leakage", "resonance", "delay", "drift", "gauge_nonlinearity")
 
@@ -169,8 +176,8 @@ def write_record(path, record, metadata=None):
     """Write a simulated record as the calibration's CSV (written whole or not at all).
 
     ``metadata`` items are written as ``# key: value`` lines; a record with a current column is
-    declared ``# current: averaged`` (:data:`CURRENT_KIND`, what :func:`simulate_record` logs) unless
-    ``metadata`` says otherwise.
+    declared ``# current: averaged`` (:data:`CURRENT_KIND`, what :func:`simulate_record` logs) and one
+    with a gauge column ``# gauge: averaged`` (:data:`GAUGE_KIND`) unless ``metadata`` says otherwise.
 
     Raises
     ------
@@ -184,6 +191,8 @@ def write_record(path, record, metadata=None):
     metadata = dict(metadata or {})
     if "current_a" in record:
         metadata.setdefault("current", CURRENT_KIND)
+    if "gauge_v" in record:
+        metadata.setdefault("gauge", GAUGE_KIND)
     lines = [f"# {k}: {v}" for k, v in metadata.items()]
     lines.append(",".join(h for _, h in cols))
     data = np.column_stack([record[k] for k, _ in cols])
