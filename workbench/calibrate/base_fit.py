@@ -450,9 +450,18 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     # then fits at least as well (the lead, not the drive, made V win)
     shifts_s = _judge_shifts(t, record.sample_period_s) if input_kind != "command" and len(drives) == 2 else None
 
+    # an averaged gauge judging the drive (no displacement recorded) is judged on its own model, the
+    # plays' interval mean: on the point plays the judgment takes the chain's half sample as the
+    # drive's lag (100 Hz steps, gauge only, amplifier command: a 0.55-sample delay found, then
+    # averaged again, held-out 0.019 V against 0.007 V; review of s14_ends)
+    judge_averaged = first == "gauge" and gauge_kind == "averaged"
+
     def trial(vd, shifts=None):
         r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
-        return _judge_rms(t, P[:, keep], outputs[first], train & valid[first], shifts), r, keep, P
+        Pj = P[:, keep]
+        if judge_averaged:
+            Pj = interval_mean(Pj, _z0(vd, r, from_rest, input_kind)[keep])
+        return _judge_rms(t, Pj, outputs[first], train & valid[first], shifts), r, keep, P
 
     best = None
     tried = {}
