@@ -19,15 +19,17 @@ found delay's column (``replaces``). The stage's fold test compares it with the 
 the bars every candidate clears (noise floor, random term, ``min_share``, the folds it must win)
 and the stage's rival (a second delay on what the first leaves): creep is named where the joint
 model explains what the delay alone cannot. Named, the delay's stage carries the refitted delay
-(:func:`refitted_delay_stage`). Every number comes from the record: the branches are the
+(:func:`refitted_joint_stage`). Every number comes from the record: the branches are the
 record's creep grid, the delay's bounds the found delay's.
 """
+
+import copy
 
 import numpy as np
 
 from .effects import CreepSpectrum, Delay, _dt
 
-__all__ = ["DelayedCreep", "creep_beside_delay", "refitted_delay_stage"]
+__all__ = ["DelayedCreep", "creep_beside_delay", "delay_beside_creep", "refitted_joint_stage"]
 
 
 class DelayedCreep(CreepSpectrum):
@@ -46,6 +48,61 @@ class DelayedCreep(CreepSpectrum):
 
 def _found(extra, key, tag):
     return [x for x in extra.get(key, ()) if getattr(x, "tag", None) == tag]
+
+
+def _joint(cr, dl, prob, base, t):
+    """The joint creep + delay columns of one model problem: ``(d, Kd, D)``.
+
+    The delay ``d`` (samples) searched with the creep branches in the drive model's refit
+    (:meth:`~workbench.calibrate.effects.Delay._fit_refit` with the branches beside the drive's
+    columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
+    driven by the channel's base model, delayed by ``d``; ``D``: the refitted drive model (without
+    the branches) delayed by ``d``, less the base model (so the base's own columns need no change
+    of weights, which their bounds may forbid: the refit's play weights are unconstrained).
+    """
+    ch = cr["channel"]
+    m = base.channels[ch]
+    y = np.asarray(m.y, float)
+    ym = np.asarray(m.yhat, float)
+    taus = np.asarray(cr["params"]["taus_s"], float)
+    K = CreepSpectrum._columns(ym, taus, _dt(t))          # the stack's branches, driven by its model
+    B = dl["eff"].basis
+    search = Delay(max_delay=dl["eff"].max_delay, basis=np.column_stack([B, K]), max_lead=dl["eff"].max_lead)
+    d, _ = search._fit_refit(t, y, ym, prob.search)        # (search rows: development rows, valid)
+    # the joint least squares at d on the search rows: drive columns, branches and prediction, delayed
+    rows = np.flatnonzero(prob.search)
+    Zr = Delay._rows_shifted(np.ascontiguousarray(np.column_stack([B, K, ym])), rows, d)
+    coef = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
+    drive = B @ coef[:B.shape[1]] + ym * coef[-1]
+    all_rows = np.arange(t.size, dtype=float)
+    D = Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - ym
+    Kd = Delay._rows_shifted(np.ascontiguousarray(K), all_rows, d)
+    return float(d), Kd, D
+
+
+def _pair(c, cands, extra, found_name):
+    """The found effect's and the candidate's partner rows of one problem, or None."""
+    key, ch = c["key"], c["channel"]
+    if key[1] != "model" or not _found(extra, key, (found_name, ch)):
+        return None
+    other = "delay" if c["name"] == "creep" else "creep"
+    o = next((d for d in cands if (d["name"], d["channel"]) == (other, ch) and d["key"] == key), None)
+    if o is None:
+        return None
+    cr, dl = (c, o) if c["name"] == "creep" else (o, c)
+    if getattr(dl["eff"], "basis", None) is None or not dl["params"].get("refit") or "taus_s" not in cr["params"]:
+        return None
+    return cr, dl
+
+
+def _own_gains(prob, extra, key, gone, g):
+    """The candidate's gains of the joint fit on the development rows (the found ``gone`` left out)."""
+    from .tracing import _stacked
+    rest = [x for x in extra[key] if getattr(x, "tag", None) != gone]
+    w = prob.solve(_stacked(prob, rest, {"g": g}), prob.split.dev_blocks)
+    own = np.zeros(g["ok"].size)
+    own[g["ok"]] = w[w.size - g["C"].shape[1]:]
+    return own
 
 
 def creep_beside_delay(c, cands, probs, extra, t, base):
@@ -72,78 +129,86 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
         column; ``n_params``: the branches with a positive gain on the development rows, plus
         one for the moved delay; ``replaces``: the found delay; ``refit``: its ``delay_samples``
         and ``delay_s``), or ``None`` when no delay with a drive model was found on the
-        channel's problem.
+        channel's problem or no branch takes a positive gain.
     """
-    key = c["key"]
-    ch = c["channel"]
-    tag = ("delay", ch)
-    if key[1] != "model" or not _found(extra, key, tag):
+    pair = _pair(c, cands, extra, "delay")
+    if pair is None:
         return None
-    dl = next((d for d in cands if (d["name"], d["channel"]) == tag and d["key"] == key), None)
-    if dl is None or getattr(dl["eff"], "basis", None) is None or not dl["params"].get("refit"):
-        return None
+    key, tag = c["key"], ("delay", c["channel"])
     prob = probs[key]
-    m = base.channels[ch]
-    y = np.asarray(m.y, float)
-    ym = np.asarray(m.yhat, float)
     taus = np.asarray(c["params"]["taus_s"], float)
-    dt = _dt(t)
-    K = CreepSpectrum._columns(ym, taus, dt)           # the stack's branches, driven by its model
-    n_b = dl["eff"].basis.shape[1]
-    search = Delay(max_delay=dl["eff"].max_delay, basis=np.column_stack([dl["eff"].basis, K]),
-                   max_lead=dl["eff"].max_lead)
-    mask = prob.search                                  # (development rows, valid)
-    d, _ = search._fit_refit(t, y, ym, mask)
-    # the joint least squares at d on the search rows: drive columns, branches and prediction, delayed
-    rows = np.flatnonzero(mask)
-    Z = np.column_stack([dl["eff"].basis, K, ym])
-    Zr = Delay._rows_shifted(np.ascontiguousarray(Z), rows, d)
-    coef = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
-    # the delay's column: the refitted drive model (without the branches) shifted; its change of
-    # weights from the base is left to the base's own columns, as the delay's own refit does
-    drive = dl["eff"].basis @ coef[:n_b] + ym * coef[-1]
-    all_rows = np.arange(t.size, dtype=float)
-    D = Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - ym
-    Kd = Delay._rows_shifted(np.ascontiguousarray(K), all_rows, d)
-    C = np.column_stack([Kd, D])
-    lower = [0.0] * taus.size + [0.0]
-    g = prob.grams(C, lower)
+    d, Kd, D = _joint(c, pair[1], prob, base, t)
+    g = prob.grams(np.column_stack([Kd, D]), [0.0] * (taus.size + 1))
     if not g["ok"][-1]:
         return None
-    # the branches the joint fit keeps, with the found effects other than the delay, on the dev rows
-    rest = [x for x in extra[key] if getattr(x, "tag", None) != tag]
-    from .tracing import _stacked
-    gs = _stacked(prob, rest, {"g": g})
-    w = prob.solve(gs, prob.split.dev_blocks)
-    k_c = int(np.count_nonzero(g["ok"][:taus.size]))
-    own = w[w.size - g["C"].shape[1]:][:k_c]
-    n_pos = int(np.count_nonzero(own > 0))
+    n_pos = int(np.count_nonzero(_own_gains(prob, extra, key, tag, g)[:taus.size] > 0))
     if n_pos == 0:
         return None
     eff = DelayedCreep(taus_s=taus)
     eff.n_params = n_pos + 1
     params = {"gains": np.zeros(taus.size).tolist(), "taus_s": taus.tolist()}
     return {**c, "eff": eff, "params": params, "g": g, "n_params": n_pos + 1, "researched": True,
-            "fold_g": None, "replaces": tag, "refit": {"delay_samples": float(d), "delay_s": float(d * dt)}}
+            "fold_g": None, "replaces": tag, "refit": {"delay_samples": d, "delay_s": d * _dt(t)}}
 
 
-def refitted_delay_stage(stages):
-    """The found delay's stage after creep is named beside it (:func:`creep_beside_delay`).
+def delay_beside_creep(c, cands, probs, extra, t, base):
+    """The later stage's delay candidate once creep is found on its channel: the two jointly.
 
-    The last stage is the creep; its candidate's columns are the branches and then the delay's
-    column at the refitted delay, its gains (``_gains``) in that order. The delay's stage then
-    carries the refitted ``delay_samples`` / ``delay_s`` and its column's gain ``scale``, what the
-    calibrated model holds, and says so in ``refitted`` (the delay it was named with alone).
+    The mirror of :func:`creep_beside_delay`: the creep found first took the part of a short
+    delay its fast branches mimic (``-tau du/dt`` against ``-d dy/dt``), and the delay searched on
+    what it leaves sees only the rest. The candidate is the delay's column at the delay searched
+    with the branches in its refit, then the branches delayed by it (gains ``>= 0``), in the
+    found creep's place (``replaces``); ``n_params`` 1 (the delay; the branches' gains were the
+    found creep's). Same parameters and return as :func:`creep_beside_delay` (``refit``: the
+    branches' time constants; the creep stage's gains are the joint fit's,
+    :func:`refitted_joint_stage`).
     """
-    cr = stages[-1]
-    refit, gains = cr["_cand"].get("refit"), cr.get("_gains")
-    tag = cr["_cand"].get("replaces")
-    if refit is None or gains is None or tag is None or tag[0] != "delay":
+    pair = _pair(c, cands, extra, "creep")
+    if pair is None:
+        return None
+    cr = pair[0]
+    key, tag = c["key"], ("creep", c["channel"])
+    prob = probs[key]
+    taus = np.asarray(cr["params"]["taus_s"], float)
+    d, Kd, D = _joint(cr, c, prob, base, t)
+    g = prob.grams(np.column_stack([D, Kd]), [0.0] * (taus.size + 1))
+    if not g["ok"][0]:
+        return None
+    eff = copy.deepcopy(c["eff"])
+    eff.n_params = 1
+    params = {"delay_samples": d, "delay_s": d * _dt(t), "refit": False}
+    return {**c, "eff": eff, "params": params, "g": g, "n_params": 1, "researched": True,
+            "fold_g": None, "replaces": tag, "refit": {"taus_s": taus.tolist()}}
+
+
+def refitted_joint_stage(stages):
+    """The found stage a joint creep + delay candidate replaced, as the joint fit left it.
+
+    The last stage is the joint candidate (:func:`creep_beside_delay`: the branches then the delay's
+    column; :func:`delay_beside_creep`: the delay's column then the branches), its gains
+    (``_gains``) in that order. The found delay's stage then carries the refitted
+    ``delay_samples`` / ``delay_s`` and its column's gain ``scale``; the found creep's stage the
+    branches' gains of the joint fit: what the calibrated model holds. Its ``refitted`` says so
+    (with the delay it was named with alone).
+    """
+    last = stages[-1]
+    refit, gains = last["_cand"].get("refit"), last.get("_gains")
+    tag = last["_cand"].get("replaces")
+    if refit is None or gains is None or tag is None or tag[0] not in ("delay", "creep") \
+            or last["effect"] not in ("delay", "creep"):
         return
+    gains = np.asarray(gains, float)
     for st in stages[:-1]:
-        if (st["effect"], st["channel"]) == tag:
+        if (st["effect"], st["channel"]) != tag:
+            continue
+        if tag[0] == "delay":
             alone = st["parameters"].get("delay_s")
             st["parameters"] = {**st["parameters"], "delay_samples": refit["delay_samples"],
-                                "delay_s": refit["delay_s"], "scale": float(np.asarray(gains)[-1])}
+                                "delay_s": refit["delay_s"], "scale": float(gains[-1])}
             st["refitted"] = (f"refitted beside the creep: delay {refit['delay_s']:.6g} s "
                               f"(alone {alone:.6g} s, its refit taking part of the creep)")
+        else:
+            st["parameters"] = {**st["parameters"], "gains": np.maximum(gains[1:], 0.0).tolist(),
+                                "taus_s": list(refit["taus_s"])}
+            st["refitted"] = ("refitted beside the delay: the branches' gains of the joint fit (alone, "
+                              "its fast branches took part of the delay)")

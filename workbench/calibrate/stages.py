@@ -87,7 +87,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .creep_beside_delay import creep_beside_delay, refitted_delay_stage
+from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage
 from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
                                     nested_consensus, nested_note, refitted_absorption_stage)
 
@@ -225,12 +225,16 @@ def _later_candidates(cands, probs, extra, found, t, base):
             r = _research(c, probs, extra, t, base)
         if r is not None:
             out.append(r)
+        # creep beside a found delay, or a delay beside a found creep: the delay searched again with
+        # the branches in its refit (each, fitted alone, took part of the other); the stage keeps
+        # the better of the two readings per tag (:mod:`.creep_beside_delay`)
+        j = None
         if c["name"] == "creep" and ("delay", c["channel"]) in found:
-            # creep beside the found delay: the delay searched again with the branches (its refit
-            # took part of the creep); the stage keeps the better of the two readings per tag
             j = creep_beside_delay(c, cands, probs, extra, t, base)
-            if j is not None:
-                out.append(j)
+        elif c["name"] == "delay" and ("creep", c["channel"]) in found:
+            j = delay_beside_creep(c, cands, probs, extra, t, base)
+        if j is not None:
+            out.append(j)
     return out
 
 
@@ -821,7 +825,7 @@ def run_stages(ctx, max_stages=3):
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
         if c.get("replaces") is not None:
             refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
-            refitted_delay_stage(stages)           # the delay's, refitted beside the creep
+            refitted_joint_stage(stages)           # the delay's or creep's, refitted beside the other
         if compatible is not None and compatible[0] == resolved:
             # the folds compatible with a name from decided folds (decided + undecided; at a later
             # stage the stack's creep on both sensors and the charge's compatible folds): what
