@@ -28,6 +28,7 @@ import copy
 import numpy as np
 
 from .effects import CreepSpectrum, Delay, _dt
+from .tracing import _base_lower
 
 __all__ = ["DelayedCreep", "creep_beside_delay", "delay_beside_creep", "refitted_joint_stage"]
 
@@ -50,16 +51,20 @@ def _found(extra, key, tag):
     return [x for x in extra.get(key, ()) if getattr(x, "tag", None) == tag]
 
 
-def _joint(cr, dl, prob, base, t):
+def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
     """The joint creep + delay columns of one model problem: ``(d, Kd, D)``.
 
     The delay ``d`` (samples) searched with the creep branches in the drive model's refit
     (:meth:`~workbench.calibrate.effects.Delay._fit_refit` with the branches beside the drive's
     columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
-    driven by the channel's base model, delayed by ``d``; ``D``: the refitted drive model (without
-    the branches) delayed by ``d``, less the base model (so the base's own columns need no change
-    of weights, which their bounds may forbid: the refit's play weights are unconstrained).
+    driven by the channel's base model, delayed by ``d``; ``D``: the drive model refitted at ``d``
+    with the branches beside it (its weights' corrections bounded as the base's, ``lower``: the
+    plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less the
+    base model (so the base's own columns need no change of weights). With ``rows_list``, ``D`` is
+    a list, the refit made on each row set (a fold's training search rows: its validation rows
+    never shape the column, as :meth:`~workbench.calibrate.effects.Delay.fold_columns`).
     """
+    from .base_fit import _gram_solve
     ch = cr["channel"]
     m = base.channels[ch]
     y = np.asarray(m.y, float)
@@ -69,15 +74,31 @@ def _joint(cr, dl, prob, base, t):
     B = dl["eff"].basis
     search = Delay(max_delay=dl["eff"].max_delay, basis=np.column_stack([B, K]), max_lead=dl["eff"].max_lead)
     d, _ = search._fit_refit(t, y, ym, prob.search)        # (search rows: development rows, valid)
-    # the joint least squares at d on the search rows: drive columns, branches and prediction, delayed
-    rows = np.flatnonzero(prob.search)
-    Zr = Delay._rows_shifted(np.ascontiguousarray(np.column_stack([B, K, ym])), rows, d)
-    coef = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]
-    drive = B @ coef[:B.shape[1]] + ym * coef[-1]
     all_rows = np.arange(t.size, dtype=float)
-    D = Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - ym
     Kd = Delay._rows_shifted(np.ascontiguousarray(K), all_rows, d)
-    return float(d), Kd, D
+    BK = np.ascontiguousarray(np.column_stack([B, K]))
+    lo = np.r_[np.full(B.shape[1], -np.inf) if lower is None else np.asarray(lower, float), np.zeros(taus.size)]
+
+    def column(rows):
+        # the bounded refit at d on ``rows``: y(t) ~ ym(t - d) + [B, K](t - d) [delta, c]
+        X = Delay._rows_shifted(BK, rows, d)
+        r = y[rows] - Delay._rows_shifted(ym[:, None], rows, d)[:, 0]
+        nrm = np.sqrt(np.mean(X * X, axis=0)) if rows.size else np.ones(X.shape[1])
+        nrm = np.where(nrm > 0, nrm, 1.0)
+        Xs = X / nrm
+        delta = _gram_solve(Xs.T @ Xs, Xs.T @ r, lo * nrm) / nrm
+        drive = ym + B @ delta[:B.shape[1]]
+        return Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - ym
+
+    D = column(np.flatnonzero(prob.search))
+    if rows_list is None:
+        return float(d), Kd, D
+    return float(d), Kd, D, [column(np.asarray(r)) for r in rows_list]
+
+
+def _fold_rows(prob):
+    """Each fold's training search rows (as :func:`~workbench.calibrate.tracing._fold_grams`)."""
+    return [np.flatnonzero(prob.search & prob.split.rows(tr)) for tr, _ in prob.split.folds]
 
 
 def _pair(c, cands, extra, found_name):
@@ -137,9 +158,13 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
     key, tag = c["key"], ("delay", c["channel"])
     prob = probs[key]
     taus = np.asarray(c["params"]["taus_s"], float)
-    d, Kd, D = _joint(c, pair[1], prob, base, t)
-    g = prob.grams(np.column_stack([Kd, D]), [0.0] * (taus.size + 1))
+    d, Kd, D, Df = _joint(c, pair[1], prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
+    lower = [0.0] * (taus.size + 1)
+    g = prob.grams(np.column_stack([Kd, D]), lower)
     if not g["ok"][-1]:
+        return None
+    fold_g = [prob.grams(np.column_stack([Kd, Dk]), lower) for Dk in Df]
+    if any(gk["ok"].tolist() != g["ok"].tolist() for gk in fold_g):
         return None
     n_pos = int(np.count_nonzero(_own_gains(prob, extra, key, tag, g)[:taus.size] > 0))
     if n_pos == 0:
@@ -148,7 +173,7 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
     eff.n_params = n_pos + 1
     params = {"gains": np.zeros(taus.size).tolist(), "taus_s": taus.tolist()}
     return {**c, "eff": eff, "params": params, "g": g, "n_params": n_pos + 1, "researched": True,
-            "fold_g": None, "replaces": tag, "refit": {"delay_samples": d, "delay_s": d * _dt(t)}}
+            "fold_g": fold_g, "replaces": tag, "refit": {"delay_samples": d, "delay_s": d * _dt(t)}}
 
 
 def delay_beside_creep(c, cands, probs, extra, t, base):
@@ -170,15 +195,19 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     key, tag = c["key"], ("creep", c["channel"])
     prob = probs[key]
     taus = np.asarray(cr["params"]["taus_s"], float)
-    d, Kd, D = _joint(cr, c, prob, base, t)
-    g = prob.grams(np.column_stack([D, Kd]), [0.0] * (taus.size + 1))
+    d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
+    lower = [0.0] * (taus.size + 1)
+    g = prob.grams(np.column_stack([D, Kd]), lower)
     if not g["ok"][0]:
+        return None
+    fold_g = [prob.grams(np.column_stack([Dk, Kd]), lower) for Dk in Df]
+    if any(gk["ok"].tolist() != g["ok"].tolist() for gk in fold_g):
         return None
     eff = copy.deepcopy(c["eff"])
     eff.n_params = 1
     params = {"delay_samples": d, "delay_s": d * _dt(t), "refit": False}
     return {**c, "eff": eff, "params": params, "g": g, "n_params": 1, "researched": True,
-            "fold_g": None, "replaces": tag, "refit": {"taus_s": taus.tolist()}}
+            "fold_g": fold_g, "replaces": tag, "refit": {"taus_s": taus.tolist()}}
 
 
 def refitted_joint_stage(stages):

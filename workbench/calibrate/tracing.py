@@ -395,7 +395,8 @@ def _cand_grams(prob, extra_list, cand, n_folds):
     if fg is None:
         g = _stacked(prob, extra_list, cand)
         return [g] * n_folds
-    return [_stacked(prob, extra_list, {"g": gf}) for gf in fg]
+    # (a candidate in a found effect's place, ``replaces``, takes its place on every fold)
+    return [_stacked(prob, extra_list, {"g": gf, "replaces": cand.get("replaces")}) for gf in fg]
 
 
 def _with_gains(eff, p, gains):
