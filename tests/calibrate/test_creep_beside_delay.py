@@ -15,7 +15,7 @@ from workbench.calibrate import creep_beside_delay as cbd
 from workbench.calibrate.synthetic import EFFECT_RANGES, benchmark_protocol
 from workbench.calibrate.tracing import candidate_plan
 
-from tests.conftest import load_benchmark
+from tests.conftest import FULL, load_benchmark
 
 #: drawn with np.random.default_rng(1414), chosen before any run: rate (the benchmark's 1, 10 and
 #: 100 kHz at its row counts: 10 s, 2 s, 0.4 s), protocol, the delay over the benchmark's whole range
@@ -117,3 +117,53 @@ def test_delayed_creep_takes_the_branches_gains_only():
     eff = cbd.DelayedCreep(taus_s=[0.1, 1.0])
     p = eff.with_gains({"gains": [0.0, 0.0], "taus_s": [0.1, 1.0]}, np.array([0.2, 0.3, 5.0]))
     assert p["gains"] == [0.2, 0.3]
+
+
+# Records from the benchmark's simulator, drawn with np.random.default_rng(1415), fixed before any
+# record was traced: rate from the benchmark's 1, 10 and 100 kHz (its row counts), protocol, size
+# log-uniform over the full 0.03-30x, record seed. Creep + delay pairs first, then the guards
+# (creep alone, delay alone, the same stream). Full run (WORKBENCH_FULL=1): more of each.
+CD_PAIRS = 4 if not FULL else 12
+CD_GUARDS = 2 if not FULL else 6
+
+
+def _record_draws():
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1415)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for eff in [("creep", "delay")] * CD_PAIRS + ["creep", "delay"] * CD_GUARDS:
+        rate = float(cc.RATES_HZ[int(rng.integers(len(cc.RATES_HZ)))])
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        out.append((eff, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def drawn(sn637):
+    cc = load_benchmark("calibrate_confusion")
+    rows = []
+    for eff, rate, proto, size, seed in _record_draws():
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
+              f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
+              f"ratio {r['ratio']:.3f} above the line {r['above_line']}")
+        rows.append(r)
+    return rows
+
+
+def test_drawn_creep_and_delay_records_name_nothing_else(drawn):
+    """No drawn record gets an effect it lacks (a creep record no delay, a delay record no creep, a
+    pair nothing else) and none ends above a straight line (issue 13's floors)."""
+    assert not [r for r in drawn if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in drawn]
+    assert not [r for r in drawn if r["above_line"]], [(r["effect"], r["above_line"]) for r in drawn]
+
+
+def test_drawn_creep_and_delay_records_are_answered_with_both(drawn):
+    """Issue 13 item 5: each drawn pair whose two effects both stand >= 3x above the floor (each on
+    its own record) is answered with both, and the calibration's error after is at most half the
+    error before on it."""
+    big = [r for r in drawn if "+" in r["effect"] and min(r["excesses"]) >= 3.0]
+    print(f"\nboth named: {sum(r['both'] for r in big)} of {len(big)} creep + delay records with both >= 3x")
+    assert all(r["both"] and r["ratio"] <= 0.5 for r in big), \
+        [(r["rate_hz"], r["protocol"], np.round(r["excesses"], 1), r["named"], round(r["ratio"], 3)) for r in big]

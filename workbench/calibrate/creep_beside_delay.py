@@ -27,7 +27,7 @@ import copy
 
 import numpy as np
 
-from .effects import CreepSpectrum, Delay, _dt
+from .effects import CreepSpectrum, Delay, _c_ordered, _dt
 from .tracing import _base_lower
 
 __all__ = ["DelayedCreep", "creep_beside_delay", "delay_beside_creep", "refitted_joint_stage"]
@@ -72,17 +72,19 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
     taus = np.asarray(cr["params"]["taus_s"], float)
     K = CreepSpectrum._columns(ym, taus, _dt(t))          # the stack's branches, driven by its model
     B = dl["eff"].basis
-    search = Delay(max_delay=dl["eff"].max_delay, basis=np.column_stack([B, K]), max_lead=dl["eff"].max_lead)
-    d, _ = search._fit_refit(t, y, ym, prob.search)        # (search rows: development rows, valid)
+    Bc = _c_ordered(B)                                     # (the delay's own C-ordered copy, shared)
+    Kc = np.ascontiguousarray(K)
+    ymc = ym[:, None]
+    rows = np.flatnonzero(prob.search)                     # (search rows: development rows, valid)
+    d = Delay(max_delay=dl["eff"].max_delay, basis=B, max_lead=dl["eff"].max_lead)._search_refit((Bc, Kc, ymc), y, rows)
     all_rows = np.arange(t.size, dtype=float)
-    Kd = Delay._rows_shifted(np.ascontiguousarray(K), all_rows, d)
-    BK = np.ascontiguousarray(np.column_stack([B, K]))
+    Kd = Delay._rows_shifted(Kc, all_rows, d)
     lo = np.r_[np.full(B.shape[1], -np.inf) if lower is None else np.asarray(lower, float), np.zeros(taus.size)]
 
     def column(rows):
         # the bounded refit at d on ``rows``: y(t) ~ ym(t - d) + [B, K](t - d) [delta, c]
-        X = Delay._rows_shifted(BK, rows, d)
-        r = y[rows] - Delay._rows_shifted(ym[:, None], rows, d)[:, 0]
+        X = np.hstack([Delay._rows_shifted(Bc, rows, d), Delay._rows_shifted(Kc, rows, d)])
+        r = y[rows] - Delay._rows_shifted(ymc, rows, d)[:, 0]
         nrm = np.sqrt(np.mean(X * X, axis=0)) if rows.size else np.ones(X.shape[1])
         nrm = np.where(nrm > 0, nrm, 1.0)
         Xs = X / nrm
@@ -90,10 +92,21 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
         drive = ym + B @ delta[:B.shape[1]]
         return Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - ym
 
-    D = column(np.flatnonzero(prob.search))
+    D = column(rows)
     if rows_list is None:
         return float(d), Kd, D
     return float(d), Kd, D, [column(np.asarray(r)) for r in rows_list]
+
+
+def _columns(prob, C, lower):
+    """A candidate's columns as :meth:`~workbench.calibrate.tracing._Problem.grams` keeps them (unit
+    RMS on the development rows, zero columns dropped), without the Gram matrices: the scoring
+    (:func:`~workbench.calibrate.tracing._stacked`) forms them with the found effects' columns."""
+    Cd = C[prob.rows_dev_idx]
+    n = np.sqrt(np.einsum("ij,ij->j", Cd, Cd) / max(prob.rows_dev_idx.size, 1))
+    ok = n > 0
+    return {"G": None, "C": C[:, ok] / n[ok], "norms": n[ok], "ok": ok,
+            "lb": np.r_[prob.lower_A, np.asarray(lower, float)[ok]]}
 
 
 def _fold_rows(prob):
@@ -160,10 +173,10 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
     taus = np.asarray(c["params"]["taus_s"], float)
     d, Kd, D, Df = _joint(c, pair[1], prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
     lower = [0.0] * (taus.size + 1)
-    g = prob.grams(np.column_stack([Kd, D]), lower)
+    g = _columns(prob, np.column_stack([Kd, D]), lower)
     if not g["ok"][-1]:
         return None
-    fold_g = [prob.grams(np.column_stack([Kd, Dk]), lower) for Dk in Df]
+    fold_g = [_columns(prob, np.column_stack([Kd, Dk]), lower) for Dk in Df]
     if any(gk["ok"].tolist() != g["ok"].tolist() for gk in fold_g):
         return None
     n_pos = int(np.count_nonzero(_own_gains(prob, extra, key, tag, g)[:taus.size] > 0))
@@ -197,10 +210,10 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     taus = np.asarray(cr["params"]["taus_s"], float)
     d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
     lower = [0.0] * (taus.size + 1)
-    g = prob.grams(np.column_stack([D, Kd]), lower)
+    g = _columns(prob, np.column_stack([D, Kd]), lower)
     if not g["ok"][0]:
         return None
-    fold_g = [prob.grams(np.column_stack([Dk, Kd]), lower) for Dk in Df]
+    fold_g = [_columns(prob, np.column_stack([Dk, Kd]), lower) for Dk in Df]
     if any(gk["ok"].tolist() != g["ok"].tolist() for gk in fold_g):
         return None
     eff = copy.deepcopy(c["eff"])
