@@ -41,6 +41,12 @@ refitted with leakage's line in the found absorption's place
 (:func:`~workbench.calibrate.absorption_or_leakage.leakage_beside_absorption`); named, the
 absorption's stage carries the refitted parameters.
 
+**Creep beside a found delay, a delay beside found creep** (:mod:`.creep_beside_delay`): each,
+fitted alone, takes part of the other (a creep branch of ``tau`` near ``d`` mimics the delay); the
+later stage's candidate of the other kind is also scored as the joint model, the delay searched
+again with the creep branches in its refit, in the found effect's place (``replaces``), beside the
+plain re-search; of the two readings the one passing more folds is kept (then the better score).
+
 **A split first stage** (:func:`resolve_split`): when two effects on one channel, or two
 different effects on the displacement and the gauge (:func:`_sensor_pair`), share at least
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both
