@@ -127,6 +127,12 @@ CD_PAIRS = 4 if not FULL else 12
 CD_GUARDS = 2 if not FULL else 6
 
 
+#: and, from np.random.default_rng(1416) (fixed with the rest, before any run), pairs at 100 kHz only, the
+#: rate whose 0.4 s records main answered with the delay alone (a 5-13x creep under a ~200x delay,
+#: session 13's fresh seeds): protocol, size over the full range, record seed
+CD_PAIRS_100K = 3 if not FULL else 9
+
+
 def _record_draws():
     cc = load_benchmark("calibrate_confusion")
     rng = np.random.default_rng(1415)
@@ -136,6 +142,10 @@ def _record_draws():
         rate = float(cc.RATES_HZ[int(rng.integers(len(cc.RATES_HZ)))])
         proto = str(rng.choice(("calibration", "sine", "steps")))
         out.append((eff, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    rng = np.random.default_rng(1416)
+    for _ in range(CD_PAIRS_100K):
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        out.append((("creep", "delay"), 1e5, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
     return out
 
 
