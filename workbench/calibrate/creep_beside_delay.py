@@ -59,8 +59,11 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
     columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
     driven by the channel's base model, delayed by ``d``; ``D``: the drive model refitted at ``d``
     with the branches beside it (its weights' corrections bounded as the base's, ``lower``: the
-    plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less the
-    base model (so the base's own columns need no change of weights). With ``rows_list``, ``D`` is
+    plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less itself:
+    the latency alone, as the delay's own column; its change of weights from the base is left to the
+    base's columns, which the bounded refit keeps within their bounds, so the joint fit's base weights
+    are the refitted core the plant file carries (a column carrying the change too left them at the
+    base's and the written plant off by 9x on a drawn 1 kHz record). With ``rows_list``, ``D`` is
     a list, the refit made on each row set (a fold's training search rows: its validation rows
     never shape the column, as :meth:`~workbench.calibrate.effects.Delay.fold_columns`).
     """
@@ -90,7 +93,7 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
         Xs = X / nrm
         delta = _gram_solve(Xs.T @ Xs, Xs.T @ r, lo * nrm) / nrm
         drive = ym + B @ delta[:B.shape[1]]
-        return Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - ym
+        return Delay._rows_shifted(drive[:, None], all_rows, d)[:, 0] - drive
 
     D = column(rows)
     if rows_list is None:
