@@ -509,6 +509,31 @@ class Delay(Effect):
             out[i: i + len(ds)] = np.sum(r * r, axis=1)
         return out
 
+    def _search_refit(self, blocks, y, rows):
+        """The refitted search's delay (samples): cost(d) = least squares of ``y`` on the ``blocks``
+        (C-ordered ``(n, k)`` column blocks, side by side), all delayed by ``d``, on ``rows``: a log
+        grid (:meth:`_grid`) on at most 2,000 of the rows (every k-th), then a bounded refinement on
+        at most 10,000."""
+        coarse = rows[:: max(1, int(np.ceil(rows.size / 2_000)))]
+        fine = rows[:: max(1, int(np.ceil(rows.size / 10_000)))]
+
+        def cost(d, r):
+            Zd = np.hstack([self._rows_shifted(b, r, d) for b in blocks])
+            c = linalg.lstsq(Zd, y[r], cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
+            return float(np.sum((y[r] - Zd @ c) ** 2))
+
+        grid = self._grid()
+        costs = self._grid_cost_batch(tuple(blocks), y, coarse, grid)
+        k = int(np.argmin(costs))
+        lo = float(grid[k - 1]) if k > 0 else -self.max_lead
+        hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
+        if lo < 0 < hi:
+            lo, hi = (lo, -0.25) if grid[k] < 0 else (0.25, hi)
+        from scipy.optimize import minimize_scalar
+        sol = minimize_scalar(lambda d: cost(d, fine), bounds=(lo, hi), method="bounded",
+                              options={"xatol": 0.05, "maxiter": 40})
+        return float(sol.x) if sol.fun <= cost(float(grid[k]), fine) else float(grid[k])
+
     def _fit_refit(self, t, y, y_model, mask):
         """The refitted search: cost(d) = least squares of ``y`` on the drive model's columns and
         ``y_model``, all delayed by ``d``, on the mask's rows."""
@@ -519,26 +544,7 @@ class Delay(Effect):
         Bc = _c_ordered(self.basis)
         ym = np.asarray(y_model, float)[:, None]
         rows = np.flatnonzero(mask)
-        # the grid on at most 2,000 of the rows (every k-th), the refinement on at most 10,000
-        coarse = rows[:: max(1, int(np.ceil(rows.size / 2_000)))]
-        fine = rows[:: max(1, int(np.ceil(rows.size / 10_000)))]
-
-        def cost(d, r):
-            Zd = np.hstack([self._rows_shifted(Bc, r, d), self._rows_shifted(ym, r, d)])
-            c = linalg.lstsq(Zd, y[r], cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
-            return float(np.sum((y[r] - Zd @ c) ** 2))
-
-        grid = self._grid()
-        costs = self._grid_cost_batch((Bc, ym), y, coarse, grid)
-        k = int(np.argmin(costs))
-        lo = float(grid[k - 1]) if k > 0 else -self.max_lead
-        hi = float(grid[k + 1]) if k + 1 < grid.size else self.max_delay
-        if lo < 0 < hi:
-            lo, hi = (lo, -0.25) if grid[k] < 0 else (0.25, hi)
-        from scipy.optimize import minimize_scalar
-        sol = minimize_scalar(lambda d: cost(d, fine), bounds=(lo, hi), method="bounded",
-                              options={"xatol": 0.05, "maxiter": 40})
-        d = float(sol.x) if sol.fun <= cost(float(grid[k]), fine) else float(grid[k])
+        d = self._search_refit((Bc, ym), y, rows)
         all_rows = np.arange(Z0.shape[0], dtype=float)
         Zr = np.hstack([self._rows_shifted(Bc, rows, d), self._rows_shifted(ym, rows, d)])
         c = np.linalg.lstsq(Zr, y[rows], rcond=1e-10)[0]

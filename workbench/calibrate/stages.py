@@ -41,6 +41,12 @@ refitted with leakage's line in the found absorption's place
 (:func:`~workbench.calibrate.absorption_or_leakage.leakage_beside_absorption`); named, the
 absorption's stage carries the refitted parameters.
 
+**Creep beside a found delay, a delay beside found creep** (:mod:`.creep_beside_delay`): each,
+fitted alone, takes part of the other (a creep branch of ``tau`` near ``d`` mimics the delay); the
+later stage's candidate of the other kind is also scored as the joint model, the delay searched
+again with the creep branches in its refit, in the found effect's place (``replaces``), beside the
+plain re-search; of the two readings the one passing more folds is kept (then the better score).
+
 **A split first stage** (:func:`resolve_split`): when two effects on one channel, or two
 different effects on the displacement and the gauge (:func:`_sensor_pair`), share at least
 ``need`` folds, each is added in turn and the other scored as a later stage; both accepted: both
@@ -87,6 +93,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
+from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage
 from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
                                     nested_consensus, nested_note, refitted_absorption_stage)
 
@@ -224,6 +231,16 @@ def _later_candidates(cands, probs, extra, found, t, base):
             r = _research(c, probs, extra, t, base)
         if r is not None:
             out.append(r)
+        # creep beside a found delay, or a delay beside a found creep: the delay searched again with
+        # the branches in its refit (each, fitted alone, took part of the other); the stage keeps
+        # the better of the two readings per tag (:mod:`.creep_beside_delay`)
+        j = None
+        if c["name"] == "creep" and ("delay", c["channel"]) in found:
+            j = creep_beside_delay(c, cands, probs, extra, t, base)
+        elif c["name"] == "delay" and ("creep", c["channel"]) in found:
+            j = delay_beside_creep(c, cands, probs, extra, t, base)
+        if j is not None:
+            out.append(j)
     return out
 
 
@@ -564,7 +581,8 @@ def resolve_split(res, ctx, extra, found):
     When the folds' winners are two effects A and B on one channel, or two different effects on the displacement and the gauge (together at least ``need``
     folds), each is added to the model in turn and the other is scored as a later stage
     (:func:`_later_stage`: joint re-search, ``need`` folds, beats its rival). Both survive: both
-    are in the record, the better median first, the other follows as the next stage. One: it is
+    are in the record, the one more folds chose first (then the better median), the other follows
+    as the next stage. One: it is
     named, unless it won fewer folds than the other (then ``None``: alone it is not what most folds
     chose). Neither: two readings of one misfit, ``None`` (inconclusive).
 
@@ -602,7 +620,12 @@ def resolve_split(res, ctx, extra, found):
     a, b = pair
     won = {pair[0]: int(counts[order[0]]), pair[1]: int(counts[order[1]])}
     if survives[a] and survives[b]:
-        first = min(pair, key=lambda p: res["by"][p]["score"])
+        # the effect more folds chose first (item 4: the first stage's ``effect`` is what the folds
+        # chose; seen, 35 #9: creep 4 folds, a 30 ms delay 1, both surviving with the joint creep +
+        # delay model, and the delay, the better median, was named first at "1 of 5"), then the
+        # better median
+        won0 = {pair[0]: int(counts[order[0]]), pair[1]: int(counts[order[1]])}
+        first = min(pair, key=lambda p: (-won0[p], res["by"][p]["score"]))
         other = b if first == a else a
         return first, won[first], (f"{first[0]} and {other[0]} split the folds ({won[first]} and {won[other]}); "
                                    f"each explains what the other cannot (both are in the record)")
@@ -814,6 +837,7 @@ def run_stages(ctx, max_stages=3):
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
         if c.get("replaces") is not None:
             refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
+            refitted_joint_stage(stages)           # the delay's or creep's, refitted beside the other
         if compatible is not None and compatible[0] == resolved:
             # the folds compatible with a name from decided folds (decided + undecided; at a later
             # stage the stack's creep on both sensors and the charge's compatible folds): what

@@ -1,0 +1,194 @@
+"""The joint creep + sensor delay model (workbench/calibrate/creep_beside_delay.py; issue 13 item 5).
+
+A sensor lagging by ``d`` reads the crept motion late: ``y(t) = x(t - d)``, ``x = base(u) +
+creep(u)``. Constructed records (no simulator) make the joint model exact at the true delay, so
+the joint search must find it; the delay searched alone (the drive model refitted without the
+branches) is biased by the creep's fast branch.
+"""
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from workbench.calibrate import creep_beside_delay as cbd
+from workbench.calibrate.synthetic import EFFECT_RANGES, benchmark_protocol
+from workbench.calibrate.tracing import candidate_plan
+
+from tests.conftest import FULL, load_benchmark
+
+#: drawn with np.random.default_rng(1414), chosen before any run: rate (the benchmark's 1, 10 and
+#: 100 kHz at its row counts: 10 s, 2 s, 0.4 s), protocol, the delay over the benchmark's whole range
+#: (EFFECT_RANGES' 0.3-2 ms times a size log-uniform over 0.03-30x: 0.01-60 ms), two creep branches
+#: of the record's own grid with gains drawn up to a fifth of the model per branch
+N_DRAWS = 8
+
+
+def _draws():
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1414)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for _ in range(N_DRAWS):
+        rate = float(cc.RATES_HZ[int(rng.integers(len(cc.RATES_HZ)))])
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        d_s = float(rng.uniform(*EFFECT_RANGES["delay"]["delay_s"]) * np.exp(rng.uniform(lo, hi)))
+        out.append((rate, proto, cc.ROWS[rate], d_s, int(rng.integers(1 << 30))))
+    return out
+
+
+def _record(rate, proto, n_rows, d_s, seed):
+    """A constructed channel: drive model ``ym`` (three columns), creep on the record's branch grid,
+    read ``d_s`` late (linear interpolation, as the search's own); the plan's creep and delay."""
+    rng = np.random.default_rng(seed)
+    t, u = benchmark_protocol(proto, rate, n_rows)
+    B = np.column_stack([u, u * u / 100.0, np.ones_like(u)])
+    w0 = np.array([1e-7, 2e-8, 1e-6])                 # m per V, m per V (scaled), m
+    ym = B @ w0
+    plan = candidate_plan(("displacement",), t, u, basis=B)
+    creep = next(e for ch, e, _ in plan if e.name == "creep")
+    delay = next(e for ch, e, _ in plan if e.name == "delay")
+    taus = np.asarray(creep.taus_s, float)
+    K = creep._columns(ym, taus, 1.0 / rate)
+    g = np.zeros(taus.size)
+    pick = rng.choice(taus.size, 2, replace=False)
+    g[pick] = rng.uniform(0.0, 0.2, 2)
+    x = ym + K @ g
+    y = np.interp(t - d_s, t, x)
+    return t, B, ym, y, taus, delay
+
+
+@pytest.mark.parametrize("draw", _draws())
+def test_the_joint_search_explains_creep_behind_a_delay(draw):
+    """The delay searched with the creep branches in its refit (:func:`~.creep_beside_delay._joint`):
+
+    - its columns (the base's, the delay's, the delayed branches) leave less of the record than the
+      delay searched alone (its refit without the branches) and, where the lag is resolvable (0.3
+      sample or more; the construct is exact at the true delay), under 1 % of the record's power;
+    - on records with steps (steps, the calibration protocol) it lands on the true lag within the
+      search's tolerance (0.1 sample). On a sine a fast branch and a delay trade (``-tau du/dt``
+      against ``-d dy/dt``): there only what the columns explain is asserted.
+    """
+    rate, proto, n_rows, d_s, seed = draw
+    t, B, ym, y, taus, delay = _record(rate, proto, n_rows, d_s, seed)
+    d_true = d_s * rate
+    if d_true > 0.25 * (t[-1] - t[0]) * rate:
+        pytest.skip("delay beyond the search's bound (a quarter of the record)")
+    base = SimpleNamespace(channels={"displacement": SimpleNamespace(y=y, yhat=ym)})
+    every = np.ones(t.size, bool)
+    cr = {"channel": "displacement", "params": {"taus_s": taus.tolist()}}
+    d, Kd, D = cbd._joint(cr, {"eff": delay}, SimpleNamespace(search=every), base, t)
+
+    def left(X):
+        coef = np.linalg.lstsq(X, y - ym, rcond=1e-12)[0]
+        return float(np.sqrt(np.mean((y - ym - X @ coef) ** 2)))
+
+    joint = left(np.column_stack([B, D, Kd]))
+    _, col = delay._fit_refit(t, y, ym, every)
+    alone = left(np.column_stack([B, col]))
+    assert joint < alone, (rate, proto, d_true, joint, alone)
+    if d_true >= 0.3:
+        assert joint < 0.1 * np.sqrt(np.mean((y - ym) ** 2)), (rate, proto, d_true, joint)
+        if proto != "sine":
+            assert abs(d - d_true) <= 0.1, (rate, proto, d_true, d)
+
+
+def test_refitted_joint_stage_writes_the_joint_parameters_into_the_replaced_stage():
+    """Named, a joint candidate's refit moves into the stage it replaced: the delay's refitted lag and
+    its column's gain (creep beside a delay: branches first, delay last), or the branches' gains
+    (a delay beside creep: delay first, branches after, negative gains clipped as the spectrum's)."""
+    delay_st = {"effect": "delay", "channel": "displacement", "parameters": {"delay_s": 1e-3, "delay_samples": 1.0}}
+    creep_st = {"effect": "creep", "channel": "displacement", "_cand": {"replaces": ("delay", "displacement"),
+                "refit": {"delay_samples": 1.5, "delay_s": 1.5e-3}}, "_gains": np.array([0.1, 0.2, 0.9])}
+    stages = [delay_st, creep_st]
+    cbd.refitted_joint_stage(stages)
+    assert delay_st["parameters"]["delay_s"] == 1.5e-3 and delay_st["parameters"]["delay_samples"] == 1.5
+    assert delay_st["parameters"]["scale"] == 0.9 and "refitted" in delay_st
+    creep_st2 = {"effect": "creep", "channel": "displacement", "parameters": {"gains": [0.5], "taus_s": [1.0]}}
+    delay_st2 = {"effect": "delay", "channel": "displacement", "_cand": {"replaces": ("creep", "displacement"),
+                 "refit": {"taus_s": [1.0, 10.0]}}, "_gains": np.array([1.0, 0.3, -0.1])}
+    cbd.refitted_joint_stage([creep_st2, delay_st2])
+    assert creep_st2["parameters"]["gains"] == [0.3, 0.0] and creep_st2["parameters"]["taus_s"] == [1.0, 10.0]
+
+
+def test_delayed_creep_takes_the_branches_gains_only():
+    """The joint candidate's gains come as branches then the delay's column: the creep's own are the first
+    ``len(taus_s)``."""
+    eff = cbd.DelayedCreep(taus_s=[0.1, 1.0])
+    p = eff.with_gains({"gains": [0.0, 0.0], "taus_s": [0.1, 1.0]}, np.array([0.2, 0.3, 5.0]))
+    assert p["gains"] == [0.2, 0.3]
+
+
+# Records from the benchmark's simulator, drawn with np.random.default_rng(1415), fixed before any
+# record was traced: rate from the benchmark's 1, 10 and 100 kHz (its row counts), protocol, size
+# log-uniform over the full 0.03-30x, record seed. Creep + delay pairs first, then the guards
+# (creep alone, delay alone, the same stream). Full run (WORKBENCH_FULL=1): more of each.
+CD_PAIRS = 4 if not FULL else 12
+CD_GUARDS = 2 if not FULL else 6
+
+
+#: and, from np.random.default_rng(1416) (fixed with the rest, before any run), pairs at 100 kHz only, the
+#: rate whose 0.4 s records main answered with the delay alone (a 5-13x creep under a ~200x delay,
+#: session 13's fresh seeds): protocol, size over the full range, record seed
+CD_PAIRS_100K = 3 if not FULL else 9
+
+
+def _record_draws():
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1415)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for eff in [("creep", "delay")] * CD_PAIRS + ["creep", "delay"] * CD_GUARDS:
+        rate = float(cc.RATES_HZ[int(rng.integers(len(cc.RATES_HZ)))])
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        out.append((eff, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    rng = np.random.default_rng(1416)
+    for _ in range(CD_PAIRS_100K):
+        proto = str(rng.choice(("calibration", "sine", "steps")))
+        out.append((("creep", "delay"), 1e5, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    return out
+
+
+@pytest.fixture(scope="module")
+def drawn(sn637):
+    cc = load_benchmark("calibrate_confusion")
+    rows = []
+    for eff, rate, proto, size, seed in _record_draws():
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
+              f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
+              f"ratio {r['ratio']:.3f} above the line {r['above_line']}")
+        rows.append(r)
+    return rows
+
+
+def test_drawn_creep_and_delay_records_name_nothing_else(drawn):
+    """No drawn record gets an effect it lacks (a creep record no delay, a delay record no creep, a
+    pair nothing else) and none ends above a straight line (issue 13's floors)."""
+    assert not [r for r in drawn if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in drawn]
+    assert not [r for r in drawn if r["above_line"]], [(r["effect"], r["above_line"]) for r in drawn]
+
+
+def test_drawn_creep_and_delay_records_are_answered_with_both(drawn):
+    """Issue 13 item 5: each drawn pair whose two effects both stand >= 3x above the floor (each on
+    its own record) is answered with both, and the calibration's error after is at most half the
+    error before on it."""
+    big = [r for r in drawn if "+" in r["effect"] and min(r["excesses"]) >= 3.0]
+    print(f"\nboth named: {sum(r['both'] for r in big)} of {len(big)} creep + delay records with both >= 3x")
+    assert all(r["both"] and r["ratio"] <= 0.5 for r in big), \
+        [(r["rate_hz"], r["protocol"], np.round(r["excesses"], 1), r["named"], round(r["ratio"], 3)) for r in big]
+
+
+def test_a_split_both_surviving_names_the_majority_first(monkeypatch):
+    """Two effects splitting five folds 4:1, each surviving the other (the joint creep + delay model
+    lets a lopsided split survive both ways): the effect more folds chose is named first with its
+    own 4 folds, even when the other has the better median (seen, 35 #9: the delay, 1 fold, was
+    named first at "1 of 5"); a tie goes to the better median (test_effects' 3:2 case)."""
+    from workbench.calibrate import stages, tracing
+    a, b = ("creep", "displacement"), ("delay", "displacement")
+    res = {"winners": [a, a, b, a, a], "by": {a: {"score": 0.4}, b: {"score": 0.3}}}
+    monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
+    monkeypatch.setattr(stages, "_later_stage",
+                        lambda ctx, ex, found, seen=(): (b if found[-1] == a else a, 5, [], {}, None))
+    answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
+    assert answer == a and count == 4 and "(4 and 1)" in note
