@@ -116,8 +116,8 @@ def test_a_split_is_not_resolved_to_the_effect_fewer_folds_chose(sn637):
     cc = load_benchmark("calibrate_confusion")
     e, rate, proto, size, s = cc.cases(seed=35)[9 - 1]
     _, res, _ = _trace(sn637, e, rate, proto, size, s)
-    for st in res["stages"]:
-        assert int(st["agreement"].split()[0]) >= 3 or "resolved" not in st, st
+    for stage in res["stages"]:
+        assert int(stage["agreement"].split()[0]) >= 3 or "resolved" not in stage, stage
     assert res["error_after"]["rms"] <= res["error_before"]["rms"]
 
 
