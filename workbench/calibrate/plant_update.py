@@ -247,11 +247,12 @@ def _sensor_terms(stages, base):
 DELAY_SEARCH_FACTOR = 2.0
 
 
-def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, model=None):
+def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, model=None, gain=1.0, offset_m=None):
     """The sensor delay, s, at which C_h and the branches fitted together
     (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
-    development ``rows``, searched (bounded, golden section) between the named delay stage's ``delay_s`` over
-    and times :data:`DELAY_SEARCH_FACTOR`.
+    development ``rows``, searched (bounded, golden section) between ``min(d, g d)`` over and ``max(d, g d)``
+    times :data:`DELAY_SEARCH_FACTOR` (``d`` the named delay stage's ``delay_s``, ``g`` its gain ``scale``),
+    at the record's offset ``offset_m`` (m; None: the direct fit searches it at every trial).
 
     Why: the delay stage's term is ``g (u0(t - d) - u0(t))`` with its gain ``g`` free (``scale``), a delay of
     about ``g d`` where ``u0`` is smooth; the file's ``[displacement_sensor]`` delays the whole motion by one
@@ -262,11 +263,13 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
 
     from .core_refit import direct_core_and_branches
     dt = float(np.mean(np.diff(np.asarray(base.t, float))))
-    lo, hi = sorted((delay_s / DELAY_SEARCH_FACTOR, delay_s * DELAY_SEARCH_FACTOR))
+    # the stage's term g (u0(t - d) - u0) acts as a whole-motion shift of about g d (29 #75: g 15.3)
+    ends = (delay_s, abs(float(gain)) * delay_s)
+    lo, hi = sorted((min(ends) / DELAY_SEARCH_FACTOR, max(ends) * DELAY_SEARCH_FACTOR))
 
     def cost(d):
         j = direct_core_and_branches(plant, base, rows, delay_s=d, sensor_offset=drift, thresholds_v=thresholds_v,
-                                     model=model)
+                                     model=model, offset_m=offset_m)
         return float("inf") if j is None else j["residual_m"]
     sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * dt, "maxiter": 16})
     return float(sol.x) if sol.fun < cost(delay_s) else float(delay_s)
@@ -316,7 +319,8 @@ def _core_with_branches(plant, base, result, core):
     stages = written_stages(result.get("stages") or [], result, core)
     delay, drift = _sensor_terms(stages, base)
     rows = np.asarray(base.train, bool)
-    named = any(st["effect"] == "delay" and st["channel"] == "displacement" for st in stages)
+    named = [st for st in stages if st["effect"] == "delay" and st["channel"] == "displacement"]
+    gain = float(named[0]["parameters"].get("scale", 1.0)) if named else 1.0
     stage_delay = delay
     # C_h's thresholds: the refitted instant core's, the base's plays inverted in closed form into V_h (Kuhnen):
     # measured against the base's V_t thresholds scaled to V_h's span, seeds 24 #31, 25 #20, 24 #64: 1.37x,
@@ -324,19 +328,25 @@ def _core_with_branches(plant, base, result, core):
     th = core["hysteresis"].thresholds
     model = _fitted_motion(base, result.get("core_fit"), rows)
     if named and delay:
-        delay = _delay_with_branches(plant, base, rows, delay, drift, th, model)
+        # the record's offset searched at the stage's delay, held through the delay's search, searched again after
+        j0 = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th,
+                                      model=model)
+        delay = _delay_with_branches(plant, base, rows, delay, drift, th, model, gain=gain,
+                                     offset_m=None if j0 is None else j0["offset_m"])
     j = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th, model=model)
     if j is None or not len(j["caps_f"]) or not (np.all(np.isfinite(j["hysteresis"].weights))
                                                   and np.all(np.isfinite(j["caps_f"]))):
         return None
     lo, hi = core["range_v"]
     out = dict(core)
-    out.update(hysteresis=j["hysteresis"], joint=True, refined_branches=(j["caps_f"], j["taus_s"], j["residual_m"]))
+    out.update(hysteresis=j["hysteresis"], joint=True, refined_branches=(j["caps_f"], j["taus_s"], j["residual_m"]),
+               offset_m=j["offset_m"], sensor_delay_s=float(delay))
     if named and delay != stage_delay:
         out["delay_s"] = (delay, stage_delay)
     out["how"] = (f"C_h and the creep's Kelvin-Voigt branches across it fitted together to the record's displacement "
                   f"over V_t {lo:.4g} .. {hi:.4g} V (development rows; the sensor's delay {1e3 * delay:.4g} ms"
-                  + (" and drift" if drift is not None else "") + " undone, the base fit's offset out): the record's "
+                  + (" and drift" if drift is not None else "") + f" undone, the record's offset {j['offset_m']:.6g} m "
+                  f"out, searched on the development rows' residual; the base fit's {float(base.channels['displacement'].offset):.6g} m): the record's "
                   "charge q = x / k_q2x (k_q2x declared) gives V_h = V_t - q / C_pp, and q = C_h(V_h) + sum C_j "
                   "lowpass_j(V_h) is linear in C_h's weights and the C_j (non-negative least squares; time constants "
                   f"half a decade apart up to the record's length); residual {j['residual_m']:.4g} m RMS; thresholds "
