@@ -214,9 +214,18 @@ CREEP_MISS = ("measured 2026-11-26 (s14_rtcreep): a creep+delay record at 1 kHz 
               "model, the spectrum's lowpass of the base's output, is the poorer form; the plant that made the record "
               "1.6e-9 m): outside 10 % below. Session 13's file (the fitted model's instant core, branches refitted to "
               "the spectrum's creep) left 8.7e-8 m, 3.1x.")
+CREEP_OFFSET_MISS = ("measured 2026-11-26 (s14_rtfix): a creep+delay record at 1 kHz calibration (28.0x) replays to "
+                     "9.58e-8 m against error_after 1.48e-7 m, 0.65x: BELOW by 35 %, outside 10 %. With the base fit's "
+                     "offset (fitted without creep, biased by it) the direct fit's file was within 10 %; with the fitted "
+                     "model's offset (or one searched on the development rows' residual: 9.58e-8 m alike) the file, "
+                     "the plant's own form fitted to the record, is closer to it than the fitted model.")
+
+
 def _creep_mark(d):
     if d[:3] == (("creep", "delay"), 1e3, "sine"):
         return [pytest.mark.xfail(strict=True, reason=CREEP_MISS)]
+    if d[:3] == (("creep", "delay"), 1e3, "calibration"):
+        return [pytest.mark.xfail(strict=True, reason=CREEP_OFFSET_MISS)]
     return []
 
 
@@ -228,6 +237,16 @@ def test_two_effect_round_trip_reproduces_error_after(sn637, tmp_path, effect, r
     assert res["stages"], res["reason"]
     ea = res["error_after"]["rms"]
     assert abs(err["rms"] - ea) <= ROUND_TRIP_TOLERANCE * ea
+
+
+@pytest.mark.parametrize("effect, rate, proto, size, seed", [d for d in DRAWS if d[0] == ("creep", "delay")])
+def test_two_effect_round_trip_is_not_above_error_after(sn637, tmp_path, effect, rate, proto, size, seed):
+    """The one-sided half of the round trip on the creep+delay draws (the two-sided test above is a strict
+    xfail on both, the file replaying BELOW error_after): the updated plant leaves at most 10 % more than
+    the fitted model's ``error_after``."""
+    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    assert res["stages"], res["reason"]
+    assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"]
 
 
 @pytest.mark.parametrize("channel", ["displacement", "gauge"])
@@ -382,6 +401,9 @@ def test_choose_core_takes_no_part_of_the_test_rows(sn637):
                                      test=sp.test)
         out.append((core, dev, err))
     (a, da, ea), (c, dc, ec) = out
+    # the path under test: C_h and the branches fitted together (the one that reads the record's rows)
+    assert a.get("joint") is True and c.get("joint") is True, (a["reason"], a["how"])
+    assert a["offset_m"] == c["offset_m"] and a["sensor_delay_s"] == c["sensor_delay_s"]
     assert (a["hysteresis"] is None) == (c["hysteresis"] is None) and da == dc
     if a["hysteresis"] is not None:
         np.testing.assert_array_equal(a["hysteresis"].weights, c["hysteresis"].weights)

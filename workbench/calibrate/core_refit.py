@@ -412,6 +412,15 @@ SLOWEST_BRANCH = 10.0
 #: largest is 2.5 C_pp of the P-888.51's; the plant file takes at most 1 mF).
 BRANCH_CAP_OF_C_PP = 10.0
 
+#: With the series resistor in and the drive the recorded ``V`` (no current column: not ``V - R i``) the direct
+#: fit's fastest branch is this many ``R C_pp`` (a decade above the ``R C`` lag ``V_h = V - q / C_pp`` carries,
+#: which a branch near it copies: R = 80 ohm, the grid from 10 samples, held-out 0.12 -> 0.40 of the creep's RMS).
+FASTEST_BRANCH_OF_RC = 10.0
+
+#: A branch of the direct fit is at most this, F: the plant file's limit on a branch's capacitance
+#: (``workbench.plant.files``, ``[creep] capacitances_f``).
+BRANCH_CAP_F = 1e-3
+
 #: Ridge of the direct fit's normal equations, relative to its unit-RMS columns (:func:`direct_core_and_branches`).
 DIRECT_RIDGE = 1e-9
 
@@ -433,7 +442,7 @@ def _sensor_view(t, x, delay_s):
 
 
 def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None, model=None,
-                             offset_m=None):
+                             offset_m=None, fastest_branch_s=None):
     """C_h and Kelvin-Voigt branches across it, fitted together to the record's displacement (one linear fit).
 
     Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes with creep is the fitted model's
@@ -476,6 +485,10 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     thresholds_v : array_like, optional
         C_h's thresholds in V_h, V (``plant_update`` passes the refitted instant core's: the base's plays
         inverted in closed form); default the base's, scaled to the span of ``V_h``.
+    fastest_branch_s : float, optional
+        The fastest branch's time constant, s (default 10 samples; ``plant_update`` passes
+        :data:`FASTEST_BRANCH_OF_RC` ``R C_pp`` when the resistor is in and the drive is the recorded ``V``, not
+        ``V - R i``: ``V_h = V - q / C_pp`` then carries the ``R C`` lag, which a branch near it would copy).
     offset_m : float, optional
         The record's displacement offset, m (taken off before ``V_h``). Default: searched (:func:`_offset_search`)
         on the development rows' residual around the base fit's ``offset``, which is fitted without creep and
@@ -507,9 +520,9 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     y_raw = y
     if offset_m is not None:
         return _direct_at_offset(plant, base, fit, y_raw - float(offset_m), t, dt, delay_s, thresholds_v, m,
-                                 float(offset_m))
+                                 float(offset_m), fastest_branch_s)
     return _offset_search(lambda off: _direct_at_offset(plant, base, fit, y_raw - off, t, dt, delay_s, thresholds_v,
-                                                        m, off), float(m.offset), y_raw[fit])
+                                                        m, off, fastest_branch_s), float(m.offset), y_raw[fit])
 
 
 #: The offset search's half-width, in the development rows' displacement span (:func:`_offset_search`): the
@@ -538,7 +551,7 @@ def _offset_search(fit_at, offset0, y_rows):
     return first
 
 
-def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offset_m):
+def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offset_m, fastest_branch_s=None):
     """:func:`direct_core_and_branches` with the record's offset taken off ``y`` (``offset_m``, m)."""
     from .pi_fit import play_matrix
     k, c_pp = float(plant.pzt.k_q2x_m_per_c), float(plant.pzt.c_pp_f)
@@ -557,7 +570,8 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
         r = np.asarray(thresholds_v, float)
     z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
     dur = float(t[-1] - t[0])
-    taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(SLOWEST_BRANCH * dur) + 1e-9, 0.5)
+    fastest = max(10 * dt, float(fastest_branch_s or 0.0))
+    taus = 10.0 ** np.arange(np.log10(fastest), np.log10(max(SLOWEST_BRANCH * dur, fastest)) + 1e-9, 0.5)
     n = int(np.count_nonzero(fit))
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
     X = np.column_stack(cols)
@@ -579,14 +593,17 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
     As = Xc / sc
     G, h = As.T @ As + DIRECT_RIDGE * np.eye(X.shape[1]), As.T @ qc
     use = np.ones(X.shape[1], bool)
-    cap = BRANCH_CAP_OF_C_PP * c_pp
+    cap = min(BRANCH_CAP_OF_C_PP * c_pp, BRANCH_CAP_F)
     while True:
         lower = np.zeros(X.shape[1])
         idx = np.flatnonzero(use)
         coef = np.zeros(X.shape[1])
         coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
-        floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
-        if coef[0] < floor:
+        # the floor is of the weights' sum, which the bounded re-solve moves: raised until it holds after it
+        for _ in range(20):
+            floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
+            if coef[0] >= floor * (1.0 - 1e-9):
+                break
             lower[0] = floor * sc[0]
             coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
         # a branch beyond the cap is a slow column the centring left small, traded against the others (seed 25

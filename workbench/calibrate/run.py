@@ -195,7 +195,9 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "joint": bool(core.get("joint", False)),
             # the file's displacement-sensor delay, s, and the offset the joint fit took off the record, m
             "sensor_delay_s": _sensor_terms(written_stages(result["stages"], result, core), base)[0],
-            "offset_m": core.get("offset_m")}
+            "offset_m": core.get("offset_m"),
+            # the joint fit's fastest branch when the resistor is in and the drive is the recorded V (R C lag), s
+            "fastest_branch_s": core.get("fastest_branch_s")}
         text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
