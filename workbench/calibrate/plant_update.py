@@ -535,8 +535,11 @@ def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
             caps, taus, resid = core["refined_branches"]
             return {"capacitances_f": np.asarray(caps, float), "time_constants_s": np.asarray(taus, float),
                     "c_h_f": None, "reason": None, "ratio": None,
-                    "how": (f"C_j and tau_j fitted together with C_h (see [hysteresis]) to the record's displacement; "
-                            f"residual {resid:.4g} m RMS on the development rows")}
+                    "how": (f"C_j and tau_j fitted together with C_h (see [hysteresis]) to the record's displacement ("
+                            f"residual {resid:.4g} m RMS on the development rows; the branches uncharged at the "
+                            f"record's start" + ("" if getattr(base, "starts_from_rest", True) else
+                                                 " (it does NOT start from rest: charged branches there bend the C_j)")
+                            + ")")}
         refit = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=core["hysteresis"]))
         sec = _terminal_secant(base, refit)
         g, tau, note = _creep_fractions(p, base, core)
@@ -791,6 +794,11 @@ def plant_file_gaps(stages, base, plant, core=None):
             w = _creep_write_out(p, base, plant, core if written and core["channel"] == ch else None)
             if w["capacitances_f"] is None:
                 gaps.append(f"the creep was not written ({w['reason']})")
+            elif written and core.get("joint") and not getattr(base, "starts_from_rest", True):
+                # review of s14: the branches start uncharged in the fit and in the file; a record that does not
+                # start from rest has charged branches at its start, which the fit's C_j bend to copy
+                gaps.append("the record does not start from rest: the creep's branches were fitted, and are "
+                            "replayed, uncharged at its start (charged branches there bend the fitted C_j)")
             elif written and core["channel"] == ch and core.get("creep_scale", 1.0) < 1.0:
                 gaps.append(f"only {core['creep_scale']:.0%} of the creep's branches within the record were written "
                             f"(branches across C_h cannot carry them all: the ceiling 1 + C_pp/C_h)")
