@@ -501,8 +501,8 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     dict or None
         ``hysteresis`` (C_h: thresholds in V_h, V; weights, F), ``caps_f``, ``taus_s`` (the branches with
         ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m), ``offset_m`` (the
-        offset used, m). C_h's reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum. None when the record
-        gives no C_h (no positive weight).
+        offset used, m). C_h's reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum.
+        None when the record gives no C_h (no positive weight).
     """
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)

@@ -367,12 +367,14 @@ def _core_with_branches(plant, base, result, core):
     out["how"] = (f"C_h and the creep's Kelvin-Voigt branches across it fitted together to the record's displacement "
                   f"over V_t {lo:.4g} .. {hi:.4g} V (development rows; the sensor's delay {1e3 * delay:.4g} ms"
                   + (" and drift" if drift is not None else "") + f" undone, the record's offset {j['offset_m']:.6g} m "
-                  f"out, searched on the development rows' residual; the base fit's {float(base.channels['displacement'].offset):.6g} m): the record's "
+                  + ("out, the fitted model's" if OFFSET_FROM == "model" else
+                     "out, searched on the development rows' residual")
+                  + f"; the base fit's {float(base.channels['displacement'].offset):.6g} m): the record's "
                   "charge q = x / k_q2x (k_q2x declared) gives V_h = V_t - q / C_pp, and q = C_h(V_h) + sum C_j "
                   "lowpass_j(V_h) is linear in C_h's weights and the C_j (non-negative least squares; time constants "
                   "half a decade apart up to the record's length"
-                  + (f", from {FASTEST_BRANCH_OF_RC:g} R C_pp = {1e3 * fastest:.4g} ms: the resistor is in and the drive "
-                     "is the recorded V, not V - R i, so V_h carries the R C lag" if fastest else "")
+                  + (f", from {FASTEST_BRANCH_OF_RC:g} R C_pp = {1e3 * fastest:.4g} ms: the resistor is in and the "
+                     "drive is the recorded V, not V - R i, so V_h carries the R C lag" if fastest else "")
                   + f"); residual {j['residual_m']:.4g} m RMS; thresholds "
                   "in V_h; beyond that range it continues at its last loading slope (extrapolated, every play moving)")
     return out
