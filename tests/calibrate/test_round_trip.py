@@ -210,14 +210,16 @@ def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
 
 CREEP_MISS = ("measured 2026-11-26 (s14_rtcreep): a creep+delay record at 1 kHz sine (18.6x, drawn delay 5.8 ms) is "
               "answered creep alone; the file's C_h and Kelvin-Voigt branches are fitted together to the record "
-              "(core_refit.direct_core_and_branches) and replay it to 1.37e-8 m, HALF error_after (2.78e-8 m: the fitted "
+              "(core_refit.direct_core_and_branches) and replay it to 1.37e-8 m (4.78e-9 m with the fitted model's offset, "
+              "s14_rtfix: 0.17x), HALF error_after or less (2.78e-8 m: the fitted "
               "model, the spectrum's lowpass of the base's output, is the poorer form; the plant that made the record "
               "1.6e-9 m): outside 10 % below. Session 13's file (the fitted model's instant core, branches refitted to "
               "the spectrum's creep) left 8.7e-8 m, 3.1x.")
-JOINT_MISS = ("measured 2026-11-26 (s14_creepdelay + s14_rtcreep merged): the creep+delay record at 1 kHz calibration "
-              "(28x) is answered creep then delay with the joint creep + delay model (main before: creep alone, "
-              "error_after 1.48e-7 m); error_after 5.29e-8 m, the file (C_h and branches fitted together, the "
-              "delay re-searched) 6.09e-8 m: 1.15x, outside 10 % above; not met")
+JOINT_MISS = ("measured 2026-11-26 (main after s14_creepdelay, s14_rtcreep, s14_rtfix): the creep+delay record at 1 kHz "
+              "calibration (28x) is answered creep then delay (the joint creep + delay model); error_after 5.29e-8 m, "
+              "the file (C_h and Kelvin-Voigt branches fitted together to the record, the fitted model's offset, the "
+              "delay re-searched) 8.70e-9 m: 0.16x, BELOW by 84 %, outside 10 % (the plant that made the record "
+              "1.46e-9 m): the plant's own form fits the record better than the fitted spectrum; not met")
 _MISSES = {(("creep", "delay"), 1e3, "sine"): CREEP_MISS, (("creep", "delay"), 1e3, "calibration"): JOINT_MISS}
 
 
@@ -231,6 +233,16 @@ def test_two_effect_round_trip_reproduces_error_after(sn637, tmp_path, effect, r
     assert res["stages"], res["reason"]
     ea = res["error_after"]["rms"]
     assert abs(err["rms"] - ea) <= ROUND_TRIP_TOLERANCE * ea
+
+
+@pytest.mark.parametrize("effect, rate, proto, size, seed", [d for d in DRAWS if d[0] == ("creep", "delay")])
+def test_two_effect_round_trip_is_not_above_error_after(sn637, tmp_path, effect, rate, proto, size, seed):
+    """The one-sided half of the round trip on the creep+delay draws (the two-sided test above is a strict
+    xfail on both, the file replaying BELOW error_after): the updated plant leaves at most 10 % more than
+    the fitted model's ``error_after``."""
+    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    assert res["stages"], res["reason"]
+    assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"]
 
 
 @pytest.mark.parametrize("channel", ["displacement", "gauge"])
@@ -385,6 +397,9 @@ def test_choose_core_takes_no_part_of_the_test_rows(sn637):
                                      test=sp.test)
         out.append((core, dev, err))
     (a, da, ea), (c, dc, ec) = out
+    # the path under test: C_h and the branches fitted together (the one that reads the record's rows)
+    assert a.get("joint") is True and c.get("joint") is True, (a["reason"], a["how"])
+    assert a["offset_m"] == c["offset_m"] and a["sensor_delay_s"] == c["sensor_delay_s"]
     assert (a["hysteresis"] is None) == (c["hysteresis"] is None) and da == dc
     if a["hysteresis"] is not None:
         np.testing.assert_array_equal(a["hysteresis"].weights, c["hysteresis"].weights)

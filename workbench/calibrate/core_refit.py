@@ -412,6 +412,15 @@ SLOWEST_BRANCH = 10.0
 #: largest is 2.5 C_pp of the P-888.51's; the plant file takes at most 1 mF).
 BRANCH_CAP_OF_C_PP = 10.0
 
+#: With the series resistor in and the drive the recorded ``V`` (no current column: not ``V - R i``) the direct
+#: fit's fastest branch is this many ``R C_pp`` (a decade above the ``R C`` lag ``V_h = V - q / C_pp`` carries,
+#: which a branch near it copies: R = 80 ohm, the grid from 10 samples, held-out 0.12 -> 0.40 of the creep's RMS).
+FASTEST_BRANCH_OF_RC = 10.0
+
+#: A branch of the direct fit is at most this, F: the plant file's limit on a branch's capacitance
+#: (``workbench.plant.files``, ``[creep] capacitances_f``).
+BRANCH_CAP_F = 1e-3
+
 #: Ridge of the direct fit's normal equations, relative to its unit-RMS columns (:func:`direct_core_and_branches`).
 DIRECT_RIDGE = 1e-9
 
@@ -432,7 +441,8 @@ def _sensor_view(t, x, delay_s):
     return x if not delay_s else np.interp(t - delay_s, t, x)
 
 
-def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None, model=None):
+def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None, thresholds_v=None, model=None,
+                             offset_m=None, fastest_branch_s=None):
     """C_h and Kelvin-Voigt branches across it, fitted together to the record's displacement (one linear fit).
 
     Why (session 14, issue 13 item 6): the core :func:`refitted_core` writes with creep is the fitted model's
@@ -475,16 +485,25 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     thresholds_v : array_like, optional
         C_h's thresholds in V_h, V (``plant_update`` passes the refitted instant core's: the base's plays
         inverted in closed form); default the base's, scaled to the span of ``V_h``.
+    fastest_branch_s : float, optional
+        The fastest branch's time constant, s (default 10 samples; ``plant_update`` passes
+        :data:`FASTEST_BRANCH_OF_RC` ``R C_pp`` when the resistor is in and the drive is the recorded ``V``, not
+        ``V - R i``: ``V_h = V - q / C_pp`` then carries the ``R C`` lag, which a branch near it would copy).
+    offset_m : float, optional
+        The record's displacement offset, m (taken off before ``V_h``). Default: searched (:func:`_offset_search`)
+        on the development rows' residual around the base fit's ``offset``, which is fitted without creep and
+        biased by it: an offset error ``d`` moves ``V_h`` by ``d / (k_q2x C_pp)`` (4.3 V per um on the
+        P-888.51 sn637) and neither the free intercept nor the branches absorb it (the plays' states and the
+        branches' start from rest are not shift invariant).
 
     Returns
     -------
     dict or None
         ``hysteresis`` (C_h: thresholds in V_h, V; weights, F), ``caps_f``, ``taus_s`` (the branches with
-        ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m). C_h's
-        reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum. None when the record
-        gives no C_h (no positive weight).
+        ``C_j > 0``), ``residual_m`` (RMS of the fit's residual on ``rows``, as displacement, m), ``offset_m`` (the
+        offset used, m). C_h's reversal slope is held to at least :data:`REVERSAL_FLOOR` of its weights' sum.
+        None when the record gives no C_h (no positive weight).
     """
-    from .pi_fit import play_matrix
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)
     dt = float(np.mean(np.diff(t)))
@@ -498,7 +517,43 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     y = np.where(fit, np.asarray(m.y, float), stand_in)
     if sensor_offset is not None:
         y = y - np.asarray(sensor_offset, float)
-    y = y - float(m.offset)
+    y_raw = y
+    if offset_m is not None:
+        return _direct_at_offset(plant, base, fit, y_raw - float(offset_m), t, dt, delay_s, thresholds_v, m,
+                                 float(offset_m), fastest_branch_s)
+    return _offset_search(lambda off: _direct_at_offset(plant, base, fit, y_raw - off, t, dt, delay_s, thresholds_v,
+                                                        m, off, fastest_branch_s), float(m.offset), y_raw[fit])
+
+
+#: The offset search's half-width, in the development rows' displacement span (:func:`_offset_search`): the
+#: base fit's offset, fitted without creep, is off by a part of the creep's motion, itself a part of the span.
+OFFSET_SEARCH_OF_SPAN = 0.1
+
+
+def _offset_search(fit_at, offset0, y_rows):
+    """The direct fit (``fit_at(offset)``) at the offset, m, within ``offset0 +- OFFSET_SEARCH_OF_SPAN`` of the
+    rows' span that leaves the least residual (bounded golden section to 1e-5 of the span; ``offset0`` kept
+    unless beaten). Noise-free the residual is 0 at the record's offset only (a wrong one shifts ``V_h``)."""
+    from scipy.optimize import minimize_scalar
+    span = float(np.ptp(y_rows)) if y_rows.size else 0.0
+    first = fit_at(offset0)
+    if not span > 0:
+        return first
+
+    def cost(off):
+        j = fit_at(off)
+        return float("inf") if j is None else j["residual_m"]
+    h = OFFSET_SEARCH_OF_SPAN * span
+    sol = minimize_scalar(cost, bounds=(offset0 - h, offset0 + h), method="bounded",
+                          options={"xatol": 1e-5 * span, "maxiter": 40})
+    if first is None or sol.fun < first["residual_m"]:
+        return fit_at(float(sol.x))
+    return first
+
+
+def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offset_m, fastest_branch_s=None):
+    """:func:`direct_core_and_branches` with the record's offset taken off ``y`` (``offset_m``, m)."""
+    from .pi_fit import play_matrix
     k, c_pp = float(plant.pzt.k_q2x_m_per_c), float(plant.pzt.c_pp_f)
     # V_h as the sensor sees it: the record's charge y / k is q(t - delay), interpolated between samples as
     # the sensor's delay is (linear); V_t(t - delay) interpolated alike, so their difference is V_h(t - delay)
@@ -515,7 +570,8 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
         r = np.asarray(thresholds_v, float)
     z0 = np.where(r < abs(vh[0]), vh[0] - np.sign(vh[0]) * r, 0.0)
     dur = float(t[-1] - t[0])
-    taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(SLOWEST_BRANCH * dur) + 1e-9, 0.5)
+    fastest = max(10 * dt, float(fastest_branch_s or 0.0))
+    taus = 10.0 ** np.arange(np.log10(fastest), np.log10(max(SLOWEST_BRANCH * dur, fastest)) + 1e-9, 0.5)
     n = int(np.count_nonzero(fit))
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
     X = np.column_stack(cols)
@@ -537,14 +593,17 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     As = Xc / sc
     G, h = As.T @ As + DIRECT_RIDGE * np.eye(X.shape[1]), As.T @ qc
     use = np.ones(X.shape[1], bool)
-    cap = BRANCH_CAP_OF_C_PP * c_pp
+    cap = min(BRANCH_CAP_OF_C_PP * c_pp, BRANCH_CAP_F)
     while True:
         lower = np.zeros(X.shape[1])
         idx = np.flatnonzero(use)
         coef = np.zeros(X.shape[1])
         coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
-        floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
-        if coef[0] < floor:
+        # the floor is of the weights' sum, which the bounded re-solve moves: raised until it holds after it
+        for _ in range(20):
+            floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
+            if coef[0] >= floor * (1.0 - 1e-9):
+                break
             lower[0] = floor * sc[0]
             coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
         # a branch beyond the cap is a slow column the centring left small, traded against the others (seed 25
@@ -562,4 +621,4 @@ def direct_core_and_branches(plant, base, rows, delay_s=0.0, sensor_offset=None,
     res = q[fit] - A @ coef
     keep = c > 1e-9 * max(float(c.sum()), 1e-300)
     return {"hysteresis": PrandtlIshlinskii(r, w, np.zeros(r.size)), "caps_f": c[keep], "taus_s": taus[keep],
-            "residual_m": float(np.sqrt(np.mean(res * res))) * k}
+            "residual_m": float(np.sqrt(np.mean(res * res))) * k, "offset_m": offset_m}

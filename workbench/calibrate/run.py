@@ -23,7 +23,7 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import (written_stages, choose_core, plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
+from .plant_update import (_sensor_terms, written_stages, choose_core, plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
                            updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
@@ -190,7 +190,14 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         data["updated_plant_core"] = {
             "core": "refitted" if core["hysteresis"] is not None else "declared", "channel": core["channel"],
             "range_v": list(core["range_v"]) if core["range_v"] else None, "reason": core["reason"],
-            "capped": float(core.get("capped", 0.0)), "development_rms": dev}
+            "capped": float(core.get("capped", 0.0)), "development_rms": dev,
+            # which write-out ran: C_h and branches fitted together (plant_update._core_with_branches) or not
+            "joint": bool(core.get("joint", False)),
+            # the file's displacement-sensor delay, s, and the offset the joint fit took off the record, m
+            "sensor_delay_s": _sensor_terms(written_stages(result["stages"], result, core), base)[0],
+            "offset_m": core.get("offset_m"),
+            # the joint fit's fastest branch when the resistor is in and the drive is the recorded V (R C lag), s
+            "fastest_branch_s": core.get("fastest_branch_s")}
         text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
