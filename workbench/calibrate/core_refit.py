@@ -574,7 +574,10 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
     taus = 10.0 ** np.arange(np.log10(fastest), np.log10(max(SLOWEST_BRANCH * dur, fastest)) + 1e-9, 0.5)
     n = int(np.count_nonzero(fit))
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
-    X = np.column_stack(cols)
+    # only the fit rows are stacked (the columns run over the whole record; the same values as X[fit]): one
+    # 355,000-row matrix less to allocate
+    Xf = np.column_stack([c[fit] for c in cols])
+    del cols
     # weights and C_j >= 0, the charge's offset free (every column and q centred on the fit's rows), C_h's
     # reversal slope (the threshold-0 play, V_h itself) at least REVERSAL_FLOOR of the weights' sum (as
     # instant_weights): the base fit's bounded solve on the Gram matrix of the centred unit-RMS columns (a few
@@ -584,20 +587,21 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
     # on the rows (a zero column) at zero.
     from .base_fit import _gram_solve
     q = y / k
-    Xf = X[fit]
     mu = Xf.mean(axis=0)
     Xc = Xf - mu
     qc = q[fit] - q[fit].mean()
     sc = np.sqrt(np.einsum("ij,ij->j", Xc, Xc) / n)
     sc[sc == 0] = 1.0
-    As = Xc / sc
-    G, h = As.T @ As + DIRECT_RIDGE * np.eye(X.shape[1]), As.T @ qc
-    use = np.ones(X.shape[1], bool)
+    Xc /= sc                   # in place: As, the centred unit-RMS columns (the same values as Xc / sc)
+    As = Xc
+    G, h = As.T @ As + DIRECT_RIDGE * np.eye(Xf.shape[1]), As.T @ qc
+    del Xc, As
+    use = np.ones(Xf.shape[1], bool)
     cap = min(BRANCH_CAP_OF_C_PP * c_pp, BRANCH_CAP_F)
     while True:
-        lower = np.zeros(X.shape[1])
+        lower = np.zeros(Xf.shape[1])
         idx = np.flatnonzero(use)
-        coef = np.zeros(X.shape[1])
+        coef = np.zeros(Xf.shape[1])
         coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
         # the floor is of the weights' sum, which the bounded re-solve moves: raised until it holds after it
         for _ in range(20):

@@ -110,7 +110,8 @@ def _columns(prob, C, lower):
     Cd = C[prob.rows_dev_idx]
     n = np.sqrt(np.einsum("ij,ij->j", Cd, Cd) / max(prob.rows_dev_idx.size, 1))
     ok = n > 0
-    return {"G": None, "C": C[:, ok] / n[ok], "norms": n[ok], "ok": ok,
+    # (every column kept, the usual case: one division, no fancy-indexed copy first; the same values)
+    return {"G": None, "C": C / n if ok.all() else C[:, ok] / n[ok], "norms": n[ok], "ok": ok,
             "lb": np.r_[prob.lower_A, np.asarray(lower, float)[ok]]}
 
 
