@@ -391,9 +391,13 @@ def cmd_calibrate(args):
     for st in stages[1:]:
         lines.append(f"  then {st['effect']} on the {st['channel']} ({st['agreement']}): test RMS "
                      f"{st['error_before']['rms']:.4g} -> {st['error_after']['rms']:.4g} {st['error_before']['units']}")
+    em = data.get("error_after_model", ea)
     if len(stages) > 1:
-        lines.append(f"  the {data['channel']} after every effect found: test RMS {eb['rms']:.4g} -> {ea['rms']:.4g} "
-                     f"{eb['units']}, max {eb['max']:.4g} -> {ea['max']:.4g} {eb['units']}")
+        lines.append(f"  the {data['channel']} after every effect found (the tracing model): test RMS {eb['rms']:.4g} "
+                     f"-> {em['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> {em['max']:.4g} {eb['units']}")
+    if data.get("error_after_source") == "updated plant":
+        lines.append(f"  error after (the updated plant, the record's drive simulated through it): test RMS "
+                     f"{ea['rms']:.4g} {ea['units']}, max {ea['max']:.4g} (the tracing model's {em['rms']:.4g})")
     for c in data["candidates"][:6]:
         lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}, passes {c['passes']} folds")
     lines += [f"  warning: {w}" for w in data["base_fit"].get("warnings", [])]

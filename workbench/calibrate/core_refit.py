@@ -421,8 +421,51 @@ FASTEST_BRANCH_OF_RC = 10.0
 #: (``workbench.plant.files``, ``[creep] capacitances_f``).
 BRANCH_CAP_F = 1e-3
 
-#: Ridge of the direct fit's normal equations, relative to its unit-RMS columns (:func:`direct_core_and_branches`).
+#: Ridge of the direct fit's normal equations, relative to its unit-RMS columns (:func:`direct_core_and_branches`):
+#: added to the Gram matrix of the unit-RMS columns divided by the rows (unit diagonal). Session 15: it was added
+#: to the undivided one (diagonal = the rows, 32,000-355,000), 3e-14 relative, no ridge at all.
 DIRECT_RIDGE = 1e-9
+
+
+def _bounded_gram_solve(G, h, lower):
+    """min ``w'G w - 2 h'w`` subject to ``w >= lower``, for a Gram matrix ``G`` of unit-diagonal scale.
+
+    The base fit's bounded solve (:func:`~workbench.calibrate.base_fit._gram_solve`) on the target scaled to
+    unit norm, its answer checked: the objective must not exceed the one at ``max(lower, 0)`` (a feasible
+    point). Where it does (the bvls on a near-singular square-root system: session 14's 25 #75, a 34-column
+    fit of condition 1e15, came out at 2.5e3 with an objective above zero's, and the reversal floor raised on
+    it ran away), the same problem is solved again by Lawson-Hanson NNLS on the Cholesky factor of ``G``
+    (ridged until it factors), shifted by ``lower``.
+    """
+    from scipy.optimize import nnls
+
+    from .base_fit import _gram_solve
+    G, h, lower = np.asarray(G, float), np.asarray(h, float), np.asarray(lower, float)
+    s = float(np.linalg.norm(h)) or 1.0
+
+    def obj(x):
+        return float(x @ G @ x - 2.0 * h @ x)
+    start = np.maximum(lower, 0.0)
+    with np.errstate(all="ignore"):
+        x = _gram_solve(G, h / s, lower / s) * s
+        good = np.all(np.isfinite(x)) and np.all(x >= lower - 1e-9 * (np.abs(lower) + 1e-300)) \
+            and obj(x) <= obj(start) + 1e-12 * abs(obj(start))
+    if good:
+        return x
+    eye, d = np.eye(G.shape[0]), float(np.mean(np.diag(G))) or 1.0
+    for ridge in (0.0, 1e-12, 1e-9, 1e-6):
+        try:
+            L = np.linalg.cholesky(G + ridge * d * eye)
+            break
+        except np.linalg.LinAlgError:
+            continue
+    else:
+        return start
+    # x = lower + z, z >= 0: min |L' z - (L^-1 h - L' lower)|
+    c = np.linalg.solve(L, h / s) - L.T @ (lower / s)
+    z, _ = nnls(L.T, c, maxiter=50 * G.shape[0])
+    x = lower + z * s
+    return x if obj(x) <= obj(start) else start
 
 
 def _lowpass_from_rest(u, tau, dt):
@@ -585,7 +628,6 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
     # holds is its own small column, not a near copy of the offset's (uncentred, the solve traded the two at
     # 4e7 and a 28x creep record came out at 4e4 m); the ridge (DIRECT_RIDGE) keeps a play that never moves
     # on the rows (a zero column) at zero.
-    from .base_fit import _gram_solve
     q = y / k
     mu = Xf.mean(axis=0)
     Xc = Xf - mu
@@ -594,7 +636,8 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
     sc[sc == 0] = 1.0
     Xc /= sc                   # in place: As, the centred unit-RMS columns (the same values as Xc / sc)
     As = Xc
-    G, h = As.T @ As + DIRECT_RIDGE * np.eye(Xf.shape[1]), As.T @ qc
+    # the Gram matrix of the unit-RMS columns per row (unit diagonal: the ridge relative, as documented)
+    G, h = As.T @ As / n + DIRECT_RIDGE * np.eye(Xf.shape[1]), As.T @ qc / n
     del Xc, As
     use = np.ones(Xf.shape[1], bool)
     cap = min(BRANCH_CAP_OF_C_PP * c_pp, BRANCH_CAP_F)
@@ -602,14 +645,14 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
         lower = np.zeros(Xf.shape[1])
         idx = np.flatnonzero(use)
         coef = np.zeros(Xf.shape[1])
-        coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
+        coef[idx] = _bounded_gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
         # the floor is of the weights' sum, which the bounded re-solve moves: raised until it holds after it
         for _ in range(20):
             floor = REVERSAL_FLOOR * float(np.sum(np.maximum(coef[:r.size], 0.0)))
             if coef[0] >= floor * (1.0 - 1e-9):
                 break
             lower[0] = floor * sc[0]
-            coef[idx] = _gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
+            coef[idx] = _bounded_gram_solve(G[np.ix_(idx, idx)], h[idx], lower[idx]) / sc[idx]
         # a branch beyond the cap is a slow column the centring left small, traded against the others (seed 25
         # #31: 12627 F at 10 record lengths): the slowest such column is dropped and the fit made again
         over = np.flatnonzero(coef[r.size:] > cap)

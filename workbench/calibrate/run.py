@@ -8,7 +8,10 @@ the plant lacks (``tracing``); fit seed 001's creep law per hold (``creep_holds`
 figures, the report, the JSON and the updated plant file (the input files are never touched;
 every output is written whole or not at all). The updated plant is loaded back and the record's drive
 replayed through it (``plant_update.updated_plant_error``, issue 13 item 6): its test error is in the
-JSON and the file's header beside the fitted model's, with a warning beyond 10 %.
+JSON and the file's header beside the fitted model's, with a warning beyond 10 %. The JSON's
+``error_after`` is the error of what the user gets (session 15): the file's replay on the test rows
+when one was replayed (``error_after_source`` "updated plant"), else the tracing model's ("tracing
+model"); the tracing model's own is ``error_after_model`` in both cases.
 """
 
 import dataclasses
@@ -180,6 +183,12 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
                         for h in holds],
     }
     text, data["updated_plant_error"] = None, None
+    # session 15 (the lead's decision): ``error_after`` is the error of what the user gets. With an updated plant
+    # file replayed, it is that file's replay on the test rows (rows no choice and no fit saw: every fit behind
+    # the file, the core refit, the joint core and branches, the delay re-search, choose_core's choice, reads the
+    # development rows alone); the tracing model's own test error is ``error_after_model``, always
+    data["error_after_model"] = result["error_after"]
+    data["error_after_source"] = "tracing model"
     data["updated_plant_error_reason"] = updated_plant_error_reason(kind, result, base, result["channel"])
     data["updated_plant_gaps"] = []
     data["updated_plant_core"] = None          # pzt: which core the file carries (choose_core)
@@ -217,6 +226,9 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         if note:
             data["base_fit"]["notes"].append(note)
         text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err, core=core)
+        if err is not None and np.isfinite(err.get("rms", float("nan"))):
+            data["error_after"] = dict(err)
+            data["error_after_source"] = "updated plant"
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -242,7 +254,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         data["figures"] = [str(f) for f in figs]
         data["elapsed_s"] = time.perf_counter() - t0
         from ..report.calibrate_report import calibration_markdown
-        md = calibration_markdown(data_path, plant_path, base, {**result, "max_ratio": max_ratio,
+        md = calibration_markdown(data_path, plant_path, base, {**result, "error_after": data["error_after"],
+                                                                "error_after_model": data["error_after_model"],
+                                                                "error_after_source": data["error_after_source"],
+                                                                "max_ratio": max_ratio,
                                                                 "penalty": penalty, "split": split,
                                                                 "block_s": sp.block_s, "n_folds": len(sp.folds)},
                                   holds, figs, plant_out, data["elapsed_s"], report_dir=out)

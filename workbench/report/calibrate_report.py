@@ -205,6 +205,23 @@ def _error_table(base, result):
     return lines + ([""] + note if note else [])
 
 
+def _after_source(result):
+    """Which model the channel's 'after' is (``error_after_source``) and the other one's figure, a paragraph."""
+    src, model, after = result.get("error_after_source"), result.get("error_after_model"), result.get("error_after")
+    if src is None or not model or not after:
+        return []
+    u = model.get("units", "")
+    if src == "updated plant":
+        r = float(after["rms"]) / float(model["rms"]) if _finite(model.get("rms")) and float(model["rms"]) > 0 \
+            else float("nan")
+        return [f"The {result.get('channel')}'s 'after' is the **updated plant**'s: the record's drive simulated "
+                f"through the written file, on the test rows (RMS {_q(after['rms'], u)}, max {_q(after['max'], u)}). "
+                f"The tracing model's own: RMS {_q(model['rms'], u)}, max {_q(model['max'], u)} (file / model "
+                f"{r:.3g}).", ""]
+    return [f"The {result.get('channel')}'s 'after' is the **tracing model**'s (no plant file was replayed): RMS "
+            f"{_q(model['rms'], u)}.", ""]
+
+
 def _candidate_table(result, max_ratio=None):
     chosen = {(st["effect"], st["channel"]) for st in (result.get("stages") or [])}
     if result.get("effect") not in (None, "none", "inconclusive"):
@@ -320,6 +337,7 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
     lines += (["Updated plant: `" + str(updated_plant_path) + "`.", ""] if updated_plant_path
               else ["No plant file written.", ""])
     lines += ["## Error before and after (held out)", ""] + _error_table(base, result) + [""]
+    lines += _after_source(result)
     lines += _base_section(base) + [""]
     lines += ["## Candidates", "",
               f"Each candidate is fitted to one channel's residual jointly with the base model on each validation "
