@@ -37,7 +37,7 @@ import re
 
 import numpy as np
 
-__all__ = ["written_stages", "choose_core", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -256,13 +256,17 @@ def _sensor_terms(stages, base):
 #: named delay stage's (:func:`_delay_with_branches`).
 DELAY_SEARCH_FACTOR = 2.0
 
+#: Log-spaced points of the delay's bracket scanned before the bounded search (:func:`_delay_with_branches`).
+DELAY_SCAN_POINTS = 9
+
 
 def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, model=None, gain=1.0, offset_m=None,
                          fastest_branch_s=None):
     """The sensor delay, s, at which C_h and the branches fitted together
     (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
-    development ``rows``, searched (bounded, golden section) between ``min(d, g d)`` over and ``max(d, g d)``
-    times :data:`DELAY_SEARCH_FACTOR` (``d`` the named delay stage's ``delay_s``, ``g`` its gain ``scale``),
+    development ``rows``, searched between ``min(d, g d)`` over and ``max(d, g d)`` times
+    :data:`DELAY_SEARCH_FACTOR` (a scan of :data:`DELAY_SCAN_POINTS` log-spaced points and ``d``, ``g d``, then a
+    bounded golden section between the best one's neighbours) (``d`` the named delay stage's ``delay_s``, ``g`` its gain ``scale``),
     at the record's offset ``offset_m`` (m; None: the direct fit searches it at every trial).
 
     Why: the delay stage's term is ``g (u0(t - d) - u0(t))`` with its gain ``g`` free (``scale``), a delay of
@@ -289,11 +293,24 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
                                      model=model, offset_m=offset_m, fastest_branch_s=fastest_branch_s)
         r = float("nan") if j is None else float(j["residual_m"])
         return r if np.isfinite(r) else worst
-    sol = minimize_scalar(cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.02 * dt, "maxiter": 16})
-    return float(sol.x) if sol.fun < cost(delay_s) else float(delay_s)
+    # a scan of the bracket first (the stage's delay, g d and a log grid between the ends), then the bounded search
+    # between the best point's neighbours: a golden section over the whole bracket took its first point at 38 % of
+    # it, and where no fit exists there (a drawn 100 kHz record, g 3.75: 18-274 ms, the delay 36.6 ms) it walked
+    # to the far end on flat costs and never saw the stage's delay (session 15)
+    grid = np.unique(np.r_[np.geomspace(lo, hi, DELAY_SCAN_POINTS), ends])
+    costs = np.array([cost(d) for d in grid])
+    k = int(np.argmin(costs))
+    a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
+    best_d, best_c = float(grid[k]), float(costs[k])
+    if b > a:
+        sol = minimize_scalar(cost, bounds=(a, b), method="bounded", options={"xatol": 0.02 * dt, "maxiter": 16})
+        if sol.fun < best_c:
+            best_d, best_c = float(sol.x), float(sol.fun)
+    stage = float(costs[np.argmin(np.abs(grid - delay_s))])
+    return best_d if best_c < stage else float(delay_s)
 
 
-def _fitted_motion(base, core_fit, rows):
+def _fitted_motion(base, core_fit, rows, terms=None):
     """A model of the displacement fitted on the development ``rows``, m, every sample: what stands in for the
     record off those rows in :func:`~workbench.calibrate.core_refit.direct_core_and_branches`.
 
@@ -301,7 +318,8 @@ def _fitted_motion(base, core_fit, rows):
     as a gain on the shifted ``u0`` (the stage's term is the REFITTED model shifted, not at hand here) or as
     a shift of the whole motion, or the base alone (``u0``): whichever is closest to the record on ``rows``
     (each with its offset fitted there). Measured, seed 29 #75 (100 kHz, a 130-sample delay whose joint gain
-    came out 15.3): the gain form alone stood in 10x worse and the written file left 21x error_after."""
+    came out 15.3): the gain form alone stood in 10x worse and the written file left 21x error_after.
+    Returns (the model, m; the record's offset by it, m; "model" or "base": which stood in)."""
     from .effects import lowpass
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)
@@ -323,12 +341,18 @@ def _fitted_motion(base, core_fit, rows):
     best = None
     # the record's offset by the candidate: the fitted model's plays and creep carry none (x: no constant
     # column; the creep's lowpass at rest at u0's start), u0 (the base's yhat) carries the base fit's
-    for cand, own in ((x + gain, 0.0), (np.interp(t - shift, t, x), 0.0), (u0, float(m.offset))):
+    cands = [(x + gain, 0.0, "model"), (np.interp(t - shift, t, x), 0.0, "model"), (u0, float(m.offset), "base")]
+    if terms is not None and terms.get("channel") == "displacement" and terms.get("base") is not None:
+        # the first stage's own fitted model (the tracing's prediction, its base refitted with the stage; its
+        # offset the joint fit's, not at hand: searched): a delay whose gain came out far from 1 (a drawn 100 kHz
+        # creep+delay record at 29x, gain 3.75) made the forms above stand in at 5.6e-7 m on the rows, this at 2.2e-8
+        cands.append((np.asarray(terms["base"], float) + np.asarray(terms["term"], float), 0.0, "first stage"))
+    for cand, own, name in cands:
         off = float(np.mean(y[ok] - cand[ok]))
         err = float(np.sqrt(np.mean((y[ok] - cand[ok] - off) ** 2)))
         if best is None or err < best[0]:
-            best = (err, cand + off, off + own)
-    return best[1], best[2]
+            best = (err, cand + off, off + own, name)
+    return best[1], best[2], best[3]
 
 
 def _core_with_branches(plant, base, result, core):
@@ -346,14 +370,18 @@ def _core_with_branches(plant, base, result, core):
     # measured against the base's V_t thresholds scaled to V_h's span, seeds 24 #31, 25 #20, 24 #64: 1.37x,
     # 1.15x, 1.05x -> 0.45x, 0.85x, 0.85x error_after
     th = core["hysteresis"].thresholds
-    model, model_offset = _fitted_motion(base, result.get("core_fit"), rows)
+    model, model_offset, stand_in = _fitted_motion(base, result.get("core_fit"), rows, result.get("terms"))
     # the resistor in and the drive the recorded V (not V - R i): V_h = V - q / C_pp carries the R C lag, which
     # a branch near R C copies (R = 80 ohm: 0.12 -> 0.40 of the creep's RMS held out); the grid starts above it
     fastest = None
     r_ohm, c_pp = float(plant.pzt.series_resistance_ohm), float(plant.pzt.c_pp_f)
     if r_ohm > 0 and "V - R i" not in str(getattr(base, "voltage_source", "")):
         fastest = FASTEST_BRANCH_OF_RC * r_ohm * c_pp
-    fixed = model_offset if OFFSET_FROM == "model" else None
+    # the fitted model's offset when the fitted model stands in; when the base alone does (the fitted model's forms
+    # stood in worse), its offset is the base fit's, fitted without creep and biased by it: searched (session 15,
+    # a drawn 100 kHz creep+delay record at 29x, delay gain 3.75: the base's offset left the fit's residual 5.1e-8
+    # m, the searched one 2.0e-8 m)
+    fixed = model_offset if OFFSET_FROM == "model" and stand_in == "model" else None
     if named and delay:
         # the record's offset searched at the stage's delay, held through the delay's search, searched again after
         j0 = direct_core_and_branches(plant, base, rows, delay_s=delay, sensor_offset=drift, thresholds_v=th,
@@ -374,7 +402,7 @@ def _core_with_branches(plant, base, result, core):
     out["how"] = (f"C_h and the creep's Kelvin-Voigt branches across it fitted together to the record's displacement "
                   f"over V_t {lo:.4g} .. {hi:.4g} V (development rows; the sensor's delay {1e3 * delay:.4g} ms"
                   + (" and drift" if drift is not None else "") + f" undone, the record's offset {j['offset_m']:.6g} m "
-                  + ("out, the fitted model's" if OFFSET_FROM == "model" else
+                  + ("out, the fitted model's" if fixed is not None else
                      "out, searched on the development rows' residual")
                   + f"; the base fit's {float(base.channels['displacement'].offset):.6g} m): the record's "
                   "charge q = x / k_q2x (k_q2x declared) gives V_h = V_t - q / C_pp, and q = C_h(V_h) + sum C_j "
@@ -866,6 +894,29 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()
     why = "; ".join([*gaps, last])
     return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u} against "
             f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")
+
+
+def reported_error_after(error_after_model, plant_error):
+    """The ``error_after`` ``workbench calibrate`` reports: the error of what the user gets (session 15).
+
+    Parameters
+    ----------
+    error_after_model : dict
+        ``{rms, max, units}``: the tracing model's own test error (``trace_effect``'s ``error_after``).
+    plant_error : dict or None
+        :func:`updated_plant_error` of the written file (its replay on the test rows), None when no file was
+        replayed.
+
+    Returns
+    -------
+    error_after : dict
+        ``plant_error`` when it was measured (finite), else ``error_after_model``.
+    source : {"updated plant", "tracing model"}
+        Which of the two it is.
+    """
+    if plant_error is not None and np.isfinite(float(plant_error.get("rms", float("nan")))):
+        return dict(plant_error), "updated plant"
+    return error_after_model, "tracing model"
 
 
 def round_trip_note(error_after, plant_error, tolerance=None):

@@ -26,7 +26,7 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import (_sensor_terms, written_stages, choose_core, plant_file_gaps, round_trip_note, round_trip_warning, updated_plant_error,
+from .plant_update import (_sensor_terms, written_stages, choose_core, plant_file_gaps, reported_error_after, round_trip_note, round_trip_warning, updated_plant_error,
                            updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
@@ -226,9 +226,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         if note:
             data["base_fit"]["notes"].append(note)
         text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err, core=core)
-        if err is not None and np.isfinite(err.get("rms", float("nan"))):
-            data["error_after"] = dict(err)
-            data["error_after_source"] = "updated plant"
+        data["error_after"], data["error_after_source"] = reported_error_after(result["error_after"], err)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
