@@ -406,3 +406,114 @@ def test_choose_core_takes_no_part_of_the_test_rows(sn637):
         for x, y in zip(a.get("refined_branches", ())[:2], c.get("refined_branches", ())[:2]):
             np.testing.assert_array_equal(x, y)
     assert ea is not None and ec["rms"] > ea["rms"]
+
+
+_RNG15 = np.random.default_rng(1501)
+#: (effect, rate Hz, protocol, size, seed): creep + delay records drawn at 10 and 100 kHz, calibration or steps,
+#: sizes 10-30x log-uniform (``default_rng(1501)``, drawn before any run; the first two on main, s14's final code:
+#: 2.89x and 3.22x the tracing model)
+BIG_CREEP_DELAY = [(("creep", "delay"), float(_RNG15.choice([1e4, 1e5])), str(_RNG15.choice(["calibration", "steps"])),
+                    float(np.exp(_RNG15.uniform(np.log(10.0), np.log(30.0)))), int(_RNG15.integers(1 << 30)))
+                   for _ in range(4)]
+DELAY_ALONE_MISS = ("measured 2026-11-26 (s15_rt): the 100 kHz steps draw (27x) is answered delay alone; the file "
+                    "replays the record at 1.71x the tracing model's test error, and the plant that made the record "
+                    "at 1.10x: the tracing model leaves less than the record's own plant, the file's single delay "
+                    "does not; not met")
+
+
+@pytest.mark.parametrize("effect, rate, proto, size, seed", [
+    pytest.param(*d, marks=pytest.mark.xfail(strict=True, reason=DELAY_ALONE_MISS)) if k == 3 else d
+    for k, d in enumerate(BIG_CREEP_DELAY)])
+def test_a_large_creep_beside_a_delay_is_not_written_worse_than_found(sn637, tmp_path, effect, rate, proto, size,
+                                                                     seed):
+    """Issue 13 item 6, one-sided, on large creep + delay draws: the updated plant (C_h and the branches fitted
+    together through the delay, :func:`~workbench.calibrate.core_refit.direct_core_and_branches`) replays the
+    record to at most 10 % above the tracing model's test error. The causes this draws over (session 15): the
+    direct fit's Gram matrix summed over the rows made its ridge 3e-14 relative and its bounded solve diverge
+    (3.22x); the stand-in off the fit's rows, the base alone with its creep-biased offset, where the tracing's
+    delay gain came out 3.75 (2.89x); the delay's bracket search walking off to its far end."""
+    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    assert res["stages"], res["reason"]
+    assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"], err["rms"] / res["error_after"]["rms"]
+
+
+def test_the_direct_fits_bounded_solve_meets_its_optimality_conditions():
+    """The direct fit's bounded least squares (``core_refit._bounded_gram_solve``) on drawn problems of its
+    shape (unit-RMS centred play and lowpass columns per row, plays that never move: zero columns; a lower bound
+    on the first): the Karush-Kuhn-Tucker conditions hold (the gradient zero on the free weights, not negative
+    on the bound ones), and the objective is not above the one at the bounds."""
+    from scipy import signal
+
+    from workbench.calibrate.core_refit import DIRECT_RIDGE, _bounded_gram_solve
+    from workbench.calibrate.pi_fit import play_matrix
+    rng0 = np.random.default_rng(1502)
+    for _ in range(6):
+        rng = np.random.default_rng(rng0.integers(1 << 30))
+        n, dt = int(np.exp(rng.uniform(np.log(2e4), np.log(1e5)))), 1e-4
+        v = np.cumsum(rng.normal(0.0, 1.0, n))
+        v = 50.0 + 40.0 * v / np.abs(v).max()
+        r = np.r_[0.0, np.sort(rng.uniform(0.0, 60.0, 12)), 200.0 + np.arange(int(rng.integers(1, 4)))]
+        taus = 10.0 ** np.arange(np.log10(10 * dt), np.log10(10 * n * dt), 0.5)
+        X = np.column_stack([play_matrix(v, r, np.zeros(r.size))]
+                            + [signal.lfilter([-np.expm1(-dt / tau)], [1.0, -np.exp(-dt / tau)], v) for tau in taus])
+        w = np.abs(rng.normal(0.0, 1.0, X.shape[1])) * (rng.uniform(size=X.shape[1]) < 0.5)
+        q = 1e-7 * (X @ w + rng.normal(0.0, 0.01 * np.std(X @ w) + 1e-12, n))
+        Xc, qc = X - X.mean(axis=0), q - q.mean()
+        sc = np.sqrt(np.mean(Xc * Xc, axis=0))
+        sc[sc == 0] = 1.0
+        A = Xc / sc
+        G, h = A.T @ A / n + DIRECT_RIDGE * np.eye(A.shape[1]), A.T @ qc / n
+        lower = np.zeros(A.shape[1])
+        lower[0] = rng.uniform(0.0, 1.0) * float(np.linalg.lstsq(G, h, rcond=None)[0][0] ** 2) ** 0.5
+        x = _bounded_gram_solve(G, h, lower)
+        g = G @ x - h
+        size = float(np.linalg.norm(h))
+        free = x > lower + 1e-9 * float(np.max(np.abs(x)))
+        assert np.all(x >= lower - 1e-12 * float(np.max(np.abs(x))))
+        assert np.max(np.abs(g[free]), initial=0.0) <= 1e-6 * size, (np.max(np.abs(g[free])), size)
+        assert np.min(g[~free], initial=0.0) >= -1e-6 * size
+        start = np.maximum(lower, 0.0)
+        assert x @ G @ x - 2 * h @ x <= start @ G @ start - 2 * h @ start
+
+
+def _calibrated(tmp_path, sn637, effect, size, seed, monkeypatch):
+    """``workbench calibrate``'s library call on a drawn record: (its JSON-ready result, the base fit it made, its
+    split)."""
+    import workbench.calibrate.run as run
+    from workbench.calibrate.protocol import calibration_protocol
+    from workbench.calibrate.synthetic import plant_with_effect, write_record
+    seen = {}
+    fit_base, make_split = run.fit_base, run.make_split
+    monkeypatch.setattr(run, "fit_base", lambda *a, **k: seen.setdefault("base", fit_base(*a, **k)))
+    monkeypatch.setattr(run, "make_split", lambda *a, **k: seen.setdefault("split", make_split(*a, **k)))
+    t, v = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0), chirp_s=1.0)
+    plant, _ = plant_with_effect(sn637, effect, seed, duration_s=float(t[-1]), size=size)
+    data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=seed), {"serial": "SN637"})
+    res = run.run_calibrate(data, PLANTS / "p888_51_sn637.toml", out_dir=tmp_path / "out", figures=False)
+    return res, seen["base"], seen["split"]
+
+
+_RNG16 = np.random.default_rng(1503)
+#: (effect, size, seed): two records with an effect the file carries, sizes 3-30x (``default_rng(1503)``)
+REPORTED = [(str(_RNG16.choice(["creep", "delay", "drift", "leakage", "resonance", "dielectric_absorption"])),
+             float(np.exp(_RNG16.uniform(np.log(3.0), np.log(30.0)))), int(_RNG16.integers(1 << 30))) for _ in range(2)]
+
+
+@pytest.mark.parametrize("effect, size, seed", REPORTED)
+def test_the_reported_error_after_is_the_written_files_replay(sn637, tmp_path, monkeypatch, effect, size, seed):
+    """Session 15 (the lead's decision): the ``error_after`` ``workbench calibrate`` reports is the error of what
+    the user gets. The file it wrote, loaded back from disk and the record's drive simulated through it, leaves
+    on the test rows the JSON's ``error_after`` to 1e-9 relative (the same replay: a figure from anywhere else,
+    the tracing model's, fails this); ``error_after_source`` says so and the tracing model's own figure is
+    ``error_after_model``."""
+    res, base, sp = _calibrated(tmp_path, sn637, effect, size, seed, monkeypatch)
+    assert res["stages"], res["reason"]
+    assert res["error_after_source"] == "updated plant"
+    again = load_plant(Path(res["updated_plant"]))
+    err = updated_plant_error(again, base, res["channel"], sp.test, train=sp.train)
+    assert err["rms"] == pytest.approx(res["error_after"]["rms"], rel=1e-9)
+    assert err["max"] == pytest.approx(res["error_after"]["max"], rel=1e-9)
+    on_channel = [st for st in res["stages"] if st["channel"] == res["channel"]]
+    assert res["error_after_model"] == on_channel[-1]["error_after"]
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "**updated plant**" in md and "tracing model's own" in md
