@@ -402,7 +402,7 @@ def _fitted_motion(base, core_fit, rows, terms=None):
     a shift of the whole motion, or the base alone (``u0``): whichever is closest to the record on ``rows``
     (each with its offset fitted there). Measured, seed 29 #75 (100 kHz, a 130-sample delay whose joint gain
     came out 15.3): the gain form alone stood in 10x worse and the written file left 21x error_after.
-    Returns (the model, m; the record's offset by it, m; "model" or "base": which stood in)."""
+    Returns (the model, m; the record's offset, m; "model" or "base": which form's offset that is)."""
     from .effects import lowpass
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)
@@ -424,17 +424,21 @@ def _fitted_motion(base, core_fit, rows, terms=None):
     best = None
     # the record's offset by the candidate: the fitted model's plays and creep carry none (x: no constant
     # column; the creep's lowpass at rest at u0's start), u0 (the base's yhat) carries the base fit's
-    cands = [(x + gain, 0.0, "model"), (np.interp(t - shift, t, x), 0.0, "model"), (u0, float(m.offset), "base")]
-    if terms is not None and terms.get("channel") == "displacement" and terms.get("base") is not None:
-        # the first stage's own fitted model (the tracing's prediction, its base refitted with the stage; its
-        # offset the joint fit's, not at hand: searched): a delay whose gain came out far from 1 (a drawn 100 kHz
-        # creep+delay record at 29x, gain 3.75) made the forms above stand in at 5.6e-7 m on the rows, this at 2.2e-8
-        cands.append((np.asarray(terms["base"], float) + np.asarray(terms["term"], float), 0.0, "first stage"))
-    for cand, own, name in cands:
+    for cand, own, name in ((x + gain, 0.0, "model"), (np.interp(t - shift, t, x), 0.0, "model"),
+                            (u0, float(m.offset), "base")):
         off = float(np.mean(y[ok] - cand[ok]))
         err = float(np.sqrt(np.mean((y[ok] - cand[ok] - off) ** 2)))
         if best is None or err < best[0]:
             best = (err, cand + off, off + own, name)
+    if terms is not None and terms.get("channel") == "displacement" and terms.get("base") is not None:
+        # the first stage's own fitted model (the tracing's prediction, its base refitted with the stage, its offset
+        # in it) stands in where it is closer; the record's offset stays the forms' above (session 15: a drawn
+        # 100 kHz creep+delay record at 29x, delay gain 3.75: the forms above stood in at 5.6e-7 m on the rows,
+        # this at 2.2e-8 m)
+        first = np.asarray(terms["base"], float) + np.asarray(terms["term"], float)
+        off = float(np.mean(y[ok] - first[ok]))
+        if float(np.sqrt(np.mean((y[ok] - first[ok] - off) ** 2))) < best[0]:
+            best = (None, first + off, best[2], best[3])
     return best[1], best[2], best[3]
 
 
@@ -460,8 +464,8 @@ def _core_with_branches(plant, base, result, core):
     r_ohm, c_pp = float(plant.pzt.series_resistance_ohm), float(plant.pzt.c_pp_f)
     if r_ohm > 0 and "V - R i" not in str(getattr(base, "voltage_source", "")):
         fastest = FASTEST_BRANCH_OF_RC * r_ohm * c_pp
-    # the fitted model's offset when the fitted model stands in; when the base alone does (the fitted model's forms
-    # stood in worse), its offset is the base fit's, fitted without creep and biased by it: searched (session 15,
+    # the fitted model's offset when a fitted model's form is closest; when the base alone is (the fitted model's
+    # forms worse), its offset is the base fit's, fitted without creep and biased by it: searched (session 15,
     # a drawn 100 kHz creep+delay record at 29x, delay gain 3.75: the base's offset left the fit's residual 5.1e-8
     # m, the searched one 2.0e-8 m)
     fixed = model_offset if OFFSET_FROM == "model" and stand_in == "model" else None
