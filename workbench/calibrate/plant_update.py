@@ -230,7 +230,8 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     modes = tuple(again.pzt.modes)
     if not modes:
         return core
-    without = dataclasses.replace(again, pzt=dataclasses.replace(again.pzt, modes=modes[:-1]))
+    k = int(np.argmin([abs(float(md.freq_hz) - f0) for md in modes]))      # the found one (written at f0)
+    without = dataclasses.replace(again, pzt=dataclasses.replace(again.pzt, modes=modes[:k] + modes[k + 1:]))
     y0 = np.asarray(_replay(without, base, "displacement"), float)
     _, drift = _sensor_terms(stages, base)
     x1 = y0 - (0.0 if drift is None else drift)
