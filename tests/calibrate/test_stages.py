@@ -174,12 +174,15 @@ def test_json_stages_of_a_two_effect_record(sn637, tmp_path, pair, size, seed):
         earlier = [e for e in st[:k] if e["channel"] == s["channel"]]
         start = earlier[-1]["error_after"]["rms"] if earlier else chans[s["channel"]]["rms"]
         assert s["error_before"]["rms"] == pytest.approx(start, rel=1e-9)
-    # the calibration's own error after is the calibrated plant's: after every effect found on the
-    # first effect's channel (each stage starts from the last), so at most the first stage's alone
+    # the tracing model's own error after: after every effect found on the first effect's channel (each
+    # stage starts from the last), so at most the first stage's alone
     on_first = [s for s in st if s["channel"] == res["channel"]]
     assert res["error_before"] == st[0]["error_before"]
-    assert res["error_after"] == on_first[-1]["error_after"] == chans[res["channel"]]["error_after"]
-    assert res["error_after"]["rms"] <= st[0]["error_after"]["rms"]
+    assert res["error_after_model"] == on_first[-1]["error_after"] == chans[res["channel"]]["error_after"]
+    assert res["error_after_model"]["rms"] <= st[0]["error_after"]["rms"]
+    # the reported one is what the user gets (session 15): the updated plant file's replay when one was replayed
+    assert res["error_after"] == (res["updated_plant_error"] if res["error_after_source"] == "updated plant"
+                                  else res["error_after_model"])
     by = {s["effect"]: s["parameters"] for s in st}
     if "resonance" in by:
         # within the record's frequency resolution, 1 / T (10 s)
