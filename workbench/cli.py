@@ -378,7 +378,9 @@ def cmd_sweep(args):
 
 
 def cmd_calibrate(args):
+    from ._malloc import keep_freed_memory
     from .calibrate.run import run_calibrate
+    keep_freed_memory()          # a short-lived process: its large temporaries reuse freed memory (_malloc)
     data = run_calibrate(args.data, args.plant, out_dir=args.out, split=args.split, train_cycles=args.train_cycles,
                          max_ratio=args.max_ratio, progress=lambda stage, d, t: _progress_bar(stage, d, t))
     eb, ea = data["error_before"], data["error_after"]

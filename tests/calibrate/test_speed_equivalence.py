@@ -350,3 +350,74 @@ def test_same_params_only_for_equal_numeric_values():
     assert not same({"n": np.int32(97)}, {"n": "a"})                 # equal bytes, other dtype
     assert not same({"w": [[1.0], [1.0, 2.0]]}, {"w": [[1.0], [1.0, 2.0]]})     # ragged: not judged
     assert not same({"a": 1.0}, {"b": 1.0})
+
+
+def _found_problem(rng, n_found):
+    """A linear problem on a drawn record with ``n_found`` found columns of drawn scales."""
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.tracing import _Problem
+    n = int(rng.integers(3000, 12000))
+    t = np.arange(n) / float(rng.choice(RATES_HZ))
+    v = 50 + 40 * np.sin(2 * np.pi * rng.uniform(1, 5) / t[-1] * t)
+    sp = make_split(t, v, "blocks")
+    A = np.column_stack([v, np.abs(v - 50), np.ones(n)]) * 10.0 ** rng.uniform(-3, 3, 3)
+    r = 10.0 ** rng.uniform(-9, -3) * rng.standard_normal(n)
+    prob = _Problem(sp, np.ones(n, bool), A, [0.0, 0.0, -np.inf], r, sp.train)
+    found = [(rng.standard_normal((n, int(rng.integers(1, 4)))) * 10.0 ** rng.uniform(-6, 6), [0.0])
+             for _ in range(n_found)]
+    found = [(C, [0.0] * C.shape[1]) for C, _ in found]
+    return prob, found
+
+
+@pytest.mark.parametrize("seed", [11, 12, 13])
+def test_the_found_effects_grams_are_formed_once_and_equal_fresh_ones(seed):
+    """``tracing._stacked`` with the found columns alone (every candidate's joint search and the stage's
+    scores ask for them) returns the Gram matrices formed from those columns, bit for bit, the second
+    time without forming them again; another found set (a column more, other bounds, another array of
+    the same values) is formed afresh."""
+    from workbench.calibrate.tracing import _stacked
+    rng = np.random.default_rng(seed)
+    prob, found = _found_problem(rng, int(rng.integers(1, 4)))
+    fresh = prob.grams(np.column_stack([C for C, _ in found]), [x for _, lo in found for x in lo])
+    g1 = _stacked(prob, found, None)
+    assert np.array_equal(g1["G"], fresh["G"]) and np.array_equal(g1["C"], fresh["C"])
+    assert _stacked(prob, list(found), None) is g1                 # the same columns: no new products
+    copy_ = [(C.copy(), lo) for C, lo in found]                      # equal values, other arrays
+    g2 = _stacked(prob, copy_, None)
+    assert g2 is not g1 and np.array_equal(g2["G"], g1["G"])
+    bounds = [(C, [-np.inf] * len(lo)) for C, lo in copy_]           # other bounds: other lb
+    g3 = _stacked(prob, bounds, None)
+    assert g3 is not g2 and np.all(np.isinf(g3["lb"][prob.A.shape[1]:]))
+    more = bounds + [(rng.standard_normal((prob.r.size, 1)), [0.0])]
+    assert _stacked(prob, more, None)["G"].shape[1] == g3["G"].shape[1] + 1
+
+
+@pytest.mark.parametrize("seed", [21, 22])
+def test_the_research_memo_gives_the_values_formed_afresh(seed):
+    """``stages._research`` forms the found effects' fit, the joint projection and the found columns on
+    the development rows once per found set: a candidate researched with them held equals the same
+    candidate researched with them formed afresh (its columns and Gram matrices bit for bit), and a
+    changed found set is not served the held ones."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate import stages
+    from workbench.calibrate.effects import Drift
+    rng = np.random.default_rng(seed)
+    prob, found = _found_problem(rng, 2)
+    t = np.arange(prob.r.size, dtype=float)
+    base = SimpleNamespace(channels={"displacement": SimpleNamespace(y=prob.r * prob.scale + 1.0)})
+    c = {"name": "drift", "channel": "displacement", "key": ("displacement", "time"), "eff": Drift(),
+         "driver": "time", "u": t, "n_params": 3}
+    probs, extra = {c["key"]: prob}, {c["key"]: found}
+    first = stages._research(c, probs, extra, t, base)
+    held = prob._research_found
+    again = stages._research(c, probs, extra, t, base)
+    assert prob._research_found is held
+    del prob._research_found
+    fresh = stages._research(c, probs, extra, t, base)
+    for r in (again, fresh):
+        assert np.array_equal(r["g"]["G"], first["g"]["G"]) and np.array_equal(r["g"]["C"], first["g"]["C"])
+        assert np.array_equal(r["yhat"], first["yhat"])
+    extra[c["key"]] = found[:1]
+    stages._research(c, probs, extra, t, base)
+    assert prob._research_found[0][0] is found[0][0] and len(prob._research_found[0]) == 1

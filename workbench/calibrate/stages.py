@@ -156,13 +156,20 @@ def _joint_projection(prob, extra_k):
     return lambda X: X - E @ (ginv @ (E.T @ X))
 
 
-def _orthogonal(C, lower, extra_k, rows):
+def _found_matrix(extra_k, rows):
+    """The found columns side by side, ``F``, and their ``rows`` (:func:`_orthogonal`): ``(F, F[rows])``."""
+    F = np.column_stack([X for X, _ in extra_k])
+    return F, F[rows]
+
+
+def _orthogonal(C, lower, extra_k, rows, found=None):
     """``C``'s columns less their least-squares part in the found columns (on ``rows``); columns
     left with under 1e-6 of their norm dropped. A rival of the found effect's own kind would
-    otherwise repeat its columns, and a Gram-matrix solve with repeated columns is not exact."""
+    otherwise repeat its columns, and a Gram-matrix solve with repeated columns is not exact.
+    ``found``: :func:`_found_matrix` of ``extra_k`` and ``rows``, when the caller holds it."""
     C = np.atleast_2d(np.asarray(C, float).T).T
-    F = np.column_stack([X for X, _ in extra_k])
-    coef = np.linalg.lstsq(F[rows], C[rows], rcond=1e-10)[0]
+    F, F_rows = _found_matrix(extra_k, rows) if found is None else found
+    coef = np.linalg.lstsq(F_rows, C[rows], rcond=1e-10)[0]
     R = C - F @ coef
     keep = np.linalg.norm(R[rows], axis=0) > 1e-6 * np.linalg.norm(C[rows], axis=0)
     return R[:, keep], list(np.asarray(lower, float).reshape(-1)[keep] if np.size(lower) == keep.size
@@ -176,13 +183,23 @@ def _research(c, probs, extra, t, base):
     prob = probs[key]
     if not extra[key]:
         return c
-    g_found = _tr._stacked(prob, extra[key], None)
-    corr, _, _ = prob.predict(g_found, prob.split.dev_blocks)
+    # the found effects' fit, the projection off their columns and those columns on the development
+    # rows depend on the found columns alone: formed once per found set for every candidate of the
+    # stage (the same arrays in, the same values out)
+    memo = prob.__dict__.get("_research_found")
+    lows = [list(lo) for _, lo in extra[key]]
+    if memo is None or len(memo[0]) != len(extra[key]) or memo[4] != lows \
+            or not all(a is X for a, (X, _) in zip(memo[0], extra[key])):
+        g_found = _tr._stacked(prob, extra[key], None)
+        corr, _, _ = prob.predict(g_found, prob.split.dev_blocks)
+        memo = ([X for X, _ in extra[key]], corr, _joint_projection(prob, extra[key]),
+                _found_matrix(extra[key], prob.rows_dev), lows)
+        prob._research_found = memo                  # (holds the columns: their ids stay theirs)
+    corr, project, found_F = memo[1], memo[2], memo[3]
     y = base.channels[c["channel"]].y              # (the gauge's line problem: its target is y - line too)
     model = y - prob.r * prob.scale + corr          # base + found effects, fitted on the dev rows
     u = model if c["driver"] == "model" else c["u"]
     eff = copy.deepcopy(c["eff"])
-    project = _joint_projection(prob, extra[key])
     best = None
     modes = (project, None) if getattr(eff, "nonlinear", False) else (project,)
     dev = prob.split.dev_blocks
@@ -202,7 +219,7 @@ def _research(c, probs, extra, t, base):
         else:
             C, lower = e.term(t, u, p, y_model=model), [0.0]
         # what it adds beyond the found columns (a rival of a found kind would repeat them)
-        C, lower = _orthogonal(C, lower, extra[key], prob.rows_dev)
+        C, lower = _orthogonal(C, lower, extra[key], prob.rows_dev, found_F)
         if not C.shape[1]:
             continue
         g = prob.grams(C, lower)

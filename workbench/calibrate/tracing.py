@@ -652,6 +652,17 @@ def _stacked(prob, extra_list, cand):
         lows.extend(cand["g"]["lb"][prob.A.shape[1]:])
     if not cols:
         return prob.base
+    if cand is None:
+        # the base with the found effects alone: asked again by every candidate's joint search and the
+        # stage's scores while the found columns stay the same objects; formed once per set (the same
+        # arrays in, the same Gram matrices out; ~0.1 s per call at 355,000 rows)
+        memo = prob.__dict__.get("_found_grams")
+        if memo is not None and len(memo[0]) == len(cols) and all(a is b for a, b in zip(memo[0], cols)) \
+                and memo[1] == lows:
+            return memo[2]
+        g = prob.grams(np.column_stack(cols), lows)
+        prob._found_grams = (cols, list(lows), g)        # (holds the columns: their ids stay theirs)
+        return g
     C = np.column_stack(cols)
     return prob.grams(C, lows)
 
