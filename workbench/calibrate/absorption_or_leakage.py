@@ -84,7 +84,8 @@ __all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_beside_absorp
            "LEAKAGE", "ABSORPTION", "decided_needed", "leakage_no_worse", "leakage_note",
            "nested_consensus", "nested_note", "DEFAULT_AGREE",
            "settled_absorption_rms", "settled_ruled_out", "tau_bound_s", "SETTLED_TEST_RECORDS",
-           "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED"]
+           "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED", "at_ceiling", "too_short_note",
+           "CEILING_SHARE"]
 
 #: An absorption fitted slower than this many record lengths is leakage's term within the record
 #: (once leakage's line is taken it bends by under 1 % of itself over the record).
@@ -94,6 +95,8 @@ SETTLED_RECORDS = 0.5
 #: The absorption the record must rule out before leakage is named: time constant the record's length
 #: (63 % settled at its end; any faster one bends more, see :func:`settled_ruled_out`).
 SETTLED_TEST_RECORDS = 1.0
+#: A fitted time constant at this share of the search's ceiling or above ran to it (:func:`at_ceiling`).
+CEILING_SHARE = 0.99
 #: The two candidates' tags, ``(name, channel)``.
 LEAKAGE, ABSORPTION = ("leakage", "charge"), ("dielectric_absorption", "charge")
 #: The fold label of a fold the two readings explain alike (:func:`absorption_or_leakage` returned ``None``).
@@ -163,7 +166,7 @@ def absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, 
         return da
     if bend_on_every_fold(da, lk, befores, infos, penalty, noise_factor):
         return da
-    if tau >= LEAKAGE_TAU_RECORDS * T:
+    if tau >= LEAKAGE_TAU_RECORDS * T and at_ceiling(da, T):
         by_bound = tau_bound_s(lk, f, befores, penalty, T) >= SETTLED_RECORDS * T
         by_test = settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share)
         if by_bound or by_test:
@@ -171,6 +174,48 @@ def absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, 
             lk.setdefault("leakage_folds", {})[f] = "measured" if by_test else "bound"
             return lk
     return None
+
+
+def at_ceiling(da, duration_s):
+    """Did the absorption's time-constant search run to its ceiling (leakage's limit)? (bool)
+
+    The search is bounded at ``tau_max_fraction`` record lengths (:class:`~.effects.DielectricAbsorption`);
+    a fit stopped there wanted a slower relaxation still: over the record no finite time constant
+    explains the charge better than leakage's line (``tau -> inf``), the reading the record itself
+    prefers. A fit *inside* the range found a finite time constant beyond the record that its folds
+    cannot confirm (its bend under the noise floor) nor rule out: the record cannot tell the two
+    apart (:func:`too_short_note`). A row without its effect (constructed scores) has no ceiling.
+    """
+    ceiling = getattr(da.get("eff"), "tau_max_fraction", None)
+    return ceiling is not None and da["params"].get("tau_s", 0.0) >= CEILING_SHARE * ceiling * duration_s
+
+
+def too_short_note(by, winners, duration_s):
+    """An ``inconclusive`` answer's note when the record is too short to tell absorption from leakage (str or None).
+
+    Said when some first-stage fold was undecided between the two (:data:`UNDECIDED`) and the
+    absorption's fitted time constant ``tau`` lies beyond the record (``SETTLED_RECORDS`` of it or
+    slower): over the record the absorption's charge is leakage's ramp, and its bend beyond that
+    line stayed under the bar on the validation folds. The record that would show its shape is one
+    it settles within (step 1's line, ``tau / SETTLED_RECORDS``), derived from the fitted ``tau``;
+    a fit at the search's ceiling (:func:`at_ceiling`) gives no length, and the note says so.
+    """
+    da, lk = by.get(ABSORPTION), by.get(LEAKAGE)
+    if da is None or lk is None or UNDECIDED not in [w if isinstance(w, str) else tuple(w) for w in winners]:
+        return None
+    tau = float(da["params"].get("tau_s", 0.0))
+    if tau < SETTLED_RECORDS * duration_s:
+        return None
+    if at_ceiling(da, duration_s):
+        return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
+                f"absorption's time-constant search ran to its ceiling, {tau:.3g} s ({tau / duration_s:.3g} "
+                f"lengths of this {duration_s:.3g} s record), leakage's limit, yet the folds do not rule out an "
+                f"absorption settling within half the record; no length follows from a fit at the ceiling")
+    return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
+            f"absorption's fitted time constant, {tau:.3g} s, is {tau / duration_s:.2g} lengths of this "
+            f"{duration_s:.3g} s record, over which its charge is leakage's ramp, and its bend beyond "
+            f"leakage's line stays under the noise floor on the validation folds; a record of about "
+            f"{tau / SETTLED_RECORDS:.3g} s (the fitted absorption settled within half of it) would show its shape")
 
 
 def settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share):
@@ -264,7 +309,7 @@ def leakage_note(by, befores, penalty, duration_s):
     n_rec = f"{bound / duration_s:.2g}"
     tau = da["params"]["tau_s"]
     ceiling = getattr(da.get("eff"), "tau_max_fraction", None)
-    if ceiling is not None and tau >= 0.99 * ceiling * duration_s:
+    if ceiling is not None and tau >= CEILING_SHARE * ceiling * duration_s:
         fitted = f"not a fit: the search ran to its ceiling, {tau:.3g} s = {ceiling:.3g} record lengths"
     else:
         fitted = f"fitted {tau:.3g} s"
