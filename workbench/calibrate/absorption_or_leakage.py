@@ -21,8 +21,9 @@ The decision on one validation fold (:func:`absorption_or_leakage`), when one of
 2. its **bend is seen**: what it explains beyond leakage stands above the channel's noise floor
    and is ``min_share`` of what leakage leaves, or above the noise floor on every fold alike
    (:func:`bend_on_every_fold`): absorption;
-3. its fitted ``tau`` is ``LEAKAGE_TAU_RECORDS`` record lengths or more (its bend under 0.65 %
-   of its term: over this record the fitted absorption *is* leakage's line) and the record
+3. its ``tau`` search ran to its ceiling (:func:`at_ceiling`, ``tau_max_fraction`` = 100 record
+   lengths: no finite time constant explains the charge better than leakage's limit; so also
+   ``LEAKAGE_TAU_RECORDS`` record lengths or more, its bend under 0.65 % of its term) and the record
    would have shown the bend of every absorption that settles within it: the fastest
    absorption whose bend could hide in what leakage leaves (``tau_bound``, below) is at least
    ``SETTLED_RECORDS`` of the record, the line of step 1. Then the simpler reading, **leakage**,
@@ -36,6 +37,18 @@ The decision on one validation fold (:func:`absorption_or_leakage`), when one of
    record lengths were named, but so was an 18x absorption of a 0.4 s record (seed 24 #80),
    whose slow relaxation the folds cannot tell from leakage;
 4. otherwise the fold is undecided between the two (``UNDECIDED``).
+
+Session 15 (branch s15_ends): step 3 asked ``tau >= LEAKAGE_TAU_RECORDS`` record lengths only, and
+an absorption whose finite time constant the search found beyond the record (bend unseen) was named
+leakage: seed 45 #69 (100 kHz, 0.4 s, a 17x absorption of 3.2 record lengths, fitted 52: leakage 5
+of 5) and 31 #135 (1 MHz, 0.1 s, 30x, 12.4 records, fitted 11.1: leakage 4 of 5). Over such a
+record the two readings are one (neither's fit leaves the other's bar beyond it on any validation
+fold), so the fold is now undecided, and an ``inconclusive`` answer carries :func:`too_short_note`
+(both lead; the record that would show the fitted absorption's shape, ``tau / SETTLED_RECORDS``).
+Every leakage the confusion benchmark names at 1-100 kHz on seeds 41-42 had its absorption fit at the
+ceiling (100 record lengths) and is still named; an absorption slower than the record whose fit
+runs to the ceiling is still named leakage (the record prefers leakage's limit; the note says
+what it leaves open).
 
 Over the folds (:func:`nested_consensus`, after the plain consensus finds no answer): an
 undecided fold is compatible with both readings, so one of the two is named when it wins at
