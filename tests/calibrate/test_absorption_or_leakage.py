@@ -40,8 +40,13 @@ def _rows(tau_s, a_lk, a_da, E, n_folds=5):
     lk = {"name": "leakage", "channel": "charge", "key": key, "n_params": 1, "params": {},
           "ratios": [a_lk * 1.02 / b] * n_folds}
     da = {"name": "dielectric_absorption", "channel": "charge", "key": key, "n_params": 2,
-          "params": {"tau_s": tau_s}, "ratios": [a_da * 1.04 / b] * n_folds}
+          "params": {"tau_s": tau_s}, "ratios": [a_da * 1.04 / b] * n_folds, "eff": _Eff(CEILING)}
     return lk, da, befores
+
+
+#: the absorption's search ceiling in record lengths (tracing's plan: ``DielectricAbsorption(tau_max_fraction=100)``)
+CEILING = 100.0
+_Eff = dataclasses.make_dataclass("Eff", [("tau_max_fraction", float)])
 
 
 @pytest.mark.parametrize("T", [0.1, 2.0, 35.0])
@@ -62,10 +67,14 @@ def test_the_rules_branches(T):
     # a bend beyond the floor on every fold: absorption, whatever its time constant
     assert decide(3.0 * T, a, np.sqrt(a * a - 4 * floor ** 2), 5 * a) == "dielectric_absorption"
     assert decide(100.0 * T, a, 0.5 * a, 5 * a) == "dielectric_absorption"
-    # no bend, fitted slower than ten records, and the record rules out every absorption settling
-    # within half of it: leakage; just short of that: undecided
-    assert decide(al.LEAKAGE_TAU_RECORDS * T, a, a, 1.01 * need * a) == "leakage"
-    assert decide(al.LEAKAGE_TAU_RECORDS * T, a, a, 0.99 * need * a) is None
+    # no bend, the fit ran to the search's ceiling (leakage's limit), and the record rules out every
+    # absorption settling within half of it: leakage; just short of that: undecided
+    assert decide(CEILING * T, a, a, 1.01 * need * a) == "leakage"
+    assert decide(CEILING * T, a, a, 0.99 * need * a) is None
+    # no bend, but a finite time constant fitted beyond the record (inside the search): the record
+    # cannot tell the two apart, whatever it rules out below half its length (seed 45 #69, 31 #135)
+    for tau_records in (al.LEAKAGE_TAU_RECORDS, 52.0, 0.98 * CEILING):
+        assert decide(tau_records * T, a, a, 100 * need * a) is None
     # no bend but a time constant within ten records: undecided
     assert decide(0.99 * al.LEAKAGE_TAU_RECORDS * T, a, a, 100 * need * a) is None
     lk, _, befores = _rows(1.0, a, a, 3.0 * a)
@@ -282,10 +291,12 @@ def test_a_settled_absorption_ruled_out_on_the_fold_names_leakage(T):
         out = al.absorption_or_leakage(lk, tags, 0, befores, infos, 0.02, 1.0, share)
         return None if out is None else out["name"]
 
+    assert decide(CEILING * T, np.sqrt(1.01 * (1 + share)) * a) == "leakage"
+    assert decide(CEILING * T, np.sqrt(0.99 * (1 + share)) * a) is None
+    assert decide(CEILING * T, None) is None
+    # fitted inside the search, beyond the record: not told apart, ruled out or not (session 15)
     for tau_records in (al.LEAKAGE_TAU_RECORDS, 30.0):
-        assert decide(tau_records * T, np.sqrt(1.01 * (1 + share)) * a) == "leakage"
-        assert decide(tau_records * T, np.sqrt(0.99 * (1 + share)) * a) is None
-        assert decide(tau_records * T, None) is None
+        assert decide(tau_records * T, np.sqrt(2.0 * (1 + share)) * a) is None
     # a fitted absorption between half the record and ten records stays undecided though the
     # record-length one is ruled out (an 18x absorption of 0.4 s, seed 24 #80, was named leakage)
     for tau_records in (0.6, 3.0, 0.99 * al.LEAKAGE_TAU_RECORDS):
@@ -567,3 +578,90 @@ def test_a_single_charge_effect_never_gets_the_other_named_beside_it(sn637, effe
         out.append(r)
     assert not [(r["rate_hz"], r["protocol"], r["size"], r["named"]) for r in out if r["class"] == "wrong"]
     assert any(r["named"] for r in out)        # the draws reach named records
+
+
+# ---- records shorter than the relaxation (session 15, branch s15_ends)
+
+def _slow_draws(n, seed, tau_lo, tau_hi):
+    """``n`` absorption records: protocols cycled, sizes log-uniform over the benchmark's whole range,
+    the time constant log-uniform over ``[tau_lo, tau_hi]`` record lengths."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(seed)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    return [(("calibration", "sine", "steps")[k % 3], float(np.exp(rng.uniform(lo, hi))),
+             float(np.exp(rng.uniform(np.log(tau_lo), np.log(tau_hi)))), int(rng.integers(1 << 30)))
+            for k in range(n)]
+
+
+@pytest.fixture(scope="module")
+def slow_absorptions(sn637):
+    """Absorptions relaxing over 5-50 record lengths (the 0.5-5 s of seed 002 on a 0.1 s 1 MHz
+    record) on 2 s 10 kHz records, sizes over the benchmark's whole range (``default_rng(1515)``,
+    fixed before any run): ``(size, tau over the record, result, names)``."""
+    rows = []
+    for proto, size, tau_records, s in _slow_draws(16, 1515, 5.0, 50.0):
+        res, T = _trace(sn637, "dielectric_absorption", proto, size, tau_records, s)
+        names = [st["effect"] for st in res["stages"]]
+        print(f"\n{proto:11s} x{size:7.3f} tau/T {tau_records:5.1f} -> {res['effect']} {names} {res['fold_winners']}")
+        rows.append((size, tau_records, res, names))
+    return rows
+
+
+def test_slow_absorptions_name_nothing_else_and_an_undecided_record_says_it_is_too_short(slow_absorptions):
+    """Over the record the charge is leakage's ramp: nothing but the absorption or leakage is
+    named, and an inconclusive answer whose folds were undecided between the two carries both as
+    open and the note that the record is too short (with the length it would need). On main
+    (dc1b914) such an answer had no note."""
+    rows = slow_absorptions
+    wrong = [(size, tau, names) for size, tau, _, names in rows
+             if set(names) - {"dielectric_absorption", "leakage"}]
+    assert not wrong, wrong
+    undecided = [res for *_, res, _ in rows if res["effect"] == "inconclusive"
+                 and "undecided: dielectric_absorption or leakage" in res["fold_winners"]]
+    assert len(undecided) >= 2          # the draw reaches the rule
+    for res in undecided:
+        assert res.get("open") == ["dielectric_absorption", "leakage"], res["reason"]
+        assert "too short to tell a dielectric absorption from leakage" in res["note"]
+        assert "too short" in res["reason"]
+
+
+@pytest.mark.xfail(strict=True, reason="measured (s15_ends): 3 of the 16 draws (6.9, 25 and 28 record lengths, "
+                                       "x3-21) are named leakage, as on main: the absorption's search ran to its "
+                                       "ceiling and the record-length absorption is ruled out, the same evidence "
+                                       "as the leakages named at 1 and 10 kHz (seed 41 #15, #26, #48)")
+def test_an_absorption_slower_than_the_record_is_never_named_leakage(slow_absorptions):
+    """The brief's floor for records shorter than the relaxation: never leakage."""
+    named = [(round(size, 2), round(tau, 1)) for size, tau, _, names in slow_absorptions if "leakage" in names]
+    assert not named, named
+
+
+def test_the_too_short_note_says_the_record_the_fitted_time_constant_needs():
+    """The note's length is the one the fitted absorption settles within half of (step 1's line);
+    at the ceiling (leakage's limit) no length is said; none within the record or without an undecided fold."""
+    T = 0.1
+    lk, da, befores = _rows(3.2, 10.0, 10.0, 50.0)
+    by = {L: lk, D: da}
+    note = al.too_short_note(by, [U, L, U, U, U], T)
+    assert "fitted time constant, 3.2 s, is 32 lengths of this 0.1 s record" in note
+    assert f"a record of about {3.2 / al.SETTLED_RECORDS:.3g} s" in note
+    assert al.too_short_note(by, [L] * 5, T) is None
+    da["params"]["tau_s"] = CEILING * T
+    assert "ran to its ceiling, 10 s (100 lengths" in al.too_short_note(by, [U] * 5, T)
+    da["params"]["tau_s"] = 0.4 * T
+    assert al.too_short_note(by, [U] * 5, T) is None
+
+
+# the confusion benchmark's two slow absorptions named leakage by session 14's final code (dc1b914):
+# seed 45 #69 (100 kHz, 0.4 s, truth tau 3.2 records, fitted 52: leakage 5 of 5) and seed 31 #135
+# (1 MHz, 0.1 s, truth tau 12.4 records, fitted 11.1: leakage 4 of 5)
+SLOW_ABSORPTIONS = [("dielectric_absorption", 1e5, "calibration", 17.456045423751334, 802597311),
+                    ("dielectric_absorption", 1e6, "calibration", 29.808332061368976, 448431204)]
+
+
+@pytest.mark.parametrize("case", SLOW_ABSORPTIONS, ids=["45-69", "31-135"])
+def test_the_benchmarks_slow_absorptions_are_inconclusive_with_the_note(sn637, case):
+    cc = load_benchmark("calibrate_confusion")
+    r = cc.evaluate(sn637, *case)
+    res_names = r["named"]
+    assert "leakage" not in res_names and r["class"] != "wrong", (r["answer"], r["fold_winners"])
+    assert r["answer"] in ("inconclusive", "dielectric_absorption"), r["answer"]

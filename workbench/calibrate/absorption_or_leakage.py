@@ -21,8 +21,9 @@ The decision on one validation fold (:func:`absorption_or_leakage`), when one of
 2. its **bend is seen**: what it explains beyond leakage stands above the channel's noise floor
    and is ``min_share`` of what leakage leaves, or above the noise floor on every fold alike
    (:func:`bend_on_every_fold`): absorption;
-3. its fitted ``tau`` is ``LEAKAGE_TAU_RECORDS`` record lengths or more (its bend under 0.65 %
-   of its term: over this record the fitted absorption *is* leakage's line) and the record
+3. its ``tau`` search ran to its ceiling (:func:`at_ceiling`, ``tau_max_fraction`` = 100 record
+   lengths: no finite time constant explains the charge better than leakage's limit; so also
+   ``LEAKAGE_TAU_RECORDS`` record lengths or more, its bend under 0.65 % of its term) and the record
    would have shown the bend of every absorption that settles within it: the fastest
    absorption whose bend could hide in what leakage leaves (``tau_bound``, below) is at least
    ``SETTLED_RECORDS`` of the record, the line of step 1. Then the simpler reading, **leakage**,
@@ -36,6 +37,18 @@ The decision on one validation fold (:func:`absorption_or_leakage`), when one of
    record lengths were named, but so was an 18x absorption of a 0.4 s record (seed 24 #80),
    whose slow relaxation the folds cannot tell from leakage;
 4. otherwise the fold is undecided between the two (``UNDECIDED``).
+
+Session 15 (branch s15_ends): step 3 asked ``tau >= LEAKAGE_TAU_RECORDS`` record lengths only, and
+an absorption whose finite time constant the search found beyond the record (bend unseen) was named
+leakage: seed 45 #69 (100 kHz, 0.4 s, a 17x absorption of 3.2 record lengths, fitted 52: leakage 5
+of 5) and 31 #135 (1 MHz, 0.1 s, 30x, 12.4 records, fitted 11.1: leakage 4 of 5). Over such a
+record the two readings are one (neither's fit leaves the other's bar beyond it on any validation
+fold), so the fold is now undecided, and an ``inconclusive`` answer carries :func:`too_short_note`
+(both lead; the record that would show the fitted absorption's shape, ``tau / SETTLED_RECORDS``).
+Every leakage the confusion benchmark names at 1-100 kHz on seeds 41-42 had its absorption fit at the
+ceiling (100 record lengths) and is still named; an absorption slower than the record whose fit
+runs to the ceiling is still named leakage (the record prefers leakage's limit; the note says
+what it leaves open).
 
 Over the folds (:func:`nested_consensus`, after the plain consensus finds no answer): an
 undecided fold is compatible with both readings, so one of the two is named when it wins at
@@ -84,7 +97,8 @@ __all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_beside_absorp
            "LEAKAGE", "ABSORPTION", "decided_needed", "leakage_no_worse", "leakage_note",
            "nested_consensus", "nested_note", "DEFAULT_AGREE",
            "settled_absorption_rms", "settled_ruled_out", "tau_bound_s", "SETTLED_TEST_RECORDS",
-           "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED"]
+           "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED", "at_ceiling", "too_short_note",
+           "CEILING_SHARE"]
 
 #: An absorption fitted slower than this many record lengths is leakage's term within the record
 #: (once leakage's line is taken it bends by under 1 % of itself over the record).
@@ -94,6 +108,8 @@ SETTLED_RECORDS = 0.5
 #: The absorption the record must rule out before leakage is named: time constant the record's length
 #: (63 % settled at its end; any faster one bends more, see :func:`settled_ruled_out`).
 SETTLED_TEST_RECORDS = 1.0
+#: A fitted time constant at this share of the search's ceiling or above ran to it (:func:`at_ceiling`).
+CEILING_SHARE = 0.99
 #: The two candidates' tags, ``(name, channel)``.
 LEAKAGE, ABSORPTION = ("leakage", "charge"), ("dielectric_absorption", "charge")
 #: The fold label of a fold the two readings explain alike (:func:`absorption_or_leakage` returned ``None``).
@@ -163,7 +179,7 @@ def absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, 
         return da
     if bend_on_every_fold(da, lk, befores, infos, penalty, noise_factor):
         return da
-    if tau >= LEAKAGE_TAU_RECORDS * T:
+    if tau >= LEAKAGE_TAU_RECORDS * T and at_ceiling(da, T):
         by_bound = tau_bound_s(lk, f, befores, penalty, T) >= SETTLED_RECORDS * T
         by_test = settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share)
         if by_bound or by_test:
@@ -171,6 +187,48 @@ def absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, 
             lk.setdefault("leakage_folds", {})[f] = "measured" if by_test else "bound"
             return lk
     return None
+
+
+def at_ceiling(da, duration_s):
+    """Did the absorption's time-constant search run to its ceiling (leakage's limit)? (bool)
+
+    The search is bounded at ``tau_max_fraction`` record lengths (:class:`~.effects.DielectricAbsorption`);
+    a fit stopped there wanted a slower relaxation still: over the record no finite time constant
+    explains the charge better than leakage's line (``tau -> inf``), the reading the record itself
+    prefers. A fit *inside* the range found a finite time constant beyond the record that its folds
+    cannot confirm (its bend under the noise floor) nor rule out: the record cannot tell the two
+    apart (:func:`too_short_note`). A row without its effect (constructed scores) has no ceiling.
+    """
+    ceiling = getattr(da.get("eff"), "tau_max_fraction", None)
+    return ceiling is not None and da["params"].get("tau_s", 0.0) >= CEILING_SHARE * ceiling * duration_s
+
+
+def too_short_note(by, winners, duration_s):
+    """An ``inconclusive`` answer's note when the record is too short to tell absorption from leakage (str or None).
+
+    Said when some first-stage fold was undecided between the two (:data:`UNDECIDED`) and the
+    absorption's fitted time constant ``tau`` lies beyond the record (``SETTLED_RECORDS`` of it or
+    slower): over the record the absorption's charge is leakage's ramp, and its bend beyond that
+    line stayed under the bar on the validation folds. The record that would show its shape is one
+    it settles within (step 1's line, ``tau / SETTLED_RECORDS``), derived from the fitted ``tau``;
+    a fit at the search's ceiling (:func:`at_ceiling`) gives no length, and the note says so.
+    """
+    da, lk = by.get(ABSORPTION), by.get(LEAKAGE)
+    if da is None or lk is None or UNDECIDED not in [w if isinstance(w, str) else tuple(w) for w in winners]:
+        return None
+    tau = float(da["params"].get("tau_s", 0.0))
+    if tau < SETTLED_RECORDS * duration_s:
+        return None
+    if at_ceiling(da, duration_s):
+        return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
+                f"absorption's time-constant search ran to its ceiling, {tau:.3g} s ({tau / duration_s:.3g} "
+                f"lengths of this {duration_s:.3g} s record), leakage's limit, yet the folds do not rule out an "
+                f"absorption settling within half the record; no length follows from a fit at the ceiling")
+    return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
+            f"absorption's fitted time constant, {tau:.3g} s, is {tau / duration_s:.2g} lengths of this "
+            f"{duration_s:.3g} s record, over which its charge is leakage's ramp, and its bend beyond "
+            f"leakage's line stays under the noise floor on the validation folds; a record of about "
+            f"{tau / SETTLED_RECORDS:.3g} s (the fitted absorption settled within half of it) would show its shape")
 
 
 def settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share):
@@ -264,7 +322,7 @@ def leakage_note(by, befores, penalty, duration_s):
     n_rec = f"{bound / duration_s:.2g}"
     tau = da["params"]["tau_s"]
     ceiling = getattr(da.get("eff"), "tau_max_fraction", None)
-    if ceiling is not None and tau >= 0.99 * ceiling * duration_s:
+    if ceiling is not None and tau >= CEILING_SHARE * ceiling * duration_s:
         fitted = f"not a fit: the search ran to its ceiling, {tau:.3g} s = {ceiling:.3g} record lengths"
     else:
         fitted = f"fitted {tau:.3g} s"

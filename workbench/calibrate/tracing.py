@@ -81,7 +81,7 @@ from scipy.optimize import lsq_linear
 from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
 from .absorption_or_leakage import explained as _explained
 from .absorption_or_leakage import UNDECIDED as _UNDECIDED_DA_LK
-from .absorption_or_leakage import leakage_note, settled_absorption_rms
+from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_short_note
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
@@ -561,6 +561,14 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
             s["note"] = note
             if k == 0:
                 out["reason"] += f"; {note}"
+    if out["effect"] == "inconclusive":
+        # absorption and leakage explain the record alike, the absorption's fitted time constant
+        # beyond it: say so, and the record that would tell them apart (:func:`.absorption_or_leakage.too_short_note`)
+        short = too_short_note(first["res"]["by"], first["res"]["winners"], infos["duration_s"])
+        if short:
+            out["reason"] += f"; {short}"
+            out["note"] = short
+            out["open"] = ["dielectric_absorption", "leakage"]
     for ch in list(out["channels"]):
         key = (ch, "model")
         out["channels"][ch]["null_reference_rms"] = float(np.sqrt(np.median(first["res"]["null_gain"][key]))) \
