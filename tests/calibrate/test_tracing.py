@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from workbench.calibrate import tracing as T
 from workbench.calibrate.splits import make_split
 from workbench.calibrate.tracing import _Problem
 
@@ -93,3 +94,62 @@ def test_sse_on_well_conditioned_columns_is_the_gram_estimate():
         w = prob.solve(g, tr)
         assert prob.sse(g, w, va)[0] == pytest.approx(_rows_sse(prob, g, w, va), rel=1e-12)
     assert not calls
+
+
+RNG_R2 = np.random.default_rng(1520)
+R2_DRAWS = [(proto, str(RNG_R2.choice(["delay", "creep+delay"])), float(RNG_R2.choice([1000.0, 10000.0])),
+             float(np.exp(RNG_R2.uniform(0.0, np.log(30.0)))), int(RNG_R2.integers(1 << 30)))
+            for proto in ("sine", "steps", "calibration")]
+
+
+@pytest.mark.parametrize("proto, effect, rate, size, seed", R2_DRAWS)
+def test_a_found_refitted_delay_is_scored_later_as_it_was_named(sn637, proto, effect, rate, size, seed):
+    """Review R2: a found refitted delay enters a later stage's model with the columns it was named
+    with, fold for fold (each fold's drive-model weights fitted on that fold's training search rows,
+    bounded as the base's), as the joint creep + delay reading's delay column is: the later stage's
+    ``before`` on every fold equals the delay's own validation RMS of the stage that named it, and it
+    does not move when the record is corrupted outside the fold's training search rows. (It was the
+    search's unbounded column fitted on all development rows: validation rows seen, 30 #97's befores
+    1.4-2.6e-8 m against 0.66-1.3e-8 m.) Records: the confusion benchmark's, a delay or creep + delay
+    drawn 1-30x, ``default_rng(1520)``."""
+    from tests.conftest import load_benchmark
+    effects = tuple(effect.split("+")) if "+" in effect else effect
+    t, sp, base, _, _, _ = load_benchmark("calibrate_confusion").simulated_base(sn637, effects, rate, proto, size,
+                                                                              seed)
+    key = ("displacement", "model")
+    n = len(sp.folds)
+
+    def problem(y, p=None):
+        m = base.channels["displacement"]
+        B = base.channel_basis("displacement")
+        lower = T._base_lower(base, "displacement")
+        prob = T._Problem(sp, m.valid, B, lower, y - m.yhat, T._search_rows(sp.train & m.valid))
+        plan = T.candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis={"displacement": B})
+        (dl,) = [e for ch, e, _ in plan if e.name == "delay" and ch == "displacement"]
+        if p is None:
+            p, _ = T._candidate_columns(dl, t, m.yhat, y, m.yhat, prob)
+        g, fold_g = T._refit_grams(dl, p, t, y, m.yhat, prob, lower)
+        return prob, {"name": "delay", "channel": "displacement", "key": key, "g": g, "fold_g": fold_g, "p": p}
+
+    m = base.channels["displacement"]
+    prob, cand = problem(m.y)
+    assert cand["fold_g"] is not None
+    named = T._cand_grams(prob, [], cand, n)
+    extra = {key: []}
+    T._absorb(cand, extra, {key: prob}, base, t)
+    later = T._cand_grams(prob, extra[key], None, n)
+    for f, (tr, va) in enumerate(sp.folds):
+        assert prob.fold_rms(later[f], tr, va) == pytest.approx(prob.fold_rms(named[f], tr, va), rel=1e-9)
+    # the later stage's fold-f prediction on its validation rows ignores the record outside its training rows
+    noise = np.random.default_rng(seed).standard_normal(t.size) * 10 * np.std(m.y - m.yhat)
+    for f, (tr, va) in enumerate(sp.folds):
+        seen = prob.search & sp.rows(tr)
+        y_bad = np.where(seen, m.y, m.y + noise)
+        # (the lag itself is searched on all development rows, the module's known limitation: kept)
+        prob_bad, cand_bad = problem(y_bad, cand["p"])
+        extra_bad = {key: []}
+        T._absorb(cand_bad, extra_bad, {key: prob_bad}, base, t)
+        val = sp.rows(va) & m.valid
+        clean = prob.predict(later[f], tr)[0][val]
+        bad = prob_bad.predict(T._cand_grams(prob_bad, extra_bad[key], None, n)[f], tr)[0][val]
+        assert np.max(np.abs(bad - clean)) <= 1e-6 * np.sqrt(np.mean(clean ** 2)), f
