@@ -230,8 +230,13 @@ def _research(c, probs, extra, t, base):
     if best is None:
         return None
     _, e, p, g = best
-    fold_g = _tr._fold_grams(e, p, t, y, model, prob, _tr._base_lower(base, c["channel"])) \
-        if key[1] == "model" else None
+    g_dev, fold_g = _tr._refit_grams(e, p, t, y, model, prob, _tr._base_lower(base, c["channel"])) \
+        if key[1] == "model" else (None, None)
+    if g_dev is not None:
+        # (the refitted delay's column by the fold columns' construction, orthogonal to the found ones
+        # as the searched column was; review R2)
+        C, lower = _orthogonal(g_dev["C"] * g_dev["norms"], [0.0], extra[key], prob.rows_dev)
+        g = prob.grams(C, lower) if C.shape[1] else g
     return {**c, "eff": e, "params": p, "g": g, "u": u, "yhat": model, "n_params": int(e.n_params),
             "researched": True, "fold_g": fold_g}
 

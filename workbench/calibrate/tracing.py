@@ -93,6 +93,10 @@ __all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
+#: float64's unit roundoff (the Gram SSE's rounding bound, :meth:`_Problem.sse`)
+_EPS = float(np.finfo(float).eps)
+#: the SSE's accuracy, relative to itself: beyond it the Gram estimate is replaced by the rows' sum
+SSE_RTOL = 1e-9
 
 
 def _errors(e):
@@ -294,11 +298,48 @@ class _Problem:
             return np.linalg.lstsq(R, c, rcond=None)[0]
         return lsq_linear(R, c, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
 
-    @staticmethod
-    def sse(g, w, blocks):
-        G = g["G"][np.asarray(blocks, bool)].sum(axis=0)
+    def sse(self, g, w, blocks):
+        """Sum of squared residuals (scaled units) of the weights ``w`` on the union of ``blocks``.
+
+        From the blocks' Gram matrices, ``w'Gw - 2 w'h + c``, when that is exact enough: the
+        quadratic form of ``k + 1`` terms per row of the augmented Gram matrix rounds by at most
+        ``eps (k + 1) u^2``, ``u = sum_j |w_j| ||x_j|| + ||r||`` on the blocks' rows (Cauchy-Schwarz
+        bounds each ``|w_i G_ij w_j|``; the Gram entries' own rounding, measured on the speed
+        benchmark's creep record's 346 SSEs, stayed under 0.42 of that bound). When the bound
+        exceeds ``SSE_RTOL`` of the estimate (ill-conditioned joint fits: weights ~1e8 make the
+        three terms cancel, review B2), the SSE is summed from the rows themselves,
+        ``||[A, C] w - r||^2``, whose rounding error is per row and does not cancel.
+
+        Returns
+        -------
+        (float, None)
+            The SSE (>= 0) and a placeholder kept for the callers' unpacking.
+        """
+        sel = np.asarray(blocks, bool)
+        G = g["G"][sel].sum(axis=0)
         k = G.shape[0] - 1
-        return max(float(w @ G[:k, :k] @ w - 2 * w @ G[:k, k] + G[k, k]), 0.0), None
+        est = float(w @ G[:k, :k] @ w - 2 * w @ G[:k, k] + G[k, k])
+        norms = np.sqrt(np.maximum(np.diagonal(G), 0.0))
+        u = float(np.abs(w) @ norms[:k] + norms[k])
+        bound = _EPS * (k + 1) * u * u
+        if bound <= SSE_RTOL * est:
+            return est, None
+        return self._sse_rows(g, w, sel), None
+
+    def _sse_rows(self, g, w, sel):
+        """``||[A, C] w - r||^2`` summed over the rows of the blocks ``sel`` (scaled units)."""
+        k = self.A.shape[1]
+        C = g["C"]
+        out = 0.0
+        for b in np.flatnonzero(sel):
+            i, z = self.idx[b], self.Z0b[b]
+            if not i.size:
+                continue
+            e = z[:, :k] @ w[:k] - z[:, k]
+            if C.shape[1]:
+                e += C[i] @ w[k:]
+            out += float(e @ e)
+        return out
 
     def n_rows(self, blocks):
         return int(sum(self.idx[b].size for b in np.flatnonzero(blocks)))
@@ -395,21 +436,46 @@ def _fold_grams(eff, p, t, y, yhat, prob, lower):
     """Per fold, the Gram matrices of an effect whose column has weights of its own fitted to
     the record (the refitted delay): fitted on that fold's training search rows only, so the
     fold's validation rows never shape it (issue 13). None for an effect without them."""
+    return _refit_grams(eff, p, t, y, yhat, prob, lower)[1]
+
+
+def _refit_grams(eff, p, t, y, yhat, prob, lower):
+    """``(g, fold_g)``: the Gram matrices of an effect whose column has weights of its own (the
+    refitted delay), that column refitted on all the development search rows (``g``) and on each
+    fold's training search rows (``fold_g``), by one construction (its
+    :meth:`~workbench.calibrate.effects.Delay.fold_columns`: the drive model's corrections bounded as
+    the base's, ``lower``). ``(None, None)`` for an effect without such weights.
+
+    One construction on every row set, as the joint creep + delay reading's delay column
+    (:mod:`.creep_beside_delay`): the found delay's column in a later stage's model is then the
+    same model as the joint reading's (review R2: it was the search's unbounded refit, the
+    model's own coefficient free, on all development rows)."""
     if not hasattr(eff, "fold_columns") or getattr(eff, "basis", None) is None or not p.get("refit"):
-        return None
-    rows = [np.flatnonzero(prob.search & prob.split.rows(tr)) for tr, _ in prob.split.folds]
-    return [prob.grams(C, [0.0]) for C in eff.fold_columns(t, y, yhat, p, rows, lower)]
+        return None, None
+    rows = [np.flatnonzero(prob.search)] + \
+        [np.flatnonzero(prob.search & prob.split.rows(tr)) for tr, _ in prob.split.folds]
+    cols = eff.fold_columns(t, y, yhat, p, rows, lower)
+    return prob.grams(cols[0], [0.0]), [prob.grams(C, [0.0]) for C in cols[1:]]
+
+
+def _fold_extra(extra_list, f):
+    """The found effects' columns as fold ``f`` sees them (each one's own fold columns where it has them)."""
+    return [x.at_fold(f) if getattr(x, "fold", None) is not None else x for x in extra_list]
 
 
 def _cand_grams(prob, extra_list, cand, n_folds):
-    """The stacked Gram matrices a candidate is scored with on each fold (its per-fold columns
-    where it has them, :func:`_fold_grams`)."""
-    fg = cand.get("fold_g")
-    if fg is None:
+    """The stacked Gram matrices a candidate (None: the found effects alone) is scored with on each
+    fold: its per-fold columns where it has them (:func:`_fold_grams`), and the found effects' own
+    per-fold columns where they have them (:class:`FoundColumns`' ``fold``), so a found refitted delay
+    and a candidate refitting it in its place are fitted on the same rows (review R2)."""
+    fg = cand.get("fold_g") if cand is not None else None
+    if fg is None and not any(getattr(x, "fold", None) is not None for x in extra_list):
         g = _stacked(prob, extra_list, cand)
         return [g] * n_folds
     # (a candidate in a found effect's place, ``replaces``, takes its place on every fold)
-    return [_stacked(prob, extra_list, {"g": gf, "replaces": cand.get("replaces")}) for gf in fg]
+    return [_stacked(prob, _fold_extra(extra_list, f),
+                     cand if fg is None else {"g": fg[f], "replaces": cand.get("replaces")})
+            for f in range(n_folds)]
 
 
 def _with_gains(eff, p, gains):
@@ -535,7 +601,9 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         except ValueError:
             continue
         variant = "periodic" if getattr(eff, "periodic_hz", None) else None
-        fold_g = _fold_grams(eff, p, t, m.y, yhat, prob, _base_lower(base, ch)) if key[1] == "model" else None
+        g_dev, fold_g = _refit_grams(eff, p, t, m.y, yhat, prob, _base_lower(base, ch)) \
+            if key[1] == "model" else (None, None)
+        g = g if g_dev is None else g_dev
         cands.append({"name": eff.name, "channel": ch, "key": key, "eff": eff, "params": p, "g": g, "u": u,
                       "yhat": yhat, "n_params": int(eff.n_params), "variant": variant, "driver": driver,
                       "fold_g": fold_g})
@@ -635,12 +703,20 @@ def _carry_passes(prob, g, n_params, nulls, split, ctx, floor):
 
 class FoundColumns(tuple):
     """A found effect's ``(columns, lower bounds)`` in a problem's ``extra`` list, with its
-    ``(name, channel)`` ``tag`` (a candidate that refits a found effect names it in ``replaces``)."""
+    ``(name, channel)`` ``tag`` (a candidate that refits a found effect names it in ``replaces``)
+    and, for an effect whose columns are refitted per fold (the refitted delay, a joint creep +
+    delay), ``fold``: each fold's columns (the same count; :func:`_cand_grams` scores fold ``f``
+    with ``fold[f]``)."""
 
-    def __new__(cls, C, lower, tag):
+    def __new__(cls, C, lower, tag, fold=None):
         obj = super().__new__(cls, (C, lower))
         obj.tag = tag
+        obj.fold = fold
         return obj
+
+    def at_fold(self, f):
+        """The columns fold ``f`` is scored with."""
+        return FoundColumns(self.fold[f], self[1], self.tag)
 
 
 def _stacked(prob, extra_list, cand):
@@ -683,7 +759,10 @@ def _absorb(c, extra, probs, base, t):
     if c.get("replaces") is not None:
         # its columns take the refitted effect's place (a new list: copies of ``extra`` keep theirs)
         extra[c["key"]] = [x for x in extra[c["key"]] if getattr(x, "tag", None) != c["replaces"]]
-    extra[c["key"]].append(FoundColumns(C, list(lo), (c["name"], c["channel"])))
+    fold = None
+    if c.get("fold_g") is not None and all(gf["C"].shape[1] == C.shape[1] for gf in c["fold_g"]):
+        fold = [gf["C"] * gf["norms"] for gf in c["fold_g"]]
+    extra[c["key"]].append(FoundColumns(C, list(lo), (c["name"], c["channel"]), fold))
     if c["channel"] == "displacement" and c["name"] in ("creep", "resonance"):
         for other in ("charge", "gauge"):
             key = (other, "model")
@@ -715,17 +794,17 @@ def _fold_test(b, a, n_params, penalty, floor, null_gain, min_share):
 def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share):
     """Per fold: base-alone and every candidate's validation RMS, the null reference, the winner."""
     n_folds = len(split.folds)
-    grams_base = {key: _stacked(p, extra[key], None) for key, p in probs.items()}
-    befores = {key: [probs[key].fold_rms(grams_base[key], tr, va) for tr, va in split.folds] for key in probs}
+    # (the found effects' per-fold columns where they have them, :func:`_cand_grams`)
+    grams_base = {key: _cand_grams(p, extra[key], None, n_folds) for key, p in probs.items()}
+    befores = {key: [probs[key].fold_rms(grams_base[key][f], tr, va) for f, (tr, va) in enumerate(split.folds)]
+               for key in probs}
     null_gain = {}
     for key, prob in probs.items():
         gains = np.zeros(n_folds)
         for gn in nulls[key]:
-            cols = [C for C, _ in extra[key]] + [gn["C"] * gn["norms"]]
-            lows = [x for _, lo in extra[key] for x in lo] + [-np.inf]
-            gg = prob.grams(np.column_stack(cols), lows)
+            gg = _cand_grams(prob, extra[key], {"g": gn}, n_folds)
             for f, (tr, va) in enumerate(split.folds):
-                a = prob.fold_rms(gg, tr, va)
+                a = prob.fold_rms(gg[f], tr, va)
                 gains[f] = max(gains[f], befores[key][f] ** 2 - a ** 2)
         null_gain[key] = gains
     by = {}
