@@ -7,8 +7,11 @@ block, projected columns, shifted copies). glibc serves every allocation above i
 system time that counts in the command's CPU figure (the creep protocol record: 282,000 minor
 faults; with the heap kept, 126,000 and ~0.6 s less system time, issue 13's speed floor). Here
 allocations come from the heap and freed memory stays in it (no trim below 2 GB): the same numbers,
-computed in memory the process already touched. For a command-line process, which exits after
-its run; a library caller keeps glibc's defaults unless it calls :func:`keep_freed_memory`.
+computed in memory the process already touched. The settings are process-wide and permanent, so
+only the command-line process (``workbench calibrate`` / ``python -m workbench calibrate``, which
+exits after its run) takes them; an in-process ``cli.main([...])`` call (a test) and a library caller
+keep glibc's defaults unless they call :func:`keep_freed_memory`. When a ``mallopt`` call is refused,
+the ones before it stay applied (each is harmless alone) and False is returned.
 """
 
 import ctypes

@@ -380,7 +380,10 @@ def cmd_sweep(args):
 def cmd_calibrate(args):
     from ._malloc import keep_freed_memory
     from .calibrate.run import run_calibrate
-    keep_freed_memory()          # a short-lived process: its large temporaries reuse freed memory (_malloc)
+    if getattr(args, "_whole_process", False):
+        # the command owns its short-lived process (not an in-process main([...]) call, e.g. a test's):
+        # its large temporaries reuse freed memory (_malloc); the settings are process-wide and stay
+        keep_freed_memory()
     data = run_calibrate(args.data, args.plant, out_dir=args.out, split=args.split, train_cycles=args.train_cycles,
                          max_ratio=args.max_ratio, progress=lambda stage, d, t: _progress_bar(stage, d, t))
     eb, ea = data["error_before"], data["error_after"]
@@ -634,6 +637,7 @@ def build_parser():
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    args._whole_process = argv is None      # the console script / python -m workbench: the process is the command's
     from .preflight import preflight
     try:
         # file arguments, flag ranges and run size checked before the work; no partial output after a failure

@@ -91,7 +91,12 @@ def test_synthetic_effect_is_named_and_halved(sn637, protocol, effect, seed, req
         assert p["coefficient_per_m"] == pytest.approx(truth["coefficient_per_m"], rel=0.3)
 
 
-def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_path):
+def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_path, monkeypatch):
+    # an in-process main([...]) leaves the process's allocator alone (_malloc's settings are process-wide
+    # and permanent: only the console command's own process takes them)
+    import workbench._malloc
+    called = []
+    monkeypatch.setattr(workbench._malloc, "keep_freed_memory", lambda: called.append(1) or True)
     t, v = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0), chirp_s=1.0)
     plant, truth = plant_with_effect(sn637, "leakage", 3)
     data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=3), {"serial": "SN637"})
@@ -101,6 +106,7 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     assert main(["calibrate", str(data), "--plant", str(plant_file), "--out", str(out),
                  "--json", str(tmp_path / "r.json")]) == 0
     res = json.loads((tmp_path / "r.json").read_text())
+    assert not called
     assert res["effect"] == "leakage" and res["channel"] == "charge"
     # the simulated record declares its current convention and the run says which it used (issue 13)
     assert data.read_text().startswith("# serial: SN637\n# current: averaged\n")
