@@ -210,7 +210,9 @@ def too_short_note(by, winners, duration_s):
     absorption's fitted time constant ``tau`` lies beyond the record (``SETTLED_RECORDS`` of it or
     slower): over the record the absorption's charge is leakage's ramp, and its bend beyond that
     line stayed under the bar on the validation folds. The record that would show its shape is one
-    it settles within (step 1's line, ``tau / SETTLED_RECORDS``), derived from the fitted ``tau``;
+    it settles within (step 1's line, ``tau / SETTLED_RECORDS``), derived from the fitted ``tau``: a
+    rough figure, said so in the note (a fit beyond the record is poorly determined: the review found
+    a fitted 52 record lengths for a drawn 3.2, and a genuine leakage gets a finite one by noise);
     a fit at the search's ceiling (:func:`at_ceiling`) gives no length, and the note says so.
     """
     da, lk = by.get(ABSORPTION), by.get(LEAKAGE)
@@ -226,9 +228,11 @@ def too_short_note(by, winners, duration_s):
                 f"absorption settling within half the record; no length follows from a fit at the ceiling")
     return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
             f"absorption's fitted time constant, {tau:.3g} s, is {tau / duration_s:.2g} lengths of this "
-            f"{duration_s:.3g} s record, over which its charge is leakage's ramp, and its bend beyond "
+            f"{duration_s:.3g} s record, over which its charge is close to leakage's ramp, and its bend beyond "
             f"leakage's line stays under the noise floor on the validation folds; a record of about "
-            f"{tau / SETTLED_RECORDS:.3g} s (the fitted absorption settled within half of it) would show its shape")
+            f"{tau / SETTLED_RECORDS:.3g} s (the fitted absorption settled within half of it) would show its shape "
+            f"if that time constant holds, but a fit beyond the record is poorly determined (its bend is under the "
+            f"noise floor): the true one may be shorter or longer, or the charge may be leakage's")
 
 
 def settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share):
