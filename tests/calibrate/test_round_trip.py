@@ -547,3 +547,41 @@ def test_the_written_mode_is_the_plants_mode(sn637, tmp_path, effect, rate, prot
         f = max(m.freq_hz for m in load_plant(tmp_path / "p.toml").pzt.modes if m.freq_hz < 1e4)
         f0, z0 = float(truth["freq_hz"]), float(truth["damping_ratio"])
         assert abs(f - f0) <= 0.25 * 2 * z0 * f0, (f, f0, z0)
+
+
+@pytest.mark.parametrize("delay_ms, gain, best_ms", [(1.0, 3.0, 5.0), (-1.0, 3.0, -5.0), (1.0, 0.5, 0.3),
+                                                     (-1.0, 0.5, -0.3), (-0.02, 15.3, -0.25), (2.0, 0.0, 1.5)])
+def test_the_delay_re_search_brackets_either_sign(monkeypatch, delay_ms, gain, best_ms):
+    """The re-search brackets [min(|d|, |g d|) / 2, max(|d|, |g d|) * 2] with d's sign: a cost whose minimum is
+    inside that bracket (either sign) is found, and a zero end (gain 0) does not raise (review of s15_rt: d -1 ms, g 3 was bracketed [-2, -1.5] ms)."""
+    import workbench.calibrate.core_refit as cr
+    from workbench.calibrate import plant_update as pu
+    tried = []
+
+    def cost(plant, base, rows, delay_s=0.0, **k):
+        tried.append(delay_s)
+        return {"residual_m": (delay_s - best_ms * 1e-3) ** 2 + 1e-12}
+    monkeypatch.setattr(cr, "direct_core_and_branches", cost)
+    n = 1000
+    m = SimpleNamespace(valid=np.ones(n, bool), y=np.random.default_rng(0).normal(size=n))
+    base = SimpleNamespace(t=np.arange(n) * 1e-4, channels={"displacement": m})
+    out = pu._delay_with_branches(None, base, np.ones(n, bool), delay_ms * 1e-3, None, gain=gain)
+    mags = [abs(delay_ms), abs(gain * delay_ms)]
+    mags = [x for x in mags if x > 0]
+    lo, hi = min(mags) / pu.DELAY_SEARCH_FACTOR, max(mags) * pu.DELAY_SEARCH_FACTOR
+    tried = np.asarray(tried)
+    tried = tried[tried != 0.0]  # a zero end (g d = 0) is itself a trial
+    assert np.all(np.sign(tried) == np.sign(delay_ms))
+    assert min(np.abs(tried)) == pytest.approx(lo * 1e-3) and max(np.abs(tried)) == pytest.approx(hi * 1e-3)
+    assert out == pytest.approx(best_ms * 1e-3, abs=2e-6)  # the golden section's xatol is 0.02 dt = 2 us
+
+
+def test_the_delay_re_search_keeps_a_zero_delay(monkeypatch):
+    """A delay stage of 0 s has no log bracket: the stage's delay is kept, no trial fit is run."""
+    import workbench.calibrate.core_refit as cr
+    from workbench.calibrate import plant_update as pu
+    monkeypatch.setattr(cr, "direct_core_and_branches", lambda *a, **k: pytest.fail("no trial at a zero delay"))
+    n = 100
+    m = SimpleNamespace(valid=np.ones(n, bool), y=np.zeros(n))
+    base = SimpleNamespace(t=np.arange(n) * 1e-4, channels={"displacement": m})
+    assert pu._delay_with_branches(None, base, np.ones(n, bool), 0.0, None, gain=3.0) == 0.0

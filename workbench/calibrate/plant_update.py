@@ -364,7 +364,14 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
     dt = float(np.mean(np.diff(np.asarray(base.t, float))))
     # the stage's term g (u0(t - d) - u0) acts as a whole-motion shift of about g d (29 #75: g 15.3)
     ends = (delay_s, abs(float(gain)) * delay_s)
-    lo, hi = sorted((min(ends) / DELAY_SEARCH_FACTOR, max(ends) * DELAY_SEARCH_FACTOR))
+    # bracketed by magnitude, the sign put back: sorted((min/2, max*2)) of negative ends gave d -1 ms, g 3:
+    # [-2, -1.5] ms instead of [-6, -0.5] (review of s15_rt); a zero end (delay 0 or gain 0) has no log bracket
+    mags = np.abs(np.asarray(ends, float))
+    mags = mags[np.isfinite(mags) & (mags > 0)]
+    if mags.size == 0:
+        return float(delay_s)
+    sign = -1.0 if delay_s < 0 else 1.0
+    lo, hi = float(mags.min()) / DELAY_SEARCH_FACTOR, float(mags.max()) * DELAY_SEARCH_FACTOR
 
     m = base.channels["displacement"]
     ok = np.asarray(rows, bool) & np.asarray(m.valid, bool) & np.isfinite(m.y)
@@ -381,7 +388,7 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
     # between the best point's neighbours: a golden section over the whole bracket took its first point at 38 % of
     # it, and where no fit exists there (a drawn 100 kHz record, g 3.75: 18-274 ms, the delay 36.6 ms) it walked
     # to the far end on flat costs and never saw the stage's delay (session 15)
-    grid = np.unique(np.r_[np.geomspace(lo, hi, DELAY_SCAN_POINTS), ends])
+    grid = np.unique(np.r_[sign * np.geomspace(lo, hi, DELAY_SCAN_POINTS), ends])
     costs = np.array([cost(d) for d in grid])
     k = int(np.argmin(costs))
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
