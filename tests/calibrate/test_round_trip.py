@@ -517,6 +517,9 @@ def test_the_reported_error_after_is_the_written_files_replay(sn637, tmp_path, m
     assert res["error_after_model"] == on_channel[-1]["error_after"]
     md = (tmp_path / "out" / "report.md").read_text()
     assert "**updated plant**" in md and "tracing model's own" in md
+    # the base fit's per-channel error_after is the tracing model's, and says so (review of s15_rt)
+    ch = res["base_fit"]["channels"][res["channel"]]
+    assert ch["error_after_source"] == "tracing model"
 
 
 _RNG17 = np.random.default_rng(1504)

@@ -163,7 +163,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         "base_fit": {
             "voltage_source": base.voltage_source, "starts_from_rest": base.starts_from_rest,
             "series_resistor_ohm": resistance,
-            "channels": result["channels"],
+            # the channels' error_after is the tracing model's (the file's replay is the top-level error_after
+            # when error_after_source is "updated plant"): each says so (review of s15_rt)
+            "channels": {name: ({**err, "error_after_source": "tracing model"} if "error_after" in err else err)
+                         for name, err in (result["channels"] or {}).items()},
             "k_q2x_m_per_c": base.k_q2x_m_per_c, "working_capacitance_f": base.working_capacitance_f,
             "gauge_gain_v_per_m": base.gauge_gain_v_per_m, "gauge_offset_v": base.gauge_offset_v,
             "n_plays": int(base.channels[next(iter(base.channels))].thresholds_v.size),
@@ -248,7 +251,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             from ..report.calibrate_figures import calibration_figures
             if progress:
                 progress("figures", 0, 1)
-            figs = calibration_figures(out, base, result, holds=holds or None)
+            figs = calibration_figures(out, base, {**result, "error_after": data["error_after"],
+                                                   "error_after_model": data["error_after_model"],
+                                                   "error_after_source": data["error_after_source"]},
+                                       holds=holds or None)
         data["figures"] = [str(f) for f in figs]
         data["elapsed_s"] = time.perf_counter() - t0
         from ..report.calibrate_report import calibration_markdown
