@@ -588,3 +588,39 @@ def test_the_delay_re_search_keeps_a_zero_delay(monkeypatch):
     m = SimpleNamespace(valid=np.ones(n, bool), y=np.zeros(n))
     base = SimpleNamespace(t=np.arange(n) * 1e-4, channels={"displacement": m})
     assert pu._delay_with_branches(None, base, np.ones(n, bool), 0.0, None, gain=3.0) == 0.0
+
+
+def test_a_resonance_gain_the_mode_refit_compensated_is_no_gap():
+    """The file's mode refitted (``core["mode"]``, :func:`plant_update._refit_mode`) compensates the tracing's
+    gain off 1: no gap; not refitted, the gain is a gap, and where the refit could not run the gap says why
+    (review of s15_rt)."""
+    from workbench.calibrate.plant_update import declared_core, plant_file_gaps
+    stages = [{"effect": "resonance", "channel": "displacement",
+               "parameters": {"f_n_hz": 45.06, "zeta": 0.0072, "gain": 0.85}}]
+    core = declared_core("kept by the test")
+
+    def gain_gaps(c):
+        return [g for g in plant_file_gaps(stages, None, None, core=c) if "resonance's gain" in g]
+    assert len(gain_gaps(core)) == 1
+    assert gain_gaps({**core, "mode": (44.9, 0.0069, 45.06, 0.0072)}) == []
+    assert "the mode refit did not run: no replay" in gain_gaps({**core, "mode_refit_skipped": "no replay"})[0]
+
+
+def test_the_mode_is_refitted_with_the_declared_core_too(monkeypatch):
+    """choose_core with no refitted core (the declared one kept at once) still refits the found mode through the
+    file (it returned before the refit: review of s15_rt); where no file can be replayed it says the refit did
+    not run."""
+    from workbench.calibrate import plant_update as pu
+    calls = []
+    monkeypatch.setattr(pu, "core_for", lambda *a: pu.declared_core("no core fit"))
+    monkeypatch.setattr(pu, "updated_plant_error_reason", lambda *a: None)
+
+    def refit(plant_path, plant, base, result, data_path, core, rows, tmp):
+        calls.append(tmp)
+        return {**core, "mode": (44.9, 0.0069, 45.06, 0.0072)}
+    monkeypatch.setattr(pu, "_refit_mode", refit)
+    core, dev, err = pu.choose_core(None, None, None, {"channel": "displacement"}, None, None)
+    assert len(calls) == 1 and core["mode"][0] == 44.9 and core["hysteresis"] is None and dev is None
+    monkeypatch.setattr(pu, "updated_plant_error_reason", lambda *a: "no replay")
+    core, _, _ = pu.choose_core(None, None, None, {"channel": "displacement"}, None, None)
+    assert len(calls) == 1 and "mode" not in core and core["mode_refit_skipped"] == "no replay"

@@ -209,7 +209,11 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "sensor_delay_s": _sensor_terms(written_stages(result["stages"], result, core), base)[0],
             "offset_m": core.get("offset_m"),
             # the joint fit's fastest branch when the resistor is in and the drive is the recorded V (R C lag), s
-            "fastest_branch_s": core.get("fastest_branch_s")}
+            "fastest_branch_s": core.get("fastest_branch_s"),
+            # the found mode's frequency and damping refitted through the file (_refit_mode): (f Hz, zeta, the
+            # tracing's f Hz, zeta), None when not refitted; why the refit did not run, when it could not
+            "mode_refit": list(core["mode"]) if core.get("mode") else None,
+            "mode_refit_skipped": core.get("mode_refit_skipped")}
         text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
