@@ -354,8 +354,8 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
                          fastest_branch_s=None):
     """The sensor delay, s, at which C_h and the branches fitted together
     (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
-    development ``rows``, searched between ``min(d, g d)`` over and ``max(d, g d)`` times
-    :data:`DELAY_SEARCH_FACTOR` (a scan of :data:`DELAY_SCAN_POINTS` log-spaced points and ``d``, ``g d``, then a
+    development ``rows``, searched between ``min(|d|, |g d|)`` over and ``max(|d|, |g d|)`` times
+    :data:`DELAY_SEARCH_FACTOR`, with ``d``'s sign (a lead is bracketed as a lag is; a zero ``d`` is kept) (a scan of :data:`DELAY_SCAN_POINTS` log-spaced points and ``d``, ``g d``, then a
     bounded golden section between the best one's neighbours) (``d`` the named delay stage's ``delay_s``, ``g`` its gain ``scale``),
     at the record's offset ``offset_m`` (m; None: the direct fit searches it at every trial).
 
