@@ -242,3 +242,43 @@ def test_decimate_keeps_extremes_and_order():
     assert np.nanmax(yd) == 5.0 and np.nanmin(yd) == np.nanmin(y)
     short_t, short_y = decimate(t[:100], y[:100])
     np.testing.assert_array_equal(short_y, y[:100])
+
+
+def _file_after(result, factor):
+    """``result`` as ``workbench calibrate`` reports it with a written file replayed: error_after the file's
+    (here ``factor`` x the tracing model's), error_after_model the tracing model's."""
+    model = result["error_after"]
+    return {**result, "error_after": {**model, "rms": model["rms"] * factor, "max": model["max"] * factor},
+            "error_after_model": model, "error_after_source": "updated plant"}
+
+
+@pytest.mark.parametrize("factor", [0.5, 3.0])
+def test_the_residual_figure_names_whose_after_it_prints(traced, tmp_path, monkeypatch, factor):
+    """The residual figure plots the tracing model's residual: its 'after' figure is the tracing model's,
+    named so, and the written file's (the reported error_after) is printed under its own name (review of s15_rt:
+    the figure printed the model's number as 'held-out RMS after' beside a report giving the file's)."""
+    from workbench.report import calibrate_figures as cf
+    base, result, _ = traced
+    fake = _file_after(result, factor)
+    seen = []
+    real = cf._text
+    monkeypatch.setattr(cf, "_text", lambda ax, lines, **k: (seen.extend(lines), real(ax, lines, **k)))
+    cf._plot_residual(base, fake, tmp_path / "residual.png")
+    m, f = result["error_after"], fake["error_after"]
+    fb, lb = si_scale("m", max(abs(result["error_before"]["max"]), 1e-300))
+    assert any(s.startswith(f"held-out RMS after (tracing model) {cf._fmt(m['rms'] * fb)} {lb}") for s in seen), seen
+    assert any(s.startswith(f"held-out RMS after (written plant file) {cf._fmt(f['rms'] * fb)} {lb}")
+               for s in seen), seen
+
+
+@pytest.mark.parametrize("factor", [0.5, 3.0])
+def test_the_error_tables_ratio_says_it_is_the_files_over_the_tracings_before(traced, factor):
+    """With the file's replay as 'after', the table's ratio is the file's over the tracing's 'before', and the
+    note under it says so and gives the tracing model's own ratio (review of s15_rt)."""
+    base, result, _ = traced
+    fake = _file_after(result, factor)
+    md = calibration_markdown("r.csv", PLANT, base, fake, None, [], None, 1.0)
+    eb, ea, em = fake["error_before"], fake["error_after"], result["error_after"]
+    assert f"| {ea['rms'] / eb['rms']:.3f} |" in md
+    assert "'after' is the written plant file's replay on the test rows" in md
+    assert f"the tracing model's own RMS after / before: {em['rms'] / eb['rms']:.3f}" in md

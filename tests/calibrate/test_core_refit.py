@@ -481,3 +481,52 @@ def test_with_the_resistor_in_and_the_recorded_voltage_no_branch_copies_the_rc_l
                             gauge_noise=False, upsample=8)["x_true_m"]
         errs.append(_held_out_rms(x, y, ~train))
     assert errs[1] < errs[0], errs
+
+
+def _drawn_gram(seed, k=8):
+    """A drawn bounded least-squares problem of the direct fit's scale: (G, h, lower, its exact optimum)."""
+    from scipy.optimize import lsq_linear
+    rng = np.random.default_rng(seed)
+    A = rng.normal(size=(200, k)) / np.sqrt(200.0)
+    q = A @ rng.normal(size=k) + rng.normal(0.0, 0.1, 200) / np.sqrt(200.0)
+    lower = np.where(rng.uniform(size=k) < 0.5, 0.0, rng.uniform(-0.5, 0.5, k))
+    x_opt = lsq_linear(A, q, bounds=(lower, np.inf), method="trf", tol=1e-14).x
+    return A.T @ A, A.T @ q, lower, x_opt
+
+
+@pytest.mark.parametrize("seed", [3, 11, 29])
+def test_the_bounded_solve_keeps_the_better_of_its_two_solves(monkeypatch, seed):
+    """A bvls answer worse than the optimum but better than the bounds' point (here: halfway from the bounds'
+    point to the optimum, feasible) is replaced by the NNLS one: the optimum's objective (review of s15_rt)."""
+    import workbench.calibrate.base_fit as bf
+    from workbench.calibrate.core_refit import _bounded_gram_solve
+    G, h, lower, x_opt = _drawn_gram(seed)
+    start = np.maximum(lower, 0.0)
+    half = 0.5 * (start + x_opt) / np.linalg.norm(h)  # _gram_solve is called on h scaled to unit norm
+    monkeypatch.setattr(bf, "_gram_solve", lambda G_, h_, lo_: half)
+
+    def f(x):
+        return x @ G @ x - 2 * h @ x
+    x = _bounded_gram_solve(G, h, lower)
+    assert f(half * np.linalg.norm(h)) < f(start)  # the planted answer passes the old check against the start
+    assert np.all(x >= lower - 1e-12)
+    assert f(x) - f(x_opt) <= 1e-9 * abs(f(x_opt))
+
+
+@pytest.mark.parametrize("seed", [3, 11])
+def test_the_bounded_solve_survives_nnls_at_its_iteration_limit(monkeypatch, seed):
+    """scipy's nnls raising at maxiter (RuntimeError, scipy >= 1.12) does not crash the fit: with a non-finite
+    bvls answer the bounds' point comes back, with a finite feasible one that one."""
+    import scipy.optimize
+
+    import workbench.calibrate.base_fit as bf
+    from workbench.calibrate.core_refit import _bounded_gram_solve
+    G, h, lower, x_opt = _drawn_gram(seed)
+
+    def stuck(*a, **k):
+        raise RuntimeError("Maximum number of iterations reached.")
+    monkeypatch.setattr(scipy.optimize, "nnls", stuck)
+    monkeypatch.setattr(bf, "_gram_solve", lambda G_, h_, lo_: np.full(h_.size, np.nan))
+    np.testing.assert_array_equal(_bounded_gram_solve(G, h, lower), np.maximum(lower, 0.0))
+    monkeypatch.setattr(bf, "_gram_solve", lambda G_, h_, lo_: x_opt / np.linalg.norm(h))
+    np.testing.assert_allclose(_bounded_gram_solve(G, h, lower), x_opt, rtol=1e-12, atol=1e-15)

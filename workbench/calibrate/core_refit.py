@@ -430,12 +430,14 @@ DIRECT_RIDGE = 1e-9
 def _bounded_gram_solve(G, h, lower):
     """min ``w'G w - 2 h'w`` subject to ``w >= lower``, for a Gram matrix ``G`` of unit-diagonal scale.
 
-    The base fit's bounded solve (:func:`~workbench.calibrate.base_fit._gram_solve`) on the target scaled to
-    unit norm, its answer checked: the objective must not exceed the one at ``max(lower, 0)`` (a feasible
-    point). Where it does (the bvls on a near-singular square-root system: session 14's 25 #75, a 34-column
-    fit of condition 1e15, came out at 2.5e3 with an objective above zero's, and the reversal floor raised on
-    it ran away), the same problem is solved again by Lawson-Hanson NNLS on the Cholesky factor of ``G``
-    (ridged until it factors), shifted by ``lower``.
+    Two solves, the better kept: the base fit's bounded solve (:func:`~workbench.calibrate.base_fit._gram_solve`)
+    on the target scaled to unit norm, and Lawson-Hanson NNLS on the Cholesky factor of ``G`` (ridged until it
+    factors), shifted by ``lower``; each must be finite and feasible, and neither is kept above the objective at
+    ``max(lower, 0)`` (a feasible point, returned when both fail). Why both: the bvls on a near-singular
+    square-root system (session 14's 25 #75, a 34-column fit of condition 1e15) came out at 2.5e3 with an
+    objective above zero's, and the reversal floor raised on it ran away; a check against the trivial point
+    alone keeps a bvls answer that is worse than NNLS's but better than zero (review of s15_rt). NNLS stopping
+    at its iteration limit (scipy raises RuntimeError) leaves the other candidates, never a crash.
     """
     from scipy.optimize import nnls
 
@@ -445,27 +447,41 @@ def _bounded_gram_solve(G, h, lower):
 
     def obj(x):
         return float(x @ G @ x - 2.0 * h @ x)
+
+    def feasible(x):
+        return x is not None and bool(np.all(np.isfinite(x))) \
+            and bool(np.all(x >= lower - 1e-9 * (np.abs(lower) + 1e-300)))
     start = np.maximum(lower, 0.0)
     with np.errstate(all="ignore"):
-        x = _gram_solve(G, h / s, lower / s) * s
-        good = np.all(np.isfinite(x)) and np.all(x >= lower - 1e-9 * (np.abs(lower) + 1e-300)) \
-            and obj(x) <= obj(start) + 1e-12 * abs(obj(start))
-    if good:
-        return x
+        try:
+            x_bvls = _gram_solve(G, h / s, lower / s) * s
+        except (ValueError, np.linalg.LinAlgError, RuntimeError):
+            x_bvls = None
+    x_nnls = None
     eye, d = np.eye(G.shape[0]), float(np.mean(np.diag(G))) or 1.0
     for ridge in (0.0, 1e-12, 1e-9, 1e-6):
         try:
             L = np.linalg.cholesky(G + ridge * d * eye)
-            break
         except np.linalg.LinAlgError:
             continue
-    else:
-        return start
-    # x = lower + z, z >= 0: min |L' z - (L^-1 h - L' lower)|
-    c = np.linalg.solve(L, h / s) - L.T @ (lower / s)
-    z, _ = nnls(L.T, c, maxiter=50 * G.shape[0])
-    x = lower + z * s
-    return x if obj(x) <= obj(start) else start
+        # x = lower + z, z >= 0: min |L' z - (L^-1 h - L' lower)|
+        with np.errstate(all="ignore"):
+            c = np.linalg.solve(L, h / s) - L.T @ (lower / s)
+            try:
+                z, _ = nnls(L.T, c, maxiter=50 * G.shape[0])
+                x_nnls = lower + z * s
+            except RuntimeError:  # scipy >= 1.12: the iteration limit raises
+                x_nnls = None
+        break
+    # the better of the two solves (bvls on a tie), the feasible start where neither beats it
+    best, best_obj = start, obj(start) + 1e-12 * abs(obj(start))
+    for x in (x_nnls, x_bvls):
+        if feasible(x):
+            with np.errstate(all="ignore"):
+                f = obj(x)
+            if np.isfinite(f) and f <= best_obj:
+                best, best_obj = x, f
+    return best
 
 
 def _lowpass_from_rest(u, tau, dt):

@@ -163,12 +163,18 @@ def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
         None when the choice replayed nothing.
     """
     from ..plant import load_plant
-    core = core_for(plant, base, result)
-    ch = result.get("channel")
-    if core["hysteresis"] is None or updated_plant_error_reason("pzt", result, base, ch) is not None:
-        return core, None, None
     import tempfile
     from pathlib import Path
+    core = core_for(plant, base, result)
+    ch = result.get("channel")
+    reason = updated_plant_error_reason("pzt", result, base, ch)
+    if reason is not None:
+        # no file can be replayed: the mode refit cannot run either, and the JSON and the gaps say so
+        return {**core, "mode_refit_skipped": reason}, None, None
+    if core["hysteresis"] is None:
+        # the declared core alone: the mode is still refitted through its file (review of s15_rt: it was skipped)
+        with tempfile.TemporaryDirectory() as tmp:
+            return _refit_mode(plant_path, plant, base, result, data_path, core, rows, Path(tmp)), None, None
     errs, tests = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         cores = {}
@@ -348,8 +354,8 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
                          fastest_branch_s=None):
     """The sensor delay, s, at which C_h and the branches fitted together
     (:func:`~workbench.calibrate.core_refit.direct_core_and_branches`) leave the least residual on the
-    development ``rows``, searched between ``min(d, g d)`` over and ``max(d, g d)`` times
-    :data:`DELAY_SEARCH_FACTOR` (a scan of :data:`DELAY_SCAN_POINTS` log-spaced points and ``d``, ``g d``, then a
+    development ``rows``, searched between ``min(|d|, |g d|)`` over and ``max(|d|, |g d|)`` times
+    :data:`DELAY_SEARCH_FACTOR`, with ``d``'s sign (a lead is bracketed as a lag is; a zero ``d`` is kept) (a scan of :data:`DELAY_SCAN_POINTS` log-spaced points and ``d``, ``g d``, then a
     bounded golden section between the best one's neighbours) (``d`` the named delay stage's ``delay_s``, ``g`` its gain ``scale``),
     at the record's offset ``offset_m`` (m; None: the direct fit searches it at every trial).
 
@@ -364,7 +370,14 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
     dt = float(np.mean(np.diff(np.asarray(base.t, float))))
     # the stage's term g (u0(t - d) - u0) acts as a whole-motion shift of about g d (29 #75: g 15.3)
     ends = (delay_s, abs(float(gain)) * delay_s)
-    lo, hi = sorted((min(ends) / DELAY_SEARCH_FACTOR, max(ends) * DELAY_SEARCH_FACTOR))
+    # bracketed by magnitude, the sign put back: sorted((min/2, max*2)) of negative ends gave d -1 ms, g 3:
+    # [-2, -1.5] ms instead of [-6, -0.5] (review of s15_rt); a zero end (delay 0 or gain 0) has no log bracket
+    mags = np.abs(np.asarray(ends, float))
+    mags = mags[np.isfinite(mags) & (mags > 0)]
+    if mags.size == 0:
+        return float(delay_s)
+    sign = -1.0 if delay_s < 0 else 1.0
+    lo, hi = float(mags.min()) / DELAY_SEARCH_FACTOR, float(mags.max()) * DELAY_SEARCH_FACTOR
 
     m = base.channels["displacement"]
     ok = np.asarray(rows, bool) & np.asarray(m.valid, bool) & np.isfinite(m.y)
@@ -381,7 +394,7 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
     # between the best point's neighbours: a golden section over the whole bracket took its first point at 38 % of
     # it, and where no fit exists there (a drawn 100 kHz record, g 3.75: 18-274 ms, the delay 36.6 ms) it walked
     # to the far end on flat costs and never saw the stage's delay (session 15)
-    grid = np.unique(np.r_[np.geomspace(lo, hi, DELAY_SCAN_POINTS), ends])
+    grid = np.unique(np.r_[sign * np.geomspace(lo, hi, DELAY_SCAN_POINTS), ends])
     costs = np.array([cost(d) for d in grid])
     k = int(np.argmin(costs))
     a, b = grid[max(k - 1, 0)], grid[min(k + 1, grid.size - 1)]
@@ -940,8 +953,12 @@ def plant_file_gaps(stages, base, plant, core=None):
                             f"(branches across C_h cannot carry them all: the ceiling 1 + C_pp/C_h)")
         elif eff == "resonance" and ch in ("displacement", "gauge"):
             g = float(p.get("gain", 1.0))
-            if abs(g - 1.0) > 0.01:
-                gaps.append(f"the resonance's gain {g:.4g} (the file's modes have unit gain)")
+            # the mode refit (_refit_mode) compensated the gain by the file's frequency and damping: no gap
+            # (review of s15_rt); where it could not run the gap says why
+            if abs(g - 1.0) > 0.01 and not (core or {}).get("mode"):
+                skipped = (core or {}).get("mode_refit_skipped")
+                gaps.append(f"the resonance's gain {g:.4g} (the file's modes have unit gain"
+                            + (f"; the mode refit did not run: {skipped})" if skipped else ")"))
         elif eff == "drift" and ch == "displacement":
             if p.get("period_s"):
                 gaps.append("the drift's slow periodic term (JSON only)")

@@ -163,7 +163,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         "base_fit": {
             "voltage_source": base.voltage_source, "starts_from_rest": base.starts_from_rest,
             "series_resistor_ohm": resistance,
-            "channels": result["channels"],
+            # the channels' error_after is the tracing model's (the file's replay is the top-level error_after
+            # when error_after_source is "updated plant"): each says so (review of s15_rt)
+            "channels": {name: ({**err, "error_after_source": "tracing model"} if "error_after" in err else err)
+                         for name, err in (result["channels"] or {}).items()},
             "k_q2x_m_per_c": base.k_q2x_m_per_c, "working_capacitance_f": base.working_capacitance_f,
             "gauge_gain_v_per_m": base.gauge_gain_v_per_m, "gauge_offset_v": base.gauge_offset_v,
             "n_plays": int(base.channels[next(iter(base.channels))].thresholds_v.size),
@@ -206,7 +209,11 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "sensor_delay_s": _sensor_terms(written_stages(result["stages"], result, core), base)[0],
             "offset_m": core.get("offset_m"),
             # the joint fit's fastest branch when the resistor is in and the drive is the recorded V (R C lag), s
-            "fastest_branch_s": core.get("fastest_branch_s")}
+            "fastest_branch_s": core.get("fastest_branch_s"),
+            # the found mode's frequency and damping refitted through the file (_refit_mode): (f Hz, zeta, the
+            # tracing's f Hz, zeta), None when not refitted; why the refit did not run, when it could not
+            "mode_refit": list(core["mode"]) if core.get("mode") else None,
+            "mode_refit_skipped": core.get("mode_refit_skipped")}
         text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
@@ -248,7 +255,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             from ..report.calibrate_figures import calibration_figures
             if progress:
                 progress("figures", 0, 1)
-            figs = calibration_figures(out, base, result, holds=holds or None)
+            figs = calibration_figures(out, base, {**result, "error_after": data["error_after"],
+                                                   "error_after_model": data["error_after_model"],
+                                                   "error_after_source": data["error_after_source"]},
+                                       holds=holds or None)
         data["figures"] = [str(f) for f in figs]
         data["elapsed_s"] = time.perf_counter() - t0
         from ..report.calibrate_report import calibration_markdown

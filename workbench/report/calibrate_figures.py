@@ -316,8 +316,15 @@ def _plot_residual(base, result, path):
     fb, lb = si_scale(m.units, _peak(eb.get("max", np.nan)))
     lines = [f"held-out RMS before {_fmt(eb.get('rms', np.nan) * fb)} {lb}, max {_fmt(eb.get('max', np.nan) * fb)} {lb}"]
     if e1 is not None:
-        lines.append(f"held-out RMS after {_fmt(ea.get('rms', np.nan) * fb)} {lb}, max "
-                     f"{_fmt(ea.get('max', np.nan) * fb)} {lb}")
+        # the plotted 'after' is the tracing model's; with an updated plant file replayed, the reported error_after
+        # is the file's (``error_after_source``), printed beside it under its own name (review of s15_rt)
+        file_after = ea if result.get("error_after_source") == "updated plant" else None
+        em = (result.get("error_after_model") or {}) if file_after is not None else ea
+        lines.append(f"held-out RMS after (tracing model) {_fmt(em.get('rms', np.nan) * fb)} {lb}, max "
+                     f"{_fmt(em.get('max', np.nan) * fb)} {lb}")
+        if file_after is not None:
+            lines.append(f"held-out RMS after (written plant file) {_fmt(file_after.get('rms', np.nan) * fb)} {lb}, "
+                         f"max {_fmt(file_after.get('max', np.nan) * fb)} {lb}")
     _text(ax, lines)
     effect = result.get("effect", "none")
     title = (f"{ch} residual (measured - model) before and after {effect}" if e1 is not None

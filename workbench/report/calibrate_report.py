@@ -190,6 +190,13 @@ def _error_table(base, result):
                             + ("the line gauge offset + gain x of the recorded displacement"
                                if eff == "gauge_nonlinearity" else "as the tracing scored it")
                             + f"), not its base PI model (held-out RMS {_q(err['rms'], err.get('units', ''))}).")
+            if result.get("error_after_source") == "updated plant" and _finite(before.get("rms")) \
+                    and float(before["rms"]) > 0:
+                model = result.get("error_after_model") or {}
+                r_model = float(model["rms"]) / float(before["rms"]) if _finite(model.get("rms")) else float("nan")
+                note.append(f"The {name}'s 'after' is the written plant file's replay on the test rows, and its "
+                            f"'RMS after / before' that over the tracing's 'before'; the tracing model's own "
+                            f"RMS after / before: {r_model:.3f} (review of s15_rt).")
         unit = err.get("units", "")
         scale = si_scale(unit, max(abs(float(before.get("max", 0) or 0)), abs(float(after.get("max", 0) or 0))))
         ratio = (float(after["rms"]) / float(before["rms"]) if _finite(after.get("rms")) and _finite(before.get("rms"))
