@@ -5,7 +5,6 @@ Usage: ``OPENBLAS_NUM_THREADS=1 python benchmarks/round_trip_leading_delay.py SI
 protocol; seeds >= 47 are reserved)."""
 import sys, dataclasses, time
 from pathlib import Path
-import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import calibrate_confusion as cc
 from workbench.calibrate.synthetic import plant_with_effect, simulate_record, benchmark_protocol
