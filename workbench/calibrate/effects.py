@@ -1036,12 +1036,7 @@ class Resonance(Effect):
                                              params["zeta"], _dt(t))
 
     def columns(self, t, u, params, y_model=None):
-        # g >= 0 in the joint fit: the stack's mode filters its motion (``H x``, g = 1 against a
-        # quasi-static base; the base's columns, refitted beside it, take any gain the base fitted
-        # across the mode). A negative g is no mode of the stack: ``|g| (1 - H) u`` is a second-order
-        # high-pass, a relaxation of the sign creep's branches (``c >= 0``) cannot take -- seen, a
-        # 20x creep's 1 kHz leftover fitted by a 1.2 Hz, zeta 0.3 "mode" of gain -0.05 on 5 of 5 folds
-        return self._column(np.asarray(u, float), params["f_n_hz"], params["zeta"], _dt(t)), [0.0]
+        return self._column(np.asarray(u, float), params["f_n_hz"], params["zeta"], _dt(t)), [-np.inf]
 
     def with_gains(self, params, gains):
         return {**params, "gain": float(gains[0])}
