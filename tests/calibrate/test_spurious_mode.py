@@ -1,27 +1,31 @@
-"""A large creep's leftover is not a mode of the stack (session 15, branch s15_spur).
+"""A large creep's leftover read as a mode (session 15, branch s15_spur): a known miss, left as a trade-off.
 
-Seed 40 #2 (a 20x creep, 1 kHz, calibration protocol) was named ``['creep', 'resonance']``: after
-creep, a 1.2 Hz, zeta 0.3 "mode" of gain -0.046 won 5 of 5 folds (creep's own rival, further
-branches, explained none of them). A negative gain is no mode of the stack: ``g (H - 1) u`` with
-``g < 0`` is ``|g| (1 - H) u``, a second-order high-pass -- a relaxation of the sign creep's
-branches (``c >= 0``) cannot take -- while the stack's mode filters its motion (``H x``, ``g = 1``
-against a quasi-static base). The mode's gain is bounded at zero from below in the joint fit
-(:meth:`workbench.calibrate.effects.Resonance.columns`).
+Seed 40 #2 (a 20x creep, 1 kHz, calibration protocol) is named ``['creep', 'resonance']``: after
+creep, a 1.20 Hz, zeta 0.3 (the search's ceiling) "mode" of gain -0.046 wins 5 of 5 folds, and
+creep's own rival (further branches, c >= 0) explains none of them. Session 13 answered ``creep``
+alone only because the gauge's half-sample lag (a sampling artifact, removed by s14_ends' averaged
+gauge model, 19dd668) took one of the five folds as a gauge delay; the mode already won the other 4.
+
+A negative gain is no mode of the stack filtering its motion (``g (H - 1) u`` with ``g < 0`` is a
+second-order high-pass, a relaxation of the sign creep's branches cannot take), but bounding
+``g >= 0`` is not a fix: a mode above the record's Nyquist frequency is named through its alias
+``fs - f`` with a negative gain (seed 40 #27: a 611 Hz mode at 1 kHz, named at 388.5 Hz, gain
+-0.55; with the bound it is answered ``none``). The strict xfails below are the miss as measured.
 
 Drawn records: creep alone, sizes log-uniform over the benchmark's large band (3-30x the drawn
-range) at 1 and 10 kHz on the three protocols, and eight at 1 kHz on the calibration protocol at
-10-30x (the seed 40 record's neighbourhood), ``default_rng`` fixed; the eight were drawn and run
-after the change was written: main named ``['creep', 'resonance']`` on 2 of them (14.4x and 15.4x,
-both a 1.20 Hz, zeta 0.3 mode of gain -0.051), the bounded gain on none. The seed 40 record is the
-record the change was made on (development, not held-out evidence).
+range) at 1 and 10 kHz, and eight at 1 kHz on the calibration protocol at 10-30x (the seed 40
+record's neighbourhood), ``default_rng`` fixed; main names the same mode (1.20 Hz, zeta 0.3, gain
+-0.051) on 2 of the eight (14.4x and 15.4x).
 """
 
 import numpy as np
 import pytest
 
 from tests.conftest import load_benchmark
-from workbench.calibrate.effects import Resonance
 from workbench.calibrate.tracing import trace_effect
+
+MISS = ("session 15 (s15_spur): a large creep's 1 kHz leftover fitted by a 1.2 Hz, zeta 0.3 mode of negative "
+        "gain; bounding the gain >= 0 loses above-Nyquist modes named through their alias (seed 40 #27)")
 
 _RNG = np.random.default_rng(1515)
 CREEP_DRAWS = [(rate, proto, float(np.exp(_RNG.uniform(np.log(3.0), np.log(30.0)))), int(_RNG.integers(1 << 30)))
@@ -29,6 +33,10 @@ CREEP_DRAWS = [(rate, proto, float(np.exp(_RNG.uniform(np.log(3.0), np.log(30.0)
 _RNG_1K = np.random.default_rng(77)
 CREEP_DRAWS += [(1e3, "calibration", float(np.exp(_RNG_1K.uniform(np.log(10.0), np.log(30.0)))),
                  int(_RNG_1K.integers(1 << 30))) for _ in range(8)]
+# the two draws main names ['creep', 'resonance'] (measured 2026-11-26)
+_MISSED = {1039808915, 342190994}
+CREEP_DRAWS = [pytest.param(*d, marks=pytest.mark.xfail(strict=True, reason=MISS)) if d[3] in _MISSED else d
+               for d in CREEP_DRAWS]
 
 
 def _trace(plant0, effect, rate, proto, size, seed):
@@ -45,9 +53,9 @@ def test_a_large_creep_alone_names_no_second_effect(sn637, rate, proto, size, se
     assert {n[0] for n in named} <= {"creep"}, (named, res.get("fold_winners"), truth)
 
 
+@pytest.mark.xfail(strict=True, reason=MISS)
 def test_regression_seed_40_2_is_creep_alone(sn637):
-    """The confusion benchmark's seed 40 #2 (20x creep, 1 kHz calibration): ``['creep']`` (main:
-    ``['creep', 'resonance']``, the 1.2 Hz mode of negative gain)."""
+    """The confusion benchmark's seed 40 #2 (20x creep, 1 kHz calibration): should be ``['creep']``."""
     cc = load_benchmark("calibrate_confusion")
     e, rate, proto, size, s = cc.cases(seed=40)[1]
     assert e == "creep" and rate == 1e3
@@ -55,23 +63,17 @@ def test_regression_seed_40_2_is_creep_alone(sn637):
     assert [x["effect"] for x in res["stages"]] == ["creep"]
 
 
-@pytest.mark.parametrize("f_hz, zeta", [(30.0, 0.005), (150.0, 0.02), (380.0, 0.3)])
-def test_a_mode_of_the_stack_has_a_positive_gain(f_hz, zeta):
-    """The motion through a mode, ``H u``, is the base's ``u`` plus the mode's column with gain +1
-    (least squares on the column recovers 1), inside the joint fit's bound ``g >= 0``; its mirror
-    ``(2 - H) u`` needs gain -1, outside it."""
-    from scipy import signal
-    from workbench.calibrate.effects import _foh_mode
-    dt = 1e-3
-    t = np.arange(5000) * dt
-    rng = np.random.default_rng(7)
-    u = np.cumsum(rng.normal(size=t.size)) * 1e-2 + np.sin(2 * np.pi * 0.2 * f_hz * t)
-    eff = Resonance()
-    C, lower = eff.columns(t, u, {"f_n_hz": f_hz, "zeta": zeta})
-    b, a = _foh_mode(f_hz, zeta, dt)
-    v = u - u[0]
-    hx = signal.lfilter(b, a, v)
-    g_mode = float(np.linalg.lstsq(C[:, None], hx - v, rcond=None)[0][0])
-    g_mirror = float(np.linalg.lstsq(C[:, None], (2 * v - hx) - v, rcond=None)[0][0])
-    assert abs(g_mode - 1.0) < 1e-9 and abs(g_mirror + 1.0) < 1e-9
-    assert np.all(np.asarray(lower) <= g_mode) and not np.all(np.asarray(lower) <= g_mirror)
+def test_a_mode_above_nyquist_is_named_at_its_alias_with_a_negative_gain(sn637):
+    """Why the mode's gain keeps its free sign: seed 40 #27 (a mode drawn at 611 Hz, 1 kHz steps record,
+    Nyquist 500 Hz) is named resonance at its alias ``fs - f`` (within a quarter of the drawn mode's
+    bandwidth ``2 zeta f``) with a negative gain."""
+    cc = load_benchmark("calibrate_confusion")
+    e, rate, proto, size, s = cc.cases(seed=40)[26]
+    res, truth = _trace(sn637, e, rate, proto, size, s)
+    assert e == "resonance" and truth["freq_hz"] > rate / 2
+    st = [x for x in res["stages"] if x["effect"] == "resonance"]
+    assert st, res.get("fold_winners")
+    p = st[0]["parameters"]
+    alias = rate - truth["freq_hz"]
+    assert abs(p["f_n_hz"] - alias) < 0.25 * 2 * truth["damping_ratio"] * truth["freq_hz"], (p, alias)
+    assert p["gain"] < 0, p
