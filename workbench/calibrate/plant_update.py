@@ -702,6 +702,8 @@ def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
                                                            out["time_constants_s"], base.train)
             caps, taus, before, after = core["refined_branches"]
             out["capacitances_f"], out["time_constants_s"] = caps, taus
+            if _beyond_the_loader(out):
+                return out
             out["how"] += (f"; then C_j and tau_j refitted by simulating this core with the branches on the record's "
                            f"development rows against the fitted model's creep: misfit {100 * before:.3g} % -> "
                            f"{100 * after:.3g} % of its RMS")
@@ -712,6 +714,23 @@ def _creep_write_out(p, base, plant, core=None, refine=False, core_fit=None):
         return out
     sec = _terminal_secant(base, plant)
     return creep_branches(p["gains"], p["taus_s"], *sec[:3], c_rev_f=sec[3])
+
+
+def _beyond_the_loader(out):
+    """Does a branch exceed the plant file's limit on a branch's capacitance? (bool; then ``out`` says why, no branches)
+
+    Near the ceiling ``A C_h -> C_pp`` the map to ``C_S`` diverges and a branch may come out above the 1 mF the
+    plant loader takes (``[creep] capacitances_f``; :data:`~.core_refit.BRANCH_CAP_F`): a file with it would not
+    load (session 15: 25 #78's declared core wrote 3.5 mF and the round trip stopped). No ``[creep]`` section is
+    written then, and the reason is the file's gap, as for the other spectra no section can represent."""
+    from .core_refit import BRANCH_CAP_F
+    caps = out.get("capacitances_f")
+    if caps is None or not np.size(caps) or float(np.max(caps)) <= BRANCH_CAP_F:
+        return False
+    out["reason"] = (f"a branch of {float(np.max(caps)):.4g} F, above the plant file's {BRANCH_CAP_F:g} F per branch (the "
+                     f"spectrum's settled/instant ratio near the ceiling 1 + C_pp/C_h that branches across C_h can give)")
+    out["capacitances_f"] = out["time_constants_s"] = None
+    return True
 
 
 def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_rev_f=None, of_instant=False):
@@ -794,6 +813,8 @@ def creep_branches(gains, taus_s, c_s_f, c_pp_f, where="the terminal secant", c_
     ok = c_j > 1e-9 * c_cum[-1]        # a gain lost in the rounding of the sums (1e-19 of a fit) is no branch
     out["capacitances_f"] = c_j[ok]
     out["time_constants_s"] = (tk * (c_j + c_r + before + c_pp_f) / (c_r + before + c_pp_f))[ok]
+    if _beyond_the_loader(out):
+        return out
     out["how"] = ("C_j from settled/instant " + ("1 + sum a" if of_instant else "1/(1 - sum c)")
                   + f" = {1 + a:.4g} (sum {'a' if of_instant else 'c'} = {total:.4g}) across C_h = {c_h:.4g} F "
                   f"(C_h = (1/C_s - 1/C_pp)^-1, C_s = {c_s_f:.4g} F {where}, C_pp = {c_pp_f:.4g} F, C_h's reversal slope "
