@@ -96,8 +96,10 @@ def test_the_stacks_mode_is_named_once(sn637, proto, size, seed):
 
 R1_MISS = ("review of s14_creepdelay, 2026-11-26: a joint creep + delay reading names a new effect and keeps the "
            "every-fold rule (it was exempt: a delay beside creep passed 4 of 5 folds on creep-only draws); here the "
-           "joint creep passes 4 of 5, one fold by the Gram-matrix SSE's cancellation at the joint fit's large "
-           "weights (review finding B2, not fixed): delay alone, as in session 13")
+           "joint creep passes 4 of 5: delay alone, as in session 13. Session 15 (s15_gram): with B2 fixed alone "
+           "it answers delay, creep 5 of 5 (main's fold-2 ratio 3.75 was the SSE's cancellation); with R2 (the "
+           "found delay on equal terms, fold by fold) the joint creep explains 0.15-0.72 of the delay's leftover "
+           "and fold 5's 0.15 is under the 0.3 share: delay alone again")
 
 
 @pytest.mark.parametrize("seed, index, want", [(30, 73, ["drift"]),
