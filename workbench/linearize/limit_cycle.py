@@ -19,7 +19,6 @@ cycle is predicted there, stable when the loop gain falls through 1 as A grows
 
 from dataclasses import dataclass
 
-import control
 import numpy as np
 
 __all__ = ["load_controller", "sampled_factor", "loop_responses", "predict_limit_cycles", "LimitCycle"]
