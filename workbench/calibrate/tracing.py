@@ -734,6 +734,27 @@ class FoundColumns(tuple):
         return FoundColumns(self.fold[f], self[1], self.tag)
 
 
+def _stack_columns(cols):
+    """``np.column_stack(cols)``'s numbers, laid out column by column (Fortran order) when there are 2+ columns.
+
+    :meth:`_Problem.grams` gathers rows (C-ordered copies, whatever the input's layout) and divides by
+    the norms into a Fortran-ordered array (:func:`_scaled_columns`): built in that order, the columns
+    are copied and divided in streaming passes rather than transposed twice (session 16: 8 + 23 ms
+    against 3 + 3 ms at 355,000 x 10). One column is stacked as before (a one-column selection's
+    strides follow its input's).
+    """
+    parts = [np.asarray(c, float).reshape(np.shape(c)[0], -1) for c in cols]
+    m = sum(c.shape[1] for c in parts)
+    if m < 2:
+        return np.column_stack(cols)
+    out = np.empty((parts[0].shape[0], m), order="F")
+    j = 0
+    for c in parts:
+        out[:, j:j + c.shape[1]] = c
+        j += c.shape[1]
+    return out
+
+
 def _stacked(prob, extra_list, cand):
     """Gram matrices of the problem with the found effects' columns (and a candidate's) added.
 
@@ -759,10 +780,10 @@ def _stacked(prob, extra_list, cand):
         if memo is not None and len(memo[0]) == len(cols) and all(a is b for a, b in zip(memo[0], cols)) \
                 and memo[1] == lows:
             return memo[2]
-        g = prob.grams(np.column_stack(cols), lows)
+        g = prob.grams(_stack_columns(cols), lows)
         prob._found_grams = (cols, list(lows), g)        # (holds the columns: their ids stay theirs)
         return g
-    C = np.column_stack(cols)
+    C = _stack_columns(cols)
     return prob.grams(C, lows)
 
 
