@@ -12,12 +12,18 @@ only the command-line process (``workbench calibrate`` / ``python -m workbench c
 exits after its run) takes them; an in-process ``cli.main([...])`` call (a test) and a library caller
 keep glibc's defaults unless they call :func:`keep_freed_memory`. When a ``mallopt`` call is refused,
 the ones before it stay applied (each is harmless alone) and False is returned.
+
+:func:`small_pages` (session 16, the same command process only) stops numpy asking the kernel for
+transparent huge pages (``madvise(MADV_HUGEPAGE)`` on every array of 4 MB and more): on a kernel whose
+huge-page defrag is ``madvise`` (this machine's), each such fault compacts memory synchronously, and the
+speed benchmark's creep record spent 3.4 s of system time against 1.2-1.5 s with 4 kB pages (user time
+unchanged within the run-to-run spread, 17.3-17.7 s; the same arrays, the same numbers).
 """
 
 import ctypes
 import sys
 
-__all__ = ["keep_freed_memory"]
+__all__ = ["keep_freed_memory", "small_pages"]
 
 # glibc's mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -43,3 +49,19 @@ def keep_freed_memory():
     mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
     return bool(mallopt(_M_MMAP_MAX, 0) and mallopt(_M_TRIM_THRESHOLD, 2 ** 31 - 1)
                 and mallopt(_M_TOP_PAD, 64 << 20))
+
+
+def small_pages():
+    """Stop numpy advising transparent huge pages for its large arrays (process-wide, permanent).
+
+    Returns
+    -------
+    bool
+        numpy's setting before the call (True: it advised huge pages). Nothing is computed
+        differently: the same arrays live in 4 kB pages.
+    """
+    try:
+        from numpy._core import multiarray
+    except ImportError:                 # numpy < 2
+        from numpy.core import multiarray
+    return bool(multiarray._set_madvise_hugepage(False))

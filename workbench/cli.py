@@ -378,12 +378,13 @@ def cmd_sweep(args):
 
 
 def cmd_calibrate(args):
-    from ._malloc import keep_freed_memory
+    from ._malloc import keep_freed_memory, small_pages
     from .calibrate.run import run_calibrate
     if getattr(args, "_whole_process", False):
         # the command owns its short-lived process (not an in-process main([...]) call, e.g. a test's):
-        # its large temporaries reuse freed memory (_malloc); the settings are process-wide and stay
+        # its large temporaries reuse freed memory in 4 kB pages (_malloc); the settings are process-wide and stay
         keep_freed_memory()
+        small_pages()
     data = run_calibrate(args.data, args.plant, out_dir=args.out, split=args.split, train_cycles=args.train_cycles,
                          max_ratio=args.max_ratio, progress=lambda stage, d, t: _progress_bar(stage, d, t))
     eb, ea = data["error_before"], data["error_after"]
