@@ -1,4 +1,4 @@
-"""Keep a process's freed memory for its next arrays (glibc's ``mallopt``): fewer page faults.
+"""The calibrate command's own process: freed memory kept for its next arrays (glibc's ``mallopt``), 4 kB pages.
 
 A calibration allocates and frees many temporaries of 355,000 x k floats (Gram products per
 block, projected columns, shifted copies). glibc serves every allocation above its mmap threshold
@@ -23,7 +23,7 @@ unchanged within the run-to-run spread, 17.3-17.7 s; the same arrays, the same n
 import ctypes
 import sys
 
-__all__ = ["keep_freed_memory", "small_pages"]
+__all__ = ["keep_freed_memory", "small_pages", "huge_pages_advised"]
 
 # glibc's mallopt parameters (malloc.h)
 _M_TRIM_THRESHOLD = -1
@@ -56,12 +56,27 @@ def small_pages():
 
     Returns
     -------
-    bool
-        numpy's setting before the call (True: it advised huge pages). Nothing is computed
-        differently: the same arrays live in 4 kB pages.
+    bool or None
+        numpy's setting before the call (True: it advised huge pages); None when this numpy has no
+        such switch (a private function: a release without it leaves the default, the command runs).
+        Nothing is computed differently: the same arrays live in 4 kB pages.
     """
+    multiarray = _numpy_multiarray()
+    switch = getattr(multiarray, "_set_madvise_hugepage", None)
+    if switch is None:
+        return None
+    return bool(switch(False))
+
+
+def huge_pages_advised():
+    """numpy's current huge-page advice (True, False), or None when this numpy has no such switch."""
+    get = getattr(_numpy_multiarray(), "_get_madvise_hugepage", None)
+    return None if get is None else bool(get())
+
+
+def _numpy_multiarray():
     try:
         from numpy._core import multiarray
     except ImportError:                 # numpy < 2
         from numpy.core import multiarray
-    return bool(multiarray._set_madvise_hugepage(False))
+    return multiarray
