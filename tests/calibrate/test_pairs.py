@@ -1,0 +1,112 @@
+"""Two-effect records answered with both where the record tells them apart (issue 13 item 5, session 16).
+
+A later stage of the tracing (:mod:`workbench.calibrate.stages`) is judged on each validation fold,
+and an effect that won no fold of the first stage must pass every fold: on each it must stand above
+the noise floor and explain ``tracing.MIN_SHARE`` of what the found effect leaves there. The
+benchmark's pair measure on the folds (``calibrate_confusion.beyond_on_folds``) says how far each
+effect stands beyond the other's form on each fold and what share of the other's leftover it is.
+"""
+
+import numpy as np
+import pytest
+
+from tests.conftest import FULL, load_benchmark
+from workbench.calibrate.tracing import MIN_SHARE
+
+
+def _bench():
+    return load_benchmark("calibrate_confusion")
+
+
+def _leak_and_absorption_beyond(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
+    """A steps record (10 s at 1 kHz) with a 20 Mohm leak and a 1.2 uF absorption of ``tau_s`` and its
+    effect-free twin (same noise): ``calibrate_confusion._beyond``'s figures for the pair."""
+    import dataclasses
+
+    from workbench.calibrate.base_fit import fit_base
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
+    cc = _bench()
+    clean, _ = plant_with_effect(sn637, "none", 0)
+    plant = dataclasses.replace(clean, additions=dataclasses.replace(
+        clean.additions, leakage_resistance_ohm=2e7, absorption_gain_f=1.2e-6, absorption_time_constant_s=tau_s))
+    t, v = benchmark_protocol("steps", rate_hz, n_rows)
+    r = simulate_record(plant, t, v, seed=5)
+    r0 = simulate_record(clean, t, v, seed=5)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    R = sn637.pzt.series_resistance_ohm
+    base = fit_base(cc._record(r, 1.0 / rate_hz), R, **kw)
+    base0 = fit_base(cc._record(r0, 1.0 / rate_hz), R, **kw)
+    return cc._beyond(base, base0, ("leakage", "dielectric_absorption"), sp)
+
+
+def test_the_pair_measure_on_every_fold_follows_the_forms(sn637):
+    """On each validation fold as on the test rows: an absorption relaxing within the record (tau =
+    T/20) bends and a leak ramps over every block set, so each stands >= 3x beyond the other on every
+    fold and explains most of what the other leaves there; one relaxing over 30 record lengths is the
+    leak's own form to O(T / 2 tau) = 2 % on every block set, so neither stands 1x beyond the other on
+    any fold. The fold figures' test-row one is :func:`beyond_sizes`' (the same fit)."""
+    fast = _leak_and_absorption_beyond(sn637, 0.5)
+    slow = _leak_and_absorption_beyond(sn637, 300.0)
+    for name, b in (("tau 0.5 s", fast), ("tau 300 s", slow)):
+        print(f"\n{name}: test {[round(x['test'], 2) for x in b]} folds {[np.round(x['folds'], 2) for x in b]} "
+              f"shares {[np.round(x['shares'], 2) for x in b]}")
+    assert all(len(x["folds"]) == 5 and len(x["shares"]) == 5 for x in fast + slow)
+    assert all(min(x["folds"]) >= 3.0 and min(x["shares"]) > MIN_SHARE for x in fast)
+    assert all(max(x["folds"]) < 1.0 for x in slow)
+    assert all(0.0 <= s <= 1.0 for x in fast + slow for s in x["shares"])
+
+
+# creep + sensor delay records at 1 kHz (the rate of session 15's separable misses, where the delay is
+# a sample or less), drawn with np.random.default_rng(1616), fixed before any record was traced:
+# protocol, size log-uniform over the benchmark's full 0.03-30x, record seed
+CD_1K = 4 if not FULL else 12
+
+
+def _draws():
+    cc = _bench()
+    rng = np.random.default_rng(1616)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    return [(str(rng.choice(("calibration", "sine", "steps"))), float(np.exp(rng.uniform(lo, hi))),
+             int(rng.integers(1 << 30))) for _ in range(CD_1K)]
+
+
+@pytest.fixture(scope="module")
+def drawn_1k(sn637):
+    cc = _bench()
+    rows = []
+    for proto, size, seed in _draws():
+        r = cc.evaluate(sn637, ("creep", "delay"), 1e3, proto, size, seed)
+        print(f"\ncreep+delay 1 kHz {proto:11s} size x{size:.3g} own {np.round(r['excesses'], 2)} beyond "
+              f"{np.round(r['beyond'], 2)} on every fold {np.round(r['beyond_folds'], 2)} share "
+              f"{np.round(r['share_folds'], 2)} -> {r['named']} {r['class']}")
+        rows.append(r)
+    return rows
+
+
+def test_drawn_1khz_creep_and_delay_name_both_where_every_fold_tells_them_apart(drawn_1k):
+    """Nothing the record lacks is named, and a pair whose two effects each stand >= 3x beyond the other
+    on every validation fold and explain more than ``MIN_SHARE`` of what the other leaves there (what a
+    later stage must show on every fold) is answered with both."""
+    assert not [r for r in drawn_1k if r["class"] == "wrong"], [r["named"] for r in drawn_1k]
+    sep = [r for r in drawn_1k if min(r["beyond_folds"]) >= 3.0 and min(r["share_folds"]) > MIN_SHARE]
+    print(f"\nseparable on every fold: {len(sep)} of {len(drawn_1k)}; both named: {sum(r['both'] for r in sep)}")
+    assert all(r["both"] for r in sep), [(r["protocol"], r["size"], r["named"]) for r in sep]
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "confusion seed 47 #9 (1 kHz calibration, creep 21.5x, a 1.56 ms delay 6.1x on its own record): the "
+    "delay stands 5.5-16.9x beyond creep on every fold, but on fold 4 creep's form (with the delay) leaves "
+    "14.7x the floor, and the delay explains 23 % of what creep leaves there (the tracing's joint candidate "
+    "22 %), under MIN_SHARE 0.3: found, passes 4 of 5 folds, and a later stage that won no first-stage "
+    "fold needs every fold. The miss is creep's form's misfit, not the delay's search"))
+def test_a_1khz_delay_behind_a_large_creep_is_named_where_creeps_form_leaves_much(sn637):
+    cc = _bench()
+    e, rate, proto, size, seed = cc.cases(1, 47)[8]
+    assert (e, rate, proto) == (("creep", "delay"), 1e3, "calibration")
+    r = cc.evaluate(sn637, e, rate, proto, size, seed)
+    print(f"\n47 #9: beyond {np.round(r['beyond'], 2)} on every fold {np.round(r['beyond_folds'], 2)} "
+          f"share {np.round(r['share_folds'], 2)} -> {r['named']}")
+    assert min(r["beyond_folds"]) >= 3.0 and r["class"] == "right"
+    assert r["both"]
