@@ -44,6 +44,12 @@ def _rows(tau_s, a_lk, a_da, E, n_folds=5):
     return lk, da, befores
 
 
+def _stack(infos, lk, slowest_s):
+    """The stack's capacitance and leakage's slope such that ``C / g`` is ``slowest_s`` (s)."""
+    infos["charge"]["capacitance_f"] = 1.0
+    lk["params"]["gain_per_s"] = 1.0 / slowest_s if np.isfinite(slowest_s) else 0.0
+
+
 #: the absorption's search ceiling in record lengths (tracing's plan: ``DielectricAbsorption(tau_max_fraction=100)``)
 CEILING = 100.0
 _Eff = dataclasses.make_dataclass("Eff", [("tau_max_fraction", float)])
@@ -55,8 +61,9 @@ def test_the_rules_branches(T):
     infos = {"duration_s": T, "charge": {"noise_floor": floor}}
     need = al.SETTLED_RECORDS / (al.BEND_PER_RECORD)        # E / a at which tau_bound = T / 2
 
-    def decide(tau_s, a_lk, a_da, E):
+    def decide(tau_s, a_lk, a_da, E, slowest=0.4 * T):
         lk, da, befores = _rows(tau_s, a_lk, a_da, E)
+        _stack(infos, lk, slowest)
         tags = {("leakage", "charge"): lk, ("dielectric_absorption", "charge"): da}
         out = al.absorption_or_leakage(lk, tags, 0, befores, infos, 0.02, 1.0, 0.3)
         return None if out is None else out["name"]
@@ -71,6 +78,13 @@ def test_the_rules_branches(T):
     # absorption settling within half of it: leakage; just short of that: undecided
     assert decide(CEILING * T, a, a, 1.01 * need * a) == "leakage"
     assert decide(CEILING * T, a, a, 0.99 * need * a) is None
+    # ... and only when the slowest absorption the stack can hold with leakage's slope (C / g) is
+    # among those ruled out (tau_bound = BEND x T x E / a): one slower hides, the record cannot tell
+    bound = al.BEND_PER_RECORD * T * 100 * need
+    assert decide(CEILING * T, a, a, 100 * need * a, slowest=0.99 * bound) == "leakage"
+    assert decide(CEILING * T, a, a, 100 * need * a, slowest=1.01 * bound) is None
+    # no capacitance measured or no positive slope: no bound, never leakage
+    assert decide(CEILING * T, a, a, 100 * need * a, slowest=np.inf) is None
     # no bend, but a finite time constant fitted beyond the record (inside the search): the record
     # cannot tell the two apart, whatever it rules out below half its length (seed 45 #69, 31 #135)
     for tau_records in (al.LEAKAGE_TAU_RECORDS, 52.0, 0.98 * CEILING):
@@ -283,8 +297,9 @@ def test_a_settled_absorption_ruled_out_on_the_fold_names_leakage(T):
     infos = {"duration_s": T, "charge": {"noise_floor": floor}}
     a = 10.0 * floor
 
-    def decide(tau_s, settled):
+    def decide(tau_s, settled, slowest=0.9 * T):
         lk, da, befores = _rows(tau_s, a, a, 3.0 * a)
+        _stack(infos, lk, slowest)
         if settled is not None:
             da["settled_rms"] = [settled] * 5
         tags = {L: lk, D: da}
@@ -293,6 +308,8 @@ def test_a_settled_absorption_ruled_out_on_the_fold_names_leakage(T):
 
     assert decide(CEILING * T, np.sqrt(1.01 * (1 + share)) * a) == "leakage"
     assert decide(CEILING * T, np.sqrt(0.99 * (1 + share)) * a) is None
+    # the record-length absorption ruled out, but the stack could hold a slower one with leakage's slope
+    assert decide(CEILING * T, np.sqrt(2.0 * (1 + share)) * a, slowest=1.1 * T) is None
     assert decide(CEILING * T, None) is None
     # fitted inside the search, beyond the record: not told apart, ruled out or not (session 15)
     for tau_records in (al.LEAKAGE_TAU_RECORDS, 30.0):
@@ -647,6 +664,8 @@ def test_the_too_short_note_says_the_record_the_fitted_time_constant_needs():
     assert al.too_short_note(by, [L] * 5, T) is None
     da["params"]["tau_s"] = CEILING * T
     assert "ran to its ceiling, 10 s (100 lengths" in al.too_short_note(by, [U] * 5, T)
+    # the stack's bound on the absorption said when known (C / g: 5 record lengths)
+    assert "relaxes in up to 0.5 s (5 lengths of this 0.1 s record)" in al.too_short_note(by, [U] * 5, T, 0.5)
     da["params"]["tau_s"] = 0.4 * T
     assert al.too_short_note(by, [U] * 5, T) is None
 
