@@ -339,7 +339,18 @@ def _drawn_records(effects, n, seed):
     return out
 
 
-@pytest.mark.parametrize("effect", ["leakage", ("leakage", "dielectric_absorption")])
+#: Session 16 (s16_mhz): leakage is named only when the slowest absorption the stack can hold with its slope
+#: (``C / g``, :func:`~workbench.calibrate.absorption_or_leakage.slowest_absorption_s`) is ruled out; for a
+#: 20-200 Mohm leak over a ~10 uF stack that is 200-2000 s (over the size), far beyond a 2-10 s record.
+LEAKAGE_NOT_RULED_OUT = ("measured (s16_mhz): the leakages >= 3x at 1 and 10 kHz (x3.6-12.5, 17-50x excess) are "
+                         "inconclusive, every fold undecided: an absorption of up to the stack's capacitance with "
+                         "leakage's slope relaxes over C / g, hundreds of seconds, and its bend hides in what leakage "
+                         "leaves; named on main ecdf16d")
+
+
+@pytest.mark.parametrize("effect", [pytest.param("leakage", marks=pytest.mark.xfail(strict=True,
+                                                                                    reason=LEAKAGE_NOT_RULED_OUT)),
+                                    ("leakage", "dielectric_absorption")])
 def test_leakage_and_pairs_standing_3x_above_the_floor_are_named(sn637, effect):
     """Leakage and leakage + absorption records at 1 and 10 kHz, three protocols, sizes over the
     benchmark's whole range (0.03-30x; ``default_rng(1311)``/``(1312)`` fixed before any run):
@@ -378,6 +389,7 @@ NESTED_PAIRS_27_28 = [(("leakage", "dielectric_absorption"), 10000.0, "steps", 0
                       (("leakage", "dielectric_absorption"), 10000.0, "steps", 0.7085757336901202, 114342319)]
 
 
+@pytest.mark.xfail(strict=True, reason=LEAKAGE_NOT_RULED_OUT)
 @pytest.mark.parametrize("case", PLAIN_VOTE_27_28, ids=["27-4", "28-37"])
 def test_leakages_whose_folds_the_settled_test_decides_are_named_by_the_plain_vote(sn637, case):
     cc = load_benchmark("calibrate_confusion")
