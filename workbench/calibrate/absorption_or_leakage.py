@@ -98,7 +98,6 @@ __all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_beside_absorp
            "nested_consensus", "nested_note", "DEFAULT_AGREE",
            "settled_absorption_rms", "settled_ruled_out", "tau_bound_s", "SETTLED_TEST_RECORDS",
            "LEAKAGE_TAU_RECORDS", "SETTLED_RECORDS", "BEND_PER_RECORD", "UNDECIDED", "at_ceiling", "too_short_note",
-           "slowest_absorption_s",
            "CEILING_SHARE"]
 
 #: An absorption fitted slower than this many record lengths is leakage's term within the record
@@ -181,39 +180,13 @@ def absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, 
     if bend_on_every_fold(da, lk, befores, infos, penalty, noise_factor):
         return da
     if tau >= LEAKAGE_TAU_RECORDS * T and at_ceiling(da, T):
-        bound = tau_bound_s(lk, f, befores, penalty, T)
-        by_bound = bound >= SETTLED_RECORDS * T
+        by_bound = tau_bound_s(lk, f, befores, penalty, T) >= SETTLED_RECORDS * T
         by_test = settled_ruled_out(da, lk, f, befores, infos, penalty, noise_factor, min_share)
-        # the slowest absorption the stack can hold with leakage's slope must be among those ruled out
-        # (session 16: 47 #69, a 4.5 s absorption of a 0.4 s record, its fit at the ceiling, was named leakage)
-        ruled_out = max(bound if by_bound else 0.0, SETTLED_TEST_RECORDS * T if by_test else 0.0)
-        if (by_bound or by_test) and slowest_absorption_s(lk, infos) <= ruled_out:
+        if by_bound or by_test:
             # which line ruled the settled absorption out on this fold (:func:`leakage_note` says it)
             lk.setdefault("leakage_folds", {})[f] = "measured" if by_test else "bound"
             return lk
     return None
-
-
-def slowest_absorption_s(lk, infos):
-    """The slowest dielectric absorption the stack can hold that reads as leakage's ramp (s).
-
-    Over a record shorter than its time constant an absorption ``k lowpass_tau(V)`` is the ramp
-    ``(k / tau) int V dt``: leakage's, ``g int V dt``, when ``k / tau = g``. The absorbed charge is part
-    of the dielectric's own polarization, so its gain ``k`` (F) is at most the stack's large-signal
-    capacitance ``C`` (``infos["charge"]["capacitance_f"]``, the charge's slope on the drive over
-    the record; seed 002 puts ``k`` at 1-4 % of it): the absorptions with leakage's slope relax in at
-    most ``tau_max = C / g``. A slower relaxation is no absorption, and where every one up to
-    ``tau_max`` would bend the charge visibly within the record and none does, the ramp is leakage;
-    where one that slow hides in what leakage leaves, the record cannot tell the two apart.
-
-    Returns ``inf`` when the capacitance or leakage's fitted conductance ``g`` (S) is missing or not
-    positive (no bound: leakage is not named on it).
-    """
-    c = infos.get("charge", {}).get("capacitance_f")
-    g = lk.get("params", {}).get("gain_per_s")
-    if c is None or g is None or not (np.isfinite(c) and c > 0 and g > 0):
-        return float("inf")
-    return float(c / g)
 
 
 def at_ceiling(da, duration_s):
@@ -230,7 +203,7 @@ def at_ceiling(da, duration_s):
     return ceiling is not None and da["params"].get("tau_s", 0.0) >= CEILING_SHARE * ceiling * duration_s
 
 
-def too_short_note(by, winners, duration_s, slowest_s=None):
+def too_short_note(by, winners, duration_s):
     """An ``inconclusive`` answer's note when the record is too short to tell absorption from leakage (str or None).
 
     Said when some first-stage fold was undecided between the two (:data:`UNDECIDED`) and the
@@ -240,9 +213,7 @@ def too_short_note(by, winners, duration_s, slowest_s=None):
     it settles within (step 1's line, ``tau / SETTLED_RECORDS``), derived from the fitted ``tau``: a
     rough figure, said so in the note (a fit beyond the record is poorly determined: the review found
     a fitted 52 record lengths for a drawn 3.2, and a genuine leakage gets a finite one by noise);
-    a fit at the search's ceiling (:func:`at_ceiling`) gives no length, and the note says so, and
-    names the slowest absorption the stack can hold with leakage's slope (``slowest_s``,
-    :func:`slowest_absorption_s`, s) when it is known: the record would have to rule that one out.
+    a fit at the search's ceiling (:func:`at_ceiling`) gives no length, and the note says so.
     """
     da, lk = by.get(ABSORPTION), by.get(LEAKAGE)
     if da is None or lk is None or UNDECIDED not in [w if isinstance(w, str) else tuple(w) for w in winners]:
@@ -251,15 +222,10 @@ def too_short_note(by, winners, duration_s, slowest_s=None):
     if tau < SETTLED_RECORDS * duration_s:
         return None
     if at_ceiling(da, duration_s):
-        slow = (f"an absorption of up to the stack's own capacitance with leakage's slope relaxes in up to "
-                f"{slowest_s:.3g} s ({slowest_s / duration_s:.3g} lengths of this {duration_s:.3g} s record), "
-                f"and the folds do not rule it out"
-                if slowest_s is not None and np.isfinite(slowest_s) else
-                "the folds do not rule out an absorption of the stack's")
         return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
                 f"absorption's time-constant search ran to its ceiling, {tau:.3g} s ({tau / duration_s:.3g} "
-                f"lengths of this {duration_s:.3g} s record), leakage's limit, yet {slow}; no length follows "
-                f"from a fit at the ceiling")
+                f"lengths of this {duration_s:.3g} s record), leakage's limit, yet the folds do not rule out an "
+                f"absorption settling within half the record; no length follows from a fit at the ceiling")
     return (f"the record is too short to tell a dielectric absorption from leakage (both lead): the "
             f"absorption's fitted time constant, {tau:.3g} s, is {tau / duration_s:.2g} lengths of this "
             f"{duration_s:.3g} s record, over which its charge is close to leakage's ramp, and its bend beyond "

@@ -82,7 +82,7 @@ from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leaka
 from .absorption_or_leakage import explained as _explained
 from .absorption_or_leakage import raw_rms as _raw_rms
 from .absorption_or_leakage import UNDECIDED as _UNDECIDED_DA_LK
-from .absorption_or_leakage import leakage_note, settled_absorption_rms, slowest_absorption_s, too_short_note
+from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_short_note
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
@@ -90,7 +90,7 @@ from .effects import (SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift
                       Resonance)
 from .pi_fit import rms, turning_points
 
-__all__ = ["trace_effect", "candidate_plan", "noise_floor", "large_signal_capacitance_f", "SEARCH_ROWS"]
+__all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
@@ -176,18 +176,6 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
     return plan
-
-
-def large_signal_capacitance_f(q_c, v_v, rows):
-    """The charge's least-squares slope on the drive over ``rows`` (F): the stack's large-signal capacitance.
-
-    ``q = C V + q0`` fitted on the rows given (hysteresis, creep and any relaxation averaged in): the
-    charge per volt the stack takes over the record's own swing. ``nan`` when the drive does not move.
-    """
-    v, q = np.asarray(v_v, float)[rows], np.asarray(q_c, float)[rows]
-    dv = v - v.mean()
-    den = float(dv @ dv)
-    return float(dv @ (q - q.mean()) / den) if den > 0 else float("nan")
 
 
 def noise_floor(e):
@@ -576,10 +564,6 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     if "charge" in base.channels:
         # the charge's model drives the creep columns a displacement creep must show in the charge
         infos["charge"]["yhat"] = base.channels["charge"].yhat
-        # the stack's large-signal capacitance, measured (F): the most charge per volt an absorption of its
-        # dielectric can hold (:func:`.absorption_or_leakage.slowest_absorption_s`)
-        infos["charge"]["capacitance_f"] = large_signal_capacitance_f(
-            base.channels["charge"].y, base.v_drive, dev_rows & base.channels["charge"].valid)
     # the drive's holds, where a sensor drift must show (drift_holds)
     infos["holds"] = hold_spans(t, base.v_drive, min_hold_s=split.block_s)
     if "gauge" in base.channels and "displacement" in base.channels and base.gauge_gain_v_per_m is not None:
@@ -650,9 +634,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     if out["effect"] == "inconclusive":
         # absorption and leakage explain the record alike, the absorption's fitted time constant
         # beyond it: say so, and the record that would tell them apart (:func:`.absorption_or_leakage.too_short_note`)
-        lk = first["res"]["by"].get(("leakage", "charge"))
-        slowest = slowest_absorption_s(lk, infos) if lk is not None else None
-        short = too_short_note(first["res"]["by"], first["res"]["winners"], infos["duration_s"], slowest)
+        short = too_short_note(first["res"]["by"], first["res"]["winners"], infos["duration_s"])
         if short:
             out["reason"] += f"; {short}"
             out["note"] = short
