@@ -80,6 +80,7 @@ from scipy.optimize import lsq_linear
 
 from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
 from .absorption_or_leakage import explained as _explained
+from .absorption_or_leakage import raw_rms as _raw_rms
 from .absorption_or_leakage import UNDECIDED as _UNDECIDED_DA_LK
 from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_short_note
 from .base_fit import BaseFit
@@ -624,6 +625,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
                       "fold_g": fold_g})
     if progress:
         progress("effects", len(plan), len(plan))
+    infos["gauge_line_drift"] = _gauge_line_drift(base, probs, t)
 
     # ---- stages (:mod:`.stages`)
     from .stages import run_stages
@@ -873,6 +875,8 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
     rows = sorted(by.values(), key=lambda r: r["score"] if np.isfinite(r["score"]) else np.inf)
     winners = []
     shown = {}
+    drift_rms = _gauge_line_drift_rms(infos.get("gauge_line_drift"), probs, extra, split) \
+        if ("gauge_nonlinearity", "gauge") in by else None
     for f in range(n_folds):
         ok = [r for r in rows if r["passes"][f]]
         ok.sort(key=lambda r: r["ratios"][f])
@@ -905,6 +909,14 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         elif best["channel"] == "gauge" and best["name"] in ("creep", "resonance") \
                 and (best["name"], "displacement") in tags:
             best = tags[(best["name"], "displacement")]
+        if (best["name"], best["channel"]) == ("gauge_nonlinearity", "gauge") and drift_rms is not None \
+                and drift_rms[f] <= _raw_rms(best, f, befores, penalty):
+            # what the bow fits between the gauge and the recorded displacement, a drift in time fits as
+            # well: the sensors drifting apart (session 16: 48 #165, a displacement-sensor drift read as a bow)
+            best = next((r for r in ok if (r["name"], r["channel"]) == ("drift", "displacement")), None)
+            if best is None:
+                winners.append(GAUGE_BOW_OR_DRIFT)
+                continue
         if (best["name"], best["channel"]) == ("creep", "displacement") \
                 and not _charge_shows_creep(best, f, befores, infos, penalty, probs, extra, split, shown):
             # creep moves charge (x = k_q2x q, eq. 10): a displacement relaxation the charge would
@@ -922,6 +934,45 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+#: The fold label of a fold where a drift in time explains the gauge against the recorded displacement as
+#: well as a bow of the displacement does (:func:`_gauge_line_drift`).
+GAUGE_BOW_OR_DRIFT = ("undecided", "gauge_nonlinearity or a drift between the sensors")
+
+
+def _gauge_line_drift(base, probs, t):
+    """The gauge bow's rival on its own problem: a drift in time of the gauge against the recorded displacement.
+
+    The bow is fitted to the gauge's misfit against a straight line of the **recorded** displacement
+    (``("gauge", "line")``). A drift of either sensor (the displacement sensor's above all, which the
+    gauge, reading the stack, does not share) leaves a misfit there that is a function of *time*; a bow
+    is a function of the *displacement*. Over a short record whose displacement moves with time (a
+    staircase of steps) the bow's quadratic in ``x`` takes part of a drift's ``t, t^2``. This row is the
+    :class:`~.effects.Drift` polynomial in time fitted on that problem as a candidate is (development
+    rows), never named itself: :func:`_score_stage` gives the bow a fold only when it leaves less than
+    this drift held out. ``None`` without the problem or when the fit fails.
+    """
+    key = ("gauge", "line")
+    if key not in probs:
+        return None
+    line, _ = _gauge_line(base)
+    eff = Drift()
+    try:
+        _, g = _candidate_columns(eff, t, t, base.channels["gauge"].y, line, probs[key])
+    except ValueError:
+        return None
+    return {"g": g, "key": key, "n_params": int(eff.n_params)}
+
+
+def _gauge_line_drift_rms(row, probs, extra, split):
+    """Each fold's held-out RMS of the gauge against the recorded displacement with the drift in time
+    (:func:`_gauge_line_drift`) and the found effects (V), or ``None``."""
+    if row is None:
+        return None
+    prob = probs[row["key"]]
+    gf = _cand_grams(prob, extra[row["key"]], row, len(split.folds))
+    return [float(prob.fold_rms(gf[f], tr, va)) for f, (tr, va) in enumerate(split.folds)]
 
 
 def _after_creep_refused(ok):
