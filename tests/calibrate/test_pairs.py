@@ -3,7 +3,7 @@
 A later stage of the tracing (:mod:`workbench.calibrate.stages`) is judged on each validation fold,
 and an effect that won no fold of the first stage must pass every fold: on each it must stand above
 the noise floor and explain ``tracing.MIN_SHARE`` of what the found effect leaves there. The
-benchmark's pair measure on the folds (``calibrate_confusion.beyond_on_folds``) says how far each
+benchmark's pair measure on the folds (``calibrate_confusion._beyond``) says how far each
 effect stands beyond the other's form on each fold and what share of the other's leftover it is.
 """
 
@@ -18,9 +18,9 @@ def _bench():
     return load_benchmark("calibrate_confusion")
 
 
-def _leak_and_absorption_beyond(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
+def _leak_and_absorption(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
     """A steps record (10 s at 1 kHz) with a 20 Mohm leak and a 1.2 uF absorption of ``tau_s`` and its
-    effect-free twin (same noise): ``calibrate_confusion._beyond``'s figures for the pair."""
+    effect-free twin (same noise): ``(base, base0, split)``."""
     import dataclasses
 
     from workbench.calibrate.base_fit import fit_base
@@ -38,7 +38,36 @@ def _leak_and_absorption_beyond(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
     R = sn637.pzt.series_resistance_ohm
     base = fit_base(cc._record(r, 1.0 / rate_hz), R, **kw)
     base0 = fit_base(cc._record(r0, 1.0 / rate_hz), R, **kw)
-    return cc._beyond(base, base0, ("leakage", "dielectric_absorption"), sp)
+    return base, base0, sp
+
+
+def _leak_and_absorption_beyond(sn637, tau_s):
+    """``calibrate_confusion._beyond``'s figures for the pair of :func:`_leak_and_absorption`."""
+    base, base0, sp = _leak_and_absorption(sn637, tau_s)
+    return _bench()._beyond(base, base0, ("leakage", "dielectric_absorption"), sp)
+
+
+def _fold_rms_by_hand(base, ch, sp):
+    """Per fold, the base's columns refitted (their corrections bounded as the base's: ``tracing._base_lower``)
+    to what the base leaves, by scipy's bounded least squares on the fold's training rows only, and the RMS
+    of what they leave on the fold's validation rows: an independent computation of ``_left_by``'s
+    ``names=[]`` fold figures."""
+    from scipy.optimize import lsq_linear
+
+    from workbench.calibrate.tracing import _base_lower
+    m = base.channels[ch]
+    e0 = m.y - m.yhat
+    lo = _base_lower(base, ch)
+    out = []
+    for tr, va in sp.folds:
+        rt, rv = sp.rows(tr) & m.valid, sp.rows(va) & m.valid
+        assert not np.any(rt & rv) and not np.any((rt | rv) & sp.test)
+        A = base.basis
+        scale = np.sqrt(np.mean(A[rt] ** 2, axis=0))
+        scale[scale == 0] = 1.0
+        sol = lsq_linear(A[rt] / scale, e0[rt], bounds=(lo * scale, np.inf), method="bvls", tol=1e-14)
+        out.append(float(np.sqrt(np.mean((e0 - A @ (sol.x / scale))[rv] ** 2))))
+    return out
 
 
 def test_the_pair_measure_on_every_fold_follows_the_forms(sn637):
@@ -47,8 +76,23 @@ def test_the_pair_measure_on_every_fold_follows_the_forms(sn637):
     fold and explains most of what the other leaves there; one relaxing over 30 record lengths is the
     leak's own form to O(T / 2 tau) = 2 % on every block set, so neither stands 1x beyond the other on
     any fold. The fold figures' test-row one is :func:`beyond_sizes`' (the same fit)."""
-    fast = _leak_and_absorption_beyond(sn637, 0.5)
+    cc = _bench()
+    base, base0, sp = _leak_and_absorption(sn637, 0.5)
+    fast = cc._beyond(base, base0, ("leakage", "dielectric_absorption"), sp)
     slow = _leak_and_absorption_beyond(sn637, 300.0)
+    # the fold plumbing: weights from each fold's training rows, figures on its validation rows, no test
+    # row: the base's own fold figures against an independent per-fold bounded solve, and the fold
+    # figures are not the test rows' (each fold's validation rows are other blocks than the test part's)
+    test_rms, fold_rms = cc._left_by(base, "charge", [], sp, folds=True)
+    hand = _fold_rms_by_hand(base, "charge", sp)
+    print(f"\nbase on charge: folds {np.round(fold_rms, 6)} by hand {np.round(hand, 6)} test {test_rms:.6g}")
+    # two bounded solvers agree to ~1e-5; fitting on all development rows, scoring on the training rows or on
+    # the test rows moves a fold's figure by 1-34 % here (measured): 1e-4 tells them apart
+    np.testing.assert_allclose(fold_rms, hand, rtol=1e-4)
+    assert len(set(np.round(fold_rms, 12))) == len(fold_rms)        # five different row sets
+    assert all(abs(f - test_rms) > 1e-6 * test_rms for f in fold_rms)
+    for x in fast:
+        assert all(abs(f - x["test"]) > 1e-3 * x["test"] for f in x["folds"])
     for name, b in (("tau 0.5 s", fast), ("tau 300 s", slow)):
         print(f"\n{name}: test {[round(x['test'], 2) for x in b]} folds {[np.round(x['folds'], 2) for x in b]} "
               f"shares {[np.round(x['shares'], 2) for x in b]}")
@@ -59,17 +103,18 @@ def test_the_pair_measure_on_every_fold_follows_the_forms(sn637):
 
 
 # creep + sensor delay records at 1 kHz (the rate of session 15's separable misses, where the delay is
-# a sample or less), drawn with np.random.default_rng(1616), fixed before any record was traced:
-# protocol, size log-uniform over the benchmark's full 0.03-30x, record seed
+# a sample or less), drawn with np.random.default_rng(1617), fixed before any record was traced: protocol,
+# size multiplier log-uniform and stratified (one draw in each of CD_1K equal log-bands of the benchmark's
+# 0.03-30x, so the draw spans the whole range: session 16's unstratified four fell in 0.03-0.6x), record seed
 CD_1K = 4 if not FULL else 12
 
 
 def _draws():
     cc = _bench()
-    rng = np.random.default_rng(1616)
-    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    rng = np.random.default_rng(1617)
+    edges = np.linspace(np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1]), CD_1K + 1)
     return [(str(rng.choice(("calibration", "sine", "steps"))), float(np.exp(rng.uniform(lo, hi))),
-             int(rng.integers(1 << 30))) for _ in range(CD_1K)]
+             int(rng.integers(1 << 30))) for lo, hi in zip(edges[:-1], edges[1:])]
 
 
 @pytest.fixture(scope="module")
@@ -88,14 +133,23 @@ def drawn_1k(sn637):
 def test_drawn_1khz_creep_and_delay_name_both_where_every_fold_tells_them_apart(drawn_1k):
     """Nothing the record lacks is named, and a pair whose two effects each stand >= 3x beyond the other
     on every validation fold and explain more than ``MIN_SHARE`` of what the other leaves there (what a
-    later stage must show on every fold) is answered with both."""
+    later stage must show on every fold, the tracing's own share rule: a check that the benchmark's
+    measure and the tracing agree, not independent evidence) is answered with both. The draw spans the
+    size range, and at least one record is told apart on every fold (else the test says nothing)."""
+    cc = _bench()
+    sizes = sorted(r["size"] for r in drawn_1k)
+    edges = np.exp(np.linspace(np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1]), CD_1K + 1))
+    assert np.all(np.histogram(sizes, edges)[0] == 1), sizes      # one in every log-band of 0.03-30x
     assert not [r for r in drawn_1k if r["class"] == "wrong"], [r["named"] for r in drawn_1k]
-    sep = [r for r in drawn_1k if min(r["beyond_folds"]) >= 3.0 and min(r["share_folds"]) > MIN_SHARE]
-    print(f"\nseparable on every fold: {len(sep)} of {len(drawn_1k)}; both named: {sum(r['both'] for r in sep)}")
+    fsep = [r for r in drawn_1k if min(r["beyond_folds"]) >= 3.0]
+    sep = [r for r in fsep if min(r["share_folds"]) > MIN_SHARE]
+    print(f"\nsizes {np.round(sizes, 3)}; >= 3x beyond on every fold: {len(fsep)} of {len(drawn_1k)}, "
+          f"and above MIN_SHARE: {len(sep)}; both named: {sum(r['both'] for r in sep)}")
+    assert sep, "no drawn record is told apart on every fold: the test would pass vacuously"
     assert all(r["both"] for r in sep), [(r["protocol"], r["size"], r["named"]) for r in sep]
 
 
-@pytest.mark.xfail(strict=True, reason=(
+@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
     "confusion seed 47 #9 (1 kHz calibration, creep 21.5x, a 1.56 ms delay 6.1x on its own record): the "
     "delay stands 5.5-16.9x beyond creep on every fold, but on fold 4 creep's form (with the delay) leaves "
     "14.7x the floor, and the delay explains 23 % of what creep leaves there (the tracing's joint candidate "
@@ -108,5 +162,12 @@ def test_a_1khz_delay_behind_a_large_creep_is_named_where_creeps_form_leaves_muc
     r = cc.evaluate(sn637, e, rate, proto, size, seed)
     print(f"\n47 #9: beyond {np.round(r['beyond'], 2)} on every fold {np.round(r['beyond_folds'], 2)} "
           f"share {np.round(r['share_folds'], 2)} -> {r['named']}")
-    assert min(r["beyond_folds"]) >= 3.0 and r["class"] == "right"
+    # the stated cause, checked first and outside the expected failure (pytest.fail is no AssertionError,
+    # so a changed cause fails the test instead of passing as the expected failure): the pair told apart on
+    # every fold, the delay's least share under MIN_SHARE, creep named alone
+    if not (min(r["beyond_folds"]) >= 3.0 and min(r["share_folds"]) < MIN_SHARE
+            and r["share_folds"][1] < MIN_SHARE and r["named"] == ["creep"]):
+        pytest.fail(f"47 #9's stated cause no longer holds: on every fold {r['beyond_folds']}, share "
+                    f"{r['share_folds']}, named {r['named']}")
+    assert r["class"] == "right"
     assert r["both"]
