@@ -191,3 +191,44 @@ def test_the_drift_a_gauge_bow_took_is_named(sn637):
     r = load_benchmark("calibrate_confusion").evaluate(sn637, *DRIFT_48_165)
     print(f"\n-> {r['answer']} {r['named']} {r['fold_winners']} ratio {r['ratio']:.2f}")
     assert r["class"] == "right" and "drift" in r["named"], (r["named"], r["fold_winners"])
+
+
+# ---- the cost side of the bow's drift rival: a true bow on a rising staircase (review of s16_mhz)
+
+def _rising_staircase(rate_hz, n_rows, n_steps=8):
+    """Eight rising holds 10 -> 100 V filling the benchmark's record (a monotone staircase: the
+    displacement a function of time across the steps, constant within each hold)."""
+    from workbench.calibrate.protocol import calibration_protocol
+    dt = 1.0 / rate_hz
+    dur = n_rows * dt
+    rest = 0.5 * dur / 14.5
+    return calibration_protocol(dt_s=dt, rest_s=rest, sine_cycles=0, stairs_v=tuple(np.linspace(10, 100, n_steps)),
+                                hold_s=(dur - rest) / n_steps, chirp_s=0.0)
+
+
+RNG_BOW = np.random.default_rng(1623)
+#: one size per band of the benchmark's upper range (3-10x, 10-30x) at 100 kHz and 1 MHz, drawn before any run
+BOW_DRAWS = [(rate, float(np.exp(RNG_BOW.uniform(np.log(lo), np.log(hi)))), int(RNG_BOW.integers(1 << 30)))
+             for rate in (1e5, 1e6) for lo, hi in ((3.0, 10.0), (10.0, 30.0))]
+
+
+@pytest.mark.parametrize("rate, size, seed", BOW_DRAWS)
+def test_a_gauge_bow_on_a_rising_staircase_is_not_taken_by_the_drift_rival(sn637, monkeypatch, rate, size, seed):
+    """On a monotone staircase time is a function of the displacement across the steps, so a drift's
+    ``t, t^2`` can fit the bow's misfit about as well as the bow's own ``x^2``; within a hold the
+    displacement stands still while time runs, so a bow leaves the misfit constant there. The rival
+    counts only where the holds show its motion (``drift_in_holds``): a true bow is never named a drift
+    or anything else the record lacks, and where it stands >= 3x above the floor on the record
+    (``excess``) it is named. Without the hold check 100 kHz x3 / x10 / x30 and 1 MHz x10 went
+    inconclusive in the review's runs."""
+    from tests.conftest import load_benchmark
+    cc = load_benchmark("calibrate_confusion")
+    orig = cc.benchmark_protocol
+    monkeypatch.setattr(cc, "benchmark_protocol",
+                        lambda kind, rate_hz, n_rows: _rising_staircase(rate_hz, n_rows) if kind == "rising"
+                        else orig(kind, rate_hz, n_rows))
+    r = cc.evaluate(sn637, "gauge_nonlinearity", rate, "rising", size, seed)
+    print(f"\n{rate:g} x{size:.2f} excess {r['excess']:.2f} -> {r['answer']} {r['named']} {r['fold_winners']}")
+    assert r["class"] != "wrong", r["named"]
+    if r["excess"] >= 3.0:
+        assert r["class"] == "right", r["fold_winners"]
