@@ -84,7 +84,9 @@ mode is one effect, read by both sensors: found on the displacement, not the sam
 gauge (its columns are already in the gauge's model), and found on the gauge (when the
 displacement's row passes fewer than ``need`` folds), not the same effect on the displacement (the
 other sensor's view of the same motion, not a second effect: 28 #88 named the mode twice); after
-the displacement's mode, no delay on the gauge or the charge.
+the displacement's mode, no delay on the gauge or the charge, and after the gauge's (its columns
+carried into the displacement's and the charge's models, session 16), none on the displacement or
+the charge.
 """
 
 import copy
@@ -108,7 +110,8 @@ EXCLUSIONS = {
     "gauge_nonlinearity": "every effect on the gauge's own model",
     "creep": "dielectric_absorption, leakage, drift; creep on the other sensor (gauge / displacement)",
     "delay": "resonance on the same channel",
-    "resonance": ("delay on the same channel (after the displacement's: on the gauge and the charge too); "
+    "resonance": ("delay on the same channel (after the displacement's: on the gauge and the charge too; after "
+                  "the gauge's: on the displacement and the charge too); "
                   "resonance on the other sensor (gauge / displacement)"),
 }
 
@@ -134,7 +137,9 @@ def excluded(cand, found):
         if fname == "creep" and name in ("dielectric_absorption", "leakage", "drift"):
             return True
         # the stack's mode found on the displacement is in the gauge's and the charge's models too
-        reads = {fch} | ({"gauge", "charge"} if (fname, fch) == ("resonance", "displacement") else set())
+        # (and found on the gauge, in the displacement's and the charge's: :func:`~.tracing._absorb`)
+        reads = {fch} | ({"gauge", "charge"} if (fname, fch) == ("resonance", "displacement") else set()) \
+            | ({"displacement", "charge"} if (fname, fch) == ("resonance", "gauge") else set())
         if {fname, name} == {"delay", "resonance"} and ch in reads:
             return True
         if fname in STACK_EFFECTS and name == fname and {fch, ch} == {"displacement", "gauge"}:

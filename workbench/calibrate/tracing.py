@@ -801,8 +801,20 @@ def _absorb(c, extra, probs, base, t):
     if c.get("fold_g") is not None and all(gf["C"].shape[1] == C.shape[1] for gf in c["fold_g"]):
         fold = [gf["C"] * gf["norms"] for gf in c["fold_g"]]
     extra[c["key"]].append(FoundColumns(C, list(lo), (c["name"], c["channel"]), fold))
+    # the stack's motion is read by every channel: its creep or mode found on the displacement is
+    # carried into the charge's and the gauge's models; its mode found on the gauge (named there when
+    # a displacement-sensor effect hides the displacement's view on some folds,
+    # :func:`~.stages.stack_effect_on_both_sensors`) into the displacement's and the charge's. The
+    # displacement's own view is then excluded (:func:`~.stages.excluded`): without its columns the
+    # displacement kept the whole mode, and a large drift beside it was refused (session 16, 56 #88:
+    # a 40 Hz mode and a 400x drift at 100 kHz answered with the mode only)
+    others = ()
     if c["channel"] == "displacement" and c["name"] in ("creep", "resonance"):
-        for other in ("charge", "gauge"):
+        others = ("charge", "gauge")
+    elif c["channel"] == "gauge" and c["name"] == "resonance" and c["key"] == ("gauge", "model"):
+        others = ("displacement", "charge")
+    if others:
+        for other in others:
             key = (other, "model")
             if key in probs and other in base.channels:
                 yhat = base.channels[other].yhat
