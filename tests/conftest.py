@@ -46,6 +46,29 @@ def load_benchmark(name):
     return mod
 
 
+def leak_and_absorption_fits(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
+    """A steps record (10 s at 1 kHz) with a 20 Mohm leak and a 1.2 uF absorption of ``tau_s`` (s) and its
+    effect-free twin (same noise), base-fitted as the confusion benchmark does: ``(base, base0, split)``."""
+    import dataclasses
+
+    from workbench.calibrate.base_fit import fit_base
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
+    cc = load_benchmark("calibrate_confusion")
+    clean, _ = plant_with_effect(sn637, "none", 0)
+    plant = dataclasses.replace(clean, additions=dataclasses.replace(
+        clean.additions, leakage_resistance_ohm=2e7, absorption_gain_f=1.2e-6, absorption_time_constant_s=tau_s))
+    t, v = benchmark_protocol("steps", rate_hz, n_rows)
+    r = simulate_record(plant, t, v, seed=5)
+    r0 = simulate_record(clean, t, v, seed=5)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    R = sn637.pzt.series_resistance_ohm
+    base = fit_base(cc._record(r, 1.0 / rate_hz), R, **kw)
+    base0 = fit_base(cc._record(r0, 1.0 / rate_hz), R, **kw)
+    return base, base0, sp
+
+
 @pytest.fixture(scope="session")
 def root():
     return ROOT

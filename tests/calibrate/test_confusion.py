@@ -11,7 +11,7 @@ that is none. A ``none`` or ``inconclusive`` is not wrong. WORKBENCH_FULL=1 adds
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark
+from tests.conftest import FULL, leak_and_absorption_fits, load_benchmark
 
 
 
@@ -231,27 +231,10 @@ def test_the_gauges_creep_is_turned_into_metres_by_its_gain(draw):
         assert _stack_shows_it(charge, gauge, 0, befores, infos, penalty) is expect, (share, g)
 
 
-def _leak_and_absorption(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
-    """A steps record (10 s at 1 kHz) with a 20 Mohm leak and a 1.2 uF absorption of ``tau_s``,
-    its effect-free twin (same noise), their base fits and the split (as the benchmark builds them)."""
-    import dataclasses
-
-    from workbench.calibrate.base_fit import fit_base
-    from workbench.calibrate.splits import make_split
-    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
-    cc = _bench()
-    clean, _ = plant_with_effect(sn637, "none", 0)
-    plant = dataclasses.replace(clean, additions=dataclasses.replace(
-        clean.additions, leakage_resistance_ohm=2e7, absorption_gain_f=1.2e-6, absorption_time_constant_s=tau_s))
-    t, v = benchmark_protocol("steps", rate_hz, n_rows)
-    r = simulate_record(plant, t, v, seed=5)
-    r0 = simulate_record(clean, t, v, seed=5)
-    sp = make_split(t, r["voltage_v"], "blocks")
-    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
-    R = sn637.pzt.series_resistance_ohm
-    base = fit_base(cc._record(r, 1.0 / rate_hz), R, **kw)
-    base0 = fit_base(cc._record(r0, 1.0 / rate_hz), R, **kw)
-    return cc.beyond_sizes(base, base0, ("leakage", "dielectric_absorption"), sp)
+def _leak_and_absorption(sn637, tau_s):
+    """``beyond_sizes`` of the leak + absorption steps record (:func:`tests.conftest.leak_and_absorption_fits`)."""
+    base, base0, sp = leak_and_absorption_fits(sn637, tau_s)
+    return _bench().beyond_sizes(base, base0, ("leakage", "dielectric_absorption"), sp)
 
 
 def test_a_leak_stands_beyond_a_fast_absorption_and_not_beyond_a_slow_one(sn637):
