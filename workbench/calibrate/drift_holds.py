@@ -15,10 +15,17 @@ The check, on the development rows only (the test part takes no part in a choice
   :func:`~workbench.calibrate.residual._hold_spans`, as seed 001's creep per hold), lasting at
   least ``min_hold_s``; the first fifth of each hold is skipped (the step's settling: the RC
   charge, a mode's ringing, the fastest creep).
-* In every hold the drift term ``d`` and the residual ``e`` (what the drift is fitted to) are
-  taken less their means over the hold's rows, and the residual's gain on the term is
-  ``k = sum(e_c d_c) / sum(d_c^2)``, with standard error ``sigma / sqrt(sum(d_c^2))`` for white
-  noise of RMS ``sigma`` (the channel's noise floor).
+* In every hold the drift term ``d`` (the drift's own columns' part of the joint fit) and ``e``
+  (what the drift is fitted to: the residual less every other fitted part) are taken less their
+  means over the hold's rows, and the residual's gain on the term is
+  ``k = sum(e_c d_c) / sum(d_c^2)``. Its standard error has two parts: what the holds show is
+  noisy (white noise of RMS ``sigma``, the channel's noise floor: ``sigma / sqrt(sum(d_c^2))``),
+  and what the fitted term predicts there is uncertain (the fit's own covariance of the drift's
+  weights ``C`` carried to the holds: ``sqrt(a' C a) / sum(d_c^2)``, ``a = sum X_c' d_c``); they
+  add in quadrature (:func:`drift_in_holds`, Notes). Session 17: with the noise part alone, the
+  sine protocol's one 14 ms hold at the record's start refused drifts every fold supported
+  (seeds 57 and 59, #88: drift + a slow mode at 100 kHz), where the fitted polynomial's own error
+  at the record's start was larger than its motion in the hold.
 * **Verdict**: ``None`` (the holds cannot tell: no holds, or the term moves so little within
   them that ``k``'s standard error exceeds ``1 / 6``, a drift and none not 3 standard errors
   either side of ``1 / 2``); else ``True`` when ``k >= 1 / 2`` (the holds move as the drift
@@ -126,13 +133,13 @@ def hold_spans(t_s, v, min_hold_s, noise_rms_v=None):
     return np.array([(i, j) for i, j in out if j - i >= 3], dtype=np.int64).reshape(-1, 2)
 
 
-def drift_in_holds(e, term, rows, spans, noise_rms):
+def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_cov=None):
     """Does the residual move within the holds as the drift term does?
 
     Parameters
     ----------
     e : array_like
-        The residual the drift is fitted to (channel units).
+        What the drift is fitted to (channel units): the residual less every fitted part but the drift's.
     term : array_like
         The fitted drift term (channel units), same length.
     rows : array_like of bool
@@ -140,19 +147,40 @@ def drift_in_holds(e, term, rows, spans, noise_rms):
     spans : ndarray of int, shape (n, 2)
         From :func:`hold_spans`.
     noise_rms : float
-        White-noise RMS of the channel (channel units).
+        White-noise RMS of the channel (channel units): the noise of what the holds show.
+    term_columns : array_like, shape (n_rows, m), optional
+        The drift's columns (channel units per unit weight): ``term = term_columns @ w``.
+    term_cov : array_like, shape (m, m), optional
+        The covariance of the fitted weights ``w`` (from the fit's own residual and Gram matrix,
+        :meth:`~workbench.calibrate.tracing._Problem.weights_cov`). With ``term_columns``, the
+        term's prediction error within the holds enters the standard error (module notes); without
+        them the term is taken as exact (noise alone).
 
     Returns
     -------
     dict
-        ``holds`` (holds used), ``gain`` (``k``), ``se`` (its standard error), ``shows``
+        ``holds`` (holds used), ``gain`` (``k``), ``se`` (its standard error), ``se_noise`` and
+        ``se_term`` (its two parts: the holds' noise, the fitted term's prediction error), ``shows``
         (``True``, ``False`` or ``None`` when the holds cannot tell; see the module notes), and
         with ``shows=None`` a ``note`` saying why the drift veto could not judge.
+
+    Notes
+    -----
+    With ``d_c``, ``e_c`` the term and the residual less their means over each hold, ``k =
+    sum(e_c d_c) / sum(d_c^2)``. When the drift is real, ``e = D + n`` (``n`` the channel's noise)
+    and the fitted term ``d = D + delta`` (``delta = X_c (w_hat - w)``, the fit's error), so
+    ``k - 1 = sum(d_c (n_c - delta_c)) / sum(d_c^2)``, of variance
+    ``(sigma^2 sum(d_c^2) + a' C a) / sum(d_c^2)^2`` with ``a = sum X_c' d_c`` over the holds and
+    ``C`` the weights' covariance (the cross term, the holds' own noise in the fit, is left out:
+    it lowers the variance by at most the holds' share of the fit's leverage, so the sum errs
+    towards "cannot tell").
     """
     e = np.asarray(e, float)
     d = np.asarray(term, float)
     rows = np.asarray(rows, bool)
+    X = None if term_columns is None or term_cov is None else np.asarray(term_columns, float).reshape(d.size, -1)
     num = den = 0.0
+    a = np.zeros(X.shape[1]) if X is not None else None
     used = 0
     for i, j in spans:
         sel = np.flatnonzero(rows[i:j]) + i
@@ -162,15 +190,22 @@ def drift_in_holds(e, term, rows, spans, noise_rms):
         ec = e[sel] - e[sel].mean()
         num += float(dc @ ec)
         den += float(dc @ dc)
+        if X is not None:
+            Xs = X[sel]
+            a += (Xs - Xs.mean(axis=0)).T @ dc
         used += 1
     if used == 0 or not den > 0:
-        return {"holds": used, "gain": float("nan"), "se": float("inf"), "shows": None,
+        return {"holds": used, "gain": float("nan"), "se": float("inf"), "se_noise": float("inf"),
+                "se_term": float("inf"), "shows": None,
                 "note": NO_HOLDS_NOTE if used == 0 else "the drift term does not move within the holds: "
                 "the drift veto could not judge (off for this record)"}
     k = num / den
-    se = float(noise_rms) / np.sqrt(den) if noise_rms > 0 else 0.0
+    se_noise = float(noise_rms) / np.sqrt(den) if noise_rms > 0 else 0.0
+    se_term = float(np.sqrt(max(float(a @ np.asarray(term_cov, float) @ a), 0.0))) / den if X is not None else 0.0
+    se = float(np.hypot(se_noise, se_term))
     shows = None if se > MAX_SE else bool(k >= MIN_GAIN)
-    out = {"holds": used, "gain": float(k), "se": float(se), "shows": shows}
+    out = {"holds": used, "gain": float(k), "se": se, "se_noise": float(se_noise), "se_term": float(se_term),
+           "shows": shows}
     if shows is None:
         out["note"] = (f"the gain's standard error {se:.3g} exceeds {MAX_SE:.3g}: the drift veto could not judge "
                        f"(off for this record)")

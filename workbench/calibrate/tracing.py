@@ -376,6 +376,27 @@ class _Problem:
             gains[g["ok"]] = w[k:] / g["norms"]
         return (base_part + extra) * self.scale, extra * self.scale, gains * self.scale
 
+    def weights_cov(self, g, blocks, w=None):
+        """The covariance of the joint fit's weights (scaled units) on the union of ``blocks``.
+
+        Ordinary least squares' own: ``s^2 H^+`` with ``H`` the blocks' Gram matrix of ``[A, C]``
+        (its pseudo-inverse over the eigenvalues :meth:`solve` keeps) and ``s^2 = SSE / (n - p)``,
+        the fit's residual mean square (``n`` rows, ``p`` kept directions): the record's misfit,
+        not the channel's noise floor, is what moves the weights when the model's forms are not
+        exact. Bounds are ignored (the weights are taken as free). ``w``: the weights (default
+        :meth:`solve`'s).
+        """
+        sel = np.asarray(blocks, bool)
+        G = g["G"][sel].sum(axis=0)
+        k = G.shape[0] - 1
+        if w is None:
+            w = self.solve(g, blocks)
+        lam, V = np.linalg.eigh(G[:k, :k])
+        good = lam > 1e-11 * max(lam.max(), 1e-300)
+        H_pinv = (V[:, good] / lam[good]) @ V[:, good].T
+        s2 = self.sse(g, w, blocks)[0] / max(self.n_rows(blocks) - int(good.sum()), 1)
+        return s2 * H_pinv
+
     def base_correction(self, g, blocks):
         """The joint fit's change of the base columns' weights, in channel units per column unit.
 
@@ -995,10 +1016,7 @@ def _gauge_line_drift_rms(row, probs, extra, split, infos):
     prob = probs[row["key"]]
     spans = infos.get("holds")
     if spans is not None and len(spans):
-        g = _stacked(prob, extra[row["key"]], row)
-        corr, own, _ = prob.predict(g, split.dev_blocks)
-        target = prob.r * prob.scale - (corr - own)
-        chk = drift_in_holds(target, own, prob.rows_dev, spans, infos["gauge"]["noise_floor"])
+        chk = _drift_hold_check(prob, extra[row["key"]], row, split, spans, infos["gauge"]["noise_floor"])
         if chk["shows"] is False:
             return None
     gf = _cand_grams(prob, extra[row["key"]], row, len(split.folds))
@@ -1026,6 +1044,26 @@ def _after_creep_refused(ok):
     return nxt
 
 
+def _drift_hold_check(prob, extra_list, row, split, spans, noise_rms):
+    """:func:`.drift_holds.drift_in_holds` of a drift row refitted with the found effects on the development rows.
+
+    The term is the drift's own columns' part of the joint fit (not the found effects'), what it is
+    fitted to the residual less every other fitted part, and the term's prediction error within the
+    holds comes from the joint fit's own covariance (:meth:`_Problem.weights_cov`, the drift's block).
+    """
+    g = _stacked(prob, extra_list, row)
+    blocks = split.dev_blocks
+    w = prob.solve(g, blocks)
+    k = prob.A.shape[1]
+    m = int(np.count_nonzero(g["ok"][g["ok"].size - row["g"]["C"].shape[1]:]))   # the drift's kept columns, last
+    fit = (prob.A @ w[:k] + (g["C"] @ w[k:] if g["C"].shape[1] else 0.0)) * prob.scale
+    X = g["C"][:, g["C"].shape[1] - m:] * prob.scale                               # term = X @ its weights
+    term = X @ w[w.size - m:]
+    target = prob.r * prob.scale - fit + term
+    cov = prob.weights_cov(g, blocks, w)[w.size - m:, w.size - m:]
+    return drift_in_holds(target, term, prob.rows_dev, spans, noise_rms, term_columns=X, term_cov=cov)
+
+
 def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
     """A drift passes no fold when the input's holds show none of its motion (:mod:`.drift_holds`).
 
@@ -1041,10 +1079,7 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
                             "note": NO_HOLDS_NOTE}
             continue
         prob = probs[row["key"]]
-        g = _stacked(prob, extra[row["key"]], row)
-        corr, own, _ = prob.predict(g, split.dev_blocks)
-        target = prob.r * prob.scale - (corr - own)
-        chk = drift_in_holds(target, own, prob.rows_dev, spans, infos[row["channel"]]["noise_floor"])
+        chk = _drift_hold_check(prob, extra[row["key"]], row, split, spans, infos[row["channel"]]["noise_floor"])
         row["holds"] = chk
         if chk["shows"] is False:
             row["passes"] = [False] * len(row["passes"])
