@@ -139,3 +139,93 @@ def test_the_tracer_vetoes_the_effect_free_records_drift_and_keeps_a_drift_recor
         assert h["shows"] is True and h["gain"] >= MIN_GAIN and rows["displacement"]["passes"] >= 3, h
     for c in rows.values():
         assert (c["holds"]["shows"] is None) == ("note" in c["holds"]), c["holds"]
+
+
+# ---- session 17: the fitted drift's own prediction error in the hold check ----
+
+@pytest.mark.parametrize("seed", range(3))
+def test_weights_cov_gives_the_closed_form_prediction_variance_of_a_polynomial_fitted_to_noise(seed):
+    """A quadratic in time fitted to white noise on a split's development rows (``_Problem``, the joint
+    fit's machinery): the variance of its value at the record's start, from :meth:`_Problem.weights_cov`,
+    is the closed form ``sigma^2 x' (X'X)^-1 x`` (``X`` the development rows' ``[1, t, t^2]``) within the
+    residual mean square's own spread, and the predictions of 400 independent noise draws spread by it.
+    Rate, length and noise drawn over decades."""
+    from workbench.calibrate import tracing as T
+    from workbench.calibrate.splits import make_split
+    rng = np.random.default_rng(1700 + seed)
+    rate = float(np.exp(rng.uniform(np.log(1e3), np.log(1e5))))
+    n = int(rng.integers(3000, 8000))
+    sigma = float(np.exp(rng.uniform(np.log(1e-10), np.log(1e-6))))
+    t = np.arange(n) / rate
+    sp = make_split(t, np.sin(2 * np.pi * 5.0 * t / t[-1]))
+    dev = sp.train
+    X = np.column_stack([np.ones(n), t, t ** 2])
+    Xd = X[dev]
+    closed = sigma ** 2 * X[0] @ np.linalg.solve(Xd.T @ Xd, X[0])
+    preds, var_cov = [], []
+    n_dev = int(dev.sum())
+    for _ in range(400):
+        r = sigma * rng.standard_normal(n)
+        prob = T._Problem(sp, np.ones(n, bool), X[:, :1], [-np.inf], r, T._search_rows(dev))
+        g = prob.grams(X[:, 1:], [-np.inf, -np.inf])
+        w = prob.solve(g, sp.dev_blocks)
+        x0 = np.r_[prob.A[0], g["C"][0]] * prob.scale       # the fit at t[0] is x0 @ w (channel units)
+        preds.append(float(x0 @ w))
+        var_cov.append(float(x0 @ prob.weights_cov(g, sp.dev_blocks, w) @ x0))
+    var_cov = np.asarray(var_cov)
+    # s^2's relative spread is sqrt(2 / (n - 3)): every draw within 5 of it
+    assert np.all(np.abs(var_cov / closed - 1.0) <= 5.0 * np.sqrt(2.0 / (n_dev - 3)))
+    # the sample variance of 400 normal draws: relative spread sqrt(2 / 399), 4 of it
+    assert np.var(preds, ddof=1) == pytest.approx(closed, rel=4.0 * np.sqrt(2.0 / 399))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_hold_checks_standard_error_counts_the_fitted_drifts_error_in_the_hold(seed):
+    """The sine protocol's shape: one hold at the record's start, the rest moving, where the model's
+    misfit (here white, ``misfit`` = 3-100x the channel's noise) sets the fitted drift's error. The
+    drift (a real one, 3-300x the misfit over the record) is fitted by least squares on the moving rows
+    and extrapolated into the hold. Over 600 draws of the noise, the gain ``k``'s spread is the check's
+    standard error (the noise's and the term's parts in quadrature), not the noise's part alone, and the
+    check refuses the real drift (``shows`` False) in at most 1 % of the draws that inform."""
+    rng = np.random.default_rng(1710 + seed)
+    rate = float(np.exp(rng.uniform(np.log(1e4), np.log(1e5))))
+    n = 4000
+    t = np.arange(n) / rate
+    dur = t[-1]
+    hold = (int(0.007 * n), int(0.035 * n))                         # the hold's rows after its settling
+    spans = np.array([hold])
+    sigma = float(np.exp(rng.uniform(np.log(1e-10), np.log(1e-8))))
+    misfit = sigma * float(np.exp(rng.uniform(np.log(3.0), np.log(100.0))))
+    excursion = misfit * float(np.exp(rng.uniform(np.log(3.0), np.log(300.0))))
+    a1, a2 = rng.uniform(-1.0, 1.0, 2)
+    X = np.column_stack([np.ones(n), t / dur, (t / dur) ** 2])
+    D = excursion * (a1 * X[:, 1] + a2 * X[:, 2])
+    fit_rows = np.ones(n, bool)
+    fit_rows[:hold[1]] = False
+    Xf = X[fit_rows]
+    XtX_inv = np.linalg.inv(Xf.T @ Xf)
+    ks, ses, se_noise, shows = [], [], [], []
+    for _ in range(600):
+        noise = np.where(fit_rows, misfit, sigma) * rng.standard_normal(n)
+        y = D + noise
+        w = XtX_inv @ Xf.T @ y[fit_rows]
+        s2 = float(np.sum((y[fit_rows] - Xf @ w) ** 2)) / (fit_rows.sum() - 3)
+        term = X[:, 1:] @ w[1:]
+        chk = drift_in_holds(y, term, np.ones(n, bool), spans, sigma, term_columns=X[:, 1:],
+                             term_cov=s2 * XtX_inv[1:, 1:])
+        if chk["shows"] is None and not np.isfinite(chk["se"]):
+            continue
+        ks.append(chk["gain"])
+        ses.append(chk["se"])
+        se_noise.append(chk["se_noise"])
+        shows.append(chk["shows"])
+    ks, ses = np.asarray(ks), np.asarray(ses)
+    assert ks.size >= 590
+    spread = float(np.std(ks, ddof=1))
+    # the reported se is the spread (the ratio's linearization; 600 draws: ~6 % sampling), the noise
+    # part alone is not when the term's error dominates
+    assert spread == pytest.approx(float(np.median(ses)), rel=0.2)
+    informed = [s for s in shows if s is not None]
+    assert sum(s is False for s in informed) <= 0.01 * max(len(informed), 1)
+    if np.median(ses) > 2.0 * np.median(se_noise):
+        assert spread > 1.5 * float(np.median(se_noise))
