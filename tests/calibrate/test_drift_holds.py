@@ -229,3 +229,36 @@ def test_the_hold_checks_standard_error_counts_the_fitted_drifts_error_in_the_ho
     assert sum(s is False for s in informed) <= 0.01 * max(len(informed), 1)
     if np.median(ses) > 2.0 * np.median(se_noise):
         assert spread > 1.5 * float(np.median(se_noise))
+
+
+# drift + a slow mode at 100 kHz on the sine protocol (the cell of seeds 57 and 59, #88, where the one
+# 14 ms hold at the record's start refused the drift), one size per log-band of the benchmark's full
+# range (0.03-30x), default_rng(1717), drawn before any record was traced. make test runs the top band;
+# WORKBENCH_FULL=1 all four.
+_RNG_MODE = np.random.default_rng(1717)
+_EDGES = np.linspace(np.log(0.03), np.log(30.0), 5)
+MODE_DRAWS = [(float(np.exp(_RNG_MODE.uniform(a, b))), int(_RNG_MODE.integers(1 << 30)))
+              for a, b in zip(_EDGES[:-1], _EDGES[1:])]
+
+
+@pytest.fixture(scope="module")
+def drift_beside_mode_rows(sn637):
+    from tests.conftest import FULL, load_benchmark
+    cc = load_benchmark("calibrate_confusion")
+    rows = []
+    for size, seed in (MODE_DRAWS if FULL else MODE_DRAWS[-1:]):
+        r = cc.evaluate(sn637, ("drift", "resonance"), 1e5, "sine", size, seed)
+        print(f"\nsize x{size:.3g} own sizes {np.round(r['excesses'], 1)} beyond on every fold "
+              f"{np.round(r['beyond_folds'], 1)} -> {r['named']} {r['class']} ratio {r['ratio']:.2f}")
+        rows.append(r)
+    return rows
+
+
+def test_drift_beside_a_slow_mode_on_one_hold_names_both_when_told_apart(drift_beside_mode_rows):
+    """No effect the record lacks is named; a record whose drift and mode each stand >= 3x beyond the
+    other on every validation fold (``calibrate_confusion._beyond``) is answered with both: the one hold
+    does not refuse a drift its fit cannot place within the hold."""
+    rows = drift_beside_mode_rows
+    assert not [r for r in rows if r["class"] in ("wrong", "crash")], [(r["excesses"], r["named"]) for r in rows]
+    apart = [r for r in rows if min(r["beyond_folds"]) >= 3.0]
+    assert all(r["both"] for r in apart), [(np.round(r["excesses"], 1), r["named"]) for r in apart]
