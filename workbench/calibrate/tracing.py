@@ -712,16 +712,59 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
         carried = [s["effect"] for s in stages if s["channel"] == "displacement"
                    and s["effect"] in ("creep", "resonance")]
-        if ch in own or not carried or key not in probs or not extra[key]:
+        if ch in own or key not in probs:
             continue
         prob = probs[key]
-        g1 = _stacked(prob, extra[key], None)
-        if _carry_passes(prob, g1, sum(C.shape[1] for C, _ in extra[key]), ctx["nulls"].get(key, ()),
-                         split, ctx, ctx["infos"][ch]["noise_floor"]):
-            c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks), "units": c["units"]}
-            c["carried"] = carried
-        else:
-            c["carry_refused"] = carried
+        g_end = prob.base
+        if carried and extra[key]:
+            g1 = _stacked(prob, extra[key], None)
+            if _carry_passes(prob, g1, sum(C.shape[1] for C, _ in extra[key]), ctx["nulls"].get(key, ()),
+                             split, ctx, ctx["infos"][ch]["noise_floor"]):
+                c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks),
+                                    "units": c["units"]}
+                c["carried"] = carried
+                g_end = g1
+            else:
+                c["carry_refused"] = carried
+        _line_fallback(c, ch, prob, g_end, base, split, ctx["need"])
+
+
+def _line_fallback(c, ch, prob, g, base, split, need):
+    """A channel whose model at the end is no better than a straight line of the drive reports the line.
+
+    The base's ridge path ends at the line (:data:`~workbench.calibrate.base_fit.RIDGE_GRID`), but the
+    tracing refits the base's play weights freely on the development rows, and an effect the record
+    carries and nothing found explains (a mode below the search's floor, a sensor delay beyond its window)
+    can leave that model worse than the line on data it never saw (the 1 MHz benchmark's 57 #154 gauge,
+    0.116 V against the line's 0.105 V; 48 #138's displacement, 8.21e-8 m against 8.14e-8 m). On each
+    validation fold the channel's end model (``g``: the base, with the carried effects when kept) and the
+    line (the identity play and the offset, :func:`~workbench.calibrate.base_fit._line`) are fitted on the
+    fold's training rows and scored on the fold; when the line is lower on ``need`` folds the channel's
+    ``error_after`` is the line's on the test rows (fitted on the development rows, as the base's line),
+    ``c["line"]`` is True and ``c["line_note"]`` says why. Chosen on the folds, never on the test part.
+    """
+    from .base_fit import _line
+    line_col = base.channel_basis(ch)[:, 0]            # the identity play (threshold 0), as the base's line
+    y, valid = base.channels[ch].y, base.channels[ch].valid
+    wins = 0
+    for tr, va in split.folds:
+        rt, rv = split.rows(tr) & valid, split.rows(va) & valid
+        if not rv.any() or int(rt.sum()) < 2:
+            continue
+        _, _, line_va = _line(line_col, y, rt, rv)
+        wins += int(line_va < prob.fold_rms(g, tr, va))
+    if wins < need:
+        return
+    _, _, line_test = _line(line_col, y, split.train & valid, split.test & valid)
+    if not line_test < c["error_after"]["rms"]:
+        return
+    slope, off, _ = _line(line_col, y, split.train & valid, split.test & valid)
+    e = (slope * line_col + off - y)[split.test & valid]
+    c["error_after"] = {**_errors(e), "units": c["units"]}
+    c["line"] = True
+    c["line_note"] = (f"the {ch}'s model is no better than a straight line of the drive on {wins} of "
+                      f"{len(split.folds)} validation folds: its error is the line's (the record carries something "
+                      f"neither the base nor a found effect explains there)")
 
 
 def _carry_passes(prob, g, n_params, nulls, split, ctx, floor):
