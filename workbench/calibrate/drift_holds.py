@@ -20,14 +20,14 @@ The check, on the development rows only (the test part takes no part in a choice
   means over the hold's rows, and the residual's gain on the term is
   ``k = sum(e_c d_c) / sum(d_c^2)``. Its standard error has two parts: what the holds show is
   noisy (white noise of RMS ``sigma``, the channel's noise floor: ``sigma / sqrt(sum(d_c^2))``),
-  and what the fitted term predicts there is uncertain (the fit's own covariance of the drift's
-  weights ``C`` carried to the holds: ``sqrt(a' C a) / sum(d_c^2)``, ``a = sum X_c' d_c``); they
+  and what the fit predicts there is uncertain (the fit's own covariance of its weights ``C``,
+  all its columns ``X``, carried to the holds: ``sqrt(a' C a) / sum(d_c^2)``, ``a = sum X_c' d_c``); they
   add in quadrature (:func:`drift_in_holds`, Notes). Session 17: with the noise part alone, the
   sine protocol's one 14 ms hold at the record's start refused drifts every fold supported
   (seeds 57 and 59, #88: drift + a slow mode at 100 kHz), where the fitted polynomial's own error
   at the record's start was larger than its motion in the hold.
 * **Verdict**: ``None`` (the holds cannot tell: no holds, or the term moves so little within
-  them that ``k``'s standard error exceeds ``1 / 6``, a drift and none not 3 standard errors
+  them, or the fit is so uncertain there, that ``k``'s standard error exceeds ``1 / 6``, a drift and none not 3 standard errors
   either side of ``1 / 2``); else ``True`` when ``k >= 1 / 2`` (the holds move as the drift
   says, within half of it), ``False`` otherwise. Creep of the stack after a step also moves a
   hold, with the step's sign; the holds of a protocol step both ways, which was meant to keep
@@ -148,13 +148,16 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
         From :func:`hold_spans`.
     noise_rms : float
         White-noise RMS of the channel (channel units): the noise of what the holds show.
-    term_columns : array_like, shape (n_rows, m), optional
-        The drift's columns (channel units per unit weight): ``term = term_columns @ w``.
+    term_columns : array_like, shape (n_rows, m), or sequence of such arrays, optional
+        Every fitted column (channel units per unit weight; a sequence is taken as column blocks
+        side by side, the same rows): the fit ``e + d - n`` stands on is ``term_columns @ w``. The
+        fitted drift's error and every other fitted part's error move what the holds show against
+        ``d`` (module notes), so the joint fit's columns all belong here, not the drift's alone.
     term_cov : array_like, shape (m, m), optional
         The covariance of the fitted weights ``w`` (from the fit's own residual and Gram matrix,
         :meth:`~workbench.calibrate.tracing._Problem.weights_cov`). With ``term_columns``, the
-        term's prediction error within the holds enters the standard error (module notes); without
-        them the term is taken as exact (noise alone).
+        fit's prediction error within the holds enters the standard error (module notes); without
+        both the term is taken as exact (noise alone). Passing one without the other is an error.
 
     Returns
     -------
@@ -168,19 +171,29 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
     -----
     With ``d_c``, ``e_c`` the term and the residual less their means over each hold, ``k =
     sum(e_c d_c) / sum(d_c^2)``. When the drift is real, ``e = D + n`` (``n`` the channel's noise)
-    and the fitted term ``d = D + delta`` (``delta = X_c (w_hat - w)``, the fit's error), so
-    ``k - 1 = sum(d_c (n_c - delta_c)) / sum(d_c^2)``, of variance
-    ``(sigma^2 sum(d_c^2) + a' C a) / sum(d_c^2)^2`` with ``a = sum X_c' d_c`` over the holds and
-    ``C`` the weights' covariance (the cross term, the holds' own noise in the fit, is left out:
+    and the fitted term ``d = D + delta_d``; ``e`` is the record less every other fitted part, so it
+    carries their errors too: ``e - d = n - X_c (w_hat - w)`` over *all* the fit's columns ``X``
+    (the review of session 17: with the drift's block alone a mode's or creep's error within a hold
+    went uncounted). So ``k - 1 = sum(d_c (n_c - delta_c)) / sum(d_c^2)`` with ``delta = X_c (w_hat
+    - w)``, of variance ``(sigma^2 sum(d_c^2) + a' C a) / sum(d_c^2)^2`` with ``a = sum X_c' d_c``
+    over the holds and ``C`` the weights' covariance (the cross term, the holds' own noise in the fit, is left out:
     it lowers the variance by at most the holds' share of the fit's leverage, so the sum errs
     towards "cannot tell").
     """
     e = np.asarray(e, float)
     d = np.asarray(term, float)
     rows = np.asarray(rows, bool)
-    X = None if term_columns is None or term_cov is None else np.asarray(term_columns, float).reshape(d.size, -1)
+    if (term_columns is None) != (term_cov is None):
+        raise ValueError("drift_in_holds: term_columns and term_cov go together (the fit's columns and their "
+                         "weights' covariance); pass both or neither")
+    if term_columns is None:
+        X = None
+    elif isinstance(term_columns, (list, tuple)):
+        X = [np.asarray(b, float).reshape(d.size, -1) for b in term_columns]
+    else:
+        X = [np.asarray(term_columns, float).reshape(d.size, -1)]
     num = den = 0.0
-    a = np.zeros(X.shape[1]) if X is not None else None
+    a = np.zeros(sum(b.shape[1] for b in X)) if X is not None else None
     used = 0
     for i, j in spans:
         sel = np.flatnonzero(rows[i:j]) + i
@@ -191,7 +204,7 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
         num += float(dc @ ec)
         den += float(dc @ dc)
         if X is not None:
-            Xs = X[sel]
+            Xs = np.hstack([b[sel] for b in X])
             a += (Xs - Xs.mean(axis=0)).T @ dc
         used += 1
     if used == 0 or not den > 0:

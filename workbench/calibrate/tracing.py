@@ -1091,8 +1091,11 @@ def _drift_hold_check(prob, extra_list, row, split, spans, noise_rms):
     """:func:`.drift_holds.drift_in_holds` of a drift row refitted with the found effects on the development rows.
 
     The term is the drift's own columns' part of the joint fit (not the found effects'), what it is
-    fitted to the residual less every other fitted part, and the term's prediction error within the
-    holds comes from the joint fit's own covariance (:meth:`_Problem.weights_cov`, the drift's block).
+    fitted to the residual less every other fitted part, and the fit's prediction error within the
+    holds comes from the joint fit's own covariance (:meth:`_Problem.weights_cov`) over *all* its
+    columns: the base's and the found effects' errors move what the holds show as the drift's do
+    (session 17's review: the drift's block alone refused a real drift beside a mode ringing in a
+    hold in 21 of 200 draws, the standard error 0.09 against a spread of 0.31).
     """
     g = _stacked(prob, extra_list, row)
     blocks = split.dev_blocks
@@ -1100,11 +1103,10 @@ def _drift_hold_check(prob, extra_list, row, split, spans, noise_rms):
     k = prob.A.shape[1]
     m = int(np.count_nonzero(g["ok"][g["ok"].size - row["g"]["C"].shape[1]:]))   # the drift's kept columns, last
     fit = (prob.A @ w[:k] + (g["C"] @ w[k:] if g["C"].shape[1] else 0.0)) * prob.scale
-    X = g["C"][:, g["C"].shape[1] - m:] * prob.scale                               # term = X @ its weights
-    term = X @ w[w.size - m:]
+    term = (g["C"][:, g["C"].shape[1] - m:] * prob.scale) @ w[w.size - m:]
     target = prob.r * prob.scale - fit + term
-    cov = prob.weights_cov(g, blocks, w)[w.size - m:, w.size - m:]
-    return drift_in_holds(target, term, prob.rows_dev, spans, noise_rms, term_columns=X, term_cov=cov)
+    cov = prob.weights_cov(g, blocks, w) * prob.scale ** 2       # fit = [A, C] scale @ w: the blocks as they are
+    return drift_in_holds(target, term, prob.rows_dev, spans, noise_rms, term_columns=(prob.A, g["C"]), term_cov=cov)
 
 
 def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
@@ -1118,7 +1120,7 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
         if tag[0] != "drift":
             continue
         if spans is None or not len(spans):     # the veto is off: say so in the candidate's JSON
-            row["holds"] = {"holds": 0, "gain": float("nan"), "se": float("inf"), "shows": None,
+            row["holds"] = {"holds": 0, "gain": float("nan"), "se": float("inf"), "se_noise": float("inf"), "se_term": float("inf"), "shows": None,
                             "note": NO_HOLDS_NOTE}
             continue
         prob = probs[row["key"]]
