@@ -770,8 +770,7 @@ class CreepSpectrum(Effect):
     With ``loop`` (a :class:`~workbench.calibrate.creep_across.CreepLoop`: the base's terminal voltage,
     the channel's ``a`` and plays) the branches are driven as the plant's are, by the voltage across
     C_h with the creep's own pull-back (:func:`~workbench.calibrate.creep_across.creep_drive`, solved
-    in :meth:`fit` on the rows given), ``u = V_h``, and one more column, the base model's response to
-    that pull-back (the backswing, gain >= 0; ``params["backswing"]``). The drive is kept on the
+    in :meth:`fit` on the rows given), ``u = V_h`` (``params["driver"] = "v_h"``). The drive is kept on the
     instance: :meth:`columns` returns the same columns whatever ``u`` (another channel reading the same
     stack scales them by its own gains). ``V_h`` enters scaled to the base model's units (its least-squares
     multiple on the rows fitted), so the gains keep the plain spectrum's meaning, fractions of the
@@ -787,7 +786,7 @@ class CreepSpectrum(Effect):
         self.taus_s = None if taus_s is None else np.asarray(taus_s, float)
         self.per_decade = int(per_decade)
         self.loop = loop
-        self._drive = None            # (v_h, backswing) of the last fit with ``loop``
+        self._drive = None            # V_h (scaled) of the last fit with ``loop``
 
     def _taus(self, t):
         if self.taus_s is not None:
@@ -800,10 +799,6 @@ class CreepSpectrum(Effect):
     @staticmethod
     def _columns(u, taus, dt):
         return np.column_stack([lowpass(u, tau, dt) - u for tau in taus])
-
-    def _drive_columns(self, taus, dt):
-        v_h, swing = self._drive
-        return np.column_stack([self._columns(v_h, taus, dt), swing])
 
     def _nnls(self, X, residual, mask, project):
         from scipy.optimize import nnls
@@ -824,39 +819,31 @@ class CreepSpectrum(Effect):
             return {"gains": gains.tolist(), "taus_s": taus.tolist()}
         from .creep_across import creep_drive
         y_model = np.asarray(y_model, float)
-        v_h, swing = creep_drive(self.loop, np.asarray(residual, float) + y_model, taus, _dt(t), mask)
+        v_h = creep_drive(self.loop, np.asarray(residual, float) + y_model, taus, _dt(t), mask)
         # V_h in the base model's units (its least-squares multiple on the rows): gains as the plain spectrum's
         vm = v_h[mask] - v_h[mask].mean()
         s = float(vm @ (y_model[mask] - y_model[mask].mean()) / (vm @ vm)) if vm @ vm > 0 else 1.0
-        self._drive = (s * v_h, swing)
-        gains = self._nnls(self._drive_columns(taus, _dt(t)), residual, mask, project)
-        self.n_params = max(1, int(np.count_nonzero(gains[:-1])) + int(gains[-1] > 0))
-        return {"gains": gains[:-1].tolist(), "taus_s": taus.tolist(), "backswing": float(gains[-1]),
-                "driver": "v_h"}
+        self._drive = s * v_h
+        gains = self._nnls(self._columns(self._drive, taus, _dt(t)), residual, mask, project)
+        self.n_params = max(1, int(np.count_nonzero(gains)))
+        return {"gains": gains.tolist(), "taus_s": taus.tolist(), "driver": "v_h"}
 
     def _uses_drive(self, params):
         return params.get("driver") == "v_h" and self._drive is not None
 
     def term(self, t, u, params, y_model=None):
         X, _ = self.columns(t, u, params, y_model)
-        g = np.asarray(params["gains"], float)
-        if self._uses_drive(params):
-            g = np.r_[g, params["backswing"]]
-        return X @ g
+        return X @ np.asarray(params["gains"], float)
 
     def columns(self, t, u, params, y_model=None):
         """The branches as columns and their lower bounds (0: creep follows the step)."""
         taus = np.asarray(params["taus_s"], float)
         if self._uses_drive(params):
-            return self._drive_columns(taus, _dt(t)), np.zeros(taus.size + 1)
+            u = self._drive
         return self._columns(np.asarray(u, float), taus, _dt(t)), np.zeros(taus.size)
 
     def with_gains(self, params, gains):
-        g = np.maximum(np.asarray(gains, float), 0.0)
-        k = len(params["taus_s"])
-        if params.get("driver") == "v_h" and g.size > k:
-            return {**params, "gains": g[:k].tolist(), "backswing": float(g[k])}
-        return {**params, "gains": g[:k].tolist()}
+        return {**params, "gains": np.maximum(np.asarray(gains, float), 0.0).tolist()}
 
 
 class GaugeNonlinearity(Effect):
