@@ -30,19 +30,21 @@ sine, creep 22x + delay) its gain, ~0 on the development rows, left 1.6x the bas
 (the gauge's 5.6e6x): it is not a column.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from .pi_fit import play_matrix
 
 __all__ = ["CreepLoop", "creep_drive", "DRIVE_ITERATIONS"]
 
-#: Fixed-point passes of :func:`creep_drive`: the loop's correction shrinks by the branches' share of the
-#: capacitance per pass, so the first passes carry it; measured on the 1 kHz records (sizes 0.3-20) the
-#: development SSE settles within 6-8 passes (damped by half from the second on: the loop gain of a creep
-#: far larger than C_h exceeds one, and the undamped iteration oscillated at size 20).
+#: Fixed-point passes of :func:`creep_drive` at most: the loop's correction shrinks by the branches' share of
+#: the capacitance per pass, so the first passes carry it; measured on the 1 kHz records (sizes 0.3-20) the
+#: development SSE settles within 6-8 passes (damped by half from the third on: the loop gain of a creep
+#: far larger than C_h exceeds one, and the undamped iteration oscillated at size 20). The passes stop
+#: earlier when one improves the SSE by less than :data:`DRIVE_RTOL` of it (each costs the plays over the
+#: whole record: 0.3-0.6 s at 355,000 rows).
 DRIVE_ITERATIONS = 8
+DRIVE_RTOL = 0.01
 
 
 @dataclass(frozen=True, eq=False)
@@ -58,25 +60,27 @@ class CreepLoop:
         the gauge (``a`` over the gauge's gain, V/m).
     thresholds_v, initial_states_v : ndarray of float
         The channel model's plays (V).
+    shared : dict
+        One dict for every channel of a record: ``V_h`` is the stack's, whichever channel reads it, so the
+        first channel's solve (the displacement's, first in the plan) serves the others and later stages
+        (``shared["v_h"]``).
     """
 
     v_t_v: np.ndarray
     v_per_unit: float
     thresholds_v: np.ndarray
     initial_states_v: np.ndarray
+    shared: dict = field(default_factory=dict)
 
 
-def _lowpass_columns(u, taus, dt):
-    from .effects import lowpass
-    return np.column_stack([lowpass(u, tau, dt) for tau in taus])
-
-
-def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS):
+def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_RTOL):
     """``v_h``: the branches' driver, the voltage across C_h with the creep's pull-back (V).
 
     Fits ``y = PI_w[V_t - a X] + c + X`` (plays >= 0, ``X = sum_j g_j lowpass_j(V_h)``, ``g_j >= 0``) on
     ``rows`` by bounded least squares, ``V_h = V_t - a (PI_w[V_t - a X] + X)`` from the previous pass's fit
-    (half the new one mixed in from the second pass), and keeps the pass of the lowest SSE on ``rows``.
+    (half the new one mixed in from the third pass), and keeps the pass of the lowest SSE on ``rows``; stops
+    when a pass improves it by less than ``rtol`` of it. Solved once per record: a later call (another
+    channel, a later stage) returns ``loop.shared["v_h"]``.
 
     Parameters
     ----------
@@ -97,41 +101,60 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS):
         The voltage across C_h, V, over the whole record.
     """
     from .base_fit import _gram_solve
+    if "v_h" in loop.shared:
+        return loop.shared["v_h"]
+    from ..plant.hysteresis import PrandtlIshlinskii
+    from .effects import lowpass
+    from .kernels import plays_rows
     vt = np.asarray(loop.v_t_v, float)
     a = float(loop.v_per_unit)
     th, z0 = np.asarray(loop.thresholds_v, float), np.asarray(loop.initial_states_v, float)
     taus = np.asarray(taus_s, float)
     idx = np.flatnonzero(rows)
     y_r = np.asarray(y, float)[idx]
-    P_t = play_matrix(vt, th, z0)
     n_p = th.size
     lower = np.r_[np.zeros(n_p), -np.inf, np.zeros(taus.size)]
-    fit = None                    # the previous pass's plays and creep (channel units, no offset)
-    g = np.zeros(taus.size)
-    best = None
-    for k in range(int(n_iter)):
-        if fit is None:
-            P, L = P_t, None
-            X = np.column_stack([P_t, np.ones(vt.size)])
-            G = X[idx]
-            beta = _gram_solve(G.T @ G, G.T @ y_r, lower[:n_p + 1])
-            w = beta[:n_p]
-            fit = P_t @ w
-            continue
-        v_h = vt - a * fit
-        L = _lowpass_columns(v_h, taus, dt)
-        P = play_matrix(vt - a * (L @ g), th, z0)
-        Z = np.column_stack([P[idx], np.ones(idx.size), L[idx]])
+
+    def pi(u, w):                 # the weighted plays over the whole record (one compiled pass)
+        return PrandtlIshlinskii(th, w, z0, check_invertible=False)(u)
+
+    def solve(Z, low):
         nrm = np.sqrt(np.mean(Z * Z, axis=0))
         nrm[nrm == 0] = 1.0
         Zs = Z / nrm
-        beta = _gram_solve(Zs.T @ Zs, Zs.T @ y_r, lower * nrm) / nrm
-        w, g = beta[:n_p], beta[n_p + 1:]
+        return _gram_solve(Zs.T @ Zs, Zs.T @ y_r, low * nrm) / nrm
+
+    # the plays alone first: the base's model on these rows
+    P_r = plays_rows(vt, th, z0, idx)
+    w = solve(np.column_stack([P_r, np.ones(idx.size)]), lower[:n_p + 1])[:n_p]
+    fit = pi(vt, w)               # the previous pass's plays and creep (channel units, no offset)
+    g = np.zeros(taus.size)
+    best = None
+    for k in range(1, int(n_iter)):
+        v_h = vt - a * fit
+        L_r = np.empty((idx.size, taus.size))
+        x_c = np.zeros(vt.size)
+        for j, tau in enumerate(taus):
+            col = lowpass(v_h, tau, dt)
+            L_r[:, j] = col[idx]
+            if g[j] > 0:
+                x_c += g[j] * col
+        u = vt - a * x_c
+        if g.any():
+            P_r = plays_rows(u, th, z0, idx)
+        Z = np.column_stack([P_r, np.ones(idx.size), L_r])
+        beta = solve(Z, lower)
+        g_new = beta[n_p + 1:]
         sse = float(np.sum((y_r - Z @ beta) ** 2))
+        stop = best is not None and sse > (1.0 - rtol) * best[0]
         if best is None or sse < best[0]:
             best = (sse, v_h)
-        new = P @ w + L @ g
+        if stop or k == int(n_iter) - 1:
+            break
+        # this pass's creep over the whole record, on this pass's drive
+        x_new = sum(gj * lowpass(v_h, tau, dt) for gj, tau in zip(g_new, taus) if gj > 0)
+        new = pi(u, beta[:n_p]) + x_new
         fit = new if k < 2 else 0.5 * (fit + new)
-    if best is None:
-        return vt - a * fit
-    return best[1]
+        g = g_new
+    loop.shared["v_h"] = vt - a * fit if best is None else best[1]
+    return loop.shared["v_h"]

@@ -192,12 +192,12 @@ def creep_loops(base):
     scale = {"displacement": 1.0}
     if base.gauge_gain_v_per_m:
         scale["gauge"] = 1.0 / float(base.gauge_gain_v_per_m)
-    out = {}
+    out, shared = {}, {}
     for ch, k in scale.items():
         if ch in base.channels:
             m = base.channels[ch]
             out[ch] = CreepLoop(base.v_drive, a * k, np.asarray(m.thresholds_v, float),
-                                np.asarray(m.initial_states_v, float))
+                                np.asarray(m.initial_states_v, float), shared)
     return out
 
 
