@@ -60,16 +60,24 @@ class CreepLoop:
         the gauge (``a`` over the gauge's gain, V/m).
     thresholds_v, initial_states_v : ndarray of float
         The channel model's plays (V).
+    y : ndarray of float, optional
+        The channel's recorded values (its units): what the drive is solved against when this channel is
+        the record's source (``shared["source"]``).
+    valid : ndarray of bool, optional
+        The channel's valid rows.
     shared : dict
-        One dict for every channel of a record: ``V_h`` is the stack's, whichever channel reads it, so the
-        first channel's solve (the displacement's, first in the plan) serves the others and later stages
-        (``shared["v_h"]``).
+        One dict for every channel of a record: ``V_h`` is the stack's, whichever channel reads it, so one
+        solve serves every channel and later stage (``shared["v_h"]``), made on ``shared["source"]`` (the
+        gauge's loop when the record has one, :func:`~workbench.calibrate.tracing.creep_loops`), else on the
+        calling channel's.
     """
 
     v_t_v: np.ndarray
     v_per_unit: float
     thresholds_v: np.ndarray
     initial_states_v: np.ndarray
+    y: np.ndarray = None
+    valid: np.ndarray = None
     shared: dict = field(default_factory=dict)
 
 
@@ -103,6 +111,13 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
     from .base_fit import _gram_solve
     if "v_h" in loop.shared:
         return loop.shared["v_h"]
+    src = loop.shared.get("source", loop)
+    if src is not loop and src.y is not None:
+        # the stack's V_h from the channel that reads the stack itself (the gauge): a displacement sensor's
+        # own delay or drift is no part of it
+        y = src.y
+        rows = np.asarray(rows, bool) & (np.ones(len(y), bool) if src.valid is None else np.asarray(src.valid, bool))
+        loop = src
     from ..plant.hysteresis import PrandtlIshlinskii
     from .effects import lowpass
     from .kernels import plays_rows

@@ -183,8 +183,10 @@ def creep_loops(base):
     """Per channel reading the stack's motion, what its creep branches' driver needs (:mod:`.creep_across`).
 
     The displacement's ``a = k_p / T_em`` (V/m, the declared PZT's: :attr:`BaseFit.stack_v_per_m`); the
-    gauge's ``a`` over its gain against the displacement (V/V). Empty without a declared PZT or when the
-    drive is an amplifier command (its volts are not the stack's)."""
+    gauge's ``a`` over its gain against the displacement (V/V). One ``V_h`` serves every channel, solved on
+    the gauge when the record has one (it reads the stack; a displacement sensor's delay or drift is not the
+    stack's), else on the displacement. Empty without a declared PZT or when the drive is an amplifier
+    command (its volts are not the stack's)."""
     from .creep_across import CreepLoop
     a = getattr(base, "stack_v_per_m", None)
     if not a or getattr(base, "input_kind", "terminal") != "terminal":
@@ -197,7 +199,10 @@ def creep_loops(base):
         if ch in base.channels:
             m = base.channels[ch]
             out[ch] = CreepLoop(base.v_drive, a * k, np.asarray(m.thresholds_v, float),
-                                np.asarray(m.initial_states_v, float), shared)
+                                np.asarray(m.initial_states_v, float), m.y, m.valid, shared)
+    if "gauge" in out:
+        # the gauge reads the stack; the displacement sensor may add its own delay or drift (not the stack's)
+        shared["source"] = out["gauge"]
     return out
 
 
