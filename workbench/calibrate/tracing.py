@@ -1284,7 +1284,12 @@ def _core_fit(same, base):
     if at != gains.size:       # the columns are not the same-channel stages' alone: keep each stage's own
         params = [s["parameters"] for s in same]
     ch = last["channel"]
+    # the creep's driver when its branches are driven by V_h (:mod:`.creep_across`; its gains are of that
+    # drive's columns, not of the base model's): plant_update rebuilds the fitted model with it
+    drives = [s["_cand"]["eff"]._drive for s in same
+              if s["effect"] == "creep" and getattr(s["_cand"]["eff"], "_drive", None) is not None]
     return {"channel": ch, "weights": np.asarray(w[:-1], float),
+            "creep_drive": drives[0] if drives else None,
             "thresholds_v": np.asarray(base.channels[ch].thresholds_v, float),
             "initial_states_v": np.asarray(base.channels[ch].initial_states_v, float),
             "stages": [{"effect": s["effect"], "channel": s["channel"], "parameters": p} for s, p in zip(same, params)]}
