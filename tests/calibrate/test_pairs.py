@@ -131,25 +131,18 @@ def test_drawn_1khz_creep_and_delay_name_both_where_every_fold_tells_them_apart(
     assert all(r["both"] for r in sep), [(r["protocol"], r["size"], r["named"]) for r in sep]
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "confusion seed 47 #9 (1 kHz calibration, creep 21.5x, a 1.56 ms delay 6.1x on its own record): the "
-    "delay stands 5.5-16.9x beyond creep on every fold, but on fold 4 creep's form (with the delay) leaves "
-    "14.7x the floor, and the delay explains 23 % of what creep leaves there (the tracing's joint candidate "
-    "22 %), under MIN_SHARE 0.3: found, passes 4 of 5 folds, and a later stage that won no first-stage "
-    "fold needs every fold. The miss is creep's form's misfit, not the delay's search"))
 def test_a_1khz_delay_behind_a_large_creep_is_named_where_creeps_form_leaves_much(sn637):
+    """Confusion seed 47 #9 (1 kHz calibration, creep 21.5x, a 1.56 ms delay 6.1x on its own record): the
+    delay stands 5.5-16.9x beyond creep on every fold (the benchmark's measure, with the model-driven creep
+    spectrum), but that spectrum left 14.7x the floor on fold 4, of which the delay explained 23 %, under
+    MIN_SHARE: creep alone (session 16, a strict xfail here). With the branches driven by the voltage across
+    C_h (:mod:`workbench.calibrate.creep_across`, session 17) creep's first stage leaves 0.18 of the record's
+    error (0.33 before) and the delay's later stage passes every fold: both, MIN_SHARE unchanged."""
     cc = _bench()
     e, rate, proto, size, seed = cc.cases(1, 47)[8]
     assert (e, rate, proto) == (("creep", "delay"), 1e3, "calibration")
     r = cc.evaluate(sn637, e, rate, proto, size, seed)
     print(f"\n47 #9: beyond {np.round(r['beyond'], 2)} on every fold {np.round(r['beyond_folds'], 2)} "
-          f"share {np.round(r['share_folds'], 2)} -> {r['named']}")
-    # the stated cause, checked first and outside the expected failure (pytest.fail is no AssertionError,
-    # so a changed cause fails the test instead of passing as the expected failure): the pair told apart on
-    # every fold, the delay's least share under MIN_SHARE, creep named alone
-    if not (min(r["beyond_folds"]) >= 3.0 and min(r["share_folds"]) < MIN_SHARE
-            and r["share_folds"][1] < MIN_SHARE and r["named"] == ["creep"]):
-        pytest.fail(f"47 #9's stated cause no longer holds: on every fold {r['beyond_folds']}, share "
-                    f"{r['share_folds']}, named {r['named']}")
+          f"share {np.round(r['share_folds'], 2)} -> {r['named']} first {r['ratio_first']:.3f}")
     assert r["class"] == "right"
     assert r["both"]

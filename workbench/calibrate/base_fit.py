@@ -112,6 +112,9 @@ class BaseFit:
     test: np.ndarray = None           # held-out rows (default: every row not trained on)
     k_q2x_m_per_c: float | None = None
     working_capacitance_f: float | None = None
+    #: k_p / T_em of the declared PZT (V/m): V_h = V_t - a x (eqs. 9-12), the creep branches' driver
+    #: (:mod:`.creep_across`); None without a declared PZT
+    stack_v_per_m: float | None = None
     gauge_gain_v_per_m: float | None = None
     gauge_offset_v: float | None = None
     notes: list = field(default_factory=list)
@@ -582,6 +585,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         if pzt is not None:
             tem, kp = pzt.transducer_constant_n_per_v, pzt.stiffness_n_per_m
             fit.working_capacitance_f = float((tem - tem * tem * k) / (kp * k))     # eq. 12
+    if pzt is not None and pzt.transducer_constant_n_per_v > 0:
+        fit.stack_v_per_m = float(pzt.stiffness_n_per_m / pzt.transducer_constant_n_per_v)
     if "gauge" in outputs and "displacement" in outputs:
         rows = train & valid["gauge"]
         # an averaged gauge reads the motion's interval mean: its line is against that mean

@@ -292,9 +292,11 @@ def creep_target(base, core_fit, core, params):
     P = np.asarray(base.basis, float)[:, :-1]
     u0 = np.asarray(base.channels[core["channel"]].yhat, float)
     out = P @ (np.asarray(core_fit["weights"], float) - np.asarray(core["instant"], float))
+    from .plant_update import creep_driver
+    u = creep_driver(core_fit, params, u0)
     for c, tau in zip(params["gains"], params["taus_s"]):
         if c > 0:
-            out = out + c * (lowpass(u0, tau, dt) - u0)
+            out = out + c * (lowpass(u, tau, dt) - u)
     return out
 
 

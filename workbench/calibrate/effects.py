@@ -766,15 +766,27 @@ class CreepSpectrum(Effect):
     this sign constraint is what keeps the spectrum from fitting arbitrary slow residuals.
     Same name as :class:`Creep` (it is the same effect); ``n_params`` counts the branches that
     came out non-zero.
+
+    With ``loop`` (a :class:`~workbench.calibrate.creep_across.CreepLoop`: the base's terminal voltage,
+    the channel's ``a`` and plays) the branches are driven as the plant's are, by the voltage across
+    C_h with the creep's own pull-back (:func:`~workbench.calibrate.creep_across.creep_drive`, solved
+    in :meth:`fit` on the rows given), ``u = V_h`` (``params["driver"] = "v_h"``). The drive is kept on the
+    instance: :meth:`columns` returns the same columns whatever ``u`` (another channel reading the same
+    stack scales them by its own gains). ``V_h`` enters scaled to the base model's units (its least-squares
+    multiple on the rows fitted), so the gains keep the plain spectrum's meaning, fractions of the
+    driver, which the written plant's branches are sized from (:mod:`.plant_update`, which rebuilds the
+    creep on the base model: an approximation of the driven form).
     """
 
     name = "creep"
     channels = MECHANICAL + CHARGE
     n_params = 2
 
-    def __init__(self, taus_s=None, per_decade=2):
+    def __init__(self, taus_s=None, per_decade=2, loop=None):
         self.taus_s = None if taus_s is None else np.asarray(taus_s, float)
         self.per_decade = int(per_decade)
+        self.loop = loop
+        self._drive = None            # V_h (scaled) of the last fit with ``loop``
 
     def _taus(self, t):
         if self.taus_s is not None:
@@ -788,25 +800,46 @@ class CreepSpectrum(Effect):
     def _columns(u, taus, dt):
         return np.column_stack([lowpass(u, tau, dt) - u for tau in taus])
 
-    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
+    def _nnls(self, X, residual, mask, project):
         from scipy.optimize import nnls
-        taus = self._taus(np.asarray(t, float))
-        mask = np.asarray(train_mask, bool)
-        X = _rows(self._columns(np.asarray(u, float), taus, _dt(t)), mask, project)
+        X = _rows(X, mask, project)
         scale = np.sqrt(np.mean(X * X, axis=0))
         scale[scale == 0] = 1.0
         gains, _ = nnls(X / scale, _rows(residual, mask, project))
-        gains = gains / scale
+        return gains / scale
+
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None):
+        t = np.asarray(t, float)
+        taus = self._taus(t)
+        mask = np.asarray(train_mask, bool)
+        if self.loop is None or y_model is None:
+            self._drive = None
+            gains = self._nnls(self._columns(np.asarray(u, float), taus, _dt(t)), residual, mask, project)
+            self.n_params = max(1, int(np.count_nonzero(gains)))
+            return {"gains": gains.tolist(), "taus_s": taus.tolist()}
+        from .creep_across import creep_drive
+        y_model = np.asarray(y_model, float)
+        v_h = creep_drive(self.loop, np.asarray(residual, float) + y_model, taus, _dt(t), mask)
+        # V_h in the base model's units (its least-squares multiple on the rows): gains as the plain spectrum's
+        vm = v_h[mask] - v_h[mask].mean()
+        s = float(vm @ (y_model[mask] - y_model[mask].mean()) / (vm @ vm)) if vm @ vm > 0 else 1.0
+        self._drive = s * v_h
+        gains = self._nnls(self._columns(self._drive, taus, _dt(t)), residual, mask, project)
         self.n_params = max(1, int(np.count_nonzero(gains)))
-        return {"gains": gains.tolist(), "taus_s": taus.tolist()}
+        return {"gains": gains.tolist(), "taus_s": taus.tolist(), "driver": "v_h"}
+
+    def _uses_drive(self, params):
+        return params.get("driver") == "v_h" and self._drive is not None
 
     def term(self, t, u, params, y_model=None):
-        X = self._columns(np.asarray(u, float), np.asarray(params["taus_s"], float), _dt(t))
+        X, _ = self.columns(t, u, params, y_model)
         return X @ np.asarray(params["gains"], float)
 
     def columns(self, t, u, params, y_model=None):
         """The branches as columns and their lower bounds (0: creep follows the step)."""
         taus = np.asarray(params["taus_s"], float)
+        if self._uses_drive(params):
+            u = self._drive
         return self._columns(np.asarray(u, float), taus, _dt(t)), np.zeros(taus.size)
 
     def with_gains(self, params, gains):

@@ -14,7 +14,7 @@ bit for bit (``tests/calibrate/test_speed_equivalence.py``). ``rows`` must be st
 import numpy as np
 from numba import njit
 
-__all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows"]
+__all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows", "plays_rows"]
 
 
 @njit(cache=True)
@@ -151,3 +151,37 @@ def lowpass_rows(u, tau, dt, rows, minus_input=False):
     a = float(np.exp(-dt / tau))
     return _lowpass(np.ascontiguousarray(u, dtype=float), a, bool(minus_input),
                     np.ascontiguousarray(rows, dtype=np.int64))
+
+
+@njit(cache=True)
+def _plays_rows(v, r, z0, rows):
+    n_p = r.size
+    out = np.empty((rows.size, n_p))
+    z = z0.copy()
+    k = 0
+    n_rows = rows.size
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = v[i]
+        for j in range(n_p):
+            lo = x - r[j]
+            hi = x + r[j]
+            if z[j] < lo:
+                z[j] = lo
+            elif z[j] > hi:
+                z[j] = hi
+        if k < n_rows and rows[k] == i:
+            for j in range(n_p):
+                out[k, j] = z[j]
+            k += 1
+    return out
+
+
+def plays_rows(v, thresholds, initial_states, rows):
+    """``pi_fit.play_matrix(v, thresholds, initial_states)[rows]`` without the full-length matrix.
+
+    Each play's update is ``plant.hysteresis.play_step``'s (clamp to ``[v - r, v + r]``): the same values.
+    ``rows`` strictly increasing (``numpy.flatnonzero`` of a mask).
+    """
+    return _plays_rows(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(thresholds, dtype=float),
+                       np.ascontiguousarray(initial_states, dtype=float), np.ascontiguousarray(rows, dtype=np.int64))

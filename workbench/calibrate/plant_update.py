@@ -417,6 +417,13 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
     return best_d if best_c < stage else float(delay_s)
 
 
+def creep_driver(core_fit, params, u0):
+    """What a creep stage's branches were driven by: ``core_fit["creep_drive"]`` (V_h in the model's units,
+    :mod:`.creep_across`) when its parameters say ``driver: v_h``, else the base model's prediction ``u0``."""
+    drive = (core_fit or {}).get("creep_drive")
+    return np.asarray(drive, float) if params.get("driver") == "v_h" and drive is not None else u0
+
+
 def _fitted_motion(base, core_fit, rows, terms=None):
     """A model of the displacement fitted on the development ``rows``, m, every sample: what stands in for the
     record off those rows in :func:`~workbench.calibrate.core_refit.direct_core_and_branches`.
@@ -437,9 +444,10 @@ def _fitted_motion(base, core_fit, rows, terms=None):
     for st in core_fit.get("stages", ()):
         p = st["parameters"]
         if st["effect"] == "creep":
+            u = creep_driver(core_fit, p, u0)
             for c, tau in zip(p["gains"], p["taus_s"]):
                 if c > 0:
-                    x = x + c * (lowpass(u0, tau, dt) - u0)
+                    x = x + c * (lowpass(u, tau, dt) - u)
         elif st["effect"] == "delay":
             shift = float(p["delay_s"])
             gain = float(p.get("scale", 1.0)) * (np.interp(t - shift, t, u0) - u0)

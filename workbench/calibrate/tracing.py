@@ -90,7 +90,7 @@ from .effects import (SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift
                       Resonance)
 from .pi_fit import rms, turning_points
 
-__all__ = ["trace_effect", "candidate_plan", "noise_floor", "SEARCH_ROWS"]
+__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
@@ -112,7 +112,7 @@ def excitation_period_s(t, v):
     return float(2.0 * np.median(np.diff(np.asarray(t)[tp])))
 
 
-def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
+def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None):
     """(channel, effect, driver) triples for the recorded ``channels`` (see the module notes).
 
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
@@ -123,7 +123,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     slow periodic term from twice the record's length down to four excitation periods (at most
     ten per record). With ``basis`` (the base's columns of the drive, or a dict of them per
     channel) the delay's model is refitted at each trial delay
-    (:class:`~workbench.calibrate.effects.Delay`).
+    (:class:`~workbench.calibrate.effects.Delay`). With ``loops`` (channel -> :class:`.creep_across.CreepLoop`,
+    :func:`creep_loops`) a channel's creep branches are driven by the voltage across C_h.
     """
     def _basis(ch):      # a channel's own columns (an averaged gauge's are its plays' interval mean)
         return basis.get(ch) if isinstance(basis, dict) else basis
@@ -147,13 +148,13 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
     hi = np.log10(100.0 * dur)
     taus = 10.0 ** np.arange(np.log10(tau_min_s), max(hi, np.log10(tau_min_s)) + 1e-9, 0.5)
 
-    def CreepSpectrum():                       # noqa: N802 (the effect, with the record's branches)
-        return _CreepSpectrum(taus_s=taus)
+    def CreepSpectrum(ch):                     # noqa: N802 (the effect, with the record's branches)
+        return _CreepSpectrum(taus_s=taus, loop=(loops or {}).get(ch))
 
     plan = []
     has_x = "displacement" in channels
     if "displacement" in channels:
-        plan += [("displacement", CreepSpectrum(), "model"), ("displacement", Resonance(), "model"),
+        plan += [("displacement", CreepSpectrum("displacement"), "model"), ("displacement", Resonance(), "model"),
                  ("displacement", Delay(max_delay=max_delay, basis=_basis("displacement"), max_lead=max_lead),
                   "model"),
                  ("displacement", Drift(), "time"),
@@ -167,15 +168,42 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None):
         plan += [("charge", DielectricAbsorption(tau_max_fraction=100.0), "voltage"),
                  ("charge", Leakage(), "voltage")]
         if not has_x:
-            plan.append(("charge", CreepSpectrum(), "model"))
+            plan.append(("charge", CreepSpectrum("charge"), "model"))
     if "gauge" in channels:
-        plan += [("gauge", CreepSpectrum(), "model"), ("gauge", Resonance(), "model"),
+        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(), "model"),
                  ("gauge", Delay(max_delay=max_delay, basis=_basis("gauge"), max_lead=max_lead), "model"),
                  ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
         if has_x:
             plan.append(("gauge", GaugeNonlinearity(), "displacement"))
     return plan
+
+
+def creep_loops(base):
+    """Per channel reading the stack's motion, what its creep branches' driver needs (:mod:`.creep_across`).
+
+    The displacement's ``a = k_p / T_em`` (V/m, the declared PZT's: :attr:`BaseFit.stack_v_per_m`); the
+    gauge's ``a`` over its gain against the displacement (V/V). One ``V_h`` serves every channel, solved on
+    the gauge when the record has one (it reads the stack; a displacement sensor's delay or drift is not the
+    stack's), else on the displacement. Empty without a declared PZT or when the drive is an amplifier
+    command (its volts are not the stack's)."""
+    from .creep_across import CreepLoop
+    a = getattr(base, "stack_v_per_m", None)
+    if not a or getattr(base, "input_kind", "terminal") != "terminal":
+        return {}
+    scale = {"displacement": 1.0}
+    if base.gauge_gain_v_per_m:
+        scale["gauge"] = 1.0 / float(base.gauge_gain_v_per_m)
+    out, shared = {}, {}
+    for ch, k in scale.items():
+        if ch in base.channels:
+            m = base.channels[ch]
+            out[ch] = CreepLoop(base.v_drive, a * k, np.asarray(m.thresholds_v, float),
+                                np.asarray(m.initial_states_v, float), m.y, m.valid, shared)
+    if "gauge" in out:
+        # the gauge reads the stack; the displacement sensor may add its own delay or drift (not the stack's)
+        shared["source"] = out["gauge"]
+    return out
 
 
 def noise_floor(e):
@@ -577,7 +605,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     need = int(np.ceil(0.8 * n_folds)) if agree is None else int(agree)
     # each channel's own columns: an averaged gauge's model spans its plays' interval mean (review of s14_ends)
     bases = {ch: base.channel_basis(ch) for ch in base.channels}
-    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=bases)
+    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=bases, loops=creep_loops(base))
     rng = np.random.default_rng(seed)
     dev_rows = split.train
 
@@ -1336,7 +1364,12 @@ def _core_fit(same, base):
     if at != gains.size:       # the columns are not the same-channel stages' alone: keep each stage's own
         params = [s["parameters"] for s in same]
     ch = last["channel"]
+    # the creep's driver when its branches are driven by V_h (:mod:`.creep_across`; its gains are of that
+    # drive's columns, not of the base model's): plant_update rebuilds the fitted model with it
+    drives = [s["_cand"]["eff"]._drive for s in same
+              if s["effect"] == "creep" and getattr(s["_cand"]["eff"], "_drive", None) is not None]
     return {"channel": ch, "weights": np.asarray(w[:-1], float),
+            "creep_drive": drives[0] if drives else None,
             "thresholds_v": np.asarray(base.channels[ch].thresholds_v, float),
             "initial_states_v": np.asarray(base.channels[ch].initial_states_v, float),
             "stages": [{"effect": s["effect"], "channel": s["channel"], "parameters": p} for s, p in zip(same, params)]}
