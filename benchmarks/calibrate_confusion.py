@@ -139,6 +139,9 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
     # the tool's own warning bar (base_fit.LINE_MARGIN): not *clearly* better than the line
     near_line = {ch: (err, base.channels[ch].line_rms_test) for ch, err in final.items()
                  if ch in base.channels and err > LINE_MARGIN * base.channels[ch].line_rms_test}
+    # channels whose end model lost to the line on the validation folds report the line (tracing._line_fallback):
+    # never above it by construction, so counted apart (review of s17_mhz)
+    line_swaps = sorted(ch for ch, c in res["channels"].items() if c.get("line"))
     named = [s["effect"] for s in res.get("stages", [])]
     if not named:
         cls = "none"
@@ -152,7 +155,7 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
             "excess": excess, "answer": res["effect"], "named": named, "agreement": res.get("agreement"),
             "class": cls, "ratio": ratio, "ratio_first": first, "both": len(effects) > 1 and set(effects) <= set(named),
             "excesses": own or xs, "beyond": beyond, "beyond_folds": folds_beyond, "share_folds": folds_share,
-            "trace_s": elapsed, "truth": truth, "above_line": above_line, "near_line": near_line, "fold_winners": res.get("fold_winners"),
+            "trace_s": elapsed, "truth": truth, "above_line": above_line, "near_line": near_line, "line_swaps": line_swaps, "fold_winners": res.get("fold_winners"),
             "top": [(c["name"], c["channel"], round(c["score"], 3), c["passes"]) for c in res["candidates"][:4]]}
 
 
@@ -453,6 +456,7 @@ def summarize(rows):
             "right_big": right_big, "right_big_rate": right_big / max(len(big), 1), "halved_big": halved,
             "above_line": sum(bool(r.get("above_line")) for r in rows),
             "near_line": sum(bool(r.get("near_line")) for r in rows),
+            "line_swaps": sum(bool(r.get("line_swaps")) for r in rows),
             "crashed": sum(r["class"] == "crash" for r in rows),
             "big_sep": len(sep), "right_big_sep": sum(r["class"] == "right" for r in sep),
             "big_twin": sum(1 for r in big if r.get("beyond")),
@@ -506,6 +510,7 @@ def main(argv=None):
               f"size x{size:7.3f} excess {r['excess']:8.2f} -> {r['answer']:22s} {str(r['agreement']):7s} "
               f"stages {r['named']} {r['class']:5s} ratio {r['ratio']:.2f} ({r['trace_s']:.1f} s)"
               + "".join(f" ABOVE LINE {ch} {x:.3g} > {ln:.3g}" for ch, (x, ln) in r["above_line"].items())
+              + "".join(f" LINE {ch}" for ch in r.get("line_swaps", ()))
               + (f" own sizes {np.round(r['excesses'], 2).tolist()} both {r['both']} first {r['ratio_first']:.2f}"
                  f" beyond the other {np.round(r['beyond'], 2).tolist()}"
                  f" on every fold {np.round(r['beyond_folds'], 2).tolist()} share {np.round(r['share_folds'], 2).tolist()}"
@@ -520,7 +525,9 @@ def main(argv=None):
           f"({100 * head['wrong_rate']:.1f} %; of them crashed: {head['crashed']}); "
           f"right at size >= 3: {head['right_big']} of {head['big']} ({100 * head['right_big_rate']:.0f} %), "
           f"halved: {head['halved_big']}; held-out error above a straight line's: {head['above_line']} records, "
-          f"above {LINE_MARGIN:g}x the line (the tool's own warning): {head['near_line']} records")
+          f"above {LINE_MARGIN:g}x the line (the tool's own warning): {head['near_line']} records; "
+          f"records with a channel reporting the line (its model no better on the validation folds): "
+          f"{head['line_swaps']}")
     if head["big_twin"]:
         print(f"right at size >= 3 and >= 3x beyond the twin or the other (told apart on the record): "
               f"{head['right_big_sep']} of {head['big_sep']} ({100 * head['right_big_sep'] / max(head['big_sep'], 1):.0f} %); "

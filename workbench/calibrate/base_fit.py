@@ -530,8 +530,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         label = ("amplifier command" + (f" through a {x:.4g} s first-order lag" if kind == "lag" else
                                         f" delayed {x:.4g} s" if kind == "delay" else ", no lag"))
         notes.append(f"driven by the {label} (best of {len(drives)} lags and delays on the training rows)")
-    elif len(drives) > 1:
-        notes.append(f"driven by the {label} (fits {first} better on the training rows than the other reading)")
+    elif len(drives) > 1 and judge is not None:     # judge None: V - R i stood by default, said above
+        notes.append(f"driven by the {label} (fits the {judge} better on the training rows than the other reading)")
     r, P = r_all[keep], P[:, keep]
     z0 = _z0(vd, r, from_rest, input_kind)
     if not keep.all():

@@ -165,7 +165,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "series_resistor_ohm": resistance,
             # the channels' error_after is the tracing model's (the file's replay is the top-level error_after
             # when error_after_source is "updated plant"): each says so (review of s15_rt)
-            "channels": {name: ({**err, "error_after_source": "tracing model"} if "error_after" in err else err)
+            "channels": {name: ({**err, "error_after_source": ("straight line of the drive (the tracing model is no "
+                                                                "better on the validation folds)" if err.get("line")
+                                                                else "tracing model")}
+                                 if "error_after" in err else err)
                          for name, err in (result["channels"] or {}).items()},
             "k_q2x_m_per_c": base.k_q2x_m_per_c, "working_capacitance_f": base.working_capacitance_f,
             "gauge_gain_v_per_m": base.gauge_gain_v_per_m, "gauge_offset_v": base.gauge_offset_v,

@@ -197,6 +197,8 @@ def _error_table(base, result):
                 note.append(f"The {name}'s 'after' is the written plant file's replay on the test rows, and its "
                             f"'RMS after / before' that over the tracing's 'before'; the tracing model's own "
                             f"RMS after / before: {r_model:.3f} (review of s15_rt).")
+        if err.get("line") and after is err.get("error_after"):
+            note.append(f"The {name}'s 'after' is a straight line of the drive: {err.get('line_note', '')}.")
         unit = err.get("units", "")
         scale = si_scale(unit, max(abs(float(before.get("max", 0) or 0)), abs(float(after.get("max", 0) or 0))))
         ratio = (float(after["rms"]) / float(before["rms"]) if _finite(after.get("rms")) and _finite(before.get("rms"))
