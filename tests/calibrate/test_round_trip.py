@@ -205,7 +205,7 @@ def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
     true = updated_plant_error(plant, base, ch, sp.test, train=sp.train)
     print(f"\n{effect} {rate:g} Hz {proto} {size:.3g}x: stages {[(s['effect'], s['channel']) for s in res['stages']]}; "
           f"error_after {res['error_after']['rms']:.4g}, updated plant {err['rms']:.4g}, true plant {true['rms']:.4g}")
-    return res, err
+    return res, err, base, sp
 
 
 CREEP_MISS = ("measured 2026-11-26 (s14_rtcreep): a creep+delay record at 1 kHz sine (18.6x, drawn delay 5.8 ms) is "
@@ -220,7 +220,9 @@ JOINT_MISS = ("measured 2026-11-26 (main after s14_creepdelay, s14_rtcreep, s14_
               "calibration (28x) is answered creep then delay (the joint creep + delay model); error_after 5.29e-8 m, "
               "the file (C_h and Kelvin-Voigt branches fitted together to the record, the fitted model's offset, the "
               "delay re-searched) 8.70e-9 m: 0.16x, BELOW by 84 %, outside 10 % (the plant that made the record "
-              "1.46e-9 m): the plant's own form fits the record better than the fitted spectrum; not met")
+              "1.46e-9 m): the plant's own form fits the record better than the fitted spectrum; not met. Session 17: the "
+              "same 8.709e-9 m after the review of s17_creep's fix (the joint's refitted branches keep no V_h driver: "
+              "before it the merged branch wrote 3.53e-8 m, 0.67x, and no test told)")
 _MISSES = {(("creep", "delay"), 1e3, "sine"): CREEP_MISS, (("creep", "delay"), 1e3, "calibration"): JOINT_MISS}
 
 
@@ -230,7 +232,7 @@ _MISSES = {(("creep", "delay"), 1e3, "sine"): CREEP_MISS, (("creep", "delay"), 1
 def test_two_effect_round_trip_reproduces_error_after(sn637, tmp_path, effect, rate, proto, size, seed):
     """Issue 13 item 6 on drawn two-effect records (3-30x): the record's drive simulated through the
     updated plant leaves the fitted model's ``error_after`` within 10 %."""
-    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    res, err, _, _ = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
     assert res["stages"], res["reason"]
     ea = res["error_after"]["rms"]
     assert abs(err["rms"] - ea) <= ROUND_TRIP_TOLERANCE * ea
@@ -239,9 +241,10 @@ def test_two_effect_round_trip_reproduces_error_after(sn637, tmp_path, effect, r
 CREEP_ABOVE = ("measured 2026-11-26 (s17_creep): since the creep branches are driven by V_h (creep_across) the "
                "1 kHz sine creep+delay record's fitted model leaves error_after 5.05e-9 m (2.78e-8 m with the "
                "base-model-driven spectrum) and the written file replays 7.53e-9 m (main's file 4.78e-9 m; 7.86e-9 m "
-               "with the file's fitted-model rebuild on the base model instead of V_h): 1.49x, above by 49 %. The file "
-               "got worse by 1.57x on this record, not diagnosed (the joint core + branches fit reads the tracing's "
-               "creep stage through _fitted_motion's stand-in and the stage's gains)")
+               "with the file's fitted-model rebuild on the base model instead of V_h): 1.49x, above by 49 %. The review "
+               "of s17_creep found most of it: the instant core took the branches' held part as c u0, a V_h-driven "
+               "branch holds c s V_h; with the plays' fit of the drive (core_refit.refitted_core) the file is 5.94e-9 m, "
+               "1.18x (lead, 2026-11-26), still outside 10 %")
 
 
 @pytest.mark.parametrize("effect, rate, proto, size, seed", [
@@ -251,8 +254,17 @@ def test_two_effect_round_trip_is_not_above_error_after(sn637, tmp_path, effect,
     """The one-sided half of the round trip on the creep+delay draws (the two-sided test above is a strict
     xfail on both, the file replaying BELOW error_after): the updated plant leaves at most 10 % more than
     the fitted model's ``error_after``."""
-    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    res, err, base, sp = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
     assert res["stages"], res["reason"]
+    # the plant file's rebuild of the tracing's fitted model (what choose_core and the joint core fit start from)
+    # is that model: on the test rows within 25 % of its error_after (the delay's re-search and the offset
+    # apart). The review of s17_creep: a joint-refitted creep rebuilt on V_h stood at 5x (2.64e-7 m against
+    # 5.29e-8 m) while the file still passed the line below
+    from workbench.calibrate.plant_update import _fitted_motion
+    x, _, _ = _fitted_motion(base, res["core_fit"], sp.train, terms=None)
+    ch = res["channel"] or "displacement"
+    e = (base.channels[ch].y - x)[sp.test & base.channels[ch].valid]
+    assert np.sqrt(np.mean(e * e)) <= 1.25 * res["error_after"]["rms"]
     assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"]
 
 
@@ -375,7 +387,7 @@ def test_a_leakage_named_beside_the_absorption_round_trips(sn637, tmp_path, effe
     fitted model (``core_fit``) takes the refitted absorption and the leak from the last joint fit, and
     the record's drive simulated through the file leaves ``error_after`` within 10 %, both sections
     written (the absorption at its refitted tau)."""
-    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    res, err, _, _ = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
     named = [s["effect"] for s in res["stages"]]
     again = load_plant(tmp_path / "p.toml").additions
     da = next(s for s in res["stages"] if s["effect"] == "dielectric_absorption")
@@ -445,7 +457,7 @@ def test_a_large_creep_beside_a_delay_is_not_written_worse_than_found(sn637, tmp
     delay gain came out 3.75 (2.89x); the delay's bracket search walking off to its far end; the fitted model's
     instant core with no C_h at any creep share (the first draw after s15_gram's R2: reversal slope 1268 F), where
     the declared core dropped the creep (37.9x) and the joint fit now runs from the base's thresholds."""
-    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    res, err, _, _ = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
     assert res["stages"], res["reason"]
     assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"], err["rms"] / res["error_after"]["rms"]
 
@@ -556,7 +568,7 @@ def test_the_written_mode_is_the_plants_mode(sn637, tmp_path, effect, rate, prot
     10 % above the tracing model's test error."""
     cc = load_benchmark("calibrate_confusion")
     _, _, _, _, truth, _ = cc.simulated_base(sn637, effect, rate, proto, size, seed)
-    res, err = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
+    res, err, _, _ = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
     assert res["stages"], res["reason"]
     assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"], err["rms"] / res["error_after"]["rms"]
     if any(st["effect"] == "resonance" for st in res["stages"]):

@@ -256,7 +256,11 @@ def refitted_joint_stage(stages):
             st["refitted"] = (f"refitted beside the creep: delay {refit['delay_s']:.6g} s "
                               f"(alone {alone:.6g} s, its refit taking part of the creep)")
         else:
-            st["parameters"] = {**st["parameters"], "gains": np.maximum(gains[1:], 0.0).tolist(),
-                                "taus_s": list(refit["taus_s"])}
+            # the joint fit's branches are the base model's (delay_beside_creep's columns), whatever drove the
+            # creep found alone: its "driver" goes with it, so the plant file rebuilds them on the model they were
+            # fitted on (review of s17_creep: a V_h-driven rebuild of these gains put a 1 kHz 28x creep + delay
+            # file at 3.53e-8 m against 8.71e-9 m)
+            st["parameters"] = {**{k: v for k, v in st["parameters"].items() if k != "driver"},
+                                "gains": np.maximum(gains[1:], 0.0).tolist(), "taus_s": list(refit["taus_s"])}
             st["refitted"] = ("refitted beside the delay: the branches' gains of the joint fit (alone, "
                               "its fast branches took part of the delay)")

@@ -774,8 +774,10 @@ class CreepSpectrum(Effect):
     instance: :meth:`columns` returns the same columns whatever ``u`` (another channel reading the same
     stack scales them by its own gains). ``V_h`` enters scaled to the base model's units (its least-squares
     multiple on the rows fitted), so the gains keep the plain spectrum's meaning, fractions of the
-    driver, which the written plant's branches are sized from (:mod:`.plant_update`, which rebuilds the
-    creep on the base model: an approximation of the driven form).
+    driver, which the written plant's branches are sized from (:mod:`.plant_update` rebuilds the fitted
+    model with this drive, ``plant_update.creep_driver``, and the instant core takes the branches' held
+    part as the plays' fit of it, ``core_refit.refitted_core``; a creep refitted jointly beside a delay,
+    ``creep_beside_delay``, is of the base model's columns and drops ``driver``).
     """
 
     name = "creep"

@@ -283,8 +283,13 @@ def _rivals(cands, probs, extra, found, t, base):
                 eff = copy.deepcopy(c["eff"])
                 eff.taus_s = np.asarray(c["eff"].taus_s, float) * 10.0 ** 0.25
                 c = {**c, "eff": eff}
+                # the voltage reading without the V_h loop (with it, fit ignores u and its columns were the
+                # first reading's: review of s17_creep)
+                eff_v = copy.copy(eff)
+                eff_v.loop = None
                 parts = [r for r in (_research(c, probs, extra, t, base),
-                                     _research({**c, "driver": "voltage", "u": base.v_drive}, probs, extra, t, base))
+                                     _research({**c, "eff": eff_v, "driver": "voltage", "u": base.v_drive}, probs,
+                                               extra, t, base))
                          if r is not None]
                 if parts:
                     # one rival: both readings' branches together
