@@ -15,13 +15,15 @@ second-order high-pass, a relaxation of the sign creep's branches cannot take), 
 Drawn records: creep alone, sizes log-uniform over the benchmark's large band (3-30x the drawn
 range) at 1 and 10 kHz, and eight at 1 kHz on the calibration protocol at 10-30x (the seed 40
 record's neighbourhood), ``default_rng`` fixed; main names the same mode (1.20 Hz, zeta 0.3, gain
--0.051) on 2 of the eight (14.4x and 15.4x).
+-0.051) on 2 of the eight (14.4x and 15.4x). ``make test`` runs the four design draws and the first four of
+the eight (13-24x, both misses among them); WORKBENCH_FULL=1 all twelve (the other four are skipped in the
+reduced form, from the same generator and band: 15-24x).
 """
 
 import numpy as np
 import pytest
 
-from tests.conftest import load_benchmark
+from tests.conftest import load_benchmark, reduced_draws
 from workbench.calibrate.tracing import trace_effect
 
 MISS = ("session 15 (s15_spur): a large creep's 1 kHz leftover fitted by a 1.2 Hz, zeta 0.3 mode of negative "
@@ -37,6 +39,8 @@ CREEP_DRAWS += [(1e3, "calibration", float(np.exp(_RNG_1K.uniform(np.log(10.0), 
 _MISSED = {1039808915, 342190994}
 CREEP_DRAWS = [pytest.param(*d, marks=pytest.mark.xfail(strict=True, reason=MISS)) if d[3] in _MISSED else d
                for d in CREEP_DRAWS]
+#: reduced form: the four design draws and default_rng(77)'s first four (the full form adds its last four)
+CREEP_DRAWS = reduced_draws(CREEP_DRAWS, keep=range(8))
 
 
 def _trace(plant0, effect, rate, proto, size, seed):
