@@ -93,9 +93,12 @@ def simulated_base(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, s
     return t, sp, base, plant, truth, r
 
 
-def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks"):
+def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks", diagnostics=True):
     """Simulate one record, calibrate it (``split``: see :mod:`workbench.calibrate.splits`), classify
-    the answer; returns a dict."""
+    the answer; returns a dict. ``diagnostics=False`` skips the sizes printed beside the target (a
+    pair's beyond the other, :func:`_beyond`, 2.2 s of a 10 kHz pair's 8.9 s measured; a twin's,
+    :func:`twin_size`), for callers that read none of them: ``beyond``, ``beyond_folds`` and
+    ``share_folds`` come back empty; the answer, its class and the own sizes are the same."""
     effects = () if effect == "none" else ((effect,) if isinstance(effect, str) else tuple(effect))
     t, sp, base, plant, truth, r = simulated_base(plant0, effects or "none", rate_hz, protocol, size, seed,
                                                   n_rows, split)
@@ -122,11 +125,11 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
         excess = max(xs)
         if len(effects) > 1:
             own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
-            fb = _beyond(base, base0, effects, sp)
+            fb = _beyond(base, base0, effects, sp) if diagnostics else []
             beyond = [b["test"] for b in fb]
             folds_beyond = [min(b["folds"], default=0.0) for b in fb]
             folds_share = [min(b["shares"], default=0.0) for b in fb]
-        elif effects[0] in TWINS:
+        elif effects[0] in TWINS and diagnostics:
             beyond = [twin_size(base, base0, effects[0], sp)]
     # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
     # effect named on its model of the drive, else the base's, with a displacement effect it reads

@@ -154,7 +154,7 @@ def drawn(sn637):
     cc = load_benchmark("calibrate_confusion")
     rows = []
     for eff, rate, proto, size, seed in _record_draws():
-        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed, diagnostics=False)
         print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
               f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
               f"ratio {r['ratio']:.3f} above the line {r['above_line']}")

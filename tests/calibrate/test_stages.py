@@ -93,7 +93,8 @@ def pair_rows(sn637):
         for _ in range(PAIRS_DRAWN):
             size = float(np.exp(rng.uniform(lo, hi)))
             proto = str(rng.choice(("calibration", "sine", "steps")))
-            r = cc.evaluate(sn637, pair, 1e4, proto, size, int(rng.integers(1 << 30)), n_rows=cc.QUICK_ROWS)
+            r = cc.evaluate(sn637, pair, 1e4, proto, size, int(rng.integers(1 << 30)), n_rows=cc.QUICK_ROWS,
+                            diagnostics=False)
             print(f"\n{r['effect']:30s} {proto:11s} size x{size:.3g} own sizes {np.round(r['excesses'], 2)} "
                   f"-> stages {r['named']} {r['class']} both {r['both']}")
             rows.append(r)
@@ -451,7 +452,7 @@ def cd_rows(sn637):
     cc = _bench()
     rows = []
     for eff, rate, proto, size, seed in _cd_draws():
-        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed, diagnostics=False)
         print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
               f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
               f"above the line {r['above_line']}")
