@@ -167,13 +167,13 @@ def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split
     n_rows = n_rows or ROWS[rate_hz]
     t, v = benchmark_protocol(protocol, rate_hz, n_rows)
     plant, _ = plant_with_effect(plant0, effects, seed, duration_s=float(t[-1]), size=size)
-    clean, _ = plant_with_effect(plant0, "none", seed)
-    r0 = simulate_record(clean, t, v, seed=seed)
     if sp is None:
         sp = make_split(t, simulate_record(plant, t, v, seed=seed)["voltage_v"], split)
     kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
     R = plant0.pzt.series_resistance_ohm
-    base0 = base0 or fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
+    if base0 is None:                   # the effect-free twin (same drive, same noise), unless given
+        clean, _ = plant_with_effect(plant0, "none", seed)
+        base0 = fit_base(_record(simulate_record(clean, t, v, seed=seed), 1.0 / rate_hz), R, **kw)
     out = []
     for e in effects:
         ch = CHANNEL[e]
