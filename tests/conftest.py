@@ -53,8 +53,9 @@ def reduced_draws(draws, keep):
     skip = pytest.mark.skipif(not FULL, reason="reduced form: WORKBENCH_FULL=1 (make test-full) runs this draw")
     out = []
     for k, d in enumerate(draws):
-        values, marks = (tuple(d.values), list(d.marks)) if hasattr(d, "values") and hasattr(d, "marks") else (d, [])
-        out.append(pytest.param(*values, marks=marks if k in keep else marks + [skip]))
+        param = hasattr(d, "values") and hasattr(d, "marks")
+        values, marks, id_ = (tuple(d.values), list(d.marks), d.id) if param else (d, [], None)
+        out.append(pytest.param(*values, marks=marks if k in keep else marks + [skip], id=id_))
     return out
 
 
