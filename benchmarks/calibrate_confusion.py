@@ -93,9 +93,12 @@ def simulated_base(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, s
     return t, sp, base, plant, truth, r
 
 
-def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks"):
+def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="blocks", diagnostics=True):
     """Simulate one record, calibrate it (``split``: see :mod:`workbench.calibrate.splits`), classify
-    the answer; returns a dict."""
+    the answer; returns a dict. ``diagnostics=False`` skips the sizes printed beside the target (a
+    pair's beyond the other, :func:`_beyond`, 2.2 s of a 10 kHz pair's 8.9 s measured; a twin's,
+    :func:`twin_size`), for callers that read none of them: ``beyond``, ``beyond_folds`` and
+    ``share_folds`` come back empty; the answer, its class and the own sizes are the same."""
     effects = () if effect == "none" else ((effect,) if isinstance(effect, str) else tuple(effect))
     t, sp, base, plant, truth, r = simulated_base(plant0, effects or "none", rate_hz, protocol, size, seed,
                                                   n_rows, split)
@@ -122,11 +125,11 @@ def evaluate(plant0, effect, rate_hz, protocol, size, seed, n_rows=None, split="
         excess = max(xs)
         if len(effects) > 1:
             own = own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows, split, base0=base0, sp=sp)
-            fb = _beyond(base, base0, effects, sp)
+            fb = _beyond(base, base0, effects, sp) if diagnostics else []
             beyond = [b["test"] for b in fb]
             folds_beyond = [min(b["folds"], default=0.0) for b in fb]
             folds_share = [min(b["shares"], default=0.0) for b in fb]
-        elif effects[0] in TWINS:
+        elif effects[0] in TWINS and diagnostics:
             beyond = [twin_size(base, base0, effects[0], sp)]
     # the straight-line floor (issue 13): each channel's held-out error at the end (after the last
     # effect named on its model of the drive, else the base's, with a displacement effect it reads
@@ -167,13 +170,13 @@ def own_sizes(plant0, effects, rate_hz, protocol, size, seed, n_rows=None, split
     n_rows = n_rows or ROWS[rate_hz]
     t, v = benchmark_protocol(protocol, rate_hz, n_rows)
     plant, _ = plant_with_effect(plant0, effects, seed, duration_s=float(t[-1]), size=size)
-    clean, _ = plant_with_effect(plant0, "none", seed)
-    r0 = simulate_record(clean, t, v, seed=seed)
     if sp is None:
         sp = make_split(t, simulate_record(plant, t, v, seed=seed)["voltage_v"], split)
     kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
     R = plant0.pzt.series_resistance_ohm
-    base0 = base0 or fit_base(_record(r0, 1.0 / rate_hz), R, **kw)
+    if base0 is None:                   # the effect-free twin (same drive, same noise), unless given
+        clean, _ = plant_with_effect(plant0, "none", seed)
+        base0 = fit_base(_record(simulate_record(clean, t, v, seed=seed), 1.0 / rate_hz), R, **kw)
     out = []
     for e in effects:
         ch = CHANNEL[e]

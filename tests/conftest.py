@@ -46,6 +46,19 @@ def load_benchmark(name):
     return mod
 
 
+def reduced_draws(draws, keep):
+    """Parametrize ``draws`` (tuples or ``pytest.param``) so that ``make test`` runs those whose index is
+    in ``keep`` and skips the rest, which ``WORKBENCH_FULL=1`` runs: every id stays collected (the skip
+    says what the full form adds), and a draw's own marks (a strict xfail) are kept."""
+    skip = pytest.mark.skipif(not FULL, reason="reduced form: WORKBENCH_FULL=1 (make test-full) runs this draw")
+    out = []
+    for k, d in enumerate(draws):
+        param = hasattr(d, "values") and hasattr(d, "marks")
+        values, marks, id_ = (tuple(d.values), list(d.marks), d.id) if param else (d, [], None)
+        out.append(pytest.param(*values, marks=marks if k in keep else marks + [skip], id=id_))
+    return out
+
+
 def leak_and_absorption_fits(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
     """A steps record (10 s at 1 kHz) with a 20 Mohm leak and a 1.2 uF absorption of ``tau_s`` (s) and its
     effect-free twin (same noise), base-fitted as the confusion benchmark does: ``(base, base0, split)``."""

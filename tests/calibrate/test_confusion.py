@@ -24,7 +24,7 @@ def test_fast_slice_names_no_wrong_effect(sn637, seed):
     cc = _bench()
     rows = []
     for e, rate, proto, size, s in cc.cases(seed=seed, quick=True):
-        r = cc.evaluate(sn637, e, rate, proto, size, s, n_rows=cc.QUICK_ROWS)
+        r = cc.evaluate(sn637, e, rate, proto, size, s, n_rows=cc.QUICK_ROWS, diagnostics=False)
         print(f"\n{r['effect']:22s} size x{size:.3g} excess {r['excess']:.3g} -> {r['answer']} {r['agreement']} "
               f"stages {r['named']} {r['class']} ratio {r['ratio']:.2f}")
         rows.append(r)

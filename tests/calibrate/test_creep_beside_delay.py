@@ -132,6 +132,12 @@ CD_GUARDS = 2 if not FULL else 6
 #: session 13's fresh seeds): protocol, size over the full range, record seed
 CD_PAIRS_100K = 3 if not FULL else 9
 
+#: make test traces 7 of the 11 drawn above: the first two pairs (10 kHz calibration 0.40x; 1 kHz steps 1.43x,
+#: the draw's one pair whose effects both stand >= 3x on their own records, 43x and 49x), the four guards
+#: (0.065-26x, 1 to 100 kHz) and the first 100 kHz pair (calibration, 0.22x); WORKBENCH_FULL=1 traces every draw
+#: of its larger set (12 pairs, 6 + 6 guards, 9 at 100 kHz). Session 16's make test traced all 11.
+REDUCED = (0, 1, 4, 5, 6, 7, 8)
+
 
 def _record_draws():
     cc = load_benchmark("calibrate_confusion")
@@ -153,8 +159,9 @@ def _record_draws():
 def drawn(sn637):
     cc = load_benchmark("calibrate_confusion")
     rows = []
-    for eff, rate, proto, size, seed in _record_draws():
-        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+    draws = _record_draws()
+    for eff, rate, proto, size, seed in (draws if FULL else [draws[k] for k in REDUCED]):
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed, diagnostics=False)
         print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
               f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
               f"ratio {r['ratio']:.3f} above the line {r['above_line']}")

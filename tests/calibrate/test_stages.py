@@ -78,6 +78,10 @@ def test_joint_projection_removes_base_and_found_columns():
 
 
 PAIRS_DRAWN = 2 if not FULL else 4
+#: make test traces the first of each pair's two draws (creep + delay 3.2x, leakage + absorption 29x, drift +
+#: resonance 0.36x: each effect >= 3x on its own record, and the leakage + absorption the xfail's miss);
+#: WORKBENCH_FULL=1 all four of each pair's draws (session 16's make test traced both of the two)
+PAIRS_RUN = 1 if not FULL else PAIRS_DRAWN
 
 
 @pytest.fixture(scope="module")
@@ -90,10 +94,13 @@ def pair_rows(sn637):
     lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
     rows = []
     for pair in cc.PAIRS:
-        for _ in range(PAIRS_DRAWN):
+        for k in range(PAIRS_DRAWN):
             size = float(np.exp(rng.uniform(lo, hi)))
             proto = str(rng.choice(("calibration", "sine", "steps")))
-            r = cc.evaluate(sn637, pair, 1e4, proto, size, int(rng.integers(1 << 30)), n_rows=cc.QUICK_ROWS)
+            seed = int(rng.integers(1 << 30))
+            if k >= PAIRS_RUN:
+                continue
+            r = cc.evaluate(sn637, pair, 1e4, proto, size, seed, n_rows=cc.QUICK_ROWS, diagnostics=False)
             print(f"\n{r['effect']:30s} {proto:11s} size x{size:.3g} own sizes {np.round(r['excesses'], 2)} "
                   f"-> stages {r['named']} {r['class']} both {r['both']}")
             rows.append(r)
@@ -101,7 +108,8 @@ def pair_rows(sn637):
 
 
 def test_two_effect_records_name_no_wrong_effect(pair_rows):
-    """No effect the record lacks is named at any stage (the issue's <= 2 %: none of these six),
+    """No effect the record lacks is named at any stage (the issue's <= 2 %: none of these three; twelve in
+    the full form),
     and the draw reaches records whose two effects both stand >= 3x above the floor."""
     rows = pair_rows
     assert not [r for r in rows if r["class"] == "wrong"], [(r["effect"], r["named"]) for r in rows]
@@ -460,7 +468,7 @@ def cd_rows(sn637):
     cc = _bench()
     rows = []
     for eff, rate, proto, size, seed in _cd_draws():
-        r = cc.evaluate(sn637, eff, rate, proto, size, seed)
+        r = cc.evaluate(sn637, eff, rate, proto, size, seed, diagnostics=False)
         print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
               f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
               f"above the line {r['above_line']}")

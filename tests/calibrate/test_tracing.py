@@ -177,7 +177,7 @@ def test_a_displacement_sensor_drift_is_never_named_a_gauge_bow(sn637, effect, r
     from tests.conftest import load_benchmark
     cc = load_benchmark("calibrate_confusion")
     effects = tuple(effect.split("+"))
-    r = cc.evaluate(sn637, effects if len(effects) > 1 else effects[0], rate, "steps", size, seed)
+    r = cc.evaluate(sn637, effects if len(effects) > 1 else effects[0], rate, "steps", size, seed, diagnostics=False)
     print(f"\n{effect} {rate:g} x{size:.3f} excess {r['excess']:.2f} -> {r['answer']} {r['named']} {r['fold_winners']}")
     assert "gauge_nonlinearity" not in r["named"], r["fold_winners"]
     assert r["class"] != "wrong", r["named"]
@@ -188,7 +188,7 @@ def test_the_drift_a_gauge_bow_took_is_named(sn637):
     against the recorded displacement was the drift's imprint (a drift in time fits it better held
     out on every fold). The drift is named (and nothing the record lacks)."""
     from tests.conftest import load_benchmark
-    r = load_benchmark("calibrate_confusion").evaluate(sn637, *DRIFT_48_165)
+    r = load_benchmark("calibrate_confusion").evaluate(sn637, *DRIFT_48_165, diagnostics=False)
     print(f"\n-> {r['answer']} {r['named']} {r['fold_winners']} ratio {r['ratio']:.2f}")
     assert r["class"] == "right" and "drift" in r["named"], (r["named"], r["fold_winners"])
 
@@ -227,7 +227,7 @@ def test_a_gauge_bow_on_a_rising_staircase_is_not_taken_by_the_drift_rival(sn637
     monkeypatch.setattr(cc, "benchmark_protocol",
                         lambda kind, rate_hz, n_rows: _rising_staircase(rate_hz, n_rows) if kind == "rising"
                         else orig(kind, rate_hz, n_rows))
-    r = cc.evaluate(sn637, "gauge_nonlinearity", rate, "rising", size, seed)
+    r = cc.evaluate(sn637, "gauge_nonlinearity", rate, "rising", size, seed, diagnostics=False)
     print(f"\n{rate:g} x{size:.2f} excess {r['excess']:.2f} -> {r['answer']} {r['named']} {r['fold_winners']}")
     assert r["class"] != "wrong", r["named"]
     if r["excess"] >= 3.0:
