@@ -220,10 +220,9 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     held_w = m.weights
     drive = core_fit.get("creep_drive")
     if drive is not None and any(s["parameters"].get("driver") == "v_h" for s in creep):
-        P = np.asarray(base.basis, float)[:, :-1]
-        rows = np.asarray(base.train, bool)
-        d = np.asarray(drive, float)[rows]
-        held_w = np.linalg.lstsq(P[rows], d - d.mean(), rcond=None)[0]
+        rows = np.asarray(base.train, bool)     # the basis with its offset column (the plays' means are not 0)
+        held_w = np.linalg.lstsq(np.asarray(base.basis, float)[rows], np.asarray(drive, float)[rows],
+                                 rcond=None)[0][:-1]
     w, misfit = instant_weights(base.basis, np.asarray(base.train, bool), core_fit["weights"], held_w, total)
     out["instant"] = w
     lo, hi = base.train_range_v if base.train_range_v is not None else (float(np.min(base.v_drive)),
