@@ -5,6 +5,8 @@ within-hold motion (1 when the residual carries the drift, 0 when it does not) a
 error for white noise; slopes, noise, hold lengths and sample rates drawn over wide ranges.
 """
 
+import os
+
 import numpy as np
 import pytest
 
@@ -258,6 +260,10 @@ def drift_beside_mode_rows(sn637):
     return rows
 
 
+@pytest.mark.skipif(os.environ.get("WORKBENCH_FULL") != "1",
+                    reason="reduced form (the suite's time budget, session 17): WORKBENCH_FULL=1 runs 57 #88 and the "
+                           "four draws; make test keeps the check's closed-form and spread tests above, which fail "
+                           "on the noise-only and block-only standard errors")
 def test_drift_beside_a_slow_mode_on_one_hold_names_both_when_told_apart(drift_beside_mode_rows):
     """No effect the record lacks is named; a record whose drift and mode each stand >= 3x beyond the
     other on every validation fold (``calibrate_confusion._beyond``) is answered with both: the one hold

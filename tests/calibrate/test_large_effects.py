@@ -114,10 +114,19 @@ def test_a_low_mode_on_a_steps_record_is_named_and_not_above_the_line(sn637, fre
         assert c["error_after"]["rms"] <= base.channels[ch].line_rms_test, ch
 
 
-def test_the_mode_floor_is_ten_cycles_per_record():
+def test_the_mode_floor_is_two_cycles_per_record_and_a_slower_mode_must_ring():
+    """Session 17 (s17_mhz): the search reaches two cycles over the record (it was ten), and below ten
+    cycles a trial's damping is capped at 1/(2 pi) (its ringing outlasts a cycle: heavier is a relaxation,
+    creep's). On a 0.4 s record: 5 Hz, the cap below 25 Hz, none above; a 35.5 s record keeps the 1 Hz floor."""
     t = np.arange(40_000) * 1e-5
+    dur = t[-1] - t[0]
     lo, _ = Resonance()._range(t)
-    assert np.exp(lo) == pytest.approx(10.0 / (t[-1] - t[0]))
+    assert np.exp(lo) == pytest.approx(2.0 / dur)
+    zeta = Resonance()._ring_cap(t)
+    assert zeta(0.9 * 10.0 / dur, 0.3) == pytest.approx(1.0 / (2.0 * np.pi))
+    assert zeta(1.1 * 10.0 / dur, 0.3) == 0.3
+    lo_long, _ = Resonance()._range(np.arange(355_000) * 1e-4)
+    assert np.exp(lo_long) == pytest.approx(1.0)
 
 
 @pytest.mark.parametrize("seed, index, want", [(28, 99, ["resonance", "drift"]), (26, 11, ["drift"]),
