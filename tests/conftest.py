@@ -59,6 +59,17 @@ def reduced_draws(draws, keep):
     return out
 
 
+def stratified_draws(rng_seed, n):
+    """``n`` benchmark draws ``(protocol, size, seed)``, one size per log-band of the confusion benchmark's
+    full range (``SIZE_RANGE`` cut in ``n`` equal log-bands), the protocol drawn among the three, from
+    ``default_rng(rng_seed)``: what the drawn 1 kHz pair and creep tests share."""
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(rng_seed)
+    edges = np.linspace(np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1]), n + 1)
+    return [(str(rng.choice(("calibration", "sine", "steps"))), float(np.exp(rng.uniform(lo, hi))),
+             int(rng.integers(1 << 30))) for lo, hi in zip(edges[:-1], edges[1:])]
+
+
 def leak_and_absorption_fits(sn637, tau_s, rate_hz=1e3, n_rows=10_000):
     """A steps record (10 s at 1 kHz) with a 20 Mohm leak and a 1.2 uF absorption of ``tau_s`` (s) and its
     effect-free twin (same noise), base-fitted as the confusion benchmark does: ``(base, base0, split)``."""

@@ -8,7 +8,7 @@ follows neither the pull-back nor C_h's reversal under it, and left 12-15x the n
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark
+from tests.conftest import FULL, load_benchmark, stratified_draws
 from workbench.calibrate.kernels import plays_rows
 from workbench.calibrate.pi_fit import play_matrix
 
@@ -71,11 +71,7 @@ CREEP_1K = 4 if not FULL else 12
 
 
 def _draws():
-    cc = load_benchmark("calibrate_confusion")
-    rng = np.random.default_rng(1717)
-    edges = np.linspace(np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1]), CREEP_1K + 1)
-    return [(str(rng.choice(("calibration", "sine", "steps"))), float(np.exp(rng.uniform(lo, hi))),
-             int(rng.integers(1 << 30))) for lo, hi in zip(edges[:-1], edges[1:])]
+    return stratified_draws(1717, CREEP_1K)
 
 
 @pytest.fixture(scope="module")

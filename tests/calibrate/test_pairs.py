@@ -10,7 +10,7 @@ effect stands beyond the other's form on each fold and what share of the other's
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, leak_and_absorption_fits, load_benchmark
+from tests.conftest import FULL, leak_and_absorption_fits, load_benchmark, stratified_draws
 from workbench.calibrate.tracing import MIN_SHARE
 
 
@@ -92,11 +92,7 @@ CD_1K = 4 if not FULL else 12
 
 
 def _draws():
-    cc = _bench()
-    rng = np.random.default_rng(1617)
-    edges = np.linspace(np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1]), CD_1K + 1)
-    return [(str(rng.choice(("calibration", "sine", "steps"))), float(np.exp(rng.uniform(lo, hi))),
-             int(rng.integers(1 << 30))) for lo, hi in zip(edges[:-1], edges[1:])]
+    return stratified_draws(1617, CD_1K)
 
 
 @pytest.fixture(scope="module")
