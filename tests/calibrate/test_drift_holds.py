@@ -5,11 +5,10 @@ within-hold motion (1 when the residual carries the drift, 0 when it does not) a
 error for white noise; slopes, noise, hold lengths and sample rates drawn over wide ranges.
 """
 
-import os
-
 import numpy as np
 import pytest
 
+from tests.conftest import FULL
 from workbench.calibrate.drift_holds import (MAX_SE, NO_HOLDS_NOTE, SETTLE_FRACTION, drift_in_holds,
                                             drive_noise_rms_v, hold_spans)
 
@@ -247,7 +246,7 @@ MODE_DRAWS = [(float(np.exp(_RNG_MODE.uniform(a, b))), int(_RNG_MODE.integers(1 
 
 @pytest.fixture(scope="module")
 def drift_beside_mode_rows(sn637):
-    from tests.conftest import FULL, load_benchmark
+    from tests.conftest import load_benchmark
     cc = load_benchmark("calibrate_confusion")
     effect, rate, proto, size57, seed57 = cc.cases(1, 57)[88 - 1]
     assert (tuple(effect), rate, proto) == (("drift", "resonance"), 1e5, "sine")
@@ -260,7 +259,7 @@ def drift_beside_mode_rows(sn637):
     return rows
 
 
-@pytest.mark.skipif(os.environ.get("WORKBENCH_FULL") != "1",
+@pytest.mark.skipif(not FULL,
                     reason="reduced form (the suite's time budget, session 17): WORKBENCH_FULL=1 runs 57 #88 and the "
                            "four draws; make test keeps the check's closed-form and spread tests above, which fail "
                            "on the noise-only and block-only standard errors")

@@ -21,7 +21,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark
+from tests.conftest import load_benchmark, reduced_draws
 from workbench.calibrate.base_fit import fit_base
 from workbench.calibrate.splits import make_split
 from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
@@ -114,9 +114,11 @@ def _mode_record(sn637, rng, n_rows, cycles, effect="none", proto=None):
 MODE_MISS = ("draw 4 (steps, 2.84 cycles, 56.8 Hz, zeta 0.019, no drift drawn) is answered ['drift', 'resonance', "
              "'drift'], the drift winning 5 of 5 folds and the mode fitted at 83.6 Hz (main 7953044: ['drift', 'drift']): "
              "under three cycles a record's slow drift and a slow mode overlap (review of s17_mhz, 2026-11-26)")
-MODE_DRAWS = [pytest.param(d, "sine" if d % 2 else "steps", marks=(
-    [] if d < 3 or FULL else [pytest.mark.skipif(True, reason="reduced form: WORKBENCH_FULL=1 runs this draw")])
-    + ([pytest.mark.xfail(strict=True, reason=MODE_MISS)] if d == 4 else [])) for d in range(6)]
+MODE_DRAWS = reduced_draws([pytest.param(d, "sine" if d % 2 else "steps",
+                                          marks=[pytest.mark.xfail(strict=True, reason=MODE_MISS)] if d == 4 else [])
+                             for d in range(6)], keep=range(3))
+
+
 @pytest.mark.parametrize("draw, proto", MODE_DRAWS)
 def test_a_mode_under_ten_cycles_a_record_is_named(sn637, draw, proto):
     """Drawn (``default_rng([1702, draw])``): 2.5-9.5 cycles over a 50 ms record (50-190 Hz), damping 0.5-2 %
