@@ -42,7 +42,7 @@ targets = [("workbench.calibrate.run", n) for n in ("read_record", "fit_base", "
 for mod, n in targets: wrap(mod, n)
 wrap("workbench.calibrate.stages", "run_stages")
 wrap("workbench.preflight", "preflight")
-import workbench.report.calibrate_figures as cf; wrap("workbench.report.calibrate_figures", "calibration_figures")
+import workbench.report.calibrate_figures; wrap("workbench.report.calibrate_figures", "calibration_figures")
 import workbench.report.calibrate_report; wrap("workbench.report.calibrate_report", "calibration_markdown")
 import workbench.report.html; wrap("workbench.report.html", "write_html_report")
 sys.argv = ["workbench"] + sys.argv[1:]

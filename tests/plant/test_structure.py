@@ -277,7 +277,6 @@ def test_two_stacks_on_one_mode_are_one_stack_on_half_the_mass(pz):
 def test_an_open_stack_senses_its_neighbour(pz):
     """Stack 2 with open leads on the mode stack 1 drives: its back EMF is -T_em x_2 / C_pp (eq. 9, q = 0)."""
     f_hz, k = 900.0, 2.2e8
-    w = 2 * np.pi * f_hz
     m = 8.0
     st = modal_structure([f_hz], [0.02], [m], [[0.0, 0.0]], [[1.0, -0.5]], [k, k])
     dt = 2e-5

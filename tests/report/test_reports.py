@@ -19,7 +19,7 @@ from hypothesis import strategies as st
 
 from ..conftest import FULL, PLANTS
 from workbench.report.html import markdown_to_html, split_table_row, write_html_report
-from workbench.report.markdown import md_cell, md_image, md_row, md_table, readable_quantity
+from workbench.report.markdown import md_image, md_row, md_table, readable_quantity
 
 ROOT = Path(__file__).resolve().parents[2]
 # a metric key leaking into a table: snake_case words ending in one of the workbench's unit suffixes
