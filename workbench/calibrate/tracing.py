@@ -974,6 +974,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         by[tag] = row
     _veto_drift_without_hold_motion(by, probs, extra, split, infos)
+    _slow_mode_against_drift(by, infos)
     settled_absorption_rms(by, probs, extra, split, infos)
     rows = sorted(by.values(), key=lambda r: r["score"] if np.isfinite(r["score"]) else np.inf)
     winners = []
@@ -1155,6 +1156,34 @@ def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
         row["holds"] = chk
         if chk["shows"] is False:
             row["passes"] = [False] * len(row["passes"])
+
+
+def _slow_mode_against_drift(by, infos):
+    """A slow mode passes only the folds where it beats the drift in time of its channel.
+
+    A mode below ``SLOW_CYCLES_PER_RECORD`` cycles over the record
+    (:data:`~workbench.calibrate.effects.SLOW_CYCLES_PER_RECORD`, searched down to
+    ``RING_CYCLES_PER_RECORD`` for the slow modes of short 1 MHz records) is a slow shape over the
+    record: the drive low-passed at a few cycles per record and its ringing. A slow wander in time
+    fits it as well (66 #73: a 0.14x drift on a 0.4 s record fitted by a 5 Hz, zeta 0.002 mode, two
+    cycles over the record, at the search's floor, named 4 of 5 while the drift, vetoed by the
+    holds, left less on every fold). A mode is driven by the input, a drift is not: what tells them
+    apart on the record is which form leaves less held out. So on each fold the slow mode's
+    penalized ratio (:func:`_fold_test`) must be below the channel's drift row's (the same folds, the
+    same penalty per parameter; the drift's ratio whether or not its hold check vetoed it: the
+    comparison is of the forms, not a claim of a drift). No margin is typed in. Faster modes are not
+    compared (the drift's slow periodic term reaches only ``SLOW_CYCLES_PER_RECORD`` cycles).
+    Each compared row gets ``beats_drift`` (per fold).
+    """
+    f_slow = SLOW_CYCLES_PER_RECORD / infos["duration_s"]
+    for (name, ch), row in by.items():
+        drift = by.get(("drift", ch))
+        if name != "resonance" or drift is None or drift["key"] != row["key"] \
+                or not row["params"]["f_n_hz"] < f_slow:
+            continue
+        beats = [bool(a < b) for a, b in zip(row["ratios"], drift["ratios"])]
+        row["beats_drift"] = beats
+        row["passes"] = [p and b for p, b in zip(row["passes"], beats)]
 
 
 def _stack_shows_it(charge_row, creep_row, f, befores, infos, penalty):
