@@ -45,8 +45,9 @@ def test_the_drive_recovers_the_voltage_across_c_h(sn637, protocol, rate, size):
     from the model's prediction alone. Sizes from the drawn range's small end to its large one (the loop gain
     passes one near 20x). On the 10 kHz sine (session 18) the fixed point's second pass overshoots: it used to
     stop there and return the first pass's drive, the creep-free estimate itself (0.119 against 0.123 V at 3x;
-    now 0.012 V); at 0.3x there the creep's pull-back is below the base model's own V_h error (both 0.016 V). (The tracing solves it on the gauge when there is one, :func:`creep_loops`: there it
-    is 0.043-0.051 V off at these sizes, the gauge model's own error: see the leftover test below.)"""
+    now 0.012 V); at 0.3x there the creep's pull-back is below the base model's own V_h error (both 0.016 V).
+    (The tracing solves it on the gauge when there is one, :func:`creep_loops`: there it is 0.043-0.051 V off
+    at these sizes, the gauge model's own error: see the leftover test below.)"""
     import dataclasses
 
     from workbench.calibrate.creep_across import creep_drive
@@ -63,8 +64,8 @@ def test_the_drive_recovers_the_voltage_across_c_h(sn637, protocol, rate, size):
     vh = creep_drive(loop, m.y, taus, float(t[1] - t[0]), _search_rows(sp.train & m.valid))
     vh_model = base.v_drive - a * (m.yhat - m.offset)
     err, err_model = (float(np.sqrt(np.mean((x - vh_true)[sp.test] ** 2))) for x in (vh, vh_model))
-    print(f"\n{protocol} {rate / 1e3:g} kHz size {size}: V_h error {err:.4g} V, the creep-free estimate's {err_model:.4g} V "
-          f"(V_h RMS {np.sqrt(np.mean(vh_true ** 2)):.3g} V)")
+    print(f"\n{protocol} {rate / 1e3:g} kHz size {size}: V_h error {err:.4g} V, the creep-free estimate's "
+          f"{err_model:.4g} V (V_h RMS {np.sqrt(np.mean(vh_true ** 2)):.3g} V)")
     assert err < 0.25 * err_model
 
 

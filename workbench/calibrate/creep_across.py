@@ -90,9 +90,10 @@ def drive_taus(taus_s):
     ``V_h`` carries the fitted creep's pull-back, so a misfit of the branches' sum goes into the drive of every
     later column. On the record's own grid the sum of the two neighbours of a branch between grid points
     leaves a lag error in it: on a 10 kHz sine record with a 13x creep (67 #46, the plant's 0.1 s branch
-    between 0.063 and 0.2 s) the spectrum on that drive left 4.5x the noise floor, which a 0.33 ms sensor
-    *lead* took up as a second effect; solved on this grid, the same half-decade columns leave 2.8x and no
-    delay is named (session 18). The midpoints are the grid's own (no typed time constant); the columns the
+    between 0.063 and 0.2 s) the drive solved on the record's grid settles at a development SSE of 0.831 and
+    the spectrum on it leaves 1.04e-8 m (~3.5x the benchmark's floor), which a 0.58 ms sensor *lead* takes up
+    as a second effect; solved on this grid, 0.825, and the same half-decade columns leave 8.0e-9 m (~2.7x),
+    no delay named (session 18). The midpoints are the grid's own (no typed time constant); the columns the
     tracing fits stay the record's grid.
 
     Parameters
@@ -118,8 +119,8 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
     branches of :func:`drive_taus`) on ``rows`` by bounded least squares, ``V_h = V_t - a (PI_w[V_t - a X] + X)``
     from the previous pass's fit (half the new one mixed in from the third pass; after a pass whose SSE is
     no lower than the best's, the best pass's fit with half the previous step toward the fit it gave), and
-    keeps the pass of the lowest SSE on ``rows``; stops when a pass improves it by less than ``rtol`` of it. Solved once per record: a later call (another
-    channel, a later stage) returns ``loop.shared["v_h"]``.
+    keeps the pass of the lowest SSE on ``rows``; stops when a pass improves it by less than ``rtol`` of it.
+    Solved once per record: a later call (another channel, a later stage) returns ``loop.shared["v_h"]``.
 
     Parameters
     ----------
