@@ -8,7 +8,7 @@ follows neither the pull-back nor C_h's reversal under it, and left 12-15x the n
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark, stratified_draws
+from tests.conftest import FULL, load_benchmark, reduced_draws, stratified_draws
 from workbench.calibrate.kernels import plays_rows
 from workbench.calibrate.pi_fit import play_matrix
 
@@ -36,19 +36,23 @@ def _noise_free_creep(sn637, size, protocol="steps", rate=1e3):
     return t, r, sp, base
 
 
-@pytest.mark.parametrize("size", [0.3, 3.0, 20.0])
-def test_the_drive_recovers_the_voltage_across_c_h(sn637, size):
+@pytest.mark.parametrize("protocol, rate, size", [("steps", 1e3, 0.3), ("steps", 1e3, 3.0), ("steps", 1e3, 20.0),
+                                                  ("sine", 1e4, 3.0), ("sine", 1e4, 20.0)])
+def test_the_drive_recovers_the_voltage_across_c_h(sn637, protocol, rate, size):
     """On a noise-free creep record, ``creep_drive``'s V_h solved on the displacement is the simulator's
     ``V_t - q / C_pp`` far closer than the creep-free estimate ``V_t - a x_model`` (the base model, which lacks
     the creep's charge) is: the fixed point recovers the branches' pull-back of their own driver (eqs. 9-12),
     from the model's prediction alone. Sizes from the drawn range's small end to its large one (the loop gain
-    passes one near 20x). (The tracing solves it on the gauge when there is one, :func:`creep_loops`: there it
-    is 0.043-0.051 V off at these sizes, the gauge model's own error: see the leftover test below.)"""
+    passes one near 20x). On the 10 kHz sine (session 18) the fixed point's second pass overshoots: it used to
+    stop there and return the first pass's drive, the creep-free estimate itself (0.119 against 0.123 V at 3x;
+    now 0.012 V); at 0.3x there the creep's pull-back is below the base model's own V_h error (both 0.016 V).
+    (The tracing solves it on the gauge when there is one, :func:`creep_loops`: there it is 0.043-0.051 V off
+    at these sizes, the gauge model's own error: see the leftover test below.)"""
     import dataclasses
 
     from workbench.calibrate.creep_across import creep_drive
     from workbench.calibrate.tracing import _search_rows, creep_loops
-    t, r, sp, base = _noise_free_creep(sn637, size)
+    t, r, sp, base = _noise_free_creep(sn637, size, protocol, rate)
     pz = sn637.pzt
     c_pp = pz.working_capacitance_f + pz.transducer_constant_n_per_v ** 2 / pz.stiffness_n_per_m
     vh_true = r["v_t_v"] - r["q_true_c"] / c_pp
@@ -60,8 +64,8 @@ def test_the_drive_recovers_the_voltage_across_c_h(sn637, size):
     vh = creep_drive(loop, m.y, taus, float(t[1] - t[0]), _search_rows(sp.train & m.valid))
     vh_model = base.v_drive - a * (m.yhat - m.offset)
     err, err_model = (float(np.sqrt(np.mean((x - vh_true)[sp.test] ** 2))) for x in (vh, vh_model))
-    print(f"\nsize {size}: V_h error {err:.4g} V, the creep-free estimate's {err_model:.4g} V "
-          f"(V_h RMS {np.sqrt(np.mean(vh_true ** 2)):.3g} V)")
+    print(f"\n{protocol} {rate / 1e3:g} kHz size {size}: V_h error {err:.4g} V, the creep-free estimate's "
+          f"{err_model:.4g} V (V_h RMS {np.sqrt(np.mean(vh_true ** 2)):.3g} V)")
     assert err < 0.25 * err_model
 
 
@@ -110,7 +114,8 @@ def test_creep_at_1khz_is_named_over_the_size_range(creep_1k):
     "stack's: solved on the displacement, the 1 kHz creep + delay pairs of test_pairs and 61 #31 lost their delay); "
     "the gauge's model leaves V_h 0.043-0.051 V off on noise-free records (0.004-0.03 V on the displacement), and "
     "the drawn records keep 7.48x (steps, 0.58x), 4.09x (calibration, 5.25x) and 2.20x (sine, 7.24x) the floor, "
-    "against 1.90x, 2.08x and 1.60x with V_h solved on the displacement (session 17, measured)"))
+    "against 1.90x, 2.08x and 1.60x with V_h solved on the displacement (session 17, measured; session 18's drive, the "
+    "overshoot backed off and the grid's midpoints: 7.48x, 2.98x, 2.20x)"))
 def test_creep_at_1khz_leaves_under_three_floors(creep_1k):
     """What the fitted creep leaves on the test rows is under :data:`LEFT_FLOORS` floors at every drawn size
     (the model-driven spectrum left 0.21-0.42 of the creep at every size: 12-15x beside session 16's delays)."""
@@ -118,3 +123,40 @@ def test_creep_at_1khz_leaves_under_three_floors(creep_1k):
     assert named
     assert all(r["left"] < LEFT_FLOORS for r in named), [(r["protocol"], round(r["size"], 3), round(r["left"], 2))
                                                          for r in named]
+
+
+# creep-only sine records drawn with np.random.default_rng(1818), fixed before any was traced: one size in each
+# of CREEP_SINE equal log-bands of the benchmark's 0.03-30x, the rate drawn among the benchmark's (1, 10, 100 kHz)
+CREEP_SINE = 6
+
+
+def _sine_draws():
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(1818)
+    edges = np.linspace(np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1]), CREEP_SINE + 1)
+    return [(float(rng.choice(cc.RATES_HZ)), float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30)))
+            for lo, hi in zip(edges[:-1], edges[1:])]
+
+
+#: the record the fix was made on (seed 67 #46 of the confusion benchmark: a regression check, not evidence)
+CREEP_SINE_67_46 = (1e4, 13.444140898726538, 8670178)
+
+
+@pytest.mark.parametrize("rate, size, seed", reduced_draws(_sine_draws(), keep=(5,))
+                         + [pytest.param(*CREEP_SINE_67_46, id="seed67-46")])
+def test_a_creep_on_a_sine_record_is_not_answered_with_a_delay(sn637, rate, size, seed):
+    """A creep-only record on the sine protocol, traced as ``workbench calibrate`` does: no delay (nor any other
+    effect the record lacks) is named beside the creep. On a sine a sensor delay and a creep's lag are near-twins;
+    with the branches' drive ``V_h`` left at the first fixed-point pass (no pull-back), a 13x creep at 10 kHz
+    was answered creep + a 0.33 ms lead (67 #46, session 17; the last case). ``make test`` runs the largest band's
+    draw (the misfit grows with the creep) and 67 #46, ``WORKBENCH_FULL=1`` every band. (Measured: main 709a969
+    answers the six drawn records without a delay too; of 67's 10 kHz sine records only #46 failed, and six more
+    drawn at 3-30x answered creep alone on main: the failure is the drive's overshoot on that record's noise,
+    which the drive test above checks on noise-free records.)"""
+    cc = load_benchmark("calibrate_confusion")
+    from workbench.calibrate.tracing import trace_effect
+    t, sp, base, _, _, _ = cc.simulated_base(sn637, "creep", rate, "sine", size, seed)
+    res = trace_effect(base, split=sp)
+    named = [s["effect"] for s in res["stages"]]
+    print(f"\ncreep {rate / 1e3:g} kHz sine size x{size:.3g}: {named}")
+    assert not set(named) - {"creep"}, (named, res.get("stage_notes"), res["fold_winners"])
