@@ -384,9 +384,15 @@ def _grid_blocks(columns, project, n_rows):
     block = []
 
     def flush():
-        XB = np.asfortranarray(np.hstack(block))
-        PB = XB if project is None else np.asfortranarray(project(XB))
-        out = ([b.shape[1] for b in block], XB, PB)
+        # the columns copied one by one into rows of a C-ordered array: its transpose (each column
+        # contiguous) without the strided writes of a column stack
+        XT = np.empty((sum(b.shape[1] for b in block), block[0].shape[0]))
+        j = 0
+        for b in block:
+            XT[j:j + b.shape[1]] = b.T
+            j += b.shape[1]
+        XB = XT.T
+        out = ([b.shape[1] for b in block], XB, XB if project is None else project(XB))
         block.clear()
         return out
 
