@@ -473,3 +473,60 @@ def test_stacked_columns_give_the_grams_of_column_stack(seed):
         for key in ("G", "lb", "C", "norms", "ok"):
             assert np.array_equal(g1[key], g2[key]), key
         assert g1["C"].strides == g2["C"].strides
+
+
+def _drawn_grid_columns(rng, n, widths):
+    """Grid points' columns of drawn scales (1e-9 to 1e3, a zero column among them), ``widths[j]`` each."""
+    out = []
+    for j, w in enumerate(widths):
+        X = rng.standard_normal((n, w)) * np.exp(rng.uniform(np.log(1e-9), np.log(1e3), w))
+        if j == 1:
+            X[:, 0] = 0.0                   # a column the pseudo-inverse gives no gain
+        out.append(X)
+    return out
+
+
+@pytest.mark.parametrize("seed", [51, 52, 53, 54])
+def test_grid_costs_equal_each_points_least_squares_cost(seed):
+    """``_grid_costs`` (one pass over a block of one-column points; ``_lstsq`` per point when wider)
+    = ``||_lstsq(X, y) residual||^2`` of each point alone, over drawn row counts, scales and widths."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(50, 20_000))
+    y = rng.standard_normal(n) * rng.uniform(0.1, 10.0)
+    for widths in ([1] * int(rng.integers(2, 33)), [int(w) for w in rng.integers(1, 5, int(rng.integers(2, 9)))]):
+        cols = _drawn_grid_columns(rng, n, widths)
+        y_fit = y + cols[0][:, 0] * rng.uniform(-3, 3)        # a point that explains part of the target
+        for target in (y, y_fit):
+            ref = [float(np.sum(effects._lstsq(X, target)[1] ** 2)) for X in cols]
+            fast = effects._grid_costs(widths, np.hstack(cols), target)
+            np.testing.assert_allclose(fast, ref, rtol=1e-9, atol=1e-12 * float(target @ target))
+
+
+@pytest.mark.parametrize("seed", [61, 62, 63])
+def test_grid_blocks_project_each_point_as_alone(seed):
+    """``_grid_blocks``: every point's columns in order, unchanged, in blocks of at most ``_grid_batch``
+    columns, and each block's projection equal (to rounding) to each point's projection alone."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(50, 20_000))
+    widths = [int(w) for w in rng.integers(1, 6, int(rng.integers(5, 40)))]
+    cols = _drawn_grid_columns(rng, n, widths)
+    E = np.linalg.qr(rng.standard_normal((n, int(rng.integers(1, 12)))))[0]
+
+    def project(X):
+        return X - E @ (E.T @ X)
+    seen = []
+    for proj in (project, None):
+        j = 0
+        for ws, XB, PB in effects._grid_blocks(iter(cols), proj, n):
+            assert sum(ws) <= max(effects._grid_batch(n), max(ws))
+            c = 0
+            for w in ws:
+                X = cols[j]
+                assert w == X.shape[1] and np.array_equal(XB[:, c:c + w], X)
+                ref = X if proj is None else project(X)
+                np.testing.assert_allclose(PB[:, c:c + w], ref, rtol=0,
+                                           atol=1e-12 * max(float(np.max(np.abs(X))), 1e-300))
+                c += w
+                j += 1
+        seen.append(j)
+    assert seen == [len(cols), len(cols)]
