@@ -40,6 +40,21 @@ def _named(base, sp):
     return [s["effect"] for s in res["stages"]], res
 
 
+def test_64_154_a_slow_mode_beside_a_drift_keeps_its_folds(sn637):
+    """A genuine slow mode beside a genuine drift (64 #154: a 61.9 Hz mode, 6 cycles over the 0.1 s record,
+    beside an 18x drift, 1 MHz sine) is scored with the drift polynomial in its model, not against it side by
+    side: set side by side the drift took a fold and a 128 Hz gauge mode was named 2 of 5 (the s18_slowmode
+    review). A regression check on a check seed of session 17, not fresh evidence."""
+    cc = _bench()
+    e, rate, proto, size, seed = cc.cases(seed=64, ends=True)[153]
+    assert (tuple(e), rate, proto) == (("drift", "resonance"), 1e6, "sine")
+    t, sp, base, _, truth, _ = cc.simulated_base(sn637, e, rate, proto, size, seed)
+    named, res = _named(base, sp)
+    assert named and named[0] == "resonance", (named, res["fold_winners"])
+    assert res["stages"][0]["channel"] == "displacement", res["stages"][0]
+    assert abs(res["stages"][0]["parameters"]["f_n_hz"] / truth["freq_hz"] - 1.0) < 0.1, (truth, res["stages"][0])
+
+
 def test_66_73_a_small_drift_is_not_named_a_slow_mode(sn637):
     """The record the fix is for (a regression check, not evidence: it was tuned on)."""
     cc = _bench()
@@ -81,7 +96,9 @@ def _mode_record(sn637, draw):
     return truth, sp, base
 
 
-@pytest.mark.parametrize("draw", reduced_draws([(d,) for d in range(4)], keep=(0,)))
+# make test runs draw 1 (22 Hz, 4.4 cycles): the draw a rule that counted the drift's free sinusoid as a rival
+# loses (the s18_slowmode review; draw 0, 7.7 cycles, passes under that rule too)
+@pytest.mark.parametrize("draw", reduced_draws([(d,) for d in range(4)], keep=(1,)))
 def test_a_slow_mode_beside_the_drift_row_is_still_named(sn637, draw):
     truth, sp, base = _mode_record(sn637, draw)
     named, res = _named(base, sp)
