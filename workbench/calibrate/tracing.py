@@ -735,11 +735,15 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         # the *recorded* displacement) is not the channel's model of the drive: not its end
         if s["_cand"]["key"] == (s["channel"], "model"):
             own[s["channel"]] = s["error_after"]
+    _carry_bow(stages, extra, probs, base)
     for ch, c in out["channels"].items():
         key = (ch, "model")
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
         carried = [s["effect"] for s in stages if s["channel"] == "displacement"
                    and s["effect"] in ("creep", "resonance")]
+        if ch == "gauge":
+            carried += [s["effect"] for s in stages if s["_cand"]["key"] == ("gauge", "line")
+                        and s["effect"] == "gauge_nonlinearity"]
         if ch in own or key not in probs:
             continue
         prob = probs[key]
@@ -755,6 +759,35 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
             else:
                 c["carry_refused"] = carried
         _line_fallback(c, ch, prob, g_end, base, split, ctx["need"])
+
+
+def _carry_bow(stages, extra, probs, base):
+    """The gauge's bow found against the recorded displacement, carried into the gauge's model of the drive.
+
+    The bow (eq. 27, :class:`~workbench.calibrate.effects.GaugeNonlinearity`) is found on the gauge's line
+    problem, the gauge against the *recorded* displacement (:func:`_gauge_line`); the gauge's model of the
+    drive is the base's play operator of the drive, whose weights are non-negative: it bends every branch
+    away from its turning point, while a bow bends the whole map one way, so on a large bow the ridge path
+    ends at the straight line (seed 67 #74, a 20.7x bow at 100 kHz: the base *is* the line, 0.0202 V on the
+    test rows, the bow against the recorded displacement 0.0086 V). The gauge reads the stack's motion,
+    which the displacement's model of the drive predicts: the bow's column ``(x - x_ref)^2`` of that
+    model (its interval mean for an averaged gauge, as :func:`_gauge_line` takes the recorded one) is
+    added to the gauge's model problem beside its plays, its gain free; :func:`_carry_to_channels` keeps
+    it only when it passes the validation folds (:func:`_carry_passes`), as any carried term.
+    """
+    key = ("gauge", "model")
+    if key not in probs or "displacement" not in base.channels:
+        return
+    for s in stages:
+        cand = s["_cand"]
+        if cand["key"] != ("gauge", "line") or s["effect"] != "gauge_nonlinearity":
+            continue
+        x = base.channels["displacement"].yhat
+        if getattr(base, "gauge_kind", None) == "averaged":
+            from .base_fit import interval_mean
+            x = interval_mean(np.asarray(x, float))
+        C, lo = cand["eff"].columns(base.t, x, s["parameters"])
+        extra[key].append((np.atleast_2d(np.asarray(C, float).T).T, list(np.atleast_1d(lo))))
 
 
 def _line_fallback(c, ch, prob, g, base, split, need):
