@@ -722,8 +722,11 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
     (:func:`_fold_test` on ``ctx["need"]`` of the split's validation folds, data the test part
     never enters): its parameters are the carried columns (the channel's free gains), against
     the channel's noise floor, the best of the channel's random terms (``ctx["nulls"]``) and
-    ``min_share``. ``carried`` names what is in, ``carry_refused`` what the folds turned down.
-    ``error_after`` (``{rms, max, units}`` on the test rows) is written to every channel of
+    ``min_share``. ``carried`` names what is in, ``carry_refused`` what the folds turned down. The
+    gauge's bow, found against the recorded displacement, is carried into the gauge's model of the drive
+    the same way (:func:`_carry_bow`). Every channel's end model then meets a straight line of the drive
+    on the validation folds (:func:`_line_fallback`; a channel with stages of its own too: they stay
+    named). ``error_after`` (``{rms, max, units}`` on the test rows) is written to every channel of
     ``out["channels"]``.
     """
     extra = {key: [] for key in probs}
@@ -735,7 +738,10 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         # the *recorded* displacement) is not the channel's model of the drive: not its end
         if s["_cand"]["key"] == (s["channel"], "model"):
             own[s["channel"]] = s["error_after"]
-    _carry_bow(stages, extra, probs, base)
+    if "gauge" not in own:
+        # (a gauge with stages of its own on its model ends at its last one's, bow or not: its fold check
+        # against the line below is of that model's columns alone)
+        _carry_bow(stages, extra, probs, base)
     for ch, c in out["channels"].items():
         key = (ch, "model")
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
