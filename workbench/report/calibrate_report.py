@@ -199,6 +199,12 @@ def _error_table(base, result):
                             f"RMS after / before: {r_model:.3f} (review of s15_rt).")
         if err.get("line") and after is err.get("error_after"):
             note.append(f"The {name}'s 'after' is a straight line of the drive: {err.get('line_note', '')}.")
+        elif err.get("line"):
+            # the effect's channel whose end model lost to the line on the folds (tracing._line_fallback):
+            # the table keeps the effect's model, the note gives the line's error the channel reports
+            line_err = err.get("error_after") or {}
+            note.append(f"On the {name}, {err.get('line_note', '')}: held-out RMS "
+                        f"{_q(line_err.get('rms'), line_err.get('units', ''))}.")
         unit = err.get("units", "")
         scale = si_scale(unit, max(abs(float(before.get("max", 0) or 0)), abs(float(after.get("max", 0) or 0))))
         ratio = (float(after["rms"]) / float(before["rms"]) if _finite(after.get("rms")) and _finite(before.get("rms"))
