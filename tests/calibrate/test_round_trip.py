@@ -712,3 +712,23 @@ def test_creep_branches_never_write_a_branch_the_plant_file_cannot_load(gain):
     else:
         assert out["capacitances_f"] is None and out["time_constants_s"] is None
         assert "1 mF" in out["reason"] or "0.001 F" in out["reason"]
+
+
+def test_a_bow_beyond_the_plant_files_range_is_a_gap_not_a_file_that_will_not_load(sn637, tmp_path):
+    """The benchmark draws gauge bows up to 6e3 x 30 = 1.8e5 /m; the plant file takes ``coefficient_per_m`` within
+    +-1e5 /m. A fitted bow beyond it made ``workbench calibrate`` exit 2 "internal: the updated plant would not
+    load" (s18_line, found on main). Drawn (``default_rng(1890)``, the second of 10-30x draws): a 25.8x bow,
+    -1.29e5 /m, on the 1 kHz calibration protocol. The written file loads, carries no bow, and the gaps say why."""
+    from workbench.calibrate.plant_update import plant_file_gaps
+    from workbench.plant.files import PLANT_FIELDS
+    res, err, base, sp = _round_trip(sn637, "gauge_nonlinearity", 1e3, "calibration", 25.76261493601214, 18545206,
+                                     tmp_path)
+    bows = [s for s in res["stages"] if s["effect"] == "gauge_nonlinearity"]
+    assert bows, res["stages"]
+    b = bows[0]["parameters"]["coefficient_per_m"]
+    f = PLANT_FIELDS["gauge_nonlinearity"]["coefficient_per_m"]
+    assert not f.lo <= b <= f.hi, b                      # the draw does exercise the bound
+    text = (tmp_path / "p.toml").read_text()
+    assert "[gauge_nonlinearity]" not in text
+    gaps = plant_file_gaps(res["stages"], base, sn637)
+    assert any("gauge bow" in g and "beyond the plant file" in g for g in gaps), gaps

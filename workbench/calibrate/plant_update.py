@@ -614,9 +614,22 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None, c
         sensor["drift"] = [f"drift_rate_m_per_s = {_fmt(rate)}   # m/s; {src} (from the record's start)",
                            f"drift_curvature_m_per_s2 = {_fmt(curv)}   # m/s^2; {src}"
                            + ("; its slow periodic term has no plant-file form (JSON)" if p.get("period_s") else "")]
-    elif effect == "gauge_nonlinearity":
+    elif effect == "gauge_nonlinearity" and _bow_fits_the_file(p):
         block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
     return block
+
+
+def _bow_field():
+    from ..plant.files import PLANT_FIELDS
+    return PLANT_FIELDS["gauge_nonlinearity"]["coefficient_per_m"]
+
+
+def _bow_fits_the_file(p):
+    """Is the fitted bow within the plant file's range of ``coefficient_per_m`` (a bow beyond it is not
+    written and is a gap, :func:`plant_file_gaps`, as a creep branch beyond the file's 1 mF: a file that
+    would not load is never written)?"""
+    b, f = float(p.get("coefficient_per_m", np.nan)), _bow_field()
+    return bool(np.isfinite(b) and f.lo <= b <= f.hi)
 
 
 def _terminal_secant(base, plant):
@@ -1001,6 +1014,12 @@ def plant_file_gaps(stages, base, plant, core=None):
         elif eff == "drift" and ch == "displacement":
             if p.get("period_s"):
                 gaps.append("the drift's slow periodic term (JSON only)")
+        elif eff == "gauge_nonlinearity" and not _bow_fits_the_file(p):
+            f = _bow_field()
+            gaps.append(f"the gauge bow {float(p.get('coefficient_per_m', np.nan)):.4g} /m is beyond the plant file's "
+                        f"coefficient_per_m range [{f.lo:g}, {f.hi:g}] /m (its 1 + b x passes zero "
+                        f"{1e6 / max(abs(float(p.get('coefficient_per_m', np.nan))), 1e-300):.3g} um from the "
+                        f"record's reference): not written (JSON only)")
         elif eff in ("delay", "drift", "creep") and ch != "displacement":
             gaps.append(f"the {eff} on the {ch} (no plant-file form, JSON only)")
     return gaps
