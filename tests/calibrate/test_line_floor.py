@@ -203,8 +203,23 @@ def test_a_model_that_is_the_line_reports_the_line_not_above_it(draw, own_stage)
     m = SimpleNamespace(y=y, valid=valid, sampling="sampled", initial_states_v=np.zeros(1))
     base = SimpleNamespace(basis=basis, channels={"displacement": m})
     c = {"units": "m"}
+    # (``own_stage`` passed only when set: the same call runs on the code before the own-stage check, where
+    # the plain case must fail for its rounding, not for an unknown argument; the review of s18_line)
     _line_fallback(c, "displacement", prob, prob.base, base, sp, int(np.ceil(0.8 * len(sp.folds))),
-                   own_stage=own_stage)
+                   **({"own_stage": True} if own_stage else {}))
     assert c.get("line") is True
     assert c["error_after"]["rms"] <= line_rms, (c["error_after"]["rms"], line_rms)
     assert ("effects found on it" in c["line_note"]) is own_stage
+
+
+def test_a_carried_term_is_named_only_for_passing_its_own_step(sn637):
+    """A creep + gauge bow record (10 kHz calibration, 3x, seed 11): the displacement's creep carried into the
+    gauge's model fails the validation folds on its own (the review of s18_line, each subset tested alone: creep
+    False, bow True, both True); carried together with the bow it rode in and was named ``carried``. The carry is
+    stepwise: the creep's step, then the bow on top of what passed."""
+    cc = load_benchmark("calibrate_confusion")
+    t, sp, base, _, _, _ = cc.simulated_base(sn637, ("creep", "gauge_nonlinearity"), 1e4, "calibration", 3.0, 11)
+    res = trace_effect(base, split=sp)
+    g = res["channels"]["gauge"]
+    assert "creep" not in (g.get("carried") or []), g.get("carried")
+    assert "creep" in (g.get("carry_refused") or []), g.get("carry_refused")

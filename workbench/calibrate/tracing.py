@@ -747,9 +747,8 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
         carried = [s["effect"] for s in stages if s["channel"] == "displacement"
                    and s["effect"] in ("creep", "resonance")]
-        if ch == "gauge":
-            carried += [s["effect"] for s in stages if s["_cand"]["key"] == ("gauge", "line")
-                        and s["effect"] == "gauge_nonlinearity"]
+        bows = [s["effect"] for s in stages if s["_cand"]["key"] == ("gauge", "line")
+                and s["effect"] == "gauge_nonlinearity"] if ch == "gauge" else []
         if key not in probs:
             continue
         prob = probs[key]
@@ -759,18 +758,31 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
             _line_fallback(c, ch, prob, _cand_grams(prob, extra[key], None, len(split.folds)), base, split,
                            ctx["need"], own_stage=True)
             continue
-        g_end = prob.base
-        if carried and extra[key]:
-            g1 = _stacked(prob, extra[key], None)
-            if _carry_passes(prob, g1, sum(C.shape[1] for C, _ in extra[key]), ctx["nulls"].get(key, ()),
-                             split, ctx, ctx["infos"][ch]["noise_floor"]):
-                c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks),
-                                    "units": c["units"]}
-                c["carried"] = carried
-                g_end = g1
+        # the displacement's creep / mode first, then the gauge's bow on top of what passed, each named
+        # in ``carried`` only for passing its own step (the review of s18_line: tested together, a creep the
+        # folds refused on its own rode in with the bow)
+        g_end, kept, done, refused = prob.base, [], [], []
+        ex_main = [x for x in extra[key] if getattr(x, "tag", None) != BOW_TAG]
+        ex_bow = [x for x in extra[key] if getattr(x, "tag", None) == BOW_TAG]
+        nulls, floor = ctx["nulls"].get(key, ()), ctx["infos"][ch]["noise_floor"]
+        for names, cols in ((carried, ex_main), (bows, ex_bow)):
+            if not (names and cols):
+                continue
+            g1 = _stacked(prob, kept + cols, None)
+            if _carry_passes(prob, g1, sum(C.shape[1] for C, _ in cols), nulls, split, ctx, floor, g0=g_end):
+                g_end, kept, done = g1, kept + cols, done + names
             else:
-                c["carry_refused"] = carried
+                refused += names
+        if done:
+            c["error_after"] = {**_test_errors(prob, g_end, split.dev_blocks, split.test_blocks), "units": c["units"]}
+            c["carried"] = done
+        if refused:
+            c["carry_refused"] = refused
         _line_fallback(c, ch, prob, g_end, base, split, ctx["need"])
+
+
+#: The tag of the gauge bow's columns carried into the gauge's model of the drive (:func:`_carry_bow`).
+BOW_TAG = ("gauge_nonlinearity", "gauge")
 
 
 def _carry_bow(stages, extra, probs, base):
@@ -799,7 +811,7 @@ def _carry_bow(stages, extra, probs, base):
             from .base_fit import interval_mean
             x = interval_mean(np.asarray(x, float))
         C, lo = cand["eff"].columns(base.t, x, s["parameters"])
-        extra[key].append((np.atleast_2d(np.asarray(C, float).T).T, list(np.atleast_1d(lo))))
+        extra[key].append(FoundColumns(np.atleast_2d(np.asarray(C, float).T).T, list(np.atleast_1d(lo)), BOW_TAG))
 
 
 def _line_fallback(c, ch, prob, g, base, split, need, own_stage=False):
@@ -862,16 +874,19 @@ def _line_fallback(c, ch, prob, g, base, split, need, own_stage=False):
                           f"something neither the base nor a found effect explains there)")
 
 
-def _carry_passes(prob, g, n_params, nulls, split, ctx, floor):
+def _carry_passes(prob, g, n_params, nulls, split, ctx, floor, g0=None):
     """Does a carried term (Gram matrices ``g``, ``n_params`` free gains) pass ``ctx["need"]`` folds?
 
-    Per fold, :func:`_fold_test` of the channel's base against the base with the carried columns,
-    the null reference being the best of ``nulls`` (random terms' Gram matrices on the base).
+    Per fold, :func:`_fold_test` of the channel's base (or ``g0``: the model the term is added to)
+    against it with the carried columns, the null reference being the best of ``nulls`` (random
+    terms' Gram matrices on the base: their gain over the base).
     """
+    g0 = prob.base if g0 is None else g0
     passes = 0
     for f, (tr, va) in enumerate(split.folds):
-        b = prob.fold_rms(prob.base, tr, va)
-        null = max([b * b - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
+        b0 = prob.fold_rms(prob.base, tr, va)
+        b = b0 if g0 is prob.base else prob.fold_rms(g0, tr, va)
+        null = max([b0 * b0 - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
         passes += _fold_test(b, prob.fold_rms(g, tr, va), n_params, ctx["penalty"],
                              ctx["noise_factor"] * floor, null, ctx["min_share"])[1]
     return passes >= ctx["need"]
