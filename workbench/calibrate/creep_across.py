@@ -118,7 +118,8 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
     Fits ``y = PI_w[V_t - a X] + c + X`` (plays >= 0, ``X = sum_j g_j lowpass_j(V_h)``, ``g_j >= 0``, the
     branches of :func:`drive_taus`) on ``rows`` by bounded least squares, ``V_h = V_t - a (PI_w[V_t - a X] + X)``
     from the previous pass's fit (half the new one mixed in from the third pass; after a pass whose SSE is
-    no lower than the best's, the best pass's fit with half the previous step toward the fit it gave), and
+    no lower than the best's or not finite, the best pass's fit and gains with half the step it took toward the fit
+    and gains it gave), and
     keeps the pass of the lowest SSE on ``rows``; stops when a pass improves it by less than ``rtol`` of it.
     Solved once per record: a later call (another channel, a later stage) returns ``loop.shared["v_h"]``.
 
@@ -174,10 +175,12 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
     # the plays alone first: the base's model on these rows
     P_r = plays_rows(vt, th, z0, idx)
     w = solve(np.column_stack([P_r, np.ones(idx.size)]), lower[:n_p + 1])[:n_p]
+    P_0 = P_r
     fit = pi(vt, w)               # the previous pass's plays and creep (channel units, no offset)
     g = np.zeros(taus.size)
-    best = None                   # (sse, v_h, the fit it came from, the fit it gave, its gains)
-    step = 1.0
+    best = None                   # (sse, v_h, the fit and gains it came from, the fit and gains it gave)
+    step = 1.0                    # the next move's step from the best pass toward the fit it gave
+    taken = step                  # the step the last move took
     for k in range(1, int(n_iter)):
         v_h = vt - a * fit
         L_r = np.empty((idx.size, taus.size))
@@ -188,8 +191,7 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
             if g[j] > 0:
                 x_c += g[j] * col
         u = vt - a * x_c
-        if g.any():
-            P_r = plays_rows(u, th, z0, idx)
+        P_r = plays_rows(u, th, z0, idx) if g.any() else P_0
         Z = np.column_stack([P_r, np.ones(idx.size), L_r])
         beta = solve(Z, lower)
         g_new = beta[n_p + 1:]
@@ -198,12 +200,16 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
             if best is None or sse < best[0]:
                 best = (sse, v_h)
             break
-        if best is not None and sse >= best[0]:
-            # the pass overshot (the loop gain of a creep far larger than C_h exceeds one): back to the
-            # best pass, half the step toward what it gave
-            step *= 0.5
-            _, _, f_b, new_b, g = best
+        if best is not None and not sse < best[0]:
+            # the pass overshot (the loop gain of a creep far larger than C_h exceeds one; a non-finite
+            # SSE counts as one): back to the best pass, half the step it took toward what it gave, in
+            # its fit and in its gains alike, so a vanishing step returns the best pass itself (the
+            # review of s18_creepdelay: blending the fit alone with the new gains in full tends to
+            # another SSE as the step shrinks)
+            step = taken = 0.5 * taken
+            _, _, f_b, g_b, new_b, gn_b = best
             fit = f_b + step * (new_b - f_b)
+            g = g_b + step * (gn_b - g_b)
             continue
         if best is not None and sse > (1.0 - rtol) * best[0]:
             best = (sse, v_h)     # converged: the pass improves on the best by less than rtol
@@ -211,9 +217,9 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
         # this pass's creep over the whole record, on this pass's drive
         x_new = sum(gj * lowpass(v_h, tau, dt) for gj, tau in zip(g_new, taus) if gj > 0)
         new = pi(u, beta[:n_p]) + x_new
-        best = (sse, v_h, fit, new, g_new)
+        best = (sse, v_h, fit, g, new, g_new)
         fit = fit + step * (new - fit)
-        step = min(step, 0.5)
-        g = g_new
+        g = g_new                 # (the pass's gains in full, as before the back-off existed)
+        taken, step = step, min(step, 0.5)
     loop.shared["v_h"] = vt - a * fit if best is None else best[1]
     return loop.shared["v_h"]
