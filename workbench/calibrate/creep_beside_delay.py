@@ -62,7 +62,7 @@ def _branch_drive(cr):
     won through that part, its "delay" a 3.3-sample *lead* (the simulator's sensor delays are lags)
     (session 18).
     """
-    eff = cr["eff"]
+    eff = cr.get("eff")
     uses = getattr(eff, "_uses_drive", None)
     return eff._drive if uses is not None and uses(cr["params"]) else None
 
