@@ -52,29 +52,30 @@ def _found(extra, key, tag):
 
 
 def _branch_drive(cr):
-    """What drives the creep candidate's branches: its ``V_h`` (scaled to the model's units,
+    """What drives a found creep's branches: its ``V_h`` (scaled to the model's units,
     :class:`~workbench.calibrate.effects.CreepSpectrum` with ``loop``) when it was fitted with one, else
     ``None`` (the channel's base model drives them).
 
-    The joint candidate's branches are the found (or searched) creep's own: driven by the base model
-    while the creep alone is driven by ``V_h``, the joint model's creep part was a second, different
-    creep, and on a 10 kHz sine with a large creep (71 #46, 27.6x) it replaced the ``V_h`` creep and
-    won through that part, its "delay" a 3.3-sample *lead* (the simulator's sensor delays are lags)
-    (session 18).
+    :func:`delay_beside_creep`'s branches are the found creep's own: driven by the base model while the
+    creep alone is driven by ``V_h``, the joint model's creep part was a second, different creep, and on
+    a 10 kHz sine with a large creep (71 #46, 27.6x) it replaced the ``V_h`` creep and won through that
+    part, its "delay" a 3.3-sample *lead* (the simulator's sensor delays are lags) (session 18).
+    :func:`creep_beside_delay` (no creep found yet) keeps the base model: with ``V_h`` there, 71 #53
+    (creep 22.8x behind a 35 ms delay, 10 kHz sine) kept its answer but left 4.39e-8 m against 2.03e-8 m.
     """
     eff = cr.get("eff")
     uses = getattr(eff, "_uses_drive", None)
     return eff._drive if uses is not None and uses(cr["params"]) else None
 
 
-def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
+def _joint(cr, dl, prob, base, t, lower=None, rows_list=None, drive=None):
     """The joint creep + delay columns of one model problem: ``(d, Kd, D)``.
 
     The delay ``d`` (samples) searched with the creep branches in the drive model's refit
     (:meth:`~workbench.calibrate.effects.Delay._fit_refit` with the branches beside the drive's
     columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
-    driven as the creep candidate's (its ``V_h``, :func:`_branch_drive`, else the channel's base model),
-    delayed by ``d``; ``D``: the drive model refitted at ``d``
+    driven by ``drive`` (a found creep's ``V_h``, :func:`_branch_drive`; by default the channel's base
+    model), delayed by ``d``; ``D``: the drive model refitted at ``d``
     with the branches beside it (its weights' corrections bounded as the base's, ``lower``: the
     plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less itself:
     the latency alone, as the delay's own column; its change of weights from the base is left to the
@@ -90,7 +91,6 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
     y = np.asarray(m.y, float)
     ym = np.asarray(m.yhat, float)
     taus = np.asarray(cr["params"]["taus_s"], float)
-    drive = _branch_drive(cr)
     K = CreepSpectrum._columns(ym if drive is None else drive, taus, _dt(t))   # the stack's branches
     B = dl["eff"].basis
     Bc = _c_ordered(B)                                     # (the delay's own C-ordered copy, shared)
@@ -209,11 +209,6 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
     eff = DelayedCreep(taus_s=taus)
     eff.n_params = n_pos + 1
     params = {"gains": np.zeros(taus.size).tolist(), "taus_s": taus.tolist()}
-    drive = _branch_drive(c)
-    if drive is not None:
-        # the branches are the V_h-driven creep's: the plant file rebuilds them on that drive
-        eff._drive = drive
-        params["driver"] = "v_h"
     return {**c, "eff": eff, "params": params, "g": g, "n_params": n_pos + 1, "researched": True,
             "fold_g": fold_g, "replaces": tag, "refit": {"delay_samples": d, "delay_s": d * _dt(t)}}
 
@@ -237,7 +232,10 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     key, tag = c["key"], ("creep", c["channel"])
     prob = probs[key]
     taus = np.asarray(cr["params"]["taus_s"], float)
-    d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
+    # the branches driven as the found creep's: the joint model is that creep beside a delay, not a second creep
+    # in its place (:func:`_branch_drive`)
+    drive = _branch_drive(cr)
+    d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob), drive)
     lower = [0.0] * (taus.size + 1)
     g = _columns(prob, np.column_stack([D, Kd]), lower)
     if not g["ok"][0]:
@@ -250,7 +248,7 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     params = {"delay_samples": d, "delay_s": d * _dt(t), "refit": False}
     return {**c, "eff": eff, "params": params, "g": g, "n_params": 1, "researched": True,
             "fold_g": fold_g, "replaces": tag,
-            "refit": {"taus_s": taus.tolist(), "driver": "v_h" if _branch_drive(cr) is not None else "model"}}
+            "refit": {"taus_s": taus.tolist(), "driver": "model" if drive is None else "v_h"}}
 
 
 def refitted_joint_stage(stages):
