@@ -166,16 +166,22 @@ def _sine_draws():
 
 #: the record the fix was made on (seed 67 #46 of the confusion benchmark: a regression check, not evidence)
 CREEP_SINE_67_46 = (1e4, 13.444140898726538, 8670178)
+#: a second, found after that fix (seed 71 #46: a 27.6x creep on the 10 kHz sine), answered creep + a 3.3-sample
+#: lead by the joint creep + delay candidate whose branches the base model drove, not the creep's V_h (session 18)
+CREEP_SINE_71_46 = (1e4, 27.579080767041777, 11918613)
 
 
 @pytest.mark.parametrize("rate, size, seed", reduced_draws(_sine_draws(), keep=(5,))
-                         + [pytest.param(*CREEP_SINE_67_46, id="seed67-46")])
+                         + [pytest.param(*CREEP_SINE_67_46, id="seed67-46"),
+                            pytest.param(*CREEP_SINE_71_46, id="seed71-46")])
 def test_a_creep_on_a_sine_record_is_not_answered_with_a_delay(sn637, rate, size, seed):
     """A creep-only record on the sine protocol, traced as ``workbench calibrate`` does: no delay (nor any other
     effect the record lacks) is named beside the creep. On a sine a sensor delay and a creep's lag are near-twins;
     with the branches' drive ``V_h`` left at the first fixed-point pass (no pull-back), a 13x creep at 10 kHz
-    was answered creep + a 0.33 ms lead (67 #46, session 17; the last case). ``make test`` runs the largest band's
-    draw (the misfit grows with the creep) and 67 #46, ``WORKBENCH_FULL=1`` every band. (Measured: main 709a969
+    was answered creep + a 0.33 ms lead (67 #46, session 17); a 27.6x one (71 #46, the last case) was answered
+    the same by the joint creep + delay candidate while its branches were driven by the base model instead of the
+    creep's ``V_h`` (:func:`~workbench.calibrate.creep_beside_delay._branch_drive`). ``make test`` runs the
+    largest band's draw (the misfit grows with the creep), 67 #46 and 71 #46, ``WORKBENCH_FULL=1`` every band. (Measured: main 709a969
     answers the six drawn records without a delay too; of 67's 10 kHz sine records only #46 failed, and six more
     drawn at 3-30x answered creep alone on main: the failure is the drive's overshoot on that record's noise,
     which the drive test above checks on noise-free records.)"""

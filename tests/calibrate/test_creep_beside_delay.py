@@ -111,6 +111,27 @@ def test_refitted_joint_stage_writes_the_joint_parameters_into_the_replaced_stag
     assert creep_st2["parameters"]["gains"] == [0.3, 0.0] and creep_st2["parameters"]["taus_s"] == [1.0, 10.0]
 
 
+def test_a_joint_creep_keeps_the_drive_its_branches_were_fitted_on():
+    """The joint candidate's branches are driven as the creep candidate's (session 18, 71 #46: driven by the base
+    model beside a V_h-driven creep, the joint model's creep part was a second creep and won with a spurious lead):
+    ``_branch_drive`` is the candidate's V_h where it was fitted with one, else None (the base model drives); the
+    refitted creep stage keeps ``driver: v_h`` only where the joint fit's branches were V_h's (a base-model fit
+    written with ``driver: v_h`` was rebuilt on V_h: review of s17_creep)."""
+    from workbench.calibrate.effects import CreepSpectrum
+    eff = CreepSpectrum(taus_s=[1.0])
+    eff._drive = np.arange(5.0)
+    assert cbd._branch_drive({"eff": eff, "params": {"driver": "v_h"}}) is eff._drive
+    assert cbd._branch_drive({"eff": eff, "params": {}}) is None
+    assert cbd._branch_drive({"params": {"driver": "v_h"}}) is None
+    for driver, kept in (("v_h", True), ("model", False)):
+        creep_st = {"effect": "creep", "channel": "displacement",
+                    "parameters": {"gains": [0.5], "taus_s": [1.0], "driver": "v_h"}}
+        delay_st = {"effect": "delay", "channel": "displacement", "_cand": {"replaces": ("creep", "displacement"),
+                    "refit": {"taus_s": [1.0], "driver": driver}}, "_gains": np.array([1.0, 0.3])}
+        cbd.refitted_joint_stage([creep_st, delay_st])
+        assert ("driver" in creep_st["parameters"]) == kept and creep_st["parameters"]["gains"] == [0.3]
+
+
 def test_delayed_creep_takes_the_branches_gains_only():
     """The joint candidate's gains come as branches then the delay's column: the creep's own are the first
     ``len(taus_s)``."""

@@ -164,16 +164,13 @@ def test_json_draws_are_the_first_two():
 # draw named creep only: stage 1 is creep on every fold, so the delay, not "seen" in stage 1, needs every later
 # fold (run_stages) and won 4 of 5 (a strict xfail). With the delay's weights refitted on each fold's training
 # rows (s11_delayfold, issue 13 finding 1) it wins 5 of 5 and both are named: the mark is gone.
-JSON_CD_MISS = ("measured 2026-11-26 (s17_creep): the creep + delay draw (1 kHz steps, creep 11.9x, delay 5.9x on "
-                "their own records, 3.12x beyond creep on the least fold, share 0.43) is answered creep alone since the "
-                "creep branches are driven by V_h (creep_across; first stage 0.394 of the error, main's spectrum 0.434, "
-                "main then named the delay): a pair this branch lost, not diagnosed")
+# s17_creep's V_h-driven creep lost the creep + delay draw (1 kHz steps, creep 11.9x, delay 5.9x on their own records):
+# creep alone (a strict xfail, JSON_CD_MISS). Session 18 (s18_creepdelay2): with the joint creep + delay candidate's
+# branches driven by the found creep's V_h (creep_beside_delay._branch_drive) both are named again (5 of 5, then the
+# delay 5 of 5: test RMS 1.753e-8 -> 6.917e-9 -> 3.787e-9 m): the mark is gone.
 
 
-@pytest.mark.parametrize("pair, size, seed", [
-    JSON_DRAWS[0], pytest.param(*JSON_DRAWS[1], marks=pytest.mark.xfail(strict=True, raises=AssertionError,
-                                                                       reason=JSON_CD_MISS))],
-    ids=["drift+resonance", "creep+delay"])
+@pytest.mark.parametrize("pair, size, seed", [JSON_DRAWS[0], JSON_DRAWS[1]], ids=["drift+resonance", "creep+delay"])
 def test_json_stages_of_a_two_effect_record(sn637, tmp_path, pair, size, seed):
     """``workbench calibrate`` on a drawn two-effect record: the JSON's ``stages`` lists both,
     each with its channel, parameters, agreement and test errors; ``effect`` is the first stage;

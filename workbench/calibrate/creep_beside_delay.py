@@ -51,13 +51,31 @@ def _found(extra, key, tag):
     return [x for x in extra.get(key, ()) if getattr(x, "tag", None) == tag]
 
 
-def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
+def _branch_drive(cr):
+    """What drives a found creep's branches: its ``V_h`` (scaled to the model's units,
+    :class:`~workbench.calibrate.effects.CreepSpectrum` with ``loop``) when it was fitted with one, else
+    ``None`` (the channel's base model drives them).
+
+    :func:`delay_beside_creep`'s branches are the found creep's own: driven by the base model while the
+    creep alone is driven by ``V_h``, the joint model's creep part was a second, different creep, and on
+    a 10 kHz sine with a large creep (71 #46, 27.6x) it replaced the ``V_h`` creep and won through that
+    part, its "delay" a 3.3-sample *lead* (the simulator's sensor delays are lags) (session 18).
+    :func:`creep_beside_delay` (no creep found yet) keeps the base model: with ``V_h`` there, 71 #53
+    (creep 22.8x behind a 35 ms delay, 10 kHz sine) kept its answer but left 4.39e-8 m against 2.03e-8 m.
+    """
+    eff = cr.get("eff")
+    uses = getattr(eff, "_uses_drive", None)
+    return eff._drive if uses is not None and uses(cr["params"]) else None
+
+
+def _joint(cr, dl, prob, base, t, lower=None, rows_list=None, drive=None):
     """The joint creep + delay columns of one model problem: ``(d, Kd, D)``.
 
     The delay ``d`` (samples) searched with the creep branches in the drive model's refit
     (:meth:`~workbench.calibrate.effects.Delay._fit_refit` with the branches beside the drive's
     columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
-    driven by the channel's base model, delayed by ``d``; ``D``: the drive model refitted at ``d``
+    driven by ``drive`` (a found creep's ``V_h``, :func:`_branch_drive`; by default the channel's base
+    model), delayed by ``d``; ``D``: the drive model refitted at ``d``
     with the branches beside it (its weights' corrections bounded as the base's, ``lower``: the
     plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less itself:
     the latency alone, as the delay's own column; its change of weights from the base is left to the
@@ -73,7 +91,7 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None):
     y = np.asarray(m.y, float)
     ym = np.asarray(m.yhat, float)
     taus = np.asarray(cr["params"]["taus_s"], float)
-    K = CreepSpectrum._columns(ym, taus, _dt(t))          # the stack's branches, driven by its model
+    K = CreepSpectrum._columns(ym if drive is None else drive, taus, _dt(t))   # the stack's branches
     B = dl["eff"].basis
     Bc = _c_ordered(B)                                     # (the delay's own C-ordered copy, shared)
     Kc = np.ascontiguousarray(K)
@@ -214,7 +232,10 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     key, tag = c["key"], ("creep", c["channel"])
     prob = probs[key]
     taus = np.asarray(cr["params"]["taus_s"], float)
-    d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
+    # the branches driven as the found creep's: the joint model is that creep beside a delay, not a second creep
+    # in its place (:func:`_branch_drive`)
+    drive = _branch_drive(cr)
+    d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob), drive)
     lower = [0.0] * (taus.size + 1)
     g = _columns(prob, np.column_stack([D, Kd]), lower)
     if not g["ok"][0]:
@@ -226,7 +247,8 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     eff.n_params = 1
     params = {"delay_samples": d, "delay_s": d * _dt(t), "refit": False}
     return {**c, "eff": eff, "params": params, "g": g, "n_params": 1, "researched": True,
-            "fold_g": fold_g, "replaces": tag, "refit": {"taus_s": taus.tolist()}}
+            "fold_g": fold_g, "replaces": tag,
+            "refit": {"taus_s": taus.tolist(), "driver": "model" if drive is None else "v_h"}}
 
 
 def refitted_joint_stage(stages):
@@ -256,11 +278,12 @@ def refitted_joint_stage(stages):
             st["refitted"] = (f"refitted beside the creep: delay {refit['delay_s']:.6g} s "
                               f"(alone {alone:.6g} s, its refit taking part of the creep)")
         else:
-            # the joint fit's branches are the base model's (delay_beside_creep's columns), whatever drove the
-            # creep found alone: its "driver" goes with it, so the plant file rebuilds them on the model they were
-            # fitted on (review of s17_creep: a V_h-driven rebuild of these gains put a 1 kHz 28x creep + delay
-            # file at 3.53e-8 m against 8.71e-9 m)
-            st["parameters"] = {**{k: v for k, v in st["parameters"].items() if k != "driver"},
+            # the joint fit's branches are driven as the found creep's were (delay_beside_creep's columns,
+            # _branch_drive): V_h, its "driver" kept; the base model, its "driver" dropped, so the plant file
+            # rebuilds them on the model they were fitted on (review of s17_creep: a V_h-driven rebuild of
+            # base-model gains put a 1 kHz 28x creep + delay file at 3.53e-8 m against 8.71e-9 m)
+            keep = refit.get("driver") == "v_h"
+            st["parameters"] = {**{k: v for k, v in st["parameters"].items() if keep or k != "driver"},
                                 "gains": np.maximum(gains[1:], 0.0).tolist(), "taus_s": list(refit["taus_s"])}
             st["refitted"] = ("refitted beside the delay: the branches' gains of the joint fit (alone, "
                               "its fast branches took part of the delay)")

@@ -841,7 +841,8 @@ class CreepSpectrum(Effect):
     driver, which the written plant's branches are sized from (:mod:`.plant_update` rebuilds the fitted
     model with this drive, ``plant_update.creep_driver``, and the instant core takes the branches' held
     part as the plays' fit of it, ``core_refit.refitted_core``; a creep refitted jointly beside a delay,
-    ``creep_beside_delay``, is of the base model's columns and drops ``driver``).
+    ``creep_beside_delay.delay_beside_creep``, keeps this drive and ``driver``; a creep found beside a delay,
+    ``creep_beside_delay.creep_beside_delay``, is of the base model's columns, without ``driver``).
     """
 
     name = "creep"
