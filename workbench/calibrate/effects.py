@@ -151,7 +151,7 @@ def _data_key(*arrays):
 
 
 def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
-            row_columns_many=None, jac="2-point"):
+            row_columns_many=None, jac="2-point", jacobian_blocks=False):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -166,6 +166,12 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     to the last bit (a compiled filter runs :data:`GRID_BATCH` of them in one pass).
     ``jac``: ``least_squares``' finite-difference scheme (see :meth:`_Relaxation.fit` for why a
     relaxation's search takes ``"3-point"``).
+    ``jacobian_blocks``: with ``project`` and ``row_columns_many``, the refinement's
+    finite-difference points are projected as one block (:data:`JACOBIAN_BLOCKS` must be on too):
+    each point's projection to rounding, so the refinement's path to rounding. A mode's search
+    takes it (its ~1,500 projections were ~3 s of the creep speed record); the relaxations' do
+    not: on seed 71 a creep's refinement (#35) then stopped elsewhere (its printed ratio 0.06 ->
+    0.09).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -200,7 +206,7 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
             ready.clear()
             projected.clear()
             cols = row_columns_many(thetas, rows)
-            if project is None or not JACOBIAN_BLOCKS:
+            if project is None or not (jacobian_blocks and JACOBIAN_BLOCKS):
                 ready.update((th.tobytes(), col) for th, col in zip(thetas, cols))
             else:
                 keys = iter([th.tobytes() for th in thetas])
@@ -379,7 +385,7 @@ class Drift(Effect):
 # least_squares takes a map for its finite-difference points from scipy 1.16 (``workers``)
 _MAP_KW = ((lambda m: {"workers": m}) if "workers" in inspect.signature(least_squares).parameters
            else (lambda m: {}))
-# the refinement's finite-difference points projected as one block (``_varpro``'s jacobian_map):
+# a mode's refinement's finite-difference points projected as one block (``_varpro``'s jacobian_blocks):
 # each point's projection to rounding, so least_squares' path and answer to its tolerances
 # (tests/calibrate/test_speed_equivalence.py); False projects each point alone, as before
 JACOBIAN_BLOCKS = True
@@ -1179,7 +1185,7 @@ class Resonance(Effect):
                               row_columns=lambda th, rows: mode_column_rows(u, *mode(th), rows),
                               plain_costs=memo,
                               row_columns_many=lambda ths, rows: mode_columns_rows(
-                                  u, [mode(th) for th in ths], rows))
+                                  u, [mode(th) for th in ths], rows), jacobian_blocks=True)
         f = float(np.exp(theta[0]))
         return {"gain": float(beta[0]), "f_n_hz": f, "zeta": float(zeta(f, float(np.exp(theta[1]))))}
 
