@@ -93,10 +93,8 @@ def _mode_record(seed, n, f_hz, zeta, frac, dt=1e-4):
 def test_resonance_search_with_batched_grid_equals_one_column_at_a_time(monkeypatch, project_kind):
     """A resonance's search whose grid columns are filtered in batches returns the numbers of the
     search that filters one grid point at a time (plain, with a projection, and the pair of
-    searches sharing the plain grid's costs). The refinement's points projected one at a time in
-    both (their block projection is to rounding only: its own test below)."""
+    searches sharing the plain grid's costs)."""
     import copy
-    monkeypatch.setattr(effects, "JACOBIAN_BLOCKS", False)
     t, u, e, mask, proj = _mode_record(11, 30_000, 240.0, 0.03, 0.4)
     project = None if project_kind == "none" else proj
 
@@ -183,9 +181,7 @@ def _compare(a, b, path=""):
 def test_calibration_json_equals_the_reference_code(sn637, tmp_path, monkeypatch):
     """The whole calibration (base fit, every candidate's search on every channel, folds,
     stages) of a 20,000-row synthetic record with a resonance: the JSON with the fast paths
-    equals the JSON with every reference path within 1e-9 relative (the refinement's points
-    projected one at a time in both: a block projection is to rounding only, its own test)."""
-    monkeypatch.setattr(effects, "JACOBIAN_BLOCKS", False)
+    equals the JSON with every reference path within 1e-9 relative."""
     t, v = benchmark_protocol("calibration", 10_000.0, 20_000)
     plant, _ = plant_with_effect(sn637, "resonance", 7, duration_s=float(t[-1] - t[0]))
     data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=7))
@@ -534,32 +530,3 @@ def test_grid_blocks_project_each_point_as_alone(seed):
                 j += 1
         seen.append(j)
     assert seen == [len(cols), len(cols)]
-
-
-@pytest.mark.parametrize("seed", [71, 72, 73])
-def test_refinement_with_block_projected_jacobian_finds_the_same_mode(monkeypatch, seed):
-    """The refinement's finite-difference points projected as one block (``JACOBIAN_BLOCKS``) and
-    one at a time: the same minimum. A drawn mode over the search range (10 Hz .. 0.3 of the
-    rate, damping 0.005 .. 0.2) on a drawn share of the rows, projected off the drive and an
-    offset. The projections differ by rounding, so least_squares' path differs by rounding: its
-    parameters agree to far below its stopping tolerances (xtol = ftol = 1e-8 on the scaled step
-    and the cost's relative change: 1e-6 relative asked), and the cost at both answers, flat to
-    first order at a minimum, to 1e-9 relative."""
-    rng = np.random.default_rng(seed)
-    f_hz = float(np.exp(rng.uniform(np.log(10.0), np.log(3000.0))))
-    zeta = float(np.exp(rng.uniform(np.log(0.005), np.log(0.2))))
-    t, u, e, mask, proj = _mode_record(seed, int(rng.integers(8_000, 30_000)), f_hz, zeta,
-                                       float(rng.uniform(0.2, 0.8)))
-    found = {}
-    for blocks in (True, False):
-        monkeypatch.setattr(effects, "JACOBIAN_BLOCKS", blocks)
-        found[blocks] = Resonance().fit(t, u, e, mask, project=proj)
-    a, b = found[True], found[False]
-    assert set(a) == set(b)
-    for k in a:
-        np.testing.assert_allclose(a[k], b[k], rtol=1e-6, err_msg=k)
-
-    def cost(p):
-        col = Resonance._column(u, p["f_n_hz"], p["zeta"], t[1] - t[0])[mask]
-        return float(np.sum(effects._lstsq(proj(col[:, None]), proj(e[mask][:, None])[:, 0])[1] ** 2))
-    np.testing.assert_allclose(cost(a), cost(b), rtol=1e-9)

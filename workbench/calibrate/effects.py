@@ -151,7 +151,7 @@ def _data_key(*arrays):
 
 
 def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
-            row_columns_many=None, jac="2-point", jacobian_blocks=False):
+            row_columns_many=None, jac="2-point"):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -166,12 +166,6 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     to the last bit (a compiled filter runs :data:`GRID_BATCH` of them in one pass).
     ``jac``: ``least_squares``' finite-difference scheme (see :meth:`_Relaxation.fit` for why a
     relaxation's search takes ``"3-point"``).
-    ``jacobian_blocks``: with ``project`` and ``row_columns_many``, the refinement's
-    finite-difference points are projected as one block (:data:`JACOBIAN_BLOCKS` must be on too):
-    each point's projection to rounding, so the refinement's path to rounding. A mode's search
-    takes it (its ~1,500 projections were ~3 s of the creep speed record); the relaxations' do
-    not: on seed 71 a creep's refinement (#35) then stopped elsewhere (its printed ratio 0.06 ->
-    0.09).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -181,44 +175,26 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     rows = None if row_columns is None else np.flatnonzero(mask)
 
     ready = {}              # columns filtered ahead, by theta's bytes (the Jacobian's points)
-    projected = {}          # the same, already projected (a block of the Jacobian's points at once)
 
     def res(theta):
         if rows is None:
             X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
         else:
-            key = np.asarray(theta, dtype=float).tobytes()
-            X = projected.pop(key, None)
-            if X is None:
-                col = ready.pop(key, None)
-                X = np.atleast_2d(np.asarray(row_columns(theta, rows) if col is None else col, dtype=float).T).T
-                X = X if project is None else project(X)
+            col = ready.pop(np.asarray(theta, dtype=float).tobytes(), None)
+            X = np.atleast_2d(np.asarray(row_columns(theta, rows) if col is None else col, dtype=float).T).T
+            X = X if project is None else project(X)
         return _lstsq(X, y)[1]
 
     def jacobian_map(fun, points):
         """least_squares' map over its finite-difference points: their columns filtered in one
-        pass (``row_columns_many``) and, with ``project``, projected as one block (a matrix-matrix
-        product reading the base's columns once for all the points, :func:`_grid_blocks`: each
-        point's projection to rounding), then ``fun`` at each point as before, in order."""
+        pass (``row_columns_many``), then ``fun`` at each point as before, in order."""
         points = list(points)
         if row_columns_many is not None and rows is not None and points:
             thetas = [np.atleast_1d(np.asarray(x, dtype=float)) for x in points]
             ready.clear()
-            projected.clear()
-            cols = row_columns_many(thetas, rows)
-            if project is None or not (jacobian_blocks and JACOBIAN_BLOCKS):
-                ready.update((th.tobytes(), col) for th, col in zip(thetas, cols))
-            else:
-                keys = iter([th.tobytes() for th in thetas])
-                shaped = [np.atleast_2d(np.asarray(col, dtype=float).T).T for col in cols]
-                for widths, _, PB in _grid_blocks(shaped, project, rows.size):
-                    j = 0
-                    for w in widths:
-                        projected.setdefault(next(keys), np.ascontiguousarray(PB[:, j:j + w]))
-                        j += w
+            ready.update((th.tobytes(), col) for th, col in zip(thetas, row_columns_many(thetas, rows)))
         out = [fun(x) for x in points]
         ready.clear()
-        projected.clear()
         return out
 
     def grid_columns():
@@ -385,10 +361,6 @@ class Drift(Effect):
 # least_squares takes a map for its finite-difference points from scipy 1.16 (``workers``)
 _MAP_KW = ((lambda m: {"workers": m}) if "workers" in inspect.signature(least_squares).parameters
            else (lambda m: {}))
-# a mode's refinement's finite-difference points projected as one block (``_varpro``'s jacobian_blocks):
-# each point's projection to rounding, so least_squares' path and answer to its tolerances
-# (tests/calibrate/test_speed_equivalence.py); False projects each point alone, as before
-JACOBIAN_BLOCKS = True
 GRID_BATCH = 32    # grid points whose columns one pass of a compiled filter computes (_varpro)
 GRID_BATCH_BYTES = 1 << 25    # at most 32 MB of columns per pass (a full 1M-row record: 4 columns a pass)
 
@@ -1185,7 +1157,7 @@ class Resonance(Effect):
                               row_columns=lambda th, rows: mode_column_rows(u, *mode(th), rows),
                               plain_costs=memo,
                               row_columns_many=lambda ths, rows: mode_columns_rows(
-                                  u, [mode(th) for th in ths], rows), jacobian_blocks=True)
+                                  u, [mode(th) for th in ths], rows))
         f = float(np.exp(theta[0]))
         return {"gain": float(beta[0]), "f_n_hz": f, "zeta": float(zeta(f, float(np.exp(theta[1]))))}
 
