@@ -108,7 +108,7 @@ def _save(fig, path, dpi=120):
     Saving a figure with a layout engine lays it out twice (matplotlib draws it once without
     output to place it, then again to render it, placing it again): here the engine places it
     once, at the saving resolution, and is then set aside, so the render draws what was placed:
-    the same PNG bytes (``tests/report/test_calibrate_figures_save.py``), one layout and one
+    the same PNG bytes (``tests/calibrate/test_calibrate_report.py``), one layout and one
     traversal of the figure less (~15 % of the figures' time). The PNG is compressed at zlib level
     ``PNG_LEVEL`` (1): the same pixels as Pillow's default level 6, in a file ~10 % larger, ~20 ms
     a figure faster (``tests/calibrate/test_calibrate_report.py``).
