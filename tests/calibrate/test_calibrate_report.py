@@ -105,17 +105,25 @@ def test_figures_none_case(traced, none_result, tmp_path):
 @pytest.mark.parametrize("case", ("effect", "none"))
 def test_figures_laid_out_once_are_the_same_pngs(traced, none_result, tmp_path, monkeypatch, case):
     """Every figure saved with its constrained layout computed once (``_save``) has the bytes of the
-    figure saved as matplotlib does it (laid out while saving, twice), effect and none cases."""
+    figure saved as matplotlib does it (laid out while saving, twice) at the same PNG compression,
+    and the pixels of the figure saved at Pillow's default compression, effect and none cases."""
+    from matplotlib.image import imread
+
     from workbench.report import calibrate_figures
     from workbench.report.output import save_figure
     base, result, holds = traced
     result, holds = (result, holds) if case == "effect" else (none_result, None)
     fast = calibration_figures(tmp_path / "fast", base, result, holds=holds)
-    monkeypatch.setattr(calibrate_figures, "_save", lambda fig, path, dpi=120: save_figure(fig, path, dpi=dpi))
-    slow = calibration_figures(tmp_path / "slow", base, result, holds=holds)
-    assert [p.name for p in fast] == [p.name for p in slow] and len(fast) >= 5
-    for a, b in zip(fast, slow):
-        assert a.read_bytes() == b.read_bytes(), a.name
+    for level, folder in ((calibrate_figures.PNG_LEVEL, "slow"), (None, "default")):
+        monkeypatch.setattr(calibrate_figures, "_save", lambda fig, path, dpi=120, level=level: save_figure(
+            fig, path, dpi=dpi, png_compress_level=level))
+        slow = calibration_figures(tmp_path / folder, base, result, holds=holds)
+        assert [p.name for p in fast] == [p.name for p in slow] and len(fast) >= 5
+        for a, b in zip(fast, slow):
+            if level is not None:
+                assert a.read_bytes() == b.read_bytes(), a.name
+            else:
+                assert np.array_equal(imread(a), imread(b)), a.name
 
 
 def test_candidates_and_holds_figures_when_nothing_fitted(traced, none_result, tmp_path):
