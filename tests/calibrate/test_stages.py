@@ -165,9 +165,10 @@ def test_json_draws_are_the_first_two():
 # fold (run_stages) and won 4 of 5 (a strict xfail). With the delay's weights refitted on each fold's training
 # rows (s11_delayfold, issue 13 finding 1) it wins 5 of 5 and both are named: the mark is gone.
 # s17_creep's V_h-driven creep lost the creep + delay draw (1 kHz steps, creep 11.9x, delay 5.9x on their own records):
-# creep alone (a strict xfail, JSON_CD_MISS). Session 18 (s18_creepdelay2): with the joint creep + delay candidate's
-# branches driven by the found creep's V_h (creep_beside_delay._branch_drive) both are named again (5 of 5, then the
-# delay 5 of 5: test RMS 1.753e-8 -> 6.917e-9 -> 3.787e-9 m): the mark is gone.
+# creep alone (a strict xfail, JSON_CD_MISS). Session 18: both are named again (5 of 5, then the delay 5 of 5: test
+# RMS 1.753e-8 -> 6.917e-9 -> 3.787e-9 m) and the mark is gone. s18_creepdelay2 credited its V_h-driven joint
+# candidate (creep_beside_delay._branch_drive); its review found the lead's back-off fix of creep_drive (1595499)
+# alone names both here too: this test guards the drive, the joint's drive is guarded by test_creep_beside_delay.
 
 
 @pytest.mark.parametrize("pair, size, seed", [JSON_DRAWS[0], JSON_DRAWS[1]], ids=["drift+resonance", "creep+delay"])
