@@ -1291,6 +1291,8 @@ def _slow_mode_against_drift(by, drifts, probs, extra, split, infos, test):
         beats = [True] * n_folds
         for d in rivals:
             side = [a < d["ratios"][f] for f, a in enumerate(row["ratios"])]
+            if all(side):
+                continue          # it beats the polynomial side by side on every fold: no nested score needed
             C = d["g"]["C"] * d["g"]["norms"]
             lo = list(d["g"]["lb"][prob.A.shape[1]:])
             fold = [gf["C"] * gf["norms"] for gf in d["fold_g"]] if d.get("fold_g") is not None else None
