@@ -348,7 +348,7 @@ def test_a_rival_counts_on_the_folds_it_explains(monkeypatch, rival_rms, beaten)
     split = SimpleNamespace(folds=[(f, f) for f in range(5)])
     res = {"befores": {"k": [1.0] * 5}, "null_gain": {"k": [0.0] * 5}}
     ctx = {"noise_factor": 1.0, "infos": {"displacement": {"noise_floor": 0.01}}, "penalty": 0.0, "min_share": 0.0}
-    row = {"name": "cand", "key": "k", "channel": "displacement"}
+    row = {"name": "cand", "key": "k", "channel": "displacement", "n_params": 1}
     rival = {"name": "rival", "key": "k", "n_params": 3}
     ok, who = stages._beats_rivals(row, [rival], {"k": prob}, {"k": []}, split, res, ctx)
     assert ok is beaten and who == (None if beaten else "rival")
