@@ -242,3 +242,24 @@ def test_a_split_takes_the_partner_it_can_be_scored_against_among_tied_counts(mo
     answer, count, note = stages.resolve_split(res, {"need": 4, "probs": {}, "base": None, "t": None}, {}, [])
     assert sorted(pairs) == sorted([(a, b), (b, a)])
     assert answer == a and count == 3 and "(3 and 1)" in note
+
+
+#: The creep + delay records of session 18's fresh seeds told apart (both >= 3x beyond the other on the test
+#: rows) and missed there, as the benchmark numbers them (seed, index, its end rates drawn): 72 #31 (1 kHz
+#: steps: the joint delay refused by a second creep's 12 branches leaving 0.5 % less unpenalized on one fold),
+#: 73 #42 (10 kHz calibration: creep 3 folds, the delay and the creep's charge 1 each, the split paired with
+#: the charge), 73 #152 (1 MHz sine: every fold the charge's absorption, decided or undecided against creep,
+#: the delay passing every fold). Records of the benchmark, so only in the full form (10-30 s each).
+MISSED_PAIRS = ((72, 31, False), (73, 42, False), (73, 152, True))
+
+
+@pytest.mark.skipif(not FULL, reason="full form: WORKBENCH_FULL=1 (make test-full) traces these records")
+@pytest.mark.parametrize("seed, index, ends", MISSED_PAIRS)
+def test_session_18s_missed_creep_and_delay_pairs_are_answered_with_both(sn637, seed, index, ends):
+    """Each of the three records is answered with creep and the delay, nothing else, and the calibration
+    leaves at most half the error before (issue 13 item 5's target on a pair the record tells apart)."""
+    cc = load_benchmark("calibrate_confusion")
+    eff, rate, proto, size, s = cc.cases(1, seed, ends=ends)[index - 1]
+    assert eff == ("creep", "delay")
+    r = cc.evaluate(sn637, eff, rate, proto, size, s, diagnostics=False)
+    assert r["class"] == "right" and r["both"] and r["ratio"] <= 0.5, (r["named"], r["agreement"], r["ratio"])
