@@ -1,4 +1,4 @@
-"""The mode search reaches the record's Nyquist frequency (session 19, branch s19_driftmode).
+"""The mode search reaches the record's Nyquist frequency, its half-power band below it (session 19, s19_driftmode).
 
 Seed 73 #33 (a drift and a 410 Hz, zeta 0.005 mode on a 1 kHz steps record; each >= 3x beyond the other
 on the test rows) was answered drift alone: the search stopped at 0.4 of the sample rate (400 Hz, a
@@ -7,6 +7,11 @@ zeta 0.04: a broad mode reaching for the ringing above it) and, after the drift,
 A sampled record shows a mode's ringing at its own frequency up to the Nyquist frequency ``1 / (2 dt)``
 (above it, at its alias ``fs - f``, also below Nyquist: :mod:`test_spurious_mode`); the benchmark
 draws modes up to 2.3 kHz, so at 1 kHz the band 0.4-0.5 fs, and the aliases of 0.5-0.6 fs, were unseen.
+
+Raised alone, the ceiling let a heavily damped trial at Nyquist stand in for a sub-sample delay (seed 26 #31:
+creep + a 0.14 ms delay at 1 kHz, one fold taken by a 500 Hz, zeta 0.3 trial, the delay refused): a trial's
+damping is now capped so that its half-power band ``f (1 + zeta)`` stays below Nyquist, where the record
+shows a mode's peak (:meth:`~workbench.calibrate.effects.Resonance._ring_cap`).
 """
 
 import numpy as np
@@ -98,3 +103,22 @@ def test_after_a_drift_the_mode_near_nyquist_is_searched_at_its_frequency(sn637,
     for s in res["stages"]:
         if s["effect"] == "resonance":
             assert abs(s["parameters"]["f_n_hz"] - f) < 0.25 * band, (s["parameters"], truth)
+
+
+def test_every_trial_mode_keeps_its_half_power_band_below_nyquist():
+    """Up to Nyquist, a trial's damping is capped so that its half-power band ``f (1 + zeta)`` stays below
+    ``f_N`` (at ``zeta_min`` at most, right at ``f_N``): a heavily damped trial there shows the record no
+    peak, only a sub-sample delay's phase, and took a fold from a 0.14 ms delay after creep (seed 26 #31,
+    ``test_large_effects``) when the ceiling alone was raised. Main's 400 Hz, zeta 0.3 trial reaches 520 Hz."""
+    for rate in (1e3, 1e4, 1e5):
+        t = np.arange(10_000) / rate
+        eff = Resonance()
+        lo, hi = eff._range(t)
+        zeta = eff._ring_cap(t)
+        f_nyq = rate / 2
+        assert np.exp(hi) == pytest.approx(f_nyq)
+        for f in np.exp(np.linspace(lo, hi, 200)):
+            for z in (eff.zeta_min, 0.01, 0.1, eff.zeta_max):
+                zz = zeta(f, z)
+                assert eff.zeta_min <= zz <= z
+                assert f * (1 + zz) <= f_nyq * (1 + 1e-12) or zz == eff.zeta_min, (rate, f, z, zz)
