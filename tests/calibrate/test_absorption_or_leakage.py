@@ -394,7 +394,7 @@ def test_the_stage_says_the_compatible_folds_beside_the_decided(monkeypatch, win
     monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
     monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
     monkeypatch.setattr(stages, "resolve_split", lambda *args: (None, 0, None))
-    monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect", lambda answer, count, note, *args:
+    monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect", lambda answer, count, note, *args, **kw:
                         (answer, count, note))
     monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None:
                         {"count": count, "resolved": resolved})

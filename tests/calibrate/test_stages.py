@@ -262,7 +262,7 @@ def test_after_creep_behind_promotion_creep_not_the_relaxation_has_the_lower_bar
     monkeypatch.setattr(tracing, "_score_stage", lambda *args, **kw: res)
     monkeypatch.setattr(tracing, "_absorb", lambda *args, **kw: None)
     monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect",
-                        lambda answer, count, note, *args: (dl, 1, "promoted") if promote else (answer, count, note))
+                        lambda answer, count, note, *args, **kw: (dl, 1, "promoted") if promote else (answer, count, note))
     monkeypatch.setattr(stages, "_stage_entry", lambda c, count, ctx, extra, resolved=None: {"count": count})
     got = {}
 
@@ -309,6 +309,34 @@ def test_creep_behind_a_displacement_effect_each_branch(monkeypatch, creep_folds
         assert answer is None and count == 4 and note is None
     else:
         assert (answer, count, note) == (charge, 4, "kept")
+
+
+@pytest.mark.parametrize("decided_creep", [0, 1])
+def test_creep_behind_asked_of_undecided_folds_needs_a_decided_creep_fold(monkeypatch, decided_creep):
+    """stages._creep_behind_a_displacement_effect with ``decided`` (asked when no first-stage fold
+    was decided for the relaxation; review of s19_creepdelay, finding 2): with the delay in the model
+    the re-scored folds are undecided between creep and another effect on 4 of 5, decided for creep
+    on ``decided_creep``. Without a fold decided for creep the answer stands (no promotion on
+    undecided folds alone); with one, the delay is promoted and ``info`` gets the folds it passes."""
+    from workbench.calibrate import tracing
+    tag, charge = ("delay", "displacement"), ("dielectric_absorption", "charge")
+    d = {"name": "delay", "channel": "displacement", "passes": [True] * 5, "score": 0.5}
+    und = ("undecided", "dielectric_absorption or creep")
+    res = {"rows": [d], "winners": [und, und, und, und, charge]}
+    won = [("creep", "displacement")] * decided_creep + [("undecided", "delay or creep")] * (4 - decided_creep)
+    monkeypatch.setattr(tracing, "_absorb", lambda *a, **k: None)
+    monkeypatch.setattr(stages, "_later_candidates", lambda *a, **k: [])
+    monkeypatch.setattr(tracing, "_score_stage", lambda *a, **k: {"winners": won + ["none"]})
+    ctx = {"probs": {}, "split": SimpleNamespace(folds=[0] * 5), "need": 4, "base": None, "t": None,
+           "cands": [], "nulls": [], "penalty": 0.02, "noise_factor": 1.0, "infos": {}, "min_share": 0.0}
+    info = {}
+    got = stages._creep_behind_a_displacement_effect(charge, 0, None, res, ctx, {}, [], decided=True, info=info)
+    if decided_creep:
+        assert got[0] == tag and got[1] == 0 and info == {"passes": 5}
+    else:
+        assert got == (charge, 0, None) and info == {}
+    # without ``decided`` (a named relaxation) undecided folds count for creep, as before
+    assert stages._creep_behind_a_displacement_effect(charge, 0, None, res, ctx, {}, [])[0] == tag
 
 
 def test_creep_behind_rule_is_skipped_once_creep_is_found_or_no_displacement_effect_passes(monkeypatch):
@@ -404,15 +432,20 @@ def test_folds_all_a_charge_relaxation_ask_whether_it_is_creep_behind_a_displace
         asked.clear()
         seen_later.clear()
 
-        def behind(answer, count, note, res_, ctx_, extra, found):
-            asked.append(answer)
+        def behind(answer, count, note, res_, ctx_, extra, found, decided=False, info=None):
+            asked.append((answer, decided))
+            if promote:
+                info["passes"] = 5
             return (dl, 0, "creep's charge") if promote else (answer, count, note)
 
         monkeypatch.setattr(stages, "_creep_behind_a_displacement_effect", behind)
         first, st, _ = stages.run_stages(ctx)
-        assert asked == [da]
+        assert asked == [(da, True)]       # asked needing a decided creep fold (review finding 2)
         if promote:
             assert [(s["effect"], s["channel"]) for s in st] == [dl] and first["answer"] == dl
+            # the promoted delay won no fold (agreement 0) but passes 5: what scripts compare with
+            # agree_needed (review finding 1)
+            assert st[0]["agreement"] == 0 and st[0]["agreement_compatible"] == 5
             assert ("creep", "displacement") in seen_later[0] and da not in seen_later[0]
         else:
             assert st == [] and first["answer"] is None

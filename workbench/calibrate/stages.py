@@ -739,7 +739,7 @@ def _joint_beats_alone(x, y, res, ex, res_k, ctx):
     return passes >= need
 
 
-def _creep_behind_a_displacement_effect(answer, count, note, res, ctx, extra, found):
+def _creep_behind_a_displacement_effect(answer, count, note, res, ctx, extra, found, decided=False, info=None):
     """A charge relaxation named while another effect dominates the displacement: is it creep?
 
     Creep relaxes the charge and moves the stack; absorption and leakage move only the charge
@@ -752,7 +752,13 @@ def _creep_behind_a_displacement_effect(answer, count, note, res, ctx, extra, fo
     wins at least half of the folds (the cross-channel rule now sees it), the charge relaxation
     is creep's own charge and the displacement effect is named first (the next stage looks again
     for the rest); if it wins some fold but fewer, the record cannot tell (``None``:
-    inconclusive); else the answer stands.
+    inconclusive); else the answer stands. With ``decided`` (asked when no fold of the first stage
+    was decided for the relaxation either), a promotion also needs one fold decided for the
+    displacement's creep, not only undecided ones (review of s19_creepdelay, finding 2: with the
+    displacement effect found, ``_stack_could_hide`` widens and folds stay undecided more easily).
+    ``info`` (a dict), when given, receives ``passes``: the folds the promoted effect passes, its
+    ``agreement_compatible`` (its own fold wins, the ``agreement``, may be 0: every first-stage fold
+    went to the charge; finding 1).
 
     Returns
     -------
@@ -774,13 +780,16 @@ def _creep_behind_a_displacement_effect(answer, count, note, res, ctx, extra, fo
                           found + [tag], ctx["min_share"])
     creep_folds = sum(1 for w in r2["winners"] if w == ("creep", "displacement")
                       or (not isinstance(w, str) and w[0] == "undecided" and "creep" in w[1]))
-    if 2 * creep_folds >= n_folds:
+    decided_folds = sum(1 for w in r2["winners"] if w == ("creep", "displacement"))
+    if 2 * creep_folds >= n_folds and (decided_folds or not decided):
+        if info is not None:
+            info["passes"] = int(sum(d["passes"]))
         # the agreement is d's own fold wins (review 3 bug 2), not the folds it passes; the promotion is the note's
         wins = sum(1 for w in res["winners"] if tuple(w) == tag)
         return tag, wins, (f"{answer[0]} on the charge is creep's charge: with the {d['name']} of the displacement "
                            f"in the model, the displacement's creep wins {creep_folds} of {n_folds} folds; the "
                            f"{d['name']} (passes {int(sum(d['passes']))} folds) is named first")
-    if creep_folds:
+    if creep_folds and not decided:
         return None, count, None
     return answer, count, note
 
@@ -893,20 +902,26 @@ def run_stages(ctx, max_stages=3):
             answer, count = ans2, count2
     promoted = False
     if answer not in (None, "none") and answer[1] == "charge":
-        charge_answer = answer
+        charge_answer, info = answer, {}
         answer, count, resolved = _creep_behind_a_displacement_effect(answer, count, resolved, res, ctx, extra,
-                                                                      found)
+                                                                      found, info=info)
         promoted = answer not in (None, "none") and answer != charge_answer
+        if promoted and "passes" in info:
+            compatible = (resolved, info["passes"])
     elif answer is None and _charge_relaxation_folds(res["winners"]):
         # every fold a charge relaxation's, decided or undecided against creep, none agreed on: the
         # same question (is it creep's charge behind a larger displacement effect?), asked of the
         # relaxation most folds chose; only a promotion changes the answer (seen, 73 #152: a 20x creep
         # behind an 11 ms delay at 1 MHz, the delay passing every fold at ratio 0.09, the folds undecided
         # absorption-or-creep 4, absorption 1: inconclusive)
-        charge_answer = _charge_relaxation_folds(res["winners"])
-        ans2, count2, note2 = _creep_behind_a_displacement_effect(charge_answer, 0, None, res, ctx, extra, found)
+        # (with ``decided``: a promotion needs a fold decided for the displacement's creep)
+        charge_answer, info = _charge_relaxation_folds(res["winners"]), {}
+        ans2, count2, note2 = _creep_behind_a_displacement_effect(charge_answer, 0, None, res, ctx, extra, found,
+                                                                  decided=True, info=info)
         if ans2 not in (None, "none") and ans2 != charge_answer:
             answer, count, resolved, promoted = ans2, count2, note2, True
+            if "passes" in info:
+                compatible = (resolved, info["passes"])
     first = {"res": res, "answer": answer, "count": count, "winners": winners}
     # effects that won a fold of the first stage need ``need`` folds later, any other every fold;
     # after the creep-behind promotion the charge relaxation that won the folds is creep's own
