@@ -42,7 +42,8 @@ def _rows(rng, n):
 @pytest.mark.parametrize("seed", range(6))
 def test_mode_kernel_equals_scipy_filter(seed):
     """The compiled biquad = ``Resonance._column`` at the rows, for modes drawn over the whole
-    search range (1 Hz to 0.4 of the sample rate, damping 0.002 to 0.3) at 100 Hz .. 1 MHz."""
+    search range (1 Hz to the Nyquist frequency since session 19, damping 0.002 to 0.3 within the
+    search's half-power cap ``f_N / f - 1``) at 100 Hz .. 1 MHz."""
     rng = np.random.default_rng(seed)
     rate = RATES_HZ[seed % len(RATES_HZ)]
     n = int(rng.integers(2_000, 40_000))
@@ -50,8 +51,8 @@ def test_mode_kernel_equals_scipy_filter(seed):
     u = _input(rng, n)
     rows = _rows(rng, n)
     for _ in range(8):
-        f_n = float(np.exp(rng.uniform(np.log(1.0), np.log(0.4 * rate))))
-        zeta = float(np.exp(rng.uniform(np.log(0.002), np.log(0.3))))
+        f_n = float(np.exp(rng.uniform(np.log(1.0), np.log(0.5 * rate))))
+        zeta = min(float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))), max(0.5 * rate / f_n - 1.0, 0.002))
         ref = Resonance._column(u, f_n, zeta, dt)[rows]
         fast = mode_column_rows(u, *_foh_mode(f_n, zeta, dt), rows)
         np.testing.assert_allclose(fast, ref, rtol=0, atol=1e-12 * np.max(np.abs(ref)))
@@ -69,8 +70,9 @@ def test_batched_mode_kernel_equals_one_filter_at_a_time(seed):
     u = _input(rng, n)
     for rows, k in ((_rows(rng, n), 1), (_rows(rng, n), 2), (_rows(rng, n), int(rng.integers(3, 41))),
                     (np.arange(n), int(rng.integers(1, 41))), (np.array([n - 1]), 2), (np.zeros(0, np.int64), 3)):
-        filters = [_foh_mode(float(np.exp(rng.uniform(0.0, np.log(0.4 * rate)))),
-                             float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))), dt) for _ in range(k)]
+        fs_n = np.exp(rng.uniform(0.0, np.log(0.5 * rate), k))          # up to Nyquist (session 19)
+        filters = [_foh_mode(float(f), min(float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))),
+                                           max(0.5 * rate / float(f) - 1.0, 0.002)), dt) for f in fs_n]
         many = mode_columns_rows(u, filters, rows)
         assert many.shape == (k, rows.size)
         for j, (b, a) in enumerate(filters):
