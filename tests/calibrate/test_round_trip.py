@@ -9,6 +9,7 @@ before any run), the file written as ``workbench calibrate`` writes it (the refi
 ``choose_core``), is a strict xfail where it is a miss, with the measured reason.
 """
 
+import copy
 import dataclasses
 from pathlib import Path
 from types import SimpleNamespace
@@ -191,18 +192,39 @@ def test_updated_plant_error_reason():
     assert "amplifier command" in updated_plant_error_reason("pzt", res, cmd, "displacement")
 
 
+_TRACED, _ROUND_TRIPS = {}, {}
+
+
+def _traced(sn637, effect, rate, proto, size, seed):
+    """``(t, sp, base, plant, truth, r, res)``: the confusion benchmark's record of a draw and its tracing. Several
+    tests take the same draw (the creep+delay draws four tests, seed 24 #55 two): it is simulated and traced once
+    in this module, and each caller gets its own deep copy (what one test changes, no other sees)."""
+    key = (effect, rate, proto, size, seed)
+    if key not in _TRACED:
+        cc = load_benchmark("calibrate_confusion")
+        t, sp, base, plant, truth, r = cc.simulated_base(sn637, effect, rate, proto, size, seed)
+        _TRACED[key] = (t, sp, base, plant, truth, r, trace_effect(base, split=sp))
+    return copy.deepcopy(_TRACED[key])
+
+
 def _round_trip(sn637, effect, rate, proto, size, seed, tmp_path):
-    cc = load_benchmark("calibrate_confusion")
-    t, sp, base, plant, truth, r = cc.simulated_base(sn637, effect, rate, proto, size, seed)
-    res = trace_effect(base, split=sp)
-    # the core as ``workbench calibrate`` writes it: refitted or declared, by the development rows' replay
-    core, _, _ = choose_core(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("rec.csv"), sp.train)
-    text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("rec.csv"), core=core)
+    """The tracing's updated plant file written to ``tmp_path / "p.toml"`` and the record replayed through it:
+    ``(res, err, base, sp)``, computed once per draw in this module (the two creep+delay round-trip tests take the
+    same draws), a deep copy to each caller and the file written to each caller's ``tmp_path``."""
+    key = (effect, rate, proto, size, seed)
+    if key not in _ROUND_TRIPS:
+        t, sp, base, plant, truth, r, res = _traced(sn637, effect, rate, proto, size, seed)
+        # the core as ``workbench calibrate`` writes it: refitted or declared, by the development rows' replay
+        core, _, _ = choose_core(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("rec.csv"), sp.train)
+        text = updated_plant_text(PLANTS / "p888_51_sn637.toml", sn637, base, res, Path("rec.csv"), core=core)
+        (tmp_path / "p.toml").write_text(text)
+        again = load_plant(tmp_path / "p.toml")
+        ch = res["channel"] or "displacement"
+        err = updated_plant_error(again, base, ch, sp.test, train=sp.train)
+        true = updated_plant_error(plant, base, ch, sp.test, train=sp.train)
+        _ROUND_TRIPS[key] = (res, err, base, sp, text, true)
+    res, err, base, sp, text, true = copy.deepcopy(_ROUND_TRIPS[key])
     (tmp_path / "p.toml").write_text(text)
-    again = load_plant(tmp_path / "p.toml")
-    ch = res["channel"] or "displacement"
-    err = updated_plant_error(again, base, ch, sp.test, train=sp.train)
-    true = updated_plant_error(plant, base, ch, sp.test, train=sp.train)
     print(f"\n{effect} {rate:g} Hz {proto} {size:.3g}x: stages {[(s['effect'], s['channel']) for s in res['stages']]}; "
           f"error_after {res['error_after']['rms']:.4g}, updated plant {err['rms']:.4g}, true plant {true['rms']:.4g}")
     return res, err, base, sp
@@ -418,10 +440,8 @@ def test_choose_core_takes_no_part_of_the_test_rows(sn637):
     test rows are changed (noise and a step of 100x the sensor's noise there, a drawn creep+delay record):
     ``choose_core`` scores on the development rows alone; only its test error moves."""
     import copy
-    cc = load_benchmark("calibrate_confusion")
     d = next(d for d in DRAWS if d[0] == ("creep", "delay") and d[1:3] != (1e3, "sine"))
-    t, sp, base, plant, truth, r = cc.simulated_base(sn637, *d)
-    res = trace_effect(base, split=sp)
+    t, sp, base, plant, truth, r, res = _traced(sn637, *d)
     ch = res["channel"] or "displacement"
     out = []
     for pert in (0.0, 1e-7):
@@ -579,8 +599,7 @@ def test_the_written_mode_is_the_plants_mode(sn637, tmp_path, effect, rate, prot
     through the file on the development rows, ``plant_update._refit_mode``) is within a quarter of the drawn
     mode's half-power bandwidth ``2 zeta f`` of the drawn frequency, and the file replays the record to at most
     10 % above the tracing model's test error."""
-    cc = load_benchmark("calibrate_confusion")
-    _, _, _, _, truth, _ = cc.simulated_base(sn637, effect, rate, proto, size, seed)
+    truth = _traced(sn637, effect, rate, proto, size, seed)[4]
     res, err, _, _ = _round_trip(sn637, effect, rate, proto, size, seed, tmp_path)
     assert res["stages"], res["reason"]
     assert err["rms"] <= (1.0 + ROUND_TRIP_TOLERANCE) * res["error_after"]["rms"], err["rms"] / res["error_after"]["rms"]
@@ -676,9 +695,7 @@ def test_the_written_file_takes_no_part_of_the_test_rows(sn637, monkeypatch, dra
     import copy
 
     from workbench.calibrate import plant_update as pu
-    cc = load_benchmark("calibrate_confusion")
-    t, sp, base, plant, truth, r = cc.simulated_base(sn637, *draw)
-    res = trace_effect(base, split=sp)
+    t, sp, base, plant, truth, r, res = _traced(sn637, *draw)
     stand_ins = []
     real = pu._fitted_motion
     monkeypatch.setattr(pu, "_fitted_motion", lambda *a, **k: stand_ins.append(1) or real(*a, **k))

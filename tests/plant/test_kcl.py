@@ -168,8 +168,8 @@ def _pre_fix_step(m, st, v_cmd, f_e, out):
         qh_new = qh + K.rc_charge(du, cap, K.rc_factor(cap, dt, r), dt, r, i_lim, 1.0 / i_lim, r * i_lim)
         zr, wr, z = m[o_r:o_r + n_g], m[o_w:o_w + n_g], st[o_z:o_z + n_g]
         u_new = pi_step(z, zr, wr, qh_new)
-        st[K.S_GUP] = 1.0 / pi_slope(z, zr, wr, qh_new, 1)
-        st[K.S_GDN] = 1.0 / pi_slope(z, zr, wr, qh_new, -1)
+        st[K.S_GUP] = 1.0 / pi_slope(z, zr, wr, qh_new, np.int64(1))     # int64: the library's signature
+        st[K.S_GDN] = 1.0 / pi_slope(z, zr, wr, qh_new, np.int64(-1))
     v_h = u_new - qh_new * inv_cpp
     qc_tot = 0.0
     o_cc, o_cdec, o_qc = int(m[K.O_CC]), int(m[K.O_CDEC]), int(m[K.OS_QC])

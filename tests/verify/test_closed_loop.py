@@ -280,3 +280,18 @@ def test_the_sweeps_triangle_is_verifys(root, monkeypatch):
     lo, hi, f, periods, dt = calls[0]
     assert f == 0.1 and periods == 2 and hi - lo == pytest.approx(row["triangle_span_m"], rel=1e-12)
     assert (lo + hi) / 2 == pytest.approx(scenarios.X_START_M, rel=1e-12)
+
+
+def test_the_compiled_loop_takes_one_signature_whatever_the_callers_arrays(sn637_creep, data, ctrl):
+    """numba compiles ``_loop`` anew (~7 s CPU) for every distinct argument type, and an array's type carries its
+    writeable flag: a reference array, a read-only broadcast of one, a list, a constant, a read-only force, with the
+    fixed-point and the float cascade (whose unused fixed-point arrays are placeholders), reach the loop as one
+    signature (main compiled it 4 times in this file from an empty cache, 5 in the suite)."""
+    from workbench.verify import closed_loop
+    ref = np.linspace(0.0, 0.05, 200)
+    runs = [((ref,), {}), ((np.broadcast_to(ref, ref.shape),), {}), ((list(ref),), {}), ((0.02,), {"periods": 200}),
+            ((ref,), {"force_n": np.broadcast_to(0.1, ref.shape)})]
+    for c in (ctrl, controller_from_json(data, "float")):
+        for args, kw in runs:
+            ClosedLoop(sn637_creep, c, noise=True, seed=1).run(*args, **kw)
+    assert len(closed_loop._loop.signatures) == 1, closed_loop._loop.signatures

@@ -9,10 +9,14 @@ direct form II transposed (``y = z_0 + b_0 x``, ``z_0 = z_1 + b_1 x - a_1 y``,
 the reference forms to the last bit on the machines we measured; the tests compare them
 bit for bit (``tests/calibrate/test_speed_equivalence.py``). ``rows`` must be strictly increasing
 (``numpy.flatnonzero`` of a mask, as every caller passes): other rows leave output unwritten.
+The arrays are handed over read-only (:func:`workbench._kernel_args.readonly`), so each kernel compiles
+once whether the caller's arrays are writable or not.
 """
 
 import numpy as np
 from numba import njit
+
+from .._kernel_args import readonly
 
 __all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows", "plays_rows"]
 
@@ -42,8 +46,8 @@ def mode_column_rows(u, b, a, rows):
     (``a[0] = 1``); ``rows`` sorted row indices (int64)."""
     b = np.asarray(b, float)
     a = np.asarray(a, float)
-    return _biquad_minus_input(np.ascontiguousarray(u, dtype=float), float(b[0]), float(b[1]), float(b[2]),
-                               float(a[1]), float(a[2]), np.ascontiguousarray(rows, dtype=np.int64))
+    return _biquad_minus_input(readonly(u), float(b[0]), float(b[1]), float(b[2]),
+                               float(a[1]), float(a[2]), readonly(rows, np.int64))
 
 
 @njit(cache=True)
@@ -118,8 +122,8 @@ def mode_columns_rows(u, filters, rows):
     """
     coef = np.array([[float(b[0]), float(b[1]), float(b[2]), float(a[1]), float(a[2])] for b, a in filters],
                     dtype=float).reshape(-1, 5)
-    u = np.ascontiguousarray(u, dtype=float)
-    rows = np.ascontiguousarray(rows, dtype=np.int64)
+    u = readonly(u)
+    rows = readonly(rows, np.int64)
     if coef.shape[0] == 1:
         return _biquad_minus_input(u, *coef[0], rows)[None, :]
     if coef.shape[0] == 2:
@@ -149,8 +153,7 @@ def _lowpass(u, a, minus_input, rows):
 def lowpass_rows(u, tau, dt, rows, minus_input=False):
     """``lowpass(u, tau, dt)[rows]`` (``- u[rows]`` with ``minus_input``), see :func:`.effects.lowpass`."""
     a = float(np.exp(-dt / tau))
-    return _lowpass(np.ascontiguousarray(u, dtype=float), a, bool(minus_input),
-                    np.ascontiguousarray(rows, dtype=np.int64))
+    return _lowpass(readonly(u), a, bool(minus_input), readonly(rows, np.int64))
 
 
 @njit(cache=True)
@@ -183,5 +186,4 @@ def plays_rows(v, thresholds, initial_states, rows):
     Each play's update is ``plant.hysteresis.play_step``'s (clamp to ``[v - r, v + r]``): the same values.
     ``rows`` strictly increasing (``numpy.flatnonzero`` of a mask).
     """
-    return _plays_rows(np.ascontiguousarray(v, dtype=float), np.ascontiguousarray(thresholds, dtype=float),
-                       np.ascontiguousarray(initial_states, dtype=float), np.ascontiguousarray(rows, dtype=np.int64))
+    return _plays_rows(readonly(v), readonly(thresholds), readonly(initial_states), readonly(rows, np.int64))

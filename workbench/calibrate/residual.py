@@ -64,6 +64,7 @@ from numba import njit
 from scipy import fft, signal, stats
 from scipy.integrate import cumulative_trapezoid
 
+from .._kernel_args import readonly
 from .record import CURRENT_KINDS
 
 __all__ = ["ResidualReport", "analyze_residual", "analyze_record", "charge_from_current",
@@ -281,7 +282,8 @@ def _hold_spans(t, u, tol, min_s):
     keep = t[b - 1] - t[a] >= min_s
     if not np.any(keep):
         return np.empty((0, 2), dtype=np.int64)
-    return _greedy_spans(t, u, a[keep].astype(np.int64), b[keep].astype(np.int64),
+    # read-only views of t, u (their dtype kept): one compiled signature whether the caller's arrays are writable
+    return _greedy_spans(readonly(t, None), readonly(u, None), readonly(a[keep], np.int64), readonly(b[keep], np.int64),
                          float(tol), float(min_s))
 
 

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from .._kernel_args import readonly
+
 __all__ = ["PrandtlIshlinskii", "play", "play_step", "pi_step", "pi_slope"]
 
 
@@ -151,12 +153,12 @@ class PrandtlIshlinskii:
         Returns the output samples; the operator itself is not changed.
         """
         z = (self.initial_states if states is None else np.asarray(states, float)).copy()
-        return _pi_run(z, self.thresholds, self.weights, np.ascontiguousarray(v, dtype=float))
+        return _pi_run(z, self.thresholds, self.weights, readonly(v))
 
     def final_states(self, v, states=None):
         """Play states after the input samples ``v``."""
         z = (self.initial_states if states is None else np.asarray(states, float)).copy()
-        _pi_run(z, self.thresholds, self.weights, np.ascontiguousarray(v, dtype=float))
+        _pi_run(z, self.thresholds, self.weights, readonly(v))
         return z
 
     def output_at_rest(self):

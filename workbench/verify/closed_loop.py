@@ -46,6 +46,7 @@ from numba import njit
 
 from ..design.antiwindup import HanusController, hanus_initial_state
 from ..export.fixed_point import FixedPointController, fixed_step, float_step, initial_state
+from .._kernel_args import readonly
 from ..export.sos import from_sos
 from ..plant import kernels as K
 from ..plant.gauge import TRIM_CENTER_M, _bridge, _quantize, demod_noise_sigma_v, linearized_displacement
@@ -488,7 +489,7 @@ class ClosedLoop:
         self._hd = 1.0 if h is None else float(h.d)
         f = c.fixed
         if f is not None:
-            self._fb, self._fa = f.b, f.a
+            self._fb, self._fa = readonly(f.b, np.int64), readonly(f.a, np.int64)    # read-only: one _loop signature
             self._fshift = f.b_shift.astype(np.int64)
             self._ffrac, self._fin = int(f.a_frac_bits), int(f.input_limit)
             self._in_scale, self._out_scale = 2.0 ** f.input_frac_bits, 2.0 ** -f.output_frac_bits
@@ -499,7 +500,7 @@ class ClosedLoop:
             if not anti_windup:
                 self._limw[2:] = (1 << 30, 1 << 40, 1 << 40)
         else:
-            self._fb, self._fa = np.zeros((1, 3), np.int64), np.zeros((1, 2), np.int64)
+            self._fb, self._fa = readonly(np.zeros((1, 3)), np.int64), readonly(np.zeros((1, 2)), np.int64)
             self._fshift = np.zeros(1, np.int64)
             self._ffrac, self._fin, self._in_scale, self._out_scale = 29, 1, 1.0, 1.0
             self._limw = np.zeros(5, np.int64)
@@ -544,10 +545,9 @@ class ClosedLoop:
             if not (np.isfinite(ref) and np.isfinite(force)):
                 raise ValueError("reference and force must be finite")
         else:
-            ref = np.ascontiguousarray(np.broadcast_to(ref_v, np.shape(ref_v) if np.ndim(ref_v) else np.shape(force_n)),
-                                       dtype=float)
-            force = np.zeros_like(ref) if force_n is None else np.ascontiguousarray(
-                np.broadcast_to(force_n, ref.shape), dtype=float)
+            # read-only views (a broadcast is one; an array of the caller's is viewed so): _loop compiles once
+            ref = readonly(np.broadcast_to(ref_v, np.shape(ref_v) if np.ndim(ref_v) else np.shape(force_n)))
+            force = readonly(np.zeros(ref.shape) if force_n is None else np.broadcast_to(force_n, ref.shape))
             if ref.ndim != 1 or not (np.all(np.isfinite(ref)) and np.all(np.isfinite(force))):
                 raise ValueError("reference and force must be finite 1-D arrays of one length")
             n = ref.size
@@ -561,7 +561,7 @@ class ClosedLoop:
         # standard_normal(n) * sigma, in the same order: the stream does not depend on the chunking)
         size = min(n, CHUNK)
         if scalar:
-            r_const, f_const = np.full(size, ref), np.full(size, force)
+            r_const, f_const = readonly(np.full(size, ref)), readonly(np.full(size, force))
         for start in range(0, n, CHUNK):
             stop = min(n, start + CHUNK)
             if scalar:

@@ -255,14 +255,14 @@ class MirrorLoop:
         sm = self.iff_state[2]
         for k in range(w.shape[0]):
             tr = sim.run(io[3:][None, :].copy(), external_n=w[k:k + 1])
-            x = tr.x_m[0]
+            x = np.ascontiguousarray(tr.x_m[0])         # a strided row: C-contiguous, as _loop passes (one signature)
             _gauges(io[:3], x, self.gp, self.r0, noise[k], g)
             out[k] = x, tr.i_a[0], io[3:], tr.v_t_v[0], g, tr.v_p_v[0], tr.q_c[0]
             mir[k] = tr.y[0, 6:9]
             io[:3] = x
             if ctrl.iff is not None:
                 b = np.empty(3)
-                _bridge_reading(tr.q_c[0], tr.v_t_v[0], self.bridge_state, self.bridge_zero, *self.bridge[:-1],
+                _bridge_reading(np.ascontiguousarray(tr.q_c[0]), np.ascontiguousarray(tr.v_t_v[0]), self.bridge_state, self.bridge_zero, *self.bridge[:-1],
                                 bnoise[k], b)
                 bout[k] = b
                 iff_step(np.rint(b * bsc).astype(np.int64), self.iff_state[0], self.iff_state[1], dv, *ctrl.iff_plan)
@@ -349,11 +349,12 @@ def _loop(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, 
     b = np.empty(ns)
     vt = np.empty(ns)
     gscale = 2.0 ** gf
+    one = np.int64(1)         # decimate as int64, not the literal 1: coupled_run's one compiled signature
     for k in range(w.shape[0]):
         for j in range(ns):
             vrow[0, j] = io[3 + j]
         coupled_run(sc, g_r, g_w, g_off, c_cap, c_dec, c_off, es, zg, qc, ad, b0, b1, hx, hu, cy, dy, xi, xi_tmp,
-                    g_prev, g_now, u_now, y, h, vrow, fe, w[k:k + 1], n_sub, 1, rec_s, rec_y, rec_xi)
+                    g_prev, g_now, u_now, y, h, vrow, fe, w[k:k + 1], n_sub, one, rec_s, rec_y, rec_xi)
         x = rec_s[0, :, _X].copy()
         _gauges(io[:3], x, gp, r0, noise[k], g)
         for j in range(ns):
