@@ -223,7 +223,7 @@ def beyond_sizes(base, base0, effects, sp):
     return [b["test"] for b in _beyond(base, base0, effects, sp)]
 
 
-def _beyond(base, base0, effects, sp):
+def _beyond(base, base0, effects, sp, loops=None):
     """:func:`beyond_sizes`' figure on the test rows and on each validation fold, and each fold's share.
 
     A later stage of the tracing is judged fold by fold (``tracing._fold_test``), and an effect
@@ -245,6 +245,10 @@ def _beyond(base, base0, effects, sp):
         The record's effects (names of :data:`CHANNEL`).
     sp : Split
         The record's split; its ``folds`` give the validation folds.
+    loops : dict, optional
+        The creep branches' drive (:func:`workbench.calibrate.tracing.creep_loops`), default the
+        record's; ``{}`` leaves out the forms that need it (the creep driven by the base model's
+        prediction only, as for a record without a declared PZT).
 
     Returns
     -------
@@ -258,8 +262,11 @@ def _beyond(base, base0, effects, sp):
         misfit, counts in what the others leave): a filter by it replays the tracing's own rule.
         0.0 throughout where the effect's channel or form is missing.
     """
+    from workbench.calibrate.tracing import creep_loops
     out = []
     n_f = len(sp.folds)
+    loops = creep_loops(base) if loops is None else loops    # one V_h for every fit, as the tracing's
+    joint = {}                        # every effect fitted: one fit per channel
     for e in effects:
         ch = CHANNEL[e]
         m0 = base0.channels.get(ch)
@@ -269,8 +276,10 @@ def _beyond(base, base0, effects, sp):
         floor = float(np.sqrt(np.mean(m0.residual[sp.test & m0.valid] ** 2)))
         floors = [float(np.sqrt(np.mean(m0.residual[sp.rows(va) & m0.valid] ** 2))) for _, va in sp.folds]
         others = [o for o in effects if o != e]
-        left_o, fold_o = _left_by(base, ch, others, sp, folds=True)
-        left_all, fold_all = _left_by(base, ch, list(effects), sp, folds=True)
+        left_o, fold_o = _left_by(base, ch, others, sp, folds=True, loops=loops)
+        if ch not in joint:
+            joint[ch] = _left_by(base, ch, list(effects), sp, folds=True, loops=loops)
+        left_all, fold_all = joint[ch]
 
         def size(lo, la, fl):
             if not (np.isfinite(lo) and np.isfinite(la)):
@@ -303,21 +312,72 @@ def twin_size(base, base0, effect, sp):
     return float(np.sqrt(max(left_twin ** 2 - left_own ** 2, 0.0)) / floor) if floor > 0 else np.inf
 
 
-def _left_by(base, ch, names, sp, rounds=2, folds=False):
+def _forms(eff):
+    """An effect's form, for telling the variants of :func:`_left_by` apart: its class and its settings, a
+    setting that holds an object (a creep's ``loop``, a delay's or mode's ``basis``) counted as set or not."""
+    def key(v):
+        if v is None or isinstance(v, (bool, int, float, str)):
+            return v
+        if isinstance(v, (tuple, list)) and all(isinstance(x, (int, float)) for x in v):
+            return tuple(v)
+        return "set"
+    return (type(eff).__name__,) + tuple(sorted((k, key(v)) for k, v in vars(eff).items() if not k.startswith("_")))
+
+
+def effect_variants(base, ch, names, sp, loops=None):
+    """Per name of ``names``, the forms :func:`_left_by` searches for it on ``ch``: ``(effect, driver)`` pairs.
+
+    Every form the tracing has for the effect: the plan the tracing searches
+    (``tracing.candidate_plan`` with the channels' own bases and ``tracing.creep_loops``: the creep's
+    branches driven by the voltage across C_h, the delay's model refitted at each trial delay), and
+    the same plan without the record's loops and bases (the branches driven by the base model's
+    prediction, the tracing's creep when the record declares no PZT; the delay shifting the model),
+    each distinct form once. ``loops``: :func:`~workbench.calibrate.tracing.creep_loops` of ``base``
+    (one per record, so its ``V_h`` is solved once, as the tracing's). An empty list where the
+    channel has no candidate of that name."""
+    from workbench.calibrate.tracing import candidate_plan, creep_loops
+    t = np.asarray(base.t, float)
+    bases = {c: base.channel_basis(c) for c in base.channels}
+    loops = creep_loops(base) if loops is None else loops
+    plans = (candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis=bases, loops=loops),
+             candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s))
+    m = base.channels[ch]
+    drivers = {"model": m.yhat, "voltage": base.v_drive, "time": t}
+    out = []
+    for n in names:
+        seen, forms = set(), []
+        for plan in plans:
+            for c, eff, driver in plan:
+                if c == ch and eff.name == n and (_forms(eff), driver) not in seen:
+                    seen.add((_forms(eff), driver))
+                    forms.append((eff, drivers[driver]))
+        out.append(forms)
+    return out
+
+
+def _left_by(base, ch, names, sp, rounds=2, folds=False, loops=None):
     """Test RMS on ``ch`` of ``base``'s record with the effects ``names`` fitted, jointly with the
     base's columns: each effect searched as the tracing searches a candidate
     (``tracing._candidate_columns``: with and without the base's columns projected out, on the
-    development rows), alternated ``rounds`` times in every order (each searched on what the
-    others leave), each time one bounded least squares of every column with the base's (the
-    plays' corrections bounded as the base's). Of every joint fit (every order, round and variant
-    of an effect on ``ch``: drift's polynomial and periodic) the one with the least development
-    RMS is kept: the first round of the order that starts with an effect nests that effect alone. ``inf`` when an effect has no
-    candidate on ``ch``. ``folds``: also that fit's columns solved (bounded) on each fold's training rows, its
-    RMS on the fold's validation rows (a list): ``(test RMS, [fold RMS])``."""
+    development rows, the two ranked against the target being fitted), alternated ``rounds`` times
+    in every order (each searched on what the others leave), each time one bounded least squares of
+    every column with the base's (the plays' corrections bounded as the base's). Each effect in
+    every form the tracing has for it (:func:`effect_variants`: drift's polynomial and periodic; the
+    creep's branches driven by the voltage across C_h, as the tracing drives them, and by the base
+    model's prediction; the delay's model refitted per trial delay, and shifted). Of every joint fit
+    (every order, round and form) the one with the least development RMS is kept: the first round of
+    the order that starts with an effect nests that effect alone. So "the others" and "the others
+    and the effect" are each the best the tracing's forms do on the record, and an effect stands
+    beyond the others only by what no form of theirs explains (a form that misfits one effect no
+    longer lends its misfit to the other: a creep-only 1 kHz steps record read a delay 14.4x beyond
+    the model-driven creep, 2.6x beyond the V_h-driven one). ``inf`` when an effect has no candidate
+    on ``ch``. ``folds``: also that fit's columns solved (bounded) on each fold's training rows, its
+    RMS on the fold's validation rows (a list): ``(test RMS, [fold RMS])``. ``loops``: as
+    :func:`effect_variants`."""
     import itertools
 
     from workbench.calibrate.base_fit import _gram_solve
-    from workbench.calibrate.tracing import _base_lower, _candidate_columns, _Problem, _search_rows, candidate_plan
+    from workbench.calibrate.tracing import _base_lower, _candidate_columns, _Problem, _search_rows
     m = base.channels[ch]
     t = np.asarray(base.t, float)
     dev, test = sp.train & m.valid, sp.test & m.valid
@@ -338,9 +398,7 @@ def _left_by(base, ch, names, sp, rounds=2, folds=False):
         r0 = float(np.sqrt(np.mean(m.residual[test] ** 2)))
         return (r0, on_folds(base.basis, lower_b)) if folds else r0
     prob = _Problem(sp, m.valid, base.basis, lower_b, m.y - m.yhat, _search_rows(dev))
-    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=sp.block_s, basis=base.basis)
-    variants = [[(eff, {"model": m.yhat, "voltage": base.v_drive, "time": t}[driver])
-                 for c, eff, driver in plan if c == ch and eff.name == n] for n in names]
+    variants = effect_variants(base, ch, names, sp, loops)
     if not all(variants):
         return (np.inf, [np.inf] * len(fold_rows)) if folds else np.inf
     best = (np.inf, np.inf, None)
