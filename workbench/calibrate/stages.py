@@ -95,7 +95,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage
+from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage, sensor_term
 from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
                                     nested_consensus, nested_note, refitted_absorption_stage)
 
@@ -945,7 +945,8 @@ def run_stages(ctx, max_stages=3):
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
         if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS and stages[-1].get("_term") is not None:
-            _gauge_reads_corrected(ctx, stages[-1]["_term"], extra)
+            # (the sensor's part of the term: a joint delay beside creep carries the stack's creep too)
+            _gauge_reads_corrected(ctx, sensor_term(stages[-1]), extra)
         if len(stages) >= max_stages:
             break
         answer, count, _, res_k, note = _later_stage(ctx, extra, found, seen=seen)
