@@ -82,7 +82,7 @@ def test_drawn_one_megahertz_sensor_effects_leave_the_charge_as_found(sn637, dra
 
 
 def test_no_channel_ends_above_the_line_the_folds_prefer(record_57_154):
-    sp, base, _, _ = record_57_154
+    sp, base, _, truth = record_57_154
     res = trace_effect(base, split=sp)
     named = [s["effect"] for s in res["stages"]]
     assert named and set(named) <= {"drift", "resonance"}, named
@@ -91,7 +91,15 @@ def test_no_channel_ends_above_the_line_the_folds_prefer(record_57_154):
                                                                             base.channels[ch].line_rms_test)
     g = res["channels"]["gauge"]
     assert base.channels["gauge"].rms_test > base.channels["gauge"].line_rms_test      # the case
-    assert g.get("line") and "straight line" in g["line_note"]
+    # (session 20, s20_modebasis) the 52.5 Hz mode lies below the 62 Hz drive: on the drive model refitted
+    # per trial (``Resonance(basis=...)``) it is named at its frequency and the gauge ends well below the
+    # line (0.0074 V against 0.105 V); the mode on the base's prediction was found at the drive's 63.1 Hz
+    # (zeta at its 0.002 floor), and the gauge then ended on the straight line (its model no better on the folds)
+    f, band = truth["freq_hz"], 2 * truth["damping_ratio"] * truth["freq_hz"]
+    modes = [s["parameters"]["f_n_hz"] for s in res["stages"] if s["effect"] == "resonance"]
+    assert modes and all(abs(fm - f) < 0.25 * band for fm in modes), (modes, truth)
+    assert g["error_after"]["rms"] < 0.5 * base.channels["gauge"].line_rms_test, (g["error_after"],
+                                                                                   base.channels["gauge"].line_rms_test)
 
 
 def _mode_record(sn637, rng, n_rows, cycles, effect="none", proto=None):

@@ -206,17 +206,19 @@ def _research(c, probs, extra, t, base):
     u = model if c["driver"] == "model" else c["u"]
     eff = copy.deepcopy(c["eff"])
     best = None
-    modes = (project, None) if getattr(eff, "nonlinear", False) else (project,)
+    modes = [{"project": m} for m in ((project, None) if getattr(eff, "nonlinear", False) else (project,))]
+    if getattr(eff, "refits", False):
+        modes.append({"project": None, "refit": True})     # a mode on the refitted drive model (Resonance)
     dev = prob.split.dev_blocks
     # the two searches' copies share the effect's memo of the plain search's grid costs (a
     # resonance's, :func:`~.effects._varpro`'s ``plain_costs``, keyed by the data): the search
     # with the projection leaves them, the plain one takes them instead of filtering its ~500
     # grid columns again, as in the first stage (same numbers; ~0.7 s per channel at 355,000 rows)
     memo = eff.__dict__.get("_grid_costs")
-    for proj in modes:
+    for kw in modes:
         e = copy.deepcopy(eff, {id(memo): memo} if isinstance(memo, dict) else None)
         try:
-            p = e.fit(t, u, y - model, prob.search, y_model=model, project=proj)
+            p = e.fit(t, u, y - model, prob.search, y_model=model, **kw)
         except ValueError:
             continue
         if hasattr(e, "columns"):

@@ -154,7 +154,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
     plan = []
     has_x = "displacement" in channels
     if "displacement" in channels:
-        plan += [("displacement", CreepSpectrum("displacement"), "model"), ("displacement", Resonance(), "model"),
+        plan += [("displacement", CreepSpectrum("displacement"), "model"),
+                 ("displacement", Resonance(basis=_basis("displacement")), "model"),
                  ("displacement", Delay(max_delay=max_delay, basis=_basis("displacement"), max_lead=max_lead),
                   "model"),
                  ("displacement", Drift(), "time"),
@@ -170,7 +171,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
         if not has_x:
             plan.append(("charge", CreepSpectrum("charge"), "model"))
     if "gauge" in channels:
-        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(), "model"),
+        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(basis=_basis("gauge")), "model"),
                  ("gauge", Delay(max_delay=max_delay, basis=_basis("gauge"), max_lead=max_lead), "model"),
                  ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
@@ -470,9 +471,16 @@ def _candidate_columns(eff, t, u, y, yhat, prob):
     narrow valley) -- and the variant the development rows fit better is kept.
     """
     best = None
-    modes = (prob.project, None) if getattr(eff, "nonlinear", False) else (prob.project,)
-    for project in modes:
-        p = eff.fit(t, u, y - yhat, prob.search, y_model=yhat, project=project)
+    modes = [{"project": m} for m in ((prob.project, None) if getattr(eff, "nonlinear", False) else (prob.project,))]
+    if getattr(eff, "refits", False):
+        modes.append({"project": None, "refit": True})     # a mode on the refitted drive model (Resonance)
+    for kw in modes:
+        try:
+            p = eff.fit(t, u, y - yhat, prob.search, y_model=yhat, **kw)
+        except ValueError:
+            if kw.get("refit"):
+                continue
+            raise
         if best is not None and _same_params(p, best[1]):
             continue            # both searches found the same (a memo's answer): same columns, same cost
         if hasattr(eff, "columns"):
