@@ -11,8 +11,11 @@ Session 19: 79 #165 (drift + a mode, 1 MHz steps) went ``inconclusive`` 5 of 5 a
 the mode passing every fold, because a refused bow with no displacement drift left the fold undecided.
 """
 
+import numpy as np
 import pytest
 
+from tests.conftest import FULL, load_benchmark
+from workbench.calibrate import tracing as tr
 from workbench.calibrate.tracing import GAUGE_BOW_OR_DRIFT, _after_bow_refused
 
 
@@ -54,3 +57,33 @@ def test_a_refused_bow_moves_on_to_the_stacks_motion_as_the_displacement_reads_i
 ])
 def test_a_refused_bow_stays_undecided_beside_nothing_a_gauge_only_row_or_a_charge_row(rest):
     assert _after_bow_refused([BOW] + [_row(*r) for r in rest]) == GAUGE_BOW_OR_DRIFT
+
+
+# drift + a mode at 1 MHz on the steps protocol (0.1 s, 100,000 rows: the record has one rest hold, on which
+# the hold check can veto the displacement's drift while the drift in time still refuses the bow: 79 #165),
+# sizes log-uniform over 1.5-5x (around 79 #165's 2.3x), own stream fixed before any run
+_RNG = np.random.default_rng(2027)
+DRIFT_MODE_1M = [(float(np.exp(_RNG.uniform(np.log(1.5), np.log(5.0)))), int(_RNG.integers(1 << 30))) for _ in range(6)]
+
+
+@pytest.mark.skipif(not FULL, reason="six 1 MHz records (~1-2 min): WORKBENCH_FULL=1 (make test-full)")
+def test_drift_and_a_mode_at_1_mhz_steps_are_named_and_never_a_bow(sn637, monkeypatch):
+    """Over the draws the rule is reached (a bow refused on some fold of some stage) and every record is
+    named with no effect but the drift and the mode: never the bow, never a charge relaxation handed a
+    refused bow's fold."""
+    calls = []
+    orig = tr._after_bow_refused
+
+    def spy(ok):
+        out = orig(ok)
+        calls.append(out)
+        return out
+
+    monkeypatch.setattr(tr, "_after_bow_refused", spy)
+    bench = load_benchmark("calibrate_confusion")
+    for size, seed in DRIFT_MODE_1M:
+        t, sp, base, _, truth, _ = bench.simulated_base(sn637, ("drift", "resonance"), 1e6, "steps", size, seed)
+        res = tr.trace_effect(base, split=sp)
+        named = [s["effect"] for s in res["stages"]]
+        assert named and set(named) <= {"drift", "resonance"}, (size, seed, res["effect"], named, res.get("fold_winners"))
+    assert calls, "no bow was refused: the draws do not exercise the rule"
