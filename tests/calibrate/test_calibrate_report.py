@@ -76,6 +76,18 @@ def none_result(traced):
     return out
 
 
+@pytest.fixture(scope="module")
+def drawn(traced, none_result, tmp_path_factory):
+    """Each case's figures drawn once in the module, as ``workbench calibrate`` draws them (the effect case with
+    its holds, the none case without, its residual reports given): ``{case: (paths, reports)}``. The tests only
+    read the files; ``test_figures_laid_out_once_are_the_same_pngs`` compares the matplotlib-saved PNGs with these."""
+    base, result, holds = traced
+    out = tmp_path_factory.mktemp("figures")
+    reports = residual_reports(base, none_result)
+    return {"effect": (calibration_figures(out / "effect" / "fig", base, result, holds=holds), None),
+            "none": (calibration_figures(out / "none", base, none_result, holds=None, reports=reports), reports)}
+
+
 def _check_pngs(paths, names):
     assert [p.stem for p in paths] == names
     for p in paths:
@@ -86,26 +98,25 @@ def _check_pngs(paths, names):
 
 # --- figures ------------------------------------------------------------------------------------
 
-def test_figures_effect_case(traced, tmp_path):
-    base, result, holds = traced
-    paths = calibration_figures(tmp_path / "fig", base, result, holds=holds)
+def test_figures_effect_case(drawn):
+    paths, _ = drawn["effect"]
     _check_pngs(paths, ALL + ["creep_holds"])
-    assert all(p.parent == tmp_path / "fig" for p in paths)
+    folder = paths[0].parent
+    assert folder.name == "fig" and all(p.parent == folder for p in paths)
 
 
-def test_figures_none_case(traced, none_result, tmp_path):
+def test_figures_none_case(traced, drawn):
     base, _, _ = traced
-    reports = residual_reports(base, none_result)
+    paths, reports = drawn["none"]
     assert reports["after"] is None and reports["before"].n == base.t.size
-    paths = calibration_figures(tmp_path, base, none_result, holds=None, reports=reports)
     _check_pngs(paths, ALL)
-    assert not (tmp_path / "creep_holds.png").exists()
+    assert not (paths[0].parent / "creep_holds.png").exists()
 
 
 @pytest.mark.parametrize("case", ("effect", "none"))
-def test_figures_laid_out_once_are_the_same_pngs(traced, none_result, tmp_path, monkeypatch, case):
-    """Every figure saved with its constrained layout computed once (``_save``) has the bytes of the
-    figure saved as matplotlib does it (laid out while saving, twice) at the same PNG compression,
+def test_figures_laid_out_once_are_the_same_pngs(traced, none_result, drawn, tmp_path, monkeypatch, case):
+    """Every figure saved with its constrained layout computed once (``_save``: the module's ``drawn``) has the
+    bytes of the figure saved as matplotlib does it (laid out while saving, twice) at the same PNG compression,
     and the pixels of the figure saved at Pillow's default compression, effect and none cases."""
     from matplotlib.image import imread
 
@@ -113,7 +124,7 @@ def test_figures_laid_out_once_are_the_same_pngs(traced, none_result, tmp_path, 
     from workbench.report.output import save_figure
     base, result, holds = traced
     result, holds = (result, holds) if case == "effect" else (none_result, None)
-    fast = calibration_figures(tmp_path / "fast", base, result, holds=holds)
+    fast, _ = drawn[case]
     for level, folder in ((calibrate_figures.PNG_LEVEL, "slow"), (None, "default")):
         monkeypatch.setattr(calibrate_figures, "_save", lambda fig, path, dpi=120, level=level: save_figure(
             fig, path, dpi=dpi, png_compress_level=level))

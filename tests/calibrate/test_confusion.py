@@ -57,11 +57,18 @@ def _traced(sn637, effects, rate_hz, protocol, size, seed):
     return base, trace_effect(base, split=sp), truth
 
 
-def test_a_large_leakage_does_not_choose_the_drive(sn637):
+@pytest.fixture(scope="module")
+def large_leakage(sn637):
+    """The 25x leakage record (1 kHz calibration protocol, seed 5) traced once in the module; the two
+    tests below only read it."""
+    return _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
+
+
+def test_a_large_leakage_does_not_choose_the_drive(large_leakage):
     """A 25x leakage (R_FP ~ 1-10 Mohm) fits the charge better with the recorded V = V_t + R i,
     which leads V_t by ~R C; the drive is judged on the stack's motion, so it stays V - R i and
     the displacement shows no spurious delay (before: a 0.65 ms 'delay' stage)."""
-    base, res, truth = _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
+    base, res, truth = large_leakage
     assert base.voltage_source == "terminal voltage V - R i"
     named = [s["effect"] for s in res["stages"]]
     # the false-positive side, asserted by name (an empty answer must not pass by itself, review 3 item 14)
@@ -69,12 +76,12 @@ def test_a_large_leakage_does_not_choose_the_drive(sn637):
     assert all(s["effect"] == "leakage" for s in res["stages"]), named
 
 
-def test_a_large_leakage_is_named(sn637):
+def test_a_large_leakage_is_named(large_leakage):
     """The same 25x leakage record: the leakage itself is named (the positive side; it was a strict
     xfail, inconclusive 3 of 5 with 2 folds undecided against a slow absorption, until the record
     had to rule out absorptions settling within the whole record rather than half of it:
     calibrate/absorption_or_leakage.py), with the note that a slower absorption would look the same."""
-    base, res, truth = _traced(sn637, "leakage", 1e3, "calibration", 25.0, 5)
+    base, res, truth = large_leakage
     assert [s["effect"] for s in res["stages"]] == ["leakage"], res["fold_winners"]
     assert "would look the same" in res["stages"][0]["note"] and "would look the same" in res["reason"]
 
