@@ -5,8 +5,8 @@ exists for a mode below the drive's frequency, whose motion turns against the dr
 (tests/calibrate/test_mode_below_drive.py). A mode far above the drive's frequency leaves the motion in phase
 (a gain ``1 / (1 - (f_d / f_n)^2)`` the base's plays absorb), and the plain form finds it on the base's
 prediction: the variant is searched only when its reach holds a mode below ``f_d / (1 - zeta_max)``
-(:meth:`~workbench.calibrate.effects.Resonance.refit_reach`), and on a slow drive (a 1 kHz steps record:
-0.4 Hz reversals, the search's floor 1 Hz) it is skipped. The mode's frequency is read from the record's
+(:meth:`~workbench.calibrate.effects.Resonance.refit_reach`), and on a slow drive (a 1 kHz steps record, its motion reversing
+about every 1.2 s: f_turn ~0.6 Hz, the search's floor 1 Hz) it is skipped. The mode's frequency is read from the record's
 drive (its reversals) times a ratio, the plant the benchmark's simulator on the declared sn637.
 """
 

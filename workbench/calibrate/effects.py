@@ -1133,28 +1133,37 @@ class Resonance(Effect):
 
     def refit_reach(self, t, y_model):
         """``(f_lo, f_hi, f_turn)`` Hz: the refitted search's trial range (:meth:`_fit_refit`) and the
-        highest mode that turns the motion at the drive's frequency, ``f_turn = f_d / (1 - zeta_max)``.
+        highest mode that turns the motion over most of the record, ``f_turn = f_d / (1 - zeta_max)``.
 
-        ``f_d``: the motion's frequency, one over its excitation period (twice the median time between
-        the reversals of the model's motion ``y_model``, :func:`.base_fit.excitation_period_s`). A
-        light mode's phase passes -45 deg at ``f_n (1 - zeta)``, and the motion above it turns towards
-        ``-(f_n / f)^2``, a sign the base's plays (weights >= 0) cannot follow; a mode above ``f_turn``
-        leaves the motion in phase, scaled by ``1 / (1 - (f_d / f_n)^2) > 0``, a gain the plays absorb:
-        the base's fit is not distorted and the plain forms see the mode on it. The refitted variant is
-        searched only when ``f_lo < f_turn`` (issue 13: on the 355,000-row protocol record, 0.48 Hz
-        sines, ``f_turn`` 0.68 Hz lies below the search's 1 Hz floor and the variant only cost time;
-        78 #148 at 1 MHz: a 39.8 Hz mode under a 62 Hz sine, ``f_turn`` 89 Hz)."""
-        from .base_fit import excitation_period_s
+        ``f_d``: the motion's frequency over most of the record's time, one over twice the
+        time-weighted median of the intervals between the reversals of the model's motion ``y_model``
+        (half of the record's time between reversals lies in intervals at least that long: a chirp's
+        many short intervals or a step's edge do not set it, as they set the reversals' plain median,
+        :func:`.base_fit.excitation_period_s`). A light mode's phase passes -45 deg at ``f_n (1 - zeta)``,
+        and the motion above it turns towards ``-(f_n / f)^2``, a sign the base's plays (weights >= 0)
+        cannot follow; a mode above ``f_turn`` leaves the motion of most of the record in phase, scaled
+        by ``1 / (1 - (f_d / f_n)^2) > 0``, a gain the plays absorb: the base's fit is not distorted
+        and the plain forms see the mode on it. The refitted variant is searched only when
+        ``f_lo < f_turn`` (issue 13: on the 355,000-row protocol record, ``f_turn`` 0.08 Hz lies below
+        the search's 1 Hz floor and the variant only cost time; 78 #148 at 1 MHz: a 39.8 Hz mode under a
+        62 Hz sine, ``f_turn`` ~89 Hz)."""
+        from .pi_fit import turning_points
         dt = _dt(t)
-        n = np.asarray(y_model).size
+        t = np.asarray(t, float)
+        n = t.size
         s = max(1, int(np.ceil(n / REFIT_SEARCH_SAMPLES)))
         lf_lo, lf_hi = self._range(t)
         if s > 1:
             lf_hi = min(lf_hi, np.log(0.1 / (s * dt)))
-        period = excitation_period_s(np.asarray(t, float), np.asarray(y_model, float))
-        # (fewer than three reversals: no period, the motion one sweep; every trial may turn it)
-        f_d = 1.0 / period if np.isfinite(period) and period > 0 else np.inf
-        return float(np.exp(lf_lo)), float(np.exp(lf_hi)), f_d / max(1.0 - self.zeta_max, 0.5)
+        tp = turning_points(np.asarray(y_model, float))
+        f_d = np.inf            # (fewer than three reversals: the motion one sweep; every trial may turn it)
+        if tp.size >= 3:
+            d = np.sort(np.diff(t[tp]))
+            c = np.cumsum(d)
+            half = d[min(int(np.searchsorted(c, 0.5 * c[-1])), d.size - 1)]
+            if half > 0:
+                f_d = 0.5 / half
+        return float(np.exp(lf_lo)), float(np.exp(lf_hi)), float(f_d / max(1.0 - self.zeta_max, 0.5))
 
     def _fit_refit(self, t, y, y_model, mask):
         """The refitted mode's search: cost(f, zeta) = least squares of the record ``y`` on the trial
