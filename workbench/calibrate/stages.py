@@ -221,7 +221,13 @@ def _research(c, probs, extra, t, base):
             p = e.fit(t, u, y - model, prob.search, y_model=model, **kw)
         except ValueError:
             continue
-        if hasattr(e, "columns"):
+        g_r = _tr._refit_grams(e, p, t, y, model, prob, _tr._base_lower(base, c["channel"]))[0] \
+            if kw.get("refit") and key[1] == "model" else None
+        if g_r is not None:
+            # the refitted mode compared by the column it is scored with (bounded as the base's), not the
+            # search's unbounded refit (issue 13 review finding 1; as the refitted delay's below, review R2)
+            C, lower = g_r["C"] * g_r["norms"], [0.0]
+        elif hasattr(e, "columns"):
             C, lower = e.columns(t, u, p, y_model=model)
         else:
             C, lower = e.term(t, u, p, y_model=model), [0.0]

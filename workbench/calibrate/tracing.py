@@ -463,12 +463,15 @@ def _same_params(a, b):
     return True
 
 
-def _candidate_columns(eff, t, u, y, yhat, prob):
+def _candidate_columns(eff, t, u, y, yhat, prob, lower=None):
     """Search the effect's nonlinear parameters; its columns and bounds over the whole record.
 
     Effects with nonlinear parameters search twice -- against the base columns projected out
     (finds what the base would absorb) and on the plain residual (no projection to distort a
-    narrow valley) -- and the variant the development rows fit better is kept.
+    narrow valley) -- and the variant the development rows fit better is kept. With ``lower`` (the
+    base's bounds, :func:`_base_lower`) the refitted mode's variant is compared by the column it is
+    scored with, :func:`_refit_grams`' (its model's corrections bounded as the base's), not the
+    search's unbounded refit (issue 13 review finding 1, as review R2 for the delay).
     """
     best = None
     modes = [{"project": m} for m in ((prob.project, None) if getattr(eff, "nonlinear", False) else (prob.project,))]
@@ -483,11 +486,13 @@ def _candidate_columns(eff, t, u, y, yhat, prob):
             raise
         if best is not None and _same_params(p, best[1]):
             continue            # both searches found the same (a memo's answer): same columns, same cost
-        if hasattr(eff, "columns"):
-            C, lower = eff.columns(t, u, p, y_model=yhat)
-        else:
-            C, lower = eff.term(t, u, p, y_model=yhat), [0.0]
-        g = prob.grams(C, lower)
+        g = _refit_grams(eff, p, t, y, yhat, prob, lower)[0] if kw.get("refit") and lower is not None else None
+        if g is None:
+            if hasattr(eff, "columns"):
+                C, lo = eff.columns(t, u, p, y_model=yhat)
+            else:
+                C, lo = eff.term(t, u, p, y_model=yhat), [0.0]
+            g = prob.grams(C, lo)
         dev = prob.split.dev_blocks
         cost = prob.sse(g, prob.solve(g, dev), dev)[0]
         if best is None or cost < best[0]:
@@ -669,12 +674,13 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
         prob = probs[key]
         if int(prob.rows_dev.sum()) < 10 * (prob.A.shape[1] + 3) or not prob.scale > 0:
             continue
+        lower = _base_lower(base, ch) if key[1] == "model" else None
         try:
-            p, g = _candidate_columns(eff, t, u, m.y, yhat, prob)
+            p, g = _candidate_columns(eff, t, u, m.y, yhat, prob, lower)
         except ValueError:
             continue
         variant = "periodic" if getattr(eff, "periodic_hz", None) else None
-        g_dev, fold_g = _refit_grams(eff, p, t, m.y, yhat, prob, _base_lower(base, ch)) \
+        g_dev, fold_g = _refit_grams(eff, p, t, m.y, yhat, prob, lower) \
             if key[1] == "model" else (None, None)
         g = g if g_dev is None else g_dev
         cands.append({"name": eff.name, "channel": ch, "key": key, "eff": eff, "params": p, "g": g, "u": u,
