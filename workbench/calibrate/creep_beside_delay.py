@@ -98,7 +98,8 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None, drive=None):
     ymc = ym[:, None]
     rows = np.flatnonzero(prob.search)                     # (search rows: development rows, valid)
     # the found lag is tried too: the joint model nests the plain one, so its cost there is no higher
-    d = Delay(max_delay=dl["eff"].max_delay, basis=B, max_lead=dl["eff"].max_lead)._search_refit(
+    d = Delay(max_delay=dl["eff"].max_delay, basis=B, max_lead=dl["eff"].max_lead,
+              period=getattr(dl["eff"], "period", None))._search_refit(
         (Bc, Kc, ymc), y, rows, near=(dl.get("params") or {}).get("delay_samples"))
     all_rows = np.arange(t.size, dtype=float)
     Kd = Delay._rows_shifted(Kc, all_rows, d)
