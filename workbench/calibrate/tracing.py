@@ -1101,9 +1101,15 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
         # :mod:`.creep_beside_delay`) against the plain one: the one passing more validation folds,
         # then the better score (seen, 27 #42: creep behind a 5 ms delay, plain 4 folds at median
         # 0.48, joint 5 at 0.50)
+        # (the reading not kept stays on the row, ``alt``: :func:`~.stages._later_stage` asks it when the kept
+        # one is refused by a re-searched rival of a found effect)
         if tag in by and (by[tag]["score"] <= row["score"] if not (by[tag].get("replaces") or row.get("replaces"))
                           else (sum(by[tag]["passes"]), -by[tag]["score"]) >= (sum(passes), -row["score"])):
+            by[tag]["alt"] = by[tag].get("alt", []) + [row]
             continue
+        if tag in by:
+            old = by[tag]
+            row["alt"] = old.pop("alt", []) + [old]
         by[tag] = row
     _veto_drift_without_hold_motion(by, probs, extra, split, infos)
     _slow_mode_against_drift(by, drifts, probs, extra, split, infos,
