@@ -451,9 +451,12 @@ def test_folds_all_a_charge_relaxation_ask_whether_it_is_creep_behind_a_displace
             assert st == [] and first["answer"] is None
 
 
-def _later(monkeypatch, winners, passes, seen=(), n=5, first=("delay", "displacement")):
+def _later(monkeypatch, winners, passes, seen=(), n=5, first=("delay", "displacement"), disjoint=False):
     """stages._later_stage on a scored later stage (the delay found first): fold ``winners`` and
-    each row's fold ``passes`` ({tag: [bool] * n}); rivals beaten."""
+    each row's fold ``passes`` ({tag: [bool] * n}); rivals beaten; the candidate's band ``disjoint``
+    from the found effects' or not (:func:`~workbench.calibrate.stages._band_disjoint`, which needs
+    the terms: these rows have none)."""
+    monkeypatch.setattr(stages, "_band_disjoint", lambda *a, **k: disjoint)
     by = {tag: {"passes": p, "score": 0.5, "name": tag[0], "channel": tag[1]} for tag, p in passes.items()}
     res = {"winners": winners, "by": by, "rows": list(by.values())}
     found = list(first) if isinstance(first, list) else [first]
@@ -495,6 +498,17 @@ def test_a_later_stage_counts_the_stacks_creep_on_every_fold_it_explains(monkeyp
     relaxation). Deleting either reading changes an outcome here."""
     got, _ = _later(monkeypatch, winners, passes, seen)
     assert (got if got not in (None, "none") else None) == answer
+
+
+@pytest.mark.parametrize("disjoint", [False, True])
+def test_an_unseen_later_effect_needs_every_fold_unless_its_band_is_disjoint(monkeypatch, disjoint):
+    """An effect no first-stage fold chose needs every fold at a later stage, ``need`` when its band is
+    disjoint from the found effects' (it cannot be their misfit): a mode winning 4 of 5 folds behind a
+    drift (83 #11)."""
+    mode = ("resonance", "displacement")
+    got, _ = _later(monkeypatch, [mode] * 4 + ["none"], {mode: [True] * 4 + [False]},
+                    first=("drift", "displacement"), disjoint=disjoint)
+    assert (got if got not in (None, "none") else None) == (mode if disjoint else None)
 
 
 def test_a_charge_relaxations_fold_counts_for_creep_only_behind_a_sensor_effect(monkeypatch):

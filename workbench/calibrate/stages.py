@@ -18,7 +18,9 @@ the candidate to it.
 
 1. it wins every fold, or ``need`` (4 of 5) when it already won a fold of the first stage (a
    second effect the first one masked elsewhere; at 4 of 5 for any, a drift was named after a
-   sensor lead, the base model's own slow misfit), and
+   sensor lead, the base model's own slow misfit) or when its band is disjoint from every found
+   effect's on its channel (:func:`_band_disjoint`: it cannot be their misfit; a mode four
+   decades above a drift, missing a fold whose blocks hold no drive step), and
 2. it beats its **rival**: the found effects' own kinds searched again on the leftover (a
    second mode, a second delay, a drift's periodic term; for creep, branches a quarter decade
    off the found grid, driven by the model and by the drive voltage, together). What a large
@@ -358,11 +360,59 @@ def _beats_rivals(row, rivals, probs, extra, split, res, ctx):
     return True, None
 
 
+def _band_disjoint(row, ctx, extra):
+    """Is the candidate's band disjoint from every found effect's on its problem?
+
+    The every-fold rule for a later candidate that won no first-stage fold (:func:`_later_stage`)
+    guards against a found effect's own misfit, which lives in the found effect's band. A candidate
+    whose band is disjoint from every found effect's cannot be taking that misfit and needs ``need``
+    folds, as a seen one (session 21, 83 #11: a 390 Hz mode behind a drift, 4 of 5 folds; the fifth
+    fold's validation blocks hold no drive step, so the mode is not there to be seen).
+
+    Each term is its columns' part of the joint fit on the development blocks (the found effects'
+    columns on the candidate's problem and the candidate's), over the whole record. Its spectrum:
+    the Hann-windowed DFT's power per bin (the window keeps a trend's leakage out of the high bins);
+    its band: the bins where that power exceeds white noise's of the fold test's floor (``noise_factor``
+    times the channel's noise floor), ``floor^2 sum(w^2)``. Disjoint: each term's power inside the
+    other's band is below the noise's there (``floor^2 sum(w^2)`` per bin of that band): neither carries
+    more of the other's band than the noise does. False when the problem holds no found columns (the
+    misfit the rule guards against is then on another channel: the rule is kept)."""
+    key = row["key"]
+    prob = ctx["probs"][key]
+    found = _tr._fold_extra(extra[key], 0)
+    if not found or row.get("replaces") is not None:
+        # (a reading in a found effect's place refits it: its band is the found effect's)
+        return False
+    g = _tr._cand_grams(prob, found, row, 1)[0]
+    w = prob.solve(g, ctx["split"].dev_blocks)[prob.A.shape[1]:]
+    widths = [np.shape(C)[1] for C, _ in found]
+    widths.append((row["fold_g"][0] if row.get("fold_g") is not None else row["g"])["C"].shape[1])
+    ends = np.cumsum(widths)
+    ok = g["ok"]
+    kept = np.cumsum(ok) - 1          # each stacked column's index among the kept ones
+    n = prob.r.size
+    win = np.hanning(n)
+    noise = (ctx["noise_factor"] * ctx["infos"][row["channel"]]["noise_floor"]) ** 2 * float(win @ win)
+    spectra = []
+    for lo, hi in zip(np.r_[0, ends[:-1]], ends):
+        cols = [kept[j] for j in range(lo, hi) if ok[j]]
+        term = g["C"][:, cols] @ w[cols] * prob.scale if cols else np.zeros(n)
+        spectra.append(np.abs(np.fft.rfft(term * win)) ** 2)
+    mine = spectra.pop()
+    band = mine > noise
+    out = bool(band.any())
+    for other in spectra:
+        theirs = other > noise
+        # each term's power in the other's band against the noise's there
+        out = out and mine[theirs].sum() < noise * theirs.sum() and other[band].sum() < noise * band.sum()
+    return out
+
+
 def _later_stage(ctx, extra, found, seen=()):
     """Score a later stage: (answer or None, count, winners, res, note).
 
     ``seen``: effects that won a fold of the first stage; such a one needs ``need`` folds, any
-    other every fold."""
+    other every fold (``need`` when its band is disjoint from the found effects', :func:`_band_disjoint`)."""
     # the joint re-search and its scores depend only on the found effects (and so their columns):
     # resolve_split scores each order of a pair and the stage loop the winner's again; one search
     # each (review 4), checked against the found columns so a different model is never reused
@@ -406,7 +456,8 @@ def _later_stage(ctx, extra, found, seen=()):
             answer, folds_for = ans2, both
             count = sum(1 for w in res["winners"] if not isinstance(w, str) and tuple(w) == ans2)
     if answer not in (None, "none") and answer not in seen and folds_for < n_folds \
-            and not (res["by"][answer].get("replaces") is not None and answer[0] in _tr.CHARGE_RELAXATIONS):
+            and not (res["by"][answer].get("replaces") is not None and answer[0] in _tr.CHARGE_RELAXATIONS) \
+            and not _band_disjoint(res["by"][answer], ctx, extra):
         # (a candidate refitting a found effect, the joint leakage beside the absorption, is that
         # channel's nested comparison, not a second effect in the leftover: the agreement rule.
         # A joint creep + delay reading names a NEW effect, so it keeps the every-fold rule: exempt,
