@@ -1117,11 +1117,13 @@ RING_ZETA_MAX = 1.0 / (2.0 * np.pi)
 #: delay's refitted search's 2,000 / 10,000 rows); its trials reach a tenth of that rate. Why the bound
 #: is safe: a trial at a tenth of the thinned rate is sampled ten times a cycle, where the first-order
 #: hold's discretisation of the mode (:func:`_foh_mode`, exact for a piecewise-linear input) keeps its
-#: frequency and damping; and the variant runs only for a mode that turns the motion, below the drive's
-#: frequency (:meth:`Resonance.refit_reach`): 78 #148 at 1 MHz, a 39.8 Hz mode, reach 20-2,000 Hz. The
+#: frequency and damping. The variant is searched over its whole reach on every record: a gate that
+#: skipped it where no trial mode could turn the motion (session 21, ``refit_reach``) lost modes its
+#: review found in that reach (a 10 Hz mode on 1 kHz steps: ratio 0.003 with the refit, 0.050
+#: without; 4 of 19 constructed 1.5-16 Hz modes at 100 Hz / 1 kHz not named) and was taken out. The
 #: thinning takes every k-th sample without an anti-alias filter: the record's noise above the thinned
-#: Nyquist folds into the search's band (a level under every trial's cost); block means in its place are
-#: not measured (open, issue 13 review finding 3)
+#: Nyquist folds into the search's band (a level under every trial's cost); block means in its place
+#: are not measured (open, issue 13 review finding 3)
 REFIT_SEARCH_SAMPLES = 2_000
 
 
@@ -1180,47 +1182,6 @@ class Resonance(Effect):
         """``(H - 1)`` of each column of ``Z`` (``(n, m)``), each started at rest at its first value."""
         V = np.ascontiguousarray((Z - Z[:1]).T)
         return (signal.lfilter(b, a, V, axis=-1) - V).T
-
-    def refit_reach(self, t, y_model):
-        """``(f_lo, f_hi, f_turn)`` Hz: the refitted search's trial range (:meth:`_fit_refit`) and the
-        highest mode that turns the motion over most of the record, ``f_turn = f_d / (1 - zeta_max)``.
-
-        ``f_d``: the motion's frequency over most of the record's time, one over twice the
-        time-weighted median of the intervals between the reversals of the model's motion ``y_model``
-        (half of the record's time between reversals lies in intervals at least that long: a chirp's
-        many short intervals or a step's edge do not set it, as they set the reversals' plain median,
-        :func:`.base_fit.excitation_period_s`). A light mode's phase passes -45 deg at ``f_n (1 - zeta)``,
-        and the motion above it turns towards ``-(f_n / f)^2``, a sign the base's plays (weights >= 0)
-        cannot follow; a mode above ``f_turn`` leaves the motion of most of the record in phase, scaled
-        by ``1 / (1 - (f_d / f_n)^2) > 0``, a gain the plays absorb: the base's fit is not distorted
-        and the plain forms see the mode on it. The refitted variant is searched only when
-        ``f_lo < f_turn`` (issue 13: on the 355,000-row protocol record, ``f_turn`` 0.08 Hz lies below
-        the search's 1 Hz floor and the variant only cost time; 78 #148 at 1 MHz: a 39.8 Hz mode under a
-        62 Hz sine, ``f_turn`` ~89 Hz)."""
-        from .pi_fit import turning_points
-        dt = _dt(t)
-        t = np.asarray(t, float)
-        n = t.size
-        s = max(1, int(np.ceil(n / REFIT_SEARCH_SAMPLES)))
-        lf_lo, lf_hi = self._range(t)
-        if s > 1:
-            lf_hi = min(lf_hi, np.log(0.1 / (s * dt)))
-        # on the motion's means over the search's blocks of s samples (the reversals' scan, a Python loop,
-        # costs 0.15 s at 355,000 rows, 1 ms at 2,000): the intervals that decide are half-periods of
-        # trials below f_hi, at least 5 blocks long; content faster than the blocks (a chirp's top) is
-        # averaged out, not aliased
-        x = np.asarray(y_model, float)
-        nb = n // s
-        x, tb = x[:nb * s].reshape(nb, s).mean(axis=1), t[:nb * s].reshape(nb, s).mean(axis=1)
-        tp = turning_points(x)
-        f_d = np.inf            # (fewer than three reversals: the motion one sweep; every trial may turn it)
-        if tp.size >= 3:
-            d = np.sort(np.diff(tb[tp]))
-            c = np.cumsum(d)
-            half = d[min(int(np.searchsorted(c, 0.5 * c[-1])), d.size - 1)]
-            if half > 0:
-                f_d = 0.5 / half
-        return float(np.exp(lf_lo)), float(np.exp(lf_hi)), float(f_d / max(1.0 - self.zeta_max, 0.5))
 
     def _fit_refit(self, t, y, y_model, mask):
         """The refitted mode's search: cost(f, zeta) = least squares of the record ``y`` on the trial
@@ -1364,21 +1325,9 @@ class Resonance(Effect):
             key = _data_key(e, ym, mask)
             memo = self._refit_memo
             if memo.get("key") != key:
-                # (the reach depends on the motion alone: kept across the searches on it)
-                ym_key = _data_key(ym, np.asarray(t, float)[[0, -1]])
-                reach = memo.get("reach")
-                if reach is None or reach[0] != ym_key:
-                    reach = (ym_key, self.refit_reach(t, ym))
-                f_lo, _, f_turn = reach[1]
+                f, z, col = self._fit_refit(t, e + ym, ym, mask)
                 memo.clear()
-                memo["reach"] = reach
-                if f_lo < f_turn:
-                    f, z, col = self._fit_refit(t, e + ym, ym, mask)
-                    memo.update(f=f, z=z, col=col)
-                memo["key"] = key
-            if "f" not in memo:
-                # no trial mode turns the motion (:meth:`refit_reach`): the plain forms suffice
-                raise ValueError("no mode in the refitted search's reach turns the motion")
+                memo.update(key=key, f=f, z=z, col=col)
             self._models[(memo["f"], memo["z"], _data_key(ym))] = memo["col"]
             return {"gain": 1.0, "f_n_hz": memo["f"], "zeta": memo["z"], "refit": True}
         lf_lo, lf_hi = self._range(t)
