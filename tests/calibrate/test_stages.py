@@ -615,3 +615,70 @@ def test_a_later_stage_named_from_compatible_folds_says_how_many(monkeypatch):
            "later_cache": {tuple(found): (stages._extra_signature({}), res, {"rivals": []})}}
     answer, count, _, res_k, _ = stages._later_stage(ctx, {}, found)
     assert answer == CD and count == 3 and res_k["compatible_folds"] == {CD: 5}
+
+
+def _later_alt(monkeypatch, gauge_passes, dropped, winners=(CD,) * 5, seen=(), rival="delay"):
+    """stages._later_stage after a found displacement delay, the displacement's creep winning ``winners``:
+    its kept reading leaves 7.04 on fold 0 against a second delay's 6.81 (82 #42's fold 0, 1e-8 m; the other
+    folds, the found effects' 10 and one parameter each, charged 1 + 0.02, are constructed), so the real
+    :func:`~workbench.calibrate.stages._beats_rivals` refuses it; the tag's dropped reading (``alt``) leaves
+    ``dropped["rms"]`` and passes ``dropped["passes"]``; the gauge's creep passes ``gauge_passes`` (``None``: no
+    gauge row). The rival is the re-searched found ``rival`` on the displacement's problem, explaining every fold
+    (10 -> 6.81). (answer, note, the answer's row)."""
+    from workbench.calibrate import tracing
+    monkeypatch.setattr(tracing, "_stacked", lambda prob, extra, row: row["label"])
+    table = {"kept": [7.04, 6.0, 6.0, 6.0, 6.0], "rival": [6.81] * 5, "dropped": dropped["rms"]}
+    prob = SimpleNamespace(fold_rms=lambda g, tr, va: table[g][tr])
+    row = {"name": "creep", "channel": "displacement", "key": "k", "n_params": 1}
+    alt = {**row, "label": "dropped", "passes": dropped["passes"], "score": 0.65}
+    by = {CD: {**row, "label": "kept", "passes": [True] * 5, "score": 0.6, "alt": [alt]}}
+    if gauge_passes is not None:
+        by[CG] = {**row, "channel": "gauge", "key": "g", "label": "gauge", "passes": gauge_passes, "score": 0.7}
+    res = {"winners": list(winners), "by": by, "rows": list(by.values()),
+           "befores": {"k": [10.0] * 5}, "null_gain": {"k": [0.0] * 5}}
+    found = [("delay", "displacement")] + ([(rival, "displacement")] if rival != "delay" else [])
+    extra = {"k": []}
+    rv = {"name": rival, "key": "k", "n_params": 1, "label": "rival"}
+    ctx = {"need": 4, "split": SimpleNamespace(folds=[(f, f) for f in range(5)]), "probs": {"k": prob},
+           "penalty": 0.02, "noise_factor": 1.0, "infos": {"displacement": {"noise_floor": 0.1}}, "min_share": 0.0,
+           "later_cache": {tuple(found): (stages._extra_signature(extra), res, {"rivals": [rv]})}}
+    answer, _, _, res_k, note = stages._later_stage(ctx, extra, found, seen=seen)
+    return (answer if answer not in (None, "none") else None), note, res_k["by"].get(CD)
+
+
+BEATS = {"rms": [6.52] * 5, "passes": [True] * 5}
+
+
+@pytest.mark.parametrize("gauge_passes, dropped, winners, seen, rival, answered", [
+    # (1) the kept reading refused by the second delay, the gauge's creep on every fold, the dropped reading
+    # passing every fold and beating the delay on each: the stack's creep is named with the dropped reading
+    ([True] * 5, BEATS, (CD,) * 5, (), "delay", True),
+    # (2) the gauge's creep fails a fold: the sensor's delay may be what the displacement's creep takes
+    ([True] * 4 + [False], BEATS, (CD,) * 5, (), "delay", False),
+    # ... or the stage has no gauge creep at all
+    (None, BEATS, (CD,) * 5, (), "delay", False),
+    # (3) the dropped reading leaves more than the second delay on one fold
+    ([True] * 5, {**BEATS, "rms": [6.52] * 4 + [6.9]}, (CD,) * 5, (), "delay", False),
+    # ... or passes 4 folds where the kept one (no first-stage fold chose creep) was counted for every fold
+    ([True] * 5, {**BEATS, "passes": [True] * 4 + [False]}, (CD,) * 5, (), "delay", False),
+    # ... 4 are enough where creep won a first-stage fold and the kept one was counted for ``need`` (4) ...
+    ([True] * 5, {**BEATS, "passes": [True] * 4 + [False]}, (CD,) * 4 + ("none",), (CD,), "delay", True),
+    # ... 3 are not
+    ([True] * 5, {**BEATS, "passes": [True] * 3 + [False] * 2}, (CD,) * 4 + ("none",), (CD,), "delay", False),
+    # a rival of the stack's own kind (a second mode beside a found one) is not the displacement sensor's:
+    # the kept reading's refusal stands
+    ([True] * 5, BEATS, (CD,) * 5, (), "resonance", False),
+], ids=["answered", "gauge-fails-a-fold", "no-gauge-row", "dropped-loses-a-fold", "dropped-4-of-every",
+        "dropped-4-of-need", "dropped-3-of-need", "rival-not-sensor"])
+def test_the_dropped_creep_reading_is_asked_when_a_sensor_effects_rival_refuses_the_kept_one(
+        monkeypatch, gauge_passes, dropped, winners, seen, rival, answered):
+    """stages._later_stage / _other_reading (session 21, s21_altreading; 82 #42): the displacement's creep
+    reading kept by _score_stage is refused by a re-searched found delay; the tag's dropped reading is asked
+    under the same rule, no looser, only when the gauge's creep (which never sees the sensor's delay) passes
+    every fold: it must pass the folds the kept one was counted for and beat the rival on every fold the rival
+    explains. Answered, the row is the dropped reading; refused, the kept one's note stands."""
+    answer, note, row = _later_alt(monkeypatch, gauge_passes, dropped, winners, seen, rival)
+    if answered:
+        assert answer == CD and note is None and row["label"] == "dropped"
+    else:
+        assert answer is None and note == f"creep does not beat a second {rival} on the leftover"
