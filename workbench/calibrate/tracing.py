@@ -122,14 +122,16 @@ def periodic_drive_period(t, v):
     """The drive's period (samples) when the drive repeats, else None.
 
     The input's reversals (:func:`~workbench.calibrate.pi_fit.turning_points`, as
-    :func:`excitation_period_s`) give whole cycles, reversal ``i`` to ``i + 2``; the drive repeats
-    when there are at least :data:`PERIODIC_CYCLES` of them and each is within
-    :data:`PERIODIC_RTOL` of their median, the period. (A cycle, not half of one: a decaying
-    sine through the stack's RC lag has unequal halves.) The benchmark's drives as the base
-    reads them (terminal voltage ``V - R i``): the sine protocol's ten cycles within 4.5 % at
-    100 Hz to 1 MHz (the period within 1 % of the command's); the steps at most five reversals;
-    the calibration protocol either its three sines alone (six reversals, 1 MHz and 100 kHz)
-    or its chirp's cycles, spread 0.5-200x.
+    :func:`excitation_period_s`) give whole cycles, reversal ``i`` to ``i + 2`` (overlapping
+    spans); the drive repeats when there are at least ``2 PERIODIC_CYCLES - 1`` spans, that is
+    ``2 PERIODIC_CYCLES + 1`` reversals, about :data:`PERIODIC_CYCLES` and a half cycles, and each
+    is within :data:`PERIODIC_RTOL` of their median, the period (a clean three-cycle sine, seven
+    reversals, is not enough). (A cycle, not half of one: a decaying sine through the
+    stack's RC lag has unequal halves.) The benchmark's drives as the base reads them (terminal
+    voltage ``V - R i``): the sine protocol's 11 reversals (9 spans) within 4.5 % at 100 Hz to
+    1 MHz (the period within 1 % of the command's); the steps at most five reversals; the
+    calibration protocol either its three sines alone (six reversals, four spans: one reversal
+    short, 1 MHz and 100 kHz) or its chirp's cycles, spread 0.5-200x.
     """
     t = np.asarray(t, float)
     if t.size < 3:
