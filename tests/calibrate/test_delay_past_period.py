@@ -67,3 +67,25 @@ def test_only_a_repeating_drive_has_a_period():
         t, v = benchmark_protocol("sine", rate, n)
         # six cycles over the record after a rest of 0.5/14.5 of it
         assert T.periodic_drive_period(t, v) == pytest.approx(n * (1 - 0.5 / 14.5) / 6, rel=0.01)
+
+
+def test_the_period_shifts_are_the_nearest_and_at_most_the_grid_s_size():
+    """On a drive of many cycles (a 200-sample period under a 25,000-sample bound) every sub-period minimum
+    has ~125 whole-period shifts; the search keeps the nearest, at most as many as the grid has points (the
+    batch at most doubles; review finding 1: 622 candidates on a 78-point grid, 3.6x the fit's time), and
+    with few cycles (the benchmark's sine: a bound of ~1.4 periods) every shift."""
+    from workbench.calibrate.effects import Delay
+    grid = np.concatenate([-np.geomspace(150.0, 1.0, 20), np.geomspace(1.0, 25_000.0, 60)])
+    costs = 1.0 + 0.5 * np.cos(2 * np.pi * grid / 200.0)       # minima every 200 samples: the phase's aliases
+    minima = [k for k in range(grid.size) if abs(grid[k]) < 200.0
+              and (k == 0 or costs[k] <= costs[k - 1]) and (k + 1 == grid.size or costs[k] <= costs[k + 1])]
+    assert minima                                                # the construction has sub-period minima
+    many = Delay(max_delay=25_000.0, period=200.0)._period_shifts(grid, costs)
+    assert len(many) == grid.size
+    shifts = [s for _, s in many]
+    assert shifts == sorted(shifts)                              # the nearest first
+    every = [(k, j * 200.0) for k in minima for j in range(1, 126) if 0.25 < grid[k] + j * 200.0 <= 25_000.0]
+    assert max(shifts) < max(s for _, s in every)                # far shifts dropped
+    few = Delay(max_delay=280.0, period=200.0)._period_shifts(grid, costs)
+    assert sorted(few) == sorted((k, j * 200.0) for k in minima for j in (1, 2)
+                                 if 0.25 < grid[k] + j * 200.0 <= 280.0)
