@@ -112,7 +112,7 @@ def excitation_period_s(t, v):
     return float(2.0 * np.median(np.diff(np.asarray(t)[tp])))
 
 
-#: a periodic drive: at least this many whole cycles between its reversals ...
+#: a periodic drive: about this many whole cycles and a half between its reversals (2 PERIODIC_CYCLES + 1 reversals) ...
 PERIODIC_CYCLES = 3
 #: ... each within this fraction of their median
 PERIODIC_RTOL = 0.1
@@ -125,7 +125,7 @@ def periodic_drive_period(t, v):
     :func:`excitation_period_s`) give whole cycles, reversal ``i`` to ``i + 2`` (overlapping
     spans); the drive repeats when there are at least ``2 PERIODIC_CYCLES - 1`` spans, that is
     ``2 PERIODIC_CYCLES + 1`` reversals, about :data:`PERIODIC_CYCLES` and a half cycles, and each
-    is within :data:`PERIODIC_RTOL` of their median, the period (a clean three-cycle sine, seven
+    is within :data:`PERIODIC_RTOL` of their median, the period (a clean three-cycle sine, six
     reversals, is not enough). (A cycle, not half of one: a decaying sine through the
     stack's RC lag has unequal halves.) The benchmark's drives as the base reads them (terminal
     voltage ``V - R i``): the sine protocol's 11 reversals (9 spans) within 4.5 % at 100 Hz to
