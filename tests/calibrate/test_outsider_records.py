@@ -122,3 +122,22 @@ def test_clean_command_record_names_no_effect(tmp_path):
 def test_clean_record_against_the_generic_stack_names_no_effect(tmp_path):
     res = run_calibrate(_amplifier_record(tmp_path, 1, generic=True), PLANTS / "generic_stack.toml", figures=False)
     assert res["effect"] in ("none", "inconclusive"), (res["effect"], res.get("parameters"))
+
+
+@pytest.mark.xfail(strict=True, raises=TypeError,
+                   reason="s22_outsider finding 7: the real record as a command against the PZT plant stops with a "
+                          "traceback: plant_update._core_with_branches unpacks core['range_v'] = None")
+def test_real_command_record_against_a_pzt_plant_answers_or_refuses(tmp_path):
+    """The shared real record (``# input: command``: its voltage column is the commanded sine) calibrated against
+    ``p888_51_sn637.toml``: an answer or a DataFileError, never an internal error."""
+    from workbench.errors import DataFileError
+    from tests.calibrate.test_pi_fit import REAL_CSV as real
+    if not real.exists():
+        pytest.skip("the shared real record is not here")
+    data = tmp_path / "real.csv"
+    data.write_text("# input: command\nindex,time[s],displacement[um],voltage[V]\n" + real.read_text())
+    try:
+        res = run_calibrate(data, PLANTS / "p888_51_sn637.toml", figures=False)
+    except DataFileError:
+        return
+    assert res["effect"]
