@@ -2,7 +2,7 @@
 
 Each test is a wrong answer or a failure found on a record a user of another rig could write; they are strict
 xfails (the engine is not changed here) and run only in the full form (``WORKBENCH_FULL=1``: a few seconds
-each, the suite has no room). The reproducers and the counts: ``studies/s22_outsider/``.
+each, the suite has no room). The reproducers and the counts: ``benchmarks/outsider/``.
 """
 
 import dataclasses

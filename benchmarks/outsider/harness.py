@@ -1,6 +1,6 @@
 """s22_outsider: records outside the confusion benchmark's draws, calibrated as `workbench calibrate` does.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/harness.py CASE [--seed S ...]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/harness.py CASE [--seed S ...]
 
 Each case simulates a record (workbench.calibrate.synthetic.simulate_record) of a plant with or without an
 effect (plant_with_effect), writes it as the CLI's CSV, calibrates it through run_calibrate (the CLI's

@@ -2,7 +2,7 @@
 (V_amp - offset) / gain, lagged by a first-order filter whose lag the record does not say), and the same records
 calibrated against plants/generic_stack.toml (voltage -> displacement only). No effect: any named is wrong.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/command_generic_batch.py [--seeds 1 2 3]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/command_generic_batch.py [--seeds 1 2 3]
 """
 import argparse
 import sys

@@ -1,6 +1,6 @@
 """Effects (one and two, pairs not in the benchmark) on drives outside the benchmark's protocols.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/effect_batch.py --seed S [--n N]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/effect_batch.py --seed S [--n N]
 
 Each record: drive, effect(s) and size multiplier drawn from default_rng(1000 + S) before any run; the size
 printed is measured against the clean twin (harness.run_case).

@@ -1,6 +1,6 @@
 """Where the base's displacement residual sits on a clean triangle (finding 1): by phase from the nearest corner.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/triangle_residual.py
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/triangle_residual.py
 """
 import sys
 from pathlib import Path

@@ -1,6 +1,6 @@
 #!/bin/bash
 # Odd-format variants of bad_records.py's ok.csv for the CLI (then: run_cli.sh OUTDIR).
-#   studies/s22_outsider/odd_files.sh /tmp/s22o_cli/ok.csv /tmp/s22o_cli2
+#   benchmarks/outsider/odd_files.sh /tmp/s22o_cli/ok.csv /tmp/s22o_cli2
 S=$1; D=$2; mkdir -p "$D"; cd "$D" || exit 1
 sed 's/\r*$/\r/' $S > crlf.csv
 printf '\xef\xbb\xbf' > bom.csv; cat $S >> bom.csv

@@ -1,7 +1,7 @@
 """Finding: `workbench calibrate` stops with a traceback (TypeError in plant_update._core_with_branches,
 ``lo, hi = core["range_v"]`` on None) on a command-logged, displacement-only record against a PZT plant file.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/repro_command_creep_crash.py [OUTDIR]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/repro_command_creep_crash.py [OUTDIR]
 writes OUTDIR/real_cmd.csv (the shared real record, `# input: command`) and OUTDIR/synth_cmd_creep.csv (SN637 with a
 drawn creep, size 5, seed 3, 0.5 Hz sine through an amplifier of gain 20 and a 1 ms lag, logged as the command, the
 displacement only) and runs the CLI on each against plants/p888_51_sn637.toml.

@@ -1,7 +1,7 @@
 """More clean records outside the draws: minor loops off a bias, a downward start, a long slow record, a 1 MHz
 triangle, a sine with a DC ramp (a bias moving during the record). Any effect named is wrong.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/clean_more.py [--seeds 1 2]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/clean_more.py [--seeds 1 2]
 """
 import argparse
 import sys

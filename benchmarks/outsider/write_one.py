@@ -1,6 +1,6 @@
 """Write one clean simulated record as the CLI's CSV.
 
-    PYTHONPATH=. python studies/s22_outsider/write_one.py OUT.csv PLANT DRIVE RATE DUR F [LO HI] [--seed S] [--effect E --size X]
+    PYTHONPATH=. python benchmarks/outsider/write_one.py OUT.csv PLANT DRIVE RATE DUR F [LO HI] [--seed S] [--effect E --size X]
 DRIVE: tri | sine | msine
 """
 import argparse

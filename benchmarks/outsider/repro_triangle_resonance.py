@@ -1,7 +1,7 @@
 """Finding 1: a clean triangle record (no effect) is named a resonance, 5 of 5, and the reported error
 after is ~36x the error before.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/repro_triangle_resonance.py [RATE F DUR]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/repro_triangle_resonance.py [RATE F DUR]
 """
 import json
 import sys

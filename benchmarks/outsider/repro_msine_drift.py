@@ -1,7 +1,7 @@
 """Finding: a clean 250 Hz multisine record (40 s, 12 tones 0.05-20 Hz, random phases; no effect drawn) is
 named a drift 4 of 5, with the held-out displacement error cut to ~0.2x.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/repro_msine_drift.py [SEED ...]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/repro_msine_drift.py [SEED ...]
 (default seed 210958: effect_batch.py --seed 1 record #6's clean twin)
 """
 import json

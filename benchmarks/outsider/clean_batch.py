@@ -1,6 +1,6 @@
 """Clean records (no effect) outside the benchmark's draws: any effect named is a wrong answer.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/clean_batch.py [--seeds 1 2] [--only SUBSTR]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/clean_batch.py [--seeds 1 2] [--only SUBSTR]
 """
 import argparse
 import sys

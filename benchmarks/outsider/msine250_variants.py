@@ -1,7 +1,7 @@
 """The clean 250 Hz multisine named drift (finding 4): the same 40 s, 12-tone records with the lowest tone at
 0.05 Hz (as drawn) and at 0.2 Hz, and 40 s at 2.5 kHz, over seeds: which carries the wrong drift.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/msine250_variants.py --seeds 11 12 ...
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/msine250_variants.py --seeds 11 12 ...
 """
 import argparse
 import sys

@@ -1,7 +1,7 @@
 """Finding 1's variants: the same clean 0.5 Hz triangle (2.5 kHz, 10 s) on other plant files, without noise,
 and a sine of the same period and span, to see what the named resonance follows.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/triangle_variants.py
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/triangle_variants.py
 """
 import sys
 from pathlib import Path

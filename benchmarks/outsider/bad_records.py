@@ -1,6 +1,6 @@
 """Bad and odd record files for the CLI: each should exit 2 with a clear message, or give a sound answer.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/bad_records.py OUTDIR
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/bad_records.py OUTDIR
 writes OUTDIR/*.csv from one clean simulated record (SN637, 1 kHz, 6 s, 0.5 Hz sine, seed 5).
 """
 import sys

@@ -1,6 +1,6 @@
 """Clean records (no effect) on effect_batch.py's six drives at many seeds: any effect named is wrong.
 
-    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python studies/s22_outsider/clean_drives.py --seeds 1 2 3 ... [--drives 0 5]
+    PYTHONPATH=. OPENBLAS_NUM_THREADS=1 python benchmarks/outsider/clean_drives.py --seeds 1 2 3 ... [--drives 0 5]
 The drive's own draws come from default_rng(seed) as in effect_batch.drives.
 """
 import argparse
