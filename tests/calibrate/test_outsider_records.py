@@ -5,7 +5,6 @@ xfails (the engine is not changed here) and run only in the full form (``WORKBEN
 each, the suite has no room). The reproducers and the counts: ``benchmarks/outsider/``.
 """
 
-import dataclasses
 
 import numpy as np
 import pytest
