@@ -19,8 +19,9 @@ the candidate to it.
 1. it wins every fold, or ``need`` (4 of 5) when it already won a fold of the first stage (a
    second effect the first one masked elsewhere; at 4 of 5 for any, a drift was named after a
    sensor lead, the base model's own slow misfit) or when its band is disjoint from every found
-   effect's on its channel (:func:`_band_disjoint`: it cannot be their misfit; a mode four
-   decades above a drift, missing a fold whose blocks hold no drive step), and
+   effect's on its channel, or what it wins stays with the found bands taken out of its columns
+   (:func:`_band_disjoint`: it cannot be their misfit; a mode four decades above a drift, missing
+   a fold whose blocks hold no drive step), and
 2. it beats its **rival**: the found effects' own kinds searched again on the leftover (a
    second mode, a second delay, a drift's periodic term; for creep, branches a quarter decade
    off the found grid, driven by the model and by the drive voltage, together). What a large
@@ -360,29 +361,17 @@ def _beats_rivals(row, rivals, probs, extra, split, res, ctx):
     return True, None
 
 
-def _band_disjoint(row, ctx, extra):
-    """Is the candidate's band disjoint from every found effect's on its problem?
-
-    The every-fold rule for a later candidate that won no first-stage fold (:func:`_later_stage`)
-    guards against a found effect's own misfit, which lives in the found effect's band. A candidate
-    whose band is disjoint from every found effect's cannot be taking that misfit and needs ``need``
-    folds, as a seen one (session 21, 83 #11: a 390 Hz mode behind a drift, 4 of 5 folds; the fifth
-    fold's validation blocks hold no drive step, so the mode is not there to be seen).
+def _term_spectra(row, ctx, extra):
+    """The found effects' terms' and the candidate's power spectra on its problem, and the noise's per bin.
 
     Each term is its columns' part of the joint fit on the development blocks (the found effects'
-    columns on the candidate's problem and the candidate's), over the whole record. Its spectrum:
-    the Hann-windowed DFT's power per bin (the window keeps a trend's leakage out of the high bins);
-    its band: the bins where that power exceeds white noise's of the fold test's floor (``noise_factor``
-    times the channel's noise floor), ``floor^2 sum(w^2)``. Disjoint: each term's power inside the
-    other's band is below the noise's there (``floor^2 sum(w^2)`` per bin of that band): neither carries
-    more of the other's band than the noise does. False when the problem holds no found columns (the
-    misfit the rule guards against is then on another channel: the rule is kept)."""
+    columns on the candidate's problem as fold 0 sees them, and the candidate's), over the whole
+    record. Its spectrum: the Hann-windowed DFT's power per bin (the window keeps a trend's leakage
+    out of the high bins); white noise of the fold test's floor (``noise_factor`` times the channel's
+    noise floor) has ``floor^2 sum(w^2)`` per bin. Returns ``(found spectra, candidate's, noise)``."""
     key = row["key"]
     prob = ctx["probs"][key]
     found = _tr._fold_extra(extra[key], 0)
-    if not found or row.get("replaces") is not None:
-        # (a reading in a found effect's place refits it: its band is the found effect's)
-        return False
     g = _tr._cand_grams(prob, found, row, 1)[0]
     w = prob.solve(g, ctx["split"].dev_blocks)[prob.A.shape[1]:]
     widths = [np.shape(C)[1] for C, _ in found]
@@ -399,13 +388,80 @@ def _band_disjoint(row, ctx, extra):
         term = g["C"][:, cols] @ w[cols] * prob.scale if cols else np.zeros(n)
         spectra.append(np.abs(np.fft.rfft(term * win)) ** 2)
     mine = spectra.pop()
+    return spectra, mine, noise
+
+
+def _band_stopped_passes(row, ctx, extra, res, stop):
+    """The folds the candidate passes with the DFT bins ``stop`` taken out of its columns.
+
+    Each of its columns (its per-fold columns too, ``fold_g``: the refitted delay, fitted on each
+    fold's training rows) is transformed over the whole record, the bins ``stop`` set to zero and
+    transformed back; the band-stopped columns (the same bounds) are scored as the stage scores the
+    candidate (:func:`~workbench.calibrate.tracing._fold_test` against the stage's ``befores`` and
+    random terms' ``null_gain`` on its problem). Returns the per-fold passes."""
+    key = row["key"]
+    prob = ctx["probs"][key]
+    split = ctx["split"]
+    k = prob.A.shape[1]
+    n = prob.r.size
+
+    def stopped(g):
+        C = g["C"] * g["norms"]
+        X = np.fft.rfft(C, axis=0)
+        X[stop] = 0.0
+        return prob.grams(np.fft.irfft(X, n=n, axis=0), g["lb"][k:])
+
+    cand = {"g": stopped(row["g"])}
+    if row.get("fold_g") is not None:
+        cand["fold_g"] = [stopped(gf) for gf in row["fold_g"]]
+    gf = _tr._cand_grams(prob, extra[key], cand, len(split.folds))
+    floor = ctx["noise_factor"] * ctx["infos"][row["channel"]]["noise_floor"]
+    return [_tr._fold_test(res["befores"][key][f], prob.fold_rms(gf[f], tr, va), row["n_params"], ctx["penalty"],
+                           floor, res["null_gain"][key][f], ctx["min_share"])[1]
+            for f, (tr, va) in enumerate(split.folds)]
+
+
+def _band_disjoint(row, ctx, extra, res=None):
+    """Is what the candidate wins outside every found effect's band on its problem?
+
+    The every-fold rule for a later candidate that won no first-stage fold (:func:`_later_stage`)
+    guards against a found effect's own misfit, which lives in the found effect's band. A candidate
+    whose folds do not come from any found effect's band cannot be taking that misfit and needs
+    ``need`` folds, as a seen one.
+
+    The terms and spectra: :func:`_term_spectra` (the joint fit's parts over the whole record,
+    Hann-windowed); a term's band: the bins where its power exceeds white noise's of the fold test's
+    floor. Two ways to say disjoint (either):
+
+    1. *The spectra* (session 21, 83 #11: a 390 Hz mode behind a drift, 4 of 5 folds; the fifth fold's
+       validation blocks hold no drive step, so the mode is not there to be seen): each term's power
+       inside the other's band is below the noise's there (``floor^2 sum(w^2)`` per bin of that band).
+    2. *The band taken out* (session 22, 87 #11: a 157 Hz mode behind a drift under the calibration
+       drive, whose chirps make the mode's term broadband, 5.44x the noise in the drift's 0-1.8 Hz band):
+       the found effects' bands' bins removed from the candidate's columns, the band-stopped candidate
+       still passes as many folds as the plain one (:func:`_band_stopped_passes`): what it wins does
+       not come from the found band. (Needs the stage's scores ``res``; without them only 1.)
+
+    False when the problem holds no found columns (the misfit the rule guards against is then on
+    another channel: the rule is kept) or for a reading in a found effect's place."""
+    key = row["key"]
+    if not _tr._fold_extra(extra[key], 0) or row.get("replaces") is not None:
+        # (a reading in a found effect's place refits it: its band is the found effect's)
+        return False
+    spectra, mine, noise = _term_spectra(row, ctx, extra)
     band = mine > noise
-    out = bool(band.any())
+    if not band.any():
+        return False
+    out = True
+    stop = np.zeros(mine.size, bool)
     for other in spectra:
         theirs = other > noise
+        stop |= theirs
         # each term's power in the other's band against the noise's there
         out = out and mine[theirs].sum() < noise * theirs.sum() and other[band].sum() < noise * band.sum()
-    return out
+    if out or res is None or not stop.any():
+        return out
+    return sum(_band_stopped_passes(row, ctx, extra, res, stop)) >= sum(row["passes"])
 
 
 def _later_stage(ctx, extra, found, seen=()):
@@ -457,7 +513,7 @@ def _later_stage(ctx, extra, found, seen=()):
             count = sum(1 for w in res["winners"] if not isinstance(w, str) and tuple(w) == ans2)
     if answer not in (None, "none") and answer not in seen and folds_for < n_folds \
             and not (res["by"][answer].get("replaces") is not None and answer[0] in _tr.CHARGE_RELAXATIONS) \
-            and not _band_disjoint(res["by"][answer], ctx, extra):
+            and not _band_disjoint(res["by"][answer], ctx, extra, res):
         # (a candidate refitting a found effect, the joint leakage beside the absorption, is that
         # channel's nested comparison, not a second effect in the leftover: the agreement rule.
         # A joint creep + delay reading names a NEW effect, so it keeps the every-fold rule: exempt,
