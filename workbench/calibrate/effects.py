@@ -1318,12 +1318,21 @@ class Resonance(Effect):
         if memo.get("key") == key:
             return list(memo["out"])
         b, a = _foh_mode(params["f_n_hz"], params["zeta"], _dt(t))
-        HB = self.basis + self._filtered(b, a, self.basis)
-        Hy = ym + self._filtered(b, a, ym[:, None])[:, 0]
-        # each row set's normal equations from the groups of rows the sets share (one pass)
+        # each row set's normal equations from the groups of rows the sets share (one pass), the filtered
+        # columns H(basis), H(y_model) built at the sets' rows only (:func:`mode_column_rows`, the values
+        # of ``_filtered``'s lfilter to the last bit, without its full-length temporaries)
         union, groups = _row_groups(rows_list, ym.size)
+        at, pos = (union, None) if union.size < 2 or bool(np.all(np.diff(union) > 0)) \
+            else np.unique(union, return_inverse=True)
+        HB = np.empty((at.size, self.basis.shape[1]), order="F")     # (a column written at a time)
+        for j in range(self.basis.shape[1]):
+            HB[:, j] = mode_column_rows(self.basis[:, j], b, a, at)
+        HB += self.basis[at]
+        r = y[at] - (ym[at] + mode_column_rows(ym, b, a, at))
+        if pos is not None:
+            HB, r = HB[pos], r[pos]
         out = []
-        for G, h, m_rows in _row_set_normals(HB, y - Hy, groups, len(rows_list), union):
+        for G, h, m_rows in _row_set_normals(HB, r, groups, len(rows_list)):
             delta = _bounded_delta(G, h, m_rows, lower)
             m = ym + self.basis @ delta
             out.append(self._filtered(b, a, m[:, None])[:, 0])
