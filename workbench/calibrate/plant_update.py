@@ -23,7 +23,10 @@ core is kept and the header says why. Mapping of the tracing's parameters to pla
   (:func:`~workbench.calibrate.core_refit.refine_branches`); with the declared core, C_h from its terminal
   secant over the record's voltage span (no charge channel needed). Above the ceiling
   ``1 + C_pp / C_h`` a smaller share (or no section) is written, and the header says why;
-* ``resonance``: an added ``[[mechanics.modes]]`` entry;
+* ``resonance``: an added ``[[mechanics.modes]]`` entry; on a plant with a modal ``[structure]`` (the whole
+  M(.): the loader refuses modes beside it) one more mode of the structure holding the tracing's gain as its
+  share of the static compliance, taken from the residual (:func:`_add_structure_mode`), or, where that share
+  does not fit (or the structure is a state-space file), not written and the header says why;
 * ``delay`` / ``drift`` on the displacement channel: ``[displacement_sensor]``;
 * ``gauge_nonlinearity``: ``[gauge_nonlinearity] coefficient_per_m``.
 
@@ -151,8 +154,10 @@ def _declared_structure(text, plant):
     "residual_share", "added"}``; ``residual_share`` the share of the static compliance no declared mode holds
     (the static correction), None for a ``state_space_file`` structure (no modal keys to add a mode to)."""
     import tomllib
+    if getattr(plant, "structure", None) is None:
+        return None
     sec = tomllib.loads(text).get("structure")
-    if sec is None or getattr(plant, "structure", None) is None:
+    if sec is None:
         return None
     st = plant.structure
     k = 1.0 / float(st.static_compliance_m_per_n()[0, 0])
