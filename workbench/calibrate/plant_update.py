@@ -1089,7 +1089,8 @@ def plant_file_gaps(stages, base, plant, core=None):
             if struct is None:
                 from pathlib import Path
                 struct = _declared_structure(Path(plant.source).read_text(encoding="utf-8"), plant)
-            why = "the plant file's [structure] could not be read" if struct is None else _add_structure_mode(struct, p, "")
+            why = ("the plant file's [structure] could not be read" if struct is None else
+                   _add_structure_mode(struct, p, ""))
             if why:
                 gaps.append(f"the resonance at {float(p['f_n_hz']):.4g} Hz was not written ({why})")
         elif eff == "resonance" and ch in ("displacement", "gauge"):

@@ -504,8 +504,8 @@ def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=
             # s22_outsider A5: a current logged under charge[C] was taken for the charge (a 6.6 Hz resonance named)
             raise DataFileError(f"{data_path}: the charge column follows the plant's current (the rate of its charge "
                                 f"over the terminal voltage) closer than its charge: {as_current:.3g} against "
-                                f"{as_charge:.3g} C RMS left (each scaled, with a constant and a line free); it holds a current: "
-                                f"write current[A] (or current[mA], ...) in the header")
+                                f"{as_charge:.3g} C RMS left (each scaled, with a constant and a line free); it holds a "
+                                f"current: write current[A] (or current[mA], ...) in the header")
         i = np.gradient(record.channels["charge_c"], record.t_s)
     v_t = v - resistance_ohm * i
     over = f"the terminal voltage {v_t.min():.4g} .. {v_t.max():.4g} V"
@@ -519,10 +519,10 @@ def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=
                             f"round): negate the {name} column")
     if q_col and not (1.0 / UNIT_SLIP_RATIO <= abs(a) <= UNIT_SLIP_RATIO):
         # s22_outsider A5: a current logged under charge[C] was taken for the charge (a 6.6 Hz resonance named)
-        raise DataFileError(f"{data_path}: the charge column (best constant and leakage taken out) is {abs(a):.3g} times "
-                            f"the charge the plant {plant_path} holds over {over}: more than {UNIT_SLIP_RATIO:.3g} times off; "
-                            f"check the charge column's "
-                            f"unit, and whether it holds a current (then write current[A] in the header)")
+        raise DataFileError(f"{data_path}: the charge column (best constant and leakage taken out) is {abs(a):.3g} "
+                            f"times the charge the plant {plant_path} holds over {over}: more than "
+                            f"{UNIT_SLIP_RATIO:.3g} times off; check the charge column's unit, and whether it holds a "
+                            f"current (then write current[A] in the header)")
     if 1.0 / UNIT_SLIP_RATIO <= abs(a) <= UNIT_SLIP_RATIO:
         return
     slip = "1000 times too large (ms under time[s])" if abs(a) > 1 else "1000 times too small (s under time[ms])"
