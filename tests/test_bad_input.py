@@ -158,6 +158,13 @@ def ws(tmp_path_factory):
     ms_rows = "\n".join(",".join((f"{float(r[0]) * 1e3:.3f}",) + r[1:]) for r in cells)
     (bad / "time_ms_under_s.csv").write_text(f"time[s],voltage[V],current[A],displacement[m]\n{ms_rows}\n",
                                              encoding="utf-8")
+    # s22_outsider A5: the current's sign reversed (a probe turned round) and the current logged under charge[C]
+    # were calibrated (a 6.6 Hz resonance named on a clean record)
+    flip_rows = "\n".join(",".join((r[0], r[1], f"{-float(r[2]):.6e}", r[3])) for r in cells)
+    (bad / "current_flipped.csv").write_text(f"time[s],voltage[V],current[A],displacement[m]\n{flip_rows}\n",
+                                             encoding="utf-8")
+    (bad / "current_as_charge.csv").write_text(f"time[s],voltage[V],charge[C],displacement[m]\n{sim_rows}\n",
+                                               encoding="utf-8")
     # a current convention misspelled (issue 13): '# current:' is sampled or averaged
     (bad / "current_word.csv").write_text(f"# current: integrating\ntime[s],voltage[V],current[A],displacement[m]\n"
                                           f"{sim_rows}\n", encoding="utf-8")
@@ -547,6 +554,12 @@ CASES = [
      ["bad/time_s_under_ms.csv", "charge", "likely 1000 times too small (s under time[ms])", "time column's unit"]),
     ("calibrate-record-time-ms-under-s", ["calibrate", "bad/time_ms_under_s.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/time_ms_under_s.csv", "charge", "likely 1000 times too large (ms under time[s])", "time column's unit"]),
+    # s22_outsider A5: |charge scale| was tested, so a reversed current passed; a charge column had no check
+    ("calibrate-record-current-sign", ["calibrate", "bad/current_flipped.csv", "--plant", PLANT, "--out", "{out}"],
+     ["bad/current_flipped.csv", "the current column", "falls as the terminal voltage rises", "negate the current"]),
+    ("calibrate-record-current-as-charge", ["calibrate", "bad/current_as_charge.csv", "--plant", PLANT, "--out",
+                                            "{out}"],
+     ["bad/current_as_charge.csv", "the charge column follows the plant's current", "write current[A]"]),
     # the last line cut mid-write ("...,-1.234567e-07" -> "...,-1."): read as -1 m
     ("calibrate-record-current-convention", ["calibrate", "bad/current_word.csv", "--plant", PLANT, "--out", "{out}"],
      ["bad/current_word.csv, line 1", "current 'integrating' is not one of sampled, averaged",

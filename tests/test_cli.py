@@ -118,3 +118,22 @@ def test_verify_json(tmp_path, root, monkeypatch):
                  "--scenario", "hold", "--hold", "5s", "--json", str(out)]) == 0
     m = json.loads(out.read_text())["scenarios"][0]
     assert m["scenario"] == "hold" and abs(m["drift_m"]) < 5e-9 and m["open_loop_creep_m"] > 1e-8
+
+
+def test_calibrate_prints_an_inconclusive_answer_without_an_agreement(tmp_path, root, capsys, monkeypatch):
+    """s22_outsider D: ``inconclusive`` was printed with "(5 of 5 validation folds)", the leading answer's count,
+    which reads as an agreement; an inconclusive answer prints its fold winners instead."""
+    import workbench.calibrate.run as run
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    data = {"effect": "inconclusive", "channel": "displacement", "agreement": "5 of 5", "error_before": err,
+            "error_after": err, "stages": [], "reason": "no answer wins 4 of 5 validation folds",
+            "leading": [{"answer": "creep", "folds": 3}, {"answer": "none", "folds": 2}], "candidates": [],
+            "base_fit": {"warnings": []}, "elapsed_s": 1.0}
+    monkeypatch.setattr(run, "run_calibrate", lambda *a, **k: data)
+    rec = tmp_path / "r.csv"
+    rec.write_text("time[s],voltage[V],displacement[m]\n" + "".join(f"{k * 1e-3},{k % 50},{k % 50}e-7\n"
+                                                                     for k in range(200)))
+    assert main(["calibrate", str(rec), "--plant", str(root / "plants/p888_51_sn637.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "effect inconclusive on the displacement channel (fold winners: creep 3, none 2)" in out
+    assert "5 of 5" not in out

@@ -390,8 +390,13 @@ def cmd_calibrate(args):
     eb, ea = data["error_before"], data["error_after"]
     stages = data["stages"]
     first = stages[0]["error_after"] if stages else ea
+    # an inconclusive answer has no agreement to print (its "k of n" is the leading answer's count, which a
+    # later rule may still refuse: s22_outsider D printed "inconclusive ... (5 of 5 validation folds)")
+    folds = (f"{data['agreement']} validation folds" if data["effect"] != "inconclusive" else
+             "fold winners: " + (", ".join(f"{x['answer']} {x['folds']}" for x in data.get("leading") or ())
+                                 or "none"))
     lines = [f"{args.data} against {args.plant}: effect {data['effect']} on the {data['channel']} channel "
-             f"({data['agreement']} validation folds)",
+             f"({folds})",
              f"  test RMS {eb['rms']:.4g} -> {first['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
              f"{first['max']:.4g} {eb['units']}  ({data['reason']})"]
     for st in stages[1:]:

@@ -281,3 +281,17 @@ def test_a_whole_last_line_without_its_end_is_read_with_a_notice(tmp_path):
     assert np.array_equal(last.t_s, whole.t_s)
     for key in whole.channels:
         assert np.array_equal(last.channels[key], whole.channels[key])
+
+
+def test_header_names_are_read_in_any_case(tmp_path):
+    """s22_outsider D: ``Time[s]`` was refused as a missing time column. A quantity's name is a word in any case;
+    the unit keeps its case (m is milli, M mega)."""
+    lower = read_record(_write(tmp_path, _base(), name="lower.csv"))
+    upper = read_record(_write(tmp_path, ["# serial: SN637", "# series_resistor_ohm: 80",
+                                          "Time[s],VOLTAGE[V],Current[mA]"] + _rows(), name="upper.csv"))
+    assert sorted(upper.channels) == sorted(lower.channels) == ["current_a", "voltage_v"]
+    assert np.array_equal(upper.t_s, lower.t_s)
+    assert all(np.array_equal(upper.channels[k], lower.channels[k]) for k in lower.channels)
+    with pytest.raises(DataFileError, match=r"repeats column 1"):
+        read_record(_write(tmp_path, ["time[s],Time[ms],voltage[V],current[mA]"]
+                           + [r + ",0" for r in _rows()], name="twice.csv"))

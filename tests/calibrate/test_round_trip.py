@@ -755,3 +755,39 @@ def test_a_bow_beyond_the_plant_files_range_is_a_gap_not_a_file_that_will_not_lo
     assert "[gauge_nonlinearity]" not in text
     gaps = plant_file_gaps(res["stages"], base, sn637)
     assert any("gauge bow" in g and "beyond the plant file" in g for g in gaps), gaps
+
+
+@pytest.mark.parametrize("gain, written", [(0.012, True), (0.9, False)])
+def test_a_mode_found_on_a_structure_plant_is_a_mode_of_its_structure(tmp_path, gain, written):
+    """s22_outsider B2: a resonance named against a ``[structure]`` plant was written as ``[[mechanics.modes]]``,
+    which the loader refuses beside ``[structure]`` (the structure is the whole M(.)): the run stopped on its own
+    file. The tracing's mode is ``x (1 + g (H - 1))``, a share g of the quasi-static motion through a unit-gain mode;
+    in the modal model that is one more mode holding g of the static compliance, taken from the residual: the
+    file loads, the static stiffness is the declared one and the new mode holds g (``1 / (m w^2)`` of
+    ``1 / k_static``). A share above what the declared modes leave cannot be held: not written, and said."""
+    from types import SimpleNamespace
+    path = PLANTS / "p888_51_sn637_on_flexure.toml"
+    declared = load_plant(path)
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    p = {"f_n_hz": 310.0, "zeta": 0.015, "gain": gain}
+    st = {"effect": "resonance", "channel": "displacement", "parameters": p, "error_before": err, "error_after": err}
+    result = {"effect": "resonance", "channel": "displacement", "parameters": p, "error_before": err,
+              "error_after": err, "stages": [st]}
+    text = updated_plant_text(path, declared, SimpleNamespace(channels={}), result, Path("rec.csv"))
+    (tmp_path / "p.toml").write_text(text)
+    again = load_plant(tmp_path / "p.toml")
+    k0 = 1.0 / declared.structure.static_compliance_m_per_n()[0, 0]
+    assert 1.0 / again.structure.static_compliance_m_per_n()[0, 0] == pytest.approx(k0, rel=1e-9)
+    assert "[[mechanics.modes]]" not in text and not again.pzt.modes
+    modal, before = again.structure.modal, declared.structure.modal
+    if not written:
+        assert np.array_equal(modal["freqs_hz"], before["freqs_hz"])
+        assert "resonance found on the displacement (310 Hz) is not written" in text and "residual compliance" in text
+        return
+    assert list(modal["freqs_hz"]) == [*before["freqs_hz"], 310.0]
+    assert modal["damping_ratios"][-1] == pytest.approx(0.015)
+    w = 2 * np.pi * 310.0
+    share = k0 * float(modal["psi"][-1, 0]) ** 2 / (modal["modal_masses_kg"][-1] * w * w)
+    assert share == pytest.approx(gain, rel=1e-9)
+    r0 = float(declared.structure.residual_compliance_m_per_n[0])
+    assert float(again.structure.residual_compliance_m_per_n[0]) == pytest.approx(r0 - gain / k0, rel=1e-9)

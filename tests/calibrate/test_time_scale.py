@@ -167,3 +167,33 @@ def test_the_sample_rate_notice_names_the_likely_slip():
         notes = []
         run._note_sample_rate(_rescaled(record, factor), notes)
         assert (notes == []) if fragment is None else (fragment in notes[0])
+
+
+def _as_charge(record, integrate):
+    """The record with its current column replaced by a charge column: the current integrated (``integrate``, a
+    charge monitor's reading) or the current's values as they are (a current logged under charge[C])."""
+    from workbench.calibrate.residual import charge_from_current
+    ch = {k: v for k, v in record.channels.items() if k != "current_a"}
+    i = record.channels["current_a"]
+    ch["charge_c"] = charge_from_current(record.t_s, i, current="averaged") if integrate else i
+    return dataclasses.replace(record, channels=ch)
+
+
+@pytest.mark.parametrize("drive", ["sine", "steps"])
+@pytest.mark.parametrize("rate_hz", (100.0, 1e4, 1e6))
+def test_a_reversed_current_and_a_current_logged_as_charge_are_refused(rate_hz, drive):
+    """s22_outsider A5: a stack's charge rises with its terminal voltage, so a current whose charge falls with it
+    is reversed (``|a|`` was tested: it passed, and a 6.6 Hz resonance was named on a clean record); a charge[C]
+    column had no check, so a current logged under it was calibrated as a charge. The real charge column passes."""
+    for seed in range(3):
+        plant, record = _record(rate_hz, drive, seed + int(rate_hz) % 5)
+        flipped = dataclasses.replace(record, channels={**record.channels, "current_a": -record.channels["current_a"]})
+        with pytest.raises(DataFileError, match=r"the current column integrates to a charge that falls as the "
+                                                r"terminal voltage rises .* negate the current column"):
+            _check(plant, flipped)
+        _check(plant, _as_charge(record, True))
+        with pytest.raises(DataFileError, match=r"the charge column follows the plant's current .* write current\[A\]"):
+            _check(plant, _as_charge(record, False))
+        with pytest.raises(DataFileError, match=r"the charge column falls as the terminal voltage rises"):
+            q = _as_charge(record, True)
+            _check(plant, dataclasses.replace(q, channels={**q.channels, "charge_c": -q.channels["charge_c"]}))

@@ -22,7 +22,7 @@ chain's mean over the interval ending at it, as the project's simulator logs it:
 the same mean of its prediction, :func:`~workbench.calibrate.base_fit.interval_mean`, a half-sample lag))
 override the plant file for this record; other keys
 are kept with their values as written (strings). The first other line is
-the header: names from :data:`QUANTITIES` with the unit in brackets, any SI prefix, in any order;
+the header: names from :data:`QUANTITIES` (in any case) with the unit in brackets, any SI prefix, in any order;
 columns with other names are ignored with a notice. Time and voltage are required, and at least one
 output (:data:`OUTPUTS`). Every used cell must be a finite number, time must increase strictly and
 evenly (within ``rel_jitter`` of the median step), and there must be ``min_samples`` rows.
@@ -280,7 +280,8 @@ def _read_header(path, lineno, cells, notices):
     for index, cell in enumerate(cells, start=1):
         where = f"{path}, line {lineno}, column {index}"
         name, bracket, rest = cell.partition("[")
-        name = name.strip()
+        # the quantity's name in any case (Time[s], VOLTAGE[V]: s22_outsider D); the unit's case is its prefix's
+        name = name.strip().lower()
         if name not in QUANTITIES:
             ignored.append(cell.strip())
             notices.append(f"line {lineno}, column {index}: column {cell.strip()!r} ignored "

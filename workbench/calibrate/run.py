@@ -395,7 +395,7 @@ def recorded_slew_v_per_s(record, resistance_ohm, pzt):
     return best
 
 
-def charge_scale(record, pzt, resistance_ohm):
+def charge_scale(record, pzt, resistance_ohm, rate_test=False):
     """The recorded charge over the plant's, by least squares with the best constant current taken out.
 
     The charge ``q`` (the current integrated by :func:`~workbench.calibrate.residual.charge_from_current`
@@ -406,16 +406,29 @@ def charge_scale(record, pzt, resistance_ohm):
     length. ``a`` scales with the time unit:
     1 as recorded, 1000 for ms under time[s], 1/1000 for s under time[ms].
 
+    A record with a ``charge[C]`` column and no current: ``q`` is that column (``a`` does not scale with the
+    time unit then, but with the column's unit and quantity).
+
+    ``rate_test``: also the RMS left by ``q_model`` and by ``dq_model/dt`` (the plant's current), each scaled and with a
+    constant and a line: ``(a, as_charge, as_current)``; a column the current explains better holds a current.
+
     Returns
     -------
     float or None
-        ``a`` (dimensionless), or None when less than 5 % of the plant's charge span is left once a constant
+        ``a`` (dimensionless, signed: a stack's charge rises with its terminal voltage, ``a > 0``), or None when
+        less than 5 % of the plant's charge span is left once a constant
         current and a leakage are taken out (e.g. a ramp): then the time unit cannot be told.
     """
-    v, i, t = record.channels["voltage_v"], record.channels["current_a"], record.t_s
+    v, t = record.channels["voltage_v"], record.t_s
     dt = record.sample_period_s
     stride = max(1, v.size // 200_000)            # the quasi-static charge needs no more points than its shape
-    q = charge_from_current(t, i, current=record.current_kind)[::stride]
+    if "current_a" in record.channels:
+        i = record.channels["current_a"]
+        q = charge_from_current(t, i, current=record.current_kind)[::stride]
+    else:                                         # a charge column: its current for V_t = V - R i
+        q_full = record.channels["charge_c"]
+        i = np.gradient(q_full, t)
+        q = q_full[::stride]
     v_t = (v - resistance_ohm * i)[::stride]
     q_model = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_t - v_t[0]))
     ts = (t[::stride] - t[0]) / max(float(t[-1] - t[0]), dt)      # 0..1: a well-conditioned basis
@@ -428,7 +441,20 @@ def charge_scale(record, pzt, resistance_ohm):
     if not span > 0 or float(np.ptp(shape)) < 0.05 * span:
         return None
     q_d = q - basis @ np.linalg.lstsq(basis, q, rcond=None)[0]
-    return float(np.dot(q_d, shape) / np.dot(shape, shape))
+    a = float(np.dot(q_d, shape) / np.dot(shape, shape))
+    if rate_test:
+        # the column as a charge (the plant's q_model) or as a current (its rate), each with a constant and a
+        # line free; without the leakage column, which over a periodic drive holds the current's own shape
+        lin = basis[:, :2]
+
+        def left(col):
+            m = np.column_stack([col, lin])
+            return float(np.sqrt(np.mean((q - m @ np.linalg.lstsq(m, q, rcond=None)[0]) ** 2)))
+        # as a current its own drop sets V_t (the charge's derivative, taken above, is then meaningless)
+        v_i = (v - resistance_ohm * q_full)[::stride]
+        q_i = pzt.terminal_operator().inverse()(np.ascontiguousarray(v_i - v_i[0]))
+        return a, left(q_model), left(np.gradient(q_i, t[::stride]))
+    return a
 
 
 def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=None):
@@ -445,10 +471,17 @@ def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=
       (:func:`recorded_slew_v_per_s`) more than :data:`UNIT_SLIP_RATIO` times faster than the plant file's
       amplifier can drive (:func:`fastest_slew_v_per_s`) gets a notice naming the likely slip, appended to
       ``notes``.
+    * The charge's sign (s22_outsider A5): a stack's charge rises with its terminal voltage (``a > 0``); a
+      current (or charge) column whose charge falls as the voltage rises is reversed and refused, whatever
+      ``|a|``.
+    * A ``charge[C]`` column (no current): refused when the plant's current (the rate of its charge) explains
+      it closer than the plant's charge (a current logged under charge[C]), or when it is more than
+      :data:`UNIT_SLIP_RATIO` times off the plant's charge either way (its unit).
     """
     v, dt = record.channels["voltage_v"], record.sample_period_s
     i = record.channels.get("current_a")
-    if i is None:
+    q_col = i is None and "charge_c" in record.channels
+    if i is None and not q_col:
         i_max = max(pzt.current_limit_source_a, pzt.current_limit_sink_a)
         recorded = recorded_slew_v_per_s(record, resistance_ohm, pzt)
         fastest = fastest_slew_v_per_s(pzt)
@@ -462,11 +495,37 @@ def _check_time_scale(data_path, record, pzt, plant_path, resistance_ohm, notes=
                          f"record, the time column is likely 1000 times too small (seconds under time[ms], "
                          f"{1.0 / dt:.4g} Hz implied); not refused, {through}")
         return
-    a = charge_scale(record, pzt, resistance_ohm)
-    if a is None or 1.0 / UNIT_SLIP_RATIO <= abs(a) <= UNIT_SLIP_RATIO:
+    a = charge_scale(record, pzt, resistance_ohm, rate_test=q_col)
+    if a is None:
+        return
+    if q_col:
+        a, as_charge, as_current = a
+        if as_current < as_charge:
+            # s22_outsider A5: a current logged under charge[C] was taken for the charge (a 6.6 Hz resonance named)
+            raise DataFileError(f"{data_path}: the charge column follows the plant's current (the rate of its charge "
+                                f"over the terminal voltage) closer than its charge: {as_current:.3g} against "
+                                f"{as_charge:.3g} C RMS left (each scaled, with a constant and a line free); it holds a "
+                                f"current: write current[A] (or current[mA], ...) in the header")
+        i = np.gradient(record.channels["charge_c"], record.t_s)
+    v_t = v - resistance_ohm * i
+    over = f"the terminal voltage {v_t.min():.4g} .. {v_t.max():.4g} V"
+    if a < 0:
+        # s22_outsider A5: |a| was tested, so a reversed current passed and the drive fell back to the raw V;
+        # first, whatever |a|: no stack's charge falls as its voltage rises, while a scale may also be off
+        name = "charge" if q_col else "current"
+        raise DataFileError(f"{data_path}: the {name} column {'' if q_col else 'integrates to a charge that '}falls as "
+                            f"the terminal voltage rises ({a:.3g} times the charge the plant {plant_path} holds over "
+                            f"{over}): no stack does that; the {name}'s sign is reversed (a probe or a shunt turned "
+                            f"round): negate the {name} column")
+    if q_col and not (1.0 / UNIT_SLIP_RATIO <= abs(a) <= UNIT_SLIP_RATIO):
+        # s22_outsider A5: a current logged under charge[C] was taken for the charge (a 6.6 Hz resonance named)
+        raise DataFileError(f"{data_path}: the charge column (best constant and leakage taken out) is {abs(a):.3g} "
+                            f"times the charge the plant {plant_path} holds over {over}: more than "
+                            f"{UNIT_SLIP_RATIO:.3g} times off; check the charge column's unit, and whether it holds a "
+                            f"current (then write current[A] in the header)")
+    if 1.0 / UNIT_SLIP_RATIO <= abs(a) <= UNIT_SLIP_RATIO:
         return
     slip = "1000 times too large (ms under time[s])" if abs(a) > 1 else "1000 times too small (s under time[ms])"
-    v_t = v - resistance_ohm * i
     raise DataFileError(f"{data_path}: the current integrates (best constant current taken out) to {abs(a):.3g} "
                         f"times the charge the plant {plant_path} holds over the terminal voltage {v_t.min():.4g} .. "
                         f"{v_t.max():.4g} V: more than {UNIT_SLIP_RATIO:.3g} times off, the time column is likely "
