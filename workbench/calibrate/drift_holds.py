@@ -34,6 +34,13 @@ The check, on the development rows only (the test part takes no part in a choice
   it from lining up with one slow drift, but seed 16's record defeated that argument (a 29x
   creep was followed by a wrong drift stage with hold gain 1.08), and the settling skip is still
   a fixed share of each hold, not derived from the record (review 3, item 7: open).
+* **The drift's form** (session 22, seed 89 #88): the fitted term's motion within a hold is its
+  extrapolation from the whole record, and the weights' covariance is ordinary least squares'
+  (white residual), which a slow misfit of the model during motion defeats (89 #88: the term's
+  in-hold slope off by ten times its motion, ``se_term`` 0.1, ``k = 0.008``, while the residual
+  bent as the true drift, whose vertex lay in the hold). Given the drift's own columns, a ``False``
+  stands only when the holds show no motion of the drift's form either (chi-square of the holds'
+  residual on the form's columns within the 3-standard-error tail); else ``None``.
 * When there are no holds (or none informs), the check returns ``shows=None`` with a ``note``
   saying the drift veto could not judge; the tracer copies it into the drift candidate's JSON.
 """
