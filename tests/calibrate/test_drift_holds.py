@@ -335,3 +335,54 @@ def test_the_hold_checks_se_counts_every_fitted_columns_error(amp):
         refused += chk["shows"] is False
     assert float(np.std(gains, ddof=1)) <= 1.2 * float(np.median(ses))
     assert refused <= 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_drift_bending_in_the_hold_is_not_refused_for_its_fitted_slope(seed):
+    """Seed 89 #88's mechanism (drift + a 53 Hz mode at 100 kHz sine): the sine protocol's one hold at
+    the record's start, a true drift ``r t + c t^2`` whose vertex lies inside it (so it bends there and
+    hardly slopes), and a slow misfit of the model during the motion (a 1-5 Hz sinusoid, 10-100x the
+    channel's noise, off in the hold) that tilts the polynomial fitted by least squares over the record.
+    Extrapolated into the hold the fitted term mostly slopes, the residual there bends, and ordinary least
+    squares' covariance (white residual) calls the term's error small: the gain is refused (``shows``
+    False). With the drift's form, the holds' own motion of that form (chi-square beyond 3 standard
+    errors) turns the refusal into "cannot tell" (``None``), never ``False``; the same record without the
+    drift (flat hold, the same misfit) is still refused whenever the gain refused it."""
+    rng = np.random.default_rng(8988 + seed)
+    rate, n = 1e5, 40000
+    t = np.arange(n) / rate
+    dur = t[-1]
+    hold = (286, 1430)                       # 2.9-14.3 ms: the sine protocol's hold after its settling
+    spans = np.array([hold])
+    X = np.column_stack([np.ones(n), t / dur, (t / dur) ** 2])
+    moving = np.ones(n, bool)
+    moving[:hold[1]] = False
+    th = t[hold[0]:hold[1]]
+    h2 = float(np.mean((th - th.mean()) ** 2))
+    refused = kept = 0
+    for _ in range(10):
+        sigma = float(np.exp(rng.uniform(np.log(1e-10), np.log(1e-8))))
+        # the drift's bend within the hold: 8-30 noise standard errors of the hold's mean (its RMS there)
+        bend = float(np.exp(rng.uniform(np.log(8.0), np.log(30.0)))) * sigma / np.sqrt(th.size)
+        q = th - th.mean()
+        c = -bend / float(np.std(q ** 2 - h2))
+        vertex = float(rng.uniform(th[0] + 0.2 * (th[-1] - th[0]), th[-1] - 0.2 * (th[-1] - th[0])))
+        D = c * (t - vertex) ** 2
+        A = sigma * float(np.exp(rng.uniform(np.log(10.0), np.log(100.0))))
+        mis = np.where(moving, A * np.sin(2 * np.pi * rng.uniform(1.0, 5.0) * t + rng.uniform(0, 2 * np.pi)), 0.0)
+        for real in (True, False):
+            y = (D if real else 0.0) + mis + sigma * rng.standard_normal(n)
+            w = np.linalg.lstsq(X, y, rcond=None)[0]
+            cov = float(np.sum((y - X @ w) ** 2)) / (n - 3) * np.linalg.inv(X.T @ X)
+            e, term = y - w[0], X[:, 1:] @ w[1:]
+            old = drift_in_holds(e, term, np.ones(n, bool), spans, sigma, term_columns=X, term_cov=cov)
+            new = drift_in_holds(e, term, np.ones(n, bool), spans, sigma, term_columns=X, term_cov=cov,
+                                 form_columns=X[:, 1:])
+            if real:
+                assert new["shows"] is not False, (old, new)
+                refused += old["shows"] is False
+            elif old["shows"] is False:
+                assert new["shows"] is False, (old, new)
+                kept += 1
+    # the mechanism is exercised: the gain alone refuses real drifts, and refuses the drift-free records
+    assert refused and kept

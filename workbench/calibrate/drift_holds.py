@@ -34,6 +34,13 @@ The check, on the development rows only (the test part takes no part in a choice
   it from lining up with one slow drift, but seed 16's record defeated that argument (a 29x
   creep was followed by a wrong drift stage with hold gain 1.08), and the settling skip is still
   a fixed share of each hold, not derived from the record (review 3, item 7: open).
+* **The drift's form** (session 22, seed 89 #88): the fitted term's motion within a hold is its
+  extrapolation from the whole record, and the weights' covariance is ordinary least squares'
+  (white residual), which a slow misfit of the model during motion defeats (89 #88: the term's
+  in-hold slope off by ten times its motion, ``se_term`` 0.1, ``k = 0.008``, while the residual
+  bent as the true drift, whose vertex lay in the hold). Given the drift's own columns, a ``False``
+  stands only when the holds show no motion of the drift's form either (chi-square of the holds'
+  residual on the form's columns within the 3-standard-error tail); else ``None``.
 * When there are no holds (or none informs), the check returns ``shows=None`` with a ``note``
   saying the drift veto could not judge; the tracer copies it into the drift candidate's JSON.
 """
@@ -42,7 +49,7 @@ import numpy as np
 
 from .residual import _hold_spans
 
-__all__ = ["hold_spans", "hold_tolerance_v", "drive_noise_rms_v", "drift_in_holds", "SETTLE_FRACTION", "MAX_SE", "MIN_GAIN"]
+__all__ = ["hold_spans", "hold_tolerance_v", "drive_noise_rms_v", "drift_in_holds", "SETTLE_FRACTION", "MAX_SE", "MIN_GAIN", "FORM_P"]
 
 #: Share of each hold skipped at its start (the step's settling).
 SETTLE_FRACTION = 0.2
@@ -133,7 +140,7 @@ def hold_spans(t_s, v, min_hold_s, noise_rms_v=None):
     return np.array([(i, j) for i, j in out if j - i >= 3], dtype=np.int64).reshape(-1, 2)
 
 
-def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_cov=None):
+def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_cov=None, form_columns=None):
     """Does the residual move within the holds as the drift term does?
 
     Parameters
@@ -158,6 +165,10 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
         :meth:`~workbench.calibrate.tracing._Problem.weights_cov`). With ``term_columns``, the
         fit's prediction error within the holds enters the standard error (module notes); without
         both the term is taken as exact (noise alone). Passing one without the other is an error.
+    form_columns : array_like, shape (n_rows, q), optional
+        The drift's own columns (its form: the polynomial's powers of time, the periodic variant's
+        sine and cosine too). With them a ``False`` verdict also asks whether the holds move in the
+        drift's form at all (Notes): when they do, significantly, the verdict is ``None``.
 
     Returns
     -------
@@ -179,6 +190,21 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
     over the holds and ``C`` the weights' covariance (the cross term, the holds' own noise in the fit, is left out:
     it lowers the variance by at most the holds' share of the fit's leverage, so the sum errs
     towards "cannot tell").
+
+    The fitted term's motion within a hold is its extrapolation from the whole record, and the
+    covariance above is ordinary least squares' (white residual): when the record's misfit is slow
+    (seed 89 #88: drift + a 53 Hz mode at 100 kHz sine, the one 11 ms hold at the record's start) the
+    fitted polynomial's slope there was off by ten times its in-hold motion while ``se_term`` said 0.1;
+    the true drift's vertex lay inside the hold, so the residual bent (its curvature 1.5x the term's,
+    9 noise standard errors) where the term mostly sloped: ``k = 0.008``. So with ``form_columns`` a
+    low gain is a refusal only when the holds show no motion of the drift's form either: ``e_c``
+    regressed on the form's columns (each less its mean over each hold, one weight per column over
+    all holds), its explained sum of squares over ``sigma^2`` is chi-square with ``rank`` degrees of
+    freedom when the holds hold nothing but noise; beyond the 3-standard-error tail of that (the
+    normal's two-sided ``p = 0.0027``, the 3 standard errors of ``MAX_SE``), the holds do move as a
+    drift of this form would, the fitted term's particular motion is not what they contradict, and
+    the veto cannot judge (``shows=None``, ``form_chi2`` and ``form_dof`` in the dict). A drift fitted
+    to the base's misfit during motion predicts motion in holds that stay flat: its refusal stands.
     """
     e = np.asarray(e, float)
     d = np.asarray(term, float)
@@ -192,6 +218,8 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
         X = [np.asarray(b, float).reshape(d.size, -1) for b in term_columns]
     else:
         X = [np.asarray(term_columns, float).reshape(d.size, -1)]
+    F = None if form_columns is None else np.asarray(form_columns, float).reshape(d.size, -1)
+    Fc, Ec = [], []
     num = den = 0.0
     a = np.zeros(sum(b.shape[1] for b in X)) if X is not None else None
     used = 0
@@ -203,6 +231,9 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
         ec = e[sel] - e[sel].mean()
         num += float(dc @ ec)
         den += float(dc @ dc)
+        if F is not None:
+            Fc.append(F[sel] - F[sel].mean(axis=0))
+            Ec.append(ec)
         if X is not None:
             Xs = np.hstack([b[sel] for b in X])
             a += (Xs - Xs.mean(axis=0)).T @ dc
@@ -222,4 +253,33 @@ def drift_in_holds(e, term, rows, spans, noise_rms, *, term_columns=None, term_c
     if shows is None:
         out["note"] = (f"the gain's standard error {se:.3g} exceeds {MAX_SE:.3g}: the drift veto could not judge "
                        f"(off for this record)")
+    elif shows is False and Fc and noise_rms > 0:
+        chi2, dof = _form_motion(np.vstack(Fc), np.concatenate(Ec), float(noise_rms))
+        out["form_chi2"], out["form_dof"] = chi2, dof
+        if dof and chi2 > _chi2_isf(FORM_P, dof):
+            out["shows"] = None
+            out["note"] = (f"the holds move in the drift's form (chi-square {chi2:.3g} on {dof} degrees of freedom) "
+                           f"but not as the fitted term (gain {k:.3g}): the drift veto could not judge")
     return out
+
+
+#: The holds move in the drift's form when their chi-square exceeds this tail (3 standard errors, two-sided).
+FORM_P = 0.0026997960632601866
+
+
+def _chi2_isf(p, dof):
+    from scipy.stats import chi2
+    return float(chi2.isf(p, dof))
+
+
+def _form_motion(Fc, ec, sigma):
+    """(chi-square, rank): ``e_c``'s sum of squares explained by the form's centred columns, over ``sigma^2``."""
+    keep = np.sqrt(np.einsum("ij,ij->j", Fc, Fc)) > 0
+    Fc = Fc[:, keep]
+    if not Fc.shape[1]:
+        return 0.0, 0
+    Q, R = np.linalg.qr(Fc / np.sqrt(np.einsum("ij,ij->j", Fc, Fc)))
+    diag = np.abs(np.diag(R))
+    good = diag > 1e-8 * diag.max()
+    proj = Q[:, good].T @ ec
+    return float(proj @ proj) / sigma ** 2, int(good.sum())

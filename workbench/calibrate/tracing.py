@@ -1321,7 +1321,13 @@ def _drift_hold_check(prob, extra_list, row, split, spans, noise_rms):
     term = (g["C"][:, g["C"].shape[1] - m:] * prob.scale) @ w[w.size - m:]
     target = prob.r * prob.scale - fit + term
     cov = prob.weights_cov(g, blocks, w) * prob.scale ** 2       # fit = [A, C] scale @ w: the blocks as they are
-    return drift_in_holds(target, term, prob.rows_dev, spans, noise_rms, term_columns=(prob.A, g["C"]), term_cov=cov)
+    # the drift's form (its own columns in time, not projected): a low gain refuses only where the holds
+    # show no motion of that form either (:func:`.drift_holds.drift_in_holds`, Notes; seed 89 #88)
+    eff = row.get("eff")
+    form = eff.columns(row["u"], row["u"], row["params"])[0] \
+        if getattr(eff, "name", None) == "drift" and row.get("u") is not None else None
+    return drift_in_holds(target, term, prob.rows_dev, spans, noise_rms, term_columns=(prob.A, g["C"]), term_cov=cov,
+                          form_columns=form)
 
 
 def _veto_drift_without_hold_motion(by, probs, extra, split, infos):
