@@ -50,7 +50,7 @@ from workbench.calibrate.splits import make_split
 DRIFT, MODE = ("drift", "displacement"), ("resonance", "displacement")
 
 
-def _scored(kind, per_fold=False, sig=1e-3, seed=0):
+def _scored(kind, per_fold=False, sig=1e-3, seed=0, f_slow_hz=0.4):
     """A later stage scored on a constructed record (10 s at 1 kHz, white noise ``sig``): a found drift
     (column ``(t/T)^2``, 200 floors at the end) and a candidate with a fast part (60 Hz) and a slow one
     (0.4 Hz, in the drift's band); fold 1's validation rows hold none of the candidate's effect (a
@@ -66,7 +66,7 @@ def _scored(kind, per_fold=False, sig=1e-3, seed=0):
     sp = make_split(t, np.sin(t), "blocks")
     rng = np.random.default_rng(seed)
     d = (t / dur) ** 2
-    slow, fast = np.sin(2 * np.pi * 0.4 * t), np.sin(2 * np.pi * 60.0 * t)
+    slow, fast = np.sin(2 * np.pi * f_slow_hz * t), np.sin(2 * np.pi * 60.0 * t)
     hidden = sp.rows(sp.folds[1][1])
     if kind == "broad":
         col = fast + 0.05 * slow
@@ -121,3 +121,19 @@ def test_a_candidate_winning_the_found_effects_misfit_needs_every_fold(per_fold)
     assert not S._band_disjoint(row, ctx, extra, res)
     spectra, mine, noise = S._term_spectra(row, ctx, extra)
     assert not any(S._band_stopped_passes(row, ctx, extra, res, spectra[0] > noise))
+
+
+@pytest.mark.parametrize("f_slow_hz", [1.5, 2.5, 4.0, 8.0])
+def test_a_slow_misfit_just_above_the_found_band_needs_every_fold(f_slow_hz):
+    """The review of s22_bandB: a slow misfit just above the drift's band (0-1.3 Hz here) is not in the
+    band's bins, so with only those stopped the candidate kept its 4 folds and was named. Under one cycle
+    per validation block (0.1 s blocks: 10 Hz) a part is a trend within each block, judged as the drift's
+    own misfit: those bins are stopped too, and the candidate needs every fold (refused at 4 of 5)."""
+    row, ctx, extra, res = _scored("misfit", False, f_slow_hz=f_slow_hz)
+    assert row["passes"] == [True, False, True, True, True], row["ratios"]
+    spectra, mine, noise = S._term_spectra(row, ctx, extra)
+    band = np.flatnonzero(spectra[0] > noise)
+    assert band.max() < round(f_slow_hz * 10.0)       # the misfit (bin f x 10 s) lies above the found band
+    assert sum(S._band_stopped_passes(row, ctx, extra, res, spectra[0] > noise)) == 4   # the band alone: kept
+    assert not S._band_disjoint(row, ctx, extra, res)
+    assert S._later_stage(ctx, extra, [DRIFT])[0] is None
