@@ -105,3 +105,17 @@ def test_the_fold_columns_are_the_per_set_fits(kind, unsorted):
     assert len(got) == len(sets)
     for g, c in zip(got, ref):
         assert np.sqrt(np.mean((g - c) ** 2)) <= 1e-7 * np.sqrt(np.mean(c * c))
+
+
+def test_mode_column_rows_refuses_rows_out_of_order():
+    """The review of s22_localrefit: rows not strictly increasing made the one-pass kernel return unset values
+    ([50, 10, 60] gave [nan, 0, 0]); they are refused."""
+    from workbench.calibrate.kernels import mode_column_rows
+    u = np.sin(np.arange(100) / 7.0)
+    b, a = [0.1, 0.2, 0.1], [1.0, -1.5, 0.7]
+    for rows in ([50, 10, 60], [5, 5, 6], [-1, 3], [3, 100]):
+        with pytest.raises(ValueError):
+            mode_column_rows(u, b, a, np.array(rows))
+    from scipy.signal import lfilter
+    v = u - u[0]
+    assert np.array_equal(mode_column_rows(u, b, a, np.array([0, 10, 99])), (lfilter(b, a, v) - v)[[0, 10, 99]])

@@ -43,9 +43,13 @@ def _biquad_minus_input(u, b0, b1, b2, a1, a2, rows):
 
 def mode_column_rows(u, b, a, rows):
     """``(lfilter(b, a, v) - v)[rows]`` with ``v = u - u[0]``, for a second-order ``b``, ``a``
-    (``a[0] = 1``); ``rows`` sorted row indices (int64)."""
+    (``a[0] = 1``); ``rows`` strictly increasing row indices within ``u`` (int64; anything else
+    raises ``ValueError``: the kernel's one pass would return unset values)."""
     b = np.asarray(b, float)
     a = np.asarray(a, float)
+    rows = np.asarray(rows, np.int64)
+    if rows.size and (rows[0] < 0 or rows[-1] >= np.size(u) or np.any(np.diff(rows) <= 0)):
+        raise ValueError("mode_column_rows: rows must be strictly increasing indices within the record")
     return _biquad_minus_input(readonly(u), float(b[0]), float(b[1]), float(b[2]),
                                float(a[1]), float(a[2]), readonly(rows, np.int64))
 
