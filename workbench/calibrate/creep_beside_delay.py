@@ -14,7 +14,9 @@ Here the later stage's creep candidate on that channel is the **joint model**
 refit (the drive model's columns, its prediction and the branches, all delayed by the trial
 ``d``: the record's own search, :meth:`~workbench.calibrate.effects.Delay._fit_refit`, with a
 wider basis), then the delay's column at that ``d`` (the refitted drive model shifted, the
-creep's part left out) and the branches delayed by ``d`` (gains ``>= 0``), which *replace* the
+creep's part left out) and the branches delayed by ``d`` (gains ``>= 0``; driven by the stack's motion as
+the found delay reads it, the drive model refitted at its lag, :func:`_stack_motion`, recorded as the
+creep's drive, ``driver: refit``, for the written plant and the other channels), which *replace* the
 found delay's column (``replaces``). The stage's fold test compares it with the delay alone by
 the bars every candidate clears (noise floor, random term, ``min_share``, the folds it must win)
 and the stage's rival (a second delay on what the first leaves): creep is named where the joint
@@ -64,7 +66,8 @@ def _branch_drive(cr):
     creep alone is driven by ``V_h``, the joint model's creep part was a second, different creep, and on
     a 10 kHz sine with a large creep (71 #46, 27.6x) it replaced the ``V_h`` creep and won through that
     part, its "delay" a 3.3-sample *lead* (the simulator's sensor delays are lags) (session 18).
-    :func:`creep_beside_delay` (no creep found yet) keeps the base model: with ``V_h`` there, 71 #53
+    :func:`creep_beside_delay` (no creep found yet) takes no ``V_h`` (its branches are driven by the drive
+    model refitted at the found delay, :func:`_stack_motion`): with ``V_h`` there, 71 #53
     (creep 22.8x behind a 35 ms delay, 10 kHz sine) kept its answer but left 4.39e-8 m against 2.03e-8 m.
     """
     eff = cr.get("eff")
@@ -78,8 +81,8 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None, drive=None):
     The delay ``d`` (samples) searched with the creep branches in the drive model's refit
     (:meth:`~workbench.calibrate.effects.Delay._fit_refit` with the branches beside the drive's
     columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
-    driven by ``drive`` (a found creep's ``V_h``, :func:`_branch_drive`; by default the channel's base
-    model), delayed by ``d``; ``D``: the drive model refitted at ``d``
+    driven by ``drive`` (a found creep's ``V_h``, :func:`_branch_drive`; the drive model refitted at the
+    found delay, :func:`_stack_motion`; by default the channel's base model), delayed by ``d``; ``D``: the drive model refitted at ``d``
     with the branches beside it (its weights' corrections bounded as the base's, ``lower``: the
     plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less itself:
     the latency alone, as the delay's own column; its change of weights from the base is left to the
