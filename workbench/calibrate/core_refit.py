@@ -219,7 +219,7 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     # a 1 kHz sine creep + delay record's file stood at 1.49x error_after, with the drive's 1.18x)
     held_w = m.weights
     drive = core_fit.get("creep_drive")
-    if drive is not None and any(s["parameters"].get("driver") == "v_h" for s in creep):
+    if drive is not None and any(s["parameters"].get("driver") in ("v_h", "refit") for s in creep):
         rows = np.asarray(base.train, bool)     # the basis with its offset column (the plays' means are not 0)
         held_w = np.linalg.lstsq(np.asarray(base.basis, float)[rows], np.asarray(drive, float)[rows],
                                  rcond=None)[0][:-1]

@@ -14,7 +14,9 @@ Here the later stage's creep candidate on that channel is the **joint model**
 refit (the drive model's columns, its prediction and the branches, all delayed by the trial
 ``d``: the record's own search, :meth:`~workbench.calibrate.effects.Delay._fit_refit`, with a
 wider basis), then the delay's column at that ``d`` (the refitted drive model shifted, the
-creep's part left out) and the branches delayed by ``d`` (gains ``>= 0``), which *replace* the
+creep's part left out) and the branches delayed by ``d`` (gains ``>= 0``; driven by the stack's motion as
+the found delay reads it, the drive model refitted at its lag, :func:`_stack_motion`, recorded as the
+creep's drive, ``driver: refit``, for the written plant and the other channels), which *replace* the
 found delay's column (``replaces``). The stage's fold test compares it with the delay alone by
 the bars every candidate clears (noise floor, random term, ``min_share``, the folds it must win)
 and the stage's rival (a second delay on what the first leaves): creep is named where the joint
@@ -46,6 +48,10 @@ class DelayedCreep(CreepSpectrum):
         k = len(params["taus_s"])
         return super().with_gains(params, np.asarray(gains, float)[:k])
 
+    def _uses_drive(self, params):
+        # the drive of :func:`creep_beside_delay` (``driver: "refit"``): the drive model refitted at the found delay
+        return params.get("driver") in ("v_h", "refit") and self._drive is not None
+
 
 def _found(extra, key, tag):
     return [x for x in extra.get(key, ()) if getattr(x, "tag", None) == tag]
@@ -60,7 +66,8 @@ def _branch_drive(cr):
     creep alone is driven by ``V_h``, the joint model's creep part was a second, different creep, and on
     a 10 kHz sine with a large creep (71 #46, 27.6x) it replaced the ``V_h`` creep and won through that
     part, its "delay" a 3.3-sample *lead* (the simulator's sensor delays are lags) (session 18).
-    :func:`creep_beside_delay` (no creep found yet) keeps the base model: with ``V_h`` there, 71 #53
+    :func:`creep_beside_delay` (no creep found yet) takes no ``V_h`` (its branches are driven by the drive
+    model refitted at the found delay, :func:`_stack_motion`): with ``V_h`` there, 71 #53
     (creep 22.8x behind a 35 ms delay, 10 kHz sine) kept its answer but left 4.39e-8 m against 2.03e-8 m.
     """
     eff = cr.get("eff")
@@ -74,8 +81,8 @@ def _joint(cr, dl, prob, base, t, lower=None, rows_list=None, drive=None):
     The delay ``d`` (samples) searched with the creep branches in the drive model's refit
     (:meth:`~workbench.calibrate.effects.Delay._fit_refit` with the branches beside the drive's
     columns, on the problem's search rows, within the found delay's bounds); ``Kd``: the branches,
-    driven by ``drive`` (a found creep's ``V_h``, :func:`_branch_drive`; by default the channel's base
-    model), delayed by ``d``; ``D``: the drive model refitted at ``d``
+    driven by ``drive`` (a found creep's ``V_h``, :func:`_branch_drive`; the drive model refitted at the
+    found delay, :func:`_stack_motion`; by default the channel's base model), delayed by ``d``; ``D``: the drive model refitted at ``d``
     with the branches beside it (its weights' corrections bounded as the base's, ``lower``: the
     plays stay >= 0; the branches' gains >= 0), without the branches, delayed by ``d``, less itself:
     the latency alone, as the delay's own column; its change of weights from the base is left to the
@@ -164,6 +171,30 @@ def _own_gains(prob, extra, key, gone, g):
     return own
 
 
+def _stack_motion(dl, prob, base, ch, lower):
+    """The stack's motion as the found delay reads it: the drive model refitted at the found lag.
+
+    The base model was fitted to the lagging record as if it were not lagged (:class:`~.effects.Delay`'s
+    refit); the found delay's refit is the drive model whose shift by the lag matches the record, so it,
+    not the base model, is the stack's motion that creeps: ``ym + B delta`` with ``delta`` the bounded
+    least squares of ``y(t) - ym(t - d) ~ B(t - d) delta`` on the search rows (as :func:`_joint`'s column)."""
+    from .base_fit import _gram_solve
+    d0 = (dl.get("params") or {}).get("delay_samples")
+    if d0 is None:
+        return None
+    m = base.channels[ch]
+    y, ym = np.asarray(m.y, float), np.asarray(m.yhat, float)
+    B = dl["eff"].basis
+    rows = np.flatnonzero(prob.search)
+    X = Delay._rows_shifted(_c_ordered(B), rows, float(d0))
+    r = y[rows] - Delay._rows_shifted(ym[:, None], rows, float(d0))[:, 0]
+    nrm = np.sqrt(np.mean(X * X, axis=0)) if rows.size else np.ones(X.shape[1])
+    nrm = np.where(nrm > 0, nrm, 1.0)
+    lo = np.full(B.shape[1], -np.inf) if lower is None else np.asarray(lower, float)
+    delta = _gram_solve((X / nrm).T @ (X / nrm), (X / nrm).T @ r, lo * nrm) / nrm
+    return ym + B @ delta
+
+
 def creep_beside_delay(c, cands, probs, extra, t, base):
     """The later stage's creep candidate once a delay is found on its channel: the two jointly.
 
@@ -196,7 +227,12 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
     key, tag = c["key"], ("delay", c["channel"])
     prob = probs[key]
     taus = np.asarray(c["params"]["taus_s"], float)
-    d, Kd, D, Df = _joint(c, pair[1], prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob))
+    lower_b = _base_lower(base, c["channel"])
+    # the branches driven by the stack's motion as the found delay reads it, not by the base model fitted to the
+    # lagging record as if it were not late (seed 88 #97, 100 kHz steps, creep + 36 ms delay: on the base model the
+    # joint fit put gain on the 4 ms and 40 s branches only, the latter copying -ym(t - d), and creep passed no fold)
+    drive = _stack_motion(pair[1], prob, base, c["channel"], lower_b)
+    d, Kd, D, Df = _joint(c, pair[1], prob, base, t, lower_b, _fold_rows(prob), drive)
     lower = [0.0] * (taus.size + 1)
     g = _columns(prob, np.column_stack([Kd, D]), lower)
     if not g["ok"][-1]:
@@ -209,7 +245,11 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
         return None
     eff = DelayedCreep(taus_s=taus)
     eff.n_params = n_pos + 1
+    # the drive recorded (``driver: "refit"``): the written plant and the other channels rebuild the branches on it
+    eff._drive = None if drive is None else np.asarray(drive, float)
     params = {"gains": np.zeros(taus.size).tolist(), "taus_s": taus.tolist()}
+    if drive is not None:
+        params["driver"] = "refit"
     return {**c, "eff": eff, "params": params, "g": g, "n_params": n_pos + 1, "researched": True,
             "fold_g": fold_g, "replaces": tag, "refit": {"delay_samples": d, "delay_s": d * _dt(t)}}
 

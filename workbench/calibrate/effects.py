@@ -946,7 +946,8 @@ class CreepSpectrum(Effect):
     model with this drive, ``plant_update.creep_driver``, and the instant core takes the branches' held
     part as the plays' fit of it, ``core_refit.refitted_core``; a creep refitted jointly beside a delay,
     ``creep_beside_delay.delay_beside_creep``, keeps this drive and ``driver``; a creep found beside a delay,
-    ``creep_beside_delay.creep_beside_delay``, is of the base model's columns, without ``driver``).
+    ``creep_beside_delay.creep_beside_delay``, is driven by the drive model refitted at the found delay, kept
+    on its instance as this drive, ``driver: refit``, and rebuilt on it the same way).
     """
 
     name = "creep"

@@ -499,9 +499,11 @@ def _delay_with_branches(plant, base, rows, delay_s, drift, thresholds_v=None, m
 
 def creep_driver(core_fit, params, u0):
     """What a creep stage's branches were driven by: ``core_fit["creep_drive"]`` (V_h in the model's units,
-    :mod:`.creep_across`) when its parameters say ``driver: v_h``, else the base model's prediction ``u0``."""
+    :mod:`.creep_across`) when its parameters say ``driver: v_h``, or the drive model refitted at the found delay
+    (``driver: refit``, :func:`~workbench.calibrate.creep_beside_delay.creep_beside_delay`), else the base model's
+    prediction ``u0``."""
     drive = (core_fit or {}).get("creep_drive")
-    return np.asarray(drive, float) if params.get("driver") == "v_h" and drive is not None else u0
+    return np.asarray(drive, float) if params.get("driver") in ("v_h", "refit") and drive is not None else u0
 
 
 def _fitted_motion(base, core_fit, rows, terms=None):
