@@ -29,7 +29,7 @@ import copy
 
 import numpy as np
 
-from .effects import CreepSpectrum, Delay, _c_ordered, _dt
+from .effects import CreepSpectrum, Delay, _bounded_delta, _c_ordered, _dt
 from .tracing import _base_lower
 
 __all__ = ["DelayedCreep", "creep_beside_delay", "delay_beside_creep", "refitted_joint_stage"]
@@ -178,7 +178,6 @@ def _stack_motion(dl, prob, base, ch, lower):
     refit); the found delay's refit is the drive model whose shift by the lag matches the record, so it,
     not the base model, is the stack's motion that creeps: ``ym + B delta`` with ``delta`` the bounded
     least squares of ``y(t) - ym(t - d) ~ B(t - d) delta`` on the search rows (as :func:`_joint`'s column)."""
-    from .base_fit import _gram_solve
     d0 = (dl.get("params") or {}).get("delay_samples")
     if d0 is None:
         return None
@@ -188,11 +187,8 @@ def _stack_motion(dl, prob, base, ch, lower):
     rows = np.flatnonzero(prob.search)
     X = Delay._rows_shifted(_c_ordered(B), rows, float(d0))
     r = y[rows] - Delay._rows_shifted(ym[:, None], rows, float(d0))[:, 0]
-    nrm = np.sqrt(np.mean(X * X, axis=0)) if rows.size else np.ones(X.shape[1])
-    nrm = np.where(nrm > 0, nrm, 1.0)
     lo = np.full(B.shape[1], -np.inf) if lower is None else np.asarray(lower, float)
-    delta = _gram_solve((X / nrm).T @ (X / nrm), (X / nrm).T @ r, lo * nrm) / nrm
-    return ym + B @ delta
+    return ym + B @ _bounded_delta(X.T @ X, X.T @ r, rows.size, lo)
 
 
 def creep_beside_delay(c, cands, probs, extra, t, base):
