@@ -489,6 +489,10 @@ PAIR = ("leakage", "dielectric_absorption")
 #: named with both, 1 kHz sine 4.6x and 1 kHz steps 13x, and the strict xfail's 10 kHz sine 2.5x among them);
 #: WORKBENCH_FULL=1 the first 40 (session 16's make test ran 20: draws 14-19 add 1 and 100 kHz, 0.3-22x)
 N_PAIR_DRAWS = 14 if not FULL else 40
+#: session 23: make test traces 5 of the 14 (10 kHz calibration 3.1x, 100 kHz sine 7.8x, and the three separable
+#: pairs: 1 kHz sine 4.6x and 1 kHz steps 13x named with both, the strict xfail's 10 kHz sine 2.5x); session 22's
+#: make test traced all 14
+PAIR_REDUCED = (1, 7, 10, 11, 13)
 
 
 def _pair_trace(sn637, effect, rate, proto, size, seed):
@@ -512,11 +516,13 @@ def drawn_pairs(sn637):
     rng = np.random.default_rng(1313)
     lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
     rows = []
-    for _ in range(N_PAIR_DRAWS):
+    for k in range(N_PAIR_DRAWS):
         rate = float(rng.choice(cc.RATES_HZ))
         proto = str(rng.choice(("calibration", "sine", "steps")))
         size = float(np.exp(rng.uniform(lo, hi)))
         seed = int(rng.integers(1 << 30))
+        if not FULL and k not in PAIR_REDUCED:
+            continue
         res, truth, T, own = _pair_trace(sn637, PAIR, rate, proto, size, seed)
         st = {s["effect"]: s["parameters"] for s in res["stages"]}
         print(f"\n{rate:7.0f} {proto:11s} x{size:7.3f} tau/T {truth['time_constant_s'] / T:6.2f} own {np.round(own, 2)}"
@@ -573,7 +579,7 @@ def test_a_single_charge_effect_never_gets_the_other_named_beside_it(sn637, effe
     rng = np.random.default_rng(1314 if effect == "leakage" else 1315)
     lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
     out = []
-    for _ in range(6 if not FULL else 18):
+    for _ in range(3 if not FULL else 18):          # make test: the first 3 (session 22: 6)
         rate = float(rng.choice(cc.RATES_HZ))
         proto = str(rng.choice(("calibration", "sine", "steps")))
         r = cc.evaluate(sn637, effect, rate, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30)),
@@ -603,7 +609,11 @@ def slow_absorptions(sn637):
     record) on 2 s 10 kHz records, sizes over the benchmark's whole range (``default_rng(1515)``,
     fixed before any run): ``(size, tau over the record, result, names)``."""
     rows = []
-    for proto, size, tau_records, s in _slow_draws(16, 1515, 5.0, 50.0):
+    # make test traces 6 of the 16 (session 23; session 22's traced all 16): two of the three the strict xfail
+    # below measured named leakage (25 and 6.9 record lengths), two answered inconclusive undecided (the rule
+    # the test asks of), two none
+    draws = _slow_draws(16, 1515, 5.0, 50.0)
+    for proto, size, tau_records, s in (draws if FULL else [draws[k] for k in (1, 2, 3, 9, 12, 13)]):
         res, T = _trace(sn637, "dielectric_absorption", proto, size, tau_records, s)
         names = [st["effect"] for st in res["stages"]]
         print(f"\n{proto:11s} x{size:7.3f} tau/T {tau_records:5.1f} -> {res['effect']} {names} {res['fold_winners']}")

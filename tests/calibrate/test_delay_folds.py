@@ -16,7 +16,7 @@ drawn with a size log-uniform over 1-20x the drawn ranges, rate drawn from 1 and
 import numpy as np
 import pytest
 
-from tests.conftest import load_benchmark
+from tests.conftest import load_benchmark, reduced_draws
 from workbench.calibrate import tracing as T
 
 RNG = np.random.default_rng(1313)
@@ -135,7 +135,8 @@ NONE_DRAWS = [(proto, rate, int(RNG.integers(1 << 30)))
               for proto in ("sine", "steps", "calibration") for rate in (1e3, 1e4, 1e5)]
 
 
-@pytest.mark.parametrize("proto, rate, seed", NONE_DRAWS)
+#: make test: one protocol per rate (sine 1 kHz, steps 10 kHz, calibration 100 kHz); WORKBENCH_FULL=1 all nine
+@pytest.mark.parametrize("proto, rate, seed", reduced_draws(NONE_DRAWS, keep={0, 4, 8}))
 def test_an_effect_free_record_is_not_named_delay(sn637, proto, rate, seed):
     """Records with no effect (the benchmark's ``none``: the plant's own hysteresis and noise), every
     protocol at every benchmark rate: no stage names a delay (finding 8; a latency searched over a

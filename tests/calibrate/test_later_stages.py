@@ -19,7 +19,7 @@ Drawn records: sizes log-uniform over the benchmark's large band (3-30x the draw
 import numpy as np
 import pytest
 
-from tests.conftest import load_benchmark
+from tests.conftest import load_benchmark, reduced_draws
 from workbench.calibrate import stages as st
 from workbench.calibrate import tracing as tr
 from workbench.calibrate.base_fit import _gauge_valid
@@ -43,7 +43,7 @@ def _trace(plant0, effect, rate, proto, size, seed):
     return base, trace_effect(base, split=sp), truth
 
 
-@pytest.mark.parametrize("proto, size, seed", CREEP_DELAY_DRAWS)
+@pytest.mark.parametrize("proto, size, seed", reduced_draws(CREEP_DELAY_DRAWS, keep={0}))
 def test_a_large_creep_behind_a_delay_at_100_khz_is_never_named_absorption(sn637, proto, size, seed):
     """Creep + a sensor delay, 3-30x the drawn ranges, on 0.4 s records at 100 kHz: every stage
     is creep or delay (main named the creep's charge dielectric_absorption after the delay:
@@ -84,7 +84,7 @@ ONE_MODE_DRAWS = [(proto, float(np.exp(_RNG_ONE.uniform(np.log(3.0), np.log(9.0)
                   for proto in ("sine", "calibration", "sine", "calibration")]
 
 
-@pytest.mark.parametrize("proto, size, seed", ONE_MODE_DRAWS)
+@pytest.mark.parametrize("proto, size, seed", reduced_draws(ONE_MODE_DRAWS, keep={0, 1}))
 def test_the_stacks_mode_is_named_once(sn637, proto, size, seed):
     """The gauge and the displacement read one motion: the stack's mode (or creep) is one effect and
     no effect is named twice (main: resonance on the gauge, drift, resonance on the displacement,
@@ -219,7 +219,7 @@ NO_CREEP_DRAWS = [(effect, proto, float(np.exp(_RNG_NC.uniform(np.log(5.0), np.l
                   for proto in ("steps", "sine")]
 
 
-@pytest.mark.parametrize("effect, proto, size, seed", NO_CREEP_DRAWS)
+@pytest.mark.parametrize("effect, proto, size, seed", reduced_draws(NO_CREEP_DRAWS, keep={0, 3}))
 def test_a_charge_relaxation_beside_a_displacement_effect_is_never_named_creep(sn637, effect, proto, size, seed):
     """No creep in the plant: creep is never named (by creep_decided_rest_undecided or any rule)."""
     _, res, truth = _trace(sn637, effect, 1e5, proto, size, seed)

@@ -101,27 +101,34 @@ def test_the_carry_passes_the_fold_test_not_any_drop(draw):
         assert _carry_passes(prob, g, 1, (), sp, ctx, sigma) is keep, (share, after / before)
 
 
-def test_the_floor_holds_on_drawn_records_the_carry_applies_to(sn637):
+def _floor_draws():
+    """(effect, protocol, size, seed) at 100 kHz, ``default_rng(2311)`` fixed before any run."""
+    from workbench.calibrate.synthetic import PROTOCOLS
+    cc = load_benchmark("calibrate_confusion")
+    rng = np.random.default_rng(2311)
+    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
+    out = []
+    for e in ("creep", "resonance", ("creep", "delay"), ("drift", "resonance")):
+        proto = PROTOCOLS[int(rng.integers(len(PROTOCOLS)))]
+        out.append((e, proto, float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))))
+    return out
+
+
+#: make test: creep alone and drift + resonance; WORKBENCH_FULL=1 all four (session 22's make test ran all four)
+@pytest.mark.parametrize("e, proto, size, seed", reduced_draws(_floor_draws(), keep={0, 3}))
+def test_the_floor_holds_on_drawn_records_the_carry_applies_to(sn637, e, proto, size, seed):
     """Drawn 100 kHz records (the rate where the gauge sees a mode) of the effects carried from
     the displacement (creep, a resonance, and the benchmark's pairs holding them), sizes
     log-uniform over the benchmark's whole range, protocol and noise seed drawn
     (``default_rng(2311)``, fixed before any run). Every channel's reported held-out error at
     the end is at most the straight line's, unless the base warns about that channel."""
     cc = load_benchmark("calibrate_confusion")
-    from workbench.calibrate.synthetic import PROTOCOLS
-    rng = np.random.default_rng(2311)
-    effects = ("creep", "resonance", ("creep", "delay"), ("drift", "resonance"))
-    lo, hi = np.log(cc.SIZE_RANGE[0]), np.log(cc.SIZE_RANGE[1])
-    rate = 1e5
-    for e in effects:
-        proto = PROTOCOLS[int(rng.integers(len(PROTOCOLS)))]
-        size, seed = float(np.exp(rng.uniform(lo, hi))), int(rng.integers(1 << 30))
-        _, sp, base, _, _, _ = cc.simulated_base(sn637, e, rate, proto, size, seed)
-        res = trace_effect(base, split=sp)
-        for ch, err in _end_errors(res).items():
-            warned = any(f"on the {ch} channel" in w for w in base.warnings)
-            assert np.isfinite(err) and (err <= base.channels[ch].line_rms_test or warned), \
-                (e, proto, size, ch, err, base.channels[ch].line_rms_test)
+    _, sp, base, _, _, _ = cc.simulated_base(sn637, e, 1e5, proto, size, seed)
+    res = trace_effect(base, split=sp)
+    for ch, err in _end_errors(res).items():
+        warned = any(f"on the {ch} channel" in w for w in base.warnings)
+        assert np.isfinite(err) and (err <= base.channels[ch].line_rms_test or warned), \
+            (e, proto, size, ch, err, base.channels[ch].line_rms_test)
 
 
 def _bow_end(sn637, proto, size, seed, rate=1e5, n_rows=None):

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.conftest import load_benchmark
+from tests.conftest import load_benchmark, reduced_draws
 from workbench.calibrate.plant_update import (ROUND_TRIP_TOLERANCE, _terminal_secant, choose_core, creep_branches,
                                               plant_file_gaps,
                                               round_trip_note, round_trip_warning, updated_plant_error,
@@ -260,9 +260,9 @@ DRIVE_MISS = ("measured 2026-11-26 (s18_creepdelay): since creep_drive solves V_
 _MISSES = {(("creep", "delay"), 1e3, "calibration"): JOINT_MISS, (("creep", "delay"), 1e3, "sine"): DRIVE_MISS}
 
 
-@pytest.mark.parametrize("effect, rate, proto, size, seed", [
+@pytest.mark.parametrize("effect, rate, proto, size, seed", reduced_draws([
     pytest.param(*d, marks=pytest.mark.xfail(strict=True, reason=_MISSES[d[:3]])) if d[:3] in _MISSES
-    else d for d in DRAWS])
+    else d for d in DRAWS], keep={0, 2}))
 def test_two_effect_round_trip_reproduces_error_after(sn637, tmp_path, effect, rate, proto, size, seed):
     """Issue 13 item 6 on drawn two-effect records (3-30x): the record's drive simulated through the
     updated plant leaves the fitted model's ``error_after`` within 10 %."""
@@ -477,7 +477,7 @@ BIG_CREEP_DELAY = [(("creep", "delay"), float(_RNG15.choice([1e4, 1e5])), str(_R
 #: 4.288e-9 m (0.43x; the plant that made the record 1.019e-9 m)
 
 
-@pytest.mark.parametrize("effect, rate, proto, size, seed", BIG_CREEP_DELAY)
+@pytest.mark.parametrize("effect, rate, proto, size, seed", reduced_draws(BIG_CREEP_DELAY, keep={1, 3}))
 def test_a_large_creep_beside_a_delay_is_not_written_worse_than_found(sn637, tmp_path, effect, rate, proto, size,
                                                                      seed):
     """Issue 13 item 6, one-sided, on large creep + delay draws: the updated plant (C_h and the branches fitted
@@ -555,7 +555,7 @@ REPORTED = [(str(_RNG16.choice(["creep", "delay", "drift", "leakage", "resonance
              float(np.exp(_RNG16.uniform(np.log(3.0), np.log(30.0)))), int(_RNG16.integers(1 << 30))) for _ in range(2)]
 
 
-@pytest.mark.parametrize("effect, size, seed", REPORTED)
+@pytest.mark.parametrize("effect, size, seed", reduced_draws(REPORTED, keep={1}))
 def test_the_reported_error_after_is_the_written_files_replay(sn637, tmp_path, monkeypatch, effect, size, seed):
     """Session 15 (the lead's decision): the ``error_after`` ``workbench calibrate`` reports is the error of what
     the user gets. The file it wrote, loaded back from disk and the record's drive simulated through it, leaves
@@ -589,7 +589,7 @@ MODE_DRAWS = [(("drift", "resonance"), 1e4, str(_RNG17.choice(["calibration", "s
 MODE_DRAWS.append((("drift", "resonance"), 1e4, "sine", 14.419072932627795, 90769602))
 
 
-@pytest.mark.parametrize("effect, rate, proto, size, seed", MODE_DRAWS)
+@pytest.mark.parametrize("effect, rate, proto, size, seed", reduced_draws(MODE_DRAWS, keep={1, 3}))
 def test_the_written_mode_is_the_plants_mode(sn637, tmp_path, effect, rate, proto, size, seed):
     """The file's modes have unit gain and filter the quasi-static motion; the tracing's resonance has its gain
     free, and where it came out off 1 its frequency and damping compensate (seed 24 #55: gain 0.85, 45.06 Hz
