@@ -168,3 +168,29 @@ def test_a_triangles_mode_whose_file_replays_worse_is_not_written(tmp_path):
     assert not res["warnings"]
     modes = [c for c in res["updated_plant_stages"] if c["effect"] == "resonance"]
     assert modes and not modes[0]["written"]
+
+
+def test_the_cli_prints_the_replay_warning_at_the_top_and_the_folds_per_channel(tmp_path, capsys, monkeypatch):
+    """s22_outsider C1/C2 at the CLI: the file's replay above the error before is printed as a WARNING beside the
+    answer (not only among the base's warnings, after the candidates), and a named effect's folds on the other
+    channel are said beside its own "1 of 5"."""
+    import workbench.calibrate.run as run
+    from workbench.cli import main
+    eb = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    ea = {"rms": 2.15e-8, "max": 5e-8, "units": "m"}
+    warning = replay_above_before_warning(eb, ea, "updated plant", [
+        {"effect": "creep", "channel": "gauge", "written": False, "reason": "no plant-file form"}])
+    winners = ["creep on the gauge"] + ["creep on the displacement"] * 3 + ["none"]
+    st = {"effect": "creep", "channel": "gauge", "agreement": "1 of 5", "error_before": eb, "error_after": eb}
+    data = {"effect": "creep", "channel": "gauge", "agreement": "1 of 5", "error_before": eb, "error_after": ea,
+            "error_after_model": eb, "error_after_source": "updated plant", "stages": [st], "reason": "wins",
+            "agreement_counts": agreement_counts("creep", "gauge", winners, [st]), "candidates": [],
+            "base_fit": {"warnings": []}, "warnings": [warning], "elapsed_s": 1.0}
+    monkeypatch.setattr(run, "run_calibrate", lambda *a, **k: data)
+    rec = tmp_path / "r.csv"
+    rec.write_text("time[s],voltage[V],displacement[m]\n" + "".join(f"{k * 1e-3},{k % 50},{k % 50}e-7\n"
+                                                                     for k in range(200)))
+    assert main(["calibrate", str(rec), "--plant", str(SN637)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert "1 of 5 validation folds on the gauge; the creep on the displacement won 3 more" in out[0], out[0]
+    assert out[2].startswith("  WARNING: the updated plant file replays the test rows at 2.15e-08 m RMS, 2.15x"), out
