@@ -128,13 +128,19 @@ def test_a_stage_is_written_only_where_its_form_replays_the_development_rows_clo
 
 def test_the_replay_above_the_error_before_is_a_top_level_warning():
     """The file's replay (``error_after``, source "updated plant") above ``error_before``: a warning naming both
-    figures, what the file carries and what it does not; none at or below, and none for the tracing model's."""
+    figures, what the file carries and what it does not; none at or below. With no file replayed the reported
+    ``error_after`` is the tracing model's: above ``error_before`` it is said with the reason no file was replayed
+    (s22_outsider A4: a generic stack's drift over the predicted cycles, 654x)."""
     eb = {"rms": 1.0e-8, "max": 3e-8, "units": "m"}
     carried = [{"effect": "creep", "channel": "gauge", "written": False, "reason": "no plant-file form"}]
     w = replay_above_before_warning(eb, {"rms": 2.15e-8, "max": 5e-8, "units": "m"}, "updated plant", carried)
     assert w is not None and "2.15x" in w and "creep on the gauge (no plant-file form)" in w
     assert replay_above_before_warning(eb, {"rms": 0.9e-8, "max": 3e-8, "units": "m"}, "updated plant", carried) is None
-    assert replay_above_before_warning(eb, {"rms": 2e-8, "max": 3e-8, "units": "m"}, "tracing model", carried) is None
+    # no file replayed (a generic stack, an amplifier command): the tracing model's error_after above is said too
+    w = replay_above_before_warning(eb, {"rms": 6.54e-6, "max": 3e-5, "units": "m"}, "tracing model", (),
+                                    no_replay="a generic stack's plant file has no simulator: no replay")
+    assert w is not None and "654.00x" in w and "the tracing model's (no plant file replayed: a generic stack" in w
+    assert replay_above_before_warning(eb, {"rms": 0.5e-8, "max": 3e-8, "units": "m"}, "tracing model", ()) is None
 
 
 def test_the_agreement_is_counted_per_channel():

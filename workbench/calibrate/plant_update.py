@@ -1301,7 +1301,7 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()
             f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")
 
 
-def replay_above_before_warning(error_before, error_after, source, carried=(), gaps=()):
+def replay_above_before_warning(error_before, error_after, source, carried=(), gaps=(), no_replay=None):
     """The top-level warning when the written file's replay is above ``error_before`` (s22_outsider C1).
 
     ``error_before`` is the base model refitted on the record (its plays, gains and offsets free), not the
@@ -1320,16 +1320,24 @@ def replay_above_before_warning(error_before, error_after, source, carried=(), g
         :func:`carried_stages`' list.
     gaps : sequence of str
         :func:`plant_file_gaps`.
+    no_replay : str, optional
+        Why no file was replayed (:func:`updated_plant_error_reason`): with ``source`` "tracing model" the
+        reported ``error_after`` is the tracing model's, and its being above ``error_before`` is said the same way
+        (s22_outsider A4: a generic stack's drift extrapolated over the predicted cycles, 654x).
 
     Returns
     -------
     str or None
     """
-    if source != "updated plant" or not error_before or not error_after:
+    if not error_before or not error_after:
         return None
     a, b, u = float(error_before["rms"]), float(error_after["rms"]), error_before["units"]
     if not (np.isfinite(a) and np.isfinite(b)) or not b > a:
         return None
+    if source != "updated plant":
+        return (f"the reported error after, the tracing model's (no plant file replayed: {no_replay or 'none'}), is "
+                f"{b:.4g} {u} RMS on the test rows, {b / a:.2f}x the error before ({a:.4g} {u}): the effect found "
+                f"does not predict this record's held-out rows closer than the base alone")
     kept = [f"{c['effect']} on the {c['channel']}" for c in carried if c.get("written")]
     left = [f"{c['effect']} on the {c['channel']} ({c['reason']})" for c in carried if not c.get("written")]
     said = " ".join(left)

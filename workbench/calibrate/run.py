@@ -279,8 +279,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             data["base_fit"]["notes"].append(note)
         text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err, core=core, omit=omit)
         data["error_after"], data["error_after_source"] = reported_error_after(result["error_after"], err)
+    if result["effect"] not in ("none", "inconclusive"):
         above = replay_above_before_warning(result["error_before"], data["error_after"], data["error_after_source"],
-                                            data["updated_plant_stages"], file_gaps)
+                                            data["updated_plant_stages"], file_gaps if kind == "pzt" else (),
+                                            no_replay=data["updated_plant_error_reason"])
         if above:
             data["warnings"].append(above)
     if out_dir is not None:
