@@ -392,13 +392,20 @@ def cmd_calibrate(args):
     first = stages[0]["error_after"] if stages else ea
     # an inconclusive answer has no agreement to print (its "k of n" is the leading answer's count, which a
     # later rule may still refuse: s22_outsider D printed "inconclusive ... (5 of 5 validation folds)")
-    folds = (f"{data['agreement']} validation folds" if data["effect"] != "inconclusive" else
+    counts = data.get("agreement_counts") or {}
+    others = {c: k for c, k in (counts.get("by_channel") or {}).items() if c != data["channel"]}
+    # s22_outsider C2: a stack effect's folds on the other sensor's view of the same motion are said beside it
+    also = "".join(f"; the {data['effect']} on the {c} won {k} more" for c, k in others.items())
+    folds = (f"{data['agreement']} validation folds on the {data['channel']}{also}" if data["effect"] not in
+             ("inconclusive", "none") else f"{data['agreement']} validation folds" if data["effect"] == "none" else
              "fold winners: " + (", ".join(f"{x['answer']} {x['folds']}" for x in data.get("leading") or ())
                                  or "none"))
     lines = [f"{args.data} against {args.plant}: effect {data['effect']} on the {data['channel']} channel "
              f"({folds})",
              f"  test RMS {eb['rms']:.4g} -> {first['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
              f"{first['max']:.4g} {eb['units']}  ({data['reason']})"]
+    # s22_outsider C1: the file's replay above the error before, said at the top (not only among the base's warnings)
+    lines += [f"  WARNING: {w}" for w in data.get("warnings") or ()]
     for st in stages[1:]:
         lines.append(f"  then {st['effect']} on the {st['channel']} ({st['agreement']}): test RMS "
                      f"{st['error_before']['rms']:.4g} -> {st['error_after']['rms']:.4g} {st['error_before']['units']}")

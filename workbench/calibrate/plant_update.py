@@ -40,7 +40,7 @@ import re
 
 import numpy as np
 
-__all__ = ["written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["carried_stages", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -65,10 +65,12 @@ def _fmt(x):
     return repr(float(x))
 
 
-def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=None, core=None):
+def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=None, core=None, omit=None):
     """TOML text of the declared plant plus every effect found (see the module notes).
 
-    Every stage of ``result["stages"]`` is written (the first is ``result["effect"]``); a
+    Every stage of ``result["stages"]`` is written (the first is ``result["effect"]``) but those in ``omit``
+    (``{(effect, channel): reason}``, :func:`carried_stages`: a stage whose written form does not replay the
+    development rows closer), which the header names with the reason; a
     delay and a drift of the displacement sensor share one ``[displacement_sensor]`` section.
     ``plant_error``: this file's own simulated test error (:func:`updated_plant_error`,
     ``{rms, max, units}``), stated in the header beside the fitted model's. ``core``: the core written
@@ -83,6 +85,9 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
     eb, ea = result["error_before"], result["error_after"]
     core = core_for(plant, base, result) if core is None else core
     stages = written_stages(stages, result, core)
+    omit = dict(omit or {})
+    left_out = [st for st in stages if (st["effect"], st["channel"]) in omit]
+    stages = [st for st in stages if (st["effect"], st["channel"]) not in omit]
     names = ", ".join(f"{s['effect']} on the {s['channel']}" for s in stages) or result.get("effect", "none")
     header = [f"# Calibrated {datetime.date.today().isoformat()} by {src}: {names};",
               f"# the fitted model (its base refitted on the record, every effect found on the first effect's "
@@ -103,6 +108,9 @@ def updated_plant_text(plant_path, plant, base, result, data_path, plant_error=N
                       f"declared values below are unchanged; the sections of the effects are new.")
     else:
         header.append("# The declared values below are unchanged; the sections of the effects are new.")
+    for st in left_out:
+        header.append(f"# The {st['effect']} found on the {st['channel']} is not written: "
+                      f"{omit[(st['effect'], st['channel'])]}; its parameters are in the calibration JSON.")
     blocks = []
     if core["hysteresis"] is not None:
         h = core["hysteresis"]
@@ -269,6 +277,88 @@ def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
             kept["mode"] = cores["declared"]["mode"]
         return kept, errs, tests["declared"]
     return cores["refitted"], errs, tests["refitted"]
+
+
+def _file_lines(text):
+    """The lines of a plant file's text that set something (comment lines and blank ones dropped)."""
+    return [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+
+
+def carried_stages(plant_path, plant, base, result, data_path, core, rows):
+    """Which stages the updated plant file carries: each written only where it replays the development rows closer.
+
+    The file with every stage written (as :func:`updated_plant_text` writes them with ``core``) and the file
+    without one stage are loaded back and the record's drive replayed through each (:func:`_replay`), on the
+    stage's own channel (the charge's for a leakage, the gauge's for a bow), the constant taken out on the
+    development ``rows``; the stage is left out when the file without it replays those rows as close or closer
+    (the stages in order, each against the file with the ones kept so far). The test rows take no part.
+
+    Why (s22_outsider C1): the file's forms are approximations of the tracing's (a mode of unit gain, branches
+    across a hysteretic C_h, a bow about rest); the tracing's model can be right while its written form replays
+    worse than no section at all, and the file's ``error_after`` was then above ``error_before`` with the effect
+    reported found.
+
+    Returns
+    -------
+    omit : dict
+        ``{(effect, channel): reason}`` of the stages left out (``updated_plant_text``'s ``omit``).
+    carried : list of dict
+        Per stage of :func:`written_stages`: ``effect``, ``channel``, ``written`` (bool), ``reason`` (why not,
+        or why it was not measured, else None) and ``development_rms`` (``{"with", "without", "units",
+        "channel"}``, the two files' replay RMS on the development rows, None when not replayed).
+    """
+    import tempfile
+    from pathlib import Path
+
+    from ..plant import load_plant
+    stages = written_stages(result.get("stages") or [], result, core)
+    carried = [{"effect": st["effect"], "channel": st["channel"], "written": True, "reason": None,
+                "development_rms": None} for st in stages]
+    omit = {}
+    why_not = updated_plant_error_reason("pzt", result, base, result.get("channel"))
+    if why_not is not None:
+        for c in carried:
+            c["reason"] = f"not replayed ({why_not})"
+        return omit, carried
+    with tempfile.TemporaryDirectory() as tmp:
+        cache = {}
+
+        def dev(om, ch):
+            text = updated_plant_text(plant_path, plant, base, result, data_path, core=core, omit=om)
+            key = ("\n".join(_file_lines(text)), ch)
+            if key not in cache:
+                f = Path(tmp) / f"carried{len(cache)}.toml"
+                f.write_text(text, encoding="utf-8")
+                cache[key] = _replay_error(_replay(load_plant(f), base, ch), base, ch, rows, rows)["rms"]
+            return key[0], cache[key]
+        for c, st in zip(carried, stages):
+            key = (st["effect"], st["channel"])
+            ch = st["channel"]
+            trial = {**omit, key: "trial"}
+            body_without = "\n".join(_file_lines(updated_plant_text(plant_path, plant, base, result, data_path,
+                                                                     core=core, omit=trial)))
+            if ch not in _SIM_KEY or ch not in base.channels:
+                if body_without != "\n".join(_file_lines(updated_plant_text(plant_path, plant, base, result,
+                                                                               data_path, core=core, omit=omit))):
+                    c["reason"] = f"written, not measured (the simulator does not log the {ch})"
+                else:
+                    c.update(written=False, reason="no plant-file form")
+                continue
+            body_with, e_with = dev(omit, ch)
+            if body_without == body_with:
+                own = [g for g in plant_file_gaps([st], base, plant, core=core)
+                       if not g.startswith("the record's core")]
+                c.update(written=False, reason="; ".join(own) or "no plant-file form")
+                continue
+            _, e_without = dev(trial, ch)
+            u = base.channels[ch].units
+            c["development_rms"] = {"with": e_with, "without": e_without, "units": u, "channel": ch}
+            if not e_with < e_without:
+                reason = (f"its written form replays the development rows no closer than the file without it "
+                          f"({e_with:.4g} against {e_without:.4g} {u} on the {ch})")
+                omit[key] = reason
+                c.update(written=False, reason=reason)
+    return omit, carried
 
 
 #: The found mode's frequency and damping are refitted by replay within these factors of the tracing's
@@ -696,8 +786,14 @@ def _block(effect, ch, p, base, src, sensor, note=None, plant=None, core=None, c
         sensor["drift"] = [f"drift_rate_m_per_s = {_fmt(rate)}   # m/s; {src} (from the record's start)",
                            f"drift_curvature_m_per_s2 = {_fmt(curv)}   # m/s^2; {src}"
                            + ("; its slow periodic term has no plant-file form (JSON)" if p.get("period_s") else "")]
-    elif effect == "gauge_nonlinearity" and _bow_fits_the_file(p):
-        block = ["[gauge_nonlinearity]", f"coefficient_per_m = {_fmt(p['coefficient_per_m'])}   # 1/m; {src}"]
+    elif effect == "gauge_nonlinearity":
+        b0, why = bow_about_rest(p, base)
+        if why is None:
+            block = ["[gauge_nonlinearity]",
+                     f"# the tracing's bow {float(p['coefficient_per_m']):.6g} /m about the record's mean displacement "
+                     f"(x_ref {1e6 * float(p.get('x_ref', 0.0)):.4g} um, {1e6 * _bow_x0(p, base):.4g} um from rest) "
+                     f"taken to rest, where the file's bow is written (b / (1 - b x_ref))",
+                     f"coefficient_per_m = {_fmt(b0)}   # 1/m; {src}"]
     return block
 
 
@@ -706,12 +802,64 @@ def _bow_field():
     return PLANT_FIELDS["gauge_nonlinearity"]["coefficient_per_m"]
 
 
-def _bow_fits_the_file(p):
-    """Is the fitted bow within the plant file's range of ``coefficient_per_m`` (a bow beyond it is not
-    written and is a gap, :func:`plant_file_gaps`, as a creep branch beyond the file's 1 mF: a file that
-    would not load is never written)?"""
-    b, f = float(p.get("coefficient_per_m", np.nan)), _bow_field()
-    return bool(np.isfinite(b) and f.lo <= b <= f.hi)
+def _bow_x0(p, base):
+    """The bow's reference from rest, m: the tracing's ``x_ref`` (the record's mean displacement on the development
+    rows) less the displacement's zero, the base fit's offset (the plays are 0 at rest)."""
+    off = 0.0
+    if base is not None and "displacement" in getattr(base, "channels", {}):
+        off = float(base.channels["displacement"].offset)
+    return float(p.get("x_ref", 0.0)) - off
+
+
+def bow_about_rest(p, base):
+    """The gauge bow as the plant file carries it: ``(coefficient_per_m about rest, None)``, or ``(b, reason)`` when
+    the file cannot carry it.
+
+    The tracing's bow (:class:`~workbench.calibrate.effects.GaugeNonlinearity`) is ``d / (1 + b' d)`` about the
+    record's mean displacement ``x_ref`` (its gain taken by the refitted gauge line); the file's (and the
+    simulator's, :func:`workbench.plant.additions.gauge_bow`) is ``x / (1 + b x)`` about rest. The two are one
+    map: ``f(x) - f(x0) = d / ((1 + b x0)^2 (1 + b' d))`` with ``b' = b / (1 + b x0)``, so ``b = b' / (1 - b' x0)``
+    (``x0`` the reference from rest, :func:`_bow_x0`) and the gain ``1 / (1 + b x0)^2`` is the declared gauge's.
+    Written as the tracing's ``b'`` the file bowed about the wrong point (session 23: 12 % off the drawn
+    coefficient at a 3 um mean; the drawn -1.45e5 /m came back -2.26e5).
+
+    Not carried (the reason): ``b' x0 >= 1`` (no bow about rest has that shape), a map whose pole ``x = -1/b``
+    lies within the record's motion from rest (``1 + b x`` not positive there: the gauge would fold over; the
+    tracing's quadratic is then no bow the file's form can hold), or ``b`` beyond the plant file's
+    ``coefficient_per_m`` range (a file that would not load is never written).
+    """
+    bp = float(p.get("coefficient_per_m", np.nan))
+    x0 = _bow_x0(p, base)
+    f = _bow_field()
+    if not np.isfinite(bp):
+        return bp, "the fitted bow is not finite"
+    den = 1.0 - bp * x0
+    if not den > 0:
+        return bp, (f"the bow {bp:.4g} /m about the record's mean displacement ({1e6 * x0:.4g} um from rest) has no "
+                    f"bow about rest of that shape (1 - b x_ref = {den:.3g})")
+    b = bp / den
+    lo = hi = None
+    if base is not None and "displacement" in getattr(base, "channels", {}):
+        m = base.channels["displacement"]
+        y = np.asarray(m.y, float)[np.asarray(m.valid, bool) & np.isfinite(m.y)] - float(m.offset)
+        if y.size:
+            lo, hi = float(y.min()), float(y.max())
+    if lo is not None and not min(1.0 + b * lo, 1.0 + b * hi) > 0:
+        return b, (f"the gauge bow {b:.4g} /m (about rest; {bp:.4g} /m about the record's mean) has its pole "
+                   f"1 + b x = 0 at {1e6 * (-1.0 / b):.4g} um from rest, within the record's motion {1e6 * lo:.4g} .. "
+                   f"{1e6 * hi:.4g} um: beyond the plant file's bow x / (1 + b x), which folds over at its pole (the "
+                   f"fit is a quadratic no file bow holds): not written (JSON only)")
+    if not f.lo <= b <= f.hi:
+        return b, (f"the gauge bow {b:.4g} /m (about rest; {bp:.4g} /m about the record's mean) is beyond the plant "
+                   f"file's coefficient_per_m range [{f.lo:g}, {f.hi:g}] /m: not written (JSON only)")
+    return b, None
+
+
+def _bow_fits_the_file(p, base=None):
+    """Does the plant file carry the fitted bow (:func:`bow_about_rest`)? A bow it cannot is not written and is a
+    gap (:func:`plant_file_gaps`), as a creep branch beyond the file's 1 mF: a file that would not load is never
+    written."""
+    return bow_about_rest(p, base)[1] is None
 
 
 def _terminal_secant(base, plant):
@@ -1106,12 +1254,8 @@ def plant_file_gaps(stages, base, plant, core=None):
         elif eff == "drift" and ch == "displacement":
             if p.get("period_s"):
                 gaps.append("the drift's slow periodic term (JSON only)")
-        elif eff == "gauge_nonlinearity" and not _bow_fits_the_file(p):
-            f = _bow_field()
-            gaps.append(f"the gauge bow {float(p.get('coefficient_per_m', np.nan)):.4g} /m is beyond the plant file's "
-                        f"coefficient_per_m range [{f.lo:g}, {f.hi:g}] /m (its 1 + b x passes zero "
-                        f"{1e6 / max(abs(float(p.get('coefficient_per_m', np.nan))), 1e-300):.3g} um from the "
-                        f"record's reference): not written (JSON only)")
+        elif eff == "gauge_nonlinearity" and not _bow_fits_the_file(p, base):
+            gaps.append(bow_about_rest(p, base)[1])
         elif eff in ("delay", "drift", "creep") and ch != "displacement":
             gaps.append(f"the {eff} on the {ch} (no plant-file form, JSON only)")
     return gaps
@@ -1155,6 +1299,55 @@ def round_trip_warning(error_after, plant_error, stages, tolerance=None, gaps=()
     why = "; ".join([*gaps, last])
     return (f"the updated plant, the record's drive simulated through it, leaves a test RMS of {b:.4g} {u} against "
             f"the fitted model's {a:.4g} {u} ({b / a:.2f}x; found: {found}): {why}")
+
+
+def replay_above_before_warning(error_before, error_after, source, carried=(), gaps=(), no_replay=None):
+    """The top-level warning when the written file's replay is above ``error_before`` (s22_outsider C1).
+
+    ``error_before`` is the base model refitted on the record (its plays, gains and offsets free), not the
+    declared file; the file hands the user the declared plant with the core and sections its header names. When
+    its replay on the test rows is above ``error_before`` the effect reported found does not make the user's file
+    better than that base: said at the top of the printed summary and of the report, with what the file carries
+    and what it does not.
+
+    Parameters
+    ----------
+    error_before, error_after : dict
+        ``{rms, max, units}``: the JSON's (``error_after`` the reported one, :func:`reported_error_after`).
+    source : str
+        ``error_after``'s source: only "updated plant" is the file's replay.
+    carried : sequence of dict
+        :func:`carried_stages`' list.
+    gaps : sequence of str
+        :func:`plant_file_gaps`.
+    no_replay : str, optional
+        Why no file was replayed (:func:`updated_plant_error_reason`): with ``source`` "tracing model" the
+        reported ``error_after`` is the tracing model's, and its being above ``error_before`` is said the same way
+        (s22_outsider A4: a generic stack's drift extrapolated over the predicted cycles, 654x).
+
+    Returns
+    -------
+    str or None
+    """
+    if not error_before or not error_after:
+        return None
+    a, b, u = float(error_before["rms"]), float(error_after["rms"]), error_before["units"]
+    if not (np.isfinite(a) and np.isfinite(b)) or not b > a:
+        return None
+    if source != "updated plant":
+        return (f"the reported error after, the tracing model's (no plant file replayed: {no_replay or 'none'}), is "
+                f"{b:.4g} {u} RMS on the test rows, {b / a:.2f}x the error before ({a:.4g} {u}): the effect found "
+                f"does not predict this record's held-out rows closer than the base alone")
+    kept = [f"{c['effect']} on the {c['channel']}" for c in carried if c.get("written")]
+    left = [f"{c['effect']} on the {c['channel']} ({c['reason']})" for c in carried if not c.get("written")]
+    said = " ".join(left)
+    gaps = [g for g in gaps if g not in said]
+    return (f"the updated plant file replays the test rows at {b:.4g} {u} RMS, {b / a:.2f}x the error before "
+            f"({a:.4g} {u}, the declared model's base refitted on the record): the effect found does not make the "
+            f"file closer to this record than that refit. The file carries "
+            + (", ".join(kept) if kept else "no section of an effect found") + "; "
+            + ("found but not carried: " + "; ".join(left) + ". " if left else "")
+            + ("Gaps: " + "; ".join(gaps) + "." if gaps else "").rstrip())
 
 
 def reported_error_after(error_after_model, plant_error):

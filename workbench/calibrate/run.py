@@ -26,14 +26,15 @@ from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
-from .plant_update import (_sensor_terms, written_stages, choose_core, plant_file_gaps, reported_error_after, round_trip_note, round_trip_warning, updated_plant_error,
-                           updated_plant_error_reason, updated_plant_text)
+from .plant_update import (_sensor_terms, carried_stages, written_stages, choose_core, plant_file_gaps,
+                           replay_above_before_warning, reported_error_after, round_trip_note, round_trip_warning,
+                           updated_plant_error, updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
 from .splits import default_split, make_split
 from .tracing import candidate_plan, trace_effect
 
-__all__ = ["run_calibrate"]
+__all__ = ["run_calibrate", "agreement_counts"]
 
 
 def _json_candidates(cands):
@@ -41,6 +42,31 @@ def _json_candidates(cands):
              "n_params": c["n_params"], "passes": c["passes"], "ratios": c["ratios"],
              "error_before": c["error_before"], **({"error_after": c["error_after"]} if "error_after" in c else {})}
             for c in cands]
+
+
+def agreement_counts(effect, channel, fold_winners, stages):
+    """How the folds counted for the named effect, per channel (s22_outsider C2).
+
+    ``agreement`` is the named view's own fold wins: a stack effect (creep, a mode) read by the gauge and the
+    displacement alike is one motion, and the stages rule names it once when the two views together win the
+    folds (:func:`~workbench.calibrate.stages.stack_effect_on_both_sensors`); "1 of 5" on the gauge then read as
+    a minority while 4 of 5 folds found it. Returns None for no named effect, else ``{"named_view": "k of n"
+    (the effect on the named channel), "by_channel": {channel: folds won}, "any_channel": "k of n" (the effect on
+    any channel), "compatible": "k of n" or None (the stage's ``agreement_compatible``: the folds compatible with
+    the name, as the tracing counted them)}``.
+    """
+    if effect in (None, "none", "inconclusive"):
+        return None
+    n = len(fold_winners or ())
+    by = {}
+    for w in fold_winners or ():
+        if isinstance(w, str) and w.startswith(f"{effect} on the "):
+            ch = w[len(f"{effect} on the "):]
+            by[ch] = by.get(ch, 0) + 1
+    comp = (stages[0].get("agreement_compatible") if stages else None)
+    return {"named_view": f"{by.get(channel, 0)} of {n}", "by_channel": by,
+            "any_channel": f"{sum(by.values())} of {n}",
+            "compatible": None if comp is None else f"{int(comp)} of {n}"}
 
 
 #: BLAS threads of a calibration: its solves are many and small (Gram matrices of a few dozen
@@ -154,6 +180,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         "effect": result["effect"], "channel": result["channel"],
         "error_before": result["error_before"], "error_after": result["error_after"],
         "parameters": result["parameters"], "agreement": result["agreement"],
+        # the named effect's folds per channel (s22_outsider C2: a stack effect's "1 of 5" on the gauge, 3 more on
+        # the displacement's view of the same motion)
+        "agreement_counts": agreement_counts(result["effect"], result["channel"], result["fold_winners"],
+                                             result["stages"]),
         "fold_winners": result["fold_winners"], "leading": result["leading"], "stages": result["stages"],
         "stage_notes": result.get("stage_notes", []),
         "candidates": _json_candidates(result["candidates"]),
@@ -198,10 +228,21 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     data["updated_plant_error_reason"] = updated_plant_error_reason(kind, result, base, result["channel"])
     data["updated_plant_gaps"] = []
     data["updated_plant_core"] = None          # pzt: which core the file carries (choose_core)
+    # the stages the file carries and those it does not, and why (plant_update.carried_stages)
+    data["updated_plant_stages"] = []
+    # said at the top of the printed summary and of the report (s22_outsider C1: the file's replay above the
+    # error before was said only in base_fit.warnings)
+    data["warnings"] = []
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
         # the refitted core or the declared one, by the replay on the development rows (choose_core)
         core, dev, err = choose_core(plant_path, plant, base, result, data_path, train, test=test)
+        # each stage written only where its form replays the development rows closer than the file without it
+        omit, data["updated_plant_stages"] = carried_stages(plant_path, plant, base, result, data_path, core, train)
+        if omit:
+            err = None                 # choose_core's test replay was of the file with every stage
+        kept = [st for st in written_stages(result["stages"], result, core)
+                if (st["effect"], st["channel"]) not in omit]
         data["updated_plant_core"] = {
             "core": "refitted" if core["hysteresis"] is not None else "declared", "channel": core["channel"],
             "range_v": list(core["range_v"]) if core["range_v"] else None, "reason": core["reason"],
@@ -209,7 +250,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             # which write-out ran: C_h and branches fitted together (plant_update._core_with_branches) or not
             "joint": bool(core.get("joint", False)),
             # the file's displacement-sensor delay, s, and the offset the joint fit took off the record, m
-            "sensor_delay_s": _sensor_terms(written_stages(result["stages"], result, core), base)[0],
+            "sensor_delay_s": _sensor_terms(kept, base)[0],
             "offset_m": core.get("offset_m"),
             # the joint fit's fastest branch when the resistor is in and the drive is the recorded V (R C lag), s
             "fastest_branch_s": core.get("fastest_branch_s"),
@@ -217,7 +258,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             # tracing's f Hz, zeta), None when not refitted; why the refit did not run, when it could not
             "mode_refit": list(core["mode"]) if core.get("mode") else None,
             "mode_refit_skipped": core.get("mode_refit_skipped")}
-        text = updated_plant_text(plant_path, plant, base, result, data_path, core=core)
+        text = updated_plant_text(plant_path, plant, base, result, data_path, core=core, omit=omit)
         if data["updated_plant_error_reason"] is None:
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
             if err is None:
@@ -226,7 +267,8 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         else:
             err = None
         data["updated_plant_error"] = err
-        gaps = plant_file_gaps(written_stages(result["stages"], result, core), base, plant, core=core)
+        file_gaps = plant_file_gaps(kept, base, plant, core=core)
+        gaps = file_gaps + [f"the {e} on the {c} is not written: {why}" for (e, c), why in omit.items()]
         data["updated_plant_gaps"] = gaps
         warn = round_trip_warning(result["error_after"], err, result["stages"], gaps=gaps,
                                   core_written=core["hysteresis"] is not None)
@@ -235,8 +277,14 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         note = round_trip_note(result["error_after"], err)
         if note:
             data["base_fit"]["notes"].append(note)
-        text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err, core=core)
+        text = updated_plant_text(plant_path, plant, base, result, data_path, plant_error=err, core=core, omit=omit)
         data["error_after"], data["error_after_source"] = reported_error_after(result["error_after"], err)
+    if result["effect"] not in ("none", "inconclusive"):
+        above = replay_above_before_warning(result["error_before"], data["error_after"], data["error_after_source"],
+                                            data["updated_plant_stages"], file_gaps if kind == "pzt" else (),
+                                            no_replay=data["updated_plant_error_reason"])
+        if above:
+            data["warnings"].append(above)
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -268,6 +316,9 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         md = calibration_markdown(data_path, plant_path, base, {**result, "error_after": data["error_after"],
                                                                 "error_after_model": data["error_after_model"],
                                                                 "error_after_source": data["error_after_source"],
+                                                                "warnings": data["warnings"],
+                                                                "agreement_counts": data["agreement_counts"],
+                                                                "updated_plant_stages": data["updated_plant_stages"],
                                                                 "max_ratio": max_ratio,
                                                                 "penalty": penalty, "split": split,
                                                                 "block_s": sp.block_s, "n_folds": len(sp.folds)},

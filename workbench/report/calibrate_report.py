@@ -220,6 +220,15 @@ def _error_table(base, result):
     return lines + ([""] + note if note else [])
 
 
+def _carried_lines(carried):
+    """The stages the tracing found that the updated plant file does not carry, and why (a list; [] when none)."""
+    left = [c for c in carried or () if not c.get("written", True)]
+    if not left:
+        return []
+    return (["Found by the tracing but **not carried by the plant file**:", ""]
+            + [f"* {c['effect']} on the {c['channel']}: {c.get('reason') or 'no plant-file form'}" for c in left] + [""])
+
+
 def _after_source(result):
     """Which model the channel's 'after' is (``error_after_source``) and the other one's figure, a paragraph."""
     src, model, after = result.get("error_after_source"), result.get("error_after_model"), result.get("error_after")
@@ -330,6 +339,8 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
              f"{result.get('split', 'blocks')} split, {_num(result.get('block_s'))} s blocks); the effect is chosen on "
              f"{result.get('n_folds', 'several')} validation folds of the other rows.", ""]
     lines += ["## Answer", ""]
+    # s22_outsider C1: the file's replay above the error before, said first (it was only among the base's warnings)
+    lines += [f"**Warning:** {w}" for w in result.get("warnings") or ()] + ([""] if result.get("warnings") else [])
     agreement = result.get("agreement")
     if eff == "none":
         lines += [f"**No effect added.** {result.get('reason', '')}.".replace("..", "."), "",
@@ -341,7 +352,10 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
         lines += [f"**Inconclusive.** {result.get('reason', '')}.".replace("..", "."), "",
                   f"Leading answers: {lead}. No effect is added: the folds do not agree on one.", ""]
     else:
-        lines += [f"**{eff}** on the **{ch}** channel (wins {agreement} validation folds): "
+        others = {c: k for c, k in ((result.get("agreement_counts") or {}).get("by_channel") or {}).items() if c != ch}
+        # s22_outsider C2: the named effect's folds on another channel said beside the named view's own
+        also = "".join(f"; the {eff} on the {c} won {k} more" for c, k in others.items())
+        lines += [f"**{eff}** on the **{ch}** channel (wins {agreement} validation folds{also}): "
                   f"{result.get('reason', '')}.", ""]
         prow = parameter_rows(eff, result.get("parameters"), (result.get("error_before") or {}).get("units", ""))
         if prow:
@@ -351,6 +365,7 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
             lines += _stages_table(result) + [""]
     lines += (["Updated plant: `" + str(updated_plant_path) + "`.", ""] if updated_plant_path
               else ["No plant file written.", ""])
+    lines += _carried_lines(result.get("updated_plant_stages"))
     lines += ["## Error before and after (held out)", ""] + _error_table(base, result) + [""]
     lines += _after_source(result)
     lines += _base_section(base) + [""]
