@@ -1148,6 +1148,12 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 continue
             ok = [r for r in ok if (r["name"], r["channel"]) != ("gauge_nonlinearity", "gauge")]
             tags = {(r["name"], r["channel"]): r for r in ok}
+        if best["name"] in DELAY_OR_MODE_NAMES \
+                and _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share) is None:
+            # a delay and a mode on one channel passing the fold alike: neither explains what the other
+            # leaves above the fold test's bars (a sub-sample phase at the drive's harmonics)
+            winners.append(DELAY_OR_MODE)
+            continue
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage"):
             best = _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share)
             if best is None:
@@ -1189,6 +1195,43 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+#: The two readings of a phase lag or lead of one channel's motion (:func:`_delay_or_mode`).
+DELAY_OR_MODE_NAMES = ("delay", "resonance")
+#: The fold label of a fold where a delay and a mode of one channel explain it alike (:func:`_delay_or_mode`).
+DELAY_OR_MODE = ("undecided", "delay or resonance")
+
+
+def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share):
+    """The fold's best of a delay and a mode on one channel, or None when the fold cannot tell them apart.
+
+    A delay ``d`` and a mode are two readings of one thing wherever the drive's harmonics lie far below
+    both the mode and ``1 / d``: each is a phase proportional to frequency, ``-w d`` against the mode's
+    ``-2 zeta w / w_n`` (its gain the same to ``(w / w_n)^2``), and they differ only at the second order
+    in ``w``. A mode above the record's Nyquist frequency, which the mode's search cannot reach, is such
+    a phase at the samples: the drive's held staircase excites it at the sample rate's harmonics, which
+    the samples see at zero frequency, a term in the drive's slope, a delay's (a 311.6 Hz mode under a
+    0.15 Hz sine at 100 Hz reads as a 0.28-sample lag, a 97.5 Hz one as a 2.7-sample lead; a mode of at
+    most 50 Hz fitted beside them explains the same to 1 %). On such a record what one explains beyond the
+    other is under the bars every candidate clears: the fold is undecided (``None``).
+
+    ``best`` (the delay or the mode) keeps the fold when the other reading on its channel does not pass
+    it, or when what ``best`` explains beyond the other, ``a_other^2 - a_best^2`` (held-out, unpenalized),
+    stands above the channel's noise floor (times ``noise_factor``) and is ``min_share`` of what the other
+    leaves: the fold test (:func:`_fold_test`) with the other reading in the base's place, as
+    :func:`~.absorption_or_leakage.absorption_or_leakage` asks of the absorption beyond leakage.
+    """
+    other_name = DELAY_OR_MODE_NAMES[1 - DELAY_OR_MODE_NAMES.index(best["name"])]
+    other = tags.get((other_name, best["channel"]))
+    if other is None:
+        return best
+    a_best, a_other = _raw_rms(best, f, befores, penalty), _raw_rms(other, f, befores, penalty)
+    beyond = a_other * a_other - a_best * a_best
+    floor = noise_factor * infos[best["channel"]]["noise_floor"]
+    if beyond > floor ** 2 and beyond > min_share * a_other * a_other:
+        return best
+    return None
 
 
 #: The fold label of a fold where a drift in time explains the gauge against the recorded displacement as
