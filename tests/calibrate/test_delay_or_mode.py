@@ -88,3 +88,35 @@ def test_a_mode_the_record_shows_is_still_named():
     for f in both:
         assert res["winners"][f] == ("resonance", "displacement"), res["winners"]
     assert UNDECIDED not in res["winners"], res["winners"]
+
+
+DELAY, MODE = ("delay", "displacement"), ("resonance", "displacement")
+
+
+def test_a_reading_decided_on_some_folds_and_undecided_on_the_rest_is_named():
+    """As the absorption and leakage (``nested_consensus``): an undecided fold is compatible with both
+    readings; one is named from at least 2 decided folds when the other wins none and the two fill the
+    agreement (92 #127, a 0.04-sample delay under 100 Hz steps: delay on 3 folds, a noise-filled fold
+    undecided). All folds undecided, or both readings deciding folds: nothing named."""
+    named = T.delay_or_mode_consensus([DELAY, UNDECIDED, "none", DELAY, DELAY], 4)
+    assert named == (DELAY, 3, 1)
+    assert T.delay_or_mode_consensus([UNDECIDED, UNDECIDED, UNDECIDED, MODE, MODE], 4) == (MODE, 2, 3)
+    assert T.delay_or_mode_consensus([UNDECIDED] * 5, 4)[0] is None
+    assert T.delay_or_mode_consensus([DELAY, MODE, UNDECIDED, UNDECIDED, DELAY], 4)[0] is None
+    assert T.delay_or_mode_consensus([DELAY, UNDECIDED, UNDECIDED, UNDECIDED, "none"], 4)[0] is None   # 1 decided
+    assert T.delay_or_mode_consensus([DELAY, DELAY, UNDECIDED, "none", "none"], 4)[0] is None          # 3 of 4
+
+
+def test_a_mode_no_better_than_its_phase_reading_is_undecided():
+    """The mode's phase reading stands for the delay where the delay's own search missed the phase (91 #127: a
+    0.03-sample lag searched as a 0.27-sample lead, passing no fold, while a 38.5 Hz, zeta 0.3 mode of gain 0.1
+    took four): a mode leaving what the model's slope leaves on a fold is undecided there, a mode explaining
+    beyond it by the bars is kept. Constructed fold scores (before 1, noise floor 0.1)."""
+    befores = {KEY: [1.0]}
+    mode = {"name": "resonance", "channel": "displacement", "key": KEY, "n_params": 3, "ratios": [0.50 * 1.06]}
+    infos = {"displacement": {"noise_floor": 0.1}}
+    args = (befores, infos, 0.02, 1.0, T.MIN_SHARE)
+    assert T._delay_or_mode(mode, {MODE: mode}, 0, *args) is mode                       # no rival: kept
+    assert T._delay_or_mode(mode, {MODE: mode}, 0, *args, phase=[(0.52, True)]) is None  # the slope's 0.52
+    assert T._delay_or_mode(mode, {MODE: mode}, 0, *args, phase=[(0.52, False)]) is mode  # it fails the fold
+    assert T._delay_or_mode(mode, {MODE: mode}, 0, *args, phase=[(0.80, True)]) is mode   # 0.64 - 0.25 > 0.3 x 0.64
