@@ -120,3 +120,27 @@ def test_a_mode_no_better_than_its_phase_reading_is_undecided():
     assert T._delay_or_mode(mode, {MODE: mode}, 0, *args, phase=[(0.52, True)]) is None  # the slope's 0.52
     assert T._delay_or_mode(mode, {MODE: mode}, 0, *args, phase=[(0.52, False)]) is mode  # it fails the fold
     assert T._delay_or_mode(mode, {MODE: mode}, 0, *args, phase=[(0.80, True)]) is mode   # 0.64 - 0.25 > 0.3 x 0.64
+
+
+def test_a_mode_at_the_ring_caps_corner_is_the_delays_own_phase():
+    """A rival mode whose half-power band reaches the Nyquist frequency (the ring cap's corner, ``zeta = f_N / f
+    - 1`` above ``zeta_min``) shows the record no peak, only a sub-sample delay's phase: beside the delay it is
+    no mode's reading, and the delay keeps the fold (test_stages' 1 kHz creep + delay draw: a 0.27 ms delay
+    behind creep, the rival 384.6 Hz, zeta 0.30, the delay named as on main). A heavily damped mode well below
+    ``f_N`` (90 #115's 3.97 Hz, zeta 0.3) and a lightly damped one at ``f_N`` itself (it rings there) are modes'
+    readings: the fold is judged by what each explains beyond the other."""
+    def infos(rate):
+        return {"t": np.arange(1000) / rate, "displacement": {"noise_floor": 0.1}}
+
+    def mode(f, z):
+        return {"name": "resonance", "channel": "displacement", "key": KEY, "n_params": 3, "ratios": [0.50 * 1.06],
+                "params": {"f_n_hz": f, "zeta": z, "gain": 1.0}}
+    assert T._phase_only_mode(mode(500.0 / 1.3, 0.3), infos(1e3))
+    assert T._phase_only_mode(mode(50.0 / 1.3, 0.3), infos(100.0))
+    assert not T._phase_only_mode(mode(3.97, 0.3), infos(100.0))
+    assert not T._phase_only_mode(mode(50.0, 0.002), infos(100.0))
+    delay = {"name": "delay", "channel": "displacement", "key": KEY, "n_params": 1, "ratios": [0.49 * 1.02]}
+    args = ({KEY: [1.0]}, infos(1e3), 0.02, 1.0, T.MIN_SHARE)
+    corner, low = mode(500.0 / 1.3, 0.3), mode(3.97, 0.3)
+    assert T._delay_or_mode(delay, {DELAY: delay, MODE: corner}, 0, *args) is delay
+    assert T._delay_or_mode(delay, {DELAY: delay, MODE: low}, 0, *args) is None

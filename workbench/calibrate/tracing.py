@@ -1233,6 +1233,27 @@ def _phase_reading(row, probs, extra, split, befores, null_gain, penalty, floor,
     return out
 
 
+def _phase_only_mode(row, infos):
+    """Is the mode row's half-power band at the record's Nyquist frequency, ``f (1 + zeta) >= f_N``? (bool)
+
+    The ring cap (:meth:`~.effects.Resonance._ring_cap`) keeps a trial's band below ``f_N``, where the record
+    can show its peak; a fit that runs to that corner (the most damped mode at the highest frequency the
+    record shows, ``zeta = f_N / f - 1`` above ``zeta_min``) has no peak in the record, only its low-frequency
+    phase, a sub-sample delay's (seed 26 #31;
+    1 kHz steps, a 0.27 ms delay behind creep: the rival mode 384.6 Hz, zeta 0.30, ``f_N`` 500 Hz). Beside a
+    delay it is that delay's own reading, not a mode's. A heavily damped mode well below ``f_N`` (a 3.97 Hz,
+    zeta 0.3 mode of gain 0.11 beside 90 #115's 0.28-sample delay) is a mode's reading of the phase.
+    """
+    t = infos.get("t")
+    p = row.get("params") or {}
+    if t is None or "f_n_hz" not in p or "zeta" not in p or len(t) < 2:
+        return False
+    f_nyq = 0.5 * (len(t) - 1) / float(t[-1] - t[0])
+    f = float(p["f_n_hz"])
+    # (a mode at f_N itself takes zeta_min there: lightly damped, it rings at f_N and is no phase alone)
+    return f < f_nyq * (1.0 - 1e-6) and f * (1.0 + float(p["zeta"])) >= f_nyq * (1.0 - 1e-6)
+
+
 def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share, phase=None):
     """The fold's best of a delay and a mode on one channel, or None when the fold cannot tell them apart.
 
@@ -1254,6 +1275,8 @@ def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_sha
     """
     other_name = DELAY_OR_MODE_NAMES[1 - DELAY_OR_MODE_NAMES.index(best["name"])]
     other = tags.get((other_name, best["channel"]))
+    if other is not None and best["name"] == "delay" and _phase_only_mode(other, infos):
+        other = None                          # the delay's own phase, not a mode's (:func:`_phase_only_mode`)
     rivals = [_raw_rms(other, f, befores, penalty)] if other is not None else []
     if best["name"] == "resonance" and phase is not None and phase[f][1]:
         rivals.append(phase[f][0])            # the mode's phase reading (:func:`_phase_reading`)
