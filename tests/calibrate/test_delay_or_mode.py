@@ -124,7 +124,7 @@ def test_a_mode_no_better_than_its_phase_reading_is_undecided():
 
 def test_a_mode_at_the_ring_caps_corner_is_the_delays_own_phase():
     """A rival mode whose half-power band reaches the Nyquist frequency (the ring cap's corner, ``zeta = f_N / f
-    - 1`` above ``zeta_min``) shows the record no peak, only a sub-sample delay's phase: beside the delay it is
+    - 1`` above RING_ZETA_MAX) shows the record no peak, only a sub-sample delay's phase: beside the delay it is
     no mode's reading, and the delay keeps the fold (test_stages' 1 kHz creep + delay draw: a 0.27 ms delay
     behind creep, the rival 384.6 Hz, zeta 0.30, the delay named as on main). A heavily damped mode well below
     ``f_N`` (90 #115's 3.97 Hz, zeta 0.3) and a lightly damped one at ``f_N`` itself (it rings there) are modes'

@@ -86,7 +86,8 @@ from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_sho
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
-from .effects import (SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage,
+from .effects import (RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
+                      GaugeNonlinearity, Leakage,
                       Resonance)
 from .pi_fit import rms, turning_points
 
@@ -1238,7 +1239,7 @@ def _phase_only_mode(row, infos):
 
     The ring cap (:meth:`~.effects.Resonance._ring_cap`) keeps a trial's band below ``f_N``, where the record
     can show its peak; a fit that runs to that corner (the most damped mode at the highest frequency the
-    record shows, ``zeta = f_N / f - 1`` above ``zeta_min``) has no peak in the record, only its low-frequency
+    record shows, ``zeta = f_N / f - 1`` above ``RING_ZETA_MAX``) has no peak in the record, only its low-frequency
     phase, a sub-sample delay's (seed 26 #31;
     1 kHz steps, a 0.27 ms delay behind creep: the rival mode 384.6 Hz, zeta 0.30, ``f_N`` 500 Hz). Beside a
     delay it is that delay's own reading, not a mode's. A heavily damped mode well below ``f_N`` (a 3.97 Hz,
@@ -1249,9 +1250,11 @@ def _phase_only_mode(row, infos):
     if t is None or "f_n_hz" not in p or "zeta" not in p or len(t) < 2:
         return False
     f_nyq = 0.5 * (len(t) - 1) / float(t[-1] - t[0])
-    f = float(p["f_n_hz"])
-    # (a mode at f_N itself takes zeta_min there: lightly damped, it rings at f_N and is no phase alone)
-    return f < f_nyq * (1.0 - 1e-6) and f * (1.0 + float(p["zeta"])) >= f_nyq * (1.0 - 1e-6)
+    f, z = float(p["f_n_hz"]), float(p["zeta"])
+    # heavily damped: its ringing dies within a cycle (RING_ZETA_MAX). A mode at f_N itself takes zeta_min
+    # there: lightly damped, it rings at f_N and is no phase alone (92 #121 at 100 Hz: the gauge's 50 Hz,
+    # zeta 0.002 rival of a 10-sample delay, a mode above Nyquist in the record)
+    return z > RING_ZETA_MAX and f * (1.0 + z) >= f_nyq * (1.0 - 1e-6)
 
 
 def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share, phase=None):
