@@ -50,3 +50,46 @@ def test_clean_slow_triangle_base_fits_to_the_simulators_precision():
     m = b.channels["displacement"]
     assert np.ptp(r["displacement_m"]) > 1e-5
     assert m.rms_test < 1e-11, m.rms_test
+
+
+def test_declared_threshold_beyond_the_grid_stays_out_of_a_creep_record():
+    """A 100 kHz calibration-protocol record with a 14x creep (the confusion benchmark's seed 88 #68 draw): the
+    recorded voltage's span (39.97 V) barely passes the declared core's top threshold (39.84 V). A play there moves
+    only in the rows at the record's peak (0.13 V), less than the grid's own top play; with it the base took the
+    creep held at the peak into that play (weight 8x the identity's), judged the recorded V the better drive, and
+    its test error rose 1.85e-8 -> 2.49e-8 m (the creep then left 9.9e-9 m against 1.8e-9 m and a delay was
+    named beside it). Every play of the base moves on the
+    training rows at least as much as the grid's top play, and the declared thresholds leave the base's held-out
+    error no worse than the grid's alone."""
+    import workbench.calibrate.base_fit as bf
+    from workbench.calibrate.pi_fit import pi_thresholds, play_matrix
+    from workbench.calibrate.synthetic import benchmark_protocol
+
+    plant0 = load_plant(PLANTS / "p888_51_sn637.toml")
+    rate, n = 1e5, 40_000
+    t, v = benchmark_protocol("calibration", rate, n)
+    plant, _ = plant_with_effect(plant0, "creep", 125800809, duration_s=float(t[-1]), size=14.255376095587389)
+    r = simulate_record(plant, t, v, seed=125800809)
+    rec = Record(Path("creep.csv"), {"current": "averaged", "gauge": "averaged"}, t,
+                 {k: r[k] for k in ("voltage_v", "current_a", "displacement_m", "gauge_v")}, 1 / rate)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    b = fit_base(rec, plant0.pzt.series_resistance_ohm, **kw)
+    m = b.channels["displacement"]
+    vd = np.asarray(b.v_drive, float)
+    last = int(np.flatnonzero(sp.train)[-1])
+    grid = pi_thresholds(vd[: last + 1], 24, "quadratic")
+    # the top declared threshold lies inside the recorded voltage's span (V leads V_t through the 80 ohm: 39.97 V
+    # against 39.81 V), where the trial's play moved 0.13 V and won V the drive's judgment
+    v_rec = r["voltage_v"][: last + 1]
+    assert declared_thresholds(plant.pzt)[-1] < float(np.max(np.abs(v_rec - v_rec[0])))
+    moves = np.ptp(play_matrix(vd, m.thresholds_v, m.initial_states_v)[sp.train], axis=0)
+    top = np.ptp(play_matrix(vd, grid[-1:], np.zeros(1))[sp.train])
+    assert moves.min() >= top * (1 - 1e-9), (m.thresholds_v[np.argmin(moves)], moves.min(), top)
+    orig = bf.declared_thresholds
+    try:
+        bf.declared_thresholds = lambda pzt: np.zeros(0)
+        m0 = fit_base(rec, plant0.pzt.series_resistance_ohm, **kw).channels["displacement"]
+    finally:
+        bf.declared_thresholds = orig
+    assert m.rms_test <= m0.rms_test, (m.rms_test, m0.rms_test)
