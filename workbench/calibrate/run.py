@@ -241,11 +241,15 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         omit, data["updated_plant_stages"] = carried_stages(plant_path, plant, base, result, data_path, core, train)
         if omit:
             err = None                 # choose_core's test replay was of the file with every stage
+        named = (result["effect"], result["channel"])
+        if named in omit:              # the answer names an effect the file does not carry: said beside it
+            data["warnings"].append(f"the {named[0]} named on the {named[1]} is not in the updated plant file: "
+                                    f"{omit[named]}; the file's error_after is not the {named[0]}'s")
         kept = [st for st in written_stages(result["stages"], result, core)
                 if (st["effect"], st["channel"]) not in omit]
         data["updated_plant_core"] = {
             "core": "refitted" if core["hysteresis"] is not None else "declared", "channel": core["channel"],
-            "range_v": list(core["range_v"]) if core["range_v"] else None, "reason": core["reason"],
+            "range_v": list(core["range_v"]) if core["range_v"] else None, "reason": core.get("reason"),
             "capped": float(core.get("capped", 0.0)), "development_rms": dev,
             # which write-out ran: C_h and branches fitted together (plant_update._core_with_branches) or not
             "joint": bool(core.get("joint", False)),
