@@ -193,12 +193,15 @@ def test_a_triangles_mode_whose_file_replays_worse_is_not_written(tmp_path):
     res = calibrate(r, str(SN637), "tri_honesty")
     assert "error" not in res, res
     if res["effect"] in ("none", "inconclusive"):
-        # since s23_triangle (the declared core's thresholds in the base) the clean triangle is answered none:
-        # nothing is written, and this record no longer reaches the rule (the constructed tests above do)
+        # with s23_triangle's declared thresholds in the base (a branch, not main) the clean triangle is answered
+        # none: nothing is written and the record does not reach the rule (the constructed tests above do)
         pytest.skip(f"the record is answered {res['effect']}: no stage to carry")
     assert res["error_after_source"] == "updated plant"
     assert res["error_after"]["rms"] <= res["error_before"]["rms"], (res["error_after"], res["error_before"])
-    assert not res["warnings"]
+    # the file is not above the error before, so the one warning is that the named mode is not in the file
+    # (the lead's fix after the review of s23_replay: said beside the answer)
+    assert len(res["warnings"]) == 1 and "resonance named on the displacement is not in the updated plant file" \
+        in res["warnings"][0], res["warnings"]
     modes = [c for c in res["updated_plant_stages"] if c["effect"] == "resonance"]
     assert modes and not modes[0]["written"]
 
