@@ -176,22 +176,17 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
                              f"cannot be split ({err}): its first rows are used though its plays' states there "
                              f"are guesses")
     train, test = sp.train, sp.test
-    reach = None
-    if kind == "generic_stack" and not train[0]:
-        # a generic stack's grid reaches max |V - V0|, the excursion from the record's start: right for a record
-        # that starts mid-range (the real +/-150 V sine), twice too far for one from rest at an end of its range,
-        # whose plays above half its span then never move once the start's rise is out of the development rows
-        # (the cycles split trains from the input's second reversal). Without the start, the n_plays the file
-        # declares are spread over half the development rows' span: the largest reversal there is the span
-        # (a clean SN637 0-110 V sine: 10 of 20 plays moved, the displacement's held-out base error 7.8e-9 m
-        # against 3.0e-9 m with all 20, the noise 1.0e-9 m; the 4.8e-9 m creep took was this coarse grid)
-        reach = 0.5 * float(np.ptp(v[train]))
-        notes.append(f"the development rows leave out the record's start: the {n_plays} thresholds span half their "
-                     f"input's range, {reach:.4g} V, the largest a reversal there can need")
+    # a generic stack's grid reaches max |V - V0|, the excursion from the record's start: right for a record that
+    # starts mid-range (the real +/-150 V sine), twice too far for one from rest at an end of its range, whose plays
+    # above half its span never move once the start's rise is out of the development rows (the cycles split trains
+    # from the input's second reversal): a clean SN637 0-110 V sine moved 10 of its 20 plays there, the
+    # displacement's held-out base error 7.8e-9 m against 3.0e-9 m with all 20 (noise 1.0e-9 m), and the creep
+    # took the difference (s22_outsider A4). The file declares n_plays: they are spread over the thresholds that
+    # move in the development rows (base_fit spread_plays)
     if progress:
         progress("base fit", 0, 1)
     base = fit_base(record, resistance, train=train, n_plays=n_plays, grid=grid, pzt=pzt, dac_range_v=dac, test=test,
-                    input_kind=input_kind, threshold_reach_v=reach)
+                    input_kind=input_kind, spread_plays=kind == "generic_stack")
     base.notes = notes + base.notes
     if progress:
         progress("base fit", 1, 1)
