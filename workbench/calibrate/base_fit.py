@@ -347,7 +347,7 @@ def _line(v, y, rows, test):
 
 
 def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic", pzt=None, dac_range_v=None,
-             test=None, input_kind=None, gauge_kind=None):
+             test=None, input_kind=None, gauge_kind=None, spread_plays=False):
     """Fit the base model of every recorded output channel (see the module notes).
 
     Parameters
@@ -376,6 +376,12 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         ``"averaged"``, the chain's mean over the interval ending at it, makes the gauge's model
         the same mean of its plays (:func:`interval_mean`, half a sample of lag); ``"sampled"``
         keeps the point model.
+    spread_plays : bool
+        The grid reaches ``max |V - V0|`` over the input to the last training row (the excursion from the
+        record's start, :func:`~workbench.calibrate.pi_fit.pi_thresholds`), and the plays that never move
+        in the training rows are left out. True: when some are left out, the ``n_plays`` are placed again on
+        ``grid`` up to the first of them, so all ``n_plays`` serve the training rows (a generic stack's
+        file declares its ``n_plays``; run.py).
     """
     t = record.t_s
     ch = record.channels
@@ -465,7 +471,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         return _judge_rms(t, Pj, outputs[name], train & valid[name], shifts, residual=residual)
 
     def trial(vd, shifts=None):
-        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
+        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays)
         return judged(vd, r, keep, P, first, shifts), r, keep, P
 
     judges = [ch for ch in ("displacement", "gauge") if ch in outputs] if shifts_s is not None else []
@@ -473,7 +479,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     tried, on_first = {}, {}
     for label, vd in drives.items():
         if judges:                   # the residual kept for :func:`_judgment_resolves` (first is judges[0])
-            r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
+            r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays)
             on_first[label] = judged(vd, r, keep, P, first, residual=True)
             score = on_first[label][0]
         else:
@@ -677,14 +683,24 @@ def _z0(vd, r, from_rest, input_kind):
     return _initial_states(vd[0], r, from_rest)
 
 
-def _plays(vd, train, last, n_plays, grid, from_rest, input_kind):
+def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread=False):
     """Thresholds from the input up to the last training row, which plays move there, the play matrix.
 
+    ``spread``: when a play never moves in the training rows, the grid is placed again up to the first such
+    threshold (see :func:`fit_base`'s ``spread_plays``).
     Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
     """
-    r = pi_thresholds(vd[: last + 1], n_plays, grid)
-    P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
     span = float(np.ptp(vd[train]))
-    keep = np.ptp(P[train], axis=0) > MOVE_REL * span
-    keep[0] = True                          # the identity (r = 0) always moves with the input
+
+    def moving(r):
+        P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
+        keep = np.ptp(P[train], axis=0) > MOVE_REL * span
+        keep[0] = True                          # the identity (r = 0) always moves with the input
+        return keep, P
+
+    r = pi_thresholds(vd[: last + 1], n_plays, grid)
+    keep, P = moving(r)
+    if spread and not keep.all():
+        r = pi_thresholds(np.array([0.0, r[int(np.argmin(keep))]]), n_plays, grid)
+        keep, P = moving(r)
     return r, keep, P

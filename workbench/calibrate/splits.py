@@ -48,7 +48,8 @@ import numpy as np
 
 from .pi_fit import split_by_cycles, turning_points
 
-__all__ = ["Split", "make_split", "holdout_mask", "block_length_s", "default_split", "SPLITS", "SLOW_EFFECTS"]
+__all__ = ["Split", "make_split", "holdout_mask", "block_length_s", "default_split", "SPLITS", "SLOW_EFFECTS",
+           "settled_row"]
 
 SPLITS = ("blocks", "forward", "cycles")
 GOLDEN = 0.6180339887498949
@@ -129,16 +130,49 @@ class Split:
         return self.rows(self.test_blocks)
 
 
+
+def settled_row(v, n_plays, grid):
+    """The first row at which every play a record's input can settle is settled, whatever its state before it.
+
+    A play of threshold ``r`` forgets its initial state once the input has swept ``2 r`` (its running
+    maximum minus its running minimum since the start: the rise pushes the state to ``max - r``, the fall
+    to ``min + r``, one past the other). The plays are those of the base fit
+    (:func:`~workbench.calibrate.pi_fit.pi_thresholds` on ``v``, ``n_plays`` on ``grid``); the record can
+    settle those of ``2 r`` at most its span. An amplifier-command record needs it: its plays start at the
+    first command value, but where the stack stood is the amplifier's offset and the stack's past, which the
+    record does not say (a 0.5 Hz sine from rest through an amplifier of offset +2.7 V: the displacement's
+    misfit over the first rise was 6e-8 m against 3.5e-9 m after it, and the lag search on the blocks
+    split's training rows kept "no lag"; s22_outsider A3).
+    """
+    from .pi_fit import pi_thresholds
+    v = np.asarray(v, float)
+    span = float(np.ptp(v))
+    if not span > 0:
+        return 0
+    r = pi_thresholds(v, n_plays, grid)
+    need = 2.0 * float(r[2.0 * r <= span].max())
+    swept = np.maximum.accumulate(v) - np.minimum.accumulate(v)
+    return int(np.argmax(swept >= need)) if need > 0 else 0
+
+
 def _chunks(dev_idx, n):
     """Contiguous groups of the (sorted) development blocks: ``n`` labels."""
     k = np.arange(dev_idx.size)
     return np.minimum((k * n) // max(dev_idx.size, 1), n - 1)
 
 
-def make_split(t, v, kind="blocks", n_folds=5, train_cycles=3, block_s=None):
-    """The record's :class:`Split` (see the module notes); ``ValueError`` when it cannot be made."""
+def make_split(t, v, kind="blocks", n_folds=5, train_cycles=3, block_s=None, start_row=0):
+    """The record's :class:`Split` (see the module notes); ``ValueError`` when it cannot be made.
+
+    ``start_row``: the rows before it are unused (block -1) and the split is made on the rest, as if the record
+    began there (an amplifier command's rows before :func:`settled_row`)."""
     t = np.asarray(t, float)
     v = np.asarray(v, float)
+    if start_row:
+        k0 = int(start_row)
+        sp = make_split(t[k0:], v[k0:], kind, n_folds, train_cycles, block_s)
+        sp.block = np.r_[np.full(k0, -1, int), sp.block]
+        return sp
     if kind not in SPLITS:
         raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {kind!r}")
     bs = float(block_s) if block_s else block_length_s(t)
