@@ -532,16 +532,26 @@ def test_the_direct_fits_bounded_solve_meets_its_optimality_conditions():
         assert x @ G @ x - 2 * h @ x <= start @ G @ start - 2 * h @ start
 
 
-def _calibrated(tmp_path, sn637, effect, size, seed, monkeypatch):
+def _calibrated(tmp_path, sn637, effect, size, seed, monkeypatch, replays=None):
     """``workbench calibrate``'s library call on a drawn record: (its JSON-ready result, the base fit it made, its
-    split)."""
+    split). ``replays``: a list that gets each replay's (plant, its path left out, pickled; channel)."""
+    import pickle
+
     import workbench.calibrate.run as run
+    from workbench.calibrate import plant_update
     from workbench.calibrate.protocol import calibration_protocol
     from workbench.calibrate.synthetic import plant_with_effect, write_record
     seen = {}
     fit_base, make_split = run.fit_base, run.make_split
     monkeypatch.setattr(run, "fit_base", lambda *a, **k: seen.setdefault("base", fit_base(*a, **k)))
     monkeypatch.setattr(run, "make_split", lambda *a, **k: seen.setdefault("split", make_split(*a, **k)))
+    if replays is not None:
+        replay = plant_update._replay
+
+        def counted(plant, base, channel):
+            replays.append((pickle.dumps(dataclasses.replace(plant, source=None)), channel))
+            return replay(plant, base, channel)
+        monkeypatch.setattr(plant_update, "_replay", counted)
     t, v = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0), chirp_s=1.0)
     plant, _ = plant_with_effect(sn637, effect, seed, duration_s=float(t[-1]), size=size)
     data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=seed), {"serial": "SN637"})
@@ -561,8 +571,13 @@ def test_the_reported_error_after_is_the_written_files_replay(sn637, tmp_path, m
     the user gets. The file it wrote, loaded back from disk and the record's drive simulated through it, leaves
     on the test rows the JSON's ``error_after`` to 1e-9 relative (the same replay: a figure from anywhere else,
     the tracing model's, fails this); ``error_after_source`` says so and the tracing model's own figure is
-    ``error_after_model``."""
-    res, base, sp = _calibrated(tmp_path, sn637, effect, size, seed, monkeypatch)
+    ``error_after_model``. Every plant is replayed once a run (session 24: the file with every stage was replayed
+    by ``choose_core``, again by ``carried_stages`` and, with a stage left out, the file written once more; the
+    same plant gives the same noise-free replay)."""
+    replays = []
+    res, base, sp = _calibrated(tmp_path, sn637, effect, size, seed, monkeypatch, replays)
+    repeated = len(replays) - len(set(replays))
+    assert replays and repeated == 0, f"{repeated} of {len(replays)} replays repeat a plant ({[c for _, c in replays]})"
     assert res["stages"], res["reason"]
     assert res["error_after_source"] == "updated plant"
     again = load_plant(Path(res["updated_plant"]))

@@ -40,7 +40,7 @@ import re
 
 import numpy as np
 
-__all__ = ["carried_stages", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["carried_stages", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -224,7 +224,7 @@ def declared_core(reason):
             "how": None, "creep_scale": 1.0, "capped": 0.0}
 
 
-def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
+def choose_core(plant_path, plant, base, result, data_path, rows, test=None, replays=None):
     """The refitted core or the declared one: whichever file replays the development ``rows`` closer.
 
     Both files are written and loaded back, and the record's drive replayed through each
@@ -245,8 +245,10 @@ def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
     test_error : dict or None
         With ``test``: the chosen file's :func:`updated_plant_error` on ``test`` (from the same replay);
         None when the choice replayed nothing.
+
+    ``replays``: the run's memo of replays (:func:`replayed`), filled here and read by :func:`carried_stages` and
+    the file's test error, so a file is replayed once a run.
     """
-    from ..plant import load_plant
     import tempfile
     from pathlib import Path
     core = core_for(plant, base, result)
@@ -264,9 +266,8 @@ def choose_core(plant_path, plant, base, result, data_path, rows, test=None):
         cores = {}
         for name, c in (("refitted", core), ("declared", declared_core("declared"))):
             c = cores[name] = _refit_mode(plant_path, plant, base, result, data_path, c, rows, Path(tmp))
-            f = Path(tmp) / f"{name}.toml"
-            f.write_text(updated_plant_text(plant_path, plant, base, result, data_path, core=c), encoding="utf-8")
-            sim = _replay(load_plant(f), base, ch)
+            sim = replayed(updated_plant_text(plant_path, plant, base, result, data_path, core=c), base, ch,
+                           Path(tmp) / f"{name}.toml", replays)
             errs[name] = _replay_error(sim, base, ch, rows, rows)["rms"]
             tests[name] = None if test is None else _replay_error(sim, base, ch, test, rows)
     if errs["declared"] < errs["refitted"]:
@@ -284,7 +285,7 @@ def _file_lines(text):
     return [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 
-def carried_stages(plant_path, plant, base, result, data_path, core, rows):
+def carried_stages(plant_path, plant, base, result, data_path, core, rows, replays=None):
     """Which stages the updated plant file carries: each written only where it replays the development rows closer.
 
     The file with every stage written (as :func:`updated_plant_text` writes them with ``core``) and the file
@@ -295,7 +296,8 @@ def carried_stages(plant_path, plant, base, result, data_path, core, rows):
     named (first) effect is judged last, against the file the later stages left: where two written forms
     overlap, the later one goes first (review of s23_replay: judged first to last, a mode leaving 1 % of a misfit
     was dropped beside a delay leaving 5 %, both together 6 %, and the file kept the delay). A file without the
-    stage that cannot be replayed (not finite) keeps it. The test rows take no part.
+    stage that cannot be replayed (not finite) keeps it. The test rows take no part. ``replays``: the run's memo
+    (:func:`replayed`; :func:`choose_core` replayed the file with every stage already), None: this call's own.
 
     Why (s22_outsider C1): the file's forms are approximations of the tracing's (a mode of unit gain, branches
     across a hysteretic C_h, a bow about rest); the tracing's model can be right while its written form replays
@@ -314,7 +316,6 @@ def carried_stages(plant_path, plant, base, result, data_path, core, rows):
     import tempfile
     from pathlib import Path
 
-    from ..plant import load_plant
     stages = written_stages(result.get("stages") or [], result, core)
     carried = [{"effect": st["effect"], "channel": st["channel"], "written": True, "reason": None,
                 "development_rms": None} for st in stages]
@@ -324,37 +325,39 @@ def carried_stages(plant_path, plant, base, result, data_path, core, rows):
         for c in carried:
             c["reason"] = f"not replayed ({why_not})"
         return omit, carried
+    replays = {} if replays is None else replays
     with tempfile.TemporaryDirectory() as tmp:
-        cache = {}
+        texts = {}
+
+        def text_of(om):
+            # each file's text built once (the omitted stages' reasons are in its comments alone)
+            key = tuple(sorted(om.items()))
+            if key not in texts:
+                texts[key] = updated_plant_text(plant_path, plant, base, result, data_path, core=core, omit=om)
+            return texts[key]
 
         def dev(om, ch):
-            text = updated_plant_text(plant_path, plant, base, result, data_path, core=core, omit=om)
-            key = ("\n".join(_file_lines(text)), ch)
-            if key not in cache:
-                f = Path(tmp) / f"carried{len(cache)}.toml"
-                f.write_text(text, encoding="utf-8")
-                cache[key] = _replay_error(_replay(load_plant(f), base, ch), base, ch, rows, rows)["rms"]
-            return key[0], cache[key]
+            sim = replayed(text_of(om), base, ch, Path(tmp) / f"carried{len(texts)}.toml", replays)
+            return _replay_error(sim, base, ch, rows, rows)["rms"]
         for c, st in reversed(list(zip(carried, stages))):
             key = (st["effect"], st["channel"])
             ch = st["channel"]
             trial = {**omit, key: "trial"}
-            body_without = "\n".join(_file_lines(updated_plant_text(plant_path, plant, base, result, data_path,
-                                                                     core=core, omit=trial)))
+            body_without = "\n".join(_file_lines(text_of(trial)))
+            body_with = "\n".join(_file_lines(text_of(omit)))
             if ch not in _SIM_KEY or ch not in base.channels:
-                if body_without != "\n".join(_file_lines(updated_plant_text(plant_path, plant, base, result,
-                                                                               data_path, core=core, omit=omit))):
+                if body_without != body_with:
                     c["reason"] = f"written, not measured (the simulator does not log the {ch})"
                 else:
                     c.update(written=False, reason="no plant-file form")
                 continue
-            body_with, e_with = dev(omit, ch)
             if body_without == body_with:
                 own = [g for g in plant_file_gaps([st], base, plant, core=core)
                        if not g.startswith("the record's core")]
                 c.update(written=False, reason="; ".join(own) or "no plant-file form")
                 continue
-            _, e_without = dev(trial, ch)
+            e_with = dev(omit, ch)
+            e_without = dev(trial, ch)
             u = base.channels[ch].units
             c["development_rms"] = {"with": e_with, "without": e_without, "units": u, "channel": ch}
             if np.isfinite(e_without) and not e_with < e_without:
@@ -1126,7 +1129,7 @@ def replay_upsample(plant, rate_hz):
 _SIM_KEY = {"displacement": "displacement_m", "gauge": "gauge_v", "charge": "q_true_c"}
 
 
-def updated_plant_error(plant, base, channel, test, train=None, current="averaged"):
+def updated_plant_error(plant, base, channel, test, train=None, current="averaged", replay=None):
     """Held-out error of the record's drive simulated through ``plant`` (the updated plant file).
 
     The drive is the base fit's, the terminal voltage ``V_t = V - R i`` (``base.v_drive``), applied
@@ -1155,6 +1158,8 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     current : {"averaged", "sampled"}
         The record's current convention: unused (the record's charge is the base's, integrated under
         it; the replay's is the simulated charge itself), kept for the callers.
+    replay : ndarray, optional
+        The channel's replay through this plant, already made (:func:`replayed`): not simulated again.
 
     Returns
     -------
@@ -1164,7 +1169,36 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     """
     if channel not in _SIM_KEY or channel not in base.channels or base.input_kind != "terminal":
         return None
-    return _replay_error(_replay(plant, base, channel), base, channel, test, train)
+    return _replay_error(_replay(plant, base, channel) if replay is None else replay, base, channel, test, train)
+
+
+def replay_key(text, channel):
+    """The key of a plant file's replay on ``channel`` in a run's memo (:func:`replayed`): the file's setting lines
+    (:func:`_file_lines`; a comment line changes nothing loaded back) and the channel."""
+    return "\n".join(_file_lines(text)), channel
+
+
+def replayed(text, base, channel, path, replays=None):
+    """The record's drive replayed through the plant file ``text`` (written to ``path`` and loaded back): the
+    ``channel``'s column (:func:`_replay`).
+
+    ``replays``: a run's memo, ``{replay_key: column}``, filled here: a file replayed before on the channel (the
+    same setting lines: the same plant loaded back, the same noise-free simulation) is taken from it, not
+    simulated again (session 24: ``choose_core``, ``carried_stages`` and the file's test error replayed the file
+    with every stage up to three times, ~0.75 s each on a 355,000-row record).
+    """
+    from pathlib import Path
+
+    from ..plant import load_plant
+    key = replay_key(text, channel)
+    if replays is not None and key in replays:
+        return replays[key]
+    path = Path(path)
+    path.write_text(text, encoding="utf-8")
+    sim = _replay(load_plant(path), base, channel)
+    if replays is not None:
+        replays[key] = sim
+    return sim
 
 
 def _replay(plant, base, channel):

@@ -27,8 +27,8 @@ from ..report.output import write_text
 from .base_fit import fit_base
 from .creep_holds import fit_holds
 from .plant_update import (_sensor_terms, carried_stages, written_stages, choose_core, plant_file_gaps,
-                           replay_above_before_warning, reported_error_after, round_trip_note, round_trip_warning,
-                           updated_plant_error, updated_plant_error_reason, updated_plant_text)
+                           replay_above_before_warning, replay_key, reported_error_after, round_trip_note,
+                           round_trip_warning, updated_plant_error, updated_plant_error_reason, updated_plant_text)
 from .record import read_record
 from .residual import charge_from_current
 from .splits import default_split, make_split, settled_row
@@ -259,9 +259,12 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
         # the refitted core or the declared one, by the replay on the development rows (choose_core)
-        core, dev, err = choose_core(plant_path, plant, base, result, data_path, train, test=test)
+        # every file replayed once: choose_core's, carried_stages' and the test error's replays share one memo
+        replays = {}
+        core, dev, err = choose_core(plant_path, plant, base, result, data_path, train, test=test, replays=replays)
         # each stage written only where its form replays the development rows closer than the file without it
-        omit, data["updated_plant_stages"] = carried_stages(plant_path, plant, base, result, data_path, core, train)
+        omit, data["updated_plant_stages"] = carried_stages(plant_path, plant, base, result, data_path, core, train,
+                                                            replays=replays)
         if omit:
             err = None                 # choose_core's test replay was of the file with every stage
         named = (result["effect"], result["channel"])
@@ -290,7 +293,8 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             again = _check_plant_text(text, Path(plant_path.stem + "_calibrated.toml"), kind)
             if err is None:
                 err = updated_plant_error(again, base, result["channel"], test, train=train,
-                                          current=base.current_kind or "averaged")
+                                          current=base.current_kind or "averaged",
+                                          replay=replays.get(replay_key(text, result["channel"])))
         else:
             err = None
         data["updated_plant_error"] = err
