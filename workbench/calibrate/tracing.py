@@ -86,7 +86,8 @@ from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_sho
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
-from .effects import (SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage,
+from .effects import (RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
+                      GaugeNonlinearity, Leakage,
                       Resonance)
 from .pi_fit import rms, turning_points
 
@@ -1127,6 +1128,11 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
     shown = {}
     drift_rms = _gauge_line_drift_rms(infos.get("gauge_line_drift"), probs, extra, split, infos) \
         if ("gauge_nonlinearity", "gauge") in by else None
+    # each passing mode's phase reading (:func:`_phase_reading`): the delay a mode's term may be, whatever
+    # the delay's own search found
+    phase = {r["channel"]: _phase_reading(r, probs, extra, split, befores, null_gain, penalty,
+                                          noise_factor * infos[r["channel"]]["noise_floor"], min_share)
+             for r in rows if r["name"] == "resonance" and r.get("yhat") is not None and any(r["passes"])}
     for f in range(n_folds):
         ok = [r for r in rows if r["passes"][f]]
         ok.sort(key=lambda r: r["ratios"][f])
@@ -1148,6 +1154,13 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 continue
             ok = [r for r in ok if (r["name"], r["channel"]) != ("gauge_nonlinearity", "gauge")]
             tags = {(r["name"], r["channel"]): r for r in ok}
+        if best["name"] in DELAY_OR_MODE_NAMES \
+                and _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share,
+                                   phase.get(best["channel"])) is None:
+            # a delay and a mode on one channel passing the fold alike: neither explains what the other
+            # leaves above the fold test's bars (a sub-sample phase at the drive's harmonics)
+            winners.append(DELAY_OR_MODE)
+            continue
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage"):
             best = _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share)
             if best is None:
@@ -1189,6 +1202,129 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+#: The two readings of a phase lag or lead of one channel's motion (:func:`_delay_or_mode`).
+DELAY_OR_MODE_NAMES = ("delay", "resonance")
+#: The fold label of a fold where a delay and a mode of one channel explain it alike (:func:`_delay_or_mode`).
+DELAY_OR_MODE = ("undecided", "delay or resonance")
+
+
+def _phase_reading(row, probs, extra, split, befores, null_gain, penalty, floor, min_share):
+    """A mode's phase reading on each fold: ``(raw RMS, passes)`` of the channel's model's slope as a term.
+
+    At the drive's harmonics far below a mode, the mode's term is the model's slope times a constant (a phase
+    proportional to frequency), which is also a delay's or a lead's of under a sample (a delay of ``d``
+    samples is ``-d`` times the slope). The column: the central difference of the row's model (``yhat``: the
+    base with the found effects), its gain of either sign, fitted with the base and the found effects on each
+    fold's training rows and judged by the fold test (one parameter). It stands for the delay where the
+    delay's own search does not reach the phase (its refinement stops at a quarter of a sample: a 0.03-sample
+    lag under 100 Hz steps, 91 #127, was searched as a 0.27-sample lead and passed no fold, while a 38.5 Hz,
+    zeta 0.3 mode of gain 0.1 took four).
+    """
+    key = row["key"]
+    prob = probs[key]
+    col = np.gradient(np.asarray(row["yhat"], float))
+    n_folds = len(split.folds)
+    gf = _cand_grams(prob, extra[key], {"g": prob.grams(col[:, None], [-np.inf])}, n_folds)
+    out = []
+    for f, (tr, va) in enumerate(split.folds):
+        a = prob.fold_rms(gf[f], tr, va)
+        out.append((a, _fold_test(befores[key][f], a, 1, penalty, floor, null_gain[key][f], min_share)[1]))
+    return out
+
+
+def _phase_only_mode(row, infos):
+    """Is the mode row's half-power band at the record's Nyquist frequency, ``f (1 + zeta) >= f_N``? (bool)
+
+    The ring cap (:meth:`~.effects.Resonance._ring_cap`) keeps a trial's band below ``f_N``, where the record
+    can show its peak; a fit that runs to that corner (the most damped mode at the highest frequency the
+    record shows, ``zeta = f_N / f - 1`` above ``RING_ZETA_MAX``) has no peak in the record, only its low-frequency
+    phase, a sub-sample delay's (seed 26 #31;
+    1 kHz steps, a 0.27 ms delay behind creep: the rival mode 384.6 Hz, zeta 0.30, ``f_N`` 500 Hz). Beside a
+    delay it is that delay's own reading, not a mode's. A heavily damped mode well below ``f_N`` (a 3.97 Hz,
+    zeta 0.3 mode of gain 0.11 beside 90 #115's 0.28-sample delay) is a mode's reading of the phase.
+    """
+    t = infos.get("t")
+    p = row.get("params") or {}
+    if t is None or "f_n_hz" not in p or "zeta" not in p or len(t) < 2:
+        return False
+    f_nyq = 0.5 * (len(t) - 1) / float(t[-1] - t[0])
+    f, z = float(p["f_n_hz"]), float(p["zeta"])
+    # heavily damped: its ringing dies within a cycle (RING_ZETA_MAX). A mode at f_N itself takes zeta_min
+    # there: lightly damped, it rings at f_N and is no phase alone (92 #121 at 100 Hz: the gauge's 50 Hz,
+    # zeta 0.002 rival of a 10-sample delay, a mode above Nyquist in the record)
+    return z > RING_ZETA_MAX and f * (1.0 + z) >= f_nyq * (1.0 - 1e-6)
+
+
+def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share, phase=None):
+    """The fold's best of a delay and a mode on one channel, or None when the fold cannot tell them apart.
+
+    A delay ``d`` and a mode are two readings of one thing wherever the drive's harmonics lie far below
+    both the mode and ``1 / d``: each is a phase proportional to frequency, ``-w d`` against the mode's
+    ``-2 zeta w / w_n`` (its gain the same to ``(w / w_n)^2``), and they differ only at the second order
+    in ``w``. A mode above the record's Nyquist frequency, which the mode's search cannot reach, is such
+    a phase at the samples: the drive's held staircase excites it at the sample rate's harmonics, which
+    the samples see at zero frequency, a term in the drive's slope, a delay's (a 311.6 Hz mode under a
+    0.15 Hz sine at 100 Hz reads as a 0.28-sample lag, a 97.5 Hz one as a 2.7-sample lead; a mode of at
+    most 50 Hz fitted beside them explains the same to 1 %). On such a record what one explains beyond the
+    other is under the bars every candidate clears: the fold is undecided (``None``).
+
+    ``best`` (the delay or the mode) keeps the fold when the other reading on its channel does not pass
+    it, or when what ``best`` explains beyond the other, ``a_other^2 - a_best^2`` (held-out, unpenalized),
+    stands above the channel's noise floor (times ``noise_factor``) and is ``min_share`` of what the other
+    leaves: the fold test (:func:`_fold_test`) with the other reading in the base's place, as
+    :func:`~.absorption_or_leakage.absorption_or_leakage` asks of the absorption beyond leakage.
+    """
+    other_name = DELAY_OR_MODE_NAMES[1 - DELAY_OR_MODE_NAMES.index(best["name"])]
+    other = tags.get((other_name, best["channel"]))
+    if other is not None and best["name"] == "delay" and _phase_only_mode(other, infos):
+        other = None                          # the delay's own phase, not a mode's (:func:`_phase_only_mode`)
+    rivals = [_raw_rms(other, f, befores, penalty)] if other is not None else []
+    if best["name"] == "resonance" and phase is not None and phase[f][1]:
+        rivals.append(phase[f][0])            # the mode's phase reading (:func:`_phase_reading`)
+    if not rivals:
+        return best
+    a_best, a_other = _raw_rms(best, f, befores, penalty), min(rivals)
+    beyond = a_other * a_other - a_best * a_best
+    floor = noise_factor * infos[best["channel"]]["noise_floor"]
+    if beyond > floor ** 2 and beyond > min_share * a_other * a_other:
+        return best
+    return None
+
+
+def delay_or_mode_consensus(winners, need):
+    """The delay or the mode named from decided folds, the other folds undecided between the two.
+
+    As :func:`~.absorption_or_leakage.nested_consensus` for the absorption and leakage: a fold undecided
+    between a delay and a mode (:data:`DELAY_OR_MODE`) votes for neither and is compatible with both. ``X``
+    (the delay or the mode on a channel) is named when it wins at least
+    :func:`~.absorption_or_leakage.decided_needed` folds outright (2 of 5), the other reading on its channel
+    none, and ``X`` or undecided fills ``need`` folds (a sub-sample delay under 100 Hz steps: decided on the
+    folds where the noise leaves room, undecided on a fold the noise fills, 92 #127). Every fold undecided
+    (a mode above Nyquist under a slow sine, 90 #115): nothing is named.
+
+    Returns ``((name, channel), decided, undecided)`` or ``(None, 0, 0)``.
+    """
+    from .absorption_or_leakage import decided_needed
+    tags = [w if isinstance(w, str) else tuple(w) for w in winners]
+    und = sum(1 for w in tags if w == DELAY_OR_MODE)
+    if not und:
+        return None, 0, 0
+    for x in sorted({w for w in tags if not isinstance(w, str) and w[0] in DELAY_OR_MODE_NAMES}):
+        other = (DELAY_OR_MODE_NAMES[1 - DELAY_OR_MODE_NAMES.index(x[0])], x[1])
+        won = sum(1 for w in tags if w == x)
+        if not any(w == other for w in tags) and won + und >= need and won >= decided_needed(len(tags)):
+            return x, won, und
+    return None, 0, 0
+
+
+def delay_or_mode_note(answer, decided, undecided, n_folds):
+    """What a name from :func:`delay_or_mode_consensus` leaves open (str)."""
+    other = "a mode" if answer[0] == "delay" else "a delay"
+    return (f"the {decided} folds it wins are the decided ones; no fold names {other}; {undecided} "
+            f"fold{'' if undecided == 1 else 's'} cannot tell a delay from a mode (one phase at the drive's "
+            f"harmonics): {decided + undecided} of {n_folds} folds compatible with {answer[0]}, {decided} decided")
 
 
 #: The fold label of a fold where a drift in time explains the gauge against the recorded displacement as
