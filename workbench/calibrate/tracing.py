@@ -1373,7 +1373,7 @@ def delay_or_mode_consensus(winners, need):
     :func:`~.absorption_or_leakage.decided_needed` folds outright (2 of 5), the other reading on its channel
     none, and ``X`` or undecided fills ``need`` folds (a sub-sample delay under 100 Hz steps: decided on the
     folds where the noise leaves room, undecided on a fold the noise fills, 92 #127). Every fold undecided
-    (a mode above Nyquist under a slow sine, 90 #115): nothing is named.
+    (a mode above Nyquist under a slow sine read as a lead, 93 #115): nothing is named.
 
     Returns ``((name, channel), decided, undecided)`` or ``(None, 0, 0)``.
     """
