@@ -6,8 +6,8 @@ staircase excites the mode at the sample rate's harmonics, and the samples see t
 term in the drive's slope -- a delay's, of either sign. ``tracing._delay_or_mode`` (session 24): a mode keeps
 a fold only where the difference of its held-out mean squared error from its rival's (the delay, or the
 model's slope as one column, "the phase reading") stands beyond its own standard error over the fold's
-validation blocks (``resolved_beyond``); a delay that leads (no sensor reports before the motion) beside a
-passing mode is undecided; a lagging delay keeps the fold as before. The undecided fold names its channel.
+validation blocks (``resolved_beyond``); a delay that leads (no sensor's latency) beside a passing mode is
+undecided unless resolved beyond the phase reading; a lagging delay keeps the fold as before. The undecided fold names its channel.
 
 Constructed records (a linear stack, the mode discretised exactly for the held drive), scored by the
 tracing's own ``_score_stage``, and constructed fold scores: cheap (~2 s).
@@ -48,7 +48,7 @@ def _scored(f_mode, zeta, protocol):
         p = eff.fit(t, y, x - y, prob.search, y_model=y)
         C, lo = eff.columns(t, y, p, y_model=y) if hasattr(eff, "columns") else (eff.term(t, y, p, y_model=y), [0.0])
         cands.append({"name": eff.name, "channel": "displacement", "key": KEY, "g": prob.grams(C, lo),
-                      "n_params": eff.n_params, "params": p})
+                      "n_params": eff.n_params, "params": p, "yhat": y})      # (the model, as trace_effect's)
     rng = np.random.default_rng(1)
     e_dev = np.where(prob.rows_dev, prob.r, 0.0)
     nulls = {KEY: [prob.grams(T._phase_randomized(e_dev, rng), [-np.inf]) for _ in range(3)]}
@@ -185,17 +185,32 @@ def test_a_mode_keeps_a_fold_only_resolved_beyond_its_rival():
 
 
 def test_a_delay_that_leads_beside_a_mode_is_undecided_and_a_lag_keeps_the_fold():
-    """No sensor reports before the motion: a delay reading a lead (91 #115: 2.7 samples, 93 #115: 0.38,
-    both a mode at 100 Hz) beside a passing mode is undecided; a lag keeps the fold as before (right sine
-    delays at 100 Hz - 10 kHz, whose difference from the fitted mode the record does not resolve either),
-    and a delay alone keeps it whatever its sign."""
+    """A lead is no sensor's latency: beside a passing mode, a lead no more than the model's slope (its phase
+    reading, resolved by the block bar) is undecided (91 #115: 2.7 samples, 93 #115: 0.38, both a mode at
+    100 Hz under the slow sine); a lead resolved beyond the slope (an acquisition offset under a chirp,
+    test_calibrate's sensor lead) keeps the fold; a lag keeps it either way (right sine delays at 100 Hz -
+    10 kHz, whose difference from the fitted mode the record does not resolve), and a delay alone keeps
+    it whatever its sign. Constructed fold scores."""
+    m, n = 15, 40
     infos = {"t": np.arange(1000) / 100.0, "displacement": {"noise_floor": 0.1}}
     args = ({KEY: [1.0]}, infos, 0.02, 1.0, T.MIN_SHARE)
     mode = _mode_row(0.5)
     lead, lag = _delay_row(0.49, -0.38), _delay_row(0.49, 0.41)
-    assert T._delay_or_mode(lead, {DELAY: lead, MODE: mode}, 0, *args) is None
-    assert T._delay_or_mode(lag, {DELAY: lag, MODE: mode}, 0, *args) is lag
-    assert T._delay_or_mode(lead, {DELAY: lead}, 0, *args) is lead
+    d_sse, N = _blocks(0.49, np.zeros(m), m, n)
+    sse = {id(lead): [(d_sse, N)], id(lag): [(d_sse, N)]}
+    tie = 0.01 * np.random.default_rng(2).standard_normal(m)
+    tie -= tie.mean()                                            # the slope leaves the same, block by block
+    clear = 0.2 * n + 0.01 * np.random.default_rng(3).standard_normal(m)   # the slope leaves 0.2 more a row
+    for sse_phase, kept in ((d_sse + tie, False), (d_sse + clear, True)):
+        a_ph = float(np.sqrt(sse_phase.sum() / N.sum()))
+        phase = [(a_ph, True, (sse_phase, N))]
+        got = T._delay_or_mode(lead, {DELAY: lead, MODE: mode}, 0, *args, phase=phase, block_sse=sse)
+        assert got is (lead if kept else None), (kept, got)
+        assert T._delay_or_mode(lag, {DELAY: lag, MODE: mode}, 0, *args, phase=phase, block_sse=sse) is lag
+        assert T._delay_or_mode(lead, {DELAY: lead}, 0, *args, phase=phase, block_sse=sse) is lead
+    # the phase reading failing the fold: the lead's phase is no first-order one
+    phase = [(0.49, False, (d_sse + tie, N))]
+    assert T._delay_or_mode(lead, {DELAY: lead, MODE: mode}, 0, *args, phase=phase, block_sse=sse) is lead
 
 
 def test_the_phase_reading_column_is_the_models_central_slope():

@@ -1338,10 +1338,13 @@ def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_sha
       penalty, as before): what it explains beyond a mode does not tell them apart either way (measured on
       the confusion benchmark at 100 Hz - 10 kHz: right sine delays resolved beyond the fitted mode by 0.9 -
       3.3 standard errors a fold, modes above Nyquist named a delay by 0.2 - 2.8), so the bar would only lose
-      right delays (10 #17, 11 #17 at 1 kHz). A delay that **leads** (``delay_samples < 0``) is no latency (a
-      sensor reports after the motion): beside a mode passing the fold it is the held drive's reading of a
-      mode above Nyquist as well as a logging skew, and the fold is undecided (91 #115, 93 #115 at 100 Hz:
-      a 2.7- and a 0.38-sample lead, the truth a mode).
+      right delays (10 #17, 11 #17 at 1 kHz). A delay that **leads** (``delay_samples < 0``) is no sensor's
+      latency but an acquisition offset, or the held drive's reading of a mode above Nyquist: beside a mode
+      passing the fold, a lead not resolved beyond the model's slope (the phase reading, its first-order
+      phase; :func:`resolved_beyond`) is undecided (91 #115, 93 #115 at 100 Hz: a 2.7- and a 0.38-sample
+      lead under the 0.15 Hz sine, the truth a mode), a lead resolved beyond it keeps the fold
+      (test_calibrate's 0.3 ms sensor lead under a chirp to 2 kHz). A lag keeps the fold either way: the
+      common reading, a sensor's latency.
 
     ``block_sse``: ``id(row)`` -> per fold :meth:`_Problem.fold_block_sse` (the passing delay and mode rows).
     """
@@ -1351,7 +1354,12 @@ def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_sha
         if other is None or _phase_only_mode(other, infos):
             return best                       # no mode beside it, or the delay's own phase (:func:`_phase_only_mode`)
         lead = float((best.get("params") or {}).get("delay_samples", 0.0)) < 0.0
-        return None if lead else best
+        if not lead or phase is None or not phase[f][1] or id(best) not in (block_sse or {}):
+            return best
+        # a lead no more than the model's slope (its first-order phase): the held drive's reading of a mode
+        # above Nyquist as well; a lead resolved beyond it (a chirp's phase, linear over a band) is a lead
+        sb, n = block_sse[id(best)][f]
+        return best if resolved_beyond(sb, phase[f][2][0], n)[0] else None
     block_sse = block_sse or {}
     rivals = []
     if other is not None and id(other) in block_sse:
