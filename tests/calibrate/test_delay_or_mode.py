@@ -186,8 +186,8 @@ def test_a_mode_keeps_a_fold_only_resolved_beyond_its_rival():
 
 def test_a_delay_that_leads_beside_a_mode_is_undecided_and_a_lag_keeps_the_fold():
     """A lead is no sensor's latency: beside a passing mode, a lead no more than the model's slope (its phase
-    reading, resolved by the block bar) is undecided (91 #115: 2.7 samples, 93 #115: 0.38, both a mode at
-    100 Hz under the slow sine); a lead resolved beyond the slope (an acquisition offset under a chirp,
+    reading, resolved by the block bar) is undecided (91 #115: 2.7 samples, a mode at 100 Hz under the slow
+    sine); a lead resolved beyond the slope (an acquisition offset under a chirp,
     test_calibrate's sensor lead) keeps the fold; a lag keeps it either way (right sine delays at 100 Hz -
     10 kHz, whose difference from the fitted mode the record does not resolve), and a delay alone keeps
     it whatever its sign. Constructed fold scores."""

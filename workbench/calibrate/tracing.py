@@ -1341,10 +1341,10 @@ def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_sha
       right delays (10 #17, 11 #17 at 1 kHz). A delay that **leads** (``delay_samples < 0``) is no sensor's
       latency but an acquisition offset, or the held drive's reading of a mode above Nyquist: beside a mode
       passing the fold, a lead not resolved beyond the model's slope (the phase reading, its first-order
-      phase; :func:`resolved_beyond`) is undecided (91 #115, 93 #115 at 100 Hz: a 2.7- and a 0.38-sample
-      lead under the 0.15 Hz sine, the truth a mode), a lead resolved beyond it keeps the fold
-      (test_calibrate's 0.3 ms sensor lead under a chirp to 2 kHz). A lag keeps the fold either way: the
-      common reading, a sensor's latency.
+      phase; :func:`resolved_beyond`) is undecided (91 #115 at 100 Hz: a 2.7-sample lead under the 0.15 Hz
+      sine, the truth a mode), a lead resolved beyond it keeps the fold (test_calibrate's 0.3 ms sensor
+      lead under a chirp to 2 kHz; also 93 #115's 0.38-sample lead on 4 of 5 folds, the truth a mode: a
+      miss). A lag keeps the fold either way: the common reading, a sensor's latency.
 
     ``block_sse``: ``id(row)`` -> per fold :meth:`_Problem.fold_block_sse` (the passing delay and mode rows).
     """
@@ -1381,7 +1381,7 @@ def delay_or_mode_consensus(winners, need):
     :func:`~.absorption_or_leakage.decided_needed` folds outright (2 of 5), the other reading on its channel
     none, and ``X`` or undecided fills ``need`` folds (a sub-sample delay under 100 Hz steps: decided on the
     folds where the noise leaves room, undecided on a fold the noise fills, 92 #127). Every fold undecided
-    (a mode above Nyquist under a slow sine read as a lead, 93 #115): nothing is named.
+    (a mode above Nyquist under a slow sine read as a lead, 91 #115): nothing is named.
 
     Returns ``((name, channel), decided, undecided)`` or ``(None, 0, 0)``.
     """
