@@ -500,6 +500,12 @@ def _later_stage(ctx, extra, found, seen=()):
     n_folds = len(ctx["split"].folds)
     seen = _seen_views(seen)
     folds_for = count
+    if answer is None:
+        # the delay or a mode decided on some folds, the rest undecided between the two: the undecided
+        # folds are compatible with it (``folds_for``), the decided ones its own (``count``)
+        ans2, decided, undecided = _tr.delay_or_mode_consensus(res["winners"], ctx["need"])
+        if ans2 is not None:
+            answer, count, folds_for = ans2, decided, decided + undecided
     if answer is None or answer[0] == "creep":
         # creep's folds: a fold a charge relaxation wins while the stack's creep passes it is
         # compatible with creep (creep relaxes the charge too, seed 002; :func:`_creep_compatible`),
@@ -1046,6 +1052,13 @@ def run_stages(ctx, max_stages=3):
         if ans2 is not None:
             answer, count = ans2, decided
             resolved = nested_note(ans2, decided, undecided, len(res["winners"]))
+            compatible = (resolved, decided + undecided)
+    if answer is None:
+        # the delay or a mode decided on some folds, the rest undecided between the two
+        ans2, decided, undecided = _tr.delay_or_mode_consensus(res["winners"], ctx["need"])
+        if ans2 is not None:
+            answer, count = ans2, decided
+            resolved = _tr.delay_or_mode_note(ans2, decided, undecided, len(res["winners"]))
             compatible = (resolved, decided + undecided)
     if answer is None:
         ans2, count2, note2, both = stack_effect_on_both_sensors(res, ctx["need"])

@@ -86,7 +86,8 @@ from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_sho
 from .base_fit import BaseFit
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
-from .effects import (SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift, GaugeNonlinearity, Leakage,
+from .effects import (RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
+                      GaugeNonlinearity, Leakage,
                       Resonance)
 from .pi_fit import rms, turning_points
 
@@ -433,6 +434,21 @@ class _Problem:
         w = self.solve(g, tr)
         n = max(self.n_rows(va), 1)
         return np.sqrt(self.sse(g, w, va)[0] / n) * self.scale
+
+    def fold_block_sse(self, g, tr, va):
+        """``(sse, n)``: the fold's held-out squared errors summed per validation block (channel units
+        squared) and the blocks' row counts, the fit's on the training blocks ``tr`` (as :meth:`fold_rms`:
+        ``sqrt(sse.sum() / n.sum())`` is its RMS)."""
+        w = self.solve(g, tr)
+        blocks = np.flatnonzero(np.asarray(va, bool))
+        one = np.zeros(len(self.idx), bool)
+        sse, n = np.zeros(blocks.size), np.zeros(blocks.size)
+        for j, b in enumerate(blocks):
+            one[:] = False
+            one[b] = True
+            sse[j] = self.sse(g, w, one)[0] * self.scale ** 2
+            n[j] = self.idx[b].size
+        return sse, n
 
     def predict(self, g, blocks):
         """(correction over the whole record, the extra columns' part, their gains in channel units)."""
@@ -1086,6 +1102,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 gains[f] = max(gains[f], befores[key][f] ** 2 - a ** 2)
         null_gain[key] = gains
     by, drifts = {}, []
+    block_sse = {}
     for c in cands:
         tag = (c["name"], c["channel"])
         if tag in found:
@@ -1101,6 +1118,9 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             ratios.append(float(ratio))
             passes.append(bool(ok))
         row = {**c, "ratios": ratios, "passes": passes, "score": float(np.median(ratios))}
+        if c["name"] in DELAY_OR_MODE_NAMES and any(passes):
+            # its held-out errors per validation block, for the difference from its rival (:func:`_delay_or_mode`)
+            block_sse[id(row)] = [prob.fold_block_sse(gf[f], tr, va) for f, (tr, va) in enumerate(split.folds)]
         if c["name"] == "drift":
             drifts.append(row)          # every drift variant, before the better is kept (_slow_mode_against_drift)
         # one entry per (name, channel): the better variant (a drift's periodic form or not); a
@@ -1127,6 +1147,11 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
     shown = {}
     drift_rms = _gauge_line_drift_rms(infos.get("gauge_line_drift"), probs, extra, split, infos) \
         if ("gauge_nonlinearity", "gauge") in by else None
+    # each passing mode's phase reading (:func:`_phase_reading`): the delay a mode's term may be, whatever
+    # the delay's own search found
+    phase = {r["channel"]: _phase_reading(r, probs, extra, split, befores, null_gain, penalty,
+                                          noise_factor * infos[r["channel"]]["noise_floor"], min_share)
+             for r in rows if r["name"] == "resonance" and r.get("yhat") is not None and any(r["passes"])}
     for f in range(n_folds):
         ok = [r for r in rows if r["passes"][f]]
         ok.sort(key=lambda r: r["ratios"][f])
@@ -1148,6 +1173,13 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
                 continue
             ok = [r for r in ok if (r["name"], r["channel"]) != ("gauge_nonlinearity", "gauge")]
             tags = {(r["name"], r["channel"]): r for r in ok}
+        if best["name"] in DELAY_OR_MODE_NAMES \
+                and _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share,
+                                   phase.get(best["channel"]), block_sse) is None:
+            # a delay and a mode on one channel passing the fold alike: a mode not resolved beyond the delay
+            # or its phase reading, or a delay that leads (a phase at the drive's harmonics, no latency)
+            winners.append(delay_or_mode_label(best["channel"]))
+            continue
         if best["channel"] == "charge" and best["name"] in ("dielectric_absorption", "leakage"):
             best = _absorption_or_leakage(best, tags, f, befores, infos, penalty, noise_factor, min_share)
             if best is None:
@@ -1189,6 +1221,189 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             continue
         winners.append((best["name"], best["channel"]))
     return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+
+
+#: The two readings of a phase lag or lead of one channel's motion (:func:`_delay_or_mode`).
+DELAY_OR_MODE_NAMES = ("delay", "resonance")
+#: The fold label of a fold where a delay and a mode of one channel explain it alike (:func:`_delay_or_mode`),
+#: without its channel (:func:`delay_or_mode_label` names it).
+DELAY_OR_MODE = ("undecided", "delay or resonance")
+
+
+def delay_or_mode_label(channel):
+    """The fold label of a fold where a delay and a mode on ``channel`` explain it alike (tuple)."""
+    return (DELAY_OR_MODE[0], f"{DELAY_OR_MODE[1]} on the {channel}")
+
+
+def _phase_reading(row, probs, extra, split, befores, null_gain, penalty, floor, min_share):
+    """A mode's phase reading on each fold: ``(raw RMS, passes, block errors)`` of the channel's model's slope
+    as a term (block errors: :meth:`_Problem.fold_block_sse`'s).
+
+    At the drive's harmonics far below a mode, the mode's term is the model's slope times a constant (a phase
+    proportional to frequency), which is also a delay's or a lead's of under a sample (a delay of ``d``
+    samples is ``-d`` times the slope). The column: the central difference of the row's model (``yhat``: the
+    base with the found effects), its gain of either sign, fitted with the base and the found effects on each
+    fold's training rows and judged by the fold test (one parameter). It stands for the delay where the
+    delay's own search does not reach the phase (its refinement stops at a quarter of a sample: a 0.03-sample
+    lag under 100 Hz steps, 91 #127, was searched as a 0.27-sample lead and passed no fold, while a 38.5 Hz,
+    zeta 0.3 mode of gain 0.1 took four).
+    """
+    key = row["key"]
+    prob = probs[key]
+    col = phase_column(row["yhat"])
+    n_folds = len(split.folds)
+    gf = _cand_grams(prob, extra[key], {"g": prob.grams(col[:, None], [-np.inf])}, n_folds)
+    out = []
+    for f, (tr, va) in enumerate(split.folds):
+        a = prob.fold_rms(gf[f], tr, va)
+        out.append((a, _fold_test(befores[key][f], a, 1, penalty, floor, null_gain[key][f], min_share)[1],
+                    prob.fold_block_sse(gf[f], tr, va)))
+    return out
+
+
+def phase_column(yhat):
+    """The phase reading's column (:func:`_phase_reading`): the model's slope per sample, ``np.gradient``.
+
+    A lag of ``d`` samples changes a model ``y`` by ``y(n - d) - y(n) = -d y'(n) + O(d^2)``; the central
+    difference is ``y'`` to second order in the sample step, so a sub-sample lag of a slowly driven channel
+    is ``-d`` times this column (a lead ``+d``)."""
+    return np.gradient(np.asarray(yhat, float))
+
+
+def _phase_only_mode(row, infos):
+    """Is the mode row's half-power band at the record's Nyquist frequency, ``f (1 + zeta) >= f_N``? (bool)
+
+    The ring cap (:meth:`~.effects.Resonance._ring_cap`) keeps a trial's band below ``f_N``, where the record
+    can show its peak; a fit that runs to that corner (the most damped mode at the highest frequency the
+    record shows, ``zeta = f_N / f - 1`` above ``RING_ZETA_MAX``) has no peak in the record, only its low-frequency
+    phase, a sub-sample delay's (seed 26 #31;
+    1 kHz steps, a 0.27 ms delay behind creep: the rival mode 384.6 Hz, zeta 0.30, ``f_N`` 500 Hz). Beside a
+    delay it is that delay's own reading, not a mode's. A heavily damped mode well below ``f_N`` (a 3.97 Hz,
+    zeta 0.3 mode of gain 0.11 beside 90 #115's 0.28-sample delay) is a mode's reading of the phase.
+    """
+    t = infos.get("t")
+    p = row.get("params") or {}
+    if t is None or "f_n_hz" not in p or "zeta" not in p or len(t) < 2:
+        return False
+    f_nyq = 0.5 * (len(t) - 1) / float(t[-1] - t[0])
+    f, z = float(p["f_n_hz"]), float(p["zeta"])
+    # heavily damped: its ringing dies within a cycle (RING_ZETA_MAX). A mode at f_N itself takes zeta_min
+    # there: lightly damped, it rings at f_N and is no phase alone (92 #121 at 100 Hz: the gauge's 50 Hz,
+    # zeta 0.002 rival of a 10-sample delay, a mode above Nyquist in the record)
+    return z > RING_ZETA_MAX and f * (1.0 + z) >= f_nyq * (1.0 - 1e-6)
+
+
+def resolved_beyond(sse_best, sse_other, n):
+    """Does the fold resolve one reading beyond another? ``(bool, difference, its standard error)``.
+
+    ``sse_best``, ``sse_other``: the two readings' held-out squared errors summed per validation block, ``n``
+    the blocks' row counts (:meth:`_Problem.fold_block_sse`). The difference of their held-out mean squared
+    errors, ``D = sum(d_b) / sum(n_b)`` with ``d_b`` the blocks' differences, is ``a_other^2 - a_best^2``. Its
+    standard error takes the validation blocks as the unit (rows within a block are correlated, a model's
+    misfit runs over many samples; the blocks of a fold lie apart, spread by the golden-ratio labels): the
+    ratio estimator's, ``sqrt(m / (m - 1) sum_b (d_b - D n_b)^2) / sum(n_b)`` over the fold's ``m`` blocks.
+    ``best`` is resolved when ``D`` exceeds its standard error: what it explains beyond the other is more
+    than the blocks' scatter of that difference. Under two blocks: never resolved (no scatter to measure).
+    """
+    sb, so, n = (np.asarray(x, float) for x in (sse_best, sse_other, n))
+    d = so - sb
+    m, N = d.size, float(n.sum())
+    if m < 2 or N <= 0:
+        return False, 0.0, np.inf
+    D = float(d.sum()) / N
+    se = float(np.sqrt(m / (m - 1.0) * np.sum((d - D * n) ** 2))) / N
+    return bool(D > se), D, se
+
+
+def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share, phase=None, block_sse=None):
+    """The fold's best of a delay and a mode on one channel, or None when the fold cannot tell them apart.
+
+    A delay ``d`` and a mode are two readings of one thing wherever the drive's harmonics lie far below
+    both the mode and ``1 / d``: each is a phase proportional to frequency, ``-w d`` against the mode's
+    ``-2 zeta w / w_n`` (its gain the same to ``(w / w_n)^2``), and they differ only at the second order
+    in ``w``. A mode above the record's Nyquist frequency, which the mode's search cannot reach, is such
+    a phase at the samples: the drive's held staircase excites it at the sample rate's harmonics, which
+    the samples see at zero frequency, a term in the drive's slope, a delay's (a 311.6 Hz mode under a
+    0.15 Hz sine at 100 Hz reads as a 0.28-sample lag, a 97.5 Hz one as a 2.7-sample lead; a mode of at
+    most 50 Hz fitted beside them explains the same to 1 %).
+
+    * A **mode** keeps the fold only where the record resolves it beyond its rival: the difference of the
+      two readings' held-out mean squared errors on the fold beyond its own standard error over the fold's
+      validation blocks (:func:`resolved_beyond`). The rival: the delay on the channel when it passes the
+      fold, or the mode's phase reading (:func:`_phase_reading`, the one-parameter form of a sub-sample
+      delay) when that passes, whichever leaves less. The mode's two parameters beyond the phase are its
+      peak; a mode not resolved beyond the phase is a phase (91 #127: a 0.03-sample lag under 100 Hz steps
+      named a 38.5 Hz, zeta 0.3 mode).
+    * A **delay** that lags keeps the fold (the one-parameter reading; the tie goes to it by the fold test's
+      penalty, as before): what it explains beyond a mode does not tell them apart either way (measured on
+      the confusion benchmark at 100 Hz - 10 kHz: right sine delays resolved beyond the fitted mode by 0.9 -
+      3.3 standard errors a fold, modes above Nyquist named a delay by 0.2 - 2.8), so the bar would only lose
+      right delays (10 #17, 11 #17 at 1 kHz). A delay that **leads** (``delay_samples < 0``) is no sensor's
+      latency but an acquisition offset, or the held drive's reading of a mode above Nyquist: beside a mode
+      passing the fold, a lead not resolved beyond the model's slope (the phase reading, its first-order
+      phase; :func:`resolved_beyond`) is undecided (91 #115 at 100 Hz: a 2.7-sample lead under the 0.15 Hz
+      sine, the truth a mode), a lead resolved beyond it keeps the fold (test_calibrate's 0.3 ms sensor
+      lead under a chirp to 2 kHz; also 93 #115's 0.38-sample lead on 4 of 5 folds, the truth a mode: a
+      miss). A lag keeps the fold either way: the common reading, a sensor's latency.
+
+    ``block_sse``: ``id(row)`` -> per fold :meth:`_Problem.fold_block_sse` (the passing delay and mode rows).
+    """
+    other_name = DELAY_OR_MODE_NAMES[1 - DELAY_OR_MODE_NAMES.index(best["name"])]
+    other = tags.get((other_name, best["channel"]))
+    if best["name"] == "delay":
+        if other is None or _phase_only_mode(other, infos):
+            return best                       # no mode beside it, or the delay's own phase (:func:`_phase_only_mode`)
+        lead = float((best.get("params") or {}).get("delay_samples", 0.0)) < 0.0
+        if not lead or phase is None or not phase[f][1] or id(best) not in (block_sse or {}):
+            return best
+        # a lead no more than the model's slope (its first-order phase): the held drive's reading of a mode
+        # above Nyquist as well; a lead resolved beyond it (a chirp's phase, linear over a band) is a lead
+        sb, n = block_sse[id(best)][f]
+        return best if resolved_beyond(sb, phase[f][2][0], n)[0] else None
+    block_sse = block_sse or {}
+    rivals = []
+    if other is not None and id(other) in block_sse:
+        rivals.append((_raw_rms(other, f, befores, penalty), block_sse[id(other)][f]))
+    if phase is not None and phase[f][1]:
+        rivals.append((phase[f][0], phase[f][2]))   # the mode's phase reading (:func:`_phase_reading`)
+    if not rivals or id(best) not in block_sse:
+        return best
+    (sb, n), (so, _) = block_sse[id(best)][f], min(rivals, key=lambda x: x[0])[1]
+    return best if resolved_beyond(sb, so, n)[0] else None
+
+
+def delay_or_mode_consensus(winners, need):
+    """The delay or the mode named from decided folds, the other folds undecided between the two.
+
+    As :func:`~.absorption_or_leakage.nested_consensus` for the absorption and leakage: a fold undecided
+    between a delay and a mode on its channel (:func:`delay_or_mode_label`) votes for neither and is compatible with both. ``X``
+    (the delay or the mode on a channel) is named when it wins at least
+    :func:`~.absorption_or_leakage.decided_needed` folds outright (2 of 5), the other reading on its channel
+    none, and ``X`` or undecided fills ``need`` folds (a sub-sample delay under 100 Hz steps: decided on the
+    folds where the noise leaves room, undecided on a fold the noise fills, 92 #127). Every fold undecided
+    (a mode above Nyquist under a slow sine read as a lead, 91 #115): nothing is named.
+
+    Returns ``((name, channel), decided, undecided)`` or ``(None, 0, 0)``.
+    """
+    from .absorption_or_leakage import decided_needed
+    tags = [w if isinstance(w, str) else tuple(w) for w in winners]
+    for x in sorted({w for w in tags if not isinstance(w, str) and w[0] in DELAY_OR_MODE_NAMES}):
+        other = (DELAY_OR_MODE_NAMES[1 - DELAY_OR_MODE_NAMES.index(x[0])], x[1])
+        und = sum(1 for w in tags if w == delay_or_mode_label(x[1]))   # undecided on its own channel
+        if not und:
+            continue
+        won = sum(1 for w in tags if w == x)
+        if not any(w == other for w in tags) and won + und >= need and won >= decided_needed(len(tags)):
+            return x, won, und
+    return None, 0, 0
+
+
+def delay_or_mode_note(answer, decided, undecided, n_folds):
+    """What a name from :func:`delay_or_mode_consensus` leaves open (str)."""
+    other = "a mode" if answer[0] == "delay" else "a delay"
+    return (f"the {decided} folds it wins are the decided ones; no fold names {other}; {undecided} "
+            f"fold{'' if undecided == 1 else 's'} cannot tell a delay from a mode (one phase at the drive's "
+            f"harmonics): {decided + undecided} of {n_folds} folds compatible with {answer[0]}, {decided} decided")
 
 
 #: The fold label of a fold where a drift in time explains the gauge against the recorded displacement as
