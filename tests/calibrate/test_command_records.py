@@ -33,21 +33,43 @@ def _drive(kind, n, rng):
 @pytest.mark.parametrize("kind", ["sine_mid", "sine_rest", "triangle", "steps", "multisine"])
 @pytest.mark.parametrize("grid", ["uniform", "quadratic"])
 def test_settled_row_is_where_every_settleable_play_forgets_its_start(kind, grid):
-    """From ``settled_row`` on, each play of ``2 r <= span`` gives the same output from either end of its
-    initial band ``u0 -+ r`` (the extremes: every start in between is squeezed between them); on the row
-    before it, the largest of them still differs (by ``2 r`` minus the sweep): the row is the first."""
+    """From ``settled_row`` on, each play of ``2 r <= span`` but the largest gives the same output from either
+    end of its initial band ``u0 -+ r`` (the extremes: every start in between is squeezed between them), and
+    the largest differs by at most one grid step (its state is off by ``2 r`` minus the sweep); on the row
+    before it, the largest differs by more than the step: the row is the first."""
     from workbench.calibrate.splits import settled_row
     rng = np.random.default_rng(len(kind) + len(grid))
     u = _drive(kind, 4000, rng)
     k0 = settled_row(u, 20, grid)
-    r = pi_thresholds(u, 20, grid)
-    r = r[2 * r <= np.ptp(u)]
+    r_all = pi_thresholds(u, 20, grid)
+    k = int(np.flatnonzero(2 * r_all <= np.ptp(u)).max())
+    step = r_all[k] - r_all[k - 1]
     assert 0 < k0 < u.size
-    for ri in r:
+    for ri in r_all[1:k]:
         lo, hi = play(u, ri, u[0] - ri), play(u, ri, u[0] + ri)
         assert np.array_equal(lo[k0:], hi[k0:]), ri
-    big = r.max()
-    assert play(u, big, u[0] + big)[k0 - 1] > play(u, big, u[0] - big)[k0 - 1]
+    big = r_all[k]
+    gap = play(u, big, u[0] + big) - play(u, big, u[0] - big)
+    assert np.all(gap[k0:] <= step * (1 + 1e-12)), (gap[k0:].max(), step)
+    assert gap[k0 - 1] > step
+
+
+def test_settled_row_does_not_wait_for_the_noisiest_peak():
+    """A command from rest whose top play sits at half its span (a uniform grid of an even count): asked for
+    the full span, the settle row was wherever the noisiest sample fell (0.91-10.91 s of a 12 s, 0.55 Hz sine,
+    review of s24_command); within one grid step it is on the first rise (0.78 s), on every draw."""
+    from workbench.calibrate.splits import settled_row
+    fs, f = 1e3, 0.55
+    t = np.arange(int(12 * fs)) / fs
+    clean = 50.0 * (1 - np.cos(2 * np.pi * f * t))
+    rows = []
+    for seed in range(20):
+        u = clean + 1e-5 * 100.0 * np.random.default_rng(seed).standard_normal(t.size)
+        rows.append(settled_row(u, 20, "uniform"))
+    rows = np.asarray(rows) / fs
+    # the sweep reaches (1 - 1/20) of the span on the first rise, before the first peak (at 1/(2f) = 0.91 s)
+    assert np.all(rows < 1.0 / f), rows
+    assert np.ptp(rows) < 0.02, rows
 
 
 RATES = (100.0, 1e3, 1e4, 1e5)

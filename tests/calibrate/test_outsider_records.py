@@ -120,8 +120,8 @@ def test_clean_record_against_the_generic_stack_names_no_effect(tmp_path):
     """s22_outsider finding 5 (strict xfail until s24_command): a clean SN637 0-110 V sine's voltage ->
     displacement against generic_stack.toml (cycles split) was named creep 4 of 5: the grid reached the excursion
     from the record's start (110 V), so 10 of its 20 plays never moved in the development rows and the base's
-    misfit (7.8e-9 m, 3.0e-9 m with all 20) went to the creep. The grid now spans half the development rows'
-    range when they leave out the start."""
+    misfit (7.8e-9 m, 3.0e-9 m with all 20) went to the creep. The plays are now spread over the
+    thresholds that move in the development rows (``fit_base(spread_plays=True)``, generic stacks)."""
     res = run_calibrate(_amplifier_record(tmp_path, 1, generic=True), PLANTS / "generic_stack.toml", figures=False)
     assert res["effect"] in ("none", "inconclusive"), (res["effect"], res.get("parameters"))
 

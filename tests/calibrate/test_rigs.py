@@ -113,7 +113,13 @@ def test_command_is_detected_and_calibrated_by_the_cli(tmp_path, capsys):
     bf = res["base_fit"]
     assert bf["input"] == "command" and any("taken for the amplifier's command" in n for n in bf["notes"])
     assert bf["line"]["displacement"]["base_rms"] < bf["line"]["displacement"]["rms"]
-    assert "warning: " in capsys.readouterr().out                # the top cycle extrapolates: said
+    out = capsys.readouterr().out
+    assert "warning: " in out                                    # the top cycle extrapolates: said
+    # the command reaches its full range only in its 16th cycle: the rows before cannot all be left out (review
+    # of s24_command: it fell back to using them, said only among the notes); said at the top and in the JSON
+    assert any("the command" in w and "range" in w for w in res["warnings"]), res["warnings"]
+    assert "WARNING: the command" in out
+    assert bf["left_out_s"] == 0.0 or bf["left_out_s"] > 0.5 * (t[-1] - t[0])
     from workbench.plant.generic import load_generic_stack
     stack = load_generic_stack(res["updated_plant"])
     assert stack.min_v == pytest.approx(u.min()) and stack.max_v == pytest.approx(u.max())

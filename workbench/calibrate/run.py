@@ -159,6 +159,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         sp = make_split(t, v, kind=split, train_cycles=train_cycles)
     except ValueError as err:
         raise DataFileError(f"{data_path}: cannot split the record into training and held-out parts: {err}") from err
+    left_out_s, settle_warnings = 0.0, []
     if input_kind == "command":
         # the plays start at the first command value, but where the stack stood (the amplifier's offset, the
         # stack's past) the record does not say: the rows before the command has settled every play it can
@@ -168,13 +169,24 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
         if k0 > 0:
             try:
                 sp = make_split(t, v, kind=split, train_cycles=train_cycles, start_row=k0)
-                notes.append(f"the first {t[k0] - t[0]:.4g} s are left out and the split made on the rows after them: "
+                left_out_s = float(t[k0] - t[0])
+                notes.append(f"the first {left_out_s:.4g} s are left out and the split made on the rows after them: "
                              f"until then the command has not swept twice the largest threshold it can settle, and "
                              f"the stack's state before a command record is unknown")
+                if 2 * k0 > t.size:
+                    # more of the record unused than used: said at the top, not only among the notes (review of
+                    # s24_command: a command whose range grows to the end lost 92 % of its rows)
+                    settle_warnings.append(f"the command reaches its full range only at {left_out_s:.4g} s of "
+                                           f"{t[-1] - t[0]:.4g} s: the rows before are left out (the stack's state "
+                                           f"there is unknown); a record that sweeps its whole range early keeps "
+                                           f"more")
             except ValueError as err:
                 notes.append(f"the command settles its plays only at {t[k0] - t[0]:.4g} s, after which the record "
                              f"cannot be split ({err}): its first rows are used though its plays' states there "
                              f"are guesses")
+                settle_warnings.append(f"the command settles its plays only at {t[k0] - t[0]:.4g} s, too late to "
+                                       f"split the rest; the rows before are used though the stack's state there is "
+                                       f"unknown (a record that sweeps its whole range early avoids this)")
     train, test = sp.train, sp.test
     # a generic stack's grid reaches max |V - V0|, the excursion from the record's start: right for a record that
     # starts mid-range (the real +/-150 V sine), twice too far for one from rest at an end of its range, whose plays
@@ -232,6 +244,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             "train_range_v": list(base.train_range_v),
             "held_out_beyond_training_fraction": float(base.beyond_train.sum() / max(int(base.test.sum()), 1)),
             "dropped_thresholds_v": base.dropped_thresholds_v.tolist(),
+            "left_out_s": left_out_s,
             "line": {name: {"rms": m.line_rms_test, "base_rms": m.rms_test, "slope": m.line_slope,
                             "offset": m.line_offset, "ridge": m.ridge if np.isfinite(m.ridge) else "line",
                             "units": m.units,
@@ -255,7 +268,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     data["updated_plant_stages"] = []
     # said at the top of the printed summary and of the report (s22_outsider C1: the file's replay above the
     # error before was said only in base_fit.warnings)
-    data["warnings"] = []
+    data["warnings"] = list(settle_warnings)
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
         # the refitted core or the declared one, by the replay on the development rows (choose_core)
