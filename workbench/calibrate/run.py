@@ -176,8 +176,8 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
                 if 2 * k0 > t.size:
                     # more of the record unused than used: said at the top, not only among the notes (review of
                     # s24_command: a command whose range grows to the end lost 92 % of its rows)
-                    settle_warnings.append(f"the command reaches its full range only at {left_out_s:.4g} s of "
-                                           f"{t[-1] - t[0]:.4g} s: the rows before are left out (the stack's state "
+                    settle_warnings.append(f"the command settles its plays (sweeps its range) only at {left_out_s:.4g} s "
+                                           f"of {t[-1] - t[0]:.4g} s: the rows before are left out (the stack's state "
                                            f"there is unknown); a record that sweeps its whole range early keeps "
                                            f"more")
             except ValueError as err:

@@ -46,7 +46,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .pi_fit import split_by_cycles, turning_points
+from .pi_fit import pi_thresholds, split_by_cycles, turning_points
 
 __all__ = ["Split", "make_split", "holdout_mask", "block_length_s", "default_split", "SPLITS", "SLOW_EFFECTS",
            "settled_row"]
@@ -130,7 +130,6 @@ class Split:
         return self.rows(self.test_blocks)
 
 
-
 def settled_row(v, n_plays, grid):
     """The first row at which every play a record's input can settle is settled, whatever its state before it.
 
@@ -151,7 +150,6 @@ def settled_row(v, n_plays, grid):
     full span, reached first at the noisiest peak: on a 12 s, 0.55 Hz command from rest the rows left out ran from
     0.91 to 10.91 s over 20 noise draws (review of s24_command); with the step, 0.78 s on every draw.
     """
-    from .pi_fit import pi_thresholds
     v = np.asarray(v, float)
     span = float(np.ptp(v))
     if not span > 0:
