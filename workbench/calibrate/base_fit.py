@@ -426,6 +426,9 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
     first = _drive_judge(outputs)
     last = int(np.flatnonzero(train)[-1])
+    # the declared core's V_t -> charge thresholds join the grid on a terminal-voltage record (a command's
+    # volts differ from V_t by the amplifier's unknown gain)
+    extra = declared_thresholds(pzt) if input_kind == "terminal" and pzt is not None else None
     command_map = None
     if input_kind == "command":
         from_rest = _starts_flat(t, v)
@@ -465,7 +468,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         return _judge_rms(t, Pj, outputs[name], train & valid[name], shifts, residual=residual)
 
     def trial(vd, shifts=None):
-        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
+        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra)
         return judged(vd, r, keep, P, first, shifts), r, keep, P
 
     judges = [ch for ch in ("displacement", "gauge") if ch in outputs] if shifts_s is not None else []
@@ -473,7 +476,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     tried, on_first = {}, {}
     for label, vd in drives.items():
         if judges:                   # the residual kept for :func:`_judgment_resolves` (first is judges[0])
-            r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
+            r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra)
             on_first[label] = judged(vd, r, keep, P, first, residual=True)
             score = on_first[label][0]
         else:
@@ -677,12 +680,43 @@ def _z0(vd, r, from_rest, input_kind):
     return _initial_states(vd[0], r, from_rest)
 
 
-def _plays(vd, train, last, n_plays, grid, from_rest, input_kind):
+def declared_thresholds(pzt):
+    """The declared core's own thresholds of the terminal voltage -> charge map, V (empty without one).
+
+    The stack's charge is ``G^{-1}[V_t]`` with ``G = C_h^{-1} + (1/C_pp) I`` (:meth:`PZTParams.terminal_operator`):
+    a PI operator of ``V_t`` whose thresholds are not the file's ``C_h`` thresholds (Kuhnen's inverse moves
+    them). A base whose grid straddles them misfits the clean stack where each play engages, mid-ramp on a
+    slow triangle (3.3e-9 m at 0.15-0.25 of the period from a corner, noise-free, 2.5 kHz 0.5 Hz; 7.5e-14 m on
+    these thresholds alone), a misfit a mode 10x above the drive took (s22_outsider A1).
+    """
+    op = getattr(pzt, "terminal_operator", None)
+    if op is None:
+        return np.zeros(0)
+    try:
+        return np.asarray(op().inverse().thresholds, float)
+    except (ValueError, AttributeError):
+        return np.zeros(0)
+
+
+def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra=None):
     """Thresholds from the input up to the last training row, which plays move there, the play matrix.
 
+    ``extra``: thresholds added to the grid (the declared core's, :func:`declared_thresholds`), those
+    inside the grid's own range (above 0, at most its largest threshold) and not within a thousandth of the
+    span of a grid threshold. Above the grid's largest threshold a play moves less than the grid's own top
+    play, only in the rows at the record's extreme, where it is a column of those few rows: the declared
+    core's 39.8 V threshold on a calibration record whose span is 39.97 V moved 0.13 V, took a weight 8x the
+    identity's and the creep held at the peak (seed 88 #68, 100 kHz: the base's test error 1.85e-8 ->
+    2.49e-8 m, the creep then leaving 9.9e-9 m against 1.8e-9 m and a spurious delay named after it).
     Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
     """
     r = pi_thresholds(vd[: last + 1], n_plays, grid)
+    if extra is not None and len(extra) and r.size > 1:
+        span = float(np.max(np.abs(vd[: last + 1] - vd[0])))
+        e = np.asarray(extra, float)
+        e = e[(e > 0) & (e <= r[-1])]
+        e = e[np.min(np.abs(e[:, None] - r[None, :]), axis=1) > 1e-3 * span] if e.size else e
+        r = np.unique(np.concatenate([r, e]))
     P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
     span = float(np.ptp(vd[train]))
     keep = np.ptp(P[train], axis=0) > MOVE_REL * span
