@@ -426,8 +426,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
     first = _drive_judge(outputs)
     last = int(np.flatnonzero(train)[-1])
-    # the declared core's V_t -> charge thresholds join the grid on a terminal-voltage record (a command's
-    # volts differ from V_t by the amplifier's unknown gain)
+    # the declared core's V_t -> charge thresholds replace grid ones on a terminal-voltage record once its drive
+    # is judged V_t (a command's volts differ from V_t by the amplifier's unknown gain)
     extra = declared_thresholds(pzt) if input_kind == "terminal" and pzt is not None else None
     command_map = None
     if input_kind == "command":
@@ -468,7 +468,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         return _judge_rms(t, Pj, outputs[name], train & valid[name], shifts, residual=residual)
 
     def trial(vd, shifts=None):
-        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra)
+        r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
         return judged(vd, r, keep, P, first, shifts), r, keep, P
 
     judges = [ch for ch in ("displacement", "gauge") if ch in outputs] if shifts_s is not None else []
@@ -476,7 +476,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     tried, on_first = {}, {}
     for label, vd in drives.items():
         if judges:                   # the residual kept for :func:`_judgment_resolves` (first is judges[0])
-            r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra)
+            r, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind)
             on_first[label] = judged(vd, r, keep, P, first, residual=True)
             score = on_first[label][0]
         else:
@@ -524,6 +524,13 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             vd = _lagged(t, v, **{f"{kind}_s": x})
             best = (float(res.fun), (kind, x), vd, *trial(vd)[1:])
     _, label, vd, r_all, keep, P = best
+    if extra is not None and label == ("terminal voltage V - R i" if len(drives) > 1 else "recorded voltage"):
+        # the declared thresholds are of V_t: the drive that is V_t (V - R i; the recorded V when it is the only
+        # reading) takes them once judged. The judgment itself is on the grid for both readings: the recorded V
+        # beside V - R i is V_t + R i, and one reading on the declared thresholds, the other on the grid, judged
+        # unequal bases (1 MHz steps, drift + resonance 6.1x: V won on a 4.0e-7 m misfit and the charge then
+        # fitted 3.7e-8 C against 1.3e-8 C on its effect-free twin; test_one_megahertz)
+        r_all, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra)
     if input_kind == "command":
         kind, x = label
         command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
@@ -701,22 +708,32 @@ def declared_thresholds(pzt):
 def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra=None):
     """Thresholds from the input up to the last training row, which plays move there, the play matrix.
 
-    ``extra``: thresholds added to the grid (the declared core's, :func:`declared_thresholds`), those
-    inside the grid's own range (above 0, at most its largest threshold) and not within a thousandth of the
-    span of a grid threshold. Above the grid's largest threshold a play moves less than the grid's own top
-    play, only in the rows at the record's extreme, where it is a column of those few rows: the declared
+    ``extra``: thresholds that replace grid thresholds (the declared core's, :func:`declared_thresholds`): each
+    inside the grid's own range (above 0, below its largest threshold) takes the place of the nearest interior
+    grid threshold not yet taken, so the play count stays the grid's. Joined beside the grid instead (s23, up
+    to 11 plays more, +29 % CPU on the speed record), a declared threshold could sit a few hundredths of a volt
+    from a grid one (6.03 V beside 6.11 V), two near-copies of a column; measured then: a refitted delay's
+    per-fold weights moved with rows outside the fold's training rows (test_tracing R2, 10 kHz) and the 1 kHz
+    creep + delay steps records lost their delay (creep 11.9x, delay 5.9x); replacing, neither. Above the grid's largest threshold a play moves less than the grid's own
+    top play, only in the rows at the record's extreme, where it is a column of those few rows: the declared
     core's 39.8 V threshold on a calibration record whose span is 39.97 V moved 0.13 V, took a weight 8x the
     identity's and the creep held at the peak (seed 88 #68, 100 kHz: the base's test error 1.85e-8 ->
     2.49e-8 m, the creep then leaving 9.9e-9 m against 1.8e-9 m and a spurious delay named after it).
     Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
     """
     r = pi_thresholds(vd[: last + 1], n_plays, grid)
-    if extra is not None and len(extra) and r.size > 1:
-        span = float(np.max(np.abs(vd[: last + 1] - vd[0])))
+    if extra is not None and len(extra) and r.size > 2:
         e = np.asarray(extra, float)
-        e = e[(e > 0) & (e <= r[-1])]
-        e = e[np.min(np.abs(e[:, None] - r[None, :]), axis=1) > 1e-3 * span] if e.size else e
-        r = np.unique(np.concatenate([r, e]))
+        e = e[(e > 0) & (e < r[-1])]
+        r = r.copy()
+        free = np.ones(r.size, bool)
+        free[0] = free[-1] = False          # the identity and the grid's top stay
+        for x in e:
+            if not free.any():
+                break
+            i = int(np.flatnonzero(free)[np.argmin(np.abs(r[free] - x))])
+            r[i], free[i] = x, False
+        r = np.unique(r)
     P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
     span = float(np.ptp(vd[train]))
     keep = np.ptp(P[train], axis=0) > MOVE_REL * span
