@@ -50,6 +50,12 @@ def test_clean_slow_triangle_base_fits_to_the_simulators_precision():
     m = b.channels["displacement"]
     assert np.ptp(r["displacement_m"]) > 1e-5
     assert m.rms_test < 1e-11, m.rms_test
+    # the declared thresholds inside the grid's range replace grid ones: the play count stays the grid's 24 (joined
+    # beside the grid, s23: near-copies of columns, +29 % CPU on the speed record) and each of them is a play
+    d = declared_thresholds(plant.pzt)
+    inside = d[(d > 0) & (d < m.thresholds_v[-1])]
+    assert m.thresholds_v.size + b.dropped_thresholds_v.size == 24
+    assert inside.size >= 5 and np.all(np.isin(inside, m.thresholds_v)), (inside, m.thresholds_v)
 
 
 def test_declared_threshold_beyond_the_grid_stays_out_of_a_creep_record():
