@@ -530,7 +530,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         # beside V - R i is V_t + R i, and one reading on the declared thresholds, the other on the grid, judged
         # unequal bases (1 MHz steps, drift + resonance 6.1x: V won on a 4.0e-7 m misfit and the charge then
         # fitted 3.7e-8 C against 1.3e-8 C on its effect-free twin; test_one_megahertz)
-        r_all, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra)
+        r_all, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra, known=(r_all, P))
     if input_kind == "command":
         kind, x = label
         command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
@@ -705,7 +705,7 @@ def declared_thresholds(pzt):
         return np.zeros(0)
 
 
-def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra=None):
+def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra=None, known=None):
     """Thresholds from the input up to the last training row, which plays move there, the play matrix.
 
     ``extra``: thresholds that replace grid thresholds (the declared core's, :func:`declared_thresholds`): each
@@ -719,6 +719,8 @@ def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra=None):
     core's 39.8 V threshold on a calibration record whose span is 39.97 V moved 0.13 V, took a weight 8x the
     identity's and the creep held at the peak (seed 88 #68, 100 kHz: the base's test error 1.85e-8 ->
     2.49e-8 m, the creep then leaving 9.9e-9 m against 1.8e-9 m and a spurious delay named after it).
+    ``known``: ``(thresholds, P)`` already computed on this drive; their columns are reused (a play's column
+    depends on its threshold and the drive alone).
     Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
     """
     r = pi_thresholds(vd[: last + 1], n_plays, grid)
@@ -734,7 +736,19 @@ def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, extra=None):
             i = int(np.flatnonzero(free)[np.argmin(np.abs(r[free] - x))])
             r[i], free[i] = x, False
         r = np.unique(r)
-    P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
+    z0 = _z0(vd, r, from_rest, input_kind)
+    if known is None:
+        P = play_matrix(vd, r, z0)
+    else:
+        r_k, P_k = known
+        at = {float(x): j for j, x in enumerate(r_k)}
+        new = [j for j, x in enumerate(r) if float(x) not in at]
+        P = np.empty((vd.size, r.size))
+        for j, x in enumerate(r):
+            if float(x) in at:
+                P[:, j] = P_k[:, at[float(x)]]
+        if new:
+            P[:, new] = play_matrix(vd, r[new], z0[new])
     span = float(np.ptp(vd[train]))
     keep = np.ptp(P[train], axis=0) > MOVE_REL * span
     keep[0] = True                          # the identity (r = 0) always moves with the input
