@@ -432,6 +432,9 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
     first = _drive_judge(outputs)
     last = int(np.flatnonzero(train)[-1])
+    # the declared core's V_t -> charge thresholds replace grid ones on a terminal-voltage record once its drive
+    # is judged V_t (a command's volts differ from V_t by the amplifier's unknown gain)
+    extra = declared_thresholds(pzt) if input_kind == "terminal" and pzt is not None else None
     command_map = None
     if input_kind == "command":
         from_rest = _starts_flat(t, v)
@@ -527,6 +530,14 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             vd = _lagged(t, v, **{f"{kind}_s": x})
             best = (float(res.fun), (kind, x), vd, *trial(vd)[1:])
     _, label, vd, r_all, keep, P = best
+    if extra is not None and label == ("terminal voltage V - R i" if len(drives) > 1 else "recorded voltage"):
+        # the declared thresholds are of V_t: the drive that is V_t (V - R i; the recorded V when it is the only
+        # reading) takes them once judged. The judgment itself is on the grid for both readings: the recorded V
+        # beside V - R i is V_t + R i, and one reading on the declared thresholds, the other on the grid, judged
+        # unequal bases (1 MHz steps, drift + resonance 6.1x: V won on a 4.0e-7 m misfit and the charge then
+        # fitted 3.7e-8 C against 1.3e-8 C on its effect-free twin; test_one_megahertz)
+        r_all, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays, extra,
+                                known=(r_all, P))
     if input_kind == "command":
         kind, x = label
         command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
@@ -683,24 +694,86 @@ def _z0(vd, r, from_rest, input_kind):
     return _initial_states(vd[0], r, from_rest)
 
 
-def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread=False):
+def declared_thresholds(pzt):
+    """The declared core's own thresholds of the terminal voltage -> charge map, V (empty without one).
+
+    The stack's charge is ``G^{-1}[V_t]`` with ``G = C_h^{-1} + (1/C_pp) I`` (:meth:`PZTParams.terminal_operator`):
+    a PI operator of ``V_t`` whose thresholds are not the file's ``C_h`` thresholds (Kuhnen's inverse moves
+    them). A base whose grid straddles them misfits the clean stack where each play engages, mid-ramp on a
+    slow triangle (3.3e-9 m at 0.15-0.25 of the period from a corner, noise-free, 2.5 kHz 0.5 Hz; 7.5e-14 m on
+    these thresholds alone), a misfit a mode 10x above the drive took (s22_outsider A1).
+    """
+    op = getattr(pzt, "terminal_operator", None)
+    if op is None:
+        return np.zeros(0)
+    try:
+        return np.asarray(op().inverse().thresholds, float)
+    except (ValueError, AttributeError):
+        return np.zeros(0)
+
+
+def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread=False, extra=None, known=None):
     """Thresholds from the input up to the last training row, which plays move there, the play matrix.
 
+    ``extra``: thresholds that replace grid thresholds (the declared core's, :func:`declared_thresholds`): each
+    inside the grid's own range (above 0, below its largest threshold) takes the place of the nearest interior
+    grid threshold not yet taken, so the play count stays the grid's. Joined beside the grid instead (s23, up
+    to 11 plays more, +29 % CPU on the speed record), a declared threshold could sit a few hundredths of a volt
+    from a grid one (6.03 V beside 6.11 V), two near-copies of a column; measured then: a refitted delay's
+    per-fold weights moved with rows outside the fold's training rows (test_tracing R2, 10 kHz) and the 1 kHz
+    creep + delay steps records lost their delay (creep 11.9x, delay 5.9x); replacing, neither. Above the grid's largest threshold a play moves less than the grid's own
+    top play, only in the rows at the record's extreme, where it is a column of those few rows: the declared
+    core's 39.8 V threshold on a calibration record whose span is 39.97 V moved 0.13 V, took a weight 8x the
+    identity's and the creep held at the peak (seed 88 #68, 100 kHz: the base's test error 1.85e-8 ->
+    2.49e-8 m, the creep then leaving 9.9e-9 m against 1.8e-9 m and a spurious delay named after it).
+    ``known``: ``(thresholds, P)`` already computed on this drive; their columns are reused (a play's column
+    depends on its threshold and the drive alone).
     ``spread``: when a play never moves in the training rows, the grid is placed again up to the first such
-    threshold (see :func:`fit_base`'s ``spread_plays``).
+    threshold (see :func:`fit_base`'s ``spread_plays``); the declared thresholds then replace grid ones inside
+    that range. With ``known`` the grid (spread included) is ``known``'s thresholds.
     Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
     """
     span = float(np.ptp(vd[train]))
 
-    def moving(r):
-        P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
+    def moving(r, known=None):
+        z0 = _z0(vd, r, from_rest, input_kind)
+        if known is None:
+            P = play_matrix(vd, r, z0)
+        else:
+            r_k, P_k = known
+            at = {float(x): j for j, x in enumerate(r_k)}
+            new = [j for j, x in enumerate(r) if float(x) not in at]
+            P = np.empty((vd.size, r.size))
+            for j, x in enumerate(r):
+                if float(x) in at:
+                    P[:, j] = P_k[:, at[float(x)]]
+            if new:
+                P[:, new] = play_matrix(vd, r[new], z0[new])
         keep = np.ptp(P[train], axis=0) > MOVE_REL * span
         keep[0] = True                          # the identity (r = 0) always moves with the input
         return keep, P
 
-    r = pi_thresholds(vd[: last + 1], n_plays, grid)
-    keep, P = moving(r)
-    if spread and not keep.all():
-        r = pi_thresholds(np.array([0.0, r[int(np.argmin(keep))]]), n_plays, grid)
+    if known is None:
+        r = pi_thresholds(vd[: last + 1], n_plays, grid)
         keep, P = moving(r)
+        if spread and not keep.all():
+            r = pi_thresholds(np.array([0.0, r[int(np.argmin(keep))]]), n_plays, grid)
+            keep, P = moving(r)
+    else:
+        r = np.asarray(known[0], float)
+    if extra is not None and len(extra) and r.size > 2:
+        e = np.asarray(extra, float)
+        e = e[(e > 0) & (e < r[-1])]
+        r = r.copy()
+        free = np.ones(r.size, bool)
+        free[0] = free[-1] = False          # the identity and the grid's top stay
+        for x in e:
+            if not free.any():
+                break
+            i = int(np.flatnonzero(free)[np.argmin(np.abs(r[free] - x))])
+            r[i], free[i] = x, False
+        r = np.unique(r)
+        keep, P = moving(r, known)
+    elif known is not None:
+        keep, P = moving(r, known)
     return r, keep, P
