@@ -221,9 +221,9 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     drive = core_fit.get("creep_drive")
     if drive is not None and any(s["parameters"].get("driver") in ("v_h", "refit") for s in creep):
         rows = np.asarray(base.train, bool)     # the basis with its offset column (the plays' means are not 0)
-        held_w = np.linalg.lstsq(np.asarray(base.basis, float)[rows], np.asarray(drive, float)[rows],
+        held_w = np.linalg.lstsq(np.asarray(base.plays_basis(ch), float)[rows], np.asarray(drive, float)[rows],
                                  rcond=None)[0][:-1]
-    w, misfit = instant_weights(base.basis, np.asarray(base.train, bool), core_fit["weights"], held_w, total)
+    w, misfit = instant_weights(base.plays_basis(ch), np.asarray(base.train, bool), core_fit["weights"], held_w, total)
     out["instant"] = w
     lo, hi = base.train_range_v if base.train_range_v is not None else (float(np.min(base.v_drive)),
                                                                          float(np.max(base.v_drive)))
@@ -298,7 +298,7 @@ def creep_target(base, core_fit, core, params):
     from .effects import lowpass
     t = np.asarray(base.t, float)
     dt = float(np.mean(np.diff(t)))
-    P = np.asarray(base.basis, float)[:, :-1]
+    P = np.asarray(base.plays_basis(core["channel"]), float)[:, :-1]
     u0 = np.asarray(base.channels[core["channel"]].yhat, float)
     out = P @ (np.asarray(core_fit["weights"], float) - np.asarray(core["instant"], float))
     from .plant_update import creep_driver

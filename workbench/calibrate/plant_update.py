@@ -618,7 +618,7 @@ def _fitted_motion(base, core_fit, rows, terms=None):
     t = np.asarray(base.t, float)
     dt = float(np.mean(np.diff(t)))
     u0 = np.asarray(m.yhat, float)
-    x = np.asarray(base.basis, float)[:, :-1] @ np.asarray(core_fit["weights"], float)
+    x = np.asarray(base.plays_basis("displacement"), float)[:, :-1] @ np.asarray(core_fit["weights"], float)
     gain, shift = np.zeros(t.size), 0.0
     for st in core_fit.get("stages", ()):
         p = st["parameters"]
@@ -910,7 +910,7 @@ def _creep_fractions(p, base, core, slow=None):
     slow = SLOW_BRANCHES if slow is None else slow
     m = base.channels[core["channel"]]
     rows = np.asarray(base.train, bool)
-    inst = np.asarray(base.basis, float)[:, :-1] @ core["instant"]
+    inst = np.asarray(base.plays_basis(core["channel"]), float)[:, :-1] @ core["instant"]
     span_i = float(np.ptp(inst[rows]))
     ratio = float(np.ptp(np.asarray(m.yhat, float)[rows])) / span_i if span_i > 0 else float("inf")
     g = np.maximum(np.asarray(p["gains"], float), 0.0) * ratio * float(core.get("creep_scale", 1.0))
