@@ -133,7 +133,7 @@ class BaseFit:
 
     def plays_basis(self, name):
         """Channel ``name``'s plays + a column of ones, point-sampled: :attr:`basis` unless the channel has its own."""
-        return self.channel_plays.get(name, self.basis) if self.channel_plays else self.basis
+        return plays_basis(self, name)
 
     def channel_basis(self, name):
         """The columns channel ``name``'s model spans: :meth:`plays_basis`, interval-averaged for an averaged gauge."""
@@ -142,6 +142,12 @@ class BaseFit:
             return self.plays_basis(name)
         # before the first row the plays hold their initial states (and the offset its 1)
         return interval_mean(self.plays_basis(name), np.r_[np.asarray(m.initial_states_v, float), 1.0])
+
+
+def plays_basis(base, name):
+    """:meth:`BaseFit.plays_basis` of any object with a ``basis`` (and perhaps ``channel_plays``)."""
+    own = getattr(base, "channel_plays", None)
+    return own.get(name, base.basis) if own else base.basis
 
 
 from .splits import holdout_mask  # noqa: E402,F401  (moved to splits.py; re-exported for callers)
