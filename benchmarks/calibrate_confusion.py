@@ -376,12 +376,13 @@ def _left_by(base, ch, names, sp, rounds=2, folds=False, loops=None):
     :func:`effect_variants`."""
     import itertools
 
-    from workbench.calibrate.base_fit import _gram_solve
+    from workbench.calibrate.base_fit import _gram_solve, plays_basis
     from workbench.calibrate.tracing import _base_lower, _candidate_columns, _Problem, _search_rows
     m = base.channels[ch]
     t = np.asarray(base.t, float)
     dev, test = sp.train & m.valid, sp.test & m.valid
     lower_b = _base_lower(base, ch)
+    B = plays_basis(base, ch)          # the channel's own plays (the charge's are the grid beside declared ones)
     fold_rows = [(sp.rows(tr) & m.valid, sp.rows(va) & m.valid) for tr, va in sp.folds]
 
     def solve(A, lo, rows):
@@ -396,8 +397,8 @@ def _left_by(base, ch, names, sp, rounds=2, folds=False, loops=None):
     e0 = m.y - m.yhat
     if not names:
         r0 = float(np.sqrt(np.mean(m.residual[test] ** 2)))
-        return (r0, on_folds(base.basis, lower_b)) if folds else r0
-    prob = _Problem(sp, m.valid, base.basis, lower_b, m.y - m.yhat, _search_rows(dev))
+        return (r0, on_folds(B, lower_b)) if folds else r0
+    prob = _Problem(sp, m.valid, B, lower_b, m.y - m.yhat, _search_rows(dev))
     variants = effect_variants(base, ch, names, sp, loops)
     if not all(variants):
         return (np.inf, [np.inf] * len(fold_rows)) if folds else np.inf
@@ -416,7 +417,7 @@ def _left_by(base, ch, names, sp, rounds=2, folds=False, loops=None):
                     # the target being fitted, the record less the other effect (review of s19_driftmode:
                     # ranked against the base residual a slow trial that soaks up the other effect won,
                     # 75 #11's 66 Hz mode beside a drift read 0.8x beyond the drift for 42.5x)
-                    prob_k = prob if not np.any(others) else _Problem(prob.split, prob.valid, base.basis, lower_b,
+                    prob_k = prob if not np.any(others) else _Problem(prob.split, prob.valid, B, lower_b,
                                                                       (m.y - others) - m.yhat, prob.search)
                     p, _ = _candidate_columns(eff, t, u, m.y - others, m.yhat, prob_k)
                     if hasattr(eff, "columns"):
@@ -425,10 +426,10 @@ def _left_by(base, ch, names, sp, rounds=2, folds=False, loops=None):
                         C, lower = eff.term(t, u, p, y_model=m.yhat), [0.0]
                     C = np.asarray(C, float).reshape(t.size, -1)
                     cols[k] = (C, np.broadcast_to(np.asarray(lower, float), C.shape[1]))
-                    A = np.column_stack([base.basis] + [c[0] for c in cols if c is not None])
+                    A = np.column_stack([B] + [c[0] for c in cols if c is not None])
                     lo = np.concatenate([lower_b] + [c[1] for c in cols if c is not None])
                     w = solve(A, lo, dev)
-                    at = base.basis.shape[1]
+                    at = B.shape[1]
                     for i, c in enumerate(cols):
                         if c is not None:
                             terms[i] = c[0] @ w[at:at + c[0].shape[1]]

@@ -135,7 +135,11 @@ def test_the_tracer_vetoes_the_effect_free_records_drift_and_keeps_a_drift_recor
     h = rows["displacement"]["holds"]
     assert h["holds"] >= 3
     if effect == "none":
-        assert h["shows"] is False and rows["displacement"]["passes"] == 0, h
+        # (until session 24 ``shows`` was False here: the base's 24-play grid straddled the declared core's
+        # thresholds and left 2.3e-9 m, 2.3x the sensor's floor, which the drift fitted and the holds vetoed;
+        # on the core's thresholds the base leaves 1.0e-9 m, the drift fits noise and its gain's standard
+        # error (2.0) is too wide to judge: the veto says so and stays off, and the drift passes no fold)
+        assert h["shows"] is not True and rows["displacement"]["passes"] == 0, h
     else:
         assert h["shows"] is True and h["gain"] >= MIN_GAIN and rows["displacement"]["passes"] >= 3, h
     for c in rows.values():

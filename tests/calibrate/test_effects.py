@@ -310,7 +310,7 @@ def test_the_absorption_search_ends_at_a_minimum_of_its_own_cost(sn637, rate_hz,
     t, sp, base, plant, truth, r = cc.simulated_base(sn637, "dielectric_absorption", rate_hz, protocol, size, seed)
     m = base.channels["charge"]
     search = sp.train & m.valid
-    A = base.basis[search]
+    A = base.plays_basis("charge")[search]     # the charge's own plays (the motion's: declared thresholds)
     norms = np.sqrt(np.mean(A * A, axis=0))
     As = A[:, norms > 1e-12 * norms.max()] / norms[norms > 1e-12 * norms.max()]
     gi = np.linalg.pinv(As.T @ As, rcond=1e-12)

@@ -36,8 +36,6 @@ def _write(tmp_path, name, plant, t, v, seed, flip_current=False):
     return write_record(tmp_path / f"{name}.csv", rec)
 
 
-@pytest.mark.xfail(strict=True, reason="s22_outsider finding 1: a clean slow triangle is named a resonance (5-6 Hz, "
-                                        "5 of 5 folds) and the updated plant's replay is ~36x the error before")
 @pytest.mark.parametrize("rate_hz, f_hz, duration_s", [(250.0, 0.1, 60.0), (2.5e3, 0.5, 10.0)])
 def test_clean_triangle_names_no_effect(tmp_path, rate_hz, f_hz, duration_s):
     """No effect is drawn into the record (``plant_with_effect(.., "none")``): any effect named is wrong,

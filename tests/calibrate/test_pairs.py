@@ -44,7 +44,7 @@ def _fold_rms_by_hand(base, ch, sp):
     for tr, va in sp.folds:
         rt, rv = sp.rows(tr) & m.valid, sp.rows(va) & m.valid
         assert not np.any(rt & rv) and not np.any((rt | rv) & sp.test)
-        A = base.basis
+        A = base.plays_basis(ch)            # the channel's own plays, as the tracing's
         scale = np.sqrt(np.mean(A[rt] ** 2, axis=0))
         scale[scale == 0] = 1.0
         sol = lsq_linear(A[rt] / scale, e0[rt], bounds=(lo * scale, np.inf), method="bvls", tol=1e-14)

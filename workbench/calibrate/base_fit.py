@@ -108,7 +108,8 @@ class BaseFit:
     train: np.ndarray
     channels: dict
     starts_from_rest: bool
-    basis: np.ndarray = None          # plays + a column of ones: the columns every channel's model spans
+    basis: np.ndarray = None          # plays + a column of ones: the columns every channel's model spans (but one in
+    #                                   ``channel_plays``: the charge's, see :meth:`plays_basis`)
     test: np.ndarray = None           # held-out rows (default: every row not trained on)
     k_q2x_m_per_c: float | None = None
     working_capacitance_f: float | None = None
@@ -126,14 +127,27 @@ class BaseFit:
     dropped_thresholds_v: np.ndarray = None   # plays never excited in the training rows (left out)
     current_kind: str | None = None   # the charge integrated from a current: "sampled" or "averaged" (# current:)
     gauge_kind: str | None = None     # the gauge's readings: "sampled" or "averaged" (# gauge:); None: no gauge
+    #: a channel whose plays are not :attr:`basis`'s: its plays + a column of ones (the charge on the grid when the
+    #: motion's base took the declared core's thresholds, :func:`fit_base`)
+    channel_plays: dict = field(default_factory=dict)
+
+    def plays_basis(self, name):
+        """Channel ``name``'s plays + a column of ones, point-sampled: :attr:`basis` unless the channel has its own."""
+        return plays_basis(self, name)
 
     def channel_basis(self, name):
-        """The columns channel ``name``'s model spans: :attr:`basis`, interval-averaged for an averaged gauge."""
+        """The columns channel ``name``'s model spans: :meth:`plays_basis`, interval-averaged for an averaged gauge."""
         m = self.channels[name]
         if m.sampling != "averaged":
-            return self.basis
+            return self.plays_basis(name)
         # before the first row the plays hold their initial states (and the offset its 1)
-        return interval_mean(self.basis, np.r_[np.asarray(m.initial_states_v, float), 1.0])
+        return interval_mean(self.plays_basis(name), np.r_[np.asarray(m.initial_states_v, float), 1.0])
+
+
+def plays_basis(base, name):
+    """:meth:`BaseFit.plays_basis` of any object with a ``basis`` (and perhaps ``channel_plays``)."""
+    own = getattr(base, "channel_plays", None)
+    return own.get(name, base.basis) if own else base.basis
 
 
 from .splits import holdout_mask  # noqa: E402,F401  (moved to splits.py; re-exported for callers)
@@ -432,6 +446,9 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         raise ValueError(f"no output channel has usable training rows ({'; '.join(notes)})")
     first = _drive_judge(outputs)
     last = int(np.flatnonzero(train)[-1])
+    # the declared core's V_t -> charge thresholds replace grid ones on a terminal-voltage record once its drive
+    # is judged V_t (a command's volts differ from V_t by the amplifier's unknown gain)
+    extra = declared_thresholds(pzt) if input_kind == "terminal" and pzt is not None else None
     command_map = None
     if input_kind == "command":
         from_rest = _starts_flat(t, v)
@@ -527,6 +544,24 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             vd = _lagged(t, v, **{f"{kind}_s": x})
             best = (float(res.fun), (kind, x), vd, *trial(vd)[1:])
     _, label, vd, r_all, keep, P = best
+    grid_plays = None           # the charge's own plays when the motion's differ: (thresholds, kept, P)
+    motion = [name for name in ("displacement", "gauge") if name in outputs]
+    if (extra is not None and motion
+            and label == ("terminal voltage V - R i" if len(drives) > 1 else "recorded voltage")):
+        # the declared thresholds are of V_t: the drive that is V_t (V - R i; the recorded V when it is the only
+        # reading) takes them once judged. The judgment itself is on the grid for both readings: the recorded V
+        # beside V - R i is V_t + R i, and one reading on the declared thresholds, the other on the grid, judged
+        # unequal bases (1 MHz steps, drift + resonance 6.1x: V won on a 4.0e-7 m misfit and the charge then
+        # fitted 3.7e-8 C against 1.3e-8 C on its effect-free twin; test_one_megahertz).
+        # Only the motion's base (displacement, gauge) takes them; the charge keeps the grid on the same judged
+        # drive. The charge is the summed current: the monitor's white noise is a random walk on it, and on the
+        # declared thresholds' closer charge base that walk's slow bend passed as an absorption (seed 92 #103,
+        # 100 Hz, a 0.24x leakage named absorption 5 of 5; s24_triangle2), while the misfit the declared
+        # thresholds remove is the motion's (a clean slow triangle's mid-ramp 3.3e-9 m a mode took)
+        if "charge" in outputs:
+            grid_plays = (r_all, keep, P)
+        r_all, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays, extra,
+                                known=(r_all, P))
     if input_kind == "command":
         kind, x = label
         command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
@@ -549,10 +584,18 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
     if averaged:
         notes.append("the gauge's readings are each the chain's mean over the interval ending at them (# gauge: "
                      "averaged): its model is the same mean of the plays, half a sample behind the motion")
+    bases = {}                  # a channel's own plays + ones (BaseFit.channel_plays)
+    if grid_plays is not None:
+        r_c = grid_plays[0][grid_plays[1]]
+        bases["charge"] = np.column_stack([grid_plays[2][:, grid_plays[1]], np.ones(t.size)])
+        grid_plays = None       # (the grid's full-record columns freed)
     for name, y in outputs.items():
         if name == "gauge" and averaged:
             # the plays before the first row hold their initial states (the record's drive before it)
             m = _fit_channel(name, interval_mean(P, z0), y, train, valid[name], r, z0, sampling="averaged")
+        elif name == "charge" and "charge" in bases:
+            m = _fit_channel(name, bases["charge"][:, :-1], y, train, valid[name], r_c,
+                             _z0(vd, r_c, from_rest, input_kind))
         else:
             m = _fit_channel(name, P, y, train, valid[name], r, z0)
         rows, tst = train & valid[name], test & valid[name]
@@ -577,7 +620,8 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
                   basis=np.column_stack([P, np.ones(t.size)]), notes=notes + [f"warning: {w}" for w in warnings],
                   test=test, warnings=warnings, input_kind=input_kind, command_map=command_map,
                   train_range_v=(lo, hi), beyond_train=beyond, dropped_thresholds_v=r_all[~keep],
-                  current_kind=current_kind, gauge_kind=gauge_kind if "gauge" in outputs else None)
+                  current_kind=current_kind, gauge_kind=gauge_kind if "gauge" in outputs else None,
+                  channel_plays=bases)
     if "charge" in outputs and "displacement" in outputs:
         q = outputs["charge"] - outputs["charge"][0]
         x = outputs["displacement"]
@@ -683,24 +727,86 @@ def _z0(vd, r, from_rest, input_kind):
     return _initial_states(vd[0], r, from_rest)
 
 
-def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread=False):
+def declared_thresholds(pzt):
+    """The declared core's own thresholds of the terminal voltage -> charge map, V (empty without one).
+
+    The stack's charge is ``G^{-1}[V_t]`` with ``G = C_h^{-1} + (1/C_pp) I`` (:meth:`PZTParams.terminal_operator`):
+    a PI operator of ``V_t`` whose thresholds are not the file's ``C_h`` thresholds (Kuhnen's inverse moves
+    them). A base whose grid straddles them misfits the clean stack where each play engages, mid-ramp on a
+    slow triangle (3.3e-9 m at 0.15-0.25 of the period from a corner, noise-free, 2.5 kHz 0.5 Hz; 7.5e-14 m on
+    these thresholds alone), a misfit a mode 10x above the drive took (s22_outsider A1).
+    """
+    op = getattr(pzt, "terminal_operator", None)
+    if op is None:
+        return np.zeros(0)
+    try:
+        return np.asarray(op().inverse().thresholds, float)
+    except (ValueError, AttributeError):
+        return np.zeros(0)
+
+
+def _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread=False, extra=None, known=None):
     """Thresholds from the input up to the last training row, which plays move there, the play matrix.
 
+    ``extra``: thresholds that replace grid thresholds (the declared core's, :func:`declared_thresholds`): each
+    inside the grid's own range (above 0, below its largest threshold) takes the place of the nearest interior
+    grid threshold not yet taken, so the play count stays the grid's. Joined beside the grid instead (s23, up
+    to 11 plays more, +29 % CPU on the speed record), a declared threshold could sit a few hundredths of a volt
+    from a grid one (6.03 V beside 6.11 V), two near-copies of a column; measured then: a refitted delay's
+    per-fold weights moved with rows outside the fold's training rows (test_tracing R2, 10 kHz) and the 1 kHz
+    creep + delay steps records lost their delay (creep 11.9x, delay 5.9x); replacing, neither. Above the grid's largest threshold a play moves less than the grid's own
+    top play, only in the rows at the record's extreme, where it is a column of those few rows: the declared
+    core's 39.8 V threshold on a calibration record whose span is 39.97 V moved 0.13 V, took a weight 8x the
+    identity's and the creep held at the peak (seed 88 #68, 100 kHz: the base's test error 1.85e-8 ->
+    2.49e-8 m, the creep then leaving 9.9e-9 m against 1.8e-9 m and a spurious delay named after it).
+    ``known``: ``(thresholds, P)`` already computed on this drive; their columns are reused (a play's column
+    depends on its threshold and the drive alone).
     ``spread``: when a play never moves in the training rows, the grid is placed again up to the first such
-    threshold (see :func:`fit_base`'s ``spread_plays``).
+    threshold (see :func:`fit_base`'s ``spread_plays``); the declared thresholds then replace grid ones inside
+    that range. With ``known`` the grid (spread included) is ``known``'s thresholds.
     Returns ``(thresholds, kept, P)`` with ``P`` over the whole record for every threshold.
     """
     span = float(np.ptp(vd[train]))
 
-    def moving(r):
-        P = play_matrix(vd, r, _z0(vd, r, from_rest, input_kind))
+    def moving(r, known=None):
+        z0 = _z0(vd, r, from_rest, input_kind)
+        if known is None:
+            P = play_matrix(vd, r, z0)
+        else:
+            r_k, P_k = known
+            at = {float(x): j for j, x in enumerate(r_k)}
+            new = [j for j, x in enumerate(r) if float(x) not in at]
+            P = np.empty((vd.size, r.size))
+            for j, x in enumerate(r):
+                if float(x) in at:
+                    P[:, j] = P_k[:, at[float(x)]]
+            if new:
+                P[:, new] = play_matrix(vd, r[new], z0[new])
         keep = np.ptp(P[train], axis=0) > MOVE_REL * span
         keep[0] = True                          # the identity (r = 0) always moves with the input
         return keep, P
 
-    r = pi_thresholds(vd[: last + 1], n_plays, grid)
-    keep, P = moving(r)
-    if spread and not keep.all():
-        r = pi_thresholds(np.array([0.0, r[int(np.argmin(keep))]]), n_plays, grid)
+    if known is None:
+        r = pi_thresholds(vd[: last + 1], n_plays, grid)
         keep, P = moving(r)
+        if spread and not keep.all():
+            r = pi_thresholds(np.array([0.0, r[int(np.argmin(keep))]]), n_plays, grid)
+            keep, P = moving(r)
+    else:
+        r = np.asarray(known[0], float)
+    if extra is not None and len(extra) and r.size > 2:
+        e = np.asarray(extra, float)
+        e = e[(e > 0) & (e < r[-1])]
+        r = r.copy()
+        free = np.ones(r.size, bool)
+        free[0] = free[-1] = False          # the identity and the grid's top stay
+        for x in e:
+            if not free.any():
+                break
+            i = int(np.flatnonzero(free)[np.argmin(np.abs(r[free] - x))])
+            r[i], free[i] = x, False
+        r = np.unique(r)
+        keep, P = moving(r, known)
+    elif known is not None:
+        keep, P = moving(r, known)
     return r, keep, P

@@ -217,13 +217,14 @@ def refitted_core(plant, base, core_fit, creep_scale=1.0):
     # a V_h-driven creep (:mod:`.creep_across`) settles to c (s V_h), not to c u0: its held part in play weights
     # is the plays' least-squares fit of the drive on the training rows (review of s17_creep: with u0's weights
     # a 1 kHz sine creep + delay record's file stood at 1.49x error_after, with the drive's 1.18x)
+    from .base_fit import plays_basis
     held_w = m.weights
     drive = core_fit.get("creep_drive")
     if drive is not None and any(s["parameters"].get("driver") in ("v_h", "refit") for s in creep):
         rows = np.asarray(base.train, bool)     # the basis with its offset column (the plays' means are not 0)
-        held_w = np.linalg.lstsq(np.asarray(base.basis, float)[rows], np.asarray(drive, float)[rows],
+        held_w = np.linalg.lstsq(np.asarray(plays_basis(base, ch), float)[rows], np.asarray(drive, float)[rows],
                                  rcond=None)[0][:-1]
-    w, misfit = instant_weights(base.basis, np.asarray(base.train, bool), core_fit["weights"], held_w, total)
+    w, misfit = instant_weights(plays_basis(base, ch), np.asarray(base.train, bool), core_fit["weights"], held_w, total)
     out["instant"] = w
     lo, hi = base.train_range_v if base.train_range_v is not None else (float(np.min(base.v_drive)),
                                                                          float(np.max(base.v_drive)))
@@ -295,10 +296,11 @@ def creep_target(base, core_fit, core, params):
     ``P (w_joint - w_core) + sum c_j (lowpass_j(u0) - u0)``: the fitted model (its plays and the creep's
     columns on the base-alone prediction ``u0``) less the core the file carries.
     """
+    from .base_fit import plays_basis
     from .effects import lowpass
     t = np.asarray(base.t, float)
     dt = float(np.mean(np.diff(t)))
-    P = np.asarray(base.basis, float)[:, :-1]
+    P = np.asarray(plays_basis(base, core["channel"]), float)[:, :-1]
     u0 = np.asarray(base.channels[core["channel"]].yhat, float)
     out = P @ (np.asarray(core_fit["weights"], float) - np.asarray(core["instant"], float))
     from .plant_update import creep_driver

@@ -613,12 +613,13 @@ def _fitted_motion(base, core_fit, rows, terms=None):
     (each with its offset fitted there). Measured, seed 29 #75 (100 kHz, a 130-sample delay whose joint gain
     came out 15.3): the gain form alone stood in 10x worse and the written file left 21x error_after.
     Returns (the model, m; the record's offset, m; "model" or "base": which form's offset that is)."""
+    from .base_fit import plays_basis
     from .effects import lowpass
     m = base.channels["displacement"]
     t = np.asarray(base.t, float)
     dt = float(np.mean(np.diff(t)))
     u0 = np.asarray(m.yhat, float)
-    x = np.asarray(base.basis, float)[:, :-1] @ np.asarray(core_fit["weights"], float)
+    x = np.asarray(plays_basis(base, "displacement"), float)[:, :-1] @ np.asarray(core_fit["weights"], float)
     gain, shift = np.zeros(t.size), 0.0
     for st in core_fit.get("stages", ()):
         p = st["parameters"]
@@ -910,7 +911,8 @@ def _creep_fractions(p, base, core, slow=None):
     slow = SLOW_BRANCHES if slow is None else slow
     m = base.channels[core["channel"]]
     rows = np.asarray(base.train, bool)
-    inst = np.asarray(base.basis, float)[:, :-1] @ core["instant"]
+    from .base_fit import plays_basis
+    inst = np.asarray(plays_basis(base, core["channel"]), float)[:, :-1] @ core["instant"]
     span_i = float(np.ptp(inst[rows]))
     ratio = float(np.ptp(np.asarray(m.yhat, float)[rows])) / span_i if span_i > 0 else float("inf")
     g = np.maximum(np.asarray(p["gains"], float), 0.0) * ratio * float(core.get("creep_scale", 1.0))

@@ -83,7 +83,7 @@ from .absorption_or_leakage import explained as _explained
 from .absorption_or_leakage import raw_rms as _raw_rms
 from .absorption_or_leakage import UNDECIDED as _UNDECIDED_DA_LK
 from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_short_note
-from .base_fit import BaseFit
+from .base_fit import BaseFit, plays_basis
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
 from .effects import (RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
@@ -559,10 +559,11 @@ def _candidate_columns(eff, t, u, y, yhat, prob, lower=None):
 def _base_lower(base, ch):
     """The base's bounds on its weights' corrections for channel ``ch`` (``-w0`` on the plays)."""
     m = base.channels[ch]
-    nonneg = np.r_[np.ones(base.basis.shape[1] - 1, bool), False]
+    k = plays_basis(base, ch).shape[1]
+    nonneg = np.r_[np.ones(k - 1, bool), False]
     w0 = np.r_[m.weights, m.offset]
-    if w0.size != base.basis.shape[1]:
-        w0 = np.zeros(base.basis.shape[1])
+    if w0.size != k:
+        w0 = np.zeros(k)
     return np.where(nonneg, -w0, -np.inf)
 
 
@@ -681,10 +682,11 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     # ---- one linear problem per (channel, basis); the null reference per channel
     probs, infos = {}, {}
     for ch, m in base.channels.items():
-        nonneg = np.r_[np.ones(base.basis.shape[1] - 1, bool), False]
+        k = bases[ch].shape[1]
+        nonneg = np.r_[np.ones(k - 1, bool), False]
         w0 = np.r_[m.weights, m.offset]
-        if w0.size != base.basis.shape[1]:
-            w0 = np.zeros(base.basis.shape[1])
+        if w0.size != k:
+            w0 = np.zeros(k)
         lower = np.where(nonneg, -w0, -np.inf)
         valid = m.valid
         search = _search_rows(dev_rows & valid)
@@ -914,7 +916,7 @@ def _line_fallback(c, ch, prob, g, base, split, need, own_stage=False):
     # the identity play (threshold 0), as the base's line: ``base.channel_basis(ch)[:, 0]``, without averaging
     # every other column of an averaged gauge's basis to keep one (0.46 s of 132 s under cProfile on the speed
     # benchmark's creep record, three channels)
-    line_col = base.basis[:, 0]
+    line_col = plays_basis(base, ch)[:, 0]
     if m.sampling == "averaged":
         line_col = interval_mean(line_col, float(np.asarray(m.initial_states_v, float)[0]))
     y, valid = m.y, m.valid
