@@ -99,6 +99,8 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     monkeypatch.setattr(workbench._malloc, "keep_freed_memory", lambda: called.append(1) or True)
     monkeypatch.setattr(workbench._malloc, "small_pages", lambda: called.append(2) or True)
     advised = workbench._malloc.huge_pages_advised()
+    import gc
+    frozen = gc.get_freeze_count()          # nor its garbage collector (cli.cmd_calibrate's freeze: the command's own)
     t, v = calibration_protocol(sine_cycles=3, stairs_v=(50.0, 20.0), chirp_s=1.0)
     plant, truth = plant_with_effect(sn637, "leakage", 3)
     data = write_record(tmp_path / "rec.csv", simulate_record(plant, t, v, seed=3), {"serial": "SN637"})
@@ -108,7 +110,7 @@ def test_calibrate_command_writes_report_json_and_a_loadable_plant(sn637, tmp_pa
     assert main(["calibrate", str(data), "--plant", str(plant_file), "--out", str(out),
                  "--json", str(tmp_path / "r.json")]) == 0
     res = json.loads((tmp_path / "r.json").read_text())
-    assert not called and workbench._malloc.huge_pages_advised() == advised
+    assert not called and workbench._malloc.huge_pages_advised() == advised and gc.get_freeze_count() == frozen
     assert res["effect"] == "leakage" and res["channel"] == "charge"
     # the simulated record declares its current convention and the run says which it used (issue 13)
     assert data.read_text().startswith("# serial: SN637\n# current: averaged\n")

@@ -532,3 +532,46 @@ def test_grid_blocks_project_each_point_as_alone(seed):
                 j += 1
         seen.append(j)
     assert seen == [len(cols), len(cols)]
+
+
+@pytest.mark.parametrize("seed", [61, 62, 63])
+def test_block_rows_equal_the_row_gather_in_values_and_layout(seed):
+    """``_Problem._block_rows(X, b)`` is ``X[prob.idx[b]]`` bit for bit and stride for stride (the Gram products
+    read the layout), for every input layout the tracing passes, with every row valid (each block one run of
+    rows: read by a slice) and with invalid rows scattered (blocks with gaps: gathered); and ``grams`` of a
+    candidate equals the per-block products of the gathered rows (``X.T @ z``, ``X.T @ X``) bit for bit."""
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.tracing import _Problem
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3000, 12000))
+    t = np.arange(n) / float(rng.choice(RATES_HZ))
+    v = 50 + 40 * np.sin(2 * np.pi * rng.uniform(1, 5) / t[-1] * t)
+    sp = make_split(t, v, "blocks")
+    A = np.column_stack([v, np.abs(v - 50), np.ones(n)]) * 10.0 ** rng.uniform(-3, 3, 3)
+    r = 10.0 ** rng.uniform(-9, -3) * rng.standard_normal(n)
+    gaps = np.ones(n, bool)
+    gaps[rng.integers(0, n, n // 50)] = False
+    for valid in (np.ones(n, bool), gaps):
+        prob = _Problem(sp, valid, A, [0.0, 0.0, -np.inf], r, sp.train)
+        runs = sum(s is not None for s in prob.spans)
+        assert runs == len(prob.idx) if valid.all() else runs < len(prob.idx)     # both paths are met
+        for m in (1, 2, 5):
+            for X in _layouts(rng, n, m):
+                for b in range(len(prob.idx)):
+                    got, ref = prob._block_rows(X, b), X[prob.idx[b]]
+                    assert got.shape == ref.shape and got.dtype == ref.dtype and got.strides == ref.strides
+                    assert got.flags.c_contiguous == ref.flags.c_contiguous
+                    assert got.flags.f_contiguous == ref.flags.f_contiguous
+                    assert np.array_equal(got, ref)
+            C = rng.standard_normal((n, m)) * 10.0 ** rng.uniform(-6, 6, m)
+            g = prob.grams(C, [0.0] * m)
+            k, Cs = prob.A.shape[1], g["C"]
+            for b, i in enumerate(prob.idx):
+                if not i.size:
+                    continue
+                Xb, z = Cs[i], np.column_stack([prob.A, prob.r])[i]
+                assert np.array_equal(z, prob.Z0b[b])
+                XZ = Xb.T @ z
+                assert np.array_equal(g["G"][b, k:k + m, :k], XZ[:, :k])
+                assert np.array_equal(g["G"][b, k:k + m, -1], XZ[:, k])
+                assert np.array_equal(g["G"][b, k:k + m, k:k + m], Xb.T @ Xb)
