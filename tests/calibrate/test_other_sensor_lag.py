@@ -13,6 +13,7 @@ and a noisier gauge of the same motion), scored by the tracing's own ``_score_st
 """
 
 import numpy as np
+import pytest
 from scipy import signal
 
 from workbench.calibrate import tracing as T
@@ -32,12 +33,12 @@ def _moved(y, f_mode, zeta):
     return signal.lfilter(np.ravel(b)[1:], a, y - y[0]) + y[0]
 
 
-def _scored(x_disp, x_gauge, t, v, y):
+def _scored(x_disp, x_gauge, t, v, y, sig_g=SIG_G):
     """The first stage with the delay and the mode on each sensor's channel (the base: the stack's line)."""
     sp = make_split(t, v, "blocks")
     rng = np.random.default_rng(0)
     probs, cands, nulls, infos = {}, [], {}, {"duration_s": float(t[-1] - t[0]), "t": t}
-    for key, x, sig in ((DX, x_disp, SIG), (GX, x_gauge, SIG_G)):
+    for key, x, sig in ((DX, x_disp, SIG), (GX, x_gauge, sig_g)):
         x = x + sig * rng.standard_normal(t.size)
         prob = T._Problem(sp, np.ones(t.size, bool), np.column_stack([y, np.ones(t.size)]), [-np.inf, -np.inf],
                           x - y, sp.train)
@@ -80,15 +81,35 @@ def test_a_mode_above_nyquist_both_sensors_read_is_not_named_a_delay():
     assert T.delay_or_mode_consensus(res["winners"], 4)[0] is None
 
 
-def test_a_displacement_sensor_latency_the_gauge_does_not_share_is_still_a_delay():
+@pytest.mark.parametrize("sig_g", [SIG_G, 22e-9])
+def test_a_displacement_sensor_latency_the_gauge_does_not_share_is_still_a_delay(sig_g):
     """The guard: the same stack without the mode, the displacement sensor 1.85 samples late (the simulator's
-    ``delayed``), the gauge on time. The gauge's model lagged leaves more held out than unlagged, and the
-    delay keeps every fold, whether or not a mode passes beside it."""
+    ``delayed``), the gauge on time, its noise 3 nm or the seed's 22 nm RMS (the gauge chain per 10 kHz
+    sample). The gauge's model lagged leaves more held out than unlagged, and the delay keeps every fold,
+    whether or not a mode passes beside it. (A gauge 45x noisier, 1 um, flips the sign on 4 of 5 folds:
+    the session 25 review; the check has no noise guard.)"""
     t, v, y = _drive()
     x_late = np.interp(t - 1.85 / RATE, t, y, left=y[0])
-    res, cross = _scored(x_late, y, t, v, y)
+    res, cross = _scored(x_late, y, t, v, y, sig_g)
     delay = res["by"][("delay", "displacement")]
     assert all(delay["passes"]), delay["ratios"]
     assert not any(T._other_sensor_lags_alike(*c) for c in cross), cross
     assert sum(res["by"][("resonance", "displacement")]["passes"]) >= 4     # a mode passing beside it
     assert res["winners"] == [("delay", "displacement")] * 5, res["winners"]
+
+
+def test_a_lag_both_sensors_share_beside_a_passing_mode_is_undecided():
+    """A decision, not an accident (session 25 review): both sensors 1.85 samples late under the slow sine (a
+    late drive, a common acquisition latency) is what a mode above Nyquist makes of the stack, and a mode
+    passes beside it: the record cannot tell the two, so every fold where the mode passes is undecided and
+    nothing is named (before session 25: a delay 5 of 5)."""
+    t, v, y = _drive()
+    x_late = np.interp(t - 1.85 / RATE, t, y, left=y[0])
+    res, cross = _scored(x_late, x_late, t, v, y)
+    mode = res["by"][("resonance", "displacement")]
+    both = [f for f in range(5) if mode["passes"][f]]
+    assert len(both) >= 4, mode["passes"]
+    assert all(T._other_sensor_lags_alike(*cross[f]) for f in both), cross
+    for f in both:
+        assert res["winners"][f] == UNDECIDED, res["winners"]
+    assert T.delay_or_mode_consensus(res["winners"], 4)[0] is None

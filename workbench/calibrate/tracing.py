@@ -1410,7 +1410,14 @@ def _other_sensor_lags_alike(sse_lagged, sse_unlagged, n):
     latencies (92 #127, 98 #127, 97 #105, 99 #105, 97 #116, 99 #116) -1.02 to -3.7 on every fold. A bar at
     one standard error either way: asking the lag resolved (``D / SE > 1``) keeps the wrong delay on 2 of
     those folds (0.76, 0.94); asking the unlagged resolved (``D / SE < -1``) keeps the right ones on 3
-    folds by 0.02 - 0.03 only. The sign sits in the gap."""
+    folds by 0.02 - 0.03 only. At 100 Hz the sign sat between the two; **elsewhere the ranges overlap**
+    (the session 25 review): a right creep + delay at 100 kHz sine (55 #86) read +1.17 on one fold (that fold
+    undecided: delay 5 -> 4 of 5, still named), right delays at -0.81 to -0.87 (55 #17 1 kHz, 55 #83
+    100 kHz, 41 #138 1 MHz). The sign is a coin toss where the lag cannot be seen above the other sensor's
+    noise (a gauge at 1 um RMS, 45x the seed's: 4 of 5 folds undecided beside a displacement-only latency);
+    no noise guard yet (open). A lag or lead **both** sensors share beside a passing mode (a late drive, a
+    common acquisition offset) is undecided: the record cannot tell it from a mode above Nyquist
+    (``test_other_sensor_lag``)."""
     return float(np.sum(sse_unlagged) - np.sum(sse_lagged)) > 0.0
 
 
@@ -1452,6 +1459,8 @@ def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_sha
       sensor's alone; its modes the gauge reads too). ``cross``: per fold, the other sensor's held-out errors
       per validation block with its model lagged by this delay and unlagged (:func:`_other_sensor_lag`);
       where the lagged model leaves less there (:func:`_other_sensor_lags_alike`), the fold is undecided.
+      It is asked before the lead rule: a lead both sensors share (an acquisition offset of the drive's
+      channel) beside a passing mode is undecided too, whatever the phase reading says.
 
     ``block_sse``: ``id(row)`` -> per fold :meth:`_Problem.fold_block_sse` (the passing delay and mode rows).
     """
