@@ -291,6 +291,22 @@ def _ridge_cv(an, b, G, h, lower, pen, n):
     return float(RIDGE_GRID[i]), float(cv[i])
 
 
+def _cv_error(P, y, train, valid, thresholds):
+    """The base's blocked cross-validated error on these play columns (:func:`_fit_channel`'s ridge choice, its
+    held-out squares summed over the stretches, in units of the channel's RMS on the fitting rows squared): a
+    score of the columns on rows each stretch's fit never saw."""
+    rows = train & valid
+    n = int(rows.sum())
+    a = np.column_stack([P[rows], np.ones(n)])
+    col = np.sqrt(np.mean(a * a, axis=0))
+    col[col == 0] = 1.0
+    an, b = a / col, y[rows] / (rms(y[rows]) or 1.0)
+    k = thresholds.size
+    lower = np.r_[np.zeros(k), -np.inf]
+    pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
+    return _ridge_cv(an, b, an.T @ an, an.T @ b, lower, pen, n)[1]
+
+
 def _ridge_solve(G, h, lower, pen, lam, n):
     """The ridge-penalized bounded solve; ``lam = inf`` keeps only the unpenalized columns."""
     if not np.isinf(lam):
@@ -569,34 +585,28 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         # They are the file's, and the file's core may not be this stack's (its C_h shape assumed, C_p +-20 %,
         # another stack's file): a core 10 % off puts them between the stack's own and the grid fits worse (the
         # session 25 review: C_h thresholds x0.9 on a 250 Hz triangle, 4.5e-9 m held out against the grid's
-        # 2.7e-9, and a resonance named). So they are kept only where the motion channel's base on them leaves
-        # less on the training rows than the grid's: the same play count (24) and the same fit (the ridge by
-        # the base's own cross-validation) either way, so neither has freedom the other lacks. The blocked
-        # cross-validation's own error was tried as the score and is not one: its contiguous stretches of a
-        # protocol record extrapolate across its segments, and it kept the grid on clean records where the
-        # declared thresholds halve the training and the held-out error alike (seed 102 #1, 1 kHz calibration:
-        # training 1.03e-9 against 2.16e-9 m, test 1.05e-9 against 2.34e-9 m)
+        # 2.7e-9, and a resonance named). So they are kept only where the motion channel's blocked
+        # cross-validated error on the training rows (:func:`_cv_error`, the base's own ridge choice: rows each
+        # stretch's fit never saw; the same play count, 24, either way) is below the grid's.
         r_d, keep_d, P_d = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays, extra,
                                   known=(r_all, P))
         ch = motion[0]
 
-        def _train_rms(r_, keep_, P_):
+        def _cv(r_, keep_, P_):
             cols, rk = P_[:, keep_], r_[keep_]
-            z = _z0(vd, rk, from_rest, input_kind)
             if ch == "gauge" and gauge_kind == "averaged":
-                m = _fit_channel(ch, interval_mean(cols, z), outputs[ch], train, valid[ch], rk, z, sampling="averaged")
-            else:
-                m = _fit_channel(ch, cols, outputs[ch], train, valid[ch], rk, z)
-            return rms(m.residual[train & valid[ch]])
+                cols = interval_mean(cols, _z0(vd, rk, from_rest, input_kind))
+            return _cv_error(cols, outputs[ch], train, valid[ch], rk)
 
-        e_d, e_g = _train_rms(r_d, keep_d, P_d), _train_rms(r_all, keep, P)
-        if e_d < e_g:
+        cv_d, cv_g = _cv(r_d, keep_d, P_d), _cv(r_all, keep, P)
+        if cv_d < cv_g:
             if "charge" in outputs:
                 grid_plays = (r_all, keep, P)
             r_all, keep, P = r_d, keep_d, P_d
         else:
             notes.append(f"the declared core's thresholds fit the {ch} no better than the base's grid on the training "
-                         f"rows ({e_d:.4g} against {e_g:.4g} RMS): the file's core is not this stack's, the grid kept")
+                         f"rows (blocked cross-validation {cv_d:.4g} against {cv_g:.4g}): the file's core is not "
+                         f"this stack's, the grid kept")
         del P_d
     if input_kind == "command":
         kind, x = label
