@@ -261,7 +261,17 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling=
     pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
     G, h = an.T @ an, an.T @ b
     if ridge is None:
-        ridge = _ridge_cv(an, b, G, h, lower, pen, n)[0]
+        edges = np.linspace(0, n, RIDGE_FOLDS + 1).astype(int)
+        folds = [(an[i:j].T @ an[i:j], an[i:j].T @ b[i:j], float(b[i:j] @ b[i:j]))
+                 for i, j in zip(edges[:-1], edges[1:]) if j > i]
+        cv = []
+        for lam in RIDGE_GRID:
+            err = 0.0
+            for Gf, hf, sf in folds:
+                w = _ridge_solve(G - Gf, h - hf, lower, pen, lam, n)
+                err += float(w @ Gf @ w - 2 * w @ hf + sf)
+            cv.append(err)
+        ridge = float(RIDGE_GRID[int(np.argmin(cv))])
     p = _ridge_solve(G, h, lower, pen, ridge, n) / col * bscale
     w = np.maximum(p[:-1], 0.0)
     if np.isinf(ridge) and k and thresholds[0] == 0:
@@ -271,40 +281,6 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling=
             w, p = np.r_[slope, np.zeros(k - 1)], np.r_[slope, np.zeros(k - 1), off]
     yhat = P @ w + p[-1]
     return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0, ridge=ridge, sampling=sampling)
-
-
-def _ridge_cv(an, b, G, h, lower, pen, n):
-    """The ridge of :data:`RIDGE_GRID` with the least blocked cross-validated error over :data:`RIDGE_FOLDS`
-    contiguous stretches of the fitting rows, and that error (the summed held-out squares, in the target's
-    scaled units): ``(ridge, cv)``."""
-    edges = np.linspace(0, n, RIDGE_FOLDS + 1).astype(int)
-    folds = [(an[i:j].T @ an[i:j], an[i:j].T @ b[i:j], float(b[i:j] @ b[i:j]))
-             for i, j in zip(edges[:-1], edges[1:]) if j > i]
-    cv = []
-    for lam in RIDGE_GRID:
-        err = 0.0
-        for Gf, hf, sf in folds:
-            w = _ridge_solve(G - Gf, h - hf, lower, pen, lam, n)
-            err += float(w @ Gf @ w - 2 * w @ hf + sf)
-        cv.append(err)
-    i = int(np.argmin(cv))
-    return float(RIDGE_GRID[i]), float(cv[i])
-
-
-def _cv_error(P, y, train, valid, thresholds):
-    """The base's blocked cross-validated error on these play columns (:func:`_fit_channel`'s ridge choice, its
-    held-out squares summed over the stretches, in units of the channel's RMS on the fitting rows squared): a
-    score of the columns on rows each stretch's fit never saw."""
-    rows = train & valid
-    n = int(rows.sum())
-    a = np.column_stack([P[rows], np.ones(n)])
-    col = np.sqrt(np.mean(a * a, axis=0))
-    col[col == 0] = 1.0
-    an, b = a / col, y[rows] / (rms(y[rows]) or 1.0)
-    k = thresholds.size
-    lower = np.r_[np.zeros(k), -np.inf]
-    pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
-    return _ridge_cv(an, b, an.T @ an, an.T @ b, lower, pen, n)[1]
 
 
 def _ridge_solve(G, h, lower, pen, lam, n):
@@ -582,32 +558,10 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         # declared thresholds' closer charge base that walk's slow bend passed as an absorption (seed 92 #103,
         # 100 Hz, a 0.24x leakage named absorption 5 of 5; s24_triangle2), while the misfit the declared
         # thresholds remove is the motion's (a clean slow triangle's mid-ramp 3.3e-9 m a mode took)
-        # They are the file's, and the file's core may not be this stack's (its C_h shape assumed, C_p +-20 %,
-        # another stack's file): a core 10 % off puts them between the stack's own and the grid fits worse (the
-        # session 25 review: C_h thresholds x0.9 on a 250 Hz triangle, 4.5e-9 m held out against the grid's
-        # 2.7e-9, and a resonance named). So they are kept only where the motion channel's blocked
-        # cross-validated error on the training rows (:func:`_cv_error`, the base's own ridge choice: rows each
-        # stretch's fit never saw; the same play count, 24, either way) is below the grid's.
-        r_d, keep_d, P_d = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays, extra,
-                                  known=(r_all, P))
-        ch = motion[0]
-
-        def _cv(r_, keep_, P_):
-            cols, rk = P_[:, keep_], r_[keep_]
-            if ch == "gauge" and gauge_kind == "averaged":
-                cols = interval_mean(cols, _z0(vd, rk, from_rest, input_kind))
-            return _cv_error(cols, outputs[ch], train, valid[ch], rk)
-
-        cv_d, cv_g = _cv(r_d, keep_d, P_d), _cv(r_all, keep, P)
-        if cv_d < cv_g:
-            if "charge" in outputs:
-                grid_plays = (r_all, keep, P)
-            r_all, keep, P = r_d, keep_d, P_d
-        else:
-            notes.append(f"the declared core's thresholds fit the {ch} no better than the base's grid on the training "
-                         f"rows (blocked cross-validation {cv_d:.4g} against {cv_g:.4g}): the file's core is not "
-                         f"this stack's, the grid kept")
-        del P_d
+        if "charge" in outputs:
+            grid_plays = (r_all, keep, P)
+        r_all, keep, P = _plays(vd, train, last, n_plays, grid, from_rest, input_kind, spread_plays, extra,
+                                known=(r_all, P))
     if input_kind == "command":
         kind, x = label
         command_map = {"gain": 1.0, "offset_v": 0.0, "lag_s": float(x) if kind == "lag" else 0.0,
