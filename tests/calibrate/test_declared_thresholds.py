@@ -11,6 +11,7 @@ fitted to the simulator's own precision.
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from tests.conftest import PLANTS
 from workbench.calibrate.base_fit import declared_thresholds, fit_base
@@ -130,3 +131,39 @@ def test_charge_keeps_the_grid_beside_the_motions_declared_thresholds():
         assert B.shape[1] == m.thresholds_v.size + 1
         yhat = B @ np.r_[m.weights, m.offset]
         assert np.max(np.abs(yhat - m.yhat)) <= 1e-9 * np.ptp(m.y), name
+
+
+def _stretched(plant, s):
+    """The plant with its C_h thresholds scaled by ``s``: a stack whose core the file has ~10 % wrong."""
+    import dataclasses
+
+    from workbench.plant.hysteresis import PrandtlIshlinskii
+    h = plant.pzt.hysteresis
+    h2 = PrandtlIshlinskii(h.thresholds * s, h.weights, h.initial_states)
+    return dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=h2))
+
+
+@pytest.mark.xfail(strict=True, reason="open (session 25 review of s25_triangle3): the declared core's thresholds are "
+                   "forced into the motion's base whether or not they fit the stack; a gate on the training rows' "
+                   "misfit fixed this record and 3 of 4 wrong off-file triangles, but chose the grid on ties where an "
+                   "effect dominates, so the benchmark's effect-free twin and its record got different bases "
+                   "(test_pairs' no-delay steps record: the delay 3.07x beyond the creep): reverted, not merged")
+def test_a_file_whose_core_is_not_the_stacks_fits_no_worse_than_the_grid(monkeypatch):
+    """The session 25 review: the file's core is a guess for the stack (its C_h shape assumed, C_p +-20 %). A
+    stack whose C_h thresholds are 0.9x the file's, calibrated against the file (250 Hz, 0.2 Hz triangle, the
+    seed's sensor noise): the file's thresholds sit between the stack's and the grid's. The base must fit the
+    displacement's held-out rows no worse than the grid alone does (today: 4.54e-9 against 2.71e-9 m, and the
+    tracing names a resonance)."""
+    import workbench.calibrate.base_fit as bf
+    plant0 = load_plant(PLANTS / "p888_51_sn637.toml")
+    t, v = _triangle(250.0, 30.0, 0.2)
+    truth, _ = plant_with_effect(_stretched(plant0, 0.9), "none", 1)
+    r = simulate_record(truth, t, v, seed=3)
+    rec = Record(Path("tri.csv"), {"current": "averaged", "gauge": "averaged"}, t,
+                 {k: r[k] for k in ("voltage_v", "current_a", "displacement_m")}, 1 / 250.0)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    kw = dict(train=sp.train, test=sp.test, pzt=plant0.pzt, dac_range_v=plant0.gauge.dac_range_v)
+    b = fit_base(rec, 80.0, **kw)
+    monkeypatch.setattr(bf, "declared_thresholds", lambda pzt: np.zeros(0))
+    g = fit_base(rec, 80.0, **kw)
+    assert b.channels["displacement"].rms_test <= 1.01 * g.channels["displacement"].rms_test
