@@ -354,16 +354,23 @@ def test_same_params_only_for_equal_numeric_values():
     assert not same({"a": 1.0}, {"b": 1.0})
 
 
-def _found_problem(rng, n_found):
-    """A linear problem on a drawn record with ``n_found`` found columns of drawn scales."""
+def _drawn_linear_record(rng):
+    """A drawn record for the linear problems: its length, split, three drive columns of drawn scales and a
+    white residual of drawn size: ``(n, split, A, r)``."""
     from workbench.calibrate.splits import make_split
-    from workbench.calibrate.tracing import _Problem
     n = int(rng.integers(3000, 12000))
     t = np.arange(n) / float(rng.choice(RATES_HZ))
     v = 50 + 40 * np.sin(2 * np.pi * rng.uniform(1, 5) / t[-1] * t)
     sp = make_split(t, v, "blocks")
     A = np.column_stack([v, np.abs(v - 50), np.ones(n)]) * 10.0 ** rng.uniform(-3, 3, 3)
     r = 10.0 ** rng.uniform(-9, -3) * rng.standard_normal(n)
+    return n, sp, A, r
+
+
+def _found_problem(rng, n_found):
+    """A linear problem on a drawn record with ``n_found`` found columns of drawn scales."""
+    from workbench.calibrate.tracing import _Problem
+    n, sp, A, r = _drawn_linear_record(rng)
     prob = _Problem(sp, np.ones(n, bool), A, [0.0, 0.0, -np.inf], r, sp.train)
     found = [(rng.standard_normal((n, int(rng.integers(1, 4)))) * 10.0 ** rng.uniform(-6, 6), [0.0])
              for _ in range(n_found)]
@@ -540,15 +547,9 @@ def test_block_rows_equal_the_row_gather_in_values_and_layout(seed):
     read the layout), for every input layout the tracing passes, with every row valid (each block one run of
     rows: read by a slice) and with invalid rows scattered (blocks with gaps: gathered); and ``grams`` of a
     candidate equals the per-block products of the gathered rows (``X.T @ z``, ``X.T @ X``) bit for bit."""
-    from workbench.calibrate.splits import make_split
     from workbench.calibrate.tracing import _Problem
     rng = np.random.default_rng(seed)
-    n = int(rng.integers(3000, 12000))
-    t = np.arange(n) / float(rng.choice(RATES_HZ))
-    v = 50 + 40 * np.sin(2 * np.pi * rng.uniform(1, 5) / t[-1] * t)
-    sp = make_split(t, v, "blocks")
-    A = np.column_stack([v, np.abs(v - 50), np.ones(n)]) * 10.0 ** rng.uniform(-3, 3, 3)
-    r = 10.0 ** rng.uniform(-9, -3) * rng.standard_normal(n)
+    n, sp, A, r = _drawn_linear_record(rng)
     gaps = np.ones(n, bool)
     gaps[rng.integers(0, n, n // 50)] = False
     for valid in (np.ones(n, bool), gaps):
