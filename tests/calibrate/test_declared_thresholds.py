@@ -144,25 +144,24 @@ def _stretched(plant, s):
     return dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=h2))
 
 
-@pytest.mark.xfail(strict=True, reason="open (session 25 review of s25_triangle3): the declared core's thresholds are "
-                   "forced into the motion's base whether or not they fit the stack; a gate on the training rows' "
-                   "misfit fixed this record and 3 of 4 wrong off-file triangles, but chose the grid on ties where an "
-                   "effect dominates, so the benchmark's effect-free twin and its record got different bases "
-                   "(test_pairs' no-delay steps record: the delay 3.07x beyond the creep): reverted, not merged")
-def test_a_file_whose_core_is_not_the_stacks_fits_no_worse_than_the_grid(monkeypatch):
+@pytest.mark.parametrize("stretch", (0.9, 1.1))
+def test_a_file_whose_core_is_not_the_stacks_fits_no_worse_than_the_grid(monkeypatch, stretch):
     """The session 25 review: the file's core is a guess for the stack (its C_h shape assumed, C_p +-20 %). A
-    stack whose C_h thresholds are 0.9x the file's, calibrated against the file (250 Hz, 0.2 Hz triangle, the
-    seed's sensor noise): the file's thresholds sit between the stack's and the grid's. The base must fit the
-    displacement's held-out rows no worse than the grid alone does (today: 4.54e-9 against 2.71e-9 m, and the
-    tracing names a resonance)."""
+    stack whose C_h thresholds are 0.9x (1.1x) the file's, calibrated against the file (250 Hz, 0.2 Hz triangle,
+    the seed's sensor noise): the file's thresholds sit between the stack's and the grid's. The base must fit the
+    displacement's held-out rows no worse than the grid alone does (main before s26_offcore, the declared
+    thresholds forced in: 0.9x 4.54e-9 against 2.71e-9 m, and the tracing named a resonance). The gate
+    (:func:`~workbench.calibrate.base_fit._grid_resolved_better`) keeps the grid: the declared thresholds leave
+    more on the training rows by 7.0 (0.9x) and 5.7 (1.1x) block standard errors, above the bar (3.55)."""
     import workbench.calibrate.base_fit as bf
     plant0 = load_plant(PLANTS / "p888_51_sn637.toml")
-    truth, _ = plant_with_effect(_stretched(plant0, 0.9), "none", 1)
+    truth, _ = plant_with_effect(_stretched(plant0, stretch), "none", 1)
     t, r, rec, sp = _triangle_record(truth, seed=3, clean=False)
     kw = dict(train=sp.train, test=sp.test, pzt=plant0.pzt, dac_range_v=plant0.gauge.dac_range_v)
     b = fit_base(rec, 80.0, **kw)
     monkeypatch.setattr(bf, "declared_thresholds", lambda pzt: np.zeros(0))
     g = fit_base(rec, 80.0, **kw)
+    assert b.threshold_gate["grid"], b.threshold_gate
     assert b.channels["displacement"].rms_test <= 1.01 * g.channels["displacement"].rms_test
 
 
