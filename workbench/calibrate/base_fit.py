@@ -691,7 +691,7 @@ def _grid_resolved_better(res_d, res_g, rows, level=None):
     the grid's other thresholds absorb in part moves the mean, but its block-to-block scatter (the effect's
     residual is large where the two bases differ by little) widens the standard error with it. Measured on the
     confusion benchmark, seeds 102 and 103 (every record and its effect-free twin, default rates, 100 Hz and
-    1 MHz, 264 pairs): z up to 3.43 (102 #149, a 1.76x delay at 1 MHz; effect-free twins to 3.06, 100 kHz
+    1 MHz: 330 pairs, 657 gates; 3 records at 1 MHz judged the recorded V and tried none): z up to 3.43 (102 #149, a 1.76x delay at 1 MHz; effect-free twins to 3.06, 100 kHz
     calibration; 102 #7, a 0.16x drift at 1 kHz, 2.72), every one under the bar 3.55, record and twin decided
     alike in all; a stack whose C_h thresholds are 0.9x or 1.1x the file's under the slow-triangle reproducers:
     z 4.6 to 7.0 (the grid); the same triangles on-file: -5 to -8.
