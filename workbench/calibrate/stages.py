@@ -66,9 +66,11 @@ the rest undecided** (:func:`creep_decided_rest_undecided`): creep named from de
 every other fold is undecided between creep and a charge relaxation (as the nested absorption /
 leakage rule).
 
-**The gauge after a sensor effect** (:func:`_gauge_reads_corrected`): after a displacement
-``delay`` or ``drift`` the gauge's bow is searched against the displacement with that term taken
-out (the gauge reads the stack, not the sensor).
+**The gauge after a sensor effect** (:func:`_gauge_line_for_sensor`): after a displacement
+``delay`` or ``drift`` the gauge's bow is searched against the displacement as the stack moved (the
+gauge reads the stack, not the sensor): the record advanced by the found delay, the found drift's
+shape free on the gauge; read from the record, not from the displacement model's term, which carried
+the model's misfit (a creep found after the delay, the plays' share of a drift) into the line.
 
 **Creep behind a displacement effect** (:func:`_creep_behind_a_displacement_effect`): a charge
 relaxation named while a displacement effect passes ``need`` folds is re-scored with that effect
@@ -98,7 +100,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage, sensor_term
+from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage
 from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
                                     nested_consensus, nested_note, refitted_absorption_stage)
 
