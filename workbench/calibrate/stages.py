@@ -66,9 +66,11 @@ the rest undecided** (:func:`creep_decided_rest_undecided`): creep named from de
 every other fold is undecided between creep and a charge relaxation (as the nested absorption /
 leakage rule).
 
-**The gauge after a sensor effect** (:func:`_gauge_reads_corrected`): after a displacement
-``delay`` or ``drift`` the gauge's bow is searched against the displacement with that term taken
-out (the gauge reads the stack, not the sensor).
+**The gauge after a sensor effect** (:func:`_gauge_line_for_sensor`): after a displacement
+``delay`` or ``drift`` the gauge's bow is searched against the displacement as the stack moved (the
+gauge reads the stack, not the sensor): the record advanced by the found delay, the found drift's
+shape free on the gauge; read from the record, not from the displacement model's term, which carried
+the model's misfit (a creep found after the delay, the plays' share of a drift) into the line.
 
 **Creep behind a displacement effect** (:func:`_creep_behind_a_displacement_effect`): a charge
 relaxation named while a displacement effect passes ``need`` folds is re-scored with that effect
@@ -98,7 +100,7 @@ import hashlib
 import numpy as np
 
 from . import tracing as _tr
-from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage, sensor_term
+from .creep_beside_delay import creep_beside_delay, delay_beside_creep, refitted_joint_stage
 from .absorption_or_leakage import (LEAKAGE, decided_needed, leakage_beside_absorption, leakage_no_worse,
                                     nested_consensus, nested_note, refitted_absorption_stage)
 
@@ -593,7 +595,68 @@ def _other_reading(answer, who, res, rivals, extra, found, folds_for, ctx):
 SENSOR_EFFECTS = ("delay", "drift")
 
 
-def _gauge_reads_corrected(ctx, term_m, extra):
+def _gauge_line_for_sensor(ctx, stages, extra):
+    """The gauge's line problem rebuilt for the displacement sensor's found delay and drift, from the record.
+
+    The gauge reads the stack; the displacement sensor reads it late by its delay ``d`` and drifted. The
+    line (:func:`~workbench.calibrate.tracing._gauge_line`) is the gauge against the recorded displacement,
+    and the bow (eq. 27) is searched on what it leaves, so what the sensor adds must be out of it first. Taken
+    out as the displacement's *fitted term* (``x - term``: :func:`_gauge_reads_corrected`, session 20) it
+    carries the displacement model's misfit into the gauge's line, where the bow takes it:
+
+    * a delay's term is ``M(t - d) - M(t)`` with ``M`` the drive model *when the delay was found*: a creep
+      or a mode found on the displacement after it is not in ``M``, and ``x(t - d) - term`` leaves the
+      motion's own ``K(t) - K(t - d)`` on the line (98 #141 at 1 MHz, a 24 ms delay then creep: the line
+      0.0139 V, the floor 0.0071 V; a bow of 8.7e4 /m named from it);
+    * a drift's term comes out of a joint fit whose play weights are refitted beside it: over a steps
+      record (the displacement moves with time) the slow trend is shared between the plays and the drift's
+      powers of time, and the term is not the sensor's drift (103 #165 at 1 MHz: the term 2.5e-7 m RMS, its
+      misfit to the simulated sensor drift 6.6e-7 m, the drift itself 4.8e-7 m; the line went from 0.0137 V
+      to 0.0253 V and a bow of 5.7e4 /m was named from it).
+
+    Here the recorded displacement is read *advanced* by the found delay, ``x(t + d)``: the stack's motion
+    itself, whatever effects of the stack are or will be found (the model's term only where ``t + d`` falls
+    outside the record); and the found drift's columns (its powers of time and periodic pair, its shape)
+    join the line's own columns with gains free on the gauge (the drift between the sensors, fitted where
+    the gauge, which reads no drift, tells it from the stack's motion). Rebuilt whenever the found sensor
+    effects change (a delay refitted beside creep, :func:`~.creep_beside_delay.refitted_joint_stage`), and
+    as before only while no effect has been found on the line problem.
+    """
+    base, t = ctx["base"], ctx["t"]
+    if ("gauge", "line") not in ctx["probs"] or "displacement" not in base.channels:
+        return
+    delay = drift = None
+    for s in stages:
+        if s["channel"] != "displacement" or s.get("_term") is None:
+            continue
+        if s["effect"] == "delay":
+            delay = s
+        elif s["effect"] == "drift":
+            drift = s
+    if delay is None and drift is None:
+        return
+    d = float(delay["parameters"].get("delay_s") or 0.0) if delay is not None else 0.0
+    spec = (d, None if drift is None else id(drift))
+    if ctx.get("line_sensor") == spec:
+        return
+    x = np.asarray(base.channels["displacement"].y, float)
+    term, valid = np.zeros(t.size), np.ones(t.size, bool)
+    if d:
+        # x(t) - x(t + d) where the record holds t + d; the rows where it does not (the last d of a lagging
+        # sensor's record, the first of a leading one's) tell the gauge nothing the record can check: out of
+        # the line problem (with the row before the first kept one, which an averaged gauge's mean reads)
+        inside = (t + d >= t[0]) & (t + d <= t[-1])
+        term[inside] = x[inside] - np.interp(t[inside] + d, t, x)
+        valid = inside & np.r_[inside[0], inside[:-1]]
+    cols = None
+    if drift is not None:
+        C, _ = drift["_cand"]["eff"].columns(t, None, drift["parameters"])
+        cols = np.atleast_2d(np.asarray(C, float).T).T
+    if _gauge_reads_corrected(ctx, term, extra, columns=cols, valid=valid):
+        ctx["line_sensor"] = spec
+
+
+def _gauge_reads_corrected(ctx, term_m, extra, columns=None, valid=None):
     """The gauge's line problem against the displacement with a found sensor effect taken out.
 
     The gauge bow (eq. 27) is the gauge's reading of the stack's motion ``x``, fitted against the
@@ -604,19 +667,36 @@ def _gauge_reads_corrected(ctx, term_m, extra):
     drift, then a gauge bow; a creep + 21 ms delay's bow fitted against the lagging record). Once
     the displacement's sensor effect is found, the line problem, its null reference and the bow's
     search are rebuilt against ``x - term_m`` (``term_m``: the found effect's fitted term on the
-    displacement, m). Nothing changes when an effect was already found on the line problem.
+    displacement, m). ``columns``: further columns of the line problem, gains free (a found drift's shape,
+    :func:`_gauge_line_for_sensor`); ``valid``: the rows the line keeps (with the gauge's own). Nothing changes
+    when an effect was already found on the line problem.
+    Returns whether the problem was rebuilt.
     """
     key = ("gauge", "line")
     probs, base, t = ctx["probs"], ctx["base"], ctx["t"]
     if key not in probs or extra.get(key):
-        return
+        return False
     old = probs[key]
     m = base.channels["gauge"]
     line, x = _tr._gauge_line(base, base.channels["displacement"].y - np.asarray(term_m, float))
-    prob = _tr._Problem(old.split, old.valid, np.column_stack([np.ones(t.size), x]), [-np.inf, -np.inf],
-                        m.y - line, old.search)
+    A = [np.ones(t.size), x] + ([] if columns is None else [np.asarray(columns, float)])
+    A = np.column_stack(A)
+    keep, search = old.valid, old.search
+    if valid is not None:
+        keep = np.asarray(m.valid, bool) & np.asarray(valid, bool)
+        search = _tr._search_rows(old.split.train & keep)
+    prob = _tr._Problem(old.split, keep, A, np.full(A.shape[1], -np.inf), m.y - line, search)
     probs[key] = prob
     ctx.pop("later_cache", None)          # later stages scored against the old line are stale
+    row = (ctx.get("infos") or {}).get("gauge_line_drift")
+    if row is not None:
+        # the bow's rival, the drift in time on this problem (:func:`~.tracing._gauge_line_drift`): its
+        # columns are powers of time whatever the line reads; its bounds follow the problem's own columns
+        from .effects import Drift
+        try:
+            ctx["infos"]["gauge_line_drift"] = {**row, "g": _tr._candidate_columns(Drift(), t, t, m.y, line, prob)[1]}
+        except ValueError:
+            ctx["infos"]["gauge_line_drift"] = None
     # the null reference from trace_effect's seed, as the other channels' (same count)
     rng = np.random.default_rng(ctx.get("seed"))
     e_dev = np.where(prob.rows_dev, prob.r, 0.0)
@@ -632,6 +712,7 @@ def _gauge_reads_corrected(ctx, term_m, extra):
             c = {**c, "eff": eff, "params": p, "g": g, "u": x, "yhat": line}
         cands.append(c)
     ctx["cands"] = cands
+    return True
 
 
 def _creep_compatible(res):
@@ -1120,9 +1201,9 @@ def run_stages(ctx, max_stages=3):
         compatible = None           # (each stage's own: the later stage sets its next)
         found.append(answer)
         _tr._absorb(c, extra, probs, ctx["base"], ctx["t"])
-        if answer[1] == "displacement" and answer[0] in SENSOR_EFFECTS and stages[-1].get("_term") is not None:
-            # (the sensor's part of the term: a joint delay beside creep carries the stack's creep too)
-            _gauge_reads_corrected(ctx, sensor_term(stages[-1]), extra)
+        # the gauge's line against the displacement as the stack moved: the sensor's found delay and drift
+        # taken out by the record itself, not by the displacement's model (:func:`_gauge_line_for_sensor`)
+        _gauge_line_for_sensor(ctx, stages, extra)
         if len(stages) >= max_stages:
             break
         answer, count, _, res_k, note = _later_stage(ctx, extra, found, seen=seen)
