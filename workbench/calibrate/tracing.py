@@ -1078,26 +1078,31 @@ def _absorb(c, extra, probs, base, t):
             if key in probs and other in base.channels:
                 yhat = base.channels[other].yhat
                 eff, p = c["eff"], c["params"]
-                if c["name"] == "resonance" and p.get("refit") and c["channel"] == "displacement":
-                    extra[key].append(_carried_motion(C, fold, base, c["channel"], other))
-                    continue
                 Co, lo2 = eff.columns(t, yhat, p, y_model=yhat)
                 extra[key].append((np.atleast_2d(np.asarray(Co, float).T).T, list(np.atleast_1d(lo2))))
+                if c["name"] == "resonance" and p.get("refit") and c["channel"] == "displacement" \
+                        and other == "gauge":
+                    extra[key].append(_carried_motion(C, fold, base, c["channel"], other))
 
 
 def _carried_motion(C, fold, base, found_on, other):
-    """A refitted mode found on one channel, carried to another channel that reads the stack's motion.
+    """A refitted mode found on the displacement, carried to the gauge as the motion it makes.
 
-    The refitted mode's column is ``(H - 1) m``, ``m`` the finding channel's model of the drive refitted
-    under the mode (:class:`~.effects.Resonance`, ``refit=True``): the extra motion the mode makes. The
-    other channel reads that motion too (the gauge through its bridge, the charge through ``T_em``), so
-    its column is the same motion, read as the channel reads (interval-averaged for an averaged gauge,
-    :func:`~.base_fit.interval_mean`), its gain free in sign and size (volts or coulombs per metre, the
-    channel's fit). The mode taken on the other channel's own base prediction (what was carried before)
-    is the distorted drive the refit exists to avoid: a large mode's ringing makes the base's plays
-    (weights >= 0) fit a prediction the mode filter explains little of (issue 13: seed 104 #71, a 7x
-    77 Hz mode at 100 kHz named on the displacement, 0.0016 of its error left, the gauge's carry
-    refused on 3 of 5 folds and its held-out error 0.166 V above its straight line's 0.136 V).
+    The refitted mode's column is ``(H - 1) m``, ``m`` the displacement's model of the drive refitted under
+    the mode (:class:`~.effects.Resonance`, ``refit=True``): the extra motion the mode makes. The gauge reads
+    that motion too, so it carries the same column, read as the gauge reads (interval-averaged for an averaged
+    gauge, :func:`~.base_fit.interval_mean`), its gain free in sign and size (volts per metre, the gauge's
+    fit), **beside** the mode taken on the gauge's own base prediction (what :func:`_absorb` carried before,
+    gain free too). Each column misses where the other holds: the gauge's own prediction is the distorted
+    drive the refit exists to avoid (a large mode's ringing makes the base's plays, weights >= 0, fit a
+    prediction the mode filter explains little of: seed 104 #71, a 7.2x 77 Hz mode at 100 kHz named on the
+    displacement, the gauge's carry refused on 3 of 5 folds, its held-out error 0.166 V above its straight
+    line's 0.136 V; with the motion column 0.0071 V, its floor), and ``m`` fits what the displacement
+    *sensor* records, a sensor delay the stages did not name included, which the gauge does not read (the
+    review of s26_modecarry: a 1 ms displacement delay beside a 140-209 Hz mode at 100 kHz, the motion
+    column alone left the gauge 1.5-2.2x main's; both columns below both). The charge keeps the mode on its
+    own prediction alone: this plant's modes filter the motion, not the charge (``kernels.pzt_advance``), and
+    its carry is refused on every record measured.
     """
     from .base_fit import interval_mean
 
