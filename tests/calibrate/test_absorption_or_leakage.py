@@ -422,7 +422,7 @@ def test_a_refitting_candidate_takes_the_found_columns_place():
     a, b, c = (rng.normal(size=(n, 1)) for _ in range(3))
     seen = []
     prob = SimpleNamespace(base="base", A=np.zeros((n, 2)),
-                           grams=lambda C, lows: seen.append((np.asarray(C).copy(), list(lows))) or {"C": C})
+                           grams=lambda C, lows, own=False: seen.append((np.asarray(C).copy(), list(lows))) or {"C": C})
     found = [tracing.FoundColumns(a, [0.0], al.ABSORPTION), tracing.FoundColumns(b, [-np.inf], ("resonance", "x"))]
     cand = {"g": {"C": c, "norms": np.ones(1), "lb": np.r_[0.0, 0.0, 0.0]}, "replaces": al.ABSORPTION}
     tracing._stacked(prob, found, cand)

@@ -576,3 +576,48 @@ def test_block_rows_equal_the_row_gather_in_values_and_layout(seed):
                 assert np.array_equal(g["G"][b, k:k + m, :k], XZ[:, :k])
                 assert np.array_equal(g["G"][b, k:k + m, -1], XZ[:, k])
                 assert np.array_equal(g["G"][b, k:k + m, k:k + m], Xb.T @ Xb)
+
+
+@pytest.mark.parametrize("seed", [71, 72, 73])
+def test_dev_rows_and_in_place_scaling_equal_the_gather_and_the_copy(seed):
+    """``_Problem._dev_rows(X)`` is ``X[prob.rows_dev_idx]`` bit for bit and stride for stride, and so are the
+    norms summed from it (``einsum``), with whole blocks held out (the rows copied run by run) and with
+    invalid rows scattered (gathered); ``grams(C, own=True)`` (a fresh stack divided in place) equals
+    ``grams`` of a copy (Gram matrices, scaled columns and their strides, norms); and a candidate stacked
+    beside C-ordered found columns (held as a Fortran-ordered copy, :func:`tracing._fortran_found`) has the
+    Gram matrices of ``np.column_stack`` of the columns, the copy made once per found array."""
+    from workbench.calibrate.tracing import _Problem, _stack_columns, _stacked
+    rng = np.random.default_rng(seed)
+    n, sp, A, r = _drawn_linear_record(rng)
+    gaps = np.ones(n, bool)
+    gaps[rng.integers(0, n, n // 4)] = False             # more runs than 4 a block: gathered
+    paths = set()
+    for valid in (np.ones(n, bool), gaps):
+        prob = _Problem(sp, valid, A, [0.0, 0.0, -np.inf], r, sp.train)
+        paths.add(prob.dev_runs is None)
+        for m in (1, 2, 5):
+            for X in _layouts(rng, n, m):
+                got, ref = prob._dev_rows(X), X[prob.rows_dev_idx]
+                assert got.shape == ref.shape and got.dtype == ref.dtype and got.strides == ref.strides
+                assert np.array_equal(got, ref)
+                assert np.array_equal(np.einsum("ij,ij->j", got, got), np.einsum("ij,ij->j", ref, ref))
+            cols = [rng.standard_normal((n, m)) * 10.0 ** rng.uniform(-6, 6, m), rng.standard_normal(n)]
+            lows = [0.0] * (m + 1)
+            g1, g2 = prob.grams(_stack_columns(cols), lows, own=True), prob.grams(np.column_stack(cols), lows)
+            for key in ("G", "lb", "C", "norms", "ok"):
+                assert np.array_equal(g1[key], g2[key]), key
+            assert g1["C"].strides == g2["C"].strides
+        found = [(np.ascontiguousarray(rng.standard_normal((n, 3)) * 10.0 ** rng.uniform(-6, 6, 3)), [0.0] * 3),
+                 (rng.standard_normal((n, 2)) * 10.0 ** rng.uniform(-6, 6, 2), [-np.inf] * 2)]
+        cand = {"g": prob.grams(rng.standard_normal((n, 2)), [0.0, 0.0])}
+        ref = prob.grams(np.column_stack([C for C, _ in found] + [cand["g"]["C"] * cand["g"]["norms"]]),
+                         [0.0] * 3 + [-np.inf] * 2 + [0.0, 0.0])
+        for _ in range(2):
+            got = _stacked(prob, found, cand)
+            for key in ("G", "lb", "C", "norms", "ok"):
+                assert np.array_equal(got[key], ref[key]), key
+            assert got["C"].strides == ref["C"].strides
+        held = prob._found_fortran[id(found[0][0])]
+        assert held[0] is found[0][0] and held[1].flags.f_contiguous and np.array_equal(held[1], found[0][0])
+        assert _stacked(prob, found, cand) is not None and prob._found_fortran[id(found[0][0])] is held
+    assert paths == {True, False}                   # both paths are met
