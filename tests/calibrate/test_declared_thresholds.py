@@ -144,24 +144,30 @@ def _stretched(plant, s):
     return dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, hysteresis=h2))
 
 
-@pytest.mark.parametrize("stretch", (0.9, 1.1))
-def test_a_file_whose_core_is_not_the_stacks_fits_no_worse_than_the_grid(monkeypatch, stretch):
+@pytest.mark.xfail(strict=True, reason="open (session 25 review of s25_triangle3): the declared core's thresholds are "
+                   "forced into the motion's base whether or not they fit the stack; a gate on the training rows' "
+                   "misfit fixed this record and 3 of 4 wrong off-file triangles, but chose the grid on ties where an "
+                   "effect dominates, so the benchmark's effect-free twin and its record got different bases "
+                   "(test_pairs' no-delay steps record: the delay 3.07x beyond the creep): reverted, not merged. "
+                   "Session 26 (s26_offcore, merged and reverted): the grid kept only where the paired per-block "
+                   "training misfit passes Student's t at 1e-3 fixed this record, but its review found on-file "
+                   "records decided apart from their twins (58 #53: creep + delay -> delay only) and the statistic "
+                   "moved by the two fits' own ridge choices (twins z -2.75 or +3.0 by ridge); next: compare the two "
+                   "threshold sets at a common ridge, on held-out rows")
+def test_a_file_whose_core_is_not_the_stacks_fits_no_worse_than_the_grid(monkeypatch):
     """The session 25 review: the file's core is a guess for the stack (its C_h shape assumed, C_p +-20 %). A
-    stack whose C_h thresholds are 0.9x (1.1x) the file's, calibrated against the file (250 Hz, 0.2 Hz triangle,
-    the seed's sensor noise): the file's thresholds sit between the stack's and the grid's. The base must fit the
-    displacement's held-out rows no worse than the grid alone does (main before s26_offcore, the declared
-    thresholds forced in: 0.9x 4.54e-9 against 2.71e-9 m, and the tracing named a resonance). The gate
-    (:func:`~workbench.calibrate.base_fit._grid_resolved_better`) keeps the grid: the declared thresholds leave
-    more on the training rows by 7.0 (0.9x) and 5.7 (1.1x) block standard errors, above the bar (3.55)."""
+    stack whose C_h thresholds are 0.9x the file's, calibrated against the file (250 Hz, 0.2 Hz triangle, the
+    seed's sensor noise): the file's thresholds sit between the stack's and the grid's. The base must fit the
+    displacement's held-out rows no worse than the grid alone does (today: 4.54e-9 against 2.71e-9 m, and the
+    tracing names a resonance)."""
     import workbench.calibrate.base_fit as bf
     plant0 = load_plant(PLANTS / "p888_51_sn637.toml")
-    truth, _ = plant_with_effect(_stretched(plant0, stretch), "none", 1)
+    truth, _ = plant_with_effect(_stretched(plant0, 0.9), "none", 1)
     t, r, rec, sp = _triangle_record(truth, seed=3, clean=False)
     kw = dict(train=sp.train, test=sp.test, pzt=plant0.pzt, dac_range_v=plant0.gauge.dac_range_v)
     b = fit_base(rec, 80.0, **kw)
     monkeypatch.setattr(bf, "declared_thresholds", lambda pzt: np.zeros(0))
     g = fit_base(rec, 80.0, **kw)
-    assert b.threshold_gate["grid"], b.threshold_gate
     assert b.channels["displacement"].rms_test <= 1.01 * g.channels["displacement"].rms_test
 
 
@@ -180,30 +186,3 @@ def test_a_clean_slow_triangle_is_calibrated_to_no_effect(tmp_path):
     res = run_calibrate(path, PLANTS / "p888_51_sn637.toml", figures=False)
     assert res["effect"] in ("none", "inconclusive"), (res["effect"], res["agreement"], res.get("parameters"))
     assert res["error_after"]["rms"] <= res["error_before"]["rms"]
-
-
-def test_a_drift_and_its_effect_free_twin_keep_the_same_thresholds():
-    """The gate's bar (s26_offcore): the confusion benchmark's seed 102 #7, a 0.16x drift on the 1 kHz
-    calibration protocol, and its effect-free twin (same drive, noise and split). The grid's other thresholds take
-    part of the drift: on the record the grid leaves less on the displacement's training rows than the declared
-    thresholds (the reverted gate of session 25, the grid wherever it leaves less, then chose the grid on the
-    record and the declared thresholds on the twin: different bases, the effect's size beyond the twin moved);
-    the paired block test does not resolve it, and both keep the declared core's thresholds."""
-    from tests.conftest import load_benchmark
-    cc = load_benchmark("calibrate_confusion")
-    plant0 = load_plant(PLANTS / "p888_51_sn637.toml")
-    t, sp, base, plant, _, _ = cc.simulated_base(plant0, "drift", 1e3, "calibration", 0.16020864043308822,
-                                                 173996595)
-    clean, _ = plant_with_effect(plant0, "none", 173996595)
-    _, v = cc.benchmark_protocol("calibration", 1e3, cc.ROWS[1e3])
-    twin = fit_base(cc._record(simulate_record(clean, t, v, seed=173996595), 1e-3),
-                    plant0.pzt.series_resistance_ohm, train=sp.train, test=sp.test, pzt=plant.pzt,
-                    dac_range_v=plant.gauge.dac_range_v)
-    g, g0 = base.threshold_gate, twin.threshold_gate
-    assert g["channel"] == g0["channel"] == "displacement"
-    assert g["mean"] > 0 > g0["mean"], (g, g0)            # the grid leaves less on the record, more on the twin
-    assert not g["grid"] and not g0["grid"], (g, g0)
-    d = declared_thresholds(plant0.pzt)
-    inside = d[(d > 0) & (d < base.channels["displacement"].thresholds_v[-1])]
-    for b in (base, twin):
-        assert np.all(np.isin(inside, b.channels["displacement"].thresholds_v))
