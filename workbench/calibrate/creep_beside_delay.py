@@ -290,34 +290,6 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
             "undelayed": {"drive": ym, "taus_s": taus, "dt_s": _dt(t)}}
 
 
-def sensor_term(stage):
-    """The displacement sensor's part of a found displacement stage's term (m).
-
-    A sensor effect's term is the recorded displacement less the stack's motion. For a delay that is
-    ``M(t - d) - M(t)`` with ``M`` the whole stack model. :func:`delay_beside_creep`'s columns are
-    ``[D, K(t - d)]``: the drive model's latency and the creep's branches *delayed*, so its term
-    ``D g_D + K(t - d) g_K`` holds the creep itself, which the stack (and the gauge reading it) has;
-    its sensor part is ``D g_D + (K(t - d) - K(t)) g_K``, the term less the undelayed branches
-    (``undelayed``: what drives them, their time constants). Any other stage's term is its own.
-
-    Taking the whole joint term out of the displacement the gauge's line is rebuilt against
-    (:func:`~workbench.calibrate.stages._gauge_reads_corrected`) took the creep out of the stack's
-    motion: the line left the gauge's creep (0.025-0.035 V against a 0.0071 V floor on seed 81 #75,
-    100 kHz calibration) and a gauge bow fitted 58-68 % of it on every fold, named as a third stage
-    the record does not have (seeds 75 #75 and 81 #75, session 20's diagnosis); with the sensor part
-    the line reaches the floor (0.0071-0.0072 V).
-    """
-    term = np.asarray(stage["_term"], float)
-    c = stage["_cand"]
-    und = c.get("undelayed")
-    if und is None:
-        return term
-    ok = np.asarray(c["g"]["ok"], bool)
-    gains = np.asarray(stage["_gains"], float)[ok]
-    K = CreepSpectrum._columns(np.asarray(und["drive"], float), und["taus_s"], und["dt_s"])
-    return term - K[:, ok[1:]] @ gains[1:]
-
-
 def refitted_joint_stage(stages):
     """The found stage a joint creep + delay candidate replaced, as the joint fit left it.
 
