@@ -1410,12 +1410,14 @@ class Resonance(Effect):
         # ranked by prominence over a running median: a mode stands out of its neighbourhood
         f_pk = max(np.exp(lf_lo), 20.0)
         # Welch's segment resolves the fine grid's half-width at the peaks' floor, fs / nperseg <=
-        # (e^FINE_HALF_LOG - 1) f_pk, rounded up to a power of two (4096 at 10 kHz and 20 Hz, the
-        # segment of the 10 kHz protocol), at most the rows': a segment of 4096 samples at any rate
-        # resolved 244 Hz at 1 MHz, so a 34 Hz mode's peak was not seen, the search started a factor
-        # of two away and ended at zeta 0.0101 for 0.0150 (106 #159: a drift then took the misfit)
+        # (e^FINE_HALF_LOG - 1) f_pk, rounded up to a power of two (4096 at 10 kHz and 20 Hz: the
+        # segment the 10 kHz protocol was built with), at most the rows'. The segment was 4096 samples
+        # at any rate: 244 Hz bins at 1 MHz, where a 34 Hz mode's peak was not seen, the search started
+        # a factor of two away and ended at zeta 0.0101 for 0.0150 (106 #159: a drift then took the
+        # misfit) or at the damping cap (test_one_megahertz). Below 10 kHz the 4096 samples (finer bins
+        # than the grid needs) are kept: shorter segments there were not measured
         need = fs / (np.expm1(FINE_HALF_LOG) * f_pk)
-        nperseg = int(min(2 ** int(np.ceil(np.log2(max(need, 2.0)))), e_fit.size))
+        nperseg = int(min(max(2 ** int(np.ceil(np.log2(max(need, 2.0)))), 4096), e_fit.size))
         f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=fs, nperseg=nperseg)
         band = (f_psd >= f_pk) & (f_psd <= np.exp(lf_hi))
         lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
