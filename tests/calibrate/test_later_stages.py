@@ -360,7 +360,8 @@ def test_a_real_gauge_bow_beside_a_displacement_drift_on_steps_is_named(sn637):
     """The review's record (a regression record, not held-out evidence): a 3x gauge bow and drift at 100 kHz steps,
     plant seed 43 (bow -14,900 /m). Both effects are the record's; the bow must be named beside the drift. Session
     26's line (the drift's columns free on the gauge) named the drift alone; the drift's gains fitted beside the
-    bow's column and fixed (stages._drift_on_gauge): the bow named, -15,700 /m."""
+    bow's column, the drift taken out of the record as the gauge reads it (stages._drift_on_gauge): the bow named,
+    -15,570 /m."""
     cc = load_benchmark("calibrate_confusion")
     _, sp, base, _, truth, _ = cc.simulated_base(sn637, ("gauge_nonlinearity", "drift"), 1e5, "steps", 3.0, 43)
     res = trace_effect(base, split=sp)
