@@ -324,12 +324,18 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     :data:`LINE_MARGIN` of the declared set's (``ratio``, the margin the tracing asks of an effect). A tie keeps
     them. The rows the tracing validates and tests on are never used.
 
+    Both sets also carry the tracing's drift columns (:class:`~workbench.calibrate.effects.Drift`: ``s``,
+    ``s^2`` of normalized time), free and alike: without them a drift on the file's own stack moved ``z`` and
+    ``ratio`` toward the grid while its effect-free twin kept the declared core (seed 105 #40, a 2.04x drift at
+    10 kHz: z 3.74, ratio 0.996, twin z -3.77; with them the record's z -3.77, its twin's; seed 105 #110 at
+    100 Hz, a drift + resonance: ratio 0.716 -> 1.51).
+
     Why the margin: an effect the base lacks (a large creep) is in both sets' residuals, and the grid's other
     thresholds take a small part of it that holds from block to block, so ``z`` alone passed on file's-own
     stacks whose effect-free twins keep the declared core (the confusion benchmark's seed 45 #90, a 8.56x creep
-    at 100 kHz steps: z 5.08 over 81 blocks, ratio 0.977; twin z -3.67); a core the file has wrong is
+    at 100 kHz steps: z 3.45 over 81 blocks, ratio 0.974; twin z -3.69); a core the file has wrong is
     rate-independent misfit the grid removes in bulk (C_h thresholds 0.9x the file's, 250 Hz slow triangle:
-    z 6.74, ratio 0.70). Returns a dict: ``grid``, ``z``, ``bar``, ``mean``, ``ridge``, ``blocks``, ``ratio``.
+    z 6.71, ratio 0.70). Returns a dict: ``grid``, ``z``, ``bar``, ``mean``, ``ridge``, ``blocks``, ``ratio``.
     """
     from scipy.special import stdtrit
     from .splits import block_length_s
@@ -337,7 +343,16 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     idx = np.flatnonzero(rows)
     bl = np.floor((t[idx] - t[0]) / block_length_s(t)).astype(int)
     at = np.flatnonzero(np.r_[True, np.diff(bl) != 0])
-    sets = [_scaled(P, y, rows, r) for P, r in ((P_d, r_d), (P_g, r_g))]
+    sets = []
+    # the tracing's drift (:class:`~workbench.calibrate.effects.Drift`, a polynomial of normalized time) taken
+    # from both sets alike, free: a slow trend in the motion is not the core's
+    from .effects import Drift
+    X = Drift()._X(t)[rows][:, 1:]
+    X = X / np.sqrt(np.mean(X * X, axis=0))
+    for P, r in ((P_d, r_d), (P_g, r_g)):
+        an, b, lower, pen = _scaled(P, y, rows, r)
+        m = X.shape[1]
+        sets.append((np.column_stack([an, X]), b, np.r_[lower, np.full(m, -np.inf)], np.r_[pen, np.zeros(m)]))
     cv = sum(_ridge_cv(*s) for s in sets)
     lam = float(RIDGE_GRID[int(np.argmin(cv))])
     n = idx.size
