@@ -621,3 +621,49 @@ def test_dev_rows_and_in_place_scaling_equal_the_gather_and_the_copy(seed):
         assert held[0] is found[0][0] and held[1].flags.f_contiguous and np.array_equal(held[1], found[0][0])
         assert _stacked(prob, found, cand) is not None and prob._found_fortran[id(found[0][0])] is held
     assert paths == {True, False}                   # both paths are met
+
+
+def _stack_inputs(rng, n):
+    """2-5 inputs of ``n`` rows in the kinds the calibration stacks: columns (contiguous or a view of
+    every k-th element), C-ordered blocks (0-4 columns), Fortran-ordered blocks, a column selection (neither
+    order), an integer column."""
+    out = []
+    for _ in range(int(rng.integers(1, 6))):
+        kind = int(rng.integers(0, 7))
+        if kind == 0:
+            c = rng.standard_normal(n)
+        elif kind == 1:
+            c = rng.standard_normal((n, int(rng.integers(0, 5))))
+        elif kind == 2:
+            c = np.asfortranarray(rng.standard_normal((n, int(rng.integers(1, 4)))))
+        elif kind == 3:
+            c = rng.standard_normal((n, 3))[:, 1]
+        elif kind == 4:
+            c = rng.standard_normal((n, 1))
+        elif kind == 5:
+            c = rng.standard_normal((n, 4))[:, ::2]
+        else:
+            c = np.arange(n)
+        out.append(c * 10.0 ** rng.uniform(-9, 9) if c.dtype == np.float64 else c)
+    return out
+
+
+@pytest.mark.parametrize("seed", [61, 62])
+def test_blocked_column_stack_is_numpys_array_in_values_and_layout(seed):
+    """``stacking.column_stack`` returns ``np.column_stack``'s array: values, dtype, shape and strides (the later
+    products read the layout), for 0 to 200,000 rows (blocks of rows copied, a last partial block) and every
+    kind of input the calibration stacks; a length mismatch raises as numpy does."""
+    from workbench.calibrate.stacking import column_stack
+    rng = np.random.default_rng(seed)
+    fast = 0
+    for _ in range(150):
+        n = int(rng.choice([0, 1, 2, 7, 4095, int(rng.integers(8_000, 200_000))]))
+        cols = _stack_inputs(rng, n)
+        ref, got = np.column_stack(cols), column_stack(cols)
+        assert got.shape == ref.shape and got.dtype == ref.dtype and got.strides == ref.strides
+        assert got.flags.c_contiguous == ref.flags.c_contiguous and got.flags.f_contiguous == ref.flags.f_contiguous
+        assert np.array_equal(got, ref)
+        fast += all(c.dtype == np.float64 and (c.ndim == 1 or c.flags.c_contiguous) for c in cols) and n > 7
+    assert fast >= 10                                  # the blocked path is met, on many blocks
+    with pytest.raises(ValueError):
+        column_stack([np.zeros(5), np.zeros((4, 2))])

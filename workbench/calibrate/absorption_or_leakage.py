@@ -93,6 +93,8 @@ import copy
 
 import numpy as np
 
+from .stacking import column_stack
+
 __all__ = ["absorption_or_leakage", "bend_on_every_fold", "leakage_beside_absorption", "refitted_absorption_stage",
            "LEAKAGE", "ABSORPTION", "decided_needed", "leakage_no_worse", "leakage_note",
            "nested_consensus", "nested_note", "DEFAULT_AGREE",
@@ -282,7 +284,7 @@ def settled_absorption_rms(by, probs, extra, split, infos):
     prob = probs[key]
     cols = [C for C, _ in extra[key]] + [col[0]]
     lows = [x for _, lo in extra[key] for x in lo] + col[1]
-    g = prob.grams(np.column_stack(cols), lows)
+    g = prob.grams(column_stack(cols), lows)
     da["settled_rms"] = [float(prob.fold_rms(g, tr, va)) for tr, va in split.folds]
 
 
@@ -488,7 +490,7 @@ def leakage_beside_absorption(c, cands, probs, extra, t, base, research):
     if not tau < SETTLED_TEST_RECORDS * float(t[-1] - t[0]):
         return None
     C_da, lo_da = r["eff"].columns(t, r["u"], r["params"])
-    C = np.column_stack([C_lk, np.asarray(C_da, float).reshape(t.size, -1)])
+    C = column_stack([C_lk, np.asarray(C_da, float).reshape(t.size, -1)])
     lower = [float(x) for x in np.atleast_1d(lo_lk)] + [float(x) for x in np.atleast_1d(lo_da)]
     g = probs[key].grams(C, lower)
     if g["C"].shape[1] != C.shape[1]:

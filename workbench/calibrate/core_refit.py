@@ -37,6 +37,7 @@ cannot carry them all: ``plant_update.core_for``), refitted with weights >= 0
 import numpy as np
 
 from ..plant.hysteresis import PrandtlIshlinskii
+from .stacking import column_stack
 
 __all__ = ["hysteresis_from_terminal_pi", "instant_weights", "refitted_core", "direct_core_and_branches", "CAP_OF_C_PP",
            "CAPPED_GAP"]
@@ -648,7 +649,7 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
     cols = [play_matrix(vh, r, z0)] + [_lowpass_from_rest(vh, tau, dt)[:, None] for tau in taus]
     # only the fit rows are stacked (the columns run over the whole record; the same values as X[fit]): one
     # 355,000-row matrix less to allocate
-    Xf = np.column_stack([c[fit] for c in cols])
+    Xf = column_stack([c[fit] for c in cols])
     del cols
     # weights and C_j >= 0, the charge's offset free (every column and q centred on the fit's rows), C_h's
     # reversal slope (the threshold-0 play, V_h itself) at least REVERSAL_FLOOR of the weights' sum (as
@@ -690,7 +691,7 @@ def _direct_at_offset(plant, base, fit, y, t, dt, delay_s, thresholds_v, m, offs
         use[r.size + over.max()] = False
     coef = np.maximum(coef, 0.0)
     coef = np.r_[coef, q[fit].mean() - mu @ coef]
-    A = np.column_stack([Xf, np.ones(n)])
+    A = column_stack([Xf, np.ones(n)])
     w, c = coef[:r.size], coef[r.size:r.size + taus.size]
     if not w[0] > 0:
         return None

@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .stacking import column_stack
+
 
 __all__ = ["CreepLoop", "creep_drive", "drive_taus", "DRIVE_ITERATIONS"]
 
@@ -174,7 +176,7 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
 
     # the plays alone first: the base's model on these rows
     P_r = plays_rows(vt, th, z0, idx)
-    w = solve(np.column_stack([P_r, np.ones(idx.size)]), lower[:n_p + 1])[:n_p]
+    w = solve(column_stack([P_r, np.ones(idx.size)]), lower[:n_p + 1])[:n_p]
     P_0 = P_r
     fit = pi(vt, w)               # the previous pass's plays and creep (channel units, no offset)
     g = np.zeros(taus.size)
@@ -192,7 +194,7 @@ def creep_drive(loop, y, taus_s, dt, rows, n_iter=DRIVE_ITERATIONS, rtol=DRIVE_R
                 x_c += g[j] * col
         u = vt - a * x_c
         P_r = plays_rows(u, th, z0, idx) if g.any() else P_0
-        Z = np.column_stack([P_r, np.ones(idx.size), L_r])
+        Z = column_stack([P_r, np.ones(idx.size), L_r])
         beta = solve(Z, lower)
         g_new = beta[n_p + 1:]
         sse = float(np.sum((y_r - Z @ beta) ** 2))

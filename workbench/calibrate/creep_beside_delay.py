@@ -29,6 +29,7 @@ import copy
 
 import numpy as np
 
+from .stacking import column_stack
 from .effects import CreepSpectrum, Delay, _bounded_delta, _c_ordered, _dt
 from .tracing import _base_lower
 
@@ -230,10 +231,10 @@ def creep_beside_delay(c, cands, probs, extra, t, base):
     drive = _stack_motion(pair[1], prob, base, c["channel"], lower_b)
     d, Kd, D, Df = _joint(c, pair[1], prob, base, t, lower_b, _fold_rows(prob), drive)
     lower = [0.0] * (taus.size + 1)
-    g = _columns(prob, np.column_stack([Kd, D]), lower)
+    g = _columns(prob, column_stack([Kd, D]), lower)
     if not g["ok"][-1]:
         return None
-    fold_g = [_columns(prob, np.column_stack([Kd, Dk]), lower) for Dk in Df]
+    fold_g = [_columns(prob, column_stack([Kd, Dk]), lower) for Dk in Df]
     if any(gk["ok"].tolist() != g["ok"].tolist() for gk in fold_g):
         return None
     n_pos = int(np.count_nonzero(_own_gains(prob, extra, key, tag, g)[:taus.size] > 0))
@@ -274,10 +275,10 @@ def delay_beside_creep(c, cands, probs, extra, t, base):
     drive = _branch_drive(cr)
     d, Kd, D, Df = _joint(cr, c, prob, base, t, _base_lower(base, c["channel"]), _fold_rows(prob), drive)
     lower = [0.0] * (taus.size + 1)
-    g = _columns(prob, np.column_stack([D, Kd]), lower)
+    g = _columns(prob, column_stack([D, Kd]), lower)
     if not g["ok"][0]:
         return None
-    fold_g = [_columns(prob, np.column_stack([Dk, Kd]), lower) for Dk in Df]
+    fold_g = [_columns(prob, column_stack([Dk, Kd]), lower) for Dk in Df]
     if any(gk["ok"].tolist() != g["ok"].tolist() for gk in fold_g):
         return None
     eff = copy.deepcopy(c["eff"])

@@ -83,6 +83,7 @@ from scipy import linalg, signal
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
+from .stacking import column_stack
 from .kernels import lowpass_rows, mode_column_rows, mode_columns_rows
 from .pi_fit import rms
 from .residual import analyze_residual
@@ -353,7 +354,7 @@ class Drift(Effect):
         X = np.vander(s, self.degree + 1, increasing=True)
         if f_hz:
             ph = 2 * np.pi * f_hz * (t - t[0])
-            X = np.column_stack([X, np.sin(ph), np.cos(ph)])
+            X = column_stack([X, np.sin(ph), np.cos(ph)])
         return X
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
@@ -371,7 +372,7 @@ class Drift(Effect):
 
             def row_cols(th, rows):
                 ph = 2 * np.pi * np.exp(th[0]) * (t_rows - t[0])
-                return np.column_stack([powers, np.sin(ph), np.cos(ph)])
+                return column_stack([powers, np.sin(ph), np.cos(ph)])
 
             theta, _ = _varpro(cols, np.asarray(residual, float), mask, [[g] for g in np.linspace(lo, hi, 16)],
                                [lo], [hi], project, row_columns=row_cols)
@@ -725,7 +726,7 @@ class Delay(Effect):
     def _fit_refit(self, t, y, y_model, mask):
         """The refitted search: cost(d) = least squares of ``y`` on the drive model's columns and
         ``y_model``, all delayed by ``d``, on the mask's rows."""
-        Z0 = np.column_stack([self.basis, y_model])
+        Z0 = column_stack([self.basis, y_model])
         # a C-ordered copy for the search, which gathers rows (a row gather from the base's
         # Fortran-ordered columns costs ~5x more); the same values. The basis's copy is made
         # once per basis (~0.15 s at 355,000 rows; both channels' delays and both stages share it)
@@ -974,7 +975,7 @@ class CreepSpectrum(Effect):
 
     @staticmethod
     def _columns(u, taus, dt):
-        return np.column_stack([lowpass(u, tau, dt) - u for tau in taus])
+        return column_stack([lowpass(u, tau, dt) - u for tau in taus])
 
     def _nnls(self, X, residual, mask, project):
         from scipy.optimize import nnls
@@ -1040,7 +1041,7 @@ class GaugeNonlinearity(Effect):
     @staticmethod
     def _columns(u, x_ref):
         d = np.asarray(u, float) - x_ref
-        return np.column_stack([np.ones_like(d), d, d * d])
+        return column_stack([np.ones_like(d), d, d * d])
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None):
         u = np.asarray(u, float)
@@ -1258,7 +1259,7 @@ class Resonance(Effect):
         floor under a 1e-5 m motion: they moved the found mode 39.8 -> 40.8 Hz on 78 #148). Returns ``(f_hz, zeta, column)``, the
         column ``(H - 1) m`` at the full rate of the model ``m = Z c`` as the search refitted it."""
         dt = _dt(t)
-        Z = np.column_stack([self.basis, np.asarray(y_model, float)])
+        Z = column_stack([self.basis, np.asarray(y_model, float)])
         n = Z.shape[0]
         s = max(1, int(np.ceil(n / REFIT_SEARCH_SAMPLES)))
         m_s = np.add.reduceat(np.asarray(mask, bool).astype(np.int64), np.arange(0, n, s)) > 0

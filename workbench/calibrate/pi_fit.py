@@ -39,6 +39,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from ..plant.hysteresis import PrandtlIshlinskii, play
+from .stacking import column_stack
 
 __all__ = ["PIFit", "LineFit", "fit_pi", "pi_thresholds", "play_matrix", "turning_points",
            "split_by_cycles", "straight_line_rms", "rms"]
@@ -147,7 +148,7 @@ def pi_thresholds(v, n_plays, grid="uniform"):
 def play_matrix(v, thresholds, initial_states):
     """Play outputs over the whole record, one column per threshold (shape n x n_plays)."""
     v = np.ascontiguousarray(v, dtype=float)
-    return np.column_stack([play(v, r, z) for r, z in zip(thresholds, initial_states)])
+    return column_stack([play(v, r, z) for r, z in zip(thresholds, initial_states)])
 
 
 def fit_pi(v, x, n_plays=20, thresholds=None, train=None, grid="uniform"):
@@ -181,7 +182,7 @@ def fit_pi(v, x, n_plays=20, thresholds=None, train=None, grid="uniform"):
     P = play_matrix(v, r, z0)[mask]
     # a play that does not move in the training rows would only copy the offset's column: weight 0
     moves = np.ptp(P, axis=0) > MOVE_REL * float(np.ptp(v[mask]))
-    a = np.column_stack([P[:, moves], np.ones(int(mask.sum()))])
+    a = column_stack([P[:, moves], np.ones(int(mask.sum()))])
     b = x[mask]
     col = np.sqrt(np.mean(a * a, axis=0))
     col[col == 0] = 1.0
@@ -247,7 +248,7 @@ def straight_line_rms(v, x, train=None):
     mask = _mask(train, v.size)
     if mask.sum() < 2:
         raise ValueError("need at least 2 training samples for a line")
-    a = np.column_stack([v[mask], np.ones(int(mask.sum()))])
+    a = column_stack([v[mask], np.ones(int(mask.sum()))])
     (slope, offset), *_ = np.linalg.lstsq(a, x[mask], rcond=None)
     resid = slope * v + offset - x
     return LineFit(float(slope), float(offset), rms(resid[mask]), rms(resid[~mask]))

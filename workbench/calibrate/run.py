@@ -24,6 +24,7 @@ from ..errors import DataFileError, PlantDefinitionError, WorkbenchError
 from ..plant.files import load_plant
 from ..plant.generic import load_generic_stack, plant_kind, to_toml
 from ..report.output import write_text
+from .stacking import column_stack
 from .base_fit import fit_base
 from .creep_holds import fit_holds
 from .plant_update import (_sensor_terms, carried_stages, written_stages, choose_core, plant_file_gaps,
@@ -529,7 +530,7 @@ def charge_scale(record, pzt, resistance_ohm, rate_test=False):
     ts = (t[::stride] - t[0]) / max(float(t[-1] - t[0]), dt)      # 0..1: a well-conditioned basis
     leak = np.cumsum(v - resistance_ohm * i)[::stride]            # a leakage resistor's charge, ~ int V_t dt
     leak_span = float(np.ptp(leak))
-    basis = np.column_stack([np.ones_like(ts), ts] + ([leak / leak_span] if leak_span > 0 else []))
+    basis = column_stack([np.ones_like(ts), ts] + ([leak / leak_span] if leak_span > 0 else []))
     proj = basis @ np.linalg.lstsq(basis, q_model, rcond=None)[0]
     shape = q_model - proj                        # the plant's charge no offset or leakage can mimic
     span = float(np.ptp(q_model))
@@ -543,7 +544,7 @@ def charge_scale(record, pzt, resistance_ohm, rate_test=False):
         lin = basis[:, :2]
 
         def left(col):
-            m = np.column_stack([col, lin])
+            m = column_stack([col, lin])
             return float(np.sqrt(np.mean((q - m @ np.linalg.lstsq(m, q, rcond=None)[0]) ** 2)))
         # as a current its own drop sets V_t (the charge's derivative, taken above, is then meaningless)
         v_i = (v - resistance_ohm * q_full)[::stride]

@@ -78,6 +78,7 @@ the base are refitted per fold, and the test part is never seen.
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from .stacking import column_stack
 from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
 from .absorption_or_leakage import explained as _explained
 from .absorption_or_leakage import raw_rms as _raw_rms
@@ -340,7 +341,7 @@ class _Problem:
         self.gram_inv_s = np.linalg.pinv(np.einsum("ij,ik->jk", As, As), rcond=1e-12)
         # the base columns and the target per block, and their Gram matrices, computed once:
         # a candidate adds only its own columns' products
-        Z0 = np.column_stack([self.A, self.r])
+        Z0 = column_stack([self.A, self.r])
         self.Z0b = [self._block_rows(Z0, b) for b in range(len(self.idx))]
         self.G0 = np.stack([z.T @ z for z in self.Z0b])
         self.base = self.grams(np.zeros((r.size, 0)), [])
@@ -747,7 +748,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     if "gauge" in base.channels and "displacement" in base.channels and base.gauge_gain_v_per_m is not None:
         m = base.channels["gauge"]
         line, x = _gauge_line(base)
-        L = np.column_stack([np.ones(t.size), x])
+        L = column_stack([np.ones(t.size), x])
         probs[("gauge", "line")] = _Problem(split, m.valid, L, [-np.inf, -np.inf], m.y - line,
                                             _search_rows(dev_rows & m.valid))
 
