@@ -1186,9 +1186,6 @@ RING_ZETA_MAX = 1.0 / (2.0 * np.pi)
 #: are not measured (open, issue 13 review finding 3)
 REFIT_SEARCH_SAMPLES = 2_000
 
-#: the fine frequency grid about a residual spectrum's peak spans +- this in log f (+-12 %)
-FINE_HALF_LOG = 0.12
-
 
 class Resonance(Effect):
     """A lightly damped mode with unit DC gain the base model lacks: ``g (H(s) - 1) u``.
@@ -1406,21 +1403,10 @@ class Resonance(Effect):
         e_fit = np.asarray(residual, float)[rows]
         # the training rows may be thinned (every k-th row): the spectrum's rate is the rows' own
         step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
-        fs = 1.0 / (dt * step)
+        f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=1.0 / (dt * step), nperseg=min(4096, e_fit.size))
         # peaks above 20 Hz (below, the base model's own slow errors dominate the spectrum),
         # ranked by prominence over a running median: a mode stands out of its neighbourhood
-        f_pk = max(np.exp(lf_lo), 20.0)
-        # Welch's segment resolves the fine grid's half-width at the peaks' floor, fs / nperseg <=
-        # (e^FINE_HALF_LOG - 1) f_pk, rounded up to a power of two (4096 at 10 kHz and 20 Hz: the
-        # segment the 10 kHz protocol was built with), at most the rows'. The segment was 4096 samples
-        # at any rate: 244 Hz bins at 1 MHz, where a 34 Hz mode's peak was not seen, the search started
-        # a factor of two away and ended at zeta 0.0101 for 0.0150 (106 #159: a drift then took the
-        # misfit) or at the damping cap (test_one_megahertz). Below 10 kHz the 4096 samples (finer bins
-        # than the grid needs) are kept: shorter segments there were not measured
-        need = fs / (np.expm1(FINE_HALF_LOG) * f_pk)
-        nperseg = int(min(max(2 ** int(np.ceil(np.log2(max(need, 2.0)))), 4096), e_fit.size))
-        f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=fs, nperseg=nperseg)
-        band = (f_psd >= f_pk) & (f_psd <= np.exp(lf_hi))
+        band = (f_psd >= max(np.exp(lf_lo), 20.0)) & (f_psd <= np.exp(lf_hi))
         lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
         peaks = []
         if band.sum() > 31:
@@ -1436,7 +1422,7 @@ class Resonance(Effect):
                         peaks.append(f_b[k])
         lfs = np.clip(lfs, lf_lo, lf_hi)
         grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
-        grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 11)
+        grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-0.12, 0.12, 11)
                  for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
         # a slow trial's damping capped (:meth:`_ring_cap`): the grid's capped points once each
         seen, capped = set(), []
