@@ -118,13 +118,11 @@ def _mode_record(sn637, rng, n_rows, cycles, effect="none", proto=None):
 
 
 # draws 0-5, sine on odd draws, steps on even ones (the first two were the branch's, the rest added by the
-# lead after the review of s17_mhz found draw 4 failing); make test runs the first two (session 22: three), WORKBENCH_FULL all
-MODE_MISS = ("draw 4 (steps, 2.84 cycles, 56.8 Hz, zeta 0.019, no drift drawn) is answered ['drift', 'resonance', "
-             "'drift'], the drift winning 5 of 5 folds and the mode fitted at 83.6 Hz (main 7953044: ['drift', 'drift']): "
-             "under three cycles a record's slow drift and a slow mode overlap (review of s17_mhz, 2026-11-26)")
-MODE_DRAWS = reduced_draws([pytest.param(d, "sine" if d % 2 else "steps",
-                                          marks=[pytest.mark.xfail(strict=True, reason=MODE_MISS)] if d == 4 else [])
-                             for d in range(6)], keep=range(2))
+# lead after the review of s17_mhz found draw 4 failing); make test runs the first two (session 22: three), WORKBENCH_FULL all.
+# Draw 4 (steps, 2.84 cycles, 56.8 Hz, zeta 0.019) was a strict xfail from session 17 (answered ['drift', 'resonance',
+# 'drift'], the mode fitted at 83.6 Hz); session 27's review of s27_welch found it passing on main (aff5e65: the
+# strict xfail XPASSed under WORKBENCH_FULL=1 only, which ``make test`` does not run), so the mark is removed
+MODE_DRAWS = reduced_draws([pytest.param(d, "sine" if d % 2 else "steps") for d in range(6)], keep=range(2))
 
 
 @pytest.mark.parametrize("draw, proto", MODE_DRAWS)
@@ -150,3 +148,42 @@ def test_a_creep_record_at_one_megahertz_is_not_named_a_slow_mode(sn637):
     proto, truth, sp, base = _mode_record(sn637, rng, 50_000, None, effect="creep")
     res = trace_effect(base, split=sp)
     assert "resonance" not in [s["effect"] for s in res["stages"]], (proto, res["fold_winners"], res["stages"])
+
+
+def _search_draws(n=8):
+    """``n`` benchmark 1 MHz mode records (``default_rng(1)``): protocol, size 3-30x (log-uniform), plant seed."""
+    rng = np.random.default_rng(1)
+    return [(str(rng.choice(["calibration", "sine", "steps"])), float(np.exp(rng.uniform(np.log(3), np.log(30)))),
+             int(rng.integers(1 << 30))) for _ in range(n)]
+
+
+SEARCH_MISS = ("open (session 27): the plain mode search ends at the damping cap 0.159, leaving 35.8x (draw 1) and "
+               "27.7x (draw 7) of what the record's true mode leaves. The residual spectrum whose peaks seed the fine "
+               "frequency grid has 4096-sample segments at any rate (244 Hz bins at 1 MHz, above these 27-110 Hz "
+               "modes); one periodogram of every search row (s27_welch) passed all 8 but was reverted: its review "
+               "found weak modes above 500 Hz lost to noise peaks (no averaging) and 22 #154 (1 MHz sine, drift + "
+               "mode) answered with a zeta-floor, negative-gain mode (ratio 0.05 -> 0.61). Suggested: the long "
+               "segment's peaks added only below the frequency 4096 samples cannot resolve to +-12 %")
+
+
+@pytest.mark.parametrize("proto, size, seed", reduced_draws(
+    [pytest.param(*d, marks=[pytest.mark.xfail(strict=True, reason=SEARCH_MISS)] if k in (1, 7) else [])
+     for k, d in enumerate(_search_draws())], keep={1}))
+def test_the_mode_search_leaves_no_more_than_the_true_mode(sn637, proto, size, seed):
+    """The plain mode search (:meth:`Resonance.fit` on the base's prediction, the training rows) minimizes the
+    residual's least squares on one mode column over (f, zeta): the mode it returns leaves no more than the true
+    mode of the record does. An optimizer's fact only: the objective, on the base's distorted prediction, need
+    not have its minimum at the truth (the found mode may leave less with the wrong frequency or a damping at the
+    floor: the review of s27_welch), so it says nothing of the mode's parameters."""
+    from workbench.calibrate.effects import Resonance
+    cc = _bench()
+    t, sp, base, _, truth, _ = cc.simulated_base(sn637, ("resonance",), RATE_HZ, proto, size, seed)
+    ch = base.channels["displacement"]
+    u, e, mask = ch.yhat, ch.y - ch.yhat, np.asarray(sp.train, bool)
+    eff = Resonance()
+    p = eff.fit(t, u, e, mask)
+
+    def left(f, z):
+        c, r = eff._column(u, f, z, t[1] - t[0])[mask], e[mask]
+        return float(np.sum((r - (c @ r) / (c @ c) * c) ** 2))
+    assert left(p["f_n_hz"], p["zeta"]) <= (1 + 1e-9) * left(truth["freq_hz"], truth["damping_ratio"]), (p, truth)
