@@ -652,13 +652,23 @@ def _gauge_line_for_sensor(ctx, stages, extra):
         inside = (t + d >= t[0]) & (t + d <= t[-1])
         term[inside] = x[inside] - np.interp(t[inside] + d, t, x)
         valid = inside & np.r_[inside[0], inside[:-1]]
-    line = None
+    line, cols = None, None
     if drift is not None:
         C, _ = drift["_cand"]["eff"].columns(t, None, drift["parameters"])
-        found, line = _drift_on_gauge(ctx, x - term, np.atleast_2d(np.asarray(C, float).T).T, valid)
-        term = term + found
-    if _gauge_reads_corrected(ctx, term, extra, valid=valid, line_v=line):
+        C = np.atleast_2d(np.asarray(C, float).T).T
+        found, line = _drift_on_gauge(ctx, x - term, C, valid)
+        if found is None:
+            cols = C                   # (the correction did not help the gauge: session 26's free columns)
+        else:
+            term = term + found
+    if _gauge_reads_corrected(ctx, term, extra, columns=cols, valid=valid, line_v=line):
         ctx["line_sensor"] = spec
+
+
+#: the repeats of :func:`_drift_on_gauge`'s fit at most (a bound on its cost, ~0.07 s a fit at 355,000 rows; a 40x
+#: drift at 10 kHz steps converged linearly at ~0.96 a fit and took 1035: the review of s27_driftbow; 200 such fits
+#: leave ~3e-4 of the first correction)
+DRIFT_ON_GAUGE_MAX_FITS = 200
 
 
 def _drift_on_gauge(ctx, x_m, cols, valid):
@@ -679,27 +689,44 @@ def _drift_on_gauge(ctx, x_m, cols, valid):
     the corrected ``x`` while its correction shrinks (a 7x drift + bow at 10 kHz steps: 5.0e-8, 9.4e-9, then
     8.1e-9 m off the simulated 6.5e-7 m drift; the bow's column on ``X`` itself, ``(x + D)^2``, read a bow 2x
     the stack's). ``x_m``: the recorded displacement with the found delay taken out (m); ``valid``: the rows
-    the line keeps. The line returned is the same fit's ``a + b x`` (the bow's ``d^2`` beside it): the base's
+    the line keeps. The line returned is ``a + b x`` of the corrected motion's fit on ``1, x, d^2``: the base's
     gauge gain was fitted against the drifting ``X`` (0.62x the stack's slope on that 7x record), and the bow's
-    coefficient is read against the line's slope (:class:`~.effects.GaugeNonlinearity`: ``-c2 / b``)."""
+    coefficient is read against the line's slope (:class:`~.effects.GaugeNonlinearity`: ``-c2 / b``).
+
+    Returns ``(None, None)`` when the correction leaves the gauge's misfit on the stack (its residual on ``1, x,
+    d^2`` over the rows) above the uncorrected record's, or is not finite: the caller then leaves the drift's
+    columns free in the line problem (session 26's reading). The review of s27_driftbow found at 1 MHz steps (a
+    0.1 s staircase: ``x`` and the drift's powers of time nearly collinear) a second correction larger than the
+    first and the kept one worse than none (3.2e-7 m off a 2.7e-7 m drift, seed 29). At most
+    :data:`DRIFT_ON_GAUGE_MAX_FITS` fits (a 40x drift at 10 kHz steps converged at ~0.96 a fit: 1035 fits)."""
     base, t = ctx["base"], ctx["t"]
     m = base.channels["gauge"]
     rows = ctx["probs"][("gauge", "line")].split.train & np.asarray(m.valid, bool) & np.asarray(valid, bool)
-    drift, last = np.zeros(t.size), np.inf
-    while True:
+
+    def fit(drift, extra_cols):
         line, x = _tr._gauge_line(base, x_m - drift)
         d = x - float(np.mean(x[rows]))
-        A = np.column_stack([np.ones(t.size), x, d * d, cols])
+        A = np.column_stack([np.ones(t.size), x, d * d] + extra_cols)
         scale = np.sqrt(np.mean(A[rows] ** 2, axis=0))
         scale[scale == 0] = 1.0
         w = np.linalg.lstsq(A[rows] / scale, (m.y - line)[rows], rcond=None)[0] / scale
+        return line, x, w, float(np.sqrt(np.mean(((m.y - line) - A @ w)[rows] ** 2)))
+    drift, last = np.zeros(t.size), np.inf
+    for _ in range(DRIFT_ON_GAUGE_MAX_FITS):
+        _, _, w, _ = fit(drift, [cols])
         step = -(cols @ w[3:]) / (base.gauge_gain_v_per_m + w[1])
         size = float(np.sqrt(np.mean(step[rows] ** 2)))
         if not np.isfinite(size):
-            return drift, None
+            return None, None
         if size >= last:
-            return drift, line + w[0] + w[1] * x
+            break
         drift, last = drift + step, size
+    # the line on the corrected motion: ``1, x, d^2`` alone (with the drift's columns beside them a slope is
+    # ill-posed where ``x`` and time are collinear: the review's seed 33 at 1 MHz steps, 9.6e4 for 3.3e5 V/m)
+    line, x, w, left = fit(drift, [])
+    if not left <= fit(np.zeros(t.size), [])[3]:
+        return None, None
+    return drift, line + w[0] + w[1] * x
 
 
 def _gauge_reads_corrected(ctx, term_m, extra, columns=None, valid=None, line_v=None):
