@@ -319,10 +319,11 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     (:func:`~workbench.calibrate.splits.block_length_s`); each block is held out in turn, both sets fitted on
     the other training rows and the block predicted: ``d_b`` is the declared set's squared prediction error on
     it minus the grid's. The grid replaces the declared thresholds only when the mean of ``d_b`` over its
-    standard error from the blocks' scatter (``z``) passes Student's t quantile ``1 - level`` at (blocks - 1)
+    standard error (the blocks' scatter and their correlation: Newey-West) (``z``) passes Student's t quantile ``1 - level`` at (blocks - 1)
     degrees of freedom (one-sided) and the grid is clearly better: its held-out RMS over the blocks at most
     :data:`LINE_MARGIN` of the declared set's (``ratio``, the margin the tracing asks of an effect). A tie keeps
-    them. The rows the tracing validates and tests on are never used.
+    them. (The rows are the split's training rows, its folds' validation rows among them, as the base's own fit;
+    the test part takes no part.)
 
     Both sets also carry the tracing's drift columns (:class:`~workbench.calibrate.effects.Drift`: ``s``,
     ``s^2`` of normalized time), free and alike: without them a drift on the file's own stack moved ``z`` and
@@ -371,7 +372,14 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     ratio = float(np.sqrt(errs[1].sum() / errs[0].sum())) if errs[0].sum() > 0 else 1.0
     if nb < 2 or np.isinf(lam):
         return {"grid": False, "z": 0.0, "bar": np.inf, "mean": mean, "ridge": lam, "blocks": nb, "ratio": ratio}
-    se = float(d.std(ddof=1) / np.sqrt(nb))
+    # the standard error allows for the blocks' correlation (Newey-West, Bartlett weights, the usual lag
+    # floor(4 (nb / 100)^(2/9)): 3 at 81 blocks): neighbouring blocks' d_b correlate (lag 1 +0.36-0.5 at 1 MHz
+    # steps, up to +0.88; the review of s27_ridge), where the blocks' own scatter made se ~1.5x too small and
+    # z passed on the file's own stack (1 MHz creep steps 8.4x: z 4.78; 2.97 with the correlation)
+    c = d - mean
+    lag = min(int(4 * (nb / 100.0) ** (2.0 / 9.0)), nb - 1)
+    var = float(c @ c) / nb + 2 * sum((1 - k / (lag + 1)) * float(c[k:] @ c[:-k]) / nb for k in range(1, lag + 1))
+    se = float(np.sqrt(max(var, 0.0) / (nb - 1)))
     z = mean / se if se > 0 else 0.0
     bar = float(stdtrit(nb - 1, 1.0 - level))
     grid = bool(z > bar and ratio <= LINE_MARGIN)
