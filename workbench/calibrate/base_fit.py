@@ -334,7 +334,8 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     Why the margin: an effect the base lacks (a large creep) is in both sets' residuals, and the grid's other
     thresholds take a small part of it that holds from block to block, so ``z`` alone passed on file's-own
     stacks whose effect-free twins keep the declared core (the confusion benchmark's seed 45 #90, a 8.56x creep
-    at 100 kHz steps: z 3.45 over 81 blocks, ratio 0.974; twin z -3.69); a core the file has wrong is
+    at 100 kHz steps: z 3.45 over 81 blocks with their scatter alone, ratio 0.974; twin z -3.69; 2.90 and -2.69
+    with their correlation); a core the file has wrong is
     rate-independent misfit the grid removes in bulk (C_h thresholds 0.9x the file's, 250 Hz slow triangle:
     z 6.71, ratio 0.70). Returns a dict: ``grid``, ``z``, ``bar``, ``mean``, ``ridge``, ``blocks``, ``ratio``.
     """
@@ -375,7 +376,8 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     # the standard error allows for the blocks' correlation (Newey-West, Bartlett weights, the usual lag
     # floor(4 (nb / 100)^(2/9)): 3 at 81 blocks): neighbouring blocks' d_b correlate (lag 1 +0.36-0.5 at 1 MHz
     # steps, up to +0.88; the review of s27_ridge), where the blocks' own scatter made se ~1.5x too small and
-    # z passed on the file's own stack (1 MHz creep steps 8.4x: z 4.78; 2.97 with the correlation)
+    # z passed on the file's own stack (the confusion benchmark's 88 #156, a 8.36x creep at 1 MHz steps: z 4.28
+    # over the bar 3.20, its twin -0.07; 2.99 with the correlation)
     c = d - mean
     lag = min(int(4 * (nb / 100.0) ** (2.0 / 9.0)), nb - 1)
     var = float(c @ c) / nb + 2 * sum((1 - k / (lag + 1)) * float(c[k:] @ c[:-k]) / nb for k in range(1, lag + 1))
