@@ -41,6 +41,7 @@ import numpy as np
 
 from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, turning_points
 from .residual import record_charge
+from .stacking import column_stack
 
 __all__ = ["ChannelModel", "BaseFit", "fit_base", "holdout_mask", "small_problem", "interval_mean", "CHANNEL_KEYS",
            "CHANNEL_UNITS"]
@@ -257,14 +258,8 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling=
     """
     rows = train & valid
     n = int(rows.sum())
-    a = np.column_stack([P[rows], np.ones(n)])
-    col = np.sqrt(np.mean(a * a, axis=0))
-    col[col == 0] = 1.0
-    bscale = rms(y[rows]) or 1.0
-    an, b = a / col, y[rows] / bscale
+    an, b, lower, pen, col, bscale = _scaled(P, y, rows, thresholds)
     k = thresholds.size
-    lower = np.r_[np.zeros(k), -np.inf]
-    pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
     G, h = an.T @ an, an.T @ b
     if ridge is None:
         ridge = float(RIDGE_GRID[int(np.argmin(_ridge_cv(an, b, lower, pen)))])
@@ -281,16 +276,17 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling=
 
 def _scaled(P, y, rows, thresholds):
     """:func:`_fit_channel`'s fitting problem: the unit-RMS columns (plays + ones) on ``rows``, the scaled
-    target, the bounds and the penalty (the identity play and the offset free)."""
+    target, the bounds, the penalty (the identity play and the offset free), the columns' RMS and the
+    target's (to scale the weights back)."""
     n = int(rows.sum())
-    a = np.column_stack([P[rows], np.ones(n)])
+    a = column_stack([P[rows], np.ones(n)])
     col = np.sqrt(np.mean(a * a, axis=0))
     col[col == 0] = 1.0
-    b = y[rows] / (rms(y[rows]) or 1.0)
+    bscale = rms(y[rows]) or 1.0
     k = thresholds.size
     lower = np.r_[np.zeros(k), -np.inf]
     pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
-    return a / col, b, lower, pen
+    return a / col, y[rows] / bscale, lower, pen, col, bscale
 
 
 def _ridge_cv(an, b, lower, pen, ridges=RIDGE_GRID):
@@ -352,9 +348,9 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     X = Drift()._X(t)[rows][:, 1:]
     X = X / np.sqrt(np.mean(X * X, axis=0))
     for P, r in ((P_d, r_d), (P_g, r_g)):
-        an, b, lower, pen = _scaled(P, y, rows, r)
+        an, b, lower, pen, _, _ = _scaled(P, y, rows, r)
         m = X.shape[1]
-        sets.append((np.column_stack([an, X]), b, np.r_[lower, np.full(m, -np.inf)], np.r_[pen, np.zeros(m)]))
+        sets.append((column_stack([an, X]), b, np.r_[lower, np.full(m, -np.inf)], np.r_[pen, np.zeros(m)]))
     cv = sum(_ridge_cv(*s) for s in sets)
     lam = float(RIDGE_GRID[int(np.argmin(cv))])
     n = idx.size
