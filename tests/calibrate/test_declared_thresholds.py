@@ -225,3 +225,24 @@ def test_the_gate_allows_for_the_blocks_correlation():
     _, _, base, _, _, _ = cc.simulated_base(load_plant(PLANTS / "p888_51_sn637.toml"), (e,), rate, proto, size, seed)
     g = base.threshold_gate
     assert g is not None and g["z"] <= g["bar"], g
+
+
+def test_a_drift_on_file_leaves_the_gate_where_its_twin_has_it():
+    """The gate's drift columns (s27_driftbow's review): a sensor drift is a polynomial of time, in the span of the
+    tracing's drift columns both threshold sets carry free, so it moves neither set's held-out block errors beyond
+    the target's scale, which ``z`` and ``ratio`` do not see: a drift record on the file's own stack must get its
+    effect-free twin's gate (the confusion benchmark's seed 105 #40, a 2.04x drift at 10 kHz calibration; without
+    the drift columns in both sets the drift moved z toward the grid, 3.74 against the twin's -3.77, session 27).
+    Both records share the seed's noise, so the two statistics agree to rounding."""
+    cc = load_benchmark("calibrate_confusion")
+    e, rate, proto, size, seed = cc.cases(seed=105, ends=True)[39]
+    assert (e, rate, proto) == ("drift", 1e4, "calibration")
+    plant0 = load_plant(PLANTS / "p888_51_sn637.toml")
+    gates = [cc.simulated_base(plant0, eff, rate, proto, size, seed)[2].threshold_gate for eff in (("drift",), "none")]
+    assert all(g is not None and g["channel"] == "displacement" for g in gates), gates
+    rec, twin = gates
+    # the drift's excursion (100-400 nm x size) is tens of times the motion's misfit: without the columns it is
+    # no rounding
+    assert rec["z"] == pytest.approx(twin["z"], rel=1e-4, abs=1e-4), (rec, twin)
+    assert rec["ratio"] == pytest.approx(twin["ratio"], rel=1e-4), (rec, twin)
+    assert rec["ridge"] == twin["ridge"] and rec["grid"] == twin["grid"], (rec, twin)
