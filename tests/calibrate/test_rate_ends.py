@@ -173,7 +173,7 @@ def _end_draws():
 @pytest.mark.parametrize("case", _end_draws(), ids=lambda c: f"{c[1]:g}Hz-{c[0]}-{c[2]}")
 def test_drawn_end_records_name_no_wrong_effect_and_stay_below_the_line(sn637, case):
     e, rate, proto, size, seed, n = case
-    r = _bench().evaluate(sn637, e, rate, proto, size, seed, n_rows=n, diagnostics=False)   # no twin size: unread
+    r = _bench().evaluate(sn637, e, rate, proto, size, seed, n_rows=n)
     print(f"\n{e} {rate:g} Hz {proto} size x{size:.3g} excess {r['excess']:.3g} -> {r['named']} {r['class']} "
           f"ratio {r['ratio']:.2f} folds {r['fold_winners']}")
     assert r["class"] != "wrong", (r["named"], r["fold_winners"])
