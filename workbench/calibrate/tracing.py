@@ -1154,7 +1154,8 @@ def _carried_motion(C, fold, base, found_on, other):
     gauge reads (interval-averaged for an averaged gauge, :func:`~.base_fit.interval_mean`), its gain free
     in sign and size (volts per metre, the gauge's fit), **beside** the mode taken on the gauge's own base
     prediction (what :func:`_absorb` carried before, gain free too). Each column misses where the other
-    holds: the gauge's own prediction is the distorted drive the refit exists to avoid (a large mode's ringing makes the base's plays, weights >= 0, fit a
+    holds: the gauge's own prediction is the distorted drive the refit exists to avoid (a large mode's
+    ringing makes the base's plays, weights >= 0, fit a
     prediction the mode filter explains little of: seed 104 #71, a 7.2x 77 Hz mode at 100 kHz named on the
     displacement, the gauge's carry refused on 3 of 5 folds, its held-out error 0.166 V above its straight
     line's 0.136 V; with the motion column 0.0071 V, its floor), and ``m`` fits what the displacement
