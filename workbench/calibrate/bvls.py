@@ -1,6 +1,6 @@
 """Bounded least squares on the calibration's small square-root systems, compiled (numba).
 
-The calibration's Gram solves (``base_fit._gram_solve``, ``tracing._Folds.solve``) each minimize
+The calibration's Gram solves (``base_fit._gram_solve``, ``tracing._Problem.solve``) each minimize
 ``w'G w - 2 h'w`` over ``w >= lower`` for a Gram matrix of tens of columns, thousands of times a record:
 ``scipy.optimize.lsq_linear(R, c, bounds, method="bvls", tol=1e-12)`` on the square root ``R'R = G``
 spent nearly all its time in the interpreter (a cProfile of one creep test: 8.2 s of 21.4 s of tracing
