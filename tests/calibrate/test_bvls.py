@@ -107,9 +107,21 @@ def test_base_fit_problems_of_a_traced_record(sn637, monkeypatch):
 
 
 def test_a_non_finite_system_goes_to_scipy():
-    """Non-finite systems: scipy's own behaviour (its error), not a kernel crash."""
-    R, c, lower = np.array([[np.nan, 1.0], [0.0, 1.0]]), np.ones(2), np.zeros(2)
-    with pytest.raises(Exception) as ref:
-        _reference(R, c, lower, np.full(2, np.inf))
-    with pytest.raises(type(ref.value)):
-        bvls(R, c, lower)
+    """Non-finite systems get scipy's own answer (an infinite right-hand side: NaN weights), where the compiled
+    kernel itself would raise (numba's lstsq refuses non-finite input): the fallback is what answers."""
+    from workbench.calibrate.bvls import _bvls
+    R, c, lower, upper = np.eye(2), np.array([np.inf, 1.0]), np.zeros(2), np.full(2, np.inf)
+    ref = _reference(R, c, lower, upper)
+    assert np.all(np.isnan(ref))
+    with pytest.raises(Exception):
+        _bvls(R.copy(), c.copy(), lower.copy(), upper.copy(), 1e-12)
+    np.testing.assert_array_equal(bvls(R, c, lower), ref)
+
+
+def test_bounds_of_the_wrong_shape_go_to_scipy():
+    """A ``lower`` shorter than the unknowns: scipy's error, not a read past the array's end."""
+    R, c = np.eye(5), np.arange(5.0)
+    with pytest.raises(ValueError, match="shape"):
+        _reference(R, c, np.zeros(3), np.full(3, np.inf))
+    with pytest.raises(ValueError, match="shape"):
+        bvls(R, c, np.zeros(3))

@@ -47,7 +47,7 @@ def _free_solve(A, b, x, free_set, active):
     return np.linalg.lstsq(A_free, b_free, rcond)[0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")      # a step's 0 / 0 is NaN as in numpy, not a ZeroDivisionError
 def _bvls(A, b, lb, ub, tol):
     m, n = A.shape
     # lsq_linear's first step: the unconstrained solution (rcond=-1: LAPACK's machine-precision cutoff)
@@ -202,7 +202,8 @@ def bvls(R, c, lower, upper=None, tol=1e-12):
     c = np.asarray(c, float)
     lower = np.asarray(lower, float)
     upper = np.full(lower.size, np.inf) if upper is None else np.asarray(upper, float)
-    if R.ndim != 2 or R.size == 0 or not (np.all(np.isfinite(R)) and np.all(np.isfinite(c))) \
+    shapes = R.ndim == 2 and c.shape == R.shape[:1] and lower.shape == upper.shape == R.shape[1:]
+    if not shapes or R.size == 0 or not (np.all(np.isfinite(R)) and np.all(np.isfinite(c))) \
             or np.any(lower >= upper) or np.isnan(lower).any() or np.isnan(upper).any():
         from scipy.optimize import lsq_linear
         return lsq_linear(R, c, bounds=(lower, upper), method="bvls", tol=tol).x
