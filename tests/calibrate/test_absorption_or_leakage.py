@@ -117,14 +117,15 @@ def _trace(sn637, effect, protocol, size, tau_records, seed):
     return trace_effect(base, split=sp), T
 
 
-#: make test traces 6 of seed 0's 12 records (session 30; session 29 traced all 12): per protocol one leakage and
+#: make test traces 7 of seed 0's 12 records (session 30; session 29 traced all 12): per protocol one leakage and
 #: one absorption, the draw's ends kept: leakage 0.036x (steps, the smallest), 11.2x (calibration) and 11.7x (sine,
 #: the largest); absorption 0.040x (calibration, the smallest, tau 0.055 records), 1.98x (sine, tau 3.96 records,
-#: the slowest) and 8.4x (steps, the largest, tau 0.051, the fastest). The six left to WORKBENCH_FULL=1 are inside
-#: those ends on every axis (10 kHz, the same protocols); leakage over the size range at 1 and 10 kHz is asserted
-#: in make test by test_leakage_and_pairs_standing_3x_above_the_floor_are_named (6 records) and at 1-100 kHz by
-#: test_a_single_charge_effect_never_gets_the_other_named_beside_it (3 more)
-DRAWN_REDUCED = (1, 3, 5, 6, 8, 10)
+#: the slowest) and 8.4x (steps, the largest, tau 0.051, the fastest); and the 1.28x steps leakage, one of the three
+#: mid-size leakages the rule leaves undecided between absorption and leakage (5 of 5 folds), the records nearest the
+#: confusion this test forbids (the review, session 30). Left to WORKBENCH_FULL=1: the other two undecided leakages
+#: (2.44x calibration, 8.26x sine) and three absorptions named 5 of 5, inside the kept ends on every axis (10 kHz,
+#: the same protocols)
+DRAWN_REDUCED = (1, 3, 4, 5, 6, 8, 10)
 
 
 @pytest.mark.parametrize("seed", (0, 1) if FULL else (0,))

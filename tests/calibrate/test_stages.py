@@ -558,11 +558,6 @@ CD_DRAWN = 3 if not FULL else 9
 #: single-effect guards after the pairs (the same stream: the first ones are the full run's first ones);
 #: the benchmark's creep and delay records carry the guard at scale (README, session 13)
 CD_SINGLES = 1 if not FULL else 9
-#: session 30: make test leaves the third pair (1 kHz steps, 0.27x) to WORKBENCH_FULL=1: test_creep_beside_delay.py's
-#: make test asserts the same guards (nothing the record lacks, none above the line) and both-named on a 1 kHz steps
-#: creep + delay pair (1.43x, both >= 3x); kept here the 100 kHz sine 0.032x, the 10 kHz calibration 3.1x (both
-#: >= 3x) and the two guards (creep 10 kHz calibration 2.6x, delay 1 kHz calibration 0.059x)
-CD_LEFT_TO_FULL = () if FULL else (2,)
 
 
 def _cd_draws():
@@ -581,7 +576,7 @@ def _cd_draws():
 def cd_rows(sn637):
     cc = _bench()
     rows = []
-    for eff, rate, proto, size, seed in [d for k, d in enumerate(_cd_draws()) if k not in CD_LEFT_TO_FULL]:
+    for eff, rate, proto, size, seed in _cd_draws():
         r = cc.evaluate(sn637, eff, rate, proto, size, seed, diagnostics=False)
         print(f"\n{r['effect']:12s} {rate / 1e3:4.0f} kHz {proto:11s} size x{size:.3g} own sizes "
               f"{np.round(r['excesses'], 2)} -> stages {r['named']} {r['class']} both {r['both']} "
