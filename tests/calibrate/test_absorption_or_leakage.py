@@ -117,6 +117,17 @@ def _trace(sn637, effect, protocol, size, tau_records, seed):
     return trace_effect(base, split=sp), T
 
 
+#: make test traces 7 of seed 0's 12 records (session 30; session 29 traced all 12): per protocol one leakage and
+#: one absorption, the draw's ends kept: leakage 0.036x (steps, the smallest), 11.2x (calibration) and 11.7x (sine,
+#: the largest); absorption 0.040x (calibration, the smallest, tau 0.055 records), 1.98x (sine, tau 3.96 records,
+#: the slowest) and 8.4x (steps, the largest, tau 0.051, the fastest); and the 1.28x steps leakage, one of the three
+#: mid-size leakages the rule leaves undecided between absorption and leakage (5 of 5 folds), the records nearest the
+#: confusion this test forbids (the review, session 30). Left to WORKBENCH_FULL=1: the other two undecided leakages
+#: (2.44x calibration, 8.26x sine) and three absorptions named 5 of 5, inside the kept ends on every axis (10 kHz,
+#: the same protocols)
+DRAWN_REDUCED = (1, 3, 4, 5, 6, 8, 10)
+
+
 @pytest.mark.parametrize("seed", (0, 1) if FULL else (0,))
 def test_drawn_records_confuse_nothing_the_physics_tells_apart(sn637, seed):
     """Leakage and absorption records drawn over the whole size range and time constants from
@@ -125,7 +136,8 @@ def test_drawn_records_confuse_nothing_the_physics_tells_apart(sn637, seed):
     be named leakage (its bend below what the record resolves: the nested, simpler reading); such
     records are printed, not asserted. A named leakage carries the note."""
     wrong, unresolved, named = [], [], []
-    for e, proto, size, tau_records, s in _draws(6, seed):
+    draws = _draws(6, seed)
+    for e, proto, size, tau_records, s in (draws if FULL else [draws[k] for k in DRAWN_REDUCED]):
         res, T = _trace(sn637, e, proto, size, tau_records, s)
         names = [st["effect"] for st in res["stages"]]
         print(f"\n{e:22s} {proto:11s} x{size:7.3f} tau/T {tau_records if tau_records is None else round(tau_records, 2)}"
@@ -322,6 +334,17 @@ def _drawn_records(effects, n, seed):
     return out
 
 
+#: make test traces 6 of each effect's 8 records (session 30; session 29 traced all 8): every cell of rate (1, 10 kHz)
+#: and protocol once, the size range's ends and the records nearest the 3x bar kept. Leakage: 0.196x (10 kHz steps,
+#: the smallest), 16.2x (10 kHz sine, the largest, named 3 of 5) and 0.387x (1 kHz calibration, 4.1x above the
+#: floor, named 2 of 5) kept; left to WORKBENCH_FULL=1 the 1 kHz calibration 4.5x (named 5 of 5 at 50x above the
+#: floor, the kept 0.387x's cell) and the 10 kHz steps 0.327x (none, inside the kept 0.196x's cell). The pair:
+#: 0.032x (10 kHz sine, the smallest), 13.8x (10 kHz steps, the largest) and 0.110x (1 kHz calibration, 3.7x above
+#: the floor, the record nearest the bar) kept; left to the full form the 1 kHz calibration 3.18x (154x above the
+#: floor, the kept 0.110x's cell) and the 10 kHz steps 0.035x (none, the kept 13.8x's cell, beside the kept 0.032x)
+LEAKAGE_REDUCED = {"leakage": (2, 3, 4, 5, 6, 7), "pair": (0, 1, 2, 3, 4, 5)}
+
+
 @pytest.mark.parametrize("effect", ["leakage", ("leakage", "dielectric_absorption")])
 def test_leakage_and_pairs_standing_3x_above_the_floor_are_named(sn637, effect):
     """Leakage and leakage + absorption records at 1 and 10 kHz, three protocols, sizes over the
@@ -334,7 +357,9 @@ def test_leakage_and_pairs_standing_3x_above_the_floor_are_named(sn637, effect):
     cc = load_benchmark("calibrate_confusion")
     seed = 1311 if effect == "leakage" else 1312
     rows = []
-    for e, rate, proto, size, s in _drawn_records([effect], 8, seed):
+    draws = _drawn_records([effect], 8, seed)
+    keep = LEAKAGE_REDUCED["leakage" if effect == "leakage" else "pair"]
+    for e, rate, proto, size, s in (draws if FULL else [draws[k] for k in keep]):
         r = cc.evaluate(sn637, e, rate, proto, size, s, diagnostics=False)
         print(f"\n{r['effect']:32s} {rate:6.0f} {proto:11s} x{size:7.3f} excess {r['excess']:7.2f} -> {r['answer']} "
               f"{r['agreement']} {r['named']} {r['class']} ratio {r['ratio']:.2f} {r['fold_winners']}")
@@ -609,11 +634,13 @@ def slow_absorptions(sn637):
     record) on 2 s 10 kHz records, sizes over the benchmark's whole range (``default_rng(1515)``,
     fixed before any run): ``(size, tau over the record, result, names)``."""
     rows = []
-    # make test traces 6 of the 16 (session 23; session 22's traced all 16): two of the three the strict xfail
-    # below measured named leakage (25 and 6.9 record lengths), two answered inconclusive undecided (the rule
-    # the test asks of), two none
+    # make test traces 5 of the 16 (session 30; session 23's 6, session 22's all 16): two of the three the strict
+    # xfail below measured named leakage (25 and 6.9 record lengths), two answered inconclusive undecided (the rule
+    # the test asks of), one none (tau 42 records, the slowest); session 30 left draw 12 (calibration 0.70x, tau 21
+    # records, none) to WORKBENCH_FULL=1: inside the kept draws on every axis (0.57-8.7x, tau 6.9-42 records, two
+    # calibration records kept)
     draws = _slow_draws(16, 1515, 5.0, 50.0)
-    for proto, size, tau_records, s in (draws if FULL else [draws[k] for k in (1, 2, 3, 9, 12, 13)]):
+    for proto, size, tau_records, s in (draws if FULL else [draws[k] for k in (1, 2, 3, 9, 13)]):
         res, T = _trace(sn637, "dielectric_absorption", proto, size, tau_records, s)
         names = [st["effect"] for st in res["stages"]]
         print(f"\n{proto:11s} x{size:7.3f} tau/T {tau_records:5.1f} -> {res['effect']} {names} {res['fold_winners']}")
