@@ -209,7 +209,7 @@ def _bounded_delta(G, h, m, lower):
 
 
 def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
-            row_columns_many=None, jac="2-point"):
+            row_columns_many=None, jac="2-point", added_from=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -224,6 +224,11 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     to the last bit (a compiled filter runs :data:`GRID_BATCH` of them in one pass).
     ``jac``: ``least_squares``' finite-difference scheme (see :meth:`_Relaxation.fit` for why a
     relaxation's search takes ``"3-point"``).
+    ``added_from``, optional: the grid's points from this index on are an added part (:meth:`Resonance.fit`'s
+    long-segment peaks): the ``starts`` refinements start from the best points before it, as without the
+    added part, and one more from the added part's best. The answer is the least cost of every grid point
+    and refinement, so it leaves no more than the search without the added part would (the added
+    points, ~77 about each peak, cannot crowd the others' valleys out of the starts).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -292,7 +297,12 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
     theta, best_cost = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float)), min(costs)
     # refine from the best few grid points: a light mode's valleys are narrow and several
-    for k in np.argsort(costs)[:starts]:
+    if added_from is None or added_from >= len(costs):
+        picks = np.argsort(costs)[:starts]
+    else:
+        c = np.asarray(costs, dtype=float)
+        picks = list(np.argsort(c[:added_from])[:starts]) + [added_from + int(np.argmin(c[added_from:]))]
+    for k in picks:
         x0 = np.clip(np.atleast_1d(np.asarray(grid[int(k)], dtype=float)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60, jac=jac, **_MAP_KW(jacobian_map))
         if 2 * sol.cost < best_cost:
@@ -1420,8 +1430,9 @@ class Resonance(Effect):
 
         Returns
         -------
-        list of float
-            The peaks' frequencies (Hz).
+        peaks, added : list of float
+            The short segment's peaks and the long segment's added ones (Hz; ``added`` empty where the
+            short segment resolves the fine grid at the floor).
         """
         from scipy.ndimage import median_filter
         e = np.asarray(e, float) - float(np.mean(e))
@@ -1446,13 +1457,13 @@ class Resonance(Effect):
         # fine grid at the floor, 10 kHz and below, or where it already takes every row)
         f_c = min(fs / (nseg * np.expm1(FINE_HALF_LOG)), np.exp(lf_hi))
         if f_c <= f_pk or e.size <= nseg:
-            return peaks
+            return peaks, []
         need = fs / (np.expm1(FINE_HALF_LOG) * f_pk)
         nlong = int(min(2 ** int(np.ceil(np.log2(need))), e.size))
         f_l, p_l = signal.welch(e, fs=fs, nperseg=nlong)
         low = (f_l >= f_pk) & (f_l < f_c)
         if low.sum() < 3:
-            return peaks
+            return peaks, []
         p_b, f_b = p_l[low], f_l[low]
         lf_b = np.log(f_b)
         half = 0.5 * (lf_hi - lf_lo) / max(self.n_freq // 2 - 1, 1)
@@ -1463,7 +1474,7 @@ class Resonance(Effect):
         n0 = len(peaks)
         take(f_b, np.argsort(p_b)[::-1], n0 + 2)
         take(f_b, np.argsort(prominence)[::-1], n0 + 4)
-        return peaks
+        return peaks[:n0], peaks[n0:]
 
     def fit(self, t, u, residual, train_mask, y_model=None, project=None, refit=False):
         dt = _dt(t)
@@ -1493,18 +1504,24 @@ class Resonance(Effect):
         # the training rows may be thinned (every k-th row): the spectrum's rate is the rows' own
         step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
         lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
-        peaks = self._spectral_peaks(e_fit, 1.0 / (dt * step), lf_lo, lf_hi)
+        peaks, added = self._spectral_peaks(e_fit, 1.0 / (dt * step), lf_lo, lf_hi)
         lfs = np.clip(lfs, lf_lo, lf_hi)
-        grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
-        grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 11)
-                 for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
-        # a slow trial's damping capped (:meth:`_ring_cap`): the grid's capped points once each
+
+        def fine(pks):
+            return [[lf, lz] for f_peak in pks for lf in np.log(f_peak) + np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 11)
+                    for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
+        grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)] + fine(peaks)
+        # a slow trial's damping capped (:meth:`_ring_cap`): the grid's capped points once each; the long
+        # segment's peaks' points after the others, their own start (_varpro's added_from)
         seen, capped = set(), []
-        for lf, lz in grid:
-            g = (float(lf), float(np.log(zeta(np.exp(lf), np.exp(lz)))))
-            if g not in seen:
-                seen.add(g)
-                capped.append(list(g))
+        for part in (grid, fine(added)):
+            n_before = len(capped)
+            for lf, lz in part:
+                g = (float(lf), float(np.log(zeta(np.exp(lf), np.exp(lz)))))
+                if g not in seen:
+                    seen.add(g)
+                    capped.append(list(g))
+        added_from = n_before if len(capped) > n_before else None
         grid = capped
 
         def mode(th):
@@ -1521,7 +1538,7 @@ class Resonance(Effect):
                               np.asarray(residual, float), np.asarray(train_mask, bool),
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
                               row_columns=lambda th, rows: mode_column_rows(u, *mode(th), rows),
-                              plain_costs=memo,
+                              plain_costs=memo, added_from=added_from,
                               row_columns_many=lambda ths, rows: mode_columns_rows(
                                   u, [mode(th) for th in ths], rows))
         f = float(np.exp(theta[0]))
