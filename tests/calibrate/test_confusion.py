@@ -11,7 +11,7 @@ that is none. A ``none`` or ``inconclusive`` is not wrong. WORKBENCH_FULL=1 adds
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, leak_and_absorption_fits, load_benchmark
+from tests.conftest import FULL, leak_and_absorption_fits, load_benchmark, reduced_draws
 
 
 
@@ -174,16 +174,21 @@ def test_creep_behind_a_displacement_effect_reports_its_fold_wins_not_its_passes
 
 
 # Leakage-only records of the held-out seeds 17 and 18 (pinned as drawn by cases(1, seed)), sizes 2-15x,
-# 1/10/100 kHz, three protocols: the absorption's bend rule must not name absorption on any (review 3 item 14).
+# 1/10/100 kHz, two protocols (steps, sine): the absorption's bend rule must not name absorption on any (review 3 item 14).
 LEAKAGE_17_18 = [("leakage", 1000.0, "steps", 2.3274258051873336, 299673796),
                  ("leakage", 10000.0, "sine", 7.2478899527183085, 485639728),
                  ("leakage", 10000.0, "steps", 15.487405966584307, 556913422),
                  ("leakage", 100000.0, "sine", 5.790953900103864, 457695041),
                  ("leakage", 1000.0, "sine", 2.267877476215541, 908609146),
                  ("leakage", 10000.0, "sine", 4.056513810711598, 809162113)]
+#: make test: every rate (1, 10, 100 kHz) and both protocols, with the size range's ends (10 kHz steps x15.5,
+#: the largest; 100 kHz sine x5.8; 1 kHz sine x2.3, the smallest); WORKBENCH_FULL=1 all six (main 922fa0c's
+#: make test ran all six)
+LEAKAGE_KEEP = {2, 3, 4}
 
 
-@pytest.mark.parametrize("case", LEAKAGE_17_18, ids=[f"{c[1] / 1e3:g}kHz-{c[2]}-x{c[3]:.1f}" for c in LEAKAGE_17_18])
+@pytest.mark.parametrize("case", reduced_draws([(c,) for c in LEAKAGE_17_18], keep=LEAKAGE_KEEP),
+                         ids=[f"{c[1] / 1e3:g}kHz-{c[2]}-x{c[3]:.1f}" for c in LEAKAGE_17_18])
 def test_a_leakage_is_never_named_absorption(sn637, case):
     base, res, truth = _traced(sn637, *case)
     named = [s["effect"] for s in res["stages"]]

@@ -79,7 +79,8 @@ def test_the_delay_bound_is_a_quarter_of_the_record():
     assert d.max_delay == pytest.approx(0.25 * (t[-1] - t[0]) / 1e-5)
 
 
-@pytest.mark.parametrize("proto, size, seed", reduced_draws(DELAY_DRAWS, keep={0, 2}))     # make test: 2 of 3
+# make test: 1 of 3 (session 28, for the suite's time; WORKBENCH_FULL=1 all three)
+@pytest.mark.parametrize("proto, size, seed", reduced_draws(DELAY_DRAWS, keep={0}))
 def test_a_large_latency_at_100_khz_is_named_delay(sn637, proto, size, seed):
     """Delays 0.9-60 ms (0.3-2 ms times 3-30) on 0.4 s records: main answered none or
     inconclusive on three of this kind (seeds 26-28 #83, #94, #72)."""

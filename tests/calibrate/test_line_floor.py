@@ -114,8 +114,9 @@ def _floor_draws():
     return out
 
 
-#: make test: creep alone and drift + resonance; WORKBENCH_FULL=1 all four (session 22's make test ran all four)
-@pytest.mark.parametrize("e, proto, size, seed", reduced_draws(_floor_draws(), keep={0, 3}))
+#: make test: drift + resonance (session 28, for the suite's time: creep alone moved to the full form; session 27's
+#: make test ran creep and drift + resonance, session 22's all four); WORKBENCH_FULL=1 all four
+@pytest.mark.parametrize("e, proto, size, seed", reduced_draws(_floor_draws(), keep={3}))
 def test_the_floor_holds_on_drawn_records_the_carry_applies_to(sn637, e, proto, size, seed):
     """Drawn 100 kHz records (the rate where the gauge sees a mode) of the effects carried from
     the displacement (creep, a resonance, and the benchmark's pairs holding them), sizes
@@ -277,3 +278,42 @@ def test_the_gauge_carries_the_found_motion_beside_its_own_prediction(sn637, mon
     monkeypatch.setattr(tr, "_carried_motion", lambda C, fold, base, found_on, other: (np.zeros((C.shape[0], 0)), []))
     own = trace_effect(base, split=sp)["channels"]["gauge"]["error_after"]["rms"]
     assert g["error_after"]["rms"] <= 1.02 * own, (truth, g["error_after"]["rms"], own)
+
+
+#: Drift + mode records at 1 MHz (0.1 s, the benchmark's 1 MHz length) where the mode is named on the displacement in
+#: its plain variant (no refit). Constructed, not benchmark draws: ``(protocol, draw seed, size, noise seed)`` of
+#: :func:`~workbench.calibrate.synthetic.plant_with_effect` and :func:`~workbench.calibrate.synthetic.simulate_record`:
+#: the first drawn by session 28's check (rng 2828: rate, protocol, size log-uniform over 1-30x), the second 107 #154's
+#: drawn plant with other noise. make test runs the first (one 1 MHz tracing); WORKBENCH_FULL=1 both.
+PLAIN_MODE_DRAWS = [("steps", 657195613, 23.5, 657195613), ("sine", 343846121, 2.08, 7)]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("proto, draw, size, noise", reduced_draws(PLAIN_MODE_DRAWS, keep={0}))
+def test_a_plain_mode_beside_a_sensor_drift_leaves_the_gauge_what_its_twin_leaves(sn637, proto, draw, size, noise):
+    """The gauge reads the stack's motion, not the displacement sensor's drift: with a mode found on the displacement
+    and carried to it as the motion it makes (:func:`~workbench.calibrate.tracing._carried_motion`), its held-out
+    error at the end is within 1.25x of what the same record without either effect leaves (the effect-free twin: the
+    same drive and noise), and below its straight line's (issue 13's floor). The motion was carried only for a
+    refitted mode; a mode found in the plain variant was carried as the mode on the gauge's own base prediction alone,
+    which the folds' random terms refused on a large mode: seed 107 #154 at 1 MHz (a 229x 182 Hz mode beside a 437x
+    drift) left the gauge at 0.148 V, above its line's 0.144 V (with the motion 0.0083 V, the twin 0.0072 V)."""
+    from workbench.calibrate.base_fit import fit_base
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
+    cc = load_benchmark("calibrate_confusion")
+    t, v = benchmark_protocol(proto, 1e6, cc.ROWS[1e6])
+    plant, truth = plant_with_effect(sn637, ("drift", "resonance"), draw, duration_s=float(t[-1]), size=size)
+    clean, _ = plant_with_effect(sn637, "none", draw)
+    r, r0 = simulate_record(plant, t, v, seed=noise), simulate_record(clean, t, v, seed=noise)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    kw = dict(train=sp.train, test=sp.test, pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    R = sn637.pzt.series_resistance_ohm
+    base = fit_base(cc._record(r, 1e-6), R, **kw)
+    twin = fit_base(cc._record(r0, 1e-6), R, **kw).channels["gauge"].rms_test
+    res = trace_effect(base, split=sp)
+    modes = [s for s in res["stages"] if (s["effect"], s["channel"]) == ("resonance", "displacement")]
+    assert modes and not modes[0]["parameters"].get("refit"), res["stages"]       # the case: a plain mode
+    g = res["channels"]["gauge"]
+    assert g["error_after"]["rms"] <= base.channels["gauge"].line_rms_test, (truth, g)
+    assert g["error_after"]["rms"] <= 1.25 * twin, (truth, g["error_after"]["rms"], twin, g.get("carried"))

@@ -137,9 +137,10 @@ def test_a_1khz_delay_behind_a_large_creep_is_named_where_creeps_form_leaves_muc
     cc = _bench()
     e, rate, proto, size, seed = cc.cases(1, 47)[8]
     assert (e, rate, proto) == (("creep", "delay"), 1e3, "calibration")
-    r = cc.evaluate(sn637, e, rate, proto, size, seed)
-    print(f"\n47 #9: beyond {np.round(r['beyond'], 2)} on every fold {np.round(r['beyond_folds'], 2)} "
-          f"share {np.round(r['share_folds'], 2)} -> {r['named']} first {r['ratio_first']:.3f}")
+    # the beyond-the-other sizes quoted above are the benchmark's diagnostics (printed by calibrate_confusion.py);
+    # the test asserts the answer only, so it skips them (diagnostics=False: the answer is the same)
+    r = cc.evaluate(sn637, e, rate, proto, size, seed, diagnostics=False)
+    print(f"\n47 #9: own sizes {np.round(r['excesses'], 2)} -> {r['named']} first {r['ratio_first']:.3f}")
     assert r["class"] == "right"
     assert r["both"]
 

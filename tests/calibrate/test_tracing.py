@@ -167,7 +167,9 @@ DRIFT_DRAWS = [(effect, rate, float(np.exp(RNG_DRIFT.uniform(np.log(0.03), np.lo
 DRIFT_48_165 = (("drift", "resonance"), 1e6, "steps", 1.0120432388136424, 606078135)
 
 
-@pytest.mark.parametrize("effect, rate, size, seed", reduced_draws(DRIFT_DRAWS, keep={0, 3}))
+# make test: the drift at 100 kHz (session 28, for the suite's time: the drift + resonance at 1 MHz moved to the full
+# form; make test keeps a drift + mode at 1 MHz in test_line_floor's plain-mode carry); WORKBENCH_FULL=1 all four
+@pytest.mark.parametrize("effect, rate, size, seed", reduced_draws(DRIFT_DRAWS, keep={0}))
 def test_a_displacement_sensor_drift_is_never_named_a_gauge_bow(sn637, effect, rate, size, seed):
     """The gauge reads the stack; a drift of the displacement sensor moves the recorded displacement
     only, so the gauge's misfit against a line of the recorded displacement (the bow's problem) is a
@@ -213,7 +215,9 @@ BOW_DRAWS = [(rate, float(np.exp(RNG_BOW.uniform(np.log(lo), np.log(hi)))), int(
              for rate in (1e5, 1e6) for lo, hi in ((3.0, 10.0), (10.0, 30.0))]
 
 
-@pytest.mark.parametrize("rate, size, seed", reduced_draws(BOW_DRAWS, keep={0, 3}))
+# make test: the 100 kHz draw (session 28, for the suite's time: the 1 MHz 10-30x draw moved to the full form);
+# WORKBENCH_FULL=1 all four
+@pytest.mark.parametrize("rate, size, seed", reduced_draws(BOW_DRAWS, keep={0}))
 def test_a_gauge_bow_on_a_rising_staircase_is_not_taken_by_the_drift_rival(sn637, monkeypatch, rate, size, seed):
     """On a monotone staircase time is a function of the displacement across the steps, so a drift's
     ``t, t^2`` can fit the bow's misfit about as well as the bow's own ``x^2``; within a hold the

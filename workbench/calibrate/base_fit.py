@@ -274,10 +274,15 @@ def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling=
     return ChannelModel(name, y, yhat, valid, thresholds, w, float(p[-1]), z0, ridge=ridge, sampling=sampling)
 
 
-def _scaled(P, y, rows, thresholds):
+def _scaled(P, y, rows, thresholds, extra=None):
     """:func:`_fit_channel`'s fitting problem: the unit-RMS columns (plays + ones) on ``rows``, the scaled
     target, the bounds, the penalty (the identity play and the offset free), the columns' RMS and the
-    target's (to scale the weights back)."""
+    target's (to scale the weights back).
+
+    ``extra`` (rows x m, already scaled): columns written after the ones in the same array, free (lower bound
+    ``-inf``, no penalty), as :func:`_grid_predicts_better`'s drift columns: the scaled plays are divided into
+    that array in place of a second copy (every element the same one rounding, its layout the same C order as
+    ``column_stack([a / col, extra])``'s)."""
     n = int(rows.sum())
     a = column_stack([P[rows], np.ones(n)])
     col = np.sqrt(np.mean(a * a, axis=0))
@@ -286,13 +291,22 @@ def _scaled(P, y, rows, thresholds):
     k = thresholds.size
     lower = np.r_[np.zeros(k), -np.inf]
     pen = np.r_[0.0 if k and thresholds[0] == 0 else 1.0, np.ones(max(k - 1, 0)), 0.0][: k + 1]
-    return a / col, y[rows] / bscale, lower, pen, col, bscale
+    if extra is None:
+        return a / col, y[rows] / bscale, lower, pen, col, bscale
+    m = extra.shape[1]
+    an = np.empty((n, k + 1 + m))
+    np.divide(a, col, out=an[:, : k + 1])
+    an[:, k + 1:] = extra
+    return (an, y[rows] / bscale, np.r_[lower, np.full(m, -np.inf)], np.r_[pen, np.zeros(m)], col,
+            bscale)
 
 
-def _ridge_cv(an, b, lower, pen, ridges=RIDGE_GRID):
-    """Blocked cross-validation error of each ridge: :data:`RIDGE_FOLDS` contiguous stretches of the rows."""
+def _ridge_cv(an, b, lower, pen, ridges=RIDGE_GRID, gram=None):
+    """Blocked cross-validation error of each ridge: :data:`RIDGE_FOLDS` contiguous stretches of the rows.
+
+    ``gram``: ``(an.T @ an, an.T @ b)`` when the caller has them (the same products, not computed again)."""
     n = b.size
-    G, h = an.T @ an, an.T @ b
+    G, h = (an.T @ an, an.T @ b) if gram is None else gram
     edges = np.linspace(0, n, RIDGE_FOLDS + 1).astype(int)
     folds = [(an[i:j].T @ an[i:j], an[i:j].T @ b[i:j], float(b[i:j] @ b[i:j]))
              for i, j in zip(edges[:-1], edges[1:]) if j > i]
@@ -348,15 +362,13 @@ def _grid_predicts_better(P_d, r_d, P_g, r_g, y, rows, t, level=None):
     X = Drift()._X(t)[rows][:, 1:]
     X = X / np.sqrt(np.mean(X * X, axis=0))
     for P, r in ((P_d, r_d), (P_g, r_g)):
-        an, b, lower, pen, _, _ = _scaled(P, y, rows, r)
-        m = X.shape[1]
-        sets.append((column_stack([an, X]), b, np.r_[lower, np.full(m, -np.inf)], np.r_[pen, np.zeros(m)]))
-    cv = sum(_ridge_cv(*s) for s in sets)
+        an, b, lower, pen, _, _ = _scaled(P, y, rows, r, extra=X)
+        sets.append((an, b, lower, pen, (an.T @ an, an.T @ b)))
+    cv = sum(_ridge_cv(an, b, lower, pen, gram=gram) for an, b, lower, pen, gram in sets)
     lam = float(RIDGE_GRID[int(np.argmin(cv))])
     n = idx.size
     errs = []
-    for an, b, lower, pen in sets:
-        G, h = an.T @ an, an.T @ b
+    for an, b, lower, pen, (G, h) in sets:
         e = []
         for i, j in zip(at, np.r_[at[1:], n]):
             Gf, hf = an[i:j].T @ an[i:j], an[i:j].T @ b[i:j]

@@ -1134,21 +1134,28 @@ def _absorb(c, extra, probs, base, t):
                 eff, p = c["eff"], c["params"]
                 Co, lo2 = eff.columns(t, yhat, p, y_model=yhat)
                 extra[key].append((np.atleast_2d(np.asarray(Co, float).T).T, list(np.atleast_1d(lo2))))
-                if c["name"] == "resonance" and p.get("refit") and c["channel"] == "displacement" \
-                        and other == "gauge":
+                if c["name"] == "resonance" and c["channel"] == "displacement" and other == "gauge":
+                    # the motion the mode makes, refitted or plain (the plain variant's column is the mode on
+                    # the displacement's base prediction: session 28, 107 #154)
                     extra[key].append(_carried_motion(C, fold, base, c["channel"], other))
 
 
 def _carried_motion(C, fold, base, found_on, other):
-    """A refitted mode found on the displacement, carried to the gauge as the motion it makes.
+    """A mode found on the displacement, carried to the gauge as the motion it makes.
 
     The refitted mode's column is ``(H - 1) m``, ``m`` the displacement's model of the drive refitted under
-    the mode (:class:`~.effects.Resonance`, ``refit=True``): the extra motion the mode makes. The gauge reads
-    that motion too, so it carries the same column, read as the gauge reads (interval-averaged for an averaged
-    gauge, :func:`~.base_fit.interval_mean`), its gain free in sign and size (volts per metre, the gauge's
-    fit), **beside** the mode taken on the gauge's own base prediction (what :func:`_absorb` carried before,
-    gain free too). Each column misses where the other holds: the gauge's own prediction is the distorted
-    drive the refit exists to avoid (a large mode's ringing makes the base's plays, weights >= 0, fit a
+    the mode (:class:`~.effects.Resonance`, ``refit=True``): the extra motion the mode makes. A mode found in
+    the plain variant (no refit) has the column ``(H - 1) m`` with ``m`` the displacement's base prediction:
+    the same motion, read off the displacement's own model of the drive. The gauge reads that motion too, so
+    it carries the same column, either variant's (session 28: seed 107 #154, a 229x 182 Hz mode beside a
+    437x sensor drift at 1 MHz sine, named in the plain variant; the mode on the gauge's own prediction alone
+    removed too little beside the folds' random terms and was refused, the gauge's held-out error 0.148 V
+    above its straight line's 0.144 V; with the motion column 0.0083 V, its floor 0.0072 V), read as the
+    gauge reads (interval-averaged for an averaged gauge, :func:`~.base_fit.interval_mean`), its gain free
+    in sign and size (volts per metre, the gauge's fit), **beside** the mode taken on the gauge's own base
+    prediction (what :func:`_absorb` carried before, gain free too). Each column misses where the other
+    holds: the gauge's own prediction is the distorted drive the refit exists to avoid (a large mode's
+    ringing makes the base's plays, weights >= 0, fit a
     prediction the mode filter explains little of: seed 104 #71, a 7.2x 77 Hz mode at 100 kHz named on the
     displacement, the gauge's carry refused on 3 of 5 folds, its held-out error 0.166 V above its straight
     line's 0.136 V; with the motion column 0.0071 V, its floor), and ``m`` fits what the displacement
