@@ -740,6 +740,7 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     infos["gauge_gain"] = base.gauge_gain_v_per_m if "gauge" in base.channels else None
     infos["duration_s"] = float(t[-1] - t[0])
     infos["t"] = t                  # (the settled-absorption test's column, :mod:`.absorption_or_leakage`)
+    infos["base"] = base            # (the stack's mode read on both sensors, :func:`_mode_reads_both`)
     if "charge" in base.channels:
         # the charge's model drives the creep columns a displacement creep must show in the charge
         infos["charge"]["yhat"] = base.channels["charge"].yhat
@@ -1271,6 +1272,9 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
     cross = {r["channel"]: _other_sensor_lag(r, cands, probs, extra, split, infos) for r in rows
              if r["name"] == "delay" and r["channel"] in OTHER_SENSOR and any(r["passes"])
              and (("resonance", r["channel"]) in by and any(by[("resonance", r["channel"])]["passes"]))}
+    # where the gauge's and the displacement's modes both pass a fold: which view's mode reads both sensors
+    # better (:func:`_mode_reads_both`)
+    gauge_mode_reads_both = _mode_reads_both(by, probs, extra, split, infos)
     for f in range(n_folds):
         ok = [r for r in rows if r["passes"][f]]
         ok.sort(key=lambda r: r["ratios"][f])
@@ -1320,9 +1324,13 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             if x_equiv < _stack_could_hide(f, befores, infos, found):
                 winners.append(_undecided_or_creep(best["name"]))
                 continue
-        elif best["channel"] == "gauge" and best["name"] in ("creep", "resonance") \
-                and (best["name"], "displacement") in tags:
-            best = tags[(best["name"], "displacement")]
+        elif best["channel"] == "gauge" and best["name"] == "creep" and ("creep", "displacement") in tags:
+            best = tags[("creep", "displacement")]
+        elif best["name"] == "resonance" and best["channel"] in MODE_VIEWS and all(
+                ("resonance", ch) in tags for ch in MODE_VIEWS):
+            # both views of the stack's one mode pass the fold: it is named on the view whose mode reads the
+            # two sensors better (:func:`_mode_reads_both`; a tie, the displacement's: the plant file's form)
+            best = tags[("resonance", "gauge" if gauge_mode_reads_both else "displacement")]
         if (best["name"], best["channel"]) == ("creep", "displacement") \
                 and not _charge_shows_creep(best, f, befores, infos, penalty, probs, extra, split, shown):
             # creep moves charge (x = k_q2x q, eq. 10): a displacement relaxation the charge would
@@ -1339,7 +1347,65 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             winners.append(("undecided", "creep or a displacement-sensor effect"))
             continue
         winners.append((best["name"], best["channel"]))
-    return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain}
+    return {"rows": rows, "by": by, "winners": winners, "befores": befores, "null_gain": null_gain,
+            "gauge_mode_reads_both": gauge_mode_reads_both}
+
+
+def _mode_reads_both(by, probs, extra, split, infos):
+    """Does the gauge's mode read the two sensors of the stack's motion better than the displacement's?
+
+    The gauge and the displacement sensor read one motion, and each view's mode search is one reading of the
+    stack's mode. Where both views' rows pass a fold, the mode was named on the displacement (the plant file's
+    form, :func:`~.stages.stack_effect_on_both_sensors`); it is named on the gauge when the gauge's mode is the
+    better reading of **both** sensors, resolved. Each view's mode is carried as naming it would carry it
+    (:func:`_absorb`: its own columns on its sensor, the columns it takes on the other), each sensor's model
+    refitted on a fold's training rows and scored on its validation rows (:meth:`_Problem.fold_block_sse`),
+    every development block once, held out. Per block the two sensors' held-out mean squared errors are joined
+    on a log scale, ``sum_c log mse_c`` (a Gaussian likelihood's with a variance per sensor: each sensor's
+    units cancel, neither counts more for its size); the gauge's mode is the better reading when its joint
+    misfit is below the displacement's by more than the standard error of that difference over the blocks
+    (:func:`resolved_beyond`, the blocks as the unit): a tie (both views found one mode) stays the
+    displacement's. One decision for the record (the mode is one), read on every fold where both views pass.
+    Each view's mode was searched on its own sensor's development rows and is scored on the other sensor's
+    data it never saw: the two readings stand alike.
+
+    Seen (session 29, 22 #154: a 54.2 Hz, zeta 0.0159 mode beside a displacement-sensor drift at 1 MHz sine,
+    0.1 s): the displacement's search found 53.6 Hz at the 0.002 damping floor (its record carries the drift;
+    a decay that long is beyond the record), the gauge's 54.1 Hz, zeta 0.0167. The gauge's mode leaves 0.05
+    of the gauge's held-out RMS and 0.56-0.70 of the displacement's, the displacement's 0.41-0.54 and
+    0.54-0.67: named on the displacement, the gauge carried that mode and ended 9x above its own.
+
+    Returns False when either view is missing or passes no fold, or the base is not in ``infos`` (the
+    displacement's view is then named as before).
+    """
+    n_folds = len(split.folds)
+    views = [("resonance", "gauge"), ("resonance", "displacement")]
+    base = infos.get("base")
+    keys = [("gauge", "model"), ("displacement", "model")]
+    if base is None or not all(v in by and any(by[v]["passes"]) for v in views) \
+            or not all(k in probs for k in keys) or by[views[0]]["key"] != keys[0]:
+        return False
+    joint = []             # per view, per fold: (sum over the sensors of log mse per block, the blocks' rows)
+    for v in views:
+        ex = {k: list(x) for k, x in extra.items()}
+        _absorb(by[v], ex, probs, base, base.t)
+        grams = [_cand_grams(probs[key], ex[key], None, n_folds) for key in keys]
+        per_fold = []
+        for f, (tr, va) in enumerate(split.folds):
+            parts = [probs[key].fold_block_sse(g[f], tr, va) for key, g in zip(keys, grams)]
+            n = np.minimum(*(p[1] for p in parts))
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ll = sum(np.log(p[0] / p[1]) for p in parts)
+            per_fold.append((ll, n))
+        joint.append(per_fold)
+    lg, ld, n = (np.concatenate(x) for x in ([p[0] for p in joint[0]], [p[0] for p in joint[1]],
+                                              [p[1] for p in joint[0]]))
+    ok = (n > 0) & np.isfinite(lg) & np.isfinite(ld)
+    return bool(resolved_beyond(n[ok] * lg[ok], n[ok] * ld[ok], n[ok])[0])
+
+
+#: The sensors whose mode rows are views of the stack's one mode (:func:`_mode_reads_both`).
+MODE_VIEWS = ("gauge", "displacement")
 
 
 #: The two readings of a phase lag or lead of one channel's motion (:func:`_delay_or_mode`).
