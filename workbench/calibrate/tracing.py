@@ -872,6 +872,7 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         if ch in own:
             # its own stages stay named (the folds chose them against the base); the line is the same
             # check against the end model: every found column the channel's problem holds, per fold
+            _carry_beside_own(out, c, ch, stages, extra[key], prob, split, ctx)
             _line_fallback(c, ch, prob, _cand_grams(prob, extra[key], None, len(split.folds)), base, split,
                            ctx["need"], own_stage=True)
             continue
@@ -896,6 +897,49 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         if refused:
             c["carry_refused"] = refused
         _line_fallback(c, ch, prob, g_end, base, split, ctx["need"])
+
+
+def _carry_beside_own(out, c, ch, stages, extra_list, prob, split, ctx):
+    """A sensor of the stack's motion with stages of its own: the stack's mode or creep named on the other
+    sensor, carried on top of them when the folds keep it.
+
+    The displacement and the gauge read one motion (:data:`OTHER_SENSOR`); a stack effect named on one is
+    carried into the other's model (:func:`_absorb`). A channel with stages of its own ended at its last
+    stage's ``error_after``, computed before a later stage named on the other sensor: the carried columns
+    never entered it (session 29, 105 #165 at 1 MHz steps: a drift on the displacement, then the stack's
+    mode named on the gauge, :func:`_mode_reads_both`; the displacement reported 1.6e-8 m, its end model
+    with the carried mode leaves 6.4e-9 m). The carried columns are tested as any carry (:func:`_fold_test`
+    on ``ctx["need"]`` validation folds) against the channel's own stages' model, the null reference the
+    random terms added to that model (as a later stage's);
+    kept, the channel's ``error_after`` is its end model's on the test rows and ``carried`` names them, and
+    the answer's ``error_after`` follows when this is its channel's model. The charge is left as before
+    (:func:`_absorb` carries it the mode on its own prediction, refused on every record measured)."""
+    other = OTHER_SENSOR.get(ch)
+    names = [s["effect"] for s in stages if other is not None and s["channel"] == other
+             and s["_cand"]["key"] == (other, "model") and s["effect"] in ("creep", "resonance")]
+    mine = [x for x in extra_list if getattr(x, "tag", None) is not None and x.tag[1] == ch]
+    theirs = [x for x in extra_list if not (getattr(x, "tag", None) is not None and x.tag[1] == ch)]
+    if not (names and theirs):
+        return
+    g0, g1 = _stacked(prob, mine, None), _stacked(prob, mine + theirs, None)
+    # the null reference on the model the carry is added to (its own stages), as a later stage's
+    # (:func:`_score_stage`): random terms' gain over the base alone is the gain of what those stages explain
+    nulls = [_stacked(prob, mine, {"g": gn}) for gn in ctx["nulls"].get((ch, "model"), ())]
+    n_params, floor = sum(C.shape[1] for C, _ in theirs), ctx["noise_factor"] * ctx["infos"][ch]["noise_floor"]
+    passes = 0
+    for tr, va in split.folds:
+        b = prob.fold_rms(g0, tr, va)
+        null = max([b * b - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
+        passes += _fold_test(b, prob.fold_rms(g1, tr, va), n_params, ctx["penalty"], floor, null,
+                             ctx["min_share"])[1]
+    if passes < ctx["need"]:
+        c["carry_refused"] = names
+        return
+    before_carry = c["error_after"]
+    c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks), "units": c["units"]}
+    c["carried"] = names
+    if out.get("channel") == ch and out.get("error_after") == before_carry:
+        out["error_after"] = dict(c["error_after"])
 
 
 #: The tag of the gauge bow's columns carried into the gauge's model of the drive (:func:`_carry_bow`).
