@@ -96,3 +96,50 @@ def test_one_mode_both_views_found_stays_on_the_displacement():
     winners, p = _named(1e4, 1000, 54.2, 0.0159, "sine")
     assert abs(p["gauge"]["f_n_hz"] / p["displacement"]["f_n_hz"] - 1) < 1e-3, p
     assert winners == [("resonance", "displacement")] * 5, winners
+
+
+def _own_then_carried(mode_hz, carried_hz, seed=0):
+    """A displacement with its own stage (a drift, its columns found) and a mode its own stages do not model;
+    the mode named on the gauge is carried at ``carried_hz`` (the true ``mode_hz``, or a wrong one).
+    Returns ``(c, out, drift_only_rms)`` after :func:`tracing._carry_beside_own`."""
+    t, v = benchmark_protocol("steps", 1e4, 1000)
+    y = 1e-7 * v
+    x = y + Resonance._column(y, mode_hz, 0.01, 1e-4)     # the mode as the tracing's column models it
+    s = (t - t[0]) / (t[-1] - t[0])
+    drift = np.column_stack([s, s * s])
+    rng = np.random.default_rng(seed)
+    xo = x + 2e-6 * (drift @ [1.0, -0.8]) + SIG_D * rng.standard_normal(t.size)
+    sp = make_split(t, v, "blocks")
+    prob = T._Problem(sp, np.ones(t.size, bool), np.column_stack([y, np.ones(t.size)]), [-np.inf, -np.inf],
+                      xo - y, T._search_rows(sp.train))
+    mine = T.FoundColumns(drift, [-np.inf, -np.inf], ("drift", "displacement"))
+    carried = (Resonance._column(y, carried_hz, 0.01, 1e-4)[:, None], [-np.inf])
+    drift_only = T._test_errors(prob, T._stacked(prob, [mine], None), sp.dev_blocks, sp.test_blocks)
+    c = {"error_after": {**drift_only, "units": "m"}, "units": "m"}
+    out = {"channel": "displacement", "error_after": dict(c["error_after"])}
+    e_dev = np.where(prob.rows_dev, prob.r, 0.0)
+    ctx = {"nulls": {DX: [prob.grams(T._phase_randomized(e_dev, rng), [-np.inf]) for _ in range(3)]},
+           "penalty": 0.02, "noise_factor": 1.0, "min_share": T.MIN_SHARE, "need": 4,
+           "infos": {"displacement": {"noise_floor": SIG_D}}}
+    stages = [{"effect": "drift", "channel": "displacement", "_cand": {"key": DX}},
+              {"effect": "resonance", "channel": "gauge", "_cand": {"key": GX}}]
+    T._carry_beside_own(out, c, "displacement", stages, [mine, carried], prob, sp, ctx)
+    return c, out, drift_only["rms"]
+
+
+def test_the_gauges_mode_carried_beside_the_displacements_own_stage_enters_its_error():
+    """105 #165's order (a drift on the displacement, then the stack's mode named on the gauge): the mode's
+    column carried into the displacement takes its error after from the drift stage's to the sensor's noise
+    (1 nm), and the answer's error follows (before: the drift stage's error, the carried mode left out)."""
+    c, out, before = _own_then_carried(80.0, 80.0)
+    assert c.get("carried") == ["resonance"], c
+    assert c["error_after"]["rms"] < 2 * SIG_D < 0.1 * before, (c["error_after"], before)
+    assert out["error_after"]["rms"] == c["error_after"]["rms"]
+
+
+def test_a_carried_mode_the_record_does_not_hold_is_refused():
+    """The guard: the column carried at 2.2x the record's mode explains nothing of it held out; the folds refuse
+    it and the error after stays the drift stage's."""
+    c, out, before = _own_then_carried(80.0, 176.0)
+    assert c.get("carry_refused") == ["resonance"] and "carried" not in c, c
+    assert c["error_after"]["rms"] == before == out["error_after"]["rms"]
