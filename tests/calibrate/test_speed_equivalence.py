@@ -667,3 +667,164 @@ def test_blocked_column_stack_is_numpys_array_in_values_and_layout(seed):
     assert fast >= 10                                  # the blocked path is met, on many blocks
     with pytest.raises(ValueError):
         column_stack([np.zeros(5), np.zeros((4, 2))])
+
+
+@pytest.mark.parametrize("seed", [81, 82, 83, 84, 85])
+def test_refit_mode_trial_columns_equal_lfilter_bit_for_bit(seed):
+    """``kernels.filtered_rows_scaled`` (the refitted mode's trial columns, one compiled pass) =
+    ``(lfilter(b, a, V, axis=-1) + z0)[:, rows] * inv[:, None]``, the expression it replaced in
+    ``Resonance._fit_refit``, to the last bit and in its (Fortran) layout: drive-model columns of scales
+    0.1..5e6 started at their first value, modes drawn over 1 Hz .. the Nyquist frequency at 100 Hz ..
+    1 MHz (thinned rates)."""
+    from scipy import signal
+
+    from workbench.calibrate.kernels import filtered_rows_scaled
+    rng = np.random.default_rng(seed)
+    rate = RATES_HZ[seed % len(RATES_HZ)]
+    m, n = int(rng.integers(3, 30)), int(rng.integers(300, 4_000))
+    ZT = np.array([_input(rng, n) for _ in range(m)]) * 10.0 ** rng.uniform(-1, 6.7, m)[:, None]
+    z0 = ZT[:, :1]
+    V = ZT - z0
+    rows = _rows(rng, n)
+    nrm = np.sqrt(np.mean(ZT[:, rows] ** 2, axis=1))
+    inv = 1.0 / np.where(nrm > 0, nrm, 1.0)
+    for _ in range(6):
+        f_n = float(np.exp(rng.uniform(np.log(1.0), np.log(0.5 * rate))))
+        zeta = min(float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))), max(0.5 * rate / f_n - 1.0, 0.002))
+        b, a = _foh_mode(f_n, zeta, 1.0 / rate)
+        ref = (signal.lfilter(b, a, V, axis=-1) + z0)[:, rows] * inv[:, None]
+        fast = filtered_rows_scaled(V, b, a, z0, inv, rows)
+        # the same values in the same layout (a product of it, BLAS's ``c @ X``, sums in its order)
+        assert np.array_equal(fast, ref) and fast.strides == ref.strides
+    with pytest.raises(ValueError):
+        filtered_rows_scaled(V, b, a, z0, inv, rows[::-1])
+
+
+@pytest.mark.parametrize("seed", [91, 92, 93, 94])
+def test_shifted_rows_kernel_equals_the_numpy_interpolation_bit_for_bit(seed):
+    """``Delay._rows_shifted`` (compiled since session 29) = its numpy reference to the last bit, at
+    lags and leads of fractional and whole samples, past either end of the record (the ends held),
+    on unsorted rows with repeats; ``kernels.shifted_rows_into`` with a scale and a column offset
+    writes the reference times the scale into its columns and leaves the others alone."""
+    from workbench.calibrate.kernels import shifted_rows_into
+    rng = np.random.default_rng(seed)
+    n, k = int(rng.integers(50, 5_000)), int(rng.integers(1, 30))
+    Z = np.ascontiguousarray(rng.standard_normal((n, k)) * 10.0 ** rng.uniform(-6, 2, k))
+    rows = rng.integers(0, n, int(rng.integers(1, 2 * n)))
+    ds = np.r_[rng.uniform(-1.2 * n, 1.2 * n, 6), rng.integers(-n, n, 3), 0.0, -0.5, 0.5]
+    for d in ds:
+        ref = Delay._rows_shifted_reference(Z, rows, float(d))
+        fast = Delay._rows_shifted(Z, rows, float(d))
+        assert np.array_equal(fast, ref) and fast.strides == ref.strides
+        out = np.full((rows.size, k + 3), 7.0)
+        scale = 10.0 ** rng.uniform(-3, 3, k + 3)
+        shifted_rows_into(Z, rows, float(d), out, 2, scale)
+        assert np.array_equal(out[:, 2:2 + k], ref * scale[2:2 + k])
+        assert np.all(out[:, :2] == 7.0) and np.all(out[:, 2 + k:] == 7.0)
+    # a layout the kernel does not take goes to the reference, the same values
+    F = np.asfortranarray(Z)
+    assert np.array_equal(Delay._rows_shifted(F, rows, 3.25), Delay._rows_shifted_reference(Z, rows, 3.25))
+
+
+@pytest.mark.parametrize("seed", [95, 96])
+def test_refit_delay_grid_costs_equal_the_unbatched_columns_bit_for_bit(seed):
+    """``Delay._grid_cost_batch`` with its columns written in place (C-ordered blocks, int64 rows) =
+    the same costs from the numpy stack of shifted blocks (F-ordered blocks take that path), to the
+    last bit, with two column blocks side by side."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2_000, 8_000))
+    B = np.ascontiguousarray(np.cumsum(rng.standard_normal((n, 7)), axis=0) * 10.0 ** rng.uniform(-6, 1, 7))
+    K = np.ascontiguousarray(rng.standard_normal((n, 3)))
+    y = rng.standard_normal(n)
+    rows = np.flatnonzero(rng.random(n) < 0.4)
+    grid = Delay(max_delay=0.2 * n)._grid()
+    fast = Delay._grid_cost_batch((B, K), y, rows, grid)
+    slow = Delay._grid_cost_batch((np.asfortranarray(B), np.asfortranarray(K)), y, rows, grid)
+    assert np.array_equal(fast, slow)
+
+
+def test_the_kept_mode_discretisations_equal_fresh_ones_and_are_the_callers_own():
+    """``_foh_mode`` answers from its cache with the matrix exponential's values to the last bit, and
+    each call's arrays are fresh (a caller writing into them changes no later answer)."""
+    from workbench.calibrate.effects import _foh_mode_of
+    rng = np.random.default_rng(97)
+    for _ in range(20):
+        rate = float(rng.choice(RATES_HZ))
+        f_n = float(np.exp(rng.uniform(0.0, np.log(0.5 * rate))))
+        zeta = float(np.exp(rng.uniform(np.log(0.002), np.log(0.3))))
+        fresh = _foh_mode_of.__wrapped__(f_n, zeta, 1.0 / rate)
+        b, a = _foh_mode(f_n, zeta, 1.0 / rate)
+        assert np.array_equal(b, fresh[0]) and np.array_equal(a, fresh[1])
+        b[:] = 0.0
+        a[:] = 0.0
+        b2, a2 = _foh_mode(f_n, zeta, 1.0 / rate)
+        assert np.array_equal(b2, fresh[0]) and np.array_equal(a2, fresh[1])
+
+
+def test_gelsy_called_directly_equals_scipy_lstsq_bit_for_bit():
+    """``effects._gelsy`` (gelsy called with scipy's own arguments) = ``scipy.linalg.lstsq(...,
+    lapack_driver="gelsy")`` to the last bit: full-rank and rank-deficient columns of scales 1e-6..50,
+    C- and Fortran-ordered, and a wide system (the fallback)."""
+    from scipy import linalg
+    rng = np.random.default_rng(98)
+    for m, n in ((1_600, 27), (40, 3), (2_000, 1), (7, 7), (5, 9)):
+        A = rng.standard_normal((m, n)) * 10.0 ** rng.uniform(-6, 1.7, n)
+        if n > 2 and m >= n:
+            A[:, -1] = A[:, :-1] @ rng.uniform(0.1, 1.0, n - 1)          # an exact combination
+        y = rng.standard_normal(m)
+        for X in (A, np.asfortranarray(A)):
+            ref = linalg.lstsq(X, y, cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
+            assert np.array_equal(effects._gelsy(X, y, 1e-10), ref)
+
+
+def _refit_record(seed, n=6_000, rate=1e3):
+    """A drive model's columns (plays of a wandering drive, an offset), its prediction, and a record of
+    it through a lightly damped mode plus noise; a mask of held-out blocks."""
+    from scipy import signal
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / rate
+    u = _input(rng, n) * 1e5
+    thr = np.quantile(u, np.linspace(0.1, 0.9, 8))
+    basis = np.column_stack([np.maximum(u - r, 0.0) for r in thr] + [np.ones(n)])
+    y_model = basis @ rng.uniform(0.1, 1.0, basis.shape[1])
+    f_n = float(np.exp(rng.uniform(np.log(5.0), np.log(0.3 * rate))))
+    b, a = _foh_mode(f_n, 0.02, 1.0 / rate)
+    y = signal.lfilter(b, a, y_model - y_model[0]) + y_model[0] + 1e-3 * np.std(y_model) * rng.standard_normal(n)
+    mask = (np.arange(n) // 500) % 5 != 2
+    return t, basis, y_model, y, mask
+
+
+@pytest.mark.parametrize("seed", [101, 102])
+def test_refit_searches_equal_their_reference_forms_bit_for_bit(monkeypatch, seed):
+    """The refitted mode's and delay's searches (``Resonance._fit_refit``, ``Delay._search_refit``) with
+    session 29's paths (compiled trial columns and shifts, gelsy called directly, kept discretisations,
+    reused evaluations) = the same searches with every reference form (lfilter and gather, numpy
+    interpolation, ``scipy.linalg.lstsq``, a fresh matrix exponential, each evaluation afresh): the same
+    mode, damping, column and delay to the last bit."""
+    from scipy import linalg, signal
+
+    from workbench.calibrate.effects import _foh_mode_of
+    t, basis, y_model, y, mask = _refit_record(seed)
+    rows = np.flatnonzero(mask)
+
+    def run():
+        f, z, col = Resonance(basis=basis)._fit_refit(t, y, y_model, mask)
+        blocks = (np.ascontiguousarray(basis), np.ascontiguousarray(y_model[:, None]))
+        d = Delay(max_delay=300.0, basis=basis)._search_refit(blocks, y, rows)
+        return f, z, col, d
+    fast = run()
+    monkeypatch.setattr(effects, "filtered_rows_scaled",
+                        lambda V, b, a, z0, inv, r: (signal.lfilter(b, a, V, axis=-1) + z0)[:, r] * inv[:, None])
+
+    def shifted_reference(Z, r, d, out, col0=0, scale=None):
+        ref = Delay._rows_shifted_reference(Z, r, d)
+        out[:, col0:col0 + Z.shape[1]] = ref if scale is None else ref * scale[col0:col0 + Z.shape[1]]
+        return out
+    monkeypatch.setattr(effects, "shifted_rows_into", shifted_reference)
+    monkeypatch.setattr(effects, "_gelsy",
+                        lambda A, b, cond: linalg.lstsq(A, b, cond=cond, lapack_driver="gelsy", check_finite=False)[0])
+    monkeypatch.setattr(effects, "_foh_mode_of", _foh_mode_of.__wrapped__)
+    monkeypatch.setattr(effects, "_REFIT_REUSE", False)
+    ref = run()
+    assert fast[0] == ref[0] and fast[1] == ref[1] and fast[3] == ref[3]
+    assert np.array_equal(fast[2], ref[2])

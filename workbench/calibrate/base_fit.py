@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .bvls import bvls
 from .pi_fit import MOVE_REL, play_matrix, pi_thresholds, rms, turning_points
 from .residual import record_charge
 from .stacking import column_stack
@@ -235,14 +236,13 @@ def small_problem(A, b=None):
 
 
 def _gram_solve(G, h, lower):
-    """min w'G w - 2 h'w subject to w >= lower (BVLS on the square-root system of ``G``)."""
-    from scipy.optimize import lsq_linear
+    """min w'G w - 2 h'w subject to w >= lower (BVLS on the square-root system of ``G``, :func:`.bvls.bvls`)."""
     lam, V = np.linalg.eigh(G)
     ok = lam > 1e-12 * max(lam.max(), 0.0)
     sq = np.sqrt(np.where(ok, lam, 1.0))
     R = np.where(ok, sq, 0.0)[:, None] * V.T
     c = np.where(ok, (V.T @ h) / sq, 0.0)
-    return lsq_linear(R, c, bounds=(lower, np.full(lower.size, np.inf)), method="bvls", tol=1e-12).x
+    return bvls(R, c, lower, tol=1e-12)
 
 
 def _fit_channel(name, P, y, train, valid, thresholds, z0, ridge=None, sampling="sampled"):

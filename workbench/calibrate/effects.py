@@ -74,6 +74,7 @@ rows by ``rms_after (1 + penalty n_params)``; see its docstring for the ``none``
 """
 
 import copy
+import functools
 import inspect
 import hashlib
 import weakref
@@ -84,7 +85,7 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
 from .stacking import column_stack
-from .kernels import lowpass_rows, mode_column_rows, mode_columns_rows
+from .kernels import filtered_rows_scaled, lowpass_rows, mode_column_rows, mode_columns_rows, shifted_rows_into
 from .pi_fit import rms
 from .residual import analyze_residual
 
@@ -121,6 +122,35 @@ def _lstsq(X, y):
     rhs = np.einsum("ij,i->j", Xs, y)
     beta = np.linalg.lstsq(gram, rhs, rcond=1e-12)[0] / scale
     return beta, y - np.einsum("ij,j->i", X, beta)
+
+
+_GELSY_LWORK = {}     # (m, n, cond) -> the workspace size scipy's lstsq asks gelsy's query for
+
+
+def _gelsy(A, y, cond=1e-10):
+    """``scipy.linalg.lstsq(A, y, cond=cond, lapack_driver="gelsy", check_finite=False)[0]``, the same
+    LAPACK call with the same arguments (workspace size included), made directly: the wrapper's
+    checks and its workspace query cost ~0.3 ms a call beside gelsy's ~2 ms on the refitted searches'
+    ~1,600 x 27 columns, called ~130 times a search. A float64 ``(m, n)`` ``A`` with ``m >= n > 0``
+    and a float64 vector ``y``; anything else goes to ``lstsq`` itself."""
+    A = np.asarray(A)
+    y = np.asarray(y)
+    if not (A.ndim == 2 and y.ndim == 1 and A.dtype == np.float64 and y.dtype == np.float64
+            and A.shape[0] == y.size and A.shape[0] >= A.shape[1] > 0):
+        return linalg.lstsq(A, y, cond=cond, lapack_driver="gelsy", check_finite=False)[0]
+    m, n = A.shape
+    gelsy, gelsy_lwork = linalg.get_lapack_funcs(("gelsy", "gelsy_lwork"), (A, y))
+    key = (m, n, float(cond))
+    lwork = _GELSY_LWORK.get(key)
+    if lwork is None:
+        work, info = gelsy_lwork(m, n, 1, cond)
+        if info != 0:
+            return linalg.lstsq(A, y, cond=cond, lapack_driver="gelsy", check_finite=False)[0]
+        lwork = _GELSY_LWORK[key] = int(work.real)
+    _, x, _, _, info = gelsy(A, y, np.zeros((n, 1), dtype=np.int32), cond, lwork, False, False)
+    if info < 0:
+        raise ValueError(f"illegal value in {-info}-th argument of internal gelsy")
+    return x[:n]
 
 
 def _rows(X, mask, project=None):
@@ -601,7 +631,19 @@ class Delay(Effect):
 
     @staticmethod
     def _rows_shifted(Z, rows, d):
-        """``Z(t - d dt)`` at ``rows`` (linear interpolation on the uniform grid, ends held)."""
+        """``Z(t - d dt)`` at ``rows`` (linear interpolation on the uniform grid, ends held).
+
+        A C-ordered float64 ``Z`` with int64 ``rows`` (every caller's) in one compiled pass
+        (:func:`~workbench.calibrate.kernels.shifted_rows_into`, the values of
+        :meth:`_rows_shifted_reference` to the last bit); anything else by that reference."""
+        if (isinstance(Z, np.ndarray) and Z.ndim == 2 and Z.dtype == np.float64 and Z.flags.c_contiguous
+                and isinstance(rows, np.ndarray) and rows.ndim == 1 and rows.dtype == np.int64):
+            return shifted_rows_into(Z, rows, d, np.empty((rows.size, Z.shape[1])))
+        return Delay._rows_shifted_reference(Z, rows, d)
+
+    @staticmethod
+    def _rows_shifted_reference(Z, rows, d):
+        """:meth:`_rows_shifted` in numpy (gathers and products over whole arrays)."""
         n = Z.shape[0]
         s = np.clip(rows - d, 0.0, n - 1.0)
         i0 = np.floor(s).astype(np.int64)
@@ -635,9 +677,21 @@ class Delay(Effect):
         inv = 1.0 / np.where(n > 0, n, 1.0)
         yr = y[rows]
         out = np.empty(len(grid))
+        # each delay's shifted, scaled columns written in place (:func:`~workbench.calibrate.kernels.
+        # shifted_rows_into`: the values of ``np.stack([np.hstack([_rows_shifted(b, rows, d) ...])]) * inv``
+        # to the last bit) where the blocks and rows allow, else by that expression
+        fast = rows.dtype == np.int64 and all(b.dtype == np.float64 and b.ndim == 2 and b.flags.c_contiguous
+                                              for b in blocks)
+        offsets = np.cumsum([0] + [b.shape[1] for b in blocks])
         for i in range(0, len(grid), chunk):
             ds = np.asarray(grid[i: i + chunk], float)
-            X = np.stack([np.hstack([cls._rows_shifted(b, rows, d) for b in blocks]) for d in ds]) * inv
+            if fast:
+                X = np.empty((ds.size, rows.size, int(offsets[-1])))
+                for m, d in enumerate(ds):
+                    for b, j0 in zip(blocks, offsets):
+                        shifted_rows_into(b, rows, d, X[m], int(j0), inv)
+            else:
+                X = np.stack([np.hstack([cls._rows_shifted(b, rows, d) for b in blocks]) for d in ds]) * inv
             G = np.matmul(X.transpose(0, 2, 1), X)
             b = np.matmul(X.transpose(0, 2, 1), yr)                           # (m, k)
             w, V = np.linalg.eigh(G)
@@ -671,7 +725,7 @@ class Delay(Effect):
 
         def cost(d, r):
             Zd = np.hstack([self._rows_shifted(b, r, d) for b in blocks])
-            c = linalg.lstsq(Zd, y[r], cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
+            c = _gelsy(Zd, y[r], 1e-10)
             return float(np.sum((y[r] - Zd @ c) ** 2))
 
         grid = self._grid()
@@ -1135,6 +1189,10 @@ def _foh_mode(f_hz, zeta, dt):
     input, input slope), whose products stay accurate for a mode far below the sample rate
     (``w dt`` down to 1e-5), where a closed form in ``1 / (w dt)`` cancels.
 
+    The searches ask for the same ``(f_hz, zeta, dt)`` many times (every fold's grid, the searches with
+    and without the base's projection, the refinement's returns): the last 4,096 answers are kept
+    (:func:`_foh_mode_of`, keyed by the three floats; the same values, fresh arrays each call).
+
     Parameters
     ----------
     f_hz : float
@@ -1149,6 +1207,13 @@ def _foh_mode(f_hz, zeta, dt):
     b, a : ndarray
         Numerator and denominator in ``z^-1`` (``a[0] = 1``), unit DC gain.
     """
+    b, a = _foh_mode_of(float(f_hz), float(zeta), float(dt))
+    return b.copy(), a.copy()
+
+
+@functools.lru_cache(maxsize=4096)
+def _foh_mode_of(f_hz, zeta, dt):
+    """:func:`_foh_mode`'s computation (floats in, read-only arrays out: the cache's entries)."""
     w = 2 * np.pi * float(f_hz)
     M = np.zeros((4, 4))
     M[0, 1] = dt
@@ -1164,7 +1229,9 @@ def _foh_mode(f_hz, zeta, dt):
     a = np.array([1.0, -(phi[0, 0] + phi[1, 1]), phi[0, 0] * phi[1, 1] - phi[0, 1] * phi[1, 0]])
     # unit DC gain in the stored floats: for a mode far below the rate, sum(a) ~ (w dt)^2 is
     # resolved only to ~1e-16 / (w dt)^2 by a's rounding; b follows it, so a held input adds nothing
-    return b * (a.sum() / b.sum()), a
+    b = b * (a.sum() / b.sum())
+    b.flags.writeable = a.flags.writeable = False
+    return b, a
 
 
 #: a mode's frequency floor, in cycles over the record: the slow periodic term of a drift (a
@@ -1195,6 +1262,9 @@ RING_ZETA_MAX = 1.0 / (2.0 * np.pi)
 #: Nyquist folds into the search's band (a level under every trial's cost); block means in its place
 #: are not measured (open, issue 13 review finding 3)
 REFIT_SEARCH_SAMPLES = 2_000
+#: the refitted mode's search reuses what it evaluated (:meth:`Resonance._fit_refit`: the starting grid
+#: points' residuals, the answer's weights); False evaluates each afresh (the reference the tests compare with)
+_REFIT_REUSE = True
 
 #: the fine frequency grid about a residual spectrum's peak spans +- this in log f (+-12 %)
 FINE_HALF_LOG = 0.12
@@ -1302,14 +1372,27 @@ class Resonance(Effect):
         def weights(th):
             f = float(np.exp(th[0]))
             b, a = _foh_mode(f, zeta(f, float(np.exp(th[1]))), s * dt)
-            XT = (signal.lfilter(b, a, V, axis=-1) + z0)[:, rows] * inv[:, None]
-            return XT, linalg.lstsq(XT.T, y_r, cond=1e-10, lapack_driver="gelsy", check_finite=False)[0]
+            # ``(lfilter(b, a, V, axis=-1) + z0)[:, rows] * inv[:, None]`` in one compiled pass, to the last bit
+            XT = filtered_rows_scaled(V, b, a, z0, inv, rows)
+            return XT, _gelsy(XT.T, y_r, 1e-10)
+
+        # every trial's weights, and the two starting grid points' residuals, kept by the trial's bytes: the
+        # refinement's first evaluation is its start's grid point and the model below is the answer's,
+        # both evaluated already (the same function of the same floats: the same numbers)
+        coef, start_res = {}, {}
 
         def res(th):
+            key = np.asarray(th, float).tobytes()
+            if _REFIT_REUSE and key in start_res:
+                return start_res[key].copy()
             XT, c = weights(th)
+            coef[key] = c
             return y_r - c @ XT
         grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq) for lz in np.linspace(lz_lo, lz_hi, 3)]
-        costs = [float(np.sum(res(g) ** 2)) for g in grid]
+        grid_res = [res(g) for g in grid]
+        costs = [float(np.sum(r ** 2)) for r in grid_res]
+        start_res.update((np.asarray(grid[int(k)], float).tobytes(), grid_res[int(k)]) for k in np.argsort(costs)[:2])
+        del grid_res
         lo, hi = np.array([lf_lo, lz_lo]), np.array([lf_hi, lz_hi])
         theta, best = np.asarray(grid[int(np.argmin(costs))], float), min(costs)
         for k in np.argsort(costs)[:2]:
@@ -1321,7 +1404,8 @@ class Resonance(Effect):
         z = float(zeta(f, float(np.exp(theta[1]))))
         # the model as the search refitted it (its weights on the search's samples), its mode's column at
         # the full rate (one column filtered: the ~26 at 355,000 rows cost 0.8 s)
-        m = Z @ (weights(theta)[1] * inv * y_sc)
+        c = coef.get(np.asarray(theta, float).tobytes()) if _REFIT_REUSE else None
+        m = Z @ ((weights(theta)[1] if c is None else c) * inv * y_sc)
         b, a = _foh_mode(f, z, dt)
         return f, z, self._filtered(b, a, m[:, None])[:, 0]
 

@@ -18,7 +18,8 @@ from numba import njit
 
 from .._kernel_args import readonly
 
-__all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows", "plays_rows"]
+__all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows", "plays_rows", "filtered_rows_scaled",
+           "shifted_rows_into"]
 
 
 @njit(cache=True)
@@ -191,3 +192,99 @@ def plays_rows(v, thresholds, initial_states, rows):
     ``rows`` strictly increasing (``numpy.flatnonzero`` of a mask).
     """
     return _plays_rows(readonly(v), readonly(thresholds), readonly(initial_states), readonly(rows, np.int64))
+
+
+@njit(cache=True)
+def _biquad_rows_scaled(V, z0, inv, b0, b1, b2, a1, a2, rows):
+    # each row of V filtered from rest (lfilter's recursion, in its order), at the asked columns
+    # ``(y + z0[j]) * inv[j]``; the rows' steps interleaved (independent recursions overlap). Written
+    # into the transpose of a C-ordered (rows, filters) array: the reference's Fortran layout (a
+    # column gather of a C-ordered array), so later products read it in the same order
+    n_f = V.shape[0]
+    n_rows = rows.size
+    out = np.empty((n_rows, n_f))
+    s0 = np.zeros(n_f)
+    s1 = np.zeros(n_f)
+    k = 0
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        hit = k < n_rows and rows[k] == i
+        for j in range(n_f):
+            x = V[j, i]
+            y = s0[j] + b0 * x
+            s0[j] = s1[j] + x * b1 - y * a1
+            s1[j] = x * b2 - y * a2
+            if hit:
+                out[k, j] = (y + z0[j]) * inv[j]
+        if hit:
+            k += 1
+    return out.T
+
+
+def filtered_rows_scaled(V, b, a, z0, inv, rows):
+    """``((lfilter(b, a, V, axis=-1) + z0[:, None])[:, rows] * inv[:, None]`` for a second-order
+    ``b``, ``a`` (``a[0] = 1``), each row of ``V`` filtered from rest, without the full-length
+    temporaries: the refitted mode's trial columns (:meth:`.effects.Resonance._fit_refit`). The result
+    has the reference's values and its layout (Fortran order: the products of it, e.g. BLAS's
+    ``c @ X``, then sum in the same order).
+
+    Parameters
+    ----------
+    V : ndarray
+        ``(m, n)`` signals, one a row (any unit).
+    b, a : array_like
+        Second-order section, as :func:`~workbench.calibrate.effects._foh_mode` gives.
+    z0 : ndarray
+        ``(m,)`` offsets added after filtering (the unit of ``V``).
+    inv : ndarray
+        ``(m,)`` scales applied last (1 / the unit of ``V``).
+    rows : ndarray of int
+        Strictly increasing column indices within ``V`` (anything else raises ``ValueError``).
+    """
+    rows = np.asarray(rows, np.int64)
+    if rows.size and (rows[0] < 0 or rows[-1] >= np.shape(V)[1] or np.any(np.diff(rows) <= 0)):
+        raise ValueError("filtered_rows_scaled: rows must be strictly increasing indices within the signals")
+    b = np.asarray(b, float)
+    a = np.asarray(a, float)
+    return _biquad_rows_scaled(readonly(V), readonly(np.ravel(z0)), readonly(np.ravel(inv)),
+                               float(b[0]), float(b[1]), float(b[2]), float(a[1]), float(a[2]),
+                               readonly(rows, np.int64))
+
+
+@njit(cache=True)
+def _shifted_into(Z, rows, d, scale, out, col0):
+    # Z(t - d dt) at rows, linear interpolation on the uniform grid with the ends held, each value
+    # ``(Z[i0] * (1 - f) + Z[i1] * f) * scale[j]`` written to out[:, col0 + j]
+    n = Z.shape[0]
+    k = Z.shape[1]
+    top = n - 1.0
+    for r in range(rows.size):
+        s = rows[r] - d
+        if s < 0.0:
+            s = 0.0
+        if s > top:
+            s = top
+        i0 = np.int64(np.floor(s))
+        f = s - i0
+        g = 1.0 - f
+        i1 = min(i0 + 1, n - 1)
+        for j in range(k):
+            out[r, col0 + j] = (Z[i0, j] * g + Z[i1, j] * f) * scale[col0 + j]
+
+
+def shifted_rows_into(Z, rows, d, out, col0=0, scale=None):
+    """Write ``Z(t - d dt)`` at ``rows`` (``(n, k)`` columns, linear interpolation on the uniform
+    grid, ends held: :meth:`.effects.Delay._rows_shifted`'s values to the last bit), times ``scale``
+    (one factor a column of ``out``, default 1), into ``out[:, col0:col0 + k]`` in one pass.
+
+    ``Z`` C-ordered float64 and ``out`` a writable C-ordered float64 ``(rows.size, >= col0 + k)``
+    array (checked: a copy of a record's columns per call would cost more than it saves); ``rows``
+    int64 row indices, any order; ``d`` in samples."""
+    if not (isinstance(Z, np.ndarray) and Z.ndim == 2 and Z.dtype == np.float64 and Z.flags.c_contiguous):
+        raise ValueError("shifted_rows_into: Z must be a C-ordered float64 (n, k) array")
+    if not (out.ndim == 2 and out.dtype == np.float64 and out.flags.c_contiguous and out.flags.writeable
+            and out.shape[0] == np.size(rows) and out.shape[1] >= col0 + Z.shape[1]):
+        raise ValueError("shifted_rows_into: out must be a writable C-ordered (rows, >= col0 + k) float64 array")
+    scale = np.ones(out.shape[1]) if scale is None else scale
+    _shifted_into(readonly(Z), readonly(rows, np.int64), float(d), readonly(scale), out, int(col0))
+    return out

@@ -76,8 +76,8 @@ the base are refitted per fold, and the test part is never seen.
 """
 
 import numpy as np
-from scipy.optimize import lsq_linear
 
+from .bvls import bvls
 from .stacking import column_stack
 from .absorption_or_leakage import absorption_or_leakage as _absorption_or_leakage
 from .absorption_or_leakage import explained as _explained
@@ -426,7 +426,7 @@ class _Problem:
         lb = g["lb"]
         if np.all(np.isinf(lb)):
             return np.linalg.lstsq(R, c, rcond=None)[0]
-        return lsq_linear(R, c, bounds=(lb, np.full(lb.size, np.inf)), method="bvls", tol=1e-12).x
+        return bvls(R, c, lb, tol=1e-12)
 
     def sse(self, g, w, blocks):
         """Sum of squared residuals (scaled units) of the weights ``w`` on the union of ``blocks``.
