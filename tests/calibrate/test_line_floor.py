@@ -42,15 +42,22 @@ def test_a_channel_the_base_cannot_beat_a_line_on_ends_below_the_line(sn637, ind
     if ("resonance", "gauge") in named:
         # session 29 (tracing._mode_reads_both): the gauge's mode reads both sensors better held out and is
         # named on the gauge, its own stage (#77: 79.82 Hz, zeta 0.0110 for 79.83, 0.0111; the displacement's
-        # 80.14, 0.0082); the displacement carries it
-        assert res["channels"]["displacement"].get("carried") == ["resonance"], res["channels"]["displacement"]
+        # 80.14, 0.0082); the displacement carries it, on its own model of the drive refitted under the mode
+        # (session 30, tracing._refitted_carry): the displacement is read through the same mode as the gauge,
+        # which it ends at its floor, so the mode leaves no more than a tenth of the line's error there (the
+        # mode's column on the displacement's base prediction alone left 0.28 of it, the displacement's own
+        # mode reading 0.20, the refitted carry 0.04)
+        d = res["channels"]["displacement"]
+        assert d.get("carried") == ["resonance"], d
+        assert d["error_after"]["rms"] < 0.1 * base.channels["displacement"].line_rms_test, d["error_after"]
     else:
         assert ("resonance", "displacement") in named
         assert res["channels"]["gauge"].get("carried") == ["resonance"]
-        if index == 77:
-            # the charge does not see the mode above its floor: carried, its validation error fell
-            # 1 % and its test error rose (9.534e-8 -> 9.626e-8 C); the fold test refuses it
-            assert res["channels"]["charge"].get("carry_refused") == ["resonance"]
+    if index == 77:
+        # the charge does not see the mode above its floor: carried, its validation error fell
+        # 1 % and its test error rose (9.534e-8 -> 9.626e-8 C); the fold test refuses it (named on the
+        # gauge too: since session 30 that carry is tested and reported, tracing._carried_into)
+        assert res["channels"]["charge"].get("carry_refused") == ["resonance"]
     assert "carried" not in res["channels"]["charge"]
     end = _end_errors(res)
     for ch, err in end.items():

@@ -862,8 +862,7 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
     for ch, c in out["channels"].items():
         key = (ch, "model")
         c["error_after"] = dict(own.get(ch) or {k: c[k] for k in ("rms", "max", "units")})
-        carried = [s["effect"] for s in stages if s["channel"] == "displacement"
-                   and s["effect"] in ("creep", "resonance")]
+        carried = _carried_into(stages, ch)
         bows = [s["effect"] for s in stages if s["_cand"]["key"] == ("gauge", "line")
                 and s["effect"] == "gauge_nonlinearity"] if ch == "gauge" else []
         if key not in probs:
@@ -887,7 +886,14 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
             if not (names and cols):
                 continue
             g1 = _stacked(prob, kept + cols, None)
-            if _carry_passes(prob, g1, sum(C.shape[1] for C, _ in cols), nulls, split, ctx, floor, g0=g_end):
+            # the null reference on the model the term is added to (the carry kept before the bow)
+            nulls_on = [_stacked(prob, kept, {"g": gn}) for gn in nulls] if kept else nulls
+            # a mode named on the gauge, carried into the displacement refitted (:func:`_refitted_carry`), is
+            # scored with its column refitted per fold; the displacement's mode carried into the gauge as its
+            # motion (:func:`_carried_motion`) keeps its development rows' column on the folds, as before
+            g1_f = _cand_grams(prob, kept + cols, None, len(split.folds)) if ch == "displacement" else g1
+            g0_f = _cand_grams(prob, kept, None, len(split.folds)) if ch == "displacement" and kept else g_end
+            if _carry_passes(prob, g1_f, sum(C.shape[1] for C, _ in cols), nulls_on, split, ctx, floor, g0=g0_f):
                 g_end, kept, done = g1, kept + cols, done + names
             else:
                 refused += names
@@ -897,6 +903,24 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
         if refused:
             c["carry_refused"] = refused
         _line_fallback(c, ch, prob, g_end, base, split, ctx["need"])
+
+
+def _carried_into(stages, ch):
+    """The stages whose effect :func:`_absorb` carries into channel ``ch``'s model of the drive (their names).
+
+    A creep or mode named on the displacement is carried into the gauge and the charge; a mode named on the
+    gauge's model of the drive into the displacement and the charge (:func:`_absorb`). Each carry is then
+    tested and reported (:func:`_carry_to_channels`): before session 30 only the displacement's were named
+    here, so a mode named on the gauge was carried into the charge's and the displacement's stage scoring and
+    line check but never tested, reported or counted in their ``error_after``."""
+    out = []
+    for s in stages:
+        from_disp = s["channel"] == "displacement" and s["effect"] in ("creep", "resonance") and ch != "displacement"
+        from_gauge = s["channel"] == "gauge" and s["effect"] == "resonance" and ch != "gauge" \
+            and s["_cand"]["key"] == ("gauge", "model")
+        if from_disp or from_gauge:
+            out.append(s["effect"])
+    return out
 
 
 def _carry_beside_own(out, c, ch, stages, extra_list, prob, split, ctx):
@@ -914,29 +938,26 @@ def _carry_beside_own(out, c, ch, stages, extra_list, prob, split, ctx):
     kept, the channel's ``error_after`` is its end model's on the test rows and ``carried`` names them, and
     the answer's ``error_after`` follows when this is its channel's model. The charge is left as before
     (:func:`_absorb` carries it the mode on its own prediction, refused on every record measured)."""
-    other = OTHER_SENSOR.get(ch)
-    names = [s["effect"] for s in stages if other is not None and s["channel"] == other
-             and s["_cand"]["key"] == (other, "model") and s["effect"] in ("creep", "resonance")]
+    if OTHER_SENSOR.get(ch) is None:
+        return
+    names = _carried_into(stages, ch)
     mine = [x for x in extra_list if getattr(x, "tag", None) is not None and x.tag[1] == ch]
     theirs = [x for x in extra_list if not (getattr(x, "tag", None) is not None and x.tag[1] == ch)]
     if not (names and theirs):
         return
-    g0, g1 = _stacked(prob, mine, None), _stacked(prob, mine + theirs, None)
+    n_folds = len(split.folds)
+    # per fold, the columns refitted per fold on that fold's (:func:`_cand_grams`)
+    g0, g1 = _cand_grams(prob, mine, None, n_folds), _cand_grams(prob, mine + theirs, None, n_folds)
     # the null reference on the model the carry is added to (its own stages), as a later stage's
     # (:func:`_score_stage`): random terms' gain over the base alone is the gain of what those stages explain
     nulls = [_stacked(prob, mine, {"g": gn}) for gn in ctx["nulls"].get((ch, "model"), ())]
-    n_params, floor = sum(C.shape[1] for C, _ in theirs), ctx["noise_factor"] * ctx["infos"][ch]["noise_floor"]
-    passes = 0
-    for tr, va in split.folds:
-        b = prob.fold_rms(g0, tr, va)
-        null = max([b * b - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
-        passes += _fold_test(b, prob.fold_rms(g1, tr, va), n_params, ctx["penalty"], floor, null,
-                             ctx["min_share"])[1]
-    if passes < ctx["need"]:
+    if not _carry_passes(prob, g1, sum(C.shape[1] for C, _ in theirs), nulls, split, ctx,
+                         ctx["infos"][ch]["noise_floor"], g0=g0):
         c["carry_refused"] = names
         return
     before_carry = c["error_after"]
-    c["error_after"] = {**_test_errors(prob, g1, split.dev_blocks, split.test_blocks), "units": c["units"]}
+    c["error_after"] = {**_test_errors(prob, _stacked(prob, mine + theirs, None), split.dev_blocks, split.test_blocks),
+                        "units": c["units"]}
     c["carried"] = names
     if out.get("channel") == ch and out.get("error_after") == before_carry:
         out["error_after"] = dict(c["error_after"])
@@ -1039,16 +1060,19 @@ def _carry_passes(prob, g, n_params, nulls, split, ctx, floor, g0=None):
     """Does a carried term (Gram matrices ``g``, ``n_params`` free gains) pass ``ctx["need"]`` folds?
 
     Per fold, :func:`_fold_test` of the channel's base (or ``g0``: the model the term is added to)
-    against it with the carried columns, the null reference being the best of ``nulls`` (random
-    terms' Gram matrices on the base: their gain over the base).
+    against it with the carried columns, the null reference being the best of ``nulls``: random
+    terms' Gram matrices on that same model (their gain over ``g0``; the caller stacks them on the
+    columns ``g0`` holds, as a later stage's null, :func:`_score_stage`: measured on the base alone,
+    the random terms were credited with what the kept columns explain). ``g`` and ``g0`` may be lists,
+    one per fold (:func:`_cand_grams`: columns refitted per fold, so a fold's validation rows never shape them).
     """
     g0 = prob.base if g0 is None else g0
+    per = [(x if isinstance(x, list) else [x] * len(split.folds)) for x in (g, g0)]
     passes = 0
     for f, (tr, va) in enumerate(split.folds):
-        b0 = prob.fold_rms(prob.base, tr, va)
-        b = b0 if g0 is prob.base else prob.fold_rms(g0, tr, va)
-        null = max([b0 * b0 - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
-        passes += _fold_test(b, prob.fold_rms(g, tr, va), n_params, ctx["penalty"],
+        b = prob.fold_rms(per[1][f], tr, va)
+        null = max([b * b - prob.fold_rms(gn, tr, va) ** 2 for gn in nulls] or [0.0])
+        passes += _fold_test(b, prob.fold_rms(per[0][f], tr, va), n_params, ctx["penalty"],
                              ctx["noise_factor"] * floor, null, ctx["min_share"])[1]
     return passes >= ctx["need"]
 
@@ -1183,6 +1207,9 @@ def _absorb(c, extra, probs, base, t):
                     # the motion the mode makes, refitted or plain (the plain variant's column is the mode on
                     # the displacement's base prediction: session 28, 107 #154)
                     extra[key].append(_carried_motion(C, fold, base, c["channel"], other))
+                elif c["name"] == "resonance" and other == "displacement":
+                    # the gauge's mode on the displacement's own model of the drive, refitted under it
+                    extra[key].append(_refitted_carry(p, probs[key], base, t, other))
 
 
 def _carried_motion(C, fold, base, found_on, other):
@@ -1224,6 +1251,40 @@ def _carried_motion(C, fold, base, found_on, other):
     if fold is None:
         return (Co, lo)
     return FoundColumns(Co, lo, None, [read(F) for F in fold])
+
+
+def _refitted_carry(params, prob, base, t, ch):
+    """A mode named on the gauge, carried into channel ``ch`` (the displacement) on its model refitted under it.
+
+    :func:`_absorb` carries the mode's column on the channel's base prediction, ``(H - 1) yhat``; a light
+    mode's ringing bends the base's plays (weights >= 0) into a distorted drive that ``H`` filtering explains
+    little of (:class:`~.effects.Resonance`'s refitted variant). The mode named on the displacement is scored
+    with its model refitted (its refitted variant where kept); named on the gauge
+    (:func:`_mode_reads_both`), the displacement got the plain column alone and read worse than the
+    displacement's own mode (session 29, 23 #77 at 100 kHz: 1.14e-7 m against 7.9e-8 m). Here the
+    channel's drive model ``m = yhat + basis delta`` is refitted under the gauge's ``(f, zeta)`` by
+    :meth:`~.effects.Resonance.fold_columns` (``delta`` bounded as the base's corrections, fitted on the
+    development search rows, and on each fold's training search rows for that fold: the validation rows
+    never shape it), the column ``(H - 1) m``, carried **beside** the plain one, its gain free (the carry's
+    fold test keeps or refuses both, :func:`_carry_passes`). The construction is kept on ``prob`` per mode
+    (the stages and :func:`_mode_reads_both` carry the same mode again).
+    """
+    from .effects import Resonance
+    key = (float(params["f_n_hz"]), float(params["zeta"]))
+    memo = prob.__dict__.setdefault("_refitted_carry", {})
+    if key not in memo:
+        # the problem's own columns (its scaled basis, the bounds in their units) and record: ``r`` is the base's
+        # residual over ``scale``
+        yhat = np.asarray(base.channels[ch].yhat, float)
+        rows = [np.flatnonzero(prob.search)] + \
+            [np.flatnonzero(prob.search & prob.split.rows(tr)) for tr, _ in prob.split.folds]
+        cols = Resonance(basis=prob.A).fold_columns(
+            t, yhat + prob.r * prob.scale, yhat, {"f_n_hz": key[0], "zeta": key[1]}, rows,
+            prob.lower_A * prob.scale)
+        as2d = [np.asarray(C, float).reshape(-1, 1) for C in cols]
+        memo.clear()
+        memo[key] = FoundColumns(as2d[0], [-np.inf], None, as2d[1:])
+    return memo[key]
 
 
 def _test_errors(prob, g, dev_blocks, test_blocks):
