@@ -832,9 +832,10 @@ def _carry_to_channels(out, stages, probs, base, split, ctx):
 
     A channel's own stages on its model of the drive end at the last one's ``error_after`` (a
     gauge's bow, fitted against the recorded displacement, is not one). A channel that reads the stack's
-    motion without an effect named on it (the gauge, the charge) is refitted with the columns of
-    every effect found on the displacement that :func:`_absorb` carries to it (creep, a
-    resonance: the gauge reads the displacement, ringing and all), its gains free, on the
+    motion without an effect named on it (the gauge, the charge; the displacement when the stack's mode
+    was named on the gauge) is refitted with the columns of every effect :func:`_absorb` carries to it
+    (:func:`_carried_into`: a creep or resonance found on the displacement, a mode found on the gauge's
+    model of the drive; the gauge reads the displacement, ringing and all), its gains free, on the
     development rows. The carry is a term like any candidate and passes the same test
     (:func:`_fold_test` on ``ctx["need"]`` of the split's validation folds, data the test part
     never enters): its parameters are the carried columns (the channel's free gains), against
@@ -932,9 +933,10 @@ def _carry_beside_own(out, c, ch, stages, extra_list, prob, split, ctx):
     stage's ``error_after``, computed before a later stage named on the other sensor: the carried columns
     never entered it (session 29, 105 #165 at 1 MHz steps: a drift on the displacement, then the stack's
     mode named on the gauge, :func:`_mode_reads_both`; the displacement reported 1.6e-8 m, its end model
-    with the carried mode leaves 6.4e-9 m). The carried columns are tested as any carry (:func:`_fold_test`
-    on ``ctx["need"]`` validation folds) against the channel's own stages' model, the null reference the
-    random terms added to that model (as a later stage's);
+    with the carried mode leaves 6.4e-9 m). The carried columns (:func:`_carried_into` names them) are
+    tested as any carry (:func:`_carry_passes` on ``ctx["need"]`` validation folds, columns refitted per fold
+    on that fold's) against the channel's own stages' model, the null reference the random terms added to
+    that model (as a later stage's);
     kept, the channel's ``error_after`` is its end model's on the test rows and ``carried`` names them, and
     the answer's ``error_after`` follows when this is its channel's model. The charge is left as before
     (:func:`_absorb` carries it the mode on its own prediction, refused on every record measured)."""
@@ -1186,7 +1188,9 @@ def _absorb(c, extra, probs, base, t):
     # the stack's motion is read by every channel: its creep or mode found on the displacement is
     # carried into the charge's and the gauge's models; its mode found on the gauge (named there when
     # a displacement-sensor effect hides the displacement's view on some folds,
-    # :func:`~.stages.stack_effect_on_both_sensors`) into the displacement's and the charge's. The
+    # :func:`~.stages.stack_effect_on_both_sensors`, or reading both sensors better, :func:`_mode_reads_both`)
+    # into the displacement's (beside it, on the displacement's model refitted under it, :func:`_refitted_carry`)
+    # and the charge's. The
     # displacement's own view is then excluded (:func:`~.stages.excluded`): without its columns the
     # displacement kept the whole mode, and a large drift beside it was refused (session 16, 56 #88:
     # a 40 Hz mode and a 400x drift at 100 kHz answered with the mode only)
