@@ -69,6 +69,18 @@ def _err(p, zeta):
     return abs(p["zeta"] / zeta - 1.0)
 
 
+#: Noise seeds per constructed record: the rule is a held-out test, and one seed shows only that one draw passes
+#: (session 30's review: the pooled one-sided test of session 29 passed the tie test's seed 0 and flipped seeds
+#: 7, 10, 15, 16 and 19 of 20 to the gauge)
+SEEDS = range(12)
+
+
+def _on_gauge(seeds, **kw):
+    """Per noise seed, the folds that name the mode on the gauge, and each seed's views' parameters."""
+    out = [_named(seed=s, **kw) for s in seeds]
+    return [sum(1 for w in winners if tuple(w) == ("resonance", "gauge")) for winners, _ in out], [p for _, p in out]
+
+
 @pytest.mark.parametrize("rate, rows, f_mode, zeta, protocol, drift", [
     (1e4, 1000, 54.2, 0.0159, "sine", 3e-5),          # 22 #154's mode and record length (0.1 s, 5.4 cycles)
     (1e4, 1000, 120.0, 0.010, "calibration", 2e-5),
@@ -76,26 +88,33 @@ def _err(p, zeta):
 def test_a_mode_beside_a_displacement_drift_is_named_on_the_gauge(rate, rows, f_mode, zeta, protocol, drift):
     """The displacement sensor drifts (2-3x the stack's motion over the record), the gauge does not: the
     displacement's search leaves the damping >= 10 % off, the gauge's within 5 %, and every fold names the
-    mode on the gauge, its damping the gauge's (before: on the displacement, 5 of 5)."""
-    winners, p = _named(rate, rows, f_mode, zeta, protocol, drift_d=drift)
-    assert _err(p["displacement"], zeta) > 0.10 and _err(p["gauge"], zeta) < 0.05, p   # the premise
-    assert winners == [("resonance", "gauge")] * 5, winners
+    mode on the gauge, its damping the gauge's (before: on the displacement, 5 of 5), on every noise seed."""
+    folds, params = _on_gauge(range(4), rate=rate, rows=rows, f_mode=f_mode, zeta=zeta, protocol=protocol,
+                              drift_d=drift)
+    for p in params:
+        assert _err(p["displacement"], zeta) > 0.10 and _err(p["gauge"], zeta) < 0.05, p   # the premise
+    assert folds == [5] * 4, folds
 
 
 def test_a_mode_beside_a_gauge_drift_stays_on_the_displacement():
     """The guard, the sensors' roles swapped: the gauge drifts, the displacement does not; the mode stays the
-    displacement's on every fold (the rule follows the better reading, not a sensor)."""
-    winners, p = _named(1e4, 1000, 54.2, 0.0159, "sine", drift_g=3e-5)
-    assert _err(p["displacement"], 0.0159) < 0.05, p
-    assert winners == [("resonance", "displacement")] * 5, winners
+    displacement's on every fold and noise seed (the rule follows the better reading, not a sensor)."""
+    folds, params = _on_gauge(range(4), rate=1e4, rows=1000, f_mode=54.2, zeta=0.0159, protocol="sine",
+                              drift_g=3e-5)
+    assert all(_err(p["displacement"], 0.0159) < 0.05 for p in params), params
+    assert folds == [0] * 4, folds
 
 
-def test_one_mode_both_views_found_stays_on_the_displacement():
-    """No drift: both views find one mode (the same frequency and damping to 3 digits); the gauge's reading is
-    not resolved beyond the displacement's, and the mode keeps the plant file's form, on the displacement."""
-    winners, p = _named(1e4, 1000, 54.2, 0.0159, "sine")
-    assert abs(p["gauge"]["f_n_hz"] / p["displacement"]["f_n_hz"] - 1) < 1e-3, p
-    assert winners == [("resonance", "displacement")] * 5, winners
+@pytest.mark.parametrize("f_mode, zeta, protocol", [(54.2, 0.0159, "sine"), (80.0, 0.010, "steps")])
+def test_one_mode_both_views_found_stays_on_the_displacement(f_mode, zeta, protocol):
+    """No drift: both views find one mode (the same frequency to 3 digits); the gauge's reading is not
+    resolved beyond the displacement's, and the mode keeps the plant file's form, on the displacement, on
+    every fold of every noise seed (a tie decided by chance would flip about one seed in six: session 29's
+    pooled test flipped 5 of 20 sine seeds and 6 of 20 steps seeds)."""
+    folds, params = _on_gauge(SEEDS, rate=1e4, rows=1000, f_mode=f_mode, zeta=zeta, protocol=protocol)
+    for p in params:
+        assert abs(p["gauge"]["f_n_hz"] / p["displacement"]["f_n_hz"] - 1) < 1e-3, p
+    assert folds == [0] * len(SEEDS), folds
 
 
 def _own_then_carried(mode_hz, carried_hz, seed=0):
