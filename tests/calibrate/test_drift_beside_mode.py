@@ -40,10 +40,17 @@ def test_a_mode_found_on_the_gauge_enters_the_displacement_and_charge_models(sn6
     for ch in ("displacement", "charge"):
         if ch not in base.channels:
             continue
-        (X, lower), = extra[(ch, "model")]
+        (X, lower), *more = extra[(ch, "model")]
         expect = Resonance._column(base.channels[ch].yhat, p["f_n_hz"], p["zeta"], 1.0 / 1e4)
         np.testing.assert_allclose(np.ravel(X), expect, rtol=1e-12, atol=1e-12 * np.max(np.abs(expect)))
         assert list(lower) == [-np.inf]
+        if ch == "displacement":
+            # beside it (session 30, tracing._refitted_carry): the mode on the displacement's model refitted under
+            # it, one column over the record, and one per fold fitted on that fold's training rows
+            (R,) = more
+            assert R[0].shape == (t.size, 1) and len(R.fold) == len(sp.folds), (R[0].shape, len(R.fold))
+        else:
+            assert not more, more
     # the gauge's bow problem (the line against the displacement) carries nothing of the stack
     cand_line = {**cand, "key": ("gauge", "line")}
     probs[("gauge", "line")] = probs[("gauge", "model")]

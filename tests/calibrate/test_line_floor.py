@@ -7,6 +7,8 @@ the gauge reads the displacement, ringing and all, and the rate-independent base
 The resonance is named on the displacement; carried into the gauge's model (its gains refitted
 on the development rows, kept by the validation folds' test), the gauge's error at the end must
 be below the line's on the test part. Without the carry (the base's error reported) both fail.
+Since session 29 #77's mode is named on the gauge (its mode reads both sensors better held out,
+``tracing._mode_reads_both``) and carried into the displacement: the floor asserted is the same.
 
 Beside them: the carry's fold test on constructed problems (a real drop under the noise floor
 is refused), and drawn 100 kHz records of the effects the carry applies to, sizes from the
@@ -36,13 +38,27 @@ def test_a_channel_the_base_cannot_beat_a_line_on_ends_below_the_line(sn637, ind
     # the case: the base alone is above the line on the gauge's test rows
     assert g.rms_test > g.line_rms_test
     res = trace_effect(base, split=sp)
-    assert ("resonance", "displacement") in [(s["effect"], s["channel"]) for s in res["stages"]]
-    assert res["channels"]["gauge"].get("carried") == ["resonance"]
+    named = [(s["effect"], s["channel"]) for s in res["stages"]]
+    if ("resonance", "gauge") in named:
+        # session 29 (tracing._mode_reads_both): the gauge's mode reads both sensors better held out and is
+        # named on the gauge, its own stage (#77: 79.82 Hz, zeta 0.0110 for 79.83, 0.0111; the displacement's
+        # 80.14, 0.0082); the displacement carries it, on its own model of the drive refitted under the mode
+        # (session 30, tracing._refitted_carry): the displacement is read through the same mode as the gauge,
+        # which it ends at its floor, so the mode leaves no more than a tenth of the line's error there (the
+        # mode's column on the displacement's base prediction alone left 0.28 of it, the displacement's own
+        # mode reading 0.20, the refitted carry 0.04)
+        d = res["channels"]["displacement"]
+        assert d.get("carried") == ["resonance"], d
+        assert d["error_after"]["rms"] < 0.1 * base.channels["displacement"].line_rms_test, d["error_after"]
+    else:
+        assert ("resonance", "displacement") in named
+        assert res["channels"]["gauge"].get("carried") == ["resonance"]
     if index == 77:
         # the charge does not see the mode above its floor: carried, its validation error fell
-        # 1 % and its test error rose (9.534e-8 -> 9.626e-8 C); the fold test refuses it
+        # 1 % and its test error rose (9.534e-8 -> 9.626e-8 C); the fold test refuses it (named on the
+        # gauge too: since session 30 that carry is tested and reported, tracing._carried_into)
         assert res["channels"]["charge"].get("carry_refused") == ["resonance"]
-        assert "carried" not in res["channels"]["charge"]
+    assert "carried" not in res["channels"]["charge"]
     end = _end_errors(res)
     for ch, err in end.items():
         assert np.isfinite(err) and err <= base.channels[ch].line_rms_test, (ch, err, base.channels[ch].line_rms_test)

@@ -51,8 +51,13 @@ def test_64_154_a_slow_mode_beside_a_drift_keeps_its_folds(sn637):
     t, sp, base, _, truth, _ = cc.simulated_base(sn637, e, rate, proto, size, seed)
     named, res = _named(base, sp)
     assert named and named[0] == "resonance", (named, res["fold_winners"])
-    assert res["stages"][0]["channel"] == "displacement", res["stages"][0]
-    assert abs(res["stages"][0]["parameters"]["f_n_hz"] / truth["freq_hz"] - 1.0) < 0.1, (truth, res["stages"][0])
+    # session 30 (tracing._mode_reads_both): named on the gauge, whose mode reads both sensors better held out
+    # (the gauge's 61.96 Hz, zeta 0.0203; the displacement's, beside its drift, 67.68 Hz at the 0.002 damping
+    # floor; the truth 61.91 Hz, 0.0181): either view, the named mode is the record's, its damping too
+    assert res["stages"][0]["channel"] in ("displacement", "gauge"), res["stages"][0]
+    par = res["stages"][0]["parameters"]
+    assert abs(par["f_n_hz"] / truth["freq_hz"] - 1.0) < 0.1, (truth, res["stages"][0])
+    assert abs(np.log(par["zeta"] / truth["damping_ratio"])) < np.log(1.5), (truth, res["stages"][0])
 
 
 def test_66_73_a_small_drift_is_not_named_a_slow_mode(sn637):

@@ -239,7 +239,7 @@ def _bounded_delta(G, h, m, lower):
 
 
 def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
-            row_columns_many=None, jac="2-point"):
+            row_columns_many=None, jac="2-point", added_from=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
 
     ``columns(theta) -> (N, m)`` array over the whole record; returns ``(theta, beta)``.
@@ -254,6 +254,11 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     to the last bit (a compiled filter runs :data:`GRID_BATCH` of them in one pass).
     ``jac``: ``least_squares``' finite-difference scheme (see :meth:`_Relaxation.fit` for why a
     relaxation's search takes ``"3-point"``).
+    ``added_from``, optional: the grid's points from this index on are an added part (:meth:`Resonance.fit`'s
+    long-segment peaks): the ``starts`` refinements start from the best points before it, as without the
+    added part, and one more from the added part's best. The answer is the least cost of every grid point
+    and refinement, so it leaves no more than the search without the added part would (the added
+    points, ~77 about each peak, cannot crowd the others' valleys out of the starts).
     """
     y = _rows(e, mask, project)
     # the target at unit RMS: least_squares' tolerances are absolute on the gradient, and a
@@ -322,7 +327,12 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     lo, hi = np.atleast_1d(lower).astype(float), np.atleast_1d(upper).astype(float)
     theta, best_cost = np.atleast_1d(np.asarray(grid[int(np.argmin(costs))], dtype=float)), min(costs)
     # refine from the best few grid points: a light mode's valleys are narrow and several
-    for k in np.argsort(costs)[:starts]:
+    if added_from is None or added_from >= len(costs):
+        picks = np.argsort(costs)[:starts]
+    else:
+        c = np.asarray(costs, dtype=float)
+        picks = list(np.argsort(c[:added_from])[:starts]) + [added_from + int(np.argmin(c[added_from:]))]
+    for k in picks:
         x0 = np.clip(np.atleast_1d(np.asarray(grid[int(k)], dtype=float)), lo + 1e-9 * (hi - lo), hi - 1e-9 * (hi - lo))
         sol = least_squares(res, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60, jac=jac, **_MAP_KW(jacobian_map))
         if 2 * sol.cost < best_cost:
@@ -1256,6 +1266,18 @@ REFIT_SEARCH_SAMPLES = 2_000
 #: points' residuals, the answer's weights); False evaluates each afresh (the reference the tests compare with)
 _REFIT_REUSE = True
 
+#: the fine frequency grid about a residual spectrum's peak spans +- this in log f (+-12 %)
+FINE_HALF_LOG = 0.12
+#: the residual spectrum's peaks are sought above this frequency (Hz): below it the base model's own slow
+#: errors dominate the spectrum (and the search's floor, RING_CYCLES_PER_RECORD cycles over the record, is
+#: at or below it on the benchmark's records: 20 Hz on a 0.1 s record)
+PEAK_FLOOR_HZ = 20.0
+#: Welch's segment of the residual spectrum whose peaks seed the fine grid, in samples: 2.4 Hz bins at
+#: 10 kHz. Where it cannot resolve the fine grid's half-width (its bin above ``expm1(FINE_HALF_LOG) f``:
+#: below ~190 Hz at 100 kHz, ~960 Hz at the thinned 1 MHz) a longer segment's peaks are added
+#: (:meth:`Resonance._spectral_peaks`)
+PEAK_SEGMENT = 4096
+
 
 class Resonance(Effect):
     """A lightly damped mode with unit DC gain the base model lacks: ``g (H(s) - 1) u``.
@@ -1460,6 +1482,84 @@ class Resonance(Effect):
             return min(z, cap) if f < f_slow else z
         return zeta
 
+    def _spectral_peaks(self, e, fs, lf_lo, lf_hi):
+        """The residual spectrum's peaks (Hz) about which :meth:`fit` lays its fine grid.
+
+        Peaks of a Welch estimate of ``e`` (the search rows' residual, rate ``fs`` in Hz) with
+        :data:`PEAK_SEGMENT`-sample segments above :data:`PEAK_FLOOR_HZ` (and the search's floor
+        ``exp(lf_lo)``), up to ``exp(lf_hi)``, ranked by prominence over a running median of 31 bins: two by
+        power (a broad, damped mode), then two more by prominence (a sharp, weak one), each more than 0.1 in
+        log f from those taken.
+
+        Where that segment's bin, ``fs / PEAK_SEGMENT``, is wider than the fine grid's half-width
+        ``expm1(FINE_HALF_LOG) f`` (below the cutoff ``f_c = fs / (PEAK_SEGMENT expm1(FINE_HALF_LOG))``:
+        ~190 Hz at 100 kHz, ~960 Hz at the 500 kHz search rows of a 1 MHz record, 19 Hz at 10 kHz, under the
+        floor) a mode there has no peak of its own (244 Hz bins at 1 MHz above the benchmark's 27-110 Hz
+        modes: 106 #159's 34 Hz mode was searched from a factor of two away and ended at the damping cap).
+        There, and only there, the peaks of a longer segment are **added**: the segment that resolves the
+        fine grid's half-width at the floor, at most every row (one periodogram at the benchmark's lengths),
+        by the same rule (two by power, two more by prominence), the running median's width the coarse
+        grid's step in log f (its bins are not the short segment's). Above ``f_c`` the averaged short segments
+        alone seed the grid: a single long periodogram loses a weak mode there to noise peaks (session 27's
+        review: seed 20 #88's 1129 Hz mode at 100 kHz).
+
+        Parameters
+        ----------
+        e : ndarray
+            The residual on the search rows (channel units).
+        fs : float
+            The rows' sampling rate (Hz).
+        lf_lo, lf_hi : float
+            The search's band, ``log`` of Hz.
+
+        Returns
+        -------
+        peaks, added : list of float
+            The short segment's peaks and the long segment's added ones (Hz; ``added`` empty where the
+            short segment resolves the fine grid at the floor).
+        """
+        from scipy.ndimage import median_filter
+        e = np.asarray(e, float) - float(np.mean(e))
+        f_pk = max(np.exp(lf_lo), PEAK_FLOOR_HZ)
+        nseg = min(PEAK_SEGMENT, e.size)
+        f_psd, pxx = signal.welch(e, fs=fs, nperseg=nseg)
+        band = (f_psd >= f_pk) & (f_psd <= np.exp(lf_hi))
+        peaks = []
+
+        def take(f_b, order, quota):
+            for k in order:
+                if len(peaks) >= quota:
+                    break
+                if all(abs(np.log(f_b[k] / q)) > 0.1 for q in peaks):
+                    peaks.append(float(f_b[k]))
+        if band.sum() > 31:
+            p_b, f_b = pxx[band], f_psd[band]
+            prominence = p_b / (median_filter(p_b, size=31, mode="nearest") + 1e-300)
+            take(f_b, np.argsort(p_b)[::-1], 2)
+            take(f_b, np.argsort(prominence)[::-1], 4)
+        # below the cutoff: a longer segment's peaks added (none where the short segment resolves the
+        # fine grid at the floor, 10 kHz and below, or where it already takes every row)
+        f_c = min(fs / (nseg * np.expm1(FINE_HALF_LOG)), np.exp(lf_hi))
+        if f_c <= f_pk or e.size <= nseg:
+            return peaks, []
+        need = fs / (np.expm1(FINE_HALF_LOG) * f_pk)
+        nlong = int(min(2 ** int(np.ceil(np.log2(need))), e.size))
+        f_l, p_l = signal.welch(e, fs=fs, nperseg=nlong)
+        low = (f_l >= f_pk) & (f_l < f_c)
+        if low.sum() < 3:
+            return peaks, []
+        p_b, f_b = p_l[low], f_l[low]
+        lf_b = np.log(f_b)
+        half = 0.5 * (lf_hi - lf_lo) / max(self.n_freq // 2 - 1, 1)
+        lo_i = np.searchsorted(lf_b, lf_b - half, side="left")
+        hi_i = np.searchsorted(lf_b, lf_b + half, side="right")
+        med = np.array([np.median(p_b[i:j]) for i, j in zip(lo_i, hi_i)])
+        prominence = p_b / (med + 1e-300)
+        n0 = len(peaks)
+        take(f_b, np.argsort(p_b)[::-1], n0 + 2)
+        take(f_b, np.argsort(prominence)[::-1], n0 + 4)
+        return peaks[:n0], peaks[n0:]
+
     def fit(self, t, u, residual, train_mask, y_model=None, project=None, refit=False):
         dt = _dt(t)
         u = np.asarray(u, float)
@@ -1487,34 +1587,25 @@ class Resonance(Effect):
         e_fit = np.asarray(residual, float)[rows]
         # the training rows may be thinned (every k-th row): the spectrum's rate is the rows' own
         step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
-        f_psd, pxx = signal.welch(e_fit - e_fit.mean(), fs=1.0 / (dt * step), nperseg=min(4096, e_fit.size))
-        # peaks above 20 Hz (below, the base model's own slow errors dominate the spectrum),
-        # ranked by prominence over a running median: a mode stands out of its neighbourhood
-        band = (f_psd >= max(np.exp(lf_lo), 20.0)) & (f_psd <= np.exp(lf_hi))
         lfs = list(np.linspace(lf_lo, lf_hi, self.n_freq // 2))
-        peaks = []
-        if band.sum() > 31:
-            from scipy.ndimage import median_filter
-            p_b, f_b = pxx[band], f_psd[band]
-            prominence = p_b / (median_filter(p_b, size=31, mode="nearest") + 1e-300)
-            # two by power (a broad, damped mode) and two by prominence (a sharp, weak one)
-            for order, quota in ((np.argsort(p_b)[::-1], 2), (np.argsort(prominence)[::-1], 4)):
-                for k in order:
-                    if len(peaks) >= quota:
-                        break
-                    if all(abs(np.log(f_b[k] / q)) > 0.1 for q in peaks):
-                        peaks.append(f_b[k])
+        peaks, added = self._spectral_peaks(e_fit, 1.0 / (dt * step), lf_lo, lf_hi)
         lfs = np.clip(lfs, lf_lo, lf_hi)
-        grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)]
-        grid += [[lf, lz] for f_peak in peaks for lf in np.log(f_peak) + np.linspace(-0.12, 0.12, 11)
-                 for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
-        # a slow trial's damping capped (:meth:`_ring_cap`): the grid's capped points once each
+
+        def fine(pks):
+            return [[lf, lz] for f_peak in pks for lf in np.log(f_peak) + np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 11)
+                    for lz in np.linspace(lz_lo, lz_hi, 7) if lf_lo <= lf <= lf_hi]
+        grid = [[lf, lz] for lf in lfs for lz in np.linspace(lz_lo, lz_hi, 6)] + fine(peaks)
+        # a slow trial's damping capped (:meth:`_ring_cap`): the grid's capped points once each; the long
+        # segment's peaks' points after the others, their own start (_varpro's added_from)
         seen, capped = set(), []
-        for lf, lz in grid:
-            g = (float(lf), float(np.log(zeta(np.exp(lf), np.exp(lz)))))
-            if g not in seen:
-                seen.add(g)
-                capped.append(list(g))
+        for part in (grid, fine(added)):
+            n_before = len(capped)
+            for lf, lz in part:
+                g = (float(lf), float(np.log(zeta(np.exp(lf), np.exp(lz)))))
+                if g not in seen:
+                    seen.add(g)
+                    capped.append(list(g))
+        added_from = n_before if len(capped) > n_before else None
         grid = capped
 
         def mode(th):
@@ -1531,7 +1622,7 @@ class Resonance(Effect):
                               np.asarray(residual, float), np.asarray(train_mask, bool),
                               grid, [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3,
                               row_columns=lambda th, rows: mode_column_rows(u, *mode(th), rows),
-                              plain_costs=memo,
+                              plain_costs=memo, added_from=added_from,
                               row_columns_many=lambda ths, rows: mode_columns_rows(
                                   u, [mode(th) for th in ths], rows))
         f = float(np.exp(theta[0]))

@@ -875,8 +875,10 @@ def stack_effect_on_both_sensors(res, need):
     two. When the two views together win ``need`` folds, the effect is named once: on the
     displacement when the displacement's row passes ``need`` folds (the plant file's form of the
     stack's mode or creep is the displacement's, ``[[mechanics.modes]]`` / creep, and its columns
-    are then carried into the gauge's and the charge's models), else on the gauge. The other
-    sensor's view is then excluded (:func:`excluded`).
+    are then carried into the gauge's and the charge's models), else on the gauge; a mode is named
+    on the gauge too when the gauge's mode reads both sensors better held out
+    (:func:`~workbench.calibrate.tracing._mode_reads_both`, session 29). The other sensor's view is
+    then excluded (:func:`excluded`).
 
     Returns
     -------
@@ -896,9 +898,12 @@ def stack_effect_on_both_sensors(res, need):
             continue
         disp_passes = int(sum(res["by"][views[1]]["passes"]))
         best = views[1] if disp_passes >= need else views[0]
-        n = len(res["winners"])
         why = (f"its row passes {disp_passes} folds" if best == views[1]
                else f"the displacement's row passes only {disp_passes} folds")
+        if name == "resonance" and res.get("gauge_mode_reads_both"):
+            # the gauge's mode reads both sensors better, resolved (:func:`~.tracing._mode_reads_both`)
+            best, why = views[0], "its mode reads both sensors better held out"
+        n = len(res["winners"])
         return best, won[best], (f"the stack's {name}: the gauge's wins {won[views[0]]} and the "
                                  f"displacement's {won[views[1]]} of {n} folds (one motion, read by both; "
                                  f"named on the {best[1]}: {why})"), sum(won.values())
