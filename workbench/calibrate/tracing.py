@@ -944,8 +944,9 @@ def _carry_beside_own(out, c, ch, stages, extra_list, prob, split, ctx):
     if OTHER_SENSOR.get(ch) is None:
         return
     names = _carried_into(stages, ch)
-    mine = [x for x in extra_list if getattr(x, "tag", None) is not None and x.tag[1] == ch]
-    theirs = [x for x in extra_list if not (getattr(x, "tag", None) is not None and x.tag[1] == ch)]
+    own = [getattr(x, "tag", None) is not None and x.tag[1] == ch for x in extra_list]
+    mine = [x for x, o in zip(extra_list, own) if o]
+    theirs = [x for x, o in zip(extra_list, own) if not o]
     if not (names and theirs):
         return
     n_folds = len(split.folds)
@@ -1276,8 +1277,8 @@ def _refitted_carry(params, prob, base, t, ch):
     development search rows, and on each fold's training search rows for that fold: the validation rows
     never shape it), the column ``(H - 1) m``, carried **beside** the plain one, its gain free (the carry's
     fold test keeps or refuses both, :func:`_carry_passes`; 23 #77: the displacement 1.14e-7 -> 1.63e-8 m,
-    its line 4.03e-7 m). The construction is kept on ``prob`` per mode (each later stage carries the same
-    mode again). Not in :func:`_mode_reads_both`'s comparison of the two views (see there).
+    its line 4.03e-7 m). The last mode's construction is kept on ``prob`` (each later stage carries the same
+    mode again; another mode replaces it, so one record holds one at a time). Not in :func:`_mode_reads_both`'s comparison of the two views (see there).
     """
     from .effects import Resonance
     key = (float(params["f_n_hz"]), float(params["zeta"]))
