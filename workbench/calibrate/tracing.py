@@ -1718,7 +1718,9 @@ def _other_sensor_lags_alike(sse_lagged, sse_unlagged, n):
     Measured (README "Session 31, the other sensor's lag at a bar"): the delay / mode / drift + mode /
     creep + delay records of development seeds 90-93, 96-99 at 100 Hz (96 records) answer as before; the
     session 25 review's right delays near the bar: 55 #17 (1 kHz sine) delay 5 -> 4 of 5, still named; 55 #83,
-    55 #86, 41 #138 (1 MHz) unchanged. A wide 100 Hz draw (48 records, ``default_rng(3131)``): wrong 2 -> 1.
+    55 #86, 41 #138 (1 MHz) unchanged; check seeds 105-106 at default rates (72 such records): one right
+    answer lost, 106 #64 (creep + delay at 10 kHz steps, 119x: its second delay fold's gauge at D/SE -1.00,
+    named by the sign before). A wide 100 Hz draw (48 records, ``default_rng(3131)``): wrong 2 -> 1.
     **Not fixed**: that draw's #1 (a 515 Hz mode beside a drift under the sine): the gauge resolves unlagged
     beyond lagged by the full ``d`` on two folds (-1.73, -1.44) while lagged by ``d / 4`` it is resolved the
     other way on three: the gauge's interval mean reads a fraction of the displacement's lag, and the delay's
