@@ -130,7 +130,7 @@ def test_fresh_112_121_a_mode_above_nyquist_beside_a_drift_names_no_delay(sn637)
     effect, rate, proto, size, seed = cases[121 - 1]
     assert (effect, rate, proto) == (("drift", "resonance"), 100.0, "sine"), cases[120]
     t, sp, base, _, truth, _ = cc.simulated_base(sn637, effect, rate, proto, size, seed)
-    assert truth["freq_hz"] > 0.5 * rate                     # the mode above Nyquist: no search can reach it
+    assert truth["freq_hz"] > 0.5 * rate             # the mode above Nyquist: the mode search stops at Nyquist
     named = [s["effect"] for s in trace_effect(base, split=sp).get("stages", [])]
     assert "delay" not in named, named
     assert named[:1] == ["drift"], named
