@@ -143,3 +143,42 @@ def stable_rss():
         return sys_
 
     return draw
+
+
+#: the ids ``make test`` leaves to the full form, and why (the file's header): coverage-checked, session 32
+FULL_ONLY_LIST = Path(__file__).with_name("full_only.txt")
+
+
+def read_full_only(path=FULL_ONLY_LIST):
+    """The node ids listed in ``path`` (one a line, ``#`` comments), as a set."""
+    ids = set()
+    for line in path.read_text(encoding="utf-8").splitlines():
+        nid = line.split("#", 1)[0].strip()
+        if nid:
+            ids.add(nid)
+    return ids
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Skip the ids of ``tests/full_only.txt`` unless ``WORKBENCH_FULL=1``; refuse a list gone stale.
+
+    Runs before ``-k``/``-m`` deselect, so every id of a collected file is seen: a listed id whose file was
+    collected whole (no ``file::name`` argument) but which no longer exists (a renamed test, a changed draw)
+    stops the run with the fix, instead of silently running the test in the reduced form."""
+    listed = read_full_only()
+    seen = {item.nodeid for item in items}
+    files = {nid.split("::", 1)[0] for nid in seen}
+    picked = any("::" in str(a) for a in config.args)
+    stale = sorted(nid for nid in listed - seen if nid.split("::", 1)[0] in files)
+    if stale and not picked:
+        raise pytest.UsageError(
+            f"{FULL_ONLY_LIST}: {len(stale)} listed id(s) are no longer collected, e.g. {stale[0]}: the test was "
+            "renamed or its draw changed; update the list (tools/reduce_suite.py says how it was chosen)")
+    if FULL:
+        return
+    mark = pytest.mark.skip(reason="full form: tests/full_only.txt (coverage-checked); WORKBENCH_FULL=1 "
+                                   "(make test-full) runs it")
+    for item in items:
+        if item.nodeid in listed:
+            item.add_marker(mark)
