@@ -200,6 +200,27 @@ def _check_parameters(stiffness_n_per_m, calibrations_m_per_v, gauge_tolerance,
                              f"for 3.077 um/V)")
 
 
+# A k_p this far from the stiffness the table's R_in runs measure is a unit slip, not a stack: the R_in runs
+# measure k_p + T_em^2 / (C_p + C_h) >= k_p (eq. 5 with the leads shorted), and a wrong SI prefix moves a
+# value by 1e3 at least, so the bound is the geometric midpoint between right (ratio ~1) and one prefix off
+STIFFNESS_SLIP_FACTOR = 10 ** 1.5
+
+
+def _check_stiffness_against_r_in(path, kp, runs):
+    """Refuse a k_p (N/m) a unit slip away from the R_in runs' F/x (issue 17: ``--stiffness 200`` as N/m)."""
+    ks = [r.force_n / r.displacement_m for r in runs if r.config == "R_in" and r.displacement_m != 0.0]
+    ks = [k for k in ks if math.isfinite(k) and k > 0]
+    if not ks:
+        return
+    k_r_in = float(np.mean(ks))
+    ratio = kp / k_r_in
+    if not 1 / STIFFNESS_SLIP_FACTOR <= ratio <= STIFFNESS_SLIP_FACTOR:
+        raise UnitError(f"--stiffness (stiffness_n_per_m) {kp:g} N/m = {kp * 1e-6:g} N/um is {ratio:.3g} times the "
+                        f"{k_r_in * 1e-6:.1f} N/um the {len(ks)} R_in runs of {path} measure (k_p + T_em^2/(C_p + "
+                        f"C_h) >= k_p); more than {STIFFNESS_SLIP_FACTOR:.3g}x apart is a unit slip: give the unit, "
+                        f"e.g. --stiffness 200N/um (stiffness_n_per_m=2e8)")
+
+
 def _read_header(path, lineno, cells):
     """Map column name -> (index, SI scale) from the header row, validating names and units."""
     columns = {}
@@ -526,6 +547,7 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
     kp = float(stiffness_n_per_m)
     impossible = []                 # force cells a column's unit slip would explain: after the T_em diagnosis
     runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v, impossible)
+    _check_stiffness_against_r_in(path, kp, runs)
 
     used, flagged, r_in, t_all, t_swapped = [], [], [], [], []
     swapped_runs = {(d["serial"], d["run"]) for d in _swap_decision(runs, gauge_scale, displacement_scale,
