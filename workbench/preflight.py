@@ -408,10 +408,8 @@ def _check_flags(args):
                   f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
     elif cmd == "linearize":
         pzt = _plant(args.plant).pzt
-        span = pzt.voltage_max_v - pzt.voltage_min_v
-        for a in args.amplitudes:
-            _in_range("--amplitudes", a, "V", 0.0, span, f"the amplifier's {pzt.voltage_min_v:g}..{pzt.voltage_max_v:g} "
-                      f"V span of {args.plant}", lo_open=True)
+        from .linearize.run import check_amplitudes          # the library's check (one home)
+        check_amplitudes(pzt, args.amplitudes, name="--amplitudes", where=str(args.plant))
         _in_range("--bias", args.bias, "V", pzt.voltage_min_v, pzt.voltage_max_v, f"the amplifier range of {args.plant}")
         _in_range("--freq-min", args.freq_min, "Hz", 0.0, 1e5, "positive, at most the study schema's 100 kHz",
                   lo_open=True)
@@ -436,9 +434,14 @@ def _check_flags(args):
             _in_range("--hold", args.hold, "s", 3.0, math.inf, "with --sensor the hold settles 1 s and measures "
                       "its drift between two 1 s windows; give at least 3s, e.g. 1000s")
     elif cmd == "sweep" and args.amplitudes:
-        for a in args.amplitudes:
-            _in_range("--amplitudes", a, "V", 0.0, 200.0, "the study schema's family.amplitudes_v range",
-                      lo_open=True)
+        from .linearize.run import check_amplitudes          # the library's check (one home)
+        import tomllib
+        try:
+            plants = [(n, p) for n, p in _study_inputs(args) if p.is_file()]
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            plants = []                                       # the study's own check names the problem
+        for where, p in plants:                               # every serial of the study is driven at them
+            check_amplitudes(_plant(p).pzt, args.amplitudes, name="--amplitudes", where=f"{p} ({where})")
     elif cmd == "calibrate":
         _in_range("--max-ratio", args.max_ratio, "(held-out RMS after / before)", 0.0, 1.0,
                   "an effect must lower the held-out error; e.g. 0.8", lo_open=True, hi_open=True)
