@@ -714,6 +714,18 @@ FUZZ3 = [
     ("identify-table-r-in-only", ["identify", "transducer", "bad/t_r_in_only.csv"], ["bad/t_r_in_only.csv", "R_out"]),
     ("identify-mirror-file", ["identify", "transducer", FSM], ["fsm_p888_51.toml: is a .toml file, not a Table 1"]),
     ("identify-controller-file", ["identify", "transducer", "controllers/mimo.json"], ["is a .json file, not a Table 1"]),
+    # ---- session 32, the outside user's pass (issue 17 claimed 0 accepted-but-wrong) -------------------------------
+    # a bare 200 read as N/m: T_em 65.87 N/V, 6 orders from the R_in runs' 258.6 N/um, unflagged
+    ("identify-stiffness-bare-number", ["identify", "transducer", TABLE, "--stiffness", "200"],
+     ["--stiffness", "200 N/m", "R_in runs", "unit slip", "200N/um"]),
+    ("identify-stiffness-one-prefix-off", ["identify", "transducer", TABLE, "--stiffness", "200N/mm"],
+     ["--stiffness", "200000 N/m", "R_in runs"]),
+    # linearize refused 200V, sweep ran it ("DF A=200 V"): one home for the amplifier's span
+    ("sweep-amplitude-over-the-span", ["sweep", STUDY, "--out", "{out}", "--amplitudes", "200V"],
+     ["--amplitudes 200 V", "(0, 140] V", "-20..120 V"]),
+    ("selfsense-strict-controller-for-another-plant",
+     ["selfsense", "plants/p888_51_sn618.toml", "--controller", CTRL, "--strict", "--out", "{out}"],
+     ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
 ]
 
 

@@ -661,9 +661,14 @@ def main(argv=None):
     args = parser.parse_args(argv)
     args._whole_process = argv is None      # the console script / python -m workbench: the process is the command's
     from .preflight import preflight
+    import warnings
+    from .errors import ControllerMismatchWarning
     try:
         # file arguments, flag ranges and run size checked before the work; no partial output after a failure
-        with preflight(args):
+        with preflight(args), warnings.catch_warnings():
+            # the library's warning of a controller exported for another plant: the commands print it as a
+            # WARNING line of their own (verify's preflight lines, selfsense's), not twice
+            warnings.simplefilter("ignore", ControllerMismatchWarning)
             args.func(args)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
