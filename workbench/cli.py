@@ -5,6 +5,7 @@ user's input print one clear message and exit with status 2, without a traceback
 """
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -656,6 +657,31 @@ def build_parser():
     return refuse_empty_paths(parser)      # an empty path is the current folder: refused (arguments.py)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a plain ``kill``) turned into an exception in the main thread, so that the run's cleanup
+    (:func:`workbench.preflight.preflight`: no partial outputs) runs as it does for Ctrl-C."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (once: a second SIGTERM during
+    the cleanup is ignored; SIGKILL still ends the process). Outside the main thread, nothing changes."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated()
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -665,11 +691,19 @@ def main(argv=None):
     from .errors import ControllerMismatchWarning
     try:
         # file arguments, flag ranges and run size checked before the work; no partial output after a failure
-        with preflight(args), warnings.catch_warnings():
+        # (also on Ctrl-C or a plain kill: both raise here, and preflight removes what the run created)
+        with _sigterm_raises(), preflight(args), warnings.catch_warnings():
             # the library's warning of a controller exported for another plant: the commands print it as a
             # WARNING line of their own (verify's preflight lines, selfsense's), not twice
             warnings.simplefilter("ignore", ControllerMismatchWarning)
             args.func(args)
+    except KeyboardInterrupt as err:
+        # one line, no traceback; 128 + the signal's number, as a shell reports a process the signal ended
+        terminated = isinstance(err, Terminated)
+        print(f"{chr(10) if sys.stderr.isatty() else ''}workbench {args.command}: "
+              f"{'terminated' if terminated else 'interrupted'}; nothing written "
+              f"(the outputs this run created are removed)", file=sys.stderr)
+        return 143 if terminated else 130
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
