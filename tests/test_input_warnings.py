@@ -110,3 +110,39 @@ def test_verify_warns_in_python_on_a_controller_for_another_plant():
     with warnings.catch_warnings():
         warnings.simplefilter("error", ControllerMismatchWarning)      # its own plant: no warning
         assert check_controller_for_plant(wb.load_plant(ROOT / "plants/p888_51_sn637_creep.toml"), ctrl) == []
+
+
+def test_the_api_takes_a_plant_or_its_file_and_names_what_to_pass_otherwise():
+    """wb.PZTSimulator(plant, dt) and wb.nominal_loop_plant("plants/...toml") raised AttributeErrors ('Plant' object
+    has no attribute 'series_resistance_ohm'; 'str' object has no attribute 'gauge'): the obvious input is taken,
+    and the same model results as from the object each function documents; anything else is a WorkbenchError."""
+    import workbench as wb
+    from workbench.errors import ArgumentKindError, WorkbenchError
+    plant = wb.load_plant(SN637)
+    v = np.linspace(0.0, 100.0, 200)
+    ref = wb.PZTSimulator(plant.pzt, 1e-4).run(v).x_m
+    for given in (plant, SN637, str(SN637)):
+        np.testing.assert_array_equal(wb.PZTSimulator(given, 1e-4).run(v).x_m, ref)
+    creep = ROOT / "plants/p888_51_sn637_creep.toml"
+    a = wb.nominal_loop_plant(wb.load_plant(creep))
+    b = wb.nominal_loop_plant(str(creep))
+    np.testing.assert_array_equal(a.A, b.A)
+    assert a.dt == b.dt == 1.0 / wb.load_plant(creep).gauge.modulation_hz
+    for call in (lambda: wb.PZTSimulator(3.0, 1e-4), lambda: wb.nominal_loop_plant(plant.pzt),
+                 lambda: wb.verify(None, CTRL)):
+        with pytest.raises(ArgumentKindError, match="give") as info:
+            call()
+        assert isinstance(info.value, (WorkbenchError, TypeError))
+
+
+def test_help_and_signature_of_wb_verify_show_its_parameters():
+    import inspect
+    import pydoc
+
+    import workbench as wb
+    from workbench.verify.run import verify
+    assert inspect.signature(wb.verify) == inspect.signature(verify)
+    assert {"hold_s", "strict", "seed", "sensor"} <= set(inspect.signature(wb.verify).parameters)
+    text = pydoc.render_doc(wb.verify, renderer=pydoc.plaintext)
+    assert "hold_s : float" in text and "ControllerMismatchError" in text
+    import workbench.verify.sweep_job  # noqa: F401      the package stays a package

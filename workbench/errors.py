@@ -10,7 +10,7 @@ __all__ = ["WorkbenchError", "PlantDefinitionError", "StudyDefinitionError", "Un
            "UnsupportedError", "DesignError", "StudyFailed", "FileArgumentError", "FlagRangeError",
            "OutputOntoInputError", "ControllerError", "ControllerMismatchError", "ExportError",
            "SweepError", "MimoControllerError", "ChargeChannelError", "WorkbenchWarning",
-           "ControllerMismatchWarning"]
+           "ControllerMismatchWarning", "ArgumentKindError"]
 
 
 class WorkbenchError(Exception):
@@ -95,6 +95,11 @@ class MimoControllerError(ControllerError):
 
 class ChargeChannelError(WorkbenchError, ValueError):
     """The plant has no charge channel model for a charge or fused loop."""
+
+
+class ArgumentKindError(WorkbenchError, TypeError):
+    """A library function given the wrong kind of object (a Plant where its ``.pzt`` is wanted, a number for a
+    plant): says what was given and what to pass."""
 
 
 class WorkbenchWarning(UserWarning):

@@ -312,8 +312,8 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
     """
     from ..fields import check_seed
     check_seed(seed)                     # the library refuses what numpy cannot seed (not only the CLI)
-    if not isinstance(plant, Plant):
-        plant = load_plant(plant)
+    from ..plant.files import as_plant
+    plant = as_plant(plant)
     if not isinstance(controller, Controller):
         controller = Controller.load(controller, plant=plant, allow_unstable=allow_unstable)
     elif controller.output_limits_v is None or controller.voltage_model is None:
