@@ -218,7 +218,8 @@ def _check_stiffness_against_r_in(path, kp, runs):
         raise UnitError(f"--stiffness (stiffness_n_per_m) {kp:g} N/m = {kp * 1e-6:g} N/um is {ratio:.3g} times the "
                         f"{k_r_in * 1e-6:.1f} N/um the {len(ks)} R_in runs of {path} measure (k_p + T_em^2/(C_p + "
                         f"C_h) >= k_p); more than {STIFFNESS_SLIP_FACTOR:.3g}x apart is a unit slip: give the unit, "
-                        f"e.g. --stiffness 200N/um (stiffness_n_per_m=2e8)")
+                        f"e.g. --stiffness 200N/um (stiffness_n_per_m=2e8), or check the R_in runs' force and "
+                        f"displacement units")
 
 
 def _read_header(path, lineno, cells):
@@ -547,7 +548,6 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
     kp = float(stiffness_n_per_m)
     impossible = []                 # force cells a column's unit slip would explain: after the T_em diagnosis
     runs, gauge_scale, displacement_scale = _read_table(path, calibrations_m_per_v, impossible)
-    _check_stiffness_against_r_in(path, kp, runs)
 
     used, flagged, r_in, t_all, t_swapped = [], [], [], [], []
     swapped_runs = {(d["serial"], d["run"]) for d in _swap_decision(runs, gauge_scale, displacement_scale,
@@ -625,6 +625,9 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                             f"plant file accepts for transducer_constant_n_per_v (seed 000: 46.71 N/V); check the "
                             f"force, displacement and back_emf columns' units and signs (compression negative) "
                             f"and --stiffness ({kp:g} N/m)")
+    # after the T_em range (a table in kN labelled N fails there, naming its columns), before the impossible
+    # forces and the R_in comparison (which would flag every R_in run, as with --stiffness 200 read as N/m)
+    _check_stiffness_against_r_in(path, kp, runs)
     if impossible:
         raise impossible[0]
     k_short = kp + t_em_mean ** 2 / (working_capacitance_f + hysteretic_capacitance_f)
