@@ -726,6 +726,25 @@ FUZZ3 = [
     ("selfsense-strict-controller-for-another-plant",
      ["selfsense", "plants/p888_51_sn618.toml", "--controller", CTRL, "--strict", "--out", "{out}"],
      ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
+    # messages: the flag that gave the value, what the file is, the right schema, the right suffix
+    ("study-set-named-not-the-file", ["study", STUDY, "--out", "{out}", "--set", "targets.phase_margin_deg=500"],
+     ["--set targets.phase_margin_deg=500", "got 500", "the file is not modified"]),
+    ("study-set-plant-value-named", ["study", STUDY, "--out", "{out}", "--set", "electrical.current_limit_source_a=20"],
+     ["--set electrical.current_limit_source_a=20", "got 20"]),
+    ("study-set-export-name-named", ["study", STUDY, "--out", "{out}", "--set", "export.name=../y"],
+     ["--set export.name=../y", "file stem"]),
+    ("study-set-deg-key-other-unit", ["study", STUDY, "--out", "{out}", "--set", "targets.phase_margin_deg=50dB"],
+     ["--set targets.phase_margin_deg=50dB", "(deg)", "50deg"]),
+    ("study-given-a-plant-file", ["study", PLANT, "--out", "{out}"],
+     ["p888_51_sn637.toml", "plant file (workbench.plant/1)", "study file"]),
+    ("sweep-given-a-plant-file", ["sweep", PLANT, "--out", "{out}"],
+     ["p888_51_sn637.toml", "plant file (workbench.plant/1)", "study file"]),
+    ("study-given-a-mirror-file", ["study", FSM, "--out", "{out}"],
+     ["fsm_p888_51.toml", "mirror file (workbench.fsm/1)", "studies/fsm_servo.toml"]),
+    ("study-mirror-workers-schema", ["study", "studies/fsm_servo.toml", "--out", "{out}", "--workers", "1"],
+     ["workbench.fsm_study/1", "--workers"]),
+    ("synth-out-folder-suggests-csv", ["synth", PLANT, "--out", "{out}/"], ["is a folder", "result.csv"]),
+    ("bench-steps-not-integer-valued", ["bench", "--steps", "2.5"], ["'2.5' is not an integer"]),
 ]
 
 

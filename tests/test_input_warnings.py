@@ -40,9 +40,11 @@ def test_identify_refuses_a_stiffness_one_unit_prefix_or_more_from_the_r_in_runs
     assert 2e8 < k < 3e8                                   # seed 000: ~259 N/um from the R_in runs
     for ok in (2e8, k, k / 5):                             # k_p <= k_R_in: above it eq. 6 turns negative
         identify_transducer(TABLE, stiffness_n_per_m=ok)
-    for bad in (k / 1e3, k * 1e3, 200.0, 200.0 * 1e3):
+    for bad in (k / 1e3, 200.0, 200.0 * 1e3):
         with pytest.raises(UnitError, match="R_in runs"):
             identify_transducer(TABLE, stiffness_n_per_m=bad)
+    with pytest.raises(ValueError, match="--stiffness"):       # above: eq. 6's T_em turns negative first
+        identify_transducer(TABLE, stiffness_n_per_m=k * 1e3)
 
 
 def test_amplitudes_are_bounded_by_each_plant_amplifier_span():
@@ -146,3 +148,23 @@ def test_help_and_signature_of_wb_verify_show_its_parameters():
     text = pydoc.render_doc(wb.verify, renderer=pydoc.plaintext)
     assert "hold_s : float" in text and "ControllerMismatchError" in text
     import workbench.verify.sweep_job  # noqa: F401      the package stays a package
+
+
+def test_set_takes_the_unit_a_key_is_named_in_and_integer_flags_take_integer_valued_floats():
+    """--set targets.phase_margin_deg=50deg was refused ("takes no unit") though the key names its unit; bench
+    --steps 1e6 was refused though its help writes the default as 1e7."""
+    import argparse
+    from workbench.cli import _positive_int
+    from workbench.errors import UnitError
+    from workbench.study.overrides import parse_overrides
+    got = parse_overrides(["targets.phase_margin_deg=50deg", "targets.gain_margin_db=6dB",
+                           "targets.phase_margin_deg=50", "electrical.current_limit_source_a=20mA"])
+    assert got == {"targets.phase_margin_deg": 50.0, "targets.gain_margin_db": 6.0,
+                   "electrical.current_limit_source_a": 0.02}
+    for bad in ("targets.phase_margin_deg=50rad", "targets.phase_margin_deg=50dB"):
+        with pytest.raises(UnitError, match="deg"):
+            parse_overrides([bad])
+    assert _positive_int("1e6") == 10 ** 6 and _positive_int("2.0e7") == 2 * 10 ** 7 and _positive_int("12") == 12
+    for bad in ("1.5", "1e-3", "x", "0", "-1e3"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _positive_int(bad)

@@ -22,7 +22,14 @@ def _positive_int(text):
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        # an integer written as a float (1e6, 2.0e7: the helps' own "default 1e7") is that integer
+        try:
+            number = float(text)
+        except ValueError:
+            number = None
+        if number is None or not number.is_integer():
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        value = int(number)
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
     return value
@@ -248,9 +255,13 @@ def _fmt_metric(m, key):
 def _refuse_for_mirror(command, given):
     """A flag the mirror's command does not implement is refused before any work (not silently ignored)."""
     from .errors import UnsupportedError
+    from .plant.mirror import FSM_SCHEMA_VERSION
+    from .study.mirror import FSM_STUDY_SCHEMA
     flags = [flag for flag, on in given if on]
     if flags:
-        raise UnsupportedError(f"{command} of a mirror (schema workbench.fsm) does not take {', '.join(flags)}; "
+        what = (f"a mirror study (schema {FSM_STUDY_SCHEMA})" if command == "study" else
+                f"{command} of a mirror (schema {FSM_SCHEMA_VERSION})")
+        raise UnsupportedError(f"{what} does not take {', '.join(flags)}; "
                                f"run it without {'them' if len(flags) > 1 else 'it'} (the mirror's scenarios and "
                                f"targets are those of workbench/verify/mirror.py and study/mirror.py)")
 
@@ -543,14 +554,16 @@ def build_parser():
     p.add_argument("--json", type=Path, help="write the summary as JSON here (summary.json in --out is always written)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a plant or study value, units allowed (repeatable), e.g. "
-                        "--set electrical.current_limit_source_a=20mA --set targets.min_crossover_hz=80Hz; plant "
-                        "sections apply to every plant of the study; the files are not modified")
+                        "--set electrical.current_limit_source_a=20mA --set targets.min_crossover_hz=80Hz (a key "
+                        "named in deg, dB, percent takes a plain number or that unit: targets.phase_margin_deg=50deg); "
+                        "plant sections apply to every plant of the study; the files are not modified")
     p.add_argument("--only", choices=["loopshape"], help="loopshape: the exported design alone, no comparison "
                                                          "designs (Glover-McFarlane, H-infinity, convex)")
     p.add_argument("--cache-dir", type=Path, help="family cache folder (default $WORKBENCH_CACHE_DIR, else "
                                                   "$XDG_CACHE_HOME/workbench, else ~/.cache/workbench)")
     p.add_argument("--no-cache", action="store_true", help="compute the family, neither read nor write the cache")
-    p.add_argument("--workers", type=int, help="processes for the family (default: the machine's cores)")
+    p.add_argument("--workers", type=int, help="processes for the family (default: the machine's cores); not for a "
+                                               "mirror study (workbench.fsm_study/1), which runs in one process")
     p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("verify", help="the exported controller in closed loop with the nonlinear plant",
@@ -626,8 +639,8 @@ def build_parser():
                         "the past, predict the last quarter) or after the first cycles (default for a generic stack)")
     p.add_argument("--train-cycles", type=float, default=3, help="input cycles that train with --split cycles")
     p.add_argument("--max-ratio", type=float, default=0.8,
-                   help="ignored (kept for scripts): the decision is against the noise floor and a null reference "
-                        "over validation folds")
+                   help="ignored (kept for scripts; a value outside (0, 1) is still refused, as it was): the "
+                        "decision is against the noise floor and a null reference over validation folds")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("synth", help="a synthetic calibration record from the simulator, with one effect",
