@@ -625,11 +625,12 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                             f"plant file accepts for transducer_constant_n_per_v (seed 000: 46.71 N/V); check the "
                             f"force, displacement and back_emf columns' units and signs (compression negative) "
                             f"and --stiffness ({kp:g} N/m)")
-    # after the T_em range (a table in kN labelled N fails there, naming its columns), before the impossible
-    # forces and the R_in comparison (which would flag every R_in run, as with --stiffness 200 read as N/m)
-    _check_stiffness_against_r_in(path, kp, runs)
     if impossible:
         raise impossible[0]
+    # after the T_em range (a table in kN labelled N fails there, naming its columns) and the impossible cells
+    # (named by their line), before the R_in comparison (which would flag every R_in run, as with --stiffness 200
+    # read as N/m)
+    _check_stiffness_against_r_in(path, kp, runs)
     k_short = kp + t_em_mean ** 2 / (working_capacitance_f + hysteretic_capacitance_f)
     for rec in r_in:
         run = rec.pop("_run")
