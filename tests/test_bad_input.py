@@ -1040,3 +1040,20 @@ def test_legal_records_next_to_the_boundaries_are_accepted(tmp_path):
         rec = _calibrate_checks(_accepted_record(tmp_path, name, t_, v_, x_, pre), tmp_path)
         assert len(rec.t_s) == t_.size
     assert float(_calibrate_checks(tmp_path / "r0.csv", tmp_path).metadata["series_resistor_ohm"]) == 0.0
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["verify", CREEP, "--controller", CTRL, "--scenario", "bogus"], "invalid choice: 'bogus'"),
+    (["linearize", PLANT, "--cp-tolerance", "20%"], "--cp-tolerance"),
+    (["calibrate", RECORD], "--plant"),
+    (["bogus"], "invalid choice"),
+])
+def test_argparse_errors_are_one_line(argv, fragment, ws, capsys, monkeypatch):
+    """argparse's usage errors printed the usage and the error (5-11 lines); the README says one line on
+    stderr, exit status 2 (session 32, the outside pass)."""
+    monkeypatch.chdir(ws)
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert info.value.code == 2 and len(lines) == 1 and fragment in lines[0] and "--help" in lines[0], err

@@ -466,8 +466,17 @@ def cmd_demo(args):
     _emit(args, data, [])
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors are one line on stderr, exit status 2, as every other error of the
+    workbench (argparse printed its usage first: 5-11 lines); ``--help`` prints the usage as before.
+    The sub-commands' parsers are of this class too (``add_subparsers`` uses the parent's class)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(prog="workbench", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="workbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("gauge", help="strain-gauge chain gains and bias at an operating point",
