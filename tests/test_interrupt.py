@@ -16,9 +16,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
+# A shell starts a background job (`make test &` in a script, some CI runners) with SIGINT ignored, and a Python
+# started so keeps it ignored (by convention: that job must not die of the terminal's Ctrl-C); the child restores
+# the default SIGINT handler to stand for a run typed at a terminal, where Ctrl-C reaches it. (Session 32's fresh
+# clone once saw the SIGINT case time out in make test; not reproduced since: the child's disposition is now set
+# here, and a timeout reports the child's stderr.)
 CHILD = """
-import sys, time
+import signal, sys, time
 from pathlib import Path
+signal.signal(signal.SIGINT, signal.default_int_handler)
 import workbench.cli as cli
 from workbench.report.output import write_text
 
@@ -49,7 +55,12 @@ def test_a_signalled_run_writes_nothing_and_says_so_in_one_line(sig, code, word,
             assert child.poll() is None, child.communicate()
             time.sleep(0.01)
         child.send_signal(sig)
-        _, err = child.communicate(timeout=60)
+        try:
+            _, err = child.communicate(timeout=60)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            _, err = child.communicate()
+            pytest.fail(f"the child did not end within 60 s of signal {sig!r}; its stderr: {err!r}")
     finally:
         if child.poll() is None:
             child.kill()
