@@ -58,19 +58,12 @@ def _modes_ss(modes, dt_s):
 
 
 def _as_pzt(params):
-    """The PZTParams of ``params``: itself, a Plant's ``.pzt``, or a plant file's."""
-    import os
-    from .files import Plant, load_plant
+    """The PZTParams of ``params``: itself, else the ``.pzt`` of a Plant or a plant file (:func:`~.files.as_plant`)."""
+    from .files import as_plant
     from .pzt import PZTParams
     if isinstance(params, PZTParams):
         return params
-    if isinstance(params, Plant):
-        return params.pzt
-    if isinstance(params, (str, os.PathLike)):
-        return load_plant(params).pzt
-    from ..errors import ArgumentKindError
-    raise ArgumentKindError(f"PZTSimulator(params, dt_s): params got {type(params).__name__}; give the stack, "
-                            f"plant.pzt (PZTParams), a Plant or a plant file's path")
+    return as_plant(params, "PZTSimulator(params, dt_s): params (or the stack itself, plant.pzt)").pzt
 
 
 class PZTSimulator:
