@@ -114,6 +114,38 @@ def test_verify_warns_in_python_on_a_controller_for_another_plant():
         assert check_controller_for_plant(wb.load_plant(ROOT / "plants/p888_51_sn637_creep.toml"), ctrl) == []
 
 
+class _Stop(Exception):
+    """Raised in place of the closed-loop runs: the warning is emitted before them."""
+
+
+def test_the_mismatch_warning_points_at_the_callers_line(monkeypatch):
+    """The warning's filename:line was verify's own (stacklevel one frame short through the callable package):
+    it is the line that called, through wb.verify, workbench.verify.run.verify and selfsense's library call."""
+    import workbench as wb
+    from workbench.controller import Controller
+    from workbench.errors import ControllerMismatchWarning
+    from workbench.selfsense.run import run_selfsense
+    from workbench.verify.run import verify
+
+    def stop(*args, **kwargs):
+        raise _Stop()
+    monkeypatch.setattr(Controller, "firmware", stop)                    # verify's first step after the check
+    monkeypatch.setattr("workbench.selfsense.run.simulate_identification", stop)   # selfsense's
+    plant, ctrl = wb.load_plant(SN618), Controller.load(CTRL)
+    calls = [lambda: wb.verify(plant, ctrl, ["small_step"]), lambda: verify(plant, ctrl, ["small_step"]),
+             lambda: run_selfsense(SN618, controller_path=CTRL)]
+    for call in calls:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(_Stop):
+                call()
+        got = [w for w in caught if issubclass(w.category, ControllerMismatchWarning)]
+        assert len(got) == 1, caught
+        assert Path(got[0].filename).resolve() == Path(__file__).resolve(), got[0].filename
+        # the line of the lambda that made the call
+        assert got[0].lineno in {c.__code__.co_firstlineno for c in calls}, got[0].lineno
+
+
 def test_the_api_takes_a_plant_or_its_file_and_names_what_to_pass_otherwise():
     """wb.PZTSimulator(plant, dt) and wb.nominal_loop_plant("plants/...toml") raised AttributeErrors ('Plant' object
     has no attribute 'series_resistance_ohm'; 'str' object has no attribute 'gauge'): the obvious input is taken,

@@ -391,7 +391,7 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
                         notes=notes, sensors=rows, sensor_traces=sensor_traces)
 
 
-def check_controller_for_plant(plant, controller, *, strict=False, preflight=None, stacklevel=3):
+def check_controller_for_plant(plant, controller, *, strict=False, preflight=None):
     """Warn (or with ``strict`` refuse) when ``controller`` was exported for another plant than ``plant``.
 
     The one home of verify's and selfsense's preflight answer: the mismatches of
@@ -405,8 +405,6 @@ def check_controller_for_plant(plant, controller, *, strict=False, preflight=Non
         Raise instead of warning.
     preflight : list of dict, optional
         ``controller.compare_plant(plant)`` when the caller has it (with its own additions).
-    stacklevel : int, default 3
-        Of the warning (3: the caller of the function that calls this one).
 
     Returns
     -------
@@ -421,10 +419,10 @@ def check_controller_for_plant(plant, controller, *, strict=False, preflight=Non
     Warns
     -----
     ControllerMismatchWarning
-        Without ``strict``, on any mismatch (the CLI prints them as WARNING lines).
+        Without ``strict``, on any mismatch (the CLI prints them as WARNING lines); its filename and
+        line are the first caller outside the workbench package (:func:`~workbench.errors.warn_at_caller`).
     """
-    import warnings
-    from ..errors import ControllerMismatchWarning
+    from ..errors import ControllerMismatchWarning, warn_at_caller
     pre = controller.compare_plant(plant) if preflight is None else preflight
     bad = [p for p in pre if p["check"] != "not recorded"]
     if not bad:
@@ -433,9 +431,9 @@ def check_controller_for_plant(plant, controller, *, strict=False, preflight=Non
     if strict:
         raise ControllerMismatchError(f"{controller.source or controller.name} was not exported for {plant.source} "
                                       f"(--strict): {text}")
-    warnings.warn(ControllerMismatchWarning(f"{controller.source or controller.name} was not exported for "
-                                            f"{plant.source} ({len(bad)} preflight mismatches; strict=True refuses "
-                                            f"it): {text}"), stacklevel=stacklevel)
+    warn_at_caller(ControllerMismatchWarning(f"{controller.source or controller.name} was not exported for "
+                                             f"{plant.source} ({len(bad)} preflight mismatches; strict=True refuses "
+                                             f"it): {text}"))
     return bad
 
 
