@@ -726,6 +726,16 @@ FUZZ3 = [
     ("selfsense-strict-controller-for-another-plant",
      ["selfsense", "plants/p888_51_sn618.toml", "--controller", CTRL, "--strict", "--out", "{out}"],
      ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
+    # session 33: --fused compared neither controller with the plant; --force/--dynamics run none and ignored them
+    ("selfsense-fused-strict-controller-for-another-plant",
+     ["selfsense", "plants/p888_51_sn618.toml", "--fused", "--strict", "--hold", "3s", "--out", "{out}"],
+     ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
+    ("selfsense-force-controller-unused", ["selfsense", CREEP, "--force", "--controller", FUSED],
+     ["--controller " + FUSED, "the --force study runs no controller", "drop it"]),
+    ("selfsense-dynamics-strict-unused", ["selfsense", CREEP, "--dynamics", "--strict", "--no-loop"],
+     ["--strict, --no-loop", "the --dynamics study runs no controller", "drop them"]),
+    ("selfsense-fused-controller-without-fused", ["selfsense", CREEP, "--fused-controller", FUSED, "--out", "{out}"],
+     ["--fused-controller " + FUSED, "the --fused study's"]),
     # messages: the flag that gave the value, what the file is, the right schema, the right suffix
     ("study-set-named-not-the-file", ["study", STUDY, "--out", "{out}", "--set", "targets.phase_margin_deg=500"],
      ["--set targets.phase_margin_deg=500", "got 500", "the file is not modified"]),

@@ -120,10 +120,12 @@ class _Stop(Exception):
 
 def test_the_mismatch_warning_points_at_the_callers_line(monkeypatch):
     """The warning's filename:line was verify's own (stacklevel one frame short through the callable package):
-    it is the line that called, through wb.verify, workbench.verify.run.verify and selfsense's library call."""
+    it is the line that called, through wb.verify, workbench.verify.run.verify and selfsense's library calls
+    (the staged study and --fused, which compared neither of its controllers with the plant)."""
     import workbench as wb
     from workbench.controller import Controller
     from workbench.errors import ControllerMismatchWarning
+    from workbench.selfsense.fused_loop import run_fused_study
     from workbench.selfsense.run import run_selfsense
     from workbench.verify.run import verify
 
@@ -131,16 +133,22 @@ def test_the_mismatch_warning_points_at_the_callers_line(monkeypatch):
         raise _Stop()
     monkeypatch.setattr(Controller, "firmware", stop)                    # verify's first step after the check
     monkeypatch.setattr("workbench.selfsense.run.simulate_identification", stop)   # selfsense's
+    import importlib                  # (the package's attribute `identify` is the function, not the module)
+    monkeypatch.setattr(importlib.import_module("workbench.selfsense.identify"), "simulate_identification",
+                        stop)                                            # selfsense --fused's
     plant, ctrl = wb.load_plant(SN618), Controller.load(CTRL)
     calls = [lambda: wb.verify(plant, ctrl, ["small_step"]), lambda: verify(plant, ctrl, ["small_step"]),
-             lambda: run_selfsense(SN618, controller_path=CTRL)]
+             lambda: run_selfsense(SN618, controller_path=CTRL),
+             lambda: run_fused_study(SN618)]
     for call in calls:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             with pytest.raises(_Stop):
                 call()
         got = [w for w in caught if issubclass(w.category, ControllerMismatchWarning)]
-        assert len(got) == 1, caught
+        # --fused: the gauge design and the fused design, both exported for SN637 (SN618's trim differs)
+        assert len(got) == (2 if call is calls[-1] else 1), caught
+        assert all("trim_scale" in str(w.message) for w in got)
         assert Path(got[0].filename).resolve() == Path(__file__).resolve(), got[0].filename
         # the line of the lambda that made the call
         assert got[0].lineno in {c.__code__.co_firstlineno for c in calls}, got[0].lineno
