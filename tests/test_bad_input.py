@@ -806,6 +806,47 @@ def test_bad_input_subprocess(argv, fragment, ws):
     assert _hashes(ws) == before
 
 
+@pytest.mark.parametrize("argv, fragment", [
+    ([CREEP, "--no-such-flag"], "error: unrecognized arguments: --no-such-flag"),
+    (["bad/binary.toml"], "bad/binary.toml"),
+])
+def test_the_selfsense_module_entry_answers_as_the_command(argv, fragment, ws):
+    """`python -m workbench.selfsense.command` had its own parser and error handling: argparse's usage and error
+    (5-11 lines), no preflight, no SIGTERM handling (tests/test_interrupt.py); it is `workbench selfsense` now."""
+    done = subprocess.run([sys.executable, "-m", "workbench.selfsense.command", *argv], cwd=ws, capture_output=True,
+                          text=True, check=False, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 2 and len(lines) == 1, done.stderr
+    assert fragment in lines[0] and "Traceback" not in done.stderr
+
+
+def test_the_research_entries_answer_in_one_line(capsys):
+    """`python -m workbench.design.mimo_sweep` (the README's command for a floors row), `.mimo` and `.mimo_hinf` run
+    through cli.run_script: a user error, Ctrl-C and a plain kill are one line each, no traceback, the shell's status;
+    mimo_sweep's usage errors are one line (argparse printed its usage first)."""
+    from workbench.cli import Terminated, run_script
+    from workbench.design.mimo_sweep import main as sweep_main
+    from workbench.errors import PlantDefinitionError
+
+    def raises(err):
+        def func(argv):
+            raise err
+        return func
+    for err, code, word in ((PlantDefinitionError("m.toml", "stacks", "missing"), 2, "m.toml: [stacks] missing"),
+                            (FileNotFoundError(2, "No such file or directory", "m.toml"), 2, "m.toml"),
+                            (KeyboardInterrupt(), 130, "interrupted"), (Terminated(), 143, "terminated")):
+        assert run_script("python -m workbench.design.mimo", raises(err)) == code
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("python -m workbench.design.mimo: ") and word in lines[0]
+    with pytest.raises(SystemExit) as ex:
+        sweep_main(["--limt"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert ex.value.code == 2 and len(lines) == 1 and "unrecognized arguments: --limt" in lines[0], lines
+    for name in ("mimo", "mimo_hinf", "mimo_sweep"):
+        assert "run_script(" in (ROOT / "workbench/design" / f"{name}.py").read_text(encoding="utf-8").split(
+            '__name__ == "__main__"')[-1]
+
+
 @pytest.mark.parametrize("existing", [False, True])
 def test_a_failed_run_writes_nothing(existing, ws, tmp_path, capsys, monkeypatch):
     """A command that fails after writing some of its outputs leaves the output folder as it found it."""

@@ -720,18 +720,43 @@ def main(argv=None):
             warnings.simplefilter("ignore", ControllerMismatchWarning)
             args.func(args)
     except KeyboardInterrupt as err:
-        # one line, no traceback; 128 + the signal's number, as a shell reports a process the signal ended
-        terminated = isinstance(err, Terminated)
-        print(f"{chr(10) if sys.stderr.isatty() else ''}workbench {args.command}: "
-              f"{'terminated' if terminated else 'interrupted'}; nothing written "
-              f"(the outputs this run created are removed)", file=sys.stderr)
-        return 143 if terminated else 130
+        return _interrupted(f"workbench {args.command}", err)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
     except ValueError as err:
         # library argument checks (plain ValueError) are user errors at this level too
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def _interrupted(prog, err):
+    """The one line of a run ended by Ctrl-C or a plain kill (no traceback); its exit status, 128 + the signal's
+    number, as a shell reports a process the signal ended."""
+    terminated = isinstance(err, Terminated)
+    print(f"{chr(10) if sys.stderr.isatty() else ''}{prog}: {'terminated' if terminated else 'interrupted'}; "
+          f"nothing written (the outputs this run created are removed)", file=sys.stderr)
+    return 143 if terminated else 130
+
+
+def script_parser(prog, **kwargs):
+    """The argument parser of a ``python -m workbench.X`` entry: its usage errors are one line on stderr with exit
+    status 2, as the ``workbench`` command's."""
+    return _Parser(prog=prog, **kwargs)
+
+
+def run_script(prog, func, argv=None):
+    """Run a ``python -m workbench.X`` entry ``func(argv)`` with the ``workbench`` command's conventions: a user error
+    (WorkbenchError, ValueError, OSError) is one line on stderr and exit status 2; Ctrl-C (130) and a plain kill
+    (SIGTERM, 143) one line and no traceback. Returns the exit status (for ``raise SystemExit``)."""
+    try:
+        with _sigterm_raises():
+            func(argv)
+    except KeyboardInterrupt as err:
+        return _interrupted(prog, err)
+    except (WorkbenchError, ValueError, OSError) as err:
+        print(f"{prog}: error: {err}", file=sys.stderr)
         return 2
     return 0
 

@@ -5,10 +5,9 @@ Wiring into :mod:`workbench.cli`: ``from .selfsense.command import add_parser`` 
 and turns a :class:`~workbench.errors.WorkbenchError` (or ValueError) into exit status 2.
 """
 
-import argparse
 from pathlib import Path
 
-from ..errors import DataFileError, WorkbenchError
+from ..errors import DataFileError
 from ..arguments import emit, quantity
 
 __all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused", "main"]
@@ -253,19 +252,12 @@ def run_fused(args):
 
 
 def main(argv=None):
-    """Stand-alone entry (`python -m workbench.selfsense.command ...`) with the CLI's error convention:
-    a user error prints one message on stderr and returns 2."""
+    """Stand-alone entry (`python -m workbench.selfsense.command ...`): the same code as `workbench selfsense`
+    (:func:`workbench.cli.main`: its preflight, one-line errors with exit status 2, Ctrl-C and SIGTERM handling).
+    Returns the exit status."""
     import sys
-    parser = argparse.ArgumentParser(prog="workbench")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    args = parser.parse_args(["selfsense", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        args.func(args)
-    except (WorkbenchError, ValueError) as err:
-        print(f"workbench selfsense: error: {err}", file=sys.stderr)
-        return 2
-    return 0
+    from ..cli import main as cli_main
+    return cli_main(["selfsense", *(sys.argv[1:] if argv is None else argv)])
 
 
 if __name__ == "__main__":
