@@ -312,6 +312,7 @@ def _cmd_mirror_verify(args):
     if "report" in data:
         lines.append(f"  report {data['report']}")
     _emit(args, data, lines)
+    return _miss_status(args, data["targets"])
 
 
 _DEFAULT_SCENARIOS = ["all"]
@@ -363,6 +364,18 @@ def cmd_verify(args):
     if "report" in data:
         lines.append(f"  report {data['report']}")
     _emit(args, data, lines)
+    return _miss_status(args, data["targets"])
+
+
+def _miss_status(args, targets):
+    """verify's exit status: 1 with --fail-on-miss when a scored target is missed (said on stderr), else 0."""
+    from .verify.run import missed_targets
+    missed = missed_targets(targets)
+    if not (getattr(args, "fail_on_miss", False) and missed):
+        return 0
+    print(f"workbench verify: {len(missed)} of {len(targets)} targets MISSED ({', '.join(missed)}): exit status 1 "
+          f"(--fail-on-miss)", file=sys.stderr)
+    return 1
 
 
 def cmd_sweep(args):
@@ -615,6 +628,9 @@ def build_parser():
     p.add_argument("--targets-from", type=Path, metavar="TOML",
                    help="read target limits from the [verify] table of a study (or any TOML) file")
     p.add_argument("--json", type=Path, help="write the metrics as JSON here")
+    p.add_argument("--fail-on-miss", action="store_true",
+                   help="exit status 1 when any scored target is MISSED (a value over its limit or not measurable), "
+                        "after writing the report and JSON as usual; 0 when all are met (2 stays bad input)")
     p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("sweep", help="verification and margins over serials x tolerances x amplitudes",
@@ -718,7 +734,7 @@ def main(argv=None):
             # the library's warning of a controller exported for another plant: the commands print it as a
             # WARNING line of their own (verify's preflight lines, selfsense's), not twice
             warnings.simplefilter("ignore", ControllerMismatchWarning)
-            args.func(args)
+            status = args.func(args)
     except KeyboardInterrupt as err:
         return _interrupted(f"workbench {args.command}", err)
     except WorkbenchError as err:
@@ -728,7 +744,8 @@ def main(argv=None):
         # library argument checks (plain ValueError) are user errors at this level too
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
-    return 0
+    # a command's own status (verify --fail-on-miss: 1); the others return nothing (0)
+    return status if type(status) is int else 0
 
 
 def _interrupted(prog, err):

@@ -24,7 +24,7 @@ from ..errors import StudyDefinitionError, WorkbenchError
 from ..plant import Plant, load_plant
 from .scenarios import SCENARIOS, run_scenario
 
-__all__ = ["TARGETS", "VerifyResult", "verify", "check_controller_for_plant", "load_controller_json", "load_verify_targets", "load_verify_sensor",
+__all__ = ["TARGETS", "VerifyResult", "verify", "missed_targets", "check_controller_for_plant", "load_controller_json", "load_verify_targets", "load_verify_sensor",
            "parse_target",
            "predicted_limit_cycles", "evaluate_targets", "run_verify"]
 
@@ -201,6 +201,22 @@ def evaluate_targets(results, limits=None):
     return out
 
 
+def missed_targets(targets):
+    """Names of the scored targets not met, in order: a value over its limit or one that could not be measured.
+
+    Parameters
+    ----------
+    targets : dict
+        ``{name: {..., "met": bool}}``: :func:`evaluate_targets`, a verify JSON's ``targets``, or the
+        mirror verification's (``workbench verify --fail-on-miss`` exits 1 when this is not empty).
+
+    Returns
+    -------
+    list of str
+    """
+    return [k for k, t in targets.items() if not t["met"]]
+
+
 @dataclass
 class VerifyResult:
     """What :func:`verify` returns.
@@ -248,8 +264,8 @@ class VerifyResult:
 
     @property
     def missed(self):
-        """Names of the targets missed (or not measurable)."""
-        return [k for k, t in self.targets.items() if not t["met"]]
+        """Names of the targets missed (or not measurable): :func:`missed_targets`."""
+        return missed_targets(self.targets)
 
     def metrics(self, scenario):
         """The metrics dict of ``scenario`` (the anti-windup run)."""
