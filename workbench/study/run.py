@@ -157,6 +157,12 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
         spec = load_study(study_path, study_ovr)
         plant = load_plant(spec.plant, plant_ovr)
         serials = [load_plant(p, plant_ovr) for p in spec.serials]
+    # the schema's (0, 200] V is a typing bound: each serial's amplifier span (one home, as linearize and sweep)
+    from ..linearize.run import check_amplitudes
+    key = "family.amplitudes_v"
+    for path_, pl in zip((spec.plant, *spec.serials), (plant, *serials)):
+        check_amplitudes(pl.pzt, spec.family["amplitudes_v"], where=str(path_),
+                         name=f"--set {key}" if key in study_ovr else f"{spec.path}: [{key}]")
     out = Path(out_dir)
     say = (lambda stage, d, t: progress(stage, d, t)) if progress else (lambda *a: None)
     t0 = time.perf_counter()
