@@ -438,7 +438,8 @@ def cmd_calibrate(args):
              f"({folds})",
              f"  test RMS {eb['rms']:.4g} -> {first['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
              f"{first['max']:.4g} {eb['units']}  ({data['reason']})"]
-    # s22_outsider C1: the file's replay above the error before, said at the top (not only among the base's warnings)
+    # s22_outsider C1: the file's replay above the error before, said at the top (not only among the base's warnings);
+    # the base fit's warnings are among them (session 33: they were printed apart, lower, as "warning:")
     lines += [f"  WARNING: {w}" for w in data.get("warnings") or ()]
     for st in stages[1:]:
         lines.append(f"  then {st['effect']} on the {st['channel']} ({st['agreement']}): test RMS "
@@ -452,7 +453,6 @@ def cmd_calibrate(args):
                      f"{ea['rms']:.4g} {ea['units']}, max {ea['max']:.4g} (the tracing model's {em['rms']:.4g})")
     for c in data["candidates"][:6]:
         lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}, passes {c['passes']} folds")
-    lines += [f"  warning: {w}" for w in data["base_fit"].get("warnings", [])]
     if "updated_plant" in data:
         lines.append(f"  updated plant {data['updated_plant']}; report {data['report']}")
     lines.append(f"  {data['elapsed_s']:.1f} s")
