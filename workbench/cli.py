@@ -305,7 +305,8 @@ def _cmd_mirror_verify(args):
         keys = [k for k in m if k.endswith(("_urad", "_percent", "_nm", "_s", "_ratio")) and k != "tip_range_urad"
                 and not isinstance(m[k], list)]
         lines.append(f"  {m['scenario']}: " + ", ".join(
-            f"{k} {m[k]:.4g}" if m[k] is not None else f"{k} n/a" for k in keys))
+            f"{k} {m[k]:.4g}" if m[k] is not None else f"{k} n/a ({m.get(k + '_why', 'not measurable in this run')})"
+            for k in keys))
     for name, t in data["targets"].items():
         lines.append(f"  target {name}: {t['value']:.4g} (limit {t['limit']:g} {t['unit']}): "
                      f"{'met' if t['met'] else 'MISSED'}")
