@@ -210,6 +210,8 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     data = json.loads(js.read_text())
     assert "_arrays" not in data and len(data["instron"]["runs"]) == 18
     assert {"force.png", "force_report.md", "force.json"} <= {p.name for p in out.iterdir()}
+    html = (out / "force_report.html").read_text()               # the report module's one renderer, figure inlined
+    assert "Table 1" in html and "data:image/png;base64," in html
     assert "| serial | run |" in (out / "force_report.md").read_text()
     # the held-out Table 1 figures: the line printed, the section in the report, the JSON's values those of the library
     assert "held out" in text and "nested" in text

@@ -75,4 +75,6 @@ def test_cli_dynamics_prints_and_writes(dyn_study, root, tmp_path, monkeypatch, 
     assert "identified E" in capsys.readouterr().out
     assert json.loads(js.read_text())["dynamics"]["order_kd"] == dyn_study["dynamics"]["order_kd"]   # written as fitted
     assert {"dynamics.png", "dynamics_report.md", "dynamics.json"} <= {p.name for p in out.iterdir()}
+    html = (out / "dynamics_report.html").read_text()            # the report module's one renderer, figure inlined
+    assert "identified E" in html and "data:image/png;base64," in html
     assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--dynamics", "--force"]) == 2

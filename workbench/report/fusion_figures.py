@@ -103,8 +103,9 @@ def _report(data, figure):
 
 
 def write_fused_outputs(out, data):
-    """fused.png, fused_report.md, fused.json and the blend's fixed-point C header fused_blend.h in ``out``;
-    returns {"fused": figure path, "header": header path}."""
+    """fused.png, fused_report.md (and its self-contained fused_report.html), fused.json and the blend's
+    fixed-point C header fused_blend.h in ``out``; returns {"fused": figure path, "header": header path,
+    "report_html": HTML path}."""
     from pathlib import Path
 
     from ..selfsense.blend_fixed import FixedBlend, blend_header
@@ -117,5 +118,7 @@ def write_fused_outputs(out, data):
                                     "lsb_m": fixed.lsb_m, "header": str(out / "fused_blend.h")}
     fig = plot_fusion(data, out / "fused.png")
     write_text(out / "fused_report.md", _report(data, fig))
+    from .html import write_html_report
+    html = write_html_report(out / "fused_report.md")
     write_json(out / "fused.json", {k: v for k, v in data.items() if k != "_arrays"})
-    return {"fused": fig, "header": str(out / "fused_blend.h")}
+    return {"fused": fig, "header": str(out / "fused_blend.h"), "report_html": str(html)}

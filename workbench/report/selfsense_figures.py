@@ -378,11 +378,14 @@ def _table1_held_out_report(h, hd, yes):
 
 
 def write_force_outputs(out, data):
-    """force.png, force_report.md and force.json into ``out``; {name: file}. ``data['_arrays']`` is not written."""
+    """force.png, force_report.md (and its self-contained force_report.html) and force.json into ``out``;
+    {name: file}. ``data['_arrays']`` is not written."""
+    from .html import write_html_report
     out.mkdir(parents=True, exist_ok=True)
     figures = {"force": plot_force(data, out / "force.png").name}
     write_text(out / "force_report.md", _force_report(data, figures["force"]))
     figures["report"] = "force_report.md"
+    figures["report_html"] = write_html_report(out / "force_report.md").name
     write_json(out / "force.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures
 
@@ -428,7 +431,7 @@ def plot_dynamics(data, path):
 
 
 def write_dynamics_outputs(out, data):
-    """dynamics.png, dynamics_report.md and dynamics.json into ``out``; {name: file}."""
+    """dynamics.png, dynamics_report.md (and dynamics_report.html) and dynamics.json into ``out``; {name: file}."""
     out.mkdir(parents=True, exist_ok=True)
     figures = {"dynamics": plot_dynamics(data, out / "dynamics.png").name}
     dyn, c = data["dynamics"], data["comparison"]
@@ -456,5 +459,7 @@ def write_dynamics_outputs(out, data):
               f"{c['ratio_rms_identified_over_model']:.2f}, **{'met' if data['target_met'] else 'MISSED'}**.", ""]
     write_text(out / "dynamics_report.md", "\n".join(lines) + "\n")
     figures["report"] = "dynamics_report.md"
+    from .html import write_html_report
+    figures["report_html"] = write_html_report(out / "dynamics_report.md").name
     write_json(out / "dynamics.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures

@@ -181,7 +181,7 @@ def run_force(args):
                  f"{100 * rep['loso']['max_error_fraction']:.1f} % loso ({met(h['target_met_loso'])}); x from the "
                  f"displacement column: {100 * hd['reported']['loso']['max_error_fraction']:.1f} % loso")
     if args.out is not None:
-        lines.append(f"  report {Path(args.out) / 'force_report.md'}, figure {Path(args.out) / 'force.png'}")
+        lines.append(f"  report {Path(args.out) / 'force_report.md'} (and .html), figure {Path(args.out) / 'force.png'}")
     _emit(args, data, lines)
 
 
@@ -207,7 +207,7 @@ def run_dynamics(args):
     lines.append(f"  target (identified <= {data['target_ratio']:.1f}x model, RMS): ratio "
                  f"{c['ratio_rms_identified_over_model']:.2f}, {'met' if data['target_met'] else 'MISSED'}")
     if args.out is not None:
-        lines.append(f"  report {Path(args.out) / 'dynamics_report.md'}, figure {Path(args.out) / 'dynamics.png'}")
+        lines.append(f"  report {Path(args.out) / 'dynamics_report.md'} (and .html), figure {Path(args.out) / 'dynamics.png'}")
     _emit(args, data, lines)
 
 
@@ -247,7 +247,7 @@ def run_fused(args):
         lines.append(f"  targets (fused): triangle <= 0.01 % {met(tm['triangle'])}, hold drift <= 1 nm "
                      f"{met(tm['hold_drift'])}, PM >= 45 / GM >= 6 dB {met(tm['margins'])}")
     if args.out is not None:
-        lines.append(f"  report {Path(args.out) / 'fused_report.md'}, figure {Path(args.out) / 'fused.png'}")
+        lines.append(f"  report {Path(args.out) / 'fused_report.md'} (and .html), figure {Path(args.out) / 'fused.png'}")
     _emit(args, data, lines)
 
 
