@@ -69,9 +69,12 @@ def _report(data, figure):
              f"staircase, "
              f"stage-4 error {b['drift_record_pp_m'] * NM:.1f} nm p-p). Error RMS over that band: gauge "
              f"{b['gauge_error_rms_m'] * NM:.2f} nm, charge {b['charge_error_rms_m'] * NM:.2f} nm, fused "
-             f"{b['fused_error_rms_m'] * NM:.2f} nm.", "",
-             "| sensor | controller | crossover | PM | GM | triangle error RMS | hold drift | hold noise RMS |",
-             "|---|---|---|---|---|---|---|---|"]
+             f"{b['fused_error_rms_m'] * NM:.2f} nm.", ""]
+    # both controllers' preflight against the plant (verify's), as the console's WARNING lines
+    lines += [f"- **WARNING:** {w} (`--strict` refuses it)" for w in data.get("warnings") or ()]
+    lines += [""] if data.get("warnings") else []
+    lines += ["| sensor | controller | crossover | PM | GM | triangle error RMS | hold drift | hold noise RMS |",
+              "|---|---|---|---|---|---|---|---|"]
     for r in data["closed_loops"]:
         m = r["margins"]
         lines.append(f"| {TITLES[r['sensor']]} | `{r['controller'].rsplit('/', 1)[-1]}` | {m['crossover_hz']:.0f} Hz | "

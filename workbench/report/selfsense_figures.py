@@ -134,8 +134,11 @@ def _report(data, figures):
     lines = ["# Self-sensing study", "",
              f"Plant `{data['plant']}`; evaluation record {data['duration_s']:.0f} s staircase sampled at "
              f"{data['sample_hz']:.0f} Hz, stroke {data['stroke_m'] * UM:.2f} um; identification on a separate "
-             f"{data['identification_duration_s']:.0f} s record.", "",
-             "| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
+             f"{data['identification_duration_s']:.0f} s record.", ""]
+    # the controller's preflight against the plant (verify's), as the console's WARNING lines
+    lines += [f"- **WARNING:** {w} (`--strict` refuses it)" for w in data.get("warnings") or ()]
+    lines += [""] if data.get("warnings") else []
+    lines += ["| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
     for s in data["stages"]:
         lines.append(f"| {s['title']} | {nm(s['error_pp_m'])} | {s['error_pp_percent_stroke']:.2f} | "
                      f"{nm(s['error_rms_m'])} | ![{s['name']}]({figures.get(s['name'], '')}) |")
