@@ -412,6 +412,9 @@ CASES = [
      ["amplitude_over_span.toml: [family.amplitudes_v] 150 V", "(0, 140] V", "-20..120 V", "p888_51_sn637_creep.toml"]),
     ("study-set-amplitude-over-the-span", ["study", STUDY, "--out", "{out}", "--set", "family.amplitudes_v=[1, 180]"],
      ["--set family.amplitudes_v 180 V", "(0, 140] V"]),
+    # the span --set made (the plant file says -20..120 V): the message names the --set, not only the file
+    ("study-set-span-under-the-amplitudes", ["study", STUDY, "--out", "{out}", "--set", "electrical.voltage_max_v=20V"],
+     ["[family.amplitudes_v] 50 V", "(0, 40] V", "-20..20 V", "with --set electrical.voltage_max_v=20"]),
     ("study-amplitude-negative", ["study", "studies/amplitude_negative.toml", "--out", "{out}"],
      ["amplitude_negative.toml", "[family.amplitudes_v[0]]"]),
     ("study-limits-reversed", ["study", "studies/limits_reversed.toml", "--out", "{out}"],

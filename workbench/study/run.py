@@ -167,8 +167,11 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     # the schema's (0, 200] V is a typing bound: each serial's amplifier span (one home, as linearize and sweep)
     from ..linearize.run import check_amplitudes
     key = "family.amplitudes_v"
+    span_set = [f"--set {k}={v:g}" for k, v in plant_ovr.items() if k in ("electrical.voltage_min_v",
+                                                                        "electrical.voltage_max_v")]
     for path_, pl in zip((spec.plant, *spec.serials), (plant, *serials)):
-        check_amplitudes(pl.pzt, spec.family["amplitudes_v"], where=str(path_),
+        check_amplitudes(pl.pzt, spec.family["amplitudes_v"],
+                         where=str(path_) + (f" with {' and '.join(span_set)}" if span_set else ""),
                          name=f"--set {key}" if key in study_ovr else f"{spec.path}: [{key}]")
     out = Path(out_dir)
     say = (lambda stage, d, t: progress(stage, d, t)) if progress else (lambda *a: None)
