@@ -38,39 +38,16 @@ sys.exit(cli.main(["freefree", sys.argv[1], "--out", sys.argv[2], "--json", sys.
 """
 
 
-# The same through `python -m workbench.selfsense.command` (session 33: that entry had its own argparse and error
-# handling, no SIGTERM/SIGINT handling): the module run as __main__, as `python -m` runs it, with the command
-# module already imported and its study replaced (the parser the entry builds takes `run` from it).
-CHILD_ENTRY = """
-import runpy, signal, sys, time, warnings
-from pathlib import Path
-signal.signal(signal.SIGINT, signal.default_int_handler)
-warnings.simplefilter("ignore", RuntimeWarning)    # runpy: the module is in sys.modules already (replaced, above)
-import workbench.selfsense.command as command
-from workbench.report.output import write_text
-
-def writes_then_works(args):
-    write_text(Path(args.out) / "freefree.png", "a first figure")
-    while True:                      # the rest of the run
-        time.sleep(0.01)
-
-command.run = writes_then_works
-sys.argv = ["python -m workbench.selfsense.command", sys.argv[1], "--out", sys.argv[2], "--json", sys.argv[3]]
-runpy.run_module("workbench.selfsense.command", run_name="__main__", alter_sys=False)
-"""
-
-
-# each case is a child process (~3 s): a plain kill into a new folder (through the selfsense module's own entry),
-# Ctrl-C into a folder that had a file
-@pytest.mark.parametrize("sig, code, word, existing, child_code", [
-    (signal.SIGTERM, 143, "terminated", False, CHILD_ENTRY), (signal.SIGINT, 130, "interrupted", True, CHILD)])
-def test_a_signalled_run_writes_nothing_and_says_so_in_one_line(sig, code, word, existing, child_code, tmp_path):
+# each case is a child process (~3 s): a plain kill into a new folder, Ctrl-C into a folder that had a file
+@pytest.mark.parametrize("sig, code, word, existing", [(signal.SIGTERM, 143, "terminated", False),
+                                                       (signal.SIGINT, 130, "interrupted", True)])
+def test_a_signalled_run_writes_nothing_and_says_so_in_one_line(sig, code, word, existing, tmp_path):
     out = tmp_path / "out"
     if existing:
         out.mkdir()
         (out / "earlier.txt").write_text("a previous run's file\n", encoding="utf-8")
     first = out / "freefree.png"
-    child = subprocess.Popen([sys.executable, "-c", child_code, str(ROOT / "plants/p888_51_sn637.toml"), str(out),
+    child = subprocess.Popen([sys.executable, "-c", CHILD, str(ROOT / "plants/p888_51_sn637.toml"), str(out),
                               str(tmp_path / "ff.json")], cwd=tmp_path, stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
     try:

@@ -67,7 +67,7 @@ def test_cli_dynamics_prints_and_writes(dyn_study, root, tmp_path, monkeypatch, 
     import json
 
     from workbench.selfsense import sysid
-    from workbench.selfsense.command import main as selfsense_main
+    from ..conftest import selfsense_main
     monkeypatch.setattr(sysid, "run_dynamics_study", lambda *a, **k: dict(dyn_study))
     out, js = tmp_path / "out", tmp_path / "d.json"
     assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--dynamics", "--out", str(out),

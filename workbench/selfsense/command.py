@@ -1,8 +1,9 @@
 """`workbench selfsense PLANT.toml --json OUT --out DIR`: the staged self-sensing study.
 
 Wiring into :mod:`workbench.cli`: ``from .selfsense.command import add_parser`` and call
-``add_parser(sub)`` next to the other sub-commands; ``main`` then runs ``args.func(args)``
-and turns a :class:`~workbench.errors.WorkbenchError` (or ValueError) into exit status 2.
+``add_parser(sub)`` next to the other sub-commands; :func:`workbench.cli.main` then runs
+``args.func(args)`` and turns a :class:`~workbench.errors.WorkbenchError` (or ValueError) into exit
+status 2. The module is not an entry point (``python -m`` it and it says to run ``workbench selfsense``).
 """
 
 from pathlib import Path
@@ -10,7 +11,7 @@ from pathlib import Path
 from ..errors import DataFileError
 from ..arguments import emit, quantity
 
-__all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused", "main"]
+__all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused"]
 
 
 def add_parser(sub):
@@ -251,14 +252,12 @@ def run_fused(args):
     _emit(args, data, lines)
 
 
-def main(argv=None):
-    """Stand-alone entry (`python -m workbench.selfsense.command ...`): the same code as `workbench selfsense`
-    (:func:`workbench.cli.main`: its preflight, one-line errors with exit status 2, Ctrl-C and SIGTERM handling).
-    Returns the exit status."""
-    import sys
-    from ..cli import main as cli_main
-    return cli_main(["selfsense", *(sys.argv[1:] if argv is None else argv)])
-
-
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # not an entry point (session 33): it had its own parser and error handling, without the command's preflight,
+    # one-line usage errors or Ctrl-C/kill handling; `workbench selfsense` (workbench.cli) parses and runs this
+    # module's studies, and the selfsense package does not import the CLI (library first)
+    import shlex
+    import sys
+    print(f"python -m workbench.selfsense.command: error: not an entry point; run "
+          f"`{shlex.join(['workbench', 'selfsense', *sys.argv[1:]])}`", file=sys.stderr)
+    raise SystemExit(2)
