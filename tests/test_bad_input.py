@@ -829,9 +829,9 @@ def test_the_selfsense_module_is_not_an_entry_point(ws):
 
 def test_the_research_entries_answer_in_one_line(capsys):
     """`python -m workbench.design.mimo_sweep` (the README's command for a floors row), `.mimo` and `.mimo_hinf` run
-    through cli.run_script: a user error, Ctrl-C and a plain kill are one line each, no traceback, the shell's status;
+    through workbench.arguments.run_script (not the CLI: library first): a user error, Ctrl-C and a plain kill are one line each, no traceback, the shell's status;
     mimo_sweep's usage errors are one line (argparse printed its usage first)."""
-    from workbench.cli import Terminated, run_script
+    from workbench.arguments import Terminated, run_script
     from workbench.design.mimo_sweep import main as sweep_main
     from workbench.errors import PlantDefinitionError
 

@@ -5,12 +5,14 @@ user's input print one clear message and exit with status 2, without a traceback
 """
 
 import argparse
-import contextlib
 import sys
 from pathlib import Path
 
 from .errors import WorkbenchError
-from .arguments import emit, quantity, refuse_empty_paths
+# the parser class, SIGTERM handling and interrupt line live in .arguments, which the research entries share (library
+# modules never import this one); Terminated stays importable from here
+from .arguments import OneLineErrorParser as _Parser, Terminated, emit, interrupted_status, quantity, \
+    refuse_empty_paths, sigterm_raises as _sigterm_raises  # noqa: F401
 
 __all__ = ["main"]
 
@@ -480,15 +482,6 @@ def cmd_demo(args):
     _emit(args, data, [])
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse's parser whose usage errors are one line on stderr, exit status 2, as every other error of the
-    workbench (argparse printed its usage first: 5-11 lines); ``--help`` prints the usage as before.
-    The sub-commands' parsers are of this class too (``add_subparsers`` uses the parent's class)."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
-
-
 def build_parser():
     parser = _Parser(prog="workbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -696,31 +689,6 @@ def build_parser():
     return refuse_empty_paths(parser)      # an empty path is the current folder: refused (arguments.py)
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (a plain ``kill``) turned into an exception in the main thread, so that the run's cleanup
-    (:func:`workbench.preflight.preflight`: no partial outputs) runs as it does for Ctrl-C."""
-
-
-@contextlib.contextmanager
-def _sigterm_raises():
-    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (once: a second SIGTERM during
-    the cleanup is ignored; SIGKILL still ends the process). Outside the main thread, nothing changes."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise Terminated()
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -737,7 +705,7 @@ def main(argv=None):
             warnings.simplefilter("ignore", ControllerMismatchWarning)
             status = args.func(args)
     except KeyboardInterrupt as err:
-        return _interrupted(f"workbench {args.command}", err)
+        return interrupted_status(f"workbench {args.command}", err)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
@@ -747,36 +715,6 @@ def main(argv=None):
         return 2
     # a command's own status (verify --fail-on-miss: 1); the others return nothing (0)
     return status if type(status) is int else 0
-
-
-def _interrupted(prog, err):
-    """The one line of a run ended by Ctrl-C or a plain kill (no traceback); its exit status, 128 + the signal's
-    number, as a shell reports a process the signal ended."""
-    terminated = isinstance(err, Terminated)
-    print(f"{chr(10) if sys.stderr.isatty() else ''}{prog}: {'terminated' if terminated else 'interrupted'}; "
-          f"nothing written (the outputs this run created are removed)", file=sys.stderr)
-    return 143 if terminated else 130
-
-
-def script_parser(prog, **kwargs):
-    """The argument parser of a ``python -m workbench.X`` entry: its usage errors are one line on stderr with exit
-    status 2, as the ``workbench`` command's."""
-    return _Parser(prog=prog, **kwargs)
-
-
-def run_script(prog, func, argv=None):
-    """Run a ``python -m workbench.X`` entry ``func(argv)`` with the ``workbench`` command's conventions: a user error
-    (WorkbenchError, ValueError, OSError) is one line on stderr and exit status 2; Ctrl-C (130) and a plain kill
-    (SIGTERM, 143) one line and no traceback. Returns the exit status (for ``raise SystemExit``)."""
-    try:
-        with _sigterm_raises():
-            func(argv)
-    except KeyboardInterrupt as err:
-        return _interrupted(prog, err)
-    except (WorkbenchError, ValueError, OSError) as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
-        return 2
-    return 0
 
 
 if __name__ == "__main__":
