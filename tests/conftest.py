@@ -41,6 +41,12 @@ FULL = os.environ.get("WORKBENCH_FULL") == "1"
 FULL_ONLY = pytest.mark.skipif(not FULL, reason="reduced form: WORKBENCH_FULL=1 (make test-full) runs this draw")
 
 
+def selfsense_main(argv):
+    """``workbench selfsense ARGV`` in-process (:func:`workbench.cli.main`); its exit status."""
+    from workbench.cli import main
+    return main(["selfsense", *argv])
+
+
 def load_benchmark(name):
     """A script of ``benchmarks/`` loaded as a module (its functions, not its ``main``)."""
     import importlib.util

@@ -97,6 +97,7 @@ def ws(tmp_path_factory):
         "missing_plant": _study_text({'plant = "../plants/p888_51_sn637_creep.toml"': 'plant = "../plants/nope.toml"'}),
         "freq_reversed": _study_text({"freq_min_hz = 1.0 ": "freq_min_hz = 6000.0 "}),
         "amplitude_negative": _study_text({"amplitudes_v = [0.1,": "amplitudes_v = [-0.1,"}),
+        "amplitude_over_span": _study_text({"amplitudes_v = [0.1,": "amplitudes_v = [150.0, 0.1,"}),
         "limits_reversed": _study_text({"output_limits_v = [-20.0, 120.0]": "output_limits_v = [120.0, -20.0]"}),
         "bad_toml": _study_text(append="\n[hinf\n"),
         "string_number": _study_text({"freq_points = 60": 'freq_points = "60"'}),
@@ -406,6 +407,14 @@ CASES = [
      ["missing_plant.toml", "[plant]"]),
     ("study-freq-reversed", ["study", "studies/freq_reversed.toml", "--out", "{out}"],
      ["freq_reversed.toml", "[family.freq_max_hz]"]),
+    # session 33: the schema's typed bound is 200 V; the P-888.51 amplifier spans 140 V (the study ran 150 V sines)
+    ("study-amplitude-over-the-span", ["study", "studies/amplitude_over_span.toml", "--out", "{out}"],
+     ["amplitude_over_span.toml: [family.amplitudes_v] 150 V", "(0, 140] V", "-20..120 V", "p888_51_sn637_creep.toml"]),
+    ("study-set-amplitude-over-the-span", ["study", STUDY, "--out", "{out}", "--set", "family.amplitudes_v=[1, 180]"],
+     ["--set family.amplitudes_v 180 V", "(0, 140] V"]),
+    # the span --set made (the plant file says -20..120 V): the message names the --set, not only the file
+    ("study-set-span-under-the-amplitudes", ["study", STUDY, "--out", "{out}", "--set", "electrical.voltage_max_v=20V"],
+     ["[family.amplitudes_v] 50 V", "(0, 40] V", "-20..20 V", "with --set electrical.voltage_max_v=20"]),
     ("study-amplitude-negative", ["study", "studies/amplitude_negative.toml", "--out", "{out}"],
      ["amplitude_negative.toml", "[family.amplitudes_v[0]]"]),
     ("study-limits-reversed", ["study", "studies/limits_reversed.toml", "--out", "{out}"],
@@ -726,6 +735,16 @@ FUZZ3 = [
     ("selfsense-strict-controller-for-another-plant",
      ["selfsense", "plants/p888_51_sn618.toml", "--controller", CTRL, "--strict", "--out", "{out}"],
      ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
+    # session 33: --fused compared neither controller with the plant; --force/--dynamics run none and ignored them
+    ("selfsense-fused-strict-controller-for-another-plant",
+     ["selfsense", "plants/p888_51_sn618.toml", "--fused", "--strict", "--hold", "3s", "--out", "{out}"],
+     ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
+    ("selfsense-force-controller-unused", ["selfsense", CREEP, "--force", "--controller", FUSED],
+     ["--controller " + FUSED, "the --force study runs no controller", "drop it"]),
+    ("selfsense-dynamics-strict-unused", ["selfsense", CREEP, "--dynamics", "--strict", "--no-loop"],
+     ["--strict, --no-loop", "the --dynamics study runs no controller", "drop them"]),
+    ("selfsense-fused-controller-without-fused", ["selfsense", CREEP, "--fused-controller", FUSED, "--out", "{out}"],
+     ["--fused-controller " + FUSED, "the --fused study's"]),
     # messages: the flag that gave the value, what the file is, the right schema, the right suffix
     ("study-set-named-not-the-file", ["study", STUDY, "--out", "{out}", "--set", "targets.phase_margin_deg=500"],
      ["--set targets.phase_margin_deg=500", "got 500", "the file is not modified"]),
@@ -794,6 +813,45 @@ def test_bad_input_subprocess(argv, fragment, ws):
     assert done.returncode == 2, done.stderr
     assert fragment in done.stderr and "Traceback" not in done.stderr
     assert _hashes(ws) == before
+
+
+def test_the_selfsense_module_is_not_an_entry_point(ws):
+    """`python -m workbench.selfsense.command` had its own parser and error handling (argparse's usage and error in
+    5-11 lines, no preflight, no SIGTERM handling); nothing documents it, and the selfsense package may not import
+    the CLI: it refuses in one line, exit 2, naming the command to run."""
+    done = subprocess.run([sys.executable, "-m", "workbench.selfsense.command", CREEP, "--force"], cwd=ws,
+                          capture_output=True, text=True, check=False,
+                          env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+    lines = [line for line in done.stderr.splitlines() if line.strip()]
+    assert done.returncode == 2 and len(lines) == 1 and not done.stdout, done.stderr
+    assert f"run `workbench selfsense {CREEP} --force`" in lines[0] and "Traceback" not in done.stderr
+
+
+def test_the_research_entries_answer_in_one_line(capsys):
+    """`python -m workbench.design.mimo_sweep` (the README's command for a floors row), `.mimo` and `.mimo_hinf` run
+    through workbench.arguments.run_script (not the CLI: library first): a user error, Ctrl-C and a plain kill are one line each, no traceback, the shell's status;
+    mimo_sweep's usage errors are one line (argparse printed its usage first)."""
+    from workbench.arguments import Terminated, run_script
+    from workbench.design.mimo_sweep import main as sweep_main
+    from workbench.errors import PlantDefinitionError
+
+    def raises(err):
+        def func(argv):
+            raise err
+        return func
+    for err, code, word in ((PlantDefinitionError("m.toml", "stacks", "missing"), 2, "m.toml: [stacks] missing"),
+                            (FileNotFoundError(2, "No such file or directory", "m.toml"), 2, "m.toml"),
+                            (KeyboardInterrupt(), 130, "interrupted"), (Terminated(), 143, "terminated")):
+        assert run_script("python -m workbench.design.mimo", raises(err)) == code
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("python -m workbench.design.mimo: ") and word in lines[0]
+    with pytest.raises(SystemExit) as ex:
+        sweep_main(["--limt"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert ex.value.code == 2 and len(lines) == 1 and "unrecognized arguments: --limt" in lines[0], lines
+    for name in ("mimo", "mimo_hinf", "mimo_sweep"):
+        assert "run_script(" in (ROOT / "workbench/design" / f"{name}.py").read_text(encoding="utf-8").split(
+            '__name__ == "__main__"')[-1]
 
 
 @pytest.mark.parametrize("existing", [False, True])

@@ -61,13 +61,15 @@ def test_amplitudes_are_bounded_by_each_plant_amplifier_span():
                 check_amplitudes(pzt, [bad], name="--amplitudes", where=str(path))
 
 
-def _command_record(path, plant, serial=None):
-    """A 0.2 s quasi-static sine of ``plant`` whose voltage column holds volts under a voltage[mV] label."""
+def _command_record(path, plant, serial=None, line=False):
+    """A 0.2 s quasi-static sine of ``plant`` whose voltage column holds volts under a voltage[mV] label; with
+    ``line`` the displacement is a straight line of the voltage (no hysteresis: no better than a line)."""
     from workbench.plant import load_plant
     pzt = load_plant(plant).pzt
     t = np.arange(2000) / 1e4
     v = 50.0 + 40.0 * np.sin(2 * np.pi * 5.0 * t)
-    x = pzt.quasi_static_x_m(np.r_[0.0, v])[1:] + 1e-9 * np.random.default_rng(3).standard_normal(t.size)
+    x = 1e-7 * v if line else pzt.quasi_static_x_m(np.r_[0.0, v])[1:]
+    x = x + 1e-9 * np.random.default_rng(3).standard_normal(t.size)
     rows = "\n".join(f"{a:.12g},{b:.9g},{c:.9g}" for a, b, c in zip(t, v, x))
     pre = f"# serial: {serial}\n" if serial else ""
     path.write_text(pre + "time[s],voltage[mV],displacement[m]\n" + rows + "\n", encoding="utf-8")
@@ -77,20 +79,26 @@ def _command_record(path, plant, serial=None):
 def test_calibrate_says_its_reinterpretations_on_the_console_and_in_the_json(tmp_path, capsys):
     """A voltage column in mV holding volts is taken for the amplifier's command, and a record's serial that is
     not the plant's: both were only in report.md's notes ("warnings": [] in --json). Now both are warnings, and
-    the serial's message says what the run does with it (the updated plant keeps the plant's serial)."""
+    the serial's message says what the run does with it (the updated plant keeps the plant's serial).
+    The record's displacement is a straight line of the drive, which the hysteretic base explains no better than
+    a line: the base fit's warning was only in base_fit.warnings (session 33); every warning is in ``warnings``."""
     from workbench.plant import load_plant
-    rec = _command_record(tmp_path / "mv.csv", SN629, serial="SN637")
+    rec = _command_record(tmp_path / "mv.csv", SN629, serial="SN637", line=True)
     assert load_plant(SN629).serial == "SN629"
     js = tmp_path / "c.json"
     assert main(["calibrate", str(rec), "--plant", str(SN629), "--json", str(js)]) == 0
     out = capsys.readouterr().out
-    warns = json.loads(js.read_text(encoding="utf-8"))["warnings"]
+    data = json.loads(js.read_text(encoding="utf-8"))
+    warns = data["warnings"]
     command = [w for w in warns if "amplifier's command" in w]
     serial = [w for w in warns if "SN637" in w and "SN629" in w]
     assert len(command) == 1 and "voltage[mV]" in command[0], warns
     assert len(serial) == 1 and "keeps serial SN629" in serial[0], warns
-    for w in command + serial:
-        assert f"WARNING: {w}" in out
+    line = [w for w in data["base_fit"]["warnings"] if "no better than a line" in w]
+    assert len(line) == 1 and line[0] in warns, (data["base_fit"]["warnings"], warns)
+    assert set(data["base_fit"]["warnings"]) <= set(warns)
+    for w in command + serial + line:
+        assert out.count(w) == 1 and f"WARNING: {w}" in out          # once, among the WARNING lines
 
 
 def test_verify_warns_in_python_on_a_controller_for_another_plant():
@@ -112,6 +120,46 @@ def test_verify_warns_in_python_on_a_controller_for_another_plant():
     with warnings.catch_warnings():
         warnings.simplefilter("error", ControllerMismatchWarning)      # its own plant: no warning
         assert check_controller_for_plant(wb.load_plant(ROOT / "plants/p888_51_sn637_creep.toml"), ctrl) == []
+
+
+class _Stop(Exception):
+    """Raised in place of the closed-loop runs: the warning is emitted before them."""
+
+
+def test_the_mismatch_warning_points_at_the_callers_line(monkeypatch):
+    """The warning's filename:line was verify's own (stacklevel one frame short through the callable package):
+    it is the line that called, through wb.verify, workbench.verify.run.verify and selfsense's library calls
+    (the staged study and --fused, which compared neither of its controllers with the plant)."""
+    import workbench as wb
+    from workbench.controller import Controller
+    from workbench.errors import ControllerMismatchWarning
+    from workbench.selfsense.fused_loop import run_fused_study
+    from workbench.selfsense.run import run_selfsense
+    from workbench.verify.run import verify
+
+    def stop(*args, **kwargs):
+        raise _Stop()
+    monkeypatch.setattr(Controller, "firmware", stop)                    # verify's first step after the check
+    monkeypatch.setattr("workbench.selfsense.run.simulate_identification", stop)   # selfsense's
+    import importlib                  # (the package's attribute `identify` is the function, not the module)
+    monkeypatch.setattr(importlib.import_module("workbench.selfsense.identify"), "simulate_identification",
+                        stop)                                            # selfsense --fused's
+    plant, ctrl = wb.load_plant(SN618), Controller.load(CTRL)
+    calls = [lambda: wb.verify(plant, ctrl, ["small_step"]), lambda: verify(plant, ctrl, ["small_step"]),
+             lambda: run_selfsense(SN618, controller_path=CTRL),
+             lambda: run_fused_study(SN618)]
+    for call in calls:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(_Stop):
+                call()
+        got = [w for w in caught if issubclass(w.category, ControllerMismatchWarning)]
+        # --fused: the gauge design and the fused design, both exported for SN637 (SN618's trim differs)
+        assert len(got) == (2 if call is calls[-1] else 1), caught
+        assert all("trim_scale" in str(w.message) for w in got)
+        assert Path(got[0].filename).resolve() == Path(__file__).resolve(), got[0].filename
+        # the line of the lambda that made the call
+        assert got[0].lineno in {c.__code__.co_firstlineno for c in calls}, got[0].lineno
 
 
 def test_the_api_takes_a_plant_or_its_file_and_names_what_to_pass_otherwise():

@@ -5,12 +5,14 @@ user's input print one clear message and exit with status 2, without a traceback
 """
 
 import argparse
-import contextlib
 import sys
 from pathlib import Path
 
 from .errors import WorkbenchError
-from .arguments import emit, quantity, refuse_empty_paths
+# the parser class, SIGTERM handling and interrupt line live in .arguments, which the research entries share (library
+# modules never import this one); Terminated stays importable from here
+from .arguments import OneLineErrorParser as _Parser, Terminated, emit, interrupted_status, quantity, \
+    refuse_empty_paths, sigterm_raises as _sigterm_raises  # noqa: F401
 
 __all__ = ["main"]
 
@@ -305,13 +307,15 @@ def _cmd_mirror_verify(args):
         keys = [k for k in m if k.endswith(("_urad", "_percent", "_nm", "_s", "_ratio")) and k != "tip_range_urad"
                 and not isinstance(m[k], list)]
         lines.append(f"  {m['scenario']}: " + ", ".join(
-            f"{k} {m[k]:.4g}" if m[k] is not None else f"{k} n/a" for k in keys))
+            f"{k} {m[k]:.4g}" if m[k] is not None else f"{k} n/a ({m.get(k + '_why', 'not measurable in this run')})"
+            for k in keys))
     for name, t in data["targets"].items():
         lines.append(f"  target {name}: {t['value']:.4g} (limit {t['limit']:g} {t['unit']}): "
                      f"{'met' if t['met'] else 'MISSED'}")
     if "report" in data:
         lines.append(f"  report {data['report']}")
     _emit(args, data, lines)
+    return _miss_status(args, data["targets"])
 
 
 _DEFAULT_SCENARIOS = ["all"]
@@ -363,6 +367,18 @@ def cmd_verify(args):
     if "report" in data:
         lines.append(f"  report {data['report']}")
     _emit(args, data, lines)
+    return _miss_status(args, data["targets"])
+
+
+def _miss_status(args, targets):
+    """verify's exit status: 1 with --fail-on-miss when a scored target is missed (said on stderr), else 0."""
+    from .verify.run import missed_targets
+    missed = missed_targets(targets)
+    if not (getattr(args, "fail_on_miss", False) and missed):
+        return 0
+    print(f"workbench verify: {len(missed)} of {len(targets)} targets MISSED ({', '.join(missed)}): exit status 1 "
+          f"(--fail-on-miss)", file=sys.stderr)
+    return 1
 
 
 def cmd_sweep(args):
@@ -425,7 +441,8 @@ def cmd_calibrate(args):
              f"({folds})",
              f"  test RMS {eb['rms']:.4g} -> {first['rms']:.4g} {eb['units']}, max {eb['max']:.4g} -> "
              f"{first['max']:.4g} {eb['units']}  ({data['reason']})"]
-    # s22_outsider C1: the file's replay above the error before, said at the top (not only among the base's warnings)
+    # s22_outsider C1: the file's replay above the error before, said at the top (not only among the base's warnings);
+    # the base fit's warnings are among them (session 33: they were printed apart, lower, as "warning:")
     lines += [f"  WARNING: {w}" for w in data.get("warnings") or ()]
     for st in stages[1:]:
         lines.append(f"  then {st['effect']} on the {st['channel']} ({st['agreement']}): test RMS "
@@ -439,7 +456,6 @@ def cmd_calibrate(args):
                      f"{ea['rms']:.4g} {ea['units']}, max {ea['max']:.4g} (the tracing model's {em['rms']:.4g})")
     for c in data["candidates"][:6]:
         lines.append(f"  candidate {c['name']} ({c['channel']}): score {c['score']:.3f}, passes {c['passes']} folds")
-    lines += [f"  warning: {w}" for w in data["base_fit"].get("warnings", [])]
     if "updated_plant" in data:
         lines.append(f"  updated plant {data['updated_plant']}; report {data['report']}")
     lines.append(f"  {data['elapsed_s']:.1f} s")
@@ -464,15 +480,6 @@ def cmd_demo(args):
     from .demo import run_demo
     data = run_demo(Path(args.out), progress=print)
     _emit(args, data, [])
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse's parser whose usage errors are one line on stderr, exit status 2, as every other error of the
-    workbench (argparse printed its usage first: 5-11 lines); ``--help`` prints the usage as before.
-    The sub-commands' parsers are of this class too (``add_subparsers`` uses the parent's class)."""
-
-    def error(self, message):
-        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
 
 
 def build_parser():
@@ -615,6 +622,9 @@ def build_parser():
     p.add_argument("--targets-from", type=Path, metavar="TOML",
                    help="read target limits from the [verify] table of a study (or any TOML) file")
     p.add_argument("--json", type=Path, help="write the metrics as JSON here")
+    p.add_argument("--fail-on-miss", action="store_true",
+                   help="exit status 1 when any scored target is MISSED (a value over its limit or not measurable), "
+                        "after writing the report and JSON as usual; 0 when all are met (2 stays bad input)")
     p.set_defaults(func=cmd_verify)
 
     p = sub.add_parser("sweep", help="verification and margins over serials x tolerances x amplitudes",
@@ -679,31 +689,6 @@ def build_parser():
     return refuse_empty_paths(parser)      # an empty path is the current folder: refused (arguments.py)
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (a plain ``kill``) turned into an exception in the main thread, so that the run's cleanup
-    (:func:`workbench.preflight.preflight`: no partial outputs) runs as it does for Ctrl-C."""
-
-
-@contextlib.contextmanager
-def _sigterm_raises():
-    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (once: a second SIGTERM during
-    the cleanup is ignored; SIGKILL still ends the process). Outside the main thread, nothing changes."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise Terminated()
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -718,14 +703,9 @@ def main(argv=None):
             # the library's warning of a controller exported for another plant: the commands print it as a
             # WARNING line of their own (verify's preflight lines, selfsense's), not twice
             warnings.simplefilter("ignore", ControllerMismatchWarning)
-            args.func(args)
+            status = args.func(args)
     except KeyboardInterrupt as err:
-        # one line, no traceback; 128 + the signal's number, as a shell reports a process the signal ended
-        terminated = isinstance(err, Terminated)
-        print(f"{chr(10) if sys.stderr.isatty() else ''}workbench {args.command}: "
-              f"{'terminated' if terminated else 'interrupted'}; nothing written "
-              f"(the outputs this run created are removed)", file=sys.stderr)
-        return 143 if terminated else 130
+        return interrupted_status(f"workbench {args.command}", err)
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
@@ -733,7 +713,8 @@ def main(argv=None):
         # library argument checks (plain ValueError) are user errors at this level too
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2
-    return 0
+    # a command's own status (verify --fail-on-miss: 1); the others return nothing (0)
+    return status if type(status) is int else 0
 
 
 if __name__ == "__main__":

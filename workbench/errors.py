@@ -10,7 +10,7 @@ __all__ = ["WorkbenchError", "PlantDefinitionError", "StudyDefinitionError", "Un
            "UnsupportedError", "DesignError", "StudyFailed", "FileArgumentError", "FlagRangeError",
            "OutputOntoInputError", "ControllerError", "ControllerMismatchError", "ExportError",
            "SweepError", "MimoControllerError", "ChargeChannelError", "WorkbenchWarning",
-           "ControllerMismatchWarning", "ArgumentKindError"]
+           "ControllerMismatchWarning", "ArgumentKindError", "warn_at_caller"]
 
 
 class WorkbenchError(Exception):
@@ -109,3 +109,20 @@ class WorkbenchWarning(UserWarning):
 class ControllerMismatchWarning(WorkbenchWarning):
     """The controller was exported for another plant; the run goes on (``strict=True`` raises
     :class:`ControllerMismatchError` instead)."""
+
+
+def warn_at_caller(warning):
+    """``warnings.warn(warning)`` attributed to the first frame outside the workbench package.
+
+    A fixed ``stacklevel`` is right for one call path only (``wb.verify`` goes through the callable
+    package, ``workbench.verify.run.verify`` does not); the warning's filename and line must be the
+    user's call whichever path it took.
+    """
+    import os
+    import sys
+    import warnings
+    package = os.path.dirname(os.path.abspath(__file__)) + os.sep
+    level, frame = 2, sys._getframe(1)          # level 2: the caller of this function
+    while frame is not None and os.path.abspath(frame.f_code.co_filename).startswith(package):
+        level, frame = level + 1, frame.f_back
+    warnings.warn(warning, stacklevel=level)

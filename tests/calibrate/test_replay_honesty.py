@@ -200,8 +200,10 @@ def test_a_triangles_mode_whose_file_replays_worse_is_not_written(tmp_path):
     assert res["error_after"]["rms"] <= res["error_before"]["rms"], (res["error_after"], res["error_before"])
     # the file is not above the error before, so the one warning is that the named mode is not in the file
     # (the lead's fix after the review of s23_replay: said beside the answer)
-    assert len(res["warnings"]) == 1 and "resonance named on the displacement is not in the updated plant file" \
-        in res["warnings"][0], res["warnings"]
+    # (the base fit's own warnings are also in ``warnings`` since session 33: not counted here)
+    own = [w for w in res["warnings"] if w not in (res.get("base_fit") or {}).get("warnings", ())]
+    assert len(own) == 1 and "resonance named on the displacement is not in the updated plant file" \
+        in own[0], res["warnings"]
     modes = [c for c in res["updated_plant_stages"] if c["effect"] == "resonance"]
     assert modes and not modes[0]["written"]
 

@@ -241,7 +241,7 @@ def test_calibrate_report_renders(sn637, tmp_path, monkeypatch):
 
 
 def test_selfsense_report_renders(tmp_path, monkeypatch):
-    from workbench.selfsense.command import main as selfsense_main
+    from ..conftest import selfsense_main
     monkeypatch.chdir(tmp_path)
     assert selfsense_main([str(PLANTS / "p888_51_sn637.toml"), "--duration", "150s", "--no-loop", "--out", "out/ss",
                            "--json", "out/ss/s.json"]) == 0

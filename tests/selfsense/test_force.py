@@ -11,7 +11,6 @@ from workbench.plant.hysteresis import play
 from workbench.plant.simulator import PZTSimulator
 from workbench.selfsense.charge_amp import ChargeAmpParams, cumulative_integral, relax_foh
 from workbench.selfsense.charge_drift import identify_charge_drift, reversal_alpha
-from workbench.selfsense.command import main as selfsense_main
 from workbench.identify.transducer import identify_transducer, table1_swap_decision
 from workbench.selfsense.force import (FORCE_STAGE, estimate_force, force_step_errors, instron_from_table,
                                        run_force_study, simulate_force_step)
@@ -19,6 +18,8 @@ from workbench.selfsense.table1 import (TABLE1_FORM_TITLES, TABLE1_FORMS, TABLE1
                                         TABLE1_FORMS_PURE_BACK_EMF, instron_held_out, nested_held_out, table1_held_out,
                                         table1_spreads)
 from workbench.selfsense.identify import identify, simulate_identification
+
+from ..conftest import selfsense_main
 
 DT = 5e-4
 
@@ -210,6 +211,8 @@ def test_cli_force_prints_and_writes(force_study, root, tmp_path, monkeypatch, c
     data = json.loads(js.read_text())
     assert "_arrays" not in data and len(data["instron"]["runs"]) == 18
     assert {"force.png", "force_report.md", "force.json"} <= {p.name for p in out.iterdir()}
+    html = (out / "force_report.html").read_text()               # the report module's one renderer, figure inlined
+    assert "Table 1" in html and "data:image/png;base64," in html
     assert "| serial | run |" in (out / "force_report.md").read_text()
     # the held-out Table 1 figures: the line printed, the section in the report, the JSON's values those of the library
     assert "held out" in text and "nested" in text

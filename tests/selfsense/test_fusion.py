@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 
 from workbench.selfsense.charge_amp import ChargeAmpParams
-from workbench.selfsense.command import main as selfsense_main
 from workbench.selfsense.fusion import (Blend, SensorSpectra, choose_crossover, fused_error_variance,
                                         fused_noise_rms_per_sample, sensor_spectra)
+
+from ..conftest import selfsense_main
 
 RNG = np.random.default_rng(20261123)
 DRAWS = [(float(10 ** RNG.uniform(-2.5, 2.5)), float(10 ** RNG.uniform(-5, -3))) for _ in range(12)]

@@ -10,12 +10,13 @@ import pytest
 
 from workbench.plant.simulator import PZTSimulator
 from workbench.selfsense import ChargeAmpParams, EstimatorParams, ResidualCorrection, measure, static_estimate
-from workbench.selfsense.command import main as selfsense_main
 from workbench.selfsense.charge_amp import ChargeAmpStream
 from workbench.selfsense.estimator import (StreamingEstimator, band_limited, charge_transfer, dynamic_estimator,
                                            dynamic_gains, output_transfer, static_transfer)
 from workbench.selfsense.identify import identify, simulate_identification
 from workbench.selfsense.run import STAGES, run_selfsense, staircase_voltage
+
+from ..conftest import selfsense_main
 
 DT = 5e-4                      # plant step for the tests (the CLI runs 1e-4); RC of R and C_h is ~1-2 ms
 ONE_BRANCH = replace(ChargeAmpParams(), da_gains_f=(0.3e-6,), da_time_constants_s=(20.0,))

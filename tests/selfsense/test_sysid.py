@@ -67,7 +67,7 @@ def test_cli_dynamics_prints_and_writes(dyn_study, root, tmp_path, monkeypatch, 
     import json
 
     from workbench.selfsense import sysid
-    from workbench.selfsense.command import main as selfsense_main
+    from ..conftest import selfsense_main
     monkeypatch.setattr(sysid, "run_dynamics_study", lambda *a, **k: dict(dyn_study))
     out, js = tmp_path / "out", tmp_path / "d.json"
     assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--dynamics", "--out", str(out),
@@ -75,4 +75,31 @@ def test_cli_dynamics_prints_and_writes(dyn_study, root, tmp_path, monkeypatch, 
     assert "identified E" in capsys.readouterr().out
     assert json.loads(js.read_text())["dynamics"]["order_kd"] == dyn_study["dynamics"]["order_kd"]   # written as fitted
     assert {"dynamics.png", "dynamics_report.md", "dynamics.json"} <= {p.name for p in out.iterdir()}
+    html = (out / "dynamics_report.html").read_text()            # the report module's one renderer, figure inlined
+    assert "identified E" in html and "data:image/png;base64," in html
     assert selfsense_main([str(root / "plants/p888_51_sn637_creep.toml"), "--dynamics", "--force"]) == 2
+
+
+def test_selfsense_reports_carry_the_controller_preflight_warnings():
+    """The staged study's and --fused's report.md said nothing of a controller exported for another plant (the
+    console and the JSON did): each warning is a line of the report, as in verify's."""
+    from workbench.report.fusion_figures import _report as fused_report
+    from workbench.report.selfsense_figures import _report as staged_report
+    w = "preflight trim_scale: trim scale 1.529288 in the controller, 1.449667 in plants/p888_51_sn618.toml"
+    blend = {"crossover_hz": 0.9, "band_hz": [0.004, 4995.0], "drift_record_s": 1000.0, "drift_record_pp_m": 3e-8,
+             "gauge_error_rms_m": 2e-8, "charge_error_rms_m": 5e-9, "fused_error_rms_m": 6e-10}
+    fused = {"plant": "p.toml", "stroke_m": 1.5e-5, "sample_hz": 1e4, "blend": blend, "closed_loops": [],
+             "warnings": [w]}
+    assert f"- **WARNING:** {w} (`--strict` refuses it)" in fused_report(fused, "fused.png").splitlines()
+    assert "WARNING" not in fused_report({**fused, "warnings": []}, "fused.png")
+    stage = {"title": "1", "name": "s1", "error_pp_m": 1e-8, "error_pp_percent_stroke": 0.1, "error_rms_m": 3e-9}
+    staged = {"plant": "p.toml", "duration_s": 1000.0, "sample_hz": 1e3, "stroke_m": 1.5e-5,
+              "identification_duration_s": 700.0, "stages": [stage], "warnings": [w], "target_met": True,
+              "gauge_on_same_record": {"error_pp_m": 1e-8, "error_rms_m": 3e-9},
+              "noise_per_10khz_sample": {"self_sensed_rms_m": 1e-10, "gauge_rms_m": 2e-9, "hold_v": 50.0, "x_m": 7e-6},
+              "identified": {"alpha_c_per_m": 1.0, "i_bias_a": 2e-10, "r_leak_ohm": 1e9, "da_gain_f": 2.5e-7,
+                             "da_time_constant_s": 5.0, "stage4_validation_rms_m": {}, "stage4_pi_kept": False},
+              "true": {"alpha_c_per_m": 1.0, "i_bias_a": 2e-10, "r_leak_ohm": 1e9, "da_gains_f": [2.5e-7],
+                       "da_time_constants_s": [5.0]}}
+    assert f"- **WARNING:** {w} (`--strict` refuses it)" in staged_report(staged, {}).splitlines()
+    assert "WARNING" not in staged_report({**staged, "warnings": []}, {})

@@ -160,3 +160,24 @@ def test_an_unwritable_family_cache_costs_time_never_the_run(tmp_path):
     fam, path, hit = cached_family("ab" * 32, tmp_path / "ok", lambda: {"members": 3})
     assert path.is_file() and not hit
     assert cached_family("ab" * 32, tmp_path / "ok", lambda: {"members": 4})[0] == {"members": 3}   # served
+
+
+def test_a_plant_without_series_resistor_exports_without_a_window():
+    """`study --set electrical.series_resistor_ohm=0` (the schema's quasi-static form, legal) died in the export with
+    a TypeError after the design: no resistor, no current-limit window, no slew to record. The entry is None then;
+    with the resistor it is the window's alpha h / T each way."""
+    import control
+    from workbench.controller import Controller
+    from workbench.plant import load_plant
+    from workbench.study.run import _anti_windup_record
+    from ..conftest import PLANTS
+    path = PLANTS / "p888_51_sn637_creep.toml"
+    pi = control.tf([1.0, 200.0], [1.0, 0.0])                          # a PI, continuous; from_lti discretizes it
+    with_r = Controller.from_lti(pi, load_plant(path))
+    without = Controller.from_lti(pi, load_plant(path, {"electrical.series_resistor_ohm": 0.0}))
+    assert without.fixed.voltage_model is None
+    assert _anti_windup_record(without)["output_slew_limit_v_per_s"] is None
+    alpha, h_up, h_down = with_r.fixed.voltage_model
+    up, down = _anti_windup_record(with_r)["output_slew_limit_v_per_s"]
+    assert up == pytest.approx(alpha * h_up / with_r.fixed.dt_s) and down == pytest.approx(alpha * h_down / with_r.fixed.dt_s)
+    assert up > 0 and down > 0

@@ -157,6 +157,23 @@ def test_verify_command_writes_report_and_figures(root, tmp_path, ctrl, monkeypa
                                                        "torque_step"}
     text = (out / "report.md").read_text()
     assert "![tip_step](mirror_tip_step.png)" in text and (out / "mirror_torque_step.png").stat().st_size > 10000
+    for m in data["metrics"]:                  # a settling time not measured says why (it read a bare "n/a")
+        if "settling_s" in m and m["settling_s"] is None:
+            assert m["settling_s_why"] and f"n/a ({m['settling_s_why']})" in text
+
+
+def test_a_missing_settling_time_says_whether_noise_or_the_loop_keeps_it_out():
+    """The mirror's tip_step settling read "n/a" without a reason. From the run's last quarter (response minus
+    reference) against the 2 % band: a mean beyond the band is a loop not settled; a zero-mean tail whose noise
+    crosses the band is the noise (with sigma = the band, 2 (1 - Phi(1)) = 31.7 % of the samples are outside)."""
+    rng = np.random.default_rng(7)
+    step, band = 20e-6, 0.02 * 20e-6
+    offset = vm._settling_why(np.full(4000, 3 * band) + 0.1 * band * rng.standard_normal(4000), band, 1e-8, step)
+    assert offset.startswith("not settled") and "+1.2 urad from the reference" in offset and "+/-0.4 urad" in offset
+    noise = vm._settling_why(band * rng.standard_normal(40000), band, band, step)
+    assert "gauge noise (0.4 urad RMS" in noise and "--no-noise" in noise
+    frac = float(noise.split(" % of its samples")[0].rsplit(" ", 1)[-1])
+    assert abs(frac - 31.7) < 1.0, noise
 
 
 @pytest.mark.slow

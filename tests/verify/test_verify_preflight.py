@@ -144,3 +144,32 @@ def test_a_study_file_carries_its_verify_table(tmp_path):
     copy.write_text(copy.read_text() + "\n[verifyy]\nx = 1\n")          # a misspelt section is still refused
     with pytest.raises(Exception, match="verifyy"):
         load_study(copy)
+
+
+def test_fail_on_miss_exits_1_on_a_missed_target_and_keeps_the_outputs(tmp_path, capsys, monkeypatch):
+    """`verify` exited 0 with MISSED targets (no way to fail a CI job on a miss): with --fail-on-miss a target over
+    its limit, or one that could not be measured, is exit status 1, after the JSON is written; all met is 0, and
+    without the flag a miss is 0 as before. The runs are replaced by metrics given here (the CLI's decision is
+    under test); the scoring is evaluate_targets's."""
+    import math
+    import workbench.verify.run as vrun
+    from workbench.verify.run import missed_targets
+    within = {"scenario": "small_step", "overshoot_difference_points": 1.0, "settling_ratio": 1.5, "rise_ratio": 1.0}
+    cases = [({**within, "settling_ratio": 2.5}, ["small_step_settling_ratio"]),         # 2.5x over the 2x limit
+             ({**within, "rise_ratio": math.nan}, ["small_step_rise_ratio"]),             # not measurable: missed
+             (within, [])]
+    for metrics, missed in cases:
+        targets = evaluate_targets([metrics])
+        assert missed_targets(targets) == missed
+        summary = {"plant": "p", "controller_name": "c", "controller_form": "f", "seed": 0, "noise": True,
+                   "preflight": [], "notes": [], "scenarios": [], "predicted_limit_cycles": [], "targets": targets,
+                   "sensors": []}
+        monkeypatch.setattr(vrun, "run_verify", lambda *a, **k: summary)
+        for flag in ([], ["--fail-on-miss"]):
+            out = tmp_path / f"v{len(missed)}{len(flag)}.json"
+            code = main(["verify", str(PLANTS / "p888_51_sn637_creep.toml"), "--controller", CTRL,
+                         "--scenario", "small_step", "--json", str(out), *flag])
+            err = capsys.readouterr().err
+            assert code == (1 if (flag and missed) else 0), err
+            assert json.loads(out.read_text())["targets"] == targets             # written in every case
+            assert ("--fail-on-miss" in err and missed[0] in err) == bool(flag and missed), err

@@ -341,6 +341,9 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
                                             no_replay=data["updated_plant_error_reason"])
         if above:
             data["warnings"].append(above)
+    # every warning in ``warnings`` (a script reading that key saw none of the base fit's); base_fit.warnings stays
+    # (the same texts, where the base fit put them)
+    data["warnings"] += [w for w in data["base_fit"]["warnings"] if w not in data["warnings"]]
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)

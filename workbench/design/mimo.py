@@ -841,4 +841,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from ..arguments import run_script                   # one-line errors, Ctrl-C / SIGTERM without a traceback
+    raise SystemExit(run_script("python -m workbench.design.mimo", main))

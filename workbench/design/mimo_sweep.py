@@ -502,11 +502,11 @@ def limit_markdown(fsm, limit, notch_mirror_bw_hz=None, ratio=2.0):
 
 def main(argv=None):
     """``python -m workbench.design.mimo_sweep [PLANT] [--limit | --rates [--bridge] | --hinf]``; bad input exits 2."""
-    import argparse
     from ..errors import WorkbenchError
     from ..plant.mirror import load_mirror
-    ap = argparse.ArgumentParser(prog="python -m workbench.design.mimo_sweep",
-                                 description="The mirror's damping sweep (default), --limit table or --rates sweep.")
+    from ..arguments import OneLineErrorParser     # one-line usage errors, as the workbench command's
+    ap = OneLineErrorParser(prog="python -m workbench.design.mimo_sweep",
+                            description="The mirror's damping sweep (default), --limit table or --rates sweep.")
     ap.add_argument("plant", nargs="?", default="plants/fsm_p888_51.toml", help="mirror plant file (TOML)")
     mode = ap.add_mutually_exclusive_group()
     mode.add_argument("--limit", action="store_true", help="the mirror-angle zeros against their closed form")
@@ -550,4 +550,5 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    from ..arguments import run_script                   # Ctrl-C / SIGTERM: one line, no traceback
+    raise SystemExit(run_script("python -m workbench.design.mimo_sweep", main))

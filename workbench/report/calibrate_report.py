@@ -387,7 +387,9 @@ def calibration_markdown(record_path, plant_path, base, result, holds, figures, 
         for fig in figures:
             stem = Path(fig).stem
             lines += [f"### {FIGURE_TITLES.get(stem, stem)}", "", _figure_link(stem, fig, report_dir), ""]
-    notes = list(base.notes or [])
+    # the base fit's warnings are at the top among the run's warnings: not repeated in the notes
+    said = set(result.get("warnings") or ())
+    notes = [n for n in base.notes or [] if not (n.startswith("warning: ") and n[len("warning: "):] in said)]
     if "gauge" in base.channels and not base.channels["gauge"].valid.all():
         notes.append("gauge rows at the DAC rails are left out of the gauge's errors and drawn apart in the "
                      "figures (zero residual in the correlation tests, which need evenly spaced samples)")

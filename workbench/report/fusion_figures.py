@@ -69,9 +69,12 @@ def _report(data, figure):
              f"staircase, "
              f"stage-4 error {b['drift_record_pp_m'] * NM:.1f} nm p-p). Error RMS over that band: gauge "
              f"{b['gauge_error_rms_m'] * NM:.2f} nm, charge {b['charge_error_rms_m'] * NM:.2f} nm, fused "
-             f"{b['fused_error_rms_m'] * NM:.2f} nm.", "",
-             "| sensor | controller | crossover | PM | GM | triangle error RMS | hold drift | hold noise RMS |",
-             "|---|---|---|---|---|---|---|---|"]
+             f"{b['fused_error_rms_m'] * NM:.2f} nm.", ""]
+    # both controllers' preflight against the plant (verify's), as the console's WARNING lines
+    lines += [f"- **WARNING:** {w} (`--strict` refuses it)" for w in data.get("warnings") or ()]
+    lines += [""] if data.get("warnings") else []
+    lines += ["| sensor | controller | crossover | PM | GM | triangle error RMS | hold drift | hold noise RMS |",
+              "|---|---|---|---|---|---|---|---|"]
     for r in data["closed_loops"]:
         m = r["margins"]
         lines.append(f"| {TITLES[r['sensor']]} | `{r['controller'].rsplit('/', 1)[-1]}` | {m['crossover_hz']:.0f} Hz | "
@@ -103,8 +106,9 @@ def _report(data, figure):
 
 
 def write_fused_outputs(out, data):
-    """fused.png, fused_report.md, fused.json and the blend's fixed-point C header fused_blend.h in ``out``;
-    returns {"fused": figure path, "header": header path}."""
+    """fused.png, fused_report.md (and its self-contained fused_report.html), fused.json and the blend's
+    fixed-point C header fused_blend.h in ``out``; returns {"fused": figure path, "header": header path,
+    "report_html": HTML path}."""
     from pathlib import Path
 
     from ..selfsense.blend_fixed import FixedBlend, blend_header
@@ -117,5 +121,7 @@ def write_fused_outputs(out, data):
                                     "lsb_m": fixed.lsb_m, "header": str(out / "fused_blend.h")}
     fig = plot_fusion(data, out / "fused.png")
     write_text(out / "fused_report.md", _report(data, fig))
+    from .html import write_html_report
+    html = write_html_report(out / "fused_report.md")
     write_json(out / "fused.json", {k: v for k, v in data.items() if k != "_arrays"})
-    return {"fused": fig, "header": str(out / "fused_blend.h")}
+    return {"fused": fig, "header": str(out / "fused_blend.h"), "report_html": str(html)}

@@ -134,8 +134,11 @@ def _report(data, figures):
     lines = ["# Self-sensing study", "",
              f"Plant `{data['plant']}`; evaluation record {data['duration_s']:.0f} s staircase sampled at "
              f"{data['sample_hz']:.0f} Hz, stroke {data['stroke_m'] * UM:.2f} um; identification on a separate "
-             f"{data['identification_duration_s']:.0f} s record.", "",
-             "| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
+             f"{data['identification_duration_s']:.0f} s record.", ""]
+    # the controller's preflight against the plant (verify's), as the console's WARNING lines
+    lines += [f"- **WARNING:** {w} (`--strict` refuses it)" for w in data.get("warnings") or ()]
+    lines += [""] if data.get("warnings") else []
+    lines += ["| stage | error p-p, nm | % of stroke | error RMS, nm | figure |", "|---|---|---|---|---|"]
     for s in data["stages"]:
         lines.append(f"| {s['title']} | {nm(s['error_pp_m'])} | {s['error_pp_percent_stroke']:.2f} | "
                      f"{nm(s['error_rms_m'])} | ![{s['name']}]({figures.get(s['name'], '')}) |")
@@ -378,11 +381,14 @@ def _table1_held_out_report(h, hd, yes):
 
 
 def write_force_outputs(out, data):
-    """force.png, force_report.md and force.json into ``out``; {name: file}. ``data['_arrays']`` is not written."""
+    """force.png, force_report.md (and its self-contained force_report.html) and force.json into ``out``;
+    {name: file}. ``data['_arrays']`` is not written."""
+    from .html import write_html_report
     out.mkdir(parents=True, exist_ok=True)
     figures = {"force": plot_force(data, out / "force.png").name}
     write_text(out / "force_report.md", _force_report(data, figures["force"]))
     figures["report"] = "force_report.md"
+    figures["report_html"] = write_html_report(out / "force_report.md").name
     write_json(out / "force.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures
 
@@ -428,7 +434,7 @@ def plot_dynamics(data, path):
 
 
 def write_dynamics_outputs(out, data):
-    """dynamics.png, dynamics_report.md and dynamics.json into ``out``; {name: file}."""
+    """dynamics.png, dynamics_report.md (and dynamics_report.html) and dynamics.json into ``out``; {name: file}."""
     out.mkdir(parents=True, exist_ok=True)
     figures = {"dynamics": plot_dynamics(data, out / "dynamics.png").name}
     dyn, c = data["dynamics"], data["comparison"]
@@ -456,5 +462,7 @@ def write_dynamics_outputs(out, data):
               f"{c['ratio_rms_identified_over_model']:.2f}, **{'met' if data['target_met'] else 'MISSED'}**.", ""]
     write_text(out / "dynamics_report.md", "\n".join(lines) + "\n")
     figures["report"] = "dynamics_report.md"
+    from .html import write_html_report
+    figures["report_html"] = write_html_report(out / "dynamics_report.md").name
     write_json(out / "dynamics.json", {**{k: v for k, v in data.items() if k != "_arrays"}, "figures": figures})
     return figures

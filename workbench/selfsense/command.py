@@ -1,17 +1,17 @@
 """`workbench selfsense PLANT.toml --json OUT --out DIR`: the staged self-sensing study.
 
 Wiring into :mod:`workbench.cli`: ``from .selfsense.command import add_parser`` and call
-``add_parser(sub)`` next to the other sub-commands; ``main`` then runs ``args.func(args)``
-and turns a :class:`~workbench.errors.WorkbenchError` (or ValueError) into exit status 2.
+``add_parser(sub)`` next to the other sub-commands; :func:`workbench.cli.main` then runs
+``args.func(args)`` and turns a :class:`~workbench.errors.WorkbenchError` (or ValueError) into exit
+status 2. The module is not an entry point (``python -m`` it and it says to run ``workbench selfsense``).
 """
 
-import argparse
 from pathlib import Path
 
-from ..errors import DataFileError, WorkbenchError
+from ..errors import DataFileError
 from ..arguments import emit, quantity
 
-__all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused", "main"]
+__all__ = ["add_parser", "run", "run_force", "run_dynamics", "run_fused"]
 
 
 def add_parser(sub):
@@ -33,8 +33,9 @@ def add_parser(sub):
                    help="controller JSON for the loop analysis (default controllers/sn637_loopshape.json)")
     p.add_argument("--no-loop", action="store_true", help="skip the loop analysis")
     p.add_argument("--strict", action="store_true",
-                   help="a --controller exported for another plant (SHA-256, serial, trim, gauge gain, limits, "
-                        "current-limit window) is an error, not a warning (as verify --strict)")
+                   help="a --controller (with --fused also the --fused-controller) exported for another plant "
+                        "(SHA-256, serial, trim, gauge gain, limits, current-limit window) is an error, not a "
+                        "warning (as verify --strict); --force and --dynamics run no controller")
     p.add_argument("--seed", type=int, default=2, help="noise and staircase seed (default 2)")
     p.add_argument("--out", type=Path, help="folder for the stage figures, noise.png, loop.png, report.md")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
@@ -76,6 +77,7 @@ def run(args):
         raise DataFileError(f"--out {args.out}: exists and is not a folder; give a folder path")
     if sum(bool(getattr(args, k, False)) for k in ("force", "dynamics", "fused")) > 1:
         raise DataFileError("--force, --dynamics and --fused are separate studies; give one of them")
+    _refuse_unused_controller_flags(args)
     if getattr(args, "fused", False):
         return run_fused(args)
     if getattr(args, "force", False):
@@ -102,6 +104,27 @@ def run(args):
     if args.out is not None:
         lines.append(f"  report {Path(args.out) / 'report.md'}")
     _emit(args, data, lines)
+
+
+def _refuse_unused_controller_flags(args):
+    """--force and --dynamics run no controller: a --controller, --fused-controller or --strict given with them
+    (or --fused-controller without --fused) would be ignored without a word, so it is refused."""
+    from .defaults import DEFAULT_CONTROLLER
+    study = next((f"--{k}" for k in ("force", "dynamics") if getattr(args, k, False)), None)
+    given = []
+    if study is not None:
+        if args.controller is not None and Path(args.controller).resolve() != DEFAULT_CONTROLLER.resolve():
+            given.append(f"--controller {args.controller}")
+        if getattr(args, "strict", False):
+            given.append("--strict")
+        if getattr(args, "no_loop", False):
+            given.append("--no-loop")
+    if getattr(args, "fused_controller", None) is not None and not getattr(args, "fused", False):
+        given.append(f"--fused-controller {args.fused_controller}")
+    if given:
+        what = (f"the {study} study runs no controller" if study else "--fused-controller is the --fused study's")
+        raise DataFileError(f"{', '.join(given)}: not used here ({what}; the displacement stages and --fused "
+                            f"compare --controller with the plant); drop {'it' if len(given) == 1 else 'them'}")
 
 
 def run_force(args):
@@ -159,7 +182,7 @@ def run_force(args):
                  f"{100 * rep['loso']['max_error_fraction']:.1f} % loso ({met(h['target_met_loso'])}); x from the "
                  f"displacement column: {100 * hd['reported']['loso']['max_error_fraction']:.1f} % loso")
     if args.out is not None:
-        lines.append(f"  report {Path(args.out) / 'force_report.md'}, figure {Path(args.out) / 'force.png'}")
+        lines.append(f"  report {Path(args.out) / 'force_report.md'} (and .html), figure {Path(args.out) / 'force.png'}")
     _emit(args, data, lines)
 
 
@@ -185,7 +208,7 @@ def run_dynamics(args):
     lines.append(f"  target (identified <= {data['target_ratio']:.1f}x model, RMS): ratio "
                  f"{c['ratio_rms_identified_over_model']:.2f}, {'met' if data['target_met'] else 'MISSED'}")
     if args.out is not None:
-        lines.append(f"  report {Path(args.out) / 'dynamics_report.md'}, figure {Path(args.out) / 'dynamics.png'}")
+        lines.append(f"  report {Path(args.out) / 'dynamics_report.md'} (and .html), figure {Path(args.out) / 'dynamics.png'}")
     _emit(args, data, lines)
 
 
@@ -201,7 +224,7 @@ def run_fused(args):
             raise DataFileError(f"{pth}: no such controller JSON; give e.g. controllers/sn637_loopshape.json "
                                 f"(--controller) and controllers/sn637_fused_loopshape.json (--fused-controller)")
     data = run_fused_study(args.plant, gauge_controller=args.controller, fused_controller=args.fused_controller,
-                           seed=args.seed, hold_s=args.hold,
+                           seed=args.seed, hold_s=args.hold, strict=args.strict,
                            progress=lambda stage: print(f"  ... {stage}", file=sys.stderr, flush=True))
     if args.out is not None:
         from ..report.fusion_figures import write_fused_outputs
@@ -211,6 +234,7 @@ def run_fused(args):
     lines = [f"{args.plant}: fused feedback, blend crossover {b['crossover_hz']:.3g} Hz (error RMS gauge "
              f"{b['gauge_error_rms_m'] * 1e9:.2f} nm, charge {b['charge_error_rms_m'] * 1e9:.2f} nm, fused "
              f"{b['fused_error_rms_m'] * 1e9:.2f} nm)"]
+    lines += [f"  WARNING {w} (--strict refuses it)" for w in data.get("warnings") or ()]
     for r in data["closed_loops"]:
         m = r["margins"]
         lines.append(f"  {r['sensor']}: crossover {m['crossover_hz']:.0f} Hz, PM {m['phase_margin_deg']:.1f} deg, "
@@ -224,25 +248,16 @@ def run_fused(args):
         lines.append(f"  targets (fused): triangle <= 0.01 % {met(tm['triangle'])}, hold drift <= 1 nm "
                      f"{met(tm['hold_drift'])}, PM >= 45 / GM >= 6 dB {met(tm['margins'])}")
     if args.out is not None:
-        lines.append(f"  report {Path(args.out) / 'fused_report.md'}, figure {Path(args.out) / 'fused.png'}")
+        lines.append(f"  report {Path(args.out) / 'fused_report.md'} (and .html), figure {Path(args.out) / 'fused.png'}")
     _emit(args, data, lines)
 
 
-def main(argv=None):
-    """Stand-alone entry (`python -m workbench.selfsense.command ...`) with the CLI's error convention:
-    a user error prints one message on stderr and returns 2."""
-    import sys
-    parser = argparse.ArgumentParser(prog="workbench")
-    sub = parser.add_subparsers(dest="command", required=True)
-    add_parser(sub)
-    args = parser.parse_args(["selfsense", *(sys.argv[1:] if argv is None else argv)])
-    try:
-        args.func(args)
-    except (WorkbenchError, ValueError) as err:
-        print(f"workbench selfsense: error: {err}", file=sys.stderr)
-        return 2
-    return 0
-
-
 if __name__ == "__main__":
-    raise SystemExit(main())
+    # not an entry point (session 33): it had its own parser and error handling, without the command's preflight,
+    # one-line usage errors or Ctrl-C/kill handling; `workbench selfsense` (workbench.cli) parses and runs this
+    # module's studies, and the selfsense package does not import the CLI (library first)
+    import shlex
+    import sys
+    print(f"python -m workbench.selfsense.command: error: not an entry point; run "
+          f"`{shlex.join(['workbench', 'selfsense', *sys.argv[1:]])}`", file=sys.stderr)
+    raise SystemExit(2)

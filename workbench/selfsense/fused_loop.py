@@ -106,7 +106,7 @@ def fused_loop_response(freq_hz, l_gauge, l_self, blend):
 
 def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, amp=None, seed=2,
                     drift_duration_s=1000.0, triangle_hz=0.1, triangle_periods=2, hold_s=100.0, sensors=SENSORS,
-                    progress=None):
+                    progress=None, strict=False):
     """The fused-feedback study: spectra, the blend's crossover, the loops' margins, the three closed loops.
 
     Parameters
@@ -121,6 +121,11 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
         Length of the staircase record whose stage-4 error gives the charge's drift spectrum, s.
     triangle_hz, triangle_periods, hold_s : float, int, float
         Closed-loop scenario (:func:`closed_loop_run`).
+    strict : bool, default False
+        Both controllers are first compared with the plant (verify's preflight,
+        :func:`~workbench.verify.run.check_controller_for_plant`): one exported for another plant
+        warns (:class:`~workbench.errors.ControllerMismatchWarning`, and the JSON's ``warnings``), or
+        with ``strict`` raises :class:`~workbench.errors.ControllerMismatchError` before any work.
 
     Returns
     -------
@@ -146,6 +151,11 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
                                 f"controllers/sn637_loopshape.json and controllers/sn637_fused_loopshape.json")
     say = progress or (lambda stage: None)
     plant = load_plant(plant_path)
+    from ..verify.run import check_controller_for_plant
+    warnings = []
+    for flag, pth in (("--controller", gauge_controller), ("--fused-controller", fused_controller)):
+        bad = check_controller_for_plant(plant, Controller.load(pth, plant=plant), strict=strict)
+        warnings += [f"preflight ({flag} {pth.name}) {p['check']}: {p['message']}" for p in bad]
     amp = charge_amp_params(plant) if amp is None else amp
     dt = plant.gauge.period_s
     say("identification record")
@@ -185,7 +195,7 @@ def run_fused_study(plant_path, gauge_controller=None, fused_controller=None, am
     by = {r["sensor"]: r for r in rows}
     fused_row = by.get("fused")
     data = {
-        "plant": str(plant_path), "sample_hz": 1.0 / dt, "stroke_m": stroke,
+        "plant": str(plant_path), "sample_hz": 1.0 / dt, "stroke_m": stroke, "warnings": warnings,
         "noise_per_sample_m": {"gauge": noise["gauge_rms_m"], "charge": noise["self_rms_m"],
                                "fused_white_equivalent": fused_noise_rms_per_sample(spectra, fc)},
         "blend": {"crossover_hz": fc, "pole": blend.pole,

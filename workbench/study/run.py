@@ -107,6 +107,13 @@ def _fix_for(ls_spec, ls, target_hz, tune, max_steps=4):
     return {"passes": False, "changes": steps, "crossover_hz_min": cur.crossover_hz}
 
 
+def _anti_windup_record(ctrl):
+    """The export's ``anti_windup`` entry: the controller's, with the fastest output slew its current-limit window
+    allows, V/s (None without a window: a plant without series resistor, ``series_resistor_ohm = 0``, has none)."""
+    slew = ctrl.fixed.slew_limits_v_per_s
+    return {**ctrl.record["anti_windup"], "output_slew_limit_v_per_s": None if slew is None else list(slew)}
+
+
 def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cache_dir=_DEFAULT, workers=None):
     """Run the study file ``study_path``; write the report into ``out_dir``; return the summary.
 
@@ -157,6 +164,15 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
         spec = load_study(study_path, study_ovr)
         plant = load_plant(spec.plant, plant_ovr)
         serials = [load_plant(p, plant_ovr) for p in spec.serials]
+    # the schema's (0, 200] V is a typing bound: each serial's amplifier span (one home, as linearize and sweep)
+    from ..linearize.run import check_amplitudes
+    key = "family.amplitudes_v"
+    span_set = [f"--set {k}={v:g}" for k, v in plant_ovr.items() if k in ("electrical.voltage_min_v",
+                                                                        "electrical.voltage_max_v")]
+    for path_, pl in zip((spec.plant, *spec.serials), (plant, *serials)):
+        check_amplitudes(pl.pzt, spec.family["amplitudes_v"],
+                         where=str(path_) + (f" with {' and '.join(span_set)}" if span_set else ""),
+                         name=f"--set {key}" if key in study_ovr else f"{spec.path}: [{key}]")
     out = Path(out_dir)
     say = (lambda stage, d, t: progress(stage, d, t)) if progress else (lambda *a: None)
     t0 = time.perf_counter()
@@ -321,7 +337,7 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
                                              "trim": {"scale": g.trim_scale, "bias_v": g.trim_bias_v}},
               "margins": {"discrete": _worst_summary(ls.worst), "quantized": _worst_summary(q_worst),
                           "continuous_no_sampling": _worst_summary(cont_worst)},
-              "anti_windup": {**ctrl.record["anti_windup"], "output_slew_limit_v_per_s": list(fxp.slew_limits_v_per_s)},
+              "anti_windup": _anti_windup_record(ctrl),
               "noise": {"reading_rms_v": noise_v,
                         "command_change_rms_v": summary["designs"]["loop_shape"]["noise_command_rms_v"]},
               "provenance": {**_provenance(spec, plant), "serial": plant.serial}}

@@ -457,6 +457,20 @@ def verification_mirror(fsm, c_h_scales=(1.0, 0.85, 1.15), creep_plant=None):
     return out
 
 
+def _settling_why(tail, band, noise_rms, step):
+    """Why a step has no 2 % settling time (the response is outside the band at the run's last sample), from the
+    last quarter of the run (``tail``: response minus reference, rad) against the band's half-width ``band``, rad."""
+    urad = 1e6
+    mean = float(np.mean(tail))
+    if abs(mean) > band:
+        return (f"not settled: the last quarter's mean is {mean * urad:+.3g} urad from the reference, beyond the "
+                f"2 % band (+/-{band * urad:.3g} urad)")
+    outside = float(np.mean(np.abs(tail) > band))
+    return (f"the last quarter's mean is inside the 2 % band (+/-{band * urad:.3g} urad of this {step * urad:.3g} urad "
+            f"step) but {100 * outside:.2g} % of its samples are outside it: the gauge noise ({noise_rms * urad:.3g} "
+            f"urad RMS before the step) keeps the reading out, not the loop (--no-noise measures the settling)")
+
+
 def _metrics(name, run, info, span):
     t, dt = run.t_s, run.t_s[1] - run.t_s[0]
     urad = 1e6
@@ -472,10 +486,14 @@ def _metrics(name, run, info, span):
         y1 = y0 + info["size"]
         base = float(np.mean(axes[a][k0 // 2:k0]))
         ov, ts = step_metrics(t[k0:] - t[k0 - 1], y - base + y0, y0, y1)
-        m.update({"step_urad": info["size"] * urad, "noise_rms_urad": float(np.std(axes[a][k0 // 2:k0]) * urad),
+        noise_rms = float(np.std(axes[a][k0 // 2:k0]))
+        m.update({"step_urad": info["size"] * urad, "noise_rms_urad": noise_rms * urad,
                   "overshoot_percent": ov, "settling_s": ts,
                   "rise_s": rise_time(t[k0:] - t[k0 - 1], y - base + y0, y0, y1),
                   "final_error_urad": float((np.mean(y[-len(y) // 4:]) - base + y0 - y1) * urad)})
+        if not np.isfinite(ts):
+            m["settling_s_why"] = _settling_why(y[-len(y) // 4:] - base + y0 - y1, 0.02 * abs(info["size"]),
+                                                noise_rms, info["size"])
         other = 1 - a if a < 2 else 0
         cross = axes[other][k0:] - np.mean(axes[other][k0 // 2:k0])
         m["coupling_peak_urad"] = float(np.abs(cross).max() * urad)
@@ -705,6 +723,8 @@ def run_mirror_verify(plant_path, controller_path, out_dir=None, c_h_scales=(1.0
 def _fmt(v, f=".3g"):
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "n/a"
+    if isinstance(v, str):
+        return v
     if isinstance(v, (list, tuple)):
         if v and isinstance(v[0], (list, tuple)):
             return " / ".join("..".join(_fmt(x, f) for x in row) for row in v)      # per stack: lo..hi
@@ -728,7 +748,8 @@ def mirror_verify_markdown(data, figs, report_path):
     lines += ["", "## Scenarios", ""]
     for m in data["metrics"]:
         lines += [f"### {m['scenario']}", ""]
-        rows = [[k, _fmt(v)] for k, v in m.items() if k != "scenario"]
+        rows = [[k, _fmt(v) + (f" ({m[k + '_why']})" if _fmt(v) == "n/a" and k + "_why" in m else "")]
+                for k, v in m.items() if k != "scenario" and not k.endswith("_why")]
         lines += md_table(["metric", "value"], rows)
         if m["scenario"] in figs:
             lines += ["", md_image(m["scenario"], figs[m["scenario"]], report_path)]

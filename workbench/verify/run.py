@@ -24,7 +24,7 @@ from ..errors import StudyDefinitionError, WorkbenchError
 from ..plant import Plant, load_plant
 from .scenarios import SCENARIOS, run_scenario
 
-__all__ = ["TARGETS", "VerifyResult", "verify", "check_controller_for_plant", "load_controller_json", "load_verify_targets", "load_verify_sensor",
+__all__ = ["TARGETS", "VerifyResult", "verify", "missed_targets", "check_controller_for_plant", "load_controller_json", "load_verify_targets", "load_verify_sensor",
            "parse_target",
            "predicted_limit_cycles", "evaluate_targets", "run_verify"]
 
@@ -201,6 +201,22 @@ def evaluate_targets(results, limits=None):
     return out
 
 
+def missed_targets(targets):
+    """Names of the scored targets not met, in order: a value over its limit or one that could not be measured.
+
+    Parameters
+    ----------
+    targets : dict
+        ``{name: {..., "met": bool}}``: :func:`evaluate_targets`, a verify JSON's ``targets``, or the
+        mirror verification's (``workbench verify --fail-on-miss`` exits 1 when this is not empty).
+
+    Returns
+    -------
+    list of str
+    """
+    return [k for k, t in targets.items() if not t["met"]]
+
+
 @dataclass
 class VerifyResult:
     """What :func:`verify` returns.
@@ -248,8 +264,8 @@ class VerifyResult:
 
     @property
     def missed(self):
-        """Names of the targets missed (or not measurable)."""
-        return [k for k, t in self.targets.items() if not t["met"]]
+        """Names of the targets missed (or not measurable): :func:`missed_targets`."""
+        return missed_targets(self.targets)
 
     def metrics(self, scenario):
         """The metrics dict of ``scenario`` (the anti-windup run)."""
@@ -391,7 +407,7 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
                         notes=notes, sensors=rows, sensor_traces=sensor_traces)
 
 
-def check_controller_for_plant(plant, controller, *, strict=False, preflight=None, stacklevel=3):
+def check_controller_for_plant(plant, controller, *, strict=False, preflight=None):
     """Warn (or with ``strict`` refuse) when ``controller`` was exported for another plant than ``plant``.
 
     The one home of verify's and selfsense's preflight answer: the mismatches of
@@ -405,8 +421,6 @@ def check_controller_for_plant(plant, controller, *, strict=False, preflight=Non
         Raise instead of warning.
     preflight : list of dict, optional
         ``controller.compare_plant(plant)`` when the caller has it (with its own additions).
-    stacklevel : int, default 3
-        Of the warning (3: the caller of the function that calls this one).
 
     Returns
     -------
@@ -421,10 +435,10 @@ def check_controller_for_plant(plant, controller, *, strict=False, preflight=Non
     Warns
     -----
     ControllerMismatchWarning
-        Without ``strict``, on any mismatch (the CLI prints them as WARNING lines).
+        Without ``strict``, on any mismatch (the CLI prints them as WARNING lines); its filename and
+        line are the first caller outside the workbench package (:func:`~workbench.errors.warn_at_caller`).
     """
-    import warnings
-    from ..errors import ControllerMismatchWarning
+    from ..errors import ControllerMismatchWarning, warn_at_caller
     pre = controller.compare_plant(plant) if preflight is None else preflight
     bad = [p for p in pre if p["check"] != "not recorded"]
     if not bad:
@@ -433,9 +447,9 @@ def check_controller_for_plant(plant, controller, *, strict=False, preflight=Non
     if strict:
         raise ControllerMismatchError(f"{controller.source or controller.name} was not exported for {plant.source} "
                                       f"(--strict): {text}")
-    warnings.warn(ControllerMismatchWarning(f"{controller.source or controller.name} was not exported for "
-                                            f"{plant.source} ({len(bad)} preflight mismatches; strict=True refuses "
-                                            f"it): {text}"), stacklevel=stacklevel)
+    warn_at_caller(ControllerMismatchWarning(f"{controller.source or controller.name} was not exported for "
+                                             f"{plant.source} ({len(bad)} preflight mismatches; strict=True refuses "
+                                             f"it): {text}"))
     return bad
 
 
