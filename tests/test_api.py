@@ -33,6 +33,28 @@ def test_the_api_does_not_import_the_cli():
     assert out.stdout.strip() == "False"
 
 
+def test_no_library_module_imports_the_cli():
+    """Library first: no module of the package but the command line itself (``cli.py``, ``__main__.py``) imports
+    ``workbench.cli``, at module level or inside a function (``from .cli``, ``from ..cli``, ``from . import cli``,
+    ``import workbench.cli``): the research entries and the preflight take what they share from
+    ``workbench.arguments``."""
+    import ast
+    offenders = []
+    for path in sorted((ROOT / "workbench").rglob("*.py")):
+        if path.relative_to(ROOT / "workbench").as_posix() in ("cli.py", "__main__.py"):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""] + ([a.name for a in node.names] if not node.module else [])
+            elif isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            else:
+                continue
+            if any(n == "cli" or n.endswith(".cli") for n in names):
+                offenders.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not offenders, offenders
+
+
 def test_pi_example_runs_under_20_lines():
     # examples/pi_from_python_control.py: a PI from python-control to firmware form and verified
     script = ROOT / "examples" / "pi_from_python_control.py"

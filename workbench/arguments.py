@@ -15,7 +15,11 @@ from .errors import WorkbenchError
 from .units import parse_quantity
 
 __all__ = ["quantity", "emit", "path", "refuse_empty_paths", "OneLineErrorParser", "Terminated", "sigterm_raises",
-           "interrupted_status", "run_script"]
+           "interrupted_status", "run_script", "DEFAULT_SCENARIOS"]
+
+#: ``verify --scenario``'s default, compared by identity (``is``) to tell "not given" from ``--scenario all``:
+#: the CLI's parser and the preflight read this one object
+DEFAULT_SCENARIOS = ["all"]
 
 
 def quantity(expected):

@@ -11,7 +11,7 @@ from pathlib import Path
 from .errors import WorkbenchError
 # the parser class, SIGTERM handling and interrupt line live in .arguments, which the research entries share (library
 # modules never import this one); Terminated stays importable from here
-from .arguments import OneLineErrorParser as _Parser, Terminated, emit, interrupted_status, quantity, \
+from .arguments import DEFAULT_SCENARIOS, OneLineErrorParser as _Parser, Terminated, emit, interrupted_status, quantity, \
     refuse_empty_paths, sigterm_raises as _sigterm_raises  # noqa: F401
 
 __all__ = ["main"]
@@ -318,7 +318,7 @@ def _cmd_mirror_verify(args):
     return _miss_status(args, data["targets"])
 
 
-_DEFAULT_SCENARIOS = ["all"]
+_DEFAULT_SCENARIOS = DEFAULT_SCENARIOS       # workbench.arguments: the preflight reads the same object
 
 
 def cmd_verify(args):

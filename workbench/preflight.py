@@ -519,8 +519,8 @@ def _controller_rate_hz(path, default):
 
 
 def _default_scenarios():
-    from .cli import _DEFAULT_SCENARIOS
-    return _DEFAULT_SCENARIOS
+    from .arguments import DEFAULT_SCENARIOS
+    return DEFAULT_SCENARIOS
 
 
 def _verify_sensor_loops(args):
