@@ -137,3 +137,51 @@ def test_calibrate_prints_an_inconclusive_answer_without_an_agreement(tmp_path, 
     out = capsys.readouterr().out
     assert "effect inconclusive on the displacement channel (fold winners: creep 3, none 2)" in out
     assert "5 of 5" not in out
+
+
+def test_whole_process_calibrate_pauses_the_gc_for_its_imports_only(tmp_path, root, monkeypatch):
+    """The console command (argv from sys.argv) runs its imports and file checks with the cyclic collector off
+    and turns it back on after freezing the imported objects, before any computation (cli._pause_gc_for_imports);
+    an in-process main([...]) never touches it."""
+    import contextlib
+    import gc
+    import workbench._malloc
+    import workbench.calibrate.run as run
+    import workbench.preflight
+    monkeypatch.setattr(workbench._malloc, "keep_freed_memory", lambda: True)    # process-wide: not the test's
+    monkeypatch.setattr(workbench._malloc, "small_pages", lambda: True)
+    seen = {}
+    real_preflight = workbench.preflight.preflight
+
+    @contextlib.contextmanager
+    def spy(args):
+        seen["checks"] = gc.isenabled()
+        with real_preflight(args):
+            yield
+
+    monkeypatch.setattr(workbench.preflight, "preflight", spy)
+    err = {"rms": 1e-8, "max": 3e-8, "units": "m"}
+    data = {"effect": "none", "channel": "displacement", "agreement": "5 of 5", "error_before": err,
+            "error_after": err, "stages": [], "reason": "r", "candidates": [], "base_fit": {"warnings": []},
+            "elapsed_s": 1.0}
+
+    def fake_run(*a, **k):
+        seen["run"] = gc.isenabled()
+        return data
+
+    monkeypatch.setattr(run, "run_calibrate", fake_run)
+    rec = tmp_path / "r.csv"
+    rec.write_text("time[s],voltage[V],displacement[m]\n" + "".join(f"{k * 1e-3},{k % 50},{k % 50}e-7\n"
+                                                                     for k in range(200)))
+    argv = ["calibrate", str(rec), "--plant", str(root / "plants/p888_51_sn637.toml")]
+    assert gc.isenabled()
+    try:
+        assert main(argv) == 0                                   # in-process: left alone
+        assert seen == {"checks": True, "run": True}
+        seen.clear()
+        monkeypatch.setattr(sys, "argv", ["workbench"] + argv)
+        assert main() == 0                                       # the console command
+        assert seen == {"checks": False, "run": True} and gc.isenabled()
+    finally:
+        gc.enable()
+        gc.unfreeze()

@@ -83,6 +83,41 @@ def test_quadratic_grid_and_explicit_thresholds():
         pi_thresholds(v, 4, grid="log")
 
 
+def _reversals_reference(v, band=0.01):
+    """The reversals walk in plain Python, as ``turning_points`` defines it (its compiled loop must agree)."""
+    v = np.asarray(v, float)
+    tol = band * float(np.ptp(v))
+    out, direction, k_ext = [], 0, 0
+    for k in range(1, v.size):
+        if direction == 0:
+            if abs(v[k] - v[0]) > tol:
+                direction, k_ext = (1 if v[k] > v[0] else -1), k
+            continue
+        if (v[k] - v[k_ext]) * direction > 0:
+            k_ext = k
+        elif (v[k_ext] - v[k]) * direction > tol:
+            out.append(k_ext)
+            direction, k_ext = -direction, k
+    return out
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_compiled_reversals_match_the_plain_walk(seed):
+    # drives of every kind a record brings: random walks (rough, many near-band wiggles), a noisy triangle,
+    # steps with flat holds, a bipolar decaying sine, a constant; lengths from 2 samples up
+    r = np.random.default_rng(seed)
+    n = int(r.integers(2000, 8000))
+    tri = np.abs(((np.arange(n) / r.integers(200, 900)) % 2.0) - 1.0) * r.uniform(1, 150)
+    steps = np.repeat(r.uniform(-50, 100, 12), n // 12 + 1)[:n]
+    for v in (np.cumsum(r.normal(size=n)), tri + r.normal(0, r.uniform(0, 2), n), steps,
+              steps + r.normal(0, 0.3, n), _decaying_sine(n=n, cycles=int(r.integers(2, 30))), np.full(n, 3.0),
+              r.normal(size=2), np.cumsum(r.normal(size=n)) * 1e-9):
+        for band in (0.0, 0.01, 0.2):
+            tp = turning_points(v, band)
+            assert tp.dtype == np.asarray([0]).dtype
+            assert tp.tolist() == _reversals_reference(v, band)
+
+
 def test_cycles_are_counted_by_reversals():
     t = np.linspace(0, 3, 3001)                # three periods of a sine from 0
     v = np.sin(2 * np.pi * t) + 1e-4 * np.cos(400 * t)   # wiggles below the band

@@ -36,8 +36,10 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 from scipy.optimize import lsq_linear
 
+from .._kernel_args import readonly
 from ..plant.hysteresis import PrandtlIshlinskii, play
 from .stacking import column_stack
 
@@ -206,20 +208,33 @@ def turning_points(v, band=0.01):
     more than ``band`` times the input's peak-to-peak range, so noise or a flat stretch
     (the stack at rest) makes no reversals; a step counts as motion.
     """
-    v = np.asarray(v, dtype=float)
+    v = np.asarray(v, dtype=float).reshape(-1)
     tol = band * float(np.ptp(v))
-    out, direction, k_ext = [], 0, 0
+    out = np.empty(max(v.size, 1), dtype=np.int64)
+    n = _turning_points(readonly(v), tol, out)
+    return out[:n].astype(int)
+
+
+@njit(cache=True)
+def _turning_points(v, tol, out):
+    """:func:`turning_points`' walk over ``v`` (compiled: ~0.3 s of Python for 355,000 rows), the
+    reversals written into ``out``; returns their count. The same comparisons in the same order
+    (a difference times +-1 is exact), so the same indices."""
+    n, direction, k_ext = 0, 0, 0
     for k in range(1, v.size):
         if direction == 0:
             if abs(v[k] - v[0]) > tol:
-                direction, k_ext = (1 if v[k] > v[0] else -1), k
+                direction = 1 if v[k] > v[0] else -1
+                k_ext = k
             continue
         if (v[k] - v[k_ext]) * direction > 0:
             k_ext = k
         elif (v[k_ext] - v[k]) * direction > tol:
-            out.append(k_ext)
-            direction, k_ext = -direction, k
-    return np.array(out, dtype=int)
+            out[n] = k_ext
+            n += 1
+            direction = -direction
+            k_ext = k
+    return n
 
 
 def split_by_cycles(v, n_train_cycles, band=0.01):
