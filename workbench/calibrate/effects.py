@@ -1279,6 +1279,101 @@ PEAK_FLOOR_HZ = 20.0
 PEAK_SEGMENT = 4096
 
 
+#: the held drive's path (:class:`HeldDrive`) takes each sample's step as settled within the sample: the
+#: series resistor's RC tail left at the sample's end, ``exp(-dt / RC)``, at most this share of the step (a
+#: record sampled at least ``ln(100) = 4.6`` RC apart; the P-888.51's 80 ohm and ~6 uF: 100 Hz, not 1 kHz)
+HELD_SETTLED = 0.01
+
+
+class HeldDrive:
+    """The stack's drive between samples under an amplifier command held from sample to sample.
+
+    A command updated at the samples and held between them (a DAC at the record's rate) is a staircase; the
+    amplifier moves the stack's charge at most at its current limit (``limits``: source, sink, A) and settles
+    through the series resistor with the time constant ``rc = R C`` (s). Where a step settles within a sample
+    (:data:`HELD_SETTLED`) each interval's path is fixed by its charge step ``dq`` (C; the record's integrated
+    current, its mean over the interval times ``dt``): the charge ramps at the limit from the interval's start
+    while what is left of the step exceeds ``limit * rc``, then approaches the step's end exponentially; an
+    interval that moves ``limit * (dt - rc)`` or more ramps at the limit throughout (a slew that runs on). The
+    motion follows the charge (its model interpolated in proportion to the charge moved): a mode of the stack
+    is driven through that path (:func:`held_mode_column`), not through a first-order hold's straight line
+    between samples (:func:`_foh_mode`). At 100 Hz a 38.4 Hz mode under the 0.15 Hz sine (93 #115, n_sub 64
+    simulation): the first-order hold leaves 7.96e-9 m of its 1.15e-8 m effect (gain -23), this path 2.2e-10 m
+    (gain 0.96). Above the record's Nyquist frequency the path tells a mode from its alias: the same poles,
+    different responses to the path's ramps and settles.
+
+    Parameters
+    ----------
+    dq : ndarray
+        The charge moved in each sample's interval (C), ``dq[0]`` 0 (the record's start).
+    dt : float
+        Sample period (s).
+    rc : float
+        The settle's time constant (s): the series resistor times the stack's capacitance.
+    limits : (float, float)
+        The amplifier's current limits, source and sink, both positive (A).
+    """
+
+    def __init__(self, dq, dt, rc, limits):
+        dq = np.asarray(dq, float)
+        self.dt, self.rc = float(dt), float(rc)
+        lim = np.where(dq >= 0.0, float(limits[0]), float(limits[1]))
+        x = np.abs(dq) / lim                       # the time at the limit that would move the step (s)
+        runs_on = x >= self.dt - self.rc
+        self.t_ramp = np.where(runs_on, np.minimum(x, self.dt), np.maximum(x - self.rc, 0.0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.where(np.abs(dq) > 0.0, lim / np.abs(dq), 0.0)     # the ramp's slope, fraction per second
+        self.slope = inv
+        self.q_ramp = np.where(runs_on, 1.0, np.minimum(inv * self.t_ramp, 1.0))
+        self.tail = ~runs_on
+        self._key = _data_key(dq, np.array([dt, rc, float(limits[0]), float(limits[1])]))
+
+    def kernel(self, lam):
+        """``K_k = int_0^dt exp(lam (dt - s)) rho_k(s) ds`` per interval (complex), ``rho_k`` the interval's path
+        from 0 to 1 (:class:`HeldDrive`), for a pole ``lam`` (1/s)."""
+        dt, T = self.dt, self.t_ramp
+        e_dt = np.exp(lam * dt)
+        lt = lam * T
+        # J(T) = int_0^T s exp(-lam s) ds, by its series where lam T is small (the closed form cancels)
+        small = np.abs(lt) < 1e-2
+        lt_s = np.where(small, 1.0, lt)
+        J = np.where(small, T * T * (0.5 - lt / 3.0 + lt * lt / 8.0),
+                     (1.0 - np.exp(-lt_s) * (1.0 + lt_s)) / (np.where(small, 1.0, lam) ** 2))
+        K = self.slope * e_dt * J
+        # the ramp that runs on to the interval's end holds its level there (q_ramp 1: nothing left)
+        rest = dt - T
+        e_rest = np.exp(lam * rest)
+        K = K + self.q_ramp * (e_rest - 1.0) / lam
+        a = lam + 1.0 / self.rc
+        K = K + np.where(self.tail, (1.0 - self.q_ramp) * ((e_rest - 1.0) / lam - e_rest * (1.0 - np.exp(-a * rest)) / a),
+                         0.0)
+        return K
+
+
+def held_mode_column(u, held, f_hz, zeta):
+    """``(H - 1) u`` at the samples of a mode ``H`` (unit DC gain, ``f_hz``, ``zeta`` < 1) driven by ``u``
+    along the held drive's path between samples (:class:`HeldDrive`), started at rest at ``u[0]``.
+
+    Exact for that path: per pole ``lam`` the mode's state moves over an interval by ``exp(lam dt)`` and
+    takes the interval's input ``u_{k-1} + (u_k - u_{k-1}) rho_k``, whose integral against ``exp(lam (dt -
+    s))`` is :meth:`HeldDrive.kernel`'s; the two poles are conjugate, so the response is twice the real part
+    of one's."""
+    u = np.asarray(u, float)
+    dt = held.dt
+    w = 2.0 * np.pi * float(f_hz)
+    z = float(zeta)
+    beta = w * np.sqrt(max(1.0 - z * z, 1e-12))
+    lam = complex(-z * w, beta)
+    r = w * w / (2j * beta)                      # the residue of w^2 / ((s - lam)(s - conj(lam))) at lam
+    e_dt = np.exp(lam * dt)
+    v = u - u[0]
+    dv = np.diff(v, prepend=0.0)
+    v_prev = np.r_[0.0, v[:-1]]
+    F = r * (v_prev * ((e_dt - 1.0) / lam) + dv * held.kernel(lam))
+    state = signal.lfilter([1.0], [1.0, -e_dt], F)
+    return 2.0 * state.real - v
+
+
 class Resonance(Effect):
     """A lightly damped mode with unit DC gain the base model lacks: ``g (H(s) - 1) u``.
 
@@ -1301,7 +1396,7 @@ class Resonance(Effect):
     nonlinear = True
 
     def __init__(self, f_min_hz=None, f_max_fraction=0.5, zeta_min=0.002, zeta_max=0.3,
-                 n_freq=30, basis=None):
+                 n_freq=30, basis=None, held=None):
         # the search's ceiling, f_max_fraction / dt: the Nyquist frequency, the highest at which a sampled
         # record shows a mode's ringing (a faster mode rings at its alias fs - f, below it). It was 0.4 of the
         # rate, a constant of the first library: a 410 Hz mode beside a drift at 1 kHz (seed 73 #33) was
@@ -1311,6 +1406,9 @@ class Resonance(Effect):
         self.zeta_min, self.zeta_max = float(zeta_min), float(zeta_max)
         self.n_freq = int(n_freq)
         self.basis = None if basis is None else np.asarray(basis, float)
+        # the drive's path between samples of a held command (:class:`HeldDrive`): with it, :meth:`fit` has a
+        # fourth variant (``held=True``), the mode driven through that path, searched above Nyquist too
+        self.held = held
         self._models = {}
         self._refit_memo = {}
         self._fold_memo = {}
@@ -1320,12 +1418,17 @@ class Resonance(Effect):
         """Has :meth:`fit` the refitted variant (``refit=True``)?"""
         return self.basis is not None
 
+    @property
+    def holds(self):
+        """Has :meth:`fit` the held drive's variant (``held=True``, :class:`HeldDrive`)?"""
+        return self.held is not None
+
     def __deepcopy__(self, memo):
         # the drive's columns and the refitted search's memo are shared (read-only; the stages copy
         # an effect per search variant), the rest copied as before
         new = copy.copy(self)
         for k, v in self.__dict__.items():
-            if k not in ("basis", "_refit_memo", "_fold_memo"):
+            if k not in ("basis", "held", "_refit_memo", "_fold_memo"):
                 new.__dict__[k] = copy.deepcopy(v, memo)
         return new
 
@@ -1560,9 +1663,11 @@ class Resonance(Effect):
         take(f_b, np.argsort(prominence)[::-1], n0 + 4)
         return peaks[:n0], peaks[n0:]
 
-    def fit(self, t, u, residual, train_mask, y_model=None, project=None, refit=False):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None, refit=False, held=False):
         dt = _dt(t)
         u = np.asarray(u, float)
+        if held:
+            return self._fit_held(t, u, residual, train_mask, project)
         if refit:
             # the mode on the drive model refitted per trial (see the class notes): searched once per data
             ym = np.asarray(y_model, float) if y_model is not None else None
@@ -1628,6 +1733,47 @@ class Resonance(Effect):
         f = float(np.exp(theta[0]))
         return {"gain": float(beta[0]), "f_n_hz": f, "zeta": float(zeta(f, float(np.exp(theta[1]))))}
 
+    def _held_ceiling(self, t):
+        """The held variant's highest trial frequency (Hz): ``1 / (pi RC)``, where the settle's edge excites a
+        mode at ``1 / sqrt(1 + (w RC)^2)``, under half a sharp step's ring; at least the Nyquist frequency."""
+        return max(self.f_max_fraction / _dt(t), 1.0 / (np.pi * self.held.rc))
+
+    def _fit_held(self, t, u, residual, train_mask, project):
+        """The mode driven through the held drive's path (:class:`HeldDrive`, :func:`held_mode_column`).
+
+        Its trials run from the search's floor (:meth:`_range`) past the Nyquist frequency to
+        :meth:`_held_ceiling`, their damping at most RING_ZETA_MAX (a mode this variant reads rings: a heavier
+        one is the phase a delay reads, :func:`~.tracing._phase_only_mode`): a coarse log grid, and a fine one
+        about every image ``k fs +- f_p`` of the residual spectrum's two strongest peaks ``f_p`` (a mode above
+        Nyquist rings at its alias in the samples), then :func:`_varpro`'s refinement."""
+        if self.held is None or self.held.t_ramp.size != np.asarray(u).size:
+            raise ValueError("the held drive's mode needs the record's held drive")
+        dt = _dt(t)
+        fs = 1.0 / dt
+        lf_lo = self._range(t)[0]
+        lf_hi = np.log(self._held_ceiling(t))
+        z_hi = max(min(self.zeta_max, RING_ZETA_MAX), self.zeta_min)
+        lz_lo, lz_hi = np.log(self.zeta_min), np.log(z_hi)
+        rows = np.flatnonzero(np.asarray(train_mask, bool))
+        step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
+        peaks, _ = self._spectral_peaks(np.asarray(residual, float)[rows], fs / step, lf_lo,
+                                        min(self._range(t)[1], lf_hi))
+        grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq) for lz in np.linspace(lz_lo, lz_hi, 6)]
+        f_hi = float(np.exp(lf_hi))
+        for f_p in peaks[:2]:
+            offs = f_p * np.exp(np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 11))
+            for k in range(int(f_hi // fs) + 2):
+                for f in np.r_[k * fs - offs, k * fs + offs]:
+                    if np.exp(lf_lo) <= f <= f_hi:
+                        grid += [[np.log(f), lz] for lz in np.linspace(lz_lo, lz_hi, 5)]
+
+        def col(th):
+            return held_mode_column(u, self.held, np.exp(th[0]), np.exp(th[1]))
+        theta, beta = _varpro(col, np.asarray(residual, float), np.asarray(train_mask, bool), grid,
+                              [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3)
+        return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])), "zeta": float(np.exp(theta[1])),
+                "held": True}
+
     def _refit_column(self, params, y_model):
         """The refitted model's column :meth:`fit` found for ``y_model`` (None for another model)."""
         if not params.get("refit") or y_model is None or not self._models:
@@ -1635,6 +1781,8 @@ class Resonance(Effect):
         return self._models.get((params["f_n_hz"], params["zeta"], _data_key(np.asarray(y_model, float))))
 
     def term(self, t, u, params, y_model=None):
+        if params.get("held") and self.held is not None:
+            return params["gain"] * held_mode_column(u, self.held, params["f_n_hz"], params["zeta"])
         col = self._refit_column(params, y_model)
         if col is not None:
             return params["gain"] * col
@@ -1645,6 +1793,8 @@ class Resonance(Effect):
         # the refitted model's column where fitted to this y_model (its gain ~1, >= 0: the mode's
         # sign is in the column); a model it was not fitted to (a channel the found mode is carried
         # to) takes the mode on its own prediction
+        if params.get("held") and self.held is not None:
+            return held_mode_column(u, self.held, params["f_n_hz"], params["zeta"]), [-np.inf]
         col = self._refit_column(params, y_model)
         if col is not None:
             return col, [0.0]

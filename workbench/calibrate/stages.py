@@ -215,6 +215,8 @@ def _research(c, probs, extra, t, base):
     modes = [{"project": m} for m in ((project, None) if getattr(eff, "nonlinear", False) else (project,))]
     if getattr(eff, "refits", False):
         modes.append({"project": None, "refit": True})     # a mode on the refitted drive model (Resonance)
+    if getattr(eff, "holds", False):
+        modes.append({"project": project, "held": True})   # a mode driven through the held drive's path
     dev = prob.split.dev_blocks
     # the two searches' copies share the effect's memo of the plain search's grid costs (a
     # resonance's, :func:`~.effects._varpro`'s ``plain_costs``, keyed by the data): the search

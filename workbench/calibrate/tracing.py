@@ -87,8 +87,8 @@ from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_sho
 from .base_fit import BaseFit, plays_basis
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
-from .effects import (RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
-                      GaugeNonlinearity, Leakage,
+from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
+                      GaugeNonlinearity, HeldDrive, Leakage,
                       Resonance)
 from .pi_fit import rms, turning_points
 
@@ -149,7 +149,7 @@ def periodic_drive_period(t, v, tp=None):
     return P / dt if np.all(np.abs(cycles - P) <= PERIODIC_RTOL * P) else None
 
 
-def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None):
+def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None, held=None):
     """(channel, effect, driver) triples for the recorded ``channels`` (see the module notes).
 
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
@@ -161,7 +161,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
     ten per record). With ``basis`` (the base's columns of the drive, or a dict of them per
     channel) the delay's model is refitted at each trial delay
     (:class:`~workbench.calibrate.effects.Delay`). With ``loops`` (channel -> :class:`.creep_across.CreepLoop`,
-    :func:`creep_loops`) a channel's creep branches are driven by the voltage across C_h.
+    :func:`creep_loops`) a channel's creep branches are driven by the voltage across C_h. With ``held``
+    (:func:`held_drive`) a mode is also searched driven through the held command's path between samples.
     """
     def _basis(ch):      # a channel's own columns (an averaged gauge's are its plays' interval mean)
         return basis.get(ch) if isinstance(basis, dict) else basis
@@ -197,7 +198,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
     has_x = "displacement" in channels
     if "displacement" in channels:
         plan += [("displacement", CreepSpectrum("displacement"), "model"),
-                 ("displacement", Resonance(basis=_basis("displacement")), "model"),
+                 ("displacement", Resonance(basis=_basis("displacement"), held=held), "model"),
                  ("displacement", Delay(max_delay=max_delay, basis=_basis("displacement"), max_lead=max_lead, period=rep),
                   "model"),
                  ("displacement", Drift(), "time"),
@@ -213,7 +214,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
         if not has_x:
             plan.append(("charge", CreepSpectrum("charge"), "model"))
     if "gauge" in channels:
-        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(basis=_basis("gauge")), "model"),
+        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(basis=_basis("gauge"), held=held), "model"),
                  ("gauge", Delay(max_delay=max_delay, basis=_basis("gauge"), max_lead=max_lead, period=rep), "model"),
                  ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
@@ -247,6 +248,34 @@ def creep_loops(base):
         # the gauge reads the stack; the displacement sensor may add its own delay or drift (not the stack's)
         shared["source"] = out["gauge"]
     return out
+
+
+def held_drive(base):
+    """The drive's path between samples when the record's command is held from sample to sample and each
+    step settles within a sample (:class:`~.effects.HeldDrive`), or None.
+
+    Needs what the path is made of: the series resistor and the declared PZT's current limits
+    (:attr:`BaseFit.series_resistance_ohm`, :attr:`BaseFit.current_limits_a`), the stack's capacitance
+    (:attr:`BaseFit.working_capacitance_f`: the settle ``RC``), the charge moved in each interval (the record's
+    integrated current) and a terminal-voltage record; and a sample period over which the settle ends,
+    ``exp(-dt / RC) <= HELD_SETTLED`` (at 100 Hz on the P-888.51's 80 ohm and ~6 uF; not at 1 kHz, where the
+    steps' settles run into the next samples and the drive between samples is smooth: the first-order hold's).
+    """
+    r_ohm = getattr(base, "series_resistance_ohm", None)
+    limits = getattr(base, "current_limits_a", None)
+    c_f = getattr(base, "working_capacitance_f", None)
+    if not r_ohm or not limits or not c_f or c_f <= 0 or "charge" not in base.channels \
+            or getattr(base, "input_kind", "terminal") != "terminal" or min(limits) <= 0:
+        return None
+    t = np.asarray(base.t, float)
+    if t.size < 3:
+        return None
+    dt = float((t[-1] - t[0]) / (t.size - 1))
+    rc = float(r_ohm) * float(c_f)
+    if np.exp(-dt / rc) > HELD_SETTLED:
+        return None
+    q = np.asarray(base.channels["charge"].y, float)
+    return HeldDrive(np.diff(q, prepend=q[0]), dt, rc, limits)
 
 
 def noise_floor(e):
@@ -577,11 +606,13 @@ def _candidate_columns(eff, t, u, y, yhat, prob, lower=None):
     modes = [{"project": m} for m in ((prob.project, None) if getattr(eff, "nonlinear", False) else (prob.project,))]
     if getattr(eff, "refits", False):
         modes.append({"project": None, "refit": True})     # a mode on the refitted drive model (Resonance)
+    if getattr(eff, "holds", False):
+        modes.append({"project": prob.project, "held": True})   # a mode driven through the held drive's path
     for kw in modes:
         try:
             p = eff.fit(t, u, y - yhat, prob.search, y_model=yhat, **kw)
         except ValueError:
-            if kw.get("refit"):
+            if kw.get("refit") or kw.get("held"):
                 continue
             raise
         if best is not None and _same_params(p, best[1]):
@@ -719,7 +750,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     need = int(np.ceil(0.8 * n_folds)) if agree is None else int(agree)
     # each channel's own columns: an averaged gauge's model spans its plays' interval mean (review of s14_ends)
     bases = {ch: base.channel_basis(ch) for ch in base.channels}
-    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=bases, loops=creep_loops(base))
+    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=bases, loops=creep_loops(base),
+                          held=held_drive(base))
     rng = np.random.default_rng(seed)
     dev_rows = split.train
 
