@@ -85,7 +85,8 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
 from .stacking import column_stack
-from .kernels import filtered_rows_scaled, lowpass_rows, mode_column_rows, mode_columns_rows, shifted_rows_into
+from .kernels import (filtered_rows_scaled, held_mode_column_compiled, lowpass_rows, mode_column_rows, mode_columns_rows,
+                      shifted_rows_into)
 from .pi_fit import rms
 from .residual import analyze_residual
 
@@ -1326,27 +1327,33 @@ class HeldDrive:
         self.slope = inv
         self.q_ramp = np.where(runs_on, 1.0, np.minimum(inv * self.t_ramp, 1.0))
         self.tail = ~runs_on
+        # the settle's share and its decay over the interval's rest, exp(-(dt - T) / RC) (trial-free)
+        self._left = np.where(self.tail, 1.0 - self.q_ramp, 0.0)
+        self._settled = np.exp(-(self.dt - self.t_ramp) / self.rc)
         self._key = _data_key(dq, np.array([dt, rc, float(limits[0]), float(limits[1])]))
 
     def kernel(self, lam):
         """``K_k = int_0^dt exp(lam (dt - s)) rho_k(s) ds`` per interval (complex), ``rho_k`` the interval's path
-        from 0 to 1 (:class:`HeldDrive`), for a pole ``lam`` (1/s)."""
+        from 0 to 1 (:class:`HeldDrive`), for a pole ``lam`` (1/s). One complex exponential per interval: the
+        ramp's ``exp(-lam T)``; the rest from it and the settle's ``exp(-(dt - T) / RC)``, computed once."""
         dt, T = self.dt, self.t_ramp
-        e_dt = np.exp(lam * dt)
+        e_dt = complex(np.exp(lam * dt))
         lt = lam * T
-        # J(T) = int_0^T s exp(-lam s) ds, by its series where lam T is small (the closed form cancels)
+        e_mt = np.exp(-lt)                                   # exp(-lam T)
+        e_rest = e_dt * e_mt                                 # exp(lam (dt - T))
+        # the ramp: slope * exp(lam dt) * int_0^T s exp(-lam s) ds, by its series where lam T is small
+        J = np.empty(T.size, complex)
         small = np.abs(lt) < 1e-2
-        lt_s = np.where(small, 1.0, lt)
-        J = np.where(small, T * T * (0.5 - lt / 3.0 + lt * lt / 8.0),
-                     (1.0 - np.exp(-lt_s) * (1.0 + lt_s)) / (np.where(small, 1.0, lam) ** 2))
-        K = self.slope * e_dt * J
-        # the ramp that runs on to the interval's end holds its level there (q_ramp 1: nothing left)
-        rest = dt - T
-        e_rest = np.exp(lam * rest)
-        K = K + self.q_ramp * (e_rest - 1.0) / lam
+        ls = lt[small]
+        J[small] = T[small] ** 2 * (0.5 - ls / 3.0 + ls * ls / 8.0)
+        big = ~small
+        J[big] = (1.0 - e_mt[big] * (1.0 + lt[big])) / (lam * lam)
+        K = (self.slope * e_dt) * J
+        # the level the ramp reached, held (a ramp that runs on: q_ramp 1, nothing left to settle)
+        K += self.q_ramp * ((e_rest - 1.0) / lam)
+        # the settle: (1 - q_ramp) int_0^rest exp(lam (rest - s)) (1 - exp(-s / RC)) ds
         a = lam + 1.0 / self.rc
-        K = K + np.where(self.tail, (1.0 - self.q_ramp) * ((e_rest - 1.0) / lam - e_rest * (1.0 - np.exp(-a * rest)) / a),
-                         0.0)
+        K += self._left * ((e_rest - 1.0) / lam - (e_rest - self._settled) / a)
         return K
 
 
@@ -1365,13 +1372,20 @@ def held_mode_column(u, held, f_hz, zeta):
     beta = w * np.sqrt(max(1.0 - z * z, 1e-12))
     lam = complex(-z * w, beta)
     r = w * w / (2j * beta)                      # the residue of w^2 / ((s - lam)(s - conj(lam))) at lam
-    e_dt = np.exp(lam * dt)
     v = u - u[0]
+    if _HELD_COMPILED:
+        return held_mode_column_compiled(v, held, lam, r)
+    e_dt = np.exp(lam * dt)
     dv = np.diff(v, prepend=0.0)
     v_prev = np.r_[0.0, v[:-1]]
     F = r * (v_prev * ((e_dt - 1.0) / lam) + dv * held.kernel(lam))
     state = signal.lfilter([1.0], [1.0, -e_dt], F)
     return 2.0 * state.real - v
+
+
+#: :func:`held_mode_column` by its compiled recursion (:func:`.kernels.held_mode_column_compiled`); False: the
+#: numpy form (:meth:`HeldDrive.kernel` and ``lfilter``), the reference the tests compare with
+_HELD_COMPILED = True
 
 
 class Resonance(Effect):
@@ -1734,9 +1748,10 @@ class Resonance(Effect):
         return {"gain": float(beta[0]), "f_n_hz": f, "zeta": float(zeta(f, float(np.exp(theta[1]))))}
 
     def _held_ceiling(self, t):
-        """The held variant's highest trial frequency (Hz): ``1 / (pi RC)``, where the settle's edge excites a
-        mode at ``1 / sqrt(1 + (w RC)^2)``, under half a sharp step's ring; at least the Nyquist frequency."""
-        return max(self.f_max_fraction / _dt(t), 1.0 / (np.pi * self.held.rc))
+        """The held variant's highest trial frequency (Hz): the settle's corner ``1 / (2 pi RC)`` (343 Hz on the
+        P-888.51's 80 ohm and ~6 uF), above which the settle's edge is slower than the mode and the ring it
+        excites falls as ``1 / (w RC)``; at least the Nyquist frequency."""
+        return max(self.f_max_fraction / _dt(t), 1.0 / (2.0 * np.pi * self.held.rc))
 
     def _fit_held(self, t, u, residual, train_mask, project):
         """The mode driven through the held drive's path (:class:`HeldDrive`, :func:`held_mode_column`).
@@ -1758,14 +1773,15 @@ class Resonance(Effect):
         step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
         peaks, _ = self._spectral_peaks(np.asarray(residual, float)[rows], fs / step, lf_lo,
                                         min(self._range(t)[1], lf_hi))
-        grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq) for lz in np.linspace(lz_lo, lz_hi, 6)]
+        grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq) for lz in np.linspace(lz_lo, lz_hi, 4)]
         f_hi = float(np.exp(lf_hi))
+        # (each image's points span the alias's fine grid in Hz: a mode above Nyquist rings at its alias)
         for f_p in peaks[:2]:
-            offs = f_p * np.exp(np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 11))
+            offs = f_p * np.exp(np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 5))
             for k in range(int(f_hi // fs) + 2):
                 for f in np.r_[k * fs - offs, k * fs + offs]:
                     if np.exp(lf_lo) <= f <= f_hi:
-                        grid += [[np.log(f), lz] for lz in np.linspace(lz_lo, lz_hi, 5)]
+                        grid += [[np.log(f), lz] for lz in np.linspace(lz_lo, lz_hi, 3)]
 
         def col(th):
             return held_mode_column(u, self.held, np.exp(th[0]), np.exp(th[1]))
