@@ -1294,8 +1294,9 @@ class HeldDrive:
     through the series resistor with the time constant ``rc = R C`` (s). Where a step settles within a sample
     (:data:`HELD_SETTLED`) each interval's path is fixed by its charge step ``dq`` (C; the record's integrated
     current, its mean over the interval times ``dt``): the charge ramps at the limit from the interval's start
-    while what is left of the step exceeds ``limit * rc``, then approaches the step's end exponentially; an
-    interval that moves ``limit * (dt - rc)`` or more ramps at the limit throughout (a slew that runs on). The
+    while the resistor's current exceeds it, then settles exponentially, the two moving ``dq`` together; a step
+    too small to reach the limit settles from the start, and an interval that moves ``limit * dt`` ramps at the
+    limit throughout (a slew that runs on; its settle, spilling into the next interval, is that one's). The
     motion follows the charge (its model interpolated in proportion to the charge moved): a mode of the stack
     is driven through that path (:func:`held_mode_column`), not through a first-order hold's straight line
     between samples (:func:`_foh_mode`). At 100 Hz a 38.4 Hz mode under the 0.15 Hz sine (93 #115, n_sub 64
@@ -1318,18 +1319,33 @@ class HeldDrive:
     def __init__(self, dq, dt, rc, limits):
         dq = np.asarray(dq, float)
         self.dt, self.rc = float(dt), float(rc)
+        dt, rc = self.dt, self.rc
         lim = np.where(dq >= 0.0, float(limits[0]), float(limits[1]))
         x = np.abs(dq) / lim                       # the time at the limit that would move the step (s)
-        runs_on = x >= self.dt - self.rc
-        self.t_ramp = np.where(runs_on, np.minimum(x, self.dt), np.maximum(x - self.rc, 0.0))
+        # each interval: at the limit until t_e, then the settle from there, lim rc (1 - exp(-s / rc)) of charge
+        # by the time s after: x = t_e + rc (1 - exp(-(dt - t_e) / rc)), solved for t_e (increasing in t_e);
+        # a step the settle alone moves (x <= rc (1 - exp(-dt / rc)): its current never reaches the limit) has
+        # t_e = 0, and one the limit moves the whole interval (x >= dt) t_e = dt
+        settle_only = x <= rc * -np.expm1(-dt / rc)
+        runs_on = x >= dt
+        lo, hi = np.zeros_like(x), np.full_like(x, dt)
+        for _ in range(60):                         # bisection to ~dt 2^-60
+            mid = 0.5 * (lo + hi)
+            above = mid + rc * -np.expm1(-(dt - mid) / rc) > x
+            hi = np.where(above, mid, hi)
+            lo = np.where(above, lo, mid)
+        t_e = np.where(settle_only, 0.0, np.where(runs_on, dt, 0.5 * (lo + hi)))
         with np.errstate(divide="ignore", invalid="ignore"):
-            inv = np.where(np.abs(dq) > 0.0, lim / np.abs(dq), 0.0)     # the ramp's slope, fraction per second
+            inv = np.where(x > 0.0, 1.0 / x, 0.0)   # per second: the ramp's slope as a fraction of the step
+        self.t_ramp = t_e
         self.slope = inv
-        self.q_ramp = np.where(runs_on, 1.0, np.minimum(inv * self.t_ramp, 1.0))
-        self.tail = ~runs_on
-        # the settle's share and its decay over the interval's rest, exp(-(dt - T) / RC) (trial-free)
-        self._left = np.where(self.tail, 1.0 - self.q_ramp, 0.0)
-        self._settled = np.exp(-(self.dt - self.t_ramp) / self.rc)
+        # the fraction of the step the ramp moved, and the settle's amplitude as a fraction of the step
+        self.q_ramp = np.where(runs_on, 1.0, t_e * inv)
+        self._left = np.where(runs_on, 0.0, np.where(settle_only, 1.0 / -np.expm1(-dt / rc), rc * inv))
+        self.slope = np.where(settle_only, 0.0, inv)
+        self.q_ramp = np.where(settle_only, 0.0, self.q_ramp)
+        # the settle's decay over the interval's rest, exp(-(dt - t_e) / rc) (trial-free)
+        self._settled = np.exp(-(dt - t_e) / rc)
         self._key = _data_key(dq, np.array([dt, rc, float(limits[0]), float(limits[1])]))
 
     def kernel(self, lam):
