@@ -1615,7 +1615,7 @@ class Resonance(Effect):
             return min(z, cap) if f < f_slow else z
         return zeta
 
-    def _spectral_peaks(self, e, fs, lf_lo, lf_hi):
+    def _spectral_peaks(self, e, fs, lf_lo, lf_hi, floor_hz=PEAK_FLOOR_HZ):
         """The residual spectrum's peaks (Hz) about which :meth:`fit` lays its fine grid.
 
         Peaks of a Welch estimate of ``e`` (the search rows' residual, rate ``fs`` in Hz) with
@@ -1653,7 +1653,7 @@ class Resonance(Effect):
         """
         from scipy.ndimage import median_filter
         e = np.asarray(e, float) - float(np.mean(e))
-        f_pk = max(np.exp(lf_lo), PEAK_FLOOR_HZ)
+        f_pk = max(np.exp(lf_lo), floor_hz)
         nseg = min(PEAK_SEGMENT, e.size)
         f_psd, pxx = signal.welch(e, fs=fs, nperseg=nseg)
         band = (f_psd >= f_pk) & (f_psd <= np.exp(lf_hi))
@@ -1775,8 +1775,9 @@ class Resonance(Effect):
         Its trials run from the search's floor (:meth:`_range`) past the Nyquist frequency to
         :meth:`_held_ceiling`, their damping at most RING_ZETA_MAX (a mode this variant reads rings: a heavier
         one is the phase a delay reads, :func:`~.tracing._phase_only_mode`): a coarse log grid, and a fine one
-        about every image ``k fs +- f_p`` of the residual spectrum's two strongest peaks ``f_p`` (a mode above
-        Nyquist rings at its alias in the samples), then :func:`_varpro`'s refinement."""
+        about every image ``k fs +- f_p`` of the residual spectrum's peaks ``f_p`` (:meth:`_spectral_peaks`, down
+        to the search's floor; a mode above Nyquist rings at its alias in the samples), then :func:`_varpro`'s
+        refinement."""
         if self.held is None or self.held.t_ramp.size != np.asarray(u).size:
             raise ValueError("the held drive's mode needs the record's held drive")
         dt = _dt(t)
@@ -1787,12 +1788,14 @@ class Resonance(Effect):
         lz_lo, lz_hi = np.log(self.zeta_min), np.log(z_hi)
         rows = np.flatnonzero(np.asarray(train_mask, bool))
         step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
+        # (every alias, down to the search's floor: a mode just above a multiple of the rate rings at a few Hz in
+        # the samples, under PEAK_FLOOR_HZ, 109 #126's 92.9 Hz at 7.1 Hz)
         peaks, _ = self._spectral_peaks(np.asarray(residual, float)[rows], fs / step, lf_lo,
-                                        min(self._range(t)[1], lf_hi))
+                                        min(self._range(t)[1], lf_hi), floor_hz=0.0)
         grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq) for lz in np.linspace(lz_lo, lz_hi, 4)]
         f_hi = float(np.exp(lf_hi))
         # (each image's points span the alias's fine grid in Hz: a mode above Nyquist rings at its alias)
-        for f_p in peaks[:2]:
+        for f_p in peaks:
             offs = f_p * np.exp(np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 5))
             for k in range(int(f_hi // fs) + 2):
                 for f in np.r_[k * fs - offs, k * fs + offs]:
