@@ -139,7 +139,7 @@ class BaseFit:
     #: ``blocks``, ``channel``); None where the declared thresholds were not tried
     threshold_gate: dict | None = None
     #: the amplifier's series resistor R (ohm) and the declared PZT's current limits ``(source, sink)`` (A, both
-    #: positive): the drive's path between samples of a held command (:func:`~.effects.held_drive`); None when
+    #: positive): the drive's path between samples of a held command (:func:`~.tracing.held_drive`); None when
     #: not declared (``resistance_ohm`` 0, no ``pzt``)
     series_resistance_ohm: float | None = None
     current_limits_a: tuple | None = None

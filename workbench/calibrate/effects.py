@@ -1419,6 +1419,14 @@ class Resonance(Effect):
         at 1 MHz, a 130x 39.8 Hz mode under a 62 Hz sine, found at 44.1 Hz and answered
         ``inconclusive``; the true mode on the refitted columns reaches the noise floor). The
         tracing keeps the variant whose joint fit leaves less on the development rows.
+    held : HeldDrive, optional
+        The drive's path between samples of a held command (:class:`HeldDrive`, built by
+        :func:`~.tracing.held_drive` only where each step settles within a sample: 100 Hz on the P-888.51). With
+        it, :meth:`fit` has a fourth variant (``held=True``): the mode driven through that path
+        (:func:`held_mode_column`), searched past the Nyquist frequency (:meth:`_fit_held`; ``params["held"]``
+        True), which tells a mode above Nyquist from its alias. The first-order hold's column is the wrong
+        discretization there: on 93 #115's 38.4 Hz mode at 100 Hz it leaves 7.4e-9 of a 1.05e-8 m effect, the
+        held path 4.4e-10 (README, "Session 31, modes above the record's Nyquist frequency").
     """
 
     name = "resonance"
