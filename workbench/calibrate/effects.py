@@ -1346,7 +1346,35 @@ class HeldDrive:
         self.q_ramp = np.where(settle_only, 0.0, self.q_ramp)
         # the settle's decay over the interval's rest, exp(-(dt - t_e) / rc) (trial-free)
         self._settled = np.exp(-(dt - t_e) / rc)
+        self._runs_on = runs_on
         self._key = _data_key(dq, np.array([dt, rc, float(limits[0]), float(limits[1])]))
+
+    def path(self, s, rows=slice(None)):
+        """``rho_k(s)``, the share of interval ``k``'s step moved by the time ``s`` after its start (0 to 1).
+
+        The ramp at the limit ``s / x_k`` up to ``t_ramp``, then the settle ``q_ramp + left (1 - exp(-(s - t_ramp) /
+        RC))``, reaching 1 at ``dt``; an interval the limit moves throughout (a slew that runs on) ramps as ``s / dt``
+        (its recorded step over the interval: the kernel's slope, ``1 / x_k``, equals it but for the record's noise).
+        The plant file's replay drives the stack along it between samples
+        (:func:`~workbench.calibrate.plant_update.updated_plant_error`).
+
+        Parameters
+        ----------
+        s : ndarray
+            Times after an interval's start, s (``0 <= s <= dt``).
+        rows : slice, optional
+            The intervals (samples ``k``; interval ``k`` ends at sample ``k``).
+
+        Returns
+        -------
+        ndarray
+            ``(intervals, s.size)`` shares of each interval's step (dimensionless).
+        """
+        s = np.asarray(s, float)[None, :]
+        T = self.t_ramp[rows][:, None]
+        ramp = np.where(self._runs_on[rows][:, None], s / self.dt, self.slope[rows][:, None] * s)
+        settle = self.q_ramp[rows][:, None] + self._left[rows][:, None] * -np.expm1(-np.maximum(s - T, 0.0) / self.rc)
+        return np.where(s < T, ramp, settle)
 
     def kernel(self, lam):
         """``K_k = int_0^dt exp(lam (dt - s)) rho_k(s) ds`` per interval (complex), ``rho_k`` the interval's path

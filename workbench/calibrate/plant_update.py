@@ -385,7 +385,8 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     zeta 0.0072; drawn 44.84 Hz, 0.0068): the file replayed 1.9x the tracing model's error, with the drawn
     frequency and damping 0.06x. The file's modes do not feed back (``plant.kernels``: the quasi-static
     displacement drives them), so the file is replayed once without the found mode and the mode (a unit-gain
-    second-order filter, first-order hold as the simulator's) applied to that replay; its frequency and damping
+    second-order filter, first-order hold as the simulator's; along the held drive's path where the replay takes it,
+    :func:`~.effects.held_mode_column`) applied to that replay; its frequency and damping
     are fitted there (least squares on the rows, the constant free), within :data:`MODE_REFIT_FREQ_FACTOR` and
     :data:`MODE_REFIT_DAMPING_FACTOR` of the tracing's.
     """
@@ -395,6 +396,8 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     from scipy.optimize import least_squares
 
     from ..plant import load_plant
+    from .effects import held_mode_column
+    from .tracing import held_drive
     if result.get("channel") != "displacement" or base.input_kind != "terminal" or "displacement" not in base.channels:
         return core
     stages = written_stages(result.get("stages") or [], result, core)
@@ -421,10 +424,13 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     if not np.any(ok) or not dt > 0:
         return core
     y = np.asarray(m.y, float) - (0.0 if drift is None else drift)
+    held = held_drive(base)
 
     def moded(z):
         w = 2 * np.pi * float(np.exp(z[0]))
         zeta = float(np.exp(z[1]))
+        if held is not None:          # the replay's own path between samples (:func:`_replay`)
+            return x1 + held_mode_column(x1, held, float(np.exp(z[0])), zeta)
         b, a, _ = signal.cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), dt, method="foh")
         b = np.ravel(b)
         zi = signal.lfilter_zi(b, a) * x1[0]
@@ -1203,16 +1209,45 @@ def replayed(text, base, channel, path, replays=None):
     return sim
 
 
+#: The fine steps per settle time constant ``RC`` of the held drive's replay (:func:`held_replay_upsample`).
+REPLAY_HELD_STEPS_PER_RC = 8
+
+#: The most fine steps a sample of the held drive's replay takes (:func:`held_replay_upsample`).
+REPLAY_HELD_UPSAMPLE_MAX = 256
+
+
+def held_replay_upsample(plant, held):
+    """Points per sample of a replay along the held drive's path (:class:`~.effects.HeldDrive`).
+
+    The larger of ``ceil(REPLAY_HELD_STEPS_PER_RC dt / RC)`` (the settle resolved: ``RC`` the path's, s) and
+    ``ceil(REPLAY_STEPS_PER_MODE_PERIOD f dt)`` over the ``[[mechanics.modes]]`` below ``1 / (2 pi RC)`` (the
+    settle's corner; a mode above it is not driven through the path's shape), clipped to
+    ``1..REPLAY_HELD_UPSAMPLE_MAX``: 174 at 100 Hz on the P-888.51's 80 ohm and ~5.7 uF.
+    """
+    dt, rc = float(held.dt), float(held.rc)
+    corner = 1.0 / (2.0 * np.pi * rc)
+    modes = [float(m.freq_hz) for m in (getattr(plant.pzt, "modes", ()) or ()) if float(m.freq_hz) <= corner]
+    need = max(np.ceil(REPLAY_HELD_STEPS_PER_RC * dt / rc - 1e-9),
+               np.ceil(REPLAY_STEPS_PER_MODE_PERIOD * max(modes, default=0.0) * dt - 1e-9))
+    return int(min(REPLAY_HELD_UPSAMPLE_MAX, max(1, need)))
+
+
 def _replay(plant, base, channel):
     """The record's drive simulated through ``plant`` (see :func:`updated_plant_error`): the channel's column."""
     import dataclasses
 
     from .synthetic import SensorNoise, simulate_record
+    from .tracing import held_drive
     t = np.asarray(base.t, float)
     quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
-    rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0
+    held = held_drive(base)
+    if held is None:
+        rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0
+        up = replay_upsample(quasi, rate)
+    else:
+        up = held_replay_upsample(quasi, held)
     sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
-                          gauge=channel == "gauge", gauge_noise=False, upsample=replay_upsample(quasi, rate))
+                          gauge=channel == "gauge", gauge_noise=False, upsample=up, held=held)
     return sim[_SIM_KEY[channel]]
 
 

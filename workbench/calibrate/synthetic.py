@@ -92,7 +92,7 @@ REPLAY_CHUNK = 1 << 15
 
 
 def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gauge=True, gauge_noise=True,
-                    upsample=1):
+                    upsample=1, held=None):
     """Simulate a record of ``plant`` driven by ``v_cmd`` sampled at ``t_s``.
 
     ``noise`` is the logged channels' white noise; the gauge's is its chain's own (demodulator
@@ -102,7 +102,11 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
     interpolated linearly onto ``upsample`` points per sample (each held for ``n_sub`` sub-steps)
     and the stack's trajectories taken back at the samples: a sampled *terminal* voltage driving a
     plant without its series resistor (a recorded drive replayed) ramps between samples instead of
-    stepping, which a mode near the sample rate tells apart.
+    stepping, which a mode near the sample rate tells apart. ``held``: a
+    :class:`~workbench.calibrate.effects.HeldDrive` (with ``upsample`` > 1): the command between samples follows
+    its path instead, ``v_{k-1} + (v_k - v_{k-1}) rho_k(s)`` (:meth:`~workbench.calibrate.effects.HeldDrive.path`:
+    a held amplifier command's ramp at the current limit and settle, which a recorded terminal voltage sampled
+    at 100 Hz went through between samples).
 
     Returns
     -------
@@ -123,9 +127,18 @@ def simulate_record(plant, t_s, v_cmd, seed=0, noise=SensorNoise(), n_sub=4, gau
         parts = []
         for a in range(0, t.size, REPLAY_CHUNK):
             b = min(a + REPLAY_CHUNK, t.size)
-            tf = t[0] + (np.arange(a * up, b * up) - (up - 1)) * (dt / up)
-            parts.append(sim.run(np.interp(tf, t, v_cmd), decimate=up))
-            del tf
+            if held is None:
+                tf = t[0] + (np.arange(a * up, b * up) - (up - 1)) * (dt / up)
+                fine = np.interp(tf, t, v_cmd)
+                del tf
+            else:
+                # the same fine points: sample k's up points end interval k at s = dt (m + 1) / up
+                v0 = v_cmd[max(a - 1, 0):b - 1] if a > 0 else np.r_[v_cmd[0], v_cmd[:b - 1]]
+                rho = held.path(np.arange(1, up + 1) * (dt / up), slice(a, b))
+                fine = (v0[:, None] + (v_cmd[a:b] - v0)[:, None] * rho).ravel()
+                del rho
+            parts.append(sim.run(fine, decimate=up))
+            del fine
         tr = SimpleNamespace(**{k: np.concatenate([getattr(p, k) for p in parts]) for k in ("x_m", "q_c", "i_a", "v_t_v")})
         del parts
     else:
