@@ -12,6 +12,11 @@ than what was found, at most +10 %); the true plant's replay against the tracing
 for sizes >= 3x, how many are within 10 %, how many at most 10 % above, the median and worst ratio, for each.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/calibrate_round_trip.py --seed 24 [--effects creep+delay ...]
+        [--rates 100 ...] [--index K ...]
+
+``--rates``: only the records at these rates (the confusion benchmark's, ``100`` and ``1e6`` its ends, run only
+when named); ``--effects`` may name a single effect (``resonance``: its one-effect records, which are otherwise
+skipped); ``--index``: only these records (the confusion benchmark's ``#K``).
 """
 
 import argparse
@@ -71,23 +76,30 @@ def _cells(x):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seed", type=int, nargs="+", default=[24])
-    ap.add_argument("--effects", nargs="*", default=None, help="only these pairs, e.g. creep+delay")
+    ap.add_argument("--effects", nargs="*", default=None,
+                    help="only these pairs, e.g. creep+delay, or single effects named here (resonance)")
+    ap.add_argument("--rates", type=float, nargs="*", default=None,
+                    help=f"only these sample rates, Hz; {', '.join(f'{r:g}' for r in cc.END_RATES_HZ)} only when named")
+    ap.add_argument("--index", type=int, nargs="*", default=None, help="only these records (#K, 1-based)")
     a = ap.parse_args(argv)
+    ends = bool(a.rates) and any(r in cc.END_RATES_HZ for r in a.rates)
     plant_path = ROOT / "plants" / "p888_51_sn637.toml"
     plant0 = load_plant(plant_path)
     rows = []
     for seed in a.seed:
-        for k, (e, rate, proto, size, s) in enumerate(cc.cases(seed=seed)):
-            if isinstance(e, str) or (a.effects and "+".join(e) not in a.effects):
+        for k, (e, rate, proto, size, s) in enumerate(cc.cases(seed=seed, ends=ends)):
+            name = e if isinstance(e, str) else "+".join(e)
+            if (isinstance(e, str) and not (a.effects and e in a.effects)) or (a.effects and name not in a.effects) \
+                    or (a.rates and rate not in a.rates) or (a.index and k + 1 not in a.index):
                 continue
             res, ea, rep, upd, true, which = round_trip(plant0, plant_path, e, rate, proto, size, s)
             stages = ", ".join(f"{x['effect']}/{x['channel']}" for x in res["stages"]) or res["effect"]
-            line = f"{seed} #{k + 1} {'+'.join(e)} {rate:g} Hz {proto} {size:.3g}x: {stages}"
+            line = f"{seed} #{k + 1} {name} {rate:g} Hz {proto} {size:.3g}x: {stages}"
             if ea:
                 line += (f"; tracing model {ea:.4g}, reported error_after {rep:.4g}, updated plant ({which} core) "
                          f"{upd:.4g}: {upd / rep:.4f}x reported, {upd / ea:.2f}x the model; true plant {true:.4g} "
                          f"({true / ea:.2f}x the model)")
-                rows.append(("+".join(e), size, upd / rep, upd / ea, true / ea))
+                rows.append((name, size, upd / rep, upd / ea, true / ea))
             print(line, flush=True)
     print("| pair | records with a stage | file / reported error_after: within 10 % / at most +10 % / all, median, "
           "worst | file / tracing model: the same | true plant / tracing model: the same |")
