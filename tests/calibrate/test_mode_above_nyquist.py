@@ -174,8 +174,17 @@ def _resolved_base(plant0, protocol, f_hz, zeta, seed):
 # benchmark's damping range, steps and the calibration protocol alternately; default_rng(3133), drawn before any
 # record was replayed. make test runs the first
 _RNG3 = np.random.default_rng(3133)
-REPLAYS = reduced_draws([(("steps", "calibration")[k % 2], float(np.exp(_RNG3.uniform(np.log(55.0), np.log(340.0)))),
-                          float(_RNG3.uniform(0.005, 0.02)), int(_RNG3.integers(1 << 30))) for k in range(4)], keep=(0,))
+_REPLAY_DRAWS = [(("steps", "calibration")[k % 2], float(np.exp(_RNG3.uniform(np.log(55.0), np.log(340.0)))),
+                  float(_RNG3.uniform(0.005, 0.02)), int(_RNG3.integers(1 << 30))) for k in range(4)]
+REPLAYS = reduced_draws(_REPLAY_DRAWS, keep=(0,))
+# the written file: ~6-9 s a draw (the tracing and the core's choice), in WORKBENCH_FULL=1 only. The 264 Hz
+# calibration draw misses (measured 2026-11-28: the file 1.85e-9 m, the tracing 1.36e-9, 1.36x; the plant that
+# made the record replays at 2.22e-9 itself: the replay's floor, the quasi-static form and the path's charge-
+# proportional terminal voltage, above a tracing that reaches the sensor's noise)
+_FLOOR = pytest.mark.xfail(strict=True, reason="the replay's floor (~2e-9 m) above the tracing's 1.36e-9: a 264 Hz "
+                                               "mode's small share (5.3e-9) on the calibration protocol")
+FILE_REPLAYS = reduced_draws([pytest.param(*d, marks=[_FLOOR]) if k == 1 else d for k, d in enumerate(_REPLAY_DRAWS)],
+                             keep=())
 
 
 @pytest.mark.parametrize("protocol, f_hz, zeta, seed", REPLAYS)
@@ -197,7 +206,7 @@ def test_the_plant_that_made_a_100_hz_record_replays_it(sn637, protocol, f_hz, z
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("protocol, f_hz, zeta, seed", REPLAYS)
+@pytest.mark.parametrize("protocol, f_hz, zeta, seed", FILE_REPLAYS)
 def test_a_100_hz_mode_written_to_the_plant_file_replays_the_tracing_error(sn637, protocol, f_hz, zeta, seed,
                                                                            tmp_path):
     """Issue 13 item 6 at 100 Hz: the updated plant file (the mode written and refitted by replay, as
