@@ -40,7 +40,7 @@ import re
 
 import numpy as np
 
-__all__ = ["carried_stages", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["carried_stages", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "held_replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
