@@ -35,6 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 PLANTS = ROOT / "plants"
 SERIALS = ("sn637", "sn629", "sn618")
 FULL = os.environ.get("WORKBENCH_FULL") == "1"
+#: the mark of a draw or record that only the full form runs: ``make test`` skips it, ``WORKBENCH_FULL=1``
+#: (``make test-full``) runs it; every id stays collected
+FULL_ONLY = pytest.mark.skipif(not FULL, reason="reduced form: WORKBENCH_FULL=1 (make test-full) runs this draw")
 
 
 def load_benchmark(name):
@@ -50,7 +53,7 @@ def reduced_draws(draws, keep):
     """Parametrize ``draws`` (tuples or ``pytest.param``) so that ``make test`` runs those whose index is
     in ``keep`` and skips the rest, which ``WORKBENCH_FULL=1`` runs: every id stays collected (the skip
     says what the full form adds), and a draw's own marks (a strict xfail) are kept."""
-    skip = pytest.mark.skipif(not FULL, reason="reduced form: WORKBENCH_FULL=1 (make test-full) runs this draw")
+    skip = FULL_ONLY
     out = []
     for k, d in enumerate(draws):
         param = hasattr(d, "values") and hasattr(d, "marks")

@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark
+from tests.conftest import FULL, load_benchmark, reduced_draws
 from workbench.calibrate import absorption_or_leakage as al
 
 
@@ -395,7 +395,9 @@ def test_leakages_whose_folds_the_settled_test_decides_are_named_by_the_plain_vo
     assert sum(w == "leakage on the charge" for w in r["fold_winners"]) >= 4, r["fold_winners"]
 
 
-@pytest.mark.parametrize("case", NESTED_PAIRS_27_28, ids=["27-65", "28-65"])
+# 28 #65 runs under WORKBENCH_FULL=1 only (session 31, s31_suite): make test keeps 27 #65, the same pair, rate,
+# protocol and assertion; 28 #65 reaches no line or branch of workbench/ the kept tests do not
+@pytest.mark.parametrize("case", reduced_draws([(c,) for c in NESTED_PAIRS_27_28], keep={0}), ids=["27-65", "28-65"])
 def test_pairs_with_an_undecided_fold_leaning_leakage_name_nothing_wrong(sn637, case):
     cc = load_benchmark("calibrate_confusion")
     r = cc.evaluate(sn637, *case, diagnostics=False)

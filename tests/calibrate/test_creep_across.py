@@ -8,7 +8,7 @@ follows neither the pull-back nor C_h's reversal under it, and left 12-15x the n
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark, reduced_draws, stratified_draws
+from tests.conftest import FULL, FULL_ONLY, load_benchmark, reduced_draws, stratified_draws
 from workbench.calibrate.kernels import plays_rows
 from workbench.calibrate.pi_fit import play_matrix
 
@@ -171,8 +171,11 @@ CREEP_SINE_67_46 = (1e4, 13.444140898726538, 8670178)
 CREEP_SINE_71_46 = (1e4, 27.579080767041777, 11918613)
 
 
+# 67 #46 runs under WORKBENCH_FULL=1 only (session 31, s31_suite): make test keeps 71 #46, the same family (creep
+# alone, 10 kHz sine) and assertion (nothing but creep named), 2x larger and the later of the two fixes; 67 #46
+# reaches no line or branch of workbench/ that the kept tests do not (session 31's per-test coverage)
 @pytest.mark.parametrize("rate, size, seed", reduced_draws(_sine_draws(), keep=(5,))
-                         + [pytest.param(*CREEP_SINE_67_46, id="seed67-46"),
+                         + [pytest.param(*CREEP_SINE_67_46, id="seed67-46", marks=FULL_ONLY),
                             pytest.param(*CREEP_SINE_71_46, id="seed71-46")])
 def test_a_creep_on_a_sine_record_is_not_answered_with_a_delay(sn637, rate, size, seed):
     """A creep-only record on the sine protocol, traced as ``workbench calibrate`` does: no delay (nor any other

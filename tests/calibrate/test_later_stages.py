@@ -105,8 +105,12 @@ R1_MISS_UNTIL_S22 = ("review of s14_creepdelay, 2026-11-26: a joint creep + dela
 
 
 # 30 #97 was a strict xfail (R1_MISS) until session 22's s22_drive97: the joint creep's branches on the drive model
-# refitted at the found delay (creep_beside_delay._stack_motion) answer delay, creep (the fresh clone's make test)
-@pytest.mark.parametrize("seed, index, want", [(30, 73, ["drift"]), (30, 97, ["delay", "creep"])])
+# refitted at the found delay (creep_beside_delay._stack_motion) answer delay, creep (the fresh clone's make test).
+# make test runs 30 #97 (session 31, s31_suite); 30 #73 (a drift, 100 kHz calibration, the answer named) runs under
+# WORKBENCH_FULL=1: make test's record of its family and kind is test_a_large_drift_is_never_followed_by_a_gauge_bow
+# (a 12.6x drift at 100 kHz on the calibration protocol: drift named first, no gauge bow, the miss 30 #73 was)
+@pytest.mark.parametrize("seed, index, want", reduced_draws([(30, 73, ["drift"]), (30, 97, ["delay", "creep"])],
+                                                            keep={1}))
 def test_regression_later_stages_on_large_records(sn637, seed, index, want):
     """Regression records (tuned on): a 721x drift (100 kHz calibration) named drift only (main:
     drift, gauge_nonlinearity); creep (10.8x) + a 39 ms delay (186x) (100 kHz steps) named delay

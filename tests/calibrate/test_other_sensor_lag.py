@@ -113,3 +113,24 @@ def test_a_lag_both_sensors_share_beside_a_passing_mode_is_undecided():
     for f in both:
         assert res["winners"][f] == UNDECIDED, res["winners"]
     assert T.delay_or_mode_consensus(res["winners"], 4)[0] is None
+
+
+def test_fresh_112_121_a_mode_above_nyquist_beside_a_drift_names_no_delay(sn637):
+    """Session 31's fresh seed 112, record #121 at 100 Hz (the confusion benchmark's `--seed 112 --rates 100
+    --index 121`): a sensor drift beside a 123.5 Hz, zeta 0.010 mode (above the 50 Hz Nyquist frequency) under
+    the slow sine. The drift is named first (5 of 5); the displacement's leftover reads as a 0.27-sample lag.
+    The gauge, read as the chain's mean over the sample interval, lags by a quarter to half of it (the mean
+    averages the mode's ringing), so lagged by the full ``d`` it is told apart from unlagged on no fold but
+    one; by the sign (before session 31) two folds decided the delay and it was named 2 of 5: a wrong answer.
+    With the bar (a fold decides a latency only where the gauge resolves unlagged), no delay is named."""
+    from tests.conftest import load_benchmark
+    from workbench.calibrate.tracing import trace_effect
+    cc = load_benchmark("calibrate_confusion")
+    cases = cc.cases(1, 112, ends=True)
+    effect, rate, proto, size, seed = cases[121 - 1]
+    assert (effect, rate, proto) == (("drift", "resonance"), 100.0, "sine"), cases[120]
+    t, sp, base, _, truth, _ = cc.simulated_base(sn637, effect, rate, proto, size, seed)
+    assert truth["freq_hz"] > 0.5 * rate             # the mode above Nyquist: the mode search stops at Nyquist
+    named = [s["effect"] for s in trace_effect(base, split=sp).get("stages", [])]
+    assert "delay" not in named, named
+    assert named[:1] == ["drift"], named

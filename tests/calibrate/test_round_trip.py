@@ -282,9 +282,11 @@ CREEP_ABOVE = ("measured 2026-11-26 (s17_creep): since the creep branches are dr
                "(lead, 2026-11-26)")
 
 
-@pytest.mark.parametrize("effect, rate, proto, size, seed", [
+# make test runs the 1 kHz calibration draw; the 1 kHz sine draw's strict xfail (a known miss, ~3.5 s) runs under
+# WORKBENCH_FULL=1 only (session 31, s31_suite)
+@pytest.mark.parametrize("effect, rate, proto, size, seed", reduced_draws([
     pytest.param(*d, marks=pytest.mark.xfail(strict=True, raises=AssertionError, reason=DRIVE_MISS))
-    if d[:3] == (("creep", "delay"), 1e3, "sine") else d for d in DRAWS if d[0] == ("creep", "delay")])
+    if d[:3] == (("creep", "delay"), 1e3, "sine") else d for d in DRAWS if d[0] == ("creep", "delay")], keep={0}))
 def test_two_effect_round_trip_is_not_above_error_after(sn637, tmp_path, effect, rate, proto, size, seed):
     """The one-sided half of the round trip on the creep+delay draws (the two-sided test above is a strict
     xfail on both, the file replaying BELOW error_after): the updated plant leaves at most 10 % more than

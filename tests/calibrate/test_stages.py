@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from tests.conftest import FULL, load_benchmark
+from tests.conftest import FULL, FULL_ONLY, load_benchmark
 from workbench.calibrate import stages
 from workbench.calibrate.stages import excluded
 
@@ -210,6 +210,10 @@ def test_json_stages_of_a_two_effect_record(sn637, tmp_path, pair, size, seed):
         assert abs(by["delay"]["delay_s"] - truth["delay_s"]) < 1e-3
 
 
+# a regression record: WORKBENCH_FULL=1 only (session 31, s31_suite); make test's record of its family and kind is
+# test_json_stages_of_a_two_effect_record[creep+delay] (creep + delay, 1 kHz steps, ``workbench calibrate --json``:
+# both named, the delay within a sample)
+@FULL_ONLY
 def test_creep_and_an_8ms_delay_are_both_named_in_the_json(sn637, tmp_path):
     """The record with creep and a long sensor delay (8.4 ms, 5x, steps at 1 kHz): both are in the
     JSON's ``stages``, the delay within 30 %. After the plant kernel's KCL fix the folds split

@@ -1733,8 +1733,32 @@ def _gram_sse(Gb, w):
 
 
 def _other_sensor_lags_alike(sse_lagged, sse_unlagged, n):
-    """Does the other sensor read the lag (:func:`_other_sensor_lag`)? Its model lagged leaves less held out
-    than unlagged (bool).
+    """May the other sensor read the lag (:func:`_other_sensor_lag`)? False only where its model unlagged is
+    resolved beyond lagged (:func:`resolved_beyond`: the difference beyond its standard error over the fold's
+    blocks); True where the lagged leaves less or the two are not told apart (bool).
+
+    **Session 31: a bar, not the sign.** The test lags the other sensor by the delay's own ``d``, but the two
+    sensors do not sample alike: the displacement is read at the sample's instant, the gauge as the chain's
+    mean over the sample interval, which averages a mode above Nyquist's ringing and reads a smaller lag. Fresh
+    seed 112 #121 (a 123.5 Hz, zeta 0.010 mode beside a drift under the 100 Hz sine; the first stage the drift
+    5 of 5): the displacement's second stage a 0.27-sample lag; the gauge lagged by ``m d`` resolved beyond
+    unlagged on folds 0-3 at ``m`` = 0.25-0.5 (``D / SE`` up to +2.9) and lagged by the full ``d`` read
+    +0.29, +1.91, **-0.39**, +0.52, -2.81: by the sign two folds decided the delay, enough to name it (2 of 5
+    decided, :func:`delay_or_mode_consensus`): a wrong answer. A fold decides a sensor's latency only where
+    the record resolves the other sensor unlagged; a fold whose other sensor cannot tell lagged from
+    unlagged is undecided, compatible with both (the fold test's own bar, as every tracing choice).
+    Measured (README "Session 31, the other sensor's lag at a bar"): the delay / mode / drift + mode /
+    creep + delay records of development seeds 90-93, 96-99 at 100 Hz (96 records) answer as before; the
+    session 25 review's right delays near the bar: 55 #17 (1 kHz sine) delay 5 -> 4 of 5, still named; 55 #83,
+    55 #86, 41 #138 (1 MHz) unchanged; check seeds 105-106 at default rates (72 such records): one right
+    answer lost, 106 #64 (creep + delay at 10 kHz steps, 119x: its second delay fold's gauge at D/SE -1.00,
+    named by the sign before). A wide 100 Hz draw (48 records, ``default_rng(3131)``): wrong 2 -> 1.
+    **Not fixed**: that draw's #1 (a 515 Hz mode beside a drift under the sine): the gauge resolves unlagged
+    beyond lagged by the full ``d`` on two folds (-1.73, -1.44) while lagged by ``d / 4`` it is resolved the
+    other way on three: the gauge's interval mean reads a fraction of the displacement's lag, and the delay's
+    per-fold gain (the lag its term actually puts on the displacement) is not what the test lags by.
+
+    Before session 31:
 
     Two readings of the other sensor with no parameter of their own (the lag is the delay's, its gain one):
     no penalty between them, and the one leaving less held out is the other sensor's reading, the difference
@@ -1753,7 +1777,7 @@ def _other_sensor_lags_alike(sse_lagged, sse_unlagged, n):
     no noise guard yet (open). A lag or lead **both** sensors share beside a passing mode (a late drive, a
     common acquisition offset) is undecided: the record cannot tell it from a mode above Nyquist
     (``test_other_sensor_lag``)."""
-    return float(np.sum(sse_unlagged) - np.sum(sse_lagged)) > 0.0
+    return not resolved_beyond(sse_unlagged, sse_lagged, n)[0]
 
 
 def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_share, phase=None, block_sse=None,
@@ -1793,7 +1817,8 @@ def _delay_or_mode(best, tags, f, befores, infos, penalty, noise_factor, min_sha
       late, as a mode above Nyquist makes it under the held drive (the benchmark's delay is the displacement
       sensor's alone; its modes the gauge reads too). ``cross``: per fold, the other sensor's held-out errors
       per validation block with its model lagged by this delay and unlagged (:func:`_other_sensor_lag`);
-      where the lagged model leaves less there (:func:`_other_sensor_lags_alike`), the fold is undecided.
+      where the unlagged model is not resolved beyond the lagged there (:func:`_other_sensor_lags_alike`;
+      session 31: was the sign of the difference), the fold is undecided.
       It is asked before the lead rule: a lead both sensors share (an acquisition offset of the drive's
       channel) beside a passing mode is undecided too, whatever the phase reading says.
 
