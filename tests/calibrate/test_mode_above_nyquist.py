@@ -8,10 +8,10 @@ phase set by the path, not by a straight line between samples (the first-order h
 record's charge; :func:`~workbench.calibrate.effects.held_mode_column` the mode driven through it, which tells a
 mode above the record's Nyquist frequency from its alias (the same poles, different responses to the path).
 
-The records here are simulated with the mode resolved (``n_sub=64``: 0.16 ms sub-steps). The confusion
-benchmark's records use ``n_sub=4``: at 100 Hz its 2.5 ms sub-steps ramp each step's 0.46 ms settle over 2.5 ms
-and integrate a 277 Hz mode (3.6 ms period) on them, so what its records show of a mode above ~100 Hz is the
-simulator's sub-stepping (README, "Session 31, modes above the record's Nyquist frequency").
+The records here are simulated with the mode resolved (``n_sub=64``: 0.16 ms sub-steps; the alias-family
+tests on the simulator's own, ``synthetic.substeps``: 125 at 100 Hz since session 32). Until session 32 the
+confusion benchmark's records used ``n_sub=4``: at 100 Hz its 2.5 ms sub-steps ramped each step's 0.46 ms settle
+over 2.5 ms, so what its records showed of a mode above ~100 Hz was partly the simulator's sub-stepping.
 """
 
 import dataclasses
@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from tests.conftest import load_benchmark, reduced_draws
+from tests.conftest import FULL_ONLY, load_benchmark, reduced_draws
 from workbench.calibrate.effects import HeldDrive, held_mode_column
 
 R_OHM, C_F, LIMITS_A = 80.0, 5.8e-6, (2e-3, 14e-3)    # the P-888.51 file's resistor, ~its capacitance, its limits
@@ -150,9 +150,9 @@ def test_a_record_without_a_mode_names_no_mode_at_100_hz(sn637, protocol, seed):
     assert [s["effect"] for s in res["stages"]] == [], (res["effect"], res.get("fold_winners"))
 
 
-def _resolved_base(plant0, protocol, f_hz, zeta, seed):
-    """A 100 Hz record of the benchmark's protocol with one resolved mode (``n_sub=64``): its plant, split and
-    base fit (as :func:`_traced`, without the tracing)."""
+def _resolved_base(plant0, protocol, f_hz, zeta, seed, n_sub=64):
+    """A 100 Hz record of the benchmark's protocol with one resolved mode (``n_sub=64``; None: the simulator's
+    own, ``synthetic.substeps``): its plant, split and base fit (as :func:`_traced`, without the tracing)."""
     from workbench.calibrate.base_fit import fit_base
     from workbench.calibrate.splits import make_split
     from workbench.calibrate.synthetic import benchmark_protocol, simulate_record
@@ -163,7 +163,7 @@ def _resolved_base(plant0, protocol, f_hz, zeta, seed):
     t, v = benchmark_protocol(protocol, rate, cc.ROWS[rate])
     plant = dataclasses.replace(plant0, pzt=dataclasses.replace(plant0.pzt, creep=None, modes=(Mode(f_hz, zeta),)),
                                 additions=Additions())
-    r = simulate_record(plant, t, v, seed=seed, n_sub=64)
+    r = simulate_record(plant, t, v, seed=seed, n_sub=n_sub)
     sp = make_split(t, r["voltage_v"], "blocks")
     base = fit_base(cc._record(r, 1.0 / rate), plant0.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
                     pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
@@ -226,3 +226,104 @@ def test_a_100_hz_mode_written_to_the_plant_file_replays_the_tracing_error(sn637
     p.write_text(updated_plant_text(path, sn637, base, res, Path("record.csv"), core=core), encoding="utf-8")
     file_err = updated_plant_error(load_plant(p), base, "displacement", sp.test, train=sp.train)["rms"]
     assert file_err <= 1.1 * res["error_after"]["rms"], (file_err, res["error_after"]["rms"])
+
+
+# the alias family (session 32, the review of s31_alias B1): a mode above Nyquist rings in the samples at its alias,
+# and so does every ``k fs +- f_a`` in the held search's band. Modes over the held search's range (55-340 Hz), the
+# benchmark's damping range, the three protocols in turn, on converged records (synthetic.substeps);
+# default_rng(3202), drawn before the family test was run on any. 7-10 s a draw: WORKBENCH_FULL=1 only (make test
+# runs the family's arithmetic, test_the_alias_family_is_every_image_in_the_band). The 151 Hz sine draw misses
+# (measured 2026-11-28): named 204.9 Hz, zeta 0.035, gain -0.23, ratio 0.28, 5 of 5 folds, outside the drawn mode's
+# family (its alias 49 Hz, the named one's 4.9 Hz), the family test resolved about the wrong alias: under the slow
+# sine's small steps the held search fits a phase, not the mode (README, session 31's "not done" (2))
+_RNG4 = np.random.default_rng(3202)
+_SINE_MISS = pytest.mark.xfail(strict=True, reason="a mode under the 100 Hz sine named off its alias family "
+                                                   "(151 Hz named 204.9 Hz, gain -0.23): not an alias confusion")
+_FAMILY_DRAWS = [(("steps", "calibration", "sine")[k % 3], float(np.exp(_RNG4.uniform(np.log(55.0), np.log(340.0)))),
+                  float(_RNG4.uniform(0.005, 0.02)), int(_RNG4.integers(1 << 30))) for k in range(6)]
+FAMILIES = reduced_draws([pytest.param(*d, marks=[_SINE_MISS]) if k == 5 else d for k, d in enumerate(_FAMILY_DRAWS)],
+                         keep=())
+
+
+def test_the_alias_family_is_every_image_in_the_band():
+    """``alias_members``: a 200.4 Hz mode at 100 Hz in a 5-343 Hz band is one of 99.6 / 100.4 / 199.6 / 200.4 /
+    299.6 / 300.4 Hz (each ``k fs +- 0.4``; 0.4 Hz under the band's floor); a 30 Hz mode below Nyquist has 70, 130,
+    170, 230, 270, 330 Hz as images; the member nearest the named frequency is the named frequency itself."""
+    from workbench.calibrate.tracing import alias_members
+    got = alias_members(200.4, 100.0, 5.0, 343.0)
+    assert np.allclose(got, [99.6, 100.4, 199.6, 200.4, 299.6, 300.4])
+    assert np.allclose(alias_members(30.0, 100.0, 5.0, 343.0), [30, 70, 130, 170, 230, 270, 330])
+    f = 151.0814
+    assert f in alias_members(f, 100.0, 5.0, 343.0)
+
+
+def _traced_default(plant0, protocol, f_hz, zeta, seed):
+    """As :func:`_traced` with one mode, on the simulator's own converged sub-steps (``synthetic.substeps``)."""
+    from workbench.calibrate.tracing import trace_effect
+    plant, sp, base = _resolved_base(plant0, protocol, f_hz, zeta, seed, n_sub=None)
+    return trace_effect(base, split=sp), base
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol, f_hz, zeta, seed", FAMILIES)
+def test_a_held_mode_is_placed_in_its_alias_family_or_said_not_to_be(sn637, protocol, f_hz, zeta, seed):
+    """Where a mode is named through the held drive's path, its alias family is tested on the folds: a family
+    reported resolved has the drawn frequency named (within a quarter of the half-power bandwidth ``2 zeta f``);
+    one reported unresolved holds the drawn frequency among the members it says the record cannot tell apart,
+    and says so in the stage's note. Either way the named frequency is a member. The drawn frequencies' images
+    in the band are the test's own arithmetic (``k fs +- f_a``), not the code's."""
+    res, _ = _traced_default(sn637, protocol, f_hz, zeta, seed)
+    held = [s for s in res["stages"] if s["effect"] == "resonance" and s["parameters"].get("held")]
+    if not held:
+        pytest.skip(f"no held mode named ({res['effect']}, {[s['effect'] for s in res['stages']]})")
+    st = held[0]
+    fam = st["alias_family"]
+    f_named = st["parameters"]["f_n_hz"]
+    bw = 2 * zeta * f_hz
+    fa = min(f_hz % 100.0, 100.0 - f_hz % 100.0)
+    images = [k * 100.0 + s * fa for k in range(5) for s in (-1, 1)]
+    assert min(abs(f_named - m) for m in images) < bw, (f_named, f_hz)       # the named one rings at the alias
+    assert any(abs(m - f_named) < 1e-9 for m in fam["members_hz"])
+    if fam["resolved"]:
+        assert abs(f_named - f_hz) < 0.25 * bw, (fam, f_hz)
+    else:
+        said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
+        assert min(abs(m - f_hz) for m in said) < bw, (fam, f_hz)
+        assert st["note"] == fam["note"]
+
+
+@pytest.mark.slow
+@FULL_ONLY
+def test_a_family_the_record_cannot_resolve_is_said_and_not_written(sn637, tmp_path):
+    """A record whose mode the held path does not describe: seed 94 #104 of the benchmark (a 200.4 Hz mode on
+    the calibration protocol at 100 Hz) simulated on the 4 sub-steps a sample the benchmark used before session 32
+    (2.5 ms: each 0.48 ms settle ramped over a sub-step). The search names the 100.4 Hz member (the review of
+    s31_alias, B1); the folds do not resolve it beyond 200.4 and 300.4 Hz: the stage says so (the drawn 200.4 Hz
+    among the members it names) and the plant file does not carry the mode (``carried_stages``: omitted, with
+    the family as its reason)."""
+    from workbench.calibrate.base_fit import fit_base
+    from workbench.calibrate.plant_update import carried_stages
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.synthetic import benchmark_protocol, plant_with_effect, simulate_record
+    from workbench.calibrate.tracing import trace_effect
+    cc = load_benchmark("calibrate_confusion")
+    eff, rate, proto, size, s = cc.cases(1, 94, ends=True)[103]
+    assert (eff, rate, proto) == ("resonance", 100.0, "calibration")
+    t, v = benchmark_protocol(proto, rate, cc.ROWS[rate])
+    plant, truth = plant_with_effect(sn637, eff, s, duration_s=float(t[-1]), size=size)
+    r = simulate_record(plant, t, v, seed=s, n_sub=4)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    base = fit_base(cc._record(r, 1.0 / rate), sn637.pzt.series_resistance_ohm, train=sp.train, test=sp.test,
+                    pzt=plant.pzt, dac_range_v=plant.gauge.dac_range_v)
+    res = trace_effect(base, split=sp)
+    st = res["stages"][0]
+    assert st["effect"] == "resonance" and st["parameters"].get("held")
+    fam = st["alias_family"]
+    assert not fam["resolved"], fam
+    said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
+    assert min(abs(m - truth["freq_hz"]) for m in said) < 2 * truth["damping_ratio"] * truth["freq_hz"], (said, truth)
+    assert fam["note"] in res["reason"]
+    omit, carried = carried_stages(sn637.source, sn637, base, res, tmp_path / "r.csv", {"hysteresis": None},
+                                   sp.train)
+    assert ("resonance", st["channel"]) in omit
+    assert [c["written"] for c in carried if c["effect"] == "resonance"] == [False]

@@ -1271,6 +1271,9 @@ def run_stages(ctx, max_stages=3):
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
+        fam = _tr.alias_family(c, ctx, extra)      # a held drive's mode: its alias family resolved or not
+        if fam is not None:
+            stages[-1]["alias_family"] = fam
         if c.get("replaces") is not None:
             refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
             refitted_joint_stage(stages)           # the delay's or creep's, refitted beside the other

@@ -92,7 +92,8 @@ from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay
                       Resonance)
 from .pi_fit import rms, turning_points
 
-__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS"]
+__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
+           "alias_members", "ALIAS_ZETA_FACTORS"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
@@ -845,6 +846,14 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
             s["note"] = note
             if k == 0:
                 out["reason"] += f"; {note}"
+    for k, s in enumerate(out["stages"]):
+        fam = s.get("alias_family")
+        if fam and not fam["resolved"]:
+            # a held drive's mode above Nyquist the record cannot place in its alias family: said, and the plant
+            # file does not carry it as measured (plant_update.carried_stages)
+            s["note"] = fam["note"]
+            if k == 0:
+                out["reason"] += f"; {fam['note']}"
     if out["effect"] == "inconclusive":
         # absorption and leakage explain the record alike, the absorption's fitted time constant
         # beyond it: say so, and the record that would tell them apart (:func:`.absorption_or_leakage.too_short_note`)
@@ -1668,6 +1677,103 @@ def resolved_beyond(sse_best, sse_other, n):
     D = float(d.sum()) / N
     se = float(np.sqrt(m / (m - 1.0) * np.sum((d - D * n) ** 2))) / N
     return bool(D > se), D, se
+
+
+#: Each alias-family member's damping is re-picked per fold (:func:`alias_family`) on these factors of the damping
+#: that rings in the samples as the named mode does (``zeta f / f_m``: the same decay per sample), a factor of two
+#: either way: the held search's own damping grid is 4 points over ~1.4 decades, ~2.2x apart
+ALIAS_ZETA_FACTORS = (0.5, 0.5 ** 0.5, 1.0, 2.0 ** 0.5, 2.0)
+
+
+def alias_members(f_hz, fs_hz, f_lo_hz, f_hi_hz):
+    """The alias family of a mode at ``f_hz`` sampled at ``fs_hz``: every ``k fs +- f_a`` in ``[f_lo, f_hi]`` (Hz).
+
+    ``f_a`` is the frequency the mode rings at in the samples (``f`` folded into ``[0, fs / 2]``); the member
+    nearest ``f_hz`` is ``f_hz`` itself. Sorted, distinct (within 1e-6 relative)."""
+    fs = float(fs_hz)
+    r = float(f_hz) % fs
+    f_a = min(r, fs - r)
+    out = [float(f_hz)]
+    for k in range(int(f_hi_hz // fs) + 2):
+        for m in (k * fs - f_a, k * fs + f_a):
+            if f_lo_hz <= m <= f_hi_hz and all(abs(m - o) > 1e-6 * max(o, 1e-12) for o in out):
+                out.append(float(m))
+    return sorted(out)
+
+
+def alias_family(c, ctx, extra):
+    """Does the record tell the held drive's mode from the other members of its alias family? A dict, or None.
+
+    Above the record's Nyquist frequency a mode rings in the samples at its alias ``f_a``, and every
+    ``k fs +- f_a`` in the held search's band (its floor to :meth:`~.effects.Resonance._held_ceiling`,
+    :func:`alias_members`) rings there too; the held drive's path between samples gives each a different
+    amplitude and phase, which a record may or may not resolve (the review of s31_alias: 94 #104, a 200.4 Hz mode
+    named 100.4 Hz). Per validation fold, the named frequency and each other member are fitted on the fold's
+    training blocks with the found effects (the same joint columns as the stage), each member's damping picked
+    there among :data:`ALIAS_ZETA_FACTORS` of ``zeta f / f_m`` (the decay per sample of the named mode), the named
+    one's among the same factors of its own: no fold's validation blocks choose anything. The fold resolves the
+    named frequency when it leaves less on the validation blocks than every other member beyond the blocks' scatter
+    (:func:`resolved_beyond`, the fold test's bar); the family is resolved when ``need`` folds do.
+
+    ``c``: the stage's candidate row (a ``resonance`` with ``params["held"]``); ``ctx``: the stage context;
+    ``extra``: the found effects' columns before this stage's. None for any other row, or a family of one.
+
+    Returns
+    -------
+    dict
+        ``members_hz`` (sorted, the named one among them), ``named_hz``, ``resolved`` (bool), ``folds``
+        (``"k of n"``: folds resolving the named frequency beyond every other member), ``unresolved_by``
+        (per other member, the folds that do not resolve the named beyond it) and ``note`` (what the record cannot
+        tell, when not resolved).
+    """
+    eff, p = c.get("eff"), c.get("params") or {}
+    if c.get("name") != "resonance" or not p.get("held") or getattr(eff, "held", None) is None:
+        return None
+    from .effects import held_mode_column
+    t, split = ctx["t"], ctx["split"]
+    prob = ctx["probs"][c["key"]]
+    dt = float((t[-1] - t[0]) / (t.size - 1))
+    f0, z0 = float(p["f_n_hz"]), float(p["zeta"])
+    members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), float(eff._held_ceiling(t)))
+    if len(members) < 2:
+        return None
+    z_lo, z_hi = float(eff.zeta_min), float(max(min(eff.zeta_max, RING_ZETA_MAX), eff.zeta_min))
+    n_folds = len(split.folds)
+    u = np.asarray(c["u"], float)
+    # per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
+    grams = []
+    for f_m in members:
+        zs = sorted({float(np.clip(z0 * f0 / f_m * a, z_lo, z_hi)) for a in ALIAS_ZETA_FACTORS})
+        grams.append([_cand_grams(prob, extra[c["key"]],
+                                  {"g": prob.grams(held_mode_column(u, eff.held, f_m, z), [-np.inf]),
+                                   "replaces": c.get("replaces")}, n_folds) for z in zs])
+    i0 = members.index(f0)
+    resolved_folds = 0
+    unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
+    for f, (tr, va) in enumerate(split.folds):
+        # each member at its damping of least training error on this fold, then its validation blocks' errors
+        va_sse, n = [], None
+        for per_z in grams:
+            best = min(per_z, key=lambda gf: prob.sse(gf[f], prob.solve(gf[f], tr), tr)[0])
+            sse, n = prob.fold_block_sse(best[f], tr, va)
+            va_sse.append(sse)
+        ok = True
+        for k, m in enumerate(members):
+            if k != i0 and not resolved_beyond(va_sse[i0], va_sse[k], n)[0]:
+                unresolved_by[m] += 1
+                ok = False
+        resolved_folds += int(ok)
+    need = int(ctx["need"])
+    out = {"members_hz": members, "named_hz": f0, "resolved": bool(resolved_folds >= need),
+           "folds": f"{resolved_folds} of {n_folds}", "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()}}
+    if not out["resolved"]:
+        left = [m for m, k in unresolved_by.items() if n_folds - k < need]
+        fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
+        out["note"] = (f"a mode at one of {fam} Hz (the alias family of its {min(f0 % (1 / dt), 1 / dt - f0 % (1 / dt)):.4g} Hz "
+                       f"ring in the samples): the {1 / dt:.4g} Hz record cannot tell which (the named {f0:.4g} Hz is "
+                       f"resolved beyond every other member on {resolved_folds} of {n_folds} folds, {need} needed); "
+                       f"a record at a rate above twice the mode's frequency tells them apart")
+    return out
 
 
 #: The other sensor of the same motion: the gauge and the displacement sensor both read the stack.
