@@ -1851,8 +1851,15 @@ class Resonance(Effect):
             return None
         return self._models.get((params["f_n_hz"], params["zeta"], _data_key(np.asarray(y_model, float))))
 
+    def _held_only(self, params):
+        """A held drive's mode (``params["held"]``) is a column of that path alone: without it, an error (the
+        first-order hold's column is another model, and was once returned in its place without a word)."""
+        if params.get("held") and self.held is None:
+            raise ValueError("a held drive's mode needs the record's held drive (HeldDrive); this Resonance has none")
+
     def term(self, t, u, params, y_model=None):
-        if params.get("held") and self.held is not None:
+        self._held_only(params)
+        if params.get("held"):
             return params["gain"] * held_mode_column(u, self.held, params["f_n_hz"], params["zeta"])
         col = self._refit_column(params, y_model)
         if col is not None:
@@ -1864,7 +1871,8 @@ class Resonance(Effect):
         # the refitted model's column where fitted to this y_model (its gain ~1, >= 0: the mode's
         # sign is in the column); a model it was not fitted to (a channel the found mode is carried
         # to) takes the mode on its own prediction
-        if params.get("held") and self.held is not None:
+        self._held_only(params)
+        if params.get("held"):
             return held_mode_column(u, self.held, params["f_n_hz"], params["zeta"]), [-np.inf]
         col = self._refit_column(params, y_model)
         if col is not None:

@@ -1258,8 +1258,10 @@ def _absorb(c, extra, probs, base, t, refit_carry=True):
                     # the motion the mode makes, refitted or plain (the plain variant's column is the mode on
                     # the displacement's base prediction: session 28, 107 #154)
                     extra[key].append(_carried_motion(C, fold, base, c["channel"], other))
-                elif c["name"] == "resonance" and other == "displacement" and refit_carry:
-                    # the gauge's mode on the displacement's own model of the drive, refitted under it
+                elif c["name"] == "resonance" and other == "displacement" and refit_carry and not p.get("held"):
+                    # the gauge's mode on the displacement's own model of the drive, refitted under it (not a held
+                    # drive's mode: the refit's column is the first-order hold's, another model of the drive
+                    # between samples; its held column on the displacement's prediction is carried above)
                     extra[key].append(_refitted_carry(p, probs[key], base, t, other))
 
 
