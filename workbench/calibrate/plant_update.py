@@ -40,7 +40,7 @@ import re
 
 import numpy as np
 
-__all__ = ["carried_stages", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "held_replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["carried_stages", "unplaced_modes", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "held_replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -285,6 +285,23 @@ def _file_lines(text):
     return [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 
+def unplaced_modes(stages):
+    """``{(effect, channel): reason}``: the held drive's modes the record cannot place in their alias family.
+
+    A mode above the record's Nyquist frequency named through the held drive's path, whose folds do not resolve
+    the named frequency beyond the other members of its alias family (``stage["alias_family"]``,
+    :func:`~workbench.calibrate.tracing.alias_family`), is not written to the plant file: a servo designer reads a
+    file's mode as measured, and at 100 Hz the record leaves it at one of several frequencies (100.4, 200.4 or
+    300.4 Hz), which bound a loop's bandwidth very differently. The JSON carries the family, the file's gaps
+    (``omit``'s reason) say what is missing and why, and its ``error_after`` is that of the file without it."""
+    out = {}
+    for st in stages:
+        fam = st.get("alias_family")
+        if fam and not fam.get("resolved", True):
+            out[(st["effect"], st["channel"])] = f"its frequency is not resolved: {fam['note']}"
+    return out
+
+
 def carried_stages(plant_path, plant, base, result, data_path, core, rows, replays=None):
     """Which stages the updated plant file carries: each written only where it replays the development rows closer.
 
@@ -319,15 +336,10 @@ def carried_stages(plant_path, plant, base, result, data_path, core, rows, repla
     stages = written_stages(result.get("stages") or [], result, core)
     carried = [{"effect": st["effect"], "channel": st["channel"], "written": True, "reason": None,
                 "development_rms": None} for st in stages]
-    omit = {}
+    omit = unplaced_modes(stages)
     for c, st in zip(carried, stages):
-        # a held drive's mode the record cannot place in its alias family (tracing.alias_family): not written as
-        # if measured; the JSON and the report carry the family, the file's gaps say why it is not there
-        fam = st.get("alias_family")
-        if fam and not fam.get("resolved", True):
-            reason = f"its frequency is not resolved: {fam['note']}"
-            omit[(st["effect"], st["channel"])] = reason
-            c.update(written=False, reason=reason)
+        if (st["effect"], st["channel"]) in omit:
+            c.update(written=False, reason=omit[(st["effect"], st["channel"])])
     why_not = updated_plant_error_reason("pzt", result, base, result.get("channel"))
     if why_not is not None:
         for c in carried:
