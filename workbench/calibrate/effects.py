@@ -1842,6 +1842,12 @@ class Resonance(Effect):
             return held_mode_column(u, self.held, np.exp(th[0]), np.exp(th[1]))
         theta, beta = _varpro(col, np.asarray(residual, float), np.asarray(train_mask, bool), grid,
                               [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3)
+        if theta[1] >= lz_hi - 1e-9:
+            # the fit ran to its damping cap: no ring (a mode this variant reads rings within RING_ZETA_MAX), the
+            # lag of the drive's phase at its harmonics read by the most damped trial, a sub-sample delay's reading
+            # (107 #127 at 100 Hz steps: a 0.28 ms displacement latency, 0.028 samples, fitted 301.9 Hz at zeta
+            # 0.159 and named a mode on 2 of 5 folds). Not this variant's answer (as _phase_only_mode, beside a delay)
+            raise ValueError("the held mode's fit runs to its damping cap: a phase, not a ring")
         return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])), "zeta": float(np.exp(theta[1])),
                 "held": True}
 
