@@ -235,7 +235,10 @@ def test_a_100_hz_mode_written_to_the_plant_file_replays_the_tracing_error(sn637
 # runs the family's arithmetic, test_the_alias_family_is_every_image_in_the_band). The 151 Hz sine draw misses
 # (measured 2026-11-28): named 204.9 Hz, zeta 0.035, gain -0.23, ratio 0.28, 5 of 5 folds, outside the drawn mode's
 # family (its alias 49 Hz, the named one's 4.9 Hz), the family test resolved about the wrong alias: under the slow
-# sine's small steps the held search fits a phase, not the mode (README, session 31's "not done" (2))
+# sine's small steps the held search fits a phase, not the mode (README, session 31's "not done" (2)). The plant file
+# does not carry it (its gain <= 0, plant_update.unplaced_modes); the JSON names it. Measured on the other five: four
+# resolved at the drawn frequency, the 216.6 Hz calibration draw named 216.9 Hz but resolved on 3 of 5 folds only
+# (said, not written)
 _RNG4 = np.random.default_rng(3202)
 _SINE_MISS = pytest.mark.xfail(strict=True, reason="a mode under the 100 Hz sine named off its alias family "
                                                    "(151 Hz named 204.9 Hz, gain -0.23): not an alias confusion")
@@ -268,7 +271,7 @@ def _traced_default(plant0, protocol, f_hz, zeta, seed):
 @pytest.mark.parametrize("protocol, f_hz, zeta, seed", FAMILIES)
 def test_a_held_mode_is_placed_in_its_alias_family_or_said_not_to_be(sn637, protocol, f_hz, zeta, seed):
     """Where a mode is named through the held drive's path, its alias family is tested on the folds: a family
-    reported resolved has the drawn frequency named (within a quarter of the half-power bandwidth ``2 zeta f``);
+    reported resolved, its mode written to the file (``unplaced_modes``: not a gain <= 0), has the drawn frequency named (within a quarter of the half-power bandwidth ``2 zeta f``);
     one reported unresolved holds the drawn frequency among the members it says the record cannot tell apart,
     and says so in the stage's note. Either way the named frequency is a member. The drawn frequencies' images
     in the band are the test's own arithmetic (``k fs +- f_a``), not the code's."""
@@ -284,12 +287,29 @@ def test_a_held_mode_is_placed_in_its_alias_family_or_said_not_to_be(sn637, prot
     images = [k * 100.0 + s * fa for k in range(5) for s in (-1, 1)]
     assert min(abs(f_named - m) for m in images) < bw, (f_named, f_hz)       # the named one rings at the alias
     assert any(abs(m - f_named) < 1e-9 for m in fam["members_hz"])
-    if fam["resolved"]:
+    from workbench.calibrate.plant_update import unplaced_modes
+    if fam["resolved"] and (st["effect"], st["channel"]) not in unplaced_modes(res["stages"]):
+        # placed: what the plant file carries as measured is the drawn mode
         assert abs(f_named - f_hz) < 0.25 * bw, (fam, f_hz)
     else:
         said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
         assert min(abs(m - f_hz) for m in said) < bw, (fam, f_hz)
         assert st["note"] == fam["note"]
+
+
+def test_the_plant_file_leaves_out_a_held_mode_it_cannot_place():
+    """``unplaced_modes``: a held mode whose family is unresolved, or whose gain is <= 0, is left out with its reason;
+    a resolved one of positive gain, and any mode without a family (not the held drive's), are written."""
+    from workbench.calibrate.plant_update import unplaced_modes
+    fam = {"members_hz": [100.4, 200.4, 300.4], "named_hz": 100.4, "resolved": False, "note": "a mode at one of ..."}
+    st = [{"effect": "resonance", "channel": "displacement", "parameters": {"f_n_hz": 100.4, "gain": 1.0, "held": True},
+           "alias_family": fam}]
+    assert "a mode at one of" in unplaced_modes(st)[("resonance", "displacement")]
+    st[0]["alias_family"] = {**fam, "resolved": True}
+    assert unplaced_modes(st) == {}
+    st[0]["parameters"]["gain"] = -0.23
+    assert "gain" in unplaced_modes(st)[("resonance", "displacement")]
+    assert unplaced_modes([{"effect": "resonance", "channel": "gauge", "parameters": {"gain": -0.5}}]) == {}
 
 
 @pytest.mark.slow

@@ -286,7 +286,8 @@ def _file_lines(text):
 
 
 def unplaced_modes(stages):
-    """``{(effect, channel): reason}``: the held drive's modes the record cannot place in their alias family.
+    """``{(effect, channel): reason}``: the held drive's modes the record cannot place in their alias family, or
+    whose gain is not a mode's (<= 0).
 
     A mode above the record's Nyquist frequency named through the held drive's path, whose folds do not resolve
     the named frequency beyond the other members of its alias family (``stage["alias_family"]``,
@@ -299,6 +300,13 @@ def unplaced_modes(stages):
         fam = st.get("alias_family")
         if fam and not fam.get("resolved", True):
             out[(st["effect"], st["channel"])] = f"its frequency is not resolved: {fam['note']}"
+        elif fam and float((st.get("parameters") or {}).get("gain", 1.0)) <= 0.0:
+            # the held column is the motion a mode adds, (H - 1) x; a stack's mode adds it with a positive share
+            # (~1). A gain <= 0 is the column fitting something else (a 151 Hz mode under the 100 Hz sine named
+            # 204.9 Hz, gain -0.23, off its alias family; the review's 103 #104: 90.8 Hz, gain -0.26)
+            g = float(st["parameters"]["gain"])
+            out[(st["effect"], st["channel"])] = (f"its gain {g:.3g} <= 0: the held drive's mode column fits no mode of the "
+                                                  f"stack's motion there (a mode adds (H - 1) x with a positive share)")
     return out
 
 
