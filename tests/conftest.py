@@ -8,6 +8,7 @@ way should become an ``@example`` on the test.
 """
 
 import os
+import re
 
 # One BLAS thread per test process: `make test` runs one pytest-xdist worker per core, and
 # OpenBLAS's own threads on top of those oversubscribe the cores (the calibration tests' Gram
@@ -143,3 +144,51 @@ def stable_rss():
         return sys_
 
     return draw
+
+
+#: the ids ``make test`` leaves to the full form, and why (the file's header): coverage-checked, session 32
+FULL_ONLY_LIST = Path(__file__).with_name("full_only.txt")
+#: the listed ids no collection of their whole file found (a renamed test, a changed draw), per session
+STALE_FULL_ONLY = pytest.StashKey[list]()
+_FLOAT = re.compile(r"(?<![\w.])-?\d+\.\d+(?:e[+-]?\d+)?")
+
+
+def stable_id(nodeid):
+    """``nodeid`` with every decimal number in its parameters rounded to 6 significant digits.
+
+    Drawn ids carry floats such as ``float(np.exp(u))``, whose last digit numpy's SIMD exp and libm's exp
+    can disagree on from one CPU to another; the list must name the same test on every machine."""
+    path, sep, rest = nodeid.partition("[")
+    return path + sep + _FLOAT.sub(lambda m: f"{float(m.group()):.6g}", rest)
+
+
+def read_full_only(path=FULL_ONLY_LIST):
+    """The listed node ids of ``path`` (one a line, ``#`` comments), as a set of :func:`stable_id` keys."""
+    ids = set()
+    for line in path.read_text(encoding="utf-8").splitlines():
+        nid = line.split("#", 1)[0].strip()
+        if nid:
+            ids.add(stable_id(nid))
+    return ids
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config, items):
+    """Skip the ids of ``tests/full_only.txt`` unless ``WORKBENCH_FULL=1``; note a list gone stale.
+
+    Runs before ``-k``/``-m`` deselect, so every id of a collected file is seen. A listed id whose file was
+    collected whole (no ``file::name`` argument) but which no longer exists is kept in the config's stash:
+    the run goes on (the test just runs: fail-safe), and ``tests/test_full_only_list.py`` fails on it."""
+    listed = read_full_only()
+    seen = {stable_id(item.nodeid) for item in items}
+    files = {nid.split("::", 1)[0] for nid in seen}
+    picked = any("::" in str(a) for a in config.args)
+    stale = [] if picked else sorted(nid for nid in listed - seen if nid.split("::", 1)[0] in files)
+    config.stash[STALE_FULL_ONLY] = stale
+    if FULL:
+        return
+    mark = pytest.mark.skip(reason="full form: tests/full_only.txt (coverage-checked); WORKBENCH_FULL=1 "
+                                   "(make test-full) runs it")
+    for item in items:
+        if stable_id(item.nodeid) in listed:
+            item.add_marker(mark)

@@ -714,6 +714,37 @@ FUZZ3 = [
     ("identify-table-r-in-only", ["identify", "transducer", "bad/t_r_in_only.csv"], ["bad/t_r_in_only.csv", "R_out"]),
     ("identify-mirror-file", ["identify", "transducer", FSM], ["fsm_p888_51.toml: is a .toml file, not a Table 1"]),
     ("identify-controller-file", ["identify", "transducer", "controllers/mimo.json"], ["is a .json file, not a Table 1"]),
+    # ---- session 32, the outside user's pass (issue 17 claimed 0 accepted-but-wrong) -------------------------------
+    # a bare 200 read as N/m: T_em 65.87 N/V, 6 orders from the R_in runs' 258.6 N/um, unflagged
+    ("identify-stiffness-bare-number", ["identify", "transducer", TABLE, "--stiffness", "200"],
+     ["--stiffness", "200 N/m", "R_in runs", "unit slip", "200N/um"]),
+    ("identify-stiffness-one-prefix-off", ["identify", "transducer", TABLE, "--stiffness", "200N/mm"],
+     ["--stiffness", "200000 N/m", "R_in runs"]),
+    # linearize refused 200V, sweep ran it ("DF A=200 V"): one home for the amplifier's span
+    ("sweep-amplitude-over-the-span", ["sweep", STUDY, "--out", "{out}", "--amplitudes", "200V"],
+     ["--amplitudes 200 V", "(0, 140] V", "-20..120 V"]),
+    ("selfsense-strict-controller-for-another-plant",
+     ["selfsense", "plants/p888_51_sn618.toml", "--controller", CTRL, "--strict", "--out", "{out}"],
+     ["sn637_loopshape.json", "p888_51_sn618.toml", "--strict", "trim_scale"]),
+    # messages: the flag that gave the value, what the file is, the right schema, the right suffix
+    ("study-set-named-not-the-file", ["study", STUDY, "--out", "{out}", "--set", "targets.phase_margin_deg=500"],
+     ["--set targets.phase_margin_deg=500", "got 500", "the file is not modified"]),
+    ("study-set-plant-value-named", ["study", STUDY, "--out", "{out}", "--set", "electrical.current_limit_source_a=20"],
+     ["--set electrical.current_limit_source_a=20", "got 20"]),
+    ("study-set-export-name-named", ["study", STUDY, "--out", "{out}", "--set", "export.name=../y"],
+     ["--set export.name=../y", "file stem"]),
+    ("study-set-deg-key-other-unit", ["study", STUDY, "--out", "{out}", "--set", "targets.phase_margin_deg=50dB"],
+     ["--set targets.phase_margin_deg=50dB", "(deg)", "50deg"]),
+    ("study-given-a-plant-file", ["study", PLANT, "--out", "{out}"],
+     ["p888_51_sn637.toml", "plant file (workbench.plant/1)", "study file"]),
+    ("sweep-given-a-plant-file", ["sweep", PLANT, "--out", "{out}"],
+     ["p888_51_sn637.toml", "plant file (workbench.plant/1)", "study file"]),
+    ("study-given-a-mirror-file", ["study", FSM, "--out", "{out}"],
+     ["fsm_p888_51.toml", "mirror file (workbench.fsm/1)", "studies/fsm_servo.toml"]),
+    ("study-mirror-workers-schema", ["study", "studies/fsm_servo.toml", "--out", "{out}", "--workers", "1"],
+     ["workbench.fsm_study/1", "--workers"]),
+    ("synth-out-folder-suggests-csv", ["synth", PLANT, "--out", "{out}/"], ["is a folder", "result.csv"]),
+    ("bench-steps-not-integer-valued", ["bench", "--steps", "2.5"], ["'2.5' is not an integer"]),
 ]
 
 
@@ -1009,3 +1040,20 @@ def test_legal_records_next_to_the_boundaries_are_accepted(tmp_path):
         rec = _calibrate_checks(_accepted_record(tmp_path, name, t_, v_, x_, pre), tmp_path)
         assert len(rec.t_s) == t_.size
     assert float(_calibrate_checks(tmp_path / "r0.csv", tmp_path).metadata["series_resistor_ohm"]) == 0.0
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["verify", CREEP, "--controller", CTRL, "--scenario", "bogus"], "invalid choice: 'bogus'"),
+    (["linearize", PLANT, "--cp-tolerance", "20%"], "--cp-tolerance"),
+    (["calibrate", RECORD], "--plant"),
+    (["bogus"], "invalid choice"),
+])
+def test_argparse_errors_are_one_line(argv, fragment, ws, capsys, monkeypatch):
+    """argparse's usage errors printed the usage and the error (5-11 lines); the README says one line on
+    stderr, exit status 2 (session 32, the outside pass)."""
+    monkeypatch.chdir(ws)
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert info.value.code == 2 and len(lines) == 1 and fragment in lines[0] and "--help" in lines[0], err

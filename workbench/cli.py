@@ -5,6 +5,7 @@ user's input print one clear message and exit with status 2, without a traceback
 """
 
 import argparse
+import contextlib
 import sys
 from pathlib import Path
 
@@ -21,7 +22,14 @@ def _positive_int(text):
     try:
         value = int(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        # an integer written as a float (1e6, 2.0e7: the helps' own "default 1e7") is that integer
+        try:
+            number = float(text)
+        except ValueError:
+            number = None
+        if number is None or not number.is_integer():
+            raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+        value = int(number)
     if value < 1:
         raise argparse.ArgumentTypeError(f"{text!r} must be >= 1")
     return value
@@ -247,9 +255,13 @@ def _fmt_metric(m, key):
 def _refuse_for_mirror(command, given):
     """A flag the mirror's command does not implement is refused before any work (not silently ignored)."""
     from .errors import UnsupportedError
+    from .plant.mirror import FSM_SCHEMA_VERSION
+    from .study.mirror import FSM_STUDY_SCHEMA
     flags = [flag for flag, on in given if on]
     if flags:
-        raise UnsupportedError(f"{command} of a mirror (schema workbench.fsm) does not take {', '.join(flags)}; "
+        what = (f"a mirror study (schema {FSM_STUDY_SCHEMA})" if command == "study" else
+                f"{command} of a mirror (schema {FSM_SCHEMA_VERSION})")
+        raise UnsupportedError(f"{what} does not take {', '.join(flags)}; "
                                f"run it without {'them' if len(flags) > 1 else 'it'} (the mirror's scenarios and "
                                f"targets are those of workbench/verify/mirror.py and study/mirror.py)")
 
@@ -454,8 +466,17 @@ def cmd_demo(args):
     _emit(args, data, [])
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser whose usage errors are one line on stderr, exit status 2, as every other error of the
+    workbench (argparse printed its usage first: 5-11 lines); ``--help`` prints the usage as before.
+    The sub-commands' parsers are of this class too (``add_subparsers`` uses the parent's class)."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(prog="workbench", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="workbench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("gauge", help="strain-gauge chain gains and bias at an operating point",
@@ -542,14 +563,16 @@ def build_parser():
     p.add_argument("--json", type=Path, help="write the summary as JSON here (summary.json in --out is always written)")
     p.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
                    help="override a plant or study value, units allowed (repeatable), e.g. "
-                        "--set electrical.current_limit_source_a=20mA --set targets.min_crossover_hz=80Hz; plant "
-                        "sections apply to every plant of the study; the files are not modified")
+                        "--set electrical.current_limit_source_a=20mA --set targets.min_crossover_hz=80Hz (a key "
+                        "named in deg, dB, percent takes a plain number or that unit: targets.phase_margin_deg=50deg); "
+                        "plant sections apply to every plant of the study; the files are not modified")
     p.add_argument("--only", choices=["loopshape"], help="loopshape: the exported design alone, no comparison "
                                                          "designs (Glover-McFarlane, H-infinity, convex)")
     p.add_argument("--cache-dir", type=Path, help="family cache folder (default $WORKBENCH_CACHE_DIR, else "
                                                   "$XDG_CACHE_HOME/workbench, else ~/.cache/workbench)")
     p.add_argument("--no-cache", action="store_true", help="compute the family, neither read nor write the cache")
-    p.add_argument("--workers", type=int, help="processes for the family (default: the machine's cores)")
+    p.add_argument("--workers", type=int, help="processes for the family (default: the machine's cores); not for a "
+                                               "mirror study (workbench.fsm_study/1), which runs in one process")
     p.set_defaults(func=cmd_study)
 
     p = sub.add_parser("verify", help="the exported controller in closed loop with the nonlinear plant",
@@ -625,8 +648,8 @@ def build_parser():
                         "the past, predict the last quarter) or after the first cycles (default for a generic stack)")
     p.add_argument("--train-cycles", type=float, default=3, help="input cycles that train with --split cycles")
     p.add_argument("--max-ratio", type=float, default=0.8,
-                   help="ignored (kept for scripts): the decision is against the noise floor and a null reference "
-                        "over validation folds")
+                   help="ignored (kept for scripts; a value outside (0, 1) is still refused, as it was): the "
+                        "decision is against the noise floor and a null reference over validation folds")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("synth", help="a synthetic calibration record from the simulator, with one effect",
@@ -656,15 +679,53 @@ def build_parser():
     return refuse_empty_paths(parser)      # an empty path is the current folder: refused (arguments.py)
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a plain ``kill``) turned into an exception in the main thread, so that the run's cleanup
+    (:func:`workbench.preflight.preflight`: no partial outputs) runs as it does for Ctrl-C."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises():
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (once: a second SIGTERM during
+    the cleanup is ignored; SIGKILL still ends the process). Outside the main thread, nothing changes."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        signal.signal(signal.SIGTERM, signal.SIG_IGN)
+        raise Terminated()
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     args._whole_process = argv is None      # the console script / python -m workbench: the process is the command's
     from .preflight import preflight
+    import warnings
+    from .errors import ControllerMismatchWarning
     try:
         # file arguments, flag ranges and run size checked before the work; no partial output after a failure
-        with preflight(args):
+        # (also on Ctrl-C or a plain kill: both raise here, and preflight removes what the run created)
+        with _sigterm_raises(), preflight(args), warnings.catch_warnings():
+            # the library's warning of a controller exported for another plant: the commands print it as a
+            # WARNING line of their own (verify's preflight lines, selfsense's), not twice
+            warnings.simplefilter("ignore", ControllerMismatchWarning)
             args.func(args)
+    except KeyboardInterrupt as err:
+        # one line, no traceback; 128 + the signal's number, as a shell reports a process the signal ended
+        terminated = isinstance(err, Terminated)
+        print(f"{chr(10) if sys.stderr.isatty() else ''}workbench {args.command}: "
+              f"{'terminated' if terminated else 'interrupted'}; nothing written "
+              f"(the outputs this run created are removed)", file=sys.stderr)
+        return 143 if terminated else 130
     except WorkbenchError as err:
         print(f"workbench {args.command}: error: {err}", file=sys.stderr)
         return 2

@@ -9,7 +9,8 @@ catch ``ValueError`` as usual.
 __all__ = ["WorkbenchError", "PlantDefinitionError", "StudyDefinitionError", "UnitError", "DataFileError",
            "UnsupportedError", "DesignError", "StudyFailed", "FileArgumentError", "FlagRangeError",
            "OutputOntoInputError", "ControllerError", "ControllerMismatchError", "ExportError",
-           "SweepError", "MimoControllerError", "ChargeChannelError"]
+           "SweepError", "MimoControllerError", "ChargeChannelError", "WorkbenchWarning",
+           "ControllerMismatchWarning", "ArgumentKindError"]
 
 
 class WorkbenchError(Exception):
@@ -94,3 +95,17 @@ class MimoControllerError(ControllerError):
 
 class ChargeChannelError(WorkbenchError, ValueError):
     """The plant has no charge channel model for a charge or fused loop."""
+
+
+class ArgumentKindError(WorkbenchError, TypeError):
+    """A library function given the wrong kind of object (a Plant where its ``.pzt`` is wanted, a number for a
+    plant): says what was given and what to pass."""
+
+
+class WorkbenchWarning(UserWarning):
+    """Base class of the warnings the library emits (``warnings.warn``) where the CLI prints a WARNING line."""
+
+
+class ControllerMismatchWarning(WorkbenchWarning):
+    """The controller was exported for another plant; the run goes on (``strict=True`` raises
+    :class:`ControllerMismatchError` instead)."""

@@ -154,18 +154,20 @@ def _not_an_input(path, what, inputs):
                                     f"an input: give another path")
 
 
-def check_output_file(path, what="", *, inputs=()):
+def check_output_file(path, what="", *, inputs=(), suffix=".json"):
     """An output file: not a folder, not under a file, in a writable folder, and not one of ``inputs``.
 
     Parameters
     ----------
     inputs : iterable of (name, path)
         The run's input files; an output equal to any of them is refused.
+    suffix : str, default ".json"
+        The suffix of the file the argument writes, for the example in the message (synth: ".csv").
     """
     path = Path(path)
     if str(path).endswith(("/", os.sep)) or path.is_dir():
         raise FileArgumentError(f"{_name(path, what)}: is a folder; give a file path, e.g. "
-                                f"{path / ('result' + (path.suffix or '.json'))}")
+                                f"{path / ('result' + suffix)}")
     if path.exists() and not path.is_file():
         raise FileArgumentError(f"{_name(path, what)}: is not a regular file; give a file path")
     _writable_parent(path, what)

@@ -193,7 +193,9 @@ def _check_files(args):
                     if p.is_file():
                         ctrl.check_firmware_settings(_plant(p))
     for name, path in out_files:
-        check_output_file(path, name, inputs=ins)
+        # the suffix of the file the flag writes, for the message's example (synth writes a CSV record)
+        csv = (args.command, name) in (("synth", "--out"), ("sweep", "--table"))
+        check_output_file(path, name, inputs=ins, suffix=".csv" if csv else ".json")
     for name, path in out_dirs:
         check_output_dir(path, name, inputs=ins)
     if getattr(args, "cache_dir", None):
@@ -293,6 +295,20 @@ def _check_study_sections(path, data):
                                                   f"{', '.join(f'[{s}]' for s in schema if s)}")
 
 
+def _refuse_plant_file_as_study(path, data, command):
+    """A plant file (single stack, mirror or generic stack) given where a study file is wanted: said so, not
+    "[electrical] unknown section" (issue 17, session 32)."""
+    from .plant.files import SCHEMA_VERSION
+    from .plant.mirror import FSM_SCHEMA_VERSION
+    from .plant.generic import GENERIC_SCHEMA
+    what = {SCHEMA_VERSION: "a plant file", FSM_SCHEMA_VERSION: "a three-stack mirror file",
+            GENERIC_SCHEMA: "a generic stack file"}.get(data.get("schema"))
+    if what:
+        example = "studies/fsm_servo.toml" if data.get("schema") == FSM_SCHEMA_VERSION else "studies/sn637_servo.toml"
+        raise StudyDefinitionError(path, "schema", f"this is {what} ({data['schema']}); `workbench {command}` takes a "
+                                                   f"study file, e.g. {example} (which names its plant files)")
+
+
 def _check_study_file(args):
     import tomllib
     path = Path(args.study)
@@ -301,6 +317,7 @@ def _check_study_file(args):
     except tomllib.TOMLDecodeError as exc:
         raise StudyDefinitionError(path, "syntax", f"is not valid TOML: {exc}") from None
     from .study.mirror import FSM_STUDY_SCHEMA
+    _refuse_plant_file_as_study(path, data, args.command)
     mirror = data.get("schema") == FSM_STUDY_SCHEMA      # its loader checks its own sections (study/mirror.py)
     if not mirror:
         _check_study_sections(path, data)
@@ -408,10 +425,8 @@ def _check_flags(args):
                   f"{fs:g} Hz gauge rate of {args.plant}", lo_open=True)
     elif cmd == "linearize":
         pzt = _plant(args.plant).pzt
-        span = pzt.voltage_max_v - pzt.voltage_min_v
-        for a in args.amplitudes:
-            _in_range("--amplitudes", a, "V", 0.0, span, f"the amplifier's {pzt.voltage_min_v:g}..{pzt.voltage_max_v:g} "
-                      f"V span of {args.plant}", lo_open=True)
+        from .linearize.run import check_amplitudes          # the library's check (one home)
+        check_amplitudes(pzt, args.amplitudes, name="--amplitudes", where=str(args.plant))
         _in_range("--bias", args.bias, "V", pzt.voltage_min_v, pzt.voltage_max_v, f"the amplifier range of {args.plant}")
         _in_range("--freq-min", args.freq_min, "Hz", 0.0, 1e5, "positive, at most the study schema's 100 kHz",
                   lo_open=True)
@@ -436,12 +451,21 @@ def _check_flags(args):
             _in_range("--hold", args.hold, "s", 3.0, math.inf, "with --sensor the hold settles 1 s and measures "
                       "its drift between two 1 s windows; give at least 3s, e.g. 1000s")
     elif cmd == "sweep" and args.amplitudes:
-        for a in args.amplitudes:
-            _in_range("--amplitudes", a, "V", 0.0, 200.0, "the study schema's family.amplitudes_v range",
-                      lo_open=True)
+        from .linearize.run import check_amplitudes          # the library's check (one home)
+        import tomllib
+        try:
+            plants = [(n, p) for n, p in _study_inputs(args) if p.is_file()]
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+            plants = []                                       # the study's own check names the problem
+        for where, p in plants:                               # every serial of the study is driven at them
+            check_amplitudes(_plant(p).pzt, args.amplitudes, name="--amplitudes", where=f"{p} ({where})")
     elif cmd == "calibrate":
+        # --max-ratio is ignored (kept for scripts, as its help says): the range its scripts gave is still checked,
+        # and the message says it has no effect
         _in_range("--max-ratio", args.max_ratio, "(held-out RMS after / before)", 0.0, 1.0,
-                  "an effect must lower the held-out error; e.g. 0.8", lo_open=True, hi_open=True)
+                  "the range it had; the option is ignored (kept for scripts): the decision is against the noise "
+                  "floor and a null reference over validation folds; drop it or give e.g. 0.8",
+                  lo_open=True, hi_open=True)
         _in_range("--train-cycles", args.train_cycles, "cycles", 0.0, 1e6, "input cycles that train, e.g. 3",
                   lo_open=True)
     elif cmd == "synth":
@@ -654,7 +678,10 @@ def preflight(args):
     from .report.output import protect_inputs
     ins, out_files, out_dirs = _check_files(args)
     if args.command in ("study", "sweep"):
-        _check_study_file(args)
+        from .study.overrides import naming_set, parse_overrides
+        given = getattr(args, "set", None) or []
+        with naming_set(parse_overrides(given) if given else {}, given):    # a --set value's error names --set
+            _check_study_file(args)
         extra = _study_inputs(args)
         for name, path in out_files:
             check_output_file(path, name, inputs=extra)

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import pytest
 
-from workbench.errors import DataFileError
+from workbench.errors import DataFileError, UnitError
 from workbench.identify import SEED_T_EM_N_PER_V, identify_transducer
 
 TABLE1 = Path(__file__).resolve().parents[2] / "plants" / "data" / "p888_51_instron_table1.csv"
@@ -250,7 +250,8 @@ def test_an_impossible_force_cell_is_refused_naming_its_line(tmp_path, glitch):
 @pytest.mark.parametrize("scale", [1e-2, 1e-1, 10.0, 100.0])
 def test_forces_a_load_frame_can_apply_are_never_refused_as_impossible(tmp_path, scale):
     # Table 1's forces x 0.01 .. x 100 (8 N .. 84 kN, past 20 times a P-888.51's ~3.7 kN blocked force): eq. 6
-    # may then give a T_em no plant holds (refused as such), never the impossible-cell refusal
+    # may then give a T_em no plant holds (refused as such), or R_in runs a unit slip from --stiffness (x 100: 25,900
+    # N/um against k_p's 200; session 32), never the impossible-cell refusal
     lines, start = _table_rows()
     rows = []
     for line in lines[start:]:
@@ -261,7 +262,7 @@ def test_forces_a_load_frame_can_apply_are_never_refused_as_impossible(tmp_path,
     path.write_text("\n".join(lines[:start] + rows) + "\n", encoding="utf-8")
     try:
         res = identify_transducer(path)
-    except DataFileError as err:
-        assert "|F/x|" not in str(err) and "eq. 6" in str(err)
+    except (DataFileError, UnitError) as err:
+        assert "|F/x|" not in str(err) and ("eq. 6" in str(err) or "R_in runs" in str(err))
     else:
         assert res.t_em_n_per_v > 0

@@ -112,7 +112,15 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     notes = list(record.notices)
     ch = record.channels
     input_kind = _input_kind(record, plant, kind, notes)
+    # the record's readings the run reinterprets are warnings too (console and JSON ``warnings``, issue 17:
+    # they were only in report.md's notes), not only notes
+    said = []
+    if input_kind == "command" and not record.metadata.get("input"):
+        said.append(notes[-1] + "; the unit checks of a terminal voltage did not run: if the column holds the "
+                    "stack's volts under another unit (e.g. voltage[mV]), fix its header")
+    n_notes = len(notes)
     _note_sample_rate(record, notes)
+    said += notes[n_notes:]
     if kind == "generic_stack":
         if "displacement_m" not in ch:
             raise DataFileError(f"{data_path}: a generic stack is calibrated from voltage to displacement; "
@@ -143,7 +151,9 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
             _check_range(data_path, ch["voltage_v"], plant.pzt.voltage_min_v, plant.pzt.voltage_max_v,
                          f"[electrical] voltage_min_v/voltage_max_v in {plant_path}")
             _check_displacement_scale(data_path, record, plant.pzt, plant_path)
+            n_notes = len(notes)
             _check_time_scale(data_path, record, plant.pzt, plant_path, resistance, notes)
+            said += notes[n_notes:]
         pzt, dac, n_plays, grid = plant.pzt, plant.gauge.dac_range_v, 24, "quadratic"
     if split is None:
         names = {"displacement_m": "displacement", "current_a": "charge", "gauge_v": "gauge"}
@@ -152,9 +162,10 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     else:
         split_reason = "asked for (--split)"
     notes.append(f"{split} split: {split_reason}")
-    serial = record.metadata.get("serial")
-    if serial and kind == "pzt" and serial != plant.serial:
-        notes.append(f"the record's serial {serial} differs from the plant's {plant.serial}; the record's is used")
+    serial_warning = _serial_warning(record, plant, plant_path, kind)
+    if serial_warning:
+        said.append(serial_warning)
+        notes.append(serial_warning)
     t, v = record.t_s, record.channels["voltage_v"]
     try:
         sp = make_split(t, v, kind=split, train_cycles=train_cycles)
@@ -269,7 +280,7 @@ def _run_calibrate(data_path, plant_path, out_dir=None, split=None, train_cycles
     data["updated_plant_stages"] = []
     # said at the top of the printed summary and of the report (s22_outsider C1: the file's replay above the
     # error before was said only in base_fit.warnings)
-    data["warnings"] = list(settle_warnings)
+    data["warnings"] = said + list(settle_warnings)
     if kind == "pzt":
         # issue 13 item 6: the updated plant loaded back and the record's drive simulated through it
         # the refitted core or the declared one, by the replay on the development rows (choose_core)
@@ -381,6 +392,19 @@ RANGE_SLACK = 0.01
 #: A voltage column whose peak stays under this fraction of the plant's peak |range| is taken for an
 #: amplifier command (0-10 V DAC ranges against stacks of 100 V and more) when the record does not say.
 COMMAND_FRACTION = 0.1
+
+
+def _serial_warning(record, plant, plant_path, kind):
+    """The warning when the record's ``# serial:`` is not the plant's (None when they agree or either is absent).
+
+    The serial is not used for anything else: the record is fitted to the plant file given, and the updated
+    plant keeps that file's serial."""
+    serial = record.metadata.get("serial")
+    if not serial or kind != "pzt" or serial == plant.serial:
+        return None
+    return (f"the record's serial {serial} differs from the plant's {plant.serial} ({plant_path}): the record is "
+            f"fitted to that plant file and the updated plant keeps serial {plant.serial}; if the record is of "
+            f"{serial}, give {serial}'s plant file as --plant")
 
 
 def _input_kind(record, plant, kind, notes):

@@ -200,6 +200,28 @@ def _check_parameters(stiffness_n_per_m, calibrations_m_per_v, gauge_tolerance,
                              f"for 3.077 um/V)")
 
 
+# A k_p this far from the stiffness the table's R_in runs measure is a unit slip, not a stack: the R_in runs
+# measure k_p + T_em^2 / (C_p + C_h) >= k_p (eq. 5 with the leads shorted), and a wrong SI prefix moves a
+# value by 1e3 at least, so the bound is the geometric midpoint between right (ratio ~1) and one prefix off
+STIFFNESS_SLIP_FACTOR = 10 ** 1.5
+
+
+def _check_stiffness_against_r_in(path, kp, runs):
+    """Refuse a k_p (N/m) a unit slip away from the R_in runs' F/x (issue 17: ``--stiffness 200`` as N/m)."""
+    ks = [r.force_n / r.displacement_m for r in runs if r.config == "R_in" and r.displacement_m != 0.0]
+    ks = [k for k in ks if math.isfinite(k) and k > 0]
+    if not ks:
+        return
+    k_r_in = float(np.mean(ks))
+    ratio = kp / k_r_in
+    if not 1 / STIFFNESS_SLIP_FACTOR <= ratio <= STIFFNESS_SLIP_FACTOR:
+        raise UnitError(f"--stiffness (stiffness_n_per_m) {kp:g} N/m = {kp * 1e-6:g} N/um is {ratio:.3g} times the "
+                        f"{k_r_in * 1e-6:.1f} N/um the {len(ks)} R_in runs of {path} measure (k_p + T_em^2/(C_p + "
+                        f"C_h) >= k_p); more than {STIFFNESS_SLIP_FACTOR:.3g}x apart is a unit slip: give the unit, "
+                        f"e.g. --stiffness 200N/um (stiffness_n_per_m=2e8), or check the R_in runs' force and "
+                        f"displacement units")
+
+
 def _read_header(path, lineno, cells):
     """Map column name -> (index, SI scale) from the header row, validating names and units."""
     columns = {}
@@ -605,6 +627,10 @@ def identify_transducer(path, *, stiffness_n_per_m=2.0e8, calibrations_m_per_v=N
                             f"and --stiffness ({kp:g} N/m)")
     if impossible:
         raise impossible[0]
+    # after the T_em range (a table in kN labelled N fails there, naming its columns) and the impossible cells
+    # (named by their line), before the R_in comparison (which would flag every R_in run, as with --stiffness 200
+    # read as N/m)
+    _check_stiffness_against_r_in(path, kp, runs)
     k_short = kp + t_em_mean ** 2 / (working_capacitance_f + hysteretic_capacitance_f)
     for rec in r_in:
         run = rec.pop("_run")

@@ -18,7 +18,35 @@ from .sampled import firmware_plant, gauge_gain_v_per_m
 from .small_signal import BRANCHES, capacitances, dc_gain_m_per_v, operating_point, small_signal_model
 from .uncertainty import FamilySpec, plant_family, uncertainty_bound
 
-__all__ = ["run_linearize"]
+__all__ = ["run_linearize", "check_amplitudes"]
+
+
+def check_amplitudes(pzt, amplitudes_v, *, name="amplitudes_v", where="the plant"):
+    """Refuse a sine amplitude the amplifier cannot drive: the one home of the (0, span] V range.
+
+    Parameters
+    ----------
+    pzt : PZTParams
+        The stack (``plant.pzt``); its amplifier range ``voltage_min_v``..``voltage_max_v`` sets the span, V.
+    amplitudes_v : iterable of float
+        Sine amplitudes, V.
+    name : str
+        The flag or key named in the message (``--amplitudes``, ``[family.amplitudes_v]``).
+    where : str
+        The plant file named in the message.
+
+    Raises
+    ------
+    FlagRangeError
+        If an amplitude is not finite or outside (0, voltage_max_v - voltage_min_v] V.
+    """
+    from ..errors import FlagRangeError
+    span = pzt.voltage_max_v - pzt.voltage_min_v
+    for a in amplitudes_v:
+        a = float(a)
+        if not (np.isfinite(a) and 0.0 < a <= span):
+            raise FlagRangeError(f"{name} {a:g} V: out of range (0, {span:g}] V (the amplifier's "
+                                 f"{pzt.voltage_min_v:g}..{pzt.voltage_max_v:g} V span of {where}); e.g. 50V")
 
 
 def _poles_hz(sys):

@@ -100,13 +100,22 @@ def _map(fn, items, workers, progress):
         return out
     import concurrent.futures
     import multiprocessing
-    with concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(items)),
-                                                mp_context=multiprocessing.get_context("spawn")) as pool:
+    pool = concurrent.futures.ProcessPoolExecutor(max_workers=min(workers, len(items)),
+                                                  mp_context=multiprocessing.get_context("spawn"))
+    try:
         futures = [pool.submit(fn, item) for item in items]
         for i, _ in enumerate(concurrent.futures.as_completed(futures)):
             if progress is not None:
                 progress(i + 1, len(items))
         return [fut.result() for fut in futures]
+    except BaseException:
+        # an error, Ctrl-C or a plain kill (workbench.cli raises on SIGTERM): the workers are stopped now, not
+        # after every queued member has run (the pool's own exit waits for them); as verify/sweep.py does
+        for process in list((pool._processes or {}).values()):
+            process.kill()
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def plant_family(plants, spec=FamilySpec(), progress=None, workers=1, quasi_static_phase_rad=1e-3):

@@ -157,6 +157,31 @@ def _read_table(path, section, table):
     return out
 
 
+def as_plant(plant, name="plant"):
+    """A :class:`Plant` from a Plant or a plant file's path (the library's entry points take either).
+
+    Parameters
+    ----------
+    plant : Plant or str or path-like
+        A loaded plant, or a ``plants/*.toml`` file (loaded with :func:`load_plant`).
+    name : str
+        The parameter named in the error.
+
+    Raises
+    ------
+    ArgumentKindError
+        If ``plant`` is neither (e.g. a ``PZTParams``, whose Plant carries the gauge too).
+    """
+    import os
+    if isinstance(plant, Plant):
+        return plant
+    if isinstance(plant, (str, os.PathLike)):
+        return load_plant(plant)
+    from ..errors import ArgumentKindError
+    raise ArgumentKindError(f"{name}: got {type(plant).__name__}; give a Plant (workbench.load_plant(path)) or a "
+                            f"plant file's path, e.g. \"plants/p888_51_sn637_creep.toml\"")
+
+
 def load_plant(path, overrides=None):
     """Load and validate a plant file.
 

@@ -57,12 +57,22 @@ def _modes_ss(modes, dt_s):
             np.array([d[0, 0]]))
 
 
+def _as_pzt(params):
+    """The PZTParams of ``params``: itself, else the ``.pzt`` of a Plant or a plant file (:func:`~.files.as_plant`)."""
+    from .files import as_plant
+    from .pzt import PZTParams
+    if isinstance(params, PZTParams):
+        return params
+    return as_plant(params, "PZTSimulator(params, dt_s): params (or the stack itself, plant.pzt)").pzt
+
+
 class PZTSimulator:
     """The Fig. 3 PZT, stepped at ``dt_s`` with ``n_sub`` sub-steps per sample.
 
     Parameters
     ----------
-    params : PZTParams
+    params : PZTParams or Plant or str or path-like
+        The stack (``plant.pzt``); a :class:`~workbench.plant.Plant` or a plant file gives its ``.pzt``.
     dt_s : float
         Sample time, s: inputs are held over it.
     n_sub : int
@@ -81,6 +91,7 @@ class PZTSimulator:
     """
 
     def __init__(self, params, dt_s, n_sub=1):
+        params = _as_pzt(params)
         if not dt_s > 0:
             raise ValueError(f"dt_s must be positive; got {dt_s}")
         if int(n_sub) < 1:

@@ -32,6 +32,9 @@ def add_parser(sub):
     p.add_argument("--controller", type=Path, default=DEFAULT_CONTROLLER,
                    help="controller JSON for the loop analysis (default controllers/sn637_loopshape.json)")
     p.add_argument("--no-loop", action="store_true", help="skip the loop analysis")
+    p.add_argument("--strict", action="store_true",
+                   help="a --controller exported for another plant (SHA-256, serial, trim, gauge gain, limits, "
+                        "current-limit window) is an error, not a warning (as verify --strict)")
     p.add_argument("--seed", type=int, default=2, help="noise and staircase seed (default 2)")
     p.add_argument("--out", type=Path, help="folder for the stage figures, noise.png, loop.png, report.md")
     p.add_argument("--json", type=Path, help="write the results as JSON here")
@@ -80,9 +83,10 @@ def run(args):
     if getattr(args, "dynamics", False):
         return run_dynamics(args)
     data = run_selfsense(args.plant, duration_s=args.duration, out_dir=args.out, seed=args.seed,
-                         controller_path=args.controller, loop=not args.no_loop)
+                         controller_path=args.controller, loop=not args.no_loop, strict=args.strict)
     stroke = data["stroke_m"]
     lines = [f"{args.plant}: self-sensing over a {data['duration_s']:.0f} s staircase, stroke {stroke * 1e6:.2f} um"]
+    lines += [f"  WARNING {w} (--strict refuses it)" for w in data.get("warnings") or ()]
     for s in data["stages"]:
         lines.append(f"  {s['title']}: {s['error_pp_m'] * 1e9:.1f} nm p-p ({s['error_pp_percent_stroke']:.2f} % "
                      f"of stroke), {s['error_rms_m'] * 1e9:.1f} nm RMS")

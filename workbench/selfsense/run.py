@@ -254,8 +254,13 @@ def closed_loop_step(plant, ident, amp, e_d, controller_path=DEFAULT_CONTROLLER,
 
 def run_selfsense(plant_path, duration_s=1000.0, out_dir=None, amp=None, seed=2,
                   controller_path=DEFAULT_CONTROLLER, dt_s=1e-4, eval_hz=1000.0, id_hold_s=700.0,
-                  loop=True, progress=None):
+                  loop=True, progress=None, strict=False):
     """The staged study; returns the JSON dict (``stages`` first), writes figures when ``out_dir``.
+
+    With ``loop``, the controller is first compared with the plant (verify's preflight,
+    :func:`~workbench.verify.run.check_controller_for_plant`): a controller exported for another plant
+    warns (:class:`~workbench.errors.ControllerMismatchWarning`, and the JSON's ``warnings``), or with
+    ``strict`` raises :class:`~workbench.errors.ControllerMismatchError` before any work.
 
     ``amp``: the charge channel (default :func:`~.charge_amp.charge_amp_params` of the plant: the assumed
     circuit with the plant file's ``[leakage]`` / ``[dielectric_absorption]`` when given)."""
@@ -267,6 +272,11 @@ def run_selfsense(plant_path, duration_s=1000.0, out_dir=None, amp=None, seed=2,
     if loop and not Path(controller_path).is_file():
         raise DataFileError(f"{controller_path}: no such controller JSON; give --controller "
                             f"controllers/sn637_loopshape.json or --no-loop")
+    mismatches = []
+    if loop:
+        from ..controller import Controller
+        from ..verify.run import check_controller_for_plant
+        mismatches = check_controller_for_plant(plant, Controller.load(controller_path, plant=plant), strict=strict)
 
     def tick(stage):
         if progress:
@@ -299,6 +309,7 @@ def run_selfsense(plant_path, duration_s=1000.0, out_dir=None, amp=None, seed=2,
     data = {
         "plant": str(plant_path), "duration_s": float(rec.t_s[-1]), "sample_hz": 1.0 / float(rec.t_s[1] - rec.t_s[0]),
         "stroke_m": stroke, "stages": stages,
+        "warnings": [f"preflight {p['check']}: {p['message']}" for p in mismatches],
         "target_last_stage_pp_percent_stroke": 1.0,
         "target_met": bool(stages[-1]["error_pp_m"] <= 0.01 * stroke),
         "stage4_parts_rms_m": {"creep": float(np.sqrt(np.mean(creep_part ** 2))),

@@ -10,6 +10,7 @@ validated by the same schema as the files, so a bad override fails before any wo
 starts with the file, the key and the fix named.
 """
 
+import contextlib
 import re
 import tomllib
 
@@ -34,11 +35,22 @@ def _unit_of(key):
     return unit if parts and all(p in _SI_UNITS for p in parts) else None
 
 
+_NUMBER_UNIT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(\S+)\s*$")
+
+
 def _value(where, key, text):
     unit = _unit_of(key)
     if _WITH_UNIT.match(text) and text.strip().lower() not in ("true", "false", "nan", "inf"):
         if unit is None:
-            raise UnitError(f"--set {where}={text}: {key} takes no unit; give a plain number")
+            # a key whose name carries a non-SI unit (phase_margin_deg, gain_margin_db, overshoot_percent): that
+            # unit, written as in the key's name, is the number itself
+            named, _ = unit_of_key(key)
+            m = _NUMBER_UNIT.match(text)
+            if named and m and m.group(2).lower() == named.lower():
+                return float(m.group(1))
+            raise UnitError(f"--set {where}={text}: {key} takes " + (
+                f"its unit from its name ({named}): give a plain number or the number with {named}, e.g. "
+                f"{where}={m.group(1) if m else 50}{named}" if named else "no unit; give a plain number"))
         try:
             return parse_quantity(text, unit)
         except UnitError as err:
@@ -72,6 +84,33 @@ def parse_overrides(items):
                                                        f"{', '.join(STUDY_SECTIONS)}")
         out[where] = _value(where, m.group(2), text.strip())
     return out
+
+
+@contextlib.contextmanager
+def naming_set(overrides, items=None):
+    """Within the block, a plant or study file error at a key ``--set`` gave is said as the flag's:
+    ``--set targets.phase_margin_deg=500: ...`` (it named the file, which holds no 500).
+
+    Parameters
+    ----------
+    overrides : dict
+        ``{"section.key": value}`` as applied.
+    items : list of str, optional
+        The ``--set`` items as given (their text is quoted); default the values.
+    """
+    from ..errors import PlantDefinitionError
+    try:
+        yield
+    except (StudyDefinitionError, PlantDefinitionError) as err:
+        key = getattr(err, "key", None)
+        if key not in (overrides or {}) or str(getattr(err, "path", "")).startswith("--set"):
+            raise
+        given = {i.partition("=")[0].strip(): i.partition("=")[2].strip() for i in items or () if "=" in i}
+        text = given.get(key, repr(overrides[key]))
+        head = f"{err.path}: [{key}] "
+        message = str(err)[len(head):] if str(err).startswith(head) else str(err)
+        raise type(err)(f"--set {key}={text}", key, f"{message} (the value --set puts into {err.path}; the file is "
+                                                     f"not modified)") from None
 
 
 def split_overrides(overrides):

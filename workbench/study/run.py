@@ -152,12 +152,14 @@ def run_study(study_path, out_dir, progress=None, overrides=None, only=None, cac
     plant_ovr, study_ovr = split_overrides(ovr)
     if only is not None and only not in ONLY:
         raise StudyDefinitionError("--only", only, f"unknown; expected one of {', '.join(ONLY)}")
-    spec = load_study(study_path, study_ovr)
+    from .overrides import naming_set
+    with naming_set(ovr, None if isinstance(overrides, dict) else overrides):      # an error at a --set key names it
+        spec = load_study(study_path, study_ovr)
+        plant = load_plant(spec.plant, plant_ovr)
+        serials = [load_plant(p, plant_ovr) for p in spec.serials]
     out = Path(out_dir)
     say = (lambda stage, d, t: progress(stage, d, t)) if progress else (lambda *a: None)
     t0 = time.perf_counter()
-    plant = load_plant(spec.plant, plant_ovr)
-    serials = [load_plant(p, plant_ovr) for p in spec.serials]
     g = plant.gauge
     dt = g.period_s
     delay_samples = 1

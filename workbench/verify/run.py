@@ -24,7 +24,7 @@ from ..errors import StudyDefinitionError, WorkbenchError
 from ..plant import Plant, load_plant
 from .scenarios import SCENARIOS, run_scenario
 
-__all__ = ["TARGETS", "VerifyResult", "verify", "load_controller_json", "load_verify_targets", "load_verify_sensor",
+__all__ = ["TARGETS", "VerifyResult", "verify", "check_controller_for_plant", "load_controller_json", "load_verify_targets", "load_verify_sensor",
            "parse_target",
            "predicted_limit_cycles", "evaluate_targets", "run_verify"]
 
@@ -312,8 +312,8 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
     """
     from ..fields import check_seed
     check_seed(seed)                     # the library refuses what numpy cannot seed (not only the CLI)
-    if not isinstance(plant, Plant):
-        plant = load_plant(plant)
+    from ..plant.files import as_plant
+    plant = as_plant(plant)
     if not isinstance(controller, Controller):
         controller = Controller.load(controller, plant=plant, allow_unstable=allow_unstable)
     elif controller.output_limits_v is None or controller.voltage_model is None:
@@ -352,11 +352,7 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
                      f"{controller.voltage_model[0]:.4g} was derived from {plant.source}")
     if not anti_windup:
         notes.append("run without anti-windup (--no-anti-windup): the range clip only, no current-limit window")
-    bad = [p for p in pre if p["check"] != "not recorded"]
-    if strict and bad:
-        raise ControllerMismatchError(
-            f"{controller.source or controller.name} was not exported for {plant.source} (--strict): "
-            + "; ".join(f"{p['check']}: {p['message']}" for p in bad))
+    check_controller_for_plant(plant, controller, strict=strict, preflight=pre)
     fw = controller.firmware(form)
     say = progress or (lambda *a: None)
     steps = len(scenarios) + 1
@@ -393,6 +389,54 @@ def verify(plant, controller, scenarios=("small_step",), *, hold_s=1000.0, noise
                         targets=evaluate_targets(results, limits), preflight=pre, predicted_limit_cycles=cycles,
                         seed=int(seed), noise=bool(noise), anti_windup=bool(anti_windup), form=form_text,
                         notes=notes, sensors=rows, sensor_traces=sensor_traces)
+
+
+def check_controller_for_plant(plant, controller, *, strict=False, preflight=None, stacklevel=3):
+    """Warn (or with ``strict`` refuse) when ``controller`` was exported for another plant than ``plant``.
+
+    The one home of verify's and selfsense's preflight answer: the mismatches of
+    :meth:`Controller.compare_plant` (SHA-256, serial, trim, gauge gain, limits, current-limit window).
+
+    Parameters
+    ----------
+    plant : Plant
+    controller : Controller
+    strict : bool, default False
+        Raise instead of warning.
+    preflight : list of dict, optional
+        ``controller.compare_plant(plant)`` when the caller has it (with its own additions).
+    stacklevel : int, default 3
+        Of the warning (3: the caller of the function that calls this one).
+
+    Returns
+    -------
+    list of dict
+        The mismatches (``{"check", "message"}``), "not recorded" items left out.
+
+    Raises
+    ------
+    ControllerMismatchError
+        With ``strict``, on any mismatch.
+
+    Warns
+    -----
+    ControllerMismatchWarning
+        Without ``strict``, on any mismatch (the CLI prints them as WARNING lines).
+    """
+    import warnings
+    from ..errors import ControllerMismatchWarning
+    pre = controller.compare_plant(plant) if preflight is None else preflight
+    bad = [p for p in pre if p["check"] != "not recorded"]
+    if not bad:
+        return bad
+    text = "; ".join(f"{p['check']}: {p['message']}" for p in bad)
+    if strict:
+        raise ControllerMismatchError(f"{controller.source or controller.name} was not exported for {plant.source} "
+                                      f"(--strict): {text}")
+    warnings.warn(ControllerMismatchWarning(f"{controller.source or controller.name} was not exported for "
+                                            f"{plant.source} ({len(bad)} preflight mismatches; strict=True refuses "
+                                            f"it): {text}"), stacklevel=stacklevel)
+    return bad
 
 
 def _check_sensors(sensor, plant, controller):

@@ -124,7 +124,8 @@ def nominal_loop_plant(plant, branch="ascending", minimal=True):
 
     Parameters
     ----------
-    plant : Plant
+    plant : Plant or str or path-like
+        A plant (:func:`workbench.load_plant`) or its file.
     branch : str, default "ascending"
         Hysteresis branch of the operating point at 50 V: ascending where a step up from the
         approach runs, "reversal" for small tones (minor loops).
@@ -135,6 +136,8 @@ def nominal_loop_plant(plant, branch="ascending", minimal=True):
         circle (|z| = 1.015 with the SN637 export). The servo band is unchanged (tests/test_controller.py).
     """
     from ..design.nominal import SLOW_HZ, nominal_plant
+    from ..plant.files import as_plant
+    plant = as_plant(plant)
     return nominal_plant(plant, slow_hz=SLOW_HZ if minimal else 0.0, branch=branch).firmware
 
 

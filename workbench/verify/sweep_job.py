@@ -150,6 +150,12 @@ def run_sweep(study_path, controller_path=None, out_dir=None, table=None, schedu
     controller_path = Path(controller_path)
     from .run import load_controller_json
     load_controller_json(controller_path)           # a bad controller fails here, once, not per case
+    from ..linearize.run import check_amplitudes           # the amplifier's span (one home), before any case
+    from ..plant import load_plant
+    amps = study.family["amplitudes_v"] if amplitudes_v is None else amplitudes_v
+    for p in (study.plant, *study.serials):
+        check_amplitudes(load_plant(p).pzt, amps, where=str(p),
+                         name="amplitudes_v" if amplitudes_v is not None else f"{study.path}: [family.amplitudes_v]")
     cases = sweep_cases(study, controller_path, amplitudes_v, noise)
     rows = run_cases(run_case, cases, scheduler=scheduler, workers=workers, progress=progress, timeout_s=timeout_s)
     worst_cases = {}
