@@ -126,12 +126,9 @@ def substeps(pzt, dt_s):
         ``n_sub`` for :class:`~workbench.plant.simulator.PZTSimulator`.
     """
     from .effects import HELD_SETTLED
-    r = float(pzt.series_resistance_ohm)
-    if not r > 0:
+    tau = pzt.settle_time_constant_s()
+    if not tau > 0:
         return N_SUB
-    g = pzt.terminal_operator()
-    q0 = pzt.hysteresis.output_at_rest()
-    tau = r * min(1.0 / g.slope(q0, +1), 1.0 / g.slope(q0, -1))
     if np.exp(-float(dt_s) / tau) > HELD_SETTLED:
         return N_SUB
     return max(N_SUB, int(np.ceil(float(dt_s) * SETTLE_SUBSTEPS / tau)))

@@ -256,23 +256,26 @@ def held_drive(base):
     step settles within a sample (:class:`~.effects.HeldDrive`), or None.
 
     Needs what the path is made of: the series resistor and the declared PZT's current limits
-    (:attr:`BaseFit.series_resistance_ohm`, :attr:`BaseFit.current_limits_a`), the stack's capacitance
-    (:attr:`BaseFit.working_capacitance_f`: the settle ``RC``), the charge moved in each interval (the record's
-    integrated current) and a terminal-voltage record; and a sample period over which the settle ends,
-    ``exp(-dt / RC) <= HELD_SETTLED`` (at 100 Hz on the P-888.51's 80 ohm and ~6 uF; not at 1 kHz, where the
-    steps' settles run into the next samples and the drive between samples is smooth: the first-order hold's).
+    (:attr:`BaseFit.series_resistance_ohm`, :attr:`BaseFit.current_limits_a`), the settle's time constant
+    ``R C_min`` of the declared plant (:attr:`BaseFit.settle_time_constant_s`, the terminal's smallest
+    incremental capacitance: the simulator's :func:`~.synthetic.substeps` reads the same), the charge moved in
+    each interval (the record's integrated current) and a terminal-voltage record; and a sample period over which
+    the settle ends, ``exp(-dt / RC) <= HELD_SETTLED`` (at 100 Hz on the P-888.51's 80 ohm and 6.0 uF; not at
+    1 kHz, where the steps' settles run into the next samples and the drive between samples is smooth: the
+    first-order hold's). The gate is the declared plant's, never a record's fit: eq. 12's ``C_p`` from a drifting
+    record fell to 0.08-0.98 uF and built the path at 1 and 10 kHz (review of s32_alias, B2).
     """
     r_ohm = getattr(base, "series_resistance_ohm", None)
     limits = getattr(base, "current_limits_a", None)
-    c_f = getattr(base, "working_capacitance_f", None)
-    if not r_ohm or not limits or not c_f or c_f <= 0 or "charge" not in base.channels \
+    rc = getattr(base, "settle_time_constant_s", None)
+    if not r_ohm or not limits or not rc or rc <= 0 or "charge" not in base.channels \
             or getattr(base, "input_kind", "terminal") != "terminal" or min(limits) <= 0:
         return None
     t = np.asarray(base.t, float)
     if t.size < 3:
         return None
     dt = float((t[-1] - t[0]) / (t.size - 1))
-    rc = float(r_ohm) * float(c_f)
+    rc = float(rc)
     if np.exp(-dt / rc) > HELD_SETTLED:
         return None
     q = np.asarray(base.channels["charge"].y, float)
