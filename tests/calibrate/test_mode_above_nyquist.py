@@ -292,14 +292,16 @@ def test_a_held_mode_is_placed_in_its_alias_family_or_said_not_to_be(sn637, prot
         # placed: what the plant file carries as measured is the drawn mode
         assert abs(f_named - f_hz) < 0.25 * bw, (fam, f_hz)
     else:
-        said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
-        assert min(abs(m - f_hz) for m in said) < bw, (fam, f_hz)
-        assert st["note"] == fam["note"]
+        # not placed: the note says why (the family unresolved: the drawn frequency among the members it names)
+        if "one of " in fam["note"]:
+            said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
+            assert min(abs(m - f_hz) for m in said) < bw, (fam, f_hz)
+        assert st["note"] == fam["note"] and "not placed" in fam["note"]
 
 
 def test_the_plant_file_leaves_out_a_held_mode_it_cannot_place():
-    """``unplaced_modes``: a held mode whose family is unresolved, or whose gain is <= 0, is left out with its reason;
-    a resolved one of positive gain, and any mode without a family (not the held drive's), are written."""
+    """``unplaced_modes``: a held mode whose family is not placed is left out with its reason; a placed one, and any
+    mode without a family (not the held drive's), are written (the gain is tested in the family, on the folds)."""
     from workbench.calibrate.plant_update import unplaced_modes
     fam = {"members_hz": [100.4, 200.4, 300.4], "named_hz": 100.4, "resolved": False, "note": "a mode at one of ..."}
     st = [{"effect": "resonance", "channel": "displacement", "parameters": {"f_n_hz": 100.4, "gain": 1.0, "held": True},
@@ -307,9 +309,50 @@ def test_the_plant_file_leaves_out_a_held_mode_it_cannot_place():
     assert "a mode at one of" in unplaced_modes(st)[("resonance", "displacement")]
     st[0]["alias_family"] = {**fam, "resolved": True}
     assert unplaced_modes(st) == {}
-    st[0]["parameters"]["gain"] = -0.23
-    assert "gain" in unplaced_modes(st)[("resonance", "displacement")]
     assert unplaced_modes([{"effect": "resonance", "channel": "gauge", "parameters": {"gain": -0.5}}]) == {}
+
+
+def test_the_folds_jackknife_is_the_standard_error_of_a_mean():
+    """The folds' jackknife (each fold's estimate from the other folds' blocks): for the mean of ``n`` group means,
+    the leave-one-group-out means' jackknife standard error is the classical ``sd / sqrt(n)``."""
+    from workbench.calibrate.tracing import _jackknife
+    x = np.random.default_rng(3303).normal(1.0, 0.2, 5)
+    loo = [(x.sum() - v) / (x.size - 1) for v in x]
+    m, se = _jackknife(loo)
+    assert m == pytest.approx(x.mean(), rel=1e-12)
+    assert se == pytest.approx(x.std(ddof=1) / np.sqrt(x.size), rel=1e-12)
+
+
+def test_a_held_mode_s_gain_is_a_stack_mode_s_share():
+    """``gain_is_a_modes``: the column ``(H - 1) x`` of a stack mode enters with its share of the motion, ~1 (the
+    simulator's single mode: 1 exactly); per-fold gains about 1 (a 107 #126-like spread, 0.86-0.92) are a mode's,
+    a steady 0.35 (the review's 490 Hz mode named 285.6 Hz), a steady -0.25 (105 #121) or a scattered 2.6 (106
+    #121 on this branch: 93.2 Hz named 81.2 Hz) are not. The band's ends are the physics' (``8 / pi^2``, 1), not
+    fitted to these."""
+    from workbench.calibrate.tracing import MODE_GAIN_BAND, gain_is_a_modes
+    assert MODE_GAIN_BAND[0] == pytest.approx(0.8106, abs=1e-4) and MODE_GAIN_BAND[1] == 1.0
+    assert gain_is_a_modes([0.915, 0.864, 0.876, 0.856, 0.857])[0]
+    assert gain_is_a_modes([1.061, 1.039, 1.026, 1.127, 1.048])[0]
+    assert not gain_is_a_modes([0.351, 0.346, 0.354, 0.348, 0.354])[0]
+    assert not gain_is_a_modes([-0.257, -0.146, -0.235, -0.297, -0.256])[0]
+    assert not gain_is_a_modes([2.96, 2.63, 2.64, 2.60, 2.71])[0]
+    assert not gain_is_a_modes([1.0])[0]           # one fold: no scatter, no test
+
+
+def test_each_fold_s_own_search_must_name_the_mode():
+    """``folds_name_the_mode``: a fold names the mode when its own search lands in the named mode's half-power band
+    (``zeta f``) and nearer it than any other alias member: the review's 107 #121 folds (285.3 / 292.7 / 306.6 /
+    285.7 / 306.5 Hz about 285.7 Hz, zeta 0.0083: 2.4 Hz) name it on 2; 108 #110's (207.8-207.9 Hz and one fold at
+    107.3 Hz about 207.9 Hz) on 4; a fold without a ring names nothing."""
+    from workbench.calibrate.tracing import alias_members, folds_name_the_mode
+    f0, z0 = 285.64, 0.008305
+    fam = alias_members(f0, 100.0, 5.0, 331.6)
+    fits = [{"f_n_hz": f} for f in (285.32, 292.66, 306.59, 285.67, 306.52)]
+    assert folds_name_the_mode(f0, z0, fam, fits) == [True, False, False, True, False]
+    f0, z0 = 207.9, 0.01726
+    fam = alias_members(f0, 100.0, 5.0, 331.6)
+    fits = [{"f_n_hz": f} for f in (207.81, 207.87, 207.88, 107.31, 207.85)] + [None]
+    assert folds_name_the_mode(f0, z0, fam, fits) == [True, True, True, False, True, False]
 
 
 @pytest.mark.slow

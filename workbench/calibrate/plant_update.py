@@ -286,27 +286,22 @@ def _file_lines(text):
 
 
 def unplaced_modes(stages):
-    """``{(effect, channel): reason}``: the held drive's modes the record cannot place in their alias family, or
-    whose gain is not a mode's (<= 0).
+    """``{(effect, channel): reason}``: the held drive's modes the record cannot place (``alias_family`` not
+    resolved).
 
-    A mode above the record's Nyquist frequency named through the held drive's path, whose folds do not resolve
-    the named frequency beyond the other members of its alias family (``stage["alias_family"]``,
-    :func:`~workbench.calibrate.tracing.alias_family`), is not written to the plant file: a servo designer reads a
-    file's mode as measured, and at 100 Hz the record leaves it at one of several frequencies (100.4, 200.4 or
-    300.4 Hz), which bound a loop's bandwidth very differently. The JSON carries the family, the file's gaps
-    (``omit``'s reason) say what is missing and why, and its ``error_after`` is that of the file without it."""
+    A mode named through the held drive's path (100 Hz on the P-888.51) is written to the plant file only where its
+    folds place it (:func:`~workbench.calibrate.tracing.alias_family`): the named frequency resolved beyond every
+    other member of its alias family, named again by the folds' own searches within its half-power band, and its
+    gain consistent with a stack mode's share of the motion. A servo designer reads a file's mode as measured, and at
+    100 Hz a record may leave it at one of several frequencies (100.4, 200.4 or 300.4 Hz), or fit the column to
+    something else (the review of s32_alias: a 490 Hz mode named 285.6 Hz, gain 0.35). The JSON carries the family,
+    the file's gaps (``omit``'s reason) say what is missing and why, and its ``error_after`` is that of the file
+    without it."""
     out = {}
     for st in stages:
         fam = st.get("alias_family")
         if fam and not fam.get("resolved", True):
-            out[(st["effect"], st["channel"])] = f"its frequency is not resolved: {fam['note']}"
-        elif fam and float((st.get("parameters") or {}).get("gain", 1.0)) <= 0.0:
-            # the held column is the motion a mode adds, (H - 1) x; a stack's mode adds it with a positive share
-            # (~1). A gain <= 0 is the column fitting something else (a 151 Hz mode under the 100 Hz sine named
-            # 204.9 Hz, gain -0.23, off its alias family; the review's 103 #104: 90.8 Hz, gain -0.26)
-            g = float(st["parameters"]["gain"])
-            out[(st["effect"], st["channel"])] = (f"its gain {g:.3g} <= 0: the held drive's mode column fits no mode of the "
-                                                  f"stack's motion there (a mode adds (H - 1) x with a positive share)")
+            out[(st["effect"], st["channel"])] = f"its frequency is not placed: {fam['note']}"
     return out
 
 

@@ -93,6 +93,7 @@ from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay
 from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
+           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND",
            "alias_members", "ALIAS_ZETA_FACTORS"]
 
 SEARCH_ROWS = 50_000
@@ -1769,15 +1770,143 @@ def alias_family(c, ctx, extra):
                 ok = False
         resolved_folds += int(ok)
     need = int(ctx["need"])
-    out = {"members_hz": members, "named_hz": f0, "resolved": bool(resolved_folds >= need),
-           "folds": f"{resolved_folds} of {n_folds}", "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()}}
+    fs = 1.0 / dt
+    f_a = min(f0 % fs, fs - f0 % fs)
+    f_top = float(eff._held_ceiling(t))
+    # (b) each fold's own held search on its training rows: the named mode's half-power band holds its frequency
+    fits = _held_fold_fits(c, ctx, extra)
+    agree = folds_name_the_mode(f0, z0, members, fits)
+    # (a) the named mode's gain on each fold's training blocks, against a stack mode's physical share
+    gains = _held_fold_gains(c, ctx, extra, f0, z0)
+    gain_ok, g_mean, g_se = gain_is_a_modes(gains)
+    lo, hi = MODE_GAIN_BAND
+    # (c) the family's members above the band searched (to twice its ceiling): never tested, the mode may be one
+    above = [m for m in alias_members(f0, fs, f_top, 2.0 * f_top) if m > f_top]
+    out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
+           "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
+           "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
+           "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
+           "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
+    family_ok = resolved_folds >= need
+    out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
     if not out["resolved"]:
-        left = [m for m, k in unresolved_by.items() if n_folds - k < need]
-        fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
-        out["note"] = (f"a mode at one of {fam} Hz (the alias family of its {min(f0 % (1 / dt), 1 / dt - f0 % (1 / dt)):.4g} Hz "
-                       f"ring in the samples): the {1 / dt:.4g} Hz record cannot tell which (the named {f0:.4g} Hz is "
-                       f"resolved beyond every other member on {resolved_folds} of {n_folds} folds, {need} needed); "
-                       f"a record at a rate above twice the mode's frequency tells them apart")
+        why = []
+        if not family_ok:
+            left = [m for m, k in unresolved_by.items() if n_folds - k < need]
+            fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
+            why.append(f"a mode at one of {fam} Hz (the alias family of its {f_a:.4g} Hz ring in the samples): the "
+                       f"{fs:.4g} Hz record cannot tell which (the named {f0:.4g} Hz is resolved beyond every other "
+                       f"member on {resolved_folds} of {n_folds} folds, {need} needed)")
+        if sum(agree) < need:
+            got = ", ".join("none" if fit is None else f"{fit['f_n_hz']:.4g}" for fit in fits)
+            why.append(f"the folds' own searches name {f0:.4g} Hz (within its half-power band, +/- {z0 * f0:.2g} Hz) "
+                       f"on {sum(agree)} of {n_folds} folds, {need} needed ({got} Hz)")
+        if not gain_ok:
+            why.append(f"its gain {g_mean:.3g} +/- {g_se:.2g} (the folds' jackknife) is not a stack mode's share of "
+                       f"the motion ({lo:.2f}-{hi:g}): the column fits something else")
+        out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+                       + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
+                       + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
+                       + "; a record at a rate above twice the mode's frequency tells them apart")
+    return out
+
+
+#: A stack mode's share of the motion, the gain of the held mode's column ``(H - 1) x`` (``x`` the quasi-static
+#: motion): one where a single mode carries the stack (its static gain ``H(0) = 1``: a lumped mass on the stack's
+#: own stiffness, the simulator's), ``8 / pi^2`` (0.81) for the first mode of a uniform rod fixed at one end (its
+#: modal share of the static tip motion; a load at the tip raises it toward one, the higher modes share the rest)
+MODE_GAIN_BAND = (8.0 / np.pi ** 2, 1.0)
+
+
+def folds_name_the_mode(f0_hz, zeta, members_hz, fits):
+    """Per fold, does its own search (``fits``: ``{"f_n_hz", ...}`` or None) name the mode at ``f0_hz``? Its
+    frequency within the named mode's half-power band (``|f - f0| <= zeta f0``: a frequency outside it is another
+    mode's) and nearer ``f0`` than any other member of the alias family ``members_hz``."""
+    out = []
+    for fit in fits:
+        f = None if fit is None else float(fit["f_n_hz"])
+        out.append(f is not None and abs(f - f0_hz) <= zeta * f0_hz
+                   and min(members_hz, key=lambda m: abs(m - f)) == f0_hz)
+    return out
+
+
+def gain_is_a_modes(gains):
+    """``(consistent, mean, se)``: the per-fold gains of a held mode's column ``(H - 1) x`` against a stack mode's
+    share of the motion (:data:`MODE_GAIN_BAND`): the folds' mean within two jackknife standard errors
+    (:func:`_jackknife`) of the band."""
+    m, se = _jackknife(gains)
+    lo, hi = MODE_GAIN_BAND
+    return bool(np.isfinite(m) and np.isfinite(se) and m + 2.0 * se >= lo and m - 2.0 * se <= hi), m, se
+
+
+def _jackknife(values):
+    """``(mean, standard error)`` of per-fold estimates, the folds' delete-a-group jackknife:
+    ``se = sqrt((n - 1) / n sum (v_k - mean)^2)`` (each fold's training rows are the others' blocks)."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    if v.size < 2:
+        return (float(v[0]) if v.size else float("nan")), float("inf")
+    m = float(v.mean())
+    return m, float(np.sqrt((v.size - 1) / v.size * np.sum((v - m) ** 2)))
+
+
+def _held_fold_gains(c, ctx, extra, f_hz, zeta):
+    """The held mode's gain at ``f_hz``, ``zeta`` fitted on each fold's training blocks with the found effects."""
+    from .effects import held_mode_column
+    split, key = ctx["split"], c["key"]
+    prob = ctx["probs"][key]
+    n_folds = len(split.folds)
+    col = held_mode_column(np.asarray(c["u"], float), c["eff"].held, f_hz, zeta)
+    per = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]), "replaces": c.get("replaces")}, n_folds)
+    out = []
+    for f, (tr, _va) in enumerate(split.folds):
+        g = per[f]
+        w = prob.solve(g, tr)
+        out.append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else 0.0)
+    return out
+
+
+def _held_fold_projection(prob, extra_k, rows):
+    """Projection off the base columns and the found effects' columns at the row indices ``rows`` (a fold's
+    training search rows: :func:`~.stages._joint_projection` on the fold's own rows)."""
+    E = np.column_stack([prob.A[rows]] + [np.asarray(C)[rows] for C, _ in extra_k])
+    n = np.sqrt(np.mean(E * E, axis=0))
+    E = E[:, n > 0] / n[n > 0]
+    ginv = np.linalg.pinv(E.T @ E, rcond=1e-12)
+    return lambda X: X - E @ (ginv @ (E.T @ X))
+
+
+def _held_fold_fits(c, ctx, extra):
+    """Per validation fold, the held drive's mode searched again on the fold's training search rows alone (its own
+    frequency, damping) and its gain fitted there with the found effects (the stage's joint columns): a list of
+    ``{"f_n_hz", "zeta", "gain"}`` (None for a fold whose search finds no ring)."""
+    import copy
+    from .effects import held_mode_column
+    t, split = ctx["t"], ctx["split"]
+    key = c["key"]
+    prob = ctx["probs"][key]
+    base = ctx["base"]
+    y = np.asarray(base.channels[c["channel"]].y, float)
+    yhat = np.asarray(c["yhat"], float) if c.get("yhat") is not None else y - prob.r * prob.scale
+    u = np.asarray(c["u"], float)
+    n_folds = len(split.folds)
+    out = []
+    for f, (tr, _va) in enumerate(split.folds):
+        rows = prob.search & split.rows(tr)
+        idx = np.flatnonzero(rows)
+        e = copy.deepcopy(c["eff"])
+        e.__dict__.pop("_grid_costs", None)
+        try:
+            p = e.fit(t, u, y - yhat, rows, y_model=yhat, project=_held_fold_projection(prob, extra[key], idx),
+                      held=True)
+        except ValueError:
+            out.append(None)
+            continue
+        col = held_mode_column(u, e.held, p["f_n_hz"], p["zeta"])
+        g = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]), "replaces": c.get("replaces")},
+                        n_folds)[f]
+        w = prob.solve(g, tr)
+        gain = float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else 0.0
+        out.append({"f_n_hz": float(p["f_n_hz"]), "zeta": float(p["zeta"]), "gain": gain})
     return out
 
 
