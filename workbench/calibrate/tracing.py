@@ -93,7 +93,7 @@ from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay
 from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
-           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND",
+           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "ALIAS_ABOVE_BAND",
            "alias_members", "ALIAS_ZETA_FACTORS"]
 
 SEARCH_ROWS = 50_000
@@ -1711,15 +1711,20 @@ def alias_family(c, ctx, extra):
     """Does the record tell the held drive's mode from the other members of its alias family? A dict, or None.
 
     Above the record's Nyquist frequency a mode rings in the samples at its alias ``f_a``, and every
-    ``k fs +- f_a`` in the held search's band (its floor to :meth:`~.effects.Resonance._held_ceiling`,
-    :func:`alias_members`) rings there too; the held drive's path between samples gives each a different
+    ``k fs +- f_a`` from the held search's floor to :data:`ALIAS_ABOVE_BAND` times its ceiling
+    (:meth:`~.effects.Resonance._held_ceiling`, :func:`alias_members`; the members above the ceiling are never
+    searched, a mode there is named at an in-band image if at all) rings there too; the held drive's path between samples gives each a different
     amplitude and phase, which a record may or may not resolve (the review of s31_alias: 94 #104, a 200.4 Hz mode
     named 100.4 Hz). Per validation fold, the named frequency and each other member are fitted on the fold's
     training blocks with the found effects (the same joint columns as the stage), each member's damping picked
     there among :data:`ALIAS_ZETA_FACTORS` of ``zeta f / f_m`` (the decay per sample of the named mode), the named
     one's among the same factors of its own: no fold's validation blocks choose anything. The fold resolves the
     named frequency when it leaves less on the validation blocks than every other member beyond the blocks' scatter
-    (:func:`resolved_beyond`, the fold test's bar); the family is resolved when ``need`` folds do.
+    (:func:`resolved_beyond`, the fold test's bar). The mode is placed (``resolved``) when ``need`` folds do, and
+    ``need`` folds' own searches on their training rows name it within its half-power band
+    (:func:`folds_name_the_mode`), and its per-fold gains are a stack mode's share of the motion
+    (:func:`gain_is_a_modes`) -- the review of s32_alias: a 490 Hz mode under the sine named 285.6 Hz, gain 0.35,
+    resolved in its own family and written.
 
     ``c``: the stage's candidate row (a ``resonance`` with ``params["held"]``); ``ctx``: the stage context;
     ``extra``: the found effects' columns before this stage's. None for any other row, or a family of one.
@@ -1740,7 +1745,11 @@ def alias_family(c, ctx, extra):
     prob = ctx["probs"][c["key"]]
     dt = float((t[-1] - t[0]) / (t.size - 1))
     f0, z0 = float(p["f_n_hz"]), float(p["zeta"])
-    members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), float(eff._held_ceiling(t)))
+    f_top = float(eff._held_ceiling(t))
+    # (the members above the band searched are tested too: a mode there rings at the same alias, and the held search,
+    # which cannot name it, names an in-band frequency near one of its images instead -- a 362.7 Hz mode drawn on
+    # the calibration protocol, above the 331.6 Hz ceiling, named 261.8 Hz, gain 0.54, resolved in-band)
+    members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), ALIAS_ABOVE_BAND * f_top)
     if len(members) < 2:
         return None
     z_lo, z_hi = float(eff.zeta_min), float(max(min(eff.zeta_max, RING_ZETA_MAX), eff.zeta_min))
@@ -1772,7 +1781,6 @@ def alias_family(c, ctx, extra):
     need = int(ctx["need"])
     fs = 1.0 / dt
     f_a = min(f0 % fs, fs - f0 % fs)
-    f_top = float(eff._held_ceiling(t))
     # (b) each fold's own held search on its training rows: the named mode's half-power band holds its frequency
     fits = _held_fold_fits(c, ctx, extra)
     agree = folds_name_the_mode(f0, z0, members, fits)
@@ -1780,8 +1788,8 @@ def alias_family(c, ctx, extra):
     gains = _held_fold_gains(c, ctx, extra, f0, z0)
     gain_ok, g_mean, g_se = gain_is_a_modes(gains)
     lo, hi = MODE_GAIN_BAND
-    # (c) the family's members above the band searched (to twice its ceiling): never tested, the mode may be one
-    above = [m for m in alias_members(f0, fs, f_top, 2.0 * f_top) if m > f_top]
+    # (c) the family's members above the band searched: tested here, never searched
+    above = [m for m in members if m > f_top]
     out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
            "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
            "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
@@ -1810,6 +1818,13 @@ def alias_family(c, ctx, extra):
                        + "; a record at a rate above twice the mode's frequency tells them apart")
     return out
 
+
+#: The alias family tested (:func:`alias_family`) reaches this factor times the held search's ceiling (the settle's
+#: corner, :meth:`~.effects.Resonance._held_ceiling`): two octaves above it, where the ring a held step excites has
+#: fallen to a quarter of the corner's (``1 / (w RC)``), so a mode there still moves the samples by its alias; the
+#: search does not reach them (it would name images of noise), the family test asks whether the named in-band
+#: frequency is resolved beyond them
+ALIAS_ABOVE_BAND = 4.0
 
 #: A stack mode's share of the motion, the gain of the held mode's column ``(H - 1) x`` (``x`` the quasi-static
 #: motion): one where a single mode carries the stack (its static gain ``H(0) = 1``: a lumped mass on the stack's
