@@ -236,7 +236,8 @@ def test_a_100_hz_mode_written_to_the_plant_file_replays_the_tracing_error(sn637
 # (measured 2026-11-28): named 204.9 Hz, zeta 0.035, gain -0.23, ratio 0.28, 5 of 5 folds, outside the drawn mode's
 # family (its alias 49 Hz, the named one's 4.9 Hz), the family test resolved about the wrong alias: under the slow
 # sine's small steps the held search fits a phase, not the mode (README, session 31's "not done" (2)). The plant file
-# does not carry it (its gain <= 0, plant_update.unplaced_modes); the JSON names it. Measured on the other five: four
+# does not carry it (since session 33 the placement rule: not a stack mode's gain, plant_update.unplaced_modes); the
+# JSON names it. Measured on the other five: four
 # resolved at the drawn frequency, the 216.6 Hz calibration draw named 216.9 Hz but resolved on 3 of 5 folds only
 # (said, not written)
 _RNG4 = np.random.default_rng(3202)
