@@ -1732,10 +1732,14 @@ def alias_family(c, ctx, extra):
     Returns
     -------
     dict
-        ``members_hz`` (sorted, the named one among them), ``named_hz``, ``resolved`` (bool), ``folds``
-        (``"k of n"``: folds resolving the named frequency beyond every other member), ``unresolved_by``
-        (per other member, the folds that do not resolve the named beyond it) and ``note`` (what the record cannot
-        tell, when not resolved).
+        ``members_hz`` (sorted, the named one among them, to :data:`ALIAS_ABOVE_BAND` times the ceiling),
+        ``named_hz``, ``resolved`` (bool: placed, all three tests), ``folds`` (``"k of n"``: folds resolving the named
+        frequency beyond every other member), ``unresolved_by`` (per other member, the folds that do not resolve the
+        named beyond it), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
+        ``folds_agree`` (``"k of n"``, :func:`folds_name_the_mode`), ``fold_gains`` (the named mode's gain per fold),
+        ``gain`` (``mean``, ``jackknife_se``, ``band``, ``consistent``: :func:`gain_is_a_modes`), ``band_hz`` (the
+        band searched), ``above_band_hz`` (the members above it, tested, never searched) and ``note`` (why the mode
+        is not placed, when not resolved).
     """
     eff, p = c.get("eff"), c.get("params") or {}
     if c.get("name") != "resonance" or not p.get("held") or getattr(eff, "held", None) is None:
