@@ -138,6 +138,16 @@ class BaseFit:
     #: the declared thresholds against the grid (:func:`_grid_predicts_better`: ``grid``, ``z``, ``bar``, ``ridge``,
     #: ``blocks``, ``channel``); None where the declared thresholds were not tried
     threshold_gate: dict | None = None
+    #: the amplifier's series resistor R (ohm) and the declared PZT's current limits ``(source, sink)`` (A, both
+    #: positive): the drive's path between samples of a held command (:func:`~.tracing.held_drive`); None when
+    #: not declared (``resistance_ohm`` 0, no ``pzt``)
+    series_resistance_ohm: float | None = None
+    current_limits_a: tuple | None = None
+    #: ``R C_min`` (s) of the declared PZT and resistor (:meth:`~workbench.plant.pzt.PZTParams.settle_time_constant_s`):
+    #: the held drive's gate and settle (:func:`~.tracing.held_drive`), never eq. 12's record-fitted
+    #: :attr:`working_capacitance_f` (a drift biases that to 0.08-0.98 uF against ~5.8 uF: review of s32_alias B2);
+    #: None without a declared PZT and resistor
+    settle_time_constant_s: float | None = None
 
     def plays_basis(self, name):
         """Channel ``name``'s plays + a column of ones, point-sampled: :attr:`basis` unless the channel has its own."""
@@ -771,6 +781,11 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         if pzt is not None:
             tem, kp = pzt.transducer_constant_n_per_v, pzt.stiffness_n_per_m
             fit.working_capacitance_f = float((tem - tem * tem * k) / (kp * k))     # eq. 12
+    if resistance_ohm > 0 and input_kind != "command":
+        fit.series_resistance_ohm = float(resistance_ohm)
+        if pzt is not None:
+            fit.current_limits_a = (float(pzt.current_limit_source_a), float(pzt.current_limit_sink_a))
+            fit.settle_time_constant_s = pzt.settle_time_constant_s(resistance_ohm)
     if pzt is not None and pzt.transducer_constant_n_per_v > 0:
         fit.stack_v_per_m = float(pzt.stiffness_n_per_m / pzt.transducer_constant_n_per_v)
     if "gauge" in outputs and "displacement" in outputs:

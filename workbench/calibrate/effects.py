@@ -85,7 +85,8 @@ from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import least_squares
 
 from .stacking import column_stack
-from .kernels import filtered_rows_scaled, lowpass_rows, mode_column_rows, mode_columns_rows, shifted_rows_into
+from .kernels import (filtered_rows_scaled, held_mode_column_compiled, lowpass_rows, mode_column_rows, mode_columns_rows,
+                      shifted_rows_into)
 from .pi_fit import rms
 from .residual import analyze_residual
 
@@ -1279,6 +1280,158 @@ PEAK_FLOOR_HZ = 20.0
 PEAK_SEGMENT = 4096
 
 
+#: the held drive's path (:class:`HeldDrive`) takes each sample's step as settled within the sample: the
+#: series resistor's RC tail left at the sample's end, ``exp(-dt / RC)``, at most this share of the step (a
+#: record sampled at least ``ln(100) = 4.6`` RC apart; the P-888.51's 80 ohm and ~6 uF: 100 Hz, not 1 kHz)
+HELD_SETTLED = 0.01
+
+
+class HeldDrive:
+    """The stack's drive between samples under an amplifier command held from sample to sample.
+
+    A command updated at the samples and held between them (a DAC at the record's rate) is a staircase; the
+    amplifier moves the stack's charge at most at its current limit (``limits``: source, sink, A) and settles
+    through the series resistor with the time constant ``rc = R C`` (s). Where a step settles within a sample
+    (:data:`HELD_SETTLED`) each interval's path is fixed by its charge step ``dq`` (C; the record's integrated
+    current, its mean over the interval times ``dt``): the charge ramps at the limit from the interval's start
+    while the resistor's current exceeds it, then settles exponentially, the two moving ``dq`` together; a step
+    too small to reach the limit settles from the start, and an interval that moves ``limit * dt`` ramps at the
+    limit throughout (a slew that runs on; its settle, spilling into the next interval, is that one's). The
+    motion follows the charge (its model interpolated in proportion to the charge moved): a mode of the stack
+    is driven through that path (:func:`held_mode_column`), not through a first-order hold's straight line
+    between samples (:func:`_foh_mode`). At 100 Hz a 38.4 Hz mode under the 0.15 Hz sine (93 #115, n_sub 64
+    simulation): the first-order hold leaves 7.96e-9 m of its 1.15e-8 m effect (gain -23), this path 2.2e-10 m
+    (gain 0.96). Above the record's Nyquist frequency the path tells a mode from its alias: the same poles,
+    different responses to the path's ramps and settles.
+
+    Parameters
+    ----------
+    dq : ndarray
+        The charge moved in each sample's interval (C), ``dq[0]`` 0 (the record's start).
+    dt : float
+        Sample period (s).
+    rc : float
+        The settle's time constant (s): the series resistor times the stack's capacitance.
+    limits : (float, float)
+        The amplifier's current limits, source and sink, both positive (A).
+    """
+
+    def __init__(self, dq, dt, rc, limits):
+        dq = np.asarray(dq, float)
+        self.dt, self.rc = float(dt), float(rc)
+        dt, rc = self.dt, self.rc
+        lim = np.where(dq >= 0.0, float(limits[0]), float(limits[1]))
+        x = np.abs(dq) / lim                       # the time at the limit that would move the step (s)
+        # each interval: at the limit until t_e, then the settle from there, lim rc (1 - exp(-s / rc)) of charge
+        # by the time s after: x = t_e + rc (1 - exp(-(dt - t_e) / rc)), solved for t_e (increasing in t_e);
+        # a step the settle alone moves (x <= rc (1 - exp(-dt / rc)): its current never reaches the limit) has
+        # t_e = 0, and one the limit moves the whole interval (x >= dt) t_e = dt
+        settle_only = x <= rc * -np.expm1(-dt / rc)
+        runs_on = x >= dt
+        lo, hi = np.zeros_like(x), np.full_like(x, dt)
+        for _ in range(60):                         # bisection to ~dt 2^-60
+            mid = 0.5 * (lo + hi)
+            above = mid + rc * -np.expm1(-(dt - mid) / rc) > x
+            hi = np.where(above, mid, hi)
+            lo = np.where(above, lo, mid)
+        t_e = np.where(settle_only, 0.0, np.where(runs_on, dt, 0.5 * (lo + hi)))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv = np.where(x > 0.0, 1.0 / x, 0.0)   # per second: the ramp's slope as a fraction of the step
+        self.t_ramp = t_e
+        self.slope = inv
+        # the fraction of the step the ramp moved, and the settle's amplitude as a fraction of the step
+        self.q_ramp = np.where(runs_on, 1.0, t_e * inv)
+        self._left = np.where(runs_on, 0.0, np.where(settle_only, 1.0 / -np.expm1(-dt / rc), rc * inv))
+        self.slope = np.where(settle_only, 0.0, inv)
+        self.q_ramp = np.where(settle_only, 0.0, self.q_ramp)
+        # the settle's decay over the interval's rest, exp(-(dt - t_e) / rc) (trial-free)
+        self._settled = np.exp(-(dt - t_e) / rc)
+        self._runs_on = runs_on
+        self._key = _data_key(dq, np.array([dt, rc, float(limits[0]), float(limits[1])]))
+
+    def path(self, s, rows=slice(None)):
+        """``rho_k(s)``, the share of interval ``k``'s step moved by the time ``s`` after its start (0 to 1).
+
+        The ramp at the limit ``s / x_k`` up to ``t_ramp``, then the settle ``q_ramp + left (1 - exp(-(s - t_ramp) /
+        RC))``, reaching 1 at ``dt``; an interval the limit moves throughout (a slew that runs on) ramps as ``s / dt``
+        (its recorded step over the interval: the kernel's slope, ``1 / x_k``, equals it but for the record's noise).
+        The plant file's replay drives the stack along it between samples
+        (:func:`~workbench.calibrate.plant_update.updated_plant_error`).
+
+        Parameters
+        ----------
+        s : ndarray
+            Times after an interval's start, s (``0 <= s <= dt``).
+        rows : slice, optional
+            The intervals (samples ``k``; interval ``k`` ends at sample ``k``).
+
+        Returns
+        -------
+        ndarray
+            ``(intervals, s.size)`` shares of each interval's step (dimensionless).
+        """
+        s = np.asarray(s, float)[None, :]
+        T = self.t_ramp[rows][:, None]
+        ramp = np.where(self._runs_on[rows][:, None], s / self.dt, self.slope[rows][:, None] * s)
+        settle = self.q_ramp[rows][:, None] + self._left[rows][:, None] * -np.expm1(-np.maximum(s - T, 0.0) / self.rc)
+        return np.where(s < T, ramp, settle)
+
+    def kernel(self, lam):
+        """``K_k = int_0^dt exp(lam (dt - s)) rho_k(s) ds`` per interval (complex), ``rho_k`` the interval's path
+        from 0 to 1 (:class:`HeldDrive`), for a pole ``lam`` (1/s). One complex exponential per interval: the
+        ramp's ``exp(-lam T)``; the rest from it and the settle's ``exp(-(dt - T) / RC)``, computed once."""
+        dt, T = self.dt, self.t_ramp
+        e_dt = complex(np.exp(lam * dt))
+        lt = lam * T
+        e_mt = np.exp(-lt)                                   # exp(-lam T)
+        e_rest = e_dt * e_mt                                 # exp(lam (dt - T))
+        # the ramp: slope * exp(lam dt) * int_0^T s exp(-lam s) ds, by its series where lam T is small
+        J = np.empty(T.size, complex)
+        small = np.abs(lt) < 1e-2
+        ls = lt[small]
+        J[small] = T[small] ** 2 * (0.5 - ls / 3.0 + ls * ls / 8.0)
+        big = ~small
+        J[big] = (1.0 - e_mt[big] * (1.0 + lt[big])) / (lam * lam)
+        K = (self.slope * e_dt) * J
+        # the level the ramp reached, held (a ramp that runs on: q_ramp 1, nothing left to settle)
+        K += self.q_ramp * ((e_rest - 1.0) / lam)
+        # the settle: (1 - q_ramp) int_0^rest exp(lam (rest - s)) (1 - exp(-s / RC)) ds
+        a = lam + 1.0 / self.rc
+        K += self._left * ((e_rest - 1.0) / lam - (e_rest - self._settled) / a)
+        return K
+
+
+def held_mode_column(u, held, f_hz, zeta):
+    """``(H - 1) u`` at the samples of a mode ``H`` (unit DC gain, ``f_hz``, ``zeta`` < 1) driven by ``u``
+    along the held drive's path between samples (:class:`HeldDrive`), started at rest at ``u[0]``.
+
+    Exact for that path: per pole ``lam`` the mode's state moves over an interval by ``exp(lam dt)`` and
+    takes the interval's input ``u_{k-1} + (u_k - u_{k-1}) rho_k``, whose integral against ``exp(lam (dt -
+    s))`` is :meth:`HeldDrive.kernel`'s; the two poles are conjugate, so the response is twice the real part
+    of one's."""
+    u = np.asarray(u, float)
+    dt = held.dt
+    w = 2.0 * np.pi * float(f_hz)
+    z = float(zeta)
+    beta = w * np.sqrt(max(1.0 - z * z, 1e-12))
+    lam = complex(-z * w, beta)
+    r = w * w / (2j * beta)                      # the residue of w^2 / ((s - lam)(s - conj(lam))) at lam
+    v = u - u[0]
+    if _HELD_COMPILED:
+        return held_mode_column_compiled(v, held, lam, r)
+    e_dt = np.exp(lam * dt)
+    dv = np.diff(v, prepend=0.0)
+    v_prev = np.r_[0.0, v[:-1]]
+    F = r * (v_prev * ((e_dt - 1.0) / lam) + dv * held.kernel(lam))
+    state = signal.lfilter([1.0], [1.0, -e_dt], F)
+    return 2.0 * state.real - v
+
+
+#: :func:`held_mode_column` by its compiled recursion (:func:`.kernels.held_mode_column_compiled`); False: the
+#: numpy form (:meth:`HeldDrive.kernel` and ``lfilter``), the reference the tests compare with
+_HELD_COMPILED = True
+
+
 class Resonance(Effect):
     """A lightly damped mode with unit DC gain the base model lacks: ``g (H(s) - 1) u``.
 
@@ -1294,6 +1447,14 @@ class Resonance(Effect):
         at 1 MHz, a 130x 39.8 Hz mode under a 62 Hz sine, found at 44.1 Hz and answered
         ``inconclusive``; the true mode on the refitted columns reaches the noise floor). The
         tracing keeps the variant whose joint fit leaves less on the development rows.
+    held : HeldDrive, optional
+        The drive's path between samples of a held command (:class:`HeldDrive`, built by
+        :func:`~.tracing.held_drive` only where each step settles within a sample: 100 Hz on the P-888.51). With
+        it, :meth:`fit` has a fourth variant (``held=True``): the mode driven through that path
+        (:func:`held_mode_column`), searched past the Nyquist frequency (:meth:`_fit_held`; ``params["held"]``
+        True), which tells a mode above Nyquist from its alias. The first-order hold's column is the wrong
+        discretization there: on 93 #115's 38.4 Hz mode at 100 Hz it leaves 7.4e-9 of a 1.05e-8 m effect, the
+        held path 4.4e-10 (README, "Session 31, modes above the record's Nyquist frequency").
     """
 
     name = "resonance"
@@ -1301,7 +1462,7 @@ class Resonance(Effect):
     nonlinear = True
 
     def __init__(self, f_min_hz=None, f_max_fraction=0.5, zeta_min=0.002, zeta_max=0.3,
-                 n_freq=30, basis=None):
+                 n_freq=30, basis=None, held=None):
         # the search's ceiling, f_max_fraction / dt: the Nyquist frequency, the highest at which a sampled
         # record shows a mode's ringing (a faster mode rings at its alias fs - f, below it). It was 0.4 of the
         # rate, a constant of the first library: a 410 Hz mode beside a drift at 1 kHz (seed 73 #33) was
@@ -1311,6 +1472,9 @@ class Resonance(Effect):
         self.zeta_min, self.zeta_max = float(zeta_min), float(zeta_max)
         self.n_freq = int(n_freq)
         self.basis = None if basis is None else np.asarray(basis, float)
+        # the drive's path between samples of a held command (:class:`HeldDrive`): with it, :meth:`fit` has a
+        # fourth variant (``held=True``), the mode driven through that path, searched above Nyquist too
+        self.held = held
         self._models = {}
         self._refit_memo = {}
         self._fold_memo = {}
@@ -1320,12 +1484,17 @@ class Resonance(Effect):
         """Has :meth:`fit` the refitted variant (``refit=True``)?"""
         return self.basis is not None
 
+    @property
+    def holds(self):
+        """Has :meth:`fit` the held drive's variant (``held=True``, :class:`HeldDrive`)?"""
+        return self.held is not None
+
     def __deepcopy__(self, memo):
         # the drive's columns and the refitted search's memo are shared (read-only; the stages copy
         # an effect per search variant), the rest copied as before
         new = copy.copy(self)
         for k, v in self.__dict__.items():
-            if k not in ("basis", "_refit_memo", "_fold_memo"):
+            if k not in ("basis", "held", "_refit_memo", "_fold_memo"):
                 new.__dict__[k] = copy.deepcopy(v, memo)
         return new
 
@@ -1482,7 +1651,7 @@ class Resonance(Effect):
             return min(z, cap) if f < f_slow else z
         return zeta
 
-    def _spectral_peaks(self, e, fs, lf_lo, lf_hi):
+    def _spectral_peaks(self, e, fs, lf_lo, lf_hi, floor_hz=PEAK_FLOOR_HZ):
         """The residual spectrum's peaks (Hz) about which :meth:`fit` lays its fine grid.
 
         Peaks of a Welch estimate of ``e`` (the search rows' residual, rate ``fs`` in Hz) with
@@ -1520,7 +1689,7 @@ class Resonance(Effect):
         """
         from scipy.ndimage import median_filter
         e = np.asarray(e, float) - float(np.mean(e))
-        f_pk = max(np.exp(lf_lo), PEAK_FLOOR_HZ)
+        f_pk = max(np.exp(lf_lo), floor_hz)
         nseg = min(PEAK_SEGMENT, e.size)
         f_psd, pxx = signal.welch(e, fs=fs, nperseg=nseg)
         band = (f_psd >= f_pk) & (f_psd <= np.exp(lf_hi))
@@ -1560,9 +1729,11 @@ class Resonance(Effect):
         take(f_b, np.argsort(prominence)[::-1], n0 + 4)
         return peaks[:n0], peaks[n0:]
 
-    def fit(self, t, u, residual, train_mask, y_model=None, project=None, refit=False):
+    def fit(self, t, u, residual, train_mask, y_model=None, project=None, refit=False, held=False):
         dt = _dt(t)
         u = np.asarray(u, float)
+        if held:
+            return self._fit_held(t, u, residual, train_mask, project)
         if refit:
             # the mode on the drive model refitted per trial (see the class notes): searched once per data
             ym = np.asarray(y_model, float) if y_model is not None else None
@@ -1628,13 +1799,74 @@ class Resonance(Effect):
         f = float(np.exp(theta[0]))
         return {"gain": float(beta[0]), "f_n_hz": f, "zeta": float(zeta(f, float(np.exp(theta[1]))))}
 
+    def _held_ceiling(self, t):
+        """The held variant's highest trial frequency (Hz): the settle's corner ``1 / (2 pi RC)`` (343 Hz on the
+        P-888.51's 80 ohm and ~6 uF), above which the settle's edge is slower than the mode and the ring it
+        excites falls as ``1 / (w RC)``; at least the Nyquist frequency."""
+        return max(self.f_max_fraction / _dt(t), 1.0 / (2.0 * np.pi * self.held.rc))
+
+    def _fit_held(self, t, u, residual, train_mask, project):
+        """The mode driven through the held drive's path (:class:`HeldDrive`, :func:`held_mode_column`).
+
+        Its trials run from the search's floor (:meth:`_range`) past the Nyquist frequency to
+        :meth:`_held_ceiling`, their damping at most RING_ZETA_MAX (a mode this variant reads rings: a heavier
+        one is the phase a delay reads, :func:`~.tracing._phase_only_mode`): a coarse log grid, and a fine one
+        about every image ``k fs +- f_p`` of the residual spectrum's peaks ``f_p`` (:meth:`_spectral_peaks`, down
+        to the search's floor; a mode above Nyquist rings at its alias in the samples), then :func:`_varpro`'s
+        refinement."""
+        if self.held is None or self.held.t_ramp.size != np.asarray(u).size:
+            raise ValueError("the held drive's mode needs the record's held drive")
+        dt = _dt(t)
+        fs = 1.0 / dt
+        lf_lo = self._range(t)[0]
+        lf_hi = np.log(self._held_ceiling(t))
+        z_hi = max(min(self.zeta_max, RING_ZETA_MAX), self.zeta_min)
+        lz_lo, lz_hi = np.log(self.zeta_min), np.log(z_hi)
+        rows = np.flatnonzero(np.asarray(train_mask, bool))
+        step = float(np.median(np.diff(rows))) if rows.size > 1 else 1.0
+        # (every alias, down to the search's floor: a mode just above a multiple of the rate rings at a few Hz in
+        # the samples, under PEAK_FLOOR_HZ, 109 #126's 92.9 Hz at 7.1 Hz)
+        peaks, _ = self._spectral_peaks(np.asarray(residual, float)[rows], fs / step, lf_lo,
+                                        min(self._range(t)[1], lf_hi), floor_hz=0.0)
+        grid = [[lf, lz] for lf in np.linspace(lf_lo, lf_hi, self.n_freq) for lz in np.linspace(lz_lo, lz_hi, 4)]
+        f_hi = float(np.exp(lf_hi))
+        # (each image's points span the alias's fine grid in Hz: a mode above Nyquist rings at its alias)
+        for f_p in peaks:
+            offs = f_p * np.exp(np.linspace(-FINE_HALF_LOG, FINE_HALF_LOG, 5))
+            for k in range(int(f_hi // fs) + 2):
+                for f in np.r_[k * fs - offs, k * fs + offs]:
+                    if np.exp(lf_lo) <= f <= f_hi:
+                        grid += [[np.log(f), lz] for lz in np.linspace(lz_lo, lz_hi, 3)]
+
+        def col(th):
+            return held_mode_column(u, self.held, np.exp(th[0]), np.exp(th[1]))
+        theta, beta = _varpro(col, np.asarray(residual, float), np.asarray(train_mask, bool), grid,
+                              [lf_lo, lz_lo], [lf_hi, lz_hi], project, starts=3)
+        if theta[1] >= lz_hi - 1e-9:
+            # the fit ran to its damping cap: no ring (a mode this variant reads rings within RING_ZETA_MAX), the
+            # lag of the drive's phase at its harmonics read by the most damped trial, a sub-sample delay's reading
+            # (107 #127 at 100 Hz steps: a 0.28 ms displacement latency, 0.028 samples, fitted 301.9 Hz at zeta
+            # 0.159 and named a mode on 2 of 5 folds). Not this variant's answer (as _phase_only_mode, beside a delay)
+            raise ValueError("the held mode's fit runs to its damping cap: a phase, not a ring")
+        return {"gain": float(beta[0]), "f_n_hz": float(np.exp(theta[0])), "zeta": float(np.exp(theta[1])),
+                "held": True}
+
     def _refit_column(self, params, y_model):
         """The refitted model's column :meth:`fit` found for ``y_model`` (None for another model)."""
         if not params.get("refit") or y_model is None or not self._models:
             return None
         return self._models.get((params["f_n_hz"], params["zeta"], _data_key(np.asarray(y_model, float))))
 
+    def _held_only(self, params):
+        """A held drive's mode (``params["held"]``) is a column of that path alone: without it, an error (the
+        first-order hold's column is another model, and was once returned in its place without a word)."""
+        if params.get("held") and self.held is None:
+            raise ValueError("a held drive's mode needs the record's held drive (HeldDrive); this Resonance has none")
+
     def term(self, t, u, params, y_model=None):
+        self._held_only(params)
+        if params.get("held"):
+            return params["gain"] * held_mode_column(u, self.held, params["f_n_hz"], params["zeta"])
         col = self._refit_column(params, y_model)
         if col is not None:
             return params["gain"] * col
@@ -1645,6 +1877,9 @@ class Resonance(Effect):
         # the refitted model's column where fitted to this y_model (its gain ~1, >= 0: the mode's
         # sign is in the column); a model it was not fitted to (a channel the found mode is carried
         # to) takes the mode on its own prediction
+        self._held_only(params)
+        if params.get("held"):
+            return held_mode_column(u, self.held, params["f_n_hz"], params["zeta"]), [-np.inf]
         col = self._refit_column(params, y_model)
         if col is not None:
             return col, [0.0]

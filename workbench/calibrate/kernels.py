@@ -19,7 +19,7 @@ from numba import njit
 from .._kernel_args import readonly
 
 __all__ = ["mode_column_rows", "mode_columns_rows", "lowpass_rows", "plays_rows", "filtered_rows_scaled",
-           "shifted_rows_into"]
+           "shifted_rows_into", "held_mode_column_compiled"]
 
 
 @njit(cache=True)
@@ -288,3 +288,41 @@ def shifted_rows_into(Z, rows, d, out, col0=0, scale=None):
     scale = np.ones(out.shape[1]) if scale is None else scale
     _shifted_into(readonly(Z), readonly(rows, np.int64), float(d), readonly(scale), out, int(col0))
     return out
+
+
+@njit(cache=True)
+def _held_mode(v, t_ramp, slope, q_ramp, left, settled, dt, rc, lam, r):
+    out = np.empty(v.size)
+    e_dt = np.exp(lam * dt)
+    a = lam + 1.0 / rc
+    inv_lam = 1.0 / lam
+    inv_lam2 = inv_lam * inv_lam
+    inv_a = 1.0 / a
+    zoh = (e_dt - 1.0) * inv_lam
+    state = 0.0 + 0.0j
+    v_prev = 0.0
+    e_mdt = np.exp(-lam * dt)
+    for k in range(v.size):
+        T = t_ramp[k]
+        lt = lam * T
+        # (no ramp, and a ramp over the whole interval, are most rows: their exponentials are e_dt's)
+        e_mt = 1.0 + 0.0j if T == 0.0 else (e_mdt if T == dt else np.exp(-lt))
+        e_rest = e_dt * e_mt
+        if abs(lt) < 1e-2:
+            J = T * T * (0.5 - lt / 3.0 + lt * lt / 8.0)
+        else:
+            J = (1.0 - e_mt * (1.0 + lt)) * inv_lam2
+        K = slope[k] * e_dt * J + q_ramp[k] * ((e_rest - 1.0) * inv_lam) \
+            + left[k] * ((e_rest - 1.0) * inv_lam - (e_rest - settled[k]) * inv_a)
+        dv = v[k] - v_prev
+        state = e_dt * state + r * (v_prev * zoh + dv * K)
+        out[k] = 2.0 * state.real - v[k]
+        v_prev = v[k]
+    return out
+
+
+def held_mode_column_compiled(v, held, lam, r):
+    """:func:`~.effects.held_mode_column`'s recursion in one compiled pass (``v``: the input less its first
+    value; ``held``: the :class:`~.effects.HeldDrive`; ``lam``, ``r``: one pole and its residue)."""
+    arrays = (v, held.t_ramp, held.slope, held.q_ramp, held._left, held._settled)
+    return _held_mode(*(readonly(x) for x in arrays), float(held.dt), float(held.rc), complex(lam), complex(r))

@@ -40,7 +40,7 @@ import re
 
 import numpy as np
 
-__all__ = ["carried_stages", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
+__all__ = ["carried_stages", "unplaced_modes", "replayed", "replay_key", "bow_about_rest", "replay_above_before_warning", "written_stages", "choose_core", "reported_error_after", "declared_core", "core_for", "plant_file_gaps", "round_trip_note", "updated_plant_error_reason", "updated_plant_text", "creep_branches", "updated_plant_error", "replay_upsample", "held_replay_upsample", "round_trip_warning", "ROUND_TRIP_TOLERANCE"]
 
 #: Issue 13 item 6: simulating the record through the updated plant reproduces the fitted model's
 #: ``error_after`` within this fraction; a larger difference is warned about, with its reason.
@@ -285,6 +285,26 @@ def _file_lines(text):
     return [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
 
 
+def unplaced_modes(stages):
+    """``{(effect, channel): reason}``: the held drive's modes the record cannot place (``alias_family`` not
+    resolved).
+
+    A mode named through the held drive's path (100 Hz on the P-888.51) is written to the plant file only where its
+    folds place it (:func:`~workbench.calibrate.tracing.alias_family`): the named frequency resolved beyond every
+    other member of its alias family, named again by the folds' own searches within its half-power band, and its
+    gain consistent with a stack mode's share of the motion. A servo designer reads a file's mode as measured, and at
+    100 Hz a record may leave it at one of several frequencies (100.4, 200.4 or 300.4 Hz), or fit the column to
+    something else (the review of s32_alias: a 490 Hz mode named 285.6 Hz, gain 0.35). The JSON carries the family,
+    the file's gaps (``omit``'s reason) say what is missing and why, and its ``error_after`` is that of the file
+    without it."""
+    out = {}
+    for st in stages:
+        fam = st.get("alias_family")
+        if fam and not fam.get("resolved", True):
+            out[(st["effect"], st["channel"])] = f"its frequency is not placed: {fam['note']}"
+    return out
+
+
 def carried_stages(plant_path, plant, base, result, data_path, core, rows, replays=None):
     """Which stages the updated plant file carries: each written only where it replays the development rows closer.
 
@@ -319,11 +339,15 @@ def carried_stages(plant_path, plant, base, result, data_path, core, rows, repla
     stages = written_stages(result.get("stages") or [], result, core)
     carried = [{"effect": st["effect"], "channel": st["channel"], "written": True, "reason": None,
                 "development_rms": None} for st in stages]
-    omit = {}
+    omit = unplaced_modes(stages)
+    for c, st in zip(carried, stages):
+        if (st["effect"], st["channel"]) in omit:
+            c.update(written=False, reason=omit[(st["effect"], st["channel"])])
     why_not = updated_plant_error_reason("pzt", result, base, result.get("channel"))
     if why_not is not None:
         for c in carried:
-            c["reason"] = f"not replayed ({why_not})"
+            if c["written"]:
+                c["reason"] = f"not replayed ({why_not})"
         return omit, carried
     replays = {} if replays is None else replays
     with tempfile.TemporaryDirectory() as tmp:
@@ -341,6 +365,8 @@ def carried_stages(plant_path, plant, base, result, data_path, core, rows, repla
             return _replay_error(sim, base, ch, rows, rows)["rms"]
         for c, st in reversed(list(zip(carried, stages))):
             key = (st["effect"], st["channel"])
+            if key in omit:
+                continue
             ch = st["channel"]
             trial = {**omit, key: "trial"}
             body_without = "\n".join(_file_lines(text_of(trial)))
@@ -385,7 +411,8 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     zeta 0.0072; drawn 44.84 Hz, 0.0068): the file replayed 1.9x the tracing model's error, with the drawn
     frequency and damping 0.06x. The file's modes do not feed back (``plant.kernels``: the quasi-static
     displacement drives them), so the file is replayed once without the found mode and the mode (a unit-gain
-    second-order filter, first-order hold as the simulator's) applied to that replay; its frequency and damping
+    second-order filter, first-order hold as the simulator's; along the held drive's path where the replay takes it,
+    :func:`~.effects.held_mode_column`) applied to that replay; its frequency and damping
     are fitted there (least squares on the rows, the constant free), within :data:`MODE_REFIT_FREQ_FACTOR` and
     :data:`MODE_REFIT_DAMPING_FACTOR` of the tracing's.
     """
@@ -395,6 +422,8 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     from scipy.optimize import least_squares
 
     from ..plant import load_plant
+    from .effects import held_mode_column
+    from .tracing import held_drive
     if result.get("channel") != "displacement" or base.input_kind != "terminal" or "displacement" not in base.channels:
         return core
     stages = written_stages(result.get("stages") or [], result, core)
@@ -421,10 +450,13 @@ def _refit_mode(plant_path, plant, base, result, data_path, core, rows, tmp):
     if not np.any(ok) or not dt > 0:
         return core
     y = np.asarray(m.y, float) - (0.0 if drift is None else drift)
+    held = held_drive(base)
 
     def moded(z):
         w = 2 * np.pi * float(np.exp(z[0]))
         zeta = float(np.exp(z[1]))
+        if held is not None:          # the replay's own path between samples (:func:`_replay`)
+            return x1 + held_mode_column(x1, held, float(np.exp(z[0])), zeta)
         b, a, _ = signal.cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), dt, method="foh")
         b = np.ravel(b)
         zi = signal.lfilter_zi(b, a) * x1[0]
@@ -1203,16 +1235,45 @@ def replayed(text, base, channel, path, replays=None):
     return sim
 
 
+#: The fine steps per settle time constant ``RC`` of the held drive's replay (:func:`held_replay_upsample`).
+REPLAY_HELD_STEPS_PER_RC = 8
+
+#: The most fine steps a sample of the held drive's replay takes (:func:`held_replay_upsample`).
+REPLAY_HELD_UPSAMPLE_MAX = 256
+
+
+def held_replay_upsample(plant, held):
+    """Points per sample of a replay along the held drive's path (:class:`~.effects.HeldDrive`).
+
+    The larger of ``ceil(REPLAY_HELD_STEPS_PER_RC dt / RC)`` (the settle resolved: ``RC`` the path's, s) and
+    ``ceil(REPLAY_STEPS_PER_MODE_PERIOD f dt)`` over the ``[[mechanics.modes]]`` below ``1 / (2 pi RC)`` (the
+    settle's corner; a mode above it is not driven through the path's shape), clipped to
+    ``1..REPLAY_HELD_UPSAMPLE_MAX``: 174 at 100 Hz on the P-888.51's 80 ohm and ~5.7 uF.
+    """
+    dt, rc = float(held.dt), float(held.rc)
+    corner = 1.0 / (2.0 * np.pi * rc)
+    modes = [float(m.freq_hz) for m in (getattr(plant.pzt, "modes", ()) or ()) if float(m.freq_hz) <= corner]
+    need = max(np.ceil(REPLAY_HELD_STEPS_PER_RC * dt / rc - 1e-9),
+               np.ceil(REPLAY_STEPS_PER_MODE_PERIOD * max(modes, default=0.0) * dt - 1e-9))
+    return int(min(REPLAY_HELD_UPSAMPLE_MAX, max(1, need)))
+
+
 def _replay(plant, base, channel):
     """The record's drive simulated through ``plant`` (see :func:`updated_plant_error`): the channel's column."""
     import dataclasses
 
     from .synthetic import SensorNoise, simulate_record
+    from .tracing import held_drive
     t = np.asarray(base.t, float)
     quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
-    rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0
+    held = held_drive(base)
+    if held is None:
+        rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0
+        up = replay_upsample(quasi, rate)
+    else:
+        up = held_replay_upsample(quasi, held)
     sim = simulate_record(quasi, t, np.asarray(base.v_drive, float), noise=SensorNoise(0.0, 0.0, 0.0),
-                          gauge=channel == "gauge", gauge_noise=False, upsample=replay_upsample(quasi, rate))
+                          gauge=channel == "gauge", gauge_noise=False, upsample=up, held=held)
     return sim[_SIM_KEY[channel]]
 
 

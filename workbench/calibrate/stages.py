@@ -215,6 +215,8 @@ def _research(c, probs, extra, t, base):
     modes = [{"project": m} for m in ((project, None) if getattr(eff, "nonlinear", False) else (project,))]
     if getattr(eff, "refits", False):
         modes.append({"project": None, "refit": True})     # a mode on the refitted drive model (Resonance)
+    if getattr(eff, "holds", False):
+        modes.append({"project": project, "held": True})   # a mode driven through the held drive's path
     dev = prob.split.dev_blocks
     # the two searches' copies share the effect's memo of the plain search's grid costs (a
     # resonance's, :func:`~.effects._varpro`'s ``plain_costs``, keyed by the data): the search
@@ -1269,6 +1271,9 @@ def run_stages(ctx, max_stages=3):
     c = res["by"].get(answer) if answer not in (None, "none") else None
     while c is not None:
         stages.append(_stage_entry(c, count, ctx, extra, resolved))
+        fam = _tr.alias_family(c, ctx, extra)      # a held drive's mode: its alias family resolved or not
+        if fam is not None:
+            stages[-1]["alias_family"] = fam
         if c.get("replaces") is not None:
             refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
             refitted_joint_stage(stages)           # the delay's or creep's, refitted beside the other

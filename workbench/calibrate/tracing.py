@@ -87,12 +87,14 @@ from .absorption_or_leakage import leakage_note, settled_absorption_rms, too_sho
 from .base_fit import BaseFit, plays_basis
 from .effects import CreepSpectrum as _CreepSpectrum
 from .drift_holds import NO_HOLDS_NOTE, drift_in_holds, hold_spans
-from .effects import (RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
-                      GaugeNonlinearity, Leakage,
+from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay, DielectricAbsorption, Drift,
+                      GaugeNonlinearity, HeldDrive, Leakage,
                       Resonance)
 from .pi_fit import rms, turning_points
 
-__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS"]
+__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
+           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "ALIAS_ABOVE_BAND",
+           "alias_members", "ALIAS_ZETA_FACTORS"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
@@ -149,7 +151,7 @@ def periodic_drive_period(t, v, tp=None):
     return P / dt if np.all(np.abs(cycles - P) <= PERIODIC_RTOL * P) else None
 
 
-def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None):
+def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None, held=None):
     """(channel, effect, driver) triples for the recorded ``channels`` (see the module notes).
 
     With ``t`` and ``v`` the delay bound, the creep branches and the drift's slow periodic
@@ -161,7 +163,8 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
     ten per record). With ``basis`` (the base's columns of the drive, or a dict of them per
     channel) the delay's model is refitted at each trial delay
     (:class:`~workbench.calibrate.effects.Delay`). With ``loops`` (channel -> :class:`.creep_across.CreepLoop`,
-    :func:`creep_loops`) a channel's creep branches are driven by the voltage across C_h.
+    :func:`creep_loops`) a channel's creep branches are driven by the voltage across C_h. With ``held``
+    (:func:`held_drive`) a mode is also searched driven through the held command's path between samples.
     """
     def _basis(ch):      # a channel's own columns (an averaged gauge's are its plays' interval mean)
         return basis.get(ch) if isinstance(basis, dict) else basis
@@ -197,7 +200,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
     has_x = "displacement" in channels
     if "displacement" in channels:
         plan += [("displacement", CreepSpectrum("displacement"), "model"),
-                 ("displacement", Resonance(basis=_basis("displacement")), "model"),
+                 ("displacement", Resonance(basis=_basis("displacement"), held=held), "model"),
                  ("displacement", Delay(max_delay=max_delay, basis=_basis("displacement"), max_lead=max_lead, period=rep),
                   "model"),
                  ("displacement", Drift(), "time"),
@@ -213,7 +216,7 @@ def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=N
         if not has_x:
             plan.append(("charge", CreepSpectrum("charge"), "model"))
     if "gauge" in channels:
-        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(basis=_basis("gauge")), "model"),
+        plan += [("gauge", CreepSpectrum("gauge"), "model"), ("gauge", Resonance(basis=_basis("gauge"), held=held), "model"),
                  ("gauge", Delay(max_delay=max_delay, basis=_basis("gauge"), max_lead=max_lead, period=rep), "model"),
                  ("gauge", Drift(), "time"),
                  ("gauge", Drift(periodic_hz=slow), "time")]
@@ -247,6 +250,37 @@ def creep_loops(base):
         # the gauge reads the stack; the displacement sensor may add its own delay or drift (not the stack's)
         shared["source"] = out["gauge"]
     return out
+
+
+def held_drive(base):
+    """The drive's path between samples when the record's command is held from sample to sample and each
+    step settles within a sample (:class:`~.effects.HeldDrive`), or None.
+
+    Needs what the path is made of: the series resistor and the declared PZT's current limits
+    (:attr:`BaseFit.series_resistance_ohm`, :attr:`BaseFit.current_limits_a`), the settle's time constant
+    ``R C_min`` of the declared plant (:attr:`BaseFit.settle_time_constant_s`, the terminal's smallest
+    incremental capacitance: the simulator's :func:`~.synthetic.substeps` reads the same), the charge moved in
+    each interval (the record's integrated current) and a terminal-voltage record; and a sample period over which
+    the settle ends, ``exp(-dt / RC) <= HELD_SETTLED`` (at 100 Hz on the P-888.51's 80 ohm and 6.0 uF; not at
+    1 kHz, where the steps' settles run into the next samples and the drive between samples is smooth: the
+    first-order hold's). The gate is the declared plant's, never a record's fit: eq. 12's ``C_p`` from a drifting
+    record fell to 0.08-0.98 uF and built the path at 1 and 10 kHz (review of s32_alias, B2).
+    """
+    r_ohm = getattr(base, "series_resistance_ohm", None)
+    limits = getattr(base, "current_limits_a", None)
+    rc = getattr(base, "settle_time_constant_s", None)
+    if not r_ohm or not limits or not rc or rc <= 0 or "charge" not in base.channels \
+            or getattr(base, "input_kind", "terminal") != "terminal" or min(limits) <= 0:
+        return None
+    t = np.asarray(base.t, float)
+    if t.size < 3:
+        return None
+    dt = float((t[-1] - t[0]) / (t.size - 1))
+    rc = float(rc)
+    if np.exp(-dt / rc) > HELD_SETTLED:
+        return None
+    q = np.asarray(base.channels["charge"].y, float)
+    return HeldDrive(np.diff(q, prepend=q[0]), dt, rc, limits)
 
 
 def noise_floor(e):
@@ -577,11 +611,13 @@ def _candidate_columns(eff, t, u, y, yhat, prob, lower=None):
     modes = [{"project": m} for m in ((prob.project, None) if getattr(eff, "nonlinear", False) else (prob.project,))]
     if getattr(eff, "refits", False):
         modes.append({"project": None, "refit": True})     # a mode on the refitted drive model (Resonance)
+    if getattr(eff, "holds", False):
+        modes.append({"project": prob.project, "held": True})   # a mode driven through the held drive's path
     for kw in modes:
         try:
             p = eff.fit(t, u, y - yhat, prob.search, y_model=yhat, **kw)
         except ValueError:
-            if kw.get("refit"):
+            if kw.get("refit") or kw.get("held"):
                 continue
             raise
         if best is not None and _same_params(p, best[1]):
@@ -719,7 +755,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     need = int(np.ceil(0.8 * n_folds)) if agree is None else int(agree)
     # each channel's own columns: an averaged gauge's model spans its plays' interval mean (review of s14_ends)
     bases = {ch: base.channel_basis(ch) for ch in base.channels}
-    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=bases, loops=creep_loops(base))
+    plan = candidate_plan(base.channels, t, base.v_drive, tau_min_s=split.block_s, basis=bases, loops=creep_loops(base),
+                          held=held_drive(base))
     rng = np.random.default_rng(seed)
     dev_rows = split.train
 
@@ -813,6 +850,14 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
             s["note"] = note
             if k == 0:
                 out["reason"] += f"; {note}"
+    for k, s in enumerate(out["stages"]):
+        fam = s.get("alias_family")
+        if fam and not fam["resolved"]:
+            # a held drive's mode above Nyquist the record cannot place in its alias family: said, and the plant
+            # file does not carry it as measured (plant_update.carried_stages)
+            s["note"] = fam["note"]
+            if k == 0:
+                out["reason"] += f"; {fam['note']}"
     if out["effect"] == "inconclusive":
         # absorption and leakage explain the record alike, the absorption's fitted time constant
         # beyond it: say so, and the record that would tell them apart (:func:`.absorption_or_leakage.too_short_note`)
@@ -1217,8 +1262,10 @@ def _absorb(c, extra, probs, base, t, refit_carry=True):
                     # the motion the mode makes, refitted or plain (the plain variant's column is the mode on
                     # the displacement's base prediction: session 28, 107 #154)
                     extra[key].append(_carried_motion(C, fold, base, c["channel"], other))
-                elif c["name"] == "resonance" and other == "displacement" and refit_carry:
-                    # the gauge's mode on the displacement's own model of the drive, refitted under it
+                elif c["name"] == "resonance" and other == "displacement" and refit_carry and not p.get("held"):
+                    # the gauge's mode on the displacement's own model of the drive, refitted under it (not a held
+                    # drive's mode: the refit's column is the first-order hold's, another model of the drive
+                    # between samples; its held column on the displacement's prediction is carried above)
                     extra[key].append(_refitted_carry(p, probs[key], base, t, other))
 
 
@@ -1636,6 +1683,250 @@ def resolved_beyond(sse_best, sse_other, n):
     D = float(d.sum()) / N
     se = float(np.sqrt(m / (m - 1.0) * np.sum((d - D * n) ** 2))) / N
     return bool(D > se), D, se
+
+
+#: Each alias-family member's damping is re-picked per fold (:func:`alias_family`) on these factors of the damping
+#: that rings in the samples as the named mode does (``zeta f / f_m``: the same decay per sample), a factor of two
+#: either way: the held search's own damping grid is 4 points over ~1.4 decades, ~2.2x apart
+ALIAS_ZETA_FACTORS = (0.5, 0.5 ** 0.5, 1.0, 2.0 ** 0.5, 2.0)
+
+
+def alias_members(f_hz, fs_hz, f_lo_hz, f_hi_hz):
+    """The alias family of a mode at ``f_hz`` sampled at ``fs_hz``: every ``k fs +- f_a`` in ``[f_lo, f_hi]`` (Hz).
+
+    ``f_a`` is the frequency the mode rings at in the samples (``f`` folded into ``[0, fs / 2]``); the member
+    nearest ``f_hz`` is ``f_hz`` itself. Sorted, distinct (within 1e-6 relative)."""
+    fs = float(fs_hz)
+    r = float(f_hz) % fs
+    f_a = min(r, fs - r)
+    out = [float(f_hz)]
+    for k in range(int(f_hi_hz // fs) + 2):
+        for m in (k * fs - f_a, k * fs + f_a):
+            if f_lo_hz <= m <= f_hi_hz and all(abs(m - o) > 1e-6 * max(o, 1e-12) for o in out):
+                out.append(float(m))
+    return sorted(out)
+
+
+def alias_family(c, ctx, extra):
+    """Does the record tell the held drive's mode from the other members of its alias family? A dict, or None.
+
+    Above the record's Nyquist frequency a mode rings in the samples at its alias ``f_a``, and every
+    ``k fs +- f_a`` from the held search's floor to :data:`ALIAS_ABOVE_BAND` times its ceiling
+    (:meth:`~.effects.Resonance._held_ceiling`, :func:`alias_members`; the members above the ceiling are never
+    searched, a mode there is named at an in-band image if at all) rings there too; the held drive's path between samples gives each a different
+    amplitude and phase, which a record may or may not resolve (the review of s31_alias: 94 #104, a 200.4 Hz mode
+    named 100.4 Hz). Per validation fold, the named frequency and each other member are fitted on the fold's
+    training blocks with the found effects (the same joint columns as the stage), each member's damping picked
+    there among :data:`ALIAS_ZETA_FACTORS` of ``zeta f / f_m`` (the decay per sample of the named mode), the named
+    one's among the same factors of its own: no fold's validation blocks choose anything. The fold resolves the
+    named frequency when it leaves less on the validation blocks than every other member beyond the blocks' scatter
+    (:func:`resolved_beyond`, the fold test's bar). The mode is placed (``resolved``) when ``need`` folds do, and
+    ``need`` folds' own searches on their training rows name it within its half-power band
+    (:func:`folds_name_the_mode`), and its per-fold gains are a stack mode's share of the motion
+    (:func:`gain_is_a_modes`) -- the review of s32_alias: a 490 Hz mode under the sine named 285.6 Hz, gain 0.35,
+    resolved in its own family and written.
+
+    ``c``: the stage's candidate row (a ``resonance`` with ``params["held"]``); ``ctx``: the stage context;
+    ``extra``: the found effects' columns before this stage's. None for any other row, or a family of one.
+
+    Returns
+    -------
+    dict
+        ``members_hz`` (sorted, the named one among them, to :data:`ALIAS_ABOVE_BAND` times the ceiling),
+        ``named_hz``, ``resolved`` (bool: placed, all three tests), ``folds`` (``"k of n"``: folds resolving the named
+        frequency beyond every other member), ``unresolved_by`` (per other member, the folds that do not resolve the
+        named beyond it), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
+        ``folds_agree`` (``"k of n"``, :func:`folds_name_the_mode`), ``fold_gains`` (the named mode's gain per fold),
+        ``gain`` (``mean``, ``jackknife_se``, ``band``, ``consistent``: :func:`gain_is_a_modes`), ``band_hz`` (the
+        band searched), ``above_band_hz`` (the members above it, tested, never searched) and ``note`` (why the mode
+        is not placed, when not resolved).
+    """
+    eff, p = c.get("eff"), c.get("params") or {}
+    if c.get("name") != "resonance" or not p.get("held") or getattr(eff, "held", None) is None:
+        return None
+    from .effects import held_mode_column
+    t, split = ctx["t"], ctx["split"]
+    prob = ctx["probs"][c["key"]]
+    dt = float((t[-1] - t[0]) / (t.size - 1))
+    f0, z0 = float(p["f_n_hz"]), float(p["zeta"])
+    f_top = float(eff._held_ceiling(t))
+    # (the members above the band searched are tested too: a mode there rings at the same alias, and the held search,
+    # which cannot name it, names an in-band frequency near one of its images instead -- a 362.7 Hz mode drawn on
+    # the calibration protocol, above the 331.6 Hz ceiling, named 261.8 Hz, gain 0.54, resolved in-band)
+    members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), ALIAS_ABOVE_BAND * f_top)
+    if len(members) < 2:
+        return None
+    z_lo, z_hi = float(eff.zeta_min), float(max(min(eff.zeta_max, RING_ZETA_MAX), eff.zeta_min))
+    n_folds = len(split.folds)
+    u = np.asarray(c["u"], float)
+    # per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
+    grams = []
+    for f_m in members:
+        zs = sorted({float(np.clip(z0 * f0 / f_m * a, z_lo, z_hi)) for a in ALIAS_ZETA_FACTORS})
+        grams.append([_cand_grams(prob, extra[c["key"]],
+                                  {"g": prob.grams(held_mode_column(u, eff.held, f_m, z), [-np.inf]),
+                                   "replaces": c.get("replaces")}, n_folds) for z in zs])
+    i0 = members.index(f0)
+    resolved_folds = 0
+    unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
+    for f, (tr, va) in enumerate(split.folds):
+        # each member at its damping of least training error on this fold, then its validation blocks' errors
+        va_sse, n = [], None
+        for per_z in grams:
+            best = min(per_z, key=lambda gf: prob.sse(gf[f], prob.solve(gf[f], tr), tr)[0])
+            sse, n = prob.fold_block_sse(best[f], tr, va)
+            va_sse.append(sse)
+        ok = True
+        for k, m in enumerate(members):
+            if k != i0 and not resolved_beyond(va_sse[i0], va_sse[k], n)[0]:
+                unresolved_by[m] += 1
+                ok = False
+        resolved_folds += int(ok)
+    need = int(ctx["need"])
+    fs = 1.0 / dt
+    f_a = min(f0 % fs, fs - f0 % fs)
+    # (b) each fold's own held search on its training rows: the named mode's half-power band holds its frequency
+    fits = _held_fold_fits(c, ctx, extra)
+    agree = folds_name_the_mode(f0, z0, members, fits)
+    # (a) the named mode's gain on each fold's training blocks, against a stack mode's physical share
+    gains = _held_fold_gains(c, ctx, extra, f0, z0)
+    gain_ok, g_mean, g_se = gain_is_a_modes(gains)
+    lo, hi = MODE_GAIN_BAND
+    # (c) the family's members above the band searched: tested here, never searched
+    above = [m for m in members if m > f_top]
+    out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
+           "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
+           "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
+           "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
+           "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
+    family_ok = resolved_folds >= need
+    out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
+    if not out["resolved"]:
+        why = []
+        if not family_ok:
+            left = [m for m, k in unresolved_by.items() if n_folds - k < need]
+            fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
+            why.append(f"a mode at one of {fam} Hz (the alias family of its {f_a:.4g} Hz ring in the samples): the "
+                       f"{fs:.4g} Hz record cannot tell which (the named {f0:.4g} Hz is resolved beyond every other "
+                       f"member on {resolved_folds} of {n_folds} folds, {need} needed)")
+        if sum(agree) < need:
+            got = ", ".join("none" if fit is None else f"{fit['f_n_hz']:.4g}" for fit in fits)
+            why.append(f"the folds' own searches name {f0:.4g} Hz (within its half-power band, +/- {z0 * f0:.2g} Hz) "
+                       f"on {sum(agree)} of {n_folds} folds, {need} needed ({got} Hz)")
+        if not gain_ok:
+            why.append(f"its gain {g_mean:.3g} +/- {g_se:.2g} (the folds' jackknife) is not a stack mode's share of "
+                       f"the motion ({lo:.2f}-{hi:g}): the column fits something else")
+        out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+                       + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
+                       + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
+                       + "; a record at a rate above twice the mode's frequency tells them apart")
+    return out
+
+
+#: The alias family tested (:func:`alias_family`) reaches this factor times the held search's ceiling (the settle's
+#: corner, :meth:`~.effects.Resonance._held_ceiling`): two octaves above it, where the ring a held step excites has
+#: fallen to a quarter of the corner's (``1 / (w RC)``), so a mode there still moves the samples by its alias; the
+#: search does not reach them (it would name images of noise), the family test asks whether the named in-band
+#: frequency is resolved beyond them
+ALIAS_ABOVE_BAND = 4.0
+
+#: A stack mode's share of the motion, the gain of the held mode's column ``(H - 1) x`` (``x`` the quasi-static
+#: motion): one where a single mode carries the stack (its static gain ``H(0) = 1``: a lumped mass on the stack's
+#: own stiffness, the simulator's), ``8 / pi^2`` (0.81) for the first mode of a uniform rod fixed at one end (its
+#: modal share of the static tip motion; a load at the tip raises it toward one, the higher modes share the rest)
+MODE_GAIN_BAND = (8.0 / np.pi ** 2, 1.0)
+
+
+def folds_name_the_mode(f0_hz, zeta, members_hz, fits):
+    """Per fold, does its own search (``fits``: ``{"f_n_hz", ...}`` or None) name the mode at ``f0_hz``? Its
+    frequency within the named mode's half-power band (``|f - f0| <= zeta f0``: a frequency outside it is another
+    mode's) and nearer ``f0`` than any other member of the alias family ``members_hz``."""
+    out = []
+    for fit in fits:
+        f = None if fit is None else float(fit["f_n_hz"])
+        out.append(f is not None and abs(f - f0_hz) <= zeta * f0_hz
+                   and min(members_hz, key=lambda m: abs(m - f)) == f0_hz)
+    return out
+
+
+def gain_is_a_modes(gains):
+    """``(consistent, mean, se)``: the per-fold gains of a held mode's column ``(H - 1) x`` against a stack mode's
+    share of the motion (:data:`MODE_GAIN_BAND`): the folds' mean within two jackknife standard errors
+    (:func:`_jackknife`) of the band."""
+    m, se = _jackknife(gains)
+    lo, hi = MODE_GAIN_BAND
+    return bool(np.isfinite(m) and np.isfinite(se) and m + 2.0 * se >= lo and m - 2.0 * se <= hi), m, se
+
+
+def _jackknife(values):
+    """``(mean, standard error)`` of per-fold estimates, the folds' delete-a-group jackknife:
+    ``se = sqrt((n - 1) / n sum (v_k - mean)^2)`` (each fold's training rows are the others' blocks)."""
+    v = np.asarray([x for x in values if x is not None and np.isfinite(x)], float)
+    if v.size < 2:
+        return (float(v[0]) if v.size else float("nan")), float("inf")
+    m = float(v.mean())
+    return m, float(np.sqrt((v.size - 1) / v.size * np.sum((v - m) ** 2)))
+
+
+def _held_fold_gains(c, ctx, extra, f_hz, zeta):
+    """The held mode's gain at ``f_hz``, ``zeta`` fitted on each fold's training blocks with the found effects."""
+    from .effects import held_mode_column
+    split, key = ctx["split"], c["key"]
+    prob = ctx["probs"][key]
+    n_folds = len(split.folds)
+    col = held_mode_column(np.asarray(c["u"], float), c["eff"].held, f_hz, zeta)
+    per = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]), "replaces": c.get("replaces")}, n_folds)
+    out = []
+    for f, (tr, _va) in enumerate(split.folds):
+        g = per[f]
+        w = prob.solve(g, tr)
+        out.append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else 0.0)
+    return out
+
+
+def _held_fold_projection(prob, extra_k, rows):
+    """Projection off the base columns and the found effects' columns at the row indices ``rows`` (a fold's
+    training search rows: :func:`~.stages._joint_projection` on the fold's own rows)."""
+    E = np.column_stack([prob.A[rows]] + [np.asarray(C)[rows] for C, _ in extra_k])
+    n = np.sqrt(np.mean(E * E, axis=0))
+    E = E[:, n > 0] / n[n > 0]
+    ginv = np.linalg.pinv(E.T @ E, rcond=1e-12)
+    return lambda X: X - E @ (ginv @ (E.T @ X))
+
+
+def _held_fold_fits(c, ctx, extra):
+    """Per validation fold, the held drive's mode searched again on the fold's training search rows alone (its own
+    frequency, damping) and its gain fitted there with the found effects (the stage's joint columns): a list of
+    ``{"f_n_hz", "zeta", "gain"}`` (None for a fold whose search finds no ring)."""
+    import copy
+    from .effects import held_mode_column
+    t, split = ctx["t"], ctx["split"]
+    key = c["key"]
+    prob = ctx["probs"][key]
+    base = ctx["base"]
+    y = np.asarray(base.channels[c["channel"]].y, float)
+    yhat = np.asarray(c["yhat"], float) if c.get("yhat") is not None else y - prob.r * prob.scale
+    u = np.asarray(c["u"], float)
+    n_folds = len(split.folds)
+    out = []
+    for f, (tr, _va) in enumerate(split.folds):
+        rows = prob.search & split.rows(tr)
+        idx = np.flatnonzero(rows)
+        e = copy.deepcopy(c["eff"])
+        e.__dict__.pop("_grid_costs", None)
+        try:
+            p = e.fit(t, u, y - yhat, rows, y_model=yhat, project=_held_fold_projection(prob, extra[key], idx),
+                      held=True)
+        except ValueError:
+            out.append(None)
+            continue
+        col = held_mode_column(u, e.held, p["f_n_hz"], p["zeta"])
+        g = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]), "replaces": c.get("replaces")},
+                        n_folds)[f]
+        w = prob.solve(g, tr)
+        gain = float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else 0.0
+        out.append({"f_n_hz": float(p["f_n_hz"]), "zeta": float(p["zeta"]), "gain": gain})
+    return out
 
 
 #: The other sensor of the same motion: the gauge and the displacement sensor both read the stack.

@@ -117,6 +117,24 @@ class PZTParams:
         """G = C_h^{-1} + (1/C_pp) I: terminal voltage as a PI operator of q_h."""
         return self.hysteresis.inverse().plus_linear(1.0 / self.c_pp_f)
 
+    @property
+    def min_capacitance_f(self):
+        """The terminal's smallest incremental capacitance ``dq/dV``, F: the PI operator's at a reversal (as at
+        rest, where either direction reverses), ``1 / max slope`` of :meth:`terminal_operator` (6.0 uF on the
+        P-888.51; a continuing step's is larger, ~11.6 uF). A property of the declared plant, not of a record."""
+        g = self.terminal_operator()
+        q0 = self.hysteresis.output_at_rest()
+        return float(min(1.0 / g.slope(q0, +1), 1.0 / g.slope(q0, -1)))
+
+    def settle_time_constant_s(self, resistance_ohm=None):
+        """``R C_min`` (s): the fastest settle of a held command step through the series resistor ``R`` (default
+        :attr:`series_resistance_ohm`; 0 without one) on :attr:`min_capacitance_f` (0.48 ms on the P-888.51's
+        80 ohm). The gate of the held drive (:func:`~workbench.calibrate.tracing.held_drive`) and the simulator's
+        sub-step (:func:`~workbench.calibrate.synthetic.substeps`) both read it: a declared quantity, so a record's
+        fit (eq. 12's ``C_p``, biased by a drift) never moves either."""
+        r = self.series_resistance_ohm if resistance_ohm is None else float(resistance_ohm)
+        return float(r) * self.min_capacitance_f if r > 0 else 0.0
+
     def quasi_static_x_m(self, v_v):
         """Displacement along a terminal-voltage sequence from rest, quasi-static, m.
 
