@@ -1803,7 +1803,7 @@ def alias_family(c, ctx, extra):
     out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
     if not out["resolved"]:
         why = []
-        if not family_ok:
+        if not family_ok and gain_ok:
             left = [m for m, k in unresolved_by.items() if n_folds - k < need]
             fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
             why.append(f"a mode at one of {fam} Hz (the alias family of its {f_a:.4g} Hz ring in the samples): the "
@@ -1816,10 +1816,19 @@ def alias_family(c, ctx, extra):
         if not gain_ok:
             why.append(f"its gain {g_mean:.3g} +/- {g_se:.2g} (the folds' jackknife) is not a stack mode's share of "
                        f"the motion ({lo:.2f}-{hi:g}): the column fits something else")
-        out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
-                       + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
-                       + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
-                       + "; a record at a rate above twice the mode's frequency tells them apart")
+        if gain_ok:
+            out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+                           + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
+                           + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
+                           + "; a record at a rate above twice the mode's frequency tells them apart")
+        else:
+            # the column does not move as a stack mode would: neither the named frequency nor its alias family is
+            # evidence of where the mode is (session 33's review: 404.9 Hz named 265.8 Hz, the family listed
+            # without the truth), so no candidate frequency is said
+            out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+                           + f". The record does not tell the mode's frequency (its ring may come from above the band "
+                           f"searched, which ends at {f_top:.4g} Hz, the settle's corner, at any alias); a record at "
+                           f"a rate above twice the mode's frequency measures it")
     return out
 
 
