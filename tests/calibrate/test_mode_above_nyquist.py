@@ -444,8 +444,12 @@ def test_a_family_the_record_cannot_resolve_is_said_and_not_written(sn637, tmp_p
     assert st["effect"] == "resonance" and st["parameters"].get("held")
     fam = st["alias_family"]
     assert not fam["resolved"], fam
-    said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
-    assert min(abs(m - truth["freq_hz"]) for m in said) < 2 * truth["damping_ratio"] * truth["freq_hz"], (said, truth)
+    if fam["gain"]["consistent"]:
+        said = [float(x) for x in fam["note"].split("one of ")[1].split(" Hz")[0].split(" / ")]
+        assert min(abs(m - truth["freq_hz"]) for m in said) < 2 * truth["damping_ratio"] * truth["freq_hz"], (said, truth)
+    else:
+        # the column is no stack mode's (session 33): no candidate frequency is said
+        assert "one of " not in fam["note"] and "does not tell the mode's frequency" in fam["note"], fam
     assert fam["note"] in res["reason"]
     omit, carried = carried_stages(sn637.source, sn637, base, res, tmp_path / "r.csv", {"hysteresis": None},
                                    sp.train)
