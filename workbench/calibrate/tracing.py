@@ -1878,7 +1878,8 @@ def _jackknife(values):
 
 
 def _held_fold_gains(c, ctx, extra, f_hz, zeta):
-    """The held mode's gain at ``f_hz``, ``zeta`` fitted on each fold's training blocks with the found effects."""
+    """The held mode's gain at ``f_hz``, ``zeta`` fitted on each fold's training blocks with the found effects (None
+    for a fold whose training rows cannot fit the column)."""
     from .effects import held_mode_column
     split, key = ctx["split"], c["key"]
     prob = ctx["probs"][key]
@@ -1889,7 +1890,9 @@ def _held_fold_gains(c, ctx, extra, f_hz, zeta):
     for f, (tr, _va) in enumerate(split.folds):
         g = per[f]
         w = prob.solve(g, tr)
-        out.append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else 0.0)
+        # a column the fold's training rows cannot fit (dropped as degenerate) has no gain there: None, which the
+        # jackknife leaves out (a 0.0 counted it as a measured gain of zero; session 33's review)
+        out.append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None)
     return out
 
 
@@ -1906,7 +1909,8 @@ def _held_fold_projection(prob, extra_k, rows):
 def _held_fold_fits(c, ctx, extra):
     """Per validation fold, the held drive's mode searched again on the fold's training search rows alone (its own
     frequency, damping) and its gain fitted there with the found effects (the stage's joint columns): a list of
-    ``{"f_n_hz", "zeta", "gain"}`` (None for a fold whose search finds no ring)."""
+    ``{"f_n_hz", "zeta", "gain"}`` (None for a fold whose search finds no ring; ``gain`` None where the fold's
+    training rows cannot fit the column)."""
     import copy
     from .effects import held_mode_column
     t, split = ctx["t"], ctx["split"]
@@ -1933,7 +1937,7 @@ def _held_fold_fits(c, ctx, extra):
         g = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]), "replaces": c.get("replaces")},
                         n_folds)[f]
         w = prob.solve(g, tr)
-        gain = float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else 0.0
+        gain = float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None
         out.append({"f_n_hz": float(p["f_n_hz"]), "zeta": float(p["zeta"]), "gain": gain})
     return out
 
