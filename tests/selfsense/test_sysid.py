@@ -103,3 +103,27 @@ def test_selfsense_reports_carry_the_controller_preflight_warnings():
                        "da_time_constants_s": [5.0]}}
     assert f"- **WARNING:** {w} (`--strict` refuses it)" in staged_report(staged, {}).splitlines()
     assert "WARNING" not in staged_report({**staged, "warnings": []}, {})
+
+
+def test_dynamics_figure_is_a_bode_plot_in_db_with_comparable_phases(dyn_study, monkeypatch, tmp_path):
+    """The --dynamics figure follows the field's conventions: magnitudes in dB (it plotted m/V and V/V on
+    log axes) and unwrapped phases, the identified curve drawn on the model's branch (unwrapped
+    separately, H's two curves were drawn 315 deg apart at 1e-4 Hz where the responses are 45 deg apart)."""
+    from workbench.report import selfsense_figures as sf
+    figs = []
+    monkeypatch.setattr(sf, "save_figure", lambda fig, path: figs.append(fig) or path)
+    sf.plot_dynamics(dyn_study, tmp_path / "d.png")
+    axes = figs[0].axes
+    resp = dyn_study["_arrays"]["responses"]
+    for col, key in enumerate(("kd", "h")):
+        mag, ph = axes[2 * col], axes[2 * col + 1]
+        assert "dB" in mag.get_ylabel() and ph.get_xscale() == "log"
+        model, ident = (np.asarray(resp[f"{key}_{s}"]) for s in ("model", "identified"))
+        scale = 1e6 if key == "kd" else 1.0
+        np.testing.assert_allclose(mag.lines[0].get_ydata(), 20 * np.log10(np.abs(model) * scale))
+        # each phase curve is continuous (unwrapped) and the two start within 180 deg of each other, the
+        # difference there equal to the true phase difference of the responses
+        pm, pi = ph.lines[0].get_ydata(), ph.lines[1].get_ydata()
+        assert np.all(np.abs(np.diff(pm)) < 90) and np.all(np.abs(np.diff(pi)) < 90)
+        true = np.degrees(np.angle(ident[0] / model[0]))
+        assert abs((pi[0] - pm[0]) - true) < 1e-6

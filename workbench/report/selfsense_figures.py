@@ -401,16 +401,24 @@ def plot_dynamics(data, path):
     f = resp["freq_hz"]
     fig = plt.figure(figsize=(11, 8.5))
     gs = fig.add_gridspec(3, 2, height_ratios=[1, 0.7, 1])
-    for col, (key, title, unit) in enumerate((("kd", "K D(s) = x / V_in", "m/V"), ("h", "H(s) = V_out / V_in", "V/V"))):
+    # Bode conventions (dB, unwrapped phase): K D in dB re 1 um/V (as the linearize figure), H in dB (V/V).
+    for col, (key, title, scale, unit) in enumerate((("kd", "K D(s) = x / V_in", 1e6, "dB re 1 um/V"),
+                                                     ("h", "H(s) = V_out / V_in", 1.0, "dB (V/V)"))):
         axm = fig.add_subplot(gs[0, col])
         axp = fig.add_subplot(gs[1, col], sharex=axm)
+        ref = None
         for src, color, ls in (("model", "C0", "-"), ("identified", "C3", "--")):
-            y = resp[f"{key}_{src}"]
-            axm.loglog(f, np.abs(y), color=color, ls=ls, label=f"{src}")
-            axp.semilogx(f, np.degrees(np.angle(y)), color=color, ls=ls)
+            y = np.asarray(resp[f"{key}_{src}"])
+            ph = unwrapped_deg(y)
+            if ref is None:
+                ref = ph
+            else:  # the identified curve on the model's branch (within 180 deg of it at the first point)
+                ph = ph - 360.0 * np.round((ph[0] - ref[0]) / 360.0)
+            axm.semilogx(f, db(y * scale), color=color, ls=ls, label=f"{src}")
+            axp.semilogx(f, ph, color=color, ls=ls)
         axm.set_title(title)
         axm.set_ylabel(f"magnitude, {unit}")
-        axp.set_ylabel("phase, deg")
+        axp.set_ylabel("phase, deg (unwrapped)")
         axp.set_xlabel("frequency, Hz")
         axm.legend(fontsize=8)
         for ax in (axm, axp):
