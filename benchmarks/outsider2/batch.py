@@ -329,16 +329,22 @@ if __name__ == "__main__":
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", nargs="*")
     ap.add_argument("--skip-done", action="store_true")
+    ap.add_argument("--exact", action="store_true", help="--only names match whole case names")
+    ap.add_argument("--all", action="store_true", help="cases() and cases_extra() together")
     ap.add_argument("--list", action="store_true")
     ap.add_argument("--extra", action="store_true", help="the second batch (cases_extra)")
     ap.add_argument("--keep", type=Path, default=Path("/tmp/s34o_recs"))
     ap.add_argument("--cli-args", default="", help="extra calibrate arguments, e.g. '--split blocks'")
+    ap.add_argument("--seed", type=int, help="the noise (and glitch) seed of every case (default: each case's, 1)")
     ap.add_argument("--suffix", default="", help="appended to each case's name (the same record, other arguments)")
     a = ap.parse_args()
-    todo = cases_extra() if a.extra else cases()
+    todo = cases() + cases_extra() if a.all else (cases_extra() if a.extra else cases())
     if a.cli_args:
         for c in todo:
             c["args"] = c.get("args", []) + a.cli_args.split()
+    if a.seed is not None:
+        for c in todo:
+            c["seed"] = a.seed
     if a.suffix:
         for c in todo:
             c["base_name"] = c["name"]
@@ -349,7 +355,8 @@ if __name__ == "__main__":
         print(len(todo))
         sys.exit()
     if a.only:
-        todo = [c for c in todo if any(o in c.get("base_name", c["name"]) for o in a.only)]
+        nm = lambda c: c.get("base_name", c["name"])
+        todo = [c for c in todo if (nm(c) in a.only if a.exact else any(o in nm(c) for o in a.only))]
     if a.skip_done and LOG.exists():
         done = {json.loads(l)["name"] for l in LOG.read_text().splitlines() if l.strip()}
         todo = [c for c in todo if c["name"] not in done]

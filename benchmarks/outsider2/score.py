@@ -53,7 +53,11 @@ def main(path):
             cls += "=twin"     # the same name on the same channel as the clean twin: the base's misfit, not the effect
         kind = "clean" if not d["effects"] else ("pair" if len(d["effects"]) > 1 else
                                                   ("named" if RIGHT[d["effects"][0]["name"]] else "no-name"))
-        if "PIdensity" in d["name"] or "demag" in d["name"]:
+        if d.get("args") and "--split" in d["args"] and "blocks" not in d["args"]:
+            kind = "split"     # a clean record re-run under --split forward / cycles (batch_splits.log)
+        elif "_seed" in d["name"]:
+            kind = "seed"      # the same clean record with another noise draw
+        elif "PIdensity" in d["name"] or "demag" in d["name"]:
             kind = "control"   # the generator moved toward the engine's family (density of r only / PI rest state)
         big = size is not None and size >= 3
         cnt[kind][cls + (" (>=3x)" if big and kind in ("named", "pair") else "")] += 1
