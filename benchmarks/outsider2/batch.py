@@ -270,6 +270,17 @@ def cases_extra():
                     ("p_1k_proto", "delay", 30), ("p_1k_proto", "delay", 100), ("p_1k_msine", "creep", 30),
                     ("p_1k_msine", "delay", 30), ("p_1k_sine1", "drift_sine", 30)]:
         L.append({"name": f"{c}__{e}{s}", "config": c, "effects": [{"name": e, "size": s}]})
+    # A2's control: the same creep on the engine's own hysteresis family (density of r only, the PI's rest)
+    for c, s in [("p_1k_steps", 30), ("p_1k_proto", 30), ("p_1k_proto", 100)]:
+        L.append({"name": f"{c}__creep{s}_PIdensity_demag", "config": c, "effects": [{"name": "creep", "size": s}],
+                  "preisach": {"m_sigma_frac": 1e3}, "rest": "demag"})
+    # ... and without the current column (no charge to veto a creep the charge does not show)
+    L.append({"name": "p_1k_proto__creep100_PIdensity_demag_nocurrent", "config": "p_1k_proto",
+              "effects": [{"name": "creep", "size": 100}], "preisach": {"m_sigma_frac": 1e3}, "rest": "demag",
+              "drop_current": True})
+    for c, s in [("p_1k_steps", 30), ("p_1k_proto", 100)]:
+        L.append({"name": f"{c}__creep{s}_nocurrent", "config": c, "effects": [{"name": "creep", "size": s}],
+                  "drop_current": True})
     return L
 
 
