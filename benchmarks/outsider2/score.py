@@ -57,7 +57,7 @@ def main(path):
             kind = "split"     # a clean record re-run under --split forward / cycles (batch_splits.log)
         elif "_seed" in d["name"]:
             kind = "seed"      # the same clean record with another noise draw
-        elif "PIdensity" in d["name"] or "demag" in d["name"]:
+        elif "PIdensity" in d["name"] or "demag" in d["name"] or "nocurrent" in d["name"]:
             kind = "control"   # the generator moved toward the engine's family (density of r only / PI rest state)
         big = size is not None and size >= 3
         cnt[kind][cls + (" (>=3x)" if big and kind in ("named", "pair") else "")] += 1
