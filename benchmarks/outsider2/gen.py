@@ -20,12 +20,12 @@ protocol's drive, as the brief allows). The physics is deliberately outside the 
 * creep (effect): a long-tail Kelvin chain of 8 first-order branches, tau log-spaced 20 ms..200 s, equal weights,
   i.e. x_creep ~ gamma log10(t / t0) after a step;
 * the stack's own axial mode (70 kHz, zeta 0.02; 110 kHz for the small stack), and optionally a structural mode,
-  each an exact zero-order-hold 2-state filter on the fine grid (stable for any step);
+  each an exact zero-order-hold 2-state filter (stable for any step);
 * sensors: a displacement channel (capacitive sensor: own offset, white noise), a strain gauge (own gain,
   offset, white noise, in volts: ~1/3.1 um per V), current (white noise), voltage (white noise), all sampled at
   the sample instant (the reader's default `sampled` convention).
 
-Everything is integrated by explicit Euler on a fine grid of at most RC/10 (numba).
+The electrical part is integrated by explicit Euler on a fine grid of at most RC/10 (numba).
 """
 import math
 
@@ -35,11 +35,11 @@ from scipy.linalg import expm
 
 RIGS = {
     # P-888.51-class: 15 um at 100 V (-20..120 V), ~5.8 uF large-signal, 80 ohm
-    "p888": dict(R=80.0, C_a=1.22e-6, C_b=1.86e-6, d=0.089e-6, s_lin=0.9, C=5.8e-6, preisach={'n_alpha': 1500}, vmin=-20.0, vmax=120.0,
+    "p888": dict(R=80.0, d=0.089e-6, s_lin=0.9, C=5.8e-6, preisach={'n_alpha': 1500}, vmin=-20.0, vmax=120.0,
                  drive_max=100.0, i_lim=0.2, f_stack=70e3, noise_x=3e-9, noise_i=3e-6, noise_v=5e-3,
                  gauge_m_per_v=3.1e-6, gauge_x0=7.5e-6, noise_g=1.5e-3, plant="plants/p888_51_sn637.toml"),
     # a smaller stack: 20 um at 150 V, 1.5 uF, 50 ohm; calibrated against the generic plant (-150..150 V)
-    "small": dict(R=50.0, C_a=0.334e-6, C_b=0.479e-6, d=0.080e-6, s_lin=0.9, C=1.5e-6, preisach={'n_alpha': 1500}, vmin=0.0, vmax=150.0,
+    "small": dict(R=50.0, d=0.080e-6, s_lin=0.9, C=1.5e-6, preisach={'n_alpha': 1500}, vmin=0.0, vmax=150.0,
                   drive_max=150.0, i_lim=0.2, f_stack=110e3, noise_x=4e-9, noise_i=1e-6, noise_v=5e-3,
                   gauge_m_per_v=4e-6, gauge_x0=10e-6, noise_g=1.5e-3, plant="plants/generic_stack.toml"),
 }
