@@ -1248,13 +1248,14 @@ def _stacked(prob, extra_list, cand):
     if cand is None:
         return _found_grams(prob, cols, lows)
     gc = cand["g"]
-    if prob.owns(gc) and gc["norms"].size:
+    owns = getattr(prob, "owns", None)           # (a stand-in problem without it: stacked as before)
+    if owns is not None and owns(gc) and gc["norms"].size:
         # the candidate's own Gram matrices (it was scored alone with them) joined to the found effects'
         # (formed once per found set): per block only the cross products are new (:meth:`_Problem.joined`)
         if len(cols) == 1:
             return gc
         gf = _found_grams(prob, cols[:-1], lows[:len(lows) - len(gc["lb"]) + prob.A.shape[1]])
-        if prob.owns(gf) and gf["norms"].size:
+        if owns(gf) and gf["norms"].size:
             return prob.joined(gf, gc)
     C = _stack_columns(_fortran_found(prob, cols[:-1]) + cols[-1:])
     return prob.grams(C, lows, own=True)
