@@ -62,13 +62,14 @@ def test_mode_kernel_equals_scipy_filter(seed):
 def test_batched_mode_kernel_equals_one_filter_at_a_time(seed):
     """Several biquads in one pass (the grid search's and the Jacobian's form) = each filter
     alone, bit for bit, for modes over the whole search range at 100 Hz .. 1 MHz, batches of 1,
-    2 (the pair kernel) and up to 40 filters, rows from a few to all (and none)."""
+    2 (the pair kernel), 3 (the triple: a point and its Jacobian's) and up to 40 filters, rows from a
+    few to all (and none)."""
     rng = np.random.default_rng(400 + seed)
     rate = RATES_HZ[seed % len(RATES_HZ)]
     n = int(rng.integers(2_000, 40_000))
     dt = 1.0 / rate
     u = _input(rng, n)
-    for rows, k in ((_rows(rng, n), 1), (_rows(rng, n), 2), (_rows(rng, n), int(rng.integers(3, 41))),
+    for rows, k in ((_rows(rng, n), 1), (_rows(rng, n), 2), (_rows(rng, n), 3), (_rows(rng, n), int(rng.integers(4, 41))),
                     (np.arange(n), int(rng.integers(1, 41))), (np.array([n - 1]), 2), (np.zeros(0, np.int64), 3)):
         fs_n = np.exp(rng.uniform(0.0, np.log(0.5 * rate), k))          # up to Nyquist (session 19)
         filters = [_foh_mode(float(f), min(float(np.exp(rng.uniform(np.log(0.002), np.log(0.3)))),
@@ -610,16 +611,19 @@ def test_dev_rows_and_in_place_scaling_equal_the_gather_and_the_copy(seed):
         found = [(np.ascontiguousarray(rng.standard_normal((n, 3)) * 10.0 ** rng.uniform(-6, 6, 3)), [0.0] * 3),
                  (rng.standard_normal((n, 2)) * 10.0 ** rng.uniform(-6, 6, 2), [-np.inf] * 2)]
         cand = {"g": prob.grams(rng.standard_normal((n, 2)), [0.0, 0.0])}
-        ref = prob.grams(np.column_stack([C for C, _ in found] + [cand["g"]["C"] * cand["g"]["norms"]]),
-                         [0.0] * 3 + [-np.inf] * 2 + [0.0, 0.0])
+        cols = [C for C, _ in found] + [cand["g"]["C"] * cand["g"]["norms"]]
+        ref = prob.grams(np.column_stack(cols), [0.0] * 3 + [-np.inf] * 2 + [0.0, 0.0])
+        # (the candidate's Gram matrices joined to the found ones' when it is this problem's own: another
+        # problem's candidate is stacked and multiplied as before, bit for bit)
+        alien = {"g": {**cand["g"], "_of": None}}
         for _ in range(2):
-            got = _stacked(prob, found, cand)
+            got = _stacked(prob, found, alien)
             for key in ("G", "lb", "C", "norms", "ok"):
                 assert np.array_equal(got[key], ref[key]), key
             assert got["C"].strides == ref["C"].strides
         held = prob._found_fortran[id(found[0][0])]
         assert held[0] is found[0][0] and held[1].flags.f_contiguous and np.array_equal(held[1], found[0][0])
-        assert _stacked(prob, found, cand) is not None and prob._found_fortran[id(found[0][0])] is held
+        assert _stacked(prob, found, alien) is not None and prob._found_fortran[id(found[0][0])] is held
     assert paths == {True, False}                   # both paths are met
 
 
@@ -828,3 +832,93 @@ def test_refit_searches_equal_their_reference_forms_bit_for_bit(monkeypatch, see
     ref = run()
     assert fast[0] == ref[0] and fast[1] == ref[1] and fast[3] == ref[3]
     assert np.array_equal(fast[2], ref[2])
+
+
+def _joined_bound(G):
+    """The most two sums of the same products in different orders (and one operand rescaled by its norm
+    and back, ~2 eps) can differ by, per Gram entry: each sum of ``n`` products rounds by at most
+    ``n eps sum |x_i y_i| <= n eps sqrt(G_ii G_jj)`` (Cauchy-Schwarz), ``n`` the block's rows, bounded here by
+    the record's (``G`` one block's matrix; the diagonal's own rounding is below eps of it)."""
+    d = np.sqrt(np.abs(np.diagonal(G, axis1=-2, axis2=-1)))
+    return d[..., :, None] * d[..., None, :]
+
+
+@pytest.mark.parametrize("seed", [71, 72, 73])
+def test_joined_grams_are_the_stacked_columns_grams_to_rounding(seed):
+    """``_stacked`` of found columns and a candidate of this problem joins their Gram matrices
+    (:meth:`_Problem.joined`): per block, every entry equals the Gram matrix of the stacked columns
+    (``np.column_stack``, as before) within the bound of summing the same products in another order
+    (:func:`_joined_bound`); bounds, kept columns and norms are the stacked ones (norms to a few eps); the
+    stacked scaled columns, formed when first asked, equal the stacked ones to a few eps and are kept;
+    a single found set's Gram matrices are formed once for every candidate; with whole blocks held out and
+    with scattered invalid rows (the block rows gathered), found sets and candidates of 1-3 columns of
+    scales 1e-6 .. 1e6, a zero found column among them."""
+    from workbench.calibrate.tracing import _JoinedGrams, _Problem, _stacked
+    rng = np.random.default_rng(seed)
+    n, sp, A, r = _drawn_linear_record(rng)
+    gaps = np.ones(n, bool)
+    gaps[rng.integers(0, n, n // 4)] = False
+    eps = np.finfo(float).eps
+    for valid in (np.ones(n, bool), gaps):
+        prob = _Problem(sp, valid, A, [0.0, 0.0, -np.inf], r, sp.train)
+        found = [(rng.standard_normal((n, int(rng.integers(2, 4)))) * 10.0 ** rng.uniform(-6, 6), None)
+                 for _ in range(int(rng.integers(1, 3)))]
+        found = [(C, [0.0] * C.shape[1]) for C, _ in found]
+        found[0][0][:, 0] = 0.0                                   # a found column the fit drops
+        lows = [x for _, lo in found for x in lo]
+        for q in (1, 2, 3):
+            cand = {"g": prob.grams(rng.standard_normal((n, q)) * 10.0 ** rng.uniform(-6, 6, q), [-np.inf] * q)}
+            got = _stacked(prob, found, cand)
+            assert isinstance(got, _JoinedGrams) and "C" not in got
+            ref = prob.grams(np.column_stack([C for C, _ in found] + [cand["g"]["C"] * cand["g"]["norms"]]),
+                             lows + [-np.inf] * q)
+            assert got["G"].shape == ref["G"].shape
+            # the stacked path rescales the candidate's scaled columns by their norm summed again over the
+            # development rows: that sum of squares of unit RMS rounds by at most n_dev eps, its root by half
+            tol_n = (prob.rows_dev_idx.size / 2 + 2) * eps
+            rows = max(i.size for i in prob.idx)
+            bound = ((2 * rows + 8) * eps + 2 * tol_n) * _joined_bound(ref["G"])
+            assert np.all(np.abs(got["G"] - ref["G"]) <= bound)
+            assert np.array_equal(got["G"], np.swapaxes(got["G"], 1, 2))
+            assert np.array_equal(got["lb"], ref["lb"]) and np.array_equal(got["ok"], ref["ok"])
+            assert np.all(np.abs(got["norms"] - ref["norms"]) <= tol_n * ref["norms"])
+            C = got["C"]
+            assert "C" in got and got["C"] is C and C.shape == ref["C"].shape
+            assert np.all(np.abs(C - ref["C"]) <= (tol_n + 2 * eps) * np.abs(ref["C"]))
+        assert len(prob._found_grams) == 1                        # one found set, formed once
+
+
+@pytest.mark.parametrize("seed", [81, 82])
+def test_forward_points_are_the_points_least_squares_differences(seed):
+    """``effects._forward_points(x)`` are the points ``least_squares``' 2-point Jacobian at ``x`` evaluates,
+    bit for bit, with the steps turned back at a bound: recorded over whole bounded fits of a 2- and a
+    3-parameter model started near their upper bounds."""
+    from scipy.optimize import least_squares
+
+    from workbench.calibrate.effects import _MAP_KW, _forward_points
+    rng = np.random.default_rng(seed)
+    tt = np.linspace(0.0, 1.0, 200)
+    for n_p in (2, 3):
+        lo, hi = -rng.uniform(1, 3, n_p), rng.uniform(1, 3, n_p)
+        truth = rng.uniform(0.5, 1.0, n_p) * hi
+        data = sum(np.exp(truth[j] * tt ** (j + 1)) for j in range(n_p))
+        seen, batches = [], []
+
+        def fun(x):
+            seen.append(np.array(x, float))
+            return sum(np.exp(x[j] * tt ** (j + 1)) for j in range(n_p)) - data
+
+        def jmap(f, points):
+            points = [np.array(p, float) for p in points]
+            batches.append((seen[-1], points))
+            return [f(p) for p in points]
+
+        x0 = hi - 1e-9 * (hi - lo)                                  # at the bound: steps turned back
+        if not _MAP_KW(jmap):
+            pytest.skip("this scipy takes no map for its finite differences")
+        least_squares(fun, x0, bounds=(lo, hi), x_scale="jac", max_nfev=60, jac="2-point", **_MAP_KW(jmap))
+        assert len(batches) >= 2
+        for at, points in batches:
+            want = _forward_points(at, lo, hi)
+            assert len(want) == len(points)
+            assert all(a.tobytes() == b.tobytes() for a, b in zip(want, points))

@@ -239,6 +239,28 @@ def _bounded_delta(G, h, m, lower):
     return _gram_solve(G / np.outer(nrm, nrm), h / nrm, lower * nrm) / nrm
 
 
+def _forward_points(x0, lb, ub):
+    """The points ``least_squares``' 2-point finite-difference Jacobian at ``x0`` evaluates (default
+    relative step, within the bounds ``lb``, ``ub``), by scipy's own step rules
+    (``scipy.optimize._numdiff``); None where those are not importable. :func:`_varpro` filters their
+    columns with ``x0``'s: a point that turns out not to be asked is a column filtered for nothing, a
+    point asked that is not among them is filtered when asked (the same columns either way)."""
+    try:
+        from scipy.optimize._numdiff import _adjust_scheme_to_bounds, _compute_absolute_step
+        x0 = np.asarray(x0, dtype=float)
+        h = _compute_absolute_step(None, x0, x0, "2-point")
+        h, _ = _adjust_scheme_to_bounds(x0, h, 1, "1-sided", np.broadcast_to(lb, x0.shape),
+                                        np.broadcast_to(ub, x0.shape))
+    except (ImportError, TypeError, ValueError):
+        return None
+    out = []
+    for i in range(x0.size):
+        x1 = np.copy(x0)
+        x1[i] = x0[i] + h[i]
+        out.append(x1)
+    return out
+
+
 def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_columns=None, plain_costs=None,
             row_columns_many=None, jac="2-point", added_from=None):
     """Nonlinear parameters theta by grid + least_squares; the linear gains solved inside.
@@ -269,24 +291,42 @@ def _varpro(columns, e, mask, grid, lower, upper, project=None, starts=1, row_co
     rows = None if row_columns is None else np.flatnonzero(mask)
 
     ready = {}              # columns filtered ahead, by theta's bytes (the Jacobian's points)
+    ahead = {}              # the next Jacobian's points' columns, filtered with the point they are taken at
+    # (a 2-point Jacobian follows nearly every new point least_squares evaluates: its points' columns are
+    # filtered in the same pass as the point's own, :func:`_forward_points`)
+    guess = row_columns_many is not None and rows is not None and jac == "2-point"
 
     def res(theta):
         if rows is None:
             X = _rows(np.atleast_2d(columns(theta).T).T, mask, project)
         else:
-            col = ready.pop(np.asarray(theta, dtype=float).tobytes(), None)
+            th = np.atleast_1d(np.asarray(theta, dtype=float))
+            col = ready.pop(th.tobytes(), None)
+            if col is None and guess:
+                nxt = _forward_points(th, lo, hi)
+                if nxt is not None:
+                    cols = row_columns_many([th] + nxt, rows)
+                    col = cols[0]
+                    ahead.clear()
+                    ahead.update((x.tobytes(), c) for x, c in zip(nxt, cols[1:]))
             X = np.atleast_2d(np.asarray(row_columns(theta, rows) if col is None else col, dtype=float).T).T
             X = X if project is None else project(X)
         return _lstsq(X, y)[1]
 
     def jacobian_map(fun, points):
         """least_squares' map over its finite-difference points: their columns filtered in one
-        pass (``row_columns_many``), then ``fun`` at each point as before, in order."""
+        pass (``row_columns_many``), or with the point they are taken at (``ahead``), then ``fun`` at
+        each point as before, in order."""
         points = list(points)
         if row_columns_many is not None and rows is not None and points:
             thetas = [np.atleast_1d(np.asarray(x, dtype=float)) for x in points]
             ready.clear()
-            ready.update((th.tobytes(), col) for th, col in zip(thetas, row_columns_many(thetas, rows)))
+            keys = [th.tobytes() for th in thetas]
+            if all(k in ahead for k in keys):
+                ready.update((k, ahead[k]) for k in keys)
+            else:
+                ready.update(zip(keys, row_columns_many(thetas, rows)))
+        ahead.clear()
         out = [fun(x) for x in points]
         ready.clear()
         return out

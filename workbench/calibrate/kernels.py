@@ -112,6 +112,35 @@ def _biquad_pair_minus_input(u, c, d, rows):
     return out
 
 
+@njit(cache=True)
+def _biquad_triple_minus_input(u, c, d, e, rows):
+    # three filters with their state in registers (as the pair): a point's column and its 2-point
+    # Jacobian's two in about the time of one (:func:`~workbench.calibrate.effects._varpro`)
+    out = np.empty((3, rows.size))
+    u0 = u[0]
+    p0 = p1 = q0 = q1 = r0 = r1 = 0.0
+    k = 0
+    n_rows = rows.size
+    last = rows[n_rows - 1] if n_rows else -1
+    for i in range(last + 1):
+        x = u[i] - u0
+        y = p0 + c[0] * x
+        p0 = p1 + x * c[1] - y * c[3]
+        p1 = x * c[2] - y * c[4]
+        w = q0 + d[0] * x
+        q0 = q1 + x * d[1] - w * d[3]
+        q1 = x * d[2] - w * d[4]
+        v = r0 + e[0] * x
+        r0 = r1 + x * e[1] - v * e[3]
+        r1 = x * e[2] - v * e[4]
+        if k < n_rows and rows[k] == i:
+            out[0, k] = y - x
+            out[1, k] = w - x
+            out[2, k] = v - x
+            k += 1
+    return out
+
+
 def mode_columns_rows(u, filters, rows):
     """:func:`mode_column_rows` for several filters at once: row ``j`` of the ``(len(filters),
     rows.size)`` result is ``mode_column_rows(u, *filters[j], rows)``, equal to the last bit.
@@ -133,6 +162,8 @@ def mode_columns_rows(u, filters, rows):
         return _biquad_minus_input(u, *coef[0], rows)[None, :]
     if coef.shape[0] == 2:
         return _biquad_pair_minus_input(u, coef[0], coef[1], rows)
+    if coef.shape[0] == 3:
+        return _biquad_triple_minus_input(u, coef[0], coef[1], coef[2], rows)
     return _biquads_minus_input(u, coef, rows)
 
 

@@ -75,6 +75,8 @@ validation fold has seen them (1-3 numbers against thousands of rows); the linea
 the base are refitted per fold, and the test part is never seen.
 """
 
+import weakref
+
 import numpy as np
 
 from .bvls import bvls
@@ -330,6 +332,21 @@ def _scaled_columns(X, keep, norms):
     return X[:, keep] / norms[keep]
 
 
+class _JoinedGrams(dict):
+    """:meth:`_Problem.joined`'s Gram matrices: ``C`` (the stacked scaled columns, a Fortran-ordered
+    array of the record's length) is stacked from ``_parts`` when first asked; most joined fits are
+    only solved and scored from ``G``."""
+
+    def __missing__(self, key):
+        if key != "C":
+            raise KeyError(key)
+        C = self["C"] = _stack_columns(self["_parts"])
+        return C
+
+    def get(self, key, default=None):
+        return self[key] if key == "C" else super().get(key, default)
+
+
 class _Problem:
     """One channel's linear fits from per-block Gram matrices.
 
@@ -444,8 +461,54 @@ class _Problem:
                     G[b, k:k + m, -1] = G[b, -1, k:k + m] = XZ[:, k]
                     G[b, k:k + m, k:k + m] = X.T @ X
         lb = np.r_[self.lower_A, np.asarray(lower, float)]
-        # the norms of the kept columns only (none kept: empty, so C * norms stays (n, 0))
-        return {"G": G, "lb": lb, "C": C, "norms": n[ok], "ok": ok}
+        # the norms of the kept columns only (none kept: empty, so C * norms stays (n, 0)); ``_of``: the
+        # problem whose base columns and target the Gram matrices hold (:meth:`joined` reads them only then)
+        return {"G": G, "lb": lb, "C": C, "norms": n[ok], "ok": ok, "_of": weakref.ref(self)}
+
+    def owns(self, g):
+        """Are ``g``'s Gram matrices this problem's own (:meth:`grams`' of it, every column kept)?"""
+        of, G = g.get("_of"), g.get("G")
+        m = self.A.shape[1] + np.size(g.get("norms")) + 1       # (the norms: one per kept column of ``C``)
+        return of is not None and of() is self and G is not None and G.shape == (len(self.idx), m, m)
+
+    def joined(self, gf, gc):
+        """The Gram matrices of ``[A, Cf, Cc, r]`` from those of ``[A, Cf, r]`` (``gf``) and ``[A, Cc, r]``
+        (``gc``), both :meth:`grams` of this problem: per block only the cross products ``Cf' Cc`` are
+        new (the found effects' columns ``Cf``, asked with every candidate ``Cc``, are not multiplied
+        again; :func:`_stacked`).
+
+        The same matrices as :meth:`grams` of the stacked columns up to rounding: each entry is the same
+        sum of products, but BLAS sums a product of a different matrix shape in another order (the last
+        bits differ), and the candidate's columns are its own scaled ones, not rescaled from
+        ``Cc * norms`` (one rounding apart). ``C``, the stacked scaled columns, is formed when asked.
+        """
+        k = self.A.shape[1]
+        Cf, Cc = gf["C"], gc["C"]
+        p, q = Cf.shape[1], Cc.shape[1]
+        Gf, Gc = gf["G"], gc["G"]
+        j = k + p
+        G = np.zeros((len(self.idx), j + q + 1, j + q + 1))
+        G[:, :j, :j] = Gf[:, :j, :j]
+        G[:, :j, -1] = Gf[:, :j, j]
+        G[:, -1, :j] = Gf[:, j, :j]
+        G[:, -1, -1] = Gf[:, j, j]
+        G[:, j:j + q, :k] = Gc[:, k:k + q, :k]
+        G[:, :k, j:j + q] = Gc[:, :k, k:k + q]
+        G[:, j:j + q, j:j + q] = Gc[:, k:k + q, k:k + q]
+        G[:, j:j + q, -1] = Gc[:, k:k + q, k + q]
+        G[:, -1, j:j + q] = Gc[:, k + q, k:k + q]
+        for b, i in enumerate(self.idx):
+            if not i.size:
+                continue
+            span = self.spans[b]
+            if span is None:
+                X = Cf[i].T @ Cc[i]
+            else:
+                X = Cf[span[0]:span[1]].T @ Cc[span[0]:span[1]]
+            G[b, k:j, j:j + q] = X
+            G[b, j:j + q, k:j] = X.T
+        return _JoinedGrams(G=G, lb=np.r_[gf["lb"], gc["lb"][k:]], norms=np.r_[gf["norms"], gc["norms"]],
+                            ok=np.r_[gf["ok"], np.ones(q, bool)], _of=weakref.ref(self), _parts=(Cf, Cc))
 
     @staticmethod
     def solve(g, blocks):
@@ -1183,18 +1246,41 @@ def _stacked(prob, extra_list, cand):
     if not cols:
         return prob.base
     if cand is None:
-        # the base with the found effects alone: asked again by every candidate's joint search and the
-        # stage's scores while the found columns stay the same objects; formed once per set (the same
-        # arrays in, the same Gram matrices out; ~0.1 s per call at 355,000 rows)
-        memo = prob.__dict__.get("_found_grams")
-        if memo is not None and len(memo[0]) == len(cols) and all(a is b for a, b in zip(memo[0], cols)) \
-                and memo[1] == lows:
-            return memo[2]
-        g = prob.grams(_stack_columns(_fortran_found(prob, cols)), lows, own=True)
-        prob._found_grams = (cols, list(lows), g)        # (holds the columns: their ids stay theirs)
-        return g
+        return _found_grams(prob, cols, lows)
+    gc = cand["g"]
+    owns = getattr(prob, "owns", None)           # (a stand-in problem without it: stacked as before)
+    if owns is not None and owns(gc) and gc["norms"].size:
+        # the candidate's own Gram matrices (it was scored alone with them) joined to the found effects'
+        # (formed once per found set): per block only the cross products are new (:meth:`_Problem.joined`)
+        if len(cols) == 1:
+            return gc
+        gf = _found_grams(prob, cols[:-1], lows[:len(lows) - len(gc["lb"]) + prob.A.shape[1]])
+        if owns(gf) and gf["norms"].size:
+            return prob.joined(gf, gc)
     C = _stack_columns(_fortran_found(prob, cols[:-1]) + cols[-1:])
     return prob.grams(C, lows, own=True)
+
+
+#: found column sets whose Gram matrices a problem keeps (:func:`_found_grams`): the stage's own set and
+#: each fold's (a found effect with per-fold columns, :func:`_cand_grams`)
+FOUND_GRAMS_KEPT = 8
+
+
+def _found_grams(prob, cols, lows):
+    """The base with the found effects' columns ``cols`` alone: asked again by every candidate's joint search
+    and the stage's scores while the found columns stay the same objects; formed once per set (the same
+    arrays in, the same Gram matrices out; ~0.1 s per call at 355,000 rows). The last
+    :data:`FOUND_GRAMS_KEPT` sets are kept (each holds its columns: their ids stay theirs)."""
+    memo = prob.__dict__.setdefault("_found_grams", [])
+    for i, (mc, ml, g) in enumerate(memo):
+        if len(mc) == len(cols) and all(a is b for a, b in zip(mc, cols)) and ml == lows:
+            memo.append(memo.pop(i))
+            return g
+    g = prob.grams(_stack_columns(_fortran_found(prob, cols)), lows, own=True)
+    memo.append((list(cols), list(lows), g))
+    while len(memo) > FOUND_GRAMS_KEPT:
+        memo.pop(0)
+    return g
 
 
 def _fortran_found(prob, cols):
