@@ -1742,7 +1742,11 @@ def alias_family(c, ctx, extra):
         is not placed, when not resolved).
     """
     eff, p = c.get("eff"), c.get("params") or {}
-    if c.get("name") != "resonance" or not p.get("held") or getattr(eff, "held", None) is None:
+    # every mode named on a record with a held drive: the held path's, and the first-order hold's or the refitted
+    # model's (their columns are the samples' view of a ring below Nyquist, which every member of its alias family
+    # rings alike: review of s33_alias (6), a 103.9 Hz mode's 3.9 Hz alias named 3.68 Hz at the damping cap by the
+    # first-order hold's column and written); the held path alone places a mode, so the family is tested through it
+    if c.get("name") != "resonance" or getattr(eff, "held", None) is None or "f_n_hz" not in p or "zeta" not in p:
         return None
     from .effects import held_mode_column
     t, split = ctx["t"], ctx["split"]
@@ -1757,6 +1761,9 @@ def alias_family(c, ctx, extra):
     if len(members) < 2:
         return None
     z_lo, z_hi = float(eff.zeta_min), float(max(min(eff.zeta_max, RING_ZETA_MAX), eff.zeta_min))
+    # (the held path's damping is at most its ring cap; a first-order hold's mode named above it, up to zeta_max, is
+    # tested at the cap: the held path's reading of a mode that rings)
+    z0 = float(np.clip(z0, z_lo, z_hi))
     n_folds = len(split.folds)
     u = np.asarray(c["u"], float)
     # per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
@@ -1801,6 +1808,7 @@ def alias_family(c, ctx, extra):
            "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
     family_ok = resolved_folds >= need
     out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
+    what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
     if not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
@@ -1817,7 +1825,7 @@ def alias_family(c, ctx, extra):
             why.append(f"its gain {g_mean:.3g} +/- {g_se:.2g} (the folds' jackknife) is not a stack mode's share of "
                        f"the motion ({lo:.2f}-{hi:g}): the column fits something else")
         if gain_ok:
-            out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+            out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
                            + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
                            + "; a record at a rate above twice the mode's frequency tells them apart")
@@ -1825,7 +1833,7 @@ def alias_family(c, ctx, extra):
             # the column does not move as a stack mode would: neither the named frequency nor its alias family is
             # evidence of where the mode is (session 33's review: 404.9 Hz named 265.8 Hz, the family listed
             # without the truth), so no candidate frequency is said
-            out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+            out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The record does not tell the mode's frequency (its ring may come from above the band "
                            f"searched, which ends at {f_top:.4g} Hz, the settle's corner, at any alias); a record at "
                            f"a rate above twice the mode's frequency measures it")
