@@ -94,7 +94,7 @@ from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
            "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "ALIAS_ABOVE_BAND",
-           "alias_members", "ALIAS_ZETA_FACTORS"]
+           "alias_members", "ALIAS_ZETA_FACTORS", "settle_time_constants"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
@@ -280,7 +280,31 @@ def held_drive(base):
     if np.exp(-dt / rc) > HELD_SETTLED:
         return None
     q = np.asarray(base.channels["charge"].y, float)
-    return HeldDrive(np.diff(q, prepend=q[0]), dt, rc, limits)
+    dq = np.diff(q, prepend=q[0])
+    return HeldDrive(dq, dt, rc, limits, rc_k=settle_time_constants(base, dq, rc))
+
+
+def settle_time_constants(base, dq, rc):
+    """Each interval's settle time constant (s): ``R dq / dv``, the series resistor times the stack's capacitance
+    over the interval's step (the record's charge and terminal-voltage steps), within the declared plant's range
+    ``R C_min`` .. ``R C_pp`` (:attr:`BaseFit.settle_time_constant_s`, :attr:`BaseFit.settle_time_constant_max_s`);
+    ``rc`` where the step has no voltage (or the range is not declared).
+
+    A hysteretic stack's incremental capacitance changes along its loop: 6.0 uF at a reversal, ~11.6 uF on a
+    continuing step on the P-888.51, and the settle through the resistor with it. On default_rng(3131)'s 159.5 Hz
+    steps draw the record's steps of more than 0.5 V have 7.3-11.6 uF (5-95 %, median 10.6 uF); the path settled
+    at ``R C_min`` for all left the held mode's column 1.49e-9 m of the record (gain 0.93 +/- 0.03 across the folds),
+    at each step's own 1.16e-9 m (gain 0.975 +/- 0.004): a mode's ring excited by a settle of the wrong length has
+    the wrong amplitude and phase, which its alias family's members then fit as well (s34_hold)."""
+    r_ohm = float(base.series_resistance_ohm)
+    rc_max = getattr(base, "settle_time_constant_max_s", None)
+    if not rc_max or not rc_max >= rc:
+        return np.full(np.shape(dq), float(rc))
+    v = np.asarray(base.v_drive, float)
+    dv = np.diff(v, prepend=v[0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(dv != 0.0, r_ohm * dq / dv, rc)
+    return np.clip(np.nan_to_num(tau, nan=rc, posinf=rc, neginf=rc), rc, float(rc_max))
 
 
 def noise_floor(e):
@@ -1734,8 +1758,9 @@ def alias_family(c, ctx, extra):
     dict
         ``members_hz`` (sorted, the named one among them, to :data:`ALIAS_ABOVE_BAND` times the ceiling),
         ``named_hz``, ``resolved`` (bool: placed, all three tests), ``folds`` (``"k of n"``: folds resolving the named
-        frequency beyond every other member), ``unresolved_by`` (per other member, the folds that do not resolve the
-        named beyond it), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
+        frequency beyond every other member that is its rival), ``unresolved_by`` (per other member, the folds that do
+        not resolve the named beyond it), ``rivals_hz`` (the members whose folds' gains are a stack mode's share,
+        :func:`gain_is_a_modes`: the places the mode could be), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
         ``folds_agree`` (``"k of n"``, :func:`folds_name_the_mode`), ``fold_gains`` (the named mode's gain per fold),
         ``gain`` (``mean``, ``jackknife_se``, ``band``, ``consistent``: :func:`gain_is_a_modes`), ``band_hz`` (the
         band searched), ``above_band_hz`` (the members above it, tested, never searched) and ``note`` (why the mode
@@ -1774,20 +1799,32 @@ def alias_family(c, ctx, extra):
                                   {"g": prob.grams(held_mode_column(u, eff.held, f_m, z), [-np.inf]),
                                    "replaces": c.get("replaces")}, n_folds) for z in zs])
     i0 = members.index(f0)
+    # per fold, each member at its damping of least training error there: its validation blocks' errors and its gain
+    # on the training blocks
+    per_fold, member_gains = [], [[] for _ in members]
+    for f, (tr, va) in enumerate(split.folds):
+        va_sse, n = [], None
+        for k, per_z in enumerate(grams):
+            fits = [(gf[f], prob.solve(gf[f], tr)) for gf in per_z]
+            g, w = min(fits, key=lambda gw: prob.sse(gw[0], gw[1], tr)[0])
+            sse, n = prob.fold_block_sse(g, tr, va)
+            va_sse.append(sse)
+            member_gains[k].append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None)
+        per_fold.append((va_sse, n))
+    # a member is the named mode's rival only where it is a stack mode itself: its folds' gains a stack mode's share
+    # of the motion (:func:`gain_is_a_modes`, the test the named mode passes). A member whose column fits the ring
+    # only with a gain no mode of this stack has (a negative one, or several times the stack's motion: on
+    # default_rng(3131)'s 159.5 Hz steps draw the members 140.3 Hz at -0.5 and 540-1240 Hz at -7 to 8, each
+    # left unresolved on one fold of five by the blocks' scatter among 25 comparisons) is no place the mode can be
+    rivals = [k != i0 and gain_is_a_modes(member_gains[k])[0] for k in range(len(members))]
     resolved_folds = 0
     unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
-    for f, (tr, va) in enumerate(split.folds):
-        # each member at its damping of least training error on this fold, then its validation blocks' errors
-        va_sse, n = [], None
-        for per_z in grams:
-            best = min(per_z, key=lambda gf: prob.sse(gf[f], prob.solve(gf[f], tr), tr)[0])
-            sse, n = prob.fold_block_sse(best[f], tr, va)
-            va_sse.append(sse)
+    for va_sse, n in per_fold:
         ok = True
         for k, m in enumerate(members):
             if k != i0 and not resolved_beyond(va_sse[i0], va_sse[k], n)[0]:
                 unresolved_by[m] += 1
-                ok = False
+                ok = ok and not rivals[k]
         resolved_folds += int(ok)
     need = int(ctx["need"])
     fs = 1.0 / dt
@@ -1803,6 +1840,7 @@ def alias_family(c, ctx, extra):
     above = [m for m in members if m > f_top]
     out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
            "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
+           "rivals_hz": [m for k, m in enumerate(members) if rivals[k]],
            "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
            "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
            "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
@@ -1812,7 +1850,7 @@ def alias_family(c, ctx, extra):
     if not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
-            left = [m for m, k in unresolved_by.items() if n_folds - k < need]
+            left = [m for m, k in unresolved_by.items() if n_folds - k < need and m in out["rivals_hz"]]
             fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
             why.append(f"a mode at one of {fam} Hz (the alias family of its {f_a:.4g} Hz ring in the samples): the "
                        f"{fs:.4g} Hz record cannot tell which (the named {f0:.4g} Hz is resolved beyond every other "
