@@ -1759,8 +1759,8 @@ def alias_family(c, ctx, extra):
         ``members_hz`` (sorted, the named one among them, to :data:`ALIAS_ABOVE_BAND` times the ceiling),
         ``named_hz``, ``resolved`` (bool: placed, all three tests), ``folds`` (``"k of n"``: folds resolving the named
         frequency beyond every other member that is its rival), ``unresolved_by`` (per other member, the folds that do
-        not resolve the named beyond it), ``rivals_hz`` (the members whose folds' gains are a stack mode's share,
-        :func:`gain_is_a_modes`: the places the mode could be), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
+        not resolve the named beyond it), ``rivals_hz`` (the members whose column does not enter with a negative gain
+        on every fold: the places a mode of the stack could be), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
         ``folds_agree`` (``"k of n"``, :func:`folds_name_the_mode`), ``fold_gains`` (the named mode's gain per fold),
         ``gain`` (``mean``, ``jackknife_se``, ``band``, ``consistent``: :func:`gain_is_a_modes`), ``band_hz`` (the
         band searched), ``above_band_hz`` (the members above it, tested, never searched) and ``note`` (why the mode
@@ -1811,12 +1811,15 @@ def alias_family(c, ctx, extra):
             va_sse.append(sse)
             member_gains[k].append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None)
         per_fold.append((va_sse, n))
-    # a member is the named mode's rival only where it is a stack mode itself: its folds' gains a stack mode's share
-    # of the motion (:func:`gain_is_a_modes`, the test the named mode passes). A member whose column fits the ring
-    # only with a gain no mode of this stack has (a negative one, or several times the stack's motion: on
-    # default_rng(3131)'s 159.5 Hz steps draw the members 140.3 Hz at -0.5 and 540-1240 Hz at -7 to 8, each
-    # left unresolved on one fold of five by the blocks' scatter among 25 comparisons) is no place the mode can be
-    rivals = [k != i0 and gain_is_a_modes(member_gains[k])[0] for k in range(len(members))]
+    # a member is the named mode's rival unless its column enters with a negative gain on every fold: the stack is
+    # driven by its own strain and read at its tip (the gauge: its strain), a collocated pair, whose every mode takes a
+    # positive share of the motion (a uniform rod's tip: 8 / (pi^2 (2n - 1)^2)). A member whose column fits the ring
+    # only with the sign no mode of this stack has is no place the mode can be (default_rng(3131)'s 159.5 Hz steps
+    # draw: 140.3 Hz at -0.4 to -0.7 and 540-1240 Hz at -3 to -7, each left unresolved on one fold of five by the
+    # blocks' scatter among 25 comparisons). Only the sign, no band: a member's gain above one is kept a rival (a
+    # 367.8 Hz draw's own member fitted 1.05 on every fold, the column's model error, while the 267.6 Hz image was
+    # named; s34_hold's draws, default_rng(3402) m25)
+    rivals = [k != i0 and not all(g is not None and g < 0.0 for g in member_gains[k]) for k in range(len(members))]
     resolved_folds = 0
     unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
     for va_sse, n in per_fold:
