@@ -1744,13 +1744,16 @@ def alias_family(c, ctx, extra):
     there among :data:`ALIAS_ZETA_FACTORS` of ``zeta f / f_m`` (the decay per sample of the named mode), the named
     one's among the same factors of its own: no fold's validation blocks choose anything. The fold resolves the
     named frequency when it leaves less on the validation blocks than every other member beyond the blocks' scatter
-    (:func:`resolved_beyond`, the fold test's bar). The mode is placed (``resolved``) when ``need`` folds do, and
+    (:func:`resolved_beyond`, the fold test's bar) beyond every member that is its rival (not one whose column enters
+    with a negative gain on every fold: no mode of the collocated stack). The mode is placed (``resolved``) when
+    ``need`` folds do, and
     ``need`` folds' own searches on their training rows name it within its half-power band
     (:func:`folds_name_the_mode`), and its per-fold gains are a stack mode's share of the motion
     (:func:`gain_is_a_modes`) -- the review of s32_alias: a 490 Hz mode under the sine named 285.6 Hz, gain 0.35,
     resolved in its own family and written.
 
-    ``c``: the stage's candidate row (a ``resonance`` with ``params["held"]``); ``ctx``: the stage context;
+    ``c``: the stage's candidate row (a ``resonance`` on a record with a held drive, named by any of its variants:
+    the held path's, the first-order hold's, the refitted model's); ``ctx``: the stage context;
     ``extra``: the found effects' columns before this stage's. None for any other row, or a family of one.
 
     Returns
