@@ -148,6 +148,10 @@ class BaseFit:
     #: :attr:`working_capacitance_f` (a drift biases that to 0.08-0.98 uF against ~5.8 uF: review of s32_alias B2);
     #: None without a declared PZT and resistor
     settle_time_constant_s: float | None = None
+    #: ``R C_pp`` (s): the slowest settle of the declared PZT (its incremental capacitance at most the linear
+    #: branch's ``C_pp``: the terminal operator is ``C_h^{-1} + I / C_pp``, ``C_h^{-1}`` nondecreasing), the bound of
+    #: the held drive's per-step settle read from the record (:func:`~.tracing.held_drive`); None as above
+    settle_time_constant_max_s: float | None = None
 
     def plays_basis(self, name):
         """Channel ``name``'s plays + a column of ones, point-sampled: :attr:`basis` unless the channel has its own."""
@@ -786,6 +790,7 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
         if pzt is not None:
             fit.current_limits_a = (float(pzt.current_limit_source_a), float(pzt.current_limit_sink_a))
             fit.settle_time_constant_s = pzt.settle_time_constant_s(resistance_ohm)
+            fit.settle_time_constant_max_s = float(resistance_ohm) * float(pzt.c_pp_f)
     if pzt is not None and pzt.transducer_constant_n_per_v > 0:
         fit.stack_v_per_m = float(pzt.stiffness_n_per_m / pzt.transducer_constant_n_per_v)
     if "gauge" in outputs and "displacement" in outputs:

@@ -1351,15 +1351,23 @@ class HeldDrive:
     dt : float
         Sample period (s).
     rc : float
-        The settle's time constant (s): the series resistor times the stack's capacitance.
+        The fastest settle's time constant (s): the series resistor times the stack's smallest capacitance (the
+        held search's ceiling, :meth:`Resonance._held_ceiling`, and the replay's resolution read it).
     limits : (float, float)
         The amplifier's current limits, source and sink, both positive (A).
+    rc_k : ndarray, optional
+        Each interval's settle time constant (s; default ``rc`` for all): the series resistor times the stack's
+        capacitance over that step, which a hysteretic stack changes along its loop (the P-888.51's 6.0 uF at a
+        reversal, ~11.6 uF on a continuing step: :func:`~.tracing.held_drive` reads it from the record, ``dq / dv``).
     """
 
-    def __init__(self, dq, dt, rc, limits):
+    def __init__(self, dq, dt, rc, limits, rc_k=None):
         dq = np.asarray(dq, float)
         self.dt, self.rc = float(dt), float(rc)
-        dt, rc = self.dt, self.rc
+        self.rc_k = np.full(dq.shape, self.rc) if rc_k is None else np.asarray(rc_k, float).copy()
+        if self.rc_k.shape != dq.shape:
+            raise ValueError("rc_k: one settle time constant per interval")
+        dt, rc = self.dt, self.rc_k
         lim = np.where(dq >= 0.0, float(limits[0]), float(limits[1]))
         x = np.abs(dq) / lim                       # the time at the limit that would move the step (s)
         # each interval: at the limit until t_e, then the settle from there, lim rc (1 - exp(-s / rc)) of charge
@@ -1387,7 +1395,7 @@ class HeldDrive:
         # the settle's decay over the interval's rest, exp(-(dt - t_e) / rc) (trial-free)
         self._settled = np.exp(-(dt - t_e) / rc)
         self._runs_on = runs_on
-        self._key = _data_key(dq, np.array([dt, rc, float(limits[0]), float(limits[1])]))
+        self._key = _data_key(dq, rc, np.array([dt, self.rc, float(limits[0]), float(limits[1])]))
 
     def path(self, s, rows=slice(None)):
         """``rho_k(s)``, the share of interval ``k``'s step moved by the time ``s`` after its start (0 to 1).
@@ -1413,7 +1421,8 @@ class HeldDrive:
         s = np.asarray(s, float)[None, :]
         T = self.t_ramp[rows][:, None]
         ramp = np.where(self._runs_on[rows][:, None], s / self.dt, self.slope[rows][:, None] * s)
-        settle = self.q_ramp[rows][:, None] + self._left[rows][:, None] * -np.expm1(-np.maximum(s - T, 0.0) / self.rc)
+        settle = self.q_ramp[rows][:, None] + self._left[rows][:, None] * -np.expm1(-np.maximum(s - T, 0.0)
+                                                                                  / self.rc_k[rows][:, None])
         return np.where(s < T, ramp, settle)
 
     def kernel(self, lam):
@@ -1436,7 +1445,7 @@ class HeldDrive:
         # the level the ramp reached, held (a ramp that runs on: q_ramp 1, nothing left to settle)
         K += self.q_ramp * ((e_rest - 1.0) / lam)
         # the settle: (1 - q_ramp) int_0^rest exp(lam (rest - s)) (1 - exp(-s / RC)) ds
-        a = lam + 1.0 / self.rc
+        a = lam + 1.0 / self.rc_k
         K += self._left * ((e_rest - 1.0) / lam - (e_rest - self._settled) / a)
         return K
 

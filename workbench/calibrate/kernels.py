@@ -325,10 +325,8 @@ def shifted_rows_into(Z, rows, d, out, col0=0, scale=None):
 def _held_mode(v, t_ramp, slope, q_ramp, left, settled, dt, rc, lam, r):
     out = np.empty(v.size)
     e_dt = np.exp(lam * dt)
-    a = lam + 1.0 / rc
     inv_lam = 1.0 / lam
     inv_lam2 = inv_lam * inv_lam
-    inv_a = 1.0 / a
     zoh = (e_dt - 1.0) * inv_lam
     state = 0.0 + 0.0j
     v_prev = 0.0
@@ -343,6 +341,7 @@ def _held_mode(v, t_ramp, slope, q_ramp, left, settled, dt, rc, lam, r):
             J = T * T * (0.5 - lt / 3.0 + lt * lt / 8.0)
         else:
             J = (1.0 - e_mt * (1.0 + lt)) * inv_lam2
+        inv_a = 1.0 / (lam + 1.0 / rc[k])
         K = slope[k] * e_dt * J + q_ramp[k] * ((e_rest - 1.0) * inv_lam) \
             + left[k] * ((e_rest - 1.0) * inv_lam - (e_rest - settled[k]) * inv_a)
         dv = v[k] - v_prev
@@ -356,4 +355,4 @@ def held_mode_column_compiled(v, held, lam, r):
     """:func:`~.effects.held_mode_column`'s recursion in one compiled pass (``v``: the input less its first
     value; ``held``: the :class:`~.effects.HeldDrive`; ``lam``, ``r``: one pole and its residue)."""
     arrays = (v, held.t_ramp, held.slope, held.q_ramp, held._left, held._settled)
-    return _held_mode(*(readonly(x) for x in arrays), float(held.dt), float(held.rc), complex(lam), complex(r))
+    return _held_mode(*(readonly(x) for x in arrays), float(held.dt), readonly(held.rc_k), complex(lam), complex(r))

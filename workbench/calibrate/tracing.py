@@ -96,7 +96,7 @@ from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
            "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "ALIAS_ABOVE_BAND",
-           "alias_members", "ALIAS_ZETA_FACTORS"]
+           "alias_members", "ALIAS_ZETA_FACTORS", "settle_time_constants"]
 
 SEARCH_ROWS = 50_000
 MIN_SHARE = 0.3
@@ -282,7 +282,31 @@ def held_drive(base):
     if np.exp(-dt / rc) > HELD_SETTLED:
         return None
     q = np.asarray(base.channels["charge"].y, float)
-    return HeldDrive(np.diff(q, prepend=q[0]), dt, rc, limits)
+    dq = np.diff(q, prepend=q[0])
+    return HeldDrive(dq, dt, rc, limits, rc_k=settle_time_constants(base, dq, rc))
+
+
+def settle_time_constants(base, dq, rc):
+    """Each interval's settle time constant (s): ``R dq / dv``, the series resistor times the stack's capacitance
+    over the interval's step (the record's charge and terminal-voltage steps), within the declared plant's range
+    ``R C_min`` .. ``R C_pp`` (:attr:`BaseFit.settle_time_constant_s`, :attr:`BaseFit.settle_time_constant_max_s`);
+    ``rc`` where the step has no voltage (or the range is not declared).
+
+    A hysteretic stack's incremental capacitance changes along its loop: 6.0 uF at a reversal, ~11.6 uF on a
+    continuing step on the P-888.51, and the settle through the resistor with it. On default_rng(3131)'s 159.5 Hz
+    steps draw the record's steps of more than 0.5 V have 7.3-11.6 uF (5-95 %, median 10.6 uF); the path settled
+    at ``R C_min`` for all left the held mode's column 1.49e-9 m of the record (gain 0.93 +/- 0.03 across the folds),
+    at each step's own 1.16e-9 m (gain 0.975 +/- 0.004): a mode's ring excited by a settle of the wrong length has
+    the wrong amplitude and phase, which its alias family's members then fit as well (s34_hold)."""
+    r_ohm = float(base.series_resistance_ohm)
+    rc_max = getattr(base, "settle_time_constant_max_s", None)
+    if not rc_max or not rc_max >= rc:
+        return np.full(np.shape(dq), float(rc))
+    v = np.asarray(base.v_drive, float)
+    dv = np.diff(v, prepend=v[0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        tau = np.where(dv != 0.0, r_ohm * dq / dv, rc)
+    return np.clip(np.nan_to_num(tau, nan=rc, posinf=rc, neginf=rc), rc, float(rc_max))
 
 
 def noise_floor(e):
@@ -1806,13 +1830,16 @@ def alias_family(c, ctx, extra):
     there among :data:`ALIAS_ZETA_FACTORS` of ``zeta f / f_m`` (the decay per sample of the named mode), the named
     one's among the same factors of its own: no fold's validation blocks choose anything. The fold resolves the
     named frequency when it leaves less on the validation blocks than every other member beyond the blocks' scatter
-    (:func:`resolved_beyond`, the fold test's bar). The mode is placed (``resolved``) when ``need`` folds do, and
+    (:func:`resolved_beyond`, the fold test's bar) beyond every member that is its rival (not one whose column enters
+    with a negative gain on every fold: no mode of the collocated stack). The mode is placed (``resolved``) when
+    ``need`` folds do, and
     ``need`` folds' own searches on their training rows name it within its half-power band
     (:func:`folds_name_the_mode`), and its per-fold gains are a stack mode's share of the motion
     (:func:`gain_is_a_modes`) -- the review of s32_alias: a 490 Hz mode under the sine named 285.6 Hz, gain 0.35,
     resolved in its own family and written.
 
-    ``c``: the stage's candidate row (a ``resonance`` with ``params["held"]``); ``ctx``: the stage context;
+    ``c``: the stage's candidate row (a ``resonance`` on a record with a held drive, named by any of its variants:
+    the held path's, the first-order hold's, the refitted model's); ``ctx``: the stage context;
     ``extra``: the found effects' columns before this stage's. None for any other row, or a family of one.
 
     Returns
@@ -1820,15 +1847,20 @@ def alias_family(c, ctx, extra):
     dict
         ``members_hz`` (sorted, the named one among them, to :data:`ALIAS_ABOVE_BAND` times the ceiling),
         ``named_hz``, ``resolved`` (bool: placed, all three tests), ``folds`` (``"k of n"``: folds resolving the named
-        frequency beyond every other member), ``unresolved_by`` (per other member, the folds that do not resolve the
-        named beyond it), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
+        frequency beyond every other member that is its rival), ``unresolved_by`` (per other member, the folds that do
+        not resolve the named beyond it), ``rivals_hz`` (the members whose column does not enter with a negative gain
+        on every fold: the places a mode of the stack could be), ``fold_fits`` (per fold its own search's ``f_n_hz``, ``zeta``, ``gain``, or None),
         ``folds_agree`` (``"k of n"``, :func:`folds_name_the_mode`), ``fold_gains`` (the named mode's gain per fold),
         ``gain`` (``mean``, ``jackknife_se``, ``band``, ``consistent``: :func:`gain_is_a_modes`), ``band_hz`` (the
         band searched), ``above_band_hz`` (the members above it, tested, never searched) and ``note`` (why the mode
         is not placed, when not resolved).
     """
     eff, p = c.get("eff"), c.get("params") or {}
-    if c.get("name") != "resonance" or not p.get("held") or getattr(eff, "held", None) is None:
+    # every mode named on a record with a held drive: the held path's, and the first-order hold's or the refitted
+    # model's (their columns are the samples' view of a ring below Nyquist, which every member of its alias family
+    # rings alike: review of s33_alias (6), a 103.9 Hz mode's 3.9 Hz alias named 3.68 Hz at the damping cap by the
+    # first-order hold's column and written); the held path alone places a mode, so the family is tested through it
+    if c.get("name") != "resonance" or getattr(eff, "held", None) is None or "f_n_hz" not in p or "zeta" not in p:
         return None
     from .effects import held_mode_column
     t, split = ctx["t"], ctx["split"]
@@ -1843,6 +1875,9 @@ def alias_family(c, ctx, extra):
     if len(members) < 2:
         return None
     z_lo, z_hi = float(eff.zeta_min), float(max(min(eff.zeta_max, RING_ZETA_MAX), eff.zeta_min))
+    # (the held path's damping is at most its ring cap; a first-order hold's mode named above it, up to zeta_max, is
+    # tested at the cap: the held path's reading of a mode that rings)
+    z0 = float(np.clip(z0, z_lo, z_hi))
     n_folds = len(split.folds)
     u = np.asarray(c["u"], float)
     # per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
@@ -1853,20 +1888,35 @@ def alias_family(c, ctx, extra):
                                   {"g": prob.grams(held_mode_column(u, eff.held, f_m, z), [-np.inf]),
                                    "replaces": c.get("replaces")}, n_folds) for z in zs])
     i0 = members.index(f0)
+    # per fold, each member at its damping of least training error there: its validation blocks' errors and its gain
+    # on the training blocks
+    per_fold, member_gains = [], [[] for _ in members]
+    for f, (tr, va) in enumerate(split.folds):
+        va_sse, n = [], None
+        for k, per_z in enumerate(grams):
+            fits = [(gf[f], prob.solve(gf[f], tr)) for gf in per_z]
+            g, w = min(fits, key=lambda gw: prob.sse(gw[0], gw[1], tr)[0])
+            sse, n = prob.fold_block_sse(g, tr, va)
+            va_sse.append(sse)
+            member_gains[k].append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None)
+        per_fold.append((va_sse, n))
+    # a member is the named mode's rival unless its column enters with a negative gain on every fold: the stack is
+    # driven by its own strain and read at its tip (the gauge: its strain), a collocated pair, whose every mode takes a
+    # positive share of the motion (a uniform rod's tip: 8 / (pi^2 (2n - 1)^2)). A member whose column fits the ring
+    # only with the sign no mode of this stack has is no place the mode can be (default_rng(3131)'s 159.5 Hz steps
+    # draw: 140.3 Hz at -0.4 to -0.7 and 540-1240 Hz at -3 to -7, each left unresolved on one fold of five by the
+    # blocks' scatter among 25 comparisons). Only the sign, no band: a member's gain above one is kept a rival (a
+    # 367.8 Hz draw's own member fitted 1.05 on every fold, the column's model error, while the 267.6 Hz image was
+    # named; s34_hold's draws, default_rng(3402) m25)
+    rivals = [k != i0 and not all(g is not None and g < 0.0 for g in member_gains[k]) for k in range(len(members))]
     resolved_folds = 0
     unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
-    for f, (tr, va) in enumerate(split.folds):
-        # each member at its damping of least training error on this fold, then its validation blocks' errors
-        va_sse, n = [], None
-        for per_z in grams:
-            best = min(per_z, key=lambda gf: prob.sse(gf[f], prob.solve(gf[f], tr), tr)[0])
-            sse, n = prob.fold_block_sse(best[f], tr, va)
-            va_sse.append(sse)
+    for va_sse, n in per_fold:
         ok = True
         for k, m in enumerate(members):
             if k != i0 and not resolved_beyond(va_sse[i0], va_sse[k], n)[0]:
                 unresolved_by[m] += 1
-                ok = False
+                ok = ok and not rivals[k]
         resolved_folds += int(ok)
     need = int(ctx["need"])
     fs = 1.0 / dt
@@ -1882,15 +1932,17 @@ def alias_family(c, ctx, extra):
     above = [m for m in members if m > f_top]
     out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
            "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
+           "rivals_hz": [m for k, m in enumerate(members) if rivals[k]],
            "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
            "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
            "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
     family_ok = resolved_folds >= need
     out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
+    what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
     if not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
-            left = [m for m, k in unresolved_by.items() if n_folds - k < need]
+            left = [m for m, k in unresolved_by.items() if n_folds - k < need and m in out["rivals_hz"]]
             fam = " / ".join(f"{m:.4g}" for m in sorted(left + [f0]))
             why.append(f"a mode at one of {fam} Hz (the alias family of its {f_a:.4g} Hz ring in the samples): the "
                        f"{fs:.4g} Hz record cannot tell which (the named {f0:.4g} Hz is resolved beyond every other "
@@ -1903,7 +1955,7 @@ def alias_family(c, ctx, extra):
             why.append(f"its gain {g_mean:.3g} +/- {g_se:.2g} (the folds' jackknife) is not a stack mode's share of "
                        f"the motion ({lo:.2f}-{hi:g}): the column fits something else")
         if gain_ok:
-            out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+            out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
                            + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
                            + "; a record at a rate above twice the mode's frequency tells them apart")
@@ -1911,7 +1963,7 @@ def alias_family(c, ctx, extra):
             # the column does not move as a stack mode would: neither the named frequency nor its alias family is
             # evidence of where the mode is (session 33's review: 404.9 Hz named 265.8 Hz, the family listed
             # without the truth), so no candidate frequency is said
-            out["note"] = (f"a held-drive mode named at {f0:.4g} Hz is not placed: " + "; ".join(why)
+            out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The record does not tell the mode's frequency (its ring may come from above the band "
                            f"searched, which ends at {f_top:.4g} Hz, the settle's corner, at any alias); a record at "
                            f"a rate above twice the mode's frequency measures it")
