@@ -102,6 +102,34 @@ def _amplifier_charge_per_step(levels_v, caps_f, dt, n_fine):
     return q, np.asarray(v_s), np.arange(q.size) * h
 
 
+def test_held_drive_settles_each_step_at_the_records_capacitance_within_the_declared_range():
+    """:func:`~workbench.calibrate.tracing.held_drive` builds the path with each interval's ``R dq / dv`` (the
+    record's charge over its terminal-voltage step), clipped to the declared ``R C_min .. R C_pp``, and ``R C_min``
+    where the step has no voltage: the wiring the placement of 100 Hz modes rests on (review of s34_hold S2: with
+    ``rc_k`` dropped from ``held_drive`` the make-test form still passed)."""
+    from types import SimpleNamespace
+
+    from workbench.calibrate.tracing import held_drive
+    c_min, c_pp, dt = 6.0e-6, 16.7e-6, 0.01
+    t = dt * np.arange(300)
+    v = np.round(5.0 * np.sin(2 * np.pi * 1.3 * t), 1)              # steps, some of them of no voltage
+    dv = np.diff(v, prepend=v[0])
+    rng = np.random.default_rng(34)
+    caps = rng.uniform(0.5 * c_min, 1.5 * c_pp, t.size)             # beyond the declared range on both sides
+    q = np.cumsum(caps * dv)
+    base = SimpleNamespace(series_resistance_ohm=R_OHM, current_limits_a=LIMITS_A,
+                           settle_time_constant_s=R_OHM * c_min, settle_time_constant_max_s=R_OHM * c_pp,
+                           channels={"charge": SimpleNamespace(y=q)}, t=t, v_drive=v, input_kind="terminal")
+    held = held_drive(base)
+    assert held is not None and held.rc == R_OHM * c_min
+    moved = dv != 0
+    assert moved.sum() > 100 and (~moved).sum() > 10
+    np.testing.assert_allclose(held.rc_k[moved], R_OHM * np.clip(caps[moved], c_min, c_pp), rtol=1e-9)
+    assert np.all(held.rc_k[~moved] == R_OHM * c_min)
+    # the clip bites on both sides (the draw reaches beyond the range)
+    assert np.any(caps[moved] < c_min) and np.any(caps[moved] > c_pp)
+
+
 @pytest.mark.parametrize("f_hz, zeta", [(83.0, 0.015), (252.7, 0.0129)])
 def test_the_held_path_settles_at_each_step_s_own_capacitance(f_hz, zeta):
     """A stack whose capacitance changes along its loop (the P-888.51's 6.0 uF at a reversal, 11.6 uF on a
