@@ -52,7 +52,6 @@ def test_the_held_mode_column_is_the_mode_under_a_current_limited_amplifier(f_hz
     frequency; the compiled pass equals the numpy form.
     The first-order hold (the drive a straight line between samples), its gain free, leaves over 30 times
     as much (13-90 % of the column's RMS)."""
-    import workbench.calibrate.effects as E
     from workbench.calibrate.effects import Resonance
     dt, n_fine = 0.01, 500
     levels = np.r_[0.0, np.repeat([30.0, 31.0, 29.5, 80.0, 10.0, 12.0, 60.0], 6)]
@@ -66,15 +65,21 @@ def test_the_held_mode_column_is_the_mode_under_a_current_limited_amplifier(f_hz
     got = held_mode_column(0.1 * qs, held, f_hz, zeta)
     peak = np.max(np.abs(ref))
     assert np.max(np.abs(got - ref)) < 1e-4 * peak
-    try:
-        E._HELD_COMPILED = False
-        numpy_form = held_mode_column(0.1 * qs, held, f_hz, zeta)
-    finally:
-        E._HELD_COMPILED = True
-    assert np.max(np.abs(got - numpy_form)) < 1e-12 * peak
+    _assert_numpy_form_equals_compiled(0.1 * qs, held, f_hz, zeta, got, peak)
     foh = Resonance._column(0.1 * qs, f_hz, zeta, dt)
     g = float(foh @ ref / (foh @ foh))
     assert np.sqrt(np.mean((ref - g * foh) ** 2)) > 30 * np.max(np.abs(got - ref))
+
+
+def _assert_numpy_form_equals_compiled(u, held, f_hz, zeta, got, peak):
+    """The held column's numpy form equals the compiled pass ``got`` to 1e-12 of the column's ``peak``."""
+    import workbench.calibrate.effects as E
+    try:
+        E._HELD_COMPILED = False
+        numpy_form = held_mode_column(u, held, f_hz, zeta)
+    finally:
+        E._HELD_COMPILED = True
+    assert np.max(np.abs(got - numpy_form)) < 1e-12 * peak
 
 
 def _amplifier_charge_per_step(levels_v, caps_f, dt, n_fine):
@@ -141,7 +146,6 @@ def test_the_held_path_settles_at_each_step_s_own_capacitance(f_hz, zeta):
     numpy form."""
     from types import SimpleNamespace
 
-    import workbench.calibrate.effects as E
     from workbench.calibrate.tracing import settle_time_constants
     dt, n_fine, c_min, c_cont, c_pp = 0.01, 500, 6.0e-6, 11.6e-6, 16.7e-6
     # a sine's staircase (5 V, 1.3 Hz: each step ramps at the limit for at most 2.4 ms, then settles); a step
@@ -171,12 +175,7 @@ def test_the_held_path_settles_at_each_step_s_own_capacitance(f_hz, zeta):
     assert np.max(np.abs(got - ref)) < 1e-4 * peak
     at_min = held_mode_column(0.1 * qs, HeldDrive(dq, dt, R_OHM * c_min, LIMITS_A), f_hz, zeta)
     assert np.max(np.abs(at_min - ref)) > 10 * np.max(np.abs(got - ref))
-    try:
-        E._HELD_COMPILED = False
-        numpy_form = held_mode_column(0.1 * qs, held, f_hz, zeta)
-    finally:
-        E._HELD_COMPILED = True
-    assert np.max(np.abs(got - numpy_form)) < 1e-12 * peak
+    _assert_numpy_form_equals_compiled(0.1 * qs, held, f_hz, zeta, got, peak)
 
 
 def _traced(plant0, kind, protocol, value, zeta=0.01, seed=1):
