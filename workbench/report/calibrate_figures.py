@@ -559,9 +559,11 @@ def _plot_holds(holds, path):
         fl, ll = si_scale("m", _peak(l0))
         ag.errorbar(t0, g, yerr=sg, fmt="o", color="C0", capsize=4, label="gamma +/- sigma (eq. 7)")
         al.errorbar(t0, l0 * fl, yerr=sl * fl, fmt="s", color="C2", capsize=4, label="L0 +/- sigma")
-        mid = 0.5 * (t0.min() + t0.max())
+        starts = [float(h["start_s"]) for h in holds]
+        mid = 0.5 * (min(starts) + max(starts))
         for ti, gi, h in zip(t0, g, fitted):
-            # right of its point in the left half, left of it in the right half: inside the axes' fixed frame
+            # right of its point in the left half of the holds, left of it in the right half: inside the axes'
+            # fixed frame (the skipped holds' lines are drawn too)
             right = ti > mid
             ag.annotate(f"{h['voltage_v']:.3g} V ({h['step_v']:+.3g} V)", (ti, gi), xytext=(-5 if right else 5, 5),
                         textcoords="offset points", fontsize=7, ha="right" if right else "left")
