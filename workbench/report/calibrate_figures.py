@@ -103,7 +103,8 @@ def decimate(t, y, max_points=MAX_POINTS):
 
 
 def _save(fig, path, dpi=120):
-    """:func:`~workbench.report.output.save_figure`, the constrained layout computed once.
+    """:func:`~workbench.report.output.save_figure`, the constrained layout computed once (the candidates'
+    figure; the others have fixed margins, :func:`_fixed_layout`, and no layout engine).
 
     Saving a figure with a layout engine lays it out twice (matplotlib draws it once without
     output to place it, then again to render it, placing it again): here the engine places it
