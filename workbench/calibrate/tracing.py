@@ -153,6 +153,132 @@ def periodic_drive_period(t, v, tp=None):
     return P / dt if np.all(np.abs(cycles - P) <= PERIODIC_RTOL * P) else None
 
 
+class PeriodicDrive:
+    """A repeating drive's frequency and where it starts: the harmonics a loop-shape misfit lives at.
+
+    On one repeated period a rate-independent misfit of the loop's shape (a stack whose hysteresis is
+    not the base's operator) repeats every cycle, and so does a mode's steady response to the drive
+    (a linear term ``g (H(s) - 1) u`` of a periodic ``u``): both are sums of the drive's harmonics
+    ``k f_d``. Only what does not repeat (the start-up ring, a change of the drive) is a mode's own
+    (issue 13, outsider A1). :func:`periodic_mode_test` asks a mode to beat the base plus free
+    harmonics of the drive on the folds.
+
+    Attributes
+    ----------
+    f_hz : float
+        The drive's fundamental (Hz): the drive's periodogram maximum within :data:`PERIODIC_RTOL` of
+        :func:`periodic_drive_period`'s period (rows after ``start``).
+    start : int
+        First row of the periodic drive: half a period before the drive's first reversal (the rest
+        before it is not part of the cycle; the harmonic columns are zero there).
+    """
+
+    def __init__(self, f_hz, start, change_v=0.0, level_v=1.0):
+        self.f_hz, self.start = float(f_hz), int(start)
+        self.change_v, self.level_v = float(change_v), float(level_v)
+
+    def repeats_for(self, carrier, explained):
+        """Does the drive repeat as far as a candidate's evidence goes? Its cycle-to-cycle change (``change_v``, V
+        RMS), through the channel's gain (``carrier``, the base's prediction: its RMS variation over the drive's,
+        ``level_v``), stands below what the candidate ``explained`` (RMS, the channel's units): the drive's changes
+        cannot carry that evidence. A drive whose changes could (a decaying sine, a wandering frequency) holds more
+        than one repeated period, and the competitor is not asked."""
+        c = np.asarray(carrier, float)[self.start:]
+        gain = float(np.std(c)) / self.level_v if self.level_v > 0 else np.inf
+        return gain * self.change_v < explained
+
+    @classmethod
+    def of(cls, t, v, tp=None):
+        """The record's periodic drive, or None when the drive does not repeat (:func:`periodic_drive_period`)."""
+        t = np.asarray(t, float)
+        v = np.asarray(v, float)
+        tp = turning_points(v) if tp is None else tp
+        P = periodic_drive_period(t, v, tp)
+        if P is None or tp.size == 0:
+            return None
+        start = max(int(tp[0] - 0.5 * P), 0)
+        tt, vv = t[start:], v[start:] - np.mean(v[start:])
+        dt = float((t[-1] - t[0]) / (t.size - 1))
+        f0 = 1.0 / (P * dt)
+        dur = float(tt[-1] - tt[0]) if tt.size > 1 else dt
+        # the periodogram on a grid a tenth of its resolution (1 / duration) apart, then its peak's parabola
+        n = int(np.ceil(2 * PERIODIC_RTOL * f0 * dur * 10)) + 1
+        fs = np.linspace((1 - PERIODIC_RTOL) * f0, (1 + PERIODIC_RTOL) * f0, max(n, 3))
+        pw = np.array([abs(np.exp(-2j * np.pi * f * tt) @ vv) ** 2 for f in fs])
+        i = int(np.argmax(pw))
+        f = fs[i]
+        if 0 < i < fs.size - 1:
+            a, b, c = pw[i - 1], pw[i], pw[i + 1]
+            den = a - 2 * b + c
+            if den < 0:
+                f = fs[i] + 0.5 * (a - c) / den * (fs[1] - fs[0])
+        # the drive's change from one cycle to the next (RMS over the rows two cycles after ``start``: the first
+        # cycle from rest may differ, a start-up the candidates may use; per sample: the difference of two noisy
+        # samples over sqrt 2), at the period that makes it least (searched within the periodogram's resolution
+        # of its peak), and its own variation
+        i = np.arange(start + int(np.ceil(2.1 / (f * dt))), t.size)
+        if i.size < 2:
+            return cls(f, start, np.inf, float(np.std(v[start:])))
+
+        def change(period):
+            return float(np.sqrt(np.mean((v[i] - np.interp(t[i] - period, t, v)) ** 2) / 2.0))
+        res = 1.0 / dur                            # the periodogram's resolution (Hz)
+        ps = 1.0 / np.linspace(f - res, f + res, 21)
+        cs = np.array([change(q) for q in ps])
+        k = int(np.argmin(cs))
+        lo, hi = ps[min(k + 1, ps.size - 1)], ps[max(k - 1, 0)]
+        for _ in range(20):                        # golden-section on the bracket around the grid's best
+            a, b = lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo)
+            if change(a) < change(b):
+                hi = b
+            else:
+                lo = a
+        P = 0.5 * (lo + hi)
+        return cls(1.0 / P, start, change(P), float(np.std(v[start:])))
+
+    def columns(self, t, ks):
+        """``cos`` and ``sin`` of ``2 pi k f_hz t`` for each harmonic ``k`` in ``ks`` (zero before ``start``)."""
+        t = np.asarray(t, float)
+        ks = np.asarray(ks, int)
+        out = np.zeros((t.size, 2 * ks.size), order="F")
+        ph = 2 * np.pi * self.f_hz * (t[self.start:] - t[self.start])
+        for j, k in enumerate(ks):
+            out[self.start:, 2 * j] = np.cos(k * ph)
+            out[self.start:, 2 * j + 1] = np.sin(k * ph)
+        return out
+
+    def lines(self, x, t):
+        """``x``'s power (mean square over the whole record) at each harmonic ``k f_hz`` below the Nyquist
+        frequency, ``k = 1, 2, ...``: its spectrum (rows from ``start``) within one periodogram bin of the line."""
+        t = np.asarray(t, float)
+        x = np.asarray(x, float)[self.start:]
+        n = x.size
+        dt = float((t[-1] - t[0]) / (t.size - 1))
+        kmax = int(np.floor(0.5 / dt / self.f_hz))
+        if n < 4 or kmax < 1:
+            return np.zeros(0)
+        p = np.abs(np.fft.rfft(x - x.mean())) ** 2 / n ** 2
+        p[1:(n + 1) // 2] *= 2.0            # one-sided: sum(p) is the mean square
+        j = np.rint(np.arange(1, kmax + 1) * self.f_hz * n * dt).astype(int)
+        return np.array([p[max(i - 1, 0):i + 2].sum() for i in j]) * (n / t.size)
+
+    def harmonics_of(self, term, t, floor, carrier):
+        """The drive's harmonics at which ``term``'s repeating part could be a loop shape's: those where
+        ``carrier`` (the base's prediction: the loop) stands above ``floor ** 2`` (mean square), taken in
+        falling order of ``term``'s power there (:meth:`lines`) until the ones left out carry less than
+        ``floor ** 2``, the power a fold's term must explain to pass (:func:`_fold_test`). At harmonics the
+        loop does not reach, a term's power is a mode's own (its ring), not a loop shape's."""
+        lt, lc = self.lines(term, t), self.lines(carrier, t)
+        ks = np.flatnonzero(lc > floor ** 2) + 1
+        if ks.size == 0:
+            return ks
+        lines = lt[ks - 1]
+        order = np.argsort(lines)[::-1]
+        left = lines.sum() - np.cumsum(lines[order])
+        m = int(np.argmax(left < floor ** 2)) + 1
+        return np.sort(ks[order[:m]])
+
+
 def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None, held=None):
     """(channel, effect, driver) triples for the recorded ``channels`` (see the module notes).
 
@@ -864,6 +990,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     infos["gauge_gain"] = base.gauge_gain_v_per_m if "gauge" in base.channels else None
     infos["duration_s"] = float(t[-1] - t[0])
     infos["t"] = t                  # (the settled-absorption test's column, :mod:`.absorption_or_leakage`)
+    # a repeating drive, whose harmonics a mode must beat (:func:`periodic_mode_test`)
+    infos["drive"] = PeriodicDrive.of(t, base.v_drive)
     infos["base"] = base            # (the stack's mode read on both sensors, :func:`_mode_reads_both`)
     infos["need"] = need
     if "charge" in base.channels:
@@ -945,6 +1073,10 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
             s["note"] = fam["note"]
             if k == 0:
                 out["reason"] += f"; {fam['note']}"
+    note = periodic_note(first["res"]["rows"], infos.get("drive"), out, t)
+    if note:
+        out["reason"] += f"; {note}"
+        out["periodic_note"] = note
     if out["effect"] == "inconclusive":
         # absorption and leakage explain the record alike, the absorption's fitted time constant
         # beyond it: say so, and the record that would tell them apart (:func:`.absorption_or_leakage.too_short_note`)
@@ -1473,6 +1605,80 @@ def _fold_test(b, a, n_params, penalty, floor, null_gain, min_share):
     return ratio, bool(ratio < 1.0 and gain > floor ** 2 and gain > null_gain and gain > min_share * b * b)
 
 
+#: the candidates' drivers whose terms are linear filters of a periodic drive (its voltage, or the base's prediction
+#: of it): their steady response repeats with the drive (:func:`periodic_mode_test`); a drift (time) and the bow
+#: (the recorded displacement) are not
+PERIODIC_DRIVERS = ("model", "voltage")
+
+
+def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain, penalty, min_share):
+    """On a periodic drive, the folds a candidate's row passes beside the drive's free harmonics (issue 13, A1).
+
+    For a candidate whose term is a linear filter of the drive (:data:`PERIODIC_DRIVERS`; a mode is the case in
+    point). A mode's steady response to a repeating drive and a loop-shape misfit that repeats every cycle are both
+    sums of the drive's harmonics (:class:`PeriodicDrive`): the mode is kept on a fold only where it passes
+    :func:`_fold_test` against the base, the found effects and free ``cos``/``sin`` columns of the harmonics
+    that carry its own fitted term's repeating part (:meth:`PeriodicDrive.harmonics_of`), each refitted on
+    the fold's training rows; what it then explains is what does not repeat (a start-up ring, a change of
+    the drive).
+
+    Returns
+    -------
+    (list of bool, dict)
+        The row's passes kept, and ``{"harmonics", "refused"}``: the harmonics' orders and the folds the
+        competitor took from the row.
+    """
+    n_folds = len(split.folds)
+    passed = [f for f, ok in enumerate(row["passes"]) if ok]
+    befores = [float(b) for b in row["befores"]]
+    after = [r * b / (1 + penalty * row["n_params"]) for r, b in zip(row["ratios"], befores)]
+    explained = float(np.median([np.sqrt(max(befores[f] ** 2 - after[f] ** 2, 0.0)) for f in passed]))
+    if not drive.repeats_for(row["yhat"], explained):
+        return list(row["passes"]), {"harmonics": [], "refused": [], "drive_changes": True}
+    _, term, _ = prob.predict(row["g"], split.dev_blocks)
+    ks = drive.harmonics_of(term, t, floor, row["yhat"])
+    if ks.size == 0:
+        return list(row["passes"]), {"harmonics": [], "refused": []}
+    H = FoundColumns(drive.columns(t, ks), [-np.inf] * (2 * ks.size), ("drive_harmonics", row["channel"]))
+    ex = list(extra_list) + [H]
+    gb = _cand_grams(prob, ex, None, n_folds)
+    gc = _cand_grams(prob, ex, row, n_folds)
+    passes, refused = list(row["passes"]), []
+    for f, (tr, va) in enumerate(split.folds):
+        if not passes[f]:
+            continue
+        b, a = prob.fold_rms(gb[f], tr, va), prob.fold_rms(gc[f], tr, va)
+        if not _fold_test(b, a, row["n_params"], penalty, floor, null_gain[f], min_share)[1]:
+            passes[f] = False
+            refused.append(f)
+    return passes, {"harmonics": [int(k) for k in ks], "refused": refused}
+
+
+def periodic_note(rows, drive, out, t):
+    """What the answer says when :func:`periodic_mode_test` took folds from a term of the base's prediction
+    that the answer does not name (None otherwise): the drive repeats, and on one repeated period such a
+    term cannot be told from a loop shape the base's hysteresis lacks."""
+    if drive is None:
+        return None
+    named = {(s["effect"], s["channel"]) for s in out.get("stages", [])}
+    lost = [r for r in rows if r.get("periodic", {}).get("refused") and (r["name"], r["channel"]) not in named]
+    if not lost:
+        return None
+    parts = []
+    for r in sorted(lost, key=lambda r: -len(r["periodic"]["refused"])):
+        ks = r["periodic"]["harmonics"]
+        what = f"{r['name']} on the {r['channel']}"
+        if r["name"] == "resonance" and "f_n_hz" in r["params"]:
+            what += f" ({r['params']['f_n_hz']:.3g} Hz, {r['params']['f_n_hz'] / drive.f_hz:.2g}x the drive)"
+        parts.append(f"{what} lost {len(r['periodic']['refused'])} fold(s) beside {len(ks)} free harmonic(s) of "
+                     f"the drive (orders {ks[0]} to {ks[-1]})")
+    return (f"the drive repeats at {drive.f_hz:.4g} Hz from t = {float(t[drive.start] - t[0]):.3g} s: a linear term of "
+            f"the drive (a mode, a delay, a creep, an absorption, a leakage) answers one repeated period only at its "
+            f"harmonics, as a loop shape the base's hysteresis lacks does, so only what does not repeat (a start-up "
+            f"ring, a settling, a change of the drive) tells them apart; "
+            + "; ".join(parts) + " (a record with steps or a second drive frequency would tell)")
+
+
 def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share):
     """Per fold: base-alone and every candidate's validation RMS, the null reference, the winner."""
     n_folds = len(split.folds)
@@ -1506,6 +1712,13 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             ratios.append(float(ratio))
             passes.append(bool(ok))
         row = {**c, "ratios": ratios, "passes": passes, "score": float(np.median(ratios))}
+        if c["driver"] in PERIODIC_DRIVERS and infos.get("drive") is not None and any(passes):
+            # a periodic drive: a linear term of the drive or of the base's prediction (a mode, a delay, a creep;
+            # the charge's absorption, leakage) must beat the drive's free harmonics too (:func:`periodic_mode_test`)
+            row["befores"] = befores[key]
+            passes, row["periodic"] = periodic_mode_test(row, prob, extra[key], split, infos["drive"], infos["t"],
+                                                         noise_factor * floor, null_gain[key], penalty, min_share)
+            row["passes"] = passes
         if c["name"] in DELAY_OR_MODE_NAMES and any(passes):
             # its held-out errors per validation block, for the difference from its rival (:func:`_delay_or_mode`)
             block_sse[id(row)] = [prob.fold_block_sse(gf[f], tr, va) for f, (tr, va) in enumerate(split.folds)]
@@ -2655,6 +2868,7 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
                          "passes": int(sum(r["passes"])),
                          **({"holds": r["holds"]} if "holds" in r else {}),
                          **({"beats_drift": r["beats_drift"]} if "beats_drift" in r else {}),
+                         **({"periodic": r["periodic"]} if "periodic" in r else {}),
                          "error_before": {**chans[r["channel"]], "units": base.channels[r["channel"]].units}})
     counts = {}
     for w in winners:
