@@ -38,6 +38,12 @@ when
    term (~10-17 % of its variance, consistently over folds); measured, not derived -- the
    one constant of the decision that is not from the record.
 
+On a **repeating drive** (one sine or triangle, :class:`PeriodicDrive`) a candidate that is a linear term of the
+drive or of the base's prediction (a mode, a delay, a creep; the charge's absorption and leakage) must pass the same
+tests against the base plus free harmonics of the drive (:func:`periodic_mode_test`): its steady response is a sum
+of those harmonics, as is a loop shape the base's hysteresis lacks (issue 13, outsider A1); what it explains beyond
+them is what does not repeat (a start-up ring, a settling). The answer's ``reason`` says what the harmonics took.
+
 The fold's winner is the passing candidate with the lowest penalized ratio (``none`` when
 none passes), after two cross-channel rules: a relaxation in the charge that the displacement
 shows too is creep (seed 002: Q_DA and the leakage charge do not move the stack; "too" means
