@@ -1626,9 +1626,9 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
     :func:`_fold_test` against the base, the found effects and free ``cos``/``sin`` columns of the harmonics
     that carry its own fitted term's repeating part (:meth:`PeriodicDrive.harmonics_of`), each refitted on
     the fold's training rows (what it then explains is what does not repeat: a start-up ring, a change of
-    the drive), or where, beside the base alone, its held-out error is no worse than the harmonics' (each
-    penalized per parameter, ``1 + penalty n``): its few parameters then describe all the harmonics do (a
-    delay's shift of a loop the base fits), where a loop shape it only partly mimics leaves the harmonics ahead.
+    the drive), or where, beside the base alone, its held-out error is no worse than the harmonics': its few
+    parameters then describe all the harmonics do (a delay's shift of a loop the base fits, a ring the loop
+    cannot make), where a loop shape it only partly mimics leaves the harmonics ahead.
 
     Returns
     -------
@@ -1658,8 +1658,8 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
         b, a = prob.fold_rms(gb[f], tr, va), prob.fold_rms(gc[f], tr, va)
         if _fold_test(b, a, row["n_params"], penalty, floor, null_gain[f], min_share)[1]:
             continue            # it explains what the harmonics leave: what does not repeat
-        if after[f] * (1 + penalty * row["n_params"]) <= b * (1 + penalty * 2 * ks.size):
-            continue            # alone, it explains as much as the free harmonics do, held out, penalized alike
+        if after[f] <= b:
+            continue            # alone, it explains at least what the free harmonics do, held out
         passes[f] = False
         refused.append(f)
     return passes, {"harmonics": [int(k) for k in ks], "refused": refused}
