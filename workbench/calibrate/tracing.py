@@ -1128,6 +1128,11 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
                 out["reason"] += f"; {fam['note']}"
     note = periodic_note(first["res"]["rows"], infos.get("drive"), out, t)
     if note:
+        if out["effect"] == "none":
+            # (the opening says what the folds' candidates did not beat: here the drive's harmonics too)
+            out["reason"] = (f"no candidate explains more than the noise floor, a random term of its size and, for a "
+                             f"linear term of the repeating drive, the drive's free harmonics on {out['agreement']} "
+                             f"validation folds")
         out["reason"] += f"; {note}"
         out["periodic_note"] = note
     if out["effect"] == "inconclusive":
@@ -1754,7 +1759,8 @@ def periodic_note(rows, drive, out, t):
             f"the drive (a mode, a delay, a creep, an absorption, a leakage) answers one repeated period only at its "
             f"harmonics, as a loop shape the base's hysteresis lacks does, so only what does not repeat (a start-up "
             f"ring, a settling, a change of the drive) tells them apart; "
-            + "; ".join(parts) + " (a record with steps or a second drive frequency would tell)")
+            + "; ".join(parts) + " (a drive that does not repeat would tell: steps to different levels, a second drive "
+            "frequency)")
 
 
 def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share):
