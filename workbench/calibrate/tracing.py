@@ -1691,11 +1691,15 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
     parameters then describe all the harmonics do (a delay's shift of a loop the base fits, a ring the loop
     cannot make), where a loop shape it only partly mimics leaves the harmonics ahead.
 
+    Of those harmonics the :data:`PERIODIC_FREE_HARMONICS` strongest are free pairs and the rest one column, the
+    term's own repeating part there (:meth:`PeriodicDrive.repeating_part`): the cost stays bounded on a record whose
+    loop reaches thousands of harmonics.
+
     Returns
     -------
     (list of bool, dict)
-        The row's passes kept, and ``{"harmonics", "refused"}``: the harmonics' orders and the folds the
-        competitor took from the row.
+        The row's passes kept, and ``{"harmonics", "refused", "lumped"}``: the harmonics' orders, the folds the
+        competitor took from the row and how many of the orders shared the one column.
     """
     n_folds = len(split.folds)
     passed = [f for f, ok in enumerate(row["passes"]) if ok]
