@@ -1669,6 +1669,23 @@ def _fold_test(b, a, n_params, penalty, floor, null_gain, min_share):
 PERIODIC_DRIVERS = ("model", "voltage")
 
 
+def periodic_driver(c):
+    """Is candidate ``c``'s term a function of the repeating drive (:func:`periodic_mode_test` asks it)?
+
+    Its ``driver`` (:func:`candidate_plan`'s third element) when it has one: ``"model"`` or ``"voltage"`` yes,
+    ``"time"`` (a drift) and ``"displacement"`` (the bow on the recorded motion) no. A later stage's candidates
+    (:func:`~.stages._later_candidates`: searched again beside the found effects, creep beside a delay, leakage
+    beside an absorption) and the rivals of a found kind (:func:`~.stages._rivals`) copy the first stage's
+    candidate and keep its driver; a later stage's ``"model"`` is the base's prediction plus the found effects',
+    which repeats with the drive as the base's does (the found effects are the same filters of it), so a loop
+    shape the base lacks is as much a sum of the drive's harmonics there as at the first stage: the rule applies
+    at every stage. A candidate built without a driver (a direct caller of :func:`_score_stage` with its own
+    terms) is taken as a term of the base's prediction, the engine's default driver (``"model"``): on a repeating
+    drive it is asked too, rather than raising or passing unasked.
+    """
+    return c.get("driver", "model") in PERIODIC_DRIVERS
+
+
 #: at most this many of the drive's harmonics enter :func:`periodic_mode_test` as free ``cos``/``sin`` pairs (the
 #: strongest in the candidate's term); the rest share one column, the term's own repeating part at them. A cost bound,
 #: not a statistical one: the competitor's Gram matrices are ``(2 K + ...)^2`` a block (101 blocks), ~4000 harmonics on a
@@ -1800,7 +1817,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             ratios.append(float(ratio))
             passes.append(bool(ok))
         row = {**c, "ratios": ratios, "passes": passes, "score": float(np.median(ratios))}
-        if c["driver"] in PERIODIC_DRIVERS and infos.get("drive") is not None and any(passes):
+        if infos.get("drive") is not None and periodic_driver(c) and any(passes):
             # a periodic drive: a linear term of the drive or of the base's prediction (a mode, a delay, a creep;
             # the charge's absorption, leakage) must beat the drive's free harmonics too (:func:`periodic_mode_test`)
             row["befores"] = befores[key]

@@ -1,0 +1,70 @@
+"""A candidate scored by :func:`~workbench.calibrate.tracing._score_stage` is asked the periodic-drive rule whatever
+built it (session 36: the trial merge of s35_harm failed 9 tests with ``KeyError: 'driver'``, their candidates built
+by hand as trace_effect's, without the driver :func:`~workbench.calibrate.tracing.candidate_plan` gives).
+
+A candidate without a driver is a term of the base's prediction (:func:`~workbench.calibrate.tracing.periodic_driver`),
+as the hand-built delay and mode here are: on a repeating drive whose displacement carries a loop shape the base (a
+line) lacks, both pass folds against the base alone and, asked to beat the drive's free harmonics too, name nothing.
+"""
+
+import numpy as np
+import pytest
+
+import workbench.calibrate.tracing as T
+from workbench.calibrate.effects import Delay, Resonance
+from workbench.calibrate.splits import make_split
+
+KEY = ("displacement", "model")
+SIG = 1e-9
+
+
+def _scored(seed, periodic, rate=1e3, f=3.0, cycles=8, size=30.0):
+    """A linear stack (0.1 um/V) on a 0-100 V triangle from rest, its displacement plus a loop shape (a polynomial
+    in the drive's level and direction, ``size`` x the noise); the delay and the mode, built without a driver."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round((cycles + 0.25) / f * rate))) / rate
+    ph = np.clip(t - 0.25 / f, 0.0, None) * f
+    u = 2.0 * np.abs(ph - np.floor(ph + 0.5))
+    v = 100.0 * u
+    y = 1e-7 * v
+    a, b, c = rng.uniform(-1, 1, 3)
+    lv = 2.0 * u - 1.0
+    d = np.sign(np.diff(v, prepend=v[0]))
+    d = np.where(d == 0, 1.0, d)
+    m = a * (lv * lv - 0.5) + b * d * (1.0 - lv * lv) + c * lv ** 3
+    m = (m - m.mean()) * size * SIG / np.std(m)
+    x = y + m + SIG * rng.standard_normal(t.size)
+    sp = make_split(t, v, "blocks")
+    prob = T._Problem(sp, np.ones(t.size, bool), np.column_stack([y, np.ones(t.size)]), [-np.inf, -np.inf],
+                      x - y, sp.train)
+    cands = []
+    for eff in (Delay(max_delay=30), Resonance()):
+        p = eff.fit(t, y, x - y, prob.search, y_model=y)
+        C, lo = eff.columns(t, y, p, y_model=y) if hasattr(eff, "columns") else (eff.term(t, y, p, y_model=y), [0.0])
+        cands.append({"name": eff.name, "channel": "displacement", "key": KEY, "g": prob.grams(C, lo),
+                      "n_params": eff.n_params, "params": p, "yhat": y})           # no "driver"
+    e_dev = np.where(prob.rows_dev, prob.r, 0.0)
+    r1 = np.random.default_rng(1)
+    nulls = {KEY: [prob.grams(T._phase_randomized(e_dev, r1), [-np.inf]) for _ in range(3)]}
+    infos = {"displacement": {"noise_floor": SIG}, "duration_s": float(t[-1] - t[0]), "t": t}
+    if periodic:
+        infos["drive"] = T.PeriodicDrive.of(t, v)
+    return T._score_stage(cands, {KEY: prob}, nulls, {KEY: []}, sp, 0.02, 1.0, infos, [], T.MIN_SHARE)
+
+
+def _effect_folds(res):
+    """Folds won by an effect or undecided between two (not ``none``)."""
+    return sum(w != "none" for w in res["winners"])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_candidate_without_a_driver_is_asked_the_periodic_rule(seed):
+    """Without the drive the loop shape takes at least 3 of 5 folds as a delay or a mode; with it every row that
+    passed a fold was asked (``periodic``) and fewer than 3 folds go to an effect (main's code: no rule; the
+    s35_harm branch: KeyError)."""
+    alone = _scored(seed, periodic=False)
+    assert _effect_folds(alone) >= 3, alone["winners"]
+    res = _scored(seed, periodic=True)
+    for tag, row in res["by"].items():
+        assert "periodic" in row or not any(row["passes"]), tag
+    assert _effect_folds(res) < 3, res["winners"]
