@@ -2,8 +2,8 @@
 
 :class:`~workbench.calibrate.tracing.PeriodicDrive` finds a repeating drive's frequency (``of``), says whether the
 drive repeats as far as a candidate's evidence goes (``repeats_for``: a decaying sine does not), picks the harmonics
-a term's repeating part needs (``harmonics_of``: where the loop's line and the term's stand above a line's noise,
-``detectable``) and writes a term's repeating part at many harmonics as one column (``repeating_part``: the competitor's
+a term's repeating part needs (``harmonics_of``: the strongest until what is left out is below the noise floor's
+power) and writes a term's repeating part at many harmonics as one column (``repeating_part``: the competitor's
 harmonics beyond :data:`~workbench.calibrate.tracing.PERIODIC_FREE_HARMONICS` free pairs). Drives, rates, cycles and
 line powers are drawn; each test is a few milliseconds.
 """
@@ -88,35 +88,9 @@ def test_a_steady_drive_repeats_and_a_decaying_one_does_not(shape, rate, f, cycl
     assert not dd.repeats_for(gain * w, explained)
 
 
-def test_noise_alone_makes_a_line_at_one_of_the_harmonics_asked_about_five_percent_of_the_time():
-    """White noise records (whole cycles, from row 0): the least-squares line powers at every harmonic below Nyquist
-    exceed :meth:`PeriodicDrive.detectable` somewhere in about PERIODIC_LINE_ALPHA of the records (the chi-square of
-    two degrees of freedom and Bonferroni over the harmonics asked: at most alpha, close to it for independent lines);
-    a line at four times that power is seen in most records."""
-    rng = np.random.default_rng(3593)
-    rate, f, sig = 1e3, 20.0, 1e-3
-    t = np.arange(int(10 * rate / f)) / rate
-    d = PeriodicDrive(f, 0)
-    ks = np.arange(1, int(0.5 * rate / f))                        # below Nyquist (the 25th is at it)
-    X = d.columns(t, ks)
-    thr = d.detectable(t, sig, n_tested=ks.size)
-
-    def powers(y):
-        a = np.linalg.lstsq(X, y, rcond=None)[0].reshape(-1, 2)
-        return 0.5 * (a ** 2).sum(axis=1)                       # mean square of each line
-    n = 300
-    hits = sum(bool(np.any(powers(sig * rng.standard_normal(t.size)) > thr)) for _ in range(n))
-    # binomial(300, 0.05): mean 15, sd 3.8
-    assert 5 <= hits <= 27, hits
-    line = np.sqrt(2 * 4 * thr) * np.cos(2 * np.pi * 7 * f * t + 0.3)
-    seen = sum(bool(powers(line + sig * rng.standard_normal(t.size))[6] > thr) for _ in range(100))
-    assert seen >= 90, seen
-
-
-def test_the_harmonics_asked_are_where_the_loop_shows_free_where_the_term_shows_too():
-    """Lines of known power (whole cycles, from row 0): a harmonic is asked when the loop's line, scaled by the
-    misfit's share of the loop, is detectable (above :meth:`PeriodicDrive.detectable`), free when the term's is too (the strongest at most
-    PERIODIC_FREE_HARMONICS), lumped otherwise; harmonics the loop does not show are neither."""
+def test_the_harmonics_kept_leave_out_less_than_the_floor_and_no_fewer_would():
+    """Lines of known power (whole cycles, from row 0): the harmonics kept are the strongest ones, and the power
+    of those left out is below ``floor ** 2`` while leaving out the weakest kept one too would not be."""
     rng = np.random.default_rng(3592)
     for _ in range(8):
         rate, f = 1e4, float(rng.uniform(5.0, 40.0))
@@ -124,24 +98,18 @@ def test_the_harmonics_asked_are_where_the_loop_shows_free_where_the_term_shows_
         f = rate / round(rate / f)                          # an integer period: the lines sit on bins
         t = np.arange(int(round(n_cyc * rate / f))) / rate
         floor = 1e-3
-        d = PeriodicDrive(f, 0)
-        thr = d.detectable(t, floor)
-        ks = np.arange(1, 101)
-        p_term = thr * np.exp(rng.uniform(np.log(0.05), np.log(20.0), ks.size))
-        p_loop = thr * np.exp(rng.uniform(np.log(0.05), np.log(2000.0), ks.size))
+        ks = np.arange(1, 31)
+        p_term = floor ** 2 * np.exp(rng.uniform(np.log(0.01), np.log(100.0), ks.size))
         ph = rng.uniform(0, 2 * np.pi, ks.size)
         term = sum(np.sqrt(2 * p) * np.cos(2 * np.pi * k * f * t + q) for k, p, q in zip(ks, p_term, ph))
-        carrier = sum(np.sqrt(2 * p) * np.cos(2 * np.pi * k * f * t) for k, p in zip(ks, p_loop))
-        free, lumped = d.harmonics_of(term, t, floor, carrier)
-        loop = ks[p_loop > thr]
-        both = ks[(p_loop > thr) & (p_term > thr)]
-        assert np.array_equal(np.union1d(free, lumped), loop)
-        assert free.size == min(both.size, PERIODIC_FREE_HARMONICS) and np.all(np.isin(free, both))
-        if both.size > free.size:
-            assert p_term[free - 1].min() >= p_term[np.setdiff1d(both, free) - 1].max()
-        # a loop shape a hundredth of the loop's power reaches the harmonics where a hundredth of its line shows
-        free, lumped = d.harmonics_of(term, t, floor, carrier, share=0.01)
-        assert np.array_equal(np.union1d(free, lumped), ks[0.01 * p_loop > thr])
+        carrier = sum(1.0 / k * np.cos(2 * np.pi * k * f * t) for k in ks)     # every line above floor ** 2
+        d = PeriodicDrive(f, 0)
+        kept = d.harmonics_of(term, t, floor, carrier)
+        left = np.setdiff1d(ks, kept)
+        assert p_term[left - 1].sum() < floor ** 2
+        assert np.all(p_term[kept - 1][:, None] >= p_term[left - 1][None, :] - 1e-12 * floor ** 2)
+        weakest = kept[np.argmin(p_term[kept - 1])]
+        assert p_term[left - 1].sum() + p_term[weakest - 1] >= floor ** 2
 
 
 #: make test: the 10 kHz record (103 harmonics: 64 free, 39 lumped) and the 1 kHz one; the 100 kHz one (0.9 s) in full

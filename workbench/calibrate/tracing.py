@@ -129,10 +129,6 @@ def excitation_period_s(t, v, tp=None):
 PERIODIC_CYCLES = 3
 #: ... each within this fraction of their median
 PERIODIC_RTOL = 0.1
-#: the chance that noise alone makes any of the harmonics asked a line (:meth:`PeriodicDrive.detectable`): the usual 5 %
-#: family-wise (a convention, not a property of the record: at 1 % the threshold moves by ``2 ln 5 = 3.2`` in units of
-#: the line's noise power, against ``2 ln(K / 0.05)`` = 12-20 for 10-4000 harmonics)
-PERIODIC_LINE_ALPHA = 0.05
 
 
 def periodic_drive_period(t, v, tp=None):
@@ -319,48 +315,21 @@ class PeriodicDrive:
         out[self.start:] = series(np.where(keep, c, 0.0))
         return out
 
-    def detectable(self, t, floor, n_fit=None, n_tested=None):
-        """The least line power (:meth:`lines`' units) a record shows above its noise: white noise ``floor`` (RMS)
-        on the ``n_fit`` rows a line's amplitudes are fitted on (default the rows from ``start``), ``n_tested``
-        lines asked (default every harmonic below the Nyquist frequency).
-
-        A line's least-squares ``cos`` and ``sin`` amplitudes over ``N`` rows of white noise ``sigma`` each vary as
-        ``2 sigma^2 / N``; noise alone gives a line power (mean square over those rows) of ``sigma^2 / N`` times a
-        chi-square of two degrees of freedom, above ``x sigma^2 / N`` with probability ``exp(-x / 2)``. Of
-        ``n_tested`` lines, noise alone passes ``x = 2 ln(n_tested / PERIODIC_LINE_ALPHA)`` with probability at most
-        :data:`PERIODIC_LINE_ALPHA` (Bonferroni). A noiseless line (a model's) at that power is seen about half the
-        time."""
-        t = np.asarray(t, float)
-        n = t.size - self.start
-        dt = float((t[-1] - t[0]) / (t.size - 1))
-        kmax = max(int(np.floor(0.5 / dt / self.f_hz)), 1)
-        n_fit = n if n_fit is None else max(int(n_fit), 1)
-        n_tested = kmax if n_tested is None else max(int(n_tested), 1)
-        x = 2.0 * np.log(max(n_tested, 1) / PERIODIC_LINE_ALPHA)
-        # the line's power over the ``n`` rows from ``start``, in :meth:`lines`' units (mean square over the record)
-        return float(floor) ** 2 * x / n_fit * n / t.size
-
-    def harmonics_of(self, term, t, floor, carrier, n_fit=None, share=1.0):
-        """The drive's harmonics at which ``term``'s repeating part could be a loop shape's: ``(free, lumped)``.
-
-        A harmonic is asked where a loop shape's line could stand above the record's noise (:meth:`detectable`,
-        ``n_fit`` rows, every harmonic below Nyquist tested): the loop's own line there (``carrier``, the base's
-        prediction) scaled by ``share``, the misfit's power over the loop's (a misfit of the loop's shape is a
-        function of the drive's level and direction as the loop is, its lines falling with the order as the loop's
-        do). At harmonics a loop shape does not reach, a term's power is a mode's own (its ring), not a loop
-        shape's. Of those, the ones where
-        ``term``'s own line is detectable too are ``free`` (at most :data:`PERIODIC_FREE_HARMONICS`, the strongest
-        in ``term``; the competitor's free ``cos``/``sin`` pairs), the rest ``lumped`` (one column of the
-        competitor, ``term``'s repeating part there: :meth:`PeriodicDrive.repeating_part`)."""
+    def harmonics_of(self, term, t, floor, carrier):
+        """The drive's harmonics at which ``term``'s repeating part could be a loop shape's: those where
+        ``carrier`` (the base's prediction: the loop) stands above ``floor ** 2`` (mean square), taken in
+        falling order of ``term``'s power there (:meth:`lines`) until the ones left out carry less than
+        ``floor ** 2``, the power a fold's term must explain to pass (:func:`_fold_test`). At harmonics the
+        loop does not reach, a term's power is a mode's own (its ring), not a loop shape's."""
         lt, lc = self.lines(term, t), self.lines(carrier, t)
-        thr = self.detectable(t, floor, n_fit, lc.size)
-        ks = np.flatnonzero(share * lc > thr) + 1
+        ks = np.flatnonzero(lc > floor ** 2) + 1
         if ks.size == 0:
-            return ks, ks
-        seen = ks[lt[ks - 1] > thr]
-        order = seen[np.argsort(lt[seen - 1], kind="stable")[::-1]]
-        free = np.sort(order[:PERIODIC_FREE_HARMONICS])
-        return free, np.setdiff1d(ks, free)
+            return ks
+        lines = lt[ks - 1]
+        order = np.argsort(lines)[::-1]
+        left = lines.sum() - np.cumsum(lines[order])
+        m = int(np.argmax(left < floor ** 2)) + 1
+        return np.sort(ks[order[:m]])
 
 
 def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None, held=None):
@@ -1722,9 +1691,7 @@ def periodic_driver(c):
 #: not a statistical one: the competitor's Gram matrices are ``(2 K + ...)^2`` a block (101 blocks), ~4000 harmonics on a
 #: 12 Hz triangle at 100 kHz asked for 49 GiB (review B1). The candidate takes nothing from the lumped harmonics
 #: (its repeating part there is the competitor's column); the competitor only loses the freedom to shape them apart
-#: from the term's. Above the 43-54 harmonics the benchmark's and outsider's periodic records asked for (session 35,
-#: the old floor**2 rule); session 36's detectability rule asks 2-64 free on the review's draws (rv7, a 12.4 Hz triangle
-#: at 100 kHz: 64 free and 1033 lumped).
+#: from the term's. Above the 43-54 harmonics the benchmark's and outsider's periodic records asked for (session 35).
 PERIODIC_FREE_HARMONICS = 64
 
 
@@ -1735,20 +1702,15 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
     point). A mode's steady response to a repeating drive and a loop-shape misfit that repeats every cycle are both
     sums of the drive's harmonics (:class:`PeriodicDrive`): the mode is kept on a fold only where it passes
     :func:`_fold_test` against the base, the found effects and free ``cos``/``sin`` columns of the harmonics
-    where a loop shape of the base's misfit's size and the candidate's own fitted term both show a line above the
-    noise (:meth:`PeriodicDrive.harmonics_of`, :meth:`PeriodicDrive.detectable`), each refitted on
+    that carry its own fitted term's repeating part (:meth:`PeriodicDrive.harmonics_of`), each refitted on
     the fold's training rows (what it then explains is what does not repeat: a start-up ring, a change of
     the drive), or where, beside the base alone, its held-out error is no worse than the harmonics': its few
     parameters then describe all the harmonics do (a delay's shift of a loop the base fits, a ring the loop
     cannot make), where a loop shape it only partly mimics leaves the harmonics ahead.
 
-    Of those harmonics the :data:`PERIODIC_FREE_HARMONICS` strongest in the term are free pairs; the rest where a
-    loop shape reaches (the term's line there below detection, or beyond those pairs) are one column, the term's own
-    repeating part there (:meth:`PeriodicDrive.repeating_part`): the cost stays bounded on a record whose loop reaches
-    thousands of harmonics, and the candidate takes none of its repeating part where a loop shape could be from
-    the competitor either way. The loop shape's size is the base's misfit above the noise (its mean square over the
-    loop's, the development rows from the drive's start); at a later stage that misfit includes what the found
-    effects explain (it is the base's), which can only widen the harmonics asked.
+    Of those harmonics the :data:`PERIODIC_FREE_HARMONICS` strongest are free pairs and the rest one column, the
+    term's own repeating part there (:meth:`PeriodicDrive.repeating_part`): the cost stays bounded on a record whose
+    loop reaches thousands of harmonics.
 
     Returns
     -------
@@ -1764,22 +1726,14 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
     if not drive.repeats_for(row["yhat"], explained):
         return list(row["passes"]), {"harmonics": [], "refused": [], "drive_changes": True}
     _, term, _ = prob.predict(row["g"], split.dev_blocks)
-    # the harmonics' amplitudes are fitted on a fold's training rows (from the drive's start): their count sets a
-    # line's detectability (:meth:`PeriodicDrive.detectable`)
-    n_fit = int(np.median([np.count_nonzero((split.rows(tr) & prob.valid)[drive.start:]) for tr, _ in split.folds]))
-    # the loop shape's share of the loop: the base's misfit above the noise (mean square, the development rows from
-    # the drive's start) over the loop's variation there
-    rows = prob.rows_dev.copy()
-    rows[:drive.start] = False
-    e = (prob.r * prob.scale)[rows]
-    loop = np.asarray(row["yhat"], float)[rows]
-    share = max(float(np.mean((e - e.mean()) ** 2)) - floor ** 2, 0.0) / max(float(np.var(loop)), np.finfo(float).tiny)
-    free, rest = drive.harmonics_of(term, t, floor, row["yhat"], n_fit, share)
-    ks = np.union1d(free, rest)
+    ks = drive.harmonics_of(term, t, floor, row["yhat"])
     if ks.size == 0:
         return list(row["passes"]), {"harmonics": [], "refused": []}
-    # the free orders as cos/sin pairs, the rest as one column: the term's own repeating part there
-    # (:meth:`PeriodicDrive.repeating_part`), so the candidate takes nothing from them either way
+    # the strongest PERIODIC_FREE_HARMONICS orders as free cos/sin pairs, the rest as one column: the term's own
+    # repeating part there (:meth:`PeriodicDrive.repeating_part`), so the candidate takes nothing from them either way
+    lt = drive.lines(term, t)
+    order = ks[np.argsort(lt[ks - 1], kind="stable")[::-1]]
+    free, rest = np.sort(order[:PERIODIC_FREE_HARMONICS]), np.sort(order[PERIODIC_FREE_HARMONICS:])
     cols = drive.columns(t, free)
     if rest.size:
         cols = np.column_stack([cols, drive.repeating_part(term, t, rest)])
