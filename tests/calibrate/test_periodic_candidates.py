@@ -12,6 +12,7 @@ import pytest
 
 import workbench.calibrate.tracing as T
 from tests.conftest import reduced_draws
+from workbench.calibrate.creep_beside_delay import _columns
 from workbench.calibrate.effects import Delay, Resonance
 from workbench.calibrate.splits import make_split
 
@@ -25,8 +26,10 @@ def _triangle(t, f):
     return 2.0 * np.abs(ph - np.floor(ph + 0.5))
 
 
-def _score(t, v, x, periodic, driver=None):
-    """The first stage scored with the delay and the mode as the only candidates (the base: a line in ``v``)."""
+def _score(t, v, x, periodic, driver=None, lazy=False):
+    """The first stage scored with the delay and the mode as the only candidates (the base: a line in ``v``);
+    ``lazy``: their columns kept without Gram matrices, as a later stage's creep beside a delay keeps them
+    (:func:`~workbench.calibrate.creep_beside_delay._columns`)."""
     y = 1e-7 * v
     sp = make_split(t, v, "blocks")
     prob = T._Problem(sp, np.ones(t.size, bool), np.column_stack([y, np.ones(t.size)]), [-np.inf, -np.inf],
@@ -35,7 +38,7 @@ def _score(t, v, x, periodic, driver=None):
     for eff in (Delay(max_delay=30), Resonance()):
         p = eff.fit(t, y, x - y, prob.search, y_model=y)
         C, lo = eff.columns(t, y, p, y_model=y) if hasattr(eff, "columns") else (eff.term(t, y, p, y_model=y), [0.0])
-        c = {"name": eff.name, "channel": "displacement", "key": KEY, "g": prob.grams(C, lo),
+        c = {"name": eff.name, "channel": "displacement", "key": KEY, "g": _columns(prob, np.atleast_2d(np.asarray(C, float).T).T, lo) if lazy else prob.grams(C, lo),
              "n_params": eff.n_params, "params": p, "yhat": y}
         if driver is not None:
             c["driver"] = driver
@@ -49,7 +52,7 @@ def _score(t, v, x, periodic, driver=None):
     return T._score_stage(cands, {KEY: prob}, nulls, {KEY: []}, sp, 0.02, 1.0, infos, [], T.MIN_SHARE)
 
 
-def _scored(seed, periodic, rate=1e3, f=3.0, cycles=8, size=30.0):
+def _scored(seed, periodic, rate=1e3, f=3.0, cycles=8, size=30.0, lazy=False):
     """A linear stack (0.1 um/V) on a 0-100 V triangle from rest, its displacement plus a loop shape (a polynomial
     in the drive's level and direction, ``size`` x the noise); the delay and the mode, built without a driver."""
     rng = np.random.default_rng(seed)
@@ -63,7 +66,7 @@ def _scored(seed, periodic, rate=1e3, f=3.0, cycles=8, size=30.0):
     m = a * (lv * lv - 0.5) + b * d * (1.0 - lv * lv) + c * lv ** 3
     m = (m - m.mean()) * size * SIG / np.std(m)
     x = 1e-7 * v + m + SIG * rng.standard_normal(t.size)
-    return _score(t, v, x, periodic)
+    return _score(t, v, x, periodic, lazy=lazy)
 
 
 def _effect_folds(res):
@@ -82,6 +85,20 @@ def test_a_candidate_without_a_driver_is_asked_the_periodic_rule(seed):
     for tag, row in res["by"].items():
         assert "periodic" in row or not any(row["passes"]), tag
     assert _effect_folds(res) < 3, res["winners"]
+
+
+def test_a_candidate_without_gram_matrices_is_asked_the_rule_as_one_with_them():
+    """A later stage's candidate whose columns are kept without Gram matrices (a creep beside a delay) is asked the
+    periodic rule on its own fitted term like one with them: the same winners and, per row, the same harmonics and
+    refused folds (the second review of s36_harm, B1: a 14.4 Hz sine at 100 kHz whose second stage asked a creep
+    beside a delay exited with ``TypeError: 'NoneType' object is not subscriptable``)."""
+    full, lazy = _scored(2, periodic=True), _scored(2, periodic=True, lazy=True)
+    assert lazy["winners"] == full["winners"]
+    asked = [tag for tag, row in full["by"].items() if "periodic" in row]
+    assert asked                                                    # the rule was asked of some row
+    for tag in asked:
+        assert lazy["by"][tag]["periodic"]["harmonics"] == full["by"][tag]["periodic"]["harmonics"], tag
+        assert lazy["by"][tag]["periodic"]["refused"] == full["by"][tag]["periodic"]["refused"], tag
 
 
 _RNG = np.random.default_rng(3601)

@@ -1725,7 +1725,13 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
     explained = float(np.median([np.sqrt(max(befores[f] ** 2 - after[f] ** 2, 0.0)) for f in passed]))
     if not drive.repeats_for(row["yhat"], explained):
         return list(row["passes"]), {"harmonics": [], "refused": [], "drive_changes": True}
-    _, term, _ = prob.predict(row["g"], split.dev_blocks)
+    g = row["g"]
+    if g.get("G") is None:
+        # a later stage's candidate whose columns were kept without Gram matrices (creep_beside_delay._columns,
+        # scored by :func:`_stacked`): its own fitted term needs them (second review of s36_harm, B1: a 14.4 Hz
+        # sine at 100 kHz whose second stage asked a creep beside a delay exited with a TypeError)
+        g = prob.grams(g["C"], g["lb"][prob.A.shape[1]:])
+    _, term, _ = prob.predict(g, split.dev_blocks)
     ks = drive.harmonics_of(term, t, floor, row["yhat"])
     if ks.size == 0:
         return list(row["passes"]), {"harmonics": [], "refused": []}
