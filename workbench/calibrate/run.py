@@ -41,7 +41,8 @@ __all__ = ["run_calibrate", "agreement_counts"]
 def _json_candidates(cands):
     return [{"name": c["name"], "channel": c["channel"], "variant": c.get("variant"), "score": c["score"],
              "n_params": c["n_params"], "passes": c["passes"], "ratios": c["ratios"],
-             "error_before": c["error_before"], **({"error_after": c["error_after"]} if "error_after" in c else {})}
+             "error_before": c["error_before"], **({"error_after": c["error_after"]} if "error_after" in c else {}),
+             **({"periodic": c["periodic"]} if "periodic" in c else {})}
             for c in cands]
 
 

@@ -38,6 +38,12 @@ when
    term (~10-17 % of its variance, consistently over folds); measured, not derived -- the
    one constant of the decision that is not from the record.
 
+On a **repeating drive** (one sine or triangle, :class:`PeriodicDrive`) a candidate that is a linear term of the
+drive or of the base's prediction (a mode, a delay, a creep; the charge's absorption and leakage) must pass the same
+tests against the base plus free harmonics of the drive (:func:`periodic_mode_test`): its steady response is a sum
+of those harmonics, as is a loop shape the base's hysteresis lacks (issue 13, outsider A1); what it explains beyond
+them is what does not repeat (a start-up ring, a settling). The answer's ``reason`` says what the harmonics took.
+
 The fold's winner is the passing candidate with the lowest penalized ratio (``none`` when
 none passes), after two cross-channel rules: a relaxation in the charge that the displacement
 shows too is creep (seed 002: Q_DA and the leakage charge do not move the stack; "too" means
@@ -151,6 +157,179 @@ def periodic_drive_period(t, v, tp=None):
         return None
     P = float(np.median(cycles))
     return P / dt if np.all(np.abs(cycles - P) <= PERIODIC_RTOL * P) else None
+
+
+class PeriodicDrive:
+    """A repeating drive's frequency and where it starts: the harmonics a loop-shape misfit lives at.
+
+    On one repeated period a rate-independent misfit of the loop's shape (a stack whose hysteresis is
+    not the base's operator) repeats every cycle, and so does a mode's steady response to the drive
+    (a linear term ``g (H(s) - 1) u`` of a periodic ``u``): both are sums of the drive's harmonics
+    ``k f_d``. Only what does not repeat (the start-up ring, a change of the drive) is a mode's own
+    (issue 13, outsider A1). :func:`periodic_mode_test` asks a mode to beat the base plus free
+    harmonics of the drive on the folds.
+
+    Attributes
+    ----------
+    f_hz : float
+        The drive's fundamental (Hz): the drive's periodogram maximum within :data:`PERIODIC_RTOL` of
+        :func:`periodic_drive_period`'s period (rows after ``start``).
+    start : int
+        First row of the periodic drive: half a period before the drive's first reversal (the rest
+        before it is not part of the cycle; the harmonic columns are zero there).
+    """
+
+    def __init__(self, f_hz, start, change_v=0.0, level_v=1.0):
+        self.f_hz, self.start = float(f_hz), int(start)
+        self.change_v, self.level_v = float(change_v), float(level_v)
+
+    def repeats_for(self, carrier, explained):
+        """Does the drive repeat as far as a candidate's evidence goes? Its cycle-to-cycle change (``change_v``, V
+        RMS), through the channel's gain (``carrier``, the base's prediction: its RMS variation over the drive's,
+        ``level_v``), stands below what the candidate ``explained`` (RMS, the channel's units): the drive's changes
+        cannot carry that evidence. A drive whose changes could (a decaying sine, a wandering frequency) holds more
+        than one repeated period, and the competitor is not asked."""
+        c = np.asarray(carrier, float)[self.start:]
+        gain = float(np.std(c)) / self.level_v if self.level_v > 0 else np.inf
+        return gain * self.change_v < explained
+
+    @classmethod
+    def of(cls, t, v, tp=None):
+        """The record's periodic drive, or None when the drive does not repeat (:func:`periodic_drive_period`)."""
+        t = np.asarray(t, float)
+        v = np.asarray(v, float)
+        tp = turning_points(v) if tp is None else tp
+        P = periodic_drive_period(t, v, tp)
+        if P is None or tp.size == 0:
+            return None
+        start = max(int(tp[0] - 0.5 * P), 0)
+        tt, vv = t[start:], v[start:] - np.mean(v[start:])
+        dt = float((t[-1] - t[0]) / (t.size - 1))
+        f0 = 1.0 / (P * dt)
+        dur = float(tt[-1] - tt[0]) if tt.size > 1 else dt
+        # the periodogram on a grid a tenth of its resolution (1 / duration) apart, then its peak's parabola
+        n = int(np.ceil(2 * PERIODIC_RTOL * f0 * dur * 10)) + 1
+        fs = np.linspace((1 - PERIODIC_RTOL) * f0, (1 + PERIODIC_RTOL) * f0, max(n, 3))
+        pw = np.array([abs(np.exp(-2j * np.pi * f * tt) @ vv) ** 2 for f in fs])
+        i = int(np.argmax(pw))
+        f = fs[i]
+        if 0 < i < fs.size - 1:
+            a, b, c = pw[i - 1], pw[i], pw[i + 1]
+            den = a - 2 * b + c
+            if den < 0:
+                f = fs[i] + 0.5 * (a - c) / den * (fs[1] - fs[0])
+        # the drive's change from one cycle to the next (RMS over the rows two cycles after ``start``: the first
+        # cycle from rest may differ, a start-up the candidates may use; per sample: the difference of two noisy
+        # samples over sqrt 2), at the period that makes it least (searched within the periodogram's resolution
+        # of its peak), and its own variation
+        i = np.arange(start + int(np.ceil(2.1 / (f * dt))), t.size)
+        if i.size < 2:
+            return cls(f, start, np.inf, float(np.std(v[start:])))
+
+        def change(period):
+            return float(np.sqrt(np.mean((v[i] - np.interp(t[i] - period, t, v)) ** 2) / 2.0))
+        res = 1.0 / dur                            # the periodogram's resolution (Hz)
+        ps = 1.0 / np.linspace(f - res, f + res, 21)
+        cs = np.array([change(q) for q in ps])
+        k = int(np.argmin(cs))
+        lo, hi = ps[min(k + 1, ps.size - 1)], ps[max(k - 1, 0)]
+        for _ in range(20):                        # golden-section on the bracket around the grid's best
+            a, b = lo + 0.382 * (hi - lo), lo + 0.618 * (hi - lo)
+            if change(a) < change(b):
+                hi = b
+            else:
+                lo = a
+        P = 0.5 * (lo + hi)
+        return cls(1.0 / P, start, change(P), float(np.std(v[start:])))
+
+    def columns(self, t, ks):
+        """``cos`` and ``sin`` of ``2 pi k f_hz t`` for each harmonic ``k`` in ``ks`` (zero before ``start``)."""
+        t = np.asarray(t, float)
+        ks = np.asarray(ks, int)
+        out = np.zeros((t.size, 2 * ks.size), order="F")
+        ph = 2 * np.pi * self.f_hz * (t[self.start:] - t[self.start])
+        for j, k in enumerate(ks):
+            out[self.start:, 2 * j] = np.cos(k * ph)
+            out[self.start:, 2 * j + 1] = np.sin(k * ph)
+        return out
+
+    def lines(self, x, t):
+        """``x``'s power (mean square over the whole record) at each harmonic ``k f_hz`` below the Nyquist
+        frequency, ``k = 1, 2, ...``: its spectrum (rows from ``start``) within one periodogram bin of the line."""
+        t = np.asarray(t, float)
+        x = np.asarray(x, float)[self.start:]
+        n = x.size
+        dt = float((t[-1] - t[0]) / (t.size - 1))
+        kmax = int(np.floor(0.5 / dt / self.f_hz))
+        if n < 4 or kmax < 1:
+            return np.zeros(0)
+        p = np.abs(np.fft.rfft(x - x.mean())) ** 2 / n ** 2
+        p[1:(n + 1) // 2] *= 2.0            # one-sided: sum(p) is the mean square
+        j = np.rint(np.arange(1, kmax + 1) * self.f_hz * n * dt).astype(int)
+        return np.array([p[max(i - 1, 0):i + 2].sum() for i in j]) * (n / t.size)
+
+    def repeating_part(self, x, t, ks):
+        """``x``'s repeating part at the harmonics ``ks`` (one column over the record, zero before ``start``).
+
+        Each order's ``cos``/``sin`` amplitude is ``x``'s discrete Fourier sum at ``k f_hz`` over the whole drive
+        cycles from ``start`` (on them the harmonics are orthogonal: the least-squares amplitudes), and the column
+        their sum at every row from ``start``. Both are chirp-z transforms (:func:`scipy.signal.czt`, the orders
+        ``1 .. max(ks)`` at once): a pass of FFTs over the rows whatever the count of ``ks``, where free columns cost
+        ``2 K`` Gram columns a block. What does not repeat (a start-up ring) enters only as its line at each order."""
+        from scipy.signal import czt
+        t = np.asarray(t, float)
+        x = np.asarray(x, float)
+        out = np.zeros(t.size)
+        ks = np.unique(np.asarray(ks, int))
+        ks = ks[ks >= 1]
+        n = t.size - self.start
+        if ks.size == 0 or n < 2:
+            return out
+        dt = float((t[-1] - t[0]) / (t.size - 1))
+        a = self.f_hz * dt                                   # the fundamental in cycles a sample
+        # whole cycles' rows: ``span`` samples, the last row weighted by the fraction of it inside them
+        span = np.floor(n * a) / a if n * a >= 1 else float(n)
+        n_w = min(int(np.floor(span)), n - 1)
+        wt = np.ones(n_w + 1)
+        wt[-1] = span - n_w
+        kmax = int(ks.max())
+        w, z = np.exp(-2j * np.pi * a), np.exp(2j * np.pi * a)
+        zn = z ** np.arange(n)
+
+        def dft(y):         # (2 / span) sum_n y_n exp(-2 pi i k a n) over the window, k = 1 .. kmax
+            return 2.0 / span * czt(wt * y[:n_w + 1], m=kmax, w=w, a=1.0 / w)
+
+        def series(c):      # sum_k Re(c_k exp(2 pi i k a n)), n = 0 .. n - 1 (k = j + 1: a czt of c at z^-n, times z^n)
+            return np.real(czt(c, m=n, w=z, a=1.0) * zn)
+        xs = x[self.start:]
+        c, c0 = np.zeros(kmax, complex), 0.0
+        # a window of whole cycles is whole only to a sample: the orders (and the mean) leak into each other by
+        # ~1 / span; a few corrections (each the sums of what the mean and the orders 1 .. kmax leave) converge to
+        # their least-squares amplitudes on the window
+        for _ in range(4):
+            e = xs - c0 - series(c)
+            c0 += float(wt @ e[:n_w + 1]) / span
+            c = c + dft(e)
+        keep = np.zeros(kmax, bool)
+        keep[ks - 1] = True
+        out[self.start:] = series(np.where(keep, c, 0.0))
+        return out
+
+    def harmonics_of(self, term, t, floor, carrier):
+        """The drive's harmonics at which ``term``'s repeating part could be a loop shape's: those where
+        ``carrier`` (the base's prediction: the loop) stands above ``floor ** 2`` (mean square), taken in
+        falling order of ``term``'s power there (:meth:`lines`) until the ones left out carry less than
+        ``floor ** 2``, the power a fold's term must explain to pass (:func:`_fold_test`). At harmonics the
+        loop does not reach, a term's power is a mode's own (its ring), not a loop shape's."""
+        lt, lc = self.lines(term, t), self.lines(carrier, t)
+        ks = np.flatnonzero(lc > floor ** 2) + 1
+        if ks.size == 0:
+            return ks
+        lines = lt[ks - 1]
+        order = np.argsort(lines)[::-1]
+        left = lines.sum() - np.cumsum(lines[order])
+        m = int(np.argmax(left < floor ** 2)) + 1
+        return np.sort(ks[order[:m]])
 
 
 def candidate_plan(channels, t=None, v=None, tau_min_s=None, basis=None, loops=None, held=None):
@@ -864,6 +1043,8 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     infos["gauge_gain"] = base.gauge_gain_v_per_m if "gauge" in base.channels else None
     infos["duration_s"] = float(t[-1] - t[0])
     infos["t"] = t                  # (the settled-absorption test's column, :mod:`.absorption_or_leakage`)
+    # a repeating drive, whose harmonics a mode must beat (:func:`periodic_mode_test`)
+    infos["drive"] = PeriodicDrive.of(t, base.v_drive)
     infos["base"] = base            # (the stack's mode read on both sensors, :func:`_mode_reads_both`)
     infos["need"] = need
     if "charge" in base.channels:
@@ -945,6 +1126,15 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
             s["note"] = fam["note"]
             if k == 0:
                 out["reason"] += f"; {fam['note']}"
+    note = periodic_note(first["res"]["rows"], infos.get("drive"), out, t)
+    if note:
+        if out["effect"] == "none":
+            # (the opening says what the folds' candidates did not beat: here the drive's harmonics too)
+            out["reason"] = (f"no candidate explains more than the noise floor, a random term of its size and, for a "
+                             f"linear term of the repeating drive, the drive's free harmonics on {out['agreement']} "
+                             f"validation folds")
+        out["reason"] += f"; {note}"
+        out["periodic_note"] = note
     if out["effect"] == "inconclusive":
         # absorption and leakage explain the record alike, the absorption's fitted time constant
         # beyond it: say so, and the record that would tell them apart (:func:`.absorption_or_leakage.too_short_note`)
@@ -1473,6 +1663,133 @@ def _fold_test(b, a, n_params, penalty, floor, null_gain, min_share):
     return ratio, bool(ratio < 1.0 and gain > floor ** 2 and gain > null_gain and gain > min_share * b * b)
 
 
+#: the candidates' drivers whose terms are linear filters of a periodic drive (its voltage, or the base's prediction
+#: of it): their steady response repeats with the drive (:func:`periodic_mode_test`); a drift (time) and the bow
+#: (the recorded displacement) are not
+PERIODIC_DRIVERS = ("model", "voltage")
+
+
+def periodic_driver(c):
+    """Is candidate ``c``'s term a function of the repeating drive (:func:`periodic_mode_test` asks it)?
+
+    Its ``driver`` (:func:`candidate_plan`'s third element) when it has one: ``"model"`` or ``"voltage"`` yes,
+    ``"time"`` (a drift) and ``"displacement"`` (the bow on the recorded motion) no. A later stage's candidates
+    (:func:`~.stages._later_candidates`: searched again beside the found effects, creep beside a delay, leakage
+    beside an absorption) and the rivals of a found kind (:func:`~.stages._rivals`) copy the first stage's
+    candidate and keep its driver; a later stage's ``"model"`` is the base's prediction plus the found effects',
+    which repeats with the drive as the base's does (the found effects are the same filters of it), so a loop
+    shape the base lacks is as much a sum of the drive's harmonics there as at the first stage: the rule applies
+    at every stage. A candidate built without a driver (a direct caller of :func:`_score_stage` with its own
+    terms) is taken as a term of the base's prediction, the engine's default driver (``"model"``): on a repeating
+    drive it is asked too, rather than raising or passing unasked.
+    """
+    return c.get("driver", "model") in PERIODIC_DRIVERS
+
+
+#: at most this many of the drive's harmonics enter :func:`periodic_mode_test` as free ``cos``/``sin`` pairs (the
+#: strongest in the candidate's term); the rest share one column, the term's own repeating part at them. A cost bound,
+#: not a statistical one: the competitor's Gram matrices are ``(2 K + ...)^2`` a block (101 blocks), ~4000 harmonics on a
+#: 12 Hz triangle at 100 kHz asked for 49 GiB (review B1). The candidate takes nothing from the lumped harmonics
+#: (its repeating part there is the competitor's column); the competitor only loses the freedom to shape them apart
+#: from the term's. Above the 43-54 harmonics the benchmark's and outsider's periodic records asked for (session 35).
+PERIODIC_FREE_HARMONICS = 64
+
+
+def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain, penalty, min_share):
+    """On a periodic drive, the folds a candidate's row passes beside the drive's free harmonics (issue 13, A1).
+
+    For a candidate whose term is a linear filter of the drive (:data:`PERIODIC_DRIVERS`; a mode is the case in
+    point). A mode's steady response to a repeating drive and a loop-shape misfit that repeats every cycle are both
+    sums of the drive's harmonics (:class:`PeriodicDrive`): the mode is kept on a fold only where it passes
+    :func:`_fold_test` against the base, the found effects and free ``cos``/``sin`` columns of the harmonics
+    that carry its own fitted term's repeating part (:meth:`PeriodicDrive.harmonics_of`), each refitted on
+    the fold's training rows (what it then explains is what does not repeat: a start-up ring, a change of
+    the drive), or where, beside the base alone, its held-out error is no worse than the harmonics': its few
+    parameters then describe all the harmonics do (a delay's shift of a loop the base fits, a ring the loop
+    cannot make), where a loop shape it only partly mimics leaves the harmonics ahead.
+
+    Of those harmonics the :data:`PERIODIC_FREE_HARMONICS` strongest are free pairs and the rest one column, the
+    term's own repeating part there (:meth:`PeriodicDrive.repeating_part`): the cost stays bounded on a record whose
+    loop reaches thousands of harmonics.
+
+    Returns
+    -------
+    (list of bool, dict)
+        The row's passes kept, and ``{"harmonics", "refused", "lumped"}``: the harmonics' orders, the folds the
+        competitor took from the row and how many of the orders shared the one column.
+    """
+    n_folds = len(split.folds)
+    passed = [f for f, ok in enumerate(row["passes"]) if ok]
+    befores = [float(b) for b in row["befores"]]
+    after = [r * b / (1 + penalty * row["n_params"]) for r, b in zip(row["ratios"], befores)]
+    explained = float(np.median([np.sqrt(max(befores[f] ** 2 - after[f] ** 2, 0.0)) for f in passed]))
+    if not drive.repeats_for(row["yhat"], explained):
+        return list(row["passes"]), {"harmonics": [], "refused": [], "drive_changes": True}
+    g = row["g"]
+    if g.get("G") is None:
+        # a later stage's candidate whose columns were kept without Gram matrices (creep_beside_delay._columns,
+        # scored by :func:`_stacked`): its own fitted term needs them (second review of s36_harm, B1: a 14.4 Hz
+        # sine at 100 kHz whose second stage asked a creep beside a delay exited with a TypeError)
+        g = prob.grams(g["C"], g["lb"][prob.A.shape[1]:])
+    _, term, _ = prob.predict(g, split.dev_blocks)
+    ks = drive.harmonics_of(term, t, floor, row["yhat"])
+    if ks.size == 0:
+        return list(row["passes"]), {"harmonics": [], "refused": []}
+    # the strongest PERIODIC_FREE_HARMONICS orders as free cos/sin pairs, the rest as one column: the term's own
+    # repeating part there (:meth:`PeriodicDrive.repeating_part`), so the candidate takes nothing from them either way
+    lt = drive.lines(term, t)
+    order = ks[np.argsort(lt[ks - 1], kind="stable")[::-1]]
+    free, rest = np.sort(order[:PERIODIC_FREE_HARMONICS]), np.sort(order[PERIODIC_FREE_HARMONICS:])
+    cols = drive.columns(t, free)
+    if rest.size:
+        cols = np.column_stack([cols, drive.repeating_part(term, t, rest)])
+    H = FoundColumns(np.asfortranarray(cols), [-np.inf] * cols.shape[1], ("drive_harmonics", row["channel"]))
+    ex = list(extra_list) + [H]
+    gb = _cand_grams(prob, ex, None, n_folds)
+    gc = _cand_grams(prob, ex, row, n_folds)
+    passes, refused = list(row["passes"]), []
+    for f, (tr, va) in enumerate(split.folds):
+        if not passes[f]:
+            continue
+        b, a = prob.fold_rms(gb[f], tr, va), prob.fold_rms(gc[f], tr, va)
+        if _fold_test(b, a, row["n_params"], penalty, floor, null_gain[f], min_share)[1]:
+            continue            # it explains what the harmonics leave: what does not repeat
+        if after[f] <= b:
+            continue            # alone, it explains at least what the free harmonics do, held out
+        passes[f] = False
+        refused.append(f)
+    return passes, {"harmonics": [int(k) for k in ks], "refused": refused, "lumped": int(rest.size)}
+
+
+def periodic_note(rows, drive, out, t):
+    """What the answer says when :func:`periodic_mode_test` took folds from a term of the base's prediction
+    that the answer does not name (None otherwise): the drive repeats, and on one repeated period such a
+    term cannot be told from a loop shape the base's hysteresis lacks."""
+    if drive is None:
+        return None
+    named = {(s["effect"], s["channel"]) for s in out.get("stages", [])}
+    lost = [r for r in rows if r.get("periodic", {}).get("refused") and (r["name"], r["channel"]) not in named]
+    if not lost:
+        return None
+    parts = []
+    for r in sorted(lost, key=lambda r: -len(r["periodic"]["refused"])):
+        ks = r["periodic"]["harmonics"]
+        what = f"{r['name']} on the {r['channel']}"
+        if r["name"] == "resonance" and "f_n_hz" in r["params"]:
+            what += f" ({r['params']['f_n_hz']:.3g} Hz, {r['params']['f_n_hz'] / drive.f_hz:.2g}x the drive)"
+        lump = int(r["periodic"].get("lumped", 0))
+        beside = (f"{len(ks)} free harmonic(s)" if not lump else
+                  f"{len(ks) - lump} free harmonic(s) and its own repeating part at {lump} more")
+        parts.append(f"{what} lost {len(r['periodic']['refused'])} fold(s) beside {beside} of "
+                     f"the drive (orders {ks[0]} to {ks[-1]})")
+    return (f"the drive repeats at {drive.f_hz:.4g} Hz from t = {float(t[drive.start] - t[0]):.3g} s: a linear term of "
+            f"the drive (a mode, a delay, a creep, an absorption, a leakage) answers one repeated period only at its "
+            f"harmonics, as a loop shape the base's hysteresis lacks does, so only what does not repeat (a start-up "
+            f"ring, a settling, a change of the drive) tells them apart; "
+            + "; ".join(parts) + " (a drive that does not repeat would tell: steps to different levels, a second drive "
+            "frequency)")
+
+
 def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos, found, min_share):
     """Per fold: base-alone and every candidate's validation RMS, the null reference, the winner."""
     n_folds = len(split.folds)
@@ -1506,6 +1823,13 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             ratios.append(float(ratio))
             passes.append(bool(ok))
         row = {**c, "ratios": ratios, "passes": passes, "score": float(np.median(ratios))}
+        if infos.get("drive") is not None and periodic_driver(c) and any(passes):
+            # a periodic drive: a linear term of the drive or of the base's prediction (a mode, a delay, a creep;
+            # the charge's absorption, leakage) must beat the drive's free harmonics too (:func:`periodic_mode_test`)
+            row["befores"] = befores[key]
+            passes, row["periodic"] = periodic_mode_test(row, prob, extra[key], split, infos["drive"], infos["t"],
+                                                         noise_factor * floor, null_gain[key], penalty, min_share)
+            row["passes"] = passes
         if c["name"] in DELAY_OR_MODE_NAMES and any(passes):
             # its held-out errors per validation block, for the difference from its rival (:func:`_delay_or_mode`)
             block_sse[id(row)] = [prob.fold_block_sse(gf[f], tr, va) for f, (tr, va) in enumerate(split.folds)]
@@ -2655,6 +2979,7 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
                          "passes": int(sum(r["passes"])),
                          **({"holds": r["holds"]} if "holds" in r else {}),
                          **({"beats_drift": r["beats_drift"]} if "beats_drift" in r else {}),
+                         **({"periodic": r["periodic"]} if "periodic" in r else {}),
                          "error_before": {**chans[r["channel"]], "units": base.channels[r["channel"]].units}})
     counts = {}
     for w in winners:
