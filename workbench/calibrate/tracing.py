@@ -94,8 +94,8 @@ from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay
                       Resonance)
 from .pi_fit import rms, turning_points
 
-__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
-           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "ALIAS_ABOVE_BAND",
+__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family", "direct_drives",
+           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "MODE_GAIN_READ_TOP", "ALIAS_ABOVE_BAND",
            "alias_members", "ALIAS_ZETA_FACTORS", "settle_time_constants"]
 
 SEARCH_ROWS = 50_000
@@ -307,6 +307,36 @@ def settle_time_constants(base, dq, rc):
     with np.errstate(divide="ignore", invalid="ignore"):
         tau = np.where(dv != 0.0, r_ohm * dq / dv, rc)
     return np.clip(np.nan_to_num(tau, nan=rc, posinf=rc, neginf=rc), rc, float(rc_max))
+
+
+#: The paths between samples a record with no series resistor may have taken (:meth:`~.effects.HeldDrive.direct`):
+#: a straight line from one sample's voltage to the next over this part of the sample, then held (0: a step, a command
+#: held with nothing to slow it; 1: a straight line over the whole sample, a sampled smooth voltage). The record does
+#: not say which (the logged current is the interval's mean whatever the path), so a mode's alias family is tested
+#: under each (:func:`alias_family`). Their spacing: a member ``f_m`` rings ``pi f_m dt`` later after a whole-sample
+#: ramp than after a step, so paths ``1/8`` apart differ by at most a quarter cycle at the family's top (two sample
+#: rates, :data:`ALIAS_ABOVE_BAND` times the Nyquist frequency), and a path between two of them is within an eighth
+#: of a cycle of one (the ring fitted to ``cos(pi / 8)``, 0.92, of its amplitude)
+DIRECT_RAMP_FRACTIONS = tuple(np.linspace(0.0, 1.0, 9))
+
+
+def direct_drives(base):
+    """``{ramp_fraction: HeldDrive}`` for a record whose stack's terminal is the logged voltage itself (no series
+    resistor, a terminal-voltage record: :attr:`BaseFit.series_resistance_ohm` unset), one path per
+    :data:`DIRECT_RAMP_FRACTIONS`; None for any other record (a series resistor's record has :func:`held_drive` or
+    the first-order hold's smooth drive; an amplifier command's volts are not the stack's).
+
+    Without a resistor nothing between the amplifier and the stack filters the drive: a mode far above the record's
+    Nyquist frequency rings in the samples at its alias (session 34's review, B1: 8 of 30 modes drawn 30-700 Hz on
+    100 Hz records without the resistor were named at an alias, 89.2 Hz at 11.62 Hz and written), and how the
+    drive moved between samples is what tells a mode from its images."""
+    if getattr(base, "series_resistance_ohm", None) or getattr(base, "input_kind", "terminal") != "terminal":
+        return None
+    t = np.asarray(base.t, float)
+    if t.size < 3:
+        return None
+    dt = float((t[-1] - t[0]) / (t.size - 1))
+    return {float(a): HeldDrive.direct(t.size, dt, a) for a in DIRECT_RAMP_FRACTIONS}
 
 
 def noise_floor(e):
@@ -1859,15 +1889,31 @@ def alias_family(c, ctx, extra):
     # every mode named on a record with a held drive: the held path's, and the first-order hold's or the refitted
     # model's (their columns are the samples' view of a ring below Nyquist, which every member of its alias family
     # rings alike: review of s33_alias (6), a 103.9 Hz mode's 3.9 Hz alias named 3.68 Hz at the damping cap by the
-    # first-order hold's column and written); the held path alone places a mode, so the family is tested through it
-    if c.get("name") != "resonance" or getattr(eff, "held", None) is None or "f_n_hz" not in p or "zeta" not in p:
+    # first-order hold's column and written); the held path alone places a mode, so the family is tested through it.
+    # On a record with no series resistor (:func:`direct_drives`) the family is tested through both paths the
+    # drive may have taken between samples, from a step to a straight line (review of s34_hold, B1)
+    if c.get("name") != "resonance" or "f_n_hz" not in p or "zeta" not in p:
         return None
-    from .effects import held_mode_column
     t, split = ctx["t"], ctx["split"]
-    prob = ctx["probs"][c["key"]]
     dt = float((t[-1] - t[0]) / (t.size - 1))
+    if getattr(eff, "held", None) is not None:
+        paths, direct = {"held": eff.held}, False
+        f_top = float(eff._held_ceiling(t))
+        top_why = "the settle's corner"
+    else:
+        paths = direct_drives(ctx["base"]) if ctx.get("base") is not None else None
+        if paths is None or any(h.t_ramp.size != np.asarray(c["u"]).size for h in paths.values()):
+            return None
+        direct = True
+        # (no settle's corner: the search's band ends at the Nyquist frequency, and the family tested reaches
+        # ALIAS_ABOVE_BAND times it, two sample rates: a straight-line drive's ring falls as 1 / (pi f dt) above the
+        # ramp's corner, so a mode beyond them rings in the band at under a sixth of an in-band mode's (2 / pi at
+        # Nyquist): its in-band image takes a gain under the band's floor, MODE_GAIN_BAND, and is not placed)
+        f_top = float(eff.f_max_fraction / dt)
+        top_why = "the Nyquist frequency"
+    from .effects import held_mode_column
+    prob = ctx["probs"][c["key"]]
     f0, z0 = float(p["f_n_hz"]), float(p["zeta"])
-    f_top = float(eff._held_ceiling(t))
     # (the members above the band searched are tested too: a mode there rings at the same alias, and the held search,
     # which cannot name it, names an in-band frequency near one of its images instead -- a 362.7 Hz mode drawn on
     # the calibration protocol, above the 331.6 Hz ceiling, named 261.8 Hz, gain 0.54, resolved in-band)
@@ -1880,26 +1926,35 @@ def alias_family(c, ctx, extra):
     z0 = float(np.clip(z0, z_lo, z_hi))
     n_folds = len(split.folds)
     u = np.asarray(c["u"], float)
-    # per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
-    grams = []
-    for f_m in members:
-        zs = sorted({float(np.clip(z0 * f0 / f_m * a, z_lo, z_hi)) for a in ALIAS_ZETA_FACTORS})
-        grams.append([_cand_grams(prob, extra[c["key"]],
-                                  {"g": prob.grams(held_mode_column(u, eff.held, f_m, z), [-np.inf]),
-                                   "replaces": c.get("replaces")}, n_folds) for z in zs])
+    holds = list(paths)
+    # per path, per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
+    grams = {}
+    for h, path in paths.items():
+        grams[h] = []
+        for f_m in members:
+            zs = sorted({float(np.clip(z0 * f0 / f_m * a, z_lo, z_hi)) for a in ALIAS_ZETA_FACTORS})
+            grams[h].append([_cand_grams(prob, extra[c["key"]],
+                                         {"g": prob.grams(held_mode_column(u, path, f_m, z), [-np.inf]),
+                                          "replaces": c.get("replaces")}, n_folds) for z in zs])
     i0 = members.index(f0)
-    # per fold, each member at its damping of least training error there: its validation blocks' errors and its gain
-    # on the training blocks
-    per_fold, member_gains = [], [[] for _ in members]
+    # per fold, each member under each path at its damping of least training error there: its validation blocks'
+    # errors and its gain on the training blocks; the named frequency under the path of least training error there
+    # (one path on a held drive's record; no fold's validation blocks choose anything)
+    per_fold, member_gains = [], {(h, k): [] for h in holds for k in range(len(members))}
+    fold_paths = []
     for f, (tr, va) in enumerate(split.folds):
-        va_sse, n = [], None
-        for k, per_z in enumerate(grams):
-            fits = [(gf[f], prob.solve(gf[f], tr)) for gf in per_z]
-            g, w = min(fits, key=lambda gw: prob.sse(gw[0], gw[1], tr)[0])
-            sse, n = prob.fold_block_sse(g, tr, va)
-            va_sse.append(sse)
-            member_gains[k].append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None)
-        per_fold.append((va_sse, n))
+        va_sse, tr_sse, n = {}, {}, None
+        for h in holds:
+            for k, per_z in enumerate(grams[h]):
+                fits = [(gf[f], prob.solve(gf[f], tr)) for gf in per_z]
+                g, w = min(fits, key=lambda gw: prob.sse(gw[0], gw[1], tr)[0])
+                tr_sse[h, k] = float(prob.sse(g, w, tr)[0])
+                sse, n = prob.fold_block_sse(g, tr, va)
+                va_sse[h, k] = sse
+                member_gains[h, k].append(float(w[-1] / g["norms"][-1] * prob.scale) if g["ok"][-1] else None)
+        h0 = min(holds, key=lambda h: tr_sse[h, i0])
+        fold_paths.append(h0)
+        per_fold.append((va_sse, n, h0))
     # a member is the named mode's rival unless its column enters with a negative gain on every fold: the stack is
     # driven by its own strain and read at its tip (the gauge: its strain), a collocated pair, whose every mode takes a
     # positive share of the motion (a uniform rod's tip: 8 / (pi^2 (2n - 1)^2)). A member whose column fits the ring
@@ -1907,38 +1962,58 @@ def alias_family(c, ctx, extra):
     # draw: 140.3 Hz at -0.4 to -0.7 and 540-1240 Hz at -3 to -7, each left unresolved on one fold of five by the
     # blocks' scatter among 25 comparisons). Only the sign, no band: a member's gain above one is kept a rival (a
     # 367.8 Hz draw's own member fitted 1.05 on every fold, the column's model error, while the 267.6 Hz image was
-    # named; s34_hold's draws, default_rng(3402) m25)
-    rivals = [k != i0 and not all(g is not None and g < 0.0 for g in member_gains[k]) for k in range(len(members))]
+    # named; s34_hold's draws, default_rng(3402) m25). The named frequency under another path is no rival (the same
+    # place)
+    # On a record with no series resistor (both paths exact forms, no settle read from the record) a member whose
+    # column fits the ring only with a gain above any share a stack's mode shows (:data:`MODE_GAIN_READ_TOP`) on
+    # every fold is no place either (default_rng(3472)'s 41.5 Hz draw on a straight-line drive: 141.5 Hz fits the
+    # ring's samples through the straight line at +3.48 on every fold, and left the named 41.5 Hz unresolved on 5)
+    band = (MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP) if direct else MODE_GAIN_BAND
+
+    def no_place(gs):
+        return all(g is not None and (g < 0.0 or (direct and g > band[1])) for g in gs)
+    rivals = {(h, k): k != i0 and not no_place(member_gains[h, k]) for h in holds for k in range(len(members))}
     resolved_folds = 0
     unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
-    for va_sse, n in per_fold:
+    for va_sse, n, h0 in per_fold:
         ok = True
         for k, m in enumerate(members):
-            if k != i0 and not resolved_beyond(va_sse[i0], va_sse[k], n)[0]:
+            if k == i0:
+                continue
+            missed = [h for h in holds if not resolved_beyond(va_sse[h0, i0], va_sse[h, k], n)[0]]
+            if missed:
                 unresolved_by[m] += 1
-                ok = ok and not rivals[k]
+                ok = ok and not any(rivals[h, k] for h in missed)
         resolved_folds += int(ok)
     need = int(ctx["need"])
     fs = 1.0 / dt
     f_a = min(f0 % fs, fs - f0 % fs)
     # (b) each fold's own held search on its training rows: the named mode's half-power band holds its frequency
-    fits = _held_fold_fits(c, ctx, extra)
+    fits = _held_fold_fits(c, ctx, extra, [paths[h] for h in fold_paths])
     agree = folds_name_the_mode(f0, z0, members, fits)
     # (a) the named mode's gain on each fold's training blocks, against a stack mode's physical share
-    gains = _held_fold_gains(c, ctx, extra, f0, z0)
-    gain_ok, g_mean, g_se = gain_is_a_modes(gains)
-    lo, hi = MODE_GAIN_BAND
+    gains = _held_fold_gains(c, ctx, extra, f0, z0, [paths[h] for h in fold_paths])
+    gain_ok, g_mean, g_se = gain_is_a_modes(gains, band)
+    lo, hi = band
     # (c) the family's members above the band searched: tested here, never searched
     above = [m for m in members if m > f_top]
     out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
            "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
-           "rivals_hz": [m for k, m in enumerate(members) if rivals[k]],
+           "rivals_hz": [m for k, m in enumerate(members) if any(rivals[h, k] for h in holds)],
            "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
            "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
            "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
+    if direct:
+        # the path each fold's training rows fit the named frequency best through (:data:`DIRECT_RAMP_FRACTIONS`)
+        out["drive"] = "no series resistor"
+        out["fold_ramp_fractions"] = fold_paths
     family_ok = resolved_folds >= need
     out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
-    what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
+    if direct:
+        what = ("mode (a record with no series resistor: its drive between samples read as every path from a step to "
+                "a straight line)")
+    else:
+        what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
     if not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
@@ -1969,7 +2044,7 @@ def alias_family(c, ctx, extra):
                            f"faster tells them apart")
         elif gain_ok:
             out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
-                           + f". The band searched ends at {f_top:.4g} Hz (the settle's corner): the mode may lie above it"
+                           + f". The band searched ends at {f_top:.4g} Hz ({top_why}): the mode may lie above it"
                            + (f" ({' / '.join(f'{m:.4g}' for m in above[:4])} Hz ring at the same alias)" if above else "")
                            + "; a record at a rate above twice the mode's frequency tells them apart")
         else:
@@ -1978,7 +2053,7 @@ def alias_family(c, ctx, extra):
             # without the truth), so no candidate frequency is said
             out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The record does not tell the mode's frequency (its ring may come from above the band "
-                           f"searched, which ends at {f_top:.4g} Hz, the settle's corner, at any alias); a record at "
+                           f"searched, which ends at {f_top:.4g} Hz, {top_why}, at any alias); a record at "
                            f"a rate above twice the mode's frequency measures it")
     return out
 
@@ -1996,6 +2071,17 @@ ALIAS_ABOVE_BAND = 4.0
 #: modal share of the static tip motion; a load at the tip raises it toward one, the higher modes share the rest)
 MODE_GAIN_BAND = (8.0 / np.pi ** 2, 1.0)
 
+#: The most of the motion a stack's first mode shows where the sensor reads inside the stack: a uniform rod fixed at
+#: one end, its static motion ``xi`` (``xi`` the place along it over its length) and its first mode's share of it
+#: ``8 / pi^2 sin(pi xi / 2) / xi``, rises from ``8 / pi^2`` at the tip to ``4 / pi`` (1.27) at the fixed end (and a
+#: strain read there: ``8 / pi^2 (pi / 2) cos(pi xi / 2)``). The top of the gain band on a record with no series
+#: resistor (:func:`alias_family`), where the drive's two possible paths are exact forms: right modes named below
+#: Nyquist on such records fitted 1.02-1.04 (default_rng(3472)'s straight-line draws), above
+#: :data:`MODE_GAIN_BAND`'s one by 10-20 jackknife errors. A held drive's record keeps :data:`MODE_GAIN_BAND`: its path's
+#: settle is read from the record, and a wrong image there fitted 1.267 +/- 0.006 with every other test passed
+#: (default_rng(3402) m0, a 516.3 Hz mode named 311.8 Hz; session 34)
+MODE_GAIN_READ_TOP = 4.0 / np.pi
+
 
 def folds_name_the_mode(f0_hz, zeta, members_hz, fits):
     """Per fold, does its own search (``fits``: ``{"f_n_hz", ...}`` or None) name the mode at ``f0_hz``? Its
@@ -2009,12 +2095,13 @@ def folds_name_the_mode(f0_hz, zeta, members_hz, fits):
     return out
 
 
-def gain_is_a_modes(gains):
+def gain_is_a_modes(gains, band=MODE_GAIN_BAND):
     """``(consistent, mean, se)``: the per-fold gains of a held mode's column ``(H - 1) x`` against a stack mode's
-    share of the motion (:data:`MODE_GAIN_BAND`): the folds' mean within two jackknife standard errors
+    share of the motion (``band``, default :data:`MODE_GAIN_BAND`; a record with no series resistor's
+    ``(MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP)``): the folds' mean within two jackknife standard errors
     (:func:`_jackknife`) of the band."""
     m, se = _jackknife(gains)
-    lo, hi = MODE_GAIN_BAND
+    lo, hi = band
     return bool(np.isfinite(m) and np.isfinite(se) and m + 2.0 * se >= lo and m - 2.0 * se <= hi), m, se
 
 
@@ -2028,18 +2115,24 @@ def _jackknife(values):
     return m, float(np.sqrt((v.size - 1) / v.size * np.sum((v - m) ** 2)))
 
 
-def _held_fold_gains(c, ctx, extra, f_hz, zeta):
+def _held_fold_gains(c, ctx, extra, f_hz, zeta, paths=None):
     """The held mode's gain at ``f_hz``, ``zeta`` fitted on each fold's training blocks with the found effects (None
-    for a fold whose training rows cannot fit the column)."""
+    for a fold whose training rows cannot fit the column). ``paths``: per fold the drive's path between samples
+    (:class:`~.effects.HeldDrive`; default the stage's held drive on every fold)."""
     from .effects import held_mode_column
     split, key = ctx["split"], c["key"]
     prob = ctx["probs"][key]
     n_folds = len(split.folds)
-    col = held_mode_column(np.asarray(c["u"], float), c["eff"].held, f_hz, zeta)
-    per = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]), "replaces": c.get("replaces")}, n_folds)
+    paths = paths or [c["eff"].held] * n_folds
+    per = {}
+    for path in paths:
+        if id(path) not in per:
+            col = held_mode_column(np.asarray(c["u"], float), path, f_hz, zeta)
+            per[id(path)] = _cand_grams(prob, extra[key], {"g": prob.grams(col, [-np.inf]),
+                                                           "replaces": c.get("replaces")}, n_folds)
     out = []
     for f, (tr, _va) in enumerate(split.folds):
-        g = per[f]
+        g = per[id(paths[f])][f]
         w = prob.solve(g, tr)
         # a column the fold's training rows cannot fit (dropped as degenerate) has no gain there: None, which the
         # jackknife leaves out (a 0.0 counted it as a measured gain of zero; session 33's review)
@@ -2057,11 +2150,12 @@ def _held_fold_projection(prob, extra_k, rows):
     return lambda X: X - E @ (ginv @ (E.T @ X))
 
 
-def _held_fold_fits(c, ctx, extra):
+def _held_fold_fits(c, ctx, extra, paths=None):
     """Per validation fold, the held drive's mode searched again on the fold's training search rows alone (its own
     frequency, damping) and its gain fitted there with the found effects (the stage's joint columns): a list of
     ``{"f_n_hz", "zeta", "gain"}`` (None for a fold whose search finds no ring; ``gain`` None where the fold's
-    training rows cannot fit the column)."""
+    training rows cannot fit the column). ``paths``: per fold the drive's path between samples searched through
+    (:class:`~.effects.HeldDrive`; default the stage's held drive)."""
     import copy
     from .effects import held_mode_column
     t, split = ctx["t"], ctx["split"]
@@ -2078,6 +2172,8 @@ def _held_fold_fits(c, ctx, extra):
         idx = np.flatnonzero(rows)
         e = copy.deepcopy(c["eff"])
         e.__dict__.pop("_grid_costs", None)
+        if paths is not None:
+            e.held = paths[f]
         try:
             p = e.fit(t, u, y - yhat, rows, y_model=yhat, project=_held_fold_projection(prob, extra[key], idx),
                       held=True)

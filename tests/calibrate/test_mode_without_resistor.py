@@ -1,0 +1,154 @@
+"""A mode on a record with no series resistor (session 35, s35_rout; the review of s34_hold, B1).
+
+Without the resistor the stack's terminal is the logged voltage itself: nothing between the amplifier and the stack
+filters the drive, so a mode far above the record's Nyquist frequency rings in the samples at its alias, and what
+tells it from its images is how the drive moved between samples. The record does not say how: a sampled smooth
+voltage (a straight line between samples, the first-order hold), a command held from sample to sample (a step at
+each sample), or a slew over part of the sample. Before session 35 such a record had no alias-family test: 8 of 30 modes drawn 30-700 Hz at 100 Hz were
+named at an alias and written (89.2 Hz at 11.62 Hz, gain 0.51). Now every mode named there is tested in its family
+through every path from the step to the straight line (:func:`~workbench.calibrate.tracing.direct_drives`,
+:meth:`~workbench.calibrate.effects.HeldDrive.direct`) and written only where the record places it.
+
+The records are simulated by the simulator's own means, independently of the paths: the straight line by
+``simulate_record(upsample=8)`` (the command interpolated onto 8 points a sample), the held command by
+``upsample=1`` (the simulator's ramp over the first of its ``N_SUB`` sub-steps a sample).
+"""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from tests.conftest import load_benchmark, reduced_draws
+from workbench.calibrate.effects import HeldDrive, _foh_mode, held_mode_column
+
+
+@pytest.mark.parametrize("f_hz, zeta", [(41.5, 0.01), (69.5, 0.007), (358.9, 0.018)])
+def test_the_direct_paths_are_the_first_and_zero_order_holds(f_hz, zeta):
+    """``HeldDrive.direct``: the mode driven along the straight line over the whole sample (``ramp_fraction`` 1) is
+    the first-order hold's discretization (the search's own column, ``_foh_mode``); along the step (0), scipy's
+    zero-order-hold discretization of ``w^2 / (s^2 + 2 zeta w s + w^2)`` driven by each sample's value held over the
+    interval ending at it. Both to 1e-10 of the column, below and above Nyquist (100 Hz sampling)."""
+    dt, n = 0.01, 2000
+    u = np.cumsum(np.random.default_rng(3521).standard_normal(n))
+    u -= u[0]
+    lin = held_mode_column(u, HeldDrive.direct(n, dt, 1.0), f_hz, zeta)
+    b, a = _foh_mode(f_hz, zeta, dt)
+    ref = signal.lfilter(b, a, u) - u
+    assert np.max(np.abs(lin - ref)) < 1e-10 * np.max(np.abs(ref))
+    stp = held_mode_column(u, HeldDrive.direct(n, dt, 0.0), f_hz, zeta)
+    w = 2 * np.pi * f_hz
+    bz, az, _ = signal.cont2discrete(([w * w], [1.0, 2 * zeta * w, w * w]), dt, method="zoh")
+    # (interval k holds u_k: the standard zero-order hold's input, which holds u_k over the interval after k, led a
+    # sample)
+    ref = signal.lfilter(np.ravel(bz), az, np.r_[u[1:], u[-1]]) - u
+    assert np.max(np.abs(stp - ref)) < 1e-10 * np.max(np.abs(ref))
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValueError):
+            HeldDrive.direct(n, dt, bad)
+
+
+@pytest.mark.parametrize("f_hz, zeta", [(41.5, 0.01), (124.0, 0.0075)])
+def test_a_ramp_over_the_first_sub_step_is_the_simulator_s_held_command_without_a_resistor(sn637, f_hz, zeta):
+    """The simulator's record of a held command with no series resistor (``upsample=1``, ``N_SUB`` sub-steps a
+    sample, its input linear over each sub-step) moves the stack along a ramp over the first ``1 / N_SUB`` of each
+    sample: the mode's motion (the record with the mode less the same record without it, noise-free) is
+    ``held_mode_column`` along ``HeldDrive.direct(..., 1 / N_SUB)`` of the motion without it, to 1e-6 of its size;
+    the step's and the straight line's are off by more than a tenth."""
+    from workbench.calibrate.synthetic import N_SUB, SensorNoise, benchmark_protocol, simulate_record
+    from workbench.plant.additions import Additions
+    from workbench.plant.pzt import Mode
+    rate = 100.0
+    t, v = benchmark_protocol("steps", rate, 1500)
+    pz = dataclasses.replace(sn637.pzt, creep=None, modes=(Mode(f_hz, zeta),), series_resistance_ohm=0.0)
+    quiet = dict(noise=SensorNoise(0.0, 0.0, 0.0), gauge=False)
+    x = simulate_record(dataclasses.replace(sn637, pzt=pz, additions=Additions()), t, v, **quiet)["x_true_m"]
+    x0 = simulate_record(dataclasses.replace(sn637, pzt=dataclasses.replace(pz, modes=()), additions=Additions()),
+                         t, v, **quiet)["x_true_m"]
+    err = {}
+    for a in (1.0 / N_SUB, 0.0, 1.0):
+        col = held_mode_column(x0, HeldDrive.direct(t.size, 1.0 / rate, a), f_hz, zeta)
+        err[a] = np.max(np.abs(x - x0 - col)) / np.max(np.abs(x - x0))
+    assert err[1.0 / N_SUB] < 1e-6, err
+    assert err[0.0] > 0.1 and err[1.0] > 0.1, err
+
+
+def _r_out_trace(plant0, protocol, f_hz, zeta, seed, hold):
+    """A 100 Hz record of the benchmark's protocol, one mode, no series resistor; the command between samples a
+    straight line (``hold="linear"``) or held (``"held"``, the simulator's own). The tracing's result."""
+    from workbench.calibrate.base_fit import fit_base
+    from workbench.calibrate.splits import make_split
+    from workbench.calibrate.synthetic import benchmark_protocol, simulate_record
+    from workbench.calibrate.tracing import trace_effect
+    from workbench.plant.additions import Additions
+    from workbench.plant.pzt import Mode
+    cc = load_benchmark("calibrate_confusion")
+    rate = 100.0
+    t, v = benchmark_protocol(protocol, rate, cc.ROWS[rate])
+    pz = dataclasses.replace(plant0.pzt, creep=None, modes=(Mode(f_hz, zeta),), series_resistance_ohm=0.0)
+    plant = dataclasses.replace(plant0, pzt=pz, additions=Additions())
+    r = simulate_record(plant, t, v, seed=seed, upsample=8 if hold == "linear" else 1)
+    sp = make_split(t, r["voltage_v"], "blocks")
+    base = fit_base(cc._record(r, 1.0 / rate), 0.0, train=sp.train, test=sp.test, pzt=plant.pzt,
+                    dac_range_v=plant.gauge.dac_range_v)
+    return trace_effect(base, split=sp)
+
+
+# single modes 30-700 Hz log-uniform (the review's range: below and far above the 50 Hz Nyquist frequency), the
+# benchmark's damping range, the three protocols in turn, the straight line and the held command alternately; default_rng(3522),
+# drawn before the rule was run on any. Measured (2026-11-28, s35_rout): none written at a wrong frequency; the
+# second (124.0 Hz, held command) was written at 23.85 Hz while a member whose straight-line column needed a gain of
+# 4.85 was dropped as no stack mode's (a rule tried and withdrawn: the held command's path is neither the step nor the
+# straight line). make test runs that one (~4.5 s), WORKBENCH_FULL=1 all twelve
+_RNG = np.random.default_rng(3522)
+_DRAWS = [(("sine", "calibration", "steps")[k % 3], float(np.exp(_RNG.uniform(np.log(30.0), np.log(700.0)))),
+           float(_RNG.uniform(0.005, 0.02)), int(_RNG.integers(1 << 30)), ("linear", "held")[k % 2]) for k in range(12)]
+DRAWS = reduced_draws(_DRAWS, keep=(1,))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol, f_hz, zeta, seed, hold", DRAWS)
+def test_a_mode_on_a_record_without_a_resistor_is_written_at_its_frequency_or_not_at_all(sn637, protocol, f_hz, zeta,
+                                                                                         seed, hold):
+    """Whatever a 100 Hz record without a series resistor names, the mode the plant file carries (``unplaced_modes``
+    leaves out what the folds do not place) is the drawn one, within a quarter of its half-power bandwidth ``2 zeta
+    f``; every mode named carries its alias family, and one left out says why in its note. The truth is the draw's."""
+    from workbench.calibrate.plant_update import unplaced_modes
+    res = _r_out_trace(sn637, protocol, f_hz, zeta, seed, hold)
+    un = unplaced_modes(res["stages"])
+    for st in res["stages"]:
+        if st["effect"] != "resonance":
+            continue
+        assert st.get("alias_family") is not None, st
+        if (st["effect"], st["channel"]) in un:
+            assert "not placed" in st["note"] and st["note"] == st["alias_family"]["note"]
+        else:
+            assert abs(st["parameters"]["f_n_hz"] - f_hz) < 0.25 * 2 * zeta * f_hz, (st["parameters"], f_hz)
+
+
+# modes below the Nyquist frequency on the straight-line drive (where the record tells a mode from its images: each
+# image's column fits the ring only with a negative gain or one no stack mode takes), 20-45 Hz log-uniform, the
+# three protocols in turn; default_rng(3523), drawn before the rule was run on any. Measured: the four calibration
+# and steps draws placed at their frequency; the two under the sine protocol name no mode at all (main alike): a
+# detection miss, not a placement, kept as strict xfails. make test runs the first (~4.5 s)
+_RNG2 = np.random.default_rng(3523)
+_BELOW = [(("calibration", "steps", "sine")[k % 3], float(np.exp(_RNG2.uniform(np.log(20.0), np.log(45.0)))),
+           float(_RNG2.uniform(0.005, 0.02)), int(_RNG2.integers(1 << 30))) for k in range(6)]
+_SINE_NONE = pytest.mark.xfail(strict=True, reason="the 100 Hz sine record names no mode (none on 5 of 5 folds; main "
+                                                   "alike): not named, so not placed")
+BELOW = reduced_draws([pytest.param(*d, marks=[_SINE_NONE]) if d[0] == "sine" else d for d in _BELOW], keep=(0,))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("protocol, f_hz, zeta, seed", BELOW)
+def test_a_mode_below_nyquist_on_a_straight_line_drive_is_placed(sn637, protocol, f_hz, zeta, seed):
+    """A mode below Nyquist under a sampled smooth drive without a resistor (the simulator's default noise) is
+    named, placed in its alias family and written at its frequency (a quarter of its half-power bandwidth)."""
+    from workbench.calibrate.plant_update import unplaced_modes
+    res = _r_out_trace(sn637, protocol, f_hz, zeta, seed, "linear")
+    modes = [st for st in res["stages"] if st["effect"] == "resonance"]
+    assert modes, (res["effect"], res.get("fold_winners"))
+    st = modes[0]
+    assert (st["effect"], st["channel"]) not in unplaced_modes(res["stages"]), st.get("note")
+    assert abs(st["parameters"]["f_n_hz"] - f_hz) < 0.25 * 2 * zeta * f_hz, (st["parameters"], f_hz)
