@@ -970,8 +970,9 @@ def trace_effect(base: BaseFit, split=None, penalty=0.02, noise_factor=1.0, n_nu
     for k, s in enumerate(out["stages"]):
         fam = s.get("alias_family")
         if fam and not fam["resolved"]:
-            # a held drive's mode above Nyquist the record cannot place in its alias family: said, and the plant
-            # file does not carry it as measured (plant_update.carried_stages)
+            # a held drive's mode above Nyquist (or a mode of a record with no series resistor) the record cannot
+            # place in its alias family: said, and the plant file does not carry it as measured
+            # (plant_update.carried_stages)
             s["note"] = fam["note"]
             if k == 0:
                 out["reason"] += f"; {fam['note']}"
