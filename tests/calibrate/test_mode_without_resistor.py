@@ -4,10 +4,11 @@ Without the resistor the stack's terminal is the logged voltage itself: nothing 
 filters the drive, so a mode far above the record's Nyquist frequency rings in the samples at its alias, and what
 tells it from its images is how the drive moved between samples. The record does not say how: a sampled smooth
 voltage (a straight line between samples, the first-order hold), a command held from sample to sample (a step at
-each sample), or a slew over part of the sample. Before session 35 such a record had no alias-family test: 8 of 30 modes drawn 30-700 Hz at 100 Hz were
-named at an alias and written (89.2 Hz at 11.62 Hz, gain 0.51). Now every mode named there is tested in its family
-through every path from the step to the straight line (:func:`~workbench.calibrate.tracing.direct_drives`,
-:meth:`~workbench.calibrate.effects.HeldDrive.direct`) and written only where the record places it.
+each sample), or a slew over part of the sample. Before session 35 such a record had no alias-family test: 8 of 30
+modes drawn 30-700 Hz at 100 Hz were named at an alias and written (89.2 Hz at 11.62 Hz, gain 0.51). Now every
+mode named there is tested in its family through every path from the step to the straight line
+(:func:`~workbench.calibrate.tracing.direct_drives`, :meth:`~workbench.calibrate.effects.HeldDrive.direct`) and
+written only where the record places it.
 
 The records are simulated by the simulator's own means, independently of the paths: the straight line by
 ``simulate_record(upsample=8)`` (the command interpolated onto 8 points a sample), the held command by
@@ -96,11 +97,12 @@ def _r_out_trace(plant0, protocol, f_hz, zeta, seed, hold):
 
 
 # single modes 30-700 Hz log-uniform (the review's range: below and far above the 50 Hz Nyquist frequency), the
-# benchmark's damping range, the three protocols in turn, the straight line and the held command alternately; default_rng(3522),
-# drawn before the rule was run on any. Measured (2026-11-28, s35_rout): none written at a wrong frequency; the
-# second (124.0 Hz, held command) was written at 23.85 Hz while a member whose straight-line column needed a gain of
-# 4.85 was dropped as no stack mode's (a rule tried and withdrawn: the held command's path is neither the step nor the
-# straight line). make test runs that one (~4.5 s), WORKBENCH_FULL=1 all twelve
+# benchmark's damping range, the three protocols in turn, the straight line and the held command alternately;
+# default_rng(3522), drawn before the rule was run on any. Measured (2026-11-28, s35_rout): none written at a
+# wrong frequency; the second (124.0 Hz, held command) was written at 23.85 Hz by a rule tried and withdrawn (only
+# the step and the straight line tested, and a member whose straight-line column needed a gain of 4.85 dropped as
+# no stack mode's: the held command's path is neither). make test runs that one (~4.5 s), WORKBENCH_FULL=1 all
+# twelve
 _RNG = np.random.default_rng(3522)
 _DRAWS = [(("sine", "calibration", "steps")[k % 3], float(np.exp(_RNG.uniform(np.log(30.0), np.log(700.0)))),
            float(_RNG.uniform(0.005, 0.02)), int(_RNG.integers(1 << 30)), ("linear", "held")[k % 2]) for k in range(12)]

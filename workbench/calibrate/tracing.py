@@ -94,8 +94,9 @@ from .effects import (HELD_SETTLED, RING_ZETA_MAX, SLOW_CYCLES_PER_RECORD, Delay
                       Resonance)
 from .pi_fit import rms, turning_points
 
-__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family", "direct_drives",
-           "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "MODE_GAIN_READ_TOP", "ALIAS_ABOVE_BAND",
+__all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
+           "direct_drives", "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "MODE_GAIN_READ_TOP",
+           "ALIAS_ABOVE_BAND",
            "alias_members", "ALIAS_ZETA_FACTORS", "settle_time_constants"]
 
 SEARCH_ROWS = 50_000
@@ -2078,8 +2079,8 @@ MODE_GAIN_BAND = (8.0 / np.pi ** 2, 1.0)
 #: strain read there: ``8 / pi^2 (pi / 2) cos(pi xi / 2)``). The top of the gain band on a record with no series
 #: resistor (:func:`alias_family`), where the drive's two possible paths are exact forms: right modes named below
 #: Nyquist on such records fitted 1.02-1.04 (default_rng(3472)'s straight-line draws), above
-#: :data:`MODE_GAIN_BAND`'s one by 10-20 jackknife errors. A held drive's record keeps :data:`MODE_GAIN_BAND`: its path's
-#: settle is read from the record, and a wrong image there fitted 1.267 +/- 0.006 with every other test passed
+#: :data:`MODE_GAIN_BAND`'s one by 10-20 jackknife errors. A held drive's record keeps :data:`MODE_GAIN_BAND`: its
+#: path's settle is read from the record, and a wrong image there fitted 1.267 +/- 0.006 with every other test passed
 #: (default_rng(3402) m0, a 516.3 Hz mode named 311.8 Hz; session 34)
 MODE_GAIN_READ_TOP = 4.0 / np.pi
 
