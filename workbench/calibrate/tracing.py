@@ -96,7 +96,7 @@ from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
            "direct_drives", "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "MODE_GAIN_READ_TOP",
-           "ALIAS_ABOVE_BAND",
+           "ALIAS_ABOVE_BAND", "direct_image_reach",
            "alias_members", "ALIAS_ZETA_FACTORS", "settle_time_constants"]
 
 SEARCH_ROWS = 50_000
@@ -314,10 +314,13 @@ def settle_time_constants(base, dq, rc):
 #: a straight line from one sample's voltage to the next over this part of the sample, then held (0: a step, a command
 #: held with nothing to slow it; 1: a straight line over the whole sample, a sampled smooth voltage). The record does
 #: not say which (the logged current is the interval's mean whatever the path), so a mode's alias family is tested
-#: under each (:func:`alias_family`). Their spacing: a member ``f_m`` rings ``pi f_m dt`` later after a whole-sample
-#: ramp than after a step, so paths ``1/8`` apart differ by at most a quarter cycle at the family's top (two sample
-#: rates, :data:`ALIAS_ABOVE_BAND` times the Nyquist frequency), and a path between two of them is within an eighth
-#: of a cycle of one (the ring fitted to ``cos(pi / 8)``, 0.92, of its amplitude)
+#: under each (:func:`alias_family`). Their spacing: a member ``f_m`` rings ``pi f_m dt`` rad later after a
+#: whole-sample ramp than after a step (half the ramp's time), so paths ``1/8`` apart differ by at most ``pi / 4`` rad,
+#: an eighth of a cycle, at the family's top (two sample rates, :data:`ALIAS_ABOVE_BAND` times the Nyquist frequency),
+#: and a path between two of them is within ``pi / 8`` rad, a sixteenth of a cycle, of one (the ring fitted to
+#: ``cos(pi / 8)``, 0.92, of its amplitude). A path the grid does not hold is tested in
+#: tests/calibrate/test_mode_without_resistor.py (a slew over a third of the sample). Under a step-like path a mode
+#: beyond the family rings in the band too: :func:`direct_image_reach` says where, and such a mode is not placed
 DIRECT_RAMP_FRACTIONS = tuple(np.linspace(0.0, 1.0, 9))
 
 
@@ -2010,13 +2013,32 @@ def alias_family(c, ctx, extra):
         out["drive"] = "no series resistor"
         out["fold_ramp_fractions"] = fold_paths
     family_ok = resolved_folds >= need
-    out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
+    # (d) on a record with no series resistor, the members tested reach ALIAS_ABOVE_BAND times the band's top; a mode
+    # beyond them is ruled out only where the path the folds read leaves its image's gain under the band's floor
+    # (:func:`direct_image_reach`; the review of s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample
+    # named 36.13 Hz, gain 0.837, every other test passed, and written)
+    reach_ok = True
+    if direct:
+        reach = max(direct_image_reach(f0, h, dt, band) for h in fold_paths)
+        out["image_reach_hz"] = None if not np.isfinite(reach) else reach
+        reach_ok = reach <= ALIAS_ABOVE_BAND * f_top
+    out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok and reach_ok)
     if direct:
         what = ("mode (a record with no series resistor: its drive between samples read as every path from a step to "
                 "a straight line)")
     else:
         what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
-    if not out["resolved"]:
+    if not out["resolved"] and not reach_ok:
+        # the path read is step-like: an image from beyond the members tested rings here at a gain the band accepts
+        ramp = max(fold_paths)
+        beyond = ("at any frequency above them (a step between samples rings every mode alike)" if not np.isfinite(reach)
+                  else f"up to {reach:.4g} Hz")
+        out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: the folds read the drive between samples as a "
+                       f"ramp over {min(fold_paths):.3g}-{ramp:.3g} of the sample, through which a mode {beyond} rings "
+                       f"at its {f_a:.4g} Hz alias with a gain a stack mode takes ({lo:.2f}-{hi:.3g}), and the alias "
+                       f"family is tested to {ALIAS_ABOVE_BAND * f_top:.4g} Hz only: the {fs:.4g} Hz record does not tell the "
+                       f"mode's frequency; a record at a rate above twice the mode's frequency measures it")
+    elif not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
             left = [m for m, k in unresolved_by.items() if n_folds - k < need and m in out["rivals_hz"]]
@@ -2058,6 +2080,22 @@ def alias_family(c, ctx, extra):
                            f"searched, which ends at {f_top:.4g} Hz, {top_why}, at any alias); a record at "
                            f"a rate above twice the mode's frequency measures it")
     return out
+
+
+def direct_image_reach(f0_hz, ramp_fraction, dt, band):
+    """The highest frequency (Hz; ``inf`` for a step) at which a mode driven along :meth:`~.effects.HeldDrive.direct`
+    with ``ramp_fraction`` can ring at the alias ``f0_hz`` with a gain in ``band`` while its own share of the motion is
+    at most ``band[1]``.
+
+    A ramp over ``a dt`` excites a mode at ``f`` by ``|sinc(pi f a dt)|`` (``sin(x) / x``: the ramp's box derivative
+    against the mode; 1 for a step), so the column at ``f0`` fitted to an image's ring takes the image's own gain
+    times ``|sinc(pi f a dt)| / |sinc(pi f0 a dt)|``; under the envelope ``1 / (pi f a dt)`` that stays at or above
+    ``band[0]`` up to ``band[1] / (band[0] pi a dt |sinc(pi f0 a dt)|)``."""
+    x0 = np.pi * f0_hz * ramp_fraction * dt
+    if ramp_fraction <= 0.0:
+        return float("inf")
+    s0 = abs(np.sinc(x0 / np.pi))
+    return float(band[1] / (band[0] * np.pi * ramp_fraction * dt * s0))
 
 
 #: The alias family tested (:func:`alias_family`) reaches this factor times the held search's ceiling (the settle's
