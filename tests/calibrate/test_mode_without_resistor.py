@@ -77,7 +77,9 @@ def test_a_ramp_over_the_first_sub_step_is_the_simulator_s_held_command_without_
 
 def _r_out_trace(plant0, protocol, f_hz, zeta, seed, hold):
     """A 100 Hz record of the benchmark's protocol, one mode, no series resistor; the command between samples a
-    straight line (``hold="linear"``) or held (``"held"``, the simulator's own). The tracing's result."""
+    straight line (``hold="linear"``), held (``"held"``, the simulator's own: a slew over the first quarter of the
+    sample) or slewing over a third of it (``"slew3"``, a path between :data:`DIRECT_RAMP_FRACTIONS`' 1/4 and 3/8).
+    The tracing's result."""
     from workbench.calibrate.base_fit import fit_base
     from workbench.calibrate.splits import make_split
     from workbench.calibrate.synthetic import benchmark_protocol, simulate_record
@@ -89,7 +91,8 @@ def _r_out_trace(plant0, protocol, f_hz, zeta, seed, hold):
     t, v = benchmark_protocol(protocol, rate, cc.ROWS[rate])
     pz = dataclasses.replace(plant0.pzt, creep=None, modes=(Mode(f_hz, zeta),), series_resistance_ohm=0.0)
     plant = dataclasses.replace(plant0, pzt=pz, additions=Additions())
-    r = simulate_record(plant, t, v, seed=seed, upsample=8 if hold == "linear" else 1)
+    kw = {"n_sub": 3} if hold == "slew3" else {}          # a slew over a third of the sample: off the path grid
+    r = simulate_record(plant, t, v, seed=seed, upsample=8 if hold == "linear" else 1, **kw)
     sp = make_split(t, r["voltage_v"], "blocks")
     base = fit_base(cc._record(r, 1.0 / rate), 0.0, train=sp.train, test=sp.test, pzt=plant.pzt,
                     dac_range_v=plant.gauge.dac_range_v)
@@ -106,6 +109,11 @@ def _r_out_trace(plant0, protocol, f_hz, zeta, seed, hold):
 _RNG = np.random.default_rng(3522)
 _DRAWS = [(("sine", "calibration", "steps")[k % 3], float(np.exp(_RNG.uniform(np.log(30.0), np.log(700.0)))),
            float(_RNG.uniform(0.005, 0.02)), int(_RNG.integers(1 << 30)), ("linear", "held")[k % 2]) for k in range(12)]
+# and four more on a slew over a third of the sample, a path the grid does not hold (review of s35_rout, S2),
+# default_rng(3524), drawn before run: full form only
+_RNG3 = np.random.default_rng(3524)
+_DRAWS += [(("sine", "calibration", "steps")[k % 3], float(np.exp(_RNG3.uniform(np.log(30.0), np.log(700.0)))),
+            float(_RNG3.uniform(0.005, 0.02)), int(_RNG3.integers(1 << 30)), "slew3") for k in range(4)]
 DRAWS = reduced_draws(_DRAWS, keep=(1,))
 
 
@@ -129,17 +137,46 @@ def test_a_mode_on_a_record_without_a_resistor_is_written_at_its_frequency_or_no
             assert abs(st["parameters"]["f_n_hz"] - f_hz) < 0.25 * 2 * zeta * f_hz, (st["parameters"], f_hz)
 
 
+def test_a_ramp_excites_a_mode_by_the_sinc_of_its_length():
+    """``direct_image_reach``'s premise: a drive step moved along a ramp over ``a dt`` rings a mode at ``f`` by
+    ``|sinc(pi f a dt)|`` of what a step rings (the exact held column of one step, 100 Hz sampling, modes below and
+    far above Nyquist, ramps on and off the path grid); so at the reach a mode whose share is the band's top rings
+    at the alias with the band's floor, and a step (``a = 0``) reaches every frequency."""
+    from workbench.calibrate.tracing import MODE_GAIN_BAND, direct_image_reach
+    dt, n = 0.01, 400
+    u = np.zeros(n)
+    u[50:] = 1.0
+
+    def ring(f, a):
+        col = held_mode_column(u, HeldDrive.direct(n, dt, a), f, 1e-6)[60:]   # after the ramp: the free ring
+        tk = dt * np.arange(col.size)
+        w = 2 * np.pi * f * np.sqrt(1 - 1e-12)
+        basis = np.exp(-1e-6 * 2 * np.pi * f * tk)[:, None] * np.c_[np.cos(w * tk), np.sin(w * tk)]
+        return np.hypot(*np.linalg.lstsq(basis, col, rcond=None)[0])             # its amplitude
+    for f in (23.0, 130.0, 635.9):
+        for a in (1.0 / 16, 1.0 / 3, 0.5, 1.0):
+            assert ring(f, a) / ring(f, 0.0) == pytest.approx(abs(np.sinc(f * a * dt)), abs=1e-5), (f, a)
+    band = (MODE_GAIN_BAND[0], 1.0)
+    assert direct_image_reach(36.1, 0.0, dt, band) == np.inf
+    for f0, a in ((36.1, 1.0 / 8), (12.0, 1.0), (45.0, 0.25)):
+        f = direct_image_reach(f0, a, dt, band)
+        envelope = 1.0 / (np.pi * f * a * dt)                     # |sinc| at its lobes' peaks
+        assert band[1] * envelope / abs(np.sinc(f0 * a * dt)) == pytest.approx(band[0], rel=1e-9)
+
+
 # modes below the Nyquist frequency on the straight-line drive (where the record tells a mode from its images: each
 # image's column fits the ring only with a negative gain or one no stack mode takes), 20-45 Hz log-uniform, the
 # three protocols in turn; default_rng(3523), drawn before the rule was run on any. Measured: the four calibration
 # and steps draws placed at their frequency; the two under the sine protocol name no mode at all (main alike): a
-# detection miss, not a placement, kept as strict xfails. make test runs the first (~4.5 s)
+# detection miss, not a placement, kept as strict xfails. Full form only (4.5-7.9 s each; review of s35_rout, S3):
+# make test's guard of the same code is the 124 Hz draw above (alias_family through direct_drives) and the gain
+# band's test below (its top); what only these draws catch is a placed mode lost
 _RNG2 = np.random.default_rng(3523)
 _BELOW = [(("calibration", "steps", "sine")[k % 3], float(np.exp(_RNG2.uniform(np.log(20.0), np.log(45.0)))),
            float(_RNG2.uniform(0.005, 0.02)), int(_RNG2.integers(1 << 30))) for k in range(6)]
 _SINE_NONE = pytest.mark.xfail(strict=True, reason="the 100 Hz sine record names no mode (none on 5 of 5 folds; main "
                                                    "alike): not named, so not placed")
-BELOW = reduced_draws([pytest.param(*d, marks=[_SINE_NONE]) if d[0] == "sine" else d for d in _BELOW], keep=(0,))
+BELOW = reduced_draws([pytest.param(*d, marks=[_SINE_NONE]) if d[0] == "sine" else d for d in _BELOW], keep=())
 
 
 @pytest.mark.slow
