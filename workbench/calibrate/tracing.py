@@ -2014,13 +2014,18 @@ def alias_family(c, ctx, extra):
         out["fold_ramp_fractions"] = fold_paths
     family_ok = resolved_folds >= need
     # (d) on a record with no series resistor, the members tested reach ALIAS_ABOVE_BAND times the band's top; a mode
-    # beyond them is ruled out only where the path the folds read leaves its image's gain under the band's floor
-    # (:func:`direct_image_reach`; the review of s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample
-    # named 36.13 Hz, gain 0.837, every other test passed, and written)
+    # beyond them rings at the same alias with a gain the band accepts up to direct_image_reach under the paths
+    # admitted (every frequency under the step: the record does not say the path, and the path a fold reads through
+    # the named frequency is itself aliased: an image's ring delayed by its ramp reads as another ramp), and only as
+    # far as its own damping, ``zeta f / f_m`` (the named ring's decay), is at least the least a stack's mode takes
+    # (the search's ``zeta_min``). A mode whose reach passes the members tested is not placed (the review of
+    # s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample named 36.13 Hz, zeta 0.0998, gain 0.837,
+    # every other test passed, and written; its images to 1800 Hz decay as it does at zeta >= 0.002)
     reach_ok = True
     if direct:
-        reach = max(direct_image_reach(f0, h, dt, band) for h in fold_paths)
-        out["image_reach_hz"] = None if not np.isfinite(reach) else reach
+        reach = min(max(direct_image_reach(f0, h, dt, band) for h in holds),
+                    float(p["zeta"]) * f0 / float(eff.zeta_min))
+        out["image_reach_hz"] = reach
         reach_ok = reach <= ALIAS_ABOVE_BAND * f_top
     out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok and reach_ok)
     if direct:
@@ -2029,15 +2034,13 @@ def alias_family(c, ctx, extra):
     else:
         what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
     if not out["resolved"] and not reach_ok:
-        # the path read is step-like: an image from beyond the members tested rings here at a gain the band accepts
-        ramp = max(fold_paths)
-        beyond = ("at any frequency above them (a step between samples rings every mode alike)" if not np.isfinite(reach)
-                  else f"up to {reach:.4g} Hz")
-        out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: the folds read the drive between samples as a "
-                       f"ramp over {min(fold_paths):.3g}-{ramp:.3g} of the sample, through which a mode {beyond} rings "
-                       f"at its {f_a:.4g} Hz alias with a gain a stack mode takes ({lo:.2f}-{hi:.3g}), and the alias "
-                       f"family is tested to {ALIAS_ABOVE_BAND * f_top:.4g} Hz only: the {fs:.4g} Hz record does not tell the "
-                       f"mode's frequency; a record at a rate above twice the mode's frequency measures it")
+        # an image from beyond the members tested can ring here at a gain the band accepts and the named decay
+        out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: a drive that steps between samples rings a "
+                       f"mode up to {reach:.4g} Hz (where its damping, at the named ring's decay, reaches the least a "
+                       f"stack's mode takes, {float(eff.zeta_min):g}) at its {f_a:.4g} Hz alias with a gain a stack "
+                       f"mode takes ({lo:.2f}-{hi:.3g}), and its alias family is tested to "
+                       f"{ALIAS_ABOVE_BAND * f_top:.4g} Hz only: the {fs:.4g} Hz record does not tell the mode's "
+                       f"frequency; a record at a rate above twice the mode's frequency measures it")
     elif not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
