@@ -2018,7 +2018,7 @@ def alias_family(c, ctx, extra):
     # admitted (every frequency under the step: the record does not say the path, and the path a fold reads through
     # the named frequency is itself aliased: an image's ring delayed by its ramp reads as another ramp), and only as
     # far as its own damping, ``zeta f / f_m`` (the named ring's decay), is at least the least a stack's mode takes
-    # (the search's ``zeta_min``). A mode whose reach passes the members tested is not placed (the review of
+    # (the search's ``zeta_min``). A mode with an image in that reach beyond the members tested is not placed (review of
     # s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample named 36.13 Hz, zeta 0.0998, gain 0.837,
     # every other test passed, and written; its images to 1800 Hz decay as it does at zeta >= 0.002)
     reach_ok = True
@@ -2026,7 +2026,9 @@ def alias_family(c, ctx, extra):
         reach = min(max(direct_image_reach(f0, h, dt, band) for h in holds),
                     float(p["zeta"]) * f0 / float(eff.zeta_min))
         out["image_reach_hz"] = reach
-        reach_ok = reach <= ALIAS_ABOVE_BAND * f_top
+        beyond = [m for m in alias_members(f0, 1.0 / dt, 0.0, reach) if m > ALIAS_ABOVE_BAND * f_top * (1 + 1e-9)]
+        out["beyond_family_hz"] = beyond
+        reach_ok = not beyond
     out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok and reach_ok)
     if direct:
         what = ("mode (a record with no series resistor: its drive between samples read as every path from a step to "
@@ -2036,9 +2038,10 @@ def alias_family(c, ctx, extra):
     if not out["resolved"] and not reach_ok:
         # an image from beyond the members tested can ring here at a gain the band accepts and the named decay
         out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: a drive that steps between samples rings a "
-                       f"mode up to {reach:.4g} Hz (where its damping, at the named ring's decay, reaches the least a "
-                       f"stack's mode takes, {float(eff.zeta_min):g}) at its {f_a:.4g} Hz alias with a gain a stack "
-                       f"mode takes ({lo:.2f}-{hi:.3g}), and its alias family is tested to "
+                       f"mode at {' / '.join(f'{m:.4g}' for m in beyond[:4])}{' ...' if len(beyond) > 4 else ''} Hz "
+                       f"(to {reach:.4g} Hz, where its damping at the named ring's decay reaches the least a "
+                       f"stack's mode takes, {float(eff.zeta_min):g}) at the same {f_a:.4g} Hz alias with a gain a "
+                       f"stack mode takes ({lo:.2f}-{hi:.3g}), and its alias family is tested to "
                        f"{ALIAS_ABOVE_BAND * f_top:.4g} Hz only: the {fs:.4g} Hz record does not tell the mode's "
                        f"frequency; a record at a rate above twice the mode's frequency measures it")
     elif not out["resolved"]:
