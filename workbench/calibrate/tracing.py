@@ -1942,30 +1942,15 @@ def alias_family(c, ctx, extra):
     members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), reach)
     if len(members) < 2:
         return None
-    tested = {(h, k) for h in paths for k, f_m in enumerate(members) if f_m <= fam_top * (1 + 1e-9)}
-    all_paths = dict(paths)
-    if direct:
-        # (a member beyond fam_top under the ramps that reach it (direct_image_reach), 0 to there, spaced as the grid
-        # is at fam_top: a quarter cycle of the member's delay ``pi f_m a dt`` apart, so a path between two is
-        # within an eighth of a cycle of one -- the grid's 1/8 is half a cycle at 636 Hz on a 100 Hz record)
-        n_t = np.asarray(c["u"]).size
-        for k, f_m in enumerate(members):
-            if f_m <= fam_top * (1 + 1e-9):
-                continue
-            step = 1.0 / (4.0 * f_m * dt)
-            for j in range(int(1.0 / step) + 1):
-                a = float(round(j * step, 12))
-                if a > 1.0 or direct_image_reach(f0, a, dt, band) < f_m:
-                    break
-                if a not in all_paths:
-                    all_paths[a] = HeldDrive.direct(n_t, dt, a)
-                tested.add((a, k))
+    path_reach = {h: (direct_image_reach(f0, h, dt, band) if direct else fam_top) for h in paths}
+    tested = {(h, k) for h in paths for k, f_m in enumerate(members) if f_m <= fam_top * (1 + 1e-9)
+              or f_m <= path_reach[h]}
     n_folds = len(split.folds)
     u = np.asarray(c["u"], float)
     holds = list(paths)
     # per path, per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
     grams = {}
-    for h, path in all_paths.items():
+    for h, path in paths.items():
         grams[h] = {}
         for k, f_m in enumerate(members):
             if (h, k) not in tested:
@@ -1982,7 +1967,7 @@ def alias_family(c, ctx, extra):
     fold_paths = []
     for f, (tr, va) in enumerate(split.folds):
         va_sse, tr_sse, n = {}, {}, None
-        for h in all_paths:
+        for h in holds:
             for k, per_z in grams[h].items():
                 fits = [(gf[f], prob.solve(gf[f], tr)) for gf in per_z]
                 g, w = min(fits, key=lambda gw: prob.sse(gw[0], gw[1], tr)[0])
@@ -2017,8 +2002,7 @@ def alias_family(c, ctx, extra):
         for k, m in enumerate(members):
             if k == i0:
                 continue
-            missed = [h for h in all_paths if (h, k) in tested
-                      and not resolved_beyond(va_sse[h0, i0], va_sse[h, k], n)[0]]
+            missed = [h for h in holds if (h, k) in tested and not resolved_beyond(va_sse[h0, i0], va_sse[h, k], n)[0]]
             if missed:
                 unresolved_by[m] += 1
                 ok = ok and not any(rivals[h, k] for h in missed)
@@ -2037,7 +2021,7 @@ def alias_family(c, ctx, extra):
     above = [m for m in members if m > f_top]
     out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
            "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
-           "rivals_hz": [m for k, m in enumerate(members) if any(rivals.get((h, k)) for h in all_paths)],
+           "rivals_hz": [m for k, m in enumerate(members) if any(rivals.get((h, k)) for h in holds)],
            "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
            "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
            "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
