@@ -320,7 +320,7 @@ def settle_time_constants(base, dq, rc):
 #: and a path between two of them is within ``pi / 8`` rad, a sixteenth of a cycle, of one (the ring fitted to
 #: ``cos(pi / 8)``, 0.92, of its amplitude). A path the grid does not hold is tested in
 #: tests/calibrate/test_mode_without_resistor.py (a slew over a third of the sample). Under a step-like path a mode
-#: beyond the family rings in the band too: :func:`direct_image_reach` says where, and the family is tested to there
+#: beyond the family rings in the band too: :func:`direct_image_reach` says where, and such a mode is not placed
 DIRECT_RAMP_FRACTIONS = tuple(np.linspace(0.0, 1.0, 9))
 
 
@@ -1922,53 +1922,35 @@ def alias_family(c, ctx, extra):
     # (the members above the band searched are tested too: a mode there rings at the same alias, and the held search,
     # which cannot name it, names an in-band frequency near one of its images instead -- a 362.7 Hz mode drawn on
     # the calibration protocol, above the 331.6 Hz ceiling, named 261.8 Hz, gain 0.54, resolved in-band)
+    members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), ALIAS_ABOVE_BAND * f_top)
+    if len(members) < 2:
+        return None
     z_lo, z_hi = float(eff.zeta_min), float(max(min(eff.zeta_max, RING_ZETA_MAX), eff.zeta_min))
     # (the held path's damping is at most its ring cap; a first-order hold's mode named above it, up to zeta_max, is
     # tested at the cap: the held path's reading of a mode that rings)
     z0 = float(np.clip(z0, z_lo, z_hi))
-    band = (MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP) if direct else MODE_GAIN_BAND
-    fam_top = ALIAS_ABOVE_BAND * f_top
-    reach = fam_top
-    if direct:
-        # (on a record with no series resistor a mode beyond ALIAS_ABOVE_BAND times the band's top rings at the same
-        # alias with a gain the band accepts up to direct_image_reach under each path (every frequency under the step:
-        # the record does not say the path, and the path a fold reads through the named frequency is itself aliased,
-        # an image's ring delayed by its ramp reads as another ramp), and only as far as its own damping,
-        # ``zeta f / f_m`` (the named ring's decay), is at least the least a stack's mode takes (the search's
-        # ``zeta_min``): the family is tested to there, each member beyond fam_top under the paths that reach it
-        # (review of s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample named 36.13 Hz, zeta 0.0998,
-        # gain 0.837, every other test passed, and written; its images to 1800 Hz decay as it does at zeta >= 0.002)
-        reach = max(fam_top, z0 * f0 / z_lo)
-    members = alias_members(f0, 1.0 / dt, float(np.exp(eff._range(t)[0])), reach)
-    if len(members) < 2:
-        return None
-    path_reach = {h: (direct_image_reach(f0, h, dt, band) if direct else fam_top) for h in paths}
-    tested = {(h, k) for h in paths for k, f_m in enumerate(members) if f_m <= fam_top * (1 + 1e-9)
-              or f_m <= path_reach[h]}
     n_folds = len(split.folds)
     u = np.asarray(c["u"], float)
     holds = list(paths)
     # per path, per member, per damping, the per-fold Gram matrices with the found effects (the stage's joint columns)
     grams = {}
     for h, path in paths.items():
-        grams[h] = {}
-        for k, f_m in enumerate(members):
-            if (h, k) not in tested:
-                continue
+        grams[h] = []
+        for f_m in members:
             zs = sorted({float(np.clip(z0 * f0 / f_m * a, z_lo, z_hi)) for a in ALIAS_ZETA_FACTORS})
-            grams[h][k] = [_cand_grams(prob, extra[c["key"]],
-                                       {"g": prob.grams(held_mode_column(u, path, f_m, z), [-np.inf]),
-                                        "replaces": c.get("replaces")}, n_folds) for z in zs]
+            grams[h].append([_cand_grams(prob, extra[c["key"]],
+                                         {"g": prob.grams(held_mode_column(u, path, f_m, z), [-np.inf]),
+                                          "replaces": c.get("replaces")}, n_folds) for z in zs])
     i0 = members.index(f0)
     # per fold, each member under each path at its damping of least training error there: its validation blocks'
     # errors and its gain on the training blocks; the named frequency under the path of least training error there
     # (one path on a held drive's record; no fold's validation blocks choose anything)
-    per_fold, member_gains = [], {hk: [] for hk in tested}
+    per_fold, member_gains = [], {(h, k): [] for h in holds for k in range(len(members))}
     fold_paths = []
     for f, (tr, va) in enumerate(split.folds):
         va_sse, tr_sse, n = {}, {}, None
         for h in holds:
-            for k, per_z in grams[h].items():
+            for k, per_z in enumerate(grams[h]):
                 fits = [(gf[f], prob.solve(gf[f], tr)) for gf in per_z]
                 g, w = min(fits, key=lambda gw: prob.sse(gw[0], gw[1], tr)[0])
                 tr_sse[h, k] = float(prob.sse(g, w, tr)[0])
@@ -1991,10 +1973,11 @@ def alias_family(c, ctx, extra):
     # column fits the ring only with a gain above any share a stack's mode shows (:data:`MODE_GAIN_READ_TOP`) on
     # every fold is no place either (default_rng(3472)'s 41.5 Hz draw on a straight-line drive: 141.5 Hz fits the
     # ring's samples through the straight line at +3.48 on every fold, and left the named 41.5 Hz unresolved on 5)
+    band = (MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP) if direct else MODE_GAIN_BAND
 
     def no_place(gs):
         return all(g is not None and (g < 0.0 or (direct and g > band[1])) for g in gs)
-    rivals = {(h, k): k != i0 and not no_place(member_gains[h, k]) for (h, k) in tested}
+    rivals = {(h, k): k != i0 and not no_place(member_gains[h, k]) for h in holds for k in range(len(members))}
     resolved_folds = 0
     unresolved_by = {m: 0 for k, m in enumerate(members) if k != i0}
     for va_sse, n, h0 in per_fold:
@@ -2002,7 +1985,7 @@ def alias_family(c, ctx, extra):
         for k, m in enumerate(members):
             if k == i0:
                 continue
-            missed = [h for h in holds if (h, k) in tested and not resolved_beyond(va_sse[h0, i0], va_sse[h, k], n)[0]]
+            missed = [h for h in holds if not resolved_beyond(va_sse[h0, i0], va_sse[h, k], n)[0]]
             if missed:
                 unresolved_by[m] += 1
                 ok = ok and not any(rivals[h, k] for h in missed)
@@ -2021,7 +2004,7 @@ def alias_family(c, ctx, extra):
     above = [m for m in members if m > f_top]
     out = {"members_hz": members, "named_hz": f0, "folds": f"{resolved_folds} of {n_folds}",
            "unresolved_by": {f"{m:.6g}": k for m, k in unresolved_by.items()},
-           "rivals_hz": [m for k, m in enumerate(members) if any(rivals.get((h, k)) for h in holds)],
+           "rivals_hz": [m for k, m in enumerate(members) if any(rivals[h, k] for h in holds)],
            "fold_fits": fits, "folds_agree": f"{sum(agree)} of {n_folds}",
            "fold_gains": gains, "gain": {"mean": g_mean, "jackknife_se": g_se if np.isfinite(g_se) else None, "band": [lo, hi], "consistent": gain_ok},
            "band_hz": [float(np.exp(eff._range(t)[0])), f_top], "above_band_hz": above}
@@ -2030,15 +2013,38 @@ def alias_family(c, ctx, extra):
         out["drive"] = "no series resistor"
         out["fold_ramp_fractions"] = fold_paths
     family_ok = resolved_folds >= need
+    # (d) on a record with no series resistor, the members tested reach ALIAS_ABOVE_BAND times the band's top; a mode
+    # beyond them rings at the same alias with a gain the band accepts up to direct_image_reach under the paths
+    # admitted (every frequency under the step: the record does not say the path, and the path a fold reads through
+    # the named frequency is itself aliased: an image's ring delayed by its ramp reads as another ramp), and only as
+    # far as its own damping, ``zeta f / f_m`` (the named ring's decay), is at least the least a stack's mode takes
+    # (the search's ``zeta_min``). A mode with an image in that reach beyond the members tested is not placed (review of
+    # s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample named 36.13 Hz, zeta 0.0998, gain 0.837,
+    # every other test passed, and written; its images to 1800 Hz decay as it does at zeta >= 0.002)
+    reach_ok = True
     if direct:
+        reach = min(max(direct_image_reach(f0, h, dt, band) for h in holds),
+                    float(p["zeta"]) * f0 / float(eff.zeta_min))
         out["image_reach_hz"] = reach
-    out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok)
+        beyond = [m for m in alias_members(f0, 1.0 / dt, 0.0, reach) if m > ALIAS_ABOVE_BAND * f_top * (1 + 1e-9)]
+        out["beyond_family_hz"] = beyond
+        reach_ok = not beyond
+    out["resolved"] = bool(family_ok and sum(agree) >= need and gain_ok and reach_ok)
     if direct:
         what = ("mode (a record with no series resistor: its drive between samples read as every path from a step to "
                 "a straight line)")
     else:
         what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
-    if not out["resolved"]:
+    if not out["resolved"] and not reach_ok:
+        # an image from beyond the members tested can ring here at a gain the band accepts and the named decay
+        out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: a drive that steps between samples rings a "
+                       f"mode at {' / '.join(f'{m:.4g}' for m in beyond[:4])}{' ...' if len(beyond) > 4 else ''} Hz "
+                       f"(to {reach:.4g} Hz, where its damping at the named ring's decay reaches the least a "
+                       f"stack's mode takes, {float(eff.zeta_min):g}) at the same {f_a:.4g} Hz alias with a gain a "
+                       f"stack mode takes ({lo:.2f}-{hi:.3g}), and its alias family is tested to "
+                       f"{ALIAS_ABOVE_BAND * f_top:.4g} Hz only: the {fs:.4g} Hz record does not tell the mode's "
+                       f"frequency; a record at a rate above twice the mode's frequency measures it")
+    elif not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
             left = [m for m, k in unresolved_by.items() if n_folds - k < need and m in out["rivals_hz"]]
