@@ -18,6 +18,7 @@ from workbench.calibrate.protocol import calibration_protocol
 from workbench.calibrate.record import Record
 from workbench.calibrate.synthetic import plant_with_effect, simulate_record
 from workbench.calibrate.tracing import trace_effect
+from workbench.report import calibrate_figures
 from workbench.report.calibrate_figures import (MAX_POINTS, calibration_figures, decimate, residual_models,
                                                 residual_reports, si_scale)
 from workbench.report.calibrate_report import _num, calibration_markdown, parameter_rows
@@ -76,16 +77,50 @@ def none_result(traced):
     return out
 
 
+def _laid_out(fig):
+    """``fig``'s faults of layout at its saving resolution: texts out of the canvas, or two axes' texts overlapping
+    (each axes' tight box: its tick labels, axis labels, title and legend; a secondary axis is its parent's)."""
+    from matplotlib.transforms import Bbox
+    fig.set_dpi(120)
+    fig.draw_without_rendering()
+    r = fig.canvas.get_renderer()
+    px = 1.0                                                      # a pixel of antialiasing
+    faults = []
+    whole = fig.get_tightbbox(r)                                  # inches: every artist, the suptitle too
+    w, h = fig.get_size_inches()
+    if whole.x0 < -px / 120 or whole.y0 < -px / 120 or whole.x1 > w + px / 120 or whole.y1 > h + px / 120:
+        faults.append(f"outside the canvas {w:.2f} x {h:.2f} in: {whole.bounds}")
+    boxes = [(i, a.get_tightbbox(r)) for i, a in enumerate(fig.axes)]
+    for i, a in boxes:
+        for j, b in boxes[i + 1:]:
+            inter = Bbox.intersection(a, b)
+            if inter is not None and inter.width > px and inter.height > px:
+                faults.append(f"axes {i} and {j} overlap by {inter.width:.0f} x {inter.height:.0f} px")
+    return faults
+
+
+LAYOUT_FAULTS = {}          # (folder, figure) -> faults, filled by the ``drawn`` fixture
+
+
+def _checked_save(fig, path, **kw):
+    from workbench.report.output import save_figure
+    LAYOUT_FAULTS[Path(path).parent.name, Path(path).name] = _laid_out(fig)
+    return save_figure(fig, path, **kw)
+
+
 @pytest.fixture(scope="module")
 def drawn(traced, none_result, tmp_path_factory):
     """Each case's figures drawn once in the module, as ``workbench calibrate`` draws them (the effect case with
     its holds, the none case without, its residual reports given): ``{case: (paths, reports)}``. The tests only
-    read the files; ``test_figures_laid_out_once_are_the_same_pngs`` compares the matplotlib-saved PNGs with these."""
+    read the files; ``test_figures_laid_out_once_are_the_same_pngs`` compares the matplotlib-saved PNGs with these.
+    Each figure's layout faults (:func:`_laid_out`) are noted in ``LAYOUT_FAULTS`` before it is saved."""
     base, result, holds = traced
     out = tmp_path_factory.mktemp("figures")
     reports = residual_reports(base, none_result)
-    return {"effect": (calibration_figures(out / "effect" / "fig", base, result, holds=holds), None),
-            "none": (calibration_figures(out / "none", base, none_result, holds=None, reports=reports), reports)}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(calibrate_figures, "save_figure", _checked_save)
+        return {"effect": (calibration_figures(out / "effect" / "fig", base, result, holds=holds), None),
+                "none": (calibration_figures(out / "none", base, none_result, holds=None, reports=reports), reports)}
 
 
 def _check_pngs(paths, names):
@@ -135,6 +170,19 @@ def test_figures_laid_out_once_are_the_same_pngs(traced, none_result, drawn, tmp
                 assert a.read_bytes() == b.read_bytes(), a.name
             else:
                 assert np.array_equal(imread(a), imread(b)), a.name
+
+
+def test_figures_texts_inside_the_canvas_and_clear_of_each_other(drawn, tmp_path, monkeypatch):
+    """Every figure as it is saved (its fixed margins, or the candidates' constrained layout) keeps every text inside
+    the canvas and each axes' labels, titles and legends clear of the other axes': the effect case's six figures
+    and the none case's five (the ``drawn`` fixture), and holds whose tick labels and notes are as wide as they
+    come (gamma negative with four significant digits, L0 near -1000 of its unit, voltages of three digits)."""
+    from workbench.report import calibrate_figures as cf
+    monkeypatch.setattr(cf, "save_figure", _checked_save)
+    wide = [{"start_s": 1.0 + k, "voltage_v": -88.8, "step_v": -111.1, "gamma": -0.0012345 * (1 + 0.1 * k),
+             "sigma_gamma": 1e-5, "l0": -987.6e-6 * (1 - 0.01 * k), "sigma_l0": 1e-7} for k in range(6)]
+    cf._plot_holds(wide, tmp_path / "wide_holds.png")
+    assert len(LAYOUT_FAULTS) == 6 + 5 + 1 and not any(LAYOUT_FAULTS.values()), LAYOUT_FAULTS
 
 
 def test_candidates_and_holds_figures_when_nothing_fitted(traced, none_result, tmp_path):

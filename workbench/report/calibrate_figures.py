@@ -103,7 +103,8 @@ def decimate(t, y, max_points=MAX_POINTS):
 
 
 def _save(fig, path, dpi=120):
-    """:func:`~workbench.report.output.save_figure`, the constrained layout computed once.
+    """:func:`~workbench.report.output.save_figure`, the constrained layout computed once (the candidates'
+    figure; the others have fixed margins, :func:`_fixed_layout`, and no layout engine).
 
     Saving a figure with a layout engine lays it out twice (matplotlib draws it once without
     output to place it, then again to render it, placing it again): here the engine places it
@@ -124,6 +125,38 @@ def _save(fig, path, dpi=120):
             fig.set_dpi(old)
         fig.set_layout_engine(None)          # no engine (the rc's default): savefig draws once
     return save_figure(fig, path, dpi=dpi, png_compress_level=PNG_LEVEL)
+
+
+#: The space above a figure's top text (its suptitle), inches: constrained layout's own pad (4 points).
+TOP_PAD_IN = 4 / 72
+
+
+def _top_text_y(fig):
+    """The ``y`` (figure fraction) of a suptitle set ``TOP_PAD_IN`` below the top edge (``va="top"``), where
+    constrained layout put it."""
+    return 1.0 - TOP_PAD_IN / fig.get_figheight()
+
+
+def _fixed_layout(fig, left, right, bottom, top, hgap=0.0, wgap=0.0):
+    """Place ``fig``'s grid of axes with fixed margins, in inches: no layout engine to run.
+
+    ``left``, ``right``, ``bottom`` and ``top`` are the margins from each edge of the figure to the grid's outer
+    axes; ``hgap`` and ``wgap`` the space between two rows and between two columns. Constrained layout measured
+    every tick label of every axes twice to place them (~1 s CPU of the six figures of a 355,000-row protocol
+    record). The vertical margins are those it chose (the texts' heights do not depend on the data); the
+    horizontal ones the widest it chose on records of each effect at 100 Hz, 10 kHz and 1 MHz, plus ~0.1 in (tick
+    labels stay between 1 and 1000 of their unit, :func:`si_scale`). ``tests/calibrate/test_calibrate_report.py``
+    checks every figure's texts inside the canvas and clear of the other axes'.
+    """
+    w, h = fig.get_size_inches()
+    gs = fig.axes[0].get_subplotspec().get_gridspec()
+    nrows, ncols = gs.get_geometry()
+    width, height = w - left - right, h - bottom - top
+    # subplots_adjust's spaces are fractions of the mean axes' size: gap = space * size, size = (span - gaps) / n
+    hspace = nrows * hgap / (height - (nrows - 1) * hgap) if nrows > 1 else 0.0
+    wspace = ncols * wgap / (width - (ncols - 1) * wgap) if ncols > 1 else 0.0
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
+                        hspace=hspace, wspace=wspace)
 
 
 def _plot(ax, t, y, *args, **kwargs):
@@ -211,8 +244,7 @@ def residual_reports(base, result, max_lag=50):
 def _plot_overview(base, result, path):
     t = base.t
     names = list(base.channels)
-    fig, axes = plt.subplots(len(names) + 1, 1, sharex=True, figsize=(11, 2.3 * (len(names) + 1) + 0.8),
-                             layout="constrained")
+    fig, axes = plt.subplots(len(names) + 1, 1, sharex=True, figsize=(11, 2.3 * (len(names) + 1) + 0.8))
     axes = np.atleast_1d(axes)
     test = _held_out(base)
     av = axes[0]
@@ -246,8 +278,9 @@ def _plot_overview(base, result, path):
     axes[0].fill_between([], [], color=HELD_OUT["color"], label="held out (scored)")
     axes[0].legend(fontsize=7, loc="upper right")
     fig.suptitle(f"Record and base fit: {len(t)} samples, {t[-1] - t[0]:.3g} s; held-out rows shaded "
-                 f"({100 * test.mean():.0f} %)", fontsize=11)
+                 f"({100 * test.mean():.0f} %)", fontsize=11, y=_top_text_y(fig))
     fig.align_ylabels(axes)
+    _fixed_layout(fig, left=0.9, right=0.3, bottom=0.475, top=0.457, hgap=0.31)
     return _save(fig, path)
 
 
@@ -296,7 +329,7 @@ def _plot_residual(base, result, path):
     e0 = np.where(valid, m.y - before, np.nan)
     e1 = None if after is None else np.where(valid, m.y - after, np.nan)
     f, lab = si_scale(m.units, _peak(e0, e1))
-    fig = plt.figure(figsize=(11, 8), layout="constrained")
+    fig = plt.figure(figsize=(11, 8))
     gs = fig.add_gridspec(2, 2, height_ratios=[1.2, 1])
     ax = fig.add_subplot(gs[0, :])
     _shade_held_out(ax, t, _held_out(base))
@@ -370,7 +403,8 @@ def _plot_residual(base, result, path):
         a.set_xlim(tz[0], tz[-1])
     for a in (ax, az, ar):
         a.grid(True, alpha=0.3)
-    fig.suptitle(f"Residual of the {ch} (held-out rows shaded); answer: {effect}", fontsize=11)
+    fig.suptitle(f"Residual of the {ch} (held-out rows shaded); answer: {effect}", fontsize=11, y=_top_text_y(fig))
+    _fixed_layout(fig, left=0.85, right=0.35, bottom=0.475, top=0.47, hgap=0.695, wgap=1.15)
     return _save(fig, path)
 
 
@@ -400,7 +434,7 @@ def _verdict(rep, key):
 def _plot_correlation(base, result, reports, path):
     ch = _plot_channel(base, result)
     rb, ra = reports.get("before"), reports.get("after")
-    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 7.5), layout="constrained")
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(10, 7.5))
     lag_s = rb.sample_period_s
     k = rb.lags[1:]
     _corr_panel(a1, k, rb.autocorr[1:], None if ra is None else ra.autocorr[1:], rb.autocorr_bound,
@@ -417,7 +451,8 @@ def _plot_correlation(base, result, reports, path):
     a2.set_title(f"cross-correlation of the residual with the driving voltage (independence): before "
                  f"{_verdict(rb, 'independent')}, after {_verdict(ra, 'independent')}", fontsize=10)
     fig.suptitle(f"Residual tests as MATLAB resid: {100 * rb.confidence:.0f} % bands, N = {rb.n} samples, "
-                 f"effect: {result.get('effect', 'none')}", fontsize=11)
+                 f"effect: {result.get('effect', 'none')}", fontsize=11, y=_top_text_y(fig))
+    _fixed_layout(fig, left=1.05, right=0.15, bottom=0.475, top=0.813, hgap=1.051)
     return _save(fig, path)
 
 
@@ -435,7 +470,7 @@ def _plot_spectrum(base, result, path):
     fs = (t.size - 1) / (t[-1] - t[0])
     e0 = np.where(m.valid, m.y - before, 0.0)
     f, lab = si_scale(m.units, _peak(e0))
-    fig, ax = plt.subplots(figsize=(10, 5.5), layout="constrained")
+    fig, ax = plt.subplots(figsize=(10, 5.5))
     curves = [("before", e0, "C0", "-")]
     if after is not None:
         net = after - before          # what the effect changes (its static part the refitted base absorbs)
@@ -456,6 +491,7 @@ def _plot_spectrum(base, result, path):
     ax.legend(fontsize=8, loc="lower left")
     ax.set_title(f"Power spectral density of the {ch} residual, whole record (Welch, Hann, {nper}-sample "
                  f"segments = {fs / nper:.2g} Hz resolution)", fontsize=10)
+    _fixed_layout(fig, left=1.0, right=0.15, bottom=0.503, top=0.233)
     return _save(fig, path)
 
 
@@ -514,7 +550,7 @@ def _plot_candidates(result, path):
 def _plot_holds(holds, path):
     fitted = [h for h in holds if np.isfinite(h.get("gamma", np.nan))]
     skipped = [h for h in holds if not np.isfinite(h.get("gamma", np.nan))]
-    fig, (ag, al) = plt.subplots(2, 1, sharex=True, figsize=(10, 7), layout="constrained")
+    fig, (ag, al) = plt.subplots(2, 1, sharex=True, figsize=(10, 7))
     t0 = np.array([h["start_s"] for h in fitted], float)
     if fitted:
         g = np.array([h["gamma"] for h in fitted], float)
@@ -524,9 +560,14 @@ def _plot_holds(holds, path):
         fl, ll = si_scale("m", _peak(l0))
         ag.errorbar(t0, g, yerr=sg, fmt="o", color="C0", capsize=4, label="gamma +/- sigma (eq. 7)")
         al.errorbar(t0, l0 * fl, yerr=sl * fl, fmt="s", color="C2", capsize=4, label="L0 +/- sigma")
+        starts = [float(h["start_s"]) for h in holds]
+        mid = 0.5 * (min(starts) + max(starts))
         for ti, gi, h in zip(t0, g, fitted):
-            ag.annotate(f"{h['voltage_v']:.3g} V ({h['step_v']:+.3g} V)", (ti, gi), xytext=(5, 5),
-                        textcoords="offset points", fontsize=7)
+            # right of its point in the left half of the holds, left of it in the right half: inside the axes'
+            # fixed frame (the skipped holds' lines are drawn too)
+            right = ti > mid
+            ag.annotate(f"{h['voltage_v']:.3g} V ({h['step_v']:+.3g} V)", (ti, gi), xytext=(-5 if right else 5, 5),
+                        textcoords="offset points", fontsize=7, ha="right" if right else "left")
         al.set_ylabel(f"L0: change 0.1 s after the step ({ll})")
         ag.legend(fontsize=8, loc="best")
         al.legend(fontsize=8, loc="best")
@@ -546,6 +587,7 @@ def _plot_holds(holds, path):
         a.margins(x=0.08, y=0.15)
     ag.set_title(f"Seed 001's log creep law per hold, L(t) = L0 (1 + gamma log10(t / 0.1 s)): "
                  f"{len(fitted)} fitted, {len(skipped)} skipped", fontsize=10)
+    _fixed_layout(fig, left=1.15, right=0.25, bottom=0.475, top=0.233, hgap=0.132)
     return _save(fig, path)
 
 
