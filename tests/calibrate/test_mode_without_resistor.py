@@ -164,6 +164,33 @@ def test_a_ramp_excites_a_mode_by_the_sinc_of_its_length():
         assert band[1] * envelope / abs(np.sinc(f0 * a * dt)) == pytest.approx(band[0], rel=1e-9)
 
 
+
+def test_the_current_limit_bounds_how_far_a_record_s_steps_ring_an_image():
+    """``direct_slew_reach``: a step ``dv`` the amplifier moves at most ``slew`` V/s takes at least
+    ``a = dv / (slew dt)`` of its sample, so (the sinc premise above) a record of such steps rings a mode at ``f``
+    by at most ``1 / (pi f a dt)``: its reach is the ramp's own (:func:`direct_image_reach`, a record of one step
+    size, sinks and sources alike); a record with a step the limit cannot move in a sample is not bounded by it (the
+    declared limit does not describe the record), nor is one whose plant declares no limit."""
+    from workbench.calibrate.tracing import MODE_GAIN_BAND, direct_image_reach, direct_slew_reach
+    rng = np.random.default_rng(3661)
+    dt, band = 1e-3, (MODE_GAIN_BAND[0], 1.0)
+    slew = (333.3, 2333.3)                                        # V/s: 2 mA up, 14 mA down over 6 uF
+    for a in (0.1, 0.5, 1.0):
+        signs = rng.choice([-1.0, 1.0], 500)
+        dv = np.where(signs > 0, slew[0], slew[1]) * a * dt * signs
+        v = np.r_[0.0, np.cumsum(dv)]
+        for f0 in (37.0, 210.0, 480.0):
+            got = direct_slew_reach(f0, dt, band, v, slew, (a,))
+            assert got["steps_over"] == 0
+            want = direct_image_reach(f0, a, dt, band)
+            assert got["reach_hz"] == pytest.approx(max(want, 0.5 / dt), rel=1e-6), (a, f0)
+    v = np.r_[0.0, np.cumsum(np.full(200, 0.2))]
+    v[120:] += 5.0                                                # 5 V in a sample: 15 ms at 333 V/s
+    got = direct_slew_reach(100.0, dt, band, v, slew)
+    assert got["steps_over"] == 1 and got["reach_hz"] == np.inf
+    assert direct_slew_reach(100.0, dt, band, v[:100], None)["reach_hz"] == np.inf
+
+
 # modes below the Nyquist frequency on the straight-line drive (where the record tells a mode from its images: each
 # image's column fits the ring only with a negative gain or one no stack mode takes), 20-45 Hz log-uniform, the
 # three protocols in turn; default_rng(3523), drawn before the rule was run on any. Measured: the four calibration

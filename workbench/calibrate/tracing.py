@@ -96,7 +96,7 @@ from .pi_fit import rms, turning_points
 
 __all__ = ["trace_effect", "candidate_plan", "creep_loops", "noise_floor", "SEARCH_ROWS", "alias_family",
            "direct_drives", "folds_name_the_mode", "gain_is_a_modes", "MODE_GAIN_BAND", "MODE_GAIN_READ_TOP",
-           "ALIAS_ABOVE_BAND", "direct_image_reach",
+           "ALIAS_ABOVE_BAND", "direct_image_reach", "direct_slew_reach",
            "alias_members", "ALIAS_ZETA_FACTORS", "settle_time_constants"]
 
 SEARCH_ROWS = 50_000
@@ -1916,6 +1916,17 @@ def alias_family(c, ctx, extra):
         # Nyquist): its in-band image takes a gain under the band's floor, MODE_GAIN_BAND, and is not placed)
         f_top = float(eff.f_max_fraction / dt)
         top_why = "the Nyquist frequency"
+        # where the declared amplifier's current limit bounds every image above the Nyquist frequency under the
+        # band's floor (direct_slew_reach: the record's own steps at the limit), no member can take the ring from
+        # the named frequency: the family needs no test, and the mode is named as on any record (review of s35_rout,
+        # X2: at 1 kHz the test left out right modes below Nyquist that no image could ring)
+        f_n = float(p["f_n_hz"])
+        f_img = 1.0 / dt - min(f_n % (1.0 / dt), 1.0 / dt - f_n % (1.0 / dt))
+        base = ctx["base"]
+        slew = direct_slew_reach(f_n, dt, (MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP), base.v_drive,
+                                 getattr(base, "direct_slew_v_per_s", None), list(paths))
+        if slew["reach_hz"] < f_img:
+            return None
     from .effects import held_mode_column
     prob = ctx["probs"][c["key"]]
     f0, z0 = float(p["f_n_hz"]), float(p["zeta"])
@@ -2021,9 +2032,16 @@ def alias_family(c, ctx, extra):
     # (the search's ``zeta_min``). A mode with an image in that reach beyond the members tested is not placed (review of
     # s35_rout, X1: a 635.9 Hz mode under a ramp over 1/16 of the sample named 36.13 Hz, zeta 0.0998, gain 0.837,
     # every other test passed, and written; its images to 1800 Hz decay as it does at zeta >= 0.002)
+    # Where the plant declares the amplifier's current limit and the record's steps keep within it, the shortest path
+    # a step takes is its slew at the limit (direct_slew_reach, the brief of s36_rout): an image far beyond the
+    # family is rung by at most the sinc of that slew, and the reach ends where that bound falls under the band's
+    # floor; where the plant declares none or the record's steps exceed it, the step's reach (every frequency) stays
     reach_ok = True
     if direct:
-        reach = min(max(direct_image_reach(f0, h, dt, band) for h in holds),
+        base = ctx.get("base")
+        slew = direct_slew_reach(f0, dt, band, base.v_drive, getattr(base, "direct_slew_v_per_s", None), holds)
+        out["slew_reach"] = slew
+        reach = min(max(direct_image_reach(f0, h, dt, band) for h in holds), slew["reach_hz"],
                     float(p["zeta"]) * f0 / float(eff.zeta_min))
         out["image_reach_hz"] = reach
         beyond = [m for m in alias_members(f0, 1.0 / dt, 0.0, reach) if m > ALIAS_ABOVE_BAND * f_top * (1 + 1e-9)]
@@ -2036,14 +2054,20 @@ def alias_family(c, ctx, extra):
     else:
         what = "held-drive mode" if p.get("held") else "mode (the first-order hold's column, not the held drive's path)"
     if not out["resolved"] and not reach_ok:
+        so = out["slew_reach"]["steps_over"]
+        why_step = ("the plant declares no current limit to bound the path" if so is None else
+                    f"{so} of the record's {out['slew_reach']['steps']} steps exceed what the declared amplifier's "
+                    f"current limit moves in a sample, so the limit does not bound the path" if so else
+                    f"the declared amplifier's current limit lets the record's steps ring to "
+                    f"{out['slew_reach']['reach_hz']:.4g} Hz")
         # an image from beyond the members tested can ring here at a gain the band accepts and the named decay
         out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: a drive that steps between samples rings a "
                        f"mode at {' / '.join(f'{m:.4g}' for m in beyond[:4])}{' ...' if len(beyond) > 4 else ''} Hz "
                        f"(to {reach:.4g} Hz, where its damping at the named ring's decay reaches the least a "
                        f"stack's mode takes, {float(eff.zeta_min):g}) at the same {f_a:.4g} Hz alias with a gain a "
                        f"stack mode takes ({lo:.2f}-{hi:.3g}), and its alias family is tested to "
-                       f"{ALIAS_ABOVE_BAND * f_top:.4g} Hz only: the {fs:.4g} Hz record does not tell the mode's "
-                       f"frequency; a record at a rate above twice the mode's frequency measures it")
+                       f"{ALIAS_ABOVE_BAND * f_top:.4g} Hz only ({why_step}): the {fs:.4g} Hz record does not "
+                       f"tell the mode's frequency; a record at a rate above twice the mode's frequency measures it")
     elif not out["resolved"]:
         why = []
         if not family_ok and gain_ok:
@@ -2102,6 +2126,83 @@ def direct_image_reach(f0_hz, ramp_fraction, dt, band):
         return float("inf")
     s0 = abs(np.sinc(x0 / np.pi))
     return float(band[1] / (band[0] * np.pi * ramp_fraction * dt * s0))
+
+
+def direct_slew_reach(f0_hz, dt, band, v, slew_v_per_s, ramp_fractions=(1.0,)):
+    """How far beyond the record's Nyquist frequency a mode can ring at the alias ``f0_hz`` with a gain in ``band``
+    on a record with no series resistor whose amplifier slews at most ``slew_v_per_s``
+    (:attr:`BaseFit.direct_slew_v_per_s`).
+
+    Each of the record's steps ``dv_k`` (its logged voltage ``v``, V) takes at least ``a_k = |dv_k| / (slew dt)`` of
+    its sample (the current limit over the smallest capacitance; the source's limit rising, the sink's falling), so
+    the ramp over ``a >= a_k`` it rings a mode at ``f`` by ``|sinc(pi f a dt)| <= min(1, 1 / (pi f a_k dt))``
+    (:func:`direct_image_reach`). Over the record a mode at ``f`` is rung at most
+    ``E(f) = sqrt(sum dv_k^2 min(1, 1 / (pi f a_k dt))^2 / sum dv_k^2)`` of what steps ring it (each step's ring
+    weighted by its energy: a bound per step, a model over the record, whose rings overlap), and its image fitted by
+    the named column (rung by ``|sinc(pi f0 a dt)|`` under the paths ``ramp_fractions``) takes at most
+    ``band[1] E(f) / min |sinc(pi f0 a dt)|`` (its own share at most ``band[1]``): ``reach_hz`` is where that falls
+    to ``band[0]`` (``E`` falls with ``f``).
+
+    Where one of the record's steps is larger than the limit allows in a sample (by more than three times the
+    logged voltage's white noise, :func:`noise_floor` of the voltage or of its steps, the less) the declared limit
+    does not describe the record (or the record is not the terminal's): no bound (``reach_hz`` inf), and ``steps_over`` says how many.
+
+    Parameters
+    ----------
+    f0_hz : float
+        The named frequency (Hz).
+    dt : float
+        Sample period (s).
+    band : tuple of float
+        The gains a stack's mode takes (dimensionless).
+    v : ndarray of float
+        The record's terminal voltage (V).
+    slew_v_per_s : tuple of float or None
+        ``(up, down)`` fastest slew (V/s); None where the plant declares no current limit.
+    ramp_fractions : sequence of float
+        The paths the named column is fitted through (:data:`DIRECT_RAMP_FRACTIONS`).
+
+    Returns
+    -------
+    dict
+        ``reach_hz`` (Hz; inf without a bound), ``steps_over`` (int or None without a limit), ``steps`` (int).
+    """
+    dv = np.diff(np.asarray(v, float))
+    out = {"reach_hz": float("inf"), "steps_over": None, "steps": int(dv.size)}
+    if slew_v_per_s is None or not np.all(np.isfinite(slew_v_per_s)) or dv.size < 3:
+        return out
+    up, down = (float(x) for x in slew_v_per_s)
+    most = np.where(dv > 0.0, up, down) * dt
+    tol = 3.0 * min(noise_floor(dv), noise_floor(v))
+    out["steps_over"] = int(np.count_nonzero(np.abs(dv) > most + tol))
+    if out["steps_over"]:
+        return out
+    a = np.minimum(np.abs(dv) / most, 1.0)
+    w = dv * dv
+    if not np.sum(w) > 0.0:
+        return out
+    s0 = min(abs(float(np.sinc(f0_hz * r * dt))) for r in ramp_fractions)
+    target = band[0] * s0 / band[1]
+
+    def envelope(f):
+        x = np.pi * f * a * dt
+        e = np.where(x > 1.0, 1.0 / np.maximum(x, 1e-300), 1.0)
+        return float(np.sqrt(np.sum(w * e * e) / np.sum(w)))
+    lo, hi = 0.5 / dt, 0.5 / dt
+    if envelope(lo) <= target:
+        out["reach_hz"] = lo
+        return out
+    for _ in range(60):
+        hi *= 2.0
+        if envelope(hi) <= target:
+            break
+    else:
+        return out
+    for _ in range(60):
+        mid = np.sqrt(lo * hi)
+        lo, hi = (mid, hi) if envelope(mid) > target else (lo, mid)
+    out["reach_hz"] = float(hi)
+    return out
 
 
 #: The alias family tested (:func:`alias_family`) reaches this factor times the held search's ceiling (the settle's
