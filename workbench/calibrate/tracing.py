@@ -2218,15 +2218,18 @@ ALIAS_ABOVE_BAND = 4.0
 #: modal share of the static tip motion; a load at the tip raises it toward one, the higher modes share the rest)
 MODE_GAIN_BAND = (8.0 / np.pi ** 2, 1.0)
 
-#: The most of the motion a stack's first mode shows where the sensor reads inside the stack: a uniform rod fixed at
-#: one end, its static motion ``xi`` (``xi`` the place along it over its length) and its first mode's share of it
-#: ``8 / pi^2 sin(pi xi / 2) / xi``, rises from ``8 / pi^2`` at the tip to ``4 / pi`` (1.27) at the fixed end (and a
-#: strain read there: ``8 / pi^2 (pi / 2) cos(pi xi / 2)``). The top of the gain band on a record with no series
-#: resistor (:func:`alias_family`), where the drive's two possible paths are exact forms: right modes named below
-#: Nyquist on such records fitted 1.02-1.04 (default_rng(3472)'s straight-line draws), above
-#: :data:`MODE_GAIN_BAND`'s one by 10-20 jackknife errors. A held drive's record keeps :data:`MODE_GAIN_BAND`: its
-#: path's settle is read from the record, and a wrong image there fitted 1.267 +/- 0.006 with every other test passed
-#: (default_rng(3402) m0, a 516.3 Hz mode named 311.8 Hz; session 34)
+#: The top of the gain band on a record with no series resistor (:func:`alias_family`): NOT a physical share. The
+#: sensor reads the stack's tip (:data:`MODE_GAIN_BAND`: the first mode's share there ``8 / pi^2``, all modes' one;
+#: the simulator's modes take exactly one), so a gain above one is the named column's model error, not a mode's
+#: share (review of s35_rout, S1: the earlier label, the first mode's share read at a rod's fixed end, contradicted
+#: the tip the code reads). The number is an undrived tolerance kept until one derived from the record replaces it:
+#: right modes named below Nyquist on such records fitted 1.02-1.09 over their folds (default_rng(3472)'s
+#: straight-line draws; the review's), above one by 10-20 jackknife errors, and the top of one left the review's 42 Hz
+#: draw out (mut_top1). The floor is no better derived: a weak ring's gain trades against its fitted damping (the
+#: review's 64.4 Hz mode at 1 kHz: zeta 0.014 fitted on every fold against 0.0177 true, gain 0.73, ``g / zeta``
+#: 52 against 56.5), which no fold's scatter shows. A held drive's record keeps :data:`MODE_GAIN_BAND` (a wrong image
+#: there fitted 1.267 +/- 0.006 with every other test passed: default_rng(3402) m0, a 516.3 Hz mode named 311.8 Hz;
+#: session 34)
 MODE_GAIN_READ_TOP = 4.0 / np.pi
 
 
