@@ -189,6 +189,17 @@ def test_the_current_limit_bounds_how_far_a_record_s_steps_ring_an_image():
     got = direct_slew_reach(100.0, dt, band, v, slew)
     assert got["steps_over"] == 1 and got["reach_hz"] == np.inf
     assert direct_slew_reach(100.0, dt, band, v[:100], None)["reach_hz"] == np.inf
+    # a long record slewing at the limit with white noise on its logged voltage is the amplifier's (noise alone does
+    # not exceed it); a step 0.1 V over the limit, ten times the noise, is not
+    ramp = np.r_[np.linspace(0.0, 100.0, 301), np.linspace(100.0, 0.0, 44)[1:]]     # at the limit up and down
+    clean = np.tile(np.r_[ramp, np.zeros(100)], 25)
+    assert np.abs(np.diff(clean)).max() == pytest.approx(slew[1] * dt, rel=1e-2)
+    for seed in range(3):
+        noisy = clean + np.random.default_rng(seed).normal(0.0, 0.01, clean.size)
+        assert direct_slew_reach(100.0, dt, band, noisy, slew)["steps_over"] == 0
+        bad = noisy.copy()
+        bad[10 * 444 + 150:] += 0.1                                # inside a rise at the limit
+        assert direct_slew_reach(100.0, dt, band, bad, slew)["steps_over"] >= 1
 
 
 # modes below the Nyquist frequency on the straight-line drive (where the record tells a mode from its images: each

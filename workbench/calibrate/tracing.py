@@ -2143,8 +2143,8 @@ def direct_slew_reach(f0_hz, dt, band, v, slew_v_per_s, ramp_fractions=(1.0,)):
     ``band[1] E(f) / min |sinc(pi f0 a dt)|`` (its own share at most ``band[1]``): ``reach_hz`` is where that falls
     to ``band[0]`` (``E`` falls with ``f``).
 
-    Where one of the record's steps is larger than the limit allows in a sample (by more than three times the
-    logged voltage's white noise, :func:`noise_floor` of the voltage or of its steps, the less) the declared limit
+    Where one of the record's steps is larger than the limit allows in a sample (by more than the logged voltage's
+    white noise, :func:`noise_floor`, shows once in a hundred records at the limit) the declared limit
     does not describe the record (or the record is not the terminal's): no bound (``reach_hz`` inf), and ``steps_over`` says how many.
 
     Parameters
@@ -2173,7 +2173,12 @@ def direct_slew_reach(f0_hz, dt, band, v, slew_v_per_s, ramp_fractions=(1.0,)):
         return out
     up, down = (float(x) for x in slew_v_per_s)
     most = np.where(dv > 0.0, up, down) * dt
-    tol = 3.0 * min(noise_floor(dv), noise_floor(v))
+    # the logged voltage's white noise (the smooth drive's steps left out: its second differences carry sqrt(3) of
+    # it), on a step sqrt(2) of it, and the step's excess over the limit said only where no step of the record's
+    # slews at the limit would show it by noise alone once in a hundred records (Bonferroni over the steps)
+    from scipy.stats import norm
+    sigma = min(noise_floor(v), noise_floor(dv) / np.sqrt(3.0))
+    tol = float(norm.isf(0.01 / dv.size)) * np.sqrt(2.0) * sigma
     out["steps_over"] = int(np.count_nonzero(np.abs(dv) > most + tol))
     if out["steps_over"]:
         return out
