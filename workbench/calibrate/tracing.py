@@ -2088,14 +2088,17 @@ def alias_family(c, ctx, extra):
             # every test but the gain names f0 (review of s34_hold S3: a 45.86 Hz mode below Nyquist, truth 45.84 Hz,
             # gain 1.09 +/- 0.04, was told its ring "may come from above the band" and that a faster record would
             # measure it, where the 100 Hz record already samples above twice its frequency); a wrong image can pass
-            # them too (default_rng(3402) m0: gain 1.27), so the frequency is not said to be the mode's
+            # them too (default_rng(3402) m0: gain 1.27), so the frequency is not said to be the mode's. On a record
+            # with no series resistor a faster record is not advised where its family resolved (review of s35_rout
+            # X2: a 64.4 Hz mode on a 1 kHz record, gain 0.73 at zeta 0.014 fitted for 0.0177)
             out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The record names {f0:.4g} Hz on every other test (its alias family resolved on "
                            f"{resolved_folds} of {n_folds} folds, the folds' own searches naming it on {sum(agree)}), "
                            f"but with a gain no mode of the declared stack takes, so it does not tell the mode's "
                            f"frequency: either the mode is there and the sensor does not read the stack's tip (or a "
-                           f"load shares its motion), or the column fits another mode's image; a record sampled "
-                           f"faster tells them apart")
+                           f"load shares its motion), or the column fits another mode's image"
+                           + ("; a weak ring's gain trades against its fitted damping: a record that rings the mode "
+                              "harder tells them apart" if direct else "; a record sampled faster tells them apart"))
         elif gain_ok:
             out["note"] = (f"a {what} named at {f0:.4g} Hz is not placed: " + "; ".join(why)
                            + f". The band searched ends at {f_top:.4g} Hz ({top_why}): the mode may lie above it"
