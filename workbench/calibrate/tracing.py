@@ -1925,7 +1925,10 @@ def alias_family(c, ctx, extra):
         base = ctx["base"]
         slew = direct_slew_reach(f_n, dt, (MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP), base.v_drive,
                                  getattr(base, "direct_slew_v_per_s", None), list(paths))
-        if slew["reach_hz"] < f_img:
+        # (only for a named mode with the sign a stack's mode takes: a ring named with a negative gain is no mode of
+        # this stack wherever its images lie, and the family test says so -- default_rng(3663) f8 LIMIT=1: a
+        # 485.4 Hz mode's weak image named 13.95 Hz at the damping cap, gain -0.018)
+        if slew["reach_hz"] < f_img and float(p.get("gain", 0.0)) > 0.0:
             return None
     from .effects import held_mode_column
     prob = ctx["probs"][c["key"]]
