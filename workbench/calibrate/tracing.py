@@ -1925,10 +1925,13 @@ def alias_family(c, ctx, extra):
         base = ctx["base"]
         slew = direct_slew_reach(f_n, dt, (MODE_GAIN_BAND[0], MODE_GAIN_READ_TOP), base.v_drive,
                                  getattr(base, "direct_slew_v_per_s", None), list(paths))
-        # (only for a named mode with the sign a stack's mode takes: a ring named with a negative gain is no mode of
-        # this stack wherever its images lie, and the family test says so -- default_rng(3663) f8 LIMIT=1: a
-        # 485.4 Hz mode's weak image named 13.95 Hz at the damping cap, gain -0.018)
-        if slew["reach_hz"] < f_img and float(p.get("gain", 0.0)) > 0.0:
+        # (only for a named mode whose gain a stack's mode takes, at least the band's floor: the bound says an image
+        # above Nyquist rings in the band UNDER that floor, so a ring named with a smaller gain may be such an image
+        # and the family test says so -- default_rng(3663) f8 LIMIT=1: a 485.4 Hz mode's weak image named 13.95 Hz at
+        # the damping cap, gain -0.018; the second review of s36_rout, G1, default_rng(3690)/(3691) LIMIT=1 steps:
+        # images folding from above, 1200 Hz named 201.34 Hz at 1 kHz, 118 Hz named 17.92 Hz at 100 Hz, gains
+        # 0.05-0.16, were passed as placed by a test of the sign alone)
+        if slew["reach_hz"] < f_img and float(p.get("gain", 0.0)) >= MODE_GAIN_BAND[0]:
             return None
     from .effects import held_mode_column
     prob = ctx["probs"][c["key"]]
