@@ -152,6 +152,12 @@ class BaseFit:
     #: branch's ``C_pp``: the terminal operator is ``C_h^{-1} + I / C_pp``, ``C_h^{-1}`` nondecreasing), the bound of
     #: the held drive's per-step settle read from the record (:func:`~.tracing.held_drive`); None as above
     settle_time_constant_max_s: float | None = None
+    #: with no series resistor (``resistance_ohm`` 0, a terminal-voltage record, a declared PZT): the fastest the
+    #: declared amplifier moves the stack's terminal, its current limits over the terminal's smallest incremental
+    #: capacitance ``(I_source / C_min, I_sink / C_min)`` (V/s, both positive; seed 000 sec. 2's current saturation,
+    #: :attr:`~workbench.plant.pzt.PZTParams.min_capacitance_f`): the shortest path a step of the record's voltage
+    #: can take between samples (:func:`~.tracing.direct_slew_reach`); None otherwise
+    direct_slew_v_per_s: tuple | None = None
 
     def plays_basis(self, name):
         """Channel ``name``'s plays + a column of ones, point-sampled: :attr:`basis` unless the channel has its own."""
@@ -791,6 +797,9 @@ def fit_base(record, resistance_ohm=0.0, train=None, n_plays=24, grid="quadratic
             fit.current_limits_a = (float(pzt.current_limit_source_a), float(pzt.current_limit_sink_a))
             fit.settle_time_constant_s = pzt.settle_time_constant_s(resistance_ohm)
             fit.settle_time_constant_max_s = float(resistance_ohm) * float(pzt.c_pp_f)
+    elif input_kind != "command" and pzt is not None:
+        c_min = pzt.min_capacitance_f
+        fit.direct_slew_v_per_s = (float(pzt.current_limit_source_a) / c_min, float(pzt.current_limit_sink_a) / c_min)
     if pzt is not None and pzt.transducer_constant_n_per_v > 0:
         fit.stack_v_per_m = float(pzt.stiffness_n_per_m / pzt.transducer_constant_n_per_v)
     if "gauge" in outputs and "displacement" in outputs:

@@ -1397,6 +1397,51 @@ class HeldDrive:
         self._runs_on = runs_on
         self._key = _data_key(dq, rc, np.array([dt, self.rc, float(limits[0]), float(limits[1])]))
 
+    #: a step of :meth:`direct` (``ramp_fraction`` 0) settles with this fraction of the sample as its time constant
+    #: (the kernel's settle term then differs from an instant step's by this fraction of a sample's kernel)
+    STEP_SETTLE_FRACTION = 1e-12
+
+    @classmethod
+    def direct(cls, n, dt, ramp_fraction):
+        """The path between samples of a drive with no series resistor: the stack's terminal is the logged voltage
+        itself, which the amplifier moved from one sample's value to the next along a straight line over the first
+        ``ramp_fraction`` of the interval and then held: 1, a straight line over the whole sample (a first-order
+        hold, a sampled smooth voltage; :func:`_foh_mode`'s drive); 0, a step at the interval's start (a command
+        held from sample to sample that nothing slows); between, a slew over part of the sample (the simulator's
+        own record without a resistor at :data:`~.synthetic.N_SUB` sub-steps a sample: its input is linear over
+        the first sub-step, ``1 / N_SUB``).
+
+        No current limit and no settle are read from the record (there is no resistor to settle through). ``rc``,
+        the fastest settle the held search's ceiling reads (:meth:`Resonance._held_ceiling`), is the sample period:
+        the ceiling is the Nyquist frequency, which no settle's corner raises.
+
+        Parameters
+        ----------
+        n : int
+            Samples (intervals) of the record.
+        dt : float
+            Sample period (s).
+        ramp_fraction : float
+            The part of the sample the ramp lasts, 0 to 1 (dimensionless).
+        """
+        a = float(ramp_fraction)
+        if not 0.0 <= a <= 1.0:
+            raise ValueError(f"ramp_fraction must be within 0..1, got {ramp_fraction!r}")
+        self = cls.__new__(cls)
+        n, dt = int(n), float(dt)
+        self.dt, self.rc = dt, dt
+        self.ramp_fraction = a
+        step = a == 0.0
+        self.t_ramp = np.full(n, a * dt)
+        self.slope = np.full(n, 0.0 if step else 1.0 / (a * dt))
+        self.q_ramp = np.full(n, 0.0 if step else 1.0)
+        self._left = np.full(n, 1.0 if step else 0.0)
+        self._settled = np.full(n, 0.0 if step else 1.0)
+        self._runs_on = np.full(n, a == 1.0)
+        self.rc_k = np.full(n, cls.STEP_SETTLE_FRACTION * dt if step else dt)
+        self._key = _data_key(np.array([n, dt, a]))
+        return self
+
     def path(self, s, rows=slice(None)):
         """``rho_k(s)``, the share of interval ``k``'s step moved by the time ``s`` after its start (0 to 1).
 

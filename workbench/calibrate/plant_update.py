@@ -287,7 +287,8 @@ def _file_lines(text):
 
 def unplaced_modes(stages):
     """``{(effect, channel): reason}``: the held drive's modes the record cannot place (``alias_family`` not
-    resolved).
+    resolved), and those of a record with no series resistor alike (tested through every path its drive may take
+    between samples, :func:`~workbench.calibrate.tracing.direct_drives`).
 
     A mode named through the held drive's path (100 Hz on the P-888.51) is written to the plant file only where its
     folds place it (:func:`~workbench.calibrate.tracing.alias_family`): the named frequency resolved beyond every
