@@ -16,13 +16,11 @@ tracing's own ``_score_stage``, and constructed fold scores: cheap (~2 s).
 import numpy as np
 from scipy import signal
 
+from tests.calibrate.hand_scored import KEY, score_delay_and_mode
 from workbench.calibrate import tracing as T
-from workbench.calibrate.effects import Delay, Resonance
-from workbench.calibrate.splits import make_split
 from workbench.calibrate.synthetic import benchmark_protocol
 
 RATE, ROWS, SIG = 100.0, 4000, 1e-9          # the benchmark's 100 Hz record (40 s), the displacement's noise
-KEY = ("displacement", "model")
 UNDECIDED = T.delay_or_mode_label("displacement")
 
 
@@ -40,20 +38,7 @@ def _record(f_mode, zeta, protocol, seed=0):
 def _scored(f_mode, zeta, protocol):
     """The first stage scored with the delay and the mode as the only candidates (the base: the stack's line)."""
     t, v, y, x = _record(f_mode, zeta, protocol)
-    sp = make_split(t, v, "blocks")
-    prob = T._Problem(sp, np.ones(t.size, bool), np.column_stack([y, np.ones(t.size)]), [-np.inf, -np.inf],
-                      x - y, sp.train)
-    cands = []
-    for eff in (Delay(max_delay=30), Resonance()):
-        p = eff.fit(t, y, x - y, prob.search, y_model=y)
-        C, lo = eff.columns(t, y, p, y_model=y) if hasattr(eff, "columns") else (eff.term(t, y, p, y_model=y), [0.0])
-        cands.append({"name": eff.name, "channel": "displacement", "key": KEY, "g": prob.grams(C, lo),
-                      "n_params": eff.n_params, "params": p, "yhat": y})      # (the model, as trace_effect's)
-    rng = np.random.default_rng(1)
-    e_dev = np.where(prob.rows_dev, prob.r, 0.0)
-    nulls = {KEY: [prob.grams(T._phase_randomized(e_dev, rng), [-np.inf]) for _ in range(3)]}
-    infos = {"displacement": {"noise_floor": SIG}, "duration_s": float(t[-1] - t[0]), "t": t}
-    res = T._score_stage(cands, {KEY: prob}, nulls, {KEY: []}, sp, 0.02, 1.0, infos, [], T.MIN_SHARE)
+    res = score_delay_and_mode(t, v, y, x, SIG)
     return res, res["by"][("delay", "displacement")], res["by"][("resonance", "displacement")]
 
 

@@ -11,12 +11,9 @@ import numpy as np
 import pytest
 
 import workbench.calibrate.tracing as T
+from tests.calibrate.hand_scored import score_delay_and_mode
 from tests.conftest import reduced_draws
-from workbench.calibrate.creep_beside_delay import _columns
-from workbench.calibrate.effects import Delay, Resonance
-from workbench.calibrate.splits import make_split
 
-KEY = ("displacement", "model")
 SIG = 1e-9
 
 
@@ -27,29 +24,9 @@ def _triangle(t, f):
 
 
 def _score(t, v, x, periodic, driver=None, lazy=False):
-    """The first stage scored with the delay and the mode as the only candidates (the base: a line in ``v``);
-    ``lazy``: their columns kept without Gram matrices, as a later stage's creep beside a delay keeps them
-    (:func:`~workbench.calibrate.creep_beside_delay._columns`)."""
-    y = 1e-7 * v
-    sp = make_split(t, v, "blocks")
-    prob = T._Problem(sp, np.ones(t.size, bool), np.column_stack([y, np.ones(t.size)]), [-np.inf, -np.inf],
-                      x - y, sp.train)
-    cands = []
-    for eff in (Delay(max_delay=30), Resonance()):
-        p = eff.fit(t, y, x - y, prob.search, y_model=y)
-        C, lo = eff.columns(t, y, p, y_model=y) if hasattr(eff, "columns") else (eff.term(t, y, p, y_model=y), [0.0])
-        c = {"name": eff.name, "channel": "displacement", "key": KEY, "g": _columns(prob, np.atleast_2d(np.asarray(C, float).T).T, lo) if lazy else prob.grams(C, lo),
-             "n_params": eff.n_params, "params": p, "yhat": y}
-        if driver is not None:
-            c["driver"] = driver
-        cands.append(c)
-    e_dev = np.where(prob.rows_dev, prob.r, 0.0)
-    r1 = np.random.default_rng(1)
-    nulls = {KEY: [prob.grams(T._phase_randomized(e_dev, r1), [-np.inf]) for _ in range(3)]}
-    infos = {"displacement": {"noise_floor": SIG}, "duration_s": float(t[-1] - t[0]), "t": t}
-    if periodic:
-        infos["drive"] = T.PeriodicDrive.of(t, v)
-    return T._score_stage(cands, {KEY: prob}, nulls, {KEY: []}, sp, 0.02, 1.0, infos, [], T.MIN_SHARE)
+    """The first stage scored with the delay and the mode as the only candidates (the base: a line in ``v``)."""
+    return score_delay_and_mode(t, v, 1e-7 * v, x, SIG, drive=T.PeriodicDrive.of(t, v) if periodic else None,
+                                driver=driver, lazy=lazy)
 
 
 def _scored(seed, periodic, rate=1e3, f=3.0, cycles=8, size=30.0, lazy=False):
