@@ -2,7 +2,8 @@
  *
  * The same computation per servo period as the compiled loop (_loop, fixed-point form):
  *   1. the PZT: n_sub steps of workbench.plant.kernels.pzt_step (voltage range, R and the current limits,
- *      the PI operators G and Q, the creep branches, the modes), command held;
+ *      the PI operators G and Q, the creep branches, the modes; with R out the quasi-static step, still
+ *      current-limited), command held;
  *   2. the gauge chain, equivalent discrete model: the bridge (eq. 26, imbalance included) a quarter and
  *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise (one
  *      standard normal a period from the run's numpy bit generator, times sigma), trim, DAC quantization;
@@ -86,6 +87,64 @@ static inline double rc_charge(double du, double cap, double f_full, double dt, 
     return d * i_lim * t_sat + d * r_ilim * cap * (1.0 - exp(-(dt - t_sat) / (r * cap)));
 }
 
+/* _quasi_static_charge of workbench.plant.kernels: Q = G^-1 at u_t from the play states G's imply (read only) */
+static double quasi_static_charge(const double *m, const double *st, double u, double u_t)
+{
+    const int n = (int)m[N_G], o_wg = (int)m[O_WG], o_zg = (int)m[OS_ZG], o_rq = (int)m[O_RQ], o_wq = (int)m[O_WQ];
+    double s = 0.0, w_acc = 0.0, q = 0.0;
+    for (int i = 0; i < n; i++) {
+        double zi = st[o_zg + i], wi = m[o_wg + i], ri = m[o_rq + i];
+        double zq = (u - s) + w_acc * zi;
+        zq = zq > u_t - ri ? zq : u_t - ri;       /* min(max(zq, lo), hi) */
+        zq = zq < u_t + ri ? zq : u_t + ri;
+        q += m[o_wq + i] * zq;
+        s += wi * zi;
+        w_acc += wi;
+    }
+    return q;
+}
+
+/* _pi_update_segment of workbench.plant.kernels for the quasi-static step: G's plays to qh_new (the first every
+ * step, the others when qh_new leaves their band), the segment entries current. The dynamic step below keeps its
+ * own copy written out in place, so the code timed for a plant with R in is as it was. */
+static double g_update_segment(const double *m, double *st, double qh_new, double dt, double r)
+{
+    const int n = (int)m[N_G], o_r = (int)m[O_RG], o_w = (int)m[O_WG], o_z = (int)m[OS_ZG];
+    const double r0 = m[o_r], w0 = m[o_w], lo0 = qh_new - r0, hi0 = qh_new + r0;
+    double z0 = st[o_z];
+    z0 = z0 > lo0 ? z0 : lo0;
+    z0 = z0 < hi0 ? z0 : hi0;
+    st[o_z] = z0;
+    double up = z0 <= lo0 ? w0 : 0.0, dn = z0 >= hi0 ? w0 : 0.0, y;
+    if (st[S_PL] < qh_new && qh_new < st[S_PU]) {
+        y = w0 * z0 + st[S_Y1];
+    } else {
+        double pl = -INFINITY, pu = INFINITY, r_max = r0, y1 = 0.0;
+        y = w0 * z0;
+        for (int i = 1; i < n; i++) {
+            double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
+            double z = st[o_z + i];
+            z = z > lo ? z : lo;
+            z = z < hi ? z : hi;
+            up += z <= lo ? wi : 0.0;
+            dn += z >= hi ? wi : 0.0;
+            st[o_z + i] = z;
+            y += wi * z;
+            y1 += wi * z;
+            pl = z - ri > pl ? z - ri : pl;
+            pu = z + ri < pu ? z + ri : pu;
+            r_max = ri > r_max ? ri : r_max;
+        }
+        double margin = 1e-12 * (fabs(qh_new) + r_max);
+        st[S_PL] = pl + margin;
+        st[S_PU] = pu - margin;
+        st[S_Y1] = y1;
+    }
+    if (up != st[S_KUP]) { st[S_KUP] = up; double cap = 1.0 / up; st[S_GUP] = cap; st[S_FUP] = rc_factor(cap, dt, r); }
+    if (dn != st[S_KDN]) { st[S_KDN] = dn; double cap = 1.0 / dn; st[S_GDN] = cap; st[S_FDN] = rc_factor(cap, dt, r); }
+    return y;
+}
+
 /* One plant sub-step: pzt_advance of workbench.plant.kernels; returns x, writes the current to *i_a. */
 static inline double pzt_step(const double *m, double *st, const plant_consts *p, double v_cmd, double f_e,
                               double *i_a)
@@ -118,16 +177,19 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         qc_new = s_dec + p->b_tot * v_h_s;
     }
     if (m[QUASI_STATIC] > 0.5) {
-        double u_target = v - (qc_new - f_term) * inv_cpp;
-        const int n = (int)m[N_Q], o_r = (int)m[O_RQ], o_w = (int)m[O_WQ], o_z = (int)m[OS_ZQ];
-        double y = 0.0;
-        for (int i = 0; i < n; i++) {
-            double z = clampd(st[o_z + i], u_target - m[o_r + i], u_target + m[o_r + i]);
-            st[o_z + i] = z;
-            y += m[o_w + i] * z;
+        /* R = 0: to V_t = v within the current limit over the step, else the limit's charge (pzt_advance) */
+        double u_t = v - (qc_new - f_term) * inv_cpp;
+        double qh_t = u_t == u ? qh : quasi_static_charge(m, st, u, u_t);
+        double dq = (qh_t - qh) + (qc_new - qc_old);
+        int limited = dq > m[I_SRC] * dt || dq < -m[I_SNK] * dt;
+        if (limited) {
+            dq = dq > 0 ? m[I_SRC] * dt : -m[I_SNK] * dt;
+            qh_new = qh + (dq - (qc_new - qc_old));
+        } else {
+            qh_new = qh_t;
         }
-        qh_new = y;
-        u_new = u_target;
+        u_new = qh_new != qh ? g_update_segment(m, st, qh_new, dt, r) : u;
+        if (!limited) u_new = u_t;
     } else {
         double du = (v - (qc_old - f_term) * inv_cpp - u) + th_c;   /* the gap after the branches' step */
         double dq = 0.0;

@@ -29,6 +29,12 @@ the terminal without passing R or the amplifier's current limit: small at 80 ohm
 limited, where the loop corrects it within R C, but 27.7 uC and 387 nm apart during a 2 mA slew and tens of
 uC of "held" charge moved at open leads; tests/plant/test_kcl.py, benchmarks/kcl_creep.py.)
 
+Without the series resistor (R = 0, the quasi-static form: seed 000's free-free configuration) the amplifier
+drives the terminal directly and still saturates on its current: a step moves the charge that brings V_t to the
+command, or exactly i_lim dt where that is more (the source's rising, the sink's falling), so V_t slews at
+i_lim / C. (Before session 37 V_t was set to the command at every sub-step, no limit at all: resistor-out records
+stepped 30-270x faster than the declared amplifier can; tests/plant/test_current_limit_without_resistor.py.)
+
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
 """
@@ -378,6 +384,32 @@ def creep_branch_update(dec, o_dec, b, o_b, qc, o_qc, n_c, v_h_s):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
+def _quasi_static_charge(m, st, o_rg, o_wg, o_zg, o_rq, o_wq, n, u, u_t):
+    """Q[u_t], C: the hysteretic charge at which G's output is ``u_t`` (V), reached from G's present plays.
+
+    Q = G^-1 (its thresholds and weights at ``o_rq``, ``o_wq`` of ``m``) is advanced to ``u_t`` from the play
+    states it would hold now, formed from G's (Kuhnen's state map, :meth:`~.hysteresis.PrandtlIshlinskii.inverse`):
+    z'_i = W_i z_i + sum_{j>i} w_j z_j with W_i = w_0 + ... + w_i, written z'_i = (u - sum_{j<i} w_j z_j)
+    + W_{i-1} z_i with ``u`` = sum_j w_j z_j, G's present output (V). Nothing is written: G's plays stay the
+    state of both forms (the quasi-static step moves them to the charge it settles on), so a state passes
+    between a model with and one without the series resistor.
+    """
+    s = 0.0                                   # sum_{j<i} w_j z_j
+    w_acc = 0.0                               # W_{i-1}
+    q = 0.0
+    for i in range(n):
+        zi = st[o_zg + i]
+        wi = m[o_wg + i]
+        ri = m[o_rq + i]
+        zq = (u - s) + w_acc * zi
+        zq = min(max(zq, u_t - ri), u_t + ri)
+        q += m[o_wq + i] * zq
+        s += wi * zi
+        w_acc += wi
+    return q
+
+
+@njit(cache=True, error_model="numpy", inline="always")
 def pzt_advance(p, m, st, v_cmd, f_e):
     """Advance the PZT by one sub-step; return (x, q, i, V_h, V_p).
 
@@ -392,6 +424,12 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     (exactly), then relaxes exponentially for the rest of the step (:func:`rc_charge`). The
     slope is the one at the start of the step; G's slope only falls as more plays engage, so
     the step never overshoots u* and creates no spurious reversal.
+
+    Quasi-static form (R = 0, the series resistor out): the amplifier drives the terminal itself, after the same
+    creep step (V_t held, k = 1 / C_pp), to V_t = v if the charge that takes is within its current limit over the
+    step (Q = G^-1 at u*, :func:`_quasi_static_charge`); otherwise exactly i_lim dt moves (the source's rising,
+    the sink's falling) and G gives the terminal from the charge, so V_t slews at i_lim / C toward v and never
+    passes it. G's plays are the state in both forms.
 
     The arithmetic is arranged for a short dependency chain per step (the physics is that of
     :func:`pzt_step_reference`, equal to ~1e-15 relative, the tests hold the two together):
@@ -421,7 +459,9 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     if n_c > 0:
         s_dec, e_c = creep_explicit_charge(m, o_cdec, st, o_qc, n_c, b_tot, v_h_old, qc_old)
         if quasi_static:
-            # V_t held: k = 1 / (C_pp + C_h) <= 1 / C_pp; any k at or above the slope is stable, first order
+            # V_t held: k = 1 / (C_pp + C_h) <= 1 / C_pp; any k at or above the slope is stable, first order. (In a
+            # current-limited step the terminal charge is held instead, slope 1 / C_h; k = 1 / C_pp stays first order
+            # and stable while b_tot / C_h < 1 + d_j + 2 b_j / C_pp: for any dt while the branches' sum C_j < C_h)
             v_h_s = v_h_old - e_c * qs_k       # creep_node_voltage with k / (1 + b_tot k) formed once (plant_params)
         else:
             # k = 1 / C_h on the segment q_h moves along (falling when the branches charge): with G's
@@ -444,9 +484,25 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     else:
         qc_new = 0.0
     if quasi_static:
-        # R = 0: V_t = v at the step's end with the branches' new charge
-        u_new = v - (qc_new - f_term) * inv_cpp
-        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
+        # R = 0: the amplifier drives the terminal directly, to V_t = v at the step's end with the branches' new
+        # charge (u_t: G's output there) if the charge that takes, Q[u_t] + Q_c' - q, is within its current limit
+        # over the step; else exactly the limit's charge moves and G gives the terminal from the charge
+        # (_quasi_static_charge: Q = G^-1 read from G's plays, which are the state in both forms)
+        u_t = v - (qc_new - f_term) * inv_cpp
+        qh_t = qh if u_t == u else _quasi_static_charge(m, st, o_rg, o_wg, o_zg, o_rq, o_wq, n_g, u, u_t)
+        dq = (qh_t - qh) + (qc_new - qc_old)
+        limited = dq > i_src * dt or dq < -i_snk * dt
+        if limited:
+            dq = i_src * dt if dq > 0 else -i_snk * dt
+            qh_new = qh + (dq - (qc_new - qc_old))
+        else:
+            qh_new = qh_t
+        if qh_new != qh:
+            u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+        else:
+            u_new = u
+        if not limited:
+            u_new = u_t                       # V_t = v exactly (G's output there to rounding)
     else:
         # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
         # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
@@ -512,6 +568,37 @@ def pzt_step(m, st, v_cmd, f_e, out):
 
 
 @njit(cache=True, error_model="numpy")
+def _g_output_at(m, st, qh):
+    """G's output (V) if its plays were moved from their present states to the charge ``qh`` (C); nothing written."""
+    o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
+    y = 0.0
+    for i in range(int(m[N_G])):
+        zi = min(max(st[o_z + i], qh - m[o_r + i]), qh + m[o_r + i])
+        y += m[o_w + i] * zi
+    return y
+
+
+@njit(cache=True, error_model="numpy")
+def _g_inverse_between(m, st, lo, hi, u_t):
+    """The charge in [lo, hi] (C) at which :func:`_g_output_at` is ``u_t`` (V), by bisection to the last bit,
+    then linear on the last interval (G is linear there). G's output at ``lo`` must be <= u_t <= that at ``hi``."""
+    g_lo = _g_output_at(m, st, lo)
+    g_hi = _g_output_at(m, st, hi)
+    for _ in range(2000):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        g = _g_output_at(m, st, mid)
+        if g < u_t:
+            lo, g_lo = mid, g
+        else:
+            hi, g_hi = mid, g
+    if g_hi > g_lo:
+        return lo + (u_t - g_lo) * (hi - lo) / (g_hi - g_lo)
+    return lo
+
+
+@njit(cache=True, error_model="numpy")
 def pzt_step_reference(m, st, v_cmd, f_e, out):
     """The step's equations in their plainest form (per-step divisions and exp): the oracle of :func:`pzt_step`.
 
@@ -562,10 +649,27 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
         qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
         st[o_qc + j] = qj
         qc_new += qj
+    at_v = False                              # quasi-static within the current limit: V_t = v exactly
+    u_target = u
     if m[QUASI_STATIC] > 0.5:
+        # R = 0: the amplifier moves the terminal charge to V_t = v, G[q_h'] + (Q_c' - T_em F_e / k_p) / C_pp = v,
+        # unless that takes more than its current limit over the step, i_lim dt: then it moves exactly that much.
+        # Written with G alone (not Q = G^-1, which pzt_advance reads from G's plays): G's output is monotone in the
+        # charge from any state, so the limit binds where G at the limit's charge is still short of u_target, and
+        # otherwise the charge in between is found by bisection
         u_target = v - (qc_new - f_term) * inv_cpp
-        qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
-        u_new = u_target
+        qh_up = qh + (i_src * dt - (qc_new - qc_old))
+        qh_dn = qh + (-i_snk * dt - (qc_new - qc_old))
+        if u_target == u:
+            qh_new = qh                       # V_t at v already: no charge moves
+            at_v = True
+        elif _g_output_at(m, st, qh_up) < u_target:
+            qh_new = qh_up
+        elif _g_output_at(m, st, qh_dn) > u_target:
+            qh_new = qh_dn
+        else:
+            qh_new = _g_inverse_between(m, st, qh_dn, qh_up, u_target)
+            at_v = True
     else:
         # then the charge through R into the node, over the gap after the branches' step
         du = v - (qc_new - f_term) * inv_cpp - (u - g_fall)
@@ -598,36 +702,39 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
                 # RC relaxation on the local slope: tau = R C
                 dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
         qh_new = qh + (dq - (qc_new - qc_old))
-        if qh_new != qh:
-            o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
-            y = 0.0
-            up = 0.0
-            dn = 0.0
-            for i in range(int(m[N_G])):
-                ri = m[o_r + i]
-                wi = m[o_w + i]
-                lo = qh_new - ri
-                hi = qh_new + ri
-                zi = st[o_z + i]
-                if zi < lo:
-                    zi = lo
-                elif zi > hi:
-                    zi = hi
-                if zi <= lo:
-                    up += wi
-                if zi >= hi:
-                    dn += wi
-                st[o_z + i] = zi
-                y += wi * zi
-            st[S_GUP] = 1.0 / up
-            st[S_GDN] = 1.0 / dn
-            st[S_KUP], st[S_KDN] = up, dn
-            st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
-            st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
-            st[S_FDT], st[S_FR] = dt, r
-            u_new = y
-        else:
-            u_new = u
+    # G's plays to the new charge (both forms: the quasi-static one keeps them too)
+    if qh_new != qh:
+        o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
+        y = 0.0
+        up = 0.0
+        dn = 0.0
+        for i in range(int(m[N_G])):
+            ri = m[o_r + i]
+            wi = m[o_w + i]
+            lo = qh_new - ri
+            hi = qh_new + ri
+            zi = st[o_z + i]
+            if zi < lo:
+                zi = lo
+            elif zi > hi:
+                zi = hi
+            if zi <= lo:
+                up += wi
+            if zi >= hi:
+                dn += wi
+            st[o_z + i] = zi
+            y += wi * zi
+        st[S_GUP] = 1.0 / up
+        st[S_GDN] = 1.0 / dn
+        st[S_KUP], st[S_KDN] = up, dn
+        st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
+        st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
+        st[S_FDT], st[S_FR] = dt, r
+        u_new = y
+    else:
+        u_new = u
+    if at_v:
+        u_new = u_target                      # V_t = v exactly (G's output there to rounding)
     v_h = u_new - qh_new * inv_cpp
     q = qh_new + qc_new
     st[S_QH] = qh_new
