@@ -188,7 +188,18 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         } else {
             qh_new = qh_t;
         }
-        u_new = qh_new != qh ? g_update_segment(m, st, qh_new, dt, r) : u;
+        if (qh_new != qh) {
+            if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */
+                st[S_FUP] = rc_factor(st[S_GUP], dt, r);
+                st[S_FDN] = rc_factor(st[S_GDN], dt, r);
+                st[S_FDT] = dt;
+                st[S_FR] = r;
+                st[S_PL] = st[S_PU] = NAN;
+            }
+            u_new = g_update_segment(m, st, qh_new, dt, r);
+        } else {
+            u_new = u;
+        }
         if (!limited) u_new = u_t;
     } else {
         double du = (v - (qc_old - f_term) * inv_cpp - u) + th_c;   /* the gap after the branches' step */

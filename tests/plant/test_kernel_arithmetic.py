@@ -133,6 +133,30 @@ def test_the_quasi_static_steps_can_share_a_state_and_pass_it_to_the_dynamic_for
     dyn.st[:] = qs.st
     tr2 = dyn.run(np.full(1000, 70.0))
     np.testing.assert_allclose(tr2.q_c, tr.q_c[-1], rtol=0, atol=1e-12 * abs(tr.q_c[-1]))
+    # and on: R in to R out and back, each leg on a new level, the fast step against the reference on the state
+    # handed over (the reference forms its RC step afresh; the fast one's RC factors, cached in the state, must be
+    # re-formed for each model's R: a stale R = 0 factor relaxes the whole gap in one step)
+    legs = ((80.0, 40.0), (0.0, 90.0), (80.0, 90.05), (0.0, 60.0), (80.0, 59.9), (80.0, 75.0))   # 50 mV < R I
+    ref_st = dyn.st.copy()
+    traj = []
+    for r, level in legs:
+        sim = PZTSimulator(pz0.with_resistance(r), 1e-5)
+        sim.st[:] = dyn.st
+        st_ref = dyn.st.copy()
+        v = np.full(40_000, level)
+        traj.append(sim.run(v))
+        ref = run_steps(K.pzt_step_reference, sim.m, st_ref, v, np.zeros_like(v))
+        assert np.max(np.abs(traj[-1].v_t_v - ref[:, 5])) <= 1e-10 * 100.0, r
+        dyn.st[:] = sim.st
+    # the dynamic legs settle on their level through 80 ohm (R C ~ 1 ms) and the static legs slew to theirs
+    for (r, level), tr_leg in zip(legs, traj):
+        assert abs(tr_leg.v_t_v[-1] - level) <= (1e-9 if r else 1e-12) * 100.0, (r, level, tr_leg.v_t_v[-1])
+    # each dynamic leg's charge at rest is where the quasi-static form puts the same history (the static operator)
+    v_hist = np.r_[pz0.terminal_operator().output_at_rest(), 70.0, [lv for _, lv in legs]]
+    q_static = pz0.terminal_operator().inverse()(v_hist)[2:]
+    got = np.array([tr_leg.q_c[-1] for tr_leg in traj])
+    np.testing.assert_allclose(got, q_static, rtol=0, atol=1e-9 * np.max(np.abs(q_static)))
+    assert not np.array_equal(ref_st, dyn.st)
 
 
 def test_the_coupled_kernels_segment_entries_are_its_plays_slopes(root, rng):

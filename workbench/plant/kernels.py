@@ -498,6 +498,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
         else:
             qh_new = qh_t
         if qh_new != qh:
+            _check_segment(st, dt, r)         # a state from the dynamic form: its RC factors re-formed for R = 0
             u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
         else:
             u_new = u
