@@ -150,7 +150,11 @@ def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
 
 
 def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
-    """Build the state vector (xm: modal state, scratch copy, previous x_qs)."""
+    """Build the state vector (xm: modal state, scratch copy, previous x_qs).
+
+    ``zQ``, Q = G^-1's play states, keep their place in the layout but no step reads or moves them since
+    session 37: the quasi-static step forms Q's states from G's (:func:`_quasi_static_charge`).
+    """
     st = np.zeros(size)
     st[S_QH], st[S_U], st[S_GUP], st[S_GDN] = qh, u, cap_up, cap_dn
     # no segment key yet: the first step's play pass recomputes the capacitances from the plays
@@ -208,22 +212,6 @@ def _check_segment(st, dt, r):
         st[S_FDT] = dt
         st[S_FR] = r
         st[S_PL] = st[S_PU] = np.nan
-
-
-@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
-def _pi_update(m, o_r, o_w, st, o_z, n, v):
-    """Advance a packed PI operator to input v; return its output."""
-    y = 0.0
-    for i in range(n):
-        ri = m[o_r + i]
-        zi = st[o_z + i]
-        if zi < v - ri:
-            zi = v - ri
-        elif zi > v + ri:
-            zi = v + ri
-        st[o_z + i] = zi
-        y += m[o_w + i] * zi
-    return y
 
 
 @njit(cache=True, error_model="numpy", inline="always")
