@@ -46,7 +46,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k, k_h_min; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k, k_h_min, c_q_max; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -61,6 +61,7 @@ static plant_consts plant_params(const double *m)
         double g_acc = 0.0, g_min = INFINITY;
         for (int i = 0; i < n_g; i++) { g_acc += m[o_wg + i]; g_min = fmin(g_min, g_acc); }
         p.k_h_min = g_min - inv_cpp;
+        p.c_q_max = 1.0 / g_min;                 /* Q's largest slope: the quasi-static step's bound */
     }
     p.d_eff = n > 0 ? m[(int)m[O_DD]] : 1.0;
     for (int a = 0; a < n; a++) p.d_eff += m[o_cd + a] * m[o_b + n + a];
@@ -87,21 +88,29 @@ static inline double rc_charge(double du, double cap, double f_full, double dt, 
     return d * i_lim * t_sat + d * r_ilim * cap * (1.0 - exp(-(dt - t_sat) / (r * cap)));
 }
 
-/* _quasi_static_charge of workbench.plant.kernels: Q = G^-1 at u_t from the play states G's imply (read only) */
-static double quasi_static_charge(const double *m, const double *st, double u, double u_t)
+/* _pi_update / _pi_output_at of workbench.plant.kernels: a packed PI operator to input v (or its output there) */
+static double pi_update(const double *m, double *st, int o_r, int o_w, int o_z, int n, double v, int write)
 {
-    const int n = (int)m[N_G], o_wg = (int)m[O_WG], o_zg = (int)m[OS_ZG], o_rq = (int)m[O_RQ], o_wq = (int)m[O_WQ];
-    double s = 0.0, w_acc = 0.0, q = 0.0;
+    double y = 0.0;
     for (int i = 0; i < n; i++) {
-        double zi = st[o_zg + i], wi = m[o_wg + i], ri = m[o_rq + i];
-        double zq = (u - s) + w_acc * zi;
-        zq = zq > u_t - ri ? zq : u_t - ri;       /* min(max(zq, lo), hi) */
-        zq = zq < u_t + ri ? zq : u_t + ri;
-        q += m[o_wq + i] * zq;
+        double z = clampd(st[o_z + i], v - m[o_r + i], v + m[o_r + i]);
+        if (write) st[o_z + i] = z;
+        y += m[o_w + i] * z;
+    }
+    return y;
+}
+
+/* _q_states_from_g of workbench.plant.kernels: Q's play states from G's (a state from the dynamic form) */
+static void q_states_from_g(const double *m, double *st, double u)
+{
+    const int n = (int)m[N_G], o_wg = (int)m[O_WG], o_zg = (int)m[OS_ZG], o_zq = (int)m[OS_ZQ];
+    double s = 0.0, w_acc = 0.0;
+    for (int i = 0; i < n; i++) {
+        double zi = st[o_zg + i], wi = m[o_wg + i];
+        st[o_zq + i] = (u - s) + w_acc * zi;
         s += wi * zi;
         w_acc += wi;
     }
-    return q;
 }
 
 /* _pi_update_segment of workbench.plant.kernels for the quasi-static step: G's plays to qh_new (the first every
@@ -178,29 +187,32 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
     }
     if (m[QUASI_STATIC] > 0.5) {
         /* R = 0: to V_t = v within the current limit over the step, else the limit's charge (pzt_advance) */
+        const int n_q = (int)m[N_Q], o_rq = (int)m[O_RQ], o_wq = (int)m[O_WQ], o_zq = (int)m[OS_ZQ];
+        if (st[S_FR] != r || st[S_FDT] != dt) {              /* _check_segment, then Q's plays from G's */
+            st[S_FUP] = rc_factor(st[S_GUP], dt, r);
+            st[S_FDN] = rc_factor(st[S_GDN], dt, r);
+            st[S_FDT] = dt;
+            st[S_FR] = r;
+            st[S_PL] = st[S_PU] = NAN;
+            q_states_from_g(m, st, u);
+        }
         double u_t = v - (qc_new - f_term) * inv_cpp;
-        double qh_t = u_t == u ? qh : quasi_static_charge(m, st, u, u_t);
-        double dq = (qh_t - qh) + (qc_new - qc_old);
-        int limited = dq > m[I_SRC] * dt || dq < -m[I_SNK] * dt;
+        double dqc = qc_new - qc_old, q_src = m[I_SRC] * dt, q_snk = m[I_SNK] * dt;
+        double span = fabs(u_t - u) * p->c_q_max, dq = 0.0;
+        int limited = 0;
+        if (dqc + span > q_src || dqc - span < -q_snk) {
+            dq = (pi_update(m, st, o_rq, o_wq, o_zq, n_q, u_t, 0) - qh) + dqc;
+            limited = dq > q_src || dq < -q_snk;
+        }
         if (limited) {
-            dq = dq > 0 ? m[I_SRC] * dt : -m[I_SNK] * dt;
-            qh_new = qh + (dq - (qc_new - qc_old));
-        } else {
-            qh_new = qh_t;
-        }
-        if (qh_new != qh) {
-            if (st[S_FDT] != dt || st[S_FR] != r) {          /* _check_segment */
-                st[S_FUP] = rc_factor(st[S_GUP], dt, r);
-                st[S_FDN] = rc_factor(st[S_GDN], dt, r);
-                st[S_FDT] = dt;
-                st[S_FR] = r;
-                st[S_PL] = st[S_PU] = NAN;
-            }
+            qh_new = qh + ((dq > 0 ? q_src : -q_snk) - dqc);
             u_new = g_update_segment(m, st, qh_new, dt, r);
+            pi_update(m, st, o_rq, o_wq, o_zq, n_q, u_new, 1);
         } else {
-            u_new = u;
+            qh_new = pi_update(m, st, o_rq, o_wq, o_zq, n_q, u_t, 1);
+            if (qh_new != qh) g_update_segment(m, st, qh_new, dt, r);
+            u_new = u_t;
         }
-        if (!limited) u_new = u_t;
     } else {
         double du = (v - (qc_old - f_term) * inv_cpp - u) + th_c;   /* the gap after the branches' step */
         double dq = 0.0;

@@ -152,8 +152,8 @@ def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
 def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
     """Build the state vector (xm: modal state, scratch copy, previous x_qs).
 
-    ``zQ``, Q = G^-1's play states, keep their place in the layout but no step reads or moves them since
-    session 37: the quasi-static step forms Q's states from G's (:func:`_quasi_static_charge`).
+    ``zQ``, Q = G^-1's play states: the quasi-static step keeps them and G's (``zG``); the dynamic form keeps
+    G's only, and a state it hands to the quasi-static form has Q's formed from them (:func:`_q_states_from_g`).
     """
     st = np.zeros(size)
     st[S_QH], st[S_U], st[S_GUP], st[S_GDN] = qh, u, cap_up, cap_dn
@@ -325,7 +325,10 @@ def plant_params(m):
             inv_cpp / (1.0 + b_tot * inv_cpp),
             # 1 / C_h's largest capacitance: G's smallest slope (its least prefix sum of weights, the slope after a
             # long monotone move) less 1 / C_pp, the bound pzt_advance takes V_t's drop from the branches on
-            g_min - inv_cpp)
+            g_min - inv_cpp,
+            # the terminal's largest capacitance 1 / g_min (Q's largest slope): the quasi-static step's bound on the
+            # charge a move of the terminal voltage takes
+            1.0 / g_min)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -371,30 +374,53 @@ def creep_branch_update(dec, o_dec, b, o_b, qc, o_qc, n_c, v_h_s):
         qc[o_qc + j] = dec[o_dec + j] * qc[o_qc + j] + b[o_b + j] * v_h_s
 
 
-@njit(cache=True, error_model="numpy", inline="always")
-def _quasi_static_charge(m, st, o_rg, o_wg, o_zg, o_rq, o_wq, n, u, u_t):
-    """Q[u_t], C: the hysteretic charge at which G's output is ``u_t`` (V), reached from G's present plays.
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
+def _pi_update(m, o_r, o_w, st, o_z, n, v):
+    """Advance a packed PI operator to input v; return its output."""
+    y = 0.0
+    for i in range(n):
+        ri = m[o_r + i]
+        zi = st[o_z + i]
+        if zi < v - ri:
+            zi = v - ri
+        elif zi > v + ri:
+            zi = v + ri
+        st[o_z + i] = zi
+        y += m[o_w + i] * zi
+    return y
 
-    Q = G^-1 (its thresholds and weights at ``o_rq``, ``o_wq`` of ``m``) is advanced to ``u_t`` from the play
-    states it would hold now, formed from G's (Kuhnen's state map, :meth:`~.hysteresis.PrandtlIshlinskii.inverse`):
-    z'_i = W_i z_i + sum_{j>i} w_j z_j with W_i = w_0 + ... + w_i, written z'_i = (u - sum_{j<i} w_j z_j)
-    + W_{i-1} z_i with ``u`` = sum_j w_j z_j, G's present output (V). Nothing is written: G's plays stay the
-    state of both forms (the quasi-static step moves them to the charge it settles on), so a state passes
-    between a model with and one without the series resistor.
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
+def _pi_output_at(m, o_r, o_w, st, o_z, n, v):
+    """The output :func:`_pi_update` would return at input v, nothing written (its arithmetic, so the two agree)."""
+    y = 0.0
+    for i in range(n):
+        ri = m[o_r + i]
+        zi = st[o_z + i]
+        if zi < v - ri:
+            zi = v - ri
+        elif zi > v + ri:
+            zi = v + ri
+        y += m[o_w + i] * zi
+    return y
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _q_states_from_g(m, st, o_wg, o_zg, o_zq, n, u):
+    """Q = G^-1's play states from G's (Kuhnen's state map, :meth:`~.hysteresis.PrandtlIshlinskii.inverse`).
+
+    z'_i = W_i z_i + sum_{j>i} w_j z_j (W_i = w_0 + ... + w_i, G's weights ``w``, states ``z``), written
+    z'_i = (u - sum_{j<i} w_j z_j) + W_{i-1} z_i with ``u`` = sum_j w_j z_j, G's present output (V). For a state
+    that comes from the dynamic form, which keeps G's plays only.
     """
-    s = 0.0                                   # sum_{j<i} w_j z_j
-    w_acc = 0.0                               # W_{i-1}
-    q = 0.0
+    s = 0.0
+    w_acc = 0.0
     for i in range(n):
         zi = st[o_zg + i]
         wi = m[o_wg + i]
-        ri = m[o_rq + i]
-        zq = (u - s) + w_acc * zi
-        zq = min(max(zq, u_t - ri), u_t + ri)
-        q += m[o_wq + i] * zq
+        st[o_zq + i] = (u - s) + w_acc * zi
         s += wi * zi
         w_acc += wi
-    return q
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -415,9 +441,10 @@ def pzt_advance(p, m, st, v_cmd, f_e):
 
     Quasi-static form (R = 0, the series resistor out): the amplifier drives the terminal itself, after the same
     creep step (V_t held, k = 1 / C_pp), to V_t = v if the charge that takes is within its current limit over the
-    step (Q = G^-1 at u*, :func:`_quasi_static_charge`); otherwise exactly i_lim dt moves (the source's rising,
-    the sink's falling) and G gives the terminal from the charge, so V_t slews at i_lim / C toward v and never
-    passes it. G's plays are the state in both forms.
+    step (Q = G^-1 at u*: its plays move there, G's follow the charge); otherwise exactly i_lim dt moves (the
+    source's rising, the sink's falling) and G gives the terminal from the charge (Q's plays follow it), so V_t
+    slews at i_lim / C toward v and never passes it. G's plays are kept in both forms (a state passes between
+    them: Q's are formed from G's where the state comes from the dynamic form, :func:`_q_states_from_g`).
 
     The arithmetic is arranged for a short dependency chain per step (the physics is that of
     :func:`pzt_step_reference`, equal to ~1e-15 relative, the tests hold the two together):
@@ -428,7 +455,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k, k_h_min) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k, k_h_min, c_q_max) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
@@ -473,25 +500,34 @@ def pzt_advance(p, m, st, v_cmd, f_e):
         qc_new = 0.0
     if quasi_static:
         # R = 0: the amplifier drives the terminal directly, to V_t = v at the step's end with the branches' new
-        # charge (u_t: G's output there) if the charge that takes, Q[u_t] + Q_c' - q, is within its current limit
-        # over the step; else exactly the limit's charge moves and G gives the terminal from the charge
-        # (_quasi_static_charge: Q = G^-1 read from G's plays, which are the state in both forms)
+        # charge (u_t: G's output there, Q = G^-1's input) if the charge that takes, Q[u_t] + Q_c' - q, is within
+        # its current limit over the step: Q's plays move to u_t and G's follow the charge (the step before session
+        # 37, bit for bit). Else exactly the limit's charge moves: G gives the terminal from the charge and Q's
+        # plays follow it. Where |u_t - u| C_max + |dQ_c| is within the limit (C_max: Q's largest slope) it cannot
+        # bind and Q moves at once; otherwise Q is read first (_pi_output_at)
+        if st[S_FR] != r or st[S_FDT] != dt:
+            # a state from another model (the dynamic form keeps G's plays only): RC factors, Q's plays from G's
+            _check_segment(st, dt, r)
+            _q_states_from_g(m, st, o_wg, o_zg, o_zq, n_g, u)
         u_t = v - (qc_new - f_term) * inv_cpp
-        qh_t = qh if u_t == u else _quasi_static_charge(m, st, o_rg, o_wg, o_zg, o_rq, o_wq, n_g, u, u_t)
-        dq = (qh_t - qh) + (qc_new - qc_old)
-        limited = dq > i_src * dt or dq < -i_snk * dt
+        dqc = qc_new - qc_old
+        q_src = i_src * dt
+        q_snk = i_snk * dt
+        span = abs(u_t - u) * c_q_max
+        limited = False
+        dq = 0.0
+        if dqc + span > q_src or dqc - span < -q_snk:
+            dq = (_pi_output_at(m, o_rq, o_wq, st, o_zq, n_q, u_t) - qh) + dqc
+            limited = dq > q_src or dq < -q_snk
         if limited:
-            dq = i_src * dt if dq > 0 else -i_snk * dt
-            qh_new = qh + (dq - (qc_new - qc_old))
-        else:
-            qh_new = qh_t
-        if qh_new != qh:
-            _check_segment(st, dt, r)         # a state from the dynamic form: its RC factors re-formed for R = 0
+            qh_new = qh + ((q_src if dq > 0 else -q_snk) - dqc)
             u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+            _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
         else:
-            u_new = u
-        if not limited:
-            u_new = u_t                       # V_t = v exactly (G's output there to rounding)
+            qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_t)
+            if qh_new != qh:
+                _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+            u_new = u_t
     else:
         # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
         # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
@@ -643,9 +679,24 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
     if m[QUASI_STATIC] > 0.5:
         # R = 0: the amplifier moves the terminal charge to V_t = v, G[q_h'] + (Q_c' - T_em F_e / k_p) / C_pp = v,
         # unless that takes more than its current limit over the step, i_lim dt: then it moves exactly that much.
-        # Written with G alone (not Q = G^-1, which pzt_advance reads from G's plays): G's output is monotone in the
-        # charge from any state, so the limit binds where G at the limit's charge is still short of u_target, and
-        # otherwise the charge in between is found by bisection
+        # Written with G alone (pzt_advance reads Q = G^-1): G's output is monotone in the charge from any state, so
+        # the limit binds where G at the limit's charge is still short of u_target, and otherwise the charge in
+        # between is found by bisection
+        if st[S_FR] != r or st[S_FDT] != dt:
+            # a state from another model (the dynamic form keeps G's plays only): Q's plays from G's, Kuhnen's map
+            # z'_i = W_i z_i + sum_{j>i} w_j z_j as written (W_i: G's partial sums), and the RC factors for R = 0
+            o_w, o_zg, o_zq, n_g = int(m[O_WG]), int(m[OS_ZG]), int(m[OS_ZQ]), int(m[N_G])
+            for i in range(n_g):
+                w_i = 0.0
+                for j in range(i + 1):
+                    w_i += m[o_w + j]
+                tail = 0.0
+                for j in range(i + 1, n_g):
+                    tail += m[o_w + j] * st[o_zg + j]
+                st[o_zq + i] = w_i * st[o_zg + i] + tail
+            st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
+            st[S_FDT], st[S_FR] = dt, r
+            st[S_PL] = st[S_PU] = np.nan
         u_target = v - (qc_new - f_term) * inv_cpp
         qh_up = qh + (i_src * dt - (qc_new - qc_old))
         qh_dn = qh + (-i_snk * dt - (qc_new - qc_old))
@@ -724,6 +775,11 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
         u_new = u
     if at_v:
         u_new = u_target                      # V_t = v exactly (G's output there to rounding)
+    if m[QUASI_STATIC] > 0.5:
+        # Q's plays follow the terminal voltage (the quasi-static form keeps them beside G's)
+        o_r, o_w, o_z = int(m[O_RQ]), int(m[O_WQ]), int(m[OS_ZQ])
+        for i in range(int(m[N_Q])):
+            st[o_z + i] = min(max(st[o_z + i], u_new - m[o_r + i]), u_new + m[o_r + i])
     v_h = u_new - qh_new * inv_cpp
     q = qh_new + qc_new
     st[S_QH] = qh_new
