@@ -13,7 +13,7 @@ state variable, back into the voltage across the hysteretic capacitance.
 
 The ``*_step`` functions are numba kernels for running an operator over a record
 (:meth:`PrandtlIshlinskii.__call__`). The PZT time stepping has its own copy of the
-play update over packed arrays (``kernels._pi_update_segment``), because handing it these
+play update over packed arrays (``kernels._pi_update``), because handing it these
 separate arrays per step cost more in reference counting than the update itself;
 the property tests here and the closed-form tests of the simulator cover both.
 """
