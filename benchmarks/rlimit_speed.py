@@ -12,9 +12,10 @@ machine's load falls on both alike:
   Q from G's plays and moves G's plays too).
 
 Each child warms up (compiles, or loads its numba cache) and keeps the best thread CPU time of three calls. The
-ratio new / old per pair and its median over the pairs are printed (JSON with ``--json``).
+ratio new / old per pair and its median over the pairs are printed (JSON with ``--json``). ``--aa`` runs the old
+revision on both sides: the ratio's noise on this machine.
 
-    PYTHONPATH=. python benchmarks/rlimit_speed.py [--old f975e1a] [--pairs 8] [--steps 2000000]
+    PYTHONPATH=. python benchmarks/rlimit_speed.py [--old f975e1a] [--pairs 8] [--steps 2000000] [--aa]
 """
 
 import argparse
@@ -82,16 +83,22 @@ def main(argv=None):
     ap.add_argument("--pairs", type=int, default=8)
     ap.add_argument("--steps", type=int, default=2_000_000)
     ap.add_argument("--json", type=Path)
+    ap.add_argument("--aa", action="store_true", help="an A/A control: the old revision on both sides (the noise "
+                                                      "of the ratio on this machine)")
     args = ap.parse_args(argv)
     import numpy as np
     with tempfile.TemporaryDirectory(prefix="rlimit_old_") as tmp:
         old = _extract(args.old, tmp)
+        new = ROOT
+        if args.aa:
+            Path(tmp, "b").mkdir()
+            new = _extract(args.old, Path(tmp, "b"))
         _child(old, 1000)                      # compile both once (their numba caches), untimed
-        _child(ROOT, 1000)
+        _child(new, 1000)
         pairs = []
         for k in range(args.pairs):
-            a, b = (_child(old, args.steps), _child(ROOT, args.steps)) if k % 2 == 0 else \
-                tuple(reversed((_child(ROOT, args.steps), _child(old, args.steps))))
+            a, b = (_child(old, args.steps), _child(new, args.steps)) if k % 2 == 0 else \
+                tuple(reversed((_child(new, args.steps), _child(old, args.steps))))
             pairs.append({"old": a, "new": b, "load": os.getloadavg()})
             print(f"pair {k + 1}: " + ", ".join(f"{key} {b[key] / a[key]:.3f}" for key in a), flush=True)
     keys = pairs[0]["old"].keys()
@@ -103,8 +110,8 @@ def main(argv=None):
         print(f"{key}: new / old median {s['median']:.3f} (pairs {s['min']:.3f}-{s['max']:.3f}); best CPU "
               f"{s['old_best_s']:.3f} s -> {s['new_best_s']:.3f} s over {args.steps} steps")
     if args.json:
-        args.json.write_text(json.dumps({"old": args.old, "steps": args.steps, "pairs": pairs, "summary": summary},
-                                        indent=1))
+        args.json.write_text(json.dumps({"old": args.old, "aa": args.aa, "steps": args.steps, "pairs": pairs,
+                                         "summary": summary}, indent=1))
 
 
 if __name__ == "__main__":

@@ -325,10 +325,7 @@ def plant_params(m):
             inv_cpp / (1.0 + b_tot * inv_cpp),
             # 1 / C_h's largest capacitance: G's smallest slope (its least prefix sum of weights, the slope after a
             # long monotone move) less 1 / C_pp, the bound pzt_advance takes V_t's drop from the branches on
-            g_min - inv_cpp,
-            # the terminal's largest capacitance 1 / g_min (Q's largest slope): the quasi-static step's bound on the
-            # charge a move of the terminal voltage takes
-            1.0 / g_min)
+            g_min - inv_cpp)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -423,6 +420,52 @@ def _q_states_from_g(m, st, o_wg, o_zg, o_zq, n, u):
         w_acc += wi
 
 
+@njit(cache=True, error_model="numpy")
+def _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term):
+    """The quasi-static (R = 0) electrical step after the creep branches' step: (q_h', G's output u'), C and V.
+
+    The amplifier drives the terminal directly, to V_t = v at the step's end with the branches' new charge (u_t:
+    G's output there, Q = G^-1's input) if the charge that takes, Q[u_t] + Q_c' - q, is within its current limit
+    over the step: Q's plays move to u_t and G's follow the charge (the step before session 37, bit for bit).
+    Else exactly the limit's charge moves (i_src dt rising, i_snk dt falling): G gives the terminal from the
+    charge and Q's plays follow it, so V_t slews at i_lim / C toward v and never passes it. Where
+    |u_t - u| C_max + |dQ_c| is within the limit (C_max: Q's largest slope) it cannot bind and Q moves at once;
+    otherwise Q is read first (:func:`_pi_output_at`). A state from another model (the dynamic form keeps G's
+    plays only; marker S_FR, S_FDT) has its RC factors re-formed and Q's plays formed from G's.
+
+    Not inlined into :func:`pzt_advance`: the compiled loops that inline the step (``pzt_run``, the closed
+    loop) keep the dynamic form's code as it was (inlined, this branch cost those loops ~10 % with R in).
+    """
+    (r, i_src, i_snk, dt, inv_cpp, n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq) = (
+        m[R], m[I_SRC], m[I_SNK], m[DT], m[INV_C_PP], _index(m[N_G]), _index(m[O_RG]), _index(m[O_WG]),
+        _index(m[OS_ZG]), _index(m[N_Q]), _index(m[O_RQ]), _index(m[O_WQ]), _index(m[OS_ZQ]))
+    if st[S_FR] != r or st[S_FDT] != dt:
+        _check_segment(st, dt, r)
+        _q_states_from_g(m, st, o_wg, o_zg, o_zq, n_g, u)
+    u_t = v - (qc_new - f_term) * inv_cpp
+    dqc = qc_new - qc_old
+    q_src = i_src * dt
+    q_snk = i_snk * dt
+    c_q_max = 0.0                                # Q's largest slope: the sum of its weights (all positive)
+    for i in range(n_q):
+        c_q_max += m[o_wq + i]
+    span = abs(u_t - u) * c_q_max
+    dq = 0.0
+    limited = False
+    if dqc + span > q_src or dqc - span < -q_snk:
+        dq = (_pi_output_at(m, o_rq, o_wq, st, o_zq, n_q, u_t) - qh) + dqc
+        limited = dq > q_src or dq < -q_snk
+    if limited:
+        qh_new = qh + ((q_src if dq > 0 else -q_snk) - dqc)
+        u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+        _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)          # Q's plays follow the terminal G gives
+        return qh_new, u_new
+    qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_t)
+    if qh_new != qh:
+        _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+    return qh_new, u_t                                           # V_t = v exactly (G's output there to rounding)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def pzt_advance(p, m, st, v_cmd, f_e):
     """Advance the PZT by one sub-step; return (x, q, i, V_h, V_p).
@@ -455,7 +498,7 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     """
     (r, i_src, i_snk, v_min, v_max, t_em, dt, quasi_static, inv_i_src, inv_i_snk, inv_kp, inv_cpp, inv_dt,
      n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq, n_c, o_cb, o_cdec, o_qc, n, o_x, o_a, o_b, o_cd, d_eff,
-     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k, k_h_min, c_q_max) = p
+     r_isrc, r_isnk, k_f, k_x, b_tot, kx_c, kx_f, qs_k, k_h_min) = p
     v = min(max(v_cmd, v_min), v_max)
     qh = st[S_QH]
     u = st[S_U]
@@ -499,35 +542,9 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     else:
         qc_new = 0.0
     if quasi_static:
-        # R = 0: the amplifier drives the terminal directly, to V_t = v at the step's end with the branches' new
-        # charge (u_t: G's output there, Q = G^-1's input) if the charge that takes, Q[u_t] + Q_c' - q, is within
-        # its current limit over the step: Q's plays move to u_t and G's follow the charge (the step before session
-        # 37, bit for bit). Else exactly the limit's charge moves: G gives the terminal from the charge and Q's
-        # plays follow it. Where |u_t - u| C_max + |dQ_c| is within the limit (C_max: Q's largest slope) it cannot
-        # bind and Q moves at once; otherwise Q is read first (_pi_output_at)
-        if st[S_FR] != r or st[S_FDT] != dt:
-            # a state from another model (the dynamic form keeps G's plays only): RC factors, Q's plays from G's
-            _check_segment(st, dt, r)
-            _q_states_from_g(m, st, o_wg, o_zg, o_zq, n_g, u)
-        u_t = v - (qc_new - f_term) * inv_cpp
-        dqc = qc_new - qc_old
-        q_src = i_src * dt
-        q_snk = i_snk * dt
-        span = abs(u_t - u) * c_q_max
-        limited = False
-        dq = 0.0
-        if dqc + span > q_src or dqc - span < -q_snk:
-            dq = (_pi_output_at(m, o_rq, o_wq, st, o_zq, n_q, u_t) - qh) + dqc
-            limited = dq > q_src or dq < -q_snk
-        if limited:
-            qh_new = qh + ((q_src if dq > 0 else -q_snk) - dqc)
-            u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
-            _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
-        else:
-            qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_t)
-            if qh_new != qh:
-                _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
-            u_new = u_t
+        # R = 0: the amplifier drives the terminal directly, within its current limit (_quasi_static_step: not
+        # inlined, so the loops that inline this step keep the dynamic form's code as compact as it was)
+        qh_new, u_new = _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term)
     else:
         # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
         # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
