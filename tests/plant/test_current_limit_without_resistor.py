@@ -213,3 +213,35 @@ def test_where_the_limit_never_binds_the_terminal_follows_the_command_as_the_sta
     np.testing.assert_allclose(tr.v_t_v, v, rtol=0, atol=1e-12 * amp)
     x_ref = pz.quasi_static_x_m(np.r_[0.0, v])[1:]
     np.testing.assert_allclose(tr.x_m, x_ref, rtol=0, atol=1e-12 * np.max(np.abs(x_ref)))
+
+
+@given(r1=st.floats(0.2, 5.0), r2=st.floats(0.2, 5.0), r3=st.floats(0.2, 5.0), w0=_log(1e-7, 1e-5),
+       w_neg=st.floats(0.3, 0.9), w_pos=st.floats(0.0, 0.3), levels=st.lists(st.floats(0.0, 110.0), min_size=3,
+                                                                            max_size=6),
+       back=st.floats(0.3, 3.0))
+@settings(max_examples=80, deadline=None)
+def test_the_charge_a_step_moves_never_passes_the_limit_with_a_negative_weight_in_c_h(sn637, r1, r2, r3, w0, w_neg,
+                                                                                     w_pos, levels, back):
+    """A C_h whose PI has a negative weight (allowed: its partial sums stay positive) gives Q = G^-1 a negative one
+    too, so Q's largest slope is its largest partial sum of weights (here the reversal's), not their sum: the
+    quasi-static step's bound on the charge a step can take must use the former, or a step it thinks cannot bind
+    moves more than ``I dt``. Held levels from rest (each a slew at the limit), each followed by a small step back
+    of ``back`` times what the sink's limit moves in a step on the reversal's capacitance (0.3-3: the limit binds
+    and does not): every step's terminal charge within ``[-I_snk dt, I_src dt]``, each level reached."""
+    thr = np.cumsum([0.0, r1, r2, r3])
+    w = np.array([w0, -w_neg * w0, w_pos * w_neg * w0, 0.5 * w_pos * w_neg * w0])   # partial sums > 0
+    h = PrandtlIshlinskii(thr, w, np.zeros(4))
+    pz = dataclasses.replace(sn637.pzt.with_resistance(0.0), hysteresis=h, modes=(), creep=None)
+    g = pz.terminal_operator()
+    c_rev = 1.0 / g.weights[0]
+    c_big = 1.0 / np.cumsum(g.weights).min()
+    dt = c_big * 100.0 / (pz.current_limit_source_a * 300.0)       # 100 V in ~300 steps at the source limit
+    delta = back * pz.current_limit_sink_a * dt / c_rev
+    v = np.concatenate([np.r_[np.full(1500, lv), np.full(50, lv - delta)] for lv in levels])
+    tr = PZTSimulator(pz, dt).run(v)
+    dq = np.diff(np.r_[pz.hysteresis.output_at_rest(), tr.q_c])
+    tol = 1e-12 * np.max(np.abs(tr.q_c)) + 1e-30
+    assert np.all(dq <= pz.current_limit_source_a * dt + tol), (dq.max(), pz.current_limit_source_a * dt)
+    assert np.all(dq >= -pz.current_limit_sink_a * dt - tol), (dq.min(), -pz.current_limit_sink_a * dt)
+    ends = tr.v_t_v[1499::1550]
+    np.testing.assert_allclose(ends, np.clip(levels, pz.voltage_min_v, pz.voltage_max_v), rtol=0, atol=1e-9 * 100.0)

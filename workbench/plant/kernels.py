@@ -449,9 +449,11 @@ def _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term):
     dqc = qc_new - qc_old
     q_src = i_src * dt
     q_snk = i_snk * dt
-    c_q_max = 0.0                                # Q's largest slope: the sum of its weights (all positive)
-    for i in range(n_q):
-        c_q_max += m[o_wq + i]
+    c_q_max = 0.0                                # Q's largest slope: its largest partial sum of weights (their
+    w_acc = 0.0                                  # sum where all are positive, as the inverse of a C_h whose own
+    for i in range(n_q):                         # weights are; a C_h with a negative one may give Q one too)
+        w_acc += m[o_wq + i]
+        c_q_max = max(c_q_max, w_acc)
     span = abs(u_t - u) * c_q_max
     dq = 0.0
     limited = False
