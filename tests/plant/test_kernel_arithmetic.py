@@ -102,6 +102,28 @@ def test_the_fast_quasi_static_step_is_the_reference_step_through_the_limit(root
         assert ref[:, i].min() <= -pz.current_limit_sink_a * (1 - 1e-9)
 
 
+@pytest.mark.parametrize("plant_file", PLANTS)
+@pytest.mark.parametrize("dt_s", [1e-5, 1e-3])
+def test_without_an_amplifier_the_fast_step_is_the_reference_and_the_terminal_is_the_command(root, rng, plant_file,
+                                                                                             dt_s):
+    """``PZTParams.terminal_driven()`` (R = 0, both limits infinite: the calibration's replay of a recorded terminal
+    voltage): the fast step against its Python twin, finite (the review of s37_rlimit, B2: the twin bracketed the
+    limit's charge at +-inf and returned NaN), and the terminal at the command, clipped to the range, at every step."""
+    pz = load_plant(root / "plants" / plant_file).pzt.terminal_driven()
+    n = 20_000
+    v, f = _drive(rng, n, pz)
+    a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
+    assert np.all(np.isfinite(fast)) and np.all(np.isfinite(ref))
+    x, q, i, v_h, v_p, v_t = range(K.N_OUT)
+    scale = np.max(np.abs(ref), axis=0)
+    err = np.max(np.abs(fast - ref), axis=0)
+    assert err[x] <= 1e-12 * scale[x] and err[q] <= 1e-12 * scale[q] and err[v_t] <= 1e-10 * scale[v_t]
+    clipped = np.clip(v, pz.voltage_min_v, pz.voltage_max_v)
+    np.testing.assert_allclose(fast[:, v_t], clipped, rtol=1e-12, atol=1e-12 * scale[v_t])
+
+
 def test_the_two_steps_can_share_a_state(sn637_creep, rng):
     # the reference keeps the capacitance segment entries current: alternating the two on one state
     # stays on the fast step's trajectory

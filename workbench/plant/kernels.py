@@ -549,10 +549,18 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     else:
         qc_new = 0.0
     if quasi_static:
-        # R = 0: the amplifier drives the terminal directly, within its current limit (_quasi_static_step: not
-        # inlined, so the loops that inline this step keep the dynamic form's code as compact as it was)
-        qh_new = _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term)
-        u_new = st[S_U]                          # G's output the step wrote (returning a pair cost the closed loop ~8 %)
+        if inv_i_src == 0.0 and inv_i_snk == 0.0:
+            # no amplifier (PZTParams.terminal_driven: a recorded terminal voltage replayed, both limits infinite):
+            # V_t = v at the step's end with the branches' new charge, Q's plays only (the step before session 37, bit
+            # for bit and as fast: the calibration's replays run here). G's plays are not kept, so such a model's state
+            # is not handed to another model (as before session 37)
+            u_new = v - (qc_new - f_term) * inv_cpp
+            qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
+        else:
+            # R = 0: the amplifier drives the terminal directly, within its current limit (_quasi_static_step: not
+            # inlined, so the loops that inline this step keep the dynamic form's code as compact as it was)
+            qh_new = _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term)
+            u_new = st[S_U]                      # G's output the step wrote (returning a pair cost the closed loop ~8 %)
     else:
         # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
         # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
@@ -701,7 +709,14 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
         qc_new += qj
     at_v = False                              # quasi-static within the current limit: V_t = v exactly
     u_target = u
-    if m[QUASI_STATIC] > 0.5:
+    no_amp = m[QUASI_STATIC] > 0.5 and m[INV_I_SRC] == 0.0 and m[INV_I_SNK] == 0.0
+    if no_amp:
+        # no amplifier (PZTParams.terminal_driven, both limits infinite): V_t = v through Q = G^-1, Q's plays only,
+        # as pzt_advance (G's plays not kept: such a model's state is not handed over)
+        u_target = v - (qc_new - f_term) * inv_cpp
+        qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
+        at_v = True
+    elif m[QUASI_STATIC] > 0.5:
         # R = 0: the amplifier moves the terminal charge to V_t = v, G[q_h'] + (Q_c' - T_em F_e / k_p) / C_pp = v,
         # unless that takes more than its current limit over the step, i_lim dt: then it moves exactly that much.
         # Written with G alone (pzt_advance reads Q = G^-1): G's output is monotone in the charge from any state, so
@@ -767,8 +782,8 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
                 # RC relaxation on the local slope: tau = R C
                 dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
         qh_new = qh + (dq - (qc_new - qc_old))
-    # G's plays to the new charge (both forms: the quasi-static one keeps them too)
-    if qh_new != qh:
+    # G's plays to the new charge (both forms: the quasi-static one keeps them too; not without an amplifier)
+    if qh_new != qh and not no_amp:
         o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
         y = 0.0
         up = 0.0
