@@ -2,7 +2,8 @@
  *
  * The same computation per servo period as the compiled loop (_loop, fixed-point form):
  *   1. the PZT: n_sub steps of workbench.plant.kernels.pzt_step (voltage range, R and the current limits,
- *      the PI operators G and Q, the creep branches, the modes), command held;
+ *      the PI operators G and Q, the creep branches, the modes; with R out the quasi-static step, still
+ *      current-limited), command held;
  *   2. the gauge chain, equivalent discrete model: the bridge (eq. 26, imbalance included) a quarter and
  *      three quarters into the period, x amp, clipped to the ADC range, 0.5 demod (vp - vn) + noise (one
  *      standard normal a period from the run's numpy bit generator, times sigma), trim, DAC quantization;
@@ -45,7 +46,7 @@ enum { S_QH, S_U, S_QC, S_GUP, S_GDN, S_KUP, S_KDN, S_FUP, S_FDN, S_PL, S_PU, S_
 static inline double clampd(double v, double lo, double hi) { return v < lo ? lo : v > hi ? hi : v; }
 
 /* the fixed products of plant_params (workbench.plant.kernels), formed once per call */
-typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k, k_h_min; } plant_consts;
+typedef struct { double r_isrc, r_isnk, k_f, k_x, b_tot, d_eff, kx_c, kx_f, qs_k, k_h_min, c_q_max; } plant_consts;
 
 static plant_consts plant_params(const double *m)
 {
@@ -60,6 +61,7 @@ static plant_consts plant_params(const double *m)
         double g_acc = 0.0, g_min = INFINITY;
         for (int i = 0; i < n_g; i++) { g_acc += m[o_wg + i]; g_min = fmin(g_min, g_acc); }
         p.k_h_min = g_min - inv_cpp;
+        p.c_q_max = 1.0 / g_min;                 /* Q's largest slope: the quasi-static step's bound */
     }
     p.d_eff = n > 0 ? m[(int)m[O_DD]] : 1.0;
     for (int a = 0; a < n; a++) p.d_eff += m[o_cd + a] * m[o_b + n + a];
@@ -84,6 +86,72 @@ static inline double rc_charge(double du, double cap, double f_full, double dt, 
     double t_sat = (gap - r_ilim) * inv_i * cap;
     if (t_sat >= dt) return d * i_lim * dt;
     return d * i_lim * t_sat + d * r_ilim * cap * (1.0 - exp(-(dt - t_sat) / (r * cap)));
+}
+
+/* _pi_update / _pi_output_at of workbench.plant.kernels: a packed PI operator to input v (or its output there) */
+static double pi_update(const double *m, double *st, int o_r, int o_w, int o_z, int n, double v, int write)
+{
+    double y = 0.0;
+    for (int i = 0; i < n; i++) {
+        double z = clampd(st[o_z + i], v - m[o_r + i], v + m[o_r + i]);
+        if (write) st[o_z + i] = z;
+        y += m[o_w + i] * z;
+    }
+    return y;
+}
+
+/* _q_states_from_g of workbench.plant.kernels: Q's play states from G's (a state from the dynamic form) */
+static void q_states_from_g(const double *m, double *st, double u)
+{
+    const int n = (int)m[N_G], o_wg = (int)m[O_WG], o_zg = (int)m[OS_ZG], o_zq = (int)m[OS_ZQ];
+    double s = 0.0, w_acc = 0.0;
+    for (int i = 0; i < n; i++) {
+        double zi = st[o_zg + i], wi = m[o_wg + i];
+        st[o_zq + i] = (u - s) + w_acc * zi;
+        s += wi * zi;
+        w_acc += wi;
+    }
+}
+
+/* _pi_update_segment of workbench.plant.kernels for the quasi-static step: G's plays to qh_new (the first every
+ * step, the others when qh_new leaves their band), the segment entries current. The dynamic step below keeps its
+ * own copy written out in place, so the code timed for a plant with R in is as it was. */
+static double g_update_segment(const double *m, double *st, double qh_new, double dt, double r)
+{
+    const int n = (int)m[N_G], o_r = (int)m[O_RG], o_w = (int)m[O_WG], o_z = (int)m[OS_ZG];
+    const double r0 = m[o_r], w0 = m[o_w], lo0 = qh_new - r0, hi0 = qh_new + r0;
+    double z0 = st[o_z];
+    z0 = z0 > lo0 ? z0 : lo0;
+    z0 = z0 < hi0 ? z0 : hi0;
+    st[o_z] = z0;
+    double up = z0 <= lo0 ? w0 : 0.0, dn = z0 >= hi0 ? w0 : 0.0, y;
+    if (st[S_PL] < qh_new && qh_new < st[S_PU]) {
+        y = w0 * z0 + st[S_Y1];
+    } else {
+        double pl = -INFINITY, pu = INFINITY, r_max = r0, y1 = 0.0;
+        y = w0 * z0;
+        for (int i = 1; i < n; i++) {
+            double ri = m[o_r + i], wi = m[o_w + i], lo = qh_new - ri, hi = qh_new + ri;
+            double z = st[o_z + i];
+            z = z > lo ? z : lo;
+            z = z < hi ? z : hi;
+            up += z <= lo ? wi : 0.0;
+            dn += z >= hi ? wi : 0.0;
+            st[o_z + i] = z;
+            y += wi * z;
+            y1 += wi * z;
+            pl = z - ri > pl ? z - ri : pl;
+            pu = z + ri < pu ? z + ri : pu;
+            r_max = ri > r_max ? ri : r_max;
+        }
+        double margin = 1e-12 * (fabs(qh_new) + r_max);
+        st[S_PL] = pl + margin;
+        st[S_PU] = pu - margin;
+        st[S_Y1] = y1;
+    }
+    if (up != st[S_KUP]) { st[S_KUP] = up; double cap = 1.0 / up; st[S_GUP] = cap; st[S_FUP] = rc_factor(cap, dt, r); }
+    if (dn != st[S_KDN]) { st[S_KDN] = dn; double cap = 1.0 / dn; st[S_GDN] = cap; st[S_FDN] = rc_factor(cap, dt, r); }
+    return y;
 }
 
 /* One plant sub-step: pzt_advance of workbench.plant.kernels; returns x, writes the current to *i_a. */
@@ -118,16 +186,33 @@ static inline double pzt_step(const double *m, double *st, const plant_consts *p
         qc_new = s_dec + p->b_tot * v_h_s;
     }
     if (m[QUASI_STATIC] > 0.5) {
-        double u_target = v - (qc_new - f_term) * inv_cpp;
-        const int n = (int)m[N_Q], o_r = (int)m[O_RQ], o_w = (int)m[O_WQ], o_z = (int)m[OS_ZQ];
-        double y = 0.0;
-        for (int i = 0; i < n; i++) {
-            double z = clampd(st[o_z + i], u_target - m[o_r + i], u_target + m[o_r + i]);
-            st[o_z + i] = z;
-            y += m[o_w + i] * z;
+        /* R = 0: to V_t = v within the current limit over the step, else the limit's charge (pzt_advance) */
+        const int n_q = (int)m[N_Q], o_rq = (int)m[O_RQ], o_wq = (int)m[O_WQ], o_zq = (int)m[OS_ZQ];
+        if (st[S_FR] != r || st[S_FDT] != dt) {              /* _check_segment, then Q's plays from G's */
+            st[S_FUP] = rc_factor(st[S_GUP], dt, r);
+            st[S_FDN] = rc_factor(st[S_GDN], dt, r);
+            st[S_FDT] = dt;
+            st[S_FR] = r;
+            st[S_PL] = st[S_PU] = NAN;
+            q_states_from_g(m, st, u);
         }
-        qh_new = y;
-        u_new = u_target;
+        double u_t = v - (qc_new - f_term) * inv_cpp;
+        double dqc = qc_new - qc_old, q_src = m[I_SRC] * dt, q_snk = m[I_SNK] * dt;
+        double span = fabs(u_t - u) * p->c_q_max, dq = 0.0;
+        int limited = 0;
+        if (dqc + span > q_src || dqc - span < -q_snk) {
+            dq = (pi_update(m, st, o_rq, o_wq, o_zq, n_q, u_t, 0) - qh) + dqc;
+            limited = dq > q_src || dq < -q_snk;
+        }
+        if (limited) {
+            qh_new = qh + ((dq > 0 ? q_src : -q_snk) - dqc);
+            u_new = g_update_segment(m, st, qh_new, dt, r);
+            pi_update(m, st, o_rq, o_wq, o_zq, n_q, u_new, 1);
+        } else {
+            qh_new = pi_update(m, st, o_rq, o_wq, o_zq, n_q, u_t, 1);
+            if (qh_new != qh) g_update_segment(m, st, qh_new, dt, r);
+            u_new = u_t;
+        }
     } else {
         double du = (v - (qc_old - f_term) * inv_cpp - u) + th_c;   /* the gap after the branches' step */
         double dq = 0.0;

@@ -58,7 +58,8 @@ def test_written_c_h_in_series_with_c_pp_gives_back_the_terminal_pi(sn637, draw)
         pi = PrandtlIshlinskii(pi.thresholds, pi.weights * 0.9 * c_pp / pi.weights.sum(), pi.initial_states)
     ch = hysteresis_from_terminal_pi(pi, c_pp)
     assert np.all(ch.weights >= 0) and ch.thresholds[0] == 0 and np.all(np.diff(ch.thresholds) > 0)
-    pzt = dataclasses.replace(sn637.pzt, series_resistance_ohm=0.0, hysteresis=ch, modes=(), creep=None)
+    # the drive is the terminal voltage itself (an ideal source: R out, no amplifier limit)
+    pzt = dataclasses.replace(sn637.pzt.terminal_driven(), hysteresis=ch, modes=(), creep=None)
     plant = dataclasses.replace(sn637, pzt=pzt)
     rng = np.random.default_rng(seed)
     t = np.arange(600) / 1e3
@@ -157,7 +158,7 @@ def test_branch_refit_recovers_branches_that_made_the_creep(sn637, caps_rel, tau
     t = np.arange(8000) / 1e3
     v = np.where(t < 4.0, 50.0 - 50.0 * np.cos(np.pi * t), np.where(t < 6.0, 80.0, 30.0))
     caps = np.asarray(caps_rel) * sn637.pzt.c_pp_f
-    quasi = dataclasses.replace(sn637.pzt, series_resistance_ohm=0.0, modes=())
+    quasi = dataclasses.replace(sn637.pzt.terminal_driven(), modes=())     # as refine_branches simulates
 
     def x(creep):
         p = dataclasses.replace(sn637, pzt=dataclasses.replace(quasi, creep=creep))
@@ -248,7 +249,7 @@ def test_branch_refit_settles_no_further_than_the_spectrum_says(sn637, caps_rel,
     t = np.arange(8000) / 1e3
     v = np.where(t < 4.0, 50.0 - 50.0 * np.cos(np.pi * t), np.where(t < 6.0, 80.0, 30.0))
     caps = np.asarray(caps_rel) * sn637.pzt.c_pp_f
-    quasi = dataclasses.replace(sn637.pzt, series_resistance_ohm=0.0, modes=())
+    quasi = dataclasses.replace(sn637.pzt.terminal_driven(), modes=())     # as refine_branches simulates
 
     def x(creep, tt=t, vv=v):
         p = dataclasses.replace(sn637, pzt=dataclasses.replace(quasi, creep=creep))
@@ -300,7 +301,7 @@ def test_a_record_not_from_rest_writes_the_rest_state_and_replays_from_rest(sn63
            "stages": []}
     h = refitted_core(sn637, base, fit)["hysteresis"]
     assert np.all(h.initial_states == 0.0), h.initial_states
-    quasi = dataclasses.replace(pzt, series_resistance_ohm=0.0, modes=(), creep=None, hysteresis=h)
+    quasi = dataclasses.replace(pzt.terminal_driven(), modes=(), creep=None, hysteresis=h)      # V_t drives it
     x = simulate_record(dataclasses.replace(sn637, pzt=quasi), t, v, noise=SensorNoise(0.0, 0.0, 0.0),
                         gauge=False, gauge_noise=False)["x_true_m"]
     expect = pzt.k_q2x_m_per_c * PrandtlIshlinskii(pi.thresholds, pi.weights, z0)(v)
@@ -321,7 +322,7 @@ def _creep_record(sn637, rng, rate_hz, taus, caps, delay_s, thresholds=None):
     t = np.arange(int(dur * rate_hz)) / rate_hz
     f = 0.5 if rate_hz == 1e3 else 2.5
     v = np.where(t < 0.6 * dur, 50.0 - 50.0 * np.cos(2 * np.pi * f * t), np.where(t < 0.8 * dur, 85.0, 20.0))
-    quasi = dataclasses.replace(sn637.pzt, series_resistance_ohm=0.0, modes=())
+    quasi = dataclasses.replace(sn637.pzt.terminal_driven(), modes=())     # the record's v_drive is V_t itself
     zero = float(rng.normal(0.0, 1e-6))
 
     def x(ch, caps_f, taus_s):
@@ -475,7 +476,7 @@ def test_with_the_resistor_in_and_the_recorded_voltage_no_branch_copies_the_rc_l
     for fastest in (None, FASTEST_BRANCH_OF_RC * rc):
         f = direct_core_and_branches(sn637, base, train, offset_m=0.0, fastest_branch_s=fastest)
         assert fastest is None or np.all(f["taus_s"] >= fastest * (1 - 1e-12))
-        p = dataclasses.replace(rin, series_resistance_ohm=0.0, hysteresis=f["hysteresis"],
+        p = dataclasses.replace(rin.terminal_driven(), hysteresis=f["hysteresis"],     # replayed on the recorded V
                                 creep=CreepParams(f["taus_s"], f["caps_f"]))
         x = simulate_record(dataclasses.replace(sn637, pzt=p), t, s["voltage_v"], noise=q, gauge=False,
                             gauge_noise=False, upsample=8)["x_true_m"]

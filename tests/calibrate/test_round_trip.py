@@ -93,7 +93,7 @@ def test_written_creep_steps_to_the_fitted_ratio_and_time_constant(sn637, tmp_pa
     assert "[creep]" in text
 
     def x(pl):
-        q = dataclasses.replace(pl, pzt=dataclasses.replace(pl.pzt, series_resistance_ohm=0.0))
+        q = dataclasses.replace(pl, pzt=pl.pzt.terminal_driven())       # V_t in, as the replay drives it
         return simulate_record(q, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False)["displacement_m"]
     core, crept = x(sn637), x(again)
     assert crept[-1] / core[-1] == pytest.approx(1.0 / (1.0 - sum(gains)), rel=0.03)
@@ -115,7 +115,7 @@ def test_written_creep_settles_branch_by_branch(sn637, tmp_path):
     _, again = _creep_file(sn637, tmp_path, [0.1, 0.2], [0.002, 0.5], v)
 
     def x(pl):
-        q = dataclasses.replace(pl, pzt=dataclasses.replace(pl.pzt, series_resistance_ohm=0.0))
+        q = dataclasses.replace(pl, pzt=pl.pzt.terminal_driven())       # V_t in, as the replay drives it
         return simulate_record(q, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False)["displacement_m"]
     core, crept = x(sn637), x(again)
     k = np.searchsorted(t, 0.030)
@@ -343,7 +343,7 @@ def test_charge_replay_is_the_simulated_charge_whatever_the_records_convention(s
     from workbench.calibrate.plant_update import replay_upsample
     t = np.arange(4000) / 1e3
     v = 50.0 + 40.0 * np.sin(2 * np.pi * 3.0 * t)
-    quasi = dc.replace(sn637, pzt=dc.replace(sn637.pzt, series_resistance_ohm=0.0))
+    quasi = dc.replace(sn637, pzt=sn637.pzt.terminal_driven())          # the replay's own model
     q = simulate_record(quasi, t, v, noise=SensorNoise(0.0, 0.0, 0.0), gauge=False,
                         upsample=replay_upsample(quasi, 1e3))["q_true_c"]
     base = _replay_base(sn637, t, v, "charge", q + 3e-6)       # an integrated charge has no absolute zero

@@ -21,13 +21,26 @@ def family(sn637):
 
 
 def test_quasi_static_family_is_the_closed_form(sn637):
-    # R = 0, no creep: x = k_q2x Q[V] with Q the PI operator V -> q; the simulated first harmonic
-    # of the whole plant equals k_q2x times the closed-form describing function of Q
+    # R = 0, no creep: x = k_q2x Q[V] with Q the PI operator V -> q; where the amplifier's current limit does not
+    # bind, the simulated first harmonic of the whole plant equals k_q2x times the closed-form describing function
+    # of Q. Where the closed form's own charge rate dQ[V]/dt on the periodic loop passes a limit (50 V at 1 Hz: ~4 mA
+    # against the 2 mA source), the point is saturated (the amplifier slews: R out too since session 37)
     pzt = sn637.pzt.with_resistance(0.0)
     amps = np.array([0.1, 1.0, 5.0, 20.0, 50.0])
     fam = pzt_describing_function(pzt, amps, [1.0])
-    closed = pzt.k_q2x_m_per_c * pi_df(pzt.terminal_operator().inverse(), amps)
-    assert np.max(np.abs(fam.x_m_per_v[0, :, 0] / closed - 1)) < 2e-5
+    q_op = pzt.terminal_operator().inverse()
+    closed = pzt.k_q2x_m_per_c * pi_df(q_op, amps)
+    t = np.arange(3 * 100_000) / 100_000                   # three periods of 1 Hz, from rest at the bias (50 V)
+    rise = np.linspace(pzt.terminal_operator().output_at_rest(), 50.0, 1000)     # rest to the bias
+    binds = []
+    for amp in amps:
+        q = q_op(np.r_[rise, 50.0 + amp * np.sin(2 * np.pi * t)])[rise.size:]
+        rate = np.diff(q[200_000:]) * 100_000               # the last period, C/s
+        binds.append(rate.max() > pzt.current_limit_source_a or -rate.min() > pzt.current_limit_sink_a)
+    binds = np.array(binds)
+    assert binds.tolist() == [False, False, False, False, True]
+    np.testing.assert_array_equal(fam.saturated[0, :, 0], binds)
+    assert np.max(np.abs(fam.x_m_per_v[0, ~binds, 0] / closed[~binds] - 1)) < 2e-5
 
 
 def test_small_amplitude_tends_to_the_reversal_model(sn637, family):

@@ -4,9 +4,12 @@
 mode steps arranged off the dependency chain, no division) against ``kernels.pzt_step_reference``
 (the step as first written, per-step divisions and exp) on drives over the whole range a user may
 bring: every plant file with a stack, sub-steps from 1 us to 1 ms, levels past both voltage limits,
-slews at the current limit, sines up to 2 kHz, force steps, the quasi-static (R = 0) form. And the
+slews at the current limit, sines up to 2 kHz, force steps, the quasi-static (R = 0) form through its current
+limit (session 37: G's plays its state too, so the two forms pass a state between them). And the
 coupled kernel's cached segment entries against a fresh computation from its plays.
 """
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -68,14 +71,57 @@ def test_the_fast_step_is_the_reference_step(root, rng, plant_file, dt_s):
         assert np.ptp(ref[:, v_t]) > 0.9 * (pz.voltage_max_v - pz.voltage_min_v)
 
 
-@pytest.mark.parametrize("dt_s", [1e-5, 1e-3])
-def test_the_fast_quasi_static_step_is_the_reference_step(sn637_creep, rng, dt_s):
-    pz = sn637_creep.pzt.with_resistance(0.0)
-    v, f = _drive(rng, 20_000, pz)
+@pytest.mark.parametrize("plant_file", PLANTS)
+@pytest.mark.parametrize("dt_s", [1e-6, 1e-5, 1e-4, 1e-3])
+def test_the_fast_quasi_static_step_is_the_reference_step_through_the_limit(root, rng, plant_file, dt_s):
+    """``pzt_step`` (Q = G^-1 read from G's plays) against ``pzt_step_reference`` (G alone: the limit's charge tried,
+    else bisection) with R out, every plant file, sub-steps 1 us-1 ms: outputs and states (plays, creep, modes) to
+    the tolerances of the dynamic form's test; the drive slews at the limit (at the finer steps) and holds."""
+    pz = load_plant(root / "plants" / plant_file).pzt.with_resistance(0.0)
+    n = 20_000
+    v, f = _drive(rng, n, pz)
     a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
     fast = run_steps(K.pzt_step, a.m, a.st, v, f)
     ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
-    assert np.max(np.abs(fast[:, 0] - ref[:, 0])) <= 1e-12 * np.max(np.abs(ref[:, 0]))
+    scale = np.max(np.abs(ref), axis=0)
+    err = np.max(np.abs(fast - ref), axis=0)
+    x, q, i, v_h, v_p, v_t = range(K.N_OUT)
+    assert err[x] <= 1e-12 * scale[x] and err[q] <= 1e-12 * scale[q]
+    assert err[v_h] <= 1e-10 * scale[v_h] and err[v_p] <= 1e-10 * scale[v_p] and err[v_t] <= 1e-10 * scale[v_t]
+    assert err[i] <= 1e-9 * scale[i]
+    keep = np.ones(a.st.size, bool)
+    o_x, n_m = int(a.m[K.OS_XM]), int(a.m[K.N_M])
+    keep[o_x + n_m:o_x + 2 * n_m] = False
+    keep[[K.S_PL, K.S_PU, K.S_Y1]] = False
+    np.testing.assert_allclose(a.st[keep], b.st[keep], rtol=1e-9, atol=1e-12 * scale[q])
+    # the limit bound: both peaks at the limits where a level's step slews (all but the coarsest step)
+    assert ref[:, i].max() <= pz.current_limit_source_a * (1 + 1e-9)
+    assert ref[:, i].min() >= -pz.current_limit_sink_a * (1 + 1e-9)
+    if dt_s <= 1e-4:
+        assert ref[:, i].max() >= pz.current_limit_source_a * (1 - 1e-9)
+        assert ref[:, i].min() <= -pz.current_limit_sink_a * (1 - 1e-9)
+
+
+@pytest.mark.parametrize("plant_file", PLANTS)
+@pytest.mark.parametrize("dt_s", [1e-5, 1e-3])
+def test_without_an_amplifier_the_fast_step_is_the_reference_and_the_terminal_is_the_command(root, rng, plant_file,
+                                                                                             dt_s):
+    """``PZTParams.terminal_driven()`` (R = 0, both limits infinite: the calibration's replay of a recorded terminal
+    voltage): the fast step against its Python twin, finite (the review of s37_rlimit, B2: the twin bracketed the
+    limit's charge at +-inf and returned NaN), and the terminal at the command, clipped to the range, at every step."""
+    pz = load_plant(root / "plants" / plant_file).pzt.terminal_driven()
+    n = 20_000
+    v, f = _drive(rng, n, pz)
+    a, b = PZTSimulator(pz, dt_s), PZTSimulator(pz, dt_s)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    ref = run_steps(K.pzt_step_reference, b.m, b.st, v, f)
+    assert np.all(np.isfinite(fast)) and np.all(np.isfinite(ref))
+    x, q, i, v_h, v_p, v_t = range(K.N_OUT)
+    scale = np.max(np.abs(ref), axis=0)
+    err = np.max(np.abs(fast - ref), axis=0)
+    assert err[x] <= 1e-12 * scale[x] and err[q] <= 1e-12 * scale[q] and err[v_t] <= 1e-10 * scale[v_t]
+    clipped = np.clip(v, pz.voltage_min_v, pz.voltage_max_v)
+    np.testing.assert_allclose(fast[:, v_t], clipped, rtol=1e-12, atol=1e-12 * scale[v_t])
 
 
 def test_the_two_steps_can_share_a_state(sn637_creep, rng):
@@ -88,6 +134,51 @@ def test_the_two_steps_can_share_a_state(sn637_creep, rng):
     mixed = np.vstack([run_steps(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500], f[k:k + 500])
                        for k in range(0, 4000, 500)])
     assert np.max(np.abs(mixed[:, 0] - fast[:, 0])) <= 1e-12 * np.max(np.abs(fast[:, 0]))
+
+
+def test_the_quasi_static_steps_can_share_a_state_and_pass_it_to_the_dynamic_form(sn637_creep, rng):
+    """G's plays are the state of both forms now: alternating the fast and the reference quasi-static steps on one
+    state stays on the fast step's trajectory; and a state the quasi-static form leaves at rest at a level, handed
+    to the dynamic form (R in), holds that level (no charge moves: the terminal already at the command)."""
+    pz = sn637_creep.pzt.with_resistance(0.0)
+    v, f = _drive(rng, 4000, pz)
+    a, b = PZTSimulator(pz, 1e-5), PZTSimulator(pz, 1e-5)
+    fast = run_steps(K.pzt_step, a.m, a.st, v, f)
+    mixed = np.vstack([run_steps(K.pzt_step_reference if k % 2 else K.pzt_step, b.m, b.st, v[k:k + 500],
+                                 f[k:k + 500]) for k in range(0, 4000, 500)])
+    assert np.max(np.abs(mixed[:, 0] - fast[:, 0])) <= 1e-12 * np.max(np.abs(fast[:, 0]))
+    pz0 = dataclasses.replace(pz, creep=None, modes=())
+    qs = PZTSimulator(pz0, 1e-5)
+    tr = qs.run(np.full(60_000, 70.0))
+    assert tr.v_t_v[-1] == pytest.approx(70.0, abs=1e-12)
+    dyn = PZTSimulator(pz0.with_resistance(80.0), 1e-5)
+    dyn.st[:] = qs.st
+    tr2 = dyn.run(np.full(1000, 70.0))
+    np.testing.assert_allclose(tr2.q_c, tr.q_c[-1], rtol=0, atol=1e-12 * abs(tr.q_c[-1]))
+    # and on: R in to R out and back, each leg on a new level, the fast step against the reference on the state
+    # handed over (the reference forms its RC step afresh; the fast one's RC factors, cached in the state, must be
+    # re-formed for each model's R: a stale R = 0 factor relaxes the whole gap in one step)
+    legs = ((80.0, 40.0), (0.0, 90.0), (80.0, 90.05), (0.0, 60.0), (80.0, 59.9), (80.0, 75.0))   # 50 mV < R I
+    ref_st = dyn.st.copy()
+    traj = []
+    for r, level in legs:
+        sim = PZTSimulator(pz0.with_resistance(r), 1e-5)
+        sim.st[:] = dyn.st
+        st_ref = dyn.st.copy()
+        v = np.full(40_000, level)
+        traj.append(sim.run(v))
+        ref = run_steps(K.pzt_step_reference, sim.m, st_ref, v, np.zeros_like(v))
+        assert np.max(np.abs(traj[-1].v_t_v - ref[:, 5])) <= 1e-10 * 100.0, r
+        dyn.st[:] = sim.st
+    # the dynamic legs settle on their level through 80 ohm (R C ~ 1 ms) and the static legs slew to theirs
+    for (r, level), tr_leg in zip(legs, traj):
+        assert abs(tr_leg.v_t_v[-1] - level) <= (1e-9 if r else 1e-12) * 100.0, (r, level, tr_leg.v_t_v[-1])
+    # each dynamic leg's charge at rest is where the quasi-static form puts the same history (the static operator)
+    v_hist = np.r_[pz0.terminal_operator().output_at_rest(), 70.0, [lv for _, lv in legs]]
+    q_static = pz0.terminal_operator().inverse()(v_hist)[2:]
+    got = np.array([tr_leg.q_c[-1] for tr_leg in traj])
+    np.testing.assert_allclose(got, q_static, rtol=0, atol=1e-9 * np.max(np.abs(q_static)))
+    assert not np.array_equal(ref_st, dyn.st)
 
 
 def test_the_coupled_kernels_segment_entries_are_its_plays_slopes(root, rng):

@@ -94,14 +94,21 @@ def test_open_circuit_instron_recovers_t_em(sn637):
 
 
 def test_voltage_is_clipped_to_the_amplifier_range(sn637):
+    # R out: the terminal slews at the current limit (2 mA up: ~0.7 s to 120 V; 14 mA down: ~0.12 s to -20 V), to the
+    # range's ends and never past them
     sim = PZTSimulator(sn637.pzt.with_resistance(0.0), 1e-3)
-    tr = sim.run(np.array([200.0, -50.0]))
+    tr = sim.run(np.r_[np.full(1500, 200.0), np.full(500, -50.0)])
+    assert tr.v_t_v[1499] == pytest.approx(120.0, abs=1e-12) and tr.v_t_v[-1] == pytest.approx(-20.0, abs=1e-12)
+    assert tr.v_t_v.max() <= 120.0 + 1e-12 and tr.v_t_v.min() >= -20.0 - 1e-12
+    # an ideal source at the terminal (no amplifier limit) is clipped alike, in one step
+    tr = PZTSimulator(sn637.pzt.terminal_driven(), 1e-3).run(np.array([200.0, -50.0]))
     assert tr.v_t_v.tolist() == pytest.approx([120.0, -20.0])
 
 
 def test_mode_filters_a_fast_step(sn637):
-    # 70 kHz stack mode sampled at 1 MHz: ringing with the mode's period, settling to the static value
-    sim = PZTSimulator(sn637.pzt.with_resistance(0.0), 1e-6)
+    # 70 kHz stack mode sampled at 1 MHz: ringing with the mode's period, settling to the static value. The step
+    # from an ideal source at the terminal: the amplifier's 2 mA would slew these 10 V over ~30 ms (R out or in)
+    sim = PZTSimulator(sn637.pzt.terminal_driven(), 1e-6)
     tr = sim.run(np.full(400, 10.0))
     static = sn637.pzt.k_q2x_m_per_c * tr.q_c[-1]
     assert tr.x_m.max() > 1.5 * static                     # light damping overshoots

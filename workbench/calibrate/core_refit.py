@@ -315,7 +315,8 @@ def creep_target(base, core_fit, core, params):
 def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None):
     """Kelvin-Voigt branches across the file's C_h fitted to the fitted model's creep part by simulation.
 
-    The plant (its refitted core, R out, no mode) is simulated on the record's drive (every k-th sample, at
+    The plant (its refitted core, R out and no amplifier as the replay drives it:
+    :meth:`~workbench.plant.pzt.PZTParams.terminal_driven`; no mode) is simulated on the record's drive (every k-th sample, at
     most :data:`REFINE_SAMPLES`) with and without the branches; their difference is fitted to ``target``
     (:func:`creep_target`) on the development ``rows`` (a constant free: the replay takes out a sensor's
     zero) by least squares over ``log C_j`` and ``log tau_j`` from the closed-form sizes ``caps_f``,
@@ -341,7 +342,7 @@ def refine_branches(plant, base, target, caps_f, taus_s, rows, max_nfev=None):
     y = np.asarray(target, float)[::k][rd]
     y = y - y.mean()
     scale = float(np.sqrt(np.mean(y * y))) or 1.0
-    pzt = dataclasses.replace(plant.pzt, series_resistance_ohm=0.0, modes=(), creep=None)
+    pzt = dataclasses.replace(plant.pzt.terminal_driven(), modes=(), creep=None)     # V_t in, as the replay
     quiet = SensorNoise(0.0, 0.0, 0.0)
 
     def sim(creep):

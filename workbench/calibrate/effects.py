@@ -1407,9 +1407,11 @@ class HeldDrive:
         itself, which the amplifier moved from one sample's value to the next along a straight line over the first
         ``ramp_fraction`` of the interval and then held: 1, a straight line over the whole sample (a first-order
         hold, a sampled smooth voltage; :func:`_foh_mode`'s drive); 0, a step at the interval's start (a command
-        held from sample to sample that nothing slows); between, a slew over part of the sample (the simulator's
-        own record without a resistor at :data:`~.synthetic.N_SUB` sub-steps a sample: its input is linear over
-        the first sub-step, ``1 / N_SUB``).
+        held from sample to sample that nothing slows); between, a slew over part of the sample (the amplifier's
+        current limit: a step of ``dv`` slews at ``I / C`` for ``C dv / (I dt)`` of the sample; the simulator's own
+        record without a resistor at :data:`~.synthetic.N_SUB` sub-steps a sample moves a step its limit allows
+        within a sub-step linearly over the first sub-step, ``1 / N_SUB``, a longer one at the limit over as many
+        sub-steps as it takes).
 
         No current limit and no settle are read from the record (there is no resistor to settle through). ``rc``,
         the fastest settle the held search's ceiling reads (:meth:`Resonance._held_ceiling`), is the sample period:

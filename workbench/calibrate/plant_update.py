@@ -1168,9 +1168,10 @@ def updated_plant_error(plant, base, channel, test, train=None, current="average
     """Held-out error of the record's drive simulated through ``plant`` (the updated plant file).
 
     The drive is the base fit's, the terminal voltage ``V_t = V - R i`` (``base.v_drive``), applied
-    to the plant with its series resistor taken out (the quasi-static electrical form): the fitted
-    model and the plant file then see one input, and the amplifier (its current limit, the monitor's
-    averaging, which a recorded ``V`` cannot give back as a command) is left out. The simulation is
+    to the plant with its series resistor taken out (the quasi-static electrical form,
+    :meth:`~workbench.plant.pzt.PZTParams.terminal_driven`): the fitted model and the plant file then see one
+    input, and the amplifier (its current limit, the monitor's averaging, which a recorded ``V`` cannot give
+    back as a command) is left out. The simulation is
     noise-free (no sensor noise, no gauge-chain noise), in chunks (memory bounded whatever the record's
     length), at :func:`replay_upsample` points per sample: the error is the record's noise plus what the
     plant file gets wrong, on the rows of the fitted model's ``error_after``.
@@ -1266,7 +1267,7 @@ def _replay(plant, base, channel):
     from .synthetic import SensorNoise, simulate_record
     from .tracing import held_drive
     t = np.asarray(base.t, float)
-    quasi = dataclasses.replace(plant, pzt=dataclasses.replace(plant.pzt, series_resistance_ohm=0.0))
+    quasi = dataclasses.replace(plant, pzt=plant.pzt.terminal_driven())     # V_t in, no amplifier (its limit) between
     held = held_drive(base)
     if held is None:
         rate = (t.size - 1) / (t[-1] - t[0]) if t.size > 1 and t[-1] > t[0] else 0.0

@@ -249,7 +249,7 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                     # a slewing response is excluded from the linear family anyway: its
                     # mean level settles slowly (asymmetric limits), 1e-4 is plenty for it
                     slewing = max(tr.peak_current_a[0] / i_limits[0], -tr.peak_current_a[1] / i_limits[1]) >= 1 - 1e-9
-                    tol_c = max(tol, 1e-4) if slewing and not quasi_static else tol
+                    tol_c = max(tol, 1e-4) if slewing else tol
                     if prev is not None and abs(h1 - prev) <= tol_c * abs(h1) and c >= 3:
                         per[b, a, k] = True
                         break
@@ -273,8 +273,8 @@ def pzt_describing_function(pzt, amplitudes_v, freq_hz, biases_v=(50.0,), sample
                 if qs_point:           # no series R in the run: the current is the charge's rate
                     dq = np.diff(np.concatenate([tr.q_c[-1:], tr.q_c])) / sim.dt_s
                     i_max, i_min = float(dq.max()), float(dq.min())
-                sat[b, a, k] = (not quasi_static) and (i_max >= i_limits[0] * (1 - 1e-9)
-                                                      or -i_min >= i_limits[1] * (1 - 1e-9))
+                # (R out too: the amplifier's limit bounds the charge each step moves, kernels' quasi-static step)
+                sat[b, a, k] = i_max >= i_limits[0] * (1 - 1e-9) or -i_min >= i_limits[1] * (1 - 1e-9)
                 clip[b, a, k] = bias - amp < pzt.voltage_min_v or bias + amp > pzt.voltage_max_v
                 cycles[b, a, k] = c
                 done += 1

@@ -29,6 +29,12 @@ the terminal without passing R or the amplifier's current limit: small at 80 ohm
 limited, where the loop corrects it within R C, but 27.7 uC and 387 nm apart during a 2 mA slew and tens of
 uC of "held" charge moved at open leads; tests/plant/test_kcl.py, benchmarks/kcl_creep.py.)
 
+Without the series resistor (R = 0, the quasi-static form: seed 000's free-free configuration) the amplifier
+drives the terminal directly and still saturates on its current: a step moves the charge that brings V_t to the
+command, or exactly i_lim dt where that is more (the source's rising, the sink's falling), so V_t slews at
+i_lim / C. (Before session 37 V_t was set to the command at every sub-step, no limit at all: resistor-out records
+stepped 30-270x faster than the declared amplifier can; tests/plant/test_current_limit_without_resistor.py.)
+
 :class:`workbench.plant.simulator.PZTSimulator` builds ``m`` and ``st``; the index
 constants below are their layout.
 """
@@ -144,7 +150,11 @@ def pack_model(scalars, G, Q, creep_c, creep_decay, Ad, Bd, Cd, Dd):
 
 
 def pack_state(m, size, qh, u, cap_up, cap_dn, zG, zQ, qc, xm):
-    """Build the state vector (xm: modal state, scratch copy, previous x_qs)."""
+    """Build the state vector (xm: modal state, scratch copy, previous x_qs).
+
+    ``zQ``, Q = G^-1's play states: the quasi-static step keeps them and G's (``zG``); the dynamic form keeps
+    G's only, and a state it hands to the quasi-static form has Q's formed from them (:func:`_q_states_from_g`).
+    """
     st = np.zeros(size)
     st[S_QH], st[S_U], st[S_GUP], st[S_GDN] = qh, u, cap_up, cap_dn
     # no segment key yet: the first step's play pass recomputes the capacitances from the plays
@@ -202,22 +212,6 @@ def _check_segment(st, dt, r):
         st[S_FDT] = dt
         st[S_FR] = r
         st[S_PL] = st[S_PU] = np.nan
-
-
-@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
-def _pi_update(m, o_r, o_w, st, o_z, n, v):
-    """Advance a packed PI operator to input v; return its output."""
-    y = 0.0
-    for i in range(n):
-        ri = m[o_r + i]
-        zi = st[o_z + i]
-        if zi < v - ri:
-            zi = v - ri
-        elif zi > v + ri:
-            zi = v + ri
-        st[o_z + i] = zi
-        y += m[o_w + i] * zi
-    return y
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -377,6 +371,108 @@ def creep_branch_update(dec, o_dec, b, o_b, qc, o_qc, n_c, v_h_s):
         qc[o_qc + j] = dec[o_dec + j] * qc[o_qc + j] + b[o_b + j] * v_h_s
 
 
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
+def _pi_update(m, o_r, o_w, st, o_z, n, v):
+    """Advance a packed PI operator to input v; return its output."""
+    y = 0.0
+    for i in range(n):
+        ri = m[o_r + i]
+        zi = st[o_z + i]
+        if zi < v - ri:
+            zi = v - ri
+        elif zi > v + ri:
+            zi = v + ri
+        st[o_z + i] = zi
+        y += m[o_w + i] * zi
+    return y
+
+
+@njit(cache=True, error_model="numpy", inline="always", fastmath={"contract", "reassoc"})
+def _pi_output_at(m, o_r, o_w, st, o_z, n, v):
+    """The output :func:`_pi_update` would return at input v, nothing written (its arithmetic, so the two agree)."""
+    y = 0.0
+    for i in range(n):
+        ri = m[o_r + i]
+        zi = st[o_z + i]
+        if zi < v - ri:
+            zi = v - ri
+        elif zi > v + ri:
+            zi = v + ri
+        y += m[o_w + i] * zi
+    return y
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _q_states_from_g(m, st, o_wg, o_zg, o_zq, n, u):
+    """Q = G^-1's play states from G's (Kuhnen's state map, :meth:`~.hysteresis.PrandtlIshlinskii.inverse`).
+
+    z'_i = W_i z_i + sum_{j>i} w_j z_j (W_i = w_0 + ... + w_i, G's weights ``w``, states ``z``), written
+    z'_i = (u - sum_{j<i} w_j z_j) + W_{i-1} z_i with ``u`` = sum_j w_j z_j, G's present output (V). For a state
+    that comes from the dynamic form, which keeps G's plays only.
+    """
+    s = 0.0
+    w_acc = 0.0
+    for i in range(n):
+        zi = st[o_zg + i]
+        wi = m[o_wg + i]
+        st[o_zq + i] = (u - s) + w_acc * zi
+        s += wi * zi
+        w_acc += wi
+
+
+@njit(cache=True, error_model="numpy")
+def _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term):
+    """The quasi-static (R = 0) electrical step after the creep branches' step: q_h' (C), G's output u' written to st.
+
+    The amplifier drives the terminal directly, to V_t = v at the step's end with the branches' new charge (u_t:
+    G's output there, Q = G^-1's input) if the charge that takes, Q[u_t] + Q_c' - q, is within its current limit
+    over the step: Q's plays move to u_t and G's follow the charge (the step before session 37, bit for bit).
+    Else exactly the limit's charge moves (i_src dt rising, i_snk dt falling): G gives the terminal from the
+    charge and Q's plays follow it, so V_t slews at i_lim / C toward v and never passes it. Where
+    |u_t - u| C_max + |dQ_c| is within the limit (C_max: Q's largest slope) it cannot bind and Q moves at once;
+    otherwise Q is read first (:func:`_pi_output_at`). A state from another model (the dynamic form keeps G's
+    plays only; marker S_FR, S_FDT) has its RC factors re-formed and Q's plays formed from G's.
+
+    Not inlined into :func:`pzt_advance`, and returning one float: the compiled loops that inline the step
+    (``pzt_run``, the closed loop) keep the dynamic form's code as it was. Measured (2026-11-29, the closed loop's
+    CPU time against the plain C loop's, benchmarks/closed_loop_vs_c.py, 2e6 periods, load ~3-4): f975e1a 0.84-0.85;
+    this branch inlined 1.02; a call returning the pair (q_h', u') 0.96-0.99; returning q_h' alone 0.89; f975e1a
+    with only a bare call in its quasi-static branch 0.88-0.89.
+    """
+    (r, i_src, i_snk, dt, inv_cpp, n_g, o_rg, o_wg, o_zg, n_q, o_rq, o_wq, o_zq) = (
+        m[R], m[I_SRC], m[I_SNK], m[DT], m[INV_C_PP], _index(m[N_G]), _index(m[O_RG]), _index(m[O_WG]),
+        _index(m[OS_ZG]), _index(m[N_Q]), _index(m[O_RQ]), _index(m[O_WQ]), _index(m[OS_ZQ]))
+    if st[S_FR] != r or st[S_FDT] != dt:
+        _check_segment(st, dt, r)
+        _q_states_from_g(m, st, o_wg, o_zg, o_zq, n_g, u)
+    u_t = v - (qc_new - f_term) * inv_cpp
+    dqc = qc_new - qc_old
+    q_src = i_src * dt
+    q_snk = i_snk * dt
+    c_q_max = 0.0                                # Q's largest slope: its largest partial sum of weights (their
+    w_acc = 0.0                                  # sum where all are positive, as the inverse of a C_h whose own
+    for i in range(n_q):                         # weights are; a C_h with a negative one may give Q one too)
+        w_acc += m[o_wq + i]
+        c_q_max = max(c_q_max, w_acc)
+    span = abs(u_t - u) * c_q_max
+    dq = 0.0
+    limited = False
+    if dqc + span > q_src or dqc - span < -q_snk:
+        dq = (_pi_output_at(m, o_rq, o_wq, st, o_zq, n_q, u_t) - qh) + dqc
+        limited = dq > q_src or dq < -q_snk
+    if limited:
+        qh_new = qh + ((q_src if dq > 0 else -q_snk) - dqc)
+        u_new = _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+        _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)          # Q's plays follow the terminal G gives
+        st[S_U] = u_new
+        return qh_new
+    qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_t)
+    if qh_new != qh:
+        _pi_update_segment(m, o_rg, o_wg, st, o_zg, n_g, qh_new, dt, r)
+    st[S_U] = u_t
+    return qh_new                                           # V_t = v exactly (G's output there to rounding)
+
+
 @njit(cache=True, error_model="numpy", inline="always")
 def pzt_advance(p, m, st, v_cmd, f_e):
     """Advance the PZT by one sub-step; return (x, q, i, V_h, V_p).
@@ -392,6 +488,13 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     (exactly), then relaxes exponentially for the rest of the step (:func:`rc_charge`). The
     slope is the one at the start of the step; G's slope only falls as more plays engage, so
     the step never overshoots u* and creates no spurious reversal.
+
+    Quasi-static form (R = 0, the series resistor out): the amplifier drives the terminal itself, after the same
+    creep step (V_t held, k = 1 / C_pp), to V_t = v if the charge that takes is within its current limit over the
+    step (Q = G^-1 at u*: its plays move there, G's follow the charge); otherwise exactly i_lim dt moves (the
+    source's rising, the sink's falling) and G gives the terminal from the charge (Q's plays follow it), so V_t
+    slews at i_lim / C toward v and never passes it. G's plays are kept in both forms (a state passes between
+    them: Q's are formed from G's where the state comes from the dynamic form, :func:`_q_states_from_g`).
 
     The arithmetic is arranged for a short dependency chain per step (the physics is that of
     :func:`pzt_step_reference`, equal to ~1e-15 relative, the tests hold the two together):
@@ -421,7 +524,9 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     if n_c > 0:
         s_dec, e_c = creep_explicit_charge(m, o_cdec, st, o_qc, n_c, b_tot, v_h_old, qc_old)
         if quasi_static:
-            # V_t held: k = 1 / (C_pp + C_h) <= 1 / C_pp; any k at or above the slope is stable, first order
+            # V_t held: k = 1 / (C_pp + C_h) <= 1 / C_pp; any k at or above the slope is stable, first order. (In a
+            # current-limited step the terminal charge is held instead, slope 1 / C_h; k = 1 / C_pp stays first order
+            # and stable while b_tot / C_h < 1 + d_j + 2 b_j / C_pp: for any dt while the branches' sum C_j < C_h)
             v_h_s = v_h_old - e_c * qs_k       # creep_node_voltage with k / (1 + b_tot k) formed once (plant_params)
         else:
             # k = 1 / C_h on the segment q_h moves along (falling when the branches charge): with G's
@@ -444,9 +549,18 @@ def pzt_advance(p, m, st, v_cmd, f_e):
     else:
         qc_new = 0.0
     if quasi_static:
-        # R = 0: V_t = v at the step's end with the branches' new charge
-        u_new = v - (qc_new - f_term) * inv_cpp
-        qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
+        if inv_i_src == 0.0 and inv_i_snk == 0.0:
+            # no amplifier (PZTParams.terminal_driven: a recorded terminal voltage replayed, both limits infinite):
+            # V_t = v at the step's end with the branches' new charge, Q's plays only (the step before session 37, bit
+            # for bit and as fast: the calibration's replays run here). G's plays are not kept, so such a model's state
+            # is not handed to another model (as before session 37)
+            u_new = v - (qc_new - f_term) * inv_cpp
+            qh_new = _pi_update(m, o_rq, o_wq, st, o_zq, n_q, u_new)
+        else:
+            # R = 0: the amplifier drives the terminal directly, within its current limit (_quasi_static_step: not
+            # inlined, so the loops that inline this step keep the dynamic form's code as compact as it was)
+            qh_new = _quasi_static_step(m, st, qh, u, v, qc_old, qc_new, f_term)
+            u_new = st[S_U]                      # G's output the step wrote (returning a pair cost the closed loop ~8 %)
     else:
         # then R moves dq into the node over the gap left after the branches' step (V_t dropped by S over C_h, at
         # least S / C_h,max = th_c), so V_t tends to v as R -> 0 (the quasi-static form) to within that bound's
@@ -512,6 +626,37 @@ def pzt_step(m, st, v_cmd, f_e, out):
 
 
 @njit(cache=True, error_model="numpy")
+def _g_output_at(m, st, qh):
+    """G's output (V) if its plays were moved from their present states to the charge ``qh`` (C); nothing written."""
+    o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
+    y = 0.0
+    for i in range(int(m[N_G])):
+        zi = min(max(st[o_z + i], qh - m[o_r + i]), qh + m[o_r + i])
+        y += m[o_w + i] * zi
+    return y
+
+
+@njit(cache=True, error_model="numpy")
+def _g_inverse_between(m, st, lo, hi, u_t):
+    """The charge in [lo, hi] (C) at which :func:`_g_output_at` is ``u_t`` (V), by bisection to the last bit,
+    then linear on the last interval (G is linear there). G's output at ``lo`` must be <= u_t <= that at ``hi``."""
+    g_lo = _g_output_at(m, st, lo)
+    g_hi = _g_output_at(m, st, hi)
+    for _ in range(2000):
+        mid = 0.5 * (lo + hi)
+        if mid <= lo or mid >= hi:
+            break
+        g = _g_output_at(m, st, mid)
+        if g < u_t:
+            lo, g_lo = mid, g
+        else:
+            hi, g_hi = mid, g
+    if g_hi > g_lo:
+        return lo + (u_t - g_lo) * (hi - lo) / (g_hi - g_lo)
+    return lo
+
+
+@njit(cache=True, error_model="numpy")
 def pzt_step_reference(m, st, v_cmd, f_e, out):
     """The step's equations in their plainest form (per-step divisions and exp): the oracle of :func:`pzt_step`.
 
@@ -562,10 +707,49 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
         qj = target + (st[o_qc + j] - target) * m[o_cdec + j]
         st[o_qc + j] = qj
         qc_new += qj
-    if m[QUASI_STATIC] > 0.5:
+    at_v = False                              # quasi-static within the current limit: V_t = v exactly
+    u_target = u
+    no_amp = m[QUASI_STATIC] > 0.5 and m[INV_I_SRC] == 0.0 and m[INV_I_SNK] == 0.0
+    if no_amp:
+        # no amplifier (PZTParams.terminal_driven, both limits infinite): V_t = v through Q = G^-1, Q's plays only,
+        # as pzt_advance (G's plays not kept: such a model's state is not handed over)
         u_target = v - (qc_new - f_term) * inv_cpp
         qh_new = _pi_update(m, int(m[O_RQ]), int(m[O_WQ]), st, int(m[OS_ZQ]), int(m[N_Q]), u_target)
-        u_new = u_target
+        at_v = True
+    elif m[QUASI_STATIC] > 0.5:
+        # R = 0: the amplifier moves the terminal charge to V_t = v, G[q_h'] + (Q_c' - T_em F_e / k_p) / C_pp = v,
+        # unless that takes more than its current limit over the step, i_lim dt: then it moves exactly that much.
+        # Written with G alone (pzt_advance reads Q = G^-1): G's output is monotone in the charge from any state, so
+        # the limit binds where G at the limit's charge is still short of u_target, and otherwise the charge in
+        # between is found by bisection
+        if st[S_FR] != r or st[S_FDT] != dt:
+            # a state from another model (the dynamic form keeps G's plays only): Q's plays from G's, Kuhnen's map
+            # z'_i = W_i z_i + sum_{j>i} w_j z_j as written (W_i: G's partial sums), and the RC factors for R = 0
+            o_w, o_zg, o_zq, n_g = int(m[O_WG]), int(m[OS_ZG]), int(m[OS_ZQ]), int(m[N_G])
+            for i in range(n_g):
+                w_i = 0.0
+                for j in range(i + 1):
+                    w_i += m[o_w + j]
+                tail = 0.0
+                for j in range(i + 1, n_g):
+                    tail += m[o_w + j] * st[o_zg + j]
+                st[o_zq + i] = w_i * st[o_zg + i] + tail
+            st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
+            st[S_FDT], st[S_FR] = dt, r
+            st[S_PL] = st[S_PU] = np.nan
+        u_target = v - (qc_new - f_term) * inv_cpp
+        qh_up = qh + (i_src * dt - (qc_new - qc_old))
+        qh_dn = qh + (-i_snk * dt - (qc_new - qc_old))
+        if u_target == u:
+            qh_new = qh                       # V_t at v already: no charge moves
+            at_v = True
+        elif _g_output_at(m, st, qh_up) < u_target:
+            qh_new = qh_up
+        elif _g_output_at(m, st, qh_dn) > u_target:
+            qh_new = qh_dn
+        else:
+            qh_new = _g_inverse_between(m, st, qh_dn, qh_up, u_target)
+            at_v = True
     else:
         # then the charge through R into the node, over the gap after the branches' step
         du = v - (qc_new - f_term) * inv_cpp - (u - g_fall)
@@ -598,36 +782,44 @@ def pzt_step_reference(m, st, v_cmd, f_e, out):
                 # RC relaxation on the local slope: tau = R C
                 dq += d * gap * cap * (1.0 - math.exp(-t_left / (r * cap)))
         qh_new = qh + (dq - (qc_new - qc_old))
-        if qh_new != qh:
-            o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
-            y = 0.0
-            up = 0.0
-            dn = 0.0
-            for i in range(int(m[N_G])):
-                ri = m[o_r + i]
-                wi = m[o_w + i]
-                lo = qh_new - ri
-                hi = qh_new + ri
-                zi = st[o_z + i]
-                if zi < lo:
-                    zi = lo
-                elif zi > hi:
-                    zi = hi
-                if zi <= lo:
-                    up += wi
-                if zi >= hi:
-                    dn += wi
-                st[o_z + i] = zi
-                y += wi * zi
-            st[S_GUP] = 1.0 / up
-            st[S_GDN] = 1.0 / dn
-            st[S_KUP], st[S_KDN] = up, dn
-            st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
-            st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
-            st[S_FDT], st[S_FR] = dt, r
-            u_new = y
-        else:
-            u_new = u
+    # G's plays to the new charge (both forms: the quasi-static one keeps them too; not without an amplifier)
+    if qh_new != qh and not no_amp:
+        o_r, o_w, o_z = int(m[O_RG]), int(m[O_WG]), int(m[OS_ZG])
+        y = 0.0
+        up = 0.0
+        dn = 0.0
+        for i in range(int(m[N_G])):
+            ri = m[o_r + i]
+            wi = m[o_w + i]
+            lo = qh_new - ri
+            hi = qh_new + ri
+            zi = st[o_z + i]
+            if zi < lo:
+                zi = lo
+            elif zi > hi:
+                zi = hi
+            if zi <= lo:
+                up += wi
+            if zi >= hi:
+                dn += wi
+            st[o_z + i] = zi
+            y += wi * zi
+        st[S_GUP] = 1.0 / up
+        st[S_GDN] = 1.0 / dn
+        st[S_KUP], st[S_KDN] = up, dn
+        st[S_FUP], st[S_FDN] = rc_factor(st[S_GUP], dt, r), rc_factor(st[S_GDN], dt, r)
+        st[S_PL] = st[S_PU] = np.nan     # the fast step runs every play next
+        st[S_FDT], st[S_FR] = dt, r
+        u_new = y
+    else:
+        u_new = u
+    if at_v:
+        u_new = u_target                      # V_t = v exactly (G's output there to rounding)
+    if m[QUASI_STATIC] > 0.5:
+        # Q's plays follow the terminal voltage (the quasi-static form keeps them beside G's)
+        o_r, o_w, o_z = int(m[O_RQ]), int(m[O_WQ]), int(m[OS_ZQ])
+        for i in range(int(m[N_Q])):
+            st[o_z + i] = min(max(st[o_z + i], u_new - m[o_r + i]), u_new + m[o_r + i])
     v_h = u_new - qh_new * inv_cpp
     q = qh_new + qc_new
     st[S_QH] = qh_new

@@ -17,7 +17,9 @@ of the hysteretic charge q_h:
 with Q_c the charge in the creep branches. G is a PI operator too (the exact
 inverse of C_h plus a linear term), so the dynamic form integrates
 R dq_h/dt = V_pea - V_t exactly over each step on the local slope of G, and the
-quasi-static form (R = 0) applies G^{-1} to V_pea directly.
+quasi-static form (R = 0) applies G^{-1} to V_pea directly where the charge that
+takes is within the amplifier's current limit over the step (else the limit's
+charge moves: V_t slews at I / C).
 
 Modes filter the quasi-static displacement (unit DC gain); the charge the modal
 motion would induce through T_em is not fed back. At the 70 kHz stack mode and any
@@ -54,7 +56,8 @@ class PZTParams:
     Parameters
     ----------
     series_resistance_ohm : float
-        R; 0 selects the quasi-static form (no RC dynamics, no current limit).
+        R; 0 selects the quasi-static form: no RC dynamics, the amplifier drives the terminal directly, its
+        current limit still bounds the charge a step moves (V_t slews at I / C toward the command).
     current_limit_source_a, current_limit_sink_a : float
         Amplifier current limits, A, both given as positive magnitudes.
     voltage_min_v, voltage_max_v : float
@@ -154,3 +157,15 @@ class PZTParams:
     def with_resistance(self, resistance_ohm):
         from dataclasses import replace
         return replace(self, series_resistance_ohm=float(resistance_ohm))
+
+    def terminal_driven(self):
+        """This stack driven at its terminal by an ideal voltage source: R = 0 and no current limit (both infinite).
+
+        The model of a recorded terminal voltage ``V_t = V - R i`` replayed through the stack: the record's current
+        already obeyed the amplifier, which the replay leaves out (its limit would act again on the replay's own
+        discretization of the path). A stack whose resistor is out is :meth:`with_resistance` (0): its amplifier
+        still limits the current.
+        """
+        from dataclasses import replace
+        return replace(self, series_resistance_ohm=0.0, current_limit_source_a=float("inf"),
+                       current_limit_sink_a=float("inf"))

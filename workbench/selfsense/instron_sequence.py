@@ -39,8 +39,10 @@ branches' charge change to the terminal with no current through R (+387 nC by th
 charge-conserving form. The kernels now keep Kirchhoff's current law at the terminal
 (tests/plant/test_kcl.py) and step the creep branches as this module does (semi-implicit V_h*);
 the module keeps its stepper because its shorted runs are the quasi-static V_t = 0, and the simulator's
-quasi-static form (R = 0) keeps G^-1's plays where its dynamic form (open leads) keeps G's, so one state
-cannot pass between the two.
+quasi-static form (R = 0) kept G^-1's plays where its dynamic form (open leads) keeps G's, so one state
+could not pass between the two. (Since session 37 both forms keep G's plays, and a short, which has no current
+limit, is :meth:`~workbench.plant.pzt.PZTParams.terminal_driven`: the simulator could now step these runs too;
+not changed.)
 """
 
 from dataclasses import dataclass
