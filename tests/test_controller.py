@@ -244,23 +244,53 @@ def test_quantize_agrees_with_from_dict_words(ctrl):
         assert back.max_pole_radius == pytest.approx(fxp.max_pole_radius, abs=1e-12)
 
 
-def test_series_resistor_out_gives_no_window_and_a_controller_that_moves():
-    # R = 0 (seed 000's free-free configuration): the window [v - R I_sink, v + R I_source] would
-    # have zero width and pin the command; the controller must carry no window and must move
+def test_series_resistor_out_gives_a_slew_window_from_the_largest_capacitance():
+    """R = 0 (seed 000's free-free configuration): the current is C dV/dt, so the window is a slew of I T / C a
+    sample around the last output (alpha = 1), C the largest terminal capacitance (every play's weight and the
+    creep branches' capacitances summed, in series with C_pp: derived here from the file's numbers)."""
     import control
-    from workbench.design.budgets import plant_budgets
     plant = load_plant(PLANTS / "p888_51_sn637_creep.toml", overrides={"electrical.series_resistor_in": False})
-    assert plant.pzt.series_resistance_ohm == 0.0
+    pz = plant.pzt
+    assert pz.series_resistance_ohm == 0.0
+    c_h = float(np.sum(pz.hysteresis.weights)) + float(np.sum(pz.creep.capacitances_f))
+    c_max = c_h * pz.c_pp_f / (c_h + pz.c_pp_f)
     k = control.c2d(control.tf([50.0, 50.0 * 2 * np.pi * 20.0], [1.0, 0.0]), 1e-4, "tustin")   # a PI
     ctrl = Controller.from_lti(k, plant)
-    assert ctrl.voltage_model is None and "anti-windup off" in ctrl.describe()
-    u = ctrl.run(np.full(200, 0.01))
-    assert np.all(np.diff(u) > 0) and u[-1] > 0.5            # the integrator winds the command up
+    alpha, h_up, h_down = ctrl.voltage_model
+    assert alpha == 1.0 and ctrl.fixed.limit_words[2] == 1 << 30
+    assert h_up == pytest.approx(2e-3 * 1e-4 / c_max, rel=1e-12) and h_down == pytest.approx(14e-3 * 1e-4 / c_max, rel=1e-12)
+    assert "slew window" in ctrl.describe() and NO_WINDOW_TEXT not in ctrl.describe()
+    # a large error: the integrator is held to the slew, the charge per sample C_max du never passes I T
+    u = ctrl.run(np.full(2000, 1.0), u0_v=50.0)
+    du = np.diff(np.concatenate([[50.0], u]))
+    assert du.max() <= h_up and c_max * du.max() <= 2e-3 * 1e-4 * (1 + 1e-12)
+    assert du.max() > h_up - 2.0 ** -ctrl.fixed.output_frac_bits          # and it slews at the window
+    free = Controller.from_lti(k, plant, window=False).run(np.full(2000, 1.0), u0_v=50.0)
+    assert np.diff(free).max() > 10 * h_up                                 # what the window holds back
     assert [c for c in ctrl.compare_plant(plant) if c["check"] == "window"] == []
+    # a controller exported without the window (session 37's R-out export) is named, and so is an R-in window
+    bare = Controller.from_lti(k, plant, window=False)
+    msg = [c["message"] for c in bare.compare_plant(plant) if c["check"] == "window"]
+    assert len(msg) == 1 and NO_WINDOW_TEXT in msg[0] and "series resistor out" in msg[0]
     windowed = Controller.from_lti(k, load_plant(PLANTS / "p888_51_sn637_creep.toml"))
-    assert windowed.voltage_model is not None
+    assert windowed.voltage_model[0] < 1
     assert [c["check"] for c in windowed.compare_plant(plant) if c["check"] == "window"] == ["window"]
-    assert plant_budgets(plant, 1e-4, None, "study.toml")["current_window"].value is None
+    # the JSON round trip keeps alpha = 1 and the headroom
+    back = Controller.from_dict(json.loads(json.dumps(ctrl.to_dict())))
+    assert back.voltage_model == ctrl.voltage_model
+    np.testing.assert_array_equal(back.fixed.limit_words, ctrl.fixed.limit_words)
+    from workbench.design.budgets import plant_budgets
+    assert plant_budgets(plant, 1e-4, None, "study.toml")["current_window"].value == ctrl.voltage_model
+
+
+def test_an_r_in_window_is_unchanged():
+    """The R-in window of the committed controller (written before the R-out window existed) is what the plant
+    gives now, bit for bit: alpha = 1 - exp(-T / (R C_max)), headroom R I."""
+    from workbench.controller import plant_window
+    data = json.loads((ROOT / "controllers" / "sn637_loopshape.json").read_text())
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml")
+    vm = data["anti_windup"]["voltage_model"]
+    assert plant_window(plant, 1e-4) == (vm["alpha"], *vm["headroom_v"])
 
 
 # ----------------------------------------------------------------------------- the sensor block

@@ -35,7 +35,7 @@ from .export.fixed_point import FixedPointController, quantize, run_fixed, run_f
 from .export.sensor import BLEND_KEYS, SENSOR_BLOCK_KEYS, SENSOR_KINDS, STARTUP_FIELDS, SensorBlend, run_sensor
 from .export.sos import ExportError, from_sos, to_sos
 
-__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "X_GAUGE_M", "SensorBlend",
+__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "window_text", "X_GAUGE_M", "SensorBlend",
            "SENSOR_KINDS"]
 
 NO_WINDOW_TEXT = "no current-limit window (anti-windup off)"
@@ -80,12 +80,22 @@ def plant_provenance(plant):
 def plant_window(plant, dt_s):
     """(alpha, h_up, h_down) of the current-limit window for ``plant`` at sample time ``dt_s``.
 
-    alpha = 1 - exp(-T / (R C)) with R the series resistor and C the largest terminal
-    capacitance; h_up = R I_source, h_down = R I_sink (V). None with the series resistor out
-    (R = 0): no window (see :func:`workbench.design.antiwindup.current_limit_model`).
+    With the series resistor in: alpha = 1 - exp(-T / (R C)) with R the series resistor and C
+    the largest terminal capacitance, h_up = R I_source, h_down = R I_sink (V). With it out
+    (R = 0): alpha = 1 (the model follows the command), h_up = I_source T / C, h_down =
+    I_sink T / C, the slew the amplifier can follow in a sample (see
+    :func:`workbench.design.antiwindup.current_limit_model`).
     """
     from .design.antiwindup import current_limit_model
     return current_limit_model(plant.pzt, dt_s)
+
+
+def window_text(model):
+    """The words for a current-limit window (alpha, h_up, h_down) in a description line."""
+    if model[0] == 1.0:
+        return ("current-limit window +{1:.4g}/-{2:.4g} V a sample around the last output (alpha 1: a slew window, "
+                "series resistor out)").format(*model)
+    return "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(*model)
 
 
 def _anti_windup_block(model, limits, plant=None):
@@ -96,13 +106,23 @@ def _anti_windup_block(model, limits, plant=None):
                             "(v += alpha (u - v), the series R and the largest stack capacitance); the clamped "
                             "value drives that section's recursion",
              "output_limits_v": list(limits)}
+    if model is not None and model[0] == 1.0:
+        # the series resistor out (R = 0): alpha = 1, a slew window (an R-in alpha 1 - exp(-T / (R C)) is below 1)
+        block["description"] = ("the last (integrator) section's output is clamped to the output limits and to "
+                                "[v - headroom_v[1], v + headroom_v[0]], v the last clamped output (alpha = 1: "
+                                "series resistor out, headroom I T / C with C the largest stack capacitance, the "
+                                "slew the current limits allow in a sample); the clamped value drives that "
+                                "section's recursion")
     if model is not None:
         block["voltage_model"] = {"alpha": model[0], "headroom_v": list(model[1:])}
         if plant is not None:
             from .design.antiwindup import rate_limits_v_per_s
             pz = plant.pzt
-            block["voltage_model"]["time_constant_s"] = (pz.series_resistance_ohm * pz.current_limit_source_a
-                                                         / rate_limits_v_per_s(pz)[0])
+            if pz.series_resistance_ohm > 0:
+                block["voltage_model"]["time_constant_s"] = (pz.series_resistance_ohm * pz.current_limit_source_a
+                                                             / rate_limits_v_per_s(pz)[0])
+            else:
+                block["voltage_model"]["slew_v_per_s"] = list(rate_limits_v_per_s(pz))
     return block
 
 
@@ -165,12 +185,13 @@ def _window(src, key, block):
     if not isinstance(block, dict):
         raise ControllerError(src, key, f"must be a table {{alpha, headroom_v: [up, down]}}; got {block!r}")
     alpha = _number(src, f"{key}.alpha", block.get("alpha"))
-    if not 0 < alpha < 1:
-        raise ControllerError(src, f"{key}.alpha", f"must lie in (0, 1): alpha = 1 - exp(-T / (R C)); got {alpha:g}")
+    if not 0 < alpha <= 1:
+        raise ControllerError(src, f"{key}.alpha", f"must lie in (0, 1]: alpha = 1 - exp(-T / (R C)), or 1 with the "
+                                                   f"series resistor out; got {alpha:g}")
     head = _array(src, f"{key}.headroom_v", block.get("headroom_v"), "[up, down] in V", 1)
     if head.size != 2 or np.any(head < 0):
-        raise ControllerError(src, f"{key}.headroom_v", f"must be two non-negative volts [R I_source, R I_sink]; "
-                                                        f"got {head.tolist()}")
+        raise ControllerError(src, f"{key}.headroom_v", f"must be two non-negative volts [R I_source, R I_sink] "
+                                                        f"(I_source T / C, I_sink T / C with R out); got {head.tolist()}")
     return alpha, float(head[0]), float(head[1])
 
 
@@ -339,7 +360,8 @@ class Controller:
     voltage_model : (float, float, float) or None
         Current-limit window (alpha, h_up_v, h_down_v): v <- v + alpha (u - v) models the stack
         voltage (alpha = 1 - exp(-T / (R C)), C the largest stack capacitance) and u is kept within
-        [v - h_down, v + h_up] (h = R I_source, R I_sink). None: no window (anti-windup off).
+        [v - h_down, v + h_up] (h = R I_source, R I_sink); with the series resistor out, alpha = 1
+        and h = I_source T / C, I_sink T / C (a slew window). None: no window (anti-windup off).
     window_source : str
         ``"file"`` (the window was in the file or given), ``"plant"`` (derived from the plant on
         load: a bare controller) or ``"none"``.
@@ -407,8 +429,7 @@ class Controller:
         if self.voltage_model is None:
             win = NO_WINDOW_TEXT
         else:
-            win = "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(
-                *self.voltage_model)
+            win = window_text(self.voltage_model)
             if self.window_source == "plant":
                 win += ", derived from the plant (the file has none)"
         n = len(self.sos)
@@ -961,20 +982,23 @@ class Controller:
             bad("output_limits_v", f"output limits {lo:g}..{hi:g} V, the amplifier's range {amp[0]:g}..{amp[1]:g} V"
                                    + (" (the controller asks for more than the amplifier gives)" if beyond else ""))
         want = plant_window(plant, self.dt_s)
+        pz = plant.pzt
+        via = (f"through {pz.series_resistance_ohm:g} ohm" if pz.series_resistance_ohm > 0 else
+               "with the series resistor out, a slew of I T / C a sample")
         if want is None:
             if self.voltage_model is not None:
-                bad("window", "a current-limit window in the controller, but the plant's series resistor is out "
-                              "(R = 0): no resistor drop bounds the current, the window would pin the command; "
-                              "export without a window for this plant")
+                bad("window", "a current-limit window in the controller, but the plant's amplifier has no current "
+                              "limit: export without a window for this plant")
         elif self.voltage_model is None:
-            bad("window", f"{NO_WINDOW_TEXT}; the plant's current limits ({plant.pzt.current_limit_source_a * 1e3:g}"
-                          f"/-{plant.pzt.current_limit_sink_a * 1e3:g} mA through {plant.pzt.series_resistance_ohm:g} "
-                          f"ohm) give a window of +{want[1]:.4g}/-{want[2]:.4g} V, alpha {want[0]:.4g}")
+            bad("window", f"{NO_WINDOW_TEXT}; the plant's current limits ({pz.current_limit_source_a * 1e3:g}"
+                          f"/-{pz.current_limit_sink_a * 1e3:g} mA {via}) give a window of +{want[1]:.4g}/-{want[2]:.4g} "
+                          f"V, alpha {want[0]:.4g}" + ("" if pz.series_resistance_ohm > 0 else
+                                                       "; re-export the controller with this plant"))
         elif self.window_source != "plant" and not np.allclose(self.voltage_model, want, rtol=_RTOL_WINDOW, atol=0):
             a, hu, hd = self.voltage_model
             bad("window", f"current-limit window +{hu:.4g}/-{hd:.4g} V, alpha {a:.4g} in the controller; the plant's "
-                          f"R = {plant.pzt.series_resistance_ohm:g} ohm, I = +{plant.pzt.current_limit_source_a * 1e3:g}"
-                          f"/-{plant.pzt.current_limit_sink_a * 1e3:g} mA and largest capacitance give "
+                          f"R = {pz.series_resistance_ohm:g} ohm, I = +{pz.current_limit_source_a * 1e3:g}"
+                          f"/-{pz.current_limit_sink_a * 1e3:g} mA and largest capacitance give "
                           f"+{want[1]:.4g}/-{want[2]:.4g} V, alpha {want[0]:.4g}")
         if unknown:
             out.append({"check": "not recorded", "message": "the controller does not record its "

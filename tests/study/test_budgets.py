@@ -162,9 +162,10 @@ def test_an_unwritable_family_cache_costs_time_never_the_run(tmp_path):
     assert cached_family("ab" * 32, tmp_path / "ok", lambda: {"members": 4})[0] == {"members": 3}   # served
 
 
-def test_a_plant_without_series_resistor_exports_without_a_window():
+def test_a_plant_without_series_resistor_exports_a_slew_window():
     """`study --set electrical.series_resistor_ohm=0` (the schema's quasi-static form, legal) died in the export with
-    a TypeError after the design: no resistor, no current-limit window, no slew to record. The entry is None then;
+    a TypeError after the design (session 32). With the resistor out the window is a slew window (alpha 1, headroom
+    I T / C_max), so the slew recorded is I / C_max each way, the amplifier's slew at the largest capacitance;
     with the resistor it is the window's alpha h / T each way."""
     import control
     from workbench.controller import Controller
@@ -175,8 +176,12 @@ def test_a_plant_without_series_resistor_exports_without_a_window():
     pi = control.tf([1.0, 200.0], [1.0, 0.0])                          # a PI, continuous; from_lti discretizes it
     with_r = Controller.from_lti(pi, load_plant(path))
     without = Controller.from_lti(pi, load_plant(path, {"electrical.series_resistor_ohm": 0.0}))
-    assert without.fixed.voltage_model is None
-    assert _anti_windup_record(without)["output_slew_limit_v_per_s"] is None
+    pz = load_plant(path).pzt
+    c_h = float(np.sum(pz.hysteresis.weights)) + float(np.sum(pz.creep.capacitances_f))
+    c_max = c_h * pz.c_pp_f / (c_h + pz.c_pp_f)
+    assert without.fixed.voltage_model[0] == 1.0
+    assert _anti_windup_record(without)["output_slew_limit_v_per_s"] == pytest.approx(
+        [pz.current_limit_source_a / c_max, pz.current_limit_sink_a / c_max], rel=1e-12)
     alpha, h_up, h_down = with_r.fixed.voltage_model
     up, down = _anti_windup_record(with_r)["output_slew_limit_v_per_s"]
     assert up == pytest.approx(alpha * h_up / with_r.fixed.dt_s) and down == pytest.approx(alpha * h_down / with_r.fixed.dt_s)

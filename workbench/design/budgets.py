@@ -82,8 +82,13 @@ def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
     c = _largest_capacitance_f(pzt)
     if model is None:
         window = Budget("current_window", None, "(1, V, V)", "plant",
-                        f"series resistor out in {src} (R = 0): no window (it would have zero width); the current "
-                        f"limit acts as the amplifier's slew limit, anti-windup off")
+                        f"no current limit in {src}: no window")
+    elif not r > 0:
+        alpha, h_up, h_down = model
+        window = Budget("current_window", model, "(1, V, V)", "plant",
+                        f"series resistor out in {src} (R = 0): a slew window around the last output, alpha = 1, "
+                        f"headroom I_source T / C = {h_up:.4g} V up, I_sink T / C = {h_down:.4g} V down; "
+                        f"C = {c * 1e6:.4g} uF (largest terminal capacitance), T = {dt_s:g} s")
     else:
         alpha, h_up, h_down = model
         window = Budget("current_window", model, "(1, V, V)", "plant",

@@ -121,9 +121,14 @@ def _header(name, fxp, sensor=None):
     else:
         alpha, h_up, h_down = fxp.voltage_model
         s_up, s_down = fxp.slew_limits_v_per_s
-        window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the model of the stack voltage "
-                       f"(v += alpha (u - v), alpha = {alpha:.6g}):\n *         the current (u - v) / R stays "
-                       f"within the amplifier's limits, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
+        if alpha == 1.0:        # series resistor out: v is the last output, the window a slew limit
+            window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the last output (alpha = 1: "
+                           f"series resistor out):\n *         the charge C (u - v) a sample asks for stays within "
+                           f"I T, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
+        else:
+            window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the model of the stack voltage "
+                           f"(v += alpha (u - v), alpha = {alpha:.6g}):\n *         the current (u - v) / R stays "
+                           f"within the amplifier's limits, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
         alpha_v, hup_v, hdown_v = _double(alpha), _double(h_up), _double(h_down)
     sections = "\n".join(f" *   section {k}: signals {q['signals'][k]}, b {q['b'][k]}, b shift {fxp.b_shift[k]}"
                          f"{' (integrator, exact at z = 1)' if fxp.integrator[k] else ''}" for k in range(n))

@@ -97,9 +97,8 @@ class FirmwareController:
         return control.ss(from_sos(self.gain, self.sos, self.dt_s))
 
     def describe(self):
-        rate = ("no current-limit window" if self.voltage_model is None
-                else "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(
-                    *self.voltage_model))
+        from ..controller import window_text
+        rate = "no current-limit window" if self.voltage_model is None else window_text(self.voltage_model)
         form = {"fixed": "32-bit fixed-point cascade", "float": "float cascade", "hanus": "Hanus float form"}[self.form]
         return f"{form}, output {self.output_limits_v[0]:g}..{self.output_limits_v[1]:g} V, {rate}"
 
