@@ -69,8 +69,14 @@ def current_limit_model(pzt, dt_s):
       -5 um; with the smallest capacitance (only the first play engaged, 6.0 uF) the window lets
       the command run ahead where all plays are engaged and the loop winds up (11 % overshoot at
       +5 um, 15-20 % at +0.5 um, 24-25 % at -5 um, against 12.5 %, 76 % and 24 % without a
-      window). The cost of C_max: a down step slews at I_sink / C_max although the stack, just
-      past a reversal, could slew up to 1.9x faster (-5 um: rise 27 ms against 20 ms).
+      window). Between the two (``rout_c_sweep.log``: the R-out loop-shaped design on SN637 with
+      creep, C = 0.6-0.9 C_max) the +5 um overshoot grows with the window's speed, 1.6 % at
+      0.9 C_max to 5.9 % at 0.6 C_max, the amplifier at its limit for 180 ms: only C_max keeps the
+      integrator from winding up. The cost of C_max: the stack away from the largest capacitance
+      could slew up to 1.9x faster, so a down step rises slower (-5 um: 27 ms against 20 ms), and a
+      ramp faster than I / C_max is held back: `verify`'s 1 Hz triangle (0.8 stroke, ~220 V/s on
+      average) tracks to 592 nm RMS against 1.6 nm without a window, as the R-in window (the same
+      I / C_max bound) holds the committed R-in controller to 846 nm there.
 
     Returns None for an amplifier without a current limit (R = 0 and infinite limits,
     :meth:`~workbench.plant.pzt.PZTParams.terminal_driven`): no window.

@@ -450,8 +450,10 @@ class MimoController:
         # the axis window (module docstring): the slowest stack RC model, the smallest current headroom,
         # shared so that the box of axis deviations maps inside every stack's window
         windows = [plant_window(pl, dt) for pl in fsm.plants]
-        if any(w is None for w in windows):
-            raise ExportError("a stack has no series resistor (R = 0): no current-limit window to build")
+        if any(w is None or not pl.pzt.series_resistance_ohm > 0 for w, pl in zip(windows, fsm.plants)):
+            # R out gives a per-stack slew window (alpha 1), not the RC window the shared axis window is built from
+            raise ExportError("a stack has no series resistor (R = 0): no RC current-limit window to build the axis "
+                              "window from")
         alpha = float(min(w[0] for w in windows))
         h = float(min(min(w[1], w[2]) for w in windows))
         head = np.full(3, h / np.abs(a2s).sum(axis=1).max())
