@@ -76,3 +76,29 @@ def test_the_slew_window_keeps_the_integrator_from_winding_up(design, name):
             assert w["ov"] < off["ov"] - 5.0 and w["st"] < off["st"], (where, w, off)
     # the upward steps of 0.5 um and more are where it winds up without the window (session 37's export)
     assert _step(plant, bare, 5e-6)["ov"] > 5.0
+
+
+def test_verify_on_a_resistor_out_plant_runs_and_reports_the_window(design, tmp_path):
+    """`workbench verify` on an R-out plant: the controller exported for it runs with its slew window and the
+    report's form line says so (session 37's said "no current-limit window (anti-windup off)"); a controller
+    exported without one (session 37's R-out export) is named in the preflight, and a bare controller gets the
+    plant's window."""
+    from workbench.controller import NO_WINDOW_TEXT
+    from workbench.verify.run import verify
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml", overrides={"electrical.series_resistor_in": False})
+    ctrl = Controller.from_lti(design, plant, name="rout")
+    res = verify(plant, ctrl, ["large_step"], noise=False)
+    assert "slew window" in res.form and "anti-windup off" not in res.form
+    assert [m for m in res.mismatches if m["check"] == "window"] == []
+    m = res.metrics("large_step")
+    assert m["time_at_current_limit_s"] == 0.0 and m["overshoot_percent"] < 0.1
+    off = res.metrics("large_step_no_anti_windup")                 # the report's companion run winds up
+    assert off["overshoot_percent"] > 5.0
+    old = Controller.from_lti(design, plant, window=False, name="rout")
+    assert any(m["check"] == "window" and NO_WINDOW_TEXT in m["message"] for m in old.compare_plant(plant))
+    res = verify(plant, old, ["small_step"], noise=False)      # verify runs it with the plant's window and says so
+    assert res.controller.window_source == "plant" and "slew window" in res.form
+    assert any("has no current-limit window" in n for n in res.notes)
+    bare = Controller.from_dict({"sample_rate_hz": 1e4, "gain": 0.5, "sos": [[1, 0, 0, 1, -1, 0]]})
+    res = verify(plant, bare, ["small_step"], noise=False)
+    assert res.controller.window_source == "plant" and "slew window" in res.form
