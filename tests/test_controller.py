@@ -291,6 +291,16 @@ def test_an_r_in_window_is_unchanged():
     plant = load_plant(PLANTS / "p888_51_sn637_creep.toml")
     vm = data["anti_windup"]["voltage_model"]
     assert plant_window(plant, 1e-4) == (vm["alpha"], *vm["headroom_v"])
+    # the JSON block and the window's words as the committed export has them
+    from workbench.controller import _anti_windup_block
+    block = _anti_windup_block(plant_window(plant, 1e-4), data["anti_windup"]["output_limits_v"], plant)
+    assert block == {k: v for k, v in data["anti_windup"].items() if k != "output_slew_limit_v_per_s"}
+    c = Controller.load(ROOT / "controllers" / "sn637_loopshape.json")
+    fxp = quantize(c.gain, np.array(c.sos), c.dt_s, input_range_v=c.fixed.input_range_v,
+                   output_limits_v=c.output_limits_v, f_max_hz=c.fixed.f_max_hz, voltage_model=plant_window(plant, 1e-4))
+    np.testing.assert_array_equal(fxp.limit_words, c.fixed.limit_words)
+    np.testing.assert_array_equal(fxp.b, c.fixed.b)
+    np.testing.assert_array_equal(fxp.a, c.fixed.a)
 
 
 # ----------------------------------------------------------------------------- the sensor block
