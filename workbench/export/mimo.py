@@ -813,7 +813,8 @@ def stack_windows(fsm, dt_s):
     axes' box maps inside it), from :func:`workbench.controller.plant_window` of each serial file.
     """
     windows = [plant_window(pl, dt_s) for pl in fsm.plants]
-    if any(w is None for w in windows):
+    if any(w is None or not pl.pzt.series_resistance_ohm > 0 for w, pl in zip(windows, fsm.plants)):
+        # the mirror's stacks carry R (workbench.plant.mirror refuses R = 0): an R-out slew window is not built here
         raise ExportError("a stack has no series resistor (R = 0): no current-limit window to build")
     return {"alpha": [float(w[0]) for w in windows], "headroom_v": [float(min(w[1], w[2])) for w in windows]}
 
