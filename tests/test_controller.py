@@ -303,6 +303,52 @@ def test_an_r_in_window_is_unchanged():
     np.testing.assert_array_equal(fxp.a, c.fixed.a)
 
 
+@pytest.mark.parametrize("r_ohm", [0.01, 0.1, 0.0])
+def test_resistor_out_is_the_plants_r_not_an_alpha_of_one(r_ohm, tmp_path):
+    """With R in, alpha = 1 - exp(-T / (R C_max)) rounds to exactly 1.0 once T / (R C) > ~37 (R < ~0.23 ohm on
+    SN637 with creep): the window is still the R-in one (headroom R I: 0.2 mV up at 0.1 ohm, not I T / C), and the
+    describe line, the JSON's anti_windup block and the C header's comment must say so; R = 0 is the slew window.
+    Everything is read back from the written files and from a reloaded controller."""
+    from workbench.controller import recorded_resistor_out
+    over = ({"electrical.series_resistor_in": False} if r_ohm == 0 else
+            {"electrical.series_resistor_ohm": r_ohm})
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml", overrides=over)
+    pz = plant.pzt
+    c_h = float(np.sum(pz.hysteresis.weights)) + float(np.sum(pz.creep.capacitances_f))
+    c_max = c_h * pz.c_pp_f / (c_h + pz.c_pp_f)              # the largest terminal capacitance, from the file
+    k = control.c2d(control.tf([50.0, 50.0 * 2 * np.pi * 20.0], [1.0, 0.0]), 1e-4, "tustin")   # a PI
+    ctrl = Controller.from_lti(k, plant, name="ctrl")
+    alpha, h_up, h_down = ctrl.voltage_model
+    assert alpha == 1.0                                        # the float cannot tell R in from R out here
+    files = ctrl.write(tmp_path)
+    header = files["h"].read_text()
+    data = json.loads(files["json"].read_text())
+    block = data["anti_windup"]
+    back = Controller.load(files["json"])
+    fw_text = ctrl.firmware().describe()
+    if r_ohm > 0:
+        assert h_up == pytest.approx(r_ohm * pz.current_limit_source_a, rel=1e-12)     # R I, far below I T / C
+        assert h_down == pytest.approx(r_ohm * pz.current_limit_sink_a, rel=1e-12)
+        for text in (ctrl.describe(), back.describe(), fw_text):
+            assert "series resistor out" not in text and "slew window" not in text, text
+            assert "around a stack-voltage model" in text, text
+        assert "series resistor out" not in block["description"] and "the series R" in block["description"]
+        assert block["voltage_model"]["time_constant_s"] == pytest.approx(r_ohm * c_max, rel=1e-12)     # R C_max
+        assert "slew_v_per_s" not in block["voltage_model"]
+        assert "series resistor out" not in header and "the current (u - v) / R stays within" in header
+        assert recorded_resistor_out(block) is False and back.series_resistor_out is False
+    else:
+        assert h_up == pytest.approx(pz.current_limit_source_a * 1e-4 / c_max, rel=1e-12)     # I T / C_max
+        for text in (ctrl.describe(), back.describe(), fw_text):
+            assert "slew window, series resistor out" in text, text
+        assert "series resistor out" in block["description"] and "time_constant_s" not in block["voltage_model"]
+        assert "series resistor out" in header and "(u - v) / R" not in header
+        assert recorded_resistor_out(block) is True and back.series_resistor_out is True
+    # a window given without a plant or a record is not called either
+    bare = replace(ctrl, series_resistor_out=None)
+    assert "series resistor out" not in bare.describe()
+
+
 # ----------------------------------------------------------------------------- the sensor block
 
 FUSED = ROOT / "controllers" / "sn637_fused_loopshape.json"

@@ -35,7 +35,7 @@ from .export.fixed_point import FixedPointController, quantize, run_fixed, run_f
 from .export.sensor import BLEND_KEYS, SENSOR_BLOCK_KEYS, SENSOR_KINDS, STARTUP_FIELDS, SensorBlend, run_sensor
 from .export.sos import ExportError, from_sos, to_sos
 
-__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "window_text", "X_GAUGE_M", "SensorBlend",
+__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "window_text", "recorded_resistor_out", "X_GAUGE_M", "SensorBlend",
            "SENSOR_KINDS"]
 
 NO_WINDOW_TEXT = "no current-limit window (anti-windup off)"
@@ -90,24 +90,52 @@ def plant_window(plant, dt_s):
     return current_limit_model(plant.pzt, dt_s)
 
 
-def window_text(model):
-    """The words for a current-limit window (alpha, h_up, h_down) in a description line."""
-    if model[0] == 1.0:
+def window_text(model, resistor_out=None):
+    """The words for a current-limit window (alpha, h_up, h_down) in a description line.
+
+    ``resistor_out``: whether the window was derived with the series resistor out (R = 0, a slew window of
+    I T / C a sample) or in (an RC model, headroom R I); None when not recorded. Decided from the plant's R,
+    never from alpha: with R in, alpha = 1 - exp(-T / (R C)) rounds to 1.0 once R C < T / 37 (~0.2 ohm).
+    """
+    if resistor_out:
         return ("current-limit window +{1:.4g}/-{2:.4g} V a sample around the last output (alpha 1: a slew window, "
                 "series resistor out)").format(*model)
     return "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(*model)
 
 
-def _anti_windup_block(model, limits, plant=None):
-    """The ``anti_windup`` block of the JSON (the conditioned cascade the fixed-point step runs)."""
+def recorded_resistor_out(anti_windup):
+    """Whether an ``anti_windup`` block's window was derived with the series resistor out: True, False, or None.
+
+    :func:`_anti_windup_block` records it with the plant's R: ``voltage_model.slew_v_per_s`` (resistor out:
+    the slew I / C the window allows) or ``voltage_model.time_constant_s`` (resistor in: R C). None when the
+    block records neither (a window given without a plant, or a file exported before session 38).
+    """
+    vm = anti_windup.get("voltage_model") if isinstance(anti_windup, dict) else None
+    if isinstance(vm, dict):
+        if "slew_v_per_s" in vm:
+            return True
+        if "time_constant_s" in vm:
+            return False
+    return None
+
+
+def _anti_windup_block(model, limits, plant=None, resistor_out=None, dt_s=None):
+    """The ``anti_windup`` block of the JSON (the conditioned cascade the fixed-point step runs).
+
+    Whether the series resistor is out is the plant's R = 0 (``plant``), else ``resistor_out`` (a controller
+    that knows it, with its sample time ``dt_s``); never alpha == 1 (see :func:`window_text`). The block then
+    records it (:func:`recorded_resistor_out`).
+    """
+    if plant is not None and model is not None:
+        resistor_out = not plant.pzt.series_resistance_ohm > 0
     block = {"method": "conditioned_cascade",
              "description": "the last (integrator) section's output is clamped to the output limits and to "
                             "[v - headroom_v[1], v + headroom_v[0]], v a model of the stack voltage "
                             "(v += alpha (u - v), the series R and the largest stack capacitance); the clamped "
                             "value drives that section's recursion",
              "output_limits_v": list(limits)}
-    if model is not None and model[0] == 1.0:
-        # the series resistor out (R = 0): alpha = 1, a slew window (an R-in alpha 1 - exp(-T / (R C)) is below 1)
+    if model is not None and resistor_out:
+        # the series resistor out (R = 0): alpha = 1, a slew window
         block["description"] = ("the last (integrator) section's output is clamped to the output limits and to "
                                 "[v - headroom_v[1], v + headroom_v[0]], v the last clamped output (alpha = 1: "
                                 "series resistor out, headroom I T / C with C the largest stack capacitance, the "
@@ -123,6 +151,8 @@ def _anti_windup_block(model, limits, plant=None):
                                                              / rate_limits_v_per_s(pz)[0])
             else:
                 block["voltage_model"]["slew_v_per_s"] = list(rate_limits_v_per_s(pz))
+        elif resistor_out and dt_s is not None:
+            block["voltage_model"]["slew_v_per_s"] = [model[1] / dt_s, model[2] / dt_s]
     return block
 
 
@@ -365,6 +395,10 @@ class Controller:
     window_source : str
         ``"file"`` (the window was in the file or given), ``"plant"`` (derived from the plant on
         load: a bare controller) or ``"none"``.
+    series_resistor_out : bool or None
+        Whether the window was derived with the series resistor out (R = 0: a slew window) or in;
+        from the plant's R, or what the file records (:func:`recorded_resistor_out`); None when not
+        known. Never read from alpha (with R in, alpha rounds to 1.0 below ~0.2 ohm).
     fixed : FixedPointController or None
         The 32-bit words of the C header (None: a float-only controller).
     provenance : dict
@@ -397,6 +431,7 @@ class Controller:
     source: str = ""
     max_pole_radius: float = 0.0
     sensor: SensorBlend | None = None
+    series_resistor_out: bool | None = None
 
     def __post_init__(self):
         self.sos.flags.writeable = False
@@ -429,7 +464,7 @@ class Controller:
         if self.voltage_model is None:
             win = NO_WINDOW_TEXT
         else:
-            win = window_text(self.voltage_model)
+            win = window_text(self.voltage_model, self.series_resistor_out)
             if self.window_source == "plant":
                 win += ", derived from the plant (the file has none)"
         n = len(self.sos)
@@ -585,7 +620,7 @@ class Controller:
         sb = self.sensor            # firmware's reference lead and gauge linearization, when its block carries them
         fw = {"ref_lead_s": 0.0 if sb is None or sb.ref_lead_s is None else sb.ref_lead_s,
               "gauge_curvature_per_m": 0.0 if sb is None or sb.gauge_curvature_per_m is None
-              else sb.gauge_curvature_per_m}
+              else sb.gauge_curvature_per_m, "series_resistor_out": self.series_resistor_out}
         if form == "fixed":
             if self.fixed is None:
                 raise ControllerError(self.source, "fixed_point", "is missing: there are no words to run; drop "
@@ -684,7 +719,8 @@ class Controller:
         rec["anti_windup"] = _anti_windup_block(model, lim, plant)
         return cls(sample_rate_hz=1.0 / dt, gain=fxp.gain, sos=np.array(fxp.sos), output_limits_v=lim,
                    voltage_model=model, window_source="file" if model else "none", fixed=fxp, provenance=prov,
-                   record=rec, max_pole_radius=fxp.max_pole_radius)
+                   record=rec, max_pole_radius=fxp.max_pole_radius,
+                   series_resistor_out=None if model is None else not plant.pzt.series_resistance_ohm > 0)
 
     @classmethod
     def from_dict(cls, data, *, source="", plant=None, allow_unstable=False):
@@ -774,18 +810,21 @@ class Controller:
         if aw.get("method") == "hanus":
             hanus = _hanus(src, aw, 1.0 / fs, limits)
         window_source = "file" if model is not None else "none"
+        resistor_out = recorded_resistor_out(aw) if model is not None else None
         if plant is not None:
             if limits is None:
                 limits = (float(plant.pzt.voltage_min_v), float(plant.pzt.voltage_max_v))
             if model is None and fxp is None:
                 model = plant_window(plant, 1.0 / fs)
                 window_source = "plant" if model is not None else "none"
+                resistor_out = None if model is None else not plant.pzt.series_resistance_ohm > 0
             elif model is None:
                 # words without a window: the limit words derive from the float window, so the
                 # plant's can be attached; the run says so
                 model = plant_window(plant, 1.0 / fs)
                 if model is not None:
                     window_source = "plant"
+                    resistor_out = not plant.pzt.series_resistance_ohm > 0
                     fxp = replace(fxp, voltage_model=model)
         if radius is None:
             radius = _float_radius(sos)
@@ -796,7 +835,8 @@ class Controller:
         sensor = _sensor_from_block(src, data, fs, fxp)
         return cls(sample_rate_hz=fs, gain=gain, sos=sos, output_limits_v=limits, voltage_model=model,
                    window_source=window_source, fixed=fxp, provenance=prov, record=record, hanus=hanus,
-                   source=str(source), max_pole_radius=float(radius), sensor=sensor)
+                   source=str(source), max_pole_radius=float(radius), sensor=sensor,
+                   series_resistor_out=resistor_out)
 
     @classmethod
     def load(cls, path, *, plant=None, allow_unstable=False):
@@ -854,7 +894,8 @@ class Controller:
         rec = dict(self.record)
         if self.window_source == "plant" and self.voltage_model is not None:
             lim = self.output_limits_v
-            rec["anti_windup"] = {**_anti_windup_block(self.voltage_model, lim),
+            rec["anti_windup"] = {**_anti_windup_block(self.voltage_model, lim, resistor_out=self.series_resistor_out,
+                                                       dt_s=self.dt_s),
                                   "window_source": "derived from the plant on load"}
         if self.sensor is not None:
             rec["sensor"] = self.sensor.as_dict(self._words().input_frac_bits)
@@ -930,7 +971,10 @@ class Controller:
         Compared: the plant file's SHA-256 with the provenance, the serial, the gauge trim
         (relative 1e-6), the gauge gain at 7.5 um (relative 1e-3), the output limits with the
         amplifier's voltage range, and the current-limit window with the one the plant's R,
-        largest capacitance and current limits give (relative 1e-3).
+        largest capacitance and current limits give (relative 1e-3). Fixed-point words without a
+        window on a plant with the series resistor out are a mismatch although a window derived
+        from the plant is attached (:attr:`window_source` "plant"): the firmware built from the
+        header has none and winds up while the amplifier slews.
 
         Parameters
         ----------
@@ -994,6 +1038,12 @@ class Controller:
                           f"/-{pz.current_limit_sink_a * 1e3:g} mA {via}) give a window of +{want[1]:.4g}/-{want[2]:.4g} "
                           f"V, alpha {want[0]:.4g}" + ("" if pz.series_resistance_ohm > 0 else
                                                        "; re-export the controller with this plant"))
+        elif self.window_source == "plant" and self.fixed is not None and not pz.series_resistance_ohm > 0:
+            # words without a window (an R-out export before session 38): verify attaches the plant's window, but
+            # the C header's step has none (headroom 2^40 words) and winds up while the amplifier slews
+            bad("window", f"this controller's firmware has no current-limit window; verify runs it with the plant's "
+                          f"window (+{want[1]:.4g}/-{want[2]:.4g} V a sample, series resistor out), the firmware "
+                          f"built from its header would wind up: re-export it with this plant")
         elif self.window_source != "plant" and not np.allclose(self.voltage_model, want, rtol=_RTOL_WINDOW, atol=0):
             a, hu, hd = self.voltage_model
             bad("window", f"current-limit window +{hu:.4g}/-{hd:.4g} V, alpha {a:.4g} in the controller; the plant's "

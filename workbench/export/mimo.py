@@ -483,7 +483,7 @@ class MimoController:
                   "description": "axis window: the axis output stays within +/- headroom of its model "
                                  "m += alpha (u - m), so every stack's command stays within R min(I_source, "
                                  "I_sink) of In m (workbench/export/mimo.py)"}
-            axes[key] = replace(c, fixed=fxp, voltage_model=model, window_source="file",
+            axes[key] = replace(c, fixed=fxp, voltage_model=model, window_source="file", series_resistor_out=False,
                                 record={**c.record, "anti_windup": aw}, max_pole_radius=fxp.max_pole_radius)
         dv = max(np.abs(lim).max(), 1e-9)
         rec = {"provenance": _mirror_provenance(fsm), **(record or {})}

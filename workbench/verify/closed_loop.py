@@ -73,6 +73,8 @@ class FirmwareController:
     triangles, and ``workbench sweep``'s triangle) feed r + v ``ref_lead_s`` with v the planned slope
     (:func:`workbench.verify.scenarios.planned_slope_lead`); steps, holds and tones are fed as given. Every
     reading is linearized with ``gauge_curvature_per_m`` (:func:`workbench.plant.gauge.linearized_displacement`).
+    ``series_resistor_out``: whether the window was derived with the series resistor out (a slew window; the
+    controller's :attr:`~workbench.controller.Controller.series_resistor_out`), for the description only.
     """
 
     form: str
@@ -85,6 +87,7 @@ class FirmwareController:
     hanus: HanusController | None = None
     ref_lead_s: float = 0.0
     gauge_curvature_per_m: float = 0.0
+    series_resistor_out: bool | None = None
 
     def linear(self):
         """The discrete linear controller (no limits) as a python-control StateSpace."""
@@ -98,7 +101,7 @@ class FirmwareController:
 
     def describe(self):
         from ..controller import window_text
-        rate = "no current-limit window" if self.voltage_model is None else window_text(self.voltage_model)
+        rate = "no current-limit window" if self.voltage_model is None else window_text(self.voltage_model, self.series_resistor_out)
         form = {"fixed": "32-bit fixed-point cascade", "float": "float cascade", "hanus": "Hanus float form"}[self.form]
         return f"{form}, output {self.output_limits_v[0]:g}..{self.output_limits_v[1]:g} V, {rate}"
 
