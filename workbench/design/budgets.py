@@ -80,7 +80,7 @@ def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
     if noise_override_v is not None:
         would = (f"R min(I_source, I_sink) / {NOISE_SIGMAS:g} = {r * min(i_src, i_snk) / NOISE_SIGMAS:.4g} V" if r > 0
                  else "no budget" if model is None else
-                 f"min(I_source, I_sink) T / (C {NOISE_SIGMAS:g}) = {min(model[1:]) / NOISE_SIGMAS:.4g} V")
+                 f"min(I_source, I_sink) T / ({NOISE_SIGMAS:g} C) = {min(model[1:]) / NOISE_SIGMAS:.4g} V")
         noise = Budget("noise_command_v", float(noise_override_v), "V RMS", "study",
                        f"`loop_shape.max_noise_command_v = {noise_override_v:g}` V in {study_path} (the plant would "
                        f"give {would})")
@@ -88,8 +88,8 @@ def plant_budgets(plant, dt_s, noise_override_v=None, study_path=None):
         # the series resistor out: the window is a slew of I T / C a sample around the last output (alpha 1), so
         # the lead that noise puts on the command is its change per sample; at 3 sigma within the smaller headroom
         noise = Budget("noise_command_v", min(model[1:]) / NOISE_SIGMAS, "V RMS", "plant",
-                       f"series resistor out (R = 0): min(I_source, I_sink) T / (C {NOISE_SIGMAS:g}) = "
-                       f"{min(i_src, i_snk) * 1e3:g} mA x {dt_s:g} s / ({c * 1e6:.4g} uF x {NOISE_SIGMAS:g}), the "
+                       f"series resistor out (R = 0): min(I_source, I_sink) T / ({NOISE_SIGMAS:g} C) = "
+                       f"{min(i_src, i_snk) * 1e3:g} mA x {dt_s:g} s / ({NOISE_SIGMAS:g} x {c * 1e6:.4g} uF), the "
                        f"smaller headroom of the slew window at {NOISE_SIGMAS:g} sigma (`current_limit_source_a`/"
                        f"`current_limit_sink_a` of {src}, C the largest terminal capacitance)")
     elif r > 0:
