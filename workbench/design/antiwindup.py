@@ -63,16 +63,19 @@ def current_limit_model(pzt, dt_s):
       at any smaller capacitance the stack slews faster than the window, so the command never
       runs ahead of the stack and the integrator never winds up. Measured
       (``benchmarks/logs/s38_phys/rout_window.log``, the five stack files R out, session 37's
-      loop-shaped controller, +/-0.5 and +/-5 um steps, no noise): with C_max no period at the
-      current limit and overshoot as the unlimited amplifier's (0.01 %, 0.04-0.08 % with creep),
+      loop-shaped controller, +/-0.5 and +/-5 um steps, no noise): with C_max the stack reaches
+      the command within each sample (the amplifier slews at its limit inside the sample; with
+      the plant stepped once a sample no sample ends short of its command, and with ten steps a
+      sample ~1600 of the +5 um step's sub-steps are at the limit: review of s38_phys) and the
+      overshoot is the unlimited amplifier's (0.01 %, 0.04-0.08 % with creep),
       settling 175 ms for +5 um against 209 ms without a window and 38 ms against 118-123 ms for
       -5 um; with the smallest capacitance (only the first play engaged, 6.0 uF) the window lets
       the command run ahead where all plays are engaged and the loop winds up (11 % overshoot at
       +5 um, 15-20 % at +0.5 um, 24-25 % at -5 um, against 12.5 %, 76 % and 24 % without a
       window). Between the two (``rout_c_sweep.log``: the R-out loop-shaped design on SN637 with
       creep, C = 0.6-0.9 C_max) the +5 um overshoot grows with the window's speed, 1.6 % at
-      0.9 C_max to 5.9 % at 0.6 C_max, the amplifier at its limit for 180 ms: only C_max keeps the
-      integrator from winding up. The cost of C_max: the stack away from the largest capacitance
+      0.9 C_max to 5.9 % at 0.6 C_max, samples ending short of their command for 180 ms: only
+      C_max keeps the integrator from winding up. The cost of C_max: the stack away from the largest capacitance
       could slew up to 1.9x faster, so a down step rises slower (-5 um: 27 ms against 20 ms), and a
       ramp faster than I / C_max is held back: `verify`'s 1 Hz triangle (0.8 stroke, ~220 V/s on
       average) tracks to 592 nm RMS against 1.6 nm without a window, as the R-in window (the same

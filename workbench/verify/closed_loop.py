@@ -22,7 +22,10 @@ Per servo period T (the gauge modulation period, 10 kHz), in this order:
    C header's step) when the JSON has a ``fixed_point`` block, else the float cascade,
    or the Hanus realization when the ``anti_windup`` block says ``hanus``; each with the
    output range, the current-limit window (a model of the stack voltage; the command
-   never asks for more current than the amplifier gives) and the anti-windup it declares.
+   never asks for more current than the amplifier gives with the series resistor in, for
+   more charge in a sample than it moves with the resistor out, where the stack reaches
+   the command within the sample while the amplifier slews at its limit inside it) and
+   the anti-windup it declares.
    With ``anti_windup=False`` the same controller runs with the range clip only: no
    window, the states driven by the unclipped output (what firmware without anti-windup
    does);
