@@ -325,6 +325,8 @@ def test_resistor_out_is_the_plants_r_not_an_alpha_of_one(r_ohm, tmp_path):
     data = json.loads(files["json"].read_text())
     block = data["anti_windup"]
     back = Controller.load(files["json"])
+    mat = Controller.load(files["mat"])
+    assert mat.series_resistor_out == back.series_resistor_out == (r_ohm == 0)       # the .mat carries it too
     fw_text = ctrl.firmware().describe()
     if r_ohm > 0:
         assert h_up == pytest.approx(r_ohm * pz.current_limit_source_a, rel=1e-12)     # R I, far below I T / C

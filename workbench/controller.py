@@ -1191,7 +1191,9 @@ def _read_mat(path):
                           "signal_frac_bits": int(sig[k]), "integrator": bool(integ[k])} for k in range(n)]}})
     if vm.size == 3:
         aw = data.get("anti_windup") if isinstance(data.get("anti_windup"), dict) else {}
-        data["anti_windup"] = {**aw, "voltage_model": {"alpha": float(vm[0]),
+        old = aw.get("voltage_model") if isinstance(aw.get("voltage_model"), dict) else {}
+        # the arrays' window, the record's other keys kept (slew_v_per_s / time_constant_s: resistor out or in)
+        data["anti_windup"] = {**aw, "voltage_model": {**old, "alpha": float(vm[0]),
                                                        "headroom_v": [float(vm[1]), float(vm[2])]}}
     return data
 
