@@ -244,23 +244,111 @@ def test_quantize_agrees_with_from_dict_words(ctrl):
         assert back.max_pole_radius == pytest.approx(fxp.max_pole_radius, abs=1e-12)
 
 
-def test_series_resistor_out_gives_no_window_and_a_controller_that_moves():
-    # R = 0 (seed 000's free-free configuration): the window [v - R I_sink, v + R I_source] would
-    # have zero width and pin the command; the controller must carry no window and must move
+def test_series_resistor_out_gives_a_slew_window_from_the_largest_capacitance():
+    """R = 0 (seed 000's free-free configuration): the current is C dV/dt, so the window is a slew of I T / C a
+    sample around the last output (alpha = 1), C the largest terminal capacitance (every play's weight and the
+    creep branches' capacitances summed, in series with C_pp: derived here from the file's numbers)."""
     import control
-    from workbench.design.budgets import plant_budgets
     plant = load_plant(PLANTS / "p888_51_sn637_creep.toml", overrides={"electrical.series_resistor_in": False})
-    assert plant.pzt.series_resistance_ohm == 0.0
+    pz = plant.pzt
+    assert pz.series_resistance_ohm == 0.0
+    c_h = float(np.sum(pz.hysteresis.weights)) + float(np.sum(pz.creep.capacitances_f))
+    c_max = c_h * pz.c_pp_f / (c_h + pz.c_pp_f)
     k = control.c2d(control.tf([50.0, 50.0 * 2 * np.pi * 20.0], [1.0, 0.0]), 1e-4, "tustin")   # a PI
     ctrl = Controller.from_lti(k, plant)
-    assert ctrl.voltage_model is None and "anti-windup off" in ctrl.describe()
-    u = ctrl.run(np.full(200, 0.01))
-    assert np.all(np.diff(u) > 0) and u[-1] > 0.5            # the integrator winds the command up
+    alpha, h_up, h_down = ctrl.voltage_model
+    assert alpha == 1.0 and ctrl.fixed.limit_words[2] == 1 << 30
+    assert h_up == pytest.approx(2e-3 * 1e-4 / c_max, rel=1e-12) and h_down == pytest.approx(14e-3 * 1e-4 / c_max, rel=1e-12)
+    assert "slew window" in ctrl.describe() and NO_WINDOW_TEXT not in ctrl.describe()
+    # a large error: the integrator is held to the slew, the charge per sample C_max du never passes I T
+    u = ctrl.run(np.full(2000, 1.0), u0_v=50.0)
+    du = np.diff(np.concatenate([[50.0], u]))
+    assert du.max() <= h_up and c_max * du.max() <= 2e-3 * 1e-4 * (1 + 1e-12)
+    assert du.max() > h_up - 2.0 ** -ctrl.fixed.output_frac_bits          # and it slews at the window
+    free = Controller.from_lti(k, plant, window=False).run(np.full(2000, 1.0), u0_v=50.0)
+    assert np.diff(free).max() > 10 * h_up                                 # what the window holds back
     assert [c for c in ctrl.compare_plant(plant) if c["check"] == "window"] == []
+    # a controller exported without the window (session 37's R-out export) is named, and so is an R-in window
+    bare = Controller.from_lti(k, plant, window=False)
+    msg = [c["message"] for c in bare.compare_plant(plant) if c["check"] == "window"]
+    assert len(msg) == 1 and NO_WINDOW_TEXT in msg[0] and "series resistor out" in msg[0]
     windowed = Controller.from_lti(k, load_plant(PLANTS / "p888_51_sn637_creep.toml"))
-    assert windowed.voltage_model is not None
+    assert windowed.voltage_model[0] < 1
     assert [c["check"] for c in windowed.compare_plant(plant) if c["check"] == "window"] == ["window"]
-    assert plant_budgets(plant, 1e-4, None, "study.toml")["current_window"].value is None
+    # the JSON round trip keeps alpha = 1 and the headroom
+    back = Controller.from_dict(json.loads(json.dumps(ctrl.to_dict())))
+    assert back.voltage_model == ctrl.voltage_model
+    np.testing.assert_array_equal(back.fixed.limit_words, ctrl.fixed.limit_words)
+    from workbench.design.budgets import plant_budgets
+    assert plant_budgets(plant, 1e-4, None, "study.toml")["current_window"].value == ctrl.voltage_model
+
+
+def test_an_r_in_window_is_unchanged():
+    """The R-in window of the committed controller (written before the R-out window existed) is what the plant
+    gives now, bit for bit: alpha = 1 - exp(-T / (R C_max)), headroom R I."""
+    from workbench.controller import plant_window
+    data = json.loads((ROOT / "controllers" / "sn637_loopshape.json").read_text())
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml")
+    vm = data["anti_windup"]["voltage_model"]
+    assert plant_window(plant, 1e-4) == (vm["alpha"], *vm["headroom_v"])
+    # the JSON block and the window's words as the committed export has them
+    from workbench.controller import _anti_windup_block
+    block = _anti_windup_block(plant_window(plant, 1e-4), data["anti_windup"]["output_limits_v"], plant)
+    assert block == {k: v for k, v in data["anti_windup"].items() if k != "output_slew_limit_v_per_s"}
+    c = Controller.load(ROOT / "controllers" / "sn637_loopshape.json")
+    fxp = quantize(c.gain, np.array(c.sos), c.dt_s, input_range_v=c.fixed.input_range_v,
+                   output_limits_v=c.output_limits_v, f_max_hz=c.fixed.f_max_hz, voltage_model=plant_window(plant, 1e-4))
+    np.testing.assert_array_equal(fxp.limit_words, c.fixed.limit_words)
+    np.testing.assert_array_equal(fxp.b, c.fixed.b)
+    np.testing.assert_array_equal(fxp.a, c.fixed.a)
+
+
+@pytest.mark.parametrize("r_ohm", [0.01, 0.1, 0.0])
+def test_resistor_out_is_the_plants_r_not_an_alpha_of_one(r_ohm, tmp_path):
+    """With R in, alpha = 1 - exp(-T / (R C_max)) rounds to exactly 1.0 once T / (R C) > ~37 (R < ~0.23 ohm on
+    SN637 with creep): the window is still the R-in one (headroom R I: 0.2 mV up at 0.1 ohm, not I T / C), and the
+    describe line, the JSON's anti_windup block and the C header's comment must say so; R = 0 is the slew window.
+    Everything is read back from the written files and from a reloaded controller."""
+    from workbench.controller import recorded_resistor_out
+    over = ({"electrical.series_resistor_in": False} if r_ohm == 0 else
+            {"electrical.series_resistor_ohm": r_ohm})
+    plant = load_plant(PLANTS / "p888_51_sn637_creep.toml", overrides=over)
+    pz = plant.pzt
+    c_h = float(np.sum(pz.hysteresis.weights)) + float(np.sum(pz.creep.capacitances_f))
+    c_max = c_h * pz.c_pp_f / (c_h + pz.c_pp_f)              # the largest terminal capacitance, from the file
+    k = control.c2d(control.tf([50.0, 50.0 * 2 * np.pi * 20.0], [1.0, 0.0]), 1e-4, "tustin")   # a PI
+    ctrl = Controller.from_lti(k, plant, name="ctrl")
+    alpha, h_up, h_down = ctrl.voltage_model
+    assert alpha == 1.0                                        # the float cannot tell R in from R out here
+    files = ctrl.write(tmp_path)
+    header = files["h"].read_text()
+    data = json.loads(files["json"].read_text())
+    block = data["anti_windup"]
+    back = Controller.load(files["json"])
+    mat = Controller.load(files["mat"])
+    assert mat.series_resistor_out == back.series_resistor_out == (r_ohm == 0)       # the .mat carries it too
+    fw_text = ctrl.firmware().describe()
+    if r_ohm > 0:
+        assert h_up == pytest.approx(r_ohm * pz.current_limit_source_a, rel=1e-12)     # R I, far below I T / C
+        assert h_down == pytest.approx(r_ohm * pz.current_limit_sink_a, rel=1e-12)
+        for text in (ctrl.describe(), back.describe(), fw_text):
+            assert "series resistor out" not in text and "slew window" not in text, text
+            assert "around a stack-voltage model" in text, text
+        assert "series resistor out" not in block["description"] and "the series R" in block["description"]
+        assert block["voltage_model"]["time_constant_s"] == pytest.approx(r_ohm * c_max, rel=1e-12)     # R C_max
+        assert "slew_v_per_s" not in block["voltage_model"]
+        assert "series resistor out" not in header and "the current (u - v) / R stays within" in header
+        assert recorded_resistor_out(block) is False and back.series_resistor_out is False
+    else:
+        assert h_up == pytest.approx(pz.current_limit_source_a * 1e-4 / c_max, rel=1e-12)     # I T / C_max
+        for text in (ctrl.describe(), back.describe(), fw_text):
+            assert "slew window, series resistor out" in text, text
+        assert "series resistor out" in block["description"] and "time_constant_s" not in block["voltage_model"]
+        assert "series resistor out" in header and "(u - v) / R" not in header
+        assert recorded_resistor_out(block) is True and back.series_resistor_out is True
+    # a window given without a plant or a record is not called either
+    bare = replace(ctrl, series_resistor_out=None)
+    assert "series resistor out" not in bare.describe()
 
 
 # ----------------------------------------------------------------------------- the sensor block

@@ -35,7 +35,7 @@ from .export.fixed_point import FixedPointController, quantize, run_fixed, run_f
 from .export.sensor import BLEND_KEYS, SENSOR_BLOCK_KEYS, SENSOR_KINDS, STARTUP_FIELDS, SensorBlend, run_sensor
 from .export.sos import ExportError, from_sos, to_sos
 
-__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "X_GAUGE_M", "SensorBlend",
+__all__ = ["Controller", "ControllerError", "ControllerMismatchError", "NO_WINDOW_TEXT", "window_text", "recorded_resistor_out", "X_GAUGE_M", "SensorBlend",
            "SENSOR_KINDS"]
 
 NO_WINDOW_TEXT = "no current-limit window (anti-windup off)"
@@ -80,29 +80,79 @@ def plant_provenance(plant):
 def plant_window(plant, dt_s):
     """(alpha, h_up, h_down) of the current-limit window for ``plant`` at sample time ``dt_s``.
 
-    alpha = 1 - exp(-T / (R C)) with R the series resistor and C the largest terminal
-    capacitance; h_up = R I_source, h_down = R I_sink (V). None with the series resistor out
-    (R = 0): no window (see :func:`workbench.design.antiwindup.current_limit_model`).
+    With the series resistor in: alpha = 1 - exp(-T / (R C)) with R the series resistor and C
+    the largest terminal capacitance, h_up = R I_source, h_down = R I_sink (V). With it out
+    (R = 0): alpha = 1 (the model follows the command), h_up = I_source T / C, h_down =
+    I_sink T / C, the slew the amplifier can follow in a sample (see
+    :func:`workbench.design.antiwindup.current_limit_model`).
     """
     from .design.antiwindup import current_limit_model
     return current_limit_model(plant.pzt, dt_s)
 
 
-def _anti_windup_block(model, limits, plant=None):
-    """The ``anti_windup`` block of the JSON (the conditioned cascade the fixed-point step runs)."""
+def window_text(model, resistor_out=None):
+    """The words for a current-limit window (alpha, h_up, h_down) in a description line.
+
+    ``resistor_out``: whether the window was derived with the series resistor out (R = 0, a slew window of
+    I T / C a sample) or in (an RC model, headroom R I); None when not recorded. Decided from the plant's R,
+    never from alpha: with R in, alpha = 1 - exp(-T / (R C)) rounds to 1.0 once R C < T / 37 (~0.2 ohm).
+    """
+    if resistor_out:
+        return ("current-limit window +{1:.4g}/-{2:.4g} V a sample around the last output (alpha 1: a slew window, "
+                "series resistor out)").format(*model)
+    return "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(*model)
+
+
+def recorded_resistor_out(anti_windup):
+    """Whether an ``anti_windup`` block's window was derived with the series resistor out: True, False, or None.
+
+    :func:`_anti_windup_block` records it with the plant's R: ``voltage_model.slew_v_per_s`` (resistor out:
+    the slew I / C the window allows) or ``voltage_model.time_constant_s`` (resistor in: R C). None when the
+    block records neither (a window given without a plant, or a file exported before session 38).
+    """
+    vm = anti_windup.get("voltage_model") if isinstance(anti_windup, dict) else None
+    if isinstance(vm, dict):
+        if "slew_v_per_s" in vm:
+            return True
+        if "time_constant_s" in vm:
+            return False
+    return None
+
+
+def _anti_windup_block(model, limits, plant=None, resistor_out=None, dt_s=None):
+    """The ``anti_windup`` block of the JSON (the conditioned cascade the fixed-point step runs).
+
+    Whether the series resistor is out is the plant's R = 0 (``plant``), else ``resistor_out`` (a controller
+    that knows it, with its sample time ``dt_s``); never alpha == 1 (see :func:`window_text`). The block then
+    records it (:func:`recorded_resistor_out`).
+    """
+    if plant is not None and model is not None:
+        resistor_out = not plant.pzt.series_resistance_ohm > 0
     block = {"method": "conditioned_cascade",
              "description": "the last (integrator) section's output is clamped to the output limits and to "
                             "[v - headroom_v[1], v + headroom_v[0]], v a model of the stack voltage "
                             "(v += alpha (u - v), the series R and the largest stack capacitance); the clamped "
                             "value drives that section's recursion",
              "output_limits_v": list(limits)}
+    if model is not None and resistor_out:
+        # the series resistor out (R = 0): alpha = 1, a slew window
+        block["description"] = ("the last (integrator) section's output is clamped to the output limits and to "
+                                "[v - headroom_v[1], v + headroom_v[0]], v the last clamped output (alpha = 1: "
+                                "series resistor out, headroom I T / C with C the largest stack capacitance, the "
+                                "slew the current limits allow in a sample); the clamped value drives that "
+                                "section's recursion")
     if model is not None:
         block["voltage_model"] = {"alpha": model[0], "headroom_v": list(model[1:])}
         if plant is not None:
             from .design.antiwindup import rate_limits_v_per_s
             pz = plant.pzt
-            block["voltage_model"]["time_constant_s"] = (pz.series_resistance_ohm * pz.current_limit_source_a
-                                                         / rate_limits_v_per_s(pz)[0])
+            if pz.series_resistance_ohm > 0:
+                block["voltage_model"]["time_constant_s"] = (pz.series_resistance_ohm * pz.current_limit_source_a
+                                                             / rate_limits_v_per_s(pz)[0])
+            else:
+                block["voltage_model"]["slew_v_per_s"] = list(rate_limits_v_per_s(pz))
+        elif resistor_out and dt_s is not None:
+            block["voltage_model"]["slew_v_per_s"] = [model[1] / dt_s, model[2] / dt_s]
     return block
 
 
@@ -165,12 +215,13 @@ def _window(src, key, block):
     if not isinstance(block, dict):
         raise ControllerError(src, key, f"must be a table {{alpha, headroom_v: [up, down]}}; got {block!r}")
     alpha = _number(src, f"{key}.alpha", block.get("alpha"))
-    if not 0 < alpha < 1:
-        raise ControllerError(src, f"{key}.alpha", f"must lie in (0, 1): alpha = 1 - exp(-T / (R C)); got {alpha:g}")
+    if not 0 < alpha <= 1:
+        raise ControllerError(src, f"{key}.alpha", f"must lie in (0, 1]: alpha = 1 - exp(-T / (R C)), or 1 with the "
+                                                   f"series resistor out; got {alpha:g}")
     head = _array(src, f"{key}.headroom_v", block.get("headroom_v"), "[up, down] in V", 1)
     if head.size != 2 or np.any(head < 0):
-        raise ControllerError(src, f"{key}.headroom_v", f"must be two non-negative volts [R I_source, R I_sink]; "
-                                                        f"got {head.tolist()}")
+        raise ControllerError(src, f"{key}.headroom_v", f"must be two non-negative volts [R I_source, R I_sink] "
+                                                        f"(I_source T / C, I_sink T / C with R out); got {head.tolist()}")
     return alpha, float(head[0]), float(head[1])
 
 
@@ -339,10 +390,15 @@ class Controller:
     voltage_model : (float, float, float) or None
         Current-limit window (alpha, h_up_v, h_down_v): v <- v + alpha (u - v) models the stack
         voltage (alpha = 1 - exp(-T / (R C)), C the largest stack capacitance) and u is kept within
-        [v - h_down, v + h_up] (h = R I_source, R I_sink). None: no window (anti-windup off).
+        [v - h_down, v + h_up] (h = R I_source, R I_sink); with the series resistor out, alpha = 1
+        and h = I_source T / C, I_sink T / C (a slew window). None: no window (anti-windup off).
     window_source : str
         ``"file"`` (the window was in the file or given), ``"plant"`` (derived from the plant on
         load: a bare controller) or ``"none"``.
+    series_resistor_out : bool or None
+        Whether the window was derived with the series resistor out (R = 0: a slew window) or in;
+        from the plant's R, or what the file records (:func:`recorded_resistor_out`); None when not
+        known. Never read from alpha (with R in, alpha rounds to 1.0 below ~0.2 ohm).
     fixed : FixedPointController or None
         The 32-bit words of the C header (None: a float-only controller).
     provenance : dict
@@ -375,6 +431,7 @@ class Controller:
     source: str = ""
     max_pole_radius: float = 0.0
     sensor: SensorBlend | None = None
+    series_resistor_out: bool | None = None
 
     def __post_init__(self):
         self.sos.flags.writeable = False
@@ -407,8 +464,7 @@ class Controller:
         if self.voltage_model is None:
             win = NO_WINDOW_TEXT
         else:
-            win = "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(
-                *self.voltage_model)
+            win = window_text(self.voltage_model, self.series_resistor_out)
             if self.window_source == "plant":
                 win += ", derived from the plant (the file has none)"
         n = len(self.sos)
@@ -564,7 +620,7 @@ class Controller:
         sb = self.sensor            # firmware's reference lead and gauge linearization, when its block carries them
         fw = {"ref_lead_s": 0.0 if sb is None or sb.ref_lead_s is None else sb.ref_lead_s,
               "gauge_curvature_per_m": 0.0 if sb is None or sb.gauge_curvature_per_m is None
-              else sb.gauge_curvature_per_m}
+              else sb.gauge_curvature_per_m, "series_resistor_out": self.series_resistor_out}
         if form == "fixed":
             if self.fixed is None:
                 raise ControllerError(self.source, "fixed_point", "is missing: there are no words to run; drop "
@@ -663,7 +719,8 @@ class Controller:
         rec["anti_windup"] = _anti_windup_block(model, lim, plant)
         return cls(sample_rate_hz=1.0 / dt, gain=fxp.gain, sos=np.array(fxp.sos), output_limits_v=lim,
                    voltage_model=model, window_source="file" if model else "none", fixed=fxp, provenance=prov,
-                   record=rec, max_pole_radius=fxp.max_pole_radius)
+                   record=rec, max_pole_radius=fxp.max_pole_radius,
+                   series_resistor_out=None if model is None else not plant.pzt.series_resistance_ohm > 0)
 
     @classmethod
     def from_dict(cls, data, *, source="", plant=None, allow_unstable=False):
@@ -753,18 +810,21 @@ class Controller:
         if aw.get("method") == "hanus":
             hanus = _hanus(src, aw, 1.0 / fs, limits)
         window_source = "file" if model is not None else "none"
+        resistor_out = recorded_resistor_out(aw) if model is not None else None
         if plant is not None:
             if limits is None:
                 limits = (float(plant.pzt.voltage_min_v), float(plant.pzt.voltage_max_v))
             if model is None and fxp is None:
                 model = plant_window(plant, 1.0 / fs)
                 window_source = "plant" if model is not None else "none"
+                resistor_out = None if model is None else not plant.pzt.series_resistance_ohm > 0
             elif model is None:
                 # words without a window: the limit words derive from the float window, so the
                 # plant's can be attached; the run says so
                 model = plant_window(plant, 1.0 / fs)
                 if model is not None:
                     window_source = "plant"
+                    resistor_out = not plant.pzt.series_resistance_ohm > 0
                     fxp = replace(fxp, voltage_model=model)
         if radius is None:
             radius = _float_radius(sos)
@@ -775,7 +835,8 @@ class Controller:
         sensor = _sensor_from_block(src, data, fs, fxp)
         return cls(sample_rate_hz=fs, gain=gain, sos=sos, output_limits_v=limits, voltage_model=model,
                    window_source=window_source, fixed=fxp, provenance=prov, record=record, hanus=hanus,
-                   source=str(source), max_pole_radius=float(radius), sensor=sensor)
+                   source=str(source), max_pole_radius=float(radius), sensor=sensor,
+                   series_resistor_out=resistor_out)
 
     @classmethod
     def load(cls, path, *, plant=None, allow_unstable=False):
@@ -833,7 +894,8 @@ class Controller:
         rec = dict(self.record)
         if self.window_source == "plant" and self.voltage_model is not None:
             lim = self.output_limits_v
-            rec["anti_windup"] = {**_anti_windup_block(self.voltage_model, lim),
+            rec["anti_windup"] = {**_anti_windup_block(self.voltage_model, lim, resistor_out=self.series_resistor_out,
+                                                       dt_s=self.dt_s),
                                   "window_source": "derived from the plant on load"}
         if self.sensor is not None:
             rec["sensor"] = self.sensor.as_dict(self._words().input_frac_bits)
@@ -909,7 +971,10 @@ class Controller:
         Compared: the plant file's SHA-256 with the provenance, the serial, the gauge trim
         (relative 1e-6), the gauge gain at 7.5 um (relative 1e-3), the output limits with the
         amplifier's voltage range, and the current-limit window with the one the plant's R,
-        largest capacitance and current limits give (relative 1e-3).
+        largest capacitance and current limits give (relative 1e-3). Fixed-point words without a
+        window on a plant with the series resistor out are a mismatch although a window derived
+        from the plant is attached (:attr:`window_source` "plant"): the firmware built from the
+        header has none and winds up while the amplifier slews.
 
         Parameters
         ----------
@@ -961,20 +1026,29 @@ class Controller:
             bad("output_limits_v", f"output limits {lo:g}..{hi:g} V, the amplifier's range {amp[0]:g}..{amp[1]:g} V"
                                    + (" (the controller asks for more than the amplifier gives)" if beyond else ""))
         want = plant_window(plant, self.dt_s)
+        pz = plant.pzt
+        via = (f"through {pz.series_resistance_ohm:g} ohm" if pz.series_resistance_ohm > 0 else
+               "with the series resistor out, a slew of I T / C a sample")
         if want is None:
             if self.voltage_model is not None:
-                bad("window", "a current-limit window in the controller, but the plant's series resistor is out "
-                              "(R = 0): no resistor drop bounds the current, the window would pin the command; "
-                              "export without a window for this plant")
+                bad("window", "a current-limit window in the controller, but the plant's amplifier has no current "
+                              "limit: export without a window for this plant")
         elif self.voltage_model is None:
-            bad("window", f"{NO_WINDOW_TEXT}; the plant's current limits ({plant.pzt.current_limit_source_a * 1e3:g}"
-                          f"/-{plant.pzt.current_limit_sink_a * 1e3:g} mA through {plant.pzt.series_resistance_ohm:g} "
-                          f"ohm) give a window of +{want[1]:.4g}/-{want[2]:.4g} V, alpha {want[0]:.4g}")
+            bad("window", f"{NO_WINDOW_TEXT}; the plant's current limits ({pz.current_limit_source_a * 1e3:g}"
+                          f"/-{pz.current_limit_sink_a * 1e3:g} mA {via}) give a window of +{want[1]:.4g}/-{want[2]:.4g} "
+                          f"V, alpha {want[0]:.4g}" + ("" if pz.series_resistance_ohm > 0 else
+                                                       "; re-export the controller with this plant"))
+        elif self.window_source == "plant" and self.fixed is not None and not pz.series_resistance_ohm > 0:
+            # words without a window (an R-out export before session 38): verify attaches the plant's window, but
+            # the C header's step has none (headroom 2^40 words) and winds up while the amplifier slews
+            bad("window", f"this controller's firmware has no current-limit window; verify runs it with the plant's "
+                          f"window (+{want[1]:.4g}/-{want[2]:.4g} V a sample, series resistor out), the firmware "
+                          f"built from its header would wind up: re-export it with this plant")
         elif self.window_source != "plant" and not np.allclose(self.voltage_model, want, rtol=_RTOL_WINDOW, atol=0):
             a, hu, hd = self.voltage_model
             bad("window", f"current-limit window +{hu:.4g}/-{hd:.4g} V, alpha {a:.4g} in the controller; the plant's "
-                          f"R = {plant.pzt.series_resistance_ohm:g} ohm, I = +{plant.pzt.current_limit_source_a * 1e3:g}"
-                          f"/-{plant.pzt.current_limit_sink_a * 1e3:g} mA and largest capacitance give "
+                          f"R = {pz.series_resistance_ohm:g} ohm, I = +{pz.current_limit_source_a * 1e3:g}"
+                          f"/-{pz.current_limit_sink_a * 1e3:g} mA and largest capacitance give "
                           f"+{want[1]:.4g}/-{want[2]:.4g} V, alpha {want[0]:.4g}")
         if unknown:
             out.append({"check": "not recorded", "message": "the controller does not record its "
@@ -1117,7 +1191,9 @@ def _read_mat(path):
                           "signal_frac_bits": int(sig[k]), "integrator": bool(integ[k])} for k in range(n)]}})
     if vm.size == 3:
         aw = data.get("anti_windup") if isinstance(data.get("anti_windup"), dict) else {}
-        data["anti_windup"] = {**aw, "voltage_model": {"alpha": float(vm[0]),
+        old = aw.get("voltage_model") if isinstance(aw.get("voltage_model"), dict) else {}
+        # the arrays' window, the record's other keys kept (slew_v_per_s / time_constant_s: resistor out or in)
+        data["anti_windup"] = {**aw, "voltage_model": {**old, "alpha": float(vm[0]),
                                                        "headroom_v": [float(vm[1]), float(vm[2])]}}
     return data
 

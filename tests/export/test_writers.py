@@ -145,11 +145,13 @@ def _build(cc, folder):
     pytest.fail(f"the header does not compile:\n{done.stderr}")
 
 
-@pytest.mark.parametrize("variant", ["pi_lead_rolloff", "notched", "left_shift", "current_window"])
+@pytest.mark.parametrize("variant", ["pi_lead_rolloff", "notched", "left_shift", "current_window", "slew_window"])
 def test_header_steps_equal_run_fixed_bit_for_bit_and_run_float(variant, tmp_path, rng):
     cc = _compiler()
-    # R = 80 ohm, C = 11.9 uF, +2 / -14 mA: the SN637 amplifier and stack
-    model = (1 - np.exp(-DT / (80 * 11.9e-6)), 0.16, 1.12) if variant == "current_window" else None
+    # R = 80 ohm, C = 11.9 uF, +2 / -14 mA: the SN637 amplifier and stack; with R out (slew_window) alpha = 1
+    # and the headroom is the charge I T the limits move in a sample over C
+    model = {"current_window": (1 - np.exp(-DT / (80 * 11.9e-6)), 0.16, 1.12),
+             "slew_window": (1.0, 2e-3 * DT / 11.9e-6, 14e-3 * DT / 11.9e-6)}.get(variant)
     u0_v = 50.0 if model else 0.0     # a bumpless start at the bias
     fxp = _controller(notch=variant == "notched", voltage_model=model)
     if variant == "left_shift":
@@ -185,3 +187,11 @@ def test_header_steps_equal_run_fixed_bit_for_bit_and_run_float(variant, tmp_pat
         k = np.arange(9000)
         rise = u_v[3000:12000] - u_v[3000]
         assert np.all(rise <= k * alpha * h_up + h_up + h_down + 1e-9)
+    if variant == "slew_window":
+        # alpha = 1 is exact in Q1.30 (v += ((u - v) 2^30 + 2^29) >> 30 is v = u): the output words never move by
+        # more than the headroom words a sample, so the charge 11.9 uF x du never exceeds I T
+        assert fxp.limit_words[2] == 1 << 30
+        du = np.diff(np.concatenate([[u0_q], u_q]))
+        assert du.max() == fxp.limit_words[3] and du.min() == -fxp.limit_words[4]
+        assert 11.9e-6 * du.max() * 2.0 ** -fxp.output_frac_bits <= 2e-3 * DT
+        assert -11.9e-6 * du.min() * 2.0 ** -fxp.output_frac_bits <= 14e-3 * DT

@@ -13,6 +13,11 @@ d != 0, each sample
 
 which is the linear controller exactly whenever nothing limits (u = u_raw gives
 x <- a x + b e).
+
+The exported fixed-point cascade carries the limit as a current-limit window instead
+(:func:`current_limit_model`): with the series resistor in, a window of R I around an RC
+model of the stack voltage; with it out (R = 0), a slew window of I T / C around the
+last command (alpha = 1).
 """
 
 from dataclasses import dataclass
@@ -42,22 +47,50 @@ def _largest_capacitance_f(pzt):
 def current_limit_model(pzt, dt_s):
     """(alpha, h_up, h_down) of the current-limit window the exported controller runs.
 
-    Firmware models the stack voltage as the RC response to its output at the largest
-    terminal capacitance C (slowest, so never optimistic): v <- v + alpha (u - v),
-    alpha = 1 - exp(-T / (R C)); it keeps u within [v - R I_sink, v + R I_source], so the
-    current it asks for stays within the amplifier's limits (see
-    :mod:`workbench.export.fixed_point`).
+    Firmware keeps a model v of the stack voltage, v <- v + alpha (u - v), and keeps its
+    output u within [v - h_down, v + h_up], so the current it asks for stays within the
+    amplifier's limits (see :mod:`workbench.export.fixed_point`).
 
-    Returns None when the series resistor is out (R = 0, seed 000's free-free configuration):
-    the window [v - R I_sink, v + R I_source] would have zero width and pin the command to
-    the modelled voltage, so the controller could never move the stack. There the current
-    limit is the amplifier's own slew limit, which no resistor drop lets firmware anticipate:
-    no window, and the run says "anti-windup off".
+    - Series resistor in (R > 0): v is the RC response to the output at the largest terminal
+      capacitance C (slowest, so never optimistic), alpha = 1 - exp(-T / (R C)), and
+      h = R I_source up, R I_sink down: the current (u - v) / R is within the limits.
+    - Series resistor out (R = 0, seed 000's free-free configuration): the current is
+      C dV_t/dt, so what the amplifier can follow in one sample T is a slew of I T / C. The
+      model follows the (clamped) command, alpha = 1 (exact in the fixed-point step's Q1.30:
+      v += ((u - v) 2^30 + 2^29) >> 30 is v = u), and h = I_source T / C up, I_sink T / C down:
+      the charge a sample asks for, C |u - v|, is at most I T. C is again the largest terminal
+      capacitance (every play engaged and the settled creep branches, in series with C_pp):
+      at any smaller capacitance the stack slews faster than the window, so the command never
+      runs ahead of the stack and the integrator never winds up. Measured
+      (``benchmarks/logs/s38_phys/rout_window.log``, the five stack files R out, session 37's
+      loop-shaped controller, +/-0.5 and +/-5 um steps, no noise): with C_max the stack reaches
+      the command within each sample (the amplifier slews at its limit inside the sample; with
+      the plant stepped once a sample no sample ends short of its command, and with ten steps a
+      sample ~1600 of the +5 um step's sub-steps are at the limit: review of s38_phys) and the
+      overshoot is the unlimited amplifier's (0.01 %, 0.04-0.08 % with creep),
+      settling 175 ms for +5 um against 209 ms without a window and 38 ms against 118-123 ms for
+      -5 um; with the smallest capacitance (only the first play engaged, 6.0 uF) the window lets
+      the command run ahead where all plays are engaged and the loop winds up (11 % overshoot at
+      +5 um, 15-20 % at +0.5 um, 24-25 % at -5 um, against 12.5 %, 76 % and 24 % without a
+      window). Between the two (``rout_c_sweep.log``: the R-out loop-shaped design on SN637 with
+      creep, C = 0.6-0.9 C_max) the +5 um overshoot grows with the window's speed, 1.6 % at
+      0.9 C_max to 5.9 % at 0.6 C_max, samples ending short of their command for 180 ms: only
+      C_max keeps the integrator from winding up. The cost of C_max: the stack away from the largest capacitance
+      could slew up to 1.9x faster, so a down step rises slower (-5 um: 27 ms against 20 ms), and a
+      ramp faster than I / C_max is held back: `verify`'s 1 Hz triangle (0.8 stroke, ~220 V/s on
+      average) tracks to 592 nm RMS against 1.6 nm without a window, as the R-in window (the same
+      I / C_max bound) holds the committed R-in controller to 846 nm there.
+
+    Returns None for an amplifier without a current limit (R = 0 and infinite limits,
+    :meth:`~workbench.plant.pzt.PZTParams.terminal_driven`): no window.
     """
     r = pzt.series_resistance_ohm
+    c = _largest_capacitance_f(pzt)
     if not r > 0:
-        return None
-    alpha = -np.expm1(-dt_s / (r * _largest_capacitance_f(pzt)))
+        if not (np.isfinite(pzt.current_limit_source_a) and np.isfinite(pzt.current_limit_sink_a)):
+            return None               # no current limit (PZTParams.terminal_driven): nothing to keep within
+        return 1.0, pzt.current_limit_source_a * dt_s / c, pzt.current_limit_sink_a * dt_s / c
+    alpha = -np.expm1(-dt_s / (r * c))
     return float(alpha), r * pzt.current_limit_source_a, r * pzt.current_limit_sink_a
 
 

@@ -450,8 +450,10 @@ class MimoController:
         # the axis window (module docstring): the slowest stack RC model, the smallest current headroom,
         # shared so that the box of axis deviations maps inside every stack's window
         windows = [plant_window(pl, dt) for pl in fsm.plants]
-        if any(w is None for w in windows):
-            raise ExportError("a stack has no series resistor (R = 0): no current-limit window to build")
+        if any(w is None or not pl.pzt.series_resistance_ohm > 0 for w, pl in zip(windows, fsm.plants)):
+            # R out gives a per-stack slew window (alpha 1), not the RC window the shared axis window is built from
+            raise ExportError("a stack has no series resistor (R = 0): no RC current-limit window to build the axis "
+                              "window from")
         alpha = float(min(w[0] for w in windows))
         h = float(min(min(w[1], w[2]) for w in windows))
         head = np.full(3, h / np.abs(a2s).sum(axis=1).max())
@@ -481,7 +483,7 @@ class MimoController:
                   "description": "axis window: the axis output stays within +/- headroom of its model "
                                  "m += alpha (u - m), so every stack's command stays within R min(I_source, "
                                  "I_sink) of In m (workbench/export/mimo.py)"}
-            axes[key] = replace(c, fixed=fxp, voltage_model=model, window_source="file",
+            axes[key] = replace(c, fixed=fxp, voltage_model=model, window_source="file", series_resistor_out=False,
                                 record={**c.record, "anti_windup": aw}, max_pole_radius=fxp.max_pole_radius)
         dv = max(np.abs(lim).max(), 1e-9)
         rec = {"provenance": _mirror_provenance(fsm), **(record or {})}
@@ -811,7 +813,8 @@ def stack_windows(fsm, dt_s):
     axes' box maps inside it), from :func:`workbench.controller.plant_window` of each serial file.
     """
     windows = [plant_window(pl, dt_s) for pl in fsm.plants]
-    if any(w is None for w in windows):
+    if any(w is None or not pl.pzt.series_resistance_ohm > 0 for w, pl in zip(windows, fsm.plants)):
+        # the mirror's stacks carry R (workbench.plant.mirror refuses R = 0): an R-out slew window is not built here
         raise ExportError("a stack has no series resistor (R = 0): no current-limit window to build")
     return {"alpha": [float(w[0]) for w in windows], "headroom_v": [float(min(w[1], w[2])) for w in windows]}
 

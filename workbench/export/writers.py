@@ -108,7 +108,7 @@ def _c_array(rows, fmt):
     return ",\n".join("    {" + ", ".join(fmt(v) for v in row) + "}" for row in rows)
 
 
-def _header(name, fxp, sensor=None):
+def _header(name, fxp, sensor=None, resistor_out=None):
     up = name.upper()
     q = fxp.q_formats
     lo_v, hi_v = fxp.output_limits_v
@@ -121,9 +121,20 @@ def _header(name, fxp, sensor=None):
     else:
         alpha, h_up, h_down = fxp.voltage_model
         s_up, s_down = fxp.slew_limits_v_per_s
-        window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the model of the stack voltage "
-                       f"(v += alpha (u - v), alpha = {alpha:.6g}):\n *         the current (u - v) / R stays "
-                       f"within the amplifier's limits, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
+        # series resistor out (the plant's R = 0, as the record says; never alpha == 1.0, which an R of ~0.2 ohm or
+        # less gives too): v is the last output, the window a slew limit
+        if resistor_out:
+            window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the last output (alpha = 1: "
+                           f"series resistor out):\n *         the charge C (u - v) a sample asks for stays within "
+                           f"I T, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
+        elif resistor_out is None and alpha == 1.0:     # not recorded: claim neither
+            window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the model of the stack voltage "
+                           f"(v += alpha (u - v), alpha = {alpha:.6g}):\n *         the command slews at most "
+                           f"+{s_up:.4g} / -{s_down:.4g} V/s")
+        else:
+            window_text = (f"\n *         and to [v - {h_down:g}, v + {h_up:g}] V, v the model of the stack voltage "
+                           f"(v += alpha (u - v), alpha = {alpha:.6g}):\n *         the current (u - v) / R stays "
+                           f"within the amplifier's limits, the command slews at most +{s_up:.4g} / -{s_down:.4g} V/s")
         alpha_v, hup_v, hdown_v = _double(alpha), _double(h_up), _double(h_down)
     sections = "\n".join(f" *   section {k}: signals {q['signals'][k]}, b {q['b'][k]}, b shift {fxp.b_shift[k]}"
                          f"{' (integrator, exact at z = 1)' if fxp.integrator[k] else ''}" for k in range(n))
@@ -401,7 +412,9 @@ def write_controller(out_dir, name, record, fxp, sensor=None):
         raise ExportError(f"record holds {clash}, which write_controller fills from the quantized controller; "
                           f"drop them from the record")
     out_dir = Path(out_dir)
-    payloads = {"json": controller_json(record, fxp), "h": _header(name, fxp, sensor), "csv": _csv(fxp),
+    from ..controller import recorded_resistor_out
+    resistor_out = recorded_resistor_out(record.get("anti_windup"))
+    payloads = {"json": controller_json(record, fxp), "h": _header(name, fxp, sensor, resistor_out), "csv": _csv(fxp),
                 "mat": _mat(record, fxp)}
     return {ext: (write_bytes if isinstance(data, bytes) else write_text)(out_dir / f"{name}.{ext}", data)
             for ext, data in payloads.items()}

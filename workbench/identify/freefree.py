@@ -9,6 +9,13 @@ calibration, as in the seed. From (q, x):
 - eq. 12: C_p = (T_em - T_em^2 k_q2x) / (k_p k_q2x);
 - eqs. 7-8: V_h = V_pea - V_r - k_p x / T_em (V_r = 0 with R out), the input of C_h.
 
+V_pea is what the rig's voltmeter reads at the amplifier's output, not the command: the
+simulated terminal voltage V_t plus the resistor's drop R i (V_pea = V_t with R out).
+Where the amplifier's current limit binds (a fast or large sine with R out: the terminal
+slews at I / C) the two differ, and V_h read from the command would be wrong by the lag;
+where it never binds (the default 100 V, 0.1 Hz sine draws 0.38 mA) they agree to
+round-off (1.8e-15 V on SN637, 2.8e-14 V with creep).
+
 The large-signal capacitance is read as the chord of Fig. 7 from rest to the 100 V
 peak, q/V_h there (the seed quotes ~30.5 uF); the secant of the steady loop that
 follows is smaller and is reported beside it.
@@ -72,9 +79,15 @@ def loop_secant(x_in, y_out):
 
 @dataclass(frozen=True)
 class FreeFreeResult:
-    """Outputs of :func:`run_freefree` (SI)."""
+    """Outputs of :func:`run_freefree` (SI).
+
+    ``v_cmd_v`` is the commanded sine, ``v_pea_v`` the amplifier's output as a voltmeter reads it
+    (the simulated V_t + R i, the command's lag where the current limit binds), the input of
+    eqs. 7-8 and of the x-V_pea loop.
+    """
 
     t_s: np.ndarray
+    v_cmd_v: np.ndarray
     v_pea_v: np.ndarray
     x_true_m: np.ndarray
     x_meas_m: np.ndarray
@@ -204,13 +217,18 @@ def run_freefree(plant, *, v_peak_v=100.0, freq_hz=0.1, cycles=2, sample_hz=None
     t_em, k_p = params.transducer_constant_n_per_v, params.stiffness_n_per_m
     kq = estimate_k_q2x(tr.q_c, x_meas)
     cp = estimate_cp(kq, t_em, k_p)
-    v_h_est = v_h_from_measurements(v, x_meas, t_em, k_p)
-    ipk = int(np.argmax(v[: int(round(fs / freq_hz))]))
+    # eqs. 7-8 on what the rig measures: the amplifier's output voltage (the stack's terminal voltage
+    # plus the resistor's drop) and the current, not the command, which it does not follow where the
+    # current limit binds
+    v_r = params.series_resistance_ohm * tr.i_a
+    v_pea = tr.v_t_v + v_r
+    v_h_est = v_h_from_measurements(v_pea, x_meas, t_em, k_p, v_r_v=v_r)
+    ipk = int(np.argmax(v_pea[: int(round(fs / freq_hz))]))
     last = t > (cycles - 1) / freq_hz
     return FreeFreeResult(
-        t_s=t, v_pea_v=v, x_true_m=tr.x_m, x_meas_m=x_meas, q_c=tr.q_c, v_h_true_v=tr.v_h_v,
-        v_h_est_v=v_h_est, stroke_m=float(tr.x_m[ipk]), v_h_over_v_pea=float(tr.v_h_v[ipk] / v[ipk]),
-        hysteresis_x_fraction=hysteresis_fraction(v[last], x_meas[last]),
+        t_s=t, v_cmd_v=v, v_pea_v=v_pea, x_true_m=tr.x_m, x_meas_m=x_meas, q_c=tr.q_c, v_h_true_v=tr.v_h_v,
+        v_h_est_v=v_h_est, stroke_m=float(tr.x_m[ipk]), v_h_over_v_pea=float(tr.v_h_v[ipk] / v_pea[ipk]),
+        hysteresis_x_fraction=hysteresis_fraction(v_pea[last], x_meas[last]),
         hysteresis_q_fraction=hysteresis_fraction(v_h_est[last], tr.q_c[last]),
         k_q2x_m_per_c=kq, cp_recovered_f=float(cp), cp_true_f=params.working_capacitance_f,
         ch_secant_f=float(tr.q_c[ipk] / v_h_est[ipk]), ch_loop_secant_f=loop_secant(v_h_est[last], tr.q_c[last]),
@@ -225,6 +243,8 @@ def plot_freefree(res, title=""):
     fig, ax = plt.subplots(2, 2, figsize=(11, 8))
     a = ax[0, 0]
     a.plot(res.t_s, res.v_pea_v, label="V_pea [V]")
+    if not np.allclose(res.v_pea_v, res.v_cmd_v, rtol=0, atol=1e-9):
+        a.plot(res.t_s, res.v_cmd_v, ":", label="command [V] (current limit binds)")
     a.plot(res.t_s, res.v_h_est_v, label="V_h (eqs. 7-8) [V]")
     a.plot(res.t_s, res.x_meas_m * 1e6 * 5, label="x [um] x5")
     a.set_xlabel("time [s]")

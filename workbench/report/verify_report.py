@@ -60,7 +60,8 @@ METRICS = {
     "worst_phase_difference_deg": ("worst |measured - linear| phase, all tones", 1, "deg"),
     "peak_current_source_a": ("peak stack current, source", 1e3, "mA"),
     "peak_current_sink_a": ("peak stack current, sink", 1e3, "mA"),
-    "time_at_current_limit_s": ("time at the current limit", 1e3, "ms"),
+    "time_at_current_limit_s": ("time at the current limit (plant steps clipped at it; with the series resistor out a "
+                                "sample whose command the stack reaches is not counted)", 1e3, "ms"),
     "rate_limited_fraction": ("samples held by the current-limit window", 100, "%"),
     "command_noise_rms_v": ("command noise RMS", 1e3, "mV"),
 }

@@ -22,7 +22,10 @@ Per servo period T (the gauge modulation period, 10 kHz), in this order:
    C header's step) when the JSON has a ``fixed_point`` block, else the float cascade,
    or the Hanus realization when the ``anti_windup`` block says ``hanus``; each with the
    output range, the current-limit window (a model of the stack voltage; the command
-   never asks for more current than the amplifier gives) and the anti-windup it declares.
+   never asks for more current than the amplifier gives with the series resistor in, for
+   more charge in a sample than it moves with the resistor out, where the stack reaches
+   the command within the sample while the amplifier slews at its limit inside it) and
+   the anti-windup it declares.
    With ``anti_windup=False`` the same controller runs with the range clip only: no
    window, the states driven by the unclipped output (what firmware without anti-windup
    does);
@@ -73,6 +76,8 @@ class FirmwareController:
     triangles, and ``workbench sweep``'s triangle) feed r + v ``ref_lead_s`` with v the planned slope
     (:func:`workbench.verify.scenarios.planned_slope_lead`); steps, holds and tones are fed as given. Every
     reading is linearized with ``gauge_curvature_per_m`` (:func:`workbench.plant.gauge.linearized_displacement`).
+    ``series_resistor_out``: whether the window was derived with the series resistor out (a slew window; the
+    controller's :attr:`~workbench.controller.Controller.series_resistor_out`), for the description only.
     """
 
     form: str
@@ -85,6 +90,7 @@ class FirmwareController:
     hanus: HanusController | None = None
     ref_lead_s: float = 0.0
     gauge_curvature_per_m: float = 0.0
+    series_resistor_out: bool | None = None
 
     def linear(self):
         """The discrete linear controller (no limits) as a python-control StateSpace."""
@@ -97,9 +103,8 @@ class FirmwareController:
         return control.ss(from_sos(self.gain, self.sos, self.dt_s))
 
     def describe(self):
-        rate = ("no current-limit window" if self.voltage_model is None
-                else "current-limit window +{1:g}/-{2:g} V around a stack-voltage model (alpha {0:.4g})".format(
-                    *self.voltage_model))
+        from ..controller import window_text
+        rate = "no current-limit window" if self.voltage_model is None else window_text(self.voltage_model, self.series_resistor_out)
         form = {"fixed": "32-bit fixed-point cascade", "float": "float cascade", "hanus": "Hanus float form"}[self.form]
         return f"{form}, output {self.output_limits_v[0]:g}..{self.output_limits_v[1]:g} V, {rate}"
 
