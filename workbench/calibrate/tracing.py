@@ -1759,12 +1759,16 @@ def periodic_mode_test(row, prob, extra_list, split, drive, t, floor, null_gain,
     parameters then describe all the harmonics do (a delay's shift of a loop the base fits, a ring the loop
     cannot make), where a loop shape it only partly mimics leaves the harmonics ahead.
 
-    The null reference beside the harmonics is the one :func:`_score_stage` draws (``nulls``: random terms with the
-    residual's spectrum), each refitted beside the same base, found effects and harmonics, its gain over them the
-    bar: a term must beat a random term fitted where it is, not one fitted against the base alone, whose gain
-    includes the loop-shape misfit the harmonics already take (session 38: a 3x-noise sensor drift on a 2 Hz sine,
-    10 cycles, explained 71-84 % of what the harmonics left, the base-alone null 25-157x that; a loop shape's drift,
-    gen.py's Preisach density, explained nothing there). Without ``nulls``, ``null_gain`` (the base-alone one).
+    The null reference beside the harmonics: ``null_gain`` (the base-alone one, a random term's gain over the base)
+    unless ``nulls`` is given (the random terms :func:`_score_stage` draws, each refitted beside the same base, found
+    effects and harmonics, its gain over them the bar). :func:`_score_stage` passes ``nulls`` for a drift only
+    (:data:`PERIODIC_ASKED`), a measured choice, not a derived one (session 38): a 3x-noise sensor drift on a 2 Hz
+    sine, 10 cycles (gen.py), explained 71-84 % of what the harmonics left, and the base-alone null, which includes
+    the loop misfit the harmonics take, was 25-157x that (the drift refused on every fold); a loop shape's drift
+    (gen.py's Preisach density) explained nothing there. For a term of the drive the refitted null let a loop-shape
+    misfit be named a mode (test_periodic_loop_shape's draw 4, a 5.85 Hz sine at 10 kHz, 54x the noise) and the
+    gauge's mode keep 3 folds on gen.py's clean 20 Hz sine at 100 kHz: a drive term keeps the base-alone bar (its
+    second reading, alone against the harmonics, keeps a real mode: session 35).
 
     Of those harmonics the :data:`PERIODIC_FREE_HARMONICS` strongest are free pairs and the rest one column, the
     term's own repeating part there (:meth:`PeriodicDrive.repeating_part`): the cost stays bounded on a record whose
@@ -1891,7 +1895,7 @@ def _score_stage(cands, probs, nulls, extra, split, penalty, noise_factor, infos
             row["befores"] = befores[key]
             passes, row["periodic"] = periodic_mode_test(row, prob, extra[key], split, infos["drive"], infos["t"],
                                                          noise_factor * floor, null_gain[key], penalty, min_share,
-                                                         nulls=nulls[key])
+                                                         nulls=nulls[key] if c.get("driver") == "time" else None)
             row["passes"] = passes
         if c["name"] in DELAY_OR_MODE_NAMES and any(passes):
             # its held-out errors per validation block, for the difference from its rival (:func:`_delay_or_mode`)
