@@ -10,10 +10,12 @@ named ``drift`` on the gauge, is open: ``benchmarks/logs/s38_wrong/``):
   beside the drive's harmonics (:func:`~workbench.calibrate.tracing.periodic_mode_test`). A real drift (gen.py's
   ``drift_sine`` at 3x the noise on the same drive, our own simulator's sensor drift on sines and triangles at
   100 Hz-100 kHz) is still named: it explains what the harmonics leave.
-* ``s_1k_proto__clean`` (the small stack, no series resistor, the calibration protocol) was named ``resonance`` 4 of
-  5 at 1 Hz, the search's floor, gain 0.029: no ring the record shows
-  (:func:`~workbench.calibrate.tracing.ring_not_shown`). gen.py's mode above Nyquist on a 100 Hz record, named at
-  its image with a negative gain the folds repeat, stays named (not placed).
+* ``s_1k_proto__clean`` (the small stack, no series resistor, the calibration protocol) is named ``resonance`` 4 of
+  5 at 1 Hz, the search's floor, gain 0.029: open (a strict full-form xfail). A rule refusing a named mode whose
+  folds' own rings' gains are consistent with zero (session 38's ``ring_not_shown``) was withdrawn after its review:
+  on our own simulator's 100 Hz records it refused right modes main named (seeds 106 #104, 107 #121, 108 #115: folds
+  that find the ring at different alias members fit gains of different sign). gen.py's mode above Nyquist on a
+  100 Hz record, named at its image with a negative gain the folds repeat, stays named (not placed).
 """
 
 import dataclasses
@@ -27,7 +29,6 @@ from tests.conftest import FULL_ONLY as FULL_ONLY_MARK, ROOT, reduced_draws
 from tests.calibrate.test_periodic_loop_shape import _drive, _trace
 from workbench.calibrate.run import run_calibrate
 from workbench.calibrate.synthetic import plant_with_effect
-from workbench.calibrate.tracing import ring_not_shown
 
 
 def _outsider():
@@ -135,36 +136,11 @@ def test_a_sensor_drift_on_a_periodic_drive_is_still_named(sn637, rate, shape, f
 
 # ---- a mode no ring of the record shows
 
-def _fam(gains_own, folds="3 of 5", agree="4 of 5", gain=0.029, se=0.014, band=(0.81, 1.27)):
-    return {"resolved": False, "named_hz": 1.0, "folds": folds, "folds_agree": agree,
-            "gain": {"mean": gain, "jackknife_se": se, "band": list(band), "consistent": False},
-            "fold_fits": [None if g is None else {"f_n_hz": 1.0, "zeta": 0.02, "gain": g} for g in gains_own]}
-
-
-def test_ring_not_shown_closed_form():
-    """The rule's three parts on hand-made family dicts: the folds' own gains consistent with zero (mean within two
-    jackknife standard errors, ``sqrt((n - 1) / n sum (g - m)^2)``) refuse only where the gain fails the band and
-    the family or the folds' searches fail too."""
-    own = [0.12, 0.016, -0.068, 0.068, 0.052]      # s_1k_proto__clean's: mean 0.038, jackknife se 0.124
-    assert ring_not_shown(_fam(own), need=4)
-    # a ring the folds repeat (gen.py's 65 Hz mode read at its 35.4 Hz image): kept
-    assert ring_not_shown(_fam([-0.376, -0.366, -0.361, -0.382, -0.343], gain=-0.355, se=0.038), need=4) is None
-    # every other test names it: a real mode read where the sensor does not see the tip, kept
-    assert ring_not_shown(_fam(own, folds="5 of 5", agree="5 of 5"), need=4) is None
-    # a gain a mode takes: kept
-    f = _fam(own)
-    f["gain"]["consistent"] = True
-    assert ring_not_shown(f, need=4) is None
-    # one fold's ring only: no size the folds repeat
-    assert ring_not_shown(_fam([0.5, None, None, None, None]), need=4)
-    # the edge: |mean| just above / below two standard errors
-    m = 0.1
-    g = [m + d for d in (-0.05, 0.05, -0.05, 0.05)]     # se = sqrt(3/4 * 4 * 0.0025) = 0.0866 -> 2 se = 0.173
-    assert ring_not_shown(_fam(g), need=4)
-    g = [0.2 + d for d in (-0.05, 0.05, -0.05, 0.05)]
-    assert ring_not_shown(_fam(g), need=4) is None
-
-
+@FULL_ONLY_MARK
+@pytest.mark.xfail(strict=True, reason="open (session 38): gen.py's small stack on the calibration protocol, clean, is "
+                   "named resonance 4 of 5 at 1.0 Hz (the search's floor), gain 0.029 (no stack mode's share), the "
+                   "folds' own rings' gains 0.12 to -0.07; the rule that refused it (ring_not_shown) also refused "
+                   "right modes at 100 Hz (review of s38_wrong, B1-B3) and was withdrawn")
 def test_a_slow_column_at_the_search_floor_is_not_named_a_mode(tmp_path):
     """gen.py's small stack (no series resistor) on the calibration protocol at 1 kHz, clean: main named
     ``resonance`` 4 of 5 at 1.0 Hz (the search's floor), gain 0.029, the folds' own rings' gains 0.12 to -0.07."""

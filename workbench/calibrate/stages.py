@@ -1274,15 +1274,6 @@ def run_stages(ctx, max_stages=3):
         fam = _tr.alias_family(c, ctx, extra)      # a held drive's mode: its alias family resolved or not
         if fam is not None:
             stages[-1]["alias_family"] = fam
-        no_ring = _tr.ring_not_shown(fam, ctx["need"])
-        if no_ring:
-            # a mode no ring of the record shows is not the answer (:func:`~.tracing.ring_not_shown`): the first
-            # stage's answer is inconclusive with the folds' leading candidates, a later stage is not taken
-            stages.pop()
-            notes.append(no_ring)
-            if not stages:
-                first["answer"], first["refused"] = None, no_ring
-            break
         if c.get("replaces") is not None:
             refitted_absorption_stage(stages)      # the absorption's parameters as refitted beside it
             refitted_joint_stage(stages)           # the delay's or creep's, refitted beside the other

@@ -2625,40 +2625,6 @@ def gain_is_a_modes(gains, band=MODE_GAIN_BAND):
     return bool(np.isfinite(m) and np.isfinite(se) and m + 2.0 * se >= lo and m - 2.0 * se <= hi), m, se
 
 
-def ring_not_shown(fam, need):
-    """Is a named, unplaced mode no ring the record shows (issue 13, session 38)? A reason (str), or None.
-
-    ``fam``: :func:`alias_family`'s dict. A mode the family test does not place is still named (a real mode read
-    where the sensor does not see the stack's tip, or at an image of a mode above the band: its ring has a size
-    the folds agree on), unless the record shows no ring at all there: (1) its gain is no stack mode's share
-    (:func:`gain_is_a_modes` fails), (2) the column "fits something else": its alias family is not resolved on
-    ``need`` folds or the folds' own searches do not name it on ``need`` (:func:`folds_name_the_mode`), and
-    (3) the folds' own searches, each on its training rows (``fold_fits``), fit rings whose gains are
-    consistent with none: their mean within two jackknife standard errors (:func:`_jackknife`, the band test's
-    bar) of zero, or fewer than two folds fit one. A ring the record shows has a size its folds repeat, whatever
-    its sign through the drive's path (gen.py's 65 Hz mode at 100 Hz, named at its 35.4 Hz image: the folds'
-    own gains -0.34 to -0.38); a column fitting a loop-shape misfit at the search's floor does not (gen.py's
-    small stack at 1 kHz, clean: 1.0 Hz, the folds' own gains 0.12, 0.02, -0.07, 0.07, 0.05)."""
-    if fam is None or fam.get("resolved") or (fam.get("gain") or {}).get("consistent", True):
-        return None
-    n_folds = len(fam.get("fold_fits") or [])
-    fam_ok = int(str(fam.get("folds", "0 of 0")).split()[0]) >= need
-    agree_ok = int(str(fam.get("folds_agree", "0 of 0")).split()[0]) >= need
-    if fam_ok and agree_ok:
-        return None
-    own = [f["gain"] for f in fam.get("fold_fits") or [] if f is not None and f.get("gain") is not None]
-    m, se = _jackknife(own)
-    if np.isfinite(m) and np.isfinite(se) and abs(m) > 2.0 * se:
-        return None
-    g = fam["gain"]
-    return (f"a mode named at {fam['named_hz']:.4g} Hz is no ring the record shows: its gain {g['mean']:.3g} is no "
-            f"stack mode's share ({g['band'][0]:.2f}-{g['band'][1]:.3g}), its alias family is resolved on "
-            f"{fam['folds']} folds and the folds' own searches name it on {fam['folds_agree']} ({need} needed), "
-            f"and the rings those searches fit on {len(own)} of {n_folds} folds have gains "
-            f"{', '.join(f'{x:.2g}' for x in own)}, consistent with none ({m:.2g} +/- {se:.2g}, the folds' "
-            f"jackknife): the column fits something else")
-
-
 def _jackknife(values):
     """``(mean, standard error)`` of per-fold estimates, the folds' delete-a-group jackknife:
     ``se = sqrt((n - 1) / n sum (v_k - mean)^2)`` (each fold's training rows are the others' blocks)."""
@@ -3331,10 +3297,6 @@ def _answer(first, stages, n_folds, need, base, probs, split, infos, min_share):
         else:
             reason = (f"no answer wins {need} of {n_folds} validation folds (fold winners: "
                       f"{', '.join(f'{k} {v}x' for k, v in leading)})")
-            if first.get("refused"):
-                # the folds' winner was refused after the vote (:func:`ring_not_shown`)
-                reason = (f"the folds' winner is refused: {first['refused']} (fold winners: "
-                          f"{', '.join(f'{k} {v}x' for k, v in leading)})")
             out.update(effect="inconclusive", channel=first_ch, agreement=f"{first['count']} of {n_folds}",
                        error_before=err, error_after=err, parameters={}, reason=reason, stages=[],
                        leading=[{"answer": k, "folds": v} for k, v in leading])
